@@ -1,0 +1,223 @@
+"""The calibration a run produces, its file format ``gyrocal.calibration/1``, and applying it.
+
+The file (contract section 4) holds the model's terms and, per grid temperature, every
+fitted coefficient with its standard error plus the matrix ``K`` and vector ``B`` they
+imply, so that firmware and other tools can use ``w = K(T) w_true + B(T)`` without
+knowing the terms. :func:`Calibration.from_dict` is the only parser: every loader calls
+it, it checks the format version, rebuilds the terms from the registry and verifies that
+``K`` and ``B`` agree with the coefficients.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import CalibrationFileError, CorruptFileError, GyrocalError
+from .model import Model
+from .thermal import METHODS, TemperatureGrid
+
+FORMAT = "gyrocal.calibration/1"
+FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
+UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """A fitted model over a temperature grid, plus who and what it belongs to."""
+
+    model: Model
+    grid: TemperatureGrid
+    reference_temperature: float = 25.0
+    meta: dict = field(default_factory=dict)         # device, batch, session, protocol
+    provenance: dict = field(default_factory=dict)   # input, versions, config hash
+    extra: dict = field(default_factory=dict)        # carried along, not needed to apply
+
+    def coefficients(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
+        return self.grid.at(temp, warn=warn)
+
+    def _neutral(self, n: int, temp) -> dict[str, np.ndarray]:
+        """Covariates at their reference values: temperature as given, others zero."""
+        data = {name: np.zeros(n) for name in self.model.needs}
+        data["temp"] = np.broadcast_to(np.asarray(temp, dtype=float), (n,)).copy()
+        return data
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """K (P, 3, 3) and B (P, 3) at the grid points: the affine part of the model with
+        covariates other than temperature at zero."""
+        P = len(self.grid.temperatures)
+        coefs = {n: self.grid.values[:, j] for j, n in enumerate(self.grid.names)}
+        K, B = self.model.linearise(coefs, self._neutral(P, self.grid.temperatures),
+                                    np.zeros((P, 3)))
+        return K, B
+
+    def compensate(self, gyro: np.ndarray, data: dict, *, warn: bool = True) -> np.ndarray:
+        """True rates (n, 3) from raw outputs (n, 3); ``data`` holds ``temp`` and whatever
+        else the model's terms need. Temperatures outside the grid are clamped (warned)."""
+        self.model.check_inputs({**data, "rate_x": 0, "rate_y": 0, "rate_z": 0})
+        coefs = self.coefficients(data["temp"], warn=warn)
+        w_true, _ = self.model.compensate(coefs, np.asarray(gyro, dtype=float), data)
+        return w_true
+
+    # -- file format -----------------------------------------------------------------
+    def to_dict(self) -> dict:
+        K, B = self.matrices()
+        g = self.grid
+        body = {
+            "format": FORMAT,
+            **{k: self.meta.get(k) for k in ("device", "batch", "session", "protocol")},
+            "units": {**UNITS, "coefficients": self._coefficient_units()},
+            "model": {
+                "kind": "temperature_grid",
+                "terms": self.model.spec(),
+                "interpolation": {"method": g.method, "degree": g.degree,
+                                  "outside_range": "clamp"},
+                "reference_temperature": self.reference_temperature,
+            },
+            "grid": {
+                "temperature": g.temperatures.tolist(),
+                "K": K.tolist(),
+                "B": B.tolist(),
+                "coefficients": {n: g.values[:, j].tolist() for j, n in enumerate(g.names)},
+                "stderr": {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)},
+            },
+            "provenance": self.provenance,
+            **self.extra,
+        }
+        _check_finite(body)
+        return body
+
+    def _coefficient_units(self) -> dict[str, str]:
+        return {t.name: t.unit for t in self.model.terms}
+
+    @classmethod
+    def from_dict(cls, d: dict, *, source=None) -> "Calibration":
+        """Parse and check a ``gyrocal.calibration/1`` document."""
+        def fail(problem):
+            raise CalibrationFileError(problem, source=source)
+
+        if not isinstance(d, dict):
+            fail("is not a JSON object")
+        fmt = d.get("format")
+        if not isinstance(fmt, str) or "/" not in fmt or fmt.split("/")[0] != FORMAT_FAMILY:
+            fail(f"format is {fmt!r}, expected {FORMAT!r}")
+        if fmt.split("/")[1] != FORMAT_VERSION:
+            fail(f"format version {fmt.split('/')[1]} is not one this gyrocal reads "
+                 f"(it reads {FORMAT_VERSION})")
+        try:
+            model_d, grid_d = d["model"], d["grid"]
+            if model_d.get("kind") != "temperature_grid":
+                fail(f"model kind {model_d.get('kind')!r} is not known")
+            try:
+                model = Model.from_spec(model_d["terms"])
+            except GyrocalError as exc:
+                fail(f"model: {exc}")
+            interp = model_d["interpolation"]
+            method = interp["method"]
+            if method not in METHODS:
+                fail(f"interpolation method {method!r} is not known")
+            temps = _floats(grid_d["temperature"], "grid.temperature", fail)
+            names = tuple(model.names)
+            values = np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail)
+                                      for n in names]) if names else np.zeros((len(temps), 0))
+            stderr = np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail)
+                                      for n in names]) if names else np.zeros((len(temps), 0))
+        except KeyError as exc:
+            fail(f"missing key {exc.args[0]!r}")
+        except (TypeError, AttributeError):
+            fail("has a malformed model or grid section")
+        if values.shape[0] != len(temps) or stderr.shape[0] != len(temps):
+            fail("grid coefficients and temperatures differ in length")
+        try:
+            grid = TemperatureGrid(temps, names, values, stderr, method, int(interp.get("degree") or 3))
+        except GyrocalError as exc:
+            fail(f"grid: {exc}")
+        known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid",
+                 "provenance"}
+        cal = cls(model, grid, float(model_d.get("reference_temperature", 25.0)),
+                  {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
+                  d.get("provenance", {}), {k: v for k, v in d.items() if k not in known})
+        K, B = cal.matrices()
+        try:
+            stored_K = np.asarray(grid_d["K"], dtype=float)
+            stored_B = np.asarray(grid_d["B"], dtype=float)
+        except KeyError as exc:
+            fail(f"missing key {exc.args[0]!r}")
+        except (TypeError, ValueError):
+            fail("grid K and B must be nested lists of numbers")
+        if not (np.all(np.isfinite(stored_K)) and np.all(np.isfinite(stored_B))):
+            fail("grid K and B must hold finite numbers")
+        if stored_K.shape != K.shape or stored_B.shape != B.shape or \
+                not np.allclose(stored_K, K, rtol=1e-9, atol=1e-12) or \
+                not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12):
+            fail("grid K and B do not match the coefficients (edited by hand?)")
+        return cal
+
+
+def _floats(values, what: str, fail) -> np.ndarray:
+    try:
+        a = np.asarray(values, dtype=float)
+    except (TypeError, ValueError):
+        fail(f"{what} must be a list of numbers")
+    if a.ndim != 1 or not np.all(np.isfinite(a)):
+        fail(f"{what} must be a list of finite numbers")
+    return a
+
+
+def _check_finite(value, path: str = "") -> None:
+    """Refuse to write NaN or infinity anywhere in a calibration file."""
+    if isinstance(value, float) and not math.isfinite(value):
+        raise GyrocalError(f"refusing to write a non-finite value at {path or 'top level'}")
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_finite(v, f"{path}.{k}" if path else str(k))
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_finite(v, f"{path}[{i}]")
+
+
+def dumps(document, indent: str = "  ", level: int = 0) -> str:
+    """JSON with objects indented and lists of scalars (rows of K, B, grids) on one line."""
+    return _dump(document, indent, level) + ("\n" if level == 0 else "")
+
+
+def _dump(value, indent: str, level: int) -> str:
+    pad, inner = indent * level, indent * (level + 1)
+    if isinstance(value, dict):
+        if not value:
+            return "{}"
+        items = [f"{inner}{json.dumps(str(k))}: {_dump(v, indent, level + 1)}" for k, v in value.items()]
+        return "{\n" + ",\n".join(items) + "\n" + pad + "}"
+    if isinstance(value, (list, tuple)):
+        if all(not isinstance(v, (dict, list, tuple)) for v in value):
+            return "[" + ", ".join(json.dumps(v, allow_nan=False) for v in value) + "]"
+        return "[\n" + ",\n".join(inner + _dump(v, indent, level + 1) for v in value) + "\n" + pad + "]"
+    return json.dumps(value, allow_nan=False)
+
+
+def save_calibration(cal: Calibration, path) -> None:
+    path = Path(path)
+    text = dumps(cal.to_dict())
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def load_calibration(path) -> Calibration:
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise CorruptFileError("no such file", source=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CorruptFileError(f"cannot read ({exc})", source=path) from None
+    try:
+        d = json.loads(text)
+    except ValueError as exc:
+        raise CalibrationFileError(f"not valid JSON ({exc})", source=path) from None
+    return Calibration.from_dict(d, source=path)

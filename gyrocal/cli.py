@@ -1,0 +1,218 @@
+"""Command line (contract section 6). Errors: one line on stderr, exit 2 for bad input."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from . import __version__
+from .errors import ConfigError, GyrocalError
+
+EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _settings(args):
+    from .config import ModelSettings, Settings, read_yaml
+    settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
+    if getattr(args, "model", None):
+        values = read_yaml(args.model)
+        values = values.get("model", values)
+        try:
+            model = ModelSettings.from_dict(values)
+        except ConfigError as exc:
+            raise ConfigError(str(exc), source=args.model) from None
+        settings = Settings(settings.segmentation, model)
+    if getattr(args, "add_term", None):
+        settings = Settings(settings.segmentation, settings.model.with_terms(tuple(args.add_term)))
+        settings.model.build()  # unknown names fail here, before any work
+    return settings
+
+
+def cmd_simulate(args) -> int:
+    from .simulate import GyroUnit, TurntableProtocol, simulate
+    if args.protocol != "turntable":
+        raise ConfigError(f"protocol {args.protocol!r} cannot be simulated by this version "
+                          "of gyrocal (supported: turntable)")
+    base = TurntableProtocol.quick() if args.preset == "quick" else TurntableProtocol()
+    knobs = {k: v for k, v in dict(
+        temperatures=args.temperatures, rates=args.rates, mounts=args.mounts,
+        sample_rate=args.sample_rate, soak_s=args.soak_s, hold_s=args.hold_s,
+        handling_s=args.handling_s).items() if v is not None}
+    if args.no_mount_column:
+        knobs["mount_column"] = False
+    if args.no_accel:
+        knobs["accel_columns"] = False
+    from dataclasses import replace
+    rig = replace(base, **knobs)
+    unit = GyroUnit.seed000() if args.unit == "seed000" else None
+    manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
+                        rig=rig, unit=unit, batch=args.batch, session=args.session,
+                        device_prefix=args.device_prefix)
+    print(f"wrote {args.units} log(s) and manifest {manifest}")
+    return 0
+
+
+def cmd_segment(args) -> int:
+    from .io import write_table
+    from .pipeline import segment_log
+    settings = _settings(args)
+    seg = segment_log(args.log, settings)
+    write_table(seg.observations, args.output, {"info": seg.info, "settings": settings.to_dict()})
+    if args.segments:
+        write_table(seg.segments, args.segments, {"info": seg.info})
+    print(f"{seg.info['holds_accepted']} holds at {seg.info['temperature_points']} temperature "
+          f"points -> {args.output}")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from .calibration import save_calibration
+    from .io import write_table
+    from .pipeline import run
+    settings = _settings(args)
+    result = run(args.log, settings, protocol=args.protocol, device=args.device,
+                 batch=args.batch, session=args.session)
+    save_calibration(result.calibration, args.output)
+    if args.tables:
+        out = Path(args.tables)
+        out.mkdir(parents=True, exist_ok=True)
+        meta = {"summary": result.validation.summary}
+        write_table(result.segmentation.observations, out / "observations.parquet",
+                    {"info": result.segmentation.info})
+        write_table(result.segmentation.segments, out / "segments.parquet", {})
+        write_table(result.validation.holds, out / "validation_holds.parquet", meta)
+        write_table(result.validation.table_holds, out / "table_hold_means.parquet", meta)
+        write_table(result.validation.table_samples, out / "table_samples.parquet", meta)
+        write_table(result.validation.by_temperature, out / "by_temperature.parquet", meta)
+    if args.report:
+        from .report import write_unit_report
+        write_unit_report(result, args.report, command=" ".join(sys.argv))
+    s = result.validation.summary
+    print(f"calibration -> {args.output}")
+    print(f"  {result.segmentation.info['holds_accepted']} holds, "
+          f"{s['temperature_points']} temperature points "
+          f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)")
+    print(f"  leave-temperature-out RMS {s['validation_rms']:.3g} deg/s, noise floor "
+          f"{s['noise_floor']:.3g} deg/s ({s['excess']:.2f}x); single-temperature "
+          f"{s['single_rms']:.3g}, uncompensated {s['uncompensated_rms']:.3g}")
+    if args.report:
+        print(f"  report -> {args.report}")
+    return 0
+
+
+def cmd_apply(args) -> int:
+    from .apply import apply_calibration
+    from .calibration import load_calibration
+    cal = load_calibration(args.calibration)
+    counts = apply_calibration(cal, args.log, args.output)
+    if counts["clamped"]:
+        lo, hi = cal.grid.span
+        warnings.warn(f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
+                      f"{lo:g} to {hi:g} °C and use the nearest end's calibration")
+    if counts["nonfinite"]:
+        warnings.warn(f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
+                      "were written as NaN")
+    print(f"{counts['rows']} rows compensated -> {args.output}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="gyrocal", description="Calibrate MEMS gyroscopes "
+                                     "across temperature from rig logs.", epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
+    p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])
+    p.add_argument("--out", required=True, help="output folder (logs, truth JSON, devices.tsv)")
+    p.add_argument("--units", type=int, default=1)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--preset", choices=["seed", "quick"], default="seed",
+                   help="seed: the full seed-000 protocol; quick: a log of minutes")
+    p.add_argument("--unit", choices=["random", "seed000"], default="random",
+                   help="random production units, or seed 000's unit (Eq 23)")
+    p.add_argument("--batch", default="B1")
+    p.add_argument("--session", default="2026-01-01")
+    p.add_argument("--device-prefix", default="U")
+    p.add_argument("--temperatures", type=_floats, help="set points, °C, comma-separated")
+    p.add_argument("--rates", type=_floats, help="hold rate magnitudes, deg/s")
+    p.add_argument("--mounts", type=lambda s: tuple(s.split(",")), help="e.g. +x,+y,+z")
+    p.add_argument("--sample-rate", type=float)
+    p.add_argument("--soak-s", type=float)
+    p.add_argument("--hold-s", type=float)
+    p.add_argument("--handling-s", type=float)
+    p.add_argument("--no-mount-column", action="store_true")
+    p.add_argument("--no-accel", action="store_true")
+    p.set_defaults(func=cmd_simulate)
+
+    def common(q, model=True):
+        q.add_argument("--config", help="settings YAML (segmentation:, model:)")
+        if model:
+            q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
+            q.add_argument("--add-term", action="append", metavar="NAME",
+                           help="add a term to the model (repeatable)")
+
+    p = sub.add_parser("segment", help="find holds in a log; write the observation table")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", required=True, help="observations .parquet")
+    p.add_argument("--segments", help="every phase found, .parquet")
+    common(p, model=False)
+    p.set_defaults(func=cmd_segment)
+
+    p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
+    p.add_argument("log")
+    p.add_argument("--protocol", default="turntable")
+    p.add_argument("-o", "--output", required=True, help="calibration .json")
+    p.add_argument("--report", help="also write an HTML report here")
+    p.add_argument("--tables", help="also write observation and validation tables here")
+    p.add_argument("--device")
+    p.add_argument("--batch")
+    p.add_argument("--session")
+    common(p)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("apply", help="compensate a log with a calibration")
+    p.add_argument("calibration")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", required=True)
+    p.set_defaults(func=cmd_apply)
+    return parser
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"gyrocal: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    warnings.showwarning = _one_line_warning
+    try:
+        return args.func(args)
+    except GyrocalError as exc:
+        print(f"gyrocal: error: {exc}", file=sys.stderr)
+        return exc.exit_status
+    except KeyboardInterrupt:
+        print("gyrocal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug, not bad input: one line unless asked for more
+        if args.debug:
+            raise
+        text = " ".join(str(exc).split())
+        print(f"gyrocal: internal error: {type(exc).__name__}: {text} (rerun with --debug "
+              "for a traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,380 @@
+"""Reading rig logs (contract section 1) into validated column arrays.
+
+Only the columns a stage needs are read. Everything downstream works on whole-column
+numpy arrays in deg/s, °C, g and seconds, whatever units the log declared.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as ds
+import pyarrow.parquet as pq
+
+from .errors import CorruptFileError, EmptyLogError, LogFormatError
+
+GYRO = ("gyro_x", "gyro_y", "gyro_z")
+ACCEL = ("accel_x", "accel_y", "accel_z")
+REQUIRED = ("t", *GYRO, "temp", "ref_rate")
+MOUNTS = ("+x", "-x", "+y", "-y", "+z", "-z")
+UNITS_KEY = b"gyrocal.units"
+
+# Accepted unit strings per quantity and the factor to the internal unit. The contract
+# defines "gyro" and "ref_rate"; "accel" and "temp" are documented extensions.
+UNIT_FACTORS = {
+    "gyro": {"deg/s": 1.0, "rad/s": 180.0 / math.pi},
+    "ref_rate": {"deg/s": 1.0, "rad/s": 180.0 / math.pi},
+    "accel": {"g": 1.0, "m/s^2": 1.0 / 9.80665, "m/s2": 1.0 / 9.80665},
+    "temp": {"degC": 0.0, "°C": 0.0, "C": 0.0, "K": -273.15},  # offsets, not factors
+}
+_QUANTITY_OF = {**{c: "gyro" for c in GYRO}, "ref_rate": "ref_rate",
+                **{c: "accel" for c in ACCEL}, "temp": "temp"}
+
+
+@dataclass(frozen=True)
+class RigLog:
+    """Validated columns of one log, kept as the zero-copy record batches Arrow read.
+
+    Each batch maps column name to a numpy array in internal units; ``mount`` (when read)
+    holds int8 indices into ``MOUNTS``, -1 where null. Stages that stream (segmentation)
+    walk ``batches``; others call :meth:`column`, which concatenates on demand.
+    """
+
+    path: str
+    batches: tuple[dict[str, np.ndarray], ...]
+    rows_read: int
+    rows_dropped: int
+    declared_units: dict[str, str] = field(default_factory=dict)
+    time_origin: str | None = None   # ISO time of t = 0 when the log's t is a timestamp
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(self.batches[0])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.batches[0]
+
+    def __len__(self) -> int:
+        return sum(len(b["t"]) for b in self.batches)
+
+    def column(self, name: str) -> np.ndarray:
+        parts = [b[name] for b in self.batches]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+
+    def rows(self, name: str, start: int, stop: int) -> np.ndarray:
+        """Rows ``start:stop`` of one column, gathered across batches."""
+        out, offset = [], 0
+        for b in self.batches:
+            n = len(b["t"])
+            lo, hi = max(start - offset, 0), min(stop - offset, n)
+            if lo < hi:
+                out.append(b[name][lo:hi])
+            offset += n
+            if offset >= stop:
+                break
+        return np.concatenate(out) if len(out) != 1 else out[0]
+
+
+def open_dataset(path: Path) -> ds.Dataset:
+    """The log as an Arrow dataset; a directory's files ordered by their first time stamp."""
+    try:
+        if not path.is_dir():
+            if not path.exists():
+                raise CorruptFileError("no such file", source=path)
+            return ds.dataset(path, format="parquet")
+        files = sorted(str(p) for p in path.rglob("*.parquet") if p.is_file())
+        if not files:
+            raise CorruptFileError("directory holds no .parquet files", source=path)
+        dataset = ds.dataset(files, format="parquet")
+        starts = [_first_time(fragment) for fragment in dataset.get_fragments()]
+        if all(s is not None for s in starts):
+            files = [f for _, f in sorted(zip(starts, files))]
+            dataset = ds.dataset(files, format="parquet")
+        return dataset
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
+
+
+def _first_time(fragment) -> float | None:
+    """Smallest ``t`` of a file from its Parquet statistics, without reading data."""
+    try:
+        groups = fragment.row_groups
+        stats = [g.statistics.get("t") for g in groups] if groups else []
+        lows = [v["min"] if isinstance(v, dict) else v for v in stats if v is not None]
+        lows = [v.timestamp() if hasattr(v, "timestamp") else v for v in lows]
+        return float(min(lows)) if lows else None
+    except (KeyError, TypeError, ValueError, pa.ArrowException):
+        return None
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return text[0] if text else type(exc).__name__
+
+
+def declared_units(schema: pa.Schema, path: Path) -> dict[str, str]:
+    """The ``gyrocal.units`` metadata entry, checked; empty when absent."""
+    raw = (schema.metadata or {}).get(UNITS_KEY)
+    if raw is None:
+        return {}
+    try:
+        units = json.loads(raw)
+    except ValueError:
+        raise LogFormatError("metadata gyrocal.units is not valid JSON", source=path) from None
+    if not isinstance(units, dict):
+        raise LogFormatError("metadata gyrocal.units must be a JSON object", source=path)
+    for quantity, unit in units.items():
+        allowed = UNIT_FACTORS.get(quantity)
+        if allowed is not None and unit not in allowed:
+            raise LogFormatError(
+                f"metadata gyrocal.units gives {quantity} in {unit!r}; expected one of "
+                f"{', '.join(allowed)}", source=path)
+    return {k: v for k, v in units.items() if k in UNIT_FACTORS}
+
+
+def check_float(schema: pa.Schema, name: str, path: Path) -> None:
+    typ = schema.field(name).type
+    if not (pa.types.is_float32(typ) or pa.types.is_float64(typ)):
+        raise LogFormatError(f"column {name} has type {typ}, expected float32 or float64", source=path)
+
+
+def _time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
+    """Seconds as float64. Timestamps count from the log's first one (kept in ``origin``),
+    in integer arithmetic, so epoch times keep their sub-microsecond resolution."""
+    typ = col.type
+    if pa.types.is_timestamp(typ):
+        scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[typ.unit]
+        ints = col.cast(pa.int64())
+        missing = ints.is_null().to_numpy(zero_copy_only=False) if ints.null_count else None
+        ints = ints.fill_null(0).to_numpy(zero_copy_only=False)
+        if not origin and (missing is None or not missing.all()):
+            origin.append((int(ints[0 if missing is None else np.argmin(missing)]), typ.unit))
+        start, unit = origin[0] if origin else (0, typ.unit)
+        if unit != typ.unit:
+            raise LogFormatError(f"column t changes time unit from {unit} to {typ.unit}", source=path)
+        seconds = (ints - start).astype(np.float64) * scale
+        if missing is not None:  # a missing time makes the row non-finite: dropped
+            seconds[missing] = np.nan
+        return seconds
+    if pa.types.is_float64(typ) or pa.types.is_float32(typ):
+        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+    raise LogFormatError(f"column t has type {typ}, expected float64 seconds or a timestamp",
+                         source=path)
+
+
+def _mount_codes(col: pa.Array, path: Path) -> np.ndarray:
+    """Mount labels to int8 indices into MOUNTS (-1 where null), without decoding strings."""
+    typ = col.type
+    is_dict = pa.types.is_dictionary(typ)
+    value_type = typ.value_type if is_dict else typ
+    if not (pa.types.is_string(value_type) or pa.types.is_large_string(value_type)):
+        raise LogFormatError(f"column mount has type {typ}, expected string or dictionary",
+                             source=path)
+    allowed = pa.array(MOUNTS, type=value_type)
+    if not is_dict:
+        lookup = pc.index_in(col, value_set=allowed)
+        _reject_unknown_mounts(col, lookup, None, path)
+        return lookup.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
+    table = _dictionary_lookup(col.dictionary, allowed)
+    if table is None:  # an entry outside MOUNTS: an error only if some row uses it
+        lookup = pc.index_in(col.dictionary, value_set=allowed)
+        _reject_unknown_mounts(col.dictionary, lookup, col.indices, path)
+        table = np.append(lookup.fill_null(-1).to_numpy(zero_copy_only=False), -1).astype(np.int8)
+    idx = col.indices
+    has_null = idx.null_count > 0
+    if has_null:
+        idx = idx.fill_null(len(table) - 1)
+    idx = idx.to_numpy(zero_copy_only=False)
+    if not has_null and np.array_equal(table[:-1], np.arange(len(table) - 1)):
+        return idx.astype(np.int8, copy=False)  # dictionary already in MOUNTS order
+    return table[idx]
+
+
+@functools.lru_cache(maxsize=64)
+def _lookup_for(entries: tuple) -> np.ndarray | None:
+    codes = [MOUNTS.index(e) if e in MOUNTS else (None if e is not None else -1) for e in entries]
+    if any(c is None for c in codes):
+        return None
+    return np.array(codes + [-1], dtype=np.int8)
+
+
+def _dictionary_lookup(dictionary: pa.Array, allowed: pa.Array) -> np.ndarray | None:
+    """int8 code per dictionary entry (plus -1 for null rows); dictionaries repeat across
+    batches, so the mapping is computed once per distinct dictionary."""
+    return _lookup_for(tuple(dictionary.to_pylist()))
+
+
+def _reject_unknown_mounts(values: pa.Array, lookup: pa.Array, used, path: Path) -> None:
+    unknown = pc.and_(pc.is_null(lookup), pc.is_valid(values))
+    if not pc.any(unknown).as_py():
+        return
+    bad_positions = np.flatnonzero(unknown.to_numpy(zero_copy_only=False))
+    if used is not None:  # a dictionary entry only matters if some row uses it
+        used_idx = np.unique(used.drop_null().to_numpy(zero_copy_only=False))
+        bad_positions = np.intersect1d(bad_positions, used_idx)
+        if bad_positions.size == 0:
+            return
+    bad = values[int(bad_positions[0])].as_py()
+    raise LogFormatError(f"column mount holds {bad!r}; expected one of {' '.join(MOUNTS)}",
+                         source=path)
+
+
+def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
+             required: tuple[str, ...] = REQUIRED) -> RigLog:
+    """Read and validate a rig log, returning only ``required`` plus present ``optional`` columns.
+
+    Rows with a non-finite value in any numeric column read are dropped and counted.
+    Raises a :class:`LogFormatError` (or subclass) naming the file and the problem.
+    """
+    path = Path(path)
+    dataset = open_dataset(path)
+    schema = dataset.schema
+    names = set(schema.names)
+    missing = [c for c in required if c not in names]
+    if missing:
+        raise LogFormatError(f"missing required column{'s' if len(missing) > 1 else ''} "
+                             f"{', '.join(missing)}", source=path)
+    wanted = [c for c in required] + [c for c in optional if c in names and c not in required]
+    for name in wanted:
+        if name not in ("t", "mount"):
+            check_float(schema, name, path)
+    units = declared_units(schema, path)
+    try:
+        table = dataset.to_table(columns=wanted, use_threads=True)
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise CorruptFileError(f"cannot read Parquet data ({_first_line(exc)})", source=path) from None
+
+    batches: list[dict[str, np.ndarray]] = []
+    rows, dropped, previous_t = 0, 0, -np.inf
+    origin: list = []
+    for record_batch in table.to_batches():
+        if record_batch.num_rows == 0:
+            continue
+        batch = _convert_batch(record_batch, units, path, origin)
+        keep = _finite_rows(batch)
+        if keep is not None:
+            dropped += len(keep) - int(np.count_nonzero(keep))
+            batch = {k: v[keep] for k, v in batch.items()}
+        if len(batch["t"]):
+            _check_time(batch["t"], previous_t, rows, path)
+            previous_t = batch["t"][-1]
+            batches.append(batch)
+        rows += record_batch.num_rows
+    if rows == 0:
+        raise EmptyLogError("the log has no rows", source=path)
+    if not batches:
+        raise EmptyLogError(f"all {rows} rows hold a non-finite value", source=path)
+    time_origin = None
+    if origin:
+        value, unit = origin[0]
+        time_origin = str(np.datetime64(value, unit))
+    return RigLog(str(path), tuple(batches), rows, dropped, units, time_origin)
+
+
+def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path,
+                   origin: list) -> dict:
+    batch = {}
+    for name, col in zip(record_batch.schema.names, record_batch.columns):
+        if name == "t":
+            batch[name] = _time_seconds(col, path, origin)
+        elif name == "mount":
+            batch[name] = _mount_codes(col, path)
+        else:
+            batch[name] = _to_internal_units(name, col.to_numpy(zero_copy_only=False), units)
+    return batch
+
+
+def _to_internal_units(name: str, values: np.ndarray, units: dict[str, str]) -> np.ndarray:
+    quantity = _QUANTITY_OF.get(name)
+    unit = units.get(quantity) if quantity else None
+    if unit is None:
+        return values
+    if quantity == "temp":
+        offset = UNIT_FACTORS["temp"][unit]
+        return values + offset if offset else values
+    factor = UNIT_FACTORS[quantity][unit]
+    return values * factor if factor != 1.0 else values
+
+
+def _finite_rows(columns: dict[str, np.ndarray]) -> np.ndarray | None:
+    """Mask of rows finite in every column, or None when all are (the common, cheap case)."""
+    # A NaN or inf anywhere makes the sum non-finite; an overflowing sum of finite values
+    # only costs the exact check below.
+    with np.errstate(over="ignore", invalid="ignore"):
+        suspicious = [v for k, v in columns.items() if k != "mount" and not np.isfinite(v.sum())]
+    if not suspicious:
+        return None
+    keep = np.ones(len(next(iter(columns.values()))), dtype=bool)
+    for v in suspicious:
+        keep &= np.isfinite(v)
+    return keep
+
+
+def _check_time(t: np.ndarray, previous: float, offset: int, path: Path) -> None:
+    """Strictly increasing within the batch and after the previous batch's last time."""
+    if t[0] <= previous:
+        i, before = -1, previous
+    else:
+        bad = np.flatnonzero(t[1:] <= t[:-1])
+        if not bad.size:
+            return
+        i, before = int(bad[0]), t[bad[0]]
+    raise LogFormatError(f"column t is not strictly increasing: row {offset + i + 1} has "
+                         f"t={float(t[i + 1])!r} after t={float(before)!r}", source=path)
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """SHA-256 of a file, or of a directory dataset (its Parquet files in name order)."""
+    path = Path(path)
+    if path.is_dir():
+        outer = hashlib.sha256()
+        for part in sorted(p for p in path.rglob("*.parquet") if p.is_file()):
+            outer.update(part.relative_to(path).as_posix().encode() + b"\0")
+            outer.update(bytes.fromhex(file_sha256(part)))
+        return outer.hexdigest()
+    digest = hashlib.sha256()
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise CorruptFileError(f"cannot read file ({exc.strerror})", source=path) from None
+    return digest.hexdigest()
+
+
+OBS_META_KEY = b"gyrocal.observations"
+
+
+def write_table(frame, path, metadata: dict | None = None) -> None:
+    """A pandas table as Parquet, with JSON metadata under ``gyrocal.observations``."""
+    table = pa.Table.from_pandas(frame, preserve_index=False)
+    if metadata is not None:
+        table = table.replace_schema_metadata({**(table.schema.metadata or {}),
+                                               OBS_META_KEY: json.dumps(metadata).encode()})
+    tmp = Path(path).with_name(Path(path).name + ".tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def read_table_with_metadata(path):
+    """(pandas table, metadata dict) of a file written by :func:`write_table`."""
+    path = Path(path)
+    try:
+        table = pq.read_table(path)
+    except FileNotFoundError:
+        raise CorruptFileError("no such file", source=path) from None
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
+    raw = (table.schema.metadata or {}).get(OBS_META_KEY)
+    if raw is None:
+        raise LogFormatError("is not a table written by gyrocal", source=path)
+    return table.to_pandas(), json.loads(raw)

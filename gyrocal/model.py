@@ -1,0 +1,241 @@
+"""A model is a sum of terms; fitting it is weighted linear least squares per output axis.
+
+The fit follows seed 000 Eq 13-19 (``K_g = w Ω^T (Ω Ω^T)^-1``) generalised to any terms and
+weighted by each observation's noise floor: hold ``i`` on output axis ``a`` has variance
+``σ_ia² = std_ia² / n_i`` (the within-hold scatter over the sample count). Each output axis
+is its own regression, since every coefficient belongs to one output axis. Parameter
+covariance comes from the residual scatter: ``(Xᵀ W X)^-1`` scaled by the reduced
+chi-square.
+
+Compensation inverts ``w = w_true + e(w_true, covariates)``: the model is affine in
+``w_true`` for the seed-000 terms, and Newton steps handle terms that are not.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .errors import ConfigError, IdentifiabilityError
+from .terms import AXES, Term, make_term
+
+DEFAULT_TERMS = ("bias", "scale", "misalignment")
+RATE_COLUMNS = ("rate_x", "rate_y", "rate_z")
+
+
+def axis_of(name: str) -> str:
+    """Output axis of a coefficient name ``<term>.<axis>[...]``."""
+    return name.split(".")[1]
+
+
+@dataclass(frozen=True)
+class Model:
+    """An error model: an ordered tuple of terms with distinct coefficient names."""
+
+    terms: tuple[Term, ...]
+
+    def __post_init__(self):
+        seen: dict[str, str] = {}
+        for term in self.terms:
+            for name in term.coefficients():
+                if name in seen:
+                    raise ConfigError(f"terms {seen[name]} and {term.name} both define {name}")
+                if axis_of(name) not in AXES:
+                    raise ConfigError(f"coefficient {name} of term {term.name} does not name "
+                                      "an output axis second")
+                seen[name] = term.name
+
+    @classmethod
+    def from_spec(cls, specs: Sequence = DEFAULT_TERMS) -> "Model":
+        return cls(tuple(make_term(s) for s in specs))
+
+    def spec(self) -> list[dict]:
+        return [t.spec() for t in self.terms]
+
+    @property
+    def names(self) -> list[str]:
+        return [n for t in self.terms for n in t.coefficients()]
+
+    def axis_names(self, axis: str) -> list[str]:
+        return [n for n in self.names if axis_of(n) == axis]
+
+    @property
+    def needs(self) -> frozenset[str]:
+        return frozenset().union(*(t.needs for t in self.terms)) if self.terms else frozenset()
+
+    def check_inputs(self, data: Mapping, source=None) -> None:
+        for term in self.terms:
+            term.check_inputs(data, source)
+
+    def design(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out: dict[str, np.ndarray] = {}
+        for term in self.terms:
+            out.update(term.columns(data))
+        return out
+
+    def error(self, coefs: Mapping[str, np.ndarray | float], data: Mapping) -> np.ndarray:
+        """Modelled error e (n, 3) for coefficients (scalars or per-row arrays)."""
+        n = len(data[RATE_COLUMNS[0]])
+        out = np.zeros((n, 3))
+        cols = self.design(data)
+        for name, column in cols.items():
+            out[:, AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
+        return out
+
+    def linearise(self, coefs, covariates: Mapping, w_true: np.ndarray):
+        """Output ``f(w_true) = w_true + e`` near ``w_true`` (n, 3) as ``f ≈ J w_true + c``.
+
+        Returns J (n, 3, 3) and c (n, 3); exact for models affine in the true rate.
+        """
+        f0 = self._output(coefs, covariates, w_true)
+        J = np.empty(w_true.shape + (3,))
+        for j in range(3):
+            probe = w_true.copy()
+            probe[:, j] += 1.0
+            J[:, :, j] = self._output(coefs, covariates, probe) - f0
+        return J, f0 - np.einsum("nij,nj->ni", J, w_true)
+
+    def _output(self, coefs, covariates, w_true):
+        data = {**covariates, **{c: w_true[:, i] for i, c in enumerate(RATE_COLUMNS)}}
+        return w_true + self.error(coefs, data)
+
+    def compensate(self, coefs, w: np.ndarray, covariates: Mapping, *, tol: float = 1e-9,
+                   max_iter: int = 20) -> tuple[np.ndarray, np.ndarray]:
+        """True rate for outputs ``w`` (n, 3): solve ``w_true + e(w_true) = w``.
+
+        Returns (w_true, J) where J is the output's Jacobian at the solution (so the
+        compensation maps output noise through J^-1).
+        """
+        J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
+        w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        for _ in range(max_iter):
+            resid = w - self._output(coefs, covariates, w_true)
+            if not np.any(np.abs(resid) > tol * (1.0 + np.abs(w))):
+                break
+            J, _ = self.linearise(coefs, covariates, w_true)
+            w_true = w_true + np.linalg.solve(J, resid[..., None])[..., 0]
+        return w_true, J
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """Coefficients by name with standard errors, covariance and residual diagnostics."""
+
+    model: Model
+    names: tuple[str, ...]
+    values: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray             # in ``names`` order; zero between output axes
+    residuals: pd.DataFrame            # per observation: resid_/floor_ per axis + covariates
+    chi2: dict[str, float]             # per output axis
+    dof: dict[str, int]
+    condition: dict[str, float]        # of the column-scaled weighted design, per axis
+    n_obs: int
+    info: dict = field(default_factory=dict)
+
+    def coef(self, name: str) -> float:
+        return float(self.values[self.names.index(name)])
+
+    def coefs(self) -> dict[str, float]:
+        return {n: float(v) for n, v in zip(self.names, self.values)}
+
+    def chi2_red(self, axis: str) -> float:
+        return self.chi2[axis] / self.dof[axis]
+
+    def summary(self) -> dict:
+        return {
+            "terms": self.model.spec(),
+            "coefficients": self.coefs(),
+            "stderr": {n: float(s) for n, s in zip(self.names, self.stderr)},
+            "chi2_red": {a: self.chi2_red(a) for a in AXES},
+            "dof": dict(self.dof), "condition": dict(self.condition), "n_obs": self.n_obs,
+            **self.info,
+        }
+
+
+def observation_floor(obs: pd.DataFrame) -> np.ndarray:
+    """Noise floor of each observation's mean (n, 3): within-hold std / sqrt(n), deg/s."""
+    std = obs[["std_x", "std_y", "std_z"]].to_numpy(dtype=float)
+    return std / np.sqrt(obs["n"].to_numpy(dtype=float))[:, None]
+
+
+def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> FitResult:
+    """Weighted least squares of the gyro error on the model's columns, per output axis.
+
+    Refuses (:class:`IdentifiabilityError`, naming the coefficients) when the observations
+    do not excite some coefficient, or leave no degree of freedom for the covariance.
+    """
+    model.check_inputs(obs, source)
+    data = {c: obs[c].to_numpy(dtype=float) for c in obs.columns
+            if pd.api.types.is_numeric_dtype(obs[c])}
+    design = model.design(data)
+    floor = observation_floor(obs)
+    # A hold whose scatter is zero (a constant, quantised output) would get infinite
+    # weight: no observation is trusted more than a thousandth of the typical floor.
+    floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))
+    where = f" at {label}" if label else ""
+
+    names: list[str] = []
+    values, stderr, blocks = [], [], []
+    resid = np.zeros((len(obs), 3))
+    chi2, dof, cond = {}, {}, {}
+    unexcited: list[str] = []
+    for i, axis in enumerate(AXES):
+        cols = model.axis_names(axis)
+        if not cols:
+            continue
+        X = np.column_stack([np.broadcast_to(design[c], (len(obs),)) for c in cols])
+        y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
+        sw = 1.0 / floor[:, i]
+        Xw, yw = X * sw[:, None], y * sw
+        scale = np.linalg.norm(Xw, axis=0)
+        dead = scale == 0
+        scale[dead] = 1.0
+        U, s, Vt = np.linalg.svd(Xw / scale, full_matrices=False)
+        weak = s <= s[0] * 1e-9 if s.size else np.array([], bool)
+        if dead.any() or weak.any():
+            involved = set(np.flatnonzero(dead))
+            for k in np.flatnonzero(weak):
+                involved |= set(np.flatnonzero(np.abs(Vt[k]) > 0.1))
+            unexcited += [cols[j] for j in sorted(involved)]
+            continue
+        n_dof = len(obs) - len(cols)
+        if n_dof < 1:
+            raise IdentifiabilityError(
+                f"{len(obs)} holds{where} cannot fit {len(cols)} coefficients per axis with "
+                f"a residual left to estimate their uncertainty", parameters=tuple(cols),
+                source=source)
+        theta = (Vt.T @ ((U.T @ yw) / s)) / scale
+        r = y - X @ theta
+        c2 = float(np.sum((r * sw) ** 2))
+        cov = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
+        names += cols
+        values.append(theta)
+        stderr.append(np.sqrt(np.diag(cov)))
+        blocks.append(cov)
+        resid[:, i] = r
+        chi2[axis], dof[axis], cond[axis] = c2, n_dof, float(s[0] / s[-1])
+
+    if unexcited:
+        bad = tuple(n for n in model.names if n in unexcited)
+        raise IdentifiabilityError(
+            f"the observations{where} do not excite {', '.join(bad)}: no rotation or "
+            f"holds that separate them ({len(obs)} holds)", parameters=bad, source=source)
+    covariance = np.zeros((len(names), len(names)))
+    at = 0
+    for block in blocks:
+        k = len(block)
+        covariance[at:at + k, at:at + k] = block
+        at += k
+    order = [names.index(n) for n in model.names]  # report in the model's own order
+    covariance = covariance[np.ix_(order, order)]
+    values, stderr = np.concatenate(values)[order], np.concatenate(stderr)[order]
+    residuals = obs.copy()
+    for i, axis in enumerate(AXES):
+        residuals[f"resid_{axis}"] = resid[:, i]
+        residuals[f"floor_{axis}"] = floor[:, i]
+    return FitResult(model, tuple(model.names), values, stderr, covariance, residuals, chi2,
+                     dof, cond, len(obs))

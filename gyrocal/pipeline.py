@@ -1,0 +1,95 @@
+"""The whole chain for one log: ingest, segment, fit per temperature, validate, calibrate.
+
+Each stage is also a function of its own (and a CLI command), so the workflow can run and
+cache them separately; this module only strings them together and records provenance.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from . import __version__
+from .calibration import Calibration
+from .config import Settings
+from .errors import ConfigError
+from .io import file_sha256, read_log
+from .segment import LOG_COLUMNS, Segmentation, segment
+from .thermal import GridFit, fit_grid
+from .validate import Validation, validate
+
+PROTOCOLS = ("turntable",)
+
+
+@dataclass(frozen=True)
+class Run:
+    calibration: Calibration
+    segmentation: Segmentation
+    grid_fit: GridFit
+    validation: Validation
+
+
+def check_protocol(protocol: str) -> None:
+    if protocol not in PROTOCOLS:
+        raise ConfigError(f"protocol {protocol!r} is not supported by this version of gyrocal "
+                          f"(supported: {', '.join(PROTOCOLS)})")
+
+
+def versions() -> dict[str, str]:
+    out = {"gyrocal": __version__}
+    for package in ("numpy", "scipy", "pandas", "pyarrow"):
+        try:
+            out[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+def source_record(path, log=None) -> dict:
+    """What identifies the input: file name, SHA-256 and, when read, the row counts."""
+    record = {"name": Path(path).name, "sha256": file_sha256(path)}
+    if log is not None:
+        record.update(rows=log.rows_read, rows_dropped=log.rows_dropped)
+    return record
+
+
+def segment_log(path, settings: Settings) -> Segmentation:
+    log = read_log(path, optional=LOG_COLUMNS)
+    seg = segment(log, settings.segmentation)
+    seg.info["source"] = source_record(path, log)
+    return seg
+
+
+def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
+                           source: dict | None = None, label=None) -> tuple[Calibration, GridFit]:
+    model = settings.model.build()
+    grid_fit = fit_grid(model, obs, method=settings.model.interpolation,
+                        degree=settings.model.degree, source=label)
+    points = grid_fit.points
+    cal = Calibration(
+        model, grid_fit.grid, settings.model.reference_temperature, meta,
+        provenance={"input": source or {}, "versions": versions(),
+                    "config_sha256": settings.sha256()},
+        extra={"points": [
+            {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
+             **({"excluded_because": r.reason} if not r.used else {})}
+            for r in points.itertuples()]})
+    return cal, grid_fit
+
+
+def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
+        device: str | None = None, batch: str | None = None, session: str | None = None) -> Run:
+    """Calibrate one log end to end."""
+    settings = settings or Settings()
+    check_protocol(protocol)
+    seg = segment_log(path, settings)
+    meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
+            "session": session, "protocol": protocol}
+    cal, grid_fit = calibrate_observations(seg.observations, settings, meta=meta,
+                                           source=seg.info["source"], label=path)
+    val = validate(cal.model, seg.observations, grid_fit,
+                   reference_temperature=settings.model.reference_temperature)
+    return Run(cal, seg, grid_fit, val)

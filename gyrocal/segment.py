@@ -1,0 +1,523 @@
+"""Find the protocol's phases in a rig log from the data alone.
+
+The log carries no labels (contract section 1). Working on fixed-size blocks of samples
+(:mod:`gyrocal.blocks`), segmentation
+
+1. splits the log where the reference rate changes (ramps) or the logger paused (gaps);
+2. inside each constant-reference run, marks blocks where the gyro moves although the
+   reference does not: a jump between neighbouring block means, or scatter inside a block,
+   well above the run's own noise and beyond what reference wobble explains. That is a
+   person handling the unit (or a knock); it is rejected, with a settling margin;
+3. takes the quiet stretches left as holds and trims a transient from both ends; a very
+   long still stretch is a soak, whose tail serves as the rate-0 hold;
+4. checks each hold: steady (its halves agree), not saturated, the gyro agreeing with the
+   reference, temperature stable, mount known (mount column, dominant gyro axis, or the
+   neighbouring holds of the same mounting);
+5. groups accepted holds into temperature points.
+
+Block-level work is vectorised; hold statistics are ``reduceat`` sums over hold blocks.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+import pandas as pd
+
+from .blocks import block_statistics
+from .errors import ConfigError, SegmentationError
+from .io import MOUNTS, RigLog, read_log
+
+LOG_COLUMNS = ("mount", "accel_x", "accel_y", "accel_z")  # optional columns segmentation uses
+
+REASONS = {
+    "handling_motion": "the gyro moves while the reference rate is constant",
+    "too_short": "shorter than the minimum hold",
+    "reference_drift": "the reference rate drifts during the hold",
+    "not_steady": "the gyro mean changes between the first and second half",
+    "mount_changes": "the mount column changes during the hold",
+    "mount_mismatch": "the mount column and the gyro disagree on the mount",
+    "mount_undetermined": "the mount cannot be told from the data or the mount column",
+    "gyro_disagrees": "the gyro reading is implausibly far from the reference rate",
+    "saturated": "the gyro output is clipped at its full-scale range",
+    "unstable_temperature": "the temperature changes faster than the stability limit",
+}
+
+
+@dataclass(frozen=True)
+class SegmentConfig:
+    """Knobs of segmentation. Rates in deg/s, times in s, temperature rates in °C/min."""
+
+    block_s: float = 0.5             # block length; holds are resolved to whole blocks
+    rate_tol_abs: float = 0.005      # reference counts as constant within abs + rel·|rate|
+    rate_tol_rel: float = 1e-3
+    gap_factor: float = 10.0         # a sample interval this many times nominal is a gap
+    trim_s: float = 0.4              # transient trimmed from both ends of every hold
+    settle_s: float = 1.0            # margin kept clear of handling motion
+    min_hold_s: float | None = None  # None: a quarter of the typical rotating hold
+    soak_min_s: float | None = None  # None: five typical rotating holds
+    max_temp_rate: float = 0.1       # °C/min; faster means the temperature is not stable
+    temp_window_s: float = 60.0      # window of the rate estimate for stable periods
+    temp_gap: float = 2.0            # °C between holds that separates temperature points
+    motion_sigma: float = 6.0        # motion threshold in units of the noise of the test
+    motion_floor: float = 0.02       # deg/s; block-mean changes below this are never motion
+    noise_cap: float = 5.0           # a run's noise may exceed the log's by at most this
+    mount_min_rate: float = 5.0      # holds this fast tell their mount from the gyro
+    agree_scale: float = 0.1         # gyro may differ from reference by scale·|rate| + bias
+    agree_bias: float = 5.0
+    saturation_fraction: float = 0.01
+
+    @classmethod
+    def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> "SegmentConfig":
+        values = dict(values or {})
+        known = {f.name for f in fields(cls)}
+        for name, value in values.items():
+            if name not in known:
+                raise ConfigError(f"unknown setting {key}.{name}; known: {', '.join(sorted(known))}")
+            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
+                                      or not math.isfinite(value) or value < 0):
+                raise ConfigError(f"{key}.{name} must be a non-negative number, got {value!r}")
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    """Result of :func:`segment`: one row per accepted hold, plus what else was found."""
+
+    observations: pd.DataFrame
+    segments: pd.DataFrame           # every phase: hold, soak, ramp, gap, transient, rejected
+    stable_periods: pd.DataFrame     # t_start, t_end, temp of stable-temperature stretches
+    info: dict = field(default_factory=dict)
+
+    def rejected(self) -> pd.DataFrame:
+        return self.segments[self.segments["kind"] == "rejected"].reset_index(drop=True)
+
+    def counts(self) -> pd.DataFrame:
+        """Accepted holds per temperature point (rows) and mount (columns)."""
+        obs = self.observations
+        table = pd.crosstab(obs["point_temp"].round(2), obs["mount"].astype(str))
+        return table.reindex(columns=[m for m in MOUNTS if m in table.columns])
+
+
+def segment_file(path, config: SegmentConfig | None = None) -> tuple[RigLog, Segmentation]:
+    """Read a log (only the columns segmentation uses) and segment it."""
+    log = read_log(path, optional=LOG_COLUMNS)
+    return log, segment(log, config)
+
+
+def segment(log: RigLog, config: SegmentConfig | None = None) -> Segmentation:
+    """Segment a log into constant-rate holds; see the module docstring."""
+    cfg = config or SegmentConfig()
+    blk, size, dt = block_statistics(log, cfg.block_s)
+    return _segment_blocks(log, blk, size, dt, cfg)
+
+
+def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop (exclusive) indices of the True runs of a boolean array."""
+    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def _median(values: np.ndarray, axis=None, limit: int = 50_000):
+    """Median of a deterministic stride sample: robust levels need no more than 50k values."""
+    step = max(1, len(values) // limit)
+    return np.median(values[::step], axis=axis)
+
+
+def _range_sums(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Sums over consecutive ranges of the given (positive) lengths."""
+    return np.add.reduceat(values, np.r_[0, np.cumsum(lengths)[:-1]], axis=0)
+
+
+def _range_index(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(lo[i], hi[i]) for all i, vectorised."""
+    lengths = hi - lo
+    offsets = np.repeat(lo - np.r_[0, np.cumsum(lengths)[:-1]], lengths)
+    return np.arange(lengths.sum()) + offsets
+
+
+def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
+                    cfg: SegmentConfig) -> Segmentation:
+    nb = len(blk.get("t_first", ()))
+    if nb < 8:
+        raise SegmentationError(f"log too short to segment ({len(log)} rows)", source=log.path)
+    if not dt > 0:
+        raise SegmentationError("cannot determine the sample interval", source=log.path)
+    block_dt = size * dt
+    t_first, t_last, r = blk["t_first"], blk["t_last"], blk["ref"]
+    mean, var = blk["gyro"], blk["gyro_var"]
+
+    # 1. Gaps and constant-reference runs.
+    in_gap = (t_last - t_first) > (size - 1 + cfg.gap_factor) * dt
+    gap_before = np.r_[False, (t_first[1:] - t_last[:-1]) > cfg.gap_factor * dt]
+    tol = np.maximum(cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(r),
+                     3.0 * _median(blk["ref_span"]))
+    const = (blk["ref_span"] <= tol) & ~in_gap
+    level_step = np.r_[True, np.abs(np.diff(r)) > tol[1:]]
+    new_run = const & (level_step | gap_before | ~np.r_[False, const[:-1]])
+    run = np.cumsum(new_run) - 1
+    n_runs = int(run[-1]) + 1 if new_run.any() else 0
+    if n_runs == 0:
+        raise SegmentationError("the reference rate is never constant: no hold to use",
+                                source=log.path)
+
+    # 2. Motion at constant reference.
+    noise_log = np.maximum(np.sqrt(_median(var[const], axis=0)), 1e-9)
+    active, level, gain, excursion = _motion(const, run, n_runs, mean, var, r, blk["ref_span"],
+                                             noise_log, size, cfg)
+    settle = int(math.ceil(cfg.settle_s / block_dt))
+    c_act = np.r_[0, np.cumsum(active)]
+    pos = np.arange(nb)
+    near_motion = (c_act[np.minimum(pos + settle + 1, nb)] - c_act[np.maximum(pos - settle, 0)]) > 0
+    usable = const & ~near_motion
+
+    # 3. Quiet stretches -> soaks and hold candidates.
+    key = np.where(usable, run, -1)
+    change = np.r_[True, key[1:] != key[:-1]]
+    starts = np.flatnonzero(usable & change)
+    stops = np.flatnonzero(usable & np.r_[change[1:], True]) + 1
+    if not len(starts):
+        raise SegmentationError("no quiet constant-rate stretch found", source=log.path)
+    s_ref = r[starts]
+    s_tol = cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(s_ref)
+    s_dur = (stops - starts) * block_dt
+    rotating = np.abs(s_ref) > s_tol
+    typical = float(np.median(s_dur[rotating] if rotating.any() else s_dur))
+    min_hold = cfg.min_hold_s if cfg.min_hold_s is not None else 0.25 * typical
+    soak_min = cfg.soak_min_s if cfg.soak_min_s is not None else 5.0 * typical
+    is_soak = ~rotating & (s_dur >= soak_min)
+    tail = max(int(round(typical / block_dt)), 1)
+    h_start = np.where(is_soak, np.maximum(starts, stops - tail), starts)
+    trim = int(math.ceil(cfg.trim_s / block_dt))
+    c0, c1 = h_start + trim, stops - trim
+    long_enough = (c1 - c0) * block_dt >= max(min_hold, block_dt)
+
+    segments: list[tuple] = []  # (kind, reason, detail, first block, stop block)
+    for b0, b1 in zip(*_runs(~const & ~in_gap)):
+        segments.append(("ramp", "", "", b0, b1))
+    for b0, b1 in zip(*_runs(in_gap)):
+        segments.append(("gap", "", "", b0, b1))
+    for b0, b1 in zip(*_runs(active)):
+        segments.append(("rejected", "handling_motion",
+                         f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
+                         f"at reference {r[b0]:.4g} deg/s", b0, b1))
+    for b0, b1 in zip(*_runs(near_motion & const & ~active)):
+        segments.append(("transient", "", "settling after motion", b0, b1))
+    for i in np.flatnonzero(is_soak):
+        segments.append(("soak", "", "", starts[i], h_start[i]))
+    for i in np.flatnonzero(~long_enough):
+        segments.append(("rejected", "too_short",
+                         f"{max(c1[i] - c0[i], 0) * block_dt:.3g} s after trimming, "
+                         f"minimum {min_hold:.3g} s", h_start[i], stops[i]))
+    for i in np.flatnonzero(long_enough & (trim > 0)):
+        segments.append(("transient", "", "trimmed", h_start[i], c0[i]))
+        segments.append(("transient", "", "trimmed", c1[i], stops[i]))
+    c0, c1 = c0[long_enough], c1[long_enough]
+    h = _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var,
+                         level[run[c0]], gain[run[c0]], cfg)
+
+    # 4. Checks, in order; the first failing one is the reason.
+    reason = np.full(len(c0), "", dtype=object)
+    detail = np.full(len(c0), "", dtype=object)
+
+    def reject(mask, code, text):
+        mask = mask & (reason == "")
+        reason[mask] = code
+        for i in np.flatnonzero(mask):
+            detail[i] = text(i)
+
+    reject(h["ref_drift"] > h["ref_tol"], "reference_drift",
+           lambda i: f"reference spans {h['ref_drift'][i]:.3g} deg/s (tolerance {h['ref_tol'][i]:.3g})")
+    reject(h["not_steady"], "not_steady",
+           lambda i: f"halves differ by {h['half_diff'][i]:.3g} deg/s (limit {h['half_limit'][i]:.3g})")
+    reject(h["saturated"] > cfg.saturation_fraction, "saturated",
+           lambda i: f"{100 * h['saturated'][i]:.3g} % of samples at the output limit")
+    mounts, source = _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject)
+    axis = np.where(mounts >= 0, mounts // 2, 0)
+    sign = np.where(mounts % 2 == 0, 1.0, -1.0)
+    rate_vec = np.zeros((len(c0), 3))
+    rate_vec[np.arange(len(c0)), axis] = np.where(mounts >= 0, sign * h["ref"], 0.0)
+    err = np.abs(h["mean"] - rate_vec)
+    limit = cfg.agree_scale * np.abs(h["ref"])[:, None] + cfg.agree_bias
+    reject((err > limit).any(axis=1) & (mounts >= 0), "gyro_disagrees",
+           lambda i: f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
+                     f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}")
+    # A short hold's rate estimate is noisy: reject only rates significantly over the limit.
+    reject(np.abs(h["temp_rate"]) - 3.0 * h["temp_rate_sd"] > cfg.max_temp_rate,
+           "unstable_temperature", lambda i: f"{h['temp_rate'][i]:.3g} ± "
+           f"{h['temp_rate_sd'][i]:.2g} °C/min (limit {cfg.max_temp_rate:g})")
+
+    accepted = reason == ""
+    for i in np.flatnonzero(~accepted):
+        segments.append(("rejected", reason[i], detail[i], c0[i], c1[i]))
+    for i in np.flatnonzero(accepted):
+        segments.append(("hold", "", "", c0[i], c1[i]))
+    if not accepted.any():
+        counts = pd.Series(reason).value_counts()
+        raise SegmentationError("no hold passed the checks (" + ", ".join(
+            f"{k}: {v}" for k, v in counts.items()) + ")", source=log.path)
+
+    obs = _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg)
+    seg = _segment_table(segments, t_first, t_last, r, obs)
+    info = dict(path=log.path, rows_read=log.rows_read, rows_dropped=log.rows_dropped,
+                rows_used=len(log), sample_rate=1.0 / dt, block_samples=size,
+                typical_hold_s=typical, min_hold_s=min_hold, soak_min_s=soak_min,
+                noise_per_sample=noise_log.tolist(), holds_accepted=int(accepted.sum()),
+                rejected_by_reason=seg.loc[seg["kind"] == "rejected", "reason"]
+                .value_counts().sort_index().to_dict(),
+                temperature_points=int(obs["point"].max()) + 1,
+                has_mount_column="mount" in log)
+    return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), info)
+
+
+def _motion(const, run, n_runs, mean, var, r, r_span, noise_log, size, cfg):
+    """Mark constant-reference blocks where the gyro moves; see the module docstring.
+
+    Returns each block's activity, each run's steady gyro level and its gain on the
+    reference, and each active block's distance from its run's steady value (deg/s). A
+    second pass re-estimates the noise of runs that contained motion from their quiet
+    blocks only. Blocks outside runs belong to a dummy run ``n_runs`` that is never used.
+    """
+    nb = len(const)
+    idx = np.where(const, run, n_runs)
+    quiet = const.copy()
+    subset = np.flatnonzero(const)
+    active = np.zeros(nb, dtype=bool)
+    for _ in range(2):
+        count = np.bincount(idx, weights=quiet, minlength=n_runs + 1)
+        denom = np.maximum(count, 1)[:, None]
+        per_run = lambda v: np.column_stack([  # noqa: E731
+            np.bincount(idx, weights=v[:, a] * quiet, minlength=n_runs + 1) for a in range(v.shape[1])
+        ]) / denom
+        noise = np.where(count[:, None] > 0, np.sqrt(per_run(var)), noise_log)
+        noise = np.clip(noise, noise_log / cfg.noise_cap, noise_log * cfg.noise_cap).astype(np.float32)
+        level = per_run(mean)
+        r_run = per_run(r[:, None])[:, 0]
+        moving = np.abs(r_run) > cfg.rate_tol_abs
+        # The gyro follows small reference wobble (table settling, rate ripple); remove the
+        # run's measured gain so that only motion the reference does not explain remains.
+        gain = np.where(moving[:, None], level / np.where(moving, r_run, 1.0)[:, None], 0.0)
+        s = subset
+        run_s = idx[s]
+        resid = (mean[s] - gain[run_s] * r[s, None]).astype(np.float32)
+        sd = noise[run_s]
+        wobble = (gain[run_s].astype(np.float32) * r_span[s, None].astype(np.float32)) ** 2 / 4
+        scatter = (var[s] > 9.0 * sd * sd + wobble).any(axis=1)  # a span-S signal: var ≤ S²/4
+        threshold = np.maximum(np.float32(cfg.motion_sigma * math.sqrt(2.0 / size)) * sd,
+                               np.float32(cfg.motion_floor))
+        step = (np.abs(np.diff(resid, axis=0)) > threshold[1:]).any(axis=1)
+        jump = np.r_[False, step & (run_s[1:] == run_s[:-1]) & (np.diff(s) == 1)]
+        active[s] = scatter | jump | np.r_[jump[1:], False]
+        quiet = const & ~active
+        subset = np.flatnonzero(np.isin(idx, np.unique(idx[active])) & const)
+        if not len(subset):
+            break
+    excursion = np.zeros(nb)
+    a = np.flatnonzero(active)
+    excursion[a] = np.abs(mean[a] - level[idx[a]]).max(axis=1)
+    return active, level, gain, excursion
+
+
+def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg) -> dict:
+    """Per-hold sums over the hold's blocks: means, variances, steadiness, temperature rate.
+
+    A hold's scatter is its blocks' own scatter plus the blocks' spread about the hold mean;
+    block means are taken relative to the run's steady level first, so the sums hold
+    noise-sized numbers and lose nothing to cancellation.
+    """
+    lengths = c1 - c0
+    hb = _range_index(c0, c1)
+    owner = np.repeat(np.arange(len(c0)), lengths)
+    n = lengths * size
+    dev = mean[hb] - level[owner]
+    hold_dev = _range_sums(dev, lengths) / lengths[:, None]
+    within = _range_sums(var[hb].astype(np.float64), lengths) * (size - 1)
+    between = _range_sums((dev - hold_dev[owner]) ** 2, lengths) * size
+    hold_var = (within + between) / (n - 1)[:, None]
+    hold_mean = level + hold_dev
+    r_hb = r[hb]
+    ref = _range_sums(r_hb, lengths) / lengths
+    temp = _range_sums(blk["temp"][hb].astype(np.float64), lengths) / lengths
+    ref_drift = np.maximum.reduceat(r_hb, np.r_[0, np.cumsum(lengths)[:-1]]) - \
+        np.minimum.reduceat(r_hb, np.r_[0, np.cumsum(lengths)[:-1]])
+
+    # Steadiness: the first and second halves of the hold agree, once the part the
+    # reference explains (gyro gain times reference change) is taken out.
+    first_half = np.arange(len(hb)) - np.repeat(np.r_[0, np.cumsum(lengths)[:-1]], lengths) \
+        < np.repeat(lengths // 2, lengths)
+    n1 = (lengths // 2) * size
+    n2 = n - n1
+    resid = dev - gain[owner] * (r_hb - ref[owner])[:, None]
+    d1 = _range_sums(np.where(first_half[:, None], resid, 0.0), lengths) / np.maximum(lengths // 2, 1)[:, None]
+    d2 = _range_sums(np.where(first_half[:, None], 0.0, resid), lengths) / (lengths - lengths // 2)[:, None]
+    half_diff = np.abs(d2 - d1)
+    half_limit = (cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
+                  + cfg.motion_floor)
+    worst = np.argmax(half_diff - half_limit, axis=1)
+    rows = np.arange(len(c0))
+    rate, rate_sd = _hold_temp_rate(blk, c0, c1)
+    out = dict(n=n, mean=hold_mean, var=hold_var, ref=ref, temp=temp, temp_rate=rate,
+               temp_rate_sd=rate_sd, t_start=blk["t_first"][c0], t_end=blk["t_last"][c1 - 1],
+               ref_drift=ref_drift, ref_tol=tol[c0],
+               not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
+               half_diff=half_diff[rows, worst], half_limit=half_limit[rows, worst],
+               saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log))
+    if "accel" in blk:
+        out["accel"] = _range_sums(blk["accel"][hb].astype(np.float64), lengths) / lengths[:, None]
+    return out
+
+
+def _window_rate(temp: np.ndarray, t_mid: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Temperature rate (°C/min) from the means of the first and last third of blocks lo:hi.
+
+    89 % as efficient as a regression slope, and free of the cancellation a regression on
+    absolute times suffers.
+    """
+    third = np.maximum((hi - lo) // 3, 1)
+    p_T = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
+    p_t = np.r_[0.0, np.cumsum(t_mid - t_mid[0])]
+    T_a = (p_T[lo + third] - p_T[lo]) / third
+    T_b = (p_T[hi] - p_T[hi - third]) / third
+    t_a = (p_t[lo + third] - p_t[lo]) / third
+    t_b = (p_t[hi] - p_t[hi - third]) / third
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rate = 60.0 * (T_b - T_a) / (t_b - t_a)
+    return np.where(np.isfinite(rate), rate, 0.0)
+
+
+def _hold_temp_rate(blk, c0, c1) -> tuple[np.ndarray, np.ndarray]:
+    """Temperature rate (°C/min) of each hold and its standard error from the log's
+    block-to-block temperature scatter."""
+    temp = blk["temp"]
+    t_mid = (blk["t_first"] + blk["t_last"]) / 2
+    rate = _window_rate(temp, t_mid, c0, c1)
+    block_noise = 1.4826 * _median(np.abs(np.diff(temp))) / math.sqrt(2.0)
+    third = np.maximum((c1 - c0) // 3, 1)
+    spacing = (t_mid[c1 - 1] - t_mid[c0]) * 2.0 / 3.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sd = 60.0 * block_noise * np.sqrt(2.0 / third) / spacing
+    return rate, np.where(np.isfinite(sd), sd, np.inf)
+
+
+def _saturation(blk, size, c0, c1, n, mean, var, log) -> np.ndarray:
+    """Share of each hold's samples sitting exactly at the log's extreme output value.
+
+    Only holds whose mean lies within eight standard deviations of an extreme can touch
+    it; their samples are read back and counted.
+    """
+    share = np.zeros(len(c0))
+    gmax, gmin = blk["gyro_max"], blk["gyro_min"]
+    reach = 8.0 * np.sqrt(var)
+    near = ((mean + reach >= gmax) | (mean - reach <= gmin)).any(axis=1)
+    for i in np.flatnonzero(near):
+        worst = 0
+        for a, name in enumerate(("gyro_x", "gyro_y", "gyro_z")):
+            x = log.rows(name, c0[i] * size, c1[i] * size)
+            worst = max(worst, int(np.count_nonzero((x == gmax[a]) | (x == gmin[a]))))
+        share[i] = worst / n[i] if worst >= 2 else 0.0
+    return share
+
+
+def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
+    """Mount index per hold from the mount column and/or the gyro; -1 where unknown."""
+    k = len(c0)
+    from_data = np.full(k, -1)
+    strong = np.abs(h["ref"]) >= cfg.mount_min_rate
+    ax = np.argmax(np.abs(h["mean"]), axis=1)
+    sgn = np.sign(h["mean"][np.arange(k), ax] * h["ref"])
+    from_data[strong] = (2 * ax + (sgn < 0))[strong]
+
+    from_column = np.full(k, -1)
+    if "mount_first" in blk:
+        first = blk["mount_first"].astype(int)
+        mixed = first != blk["mount_last"]
+        change = np.r_[0, np.cumsum(mixed | np.r_[False, first[1:] != first[:-1]])]
+        changes = ((change[c1] - change[c0 + 1]) > 0) | mixed[c0]
+        from_column = np.where(changes, -2, first[c0])
+        reject(changes, "mount_changes", lambda i: "mount label changes inside the hold")
+    both = (from_column >= 0) & (from_data >= 0)
+    reject(both & (from_column != from_data), "mount_mismatch",
+           lambda i: f"mount column says {MOUNTS[from_column[i]]}, gyro says {MOUNTS[from_data[i]]}")
+
+    mounts = np.where(from_column >= 0, from_column, from_data)
+    source = np.where(both, "both", np.where(from_column >= 0, "column",
+                                             np.where(from_data >= 0, "data", "")))
+    # Holds too slow to tell their mount inherit it from their neighbours in the same
+    # mounting, which ends at handling motion or a logging gap.
+    session = np.cumsum(active | in_gap | gap_before)[c0]
+    known = pd.Series(np.where(mounts >= 0, mounts, np.nan))
+    before = known.groupby(session).ffill().to_numpy()
+    after = known.groupby(session).bfill().to_numpy()
+    agree = np.where(np.isnan(before), after, np.where(np.isnan(after), before,
+                                                       np.where(before == after, before, np.nan)))
+    inherit = (mounts == -1) & ~np.isnan(agree)
+    mounts = np.where(inherit, np.nan_to_num(agree, nan=-1), mounts).astype(int)
+    source = np.where(inherit, "inherited", source)
+    reject(mounts == -1, "mount_undetermined",
+           lambda i: "too slow to tell the mount and no agreeing neighbour or mount column")
+    return mounts, source
+
+
+def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
+    """Stretches where the temperature rate stays under the limit, on a grid of windows."""
+    temp = blk["temp"]
+    nb = len(temp)
+    width = min(max(int(round(cfg.temp_window_s / block_dt)), 3), nb)
+    step = max(width // 4, 1)
+    lo = np.arange(0, nb - width + 1, step)
+    t_mid = (blk["t_first"] + blk["t_last"]) / 2
+    stable = np.abs(_window_rate(temp, t_mid, lo, lo + width)) <= cfg.max_temp_rate
+    a, b = _runs(stable)
+    first, last = lo[a], np.minimum(lo[b - 1] + width, nb)
+    p = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
+    return pd.DataFrame({"t_start": blk["t_first"][first], "t_end": blk["t_last"][last - 1],
+                         "temp": (p[last] - p[first]) / (last - first)})
+
+
+def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -> pd.DataFrame:
+    a = accepted
+    std = np.sqrt(h["var"][a])
+    obs = pd.DataFrame({
+        "hold": np.arange(a.sum()),
+        "t_start": h["t_start"][a], "t_end": h["t_end"][a],
+        "duration": h["t_end"][a] - h["t_start"][a], "n": h["n"][a].astype(np.int64),
+        "mount": pd.Categorical([MOUNTS[m] for m in mounts[a]], categories=MOUNTS),
+        "axis": ["xyz"[x] for x in axis[a]], "sign": sign[a], "mount_source": source[a],
+        "ref_rate": h["ref"][a],
+        "rate_x": rate_vec[a, 0], "rate_y": rate_vec[a, 1], "rate_z": rate_vec[a, 2],
+        "gyro_x": h["mean"][a, 0], "gyro_y": h["mean"][a, 1], "gyro_z": h["mean"][a, 2],
+        "std_x": std[:, 0], "std_y": std[:, 1], "std_z": std[:, 2],
+        "temp": h["temp"][a], "temp_rate": h["temp_rate"][a],
+    })
+    if "accel" in h:
+        for i, c in enumerate("xyz"):
+            obs[f"accel_{c}"] = h["accel"][a, i]
+    # Temperature points: holds closer than temp_gap in temperature belong together.
+    order = np.argsort(obs["temp"].to_numpy(), kind="stable")
+    point = np.empty(len(obs), dtype=np.int64)
+    point[order] = np.r_[0, np.cumsum(np.diff(obs["temp"].to_numpy()[order]) > cfg.temp_gap)]
+    obs["point"] = point
+    obs["point_temp"] = obs.groupby("point")["temp"].transform("mean")
+    return obs
+
+
+def _segment_table(segments, t_first, t_last, r, obs) -> pd.DataFrame:
+    kinds, reasons, details, b0, b1 = (list(x) for x in zip(*segments))
+    b0, b1 = np.asarray(b0, dtype=int), np.asarray(b1, dtype=int)
+    keep = b1 > b0
+    b0, b1 = b0[keep], b1[keep]
+    p = np.r_[0.0, np.cumsum(r)]
+    seg = pd.DataFrame({
+        "kind": np.asarray(kinds, dtype=object)[keep],
+        "reason": np.asarray(reasons, dtype=object)[keep],
+        "detail": np.asarray(details, dtype=object)[keep],
+        "t_start": t_first[b0], "t_end": t_last[b1 - 1],
+        "ref_rate": (p[b1] - p[b0]) / (b1 - b0),
+    })
+    seg = seg.sort_values(["t_start", "kind"], kind="stable").reset_index(drop=True)
+    hold_of = dict(zip(obs["t_start"], obs["hold"]))
+    seg["hold"] = [hold_of.get(t, -1) if k == "hold" else -1
+                   for k, t in zip(seg["kind"], seg["t_start"])]
+    return seg

@@ -1,0 +1,73 @@
+"""Simulated rig logs with ground truth, for tests, benchmarks and the demo fleet.
+
+``simulate(out_dir, ...)`` writes, per unit, ``{device}.parquet`` (a log per the contract),
+``{device}.truth.json`` (the parameters and the schedule that made it) and a manifest
+``devices.tsv`` (contract section 3). Everything is determined by ``seed``: unit ``i`` draws
+from ``SeedSequence(seed).spawn(units)[i]``.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import ConfigError
+from .turntable import SEED000_RATES, SEED000_TEMPERATURES, TurntableProtocol, render
+from .unit import GyroUnit
+
+__all__ = ["GyroUnit", "TurntableProtocol", "simulate", "simulate_unit", "load_truth",
+           "SEED000_RATES", "SEED000_TEMPERATURES"]
+
+PROTOCOLS = {"turntable": (TurntableProtocol, render)}
+MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
+
+
+def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit | None = None,
+                  rng: np.random.Generator, device: str = "U001", batch: str = "B1",
+                  session: str = "2026-01-01", seed: int | None = None) -> dict:
+    """Render one unit's log to ``path`` and its truth beside it; return the truth."""
+    if protocol not in PROTOCOLS:
+        raise ConfigError(f"unknown protocol {protocol!r}; this simulator knows "
+                          f"{', '.join(PROTOCOLS)}")
+    rig_cls, renderer = PROTOCOLS[protocol]
+    rig = rig or rig_cls()
+    unit = unit or GyroUnit.random(rng)
+    path = Path(path)
+    schedule = renderer(rig, unit, rng, path)
+    truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
+                 protocol=protocol, seed=seed, unit=unit.to_dict(), rig=rig.to_dict(),
+                 **schedule)
+    truth_path(path).write_text(json.dumps(truth, indent=1) + "\n")
+    return truth
+
+
+def truth_path(log_path) -> Path:
+    log_path = Path(log_path)
+    return log_path.with_name(log_path.name.removesuffix(".parquet") + ".truth.json")
+
+
+def load_truth(log_path) -> dict:
+    truth = json.loads(truth_path(log_path).read_text())
+    truth["unit"] = GyroUnit.from_dict(truth["unit"])
+    return truth
+
+
+def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int = 0,
+             rig=None, unit: GyroUnit | None = None, batch: str = "B1",
+             session: str = "2026-01-01", device_prefix: str = "U") -> Path:
+    """Simulate ``units`` units into ``out_dir``; return the manifest path."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for i, child in enumerate(np.random.SeedSequence(seed).spawn(units)):
+        device = f"{device_prefix}{i + 1:03d}"
+        name = f"{device}.parquet"
+        simulate_unit(out / name, protocol=protocol, rig=rig, unit=unit,
+                      rng=np.random.default_rng(child), device=device, batch=batch,
+                      session=session, seed=seed)
+        rows.append((device, batch, session, protocol, name))
+    manifest = out / "devices.tsv"
+    manifest.write_text("\n".join("\t".join(r) for r in [MANIFEST_COLUMNS, *rows]) + "\n")
+    return manifest

@@ -1,0 +1,235 @@
+"""The ``turntable`` protocol of seed 000 (Sections 3.2 and 4), rendered as a rig log.
+
+At each chamber set point (Table 1): a chamber ramp, a soak, then for each mount a series
+of constant-rate holds, forward and reverse (Table 2), joined by acceleration ramps. Between
+mounts the table stops and a person re-mounts the unit: real rotation while ``ref_rate`` is 0,
+and the chamber door is open meanwhile. Mounts are visited in zig-zag order across set points
+(+x +y +z, then +z +y +x, ...) so no re-mount is needed between temperatures, as on a real
+thermal turntable; the first rate-0 hold at a set point is therefore the tail of the soak.
+
+Every duration, the sample rate and the set points are knobs: tests render logs of seconds,
+benchmarks the full seed protocol. The log is rendered one set point at a time, each a Parquet
+row group, with filter states carried across, so memory stays one set point's worth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+from scipy.signal import lfilter
+
+from ..io import MOUNTS
+from .unit import Electronics, GyroUnit
+
+SEED000_TEMPERATURES = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0)
+SEED000_RATES = (0.1, 1.0, 10.0, 50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 400.0)
+
+
+@dataclass(frozen=True)
+class TurntableProtocol:
+    """Schedule of the rig and the thermal path from chamber to die. Times in s, rates deg/s."""
+
+    temperatures: tuple[float, ...] = SEED000_TEMPERATURES
+    rates: tuple[float, ...] = SEED000_RATES     # magnitudes; each is held forward and reverse
+    mounts: tuple[str, ...] = ("+x", "+y", "+z")
+    sample_rate: float = 100.0
+    soak_s: float = 3600.0
+    hold_s: float = 60.0
+    accel: float = 50.0                 # table acceleration between holds, deg/s²
+    handling_s: float = 30.0
+    pause_s: float = 3.0                # table stopped before the person reaches in
+    chamber_ramp: float = 2.0           # °C/min between set points
+    room_temp: float = 23.0
+    air_tau_s: float = 60.0
+    unit_tau_s: float = 600.0           # chamber air -> die (the sensor reads the die)
+    self_heating: float = 2.0           # °C the powered die runs above its surroundings
+    self_heating_tau_s: float = 900.0
+    door_coupling: float = 0.05         # share of (room - set point) the air heads for, door open
+    temp_noise: float = 0.02            # °C, sensor
+    temp_lsb: float = 1.0 / 256.0       # °C, sensor
+    settle_overshoot: float = 0.002     # table overshoot after a ramp, share of the step
+    settle_tau_s: float = 0.15
+    settle_hz: float = 3.0
+    mount_column: bool = True
+    accel_columns: bool = True
+
+    @classmethod
+    def quick(cls, **overrides) -> "TurntableProtocol":
+        """A protocol of seconds (for tests): same structure, thermal path scaled to fit."""
+        base = dict(temperatures=(-20.0, 0.0, 20.0, 40.0), soak_s=40.0, hold_s=6.0,
+                    accel=400.0, handling_s=4.0, pause_s=1.0, chamber_ramp=600.0,
+                    air_tau_s=0.5, unit_tau_s=3.0, self_heating_tau_s=2.0, door_coupling=0.0)
+        base.update(overrides)
+        return cls(**base)
+
+    def to_dict(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+    def schedule(self) -> list[dict]:
+        """Phases in order: kind, samples, table rates, set points, mount, door."""
+        fs = self.sample_rate
+        n = lambda seconds: max(int(round(seconds * fs)), 1)  # noqa: E731
+        phases: list[dict] = []
+        set_point = self.room_temp
+        rate = 0.0
+        mount = self.mounts[0]
+
+        def add(kind, samples, **kw):
+            phases.append(dict(kind=kind, n=samples, rate_from=rate, rate_to=rate,
+                               set_from=set_point, set_to=set_point, mount=mount,
+                               next_mount=mount, **kw))
+
+        for k, temp in enumerate(self.temperatures):
+            if abs(temp - set_point) > 0:
+                add("chamber", n(abs(temp - set_point) / self.chamber_ramp * 60.0))
+                phases[-1]["set_to"] = set_point = float(temp)
+            add("soak", n(self.soak_s), point=k)
+            order = self.mounts if k % 2 == 0 else self.mounts[::-1]
+            for j, new_mount in enumerate(order):
+                if new_mount != mount:
+                    add("pause", n(self.pause_s))
+                    add("handling", n(self.handling_s))
+                    phases[-1]["next_mount"] = mount = new_mount
+                add("hold", n(self.hold_s), point=k)
+                for target in [s * r for r in self.rates for s in (1.0, -1.0)] + [0.0]:
+                    add("accel", n(abs(target - rate) / self.accel))
+                    phases[-1]["rate_to"] = rate = float(target)
+                    if target != 0.0:
+                        add("hold", n(self.hold_s), point=k)
+        return phases
+
+
+def _mount_axis(mount: str) -> tuple[int, float]:
+    return "xyz".index(mount[1]), (1.0 if mount[0] == "+" else -1.0)
+
+
+def _handling_motion(rng: np.random.Generator, n: int, fs: float) -> np.ndarray:
+    """A person turning the unit in hand: a few smooth swings per axis plus tremor (deg/s)."""
+    tau = np.arange(n) / fs
+    duration = n / fs
+    w = np.zeros((n, 3))
+    for axis in range(3):
+        for _ in range(3):
+            amp = rng.uniform(20.0, 120.0) * rng.choice((-1.0, 1.0))
+            centre = rng.uniform(0.2, 0.8) * duration
+            width = rng.uniform(0.03, 0.08) * duration
+            w[:, axis] += amp * np.exp(-0.5 * ((tau - centre) / width) ** 2)
+    a = np.exp(-2 * np.pi * 8.0 / fs)  # tremor: white noise low-passed at 8 Hz
+    w += lfilter([1 - a], [1, -a], rng.normal(0.0, 3.0, (n, 3)), axis=0)
+    edge = min(0.15 * duration, 5.0)
+    ramp = np.clip(np.minimum(tau, duration - tau) / edge, 0.0, 1.0)
+    return w * (np.sin(0.5 * np.pi * ramp) ** 2)[:, None]
+
+
+def _first_order(x: np.ndarray, tau_s: float, fs: float, state: float) -> tuple[np.ndarray, float]:
+    a = np.exp(-1.0 / (tau_s * fs))
+    y, zf = lfilter([1 - a], [1, -a], x, zi=[state * a])
+    return y, float(y[-1])
+
+
+def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator, path,
+           *, t0: float = 0.0) -> dict:
+    """Write the log to ``path`` (Parquet) and return the ground truth of the schedule."""
+    fs = protocol.sample_rate
+    phases = protocol.schedule()
+    electronics = Electronics(unit, fs, rng)
+    air_state = die_state = protocol.room_temp
+    start = 0
+    holds, handling, soaks = [], [], []
+    writer = None
+    mount_type = pa.dictionary(pa.int8(), pa.string())
+    mount_dict = pa.array(MOUNTS, type=pa.string())
+
+    # One chunk per set point: the phases from one "chamber"/"soak" start to the next.
+    chunk_starts = [i for i, p in enumerate(phases) if p["kind"] in ("chamber", "soak")
+                    and (i == 0 or phases[i - 1]["kind"] != "chamber")]
+    chunk_bounds = list(zip(chunk_starts, chunk_starts[1:] + [len(phases)]))
+    try:
+        for lo, hi in chunk_bounds:
+            chunk = phases[lo:hi]
+            m = sum(p["n"] for p in chunk)
+            idx = start + np.arange(m)
+            t = t0 + idx / fs
+            table = np.zeros(m)
+            set_point = np.empty(m)
+            door = np.zeros(m, dtype=bool)
+            w_true = np.zeros((m, 3))
+            gravity = np.zeros((m, 3))
+            mount_code = np.empty(m, dtype=np.int8)
+            pos = 0
+            prev_step = 0.0
+            for ph in chunk:
+                k = ph["n"]
+                sl = slice(pos, pos + k)
+                tau = np.arange(k) / fs
+                if ph["kind"] == "accel":
+                    table[sl] = np.linspace(ph["rate_from"], ph["rate_to"], k + 1)[1:]
+                    prev_step = ph["rate_to"] - ph["rate_from"]
+                else:
+                    table[sl] = ph["rate_to"]
+                    if prev_step:
+                        table[sl] += (protocol.settle_overshoot * prev_step
+                                      * np.exp(-tau / protocol.settle_tau_s)
+                                      * np.sin(2 * np.pi * protocol.settle_hz * tau))
+                    prev_step = 0.0
+                set_point[sl] = ph["set_from"] + (ph["set_to"] - ph["set_from"]) * (tau + 1 / fs) * fs / k
+                axis, sign = _mount_axis(ph["mount"])
+                w_true[sl, axis] = sign * table[sl]
+                gravity[sl, axis] = sign
+                mount_code[sl] = MOUNTS.index(ph["mount"])
+                t_first, t_last = t0 + (start + pos) / fs, t0 + (start + pos + k - 1) / fs
+                if ph["kind"] == "handling":
+                    door[sl] = True
+                    w_true[sl] = _handling_motion(rng, k, fs)
+                    new_axis, new_sign = _mount_axis(ph["next_mount"])
+                    blend = (tau / tau[-1])[:, None] if k > 1 else np.ones((1, 1))
+                    g_new = np.zeros(3)
+                    g_new[new_axis] = new_sign
+                    g = (1 - blend) * gravity[sl] + blend * g_new
+                    gravity[sl] = g / np.linalg.norm(g, axis=1, keepdims=True)
+                    mount_code[pos + k // 2: pos + k] = MOUNTS.index(ph["next_mount"])
+                    handling.append(dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"],
+                                         mount_to=ph["next_mount"]))
+                elif ph["kind"] == "hold":
+                    holds.append(dict(t_start=t_first, t_end=t_last, mount=ph["mount"],
+                                      rate=ph["rate_to"], set_point=ph["set_to"],
+                                      point=ph["point"]))
+                elif ph["kind"] == "soak":
+                    soaks.append(dict(t_start=t_first, t_end=t_last, set_point=ph["set_to"]))
+                pos += k
+
+            air_target = np.where(door, set_point + protocol.door_coupling
+                                  * (protocol.room_temp - set_point), set_point)
+            air, air_state = _first_order(air_target, protocol.air_tau_s, fs, air_state)
+            die, die_state = _first_order(air, protocol.unit_tau_s, fs, die_state)
+            die += protocol.self_heating * (1 - np.exp(-(t - t0) / protocol.self_heating_tau_s))
+            sensor = die + rng.normal(0.0, protocol.temp_noise, m)
+            sensor = np.round(sensor / protocol.temp_lsb) * protocol.temp_lsb
+
+            gyro = electronics.measure(w_true, die)
+            cols = {"t": pa.array(t), "gyro_x": gyro[:, 0], "gyro_y": gyro[:, 1],
+                    "gyro_z": gyro[:, 2], "temp": pa.array(sensor.astype(np.float32)),
+                    "ref_rate": pa.array(table)}
+            if protocol.mount_column:
+                cols["mount"] = pa.DictionaryArray.from_arrays(pa.array(mount_code), mount_dict)
+            if protocol.accel_columns:
+                accel = gravity + rng.normal(0.0, unit.accel_noise, (m, 3))
+                for i, c in enumerate("xyz"):
+                    cols[f"accel_{c}"] = pa.array(accel[:, i].astype(np.float32))
+            batch = pa.table({k: (v if isinstance(v, (pa.Array, pa.ChunkedArray)) else pa.array(v))
+                              for k, v in cols.items()})
+            if writer is None:
+                schema = batch.schema
+                if protocol.mount_column:
+                    schema = schema.set(schema.get_field_index("mount"),
+                                        pa.field("mount", mount_type))
+                writer = pq.ParquetWriter(path, schema)
+            writer.write_table(batch.cast(writer.schema), row_group_size=m)
+            start += m
+    finally:
+        if writer is not None:
+            writer.close()
+    return dict(holds=holds, handling=handling, soaks=soaks, rows=start)

@@ -1,0 +1,92 @@
+"""Physical effects as terms of the gyro error model, and the registry that names them.
+
+The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
+terms, each linear in its coefficients. A term turns observation columns (the true rate in
+the sensor frame ``rate_x/y/z``, ``temp``, ``temp_rate``, ...) into named regressor
+columns, one per coefficient. Names are ``<term>.<output axis>[.<detail>]``: the output
+axis is always the second part, so a fit can take each output axis's columns by name.
+
+With the base terms the seed-000 model (Eq 12) reads ``w = K w_true + B``, where
+``K = I + scale + misalignment`` and ``B = bias``; see :mod:`gyrocal.terms.base`.
+
+The registry is the one place an effect is added: ``@register_term("name")`` on a frozen
+dataclass subclass of :class:`Term`. Calibration files name their terms and are rebuilt
+from here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import ClassVar
+
+import numpy as np
+
+from ..errors import ConfigError, MissingInputError
+
+AXES = ("x", "y", "z")
+TERMS: dict[str, type["Term"]] = {}
+
+
+class Term:
+    """A physical effect: regressor columns for the gyro error, one per coefficient."""
+
+    name: ClassVar[str] = ""
+    needs: ClassVar[frozenset[str]] = frozenset()   # observation columns required
+    unit: ClassVar[str] = ""                         # unit of the coefficients
+
+    def coefficients(self) -> list[str]:
+        """Full coefficient names, in a fixed order."""
+        raise NotImplementedError
+
+    def columns(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Regressor column per coefficient name, each of the length of ``data``."""
+        raise NotImplementedError
+
+    def params(self) -> dict:
+        """The term's settings, JSON-plain (what a calibration file stores to rebuild it)."""
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)} \
+            if dataclasses.is_dataclass(self) else {}
+
+    def spec(self) -> dict:
+        return {"name": self.name, **self.params()}
+
+    def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
+        missing = sorted(c for c in self.needs if c not in data)
+        if missing:
+            raise MissingInputError(f"term {self.name} needs {', '.join(missing)}, which the "
+                                    f"data lack", source=source)
+
+
+def register_term(name: str):
+    """Class decorator adding a term to the registry under ``name``."""
+    def add(cls):
+        if name in TERMS and TERMS[name] is not cls:
+            raise ConfigError(f"term name {name!r} is already registered by "
+                              f"{TERMS[name].__module__}.{TERMS[name].__qualname__}")
+        cls.name = name
+        TERMS[name] = cls
+        return cls
+    return add
+
+
+def make_term(spec) -> Term:
+    """A term from a name (``"bias"``) or a mapping (``{"name": "...", <params>}``)."""
+    if isinstance(spec, Term):
+        return spec
+    if isinstance(spec, str):
+        spec = {"name": spec}
+    if not isinstance(spec, Mapping) or "name" not in spec:
+        raise ConfigError(f"a model term must be a name or a mapping with 'name', got {spec!r}")
+    params = dict(spec)
+    name = params.pop("name")
+    cls = TERMS.get(name)
+    if cls is None:
+        raise ConfigError(f"unknown model term {name!r}; known terms: {', '.join(sorted(TERMS))}")
+    try:
+        return cls(**params)
+    except TypeError as exc:
+        raise ConfigError(f"term {name}: {exc}") from None
+
+
+from . import base  # noqa: E402,F401  (registers the library's terms)

@@ -1,0 +1,62 @@
+"""Small simulated logs, made once per test session (seconds of data per hold)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from gyrocal.simulate import GyroUnit, TurntableProtocol, load_truth, simulate_unit
+
+# Ten-degree spacing as in seed 000 Table 1, over a span short enough for quick tests.
+TEMPS = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
+
+
+def make_log(directory, name="U001", *, seed=1, unit=None, **rig):
+    path = directory / f"{name}.parquet"
+    protocol = TurntableProtocol.quick(**{"temperatures": TEMPS, **rig})
+    simulate_unit(path, rig=protocol, unit=unit or GyroUnit.seed000(),
+                  rng=np.random.default_rng(seed), device=name, seed=seed)
+    return path
+
+
+@pytest.fixture(scope="session")
+def logs(tmp_path_factory):
+    """name -> path of session-wide simulated logs."""
+    d = tmp_path_factory.mktemp("logs")
+    return {
+        "complete": make_log(d, "complete"),
+        "no_mount": make_log(d, "no_mount", seed=2, mount_column=False),
+        "random_unit": make_log(d, "random_unit", seed=3,
+                                unit=GyroUnit.random(np.random.default_rng(30)),
+                                temperatures=(0.0, 20.0, 40.0)),
+    }
+
+
+@pytest.fixture(scope="session")
+def complete_run(logs):
+    from gyrocal.pipeline import run
+    return run(logs["complete"])
+
+
+@pytest.fixture(scope="session")
+def truth(logs):
+    return {k: load_truth(v) for k, v in logs.items()}
+
+
+def truth_coefficients(unit: GyroUnit, temp: float) -> dict[str, float]:
+    """The model's coefficients implied by a simulated unit at one temperature."""
+    K, B = unit.K(temp), unit.B(temp)
+    out = {}
+    for i, a in enumerate("xyz"):
+        out[f"bias.{a}"] = B[i]
+        out[f"scale.{a}"] = K[i, i] - 1.0
+        for j, b in enumerate("xyz"):
+            if a != b:
+                out[f"misalignment.{a}.{b}"] = K[i, j]
+    return out
+
+
+def with_rig(**kw):
+    return replace(TurntableProtocol.quick(temperatures=TEMPS), **kw)

@@ -1,0 +1,171 @@
+"""The calibration file (contract section 4) and applying it (section 5)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from gyrocal.apply import apply_calibration
+from gyrocal.calibration import Calibration, load_calibration, save_calibration
+from gyrocal.errors import CalibrationFileError, GyrocalError, LogFormatError
+from gyrocal.io import read_log
+from gyrocal.model import Model
+from gyrocal.simulate import load_truth
+from gyrocal.thermal import TemperatureGrid
+
+
+def identity_calibration(temps=(0.0, 20.0, 40.0)) -> Calibration:
+    model = Model.from_spec()
+    P, C = len(temps), len(model.names)
+    grid = TemperatureGrid(np.array(temps), tuple(model.names), np.zeros((P, C)),
+                           np.full((P, C), 1e-6))
+    return Calibration(model, grid, meta={"device": "X"})
+
+
+def test_file_round_trips_byte_for_byte(complete_run, tmp_path):
+    cal = complete_run.calibration
+    first, second = tmp_path / "a.json", tmp_path / "b.json"
+    save_calibration(cal, first)
+    loaded = load_calibration(first)
+    save_calibration(loaded, second)
+    assert first.read_bytes() == second.read_bytes()
+    np.testing.assert_array_equal(loaded.grid.values, cal.grid.values)
+    np.testing.assert_array_equal(loaded.grid.temperatures, cal.grid.temperatures)
+    doc = json.loads(first.read_text())
+    assert doc["format"] == "gyrocal.calibration/1"
+    assert doc["units"]["B"] == "deg/s" and doc["model"]["interpolation"]["method"] == "lagrange3"
+    assert len(doc["provenance"]["input"]["sha256"]) == 64
+    assert len(doc["provenance"]["config_sha256"]) == 64
+    K = np.array(doc["grid"]["K"])
+    assert K.shape == (len(doc["grid"]["temperature"]), 3, 3)
+
+
+def test_K_and_B_in_the_file_are_the_contract_meaning(complete_run):
+    """w = K w_true + B: K and B reproduce the model's own output."""
+    cal = complete_run.calibration
+    K, B = cal.matrices()
+    rng = np.random.default_rng(0)
+    w_true = rng.uniform(-300, 300, (5, 3))
+    for p, T in enumerate(cal.grid.temperatures):
+        coefs = {n: cal.grid.values[p, j] for j, n in enumerate(cal.grid.names)}
+        out = w_true + cal.model.error(coefs, {"rate_x": w_true[:, 0], "rate_y": w_true[:, 1],
+                                               "rate_z": w_true[:, 2]})
+        np.testing.assert_allclose(out, w_true @ K[p].T + B[p], rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(format="gyrocal.calibration/2"), "format version 2 is not one this gyrocal reads"),
+    (lambda d: d.update(format="imucal"), "format is 'imucal'"),
+    (lambda d: d.pop("grid"), "missing key 'grid'"),
+    (lambda d: d["grid"]["coefficients"].pop("bias.y"), "missing key 'bias.y'"),
+    (lambda d: d["grid"]["coefficients"]["bias.x"].__setitem__(0, None), "coefficient bias.x must be"),
+    (lambda d: d["grid"]["K"][0][0].__setitem__(0, 1.5), "K and B do not match"),
+    (lambda d: d["model"]["terms"].append({"name": "warp_drive"}), "unknown model term 'warp_drive'"),
+    (lambda d: d["model"]["interpolation"].update(method="cosine"), "interpolation method 'cosine'"),
+])
+def test_bad_files_are_refused_with_one_line(complete_run, tmp_path, edit, message):
+    doc = complete_run.calibration.to_dict()
+    edit(doc)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(doc))
+    with pytest.raises(CalibrationFileError) as info:
+        load_calibration(path)
+    text = str(info.value)
+    assert message in text and str(path) in text and "\n" not in text
+    assert info.value.exit_status == 2
+
+
+def test_not_json_and_nan_are_refused(complete_run, tmp_path):
+    path = tmp_path / "x.json"
+    path.write_text("{not json")
+    with pytest.raises(CalibrationFileError, match="not valid JSON"):
+        load_calibration(path)
+    for where in ("coefficients", "B"):
+        doc = complete_run.calibration.to_dict()
+        if where == "B":
+            doc["grid"]["B"][1][2] = float("nan")
+        else:
+            doc["grid"]["coefficients"]["bias.x"][0] = float("nan")
+        path.write_text(json.dumps(doc))  # Python's json writes NaN
+        with pytest.raises(CalibrationFileError, match="finite numbers"):
+            load_calibration(path)
+    values = complete_run.calibration.grid.values.copy()
+    values[0, 0] = np.nan
+    g = complete_run.calibration.grid
+    broken = Calibration(complete_run.calibration.model,
+                         TemperatureGrid(g.temperatures, g.names, values, g.stderr))
+    with pytest.raises(GyrocalError, match="non-finite"):
+        save_calibration(broken, tmp_path / "nan.json")
+    assert not (tmp_path / "nan.json").exists()
+
+
+def test_identity_calibration_leaves_the_data_unchanged(logs, tmp_path):
+    cal = identity_calibration()
+    out = tmp_path / "same.parquet"
+    counts = apply_calibration(cal, logs["complete"], out)
+    original, applied = pq.read_table(logs["complete"]), pq.read_table(out)
+    assert applied.num_rows == original.num_rows == counts["rows"]
+    assert applied.schema.names == original.schema.names
+    for c in ("gyro_x", "gyro_y", "gyro_z"):
+        np.testing.assert_array_equal(applied.column(c).to_numpy(),
+                                      original.column(c).to_numpy().astype(np.float64))
+    for c in ("t", "temp", "ref_rate", "mount"):
+        assert applied.column(c).equals(original.column(c))
+
+
+def test_applied_log_recovers_the_true_rate_within_the_noise(complete_run, logs, tmp_path):
+    out = tmp_path / "applied.parquet"
+    cal = load_calibration_roundtrip(complete_run.calibration, tmp_path)
+    apply_calibration(cal, logs["complete"], out)
+    truth = load_truth(logs["complete"])
+    applied = read_log(out)
+    t = applied.column("t")
+    noise = truth["unit"].noise_std(truth["rig"]["sample_rate"])
+    for hold in truth["holds"][::7]:
+        inside = (t > hold["t_start"] + 1.0) & (t < hold["t_end"] - 1.0)
+        axis = "xyz".index(hold["mount"][1])
+        sign = 1.0 if hold["mount"][0] == "+" else -1.0
+        for i, c in enumerate(("gyro_x", "gyro_y", "gyro_z")):
+            mean = applied.column(c)[inside].mean()
+            expected = sign * hold["rate"] if i == axis else 0.0
+            # hold mean of n samples: noise / sqrt(n), plus the calibration's own error
+            assert abs(mean - expected) < 6 * noise / np.sqrt(inside.sum()) + 2e-3
+
+
+def load_calibration_roundtrip(cal, tmp_path):
+    path = tmp_path / "cal.json"
+    save_calibration(cal, path)
+    return load_calibration(path)
+
+
+def test_apply_converts_rad_per_second_and_keeps_bad_rows_as_nan(tmp_path):
+    n = 50
+    t = np.arange(n) * 0.01
+    g = np.full(n, np.deg2rad(10.0))
+    g[5] = np.nan
+    table = pa.table({"t": t, "gyro_x": g, "gyro_y": np.zeros(n), "gyro_z": np.zeros(n),
+                      "temp": np.full(n, 20.0), "ref_rate": np.zeros(n), "note": ["a"] * n})
+    table = table.replace_schema_metadata({b"gyrocal.units": b'{"gyro": "rad/s", "ref_rate": "rad/s"}'})
+    src, out = tmp_path / "in.parquet", tmp_path / "out.parquet"
+    pq.write_table(table, src)
+    counts = apply_calibration(identity_calibration(), src, out)
+    result = pq.read_table(out)
+    gx = result.column("gyro_x").to_numpy()
+    assert counts["nonfinite"] == 1 and np.isnan(gx[5])
+    np.testing.assert_allclose(np.delete(gx, 5), 10.0, rtol=1e-12)
+    units = json.loads(result.schema.metadata[b"gyrocal.units"])
+    assert units == {"ref_rate": "rad/s"}  # gyro is now deg/s; ref_rate untouched
+    assert result.column("note").to_pylist() == ["a"] * n
+
+
+def test_apply_refuses_a_log_without_temperature(tmp_path):
+    n = 10
+    src = tmp_path / "notemp.parquet"
+    pq.write_table(pa.table({"t": np.arange(n) * 1.0, "gyro_x": np.zeros(n), "gyro_y": np.zeros(n),
+                             "gyro_z": np.zeros(n)}), src)
+    with pytest.raises(LogFormatError, match="lacks temp"):
+        apply_calibration(identity_calibration(), src, tmp_path / "o.parquet")

@@ -1,0 +1,159 @@
+"""Terms, the weighted fit against an independent reference, honest uncertainties."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyrocal.errors import ConfigError, IdentifiabilityError
+from gyrocal.model import Model, fit
+from gyrocal.terms import TERMS, Term, make_term, register_term
+from gyrocal.simulate.unit import SEED000_B25, SEED000_K25
+
+RATES = [0.0] + [s * r for r in (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400) for s in (1, -1)]
+
+
+def synthetic_obs(K, B, *, rng, mounts=("+x", "+y", "+z"), sigma=0.05, n=6000):
+    """Hold means of a linear gyro, w = K w_true + B + noise/sqrt(n), for the seed's rates."""
+    rows = []
+    for mount in mounts:
+        axis, sign = "xyz".index(mount[1]), 1.0 if mount[0] == "+" else -1.0
+        for rate in RATES:
+            w_true = np.zeros(3)
+            w_true[axis] = sign * rate
+            std = sigma * rng.uniform(0.8, 1.2, 3)
+            w = K @ w_true + B + rng.normal(0, std / np.sqrt(n))
+            rows.append(dict(mount=mount, ref_rate=rate, n=n, temp=25.0,
+                             **{f"rate_{a}": w_true[i] for i, a in enumerate("xyz")},
+                             **{f"gyro_{a}": w[i] for i, a in enumerate("xyz")},
+                             **{f"std_{a}": std[i] for i, a in enumerate("xyz")}))
+    return pd.DataFrame(rows)
+
+
+def truth_vector(model, K, B):
+    out = []
+    for name in model.names:
+        term, a, *rest = name.split(".")
+        i = "xyz".index(a)
+        out.append(B[i] if term == "bias" else K[i, i] - 1 if term == "scale" else K[i, "xyz".index(rest[0])])
+    return np.array(out)
+
+
+def test_fit_matches_an_independent_weighted_least_squares():
+    rng = np.random.default_rng(1)
+    obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=rng)
+    result = fit(Model.from_spec(), obs)
+    # Seed 000 Eq 15: output a regressed on (w~_x, w~_y, w~_z, 1), weighted by 1/floor².
+    Omega = np.column_stack([obs["rate_x"], obs["rate_y"], obs["rate_z"], np.ones(len(obs))])
+    for i, a in enumerate("xyz"):
+        sw = np.sqrt(obs["n"]) / obs[f"std_{a}"]
+        coef, *_ = np.linalg.lstsq(Omega * sw.to_numpy()[:, None], obs[f"gyro_{a}"] * sw, rcond=None)
+        K_row, B_a = coef[:3], coef[3]
+        assert result.coef(f"bias.{a}") == pytest.approx(B_a, abs=1e-12)
+        assert result.coef(f"scale.{a}") == pytest.approx(K_row[i] - 1.0, abs=1e-12)
+        for j, b in enumerate("xyz"):
+            if b != a:
+                assert result.coef(f"misalignment.{a}.{b}") == pytest.approx(K_row[j], abs=1e-12)
+
+
+def test_reported_standard_errors_are_honest_over_many_experiments():
+    """Over 400 simulated calibrations the scatter of each fitted coefficient matches its
+    reported standard error, and z = (fit - truth) / stderr follows Student's t with the
+    fit's 65 degrees of freedom."""
+    rng = np.random.default_rng(7)
+    model = Model.from_spec()
+    truth = truth_vector(model, SEED000_K25, SEED000_B25)
+    values, errors = [], []
+    for _ in range(400):
+        result = fit(model, synthetic_obs(SEED000_K25, SEED000_B25, rng=rng))
+        values.append(result.values)
+        errors.append(result.stderr)
+    values, errors = np.array(values), np.array(errors)
+    N = len(values)
+    # The sample sd of N normal draws has relative sd 1/sqrt(2N) = 3.5 %: 4 of them is 14 %.
+    ratio = values.std(axis=0, ddof=1) / np.sqrt(np.mean(errors ** 2, axis=0))
+    np.testing.assert_allclose(ratio, 1.0, atol=4 / np.sqrt(2 * N))
+    # No bias: each mean within 4 standard errors of the mean.
+    bias = np.abs(values.mean(axis=0) - truth) / (values.std(axis=0, ddof=1) / np.sqrt(N))
+    assert bias.max() < 4.0
+    z = (values - truth) / errors
+    # E[t²] = 65/63 for t with 65 dof; the four coefficients of an axis share one scatter
+    # estimate, so their z² move together; 0.15 is 4 sd even for fully shared clusters.
+    assert np.mean(z ** 2) == pytest.approx(65 / 63, abs=0.15)
+    # P(|t65| > 3) = 0.38 %: 18 of 4800 expected; in clusters of up to 4 the 99.9 % bound
+    # is 4 x 13 (Poisson(18/4) quantile).
+    assert np.sum(np.abs(z) > 3) <= 52
+
+
+def test_protocol_without_rotation_about_y_is_refused_naming_the_coefficients():
+    obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=np.random.default_rng(2), mounts=("+x", "+z"))
+    with pytest.raises(IdentifiabilityError) as info:
+        fit(Model.from_spec(), obs, source="unit.parquet", label="25.0 °C")
+    assert set(info.value.parameters) >= {"scale.y", "misalignment.x.y", "misalignment.z.y"}
+    text = str(info.value)
+    assert "scale.y" in text and "25.0 °C" in text and text.startswith("unit.parquet: ")
+
+
+def test_collinear_design_is_refused():
+    obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=np.random.default_rng(3))
+    only_one_rate = obs[obs["ref_rate"] == 100.0]  # scale and bias cannot be separated
+    with pytest.raises(IdentifiabilityError) as info:
+        fit(Model.from_spec(), only_one_rate)
+    assert "bias.x" in info.value.parameters and "scale.x" in info.value.parameters
+
+
+def test_too_few_observations_leave_no_uncertainty_and_are_refused():
+    obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=np.random.default_rng(4))
+    few = obs[obs["ref_rate"].isin([100.0, -100.0])].iloc[:4]
+    with pytest.raises(IdentifiabilityError):
+        fit(Model.from_spec(), few)
+
+
+def test_compensation_inverts_the_model():
+    rng = np.random.default_rng(5)
+    model = Model.from_spec()
+    coefs = dict(zip(model.names, truth_vector(model, SEED000_K25, SEED000_B25)))
+    w_true = rng.uniform(-400, 400, (1000, 3))
+    w = w_true @ SEED000_K25.T + SEED000_B25
+    back, J = model.compensate(coefs, w, {"temp": np.zeros(1000)})
+    np.testing.assert_allclose(back, w_true, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(J[0], SEED000_K25, rtol=0, atol=1e-12)
+
+
+def test_unknown_and_clashing_terms_are_config_errors():
+    with pytest.raises(ConfigError, match="unknown model term 'nope'.*bias"):
+        make_term("nope")
+    with pytest.raises(ConfigError, match="both define bias.x"):
+        Model.from_spec(["bias", "bias"])
+    with pytest.raises(ConfigError, match="term scale"):
+        make_term({"name": "scale", "degree": 2})
+
+
+def test_a_registered_term_takes_part_like_the_library_ones():
+    @register_term("test_rate_squared")
+    @dataclass(frozen=True)
+    class RateSquared(Term):
+        """Scale nonlinearity: error proportional to the signed square of the rate."""
+        unit = "1/(deg/s)"
+        needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+        def coefficients(self):
+            return [f"test_rate_squared.{a}" for a in "xyz"]
+
+        def columns(self, data):
+            return {f"test_rate_squared.{a}": data[f"rate_{a}"] * np.abs(data[f"rate_{a}"])
+                    for a in "xyz"}
+    try:
+        rng = np.random.default_rng(6)
+        obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=rng)
+        k2 = 2e-6
+        for a in "xyz":
+            obs[f"gyro_{a}"] += k2 * obs[f"rate_{a}"] * obs[f"rate_{a}"].abs()
+        result = fit(Model.from_spec(["bias", "scale", "misalignment", "test_rate_squared"]), obs)
+        i = result.names.index("test_rate_squared.x")
+        assert abs(result.values[i] - k2) < 4 * result.stderr[i]
+    finally:
+        TERMS.pop("test_rate_squared")

@@ -1,0 +1,99 @@
+"""The whole chain on simulated logs: recovered parameters and validation figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gyrocal.calibration import save_calibration
+from gyrocal.errors import IdentifiabilityError
+from gyrocal.pipeline import run
+
+from .conftest import make_log, truth_coefficients
+
+
+def test_fitted_K_and_B_within_three_reported_standard_errors(complete_run, truth):
+    unit = truth["complete"]["unit"]
+    grid = complete_run.calibration.grid
+    assert len(grid.temperatures) == 6
+    for p, T in enumerate(grid.temperatures):
+        expected = truth_coefficients(unit, T)
+        for j, name in enumerate(grid.names):
+            z = (grid.values[p, j] - expected[name]) / grid.stderr[p, j]
+            assert abs(z) < 3.0, f"{name} at {T:.1f} °C is {z:.2f} standard errors off"
+
+
+def test_per_temperature_fits_explain_the_data(complete_run):
+    # complete-model data: reduced chi-square near 1 (65 dof: 1 ± 0.18 at 1 sd... 3 sd 0.53)
+    for f in complete_run.grid_fit.fits:
+        for axis in "xyz":
+            assert abs(f.chi2_red(axis) - 1.0) < 3 * np.sqrt(2 / f.dof[axis])
+
+
+def test_interpolated_leave_temperature_out_reaches_the_noise_floor(complete_run):
+    s = complete_run.validation.summary
+    assert s["basis"] == "interior" and s["holds_scored"] == 4 * 63
+    assert s["validation_rms"] <= 1.2 * s["noise_floor"]
+    assert s["uncompensated_rms"] > s["single_rms"] > s["validation_rms"]
+
+
+def test_mean_rms_tables_have_the_seed_shape_and_consistent_gains(complete_run):
+    for table in (complete_run.validation.table_holds, complete_run.validation.table_samples):
+        assert list(zip(table.rotating, table.output)) == [(r, o) for r in "xyz" for o in "xyz"]
+        np.testing.assert_allclose(
+            table.gain_vs_uncompensated_pct,
+            100 * (1 - table.interpolated_rms / table.uncompensated_rms), rtol=1e-12)
+        assert (table.holds == 4 * 21).all()
+    # on samples the floor is the per-sample noise: the error cannot go below it
+    samples = complete_run.validation.table_samples
+    assert (samples.interpolated_rms >= samples.noise_floor * 0.999).all()
+    by_temp = complete_run.validation.by_temperature
+    assert list(by_temp.clamped) == [True, False, False, False, False, True]
+
+
+def test_single_temperature_reference_is_the_point_nearest_25(complete_run):
+    s = complete_run.validation.summary
+    temps = complete_run.calibration.grid.temperatures
+    assert s["reference_temperature"] == temps[np.argmin(np.abs(temps - 25.0))]
+
+
+def test_without_a_mount_column_the_result_is_as_good(logs):
+    result = run(logs["no_mount"])
+    s = result.validation.summary
+    assert s["validation_rms"] <= 1.2 * s["noise_floor"]
+
+
+def test_rerun_gives_byte_identical_calibration(logs, tmp_path):
+    a, b = tmp_path / "a.json", tmp_path / "b.json"
+    save_calibration(run(logs["complete"]).calibration, a)
+    save_calibration(run(logs["complete"]).calibration, b)
+    assert a.read_bytes() == b.read_bytes()
+
+
+def test_a_protocol_that_never_rotates_about_y_is_refused(tmp_path):
+    path = make_log(tmp_path, "no_y", mounts=("+x", "+z"), temperatures=(0.0, 20.0))
+    with pytest.raises(IdentifiabilityError) as info:
+        run(path)
+    assert {"scale.y", "misalignment.x.y", "misalignment.z.y"} <= set(info.value.parameters)
+    assert str(path) in str(info.value)
+
+
+def test_a_point_missing_a_mount_is_left_out_and_reported(tmp_path, logs):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from gyrocal.simulate import load_truth
+    truth = load_truth(logs["complete"])
+    doomed = [h for h in truth["holds"] if h["point"] == 2 and h["mount"] == "+y"]
+    table = pq.read_table(logs["complete"])
+    t = table.column("t").to_numpy()
+    drop = np.zeros(len(t), bool)
+    for h in doomed:
+        drop |= (t >= h["t_start"] - 0.5) & (t <= h["t_end"] + 0.5)
+    path = tmp_path / "hole.parquet"
+    pq.write_table(table.filter(pa.array(~drop)), path)
+    result = run(path)
+    points = result.grid_fit.points
+    assert list(points.used) == [True, True, False, True, True, True]
+    assert "scale.y" in points.reason[2]
+    # its holds are still validated, from the neighbours
+    assert result.validation.by_temperature.loc[2, "holds"] == 42

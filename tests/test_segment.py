@@ -1,0 +1,183 @@
+"""Segmentation against the simulator's schedule: every hold, nothing from handling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from gyrocal.errors import GyrocalError, SegmentationError
+from gyrocal.io import read_log
+from gyrocal.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
+from gyrocal.simulate import load_truth
+
+from .conftest import TEMPS, make_log
+
+
+def overlaps(a_start, a_end, b_start, b_end):
+    return (a_start < b_end) & (a_end > b_start)
+
+
+def match(obs, holds):
+    """For each planned hold, the observations overlapping it."""
+    return [obs[overlaps(obs.t_start, obs.t_end, h["t_start"], h["t_end"])] for h in holds]
+
+
+@pytest.mark.parametrize("name", ["complete", "no_mount"])
+def test_every_hold_found_with_the_right_mount_and_rate(logs, name):
+    _, seg = segment_file(logs[name])
+    truth = load_truth(logs[name])
+    obs = seg.observations
+    found = match(obs, truth["holds"])
+    assert all(len(f) == 1 for f in found), "each planned hold is exactly one observation"
+    assert len(obs) == len(truth["holds"]), "and no observation is extra"
+    for planned, f in zip(truth["holds"], found):
+        row = f.iloc[0]
+        assert row["mount"] == planned["mount"]
+        assert row["ref_rate"] == pytest.approx(planned["rate"], abs=1e-3)
+    # without a mount column the mounts came from the gyro or from neighbouring holds
+    sources = set(obs["mount_source"])
+    assert sources <= ({"data", "inherited"} if name == "no_mount" else {"column", "both"})
+
+
+@pytest.mark.parametrize("name", ["complete", "no_mount"])
+def test_nothing_from_handling_motion_which_is_reported(logs, name):
+    _, seg = segment_file(logs[name])
+    truth = load_truth(logs[name])
+    obs = seg.observations
+    for h in truth["handling"]:
+        assert not overlaps(obs.t_start, obs.t_end, h["t_start"], h["t_end"]).any()
+    motion = seg.rejected().query("reason == 'handling_motion'")
+    # every handling episode is reported as rejected motion, and only those
+    assert len(motion) == len(truth["handling"])
+    for h in truth["handling"]:
+        assert overlaps(motion.t_start, motion.t_end, h["t_start"], h["t_end"]).sum() == 1
+
+
+def test_counts_per_temperature_and_mount(logs):
+    _, seg = segment_file(logs["complete"])
+    counts = seg.counts()
+    assert list(counts.columns) == ["+x", "+y", "+z"]
+    assert len(counts) == len(TEMPS)
+    assert (counts.to_numpy() == 21).all()  # 0 and ±10 rates per mount and point
+    np.testing.assert_allclose(counts.index, np.array(TEMPS) + 2.0, atol=0.1)  # self-heating
+
+
+def drop_rows(path, out, mask_fn):
+    table = pq.read_table(path)
+    t = table.column("t").to_numpy()
+    pq.write_table(table.filter(pa.array(~mask_fn(t))), out)
+    return out
+
+
+def test_gap_inside_a_hold_splits_it_and_loses_nothing_else(logs, tmp_path):
+    truth = load_truth(logs["complete"])
+    h = truth["holds"][40]
+    mid = (h["t_start"] + h["t_end"]) / 2
+    path = drop_rows(logs["complete"], tmp_path / "gap.parquet",
+                     lambda t: (t > mid - 0.3) & (t < mid + 0.3))
+    _, seg = segment_file(path)
+    assert (seg.segments["kind"] == "gap").sum() >= 1 or \
+        seg.rejected().shape[0] > len(truth["handling"])
+    found = match(seg.observations, truth["holds"])
+    assert all(len(f) >= 1 for i, f in enumerate(found) if i != 40)
+    assert all(len(f) <= 2 for f in found)
+
+
+def test_missing_hold_is_just_absent(logs, tmp_path):
+    truth = load_truth(logs["complete"])
+    gone = truth["holds"][30]
+    path = drop_rows(logs["complete"], tmp_path / "miss.parquet",
+                     lambda t: (t >= gone["t_start"] - 1) & (t <= gone["t_end"] + 1))
+    _, seg = segment_file(path)
+    found = match(seg.observations, truth["holds"])
+    assert len(found[30]) == 0
+    assert sum(len(f) == 1 for f in found) == len(truth["holds"]) - 1
+
+
+def test_mount_column_that_contradicts_the_gyro_is_rejected(logs, tmp_path):
+    truth = load_truth(logs["complete"])
+    wrong = next(h for h in truth["holds"] if h["mount"] == "+x" and abs(h["rate"]) >= 50)
+    table = pq.read_table(logs["complete"])
+    t = table.column("t").to_numpy()
+    mount = np.array(table.column("mount").to_pylist(), dtype=object)
+    mount[(t >= wrong["t_start"]) & (t <= wrong["t_end"])] = "+y"
+    table = table.set_column(table.schema.get_field_index("mount"), "mount", pa.array(mount.tolist()))
+    path = tmp_path / "mislabel.parquet"
+    pq.write_table(table, path)
+    _, seg = segment_file(path)
+    rejected = seg.rejected()
+    hit = rejected[overlaps(rejected.t_start, rejected.t_end, wrong["t_start"], wrong["t_end"])]
+    assert list(hit["reason"]) == ["mount_mismatch"]
+    assert "mount column says +y, gyro says +x" in hit["detail"].iloc[0]
+
+
+def test_a_protocol_without_a_mount_still_segments(tmp_path):
+    path = make_log(tmp_path, "two_mounts", mounts=("+x", "+z"), temperatures=(0.0, 20.0))
+    _, seg = segment_file(path)
+    assert set(seg.observations["mount"].astype(str)) == {"+x", "+z"}
+
+
+def test_unstable_temperature_is_rejected(tmp_path):
+    # the chamber keeps ramping: no soak, so early holds sit on a temperature transient
+    path = make_log(tmp_path, "ramping", temperatures=(40.0,), soak_s=1.0, unit_tau_s=60.0)
+    _, seg = segment_file(path)
+    assert "unstable_temperature" in set(seg.rejected()["reason"])
+
+
+def test_saturated_holds_are_rejected(tmp_path):
+    from gyrocal.simulate import GyroUnit
+    path = make_log(tmp_path, "clip", unit=GyroUnit.seed000(full_scale=300.0),
+                    temperatures=(20.0,), rates=(10.0, 100.0, 400.0))
+    _, seg = segment_file(path)
+    rejected = seg.rejected()
+    saturated = rejected[rejected["reason"] == "saturated"]
+    assert len(saturated) == 6  # ±400 deg/s on three mounts
+    assert (seg.observations["ref_rate"].abs() < 300).all()
+
+
+def test_too_short_log_is_refused(tmp_path):
+    t = np.arange(20) * 0.01
+    z = np.zeros(20, np.float32)
+    path = tmp_path / "short.parquet"
+    pq.write_table(pa.table({"t": t, "gyro_x": z, "gyro_y": z, "gyro_z": z, "temp": z,
+                             "ref_rate": t}), path)
+    with pytest.raises(SegmentationError) as info:
+        segment_file(path)
+    assert str(path) in str(info.value)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(levels=st.lists(st.floats(-500, 500, allow_nan=False), min_size=1, max_size=8),
+       lengths=st.lists(st.integers(1, 400), min_size=8, max_size=8),
+       noise=st.floats(0.0, 5.0), jitter=st.floats(0.0, 1.0), seed=st.integers(0, 2**16),
+       gap_at=st.integers(-1, 2000), mount=st.booleans())
+def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jitter, seed,
+                                           gap_at, mount):
+    rng = np.random.default_rng(seed)
+    ref = np.concatenate([np.full(n, v) for v, n in zip(levels, lengths)])
+    n = len(ref)
+    t = np.arange(n) * 0.01
+    if 0 <= gap_at < n:
+        t[gap_at:] += 5.0
+    axis = rng.integers(0, 3)
+    cols = {"t": t, "temp": (20 + rng.normal(0, jitter, n)).astype(np.float32),
+            "ref_rate": ref + rng.normal(0, jitter * 1e-3, n)}
+    for i, c in enumerate("xyz"):
+        cols[f"gyro_{c}"] = ((ref if i == axis else 0) + rng.normal(0, noise, n)).astype(np.float32)
+    if mount:
+        cols["mount"] = pa.array(rng.choice(["+x", "-y", "+z"], n).tolist())
+    path = tmp_path / "h.parquet"
+    pq.write_table(pa.table(cols), path)
+    try:
+        seg = segment(read_log(path, optional=LOG_COLUMNS), SegmentConfig())
+    except GyrocalError as exc:
+        assert "\n" not in str(exc)
+    else:
+        obs = seg.observations
+        assert len(obs) >= 1
+        assert np.all(np.isfinite(obs[["gyro_x", "gyro_y", "gyro_z", "temp"]].to_numpy()))
+        assert (obs["t_end"] > obs["t_start"]).all()
