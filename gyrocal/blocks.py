@@ -19,17 +19,16 @@ from .io import ACCEL, GYRO, RigLog
 
 
 class BlockAccumulator:
-    """Consumes batches (``push``) and returns per-block statistics (``result``).
+    """Consumes batches (``push``) and fills per-block statistics (``result``).
 
-    Result keys: ``t_first``, ``t_last`` (s); ``ref`` mean and ``ref_span`` (deg/s, the
-    span of a linear ramp with the block's variance);
-    ``temp`` mean; ``gyro`` mean
-    (k, 3) float64 and ``gyro_var`` (k, 3) sample variance; ``accel`` mean (k, 3) when the
-    log has it; ``mount_first``/``mount_last`` codes when it has a mount column; and
-    ``gyro_max``/``gyro_min`` (3,) over every sample.
+    Result keys: ``t_first``, ``t_last`` (s); ``ref`` mean and ``ref_span`` (deg/s);
+    ``temp`` mean; ``gyro`` mean (k, 3) float64 and ``gyro_var`` (k, 3) sample variance;
+    ``accel`` mean (k, 3) when the log has it; ``mount_first``/``mount_last`` codes when it
+    has a mount column; and ``gyro_max``/``gyro_min`` (3,) over every sample. Outputs are
+    allocated once for ``blocks`` blocks and filled in place.
     """
 
-    def __init__(self, size: int, names: tuple[str, ...]):
+    def __init__(self, size: int, names: tuple[str, ...], blocks: int):
         self.size = size
         self.accel = ACCEL if all(c in names for c in ACCEL) else ()
         self.mount = "mount" in names
@@ -38,7 +37,16 @@ class BlockAccumulator:
         self._ones64 = np.ones(size)
         self._work = np.empty(0, dtype=np.float32)
         self._carry: dict[str, np.ndarray] | None = None
-        self._parts: dict[str, list[np.ndarray]] = {}
+        self.filled = 0
+        self.out = {k: np.empty(blocks) for k in ("t_first", "t_last", "ref", "ref_span")}
+        self.out["temp"] = np.empty(blocks, dtype=np.float32)
+        self.out["gyro"] = np.empty((blocks, 3))
+        self.out["gyro_var"] = np.empty((blocks, 3), dtype=np.float32)
+        if self.accel:
+            self.out["accel"] = np.empty((blocks, 3), dtype=np.float32)
+        if self.mount:
+            self.out["mount_first"] = np.empty(blocks, dtype=np.int8)
+            self.out["mount_last"] = np.empty(blocks, dtype=np.int8)
         self.gyro_max = np.full(3, -np.inf)
         self.gyro_min = np.full(3, np.inf)
 
@@ -64,18 +72,9 @@ class BlockAccumulator:
             start = stop
         self._carry = {k: batch[k][start:] for k in names} if start < n else None
 
-    def _put(self, key: str, value: np.ndarray) -> None:
-        self._parts.setdefault(key, []).append(value)
-
-    def _moments(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean (float64) and sample variance (float32) of each row of a (k, size) view."""
+    def _moments(self, v: np.ndarray, mean_out: np.ndarray, var_out: np.ndarray) -> None:
+        """Row means (float64) and sample variances (float32) of a (k, size) view."""
         size = self.size
-        if v.dtype == np.float64:
-            # float64 holds x² of any rate exactly enough: no centring, no temporary.
-            s = v @ self._ones64
-            q = np.einsum("ij,ij->i", v, v)
-            var = np.maximum(q - s * s / size, 0.0) / (size - 1)
-            return s / size, var.astype(np.float32)
         if self._work.size < v.size:
             self._work = np.empty(v.size, dtype=np.float32)
         d = self._work[: v.size].reshape(v.shape)  # reused: no page faults per batch
@@ -84,36 +83,36 @@ class BlockAccumulator:
         s = d @ self._ones
         np.square(d, out=d)
         q = d @ self._ones
-        var = np.maximum(q - s * s / size, 0.0) / (size - 1)
-        return first[:, 0] + s.astype(np.float64) / size, var
+        var_out[:] = np.maximum(q - s * s / size, 0.0) / (size - 1)
+        mean_out[:] = first[:, 0] + s / size
 
     def _reduce(self, view: dict[str, np.ndarray]) -> None:
-        put, size = self._put, self.size
-        put("t_first", view["t"][:, 0].copy())
-        put("t_last", view["t"][:, -1].copy())
-        mean, var = self._moments(view["ref_rate"])
-        put("ref", mean)
-        put("ref_span", np.sqrt(12.0 * var))  # the span of a ramp with this variance
-        put("temp", (view["temp"].astype(np.float32, copy=False) @ self._ones) / size)
-        for c in GYRO:
-            mean, var = self._moments(view[c])
-            put(c, mean)
-            put(c + "_var", var)
-        for c in self.accel:
-            put(c, (view[c].astype(np.float32, copy=False) @ self._ones) / size)
+        size, out = self.size, self.out
+        k = len(view["t"])
+        sl = slice(self.filled, self.filled + k)
+        self.filled += k
+        out["t_first"][sl] = view["t"][:, 0]
+        out["t_last"][sl] = view["t"][:, -1]
+        # The reference is piecewise constant: its mean, and a spread that sees ramps
+        # (first against last sample) and bumps (mean against the ends' midpoint).
+        ref = view["ref_rate"]
+        mean = (ref.astype(np.float64, copy=False) @ self._ones64) / size
+        first, last = ref[:, 0], ref[:, -1]
+        out["ref"][sl] = mean
+        out["ref_span"][sl] = np.maximum(np.abs(last - first), 2.0 * np.abs(mean - (first + last) / 2))
+        out["temp"][sl] = (view["temp"].astype(np.float32, copy=False) @ self._ones) / size
+        for a, c in enumerate(GYRO):
+            self._moments(view[c], out["gyro"][sl, a], out["gyro_var"][sl, a])
+        for a, c in enumerate(self.accel):
+            out["accel"][sl, a] = (view[c].astype(np.float32, copy=False) @ self._ones) / size
         if self.mount:
-            put("mount_first", view["mount"][:, 0].copy())
-            put("mount_last", view["mount"][:, -1].copy())
+            out["mount_first"][sl] = view["mount"][:, 0]
+            out["mount_last"][sl] = view["mount"][:, -1]
 
     def result(self) -> dict[str, np.ndarray]:
-        if not self._parts:
+        if not self.filled:
             return {}
-        cat = {k: np.concatenate(v) for k, v in self._parts.items()}
-        out = {k: v for k, v in cat.items() if not k.startswith(("gyro_", "accel_"))}
-        out["gyro"] = np.column_stack([cat[c] for c in GYRO])
-        out["gyro_var"] = np.column_stack([cat[c + "_var"] for c in GYRO])
-        if self.accel:
-            out["accel"] = np.column_stack([cat[c] for c in self.accel])
+        out = {k: v[: self.filled] for k, v in self.out.items()}
         out["gyro_max"], out["gyro_min"] = self.gyro_max, self.gyro_min
         return out
 
@@ -123,7 +122,7 @@ def block_statistics(log: RigLog, block_s: float) -> tuple[dict[str, np.ndarray]
     t = log.rows("t", 0, min(len(log), 20001))
     dt = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
     size = max(4, int(round(block_s / dt))) if dt > 0 else 4
-    acc = BlockAccumulator(size, log.names)
+    acc = BlockAccumulator(size, log.names, len(log) // size)
     for batch in log.batches:
         acc.push(batch)
     return acc.result(), size, dt

@@ -129,7 +129,8 @@ class FitResult:
     values: np.ndarray
     stderr: np.ndarray
     covariance: np.ndarray             # in ``names`` order; zero between output axes
-    residuals: pd.DataFrame            # per observation: resid_/floor_ per axis + covariates
+    residuals: np.ndarray              # (n_obs, 3) observed minus modelled error, deg/s
+    floor: np.ndarray                  # (n_obs, 3) noise floor of each observation, deg/s
     chi2: dict[str, float]             # per output axis
     dof: dict[str, int]
     condition: dict[str, float]        # of the column-scaled weighted design, per axis
@@ -141,6 +142,12 @@ class FitResult:
 
     def coefs(self) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, self.values)}
+
+    def residual_table(self, obs: pd.DataFrame) -> pd.DataFrame:
+        """``obs`` (the fitted observations) with ``resid_`` and ``floor_`` per axis added."""
+        extra = {f"{kind}_{a}": values[:, i] for kind, values in
+                 (("resid", self.residuals), ("floor", self.floor)) for i, a in enumerate(AXES)}
+        return obs.assign(**extra)
 
     def chi2_red(self, axis: str) -> float:
         return self.chi2[axis] / self.dof[axis]
@@ -156,23 +163,36 @@ class FitResult:
         }
 
 
-def observation_floor(obs: pd.DataFrame) -> np.ndarray:
+NON_NUMERIC = ("mount", "axis", "mount_source")
+
+
+def columns_of(obs) -> dict[str, np.ndarray]:
+    """Numeric observation columns as float arrays (what terms read); a mapping passes through."""
+    if not isinstance(obs, pd.DataFrame):
+        return obs
+    return {c: obs[c].to_numpy(dtype=float) for c in obs.columns
+            if c not in NON_NUMERIC and pd.api.types.is_numeric_dtype(obs[c])}
+
+
+def observation_floor(obs) -> np.ndarray:
     """Noise floor of each observation's mean (n, 3): within-hold std / sqrt(n), deg/s."""
-    std = obs[["std_x", "std_y", "std_z"]].to_numpy(dtype=float)
-    return std / np.sqrt(obs["n"].to_numpy(dtype=float))[:, None]
+    data = columns_of(obs)
+    std = np.column_stack([data["std_x"], data["std_y"], data["std_z"]])
+    return std / np.sqrt(data["n"])[:, None]
 
 
-def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> FitResult:
+def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
-    Refuses (:class:`IdentifiabilityError`, naming the coefficients) when the observations
-    do not excite some coefficient, or leave no degree of freedom for the covariance.
+    ``obs`` is an observation table or a mapping of its numeric columns. Refuses
+    (:class:`IdentifiabilityError`, naming the coefficients) when the observations do not
+    excite some coefficient, or leave no degree of freedom for the covariance.
     """
-    model.check_inputs(obs, source)
-    data = {c: obs[c].to_numpy(dtype=float) for c in obs.columns
-            if pd.api.types.is_numeric_dtype(obs[c])}
+    data = columns_of(obs)
+    model.check_inputs(data, source)
+    n_obs = len(data["gyro_x"])
     design = model.design(data)
-    floor = observation_floor(obs)
+    floor = observation_floor(data)
     # A hold whose scatter is zero (a constant, quantised output) would get infinite
     # weight: no observation is trusted more than a thousandth of the typical floor.
     floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))
@@ -180,14 +200,14 @@ def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> Fit
 
     names: list[str] = []
     values, stderr, blocks = [], [], []
-    resid = np.zeros((len(obs), 3))
+    resid = np.zeros((n_obs, 3))
     chi2, dof, cond = {}, {}, {}
     unexcited: list[str] = []
     for i, axis in enumerate(AXES):
         cols = model.axis_names(axis)
         if not cols:
             continue
-        X = np.column_stack([np.broadcast_to(design[c], (len(obs),)) for c in cols])
+        X = np.column_stack([np.broadcast_to(design[c], (n_obs,)) for c in cols])
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
         sw = 1.0 / floor[:, i]
         Xw, yw = X * sw[:, None], y * sw
@@ -202,10 +222,10 @@ def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> Fit
                 involved |= set(np.flatnonzero(np.abs(Vt[k]) > 0.1))
             unexcited += [cols[j] for j in sorted(involved)]
             continue
-        n_dof = len(obs) - len(cols)
+        n_dof = n_obs - len(cols)
         if n_dof < 1:
             raise IdentifiabilityError(
-                f"{len(obs)} holds{where} cannot fit {len(cols)} coefficients per axis with "
+                f"{n_obs} holds{where} cannot fit {len(cols)} coefficients per axis with "
                 f"a residual left to estimate their uncertainty", parameters=tuple(cols),
                 source=source)
         theta = (Vt.T @ ((U.T @ yw) / s)) / scale
@@ -223,7 +243,7 @@ def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> Fit
         bad = tuple(n for n in model.names if n in unexcited)
         raise IdentifiabilityError(
             f"the observations{where} do not excite {', '.join(bad)}: no rotation or "
-            f"holds that separate them ({len(obs)} holds)", parameters=bad, source=source)
+            f"holds that separate them ({n_obs} holds)", parameters=bad, source=source)
     covariance = np.zeros((len(names), len(names)))
     at = 0
     for block in blocks:
@@ -233,9 +253,5 @@ def fit(model: Model, obs: pd.DataFrame, *, source=None, label: str = "") -> Fit
     order = [names.index(n) for n in model.names]  # report in the model's own order
     covariance = covariance[np.ix_(order, order)]
     values, stderr = np.concatenate(values)[order], np.concatenate(stderr)[order]
-    residuals = obs.copy()
-    for i, axis in enumerate(AXES):
-        residuals[f"resid_{axis}"] = resid[:, i]
-        residuals[f"floor_{axis}"] = floor[:, i]
-    return FitResult(model, tuple(model.names), values, stderr, covariance, residuals, chi2,
-                     dof, cond, len(obs))
+    return FitResult(model, tuple(model.names), values, stderr, covariance, resid, floor,
+                     chi2, dof, cond, n_obs)

@@ -7,6 +7,7 @@ cache them separately; this module only strings them together and records proven
 from __future__ import annotations
 
 import importlib.metadata
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,18 +49,15 @@ def versions() -> dict[str, str]:
     return out
 
 
-def source_record(path, log=None) -> dict:
-    """What identifies the input: file name, SHA-256 and, when read, the row counts."""
-    record = {"name": Path(path).name, "sha256": file_sha256(path)}
-    if log is not None:
-        record.update(rows=log.rows_read, rows_dropped=log.rows_dropped)
-    return record
-
-
 def segment_log(path, settings: Settings) -> Segmentation:
-    log = read_log(path, optional=LOG_COLUMNS)
-    seg = segment(log, settings.segmentation)
-    seg.info["source"] = source_record(path, log)
+    """Read and segment a log; its SHA-256 is computed on a second thread meanwhile
+    (hashlib releases the GIL), since hashing a large log costs as much as reading it."""
+    with ThreadPoolExecutor(1) as pool:
+        digest = pool.submit(file_sha256, path)
+        log = read_log(path, optional=LOG_COLUMNS)
+        seg = segment(log, settings.segmentation)
+        seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
+                              "rows": log.rows_read, "rows_dropped": log.rows_dropped}
     return seg
 
 

@@ -28,7 +28,7 @@ import pandas as pd
 from scipy.interpolate import CubicSpline
 
 from .errors import ConfigError, GyrocalError, IdentifiabilityError
-from .model import FitResult, Model, fit
+from .model import FitResult, Model, columns_of, fit
 
 METHODS = ("lagrange3", "linear", "spline", "poly")
 
@@ -178,18 +178,22 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     if method not in METHODS:
         raise ConfigError(f"unknown interpolation method {method!r}; choose one of {', '.join(METHODS)}")
     fits, temps, rows, excluded, first_error = [], [], [], {}, None
-    for point, group in obs.groupby("point", sort=True):
+    data = columns_of(obs)
+    point_of = data["point"].astype(int)
+    for point in np.unique(point_of):
+        idx = np.flatnonzero(point_of == point)
+        group = {k: v[idx] for k, v in data.items()}
         temp = float(group["temp"].mean())
         try:
             result = fitter(model, group, source=source, label=f"{temp:.1f} °C")
         except IdentifiabilityError as exc:
             first_error = first_error or exc
             excluded[int(point)] = str(exc).removeprefix(f"{source}: " if source else "")
-            rows.append((int(point), temp, len(group), False, excluded[int(point)]))
+            rows.append((int(point), temp, len(idx), False, excluded[int(point)]))
             continue
         fits.append(result)
         temps.append(temp)
-        rows.append((int(point), temp, len(group), True, ""))
+        rows.append((int(point), temp, len(idx), True, ""))
     if not fits:
         raise first_error if first_error else GyrocalError("no observations to fit", source=source)
     names = fits[0].names

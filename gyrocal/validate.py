@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .model import Model, observation_floor
+from .model import Model, columns_of, observation_floor
 from .terms import AXES
 from .thermal import GridFit
 
@@ -42,12 +42,6 @@ class Validation:
     table_samples: pd.DataFrame      # the same on samples
     by_temperature: pd.DataFrame     # RMS per held-out temperature and method
     summary: dict = field(default_factory=dict)
-
-
-def covariates(obs: pd.DataFrame) -> dict[str, np.ndarray]:
-    """Numeric observation columns, as the model's terms read them."""
-    return {c: obs[c].to_numpy(dtype=float) for c in obs.columns
-            if c not in ("mount", "axis", "mount_source") and pd.api.types.is_numeric_dtype(obs[c])}
 
 
 def compensate_holds(model: Model, coefs, w: np.ndarray, rate: np.ndarray, sd: np.ndarray,
@@ -68,12 +62,11 @@ def validate(model: Model, obs: pd.DataFrame, grid_fit: GridFit, *,
     grid = grid_fit.grid
     P = len(grid.temperatures)
     n = len(obs)
-    data = covariates(obs)
-    w = obs[["gyro_x", "gyro_y", "gyro_z"]].to_numpy(dtype=float)
-    rate = obs[["rate_x", "rate_y", "rate_z"]].to_numpy(dtype=float)
-    sd = obs[["std_x", "std_y", "std_z"]].to_numpy(dtype=float)
+    data = columns_of(obs)
+    stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
+    w, rate, sd = stack("gyro"), stack("rate"), stack("std")
     temp = data["temp"]
-    point = obs["point"].to_numpy()
+    point = data["point"].astype(int)
     grid_index = {int(p): k for k, p in enumerate(
         grid_fit.points.loc[grid_fit.points["used"], "point"])}
 
@@ -100,7 +93,7 @@ def validate(model: Model, obs: pd.DataFrame, grid_fit: GridFit, *,
               "single": compensate_holds(model, as_coefs(single), w, rate, sd, data),
               "interpolated": compensate_holds(model, as_coefs(interp), w, rate, sd, data)}
 
-    floor = observation_floor(obs)
+    floor = observation_floor(data)
     base = obs[["hold", "point", "point_temp", "temp", "mount", "axis", "ref_rate", "n",
                 "std_x", "std_y", "std_z"]].reset_index(drop=True)
     base = base.assign(clamped=clamped, held_out=held_out, reference_temp=ref_temp,
@@ -141,33 +134,33 @@ def _pooled_rms(values: np.ndarray) -> float:
 
 def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
     """Mean and RMS of the error per rotating axis x output axis for each method."""
+    rotating = np.array([AXES.index(a) for a in holds["axis"]])
+    method = holds["method"].cat.codes.to_numpy()
+    group = rotating * len(METHODS) + method
     n = holds["n"].to_numpy(dtype=float)
-    parts = {}
-    for a in AXES:
-        e = holds[f"err_{a}"].to_numpy()
-        if samples:
-            parts[f"w_{a}"] = n
-            parts[f"e_{a}"] = n * e
-            parts[f"q_{a}"] = n * (e ** 2 + holds[f"var_{a}"].to_numpy())
-            parts[f"f_{a}"] = n * holds[f"std_{a}"].to_numpy() ** 2
-        else:
-            parts[f"w_{a}"] = np.ones_like(n)
-            parts[f"e_{a}"] = e
-            parts[f"q_{a}"] = e ** 2
-            parts[f"f_{a}"] = holds[f"floor_{a}"].to_numpy() ** 2
-    sums = pd.DataFrame(parts).assign(rotating=holds["axis"].to_numpy(), method=holds["method"].to_numpy(),
-                                      holds=1).groupby(["rotating", "method"], observed=True).sum()
+    size = 3 * len(METHODS)
+    total = lambda v: np.bincount(group, weights=v, minlength=size).reshape(3, len(METHODS))  # noqa: E731
+    weight = total(n if samples else np.ones_like(n))
+    count = total(np.ones_like(n))
     rows = []
-    for rot in sorted(set(holds["axis"])):
+    for r, rot in enumerate(AXES):
+        if count[r].sum() == 0:
+            continue
         for a in AXES:
+            e = holds[f"err_{a}"].to_numpy()
+            if samples:
+                mean = total(n * e)[r] / weight[r]
+                rms = np.sqrt(total(n * (e ** 2 + holds[f"var_{a}"].to_numpy()))[r] / weight[r])
+                floor = np.sqrt(total(n * holds[f"std_{a}"].to_numpy() ** 2)[r] / weight[r])
+            else:
+                mean = total(e)[r] / weight[r]
+                rms = np.sqrt(total(e ** 2)[r] / weight[r])
+                floor = np.sqrt(total(holds[f"floor_{a}"].to_numpy() ** 2)[r] / weight[r])
             row = {"rotating": rot, "output": a}
-            for m in METHODS:
-                g = sums.loc[(rot, m)]
-                row[f"{m}_mean"] = g[f"e_{a}"] / g[f"w_{a}"]
-                row[f"{m}_rms"] = np.sqrt(g[f"q_{a}"] / g[f"w_{a}"])
-            g = sums.loc[(rot, "interpolated")]
-            row["noise_floor"] = np.sqrt(g[f"f_{a}"] / g[f"w_{a}"])
-            row["holds"] = int(g["holds"])
+            for m, name in enumerate(METHODS):
+                row[f"{name}_mean"], row[f"{name}_rms"] = mean[m], rms[m]
+            row["noise_floor"] = floor[METHODS.index("interpolated")]
+            row["holds"] = int(count[r, METHODS.index("interpolated")])
             rows.append(row)
     table = pd.DataFrame(rows)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -180,19 +173,21 @@ def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
 
 def _by_temperature(holds: pd.DataFrame) -> pd.DataFrame:
     """RMS (pooled over output axes) per temperature point and method."""
-    sq = {m: None for m in METHODS}
-    e2 = sum(holds[f"err_{a}"].to_numpy() ** 2 for a in AXES) / 3
-    f2 = sum(holds[f"floor_{a}"].to_numpy() ** 2 for a in AXES) / 3
-    frame = pd.DataFrame({"point": holds["point"].to_numpy(), "temp": holds["point_temp"].to_numpy(),
-                          "method": holds["method"].to_numpy(), "e2": e2, "f2": f2,
-                          "clamped": holds["clamped"].to_numpy(), "holds": 1})
-    g = frame.groupby(["point", "method"], observed=True).agg(
-        temp=("temp", "first"), holds=("holds", "sum"), clamped=("clamped", "all"),
-        e2=("e2", "mean"), f2=("f2", "mean"))
-    out = g["temp"].unstack("method").iloc[:, :1].rename(columns=lambda _: "temp")
-    out["holds"] = g["holds"].unstack("method").iloc[:, 0]
-    out["clamped"] = g["clamped"].unstack("method").iloc[:, 0].astype(bool)
-    for m in sq:
-        out[f"{m}_rms"] = np.sqrt(g["e2"].unstack("method")[m])
-    out["noise_floor"] = np.sqrt(g["f2"].unstack("method")["interpolated"])
-    return out.reset_index()
+    points, index = np.unique(holds["point"].to_numpy(), return_inverse=True)
+    method = holds["method"].cat.codes.to_numpy()
+    group = index * len(METHODS) + method
+    size = len(points) * len(METHODS)
+    mean = lambda v: (np.bincount(group, weights=v, minlength=size)  # noqa: E731
+                      / np.maximum(np.bincount(group, minlength=size), 1)).reshape(len(points), -1)
+    e2 = mean(sum(holds[f"err_{a}"].to_numpy() ** 2 for a in AXES) / 3)
+    f2 = mean(sum(holds[f"floor_{a}"].to_numpy() ** 2 for a in AXES) / 3)
+    first = np.unique(index, return_index=True)[1]
+    counts = np.bincount(index) // len(METHODS)
+    clamped = np.bincount(index, weights=holds["clamped"].to_numpy(dtype=float)) \
+        == np.bincount(index)
+    out = pd.DataFrame({"point": points, "temp": holds["point_temp"].to_numpy()[first],
+                        "holds": counts, "clamped": clamped})
+    for m, name in enumerate(METHODS):
+        out[f"{name}_rms"] = np.sqrt(e2[:, m])
+    out["noise_floor"] = np.sqrt(f2[:, METHODS.index("interpolated")])
+    return out

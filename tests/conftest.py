@@ -6,6 +6,13 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+# CI runs the same examples every time (every commit green); `pytest --hypothesis-profile
+# explore` searches afresh with many more, to hunt for new failures.
+settings.register_profile("default", derandomize=True, deadline=None, max_examples=50)
+settings.register_profile("explore", max_examples=2000, deadline=None)
+settings.load_profile("default")
 
 from gyrocal.simulate import GyroUnit, TurntableProtocol, load_truth, simulate_unit
 

@@ -160,7 +160,7 @@ def test_empty_directory_is_refused(tmp_path):
 column_types = st.sampled_from([pa.float32(), pa.float64(), pa.int32(), pa.string()])
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data(), n=st.integers(0, 40))
 def test_any_table_gives_a_log_or_a_gyrocal_error(tmp_path, data, n):
     names = data.draw(st.lists(st.sampled_from(["t", "gyro_x", "gyro_y", "gyro_z", "temp",
