@@ -16,7 +16,7 @@ import pyarrow.parquet as pq
 
 from .calibration import Calibration
 from .errors import LogFormatError
-from .io import GYRO, UNIT_FACTORS, check_float, declared_units, open_dataset
+from .io import GYRO, check_float, declared_units, open_dataset, to_internal_units
 
 BATCH_ROWS = 1 << 20
 
@@ -40,8 +40,6 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     for c in needed:
         check_float(schema, c, path)
     units = declared_units(schema, path)
-    gyro_factor = UNIT_FACTORS["gyro"][units.get("gyro", "deg/s")]
-    temp_offset = UNIT_FACTORS["temp"][units.get("temp", "degC")]
 
     out_schema = schema
     for c in GYRO:
@@ -55,10 +53,10 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     tmp = out.with_name(out.name + ".tmp")
     with pq.ParquetWriter(tmp, out_schema) as writer:
         for batch in dataset.to_batches(batch_size=BATCH_ROWS):
-            cols = {c: batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64) for c in needed}
-            gyro = np.column_stack([cols[c] for c in GYRO]) * gyro_factor
-            data = {"temp": cols["temp"] + temp_offset,
-                    **{c: cols[c] for c in needed if c not in (*GYRO, "temp")}}
+            cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
+                                         .astype(np.float64), units) for c in needed}
+            gyro = np.column_stack([cols[c] for c in GYRO])
+            data = {c: cols[c] for c in needed if c not in GYRO}
             good = np.all(np.isfinite(gyro), axis=1)
             for v in data.values():
                 good &= np.isfinite(v)

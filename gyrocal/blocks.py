@@ -6,9 +6,10 @@ a block is ignored). Later stages work on per-block means and variances only, so
 samples are touched once, batch by batch, while Arrow decodes the next batch; a hold is a
 run of whole blocks, so its statistics are exact sums of block statistics.
 
-Precision: float32 columns are centred on each block's first sample before squaring, so
-float32 arithmetic stays exact to well below the noise even at 400 deg/s; float64 columns
-need no centring. Block means are float64.
+Precision: values are centred on each block's first sample before squaring and summing in
+float32, which stays exact to well below the noise even at 400 deg/s; block means add the
+float64 first sample back. Optional columns (accelerometer) may hold NaN: their block means
+are taken over the finite samples.
 """
 
 from __future__ import annotations
@@ -104,7 +105,15 @@ class BlockAccumulator:
         for a, c in enumerate(GYRO):
             self._moments(view[c], out["gyro"][sl, a], out["gyro_var"][sl, a])
         for a, c in enumerate(self.accel):
-            out["accel"][sl, a] = (view[c].astype(np.float32, copy=False) @ self._ones) / size
+            v = view[c].astype(np.float32, copy=False)
+            sums = v @ self._ones
+            if np.isnan(sums).any():  # optional column with gaps: mean of what is there
+                finite = np.isfinite(v)
+                with np.errstate(invalid="ignore"):
+                    sums = np.where(finite, v, 0.0) @ self._ones / (finite @ self._ones)
+                out["accel"][sl, a] = sums
+            else:
+                out["accel"][sl, a] = sums / size
         if self.mount:
             out["mount_first"][sl] = view["mount"][:, 0]
             out["mount_last"][sl] = view["mount"][:, -1]

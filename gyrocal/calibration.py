@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import CalibrationFileError, CorruptFileError, GyrocalError
 from .model import Model
-from .thermal import METHODS, TemperatureGrid
+from .thermal import TemperatureGrid, check_method
 
 FORMAT = "gyrocal.calibration/1"
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
@@ -118,9 +118,19 @@ class Calibration:
             except GyrocalError as exc:
                 fail(f"model: {exc}")
             interp = model_d["interpolation"]
-            method = interp["method"]
-            if method not in METHODS:
-                fail(f"interpolation method {method!r} is not known")
+            method, degree = interp["method"], interp.get("degree", 3)
+            try:
+                check_method(method, degree)
+            except GyrocalError as exc:
+                fail(str(exc))
+            reference = model_d.get("reference_temperature", 25.0)
+            if isinstance(reference, bool) or not isinstance(reference, (int, float)) \
+                    or not math.isfinite(reference):
+                fail(f"model reference_temperature must be a number, got {reference!r}")
+            units = d.get("units", UNITS)
+            wrong = {k: units.get(k) for k, v in UNITS.items() if units.get(k) != v}
+            if wrong:
+                fail(f"units {wrong} are not the {UNITS} this gyrocal writes and reads")
             temps = _floats(grid_d["temperature"], "grid.temperature", fail)
             names = tuple(model.names)
             values = np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail)
@@ -134,12 +144,12 @@ class Calibration:
         if values.shape[0] != len(temps) or stderr.shape[0] != len(temps):
             fail("grid coefficients and temperatures differ in length")
         try:
-            grid = TemperatureGrid(temps, names, values, stderr, method, int(interp.get("degree") or 3))
+            grid = TemperatureGrid(temps, names, values, stderr, method, degree)
         except GyrocalError as exc:
             fail(f"grid: {exc}")
         known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid",
                  "provenance"}
-        cal = cls(model, grid, float(model_d.get("reference_temperature", 25.0)),
+        cal = cls(model, grid, float(reference),
                   {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
                   d.get("provenance", {}), {k: v for k, v in d.items() if k not in known})
         K, B = cal.matrices()

@@ -101,8 +101,9 @@ def cmd_calibrate(args) -> int:
     print(f"  {result.segmentation.info['holds_accepted']} holds, "
           f"{s['temperature_points']} temperature points "
           f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)")
-    print(f"  leave-temperature-out RMS {s['validation_rms']:.3g} deg/s, noise floor "
-          f"{s['noise_floor']:.3g} deg/s ({s['excess']:.2f}x); single-temperature "
+    print(f"  leave-{s['held_out']}-out RMS {s['validation_rms']:.3g} deg/s: noise floor "
+          f"{s['noise_floor']:.3g} ({s['excess']:.2f}x), expected of a correct model "
+          f"{s['expected_rms']:.3g} ({s['excess_over_expected']:.2f}x); single-temperature "
           f"{s['single_rms']:.3g}, uncompensated {s['uncompensated_rms']:.3g}")
     if args.report:
         print(f"  report -> {args.report}")
@@ -125,12 +126,20 @@ def cmd_apply(args) -> int:
     return 0
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """Usage mistakes are bad input too: one line on stderr, exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"gyrocal: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="gyrocal", description="Calibrate MEMS gyroscopes "
-                                     "across temperature from rig logs.", epilog=EPILOG)
+    parser = OneLineParser(prog="gyrocal", description="Calibrate MEMS gyroscopes "
+                           "across temperature from rig logs.", epilog=EPILOG)
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=OneLineParser)
 
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
     p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])

@@ -19,7 +19,7 @@ from .errors import ConfigError, CorruptFileError
 from .model import DEFAULT_TERMS, Model
 from .segment import SegmentConfig
 from .terms import make_term
-from .thermal import METHODS
+from .thermal import check_method
 
 
 @dataclass(frozen=True)
@@ -45,11 +45,8 @@ class ModelSettings:
         for spec in terms:
             make_term(spec)  # raises on unknown names or bad parameters
         method = values.get("interpolation", "lagrange3")
-        if method not in METHODS:
-            raise ConfigError(f"{key}.interpolation is {method!r}; choose one of {', '.join(METHODS)}")
         degree = values.get("degree", 3)
-        if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
-            raise ConfigError(f"{key}.degree must be a non-negative integer, got {degree!r}")
+        check_method(method, degree, where=f"{key}.interpolation")
         ref = values.get("reference_temperature", 25.0)
         if isinstance(ref, bool) or not isinstance(ref, (int, float)) or not math.isfinite(ref):
             raise ConfigError(f"{key}.reference_temperature must be a number, got {ref!r}")

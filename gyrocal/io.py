@@ -158,9 +158,7 @@ def _time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
         ints = ints.fill_null(0).to_numpy(zero_copy_only=False)
         if not origin and (missing is None or not missing.all()):
             origin.append((int(ints[0 if missing is None else np.argmin(missing)]), typ.unit))
-        start, unit = origin[0] if origin else (0, typ.unit)
-        if unit != typ.unit:
-            raise LogFormatError(f"column t changes time unit from {unit} to {typ.unit}", source=path)
+        start = origin[0][0] if origin else 0
         seconds = (ints - start).astype(np.float64) * scale
         if missing is not None:  # a missing time makes the row non-finite: dropped
             seconds[missing] = np.nan
@@ -184,7 +182,7 @@ def _mount_codes(col: pa.Array, path: Path) -> np.ndarray:
         lookup = pc.index_in(col, value_set=allowed)
         _reject_unknown_mounts(col, lookup, None, path)
         return lookup.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
-    table = _dictionary_lookup(col.dictionary, allowed)
+    table = _dictionary_lookup(col.dictionary)
     if table is None:  # an entry outside MOUNTS: an error only if some row uses it
         lookup = pc.index_in(col.dictionary, value_set=allowed)
         _reject_unknown_mounts(col.dictionary, lookup, col.indices, path)
@@ -207,7 +205,7 @@ def _lookup_for(entries: tuple) -> np.ndarray | None:
     return np.array(codes + [-1], dtype=np.int8)
 
 
-def _dictionary_lookup(dictionary: pa.Array, allowed: pa.Array) -> np.ndarray | None:
+def _dictionary_lookup(dictionary: pa.Array) -> np.ndarray | None:
     """int8 code per dictionary entry (plus -1 for null rows); dictionaries repeat across
     batches, so the mapping is computed once per distinct dictionary."""
     return _lookup_for(tuple(dictionary.to_pylist()))
@@ -256,16 +254,23 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     batches: list[dict[str, np.ndarray]] = []
     rows, dropped, previous_t = 0, 0, -np.inf
     origin: list = []
+    last_mount = np.int8(-1)
     for record_batch in table.to_batches():
         if record_batch.num_rows == 0:
             continue
         batch = _convert_batch(record_batch, units, path, origin)
-        keep = _finite_rows(batch)
+        if "mount" in batch:
+            batch["mount"], last_mount = _continue_labels(batch["mount"], last_mount)
+        # Only the columns a stage requires decide which rows are usable: a missing value
+        # in an optional column (a slower accelerometer, a file without it) stays NaN.
+        keep = _finite_rows({k: batch[k] for k in required})
+        positions = None
         if keep is not None:
             dropped += len(keep) - int(np.count_nonzero(keep))
+            positions = np.flatnonzero(keep)
             batch = {k: v[keep] for k, v in batch.items()}
         if len(batch["t"]):
-            _check_time(batch["t"], previous_t, rows, path)
+            _check_time(batch["t"], previous_t, rows, positions, path)
             previous_t = batch["t"][-1]
             batches.append(batch)
         rows += record_batch.num_rows
@@ -289,11 +294,12 @@ def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Pa
         elif name == "mount":
             batch[name] = _mount_codes(col, path)
         else:
-            batch[name] = _to_internal_units(name, col.to_numpy(zero_copy_only=False), units)
+            batch[name] = to_internal_units(name, col.to_numpy(zero_copy_only=False), units)
     return batch
 
 
-def _to_internal_units(name: str, values: np.ndarray, units: dict[str, str]) -> np.ndarray:
+def to_internal_units(name: str, values: np.ndarray, units: dict[str, str]) -> np.ndarray:
+    """A column's values in deg/s, °C or g, from the units the log declared."""
     quantity = _QUANTITY_OF.get(name)
     unit = units.get(quantity) if quantity else None
     if unit is None:
@@ -319,8 +325,11 @@ def _finite_rows(columns: dict[str, np.ndarray]) -> np.ndarray | None:
     return keep
 
 
-def _check_time(t: np.ndarray, previous: float, offset: int, path: Path) -> None:
-    """Strictly increasing within the batch and after the previous batch's last time."""
+def _check_time(t: np.ndarray, previous: float, offset: int, positions, path: Path) -> None:
+    """Strictly increasing within the batch and after the previous batch's last time.
+
+    ``positions`` maps kept rows to their rows in the batch (None: none dropped), so the
+    message names the row as it is in the file."""
     if t[0] <= previous:
         i, before = -1, previous
     else:
@@ -328,8 +337,20 @@ def _check_time(t: np.ndarray, previous: float, offset: int, path: Path) -> None
         if not bad.size:
             return
         i, before = int(bad[0]), t[bad[0]]
-    raise LogFormatError(f"column t is not strictly increasing: row {offset + i + 1} has "
+    row = offset + (i + 1 if positions is None else int(positions[i + 1]))
+    raise LogFormatError(f"column t is not strictly increasing: row {row} has "
                          f"t={float(t[i + 1])!r} after t={float(before)!r}", source=path)
+
+
+def _continue_labels(codes: np.ndarray, previous: np.int8) -> tuple[np.ndarray, np.int8]:
+    """Null mount labels (-1) continue the last label, as a rig that logs the mount only
+    when it changes would mean; labels before the first one stay unknown."""
+    if codes.min(initial=0) >= 0:
+        return codes, codes[-1] if len(codes) else previous
+    index = np.where(codes >= 0, np.arange(len(codes)), -1)
+    np.maximum.accumulate(index, out=index)
+    filled = np.where(index >= 0, codes[np.maximum(index, 0)], previous).astype(np.int8)
+    return filled, filled[-1]
 
 
 def file_sha256(path: str | os.PathLike) -> str:
@@ -363,18 +384,3 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
     tmp = Path(path).with_name(Path(path).name + ".tmp")
     pq.write_table(table, tmp)
     os.replace(tmp, path)
-
-
-def read_table_with_metadata(path):
-    """(pandas table, metadata dict) of a file written by :func:`write_table`."""
-    path = Path(path)
-    try:
-        table = pq.read_table(path)
-    except FileNotFoundError:
-        raise CorruptFileError("no such file", source=path) from None
-    except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
-    raw = (table.schema.metadata or {}).get(OBS_META_KEY)
-    if raw is None:
-        raise LogFormatError("is not a table written by gyrocal", source=path)
-    return table.to_pandas(), json.loads(raw)

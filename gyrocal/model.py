@@ -143,12 +143,6 @@ class FitResult:
     def coefs(self) -> dict[str, float]:
         return {n: float(v) for n, v in zip(self.names, self.values)}
 
-    def residual_table(self, obs: pd.DataFrame) -> pd.DataFrame:
-        """``obs`` (the fitted observations) with ``resid_`` and ``floor_`` per axis added."""
-        extra = {f"{kind}_{a}": values[:, i] for kind, values in
-                 (("resid", self.residuals), ("floor", self.floor)) for i, a in enumerate(AXES)}
-        return obs.assign(**extra)
-
     def chi2_red(self, axis: str) -> float:
         return self.chi2[axis] / self.dof[axis]
 

@@ -29,7 +29,7 @@ import pandas as pd
 
 from .blocks import block_statistics
 from .errors import ConfigError, SegmentationError
-from .io import MOUNTS, RigLog, read_log
+from .io import GYRO, MOUNTS, RigLog, read_log
 
 LOG_COLUMNS = ("mount", "accel_x", "accel_y", "accel_z")  # optional columns segmentation uses
 
@@ -55,6 +55,7 @@ class SegmentConfig:
     rate_tol_abs: float = 0.005      # reference counts as constant within abs + rel·|rate|
     rate_tol_rel: float = 1e-3
     gap_factor: float = 10.0         # a sample interval this many times nominal is a gap
+    gap_bridge_s: float = 2.0        # a logging gap this short does not interrupt a hold
     trim_s: float = 0.4              # transient trimmed from both ends of every hold
     settle_s: float = 1.0            # margin kept clear of handling motion
     min_hold_s: float | None = None  # None: a quarter of the typical rotating hold
@@ -69,6 +70,7 @@ class SegmentConfig:
     agree_scale: float = 0.1         # gyro may differ from reference by scale·|rate| + bias
     agree_bias: float = 5.0
     saturation_fraction: float = 0.01
+    full_scale: float | None = None  # deg/s; when given, saturation is judged against it
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> "SegmentConfig":
@@ -77,10 +79,22 @@ class SegmentConfig:
         for name, value in values.items():
             if name not in known:
                 raise ConfigError(f"unknown setting {key}.{name}; known: {', '.join(sorted(known))}")
-            if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))
-                                      or not math.isfinite(value) or value < 0):
-                raise ConfigError(f"{key}.{name} must be a non-negative number, got {value!r}")
+            if value is None and name in _OPTIONAL:
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"{key}.{name} must be a number, got {value!r}")
+            low, inclusive = _LOWER_BOUNDS.get(name, (0.0, True))
+            if value < low or (value == low and not inclusive):
+                relation = "at least" if inclusive else "more than"
+                raise ConfigError(f"{key}.{name} must be {relation} {low:g}, got {value!r}")
         return cls(**values)
+
+
+_OPTIONAL = {"min_hold_s", "soak_min_s", "full_scale"}
+# (bound, inclusive); every other setting must be >= 0
+_LOWER_BOUNDS = {"block_s": (0.0, False), "gap_factor": (1.0, False), "motion_sigma": (0.0, False),
+                 "noise_cap": (1.0, True), "temp_window_s": (0.0, False), "full_scale": (0.0, False),
+                 "saturation_fraction": (0.0, False)}
 
 
 @dataclass(frozen=True)
@@ -109,10 +123,30 @@ def segment_file(path, config: SegmentConfig | None = None) -> tuple[RigLog, Seg
 
 
 def segment(log: RigLog, config: SegmentConfig | None = None) -> Segmentation:
-    """Segment a log into constant-rate holds; see the module docstring."""
+    """Segment a log into constant-rate holds; see the module docstring.
+
+    Holds should span a dozen blocks or more, so that trimming and settling margins (whole
+    blocks) leave most of them; for a protocol of short holds the blocks are made shorter.
+    """
     cfg = config or SegmentConfig()
     blk, size, dt = block_statistics(log, cfg.block_s)
+    typical = _typical_rotating_run(blk, size, dt, cfg)
+    if typical is not None and typical < 12 * size * dt and size > 4:
+        blk, size, dt = block_statistics(log, max(typical / 12, 4 * dt))
     return _segment_blocks(log, blk, size, dt, cfg)
+
+
+def _typical_rotating_run(blk, size, dt, cfg) -> float | None:
+    """Median duration (s) of the runs of blocks at one constant non-zero reference rate."""
+    r = blk.get("ref")
+    if r is None or len(r) < 2:
+        return None
+    tol = cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(r)
+    const = (blk["ref_span"] <= tol) & (np.abs(r) > tol)
+    same = np.r_[False, np.abs(np.diff(r)) <= tol[1:]] & const & np.r_[False, const[:-1]]
+    run_id = np.cumsum(const & ~same) - 1
+    lengths = np.bincount(run_id[const]) if const.any() else np.array([])
+    return float(np.median(lengths) * size * dt) if len(lengths) else None
 
 
 def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -127,9 +161,9 @@ def _median(values: np.ndarray, axis=None, limit: int = 50_000):
     return np.median(values[::step], axis=axis)
 
 
-def _range_sums(values: np.ndarray, lengths: np.ndarray) -> np.ndarray:
-    """Sums over consecutive ranges of the given (positive) lengths."""
-    return np.add.reduceat(values, np.r_[0, np.cumsum(lengths)[:-1]], axis=0)
+def _range_sums(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Sums over consecutive non-empty ranges beginning at ``starts``."""
+    return np.add.reduceat(values, starts, axis=0)
 
 
 def _range_index(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -151,8 +185,13 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     mean, var = blk["gyro"], blk["gyro_var"]
 
     # 1. Gaps and constant-reference runs.
-    in_gap = (t_last - t_first) > (size - 1 + cfg.gap_factor) * dt
-    gap_before = np.r_[False, (t_first[1:] - t_last[:-1]) > cfg.gap_factor * dt]
+    # A gap is a pause in logging longer than gap_factor intervals; one shorter than
+    # gap_bridge_s does not interrupt a hold (the rig kept doing what it did).
+    pause_in = (t_last - t_first) - (size - 1) * dt
+    pause_before = np.r_[0.0, t_first[1:] - t_last[:-1] - dt]
+    gap_limit = max(cfg.gap_bridge_s, (cfg.gap_factor - 1) * dt)
+    in_gap = pause_in > gap_limit
+    gap_before = np.r_[False, pause_before[1:] > gap_limit]
     tol = np.maximum(cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(r),
                      3.0 * _median(blk["ref_span"]))
     const = (blk["ref_span"] <= tol) & ~in_gap
@@ -216,10 +255,10 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
         segments.append(("transient", "", "trimmed", h_start[i], c0[i]))
         segments.append(("transient", "", "trimmed", c1[i], stops[i]))
     if not long_enough.any():
+        longest = (c1 - c0)[~is_soak].max(initial=0) * block_dt
         raise SegmentationError(
-            f"no constant-rate hold long enough: longest quiet stretch "
-            f"{s_dur.max():.3g} s, minimum after trimming {max(min_hold, block_dt):.3g} s",
-            source=log.path)
+            f"no constant-rate hold long enough: the longest lasts {max(longest, 0):.3g} s "
+            f"after trimming, the minimum is {max(min_hold, block_dt):.3g} s", source=log.path)
     c0, c1 = c0[long_enough], c1[long_enough]
     h = _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var,
                          level[run[c0]], gain[run[c0]], cfg)
@@ -339,30 +378,29 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
     noise-sized numbers and lose nothing to cancellation.
     """
     lengths = c1 - c0
+    first = np.r_[0, np.cumsum(lengths)[:-1]]  # where each hold starts among the hold blocks
     hb = _range_index(c0, c1)
     owner = np.repeat(np.arange(len(c0)), lengths)
     n = lengths * size
     dev = mean[hb] - level[owner]
-    hold_dev = _range_sums(dev, lengths) / lengths[:, None]
-    within = _range_sums(var[hb].astype(np.float64), lengths) * (size - 1)
-    between = _range_sums((dev - hold_dev[owner]) ** 2, lengths) * size
+    hold_dev = _range_sums(dev, first) / lengths[:, None]
+    within = _range_sums(var[hb].astype(np.float64), first) * (size - 1)
+    between = _range_sums((dev - hold_dev[owner]) ** 2, first) * size
     hold_var = (within + between) / (n - 1)[:, None]
     hold_mean = level + hold_dev
     r_hb = r[hb]
-    ref = _range_sums(r_hb, lengths) / lengths
-    temp = _range_sums(blk["temp"][hb].astype(np.float64), lengths) / lengths
-    ref_drift = np.maximum.reduceat(r_hb, np.r_[0, np.cumsum(lengths)[:-1]]) - \
-        np.minimum.reduceat(r_hb, np.r_[0, np.cumsum(lengths)[:-1]])
+    ref = _range_sums(r_hb, first) / lengths
+    temp = _range_sums(blk["temp"][hb].astype(np.float64), first) / lengths
+    ref_drift = np.maximum.reduceat(r_hb, first) - np.minimum.reduceat(r_hb, first)
 
     # Steadiness: the first and second halves of the hold agree, once the part the
     # reference explains (gyro gain times reference change) is taken out.
-    first_half = np.arange(len(hb)) - np.repeat(np.r_[0, np.cumsum(lengths)[:-1]], lengths) \
-        < np.repeat(lengths // 2, lengths)
+    first_half = np.arange(len(hb)) - np.repeat(first, lengths) < np.repeat(lengths // 2, lengths)
     n1 = (lengths // 2) * size
     n2 = n - n1
     resid = dev - gain[owner] * (r_hb - ref[owner])[:, None]
-    d1 = _range_sums(np.where(first_half[:, None], resid, 0.0), lengths) / np.maximum(lengths // 2, 1)[:, None]
-    d2 = _range_sums(np.where(first_half[:, None], 0.0, resid), lengths) / (lengths - lengths // 2)[:, None]
+    d1 = _range_sums(np.where(first_half[:, None], resid, 0.0), first) / np.maximum(lengths // 2, 1)[:, None]
+    d2 = _range_sums(np.where(first_half[:, None], 0.0, resid), first) / (lengths - lengths // 2)[:, None]
     half_diff = np.abs(d2 - d1)
     half_limit = (cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
                   + cfg.motion_floor)
@@ -374,9 +412,13 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
                ref_drift=ref_drift, ref_tol=tol[c0],
                not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
                half_diff=half_diff[rows, worst], half_limit=half_limit[rows, worst],
-               saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log))
-    if "accel" in blk:
-        out["accel"] = _range_sums(blk["accel"][hb].astype(np.float64), lengths) / lengths[:, None]
+               saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log,
+                                     cfg.full_scale))
+    if "accel" in blk:  # optional: blocks without accelerometer data are left out
+        acc = blk["accel"][hb].astype(np.float64)
+        have = np.isfinite(acc)
+        with np.errstate(invalid="ignore"):
+            out["accel"] = _range_sums(np.where(have, acc, 0.0), first) / _range_sums(have * 1.0, first)
     return out
 
 
@@ -412,22 +454,29 @@ def _hold_temp_rate(blk, c0, c1) -> tuple[np.ndarray, np.ndarray]:
     return rate, np.where(np.isfinite(sd), sd, np.inf)
 
 
-def _saturation(blk, size, c0, c1, n, mean, var, log) -> np.ndarray:
-    """Share of each hold's samples sitting exactly at the log's extreme output value.
+def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
+    """Share of each hold's samples at the output limit.
 
-    Only holds whose mean lies within eight standard deviations of an extreme can touch
-    it; their samples are read back and counted.
+    The limit is ``full_scale`` (within 0.1 %) when the sensor's range is configured;
+    otherwise the log's extreme output values, which a clipped hold piles samples onto.
+    Without the range a sensor quieter than one quantisation step could pile samples onto
+    its top level unclipped, so configure ``full_scale`` for such sensors. Only holds within
+    eight standard deviations of a limit are read back and counted.
     """
     share = np.zeros(len(c0))
-    gmax, gmin = blk["gyro_max"], blk["gyro_min"]
+    if full_scale:
+        hi = np.full(3, 0.999 * full_scale)
+        lo = -hi
+    else:
+        hi, lo = blk["gyro_max"], blk["gyro_min"]
     reach = 8.0 * np.sqrt(var)
-    near = ((mean + reach >= gmax) | (mean - reach <= gmin)).any(axis=1)
+    near = ((mean + reach >= hi) | (mean - reach <= lo)).any(axis=1)
     for i in np.flatnonzero(near):
         worst = 0
-        for a, name in enumerate(("gyro_x", "gyro_y", "gyro_z")):
+        for a, name in enumerate(GYRO):
             x = log.rows(name, c0[i] * size, c1[i] * size)
-            worst = max(worst, int(np.count_nonzero((x == gmax[a]) | (x == gmin[a]))))
-        share[i] = worst / n[i] if worst >= 2 else 0.0
+            worst = max(worst, int(np.count_nonzero((x >= hi[a]) | (x <= lo[a]))))
+        share[i] = worst / n[i] if (worst >= 2 or full_scale) else 0.0
     return share
 
 

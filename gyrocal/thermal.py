@@ -85,6 +85,15 @@ def poly_weights(nodes: np.ndarray, x: np.ndarray, degree: int) -> np.ndarray:
     return Vx @ np.linalg.pinv(V)
 
 
+def check_method(method, degree=3, *, where: str = "interpolation") -> None:
+    """The one check of an interpolation setting, wherever it comes from."""
+    if method not in METHODS:
+        raise ConfigError(f"{where} method {method!r} is not known; choose one of "
+                          f"{', '.join(METHODS)}")
+    if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
+        raise ConfigError(f"{where} degree must be a non-negative integer, got {degree!r}")
+
+
 def interpolation_weights(method: str, nodes, x, *, degree: int = 3) -> np.ndarray:
     """Weights (len(x), len(nodes)) of ``method``; ``x`` is clamped to the node range."""
     nodes = np.asarray(nodes, dtype=float)
@@ -95,9 +104,8 @@ def interpolation_weights(method: str, nodes, x, *, degree: int = 3) -> np.ndarr
         return linear_weights(nodes, x)
     if method == "spline":
         return spline_weights(nodes, x)
-    if method == "poly":
-        return poly_weights(nodes, x, degree)
-    raise ConfigError(f"unknown interpolation method {method!r}; choose one of {', '.join(METHODS)}")
+    check_method(method, degree)
+    return poly_weights(nodes, x, degree)
 
 
 @dataclass(frozen=True)
@@ -112,6 +120,7 @@ class TemperatureGrid:
     degree: int = 3
 
     def __post_init__(self):
+        check_method(self.method, self.degree)
         if len(self.temperatures) == 0:
             raise ConfigError("a temperature grid needs at least one point")
         if np.any(np.diff(self.temperatures) <= 0):
@@ -152,12 +161,6 @@ class TemperatureGrid:
         return TemperatureGrid(self.temperatures[keep], self.names, self.values[keep],
                                self.stderr[keep], self.method, self.degree)
 
-    def point(self, index: int) -> "TemperatureGrid":
-        sl = slice(index, index + 1)
-        return TemperatureGrid(self.temperatures[sl], self.names, self.values[sl],
-                               self.stderr[sl], self.method, self.degree)
-
-
 @dataclass(frozen=True)
 class GridFit:
     """Per-temperature fits and the grid built from those that succeeded."""
@@ -175,8 +178,7 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     A point whose holds cannot determine the model (a mount missing there, too few holds)
     is left out and reported; if no point can be fitted the first refusal is raised.
     """
-    if method not in METHODS:
-        raise ConfigError(f"unknown interpolation method {method!r}; choose one of {', '.join(METHODS)}")
+    check_method(method, degree)
     fits, temps, rows, excluded, first_error = [], [], [], {}, None
     data = columns_of(obs)
     point_of = data["point"].astype(int)

@@ -44,17 +44,33 @@ def test_file_round_trips_byte_for_byte(complete_run, tmp_path):
     assert K.shape == (len(doc["grid"]["temperature"]), 3, 3)
 
 
-def test_K_and_B_in_the_file_are_the_contract_meaning(complete_run):
-    """w = K w_true + B: K and B reproduce the model's own output."""
+def test_K_and_B_in_the_file_are_the_units_true_K_and_B(complete_run, truth):
+    """w = K w_true + B (contract section 4): the file's K and B against the simulated unit,
+    entry by entry, within 4 standard errors of the coefficient each entry comes from."""
     cal = complete_run.calibration
+    unit = truth["complete"]["unit"]
     K, B = cal.matrices()
-    rng = np.random.default_rng(0)
-    w_true = rng.uniform(-300, 300, (5, 3))
+    se = dict(zip(cal.grid.names, cal.grid.stderr.T))
     for p, T in enumerate(cal.grid.temperatures):
-        coefs = {n: cal.grid.values[p, j] for j, n in enumerate(cal.grid.names)}
-        out = w_true + cal.model.error(coefs, {"rate_x": w_true[:, 0], "rate_y": w_true[:, 1],
-                                               "rate_z": w_true[:, 2]})
-        np.testing.assert_allclose(out, w_true @ K[p].T + B[p], rtol=0, atol=1e-10)
+        for i, a in enumerate("xyz"):
+            assert abs(B[p, i] - unit.B(T)[i]) < 4 * se[f"bias.{a}"][p]
+            for j, b in enumerate("xyz"):
+                name = f"scale.{a}" if a == b else f"misalignment.{a}.{b}"
+                assert abs(K[p, i, j] - unit.K(T)[i, j]) < 4 * se[name][p]
+
+
+@pytest.mark.parametrize("method, degree, reference", [("poly", 0, 25.0), ("spline", 3, 30.0),
+                                                       ("linear", 3, -5.0)])
+def test_round_trip_keeps_non_default_settings(complete_run, tmp_path, method, degree, reference):
+    g = complete_run.calibration.grid
+    grid = TemperatureGrid(g.temperatures, g.names, g.values, g.stderr, method, degree)
+    cal = Calibration(complete_run.calibration.model, grid, reference)
+    loaded = load_calibration_roundtrip(cal, tmp_path)
+    assert (loaded.grid.method, loaded.grid.degree, loaded.reference_temperature) == \
+        (method, degree, reference)
+    temps = np.linspace(-8, 42, 11)  # inside the calibrated range
+    for name in g.names:
+        np.testing.assert_array_equal(loaded.coefficients(temps)[name], cal.coefficients(temps)[name])
 
 
 @pytest.mark.parametrize("edit, message", [
@@ -66,6 +82,9 @@ def test_K_and_B_in_the_file_are_the_contract_meaning(complete_run):
     (lambda d: d["grid"]["K"][0][0].__setitem__(0, 1.5), "K and B do not match"),
     (lambda d: d["model"]["terms"].append({"name": "warp_drive"}), "unknown model term 'warp_drive'"),
     (lambda d: d["model"]["interpolation"].update(method="cosine"), "interpolation method 'cosine'"),
+    (lambda d: d["model"]["interpolation"].update(degree="two"), "degree must be a non-negative integer"),
+    (lambda d: d["model"].update(reference_temperature="room"), "reference_temperature must be a number"),
+    (lambda d: d["units"].update(rate="rad/s"), "units {'rate': 'rad/s'}"),
 ])
 def test_bad_files_are_refused_with_one_line(complete_run, tmp_path, edit, message):
     doc = complete_run.calibration.to_dict()

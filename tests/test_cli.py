@@ -64,7 +64,7 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
     (lambda d: None, ["calibrate", "{d}/l.parquet", "--add-term", "nope", "-o", "{d}/c.json"],
      "unknown model term 'nope'"),
     (lambda d: d.joinpath("m.yaml").write_text("terms: [bias]\ninterpolation: cosine\n"),
-     ["calibrate", "{d}/l.parquet", "--model", "{d}/m.yaml", "-o", "{d}/c.json"], "interpolation is 'cosine'"),
+     ["calibrate", "{d}/l.parquet", "--model", "{d}/m.yaml", "-o", "{d}/c.json"], "interpolation method 'cosine' is not known"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, make, args, expected):
     make(tmp_path)
@@ -74,6 +74,14 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, make, args, expected):
     assert len(lines) == 1 and lines[0].startswith("gyrocal: error: ")
     assert expected in lines[0]
     assert "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize("args", [["nope"], ["calibrate"], ["apply", "a", "-o"], ["simulate", "--units", "x"]])
+def test_usage_mistakes_are_one_line_and_exit_2(args):
+    out = gyrocal(*args)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("gyrocal: error: ")
 
 
 def test_an_internal_error_is_one_line_and_exit_1(monkeypatch, capsys):

@@ -86,14 +86,23 @@ def test_directory_dataset_is_ordered_by_time_not_by_name(tmp_path):
     assert len(file_sha256(folder)) == 64
 
 
-def test_mount_labels_become_codes_with_nulls_unknown(tmp_path):
-    labels = pa.array(["+x", None, "-z"] * 33 + ["+y"])
-    log = read_log(write(tmp_path, table(mount=labels)))
-    codes = log.column("mount")
-    assert codes[0] == MOUNTS.index("+x") and codes[1] == -1 and codes[2] == MOUNTS.index("-z")
+def test_mount_labels_become_codes_and_nulls_continue_the_last_label(tmp_path):
+    labels = pa.array([None, "+x", None, "-z"] * 25)
+    codes = read_log(write(tmp_path, table(mount=labels))).column("mount")
+    x, z = MOUNTS.index("+x"), MOUNTS.index("-z")
+    assert list(codes[:6]) == [-1, x, x, z, z, x]  # a leading null stays unknown
     dict_labels = labels.dictionary_encode()
     np.testing.assert_array_equal(read_log(write(tmp_path, table(mount=dict_labels), "d.parquet"))
                                   .column("mount"), codes)
+
+
+def test_a_missing_optional_value_does_not_drop_the_row(tmp_path):
+    accel = np.full(100, 1.0, np.float32)
+    accel[::2] = np.nan  # an accelerometer logged at half the rate
+    path = write(tmp_path, table(accel_x=accel, accel_y=accel, accel_z=accel))
+    log = read_log(path, optional=("accel_x", "accel_y", "accel_z"))
+    assert len(log) == 100 and log.rows_dropped == 0
+    assert np.isnan(log.column("accel_x")).sum() == 50
 
 
 @pytest.mark.parametrize("case, expected", [

@@ -97,7 +97,7 @@ def test_small_grids_and_bad_methods():
     np.testing.assert_array_equal(one, np.ones((3, 1)))
     two = interpolation_weights("lagrange3", [0.0, 20.0], [10.0])
     np.testing.assert_allclose(two, [[0.5, 0.5]])
-    with pytest.raises(ConfigError, match="unknown interpolation method 'akima'"):
+    with pytest.raises(ConfigError, match="interpolation method 'akima' is not known"):
         interpolation_weights("akima", NODES, [0.0])
     with pytest.raises(ConfigError, match="increase"):
         TemperatureGrid(np.array([10.0, 0.0]), ("a.x",), np.zeros((2, 1)), np.zeros((2, 1)))
