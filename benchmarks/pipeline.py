@@ -38,7 +38,8 @@ def child(mode: str) -> None:
     from gyrocal.segment import LOG_COLUMNS
     from gyrocal.io import REQUIRED
     columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in pq.read_schema(LOG).names]
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    base, cpu0 = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
     t0 = time.perf_counter()
     if mode == "bare":
         table = pq.read_table(LOG, columns=columns)
@@ -60,8 +61,9 @@ def child(mode: str) -> None:
         save_calibration(run(LOG).calibration, CACHE / "bench.calibration.json")
         nbytes = 0
     wall = time.perf_counter() - t0
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    print(json.dumps({"wall": wall, "peak_mb": (peak - base) / 1024, "nbytes": nbytes}))
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    print(json.dumps({"wall": wall, "cpu": usage.ru_utime + usage.ru_stime - cpu0,
+                      "peak_mb": (usage.ru_maxrss - base) / 1024, "nbytes": nbytes}))
 
 
 def measure(mode: str) -> dict:
@@ -110,17 +112,20 @@ def main() -> None:
         for mode in results:
             results[mode].append(measure(mode))
     bare = [r["wall"] for r in results["bare"]]
+    bare_cpu = statistics.median(r["cpu"] for r in results["bare"])
     table_mb = results["bare"][0]["nbytes"] / 2 ** 20
     print(f"{'':6s} {'median s':>9s} {'min s':>7s} {'paired x bare (median, quartiles)':>34s} "
-          f"{'peak MiB':>9s}")
+          f"{'CPU s':>6s} {'x bare':>6s} {'peak MiB':>9s}")
     for mode, rs in results.items():
         walls = [r["wall"] for r in rs]
         # each run against the bare read just before it: drift of the machine cancels
         ratios = sorted(w / b for w, b in zip(walls, bare))
-        q1, q2, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
+        q1, _, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
+        cpu = statistics.median(r["cpu"] for r in rs)
         peak = max(r["peak_mb"] for r in rs)
         print(f"{mode:6s} {statistics.median(walls):9.3f} {min(walls):7.3f} "
-              f"{statistics.median(ratios):15.2f} ({q1:.2f} to {q3:.2f}) {peak:9.0f}")
+              f"{statistics.median(ratios):15.2f} ({q1:.2f} to {q3:.2f}) "
+              f"{cpu:6.2f} {cpu / bare_cpu:6.2f} {peak:9.0f}")
     print(f"columns read: {table_mb:.0f} MiB in memory")
 
 
