@@ -6,27 +6,31 @@ a block is ignored). Later stages work on per-block means and variances only, so
 samples are touched once, batch by batch, while Arrow decodes the next batch; a hold is a
 run of whole blocks, so its statistics are exact sums of block statistics.
 
-Precision: values are centred on each block's first sample before squaring and summing in
-float32, which stays exact to well below the noise even at 400 deg/s; block means add the
-float64 first sample back. Optional columns (accelerometer) may hold NaN: their block means
-are taken over the finite samples.
+The reductions are the compiled kernels of :mod:`gyrocal.kernels` (one read per sample),
+or their numpy fallback. Both centre each block on its first sample before squaring, so the
+variance stays exact to well below the noise even at 400 deg/s. Optional columns
+(accelerometer) may hold NaN: their block means are taken over the finite samples.
 """
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from .io import ACCEL, GYRO, RigLog
+from .kernels import LIB, block_mean, block_moments
 
 
 class BlockAccumulator:
     """Consumes batches (``push``) and fills per-block statistics (``result``).
 
     Result keys: ``t_first``, ``t_last`` (s); ``ref`` mean and ``ref_span`` (deg/s);
-    ``temp`` mean; ``gyro`` mean (k, 3) float64 and ``gyro_var`` (k, 3) sample variance;
-    ``accel`` mean (k, 3) when the log has it; ``mount_first``/``mount_last`` codes when it
-    has a mount column; and ``gyro_max``/``gyro_min`` (3,) over every sample. Outputs are
-    allocated once for ``blocks`` blocks and filled in place.
+    ``temp`` mean; ``gyro`` mean (k, 3) and ``gyro_var`` (k, 3, float32) sample variance;
+    ``accel`` mean (k, 3) over the finite samples when the log has it; ``mount_first``/
+    ``mount_last`` codes when it has a mount column; ``gyro_max``/``gyro_min`` (3,) over
+    every sample. Outputs are allocated once for ``blocks`` blocks.
     """
 
     def __init__(self, size: int, names: tuple[str, ...], blocks: int):
@@ -34,29 +38,25 @@ class BlockAccumulator:
         self.accel = ACCEL if all(c in names for c in ACCEL) else ()
         self.mount = "mount" in names
         self.names = ("t", "ref_rate", "temp", *GYRO, *self.accel) + (("mount",) if self.mount else ())
-        self._ones = np.ones(size, dtype=np.float32)
-        self._ones64 = np.ones(size)
-        self._work = np.empty(0, dtype=np.float32)
+        self._work = [np.empty(0, dtype=np.float32)]
         self._carry: dict[str, np.ndarray] | None = None
         self.filled = 0
-        self.out = {k: np.empty(blocks) for k in ("t_first", "t_last", "ref", "ref_span")}
-        self.out["temp"] = np.empty(blocks, dtype=np.float32)
+        self.out = {k: np.empty(blocks) for k in ("t_first", "t_last", "ref", "ref_span", "temp")}
         self.out["gyro"] = np.empty((blocks, 3))
         self.out["gyro_var"] = np.empty((blocks, 3), dtype=np.float32)
         if self.accel:
-            self.out["accel"] = np.empty((blocks, 3), dtype=np.float32)
+            self.out["accel"] = np.empty((blocks, 3))
         if self.mount:
             self.out["mount_first"] = np.empty(blocks, dtype=np.int8)
             self.out["mount_last"] = np.empty(blocks, dtype=np.int8)
-        self.gyro_max = np.full(3, -np.inf)
-        self.gyro_min = np.full(3, np.inf)
+        self.extremes = np.tile([np.inf, -np.inf], (3, 1))  # per axis [min, max]
 
     def push(self, batch: dict[str, np.ndarray]) -> None:
         size, names = self.size, self.names
         n = len(batch["t"])
-        for a, c in enumerate(GYRO):
-            self.gyro_max[a] = max(self.gyro_max[a], batch[c].max())
-            self.gyro_min[a] = min(self.gyro_min[a], batch[c].min())
+        for a, c in enumerate(GYRO):  # the log's output extremes, for saturation checks
+            self.extremes[a] = min(self.extremes[a, 0], batch[c].min()), \
+                max(self.extremes[a, 1], batch[c].max())
         start = 0
         if self._carry is not None:
             need = size - len(self._carry["t"])
@@ -73,22 +73,8 @@ class BlockAccumulator:
             start = stop
         self._carry = {k: batch[k][start:] for k in names} if start < n else None
 
-    def _moments(self, v: np.ndarray, mean_out: np.ndarray, var_out: np.ndarray) -> None:
-        """Row means (float64) and sample variances (float32) of a (k, size) view."""
-        size = self.size
-        if self._work.size < v.size:
-            self._work = np.empty(v.size, dtype=np.float32)
-        d = self._work[: v.size].reshape(v.shape)  # reused: no page faults per batch
-        first = v[:, :1]
-        np.subtract(v, first, out=d, casting="same_kind")
-        s = d @ self._ones
-        np.square(d, out=d)
-        q = d @ self._ones
-        var_out[:] = np.maximum(q - s * s / size, 0.0) / (size - 1)
-        mean_out[:] = first[:, 0] + s / size
-
     def _reduce(self, view: dict[str, np.ndarray]) -> None:
-        size, out = self.size, self.out
+        out = self.out
         k = len(view["t"])
         sl = slice(self.filled, self.filled + k)
         self.filled += k
@@ -97,23 +83,15 @@ class BlockAccumulator:
         # The reference is piecewise constant: its mean, and a spread that sees ramps
         # (first against last sample) and bumps (mean against the ends' midpoint).
         ref = view["ref_rate"]
-        mean = (ref.astype(np.float64, copy=False) @ self._ones64) / size
+        block_mean(ref, out["ref"][sl])
         first, last = ref[:, 0], ref[:, -1]
-        out["ref"][sl] = mean
-        out["ref_span"][sl] = np.maximum(np.abs(last - first), 2.0 * np.abs(mean - (first + last) / 2))
-        out["temp"][sl] = (view["temp"].astype(np.float32, copy=False) @ self._ones) / size
+        out["ref_span"][sl] = np.maximum(np.abs(last - first),
+                                         2.0 * np.abs(out["ref"][sl] - (first + last) / 2))
+        block_mean(view["temp"], out["temp"][sl])
         for a, c in enumerate(GYRO):
-            self._moments(view[c], out["gyro"][sl, a], out["gyro_var"][sl, a])
-        for a, c in enumerate(self.accel):
-            v = view[c].astype(np.float32, copy=False)
-            sums = v @ self._ones
-            if np.isnan(sums).any():  # optional column with gaps: mean of what is there
-                finite = np.isfinite(v)
-                with np.errstate(invalid="ignore"):
-                    sums = np.where(finite, v, 0.0) @ self._ones / (finite @ self._ones)
-                out["accel"][sl, a] = sums
-            else:
-                out["accel"][sl, a] = sums / size
+            block_moments(view[c], out["gyro"][sl, a], out["gyro_var"][sl, a], self._work)
+        for a, c in enumerate(self.accel):  # optional column: a gap in it is not an error
+            block_mean(view[c], out["accel"][sl, a], finite_only=True)
         if self.mount:
             out["mount_first"][sl] = view["mount"][:, 0]
             out["mount_last"][sl] = view["mount"][:, -1]
@@ -122,16 +100,53 @@ class BlockAccumulator:
         if not self.filled:
             return {}
         out = {k: v[: self.filled] for k, v in self.out.items()}
-        out["gyro_max"], out["gyro_min"] = self.gyro_max, self.gyro_min
+        out["gyro_min"], out["gyro_max"] = self.extremes[:, 0].copy(), self.extremes[:, 1].copy()
         return out
 
 
-def block_statistics(log: RigLog, block_s: float) -> tuple[dict[str, np.ndarray], int, float]:
-    """Per-block statistics of a whole log: (statistics, block size, sample interval)."""
+def block_statistics(log: RigLog, block_s: float, *, workers: int | None = None
+                     ) -> tuple[dict[str, np.ndarray], int, float]:
+    """Per-block statistics of a whole log: (statistics, block size, sample interval).
+
+    The rows are split at a block boundary into one part per worker thread; the compiled
+    kernels release the GIL, so the parts are reduced in parallel, then joined in order.
+    """
     t = log.rows("t", 0, min(len(log), 20001))
     dt = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
     size = max(4, int(round(block_s / dt))) if dt > 0 else 4
-    acc = BlockAccumulator(size, log.names, len(log) // size)
-    for batch in log.batches:
-        acc.push(batch)
-    return acc.result(), size, dt
+    n_blocks = len(log) // size
+    if workers is None:
+        workers = min(2, os.cpu_count() or 1) if LIB is not None and n_blocks >= 20_000 else 1
+    bounds = [round(i * n_blocks / workers) * size for i in range(workers + 1)]
+    parts = [_rows(log.batches, lo, hi) for lo, hi in zip(bounds, bounds[1:]) if hi > lo]
+
+    def reduce(batches):
+        acc = BlockAccumulator(size, log.names, sum(len(b["t"]) for b in batches) // size)
+        for batch in batches:
+            acc.push(batch)
+        return acc.result()
+
+    if len(parts) > 1:
+        with ThreadPoolExecutor(len(parts)) as pool:
+            results = [r for r in pool.map(reduce, parts) if r]
+    else:
+        results = [r for r in map(reduce, parts) if r]
+    if len(results) < 2:
+        return (results[0] if results else {}), size, dt
+    out = {k: np.concatenate([r[k] for r in results]) for k in results[0]
+           if k not in ("gyro_max", "gyro_min")}
+    out["gyro_max"] = np.max([r["gyro_max"] for r in results], axis=0)
+    out["gyro_min"] = np.min([r["gyro_min"] for r in results], axis=0)
+    return out, size, dt
+
+
+def _rows(batches, lo: int, hi: int) -> list[dict[str, np.ndarray]]:
+    """Views of rows lo:hi across batches."""
+    out, offset = [], 0
+    for batch in batches:
+        n = len(batch["t"])
+        a, z = max(lo - offset, 0), min(hi - offset, n)
+        if a < z:
+            out.append({k: v[a:z] for k, v in batch.items()})
+        offset += n
+    return out

@@ -96,7 +96,7 @@ class Calibration:
         return {t.name: t.unit for t in self.model.terms}
 
     @classmethod
-    def from_dict(cls, d: dict, *, source=None) -> "Calibration":
+    def from_dict(cls, d: dict, *, source=None) -> Calibration:
         """Parse and check a ``gyrocal.calibration/1`` document."""
         def fail(problem):
             raise CalibrationFileError(problem, source=source)

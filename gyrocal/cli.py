@@ -118,10 +118,10 @@ def cmd_apply(args) -> int:
     if counts["clamped"]:
         lo, hi = cal.grid.span
         warnings.warn(f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
-                      f"{lo:g} to {hi:g} °C and use the nearest end's calibration")
+                      f"{lo:g} to {hi:g} °C and use the nearest end's calibration", stacklevel=1)
     if counts["nonfinite"]:
         warnings.warn(f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
-                      "were written as NaN")
+                      "were written as NaN", stacklevel=1)
     print(f"{counts['rows']} rows compensated -> {args.output}")
     return 0
 

@@ -32,7 +32,7 @@ class ModelSettings:
     reference_temperature: float = 25.0   # °C; the single-temperature comparison's point
 
     @classmethod
-    def from_dict(cls, values: dict | None, *, key: str = "model") -> "ModelSettings":
+    def from_dict(cls, values: dict | None, *, key: str = "model") -> ModelSettings:
         values = dict(values or {})
         known = {"terms", "interpolation", "degree", "reference_temperature"}
         for name in values:
@@ -52,7 +52,7 @@ class ModelSettings:
             raise ConfigError(f"{key}.reference_temperature must be a number, got {ref!r}")
         return cls(terms, method, degree, float(ref))
 
-    def with_terms(self, extra: tuple) -> "ModelSettings":
+    def with_terms(self, extra: tuple) -> ModelSettings:
         names = [t if isinstance(t, str) else t.get("name") for t in self.terms]
         added = tuple(t for t in extra if t not in names)
         return replace(self, terms=self.terms + added) if added else self
@@ -72,7 +72,7 @@ class Settings:
     model: ModelSettings = field(default_factory=ModelSettings)
 
     @classmethod
-    def from_dict(cls, values: dict | None) -> "Settings":
+    def from_dict(cls, values: dict | None) -> Settings:
         values = dict(values or {})
         for name in values:
             if name not in ("segmentation", "model"):
@@ -81,7 +81,7 @@ class Settings:
                    ModelSettings.from_dict(values.get("model")))
 
     @classmethod
-    def load(cls, path) -> "Settings":
+    def load(cls, path) -> Settings:
         try:
             return cls.from_dict(read_yaml(path))
         except ConfigError as exc:

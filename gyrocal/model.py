@@ -49,7 +49,7 @@ class Model:
                 seen[name] = term.name
 
     @classmethod
-    def from_spec(cls, specs: Sequence = DEFAULT_TERMS) -> "Model":
+    def from_spec(cls, specs: Sequence = DEFAULT_TERMS) -> Model:
         return cls(tuple(make_term(s) for s in specs))
 
     def spec(self) -> list[dict]:

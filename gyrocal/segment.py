@@ -73,7 +73,7 @@ class SegmentConfig:
     full_scale: float | None = None  # deg/s; when given, saturation is judged against it
 
     @classmethod
-    def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> "SegmentConfig":
+    def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> SegmentConfig:
         values = dict(values or {})
         known = {f.name for f in fields(cls)}
         for name, value in values.items():
@@ -204,7 +204,8 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
                                 source=log.path)
 
     # 2. Motion at constant reference.
-    noise_log = np.maximum(np.sqrt(_median(var[const], axis=0)), 1e-9)
+    ci = np.flatnonzero(const)
+    noise_log = np.maximum(np.sqrt(np.median(var[ci[:: max(1, len(ci) // 50_000)]], axis=0)), 1e-9)
     active, level, gain, excursion = _motion(const, run, n_runs, mean, var, r, noise_log,
                                              size, cfg)
     settle = int(math.ceil(cfg.settle_s / block_dt))
@@ -322,28 +323,26 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
 
     Returns each block's activity, each run's steady gyro level and its gain on the
     reference, and each active block's distance from its run's steady value (deg/s).
-    A second pass re-estimates the noise and level of the runs that contained motion from
-    their quiet blocks only, and tests those runs again.
+    The first pass tests every block (those outside runs belong to a dummy run that is
+    never active); a second re-estimates the noise and level of the runs that contained
+    motion from their quiet blocks only, and tests those runs again.
     """
     nb = len(const)
+    run_of = np.where(const, run, n_runs)               # dummy run n_runs: not constant
     active = np.zeros(nb, dtype=bool)
-    blocks = np.flatnonzero(const)
-    level = np.zeros((n_runs, 3))
-    gain = np.zeros((n_runs, 3))
+    level = np.zeros((n_runs + 1, 3))
+    gain = np.zeros((n_runs + 1, 3))
+    blocks = None                                        # None: all blocks, no gathers
     for _ in range(2):
-        idx = run[blocks]
-        quiet = ~active[blocks]
-        m_b, v_b, r_b = mean[blocks], var[blocks], r[blocks]
-        count = np.bincount(idx, weights=quiet, minlength=n_runs)
-        denom = np.maximum(count, 1)[:, None]
-        per_run = lambda v: np.column_stack([  # noqa: E731
-            np.bincount(idx, weights=v[:, a] * quiet, minlength=n_runs) for a in range(v.shape[1])
-        ]) / denom
-        noise = np.where(count[:, None] > 0, np.sqrt(per_run(v_b)), noise_log)
+        pick = (lambda a: a) if blocks is None else (lambda a: a[blocks])  # noqa: E731
+        idx, m_b, v_b, r_b = pick(run_of), pick(mean), pick(var), pick(r)
+        quiet = pick(const) & ~pick(active)
+        count = np.bincount(idx, weights=quiet, minlength=n_runs + 1)
+        noise = np.where(count[:, None] > 0, np.sqrt(_quiet_mean(v_b, idx, quiet, count)), noise_log)
         noise = np.clip(noise, noise_log / cfg.noise_cap, noise_log * cfg.noise_cap).astype(np.float32)
         runs = np.unique(idx)
-        level[runs] = per_run(m_b)[runs]
-        r_run = per_run(r_b[:, None])[:, 0]
+        level[runs] = _quiet_mean(m_b, idx, quiet, count)[runs]
+        r_run = _quiet_mean(r_b[:, None], idx, quiet, count)[:, 0]
         moving = np.abs(r_run) > cfg.rate_tol_abs
         # The gyro follows small reference wobble (table settling, rate ripple): the run's
         # measured gain takes out what the reference explains, leaving motion it does not.
@@ -358,16 +357,30 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
         threshold = np.maximum(np.float32(cfg.motion_sigma * math.sqrt(2.0 / size)) * sd,
                                np.float32(cfg.motion_floor))
         step = (np.abs(np.diff(resid, axis=0)) > threshold[1:]).any(axis=1)
-        jump = np.r_[False, step & (idx[1:] == idx[:-1]) & (np.diff(blocks) == 1)]
-        active[blocks] = scatter | jump | np.r_[jump[1:], False]
-        with_motion = np.unique(run[active])
-        blocks = blocks[np.isin(idx, with_motion)]
+        adjacent = np.ones(len(idx) - 1, dtype=bool) if blocks is None else np.diff(blocks) == 1
+        jump = np.r_[False, step & (idx[1:] == idx[:-1]) & adjacent]
+        found = (scatter | jump | np.r_[jump[1:], False]) & (idx < n_runs)
+        if blocks is None:
+            active = found
+        else:
+            active[blocks] = found
+        with_motion = np.zeros(n_runs + 1, dtype=bool)
+        with_motion[run_of[active]] = True
+        with_motion[n_runs] = False
+        blocks = np.flatnonzero(with_motion[run_of])
         if not len(blocks):
             break
     excursion = np.zeros(nb)
     a = np.flatnonzero(active)
     excursion[a] = np.abs(mean[a] - level[run[a]]).max(axis=1)
-    return active, level, gain, excursion
+    return active, level[:n_runs], gain[:n_runs], excursion
+
+
+def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Per-run mean of (k, m) block values over the run's quiet blocks."""
+    sums = np.column_stack([np.bincount(run, weights=values[:, a] * quiet, minlength=len(count))
+                            for a in range(values.shape[1])])
+    return sums / np.maximum(count, 1)[:, None]
 
 
 def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg) -> dict:
@@ -507,17 +520,28 @@ def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
     # Holds too slow to tell their mount inherit it from their neighbours in the same
     # mounting, which ends at handling motion or a logging gap.
     session = np.cumsum(active | in_gap | gap_before)[c0]
-    known = pd.Series(np.where(mounts >= 0, mounts, np.nan))
-    before = known.groupby(session).ffill().to_numpy()
-    after = known.groupby(session).bfill().to_numpy()
-    agree = np.where(np.isnan(before), after, np.where(np.isnan(after), before,
-                                                       np.where(before == after, before, np.nan)))
-    inherit = (mounts == -1) & ~np.isnan(agree)
-    mounts = np.where(inherit, np.nan_to_num(agree, nan=-1), mounts).astype(int)
+    before, after = _nearest_known(mounts, session)
+    agree = np.where(before < 0, after, np.where((after < 0) | (after == before), before, -1))
+    inherit = (mounts == -1) & (agree >= 0)
+    mounts = np.where(inherit, agree, mounts)
     source = np.where(inherit, "inherited", source)
     reject(mounts == -1, "mount_undetermined",
            lambda i: "too slow to tell the mount and no agreeing neighbour or mount column")
     return mounts, source
+
+
+def _nearest_known(values: np.ndarray, session: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each position, the nearest value >= 0 before (and after) it in the same
+    session, or -1: a forward and a backward fill that stop at session boundaries."""
+    n = len(values)
+    pos = np.arange(n)
+    last = np.maximum.accumulate(np.where(values >= 0, pos, -1))
+    nxt = np.minimum.accumulate(np.where(values >= 0, pos, n)[::-1])[::-1]
+    before = np.where((last >= 0) & (session[np.maximum(last, 0)] == session),
+                      values[np.maximum(last, 0)], -1)
+    after = np.where((nxt < n) & (session[np.minimum(nxt, n - 1)] == session),
+                     values[np.minimum(nxt, n - 1)], -1)
+    return before, after
 
 
 def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:

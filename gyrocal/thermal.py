@@ -156,7 +156,7 @@ class TemperatureGrid:
         S = np.sqrt(self.weights(temp) ** 2 @ self.stderr ** 2)
         return {n: S[:, j] for j, n in enumerate(self.names)}
 
-    def without(self, index: int) -> "TemperatureGrid":
+    def without(self, index: int) -> TemperatureGrid:
         keep = np.arange(len(self.temperatures)) != index
         return TemperatureGrid(self.temperatures[keep], self.names, self.values[keep],
                                self.stderr[keep], self.method, self.degree)

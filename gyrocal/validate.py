@@ -145,7 +145,8 @@ def _leave_temperature_out(grid_fit: GridFit, data: dict, reference_temperature:
     reference is the point held out)."""
     grid = grid_fit.grid
     cov = np.array([f.covariance for f in grid_fit.fits])          # (P, C, C)
-    n, C, P = len(data["temp"]), len(grid.names), len(grid.temperatures)
+    n, P = len(data["temp"]), len(grid.temperatures)
+    C = len(grid.names)
     temp, point = data["temp"], data["point"].astype(int)
     grid_index = {int(p): k for k, p in enumerate(
         grid_fit.points.loc[grid_fit.points["used"], "point"])}
@@ -171,7 +172,7 @@ def _leave_hold_out(model: Model, grid_fit: GridFit, data: dict):
     """One usable temperature point: each of its holds is compensated by the fit of the
     point's other holds (holds of points that could not be fitted use the whole fit)."""
     grid = grid_fit.grid
-    n, C = len(data["temp"]), len(grid.names)
+    n = len(data["temp"])
     point = data["point"].astype(int)
     fitted = int(grid_fit.points.loc[grid_fit.points["used"], "point"].iloc[0])
     coefs = np.tile(grid.values[0], (n, 1))

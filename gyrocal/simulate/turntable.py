@@ -57,7 +57,7 @@ class TurntableProtocol:
     accel_columns: bool = True
 
     @classmethod
-    def quick(cls, **overrides) -> "TurntableProtocol":
+    def quick(cls, **overrides) -> TurntableProtocol:
         """A protocol of seconds (for tests): same structure, thermal path scaled to fit."""
         base = dict(temperatures=(-20.0, 0.0, 20.0, 40.0), soak_s=40.0, hold_s=6.0,
                     accel=400.0, handling_s=4.0, pause_s=1.0, chamber_ramp=600.0,
@@ -88,7 +88,7 @@ class TurntableProtocol:
                 phases[-1]["set_to"] = set_point = float(temp)
             add("soak", n(self.soak_s), point=k)
             order = self.mounts if k % 2 == 0 else self.mounts[::-1]
-            for j, new_mount in enumerate(order):
+            for new_mount in order:
                 if new_mount != mount:
                     add("pause", n(self.pause_s))
                     add("handling", n(self.handling_s))

@@ -61,13 +61,13 @@ class GyroUnit:
                 for k, v in asdict(self).items()}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GyroUnit":
+    def from_dict(cls, d: dict) -> GyroUnit:
         def tup(v):
             return tuple(tup(x) for x in v) if isinstance(v, list) else v
         return cls(**{k: tup(v) for k, v in d.items()})
 
     @classmethod
-    def seed000(cls, **overrides) -> "GyroUnit":
+    def seed000(cls, **overrides) -> GyroUnit:
         """The unit of seed 000 at 25 °C (Eq 23), with plausible temperature coefficients."""
         scale = np.diag(SEED000_K25)
         mis = SEED000_K25 / scale[:, None] - np.eye(3)
@@ -82,7 +82,7 @@ class GyroUnit:
         return cls(**base)
 
     @classmethod
-    def random(cls, rng: np.random.Generator, **overrides) -> "GyroUnit":
+    def random(cls, rng: np.random.Generator, **overrides) -> GyroUnit:
         """A production unit: seed 000's unit with unit-to-unit spread of every parameter."""
         ref = cls.seed000()
         scale = np.asarray(ref.scale) + rng.normal(0, 1e-3, 3)

@@ -25,7 +25,7 @@ import numpy as np
 from ..errors import ConfigError, MissingInputError
 
 AXES = ("x", "y", "z")
-TERMS: dict[str, type["Term"]] = {}
+TERMS: dict[str, type[Term]] = {}
 
 
 class Term:
