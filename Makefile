@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml requirements.lock | sha256sum | cut -c1-12)
 
-.PHONY: demo test bench clean
+.PHONY: demo test bench chromium clean
 
 $(STAMP): pyproject.toml requirements.lock
 	rm -f $(VENV)/.installed-*
@@ -15,19 +15,28 @@ $(STAMP): pyproject.toml requirements.lock
 	$(BIN)/python -m pip install --quiet -c requirements.lock -e '.[test]'
 	touch $@
 
+# The demo fleet (config/devices.tsv: 6 units in 2 batches, one unit twice), simulated
+# and calibrated by the workflow.
 demo: $(STAMP)
-	$(BIN)/gyrocal simulate --out demo/logs --preset quick --unit seed000 --seed 1 \
-		--temperatures=-40,-30,-20,-10,0,10,20,30,40,50
-	$(BIN)/gyrocal calibrate demo/logs/U001.parquet --device U001 --batch B1 \
-		--session 2026-01-01 -o demo/U001.calibration.json --report demo/U001.html \
-		--tables demo/tables
-	@echo "demo done: calibration demo/U001.calibration.json, report demo/U001.html"
+	$(BIN)/snakemake --cores all
+	@echo "demo done: fleet summary reports/index.html, unit reports reports/<batch>/<device>/<session>.html,"
+	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json"
 
-test: $(STAMP)
+test: $(STAMP) chromium
 	$(BIN)/python -m pytest
+
+# Debian's Chromium for the browser test, installed when missing and possible.
+chromium:
+	@command -v chromium >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing Debian's chromium for the browser test"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	  else \
+	    echo "chromium is not installed and cannot be installed here: the browser test is skipped"; \
+	  fi; }
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/pipeline.py
 
 clean:
-	rm -rf $(VENV) demo .pytest_cache .hypothesis
+	rm -rf $(VENV) demo results reports logs .snakemake .pytest_cache .hypothesis

@@ -104,6 +104,8 @@ class Calibration:
         if not isinstance(d, dict):
             fail("is not a JSON object")
         fmt = d.get("format")
+        if fmt == "gyrocal.failure/1":
+            fail(f"holds no calibration: the {d.get('stage')} stage failed: {d.get('error')}")
         if not isinstance(fmt, str) or "/" not in fmt or fmt.split("/")[0] != FORMAT_FAMILY:
             fail(f"format is {fmt!r}, expected {FORMAT!r}")
         if fmt.split("/")[1] != FORMAT_VERSION:

@@ -21,8 +21,21 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def _settings(args):
+    """Settings from --config (YAML) or --settings-json, then --model and --add-term."""
+    import json
+
     from .config import ModelSettings, Settings, read_yaml
     settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
+    if getattr(args, "settings_json", None):
+        try:
+            values = json.loads(args.settings_json)
+        except ValueError as exc:
+            raise ConfigError(f"--settings-json is not valid JSON ({exc})") from None
+        if not isinstance(values, dict):
+            raise ConfigError("--settings-json must be a JSON object")
+        base = settings.to_dict()
+        settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
+            k: v for k, v in values.items() if k not in base})
     if getattr(args, "model", None):
         values = read_yaml(args.model)
         values = values.get("model", values)
@@ -37,11 +50,20 @@ def _settings(args):
     return settings
 
 
+def _meta(args) -> dict:
+    return {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
+
+
 def cmd_simulate(args) -> int:
-    from .simulate import GyroUnit, TurntableProtocol, simulate
+    from dataclasses import replace
+
+    from .simulate import GyroUnit, TurntableProtocol, simulate, simulate_unit
+    from .simulate.fleet import unit_for
     if args.protocol != "turntable":
         raise ConfigError(f"protocol {args.protocol!r} cannot be simulated by this version "
                           "of gyrocal (supported: turntable)")
+    if (args.out is None) == (args.log is None):
+        raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
     base = TurntableProtocol.quick() if args.preset == "quick" else TurntableProtocol()
     knobs = {k: v for k, v in dict(
         temperatures=args.temperatures, rates=args.rates, mounts=args.mounts,
@@ -51,8 +73,18 @@ def cmd_simulate(args) -> int:
         knobs["mount_column"] = False
     if args.no_accel:
         knobs["accel_columns"] = False
-    from dataclasses import replace
     rig = replace(base, **knobs)
+    if args.log is not None:
+        # One log of one unit: the unit follows from its device id, the noise from the
+        # session too, so every session of a device is the same physical unit.
+        import numpy as np
+        device = args.device or "U001"
+        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000")
+        Path(args.log).parent.mkdir(parents=True, exist_ok=True)
+        simulate_unit(args.log, rig=rig, unit=unit, rng=np.random.default_rng(seed),
+                      device=device, batch=args.batch, session=args.session, seed=seed)
+        print(f"wrote {args.log}")
+        return 0
     unit = GyroUnit.seed000() if args.unit == "seed000" else None
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
                         rig=rig, unit=unit, batch=args.batch, session=args.session,
@@ -61,16 +93,49 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _stage(args, stage: str, outputs, work) -> int:
+    from .stages import run_stage
+    return run_stage(stage, outputs, _meta(args), work, record_failures=args.record_failures)
+
+
 def cmd_segment(args) -> int:
-    from .io import write_table
-    from .pipeline import segment_log
+    from .stages import UNIT_FILES, segment_stage
     settings = _settings(args)
-    seg = segment_log(args.log, settings)
-    write_table(seg.observations, args.output, {"info": seg.info, "settings": settings.to_dict()})
-    if args.segments:
-        write_table(seg.segments, args.segments, {"info": seg.info})
-    print(f"{seg.info['holds_accepted']} holds at {seg.info['temperature_points']} temperature "
-          f"points -> {args.output}")
+    out = Path(args.out)
+    files = [out / UNIT_FILES[k] for k in ("observations", "segments", "timeline")]
+    status = _stage(args, "segment", files,
+                    lambda: segment_stage(args.log, out, settings, _meta(args)))
+    print(f"segmentation -> {out}")
+    return status
+
+
+def cmd_fit(args) -> int:
+    from .stages import UNIT_FILES, fit_stage
+    settings = _settings(args)
+    return _stage(args, "fit", [Path(args.unit) / UNIT_FILES["calibration"]],
+                  lambda: fit_stage(args.unit, settings, _meta(args)))
+
+
+def cmd_validate(args) -> int:
+    from .stages import UNIT_FILES, VALIDATION_TABLES, validate_stage
+    settings = _settings(args)
+    files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
+    return _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
+
+
+def cmd_report(args) -> int:
+    from .stages import report_stage
+    settings = _settings(args)
+    return _stage(args, "report", [args.output],
+                  lambda: report_stage(args.unit, args.output, settings))
+
+
+def cmd_fleet(args) -> int:
+    from .manifest import read_manifest
+    from .stages import fleet_stage
+    rows = read_manifest(args.manifest)
+    fleet_stage(rows, args.results, args.reports, args.output, args.bundle)
+    print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
 
 
@@ -86,16 +151,19 @@ def cmd_calibrate(args) -> int:
         out = Path(args.tables)
         out.mkdir(parents=True, exist_ok=True)
         meta = {"summary": result.validation.summary}
-        write_table(result.segmentation.observations, out / "observations.parquet",
-                    {"info": result.segmentation.info})
-        write_table(result.segmentation.segments, out / "segments.parquet", {})
-        write_table(result.validation.holds, out / "validation_holds.parquet", meta)
-        write_table(result.validation.table_holds, out / "table_hold_means.parquet", meta)
-        write_table(result.validation.table_samples, out / "table_samples.parquet", meta)
-        write_table(result.validation.by_temperature, out / "by_temperature.parquet", meta)
+        seg, val = result.segmentation, result.validation
+        for name, frame, extra in (
+                ("observations", seg.observations, {"info": seg.info}),
+                ("segments", seg.segments, {}), ("timeline", seg.timeline, {}),
+                ("validation_holds", val.holds, meta), ("table_hold_means", val.table_holds, meta),
+                ("table_samples", val.table_samples, meta), ("by_temperature", val.by_temperature, meta)):
+            write_table(frame, out / f"{name}.parquet", extra)
     if args.report:
-        from .report import write_unit_report
-        write_unit_report(result, args.report, command=" ".join(sys.argv))
+        import shlex
+
+        from .report import UnitResults, write_unit_report
+        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv))),
+                          args.report)
     s = result.validation.summary
     print(f"calibration -> {args.output}")
     print(f"  {result.segmentation.info['holds_accepted']} holds, "
@@ -143,13 +211,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
     p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])
-    p.add_argument("--out", required=True, help="output folder (logs, truth JSON, devices.tsv)")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--out", help="folder for N units' logs, truth JSON and devices.tsv")
+    where.add_argument("--log", help="one log of the unit --device at session --session")
     p.add_argument("--units", type=int, default=1)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--preset", choices=["seed", "quick"], default="seed",
                    help="seed: the full seed-000 protocol; quick: a log of minutes")
     p.add_argument("--unit", choices=["random", "seed000"], default="random",
                    help="random production units, or seed 000's unit (Eq 23)")
+    p.add_argument("--device", help="with --log: the unit (its parameters follow from it)")
     p.add_argument("--batch", default="B1")
     p.add_argument("--session", default="2026-01-01")
     p.add_argument("--device-prefix", default="U")
@@ -166,27 +237,27 @@ def build_parser() -> argparse.ArgumentParser:
 
     def common(q, model=True):
         q.add_argument("--config", help="settings YAML (segmentation:, model:)")
+        q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model)")
         if model:
             q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
             q.add_argument("--add-term", action="append", metavar="NAME",
                            help="add a term to the model (repeatable)")
 
-    p = sub.add_parser("segment", help="find holds in a log; write the observation table")
-    p.add_argument("log")
-    p.add_argument("-o", "--output", required=True, help="observations .parquet")
-    p.add_argument("--segments", help="every phase found, .parquet")
-    common(p, model=False)
-    p.set_defaults(func=cmd_segment)
+    def unit(q, failures=True):
+        q.add_argument("--device")
+        q.add_argument("--batch")
+        q.add_argument("--session")
+        q.add_argument("--protocol", default="turntable")
+        if failures:
+            q.add_argument("--record-failures", action="store_true",
+                           help="on failure write failure records and exit 0 (fleet runs)")
 
     p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
     p.add_argument("log")
-    p.add_argument("--protocol", default="turntable")
     p.add_argument("-o", "--output", required=True, help="calibration .json")
     p.add_argument("--report", help="also write an HTML report here")
     p.add_argument("--tables", help="also write observation and validation tables here")
-    p.add_argument("--device")
-    p.add_argument("--batch")
-    p.add_argument("--session")
+    unit(p, failures=False)
     common(p)
     p.set_defaults(func=cmd_calibrate)
 
@@ -195,6 +266,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log")
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_apply)
+
+    p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")
+    p.add_argument("log")
+    p.add_argument("--out", required=True, help="the unit's results folder")
+    unit(p)
+    common(p, model=False)
+    p.set_defaults(func=cmd_segment)
+
+    for name, func, text in (("fit", cmd_fit, "stage: fit the unit's calibration"),
+                             ("validate", cmd_validate, "stage: validate the unit's calibration")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("unit", help="the unit's results folder")
+        unit(p)
+        common(p)
+        p.set_defaults(func=func)
+
+    p = sub.add_parser("report", help="stage: the unit's HTML report")
+    p.add_argument("unit", help="the unit's results folder")
+    p.add_argument("-o", "--output", required=True)
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
+    p.add_argument("--manifest", required=True)
+    p.add_argument("--results", default="results", help="root of the units' results folders")
+    p.add_argument("--reports", default="reports", help="root of the units' reports")
+    p.add_argument("-o", "--output", required=True, help="fleet summary .html")
+    p.add_argument("--bundle", help="also gather all reports into this folder")
+    p.set_defaults(func=cmd_fleet)
     return parser
 
 

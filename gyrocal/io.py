@@ -384,3 +384,18 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
     tmp = Path(path).with_name(Path(path).name + ".tmp")
     pq.write_table(table, tmp)
     os.replace(tmp, path)
+
+
+def read_table_with_metadata(path):
+    """(pandas table, metadata dict) of a file written by :func:`write_table`."""
+    path = Path(path)
+    try:
+        table = pq.read_table(path)
+    except FileNotFoundError:
+        raise CorruptFileError("no such file", source=path) from None
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
+    raw = (table.schema.metadata or {}).get(OBS_META_KEY)
+    if raw is None:
+        raise LogFormatError("is not a table written by gyrocal", source=path)
+    return table.to_pandas(), json.loads(raw)

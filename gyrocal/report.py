@@ -1,12 +1,23 @@
-"""HTML reports: Jinja2 with autoescape, self-contained (no external requests)."""
+"""HTML reports: per unit and session, and the fleet summary.
+
+Jinja2 with autoescape (every string that came from data is escaped); figures are inline
+SVG from :mod:`gyrocal.plots`; no script, stylesheet, font or image is fetched from
+anywhere, so a report opens offline and can be archived as one file.
+"""
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import jinja2
 import numpy as np
+import pandas as pd
 
+from . import failure, plots
+from .calibration import Calibration, load_calibration
+from .io import read_table_with_metadata
 from .validate import METHODS
 
 _ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"),
@@ -16,9 +27,11 @@ _ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"),
 
 def fmt(value, digits: int = 4) -> str:
     """Numbers as engineers read them: fixed for ordinary sizes, scientific otherwise."""
-    if value is None or (isinstance(value, float) and not np.isfinite(value)):
-        return "–"
+    if value is None or isinstance(value, str):
+        return "–" if value is None else value
     value = float(value)
+    if not np.isfinite(value):
+        return "–"
     if value == 0 or 1e-3 <= abs(value) < 1e5:
         return f"{value:.{digits}g}"
     return f"{value:.{max(digits - 1, 1)}e}"
@@ -27,15 +40,132 @@ def fmt(value, digits: int = 4) -> str:
 _ENV.filters["fmt"] = fmt
 
 
-def write_unit_report(result, path, *, command: str = "") -> None:
-    cal, seg, val = result.calibration, result.segmentation, result.validation
-    counts = seg.counts()
+@dataclass
+class UnitResults:
+    """Everything a unit report shows, from a run in memory or a results folder."""
+
+    meta: dict
+    calibration: Calibration
+    seg_info: dict
+    observations: pd.DataFrame
+    segments: pd.DataFrame
+    timeline: pd.DataFrame
+    summary: dict
+    holds: pd.DataFrame
+    table_holds: pd.DataFrame
+    table_samples: pd.DataFrame
+    by_temperature: pd.DataFrame
+    log: str = ""
+    command: str = ""
+    extra: dict = field(default_factory=dict)
+
+    @classmethod
+    def from_run(cls, run, command: str = "") -> UnitResults:
+        seg, val = run.segmentation, run.validation
+        return cls(run.calibration.meta, run.calibration, seg.info, seg.observations,
+                   seg.segments, seg.timeline, val.summary, val.holds, val.table_holds,
+                   val.table_samples, val.by_temperature, seg.info.get("path", ""), command)
+
+    @classmethod
+    def from_folder(cls, folder) -> UnitResults:
+        from .stages import unit_paths
+        p = unit_paths(folder)
+        obs, extra = read_table_with_metadata(p["observations"])
+        table = lambda k: read_table_with_metadata(p[k])[0]  # noqa: E731
+        summary = failure.load_json(p["validation"])["summary"]
+        cal = load_calibration(p["calibration"])
+        return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
+                   summary, table("holds"), table("table_hold_means"), table("table_samples"),
+                   table("by_temperature"), extra.get("log", ""))
+
+
+def _parameter_figure(cal: Calibration) -> str:
+    g = cal.grid
+    lo, hi = g.span
+    temps = np.linspace(lo, hi, 200) if hi > lo else np.array([lo])
+    curve = g.at(temps, warn=False)
+    return plots.parameters(g.temperatures, {n: g.values[:, j] for j, n in enumerate(g.names)},
+                            {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
+
+
+def write_unit_report(results: UnitResults, path) -> None:
+    cal, info = results.calibration, results.seg_info
+    counts = pd.crosstab(results.observations["point_temp"].round(2),
+                         results.observations["mount"].astype(str))
+    rejected = results.segments[results.segments["kind"] == "rejected"]
+    g = cal.grid
+    grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
+                                       for j, n in enumerate(g.names)}}
+                 for p, t in enumerate(g.temperatures)]
     html = _ENV.get_template("unit_report.html.j2").render(
-        meta=cal.meta, span=cal.grid.span, summary=val.summary, methods=METHODS,
-        table_holds=val.table_holds.to_dict("records"),
-        table_samples=val.table_samples.to_dict("records"),
-        by_temperature=val.by_temperature.to_dict("records"),
-        counts_columns=list(counts.columns), counts=[(t, list(r)) for t, r in counts.iterrows()],
-        rejected=seg.info["rejected_by_reason"], info=seg.info,
-        provenance=cal.provenance, command=command)
-    Path(path).write_text(html)
+        meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
+        interpolation=g.method, reference=cal.reference_temperature,
+        counts_columns=list(counts.columns),
+        counts=[(t, [int(v) for v in r]) for t, r in counts.iterrows()],
+        rejected_counts=rejected["reason"].value_counts().sort_index().to_dict(),
+        rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].to_dict("records"),
+        points=cal.extra.get("points", []), names=list(g.names), grid_rows=grid_rows,
+        table_holds=results.table_holds.to_dict("records"),
+        table_samples=results.table_samples.to_dict("records"),
+        by_temperature=results.by_temperature.to_dict("records"),
+        provenance=cal.provenance, log=results.log, command=results.command,
+        fig_timeline=plots.timeline(results.timeline, results.segments),
+        fig_parameters=_parameter_figure(cal),
+        fig_by_temperature=plots.by_temperature(results.by_temperature),
+        fig_before=plots.error_distribution(results.holds, "uncompensated"),
+        fig_after=plots.error_distribution(results.holds, "interpolated"))
+    _write(path, html)
+
+
+def _write(path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+# (coefficient, column heading, factor to the unit shown, significant digits)
+KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm", 1e6, 4),
+                  ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
+                  ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
+                  ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
+
+
+def write_fleet_report(units: list[dict], path) -> None:
+    """The fleet summary: per batch, one row per unit and session; failed units with
+    their error; distributions of the key parameters across the calibrated units."""
+    from .stages import unit_paths
+    rows = []
+    for unit in units:
+        row = dict(unit["row"])
+        p = unit_paths(unit["folder"])
+        row["report"] = unit["report"]
+        rec = next((failure.read(p[k]) for k in ("validation", "calibration", "observations")
+                    if failure.read(p[k]) is not None), None)
+        if rec is not None:
+            row.update(status="failed", stage=rec["stage"], error=rec["error"],
+                       internal=rec.get("internal", False))
+        elif not p["validation"].exists() or not p["calibration"].exists():
+            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
+                       "did not run to the end (see the workflow's logs)", internal=True)
+        else:
+            cal = load_calibration(p["calibration"])
+            summary = json.loads(p["validation"].read_text())["summary"]
+            at_ref = cal.coefficients([cal.reference_temperature], warn=False)
+            row.update(status="ok", span=cal.grid.span, summary=summary,
+                       reference=cal.reference_temperature,
+                       params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
+        rows.append(row)
+    batches = {}
+    for row in rows:
+        batches.setdefault(row["batch"], []).append(row)
+    ok = [r for r in rows if r["status"] == "ok"]
+    figures = [(label, plots.histogram(np.array(values), label)) for label, values in [
+        *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
+        ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
+        ("excess over the noise floor", [r["summary"]["excess"] for r in ok])]]
+    html = _ENV.get_template("fleet_report.html.j2").render(
+        batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
+        total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok))
+    _write(path, html)

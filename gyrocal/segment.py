@@ -104,6 +104,7 @@ class Segmentation:
     observations: pd.DataFrame
     segments: pd.DataFrame           # every phase: hold, soak, ramp, gap, transient, rejected
     stable_periods: pd.DataFrame     # t_start, t_end, temp of stable-temperature stretches
+    timeline: pd.DataFrame           # the session in at most 2000 buckets, for plots
     info: dict = field(default_factory=dict)
 
     def rejected(self) -> pd.DataFrame:
@@ -315,7 +316,7 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
                 .value_counts().sort_index().to_dict(),
                 temperature_points=int(obs["point"].max()) + 1,
                 has_mount_column="mount" in log)
-    return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), info)
+    return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), _timeline(blk), info)
 
 
 def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
@@ -528,6 +529,23 @@ def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
     reject(mounts == -1, "mount_undetermined",
            lambda i: "too slow to tell the mount and no agreeing neighbour or mount column")
     return mounts, source
+
+
+def _timeline(blk, buckets: int = 2000) -> pd.DataFrame:
+    """Block means in at most ``buckets`` consecutive buckets: time span, mean
+    temperature, and the range of the reference and of each gyro axis (so a second of
+    handling motion still shows in a day-long plot)."""
+    nb = len(blk["t_first"])
+    starts = np.arange(0, nb, -(-nb // buckets))
+    ends = np.r_[starts[1:], nb] - 1
+    out = {"t_start": blk["t_first"][starts], "t_end": blk["t_last"][ends],
+           "temp": np.add.reduceat(blk["temp"], starts) / (ends - starts + 1),
+           "ref_min": np.minimum.reduceat(blk["ref"], starts),
+           "ref_max": np.maximum.reduceat(blk["ref"], starts)}
+    for a, c in enumerate("xyz"):
+        out[f"gyro_{c}_min"] = np.minimum.reduceat(blk["gyro"][:, a], starts)
+        out[f"gyro_{c}_max"] = np.maximum.reduceat(blk["gyro"][:, a], starts)
+    return pd.DataFrame(out)
 
 
 def _nearest_known(values: np.ndarray, session: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -67,3 +67,41 @@ def truth_coefficients(unit: GyroUnit, temp: float) -> dict[str, float]:
 
 def with_rig(**kw):
     return replace(TurntableProtocol.quick(temperatures=TEMPS), **kw)
+
+
+REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+FLEET_MANIFEST = """device\tbatch\tsession\tprotocol\tpath
+A1\tB1\t2026-01-01\tturntable\tdemo/logs/B1/A1/2026-01-01.parquet
+A1\tB1\t2026-03-01\tturntable\tdemo/logs/B1/A1/2026-03-01.parquet
+A2\tB2\t2026-01-02\tturntable\tdemo/logs/B2/A2/2026-01-02.parquet
+BAD\tB2\t2026-01-02\tturntable\tlogs/corrupt.parquet
+GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet
+"""
+FLEET_CONFIG = """devices: devices.tsv
+demo: {folder: demo/logs, preset: quick, temperatures: [0, 20, 40], rates: [10, 100]}
+model: {terms: [bias, scale, misalignment]}
+"""
+
+
+def snakemake(workdir, *args, timeout=900):
+    """Run the repository's workflow in ``workdir`` with its config.yaml."""
+    import subprocess
+    import sys
+    return subprocess.run(
+        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+         "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
+         "--cores", "2", *args], capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture(scope="session")
+def fleet_run(tmp_path_factory):
+    """A small fleet through the whole workflow: three demo unit sessions (one device
+    twice), one corrupt log and one missing log."""
+    wd = tmp_path_factory.mktemp("fleet")
+    (wd / "logs").mkdir()
+    (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
+    (wd / "devices.tsv").write_text(FLEET_MANIFEST)
+    (wd / "config.yaml").write_text(FLEET_CONFIG)
+    out = snakemake(wd)
+    assert out.returncode == 0, out.stderr[-3000:]
+    return wd

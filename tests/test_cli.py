@@ -21,7 +21,8 @@ def gyrocal(*args):
 def test_help_lists_the_commands():
     out = gyrocal("--help")
     assert out.returncode == 0
-    for command in ("simulate", "segment", "calibrate", "apply"):
+    for command in ("simulate", "calibrate", "apply", "segment", "fit", "validate", "report",
+                    "fleet"):
         assert command in out.stdout
 
 
@@ -47,10 +48,13 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
     applied = tmp_path / "applied.parquet"
     assert main("apply", cal, logs / "U001.parquet", "-o", applied) == 0
     assert pq.read_metadata(applied).num_rows == pq.read_metadata(logs / "U001.parquet").num_rows
-    segs = tmp_path / "obs.parquet"
-    assert main("segment", logs / "U001.parquet", "-o", segs, "--segments",
-                tmp_path / "seg.parquet") == 0
-    assert pq.read_table(segs).num_rows == 4 * 3 * 5
+    unit = tmp_path / "unit"
+    assert main("segment", logs / "U001.parquet", "--out", unit) == 0
+    assert pq.read_table(unit / "observations.parquet").num_rows == 4 * 3 * 5
+    assert main("fit", unit) == 0 and main("validate", unit) == 0
+    assert main("report", unit, "-o", tmp_path / "unit.html") == 0
+    staged = json.loads((unit / "calibration.json").read_text())
+    assert staged["grid"]["coefficients"] == doc["grid"]["coefficients"]
 
 
 @pytest.mark.parametrize("make, args, expected", [

@@ -1,0 +1,148 @@
+"""The workflow's stages: one function per rule, files in and files out.
+
+Each unit and session has a results folder (``UNIT_FILES`` names its files). A stage that
+cannot process its unit writes failure records in place of its outputs (see
+:mod:`gyrocal.failure`), so a fleet run always completes and reports every unit.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from . import failure
+from .calibration import dumps, load_calibration, save_calibration
+from .config import Settings
+from .errors import GyrocalError
+from .io import read_table_with_metadata, write_table
+from .pipeline import calibrate_observations, check_protocol, segment_log
+from .thermal import fit_grid
+from .validate import validate
+
+UNIT_FILES = {
+    "observations": "observations.parquet",
+    "segments": "segments.parquet",
+    "timeline": "timeline.parquet",
+    "calibration": "calibration.json",
+    "validation": "validation.json",
+    "holds": "validation_holds.parquet",
+    "table_hold_means": "table_hold_means.parquet",
+    "table_samples": "table_samples.parquet",
+    "by_temperature": "by_temperature.parquet",
+}
+VALIDATION_TABLES = ("holds", "table_hold_means", "table_samples", "by_temperature")
+
+
+def unit_paths(folder) -> dict[str, Path]:
+    return {k: Path(folder) / v for k, v in UNIT_FILES.items()}
+
+
+def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
+              record_failures: bool) -> int:
+    """Run ``work``; when it fails and failures are recorded, write the record to every
+    output and return 0 so the rest of the fleet goes on (the error goes to stderr)."""
+    try:
+        work()
+        return 0
+    except Exception as exc:  # noqa: BLE001 - recorded in the outputs, not lost
+        if not record_failures:
+            raise
+        rec = exc.record if isinstance(exc, failure.UpstreamFailure) else failure.record(stage, exc, meta)
+        failure.write(outputs, rec)
+        kind = "passed on" if isinstance(exc, failure.UpstreamFailure) else "recorded"
+        print(f"gyrocal: {stage} failed ({kind}): {rec['error']}", file=sys.stderr)
+        return 0
+
+
+def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
+    check_protocol(meta.get("protocol") or "turntable")
+    seg = segment_log(log, settings)
+    paths = unit_paths(folder)
+    paths["observations"].parent.mkdir(parents=True, exist_ok=True)
+    extra = {"info": seg.info, "meta": meta, "log": str(log),
+             "segmentation": settings.to_dict()["segmentation"]}
+    write_table(seg.observations, paths["observations"], extra)
+    write_table(seg.segments, paths["segments"], {"meta": meta})
+    write_table(seg.timeline, paths["timeline"], {"meta": meta})
+
+
+def fit_stage(folder, settings: Settings, meta: dict) -> None:
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"])
+    obs, extra = read_table_with_metadata(paths["observations"])
+    cal, _ = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
+                                    label=paths["observations"])
+    save_calibration(cal, paths["calibration"])
+
+
+def validate_stage(folder, settings: Settings) -> None:
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"], paths["calibration"])
+    obs, _ = read_table_with_metadata(paths["observations"])
+    cal = load_calibration(paths["calibration"])
+    model = settings.model.build()
+    grid_fit = fit_grid(model, obs, method=settings.model.interpolation,
+                        degree=settings.model.degree, source=paths["observations"])
+    if not np.array_equal(grid_fit.grid.values, cal.grid.values):
+        raise GyrocalError("the calibration was not fitted from these observations with "
+                           "these settings: run the fit stage again", source=paths["calibration"])
+    val = validate(model, obs, grid_fit, reference_temperature=settings.model.reference_temperature)
+    write_table(val.holds, paths["holds"], {"summary": val.summary})
+    write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
+    write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})
+    write_table(val.by_temperature, paths["by_temperature"], {"summary": val.summary})
+    tmp = paths["validation"].with_name(paths["validation"].name + ".tmp")
+    tmp.write_text(dumps({"format": "gyrocal.validation/1", **cal.meta, "summary": val.summary}))
+    tmp.replace(paths["validation"])
+
+
+def report_stage(folder, out_html, settings: Settings | None = None) -> None:
+    from .report import UnitResults, write_unit_report
+    paths = unit_paths(folder)
+    failure.check_inputs(*paths.values())
+    results = UnitResults.from_folder(folder)
+    if settings is not None:
+        results.command = reproduce_command(results, settings)
+    write_unit_report(results, out_html)
+
+
+def reproduce_command(results, settings: Settings) -> str:
+    meta = results.meta
+    words = ["gyrocal", "calibrate", results.log or "LOG.parquet", "--protocol",
+             meta.get("protocol") or "turntable"]
+    for key in ("device", "batch", "session"):
+        if meta.get(key):
+            words += [f"--{key}", str(meta[key])]
+    words += ["--settings-json", json.dumps(settings.to_dict(), sort_keys=True), "-o",
+              "calibration.json"]
+    return " ".join(shlex.quote(w) for w in words)
+
+
+def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None) -> None:
+    """The fleet summary over every manifest row, calibrated or failed, and (optionally) a
+    self-contained folder of all unit reports for ``snakemake --report``."""
+    from .report import write_fleet_report
+    units = []
+    for row in rows:
+        folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
+        units.append({"row": row, "folder": folder,
+                      "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
+    write_fleet_report(units, out_index)
+    if bundle is not None:
+        bundle = Path(bundle)
+        if bundle.exists():
+            shutil.rmtree(bundle)
+        bundle.mkdir(parents=True)
+        for unit in units:
+            source = Path(reports_root) / unit["report"]
+            target = bundle / unit["report"]
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if source.exists():
+                shutil.copyfile(source, target)
+        shutil.copyfile(out_index, bundle / "index.html")

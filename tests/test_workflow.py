@@ -1,0 +1,126 @@
+"""The Snakemake workflow end to end on a small fleet (contract section 6 outputs)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+import zipfile
+
+import numpy as np
+import pytest
+
+from gyrocal.calibration import load_calibration
+from gyrocal.config import Settings
+from gyrocal.errors import CalibrationFileError
+from gyrocal.pipeline import run
+
+from .conftest import REPO, snakemake
+
+GOOD = [("B1", "A1", "2026-01-01"), ("B1", "A1", "2026-03-01"), ("B2", "A2", "2026-01-02")]
+FAILED = [("B2", "BAD", "2026-01-02", "not a readable Parquet file"),
+          ("B2", "GONE", "2026-01-03", "no such file")]
+
+
+def test_every_unit_has_its_outputs_where_the_contract_says(fleet_run):
+    for batch, device, session in GOOD:
+        folder = fleet_run / "results" / batch / device / session
+        cal = load_calibration(folder / "calibration.json")
+        assert (cal.meta["device"], cal.meta["batch"], cal.meta["session"]) == (device, batch, session)
+        assert (fleet_run / "reports" / batch / device / f"{session}.html").exists()
+    assert (fleet_run / "reports" / "index.html").exists()
+
+
+def test_the_tables_hold_the_numbers_the_library_computes(fleet_run):
+    for batch, device, session in GOOD:
+        folder = fleet_run / "results" / batch / device / session
+        log = fleet_run / "demo" / "logs" / batch / device / f"{session}.parquet"
+        direct = run(log, Settings())
+        summary = json.loads((folder / "validation.json").read_text())["summary"]
+        assert summary.keys() == direct.validation.summary.keys()
+        for key, value in direct.validation.summary.items():
+            assert summary[key] == (pytest.approx(value, rel=1e-12) if isinstance(value, float) else value)
+        grid = load_calibration(folder / "calibration.json").grid
+        np.testing.assert_array_equal(grid.values, direct.calibration.grid.values)
+        np.testing.assert_array_equal(grid.stderr, direct.calibration.grid.stderr)
+        import pandas as pd
+        table = pd.read_parquet(folder / "table_hold_means.parquet")
+        pd.testing.assert_frame_equal(table, direct.validation.table_holds, check_exact=False,
+                                      rtol=1e-12)
+
+
+def test_a_corrupt_or_missing_log_fails_its_unit_alone(fleet_run):
+    index = (fleet_run / "reports" / "index.html").read_text()
+    assert "5 unit sessions: 3 calibrated" in index and "2 failed" in index
+    for batch, device, session, message in FAILED:
+        folder = fleet_run / "results" / batch / device / session
+        with pytest.raises(CalibrationFileError, match="holds no calibration: the segment stage failed"):
+            load_calibration(folder / "calibration.json")
+        assert message in index
+        page = (fleet_run / "reports" / batch / device / f"{session}.html").read_text()
+        assert "the <b>segment</b> stage failed" in page and message in page
+
+
+def test_nothing_to_do_the_second_time_and_a_model_change_reruns_only_its_jobs(fleet_run):
+    out = snakemake(fleet_run, "--dry-run")
+    assert "Nothing to be done" in out.stdout + out.stderr
+    out = snakemake(fleet_run, "--dry-run", "--config",
+                    'model={"terms": ["bias", "scale", "misalignment"], "interpolation": "spline"}')
+    stats = out.stdout[out.stdout.index("Job stats"):].split("\n\n")[0]
+    counts = {line.split()[0]: int(line.split()[1]) for line in stats.splitlines()[3:] if line.strip()}
+    assert counts == {"fit": 5, "validate": 5, "report": 5, "fleet": 1, "all": 1, "total": 17}
+
+
+def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
+    before = {p.relative_to(fleet_run): p.read_bytes() for p in
+              [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("reports/**/*.html")]}
+    assert len(before) == 5 + 5 + 1
+    again = tmp_path / "again"
+    again.mkdir()
+    for name in ("devices.tsv", "config.yaml"):
+        shutil.copy(fleet_run / name, again / name)
+    shutil.copytree(fleet_run / "logs", again / "logs")
+    out = snakemake(again)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for path, content in before.items():
+        assert (again / path).read_bytes() == content, path
+
+
+def test_snakemake_report_bundles_the_fleet_and_every_unit(fleet_run):
+    out = snakemake(fleet_run, "--report", "report.zip")
+    assert out.returncode == 0, out.stderr[-2000:]
+    names = zipfile.ZipFile(fleet_run / "report.zip").namelist()
+    assert "report/report.html" in names
+    pages = [n for n in names if n.startswith("report/data/raw/") and n.endswith(".html")]
+    assert sum(n.endswith("/index.html") for n in pages) == 2  # the fleet, the bundle's index
+    for batch, device, session in [*GOOD, *[f[:3] for f in FAILED]]:
+        assert sum(n.endswith(f"/{batch}/{device}/{session}.html") for n in pages) == 1
+
+
+def test_invalid_settings_stop_before_any_job_naming_the_key(fleet_run, tmp_path):
+    (tmp_path / "config.yaml").write_text((fleet_run / "config.yaml").read_text()
+                                          + "segmentation: {trim_seconds: 1}\n")
+    shutil.copy(fleet_run / "devices.tsv", tmp_path)
+    out = snakemake(tmp_path, "--dry-run")
+    assert out.returncode != 0
+    assert "trim_seconds" in out.stdout + out.stderr
+
+
+def test_a_bad_manifest_stops_with_the_line_named(fleet_run, tmp_path):
+    (tmp_path / "config.yaml").write_text((fleet_run / "config.yaml").read_text())
+    (tmp_path / "devices.tsv").write_text((fleet_run / "devices.tsv").read_text()
+                                          + "bad id!\tB1\t2026-01-01\tturntable\tx.parquet\n")
+    out = snakemake(tmp_path, "--dry-run")
+    assert out.returncode != 0
+    assert "line 7: device 'bad id!' does not match" in out.stdout + out.stderr
+
+
+def test_lint_clean_and_formatted():
+    out = subprocess.run([sys.executable, "-m", "snakemake", "--lint", "--snakefile",
+                          str(REPO / "Snakefile"), "--directory", str(REPO)],
+                         capture_output=True, text=True, timeout=300)
+    assert "Lints for" not in out.stdout + out.stderr, out.stdout[-3000:]
+    fmt = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow"],
+                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert fmt.returncode == 0, fmt.stderr[-2000:]

@@ -1,0 +1,19 @@
+rule fit:
+    input:
+        obs="results/{batch}/{device}/{session}/observations.parquet",
+    output:
+        cal="results/{batch}/{device}/{session}/calibration.json",
+    log:
+        "logs/fit/{batch}/{device}/{session}.log",
+    benchmark:
+        "results/benchmark/fit/{batch}/{device}/{session}.tsv"
+    conda:
+        ENV
+    params:
+        gyrocal=GYROCAL,
+        unit=unit_args,
+        settings=MODEL,
+        version=GYROCAL_VERSION,
+    shell:
+        "{params.gyrocal} fit $(dirname {input.obs:q}) {params.unit} --settings-json {params.settings:q} "
+        "--record-failures > {log:q} 2>&1"

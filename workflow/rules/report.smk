@@ -1,0 +1,30 @@
+rule report:
+    input:
+        obs="results/{batch}/{device}/{session}/observations.parquet",
+        segments="results/{batch}/{device}/{session}/segments.parquet",
+        timeline="results/{batch}/{device}/{session}/timeline.parquet",
+        cal="results/{batch}/{device}/{session}/calibration.json",
+        validation="results/{batch}/{device}/{session}/validation.json",
+        holds="results/{batch}/{device}/{session}/validation_holds.parquet",
+        table_hold_means="results/{batch}/{device}/{session}/table_hold_means.parquet",
+        table_samples="results/{batch}/{device}/{session}/table_samples.parquet",
+        by_temperature="results/{batch}/{device}/{session}/by_temperature.parquet",
+    output:
+        "reports/{batch}/{device}/{session}.html",
+    log:
+        "logs/report/{batch}/{device}/{session}.log",
+    benchmark:
+        "results/benchmark/report/{batch}/{device}/{session}.tsv"
+    conda:
+        ENV
+    params:
+        gyrocal=GYROCAL,
+        unit=unit_args,
+        settings=lambda wildcards: json.dumps(
+            {"segmentation": config["segmentation"], "model": config["model"]},
+            sort_keys=True,
+        ),
+        version=GYROCAL_VERSION,
+    shell:
+        "{params.gyrocal} report $(dirname {input.obs:q}) -o {output:q} {params.unit} "
+        "--settings-json {params.settings:q} --record-failures > {log:q} 2>&1"

@@ -1,0 +1,22 @@
+rule segment:
+    input:
+        log=log_input,
+    output:
+        obs="results/{batch}/{device}/{session}/observations.parquet",
+        segments="results/{batch}/{device}/{session}/segments.parquet",
+        timeline="results/{batch}/{device}/{session}/timeline.parquet",
+    log:
+        "logs/segment/{batch}/{device}/{session}.log",
+    benchmark:
+        "results/benchmark/segment/{batch}/{device}/{session}.tsv"
+    conda:
+        ENV
+    params:
+        gyrocal=GYROCAL,
+        log=lambda wildcards: unit(wildcards)["log"],
+        unit=unit_args,
+        settings=SEGMENTATION,
+        version=GYROCAL_VERSION,
+    shell:
+        "{params.gyrocal} segment {params.log:q} --out $(dirname {output.obs:q}) {params.unit} "
+        "--settings-json {params.settings:q} --record-failures > {log:q} 2>&1"

@@ -1,0 +1,24 @@
+# The built-in demo: logs the demo manifest names under demo.folder are simulated when
+# missing. A device is the same simulated unit in every session.
+
+
+rule simulate:
+    output:
+        f"{DEMO_LOGS}/{{batch}}/{{device}}/{{session}}.parquet",
+    log:
+        "logs/simulate/{batch}/{device}/{session}.log",
+    benchmark:
+        "results/benchmark/simulate/{batch}/{device}/{session}.tsv"
+    conda:
+        ENV
+    params:
+        gyrocal=GYROCAL,
+        temperatures=",".join(str(t) for t in config["demo"]["temperatures"]),
+        rates=",".join(str(r) for r in config["demo"]["rates"]),
+        preset=config["demo"]["preset"],
+        version=GYROCAL_VERSION,
+    shell:
+        "{params.gyrocal} simulate --log {output:q} --device {wildcards.device:q} "
+        "--batch {wildcards.batch:q} --session {wildcards.session:q} "
+        "--preset {params.preset} --temperatures={params.temperatures} "
+        "--rates={params.rates} > {log:q} 2>&1"
