@@ -23,6 +23,12 @@ _DEVICE = re.compile(DEVICE_PATTERN)
 _BATCH = re.compile(BATCH_PATTERN)
 
 
+def _complaint(path, line: int, row: dict):
+    def bad(column: str, why: str):
+        raise ConfigError(f"line {line}: {column} {row[column]!r} {why}", source=path)
+    return bad
+
+
 def read_manifest(path) -> list[dict[str, str]]:
     """Rows of a manifest, each with ``log`` (the path resolved against the manifest's
     folder). Raises :class:`ConfigError` naming the row and column of the first problem."""
@@ -45,9 +51,7 @@ def read_manifest(path) -> list[dict[str, str]]:
         if not any((v or "").strip() for v in row.values()):
             continue  # blank line
         row = {c: (row.get(c) or "").strip() for c in COLUMNS}
-
-        def bad(column, why):
-            raise ConfigError(f"line {line}: {column} {row[column]!r} {why}", source=path)
+        bad = _complaint(path, line, row)
 
         if not _DEVICE.fullmatch(row["device"]):
             bad("device", f"does not match ^{DEVICE_PATTERN}$")

@@ -335,9 +335,9 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
     gain = np.zeros((n_runs + 1, 3))
     blocks = None                                        # None: all blocks, no gathers
     for _ in range(2):
-        pick = (lambda a: a) if blocks is None else (lambda a: a[blocks])  # noqa: E731
-        idx, m_b, v_b, r_b = pick(run_of), pick(mean), pick(var), pick(r)
-        quiet = pick(const) & ~pick(active)
+        idx, m_b, v_b, r_b, c_b, a_b = (a if blocks is None else a[blocks]
+                                        for a in (run_of, mean, var, r, const, active))
+        quiet = c_b & ~a_b
         count = np.bincount(idx, weights=quiet, minlength=n_runs + 1)
         noise = np.where(count[:, None] > 0, np.sqrt(_quiet_mean(v_b, idx, quiet, count)), noise_log)
         noise = np.clip(noise, noise_log / cfg.noise_cap, noise_log * cfg.noise_cap).astype(np.float32)
