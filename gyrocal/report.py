@@ -141,8 +141,8 @@ def write_fleet_report(units: list[dict], path) -> None:
         row = dict(unit["row"])
         p = unit_paths(unit["folder"])
         row["report"] = unit["report"]
-        rec = next((failure.read(p[k]) for k in ("validation", "calibration", "observations")
-                    if failure.read(p[k]) is not None), None)
+        records = (failure.read(p[k]) for k in ("validation", "calibration", "observations"))
+        rec = next((r for r in records if r is not None), None)
         if rec is not None:
             row.update(status="failed", stage=rec["stage"], error=rec["error"],
                        internal=rec.get("internal", False))
