@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import CalibrationFileError, CorruptFileError, GyrocalError
 from .model import Model
-from .thermal import TemperatureGrid, check_method
+from .thermal import ConstantCoefficients, TemperatureGrid, check_method
 
 FORMAT = "gyrocal.calibration/1"
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
@@ -32,59 +32,79 @@ class Calibration:
     """A fitted model over a temperature grid, plus who and what it belongs to."""
 
     model: Model
-    grid: TemperatureGrid
+    grid: TemperatureGrid | ConstantCoefficients   # per-point values, or one set
     reference_temperature: float = 25.0
     meta: dict = field(default_factory=dict)         # device, batch, session, protocol
     provenance: dict = field(default_factory=dict)   # input, versions, config hash
     extra: dict = field(default_factory=dict)        # carried along, not needed to apply
 
+    @property
+    def kind(self) -> str:
+        return "continuous" if isinstance(self.grid, ConstantCoefficients) else "temperature_grid"
+
     def coefficients(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
         return self.grid.at(temp, warn=warn)
+
+    def clamp(self, temp) -> np.ndarray:
+        """Temperatures limited to the calibrated range: terms never extrapolate."""
+        lo, hi = self.grid.span
+        return np.clip(np.asarray(temp, dtype=float), lo, hi)
 
     def _neutral(self, n: int, temp) -> dict[str, np.ndarray]:
         """Covariates at their reference values: temperature as given, others zero."""
         data = {name: np.zeros(n) for name in self.model.needs}
-        data["temp"] = np.broadcast_to(np.asarray(temp, dtype=float), (n,)).copy()
+        data["temp"] = np.broadcast_to(self.clamp(temp), (n,)).copy()
         return data
 
-    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
-        """K (P, 3, 3) and B (P, 3) at the grid points: the affine part of the model with
+    def matrices_at(self, temps) -> tuple[np.ndarray, np.ndarray]:
+        """K (n, 3, 3) and B (n, 3) at temperatures: the affine part of the model with
         covariates other than temperature at zero."""
-        P = len(self.grid.temperatures)
-        coefs = {n: self.grid.values[:, j] for j, n in enumerate(self.grid.names)}
-        K, B = self.model.linearise(coefs, self._neutral(P, self.grid.temperatures),
-                                    np.zeros((P, 3)))
-        return K, B
+        temps = np.atleast_1d(np.asarray(temps, dtype=float))
+        coefs = self.coefficients(temps, warn=False)
+        return self.model.linearise(coefs, self._neutral(len(temps), temps), np.zeros((len(temps), 3)))
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray]:
+        """K and B at the calibration's own temperature points."""
+        return self.matrices_at(self.grid.temperatures)
 
     def compensate(self, gyro: np.ndarray, data: dict, *, warn: bool = True) -> np.ndarray:
         """True rates (n, 3) from raw outputs (n, 3); ``data`` holds ``temp`` and whatever
-        else the model's terms need. Temperatures outside the grid are clamped (warned)."""
+        else the model's terms need. Temperatures outside the calibrated range use the
+        calibration at the nearest end (warned)."""
         self.model.check_inputs({**data, "rate_x": 0, "rate_y": 0, "rate_z": 0})
         coefs = self.coefficients(data["temp"], warn=warn)
-        w_true, _ = self.model.compensate(coefs, np.asarray(gyro, dtype=float), data)
+        w_true, _ = self.model.compensate(coefs, np.asarray(gyro, dtype=float),
+                                          {**data, "temp": self.clamp(data["temp"])})
         return w_true
 
     # -- file format -----------------------------------------------------------------
     def to_dict(self) -> dict:
         K, B = self.matrices()
         g = self.grid
+        if self.kind == "continuous":
+            coefficients = {n: float(v) for n, v in zip(g.names, g.values)}
+            stderr = {n: float(v) for n, v in zip(g.names, g.stderr)}
+            interpolation = {"method": "none", "outside_range": "clamp"}
+        else:
+            coefficients = {n: g.values[:, j].tolist() for j, n in enumerate(g.names)}
+            stderr = {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)}
+            interpolation = {"method": g.method, "degree": g.degree, "outside_range": "clamp"}
         body = {
             "format": FORMAT,
             **{k: self.meta.get(k) for k in ("device", "batch", "session", "protocol")},
             "units": {**UNITS, "coefficients": self._coefficient_units()},
             "model": {
-                "kind": "temperature_grid",
+                "kind": self.kind,
                 "terms": self.model.spec(),
-                "interpolation": {"method": g.method, "degree": g.degree,
-                                  "outside_range": "clamp"},
+                "interpolation": interpolation,
                 "reference_temperature": self.reference_temperature,
             },
             "grid": {
                 "temperature": g.temperatures.tolist(),
                 "K": K.tolist(),
                 "B": B.tolist(),
-                "coefficients": {n: g.values[:, j].tolist() for j, n in enumerate(g.names)},
-                "stderr": {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)},
+                "coefficients": coefficients,
+                "stderr": stderr,
             },
             "provenance": self.provenance,
             **self.extra,
@@ -113,18 +133,20 @@ class Calibration:
                  f"(it reads {FORMAT_VERSION})")
         try:
             model_d, grid_d = d["model"], d["grid"]
-            if model_d.get("kind") != "temperature_grid":
-                fail(f"model kind {model_d.get('kind')!r} is not known")
+            kind = model_d.get("kind")
+            if kind not in ("temperature_grid", "continuous"):
+                fail(f"model kind {kind!r} is not known")
             try:
                 model = Model.from_spec(model_d["terms"])
             except GyrocalError as exc:
                 fail(f"model: {exc}")
             interp = model_d["interpolation"]
             method, degree = interp["method"], interp.get("degree", 3)
-            try:
-                check_method(method, degree)
-            except GyrocalError as exc:
-                fail(str(exc))
+            if kind == "temperature_grid":
+                try:
+                    check_method(method, degree)
+                except GyrocalError as exc:
+                    fail(str(exc))
             reference = model_d.get("reference_temperature", 25.0)
             if isinstance(reference, bool) or not isinstance(reference, (int, float)) \
                     or not math.isfinite(reference):
@@ -135,18 +157,25 @@ class Calibration:
                 fail(f"units {wrong} are not the {UNITS} this gyrocal writes and reads")
             temps = _floats(grid_d["temperature"], "grid.temperature", fail)
             names = tuple(model.names)
-            values = np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail)
-                                      for n in names]) if names else np.zeros((len(temps), 0))
-            stderr = np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail)
-                                      for n in names]) if names else np.zeros((len(temps), 0))
+            if kind == "continuous":
+                values = np.array([_number(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names])
+                stderr = np.array([_number(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
+            else:
+                values = np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail)
+                                          for n in names]) if names else np.zeros((len(temps), 0))
+                stderr = np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail)
+                                          for n in names]) if names else np.zeros((len(temps), 0))
         except KeyError as exc:
             fail(f"missing key {exc.args[0]!r}")
         except (TypeError, AttributeError):
             fail("has a malformed model or grid section")
-        if values.shape[0] != len(temps) or stderr.shape[0] != len(temps):
+        if kind == "continuous" and (len(temps) == 0 or np.any(np.diff(temps) <= 0)):
+            fail("grid temperatures must increase strictly")
+        if kind != "continuous" and (values.shape[0] != len(temps) or stderr.shape[0] != len(temps)):
             fail("grid coefficients and temperatures differ in length")
         try:
-            grid = TemperatureGrid(temps, names, values, stderr, method, degree)
+            grid = ConstantCoefficients(temps, names, values, stderr) if kind == "continuous" \
+                else TemperatureGrid(temps, names, values, stderr, method, degree)
         except GyrocalError as exc:
             fail(f"grid: {exc}")
         known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid",
@@ -169,6 +198,12 @@ class Calibration:
                 not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12):
             fail("grid K and B do not match the coefficients (edited by hand?)")
         return cal
+
+
+def _number(value, what: str, fail) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        fail(f"{what} must be a finite number")
+    return float(value)
 
 
 def _floats(values, what: str, fail) -> np.ndarray:

@@ -23,8 +23,12 @@ def _floats(text: str) -> tuple[float, ...]:
 def _settings(args):
     """Settings from --config (YAML) or --settings-json, then --model and --add-term."""
     import json
+    from dataclasses import replace
 
     from .config import ModelSettings, Settings, read_yaml
+    from .terms.user import load_term_file
+    for path in getattr(args, "terms", None) or ():
+        load_term_file(path)
     settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
     if getattr(args, "settings_json", None):
         try:
@@ -43,9 +47,9 @@ def _settings(args):
             model = ModelSettings.from_dict(values)
         except ConfigError as exc:
             raise ConfigError(str(exc), source=args.model) from None
-        settings = Settings(settings.segmentation, model)
+        settings = replace(settings, model=model)
     if getattr(args, "add_term", None):
-        settings = Settings(settings.segmentation, settings.model.with_terms(tuple(args.add_term)))
+        settings = replace(settings, model=settings.model.with_terms(tuple(args.add_term)))
         settings.model.build()  # unknown names fail here, before any work
     return settings
 
@@ -178,9 +182,44 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def cmd_diagnose(args) -> int:
+    from .calibration import dumps
+    from .diagnose import diagnose
+    from .io import read_table_with_metadata
+    from .pipeline import check_protocol, segment_log
+    from .stages import UNIT_FILES, run_stage
+    settings = _settings(args)
+    if (args.log is None) == (args.unit is None):
+        raise ConfigError("give the log, or --unit DIR of a segmented unit")
+
+    def work():
+        if args.unit is not None:
+            from . import failure
+            obs_path = Path(args.unit) / UNIT_FILES["observations"]
+            failure.check_inputs(obs_path)
+            obs = read_table_with_metadata(obs_path)[0]
+        else:
+            check_protocol(args.protocol)
+            obs = segment_log(args.log, settings).observations
+        diag = diagnose(settings, obs)
+        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.output).write_text(dumps({**diag.to_dict(), **_meta(args)}))
+        if args.residuals:
+            from .io import write_table
+            write_table(diag.residuals, args.residuals, {"heatmaps": diag.heatmaps})
+        print(f"diagnosis -> {args.output}")
+        print(f"  {diag.verdict}")
+
+    outputs = [args.output] + ([args.residuals] if args.residuals else [])
+    return run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
+
+
 def cmd_apply(args) -> int:
     from .apply import apply_calibration
     from .calibration import load_calibration
+    from .terms.user import load_term_file
+    for path in args.terms or ():
+        load_term_file(path)
     cal = load_calibration(args.calibration)
     counts = apply_calibration(cal, args.log, args.output)
     if counts["clamped"]:
@@ -236,8 +275,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     def common(q, model=True):
-        q.add_argument("--config", help="settings YAML (segmentation:, model:)")
-        q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model)")
+        q.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
+        q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
+        q.add_argument("--terms", action="append", metavar="FILE",
+                       help="a Python file registering your own terms (repeatable)")
         if model:
             q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
             q.add_argument("--add-term", action="append", metavar="NAME",
@@ -261,10 +302,21 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=cmd_calibrate)
 
+    p = sub.add_parser("diagnose", help="where the model fails and which effect is missing")
+    p.add_argument("log", nargs="?", help="the rig log (or --unit for a segmented unit)")
+    p.add_argument("--unit", help="a unit's results folder (workflow stage)")
+    p.add_argument("-o", "--output", required=True, help="diagnosis .json")
+    p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_diagnose)
+
     p = sub.add_parser("apply", help="compensate a log with a calibration")
     p.add_argument("calibration")
     p.add_argument("log")
     p.add_argument("-o", "--output", required=True)
+    p.add_argument("--terms", action="append", metavar="FILE",
+                   help="the term file a calibration's own terms come from (repeatable)")
     p.set_defaults(func=cmd_apply)
 
     p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")

@@ -23,6 +23,11 @@ from .errors import ConfigError, IdentifiabilityError
 from .terms import AXES, Term, make_term
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
+# Largest condition number of the column-scaled, weighted design a fit accepts. Sound
+# designs stay far below (seed-000 model: about 1; a degree-5 temperature polynomial: about
+# 200); columns kept apart only by noise exceed it (about 1e4 for an accelerometer on three
+# mounts).
+MAX_CONDITION = 1e3
 RATE_COLUMNS = ("rate_x", "rate_y", "rate_z")
 
 
@@ -197,6 +202,7 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     resid = np.zeros((n_obs, 3))
     chi2, dof, cond = {}, {}, {}
     unexcited: list[str] = []
+    worst = 0.0
     for i, axis in enumerate(AXES):
         cols = model.axis_names(axis)
         if not cols:
@@ -209,12 +215,15 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
         dead = scale == 0
         scale[dead] = 1.0
         U, s, Vt = np.linalg.svd(Xw / scale, full_matrices=False)
-        weak = s <= s[0] * 1e-9 if s.size else np.array([], bool)
+        # Columns that only noise keeps apart (an accelerometer that reads the same on
+        # every mount but for its noise) fit noise, not physics: refuse them too.
+        weak = s <= s[0] / MAX_CONDITION if s.size else np.array([], bool)
         if dead.any() or weak.any():
             involved = set(np.flatnonzero(dead))
             for k in np.flatnonzero(weak):
                 involved |= set(np.flatnonzero(np.abs(Vt[k]) > 0.1))
             unexcited += [cols[j] for j in sorted(involved)]
+            worst = max(worst, float(s[0] / max(s[-1], 1e-300)))
             continue
         n_dof = n_obs - len(cols)
         if n_dof < 1:
@@ -235,9 +244,11 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
 
     if unexcited:
         bad = tuple(n for n in model.names if n in unexcited)
+        how = "no rotation or holds that separate them" if worst > 1e9 else \
+            f"they are nearly collinear (condition number {worst:.3g})"
         raise IdentifiabilityError(
-            f"the observations{where} do not excite {', '.join(bad)}: no rotation or "
-            f"holds that separate them ({n_obs} holds)", parameters=bad, source=source)
+            f"the observations{where} do not excite {', '.join(bad)}: {how} ({n_obs} holds)",
+            parameters=bad, source=source)
     covariance = np.zeros((len(names), len(names)))
     at = 0
     for block in blocks:

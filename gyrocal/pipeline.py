@@ -19,7 +19,7 @@ from .config import Settings
 from .errors import ConfigError
 from .io import file_sha256, read_log
 from .segment import LOG_COLUMNS, Segmentation, segment
-from .thermal import GridFit, fit_grid
+from .thermal import ContinuousFit, GridFit, fit_model
 from .validate import Validation, validate
 
 PROTOCOLS = ("turntable",)
@@ -29,7 +29,7 @@ PROTOCOLS = ("turntable",)
 class Run:
     calibration: Calibration
     segmentation: Segmentation
-    grid_fit: GridFit
+    fitted: GridFit | ContinuousFit
     validation: Validation
 
 
@@ -62,20 +62,21 @@ def segment_log(path, settings: Settings) -> Segmentation:
 
 
 def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
-                           source: dict | None = None, label=None) -> tuple[Calibration, GridFit]:
+                           source: dict | None = None, label=None
+                           ) -> tuple[Calibration, GridFit | ContinuousFit]:
     model = settings.model.build()
-    grid_fit = fit_grid(model, obs, method=settings.model.interpolation,
-                        degree=settings.model.degree, source=label)
-    points = grid_fit.points
+    fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
+                       degree=settings.model.degree, source=label)
+    points = fitted.points
     cal = Calibration(
-        model, grid_fit.grid, settings.model.reference_temperature, meta,
+        model, fitted.coefficients, settings.model.reference_temperature, meta,
         provenance={"input": source or {}, "versions": versions(),
                     "config_sha256": settings.sha256()},
         extra={"points": [
             {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
              **({"excluded_because": r.reason} if not r.used else {})}
             for r in points.itertuples()]})
-    return cal, grid_fit
+    return cal, fitted
 
 
 def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
@@ -86,8 +87,8 @@ def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
     seg = segment_log(path, settings)
     meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
             "session": session, "protocol": protocol}
-    cal, grid_fit = calibrate_observations(seg.observations, settings, meta=meta,
+    cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
                                            source=seg.info["source"], label=path)
-    val = validate(cal.model, seg.observations, grid_fit,
+    val = validate(cal.model, seg.observations, fitted,
                    reference_temperature=settings.model.reference_temperature)
-    return Run(cal, seg, grid_fit, val)
+    return Run(cal, seg, fitted, val)

@@ -22,7 +22,7 @@ from .config import Settings
 from .errors import GyrocalError
 from .io import read_table_with_metadata, write_table
 from .pipeline import calibrate_observations, check_protocol, segment_log
-from .thermal import fit_grid
+from .thermal import fit_model
 from .validate import validate
 
 UNIT_FILES = {
@@ -87,12 +87,12 @@ def validate_stage(folder, settings: Settings) -> None:
     obs, _ = read_table_with_metadata(paths["observations"])
     cal = load_calibration(paths["calibration"])
     model = settings.model.build()
-    grid_fit = fit_grid(model, obs, method=settings.model.interpolation,
-                        degree=settings.model.degree, source=paths["observations"])
-    if not np.array_equal(grid_fit.grid.values, cal.grid.values):
+    fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
+                       degree=settings.model.degree, source=paths["observations"])
+    if not np.array_equal(fitted.coefficients.values, cal.grid.values):
         raise GyrocalError("the calibration was not fitted from these observations with "
                            "these settings: run the fit stage again", source=paths["calibration"])
-    val = validate(model, obs, grid_fit, reference_temperature=settings.model.reference_temperature)
+    val = validate(model, obs, fitted, reference_temperature=settings.model.reference_temperature)
     write_table(val.holds, paths["holds"], {"summary": val.summary})
     write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
     write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})

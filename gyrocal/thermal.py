@@ -22,6 +22,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 import pandas as pd
@@ -142,13 +143,7 @@ class TemperatureGrid:
         """Coefficient arrays at ``temp`` (clamped to the grid, with a warning if so)."""
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
-            out = self.outside(temp)
-            if out.any():
-                lo, hi = self.span
-                warnings.warn(OutOfRangeWarning(
-                    f"{int(out.sum())} of {len(temp)} samples at {temp[out].min():.2f} to "
-                    f"{temp[out].max():.2f} °C lie outside the calibrated {lo:g} to {hi:g} °C "
-                    "and use the nearest end's calibration"), stacklevel=2)
+            _warn_outside(self, temp)
         V = self.weights(temp) @ self.values
         return {n: V[:, j] for j, n in enumerate(self.names)}
 
@@ -162,6 +157,45 @@ class TemperatureGrid:
                                self.stderr[keep], self.method, self.degree)
 
 @dataclass(frozen=True)
+class ConstantCoefficients:
+    """Coefficients of a temperature-continuous model: one value each, the temperature
+    dependence being in the model's own terms. ``temperatures`` are the calibration's
+    points (where K and B are tabulated for the file); ``span`` is where it was fitted."""
+
+    temperatures: np.ndarray
+    names: tuple[str, ...]
+    values: np.ndarray                # (C,)
+    stderr: np.ndarray                # (C,)
+    method: str = "continuous"
+    degree: int = 0
+
+    @property
+    def span(self) -> tuple[float, float]:
+        return float(self.temperatures[0]), float(self.temperatures[-1])
+
+    def outside(self, temp) -> np.ndarray:
+        temp = np.asarray(temp, dtype=float)
+        lo, hi = self.span
+        return (temp < lo) | (temp > hi)
+
+    def at(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        if warn:
+            _warn_outside(self, temp)
+        return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values)}
+
+
+def _warn_outside(coefs, temp: np.ndarray) -> None:
+    out = coefs.outside(temp)
+    if out.any():
+        lo, hi = coefs.span
+        warnings.warn(OutOfRangeWarning(
+            f"{int(out.sum())} of {len(temp)} samples at {temp[out].min():.2f} to "
+            f"{temp[out].max():.2f} °C lie outside the calibrated {lo:g} to {hi:g} °C and use "
+            "the calibration at the nearest end"), stacklevel=3)
+
+
+@dataclass(frozen=True)
 class GridFit:
     """Per-temperature fits and the grid built from those that succeeded."""
 
@@ -169,6 +203,118 @@ class GridFit:
     fits: tuple[FitResult, ...]
     points: pd.DataFrame              # point, temp, holds, used, reason
     excluded: dict[int, str] = field(default_factory=dict)
+    rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
+    kind: ClassVar[str] = "grid"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.grid.names
+
+    @property
+    def coefficients(self) -> TemperatureGrid:
+        return self.grid
+
+    def used_points(self) -> list[int]:
+        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+
+    def outside(self, temp) -> np.ndarray:
+        return self.grid.outside(temp)
+
+    def coefficients_at(self, temp) -> np.ndarray:
+        return self.grid.weights(temp) @ self.grid.values
+
+    def covariance_at(self, temp) -> np.ndarray:
+        cov = np.array([f.covariance for f in self.fits])
+        return np.einsum("np,pcd->ncd", self.grid.weights(temp) ** 2, cov)
+
+    def leave_out(self, point: int) -> GridFit | None:
+        """The calibration without ``point``: the other points' fits (each used its own
+        holds only, so this is what calibrating without the point gives)."""
+        used = self.used_points()
+        if point not in used:
+            return self
+        if len(used) < 2:
+            return None
+        k = used.index(point)
+        keep = self.points["point"] != point
+        return GridFit(self.grid.without(k), self.fits[:k] + self.fits[k + 1:],
+                       self.points[keep].reset_index(drop=True), self.excluded,
+                       self.rows[:k] + self.rows[k + 1:])
+
+
+@dataclass(frozen=True)
+class ContinuousFit:
+    """One fit of a temperature-continuous model over every point's holds."""
+
+    model: Model
+    fit: FitResult
+    data: dict                        # the numeric observation columns fitted
+    points: pd.DataFrame
+    excluded: dict[int, str] = field(default_factory=dict)
+    kind: ClassVar[str] = "continuous"
+
+    @property
+    def rows(self) -> tuple[np.ndarray, ...]:
+        return (np.arange(len(self.data["temp"])),)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.fit.names
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]:
+        return (self.fit,)
+
+    @property
+    def coefficients(self) -> ConstantCoefficients:
+        temps = np.sort(self.points.loc[self.points["used"], "temp"].to_numpy(dtype=float))
+        return ConstantCoefficients(temps, self.names, self.fit.values, self.fit.stderr)
+
+    def used_points(self) -> list[int]:
+        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+
+    def outside(self, temp) -> np.ndarray:
+        return self.coefficients.outside(temp)
+
+    def coefficients_at(self, temp) -> np.ndarray:
+        return np.broadcast_to(self.fit.values, (len(np.atleast_1d(temp)), len(self.names)))
+
+    def covariance_at(self, temp) -> np.ndarray:
+        n = len(np.atleast_1d(temp))
+        return np.broadcast_to(self.fit.covariance, (n,) + self.fit.covariance.shape)
+
+    def leave_out(self, point: int) -> ContinuousFit | None:
+        """Refitted without ``point``'s holds (None when nothing would be left to fit)."""
+        keep = self.data["point"].astype(int) != point
+        if keep.all():
+            return self
+        if len(np.unique(self.data["point"][keep])) < 1:
+            return None
+        try:
+            return fit_continuous(self.model, {k: v[keep] for k, v in self.data.items()})
+        except IdentifiabilityError:
+            return None
+
+
+def in_sample(fitted, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (n, 3) and floors (n, 3) of a fit's own observations in observation
+    order, and which rows were fitted (rows of points left out are NaN)."""
+    resid, floor = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    for result, rows in zip(fitted.fits, fitted.rows):
+        resid[rows], floor[rows] = result.residuals, result.floor
+    return resid, floor, ~np.isnan(resid[:, 0])
+
+
+def fit_continuous(model: Model, obs, *, source=None) -> ContinuousFit:
+    """Fit a temperature-continuous model jointly over every point (seed 003 Eq 16 style:
+    the temperature dependence is in terms such as ``bias_temp_poly``)."""
+    data = columns_of(obs)
+    result = fit(model, data, source=source, label="all temperature points")
+    point = data["point"].astype(int)
+    rows = [(int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
+            for p in np.unique(point)]
+    points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
+    return ContinuousFit(model, result, data, points)
 
 
 def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degree: int = 3,
@@ -179,7 +325,7 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     is left out and reported; if no point can be fitted the first refusal is raised.
     """
     check_method(method, degree)
-    fits, temps, rows, excluded, first_error = [], [], [], {}, None
+    fits, temps, rows, excluded, first_error, fitted_rows = [], [], [], {}, None, []
     data = columns_of(obs)
     point_of = data["point"].astype(int)
     for point in np.unique(point_of):
@@ -195,6 +341,7 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
             continue
         fits.append(result)
         temps.append(temp)
+        fitted_rows.append(idx)
         rows.append((int(point), temp, len(idx), True, ""))
     if not fits:
         raise first_error if first_error else GyrocalError("no observations to fit", source=source)
@@ -202,4 +349,19 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     grid = TemperatureGrid(np.array(temps), names, np.array([f.values for f in fits]),
                            np.array([f.stderr for f in fits]), method, degree)
     points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
-    return GridFit(grid, tuple(fits), points, excluded)
+    return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
+
+
+def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",
+              degree: int = 3, source=None) -> GridFit | ContinuousFit:
+    """A model fitted as a temperature grid (per point, interpolated) or continuously."""
+    if kind == "continuous":
+        return fit_continuous(model, obs, source=source)
+    if kind != "grid":
+        raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
+    temperature_only = [t.spec_string() for t in model.terms if t.varies_with_temperature]
+    if temperature_only:
+        raise ConfigError(f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
+                          "on temperature alone and cannot be fitted point by point: use model "
+                          "kind continuous")
+    return fit_grid(model, obs, method=method, degree=degree, source=source)

@@ -34,10 +34,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .errors import IdentifiabilityError
+from .errors import GyrocalError, IdentifiabilityError
 from .model import Model, columns_of, fit, observation_floor
 from .terms import AXES
-from .thermal import GridFit
 
 METHODS = ("uncompensated", "single", "interpolated")
 
@@ -51,12 +50,32 @@ class Validation:
     summary: dict = field(default_factory=dict)
 
 
-def compensate_holds(model: Model, coefs, w: np.ndarray, rate: np.ndarray, data: dict
-                     ) -> tuple[np.ndarray, np.ndarray]:
-    """Errors (n, 3) of compensated hold means, and the compensation matrices A (n, 3, 3)
-    that map output errors to compensated errors."""
-    w_true, J = model.compensate(coefs, w, data)
-    return w_true - rate, np.linalg.inv(J)
+@dataclass
+class _Plan:
+    """For every hold: the calibration that never saw it, as coefficient arrays of a model,
+    with their covariance; and the temperature its terms are evaluated at (clamped to that
+    calibration's range, never extrapolated)."""
+
+    model: Model
+    names: tuple[str, ...]
+    values: np.ndarray       # (n, C)
+    cov: np.ndarray          # (n, C, C)
+    temp: np.ndarray         # (n,)
+
+
+def _compensate(plan: _Plan, w, rate, sd, data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Errors (n, 3) of compensated hold means, the per-sample noise variances and the
+    calibration-uncertainty variances carried through the compensation."""
+    coefs = {name: plan.values[:, j] for j, name in enumerate(plan.names)}
+    covariates = {**data, "temp": plan.temp}
+    w_true, J = plan.model.compensate(coefs, w, covariates)
+    A2 = np.linalg.inv(J) ** 2
+    # Design rows at the compensated rates, split by output axis: var_a = x_a' V x_a.
+    design = plan.model.design({**covariates, **{f"rate_{a}": w_true[:, i] for i, a in enumerate(AXES)}})
+    x = np.column_stack([np.broadcast_to(design[c], (len(w),)) for c in plan.names])
+    cal = np.column_stack([np.einsum("nc,ncd,nd->n", x * m, plan.cov, x * m) for m in
+                           [np.array([n.split(".")[1] == a for n in plan.names]) for a in AXES]])
+    return w_true - rate, np.einsum("nij,nj->ni", A2, sd ** 2), np.einsum("nij,nj->ni", A2, cal)
 
 
 def reference_point(temps: np.ndarray, reference_temperature: float, exclude: int | None = None) -> int:
@@ -64,43 +83,37 @@ def reference_point(temps: np.ndarray, reference_temperature: float, exclude: in
     return int(next((i for i in order if i != exclude), order[0]))
 
 
-def validate(model: Model, obs: pd.DataFrame, grid_fit: GridFit, *,
+def single_point_model(model: Model) -> Model:
+    """The model's terms a single temperature point can determine: the traditional
+    one-temperature calibration of the same model."""
+    return Model(tuple(t for t in model.terms if not t.varies_with_temperature))
+
+
+def validate(model: Model, obs: pd.DataFrame, fitted, *,
              reference_temperature: float = 25.0) -> Validation:
     """Compare the three methods on every hold with a calibration that never saw it.
 
-    With two or more temperature points each point is held out in turn; with one (or one
-    that could be fitted) each hold of that point is left out of its own fit instead.
+    ``fitted`` is a :class:`~gyrocal.thermal.GridFit` or :class:`ContinuousFit`. With two
+    or more temperature points each point is held out in turn; with one, each hold of that
+    point is left out of its own fit instead.
     """
-    grid = grid_fit.grid
-    P = len(grid.temperatures)
     n = len(obs)
     data = columns_of(obs)
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
-    if P >= 2:
-        plan = _leave_temperature_out(grid_fit, data, reference_temperature)
-        basis = "temperature"
+    used = fitted.used_points()
+    if len(used) >= 2:
+        interp, single, clamped, ref_temp = _leave_temperature_out(model, fitted, data,
+                                                                   reference_temperature)
+        held_out = "temperature"
     else:
-        plan = _leave_hold_out(model, grid_fit, data)
-        basis = "hold"
-    interp, interp_cov, single, single_cov, clamped, ref_temp = plan
-
-    # Design rows in the grid's coefficient order, split by output axis, to carry the
-    # calibration's own uncertainty to each hold: var_a = x_a' V x_a.
-    design = model.design(data)
-    x = np.column_stack([np.broadcast_to(design[c], (n,)) for c in grid.names])
-    masks = [np.array([name.split(".")[1] == a for name in grid.names]) for a in AXES]
-
-    def calibration_var(V):
-        return np.column_stack([np.einsum("nc,ncd,nd->n", x * m, V, x * m) for m in masks])
-
-    as_coefs = lambda V: {name: V[:, j] for j, name in enumerate(grid.names)}  # noqa: E731
-    err_s, A_s = compensate_holds(model, as_coefs(single), w, rate, data)
-    err_i, A_i = compensate_holds(model, as_coefs(interp), w, rate, data)
-    mapped = lambda A, v: np.einsum("nij,nj->ni", A ** 2, v)  # noqa: E731
-    errors = {"uncompensated": (w - rate, sd ** 2, np.zeros((n, 3))),
-              "single": (err_s, mapped(A_s, sd ** 2), mapped(A_s, calibration_var(single_cov))),
-              "interpolated": (err_i, mapped(A_i, sd ** 2), mapped(A_i, calibration_var(interp_cov)))}
+        interp, clamped = _leave_hold_out(model, fitted, data)
+        single, ref_temp = interp, np.full(n, float(fitted.points.loc[fitted.points["used"], "temp"].iloc[0]))
+        held_out = "hold"
+    zero = np.zeros((n, 3))
+    errors = {"uncompensated": (w - rate, sd ** 2, zero),
+              "single": _compensate(single, w, rate, sd, data),
+              "interpolated": _compensate(interp, w, rate, sd, data)}
 
     floor = observation_floor(data)
     base = obs[["hold", "point", "point_temp", "temp", "mount", "axis", "ref_rate", "n",
@@ -120,6 +133,7 @@ def validate(model: Model, obs: pd.DataFrame, grid_fit: GridFit, *,
     overall = {m: _pooled_rms(errors[m][0][use]) for m in METHODS}
     floor_all = _pooled_rms(floor[use])
     expected = float(np.sqrt(np.mean(floor[use] ** 2 + errors["interpolated"][2][use])))
+    point_temps = fitted.points.loc[fitted.points["used"], "temp"].to_numpy(dtype=float)
     summary = {
         "validation_rms": overall["interpolated"],
         "noise_floor": floor_all,
@@ -128,69 +142,80 @@ def validate(model: Model, obs: pd.DataFrame, grid_fit: GridFit, *,
         "excess_over_expected": overall["interpolated"] / expected if expected > 0 else float("inf"),
         "uncompensated_rms": overall["uncompensated"],
         "single_rms": overall["single"],
-        "reference_temperature": float(grid.temperatures[
-            reference_point(grid.temperatures, reference_temperature)]),
-        "held_out": basis,
+        "reference_temperature": float(point_temps[reference_point(point_temps, reference_temperature)]),
+        "held_out": held_out,
         "scored": "interior" if interior.any() else "all",
         "holds_scored": int(use.sum()),
-        "temperature_points": int(P),
+        "temperature_points": int(len(used)),
+        "model_kind": fitted.kind,
     }
     return Validation(holds, _table(scored, samples=False), _table(scored, samples=True),
                       _by_temperature(holds), summary)
 
 
-def _leave_temperature_out(grid_fit: GridFit, data: dict, reference_temperature: float):
-    """Per hold: coefficients and their covariance from the grid without its own point
-    (interpolated) and from the reference point (single; the next nearest when the
-    reference is the point held out)."""
-    grid = grid_fit.grid
-    cov = np.array([f.covariance for f in grid_fit.fits])          # (P, C, C)
-    n, P = len(data["temp"]), len(grid.temperatures)
-    C = len(grid.names)
+def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float):
+    """Per hold: the calibration without its own point (interpolated, or refitted for a
+    continuous model) and the one-point calibration at the reference point (the next
+    nearest when the reference is the point held out)."""
+    n, C = len(data["temp"]), len(fitted.names)
     temp, point = data["temp"], data["point"].astype(int)
-    grid_index = {int(p): k for k, p in enumerate(
-        grid_fit.points.loc[grid_fit.points["used"], "point"])}
-    interp, single = np.empty((n, C)), np.empty((n, C))
-    interp_cov, single_cov = np.empty((n, C, C)), np.empty((n, C, C))
+    used = fitted.used_points()
+    point_temps = fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float)
+    one_point = single_point_model(model)
+    Cs = len(one_point.names)
+    single_fits: dict[int, object] = {}
+
+    def single_fit(p):
+        if p not in single_fits:
+            if fitted.kind == "grid":
+                single_fits[p] = fitted.fits[used.index(p)]
+            else:
+                keep = point == p
+                single_fits[p] = fit(one_point, {k: v[keep] for k, v in data.items()})
+        return single_fits[p]
+
+    interp = _Plan(model, fitted.names, np.empty((n, C)), np.empty((n, C, C)), temp.copy())
+    single = _Plan(one_point, tuple(one_point.names), np.empty((n, Cs)), np.empty((n, Cs, Cs)), temp.copy())
     clamped, ref_temp = np.empty(n, dtype=bool), np.empty(n)
     for p in np.unique(point):
         rows = np.flatnonzero(point == p)
-        k = grid_index.get(int(p))
-        keep = np.arange(P) != k
-        loo = grid.without(k) if k is not None else grid
-        W = loo.weights(temp[rows])
-        interp[rows] = W @ loo.values
-        interp_cov[rows] = np.einsum("np,pcd->ncd", W ** 2, cov[keep])
-        ref = reference_point(grid.temperatures, reference_temperature, exclude=k)
-        single[rows], single_cov[rows] = grid.values[ref], cov[ref]
+        loo = fitted.leave_out(int(p))
+        if loo is None:
+            raise GyrocalError(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
+                               "nothing to calibrate from")
+        interp.values[rows] = loo.coefficients_at(temp[rows])
+        interp.cov[rows] = loo.covariance_at(temp[rows])
+        lo, hi = loo.coefficients.span
+        interp.temp[rows] = np.clip(temp[rows], lo, hi)
         clamped[rows] = loo.outside(temp[rows])
-        ref_temp[rows] = grid.temperatures[ref]
-    return interp, interp_cov, single, single_cov, clamped, ref_temp
+        k = reference_point(point_temps, reference_temperature,
+                            exclude=used.index(int(p)) if int(p) in used else None)
+        ref = single_fit(used[k])
+        single.values[rows], single.cov[rows] = ref.values, ref.covariance
+        ref_temp[rows] = point_temps[k]
+    return interp, single, clamped, ref_temp
 
 
-def _leave_hold_out(model: Model, grid_fit: GridFit, data: dict):
+def _leave_hold_out(model: Model, fitted, data: dict):
     """One usable temperature point: each of its holds is compensated by the fit of the
     point's other holds (holds of points that could not be fitted use the whole fit)."""
-    grid = grid_fit.grid
     n = len(data["temp"])
     point = data["point"].astype(int)
-    fitted = int(grid_fit.points.loc[grid_fit.points["used"], "point"].iloc[0])
-    coefs = np.tile(grid.values[0], (n, 1))
-    cov = np.tile(grid_fit.fits[0].covariance, (n, 1, 1))
-    mine = np.flatnonzero(point == fitted)
+    only = fitted.used_points()[0]
+    whole = fitted.fits[0]
+    plan = _Plan(model, fitted.names, np.tile(whole.values, (n, 1)),
+                 np.tile(whole.covariance, (n, 1, 1)), data["temp"].copy())
+    mine = np.flatnonzero(point == only)
+    clamped = point != only
     for i in mine:
         others = mine[mine != i]
         try:
             result = fit(model, {k: v[others] for k, v in data.items()})
         except IdentifiabilityError:
-            coefs[i], cov[i] = np.nan, np.nan  # only this hold excites something
+            clamped[i] = True  # only this hold excites something: scored with the whole fit
             continue
-        coefs[i], cov[i] = result.values, result.covariance
-    clamped = point != fitted
-    bad = ~np.isfinite(coefs).all(axis=1)
-    clamped |= bad
-    coefs[bad], cov[bad] = grid.values[0], grid_fit.fits[0].covariance
-    return coefs, cov, coefs.copy(), cov.copy(), clamped, np.full(n, grid.temperatures[0])
+        plan.values[i], plan.cov[i] = result.values, result.covariance
+    return plan, clamped
 
 
 def _pooled_rms(values: np.ndarray) -> float:

@@ -25,7 +25,7 @@ def test_fitted_K_and_B_within_three_reported_standard_errors(complete_run, trut
 
 def test_per_temperature_fits_explain_the_data(complete_run):
     # complete-model data: reduced chi-square within 3 sd of 1 (sd = sqrt(2/dof), 59 dof)
-    for f in complete_run.grid_fit.fits:
+    for f in complete_run.fitted.fits:
         for axis in "xyz":
             assert abs(f.chi2_red(axis) - 1.0) < 3 * np.sqrt(2 / f.dof[axis])
 
@@ -72,7 +72,7 @@ def test_one_temperature_point_is_validated_by_leaving_holds_out(tmp_path):
     assert (s["held_out"], s["temperature_points"], s["holds_scored"]) == ("hold", 1, 63)
     assert s["single_rms"] == s["validation_rms"]
     # leaving a hold out costs a little: never below the in-sample residual
-    in_sample = np.sqrt(np.mean(result.grid_fit.fits[0].residuals ** 2))
+    in_sample = np.sqrt(np.mean(result.fitted.fits[0].residuals ** 2))
     assert s["validation_rms"] > in_sample
     assert s["validation_rms"] <= 1.2 * s["noise_floor"]
 
@@ -121,7 +121,7 @@ def test_a_point_missing_a_mount_is_left_out_and_reported(tmp_path, logs):
     path = tmp_path / "hole.parquet"
     pq.write_table(table.filter(pa.array(~drop)), path)
     result = run(path)
-    points = result.grid_fit.points
+    points = result.fitted.points
     assert list(points.used) == [True, True, False, True, True, True]
     assert "scale.y" in points.reason[2]
     # its holds are still validated, from the neighbours

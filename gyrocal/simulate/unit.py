@@ -39,6 +39,12 @@ class GyroUnit:
     full_scale: float = 500.0         # deg/s
     bandwidth_hz: float = 40.0        # first-order anti-alias filter
     accel_noise: float = 0.002        # g per sample
+    # Effects beyond the seed-000 model; each matches the library term of the same name.
+    scale_quadratic: tuple[float, float, float] = (0.0, 0.0, 0.0)   # 1/(deg/s)
+    scale_cubic: tuple[float, float, float] = (0.0, 0.0, 0.0)       # 1/(deg/s)²
+    scale_asymmetry: tuple[float, float, float] = (0.0, 0.0, 0.0)   # 1
+    g_sensitivity: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3  # deg/s/g
+    temp_rate: tuple[float, float, float] = (0.0, 0.0, 0.0)         # deg/s per °C/min
 
     def K(self, temp) -> np.ndarray:
         """K(T) for scalar or array T: shape (..., 3, 3)."""
@@ -51,6 +57,15 @@ class GyroUnit:
         dT = np.asarray(temp, dtype=float)[..., None] - self.t_ref
         c = np.asarray(self.bias_poly)
         return c[:, 0] + dT * (c[:, 1] + dT * (c[:, 2] + dT * c[:, 3]))
+
+    def effects(self, w_true: np.ndarray, specific_force: np.ndarray, temp_rate: np.ndarray
+                ) -> np.ndarray:
+        """Error (n, 3) of the effects beyond K and B, in the library's term conventions."""
+        e = (np.asarray(self.scale_quadratic) * w_true ** 2 + np.asarray(self.scale_cubic) * w_true ** 3
+             + np.asarray(self.scale_asymmetry) * np.abs(w_true))
+        e += specific_force @ np.asarray(self.g_sensitivity).T
+        e += np.asarray(temp_rate, dtype=float)[:, None] * np.asarray(self.temp_rate)
+        return e
 
     def noise_std(self, sample_rate: float) -> float:
         """Per-sample white-noise standard deviation over the Nyquist band."""
@@ -109,11 +124,16 @@ class Electronics:
     rng: np.random.Generator
     _zi: np.ndarray | None = field(default=None, repr=False)
 
-    def measure(self, w_true: np.ndarray, temp: np.ndarray) -> np.ndarray:
-        """Gyro output (n, 3) float32 for true rates (n, 3) at die temperatures (n,)."""
+    def measure(self, w_true: np.ndarray, temp: np.ndarray, specific_force: np.ndarray | None = None,
+                temp_rate: np.ndarray | None = None) -> np.ndarray:
+        """Gyro output (n, 3) float32 for true rates (n, 3) at die temperatures (n,), with the
+        specific force (n, 3, g) and the die's temperature rate (n, °C/min) the effects read."""
         u = self.unit
         K = u.K(temp)
         ideal = np.einsum("nij,nj->ni", K, w_true) + u.B(temp)
+        n = len(w_true)
+        ideal += u.effects(w_true, np.zeros((n, 3)) if specific_force is None else specific_force,
+                           np.zeros(n) if temp_rate is None else temp_rate)
         a = np.exp(-2 * np.pi * u.bandwidth_hz / self.sample_rate)
         if self._zi is None:
             self._zi = ideal[0] * a

@@ -16,8 +16,10 @@ from here.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 from collections.abc import Mapping
+from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
@@ -34,6 +36,7 @@ class Term:
     name: ClassVar[str] = ""
     needs: ClassVar[frozenset[str]] = frozenset()   # observation columns required
     unit: ClassVar[str] = ""                         # unit of the coefficients
+    varies_with_temperature: ClassVar[bool] = False  # depends on temperature alone
 
     def coefficients(self) -> list[str]:
         """Full coefficient names, in a fixed order."""
@@ -49,7 +52,21 @@ class Term:
             if dataclasses.is_dataclass(self) else {}
 
     def spec(self) -> dict:
-        return {"name": self.name, **self.params()}
+        """What a calibration file stores to rebuild the term; a user term also records the
+        file it came from and that file's SHA-256."""
+        spec = {"name": self.name, **self.params()}
+        source = getattr(type(self), "source_file", None)
+        if source:
+            spec["source"] = {"file": Path(source).name, "sha256": type(self).source_sha256}
+        return spec
+
+    def spec_string(self) -> str:
+        """The term as ``--add-term`` and config files take it: ``name`` or
+        ``name(key=value, ...)`` for settings that differ from the defaults."""
+        defaults = type(self)()
+        changed = {k: v for k, v in self.params().items() if getattr(defaults, k) != v}
+        return self.name + ("(" + ", ".join(f"{k}={v!r}" for k, v in changed.items()) + ")"
+                            if changed else "")
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         missing = sorted(c for c in self.needs if c not in data)
@@ -70,23 +87,48 @@ def register_term(name: str):
     return add
 
 
+def parse_spec(text: str) -> dict:
+    """``"name"`` or ``"name(key=value, ...)"`` (values are Python literals) as a mapping."""
+    text = text.strip()
+    try:
+        node = ast.parse(text, mode="eval").body
+    except SyntaxError:
+        raise ConfigError(f"cannot read model term {text!r}; write name or name(key=value)") from None
+    if isinstance(node, ast.Name):
+        return {"name": node.id}
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.args:
+        try:
+            params = {kw.arg: ast.literal_eval(kw.value) for kw in node.keywords}
+        except ValueError:
+            raise ConfigError(f"model term {text!r}: settings must be plain values") from None
+        return {"name": node.func.id, **params}
+    raise ConfigError(f"cannot read model term {text!r}; write name or name(key=value)")
+
+
 def make_term(spec) -> Term:
-    """A term from a name (``"bias"``) or a mapping (``{"name": "...", <params>}``)."""
+    """A term from a name (``"bias"``), a spec string (``"bias_temp_poly(degree=3)"``) or
+    a mapping (``{"name": "...", <params>}``)."""
     if isinstance(spec, Term):
         return spec
     if isinstance(spec, str):
-        spec = {"name": spec}
+        spec = parse_spec(spec)
     if not isinstance(spec, Mapping) or "name" not in spec:
         raise ConfigError(f"a model term must be a name or a mapping with 'name', got {spec!r}")
     params = dict(spec)
     name = params.pop("name")
+    source = params.pop("source", None)
     cls = TERMS.get(name)
     if cls is None:
-        raise ConfigError(f"unknown model term {name!r}; known terms: {', '.join(sorted(TERMS))}")
+        hint = (f" (it comes from the term file {source.get('file')}: load that file)"
+                if isinstance(source, Mapping) else "")
+        raise ConfigError(f"unknown model term {name!r}{hint}; known terms: {', '.join(sorted(TERMS))}")
+    if isinstance(source, Mapping) and source.get("sha256") != getattr(cls, "source_sha256", None):
+        raise ConfigError(f"term {name} was fitted with {source.get('file')} of SHA-256 "
+                          f"{str(source.get('sha256'))[:12]}…, but the loaded definition differs")
     try:
         return cls(**params)
     except TypeError as exc:
         raise ConfigError(f"term {name}: {exc}") from None
 
 
-from . import base  # noqa: E402,F401  (registers the library's terms)
+from . import base, effects, user  # noqa: E402,F401  (register the library's terms)

@@ -1,0 +1,344 @@
+"""Where the model fails and which physical effect is missing.
+
+Three questions, answered from the observations alone:
+
+1. **Does the model explain the data?** The in-sample residuals of every fit, divided by
+   each observation's noise floor, should scatter like unit normals: χ² against its
+   degrees of freedom, overall and per output axis.
+2. **Where does the excess live?** For every covariate the log offers (temperature, its
+   rate, the reference rate, its magnitude and direction, the mount, the accelerometer,
+   time, hold length), the share of the excess χ² that the covariate's bins account for,
+   beyond what bins explain by chance. Ranked, plus heat maps (mount × rate, temperature ×
+   rate).
+3. **Which effect is missing?** Every candidate term (the library's, those the user names,
+   those of the user's term files) is added to the model in turn; the extended model is
+   refitted and validated the same way. Candidates are ranked by the validation RMS they
+   reach; each gets a nested-model F-test against the base model and the fitted size of the
+   effect in physical units. The significance level is family-wise: half goes to the χ²
+   test of question 1, half is shared (Bonferroni) by the candidates, so on data the model
+   explains the diagnosis raises a false alarm at most that often.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from .config import Settings
+from .errors import ConfigError, GyrocalError, IdentifiabilityError, MissingInputError
+from .model import columns_of
+from .terms import AXES, TERMS, make_term
+from .terms.effects import CANDIDATES
+from .thermal import fit_model, in_sample
+from .validate import validate
+
+COVARIATES = {
+    "temperature": "temp", "temperature rate": "temp_rate", "reference rate": "ref_rate",
+    "|rate|": "abs_rate", "direction": "direction", "mount": "mount",
+    "accel_x": "accel_x", "accel_y": "accel_y", "accel_z": "accel_z",
+    "time": "time", "hold duration": "duration",
+}
+
+
+@dataclass
+class Evaluation:
+    """A model fitted and validated: what the diagnosis compares."""
+
+    name: str
+    terms: list[str]
+    kind: str
+    fitted: object
+    summary: dict
+    chi2: float
+    dof: int
+
+
+@dataclass
+class Candidate:
+    term: str
+    status: str                              # ranked | not identifiable | missing inputs
+    validation_rms_with: float | None = None
+    p_value: float | None = None
+    f_statistic: float | None = None
+    df: tuple[int, int] | None = None
+    gain_pct: float | None = None
+    significant: bool = False
+    size: list[dict] = field(default_factory=list)
+    peak_effect: float | None = None         # deg/s over the observations
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        out = {"term": self.term, "status": self.status,
+               "validation_rms_with": self.validation_rms_with, "p_value": self.p_value}
+        if self.status == "ranked":
+            out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
+                       significant=self.significant, size=self.size, peak_effect=self.peak_effect)
+        else:
+            out["reason"] = self.reason
+        return out
+
+
+@dataclass
+class Diagnosis:
+    base: Evaluation
+    significance: float
+    chi2_red: dict[str, float]               # overall and per output axis
+    rms_over_floor: dict[str, float]
+    excess_p_value: float
+    explains: bool
+    covariates: list[dict]
+    candidates: list[Candidate]
+    best: Candidate | None
+    verdict: str
+    heatmaps: dict
+    residuals: pd.DataFrame                   # observations with z_x, z_y, z_z
+    ladder: list[dict] = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        s = self.base.summary
+        return {
+            "format": "gyrocal.diagnosis/1",
+            "model": {"terms": self.base.terms, "kind": self.base.kind},
+            "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
+            "excess": s["excess"], "expected_rms": s["expected_rms"],
+            "excess_over_expected": s["excess_over_expected"], "held_out": s["held_out"],
+            "significance": self.significance,
+            "chi2_red": self.chi2_red, "rms_over_floor": self.rms_over_floor,
+            "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
+            "verdict": self.verdict,
+            "best": self.best.to_dict() if self.best else None,
+            "candidates": [c.to_dict() for c in self.candidates],
+            "covariates": self.covariates,
+            "ladder": self.ladder,
+        }
+
+
+def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Evaluation:
+    model = settings.model.build()
+    m = settings.model
+    fitted = fit_model(model, obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    summary = validate(model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
+    dof = sum(sum(f.dof.values()) for f in fitted.fits)
+    return Evaluation(name, [t.spec_string() for t in model.terms], m.kind, fitted, summary, chi2, dof)
+
+
+def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
+    """The settings with ``spec`` added to the model (replacing a term of the same name,
+    so ``bias_temp_poly(degree=3)`` supersedes ``bias_temp_poly(degree=2)``)."""
+    term = make_term(spec)
+    kept = tuple(t for t in settings.model.terms if make_term(t).name != term.name)
+    model = replace(settings.model, terms=kept + (term.spec_string(),), kind=kind or settings.model.kind)
+    return replace(settings, model=model)
+
+
+def candidate_terms(settings: Settings, obs_columns) -> list[str]:
+    """The library's candidates, the user's, and every term of the user's term files, less
+    those already in the model; temperature-only terms only for continuous models."""
+    model = settings.model.build()
+    have = {t.spec_string() for t in model.terms}
+    user_file_terms = [n for n, cls in TERMS.items() if getattr(cls, "source_file", None)]
+    out = []
+    for spec in [*CANDIDATES, *settings.diagnosis.candidates, *user_file_terms]:
+        label = make_term(spec).spec_string()
+        if label in have or label in out:
+            continue
+        if settings.model.kind == "grid" and make_term(spec).varies_with_temperature:
+            continue
+        out.append(label)
+    return out
+
+
+def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
+                 ) -> tuple[list[dict], float]:
+    """Inverse-variance mean (and its standard error) of each added coefficient over the
+    fits, and the largest contribution of the added term to any observation (deg/s)."""
+    fits = evaluation.fitted.fits
+    unit = make_term(spec).unit
+    size = []
+    for name in added:
+        j = fits[0].names.index(name)
+        v = np.array([f.values[j] for f in fits])
+        se = np.array([f.stderr[j] for f in fits])
+        w = 1.0 / np.maximum(se, 1e-300) ** 2
+        size.append({"coefficient": name, "value": float(np.sum(w * v) / np.sum(w)),
+                     "stderr": float(np.sqrt(1.0 / np.sum(w))), "unit": unit})
+    model = evaluation.fitted.fits[0].model
+    peak = 0.0
+    for result, rows in zip(fits, evaluation.fitted.rows):
+        data = {k: v[rows] for k, v in obs_data.items()}
+        design = model.design(data)
+        for a in AXES:
+            contribution = sum(result.coef(n) * np.asarray(design[n]) for n in added
+                               if n.split(".")[1] == a)
+            if np.ndim(contribution):
+                peak = max(peak, float(np.max(np.abs(contribution))))
+    return size, peak
+
+
+def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
+                     dof: int) -> tuple[list[dict], dict]:
+    """Share of the excess χ² each covariate's bins account for, ranked; heat maps."""
+    frame = pd.DataFrame({k: v for k, v in data.items() if np.ndim(v) == 1})
+    frame["mount"] = obs["mount"].astype(str).to_numpy()
+    frame["abs_rate"] = np.abs(data["ref_rate"])
+    frame["direction"] = np.sign(data["ref_rate"])
+    frame["time"] = (data["t_start"] - data["t_start"].min()) / 3600.0
+    frame = frame[fitted_rows]
+    zz = z[fitted_rows]
+    total = float(np.sum(zz ** 2))
+    excess = max(total - dof, 1e-9)
+    rows = []
+    for label, column in COVARIATES.items():
+        if column not in frame:
+            continue
+        values = frame[column]
+        if column != "mount" and not np.isfinite(values.to_numpy(dtype=float)).all():
+            continue
+        if column == "mount" or values.nunique() <= 8:
+            bins = values.astype(str).to_numpy()
+        else:
+            bins = pd.qcut(values.rank(method="first"), 8, labels=False).to_numpy()
+        explained = 0.0
+        groups = pd.Series(np.arange(len(frame))).groupby(bins)
+        for _, index in groups:
+            part = zz[index.to_numpy()]
+            explained += float(np.sum(len(part) * part.mean(axis=0) ** 2))
+        chance = 3.0 * groups.ngroups  # a unit-normal residual mean per bin and axis
+        rows.append({"covariate": label, "bins": int(groups.ngroups),
+                     "share_of_excess": max(explained - chance, 0.0) / excess})
+    rows.sort(key=lambda r: -r["share_of_excess"])
+    rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
+    idx = pd.Series(np.arange(len(frame)))
+    rate_bins = frame["ref_rate"].round(3).to_numpy()
+    temp_bins = frame["temp"].round(0).to_numpy()
+    heat = {
+        "mount_by_rate": {f"{m}|{r}": rms(g) for (m, r), g in idx.groupby([frame["mount"].to_numpy(), rate_bins])},
+        "temperature_by_rate": {f"{t}|{r}": rms(g) for (t, r), g in idx.groupby([temp_bins, rate_bins])},
+    }
+    return rows, heat
+
+
+def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
+    """Diagnose ``settings.model`` on the observations; see the module docstring."""
+    alpha = settings.diagnosis.significance
+    base = evaluate(settings, obs)
+    data = columns_of(obs)
+    n = len(obs)
+    resid, floor, fitted_rows = in_sample(base.fitted, n)
+    z = resid / floor
+    dof_axis = {a: sum(f.dof[a] for f in base.fitted.fits) for a in AXES}
+    chi2_axis = {a: sum(f.chi2[a] for f in base.fitted.fits) for a in AXES}
+    chi2_red = {"all": base.chi2 / base.dof, **{a: chi2_axis[a] / dof_axis[a] for a in AXES}}
+    rms_over_floor = {"all": float(np.sqrt(np.nanmean(z ** 2))),
+                      **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
+    excess_p = float(stats.chi2.sf(base.chi2, base.dof))
+    explains = excess_p >= alpha / 2
+    covariates, heat = _covariate_table(obs, data, np.nan_to_num(z), fitted_rows, base.dof)
+
+    names = candidate_terms(settings, data)
+    candidates: list[Candidate] = []
+    tested = []
+    for spec in names:
+        term = make_term(spec)
+        missing = sorted(c for c in term.needs if c not in data and not c.startswith("rate_"))
+        if missing:
+            candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
+            continue
+        try:
+            ext = evaluate(extended(settings, spec), obs, spec)
+        except (IdentifiabilityError, MissingInputError, ConfigError) as exc:
+            candidates.append(Candidate(spec, "not identifiable", reason=_reason(exc)))
+            continue
+        except GyrocalError as exc:
+            candidates.append(Candidate(spec, "not identifiable", reason=_reason(exc)))
+            continue
+        added = [c for c in ext.fitted.names if c not in base.fitted.names]
+        df_num, df_den = base.dof - ext.dof, ext.dof
+        if df_num <= 0 or df_den <= 0 or len(ext.fitted.fits) != len(base.fitted.fits):
+            candidates.append(Candidate(spec, "not identifiable",
+                                        reason="leaves fewer temperature points or no degrees of freedom"))
+            continue
+        f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
+        p = float(stats.f.sf(f_stat, df_num, df_den))
+        size, peak = _effect_size(ext, spec, added, data)
+        v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
+        candidates.append(Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
+                                    100.0 * (1 - v1 / v0), False, size, peak))
+        tested.append(candidates[-1])
+    for c in tested:  # Bonferroni over the candidates actually tested
+        c.significant = c.p_value < alpha / 2 / max(len(tested), 1)
+    ranked = sorted(tested, key=lambda c: c.validation_rms_with)
+    candidates = ranked + [c for c in candidates if c.status != "ranked"]
+    best = next((c for c in ranked if c.significant
+                 and c.validation_rms_with < base.summary["validation_rms"]), None)
+    verdict = _verdict(base, best, explains, chi2_red, covariates, settings)
+    residuals = obs.reset_index(drop=True).assign(**{f"z_{a}": z[:, i] for i, a in enumerate(AXES)})
+    diag = Diagnosis(base, alpha, chi2_red, rms_over_floor, excess_p, explains, covariates,
+                     candidates, best, verdict, heat, residuals)
+    diag.ladder = ladder(settings, obs, base)
+    return diag
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc)
+    return text.split(": ", 1)[1] if text.startswith("/") and ": " in text else text
+
+
+def _verdict(base, best, explains, chi2_red, covariates, settings) -> str:
+    factor = np.sqrt(chi2_red["all"])
+    if best is not None:
+        size = best.size[0] if best.size else None
+        return (f"Missing effect: {best.term}. Adding it lowers the validation RMS from "
+                f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
+                f"({best.gain_pct:.0f} % less; F-test p = {best.p_value:.2g}); its largest "
+                f"contribution is {best.peak_effect:.3g} deg/s"
+                + (f" ({size['coefficient']} = {size['value']:.3g} ± {size['stderr']:.2g} {size['unit']})"
+                   if size else "") + ".")
+    if not explains:
+        where = covariates[0]["covariate"] if covariates and covariates[0]["share_of_excess"] > 0 else None
+        return (f"The model does not explain the data, by a factor {factor:.2f} (residuals over "
+                "the noise floor), and no candidate term accounts for it"
+                + (f"; the excess lives mostly with {where} "
+                   f"({100 * covariates[0]['share_of_excess']:.0f} % of it)." if where else "."))
+    return (f"The model explains the data (residuals {factor:.2f} times the noise floor, "
+            "as noise alone would give): nothing is missing.")
+
+
+def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:
+    """The base model, then each configured step added to the one before."""
+    rows = [_ladder_row(base, [])]
+    current = settings
+    for step in settings.diagnosis.ladder:
+        for spec in step["add"]:
+            current = extended(current, spec, step["kind"])
+        if step["kind"] and not step["add"]:
+            current = replace(current, model=replace(current.model, kind=step["kind"]))
+        try:
+            ev = evaluate(current, obs, step["name"])
+        except GyrocalError as exc:
+            rows.append({"name": step["name"], "error": _reason(exc)})
+            continue
+        added = [c for c in ev.fitted.names if c not in base.fitted.names]
+        rows.append(_ladder_row(ev, added))
+    return rows
+
+
+def _ladder_row(ev: Evaluation, added: list[str]) -> dict:
+    fits = ev.fitted.fits
+    params = []
+    for name in added:
+        j = fits[0].names.index(name)
+        v = np.array([f.values[j] for f in fits])
+        se = np.array([f.stderr[j] for f in fits])
+        w = 1.0 / np.maximum(se, 1e-300) ** 2
+        params.append({"coefficient": name, "value": float(np.sum(w * v) / np.sum(w)),
+                       "stderr": float(np.sqrt(1.0 / np.sum(w)))})
+    s = ev.summary
+    return {"name": ev.name, "kind": ev.kind, "terms": ev.terms,
+            "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
+            "expected_rms": s["expected_rms"], "excess": s["excess"],
+            "chi2_red": ev.chi2 / ev.dof, "parameters": params}

@@ -1,0 +1,179 @@
+"""Deterministic gyro errors beyond the seed-000 model, each a term the model can include.
+
+Every term adds to the error ``e = w - w_true`` of each output axis ``a``; ``ω`` is the
+true rate in the sensor frame (``rate_x/y/z``, deg/s), ``ΔT = T - t_ref`` (°C), ``dT/dt``
+the temperature rate (°C/min), ``f`` the specific force the accelerometer measures (g).
+Terms that depend on temperature alone (``varies_with_temperature``) cannot be told apart
+from the bias at a single temperature point: they belong in temperature-continuous models,
+or describe the drift of the temperature inside a point.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import ConfigError
+from . import AXES, Term, register_term
+
+
+def _degree(value, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= 5:
+        raise ConfigError(f"term {name}: degree must be an integer from 1 to 5, got {value!r}")
+    return value
+
+
+@register_term("bias_temp_poly")
+@dataclass(frozen=True)
+class BiasTempPoly(Term):
+    """Bias as a polynomial in ΔT: ``e_a += Σ_k c_k ΔT^k`` (seed 003, Eq 16: the modified
+    model uses ΔT and ΔT²). [deg/s per °C^k]"""
+
+    degree: int = 2
+    t_ref: float = 25.0
+    unit = "deg/s/degC^k"
+    needs = frozenset({"temp"})
+    varies_with_temperature = True
+
+    def __post_init__(self):
+        _degree(self.degree, self.name)
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.c{k}" for a in AXES for k in range(1, self.degree + 1)]
+
+    def columns(self, data):
+        dT = np.asarray(data["temp"], dtype=float) - self.t_ref
+        return {f"{self.name}.{a}.c{k}": dT ** k for a in AXES for k in range(1, self.degree + 1)}
+
+
+@register_term("scale_temp_poly")
+@dataclass(frozen=True)
+class ScaleTempPoly(Term):
+    """Scale factor varying with temperature: ``e_a += ω_a Σ_k s_k ΔT^k`` (seed 000 Fig. 4:
+    scale linear in temperature; Eq 9). [1/°C^k]"""
+
+    degree: int = 1
+    t_ref: float = 25.0
+    unit = "1/degC^k"
+    needs = frozenset({"temp", "rate_x", "rate_y", "rate_z"})
+    varies_with_temperature = True
+
+    def __post_init__(self):
+        _degree(self.degree, self.name)
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.c{k}" for a in AXES for k in range(1, self.degree + 1)]
+
+    def columns(self, data):
+        dT = np.asarray(data["temp"], dtype=float) - self.t_ref
+        return {f"{self.name}.{a}.c{k}": np.asarray(data[f"rate_{a}"], dtype=float) * dT ** k
+                for a in AXES for k in range(1, self.degree + 1)}
+
+
+@register_term("misalignment_temp")
+@dataclass(frozen=True)
+class MisalignmentTemp(Term):
+    """Cross-axis terms drifting linearly with temperature: ``e_a += ω_b m_ab ΔT``
+    (package stress changing with temperature). [1/°C]"""
+
+    t_ref: float = 25.0
+    unit = "1/degC"
+    needs = frozenset({"temp", "rate_x", "rate_y", "rate_z"})
+    varies_with_temperature = True
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES if a != b]
+
+    def columns(self, data):
+        dT = np.asarray(data["temp"], dtype=float) - self.t_ref
+        return {f"{self.name}.{a}.{b}": np.asarray(data[f"rate_{b}"], dtype=float) * dT
+                for a in AXES for b in AXES if a != b}
+
+
+@register_term("temp_rate")
+@dataclass(frozen=True)
+class TempRate(Term):
+    """Bias proportional to the rate of temperature change, ``e_a += c_a dT/dt``: thermal
+    gradients across the sensor while it warms or cools (seed 000 Eq 9-10). [deg/s per °C/min]"""
+
+    unit = "deg/s/(degC/min)"
+    needs = frozenset({"temp_rate"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        rate = np.asarray(data["temp_rate"], dtype=float)
+        return {f"{self.name}.{a}": rate for a in AXES}
+
+
+@register_term("scale_quadratic")
+@dataclass(frozen=True)
+class ScaleQuadratic(Term):
+    """Even scale-factor nonlinearity, ``e_a += k_a ω_a²``: the same error for both turning
+    directions, growing with the square of the rate. [1/(deg/s)]"""
+
+    unit = "1/(deg/s)"
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}": np.asarray(data[f"rate_{a}"], dtype=float) ** 2 for a in AXES}
+
+
+@register_term("scale_cubic")
+@dataclass(frozen=True)
+class ScaleCubic(Term):
+    """Odd scale-factor nonlinearity, ``e_a += k_a ω_a³``: an S-shaped deviation from the
+    linear scale at high rates. [1/(deg/s)²]"""
+
+    unit = "1/(deg/s)^2"
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}": np.asarray(data[f"rate_{a}"], dtype=float) ** 3 for a in AXES}
+
+
+@register_term("scale_asymmetry")
+@dataclass(frozen=True)
+class ScaleAsymmetry(Term):
+    """Scale-factor asymmetry, ``e_a += k_a |ω_a|``: a different scale factor for positive
+    and negative rates (the scale is ``1 + s ± k``). [1]"""
+
+    unit = "1"
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}": np.abs(np.asarray(data[f"rate_{a}"], dtype=float)) for a in AXES}
+
+
+@register_term("g_sensitivity")
+@dataclass(frozen=True)
+class GSensitivity(Term):
+    """Acceleration (g) sensitivity of the bias, ``e_a += Σ_b G_ab f_b``: the proof mass
+    responds to specific force. Needs the accelerometer columns, and mounts facing opposite
+    ways (+x and -x, ...) to be told apart from the bias. [deg/s/g]"""
+
+    unit = "deg/s/g"
+    needs = frozenset({"accel_x", "accel_y", "accel_z"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float)
+                for a in AXES for b in AXES}
+
+
+# Tried by the diagnosis when not in the model, in this order (ties keep it).
+CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "temp_rate",
+              "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)", "misalignment_temp")
