@@ -1,5 +1,5 @@
-# gyrocal fleet workflow: per unit and session, segment -> fit -> validate -> report, then
-# the fleet summary. Logic lives in the gyrocal package; the rules only wire files.
+# gyrocal fleet workflow: per unit and session, segment -> fit -> validate and diagnose ->
+# report, then the fleet summary. Logic lives in the gyrocal package; rules only wire files.
 from snakemake.utils import min_version, validate
 
 min_version("9.0")
@@ -19,6 +19,7 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/segment.smk"
 include: "workflow/rules/fit.smk"
 include: "workflow/rules/validate.smk"
+include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/fleet.smk"
 

@@ -16,9 +16,42 @@ import pyarrow.parquet as pq
 
 from .calibration import Calibration
 from .errors import LogFormatError
-from .io import GYRO, check_float, declared_units, open_dataset, to_internal_units
+from .io import GYRO, time_seconds, check_float, declared_units, open_dataset, to_internal_units
 
 BATCH_ROWS = 1 << 20
+DERIVED = ("rate_x", "rate_y", "rate_z", "temp_rate")  # solved for, or computed here
+TEMP_RATE_WINDOW_S = 60.0  # a seed-000 hold, for calibration files that do not say
+
+
+def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S
+                     ) -> np.ndarray:
+    """Temperature rate (°C/min) at every sample: the least-squares slope of the logged
+    temperature over a centred window, computed on bin means (1 s, or a twentieth of the
+    window if shorter) by one convolution and interpolated to the samples. Non-finite
+    inputs give NaN.
+
+    Bins without samples are filled linearly; the series is extended at both ends by odd
+    reflection, which keeps a linear trend, so the slope near the ends is not biased to 0.
+    """
+    rate = np.full(len(t), np.nan)
+    good = np.isfinite(t) & np.isfinite(temp)
+    if good.sum() < 2:
+        return rate
+    tg, Tg = t[good], temp[good]
+    width = min(1.0, window_s / 20.0)
+    index = np.floor((tg - tg[0]) / width).astype(np.int64)
+    counts = np.bincount(index)
+    sums = np.bincount(index, weights=Tg)
+    filled = counts > 0
+    centres = (np.arange(len(counts)) + 0.5) * width
+    means = np.interp(centres, centres[filled], sums[filled] / counts[filled])
+    half = max(int(round(window_s / width / 2)), 1)
+    padded = np.pad(means, half, mode="reflect", reflect_type="odd") if len(means) > half \
+        else np.pad(means, half, mode="edge")
+    lags = np.arange(-half, half + 1, dtype=float)
+    slope = np.convolve(padded, lags[::-1] / (np.sum(lags ** 2) * width), mode="valid")  # °C/s
+    rate[good] = 60.0 * np.interp(tg - tg[0], centres, slope)
+    return rate
 
 
 def apply_calibration(cal: Calibration, path, out) -> dict:
@@ -31,8 +64,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     path, out = Path(path), Path(out)
     dataset = open_dataset(path)
     schema = dataset.schema
-    needed = [*GYRO, "temp"] + sorted(c for c in cal.model.needs
-                                      if c not in ("rate_x", "rate_y", "rate_z", "temp"))
+    needed = [*GYRO, "temp"] + sorted(c for c in cal.model.needs if c not in (*DERIVED, "temp"))
     missing = [c for c in needed if c not in schema.names]
     if missing:
         raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}",
@@ -49,6 +81,19 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
         metadata[b"gyrocal.units"] = json.dumps({k: v for k, v in units.items() if k != "gyro"}).encode()
     out_schema = out_schema.with_metadata(metadata)
 
+    temp_rate = None
+    if "temp_rate" in cal.model.needs:  # needs the whole temperature record, not a batch
+        if "t" not in schema.names:
+            raise LogFormatError("cannot apply the calibration: its temp_rate term needs the t column",
+                                 source=path)
+        table = dataset.to_table(columns=["t", "temp"])
+        check_float(schema, "temp", path)
+        seconds = time_seconds(table.column("t").combine_chunks(), path, [])
+        window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
+        temp_rate = temperature_rate(seconds, to_internal_units(
+            "temp", table.column("temp").to_numpy().astype(np.float64), units), window)
+        del table
+
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     tmp = out.with_name(out.name + ".tmp")
     with pq.ParquetWriter(tmp, out_schema) as writer:
@@ -57,6 +102,8 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])
             data = {c: cols[c] for c in needed if c not in GYRO}
+            if temp_rate is not None:
+                data["temp_rate"] = temp_rate[counts["rows"]:counts["rows"] + batch.num_rows]
             good = np.all(np.isfinite(gyro), axis=1)
             for v in data.values():
                 good &= np.isfinite(v)

@@ -37,6 +37,7 @@ class Calibration:
     meta: dict = field(default_factory=dict)         # device, batch, session, protocol
     provenance: dict = field(default_factory=dict)   # input, versions, config hash
     extra: dict = field(default_factory=dict)        # carried along, not needed to apply
+    covariates: dict = field(default_factory=dict)   # how apply derives inputs, e.g. temp_rate
 
     @property
     def kind(self) -> str:
@@ -98,6 +99,7 @@ class Calibration:
                 "terms": self.model.spec(),
                 "interpolation": interpolation,
                 "reference_temperature": self.reference_temperature,
+                **({"covariates": self.covariates} if self.covariates else {}),
             },
             "grid": {
                 "temperature": g.temperatures.tolist(),
@@ -151,6 +153,11 @@ class Calibration:
             if isinstance(reference, bool) or not isinstance(reference, (int, float)) \
                     or not math.isfinite(reference):
                 fail(f"model reference_temperature must be a number, got {reference!r}")
+            covariates = model_d.get("covariates", {})
+            window = covariates.get("temp_rate", {}).get("window_s", 60.0)
+            if isinstance(window, bool) or not isinstance(window, (int, float)) \
+                    or not math.isfinite(window) or window <= 0:
+                fail(f"model covariates temp_rate window_s must be a positive number, got {window!r}")
             units = d.get("units", UNITS)
             wrong = {k: units.get(k) for k, v in UNITS.items() if units.get(k) != v}
             if wrong:
@@ -182,7 +189,8 @@ class Calibration:
                  "provenance"}
         cal = cls(model, grid, float(reference),
                   {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
-                  d.get("provenance", {}), {k: v for k, v in d.items() if k not in known})
+                  d.get("provenance", {}), {k: v for k, v in d.items() if k not in known},
+                  covariates)
         K, B = cal.matrices()
         try:
             stored_K = np.asarray(grid_d["K"], dtype=float)

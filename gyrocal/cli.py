@@ -22,7 +22,6 @@ def _floats(text: str) -> tuple[float, ...]:
 
 def _settings(args):
     """Settings from --config (YAML) or --settings-json, then --model and --add-term."""
-    import json
     from dataclasses import replace
 
     from .config import ModelSettings, Settings, read_yaml
@@ -31,12 +30,7 @@ def _settings(args):
         load_term_file(path)
     settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
     if getattr(args, "settings_json", None):
-        try:
-            values = json.loads(args.settings_json)
-        except ValueError as exc:
-            raise ConfigError(f"--settings-json is not valid JSON ({exc})") from None
-        if not isinstance(values, dict):
-            raise ConfigError("--settings-json must be a JSON object")
+        values = _json_object(args.settings_json, "--settings-json")
         base = settings.to_dict()
         settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
             k: v for k, v in values.items() if k not in base})
@@ -48,10 +42,27 @@ def _settings(args):
         except ConfigError as exc:
             raise ConfigError(str(exc), source=args.model) from None
         settings = replace(settings, model=model)
+    if getattr(args, "terms", None):  # --terms FILE: the model's term files, as in a config
+        files = tuple(f for f in args.terms if f not in settings.model.term_files)
+        settings = replace(settings, model=replace(settings.model,
+                                                   term_files=settings.model.term_files + files))
     if getattr(args, "add_term", None):
         settings = replace(settings, model=settings.model.with_terms(tuple(args.add_term)))
         settings.model.build()  # unknown names fail here, before any work
     return settings
+
+
+def _json_object(text: str | None, option: str) -> dict:
+    import json
+    if not text:
+        return {}
+    try:
+        values = json.loads(text)
+    except ValueError as exc:
+        raise ConfigError(f"{option} is not valid JSON ({exc})") from None
+    if not isinstance(values, dict):
+        raise ConfigError(f"{option} must be a JSON object")
+    return values
 
 
 def _meta(args) -> dict:
@@ -78,6 +89,7 @@ def cmd_simulate(args) -> int:
     if args.no_accel:
         knobs["accel_columns"] = False
     rig = replace(base, **knobs)
+    effects = _json_object(args.effects, "--effects")
     if args.log is not None:
         # One log of one unit: the unit follows from its device id, the noise from the
         # session too, so every session of a device is the same physical unit.
@@ -86,13 +98,14 @@ def cmd_simulate(args) -> int:
         unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000")
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         simulate_unit(args.log, rig=rig, unit=unit, rng=np.random.default_rng(seed),
-                      device=device, batch=args.batch, session=args.session, seed=seed)
+                      device=device, batch=args.batch, session=args.session, seed=seed,
+                      effects=effects)
         print(f"wrote {args.log}")
         return 0
     unit = GyroUnit.seed000() if args.unit == "seed000" else None
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
                         rig=rig, unit=unit, batch=args.batch, session=args.session,
-                        device_prefix=args.device_prefix)
+                        device_prefix=args.device_prefix, effects=effects)
     print(f"wrote {args.units} log(s) and manifest {manifest}")
     return 0
 
@@ -165,8 +178,10 @@ def cmd_calibrate(args) -> int:
     if args.report:
         import shlex
 
+        from .diagnose import diagnose
         from .report import UnitResults, write_unit_report
-        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv))),
+        diag = diagnose(settings, result.segmentation.observations)
+        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag),
                           args.report)
     s = result.validation.summary
     print(f"calibration -> {args.output}")
@@ -183,32 +198,27 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
-    from .calibration import dumps
-    from .diagnose import diagnose
-    from .io import read_table_with_metadata
-    from .pipeline import check_protocol, segment_log
-    from .stages import UNIT_FILES, run_stage
+    import tempfile
+
+    from .pipeline import check_protocol
+    from .stages import diagnose_stage, run_stage, segment_stage
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
         raise ConfigError("give the log, or --unit DIR of a segmented unit")
 
+    def diagnose_folder(folder):
+        verdict = diagnose_stage(folder, settings, _meta(args), output=args.output,
+                                 residuals=args.residuals or False)
+        print(f"diagnosis -> {args.output}")
+        print(f"  {verdict}")
+
     def work():
         if args.unit is not None:
-            from . import failure
-            obs_path = Path(args.unit) / UNIT_FILES["observations"]
-            failure.check_inputs(obs_path)
-            obs = read_table_with_metadata(obs_path)[0]
-        else:
-            check_protocol(args.protocol)
-            obs = segment_log(args.log, settings).observations
-        diag = diagnose(settings, obs)
-        Path(args.output).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.output).write_text(dumps({**diag.to_dict(), **_meta(args)}))
-        if args.residuals:
-            from .io import write_table
-            write_table(diag.residuals, args.residuals, {"heatmaps": diag.heatmaps})
-        print(f"diagnosis -> {args.output}")
-        print(f"  {diag.verdict}")
+            return diagnose_folder(args.unit)
+        check_protocol(args.protocol)
+        with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as folder:
+            segment_stage(args.log, folder, settings, _meta(args))
+            diagnose_folder(folder)
 
     outputs = [args.output] + ([args.residuals] if args.residuals else [])
     return run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
@@ -272,6 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--handling-s", type=float)
     p.add_argument("--no-mount-column", action="store_true")
     p.add_argument("--no-accel", action="store_true")
+    p.add_argument("--effects", help="errors beyond the seed-000 model as JSON, e.g. "
+                   "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)")
     p.set_defaults(func=cmd_simulate)
 
     def common(q, model=True):

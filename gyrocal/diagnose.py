@@ -21,6 +21,9 @@ Three questions, answered from the observations alone:
 
 from __future__ import annotations
 
+import json
+import shlex
+from pathlib import Path
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -94,7 +97,7 @@ class Diagnosis:
     best: Candidate | None
     verdict: str
     heatmaps: dict
-    residuals: pd.DataFrame                   # observations with z_x, z_y, z_z
+    residuals: pd.DataFrame                   # observations + resid_, floor_, z_ per axis
     ladder: list[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -109,7 +112,9 @@ class Diagnosis:
             "chi2_red": self.chi2_red, "rms_over_floor": self.rms_over_floor,
             "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
             "verdict": self.verdict,
-            "best": self.best.to_dict() if self.best else None,
+            "best": None if self.best is None else {
+                **self.best.to_dict(), "config_line": config_line(self.base.terms + [self.best.term]),
+                "option": add_term_option(self.best.term)},
             "candidates": [c.to_dict() for c in self.candidates],
             "covariates": self.covariates,
             "ladder": self.ladder,
@@ -135,42 +140,49 @@ def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
     return replace(settings, model=model)
 
 
-def candidate_terms(settings: Settings, obs_columns) -> list[str]:
-    """The library's candidates, the user's, and every term of the user's term files, less
-    those already in the model; temperature-only terms only for continuous models."""
+def candidate_terms(settings: Settings) -> list[str]:
+    """The library's candidates and every term of the model's term files whose effect the
+    model lacks, plus the candidates the user names (these may also supersede a term of
+    the model, e.g. a higher degree); temperature-only terms only for continuous models."""
     model = settings.model.build()
     have = {t.spec_string() for t in model.terms}
-    user_file_terms = [n for n, cls in TERMS.items() if getattr(cls, "source_file", None)]
+    have_names = {t.name for t in model.terms}
+    files = {str(Path(f).resolve()) for f in settings.model.term_files}
+    user_file_terms = [n for n, cls in TERMS.items() if getattr(cls, "source_file", None) in files]
+    requested = {make_term(spec).spec_string() for spec in settings.diagnosis.candidates}
     out = []
     for spec in [*CANDIDATES, *settings.diagnosis.candidates, *user_file_terms]:
-        label = make_term(spec).spec_string()
-        if label in have or label in out:
+        term = make_term(spec)
+        label = term.spec_string()
+        if label in have or label in out or (term.name in have_names and label not in requested):
             continue
-        if settings.model.kind == "grid" and make_term(spec).varies_with_temperature:
+        if settings.model.kind == "grid" and term.varies_with_temperature:
             continue
         out.append(label)
     return out
 
 
+def _pooled(fits, name: str) -> tuple[float, float]:
+    """Inverse-variance mean of one coefficient over the fits (one per temperature point,
+    or the single continuous fit) and its standard error."""
+    j = fits[0].names.index(name)
+    v = np.array([f.values[j] for f in fits])
+    w = 1.0 / np.maximum(np.array([f.stderr[j] for f in fits]), 1e-300) ** 2
+    return float(np.sum(w * v) / np.sum(w)), float(np.sqrt(1.0 / np.sum(w)))
+
+
 def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
                  ) -> tuple[list[dict], float]:
-    """Inverse-variance mean (and its standard error) of each added coefficient over the
-    fits, and the largest contribution of the added term to any observation (deg/s)."""
+    """Each added coefficient pooled over the fits, and the largest contribution of the
+    added term to any observation (deg/s)."""
     fits = evaluation.fitted.fits
     unit = make_term(spec).unit
-    size = []
-    for name in added:
-        j = fits[0].names.index(name)
-        v = np.array([f.values[j] for f in fits])
-        se = np.array([f.stderr[j] for f in fits])
-        w = 1.0 / np.maximum(se, 1e-300) ** 2
-        size.append({"coefficient": name, "value": float(np.sum(w * v) / np.sum(w)),
-                     "stderr": float(np.sqrt(1.0 / np.sum(w))), "unit": unit})
-    model = evaluation.fitted.fits[0].model
+    size = [dict(zip(("coefficient", "value", "stderr", "unit"), (name, *_pooled(fits, name), unit)))
+            for name in added]
+    model = fits[0].model
     peak = 0.0
     for result, rows in zip(fits, evaluation.fitted.rows):
-        data = {k: v[rows] for k, v in obs_data.items()}
-        design = model.design(data)
+        design = model.design({k: v[rows] for k, v in obs_data.items()})
         for a in AXES:
             contribution = sum(result.coef(n) * np.asarray(design[n]) for n in added
                                if n.split(".")[1] == a)
@@ -189,6 +201,7 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
     frame["time"] = (data["t_start"] - data["t_start"].min()) / 3600.0
     frame = frame[fitted_rows]
     zz = z[fitted_rows]
+    rotating = obs["axis"].astype(str).to_numpy()[fitted_rows]
     total = float(np.sum(zz ** 2))
     excess = max(total - dof, 1e-9)
     rows = []
@@ -203,12 +216,14 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
         else:
             bins = pd.qcut(values.rank(method="first"), 8, labels=False).to_numpy()
         explained = 0.0
-        groups = pd.Series(np.arange(len(frame))).groupby(bins)
+        # Within the rotating axis: rate effects show on the axis that turns, so a bin of
+        # |rate| pooled over mounts would average them away.
+        groups = pd.Series(np.arange(len(frame))).groupby([rotating, bins])
         for _, index in groups:
             part = zz[index.to_numpy()]
             explained += float(np.sum(len(part) * part.mean(axis=0) ** 2))
         chance = 3.0 * groups.ngroups  # a unit-normal residual mean per bin and axis
-        rows.append({"covariate": label, "bins": int(groups.ngroups),
+        rows.append({"covariate": label, "bins": int(groups.ngroups),  # axis x covariate
                      "share_of_excess": max(explained - chance, 0.0) / excess})
     rows.sort(key=lambda r: -r["share_of_excess"])
     rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
@@ -225,7 +240,7 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
 def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     """Diagnose ``settings.model`` on the observations; see the module docstring."""
     alpha = settings.diagnosis.significance
-    base = evaluate(settings, obs)
+    base = evaluate(settings, obs, "configured model")
     data = columns_of(obs)
     n = len(obs)
     resid, floor, fitted_rows = in_sample(base.fitted, n)
@@ -239,7 +254,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     explains = excess_p >= alpha / 2
     covariates, heat = _covariate_table(obs, data, np.nan_to_num(z), fitted_rows, base.dof)
 
-    names = candidate_terms(settings, data)
+    names = candidate_terms(settings)
     candidates: list[Candidate] = []
     tested = []
     for spec in names:
@@ -276,7 +291,9 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     best = next((c for c in ranked if c.significant
                  and c.validation_rms_with < base.summary["validation_rms"]), None)
     verdict = _verdict(base, best, explains, chi2_red, covariates, settings)
-    residuals = obs.reset_index(drop=True).assign(**{f"z_{a}": z[:, i] for i, a in enumerate(AXES)})
+    residuals = obs.reset_index(drop=True).assign(
+        **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
+           for i, a in enumerate(AXES)})
     diag = Diagnosis(base, alpha, chi2_red, rms_over_floor, excess_p, explains, covariates,
                      candidates, best, verdict, heat, residuals)
     diag.ladder = ladder(settings, obs, base)
@@ -288,13 +305,17 @@ def _reason(exc: BaseException) -> str:
     return text.split(": ", 1)[1] if text.startswith("/") and ": " in text else text
 
 
+def _p(value: float) -> str:
+    return "< 1e-16" if value < 1e-16 else f"= {value:.2g}"
+
+
 def _verdict(base, best, explains, chi2_red, covariates, settings) -> str:
     factor = np.sqrt(chi2_red["all"])
     if best is not None:
         size = best.size[0] if best.size else None
         return (f"Missing effect: {best.term}. Adding it lowers the validation RMS from "
                 f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
-                f"({best.gain_pct:.0f} % less; F-test p = {best.p_value:.2g}); its largest "
+                f"({best.gain_pct:.0f} % less; F-test p {_p(best.p_value)}); its largest "
                 f"contribution is {best.peak_effect:.3g} deg/s"
                 + (f" ({size['coefficient']} = {size['value']:.3g} ± {size['stderr']:.2g} {size['unit']})"
                    if size else "") + ".")
@@ -328,17 +349,20 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict
 
 
 def _ladder_row(ev: Evaluation, added: list[str]) -> dict:
-    fits = ev.fitted.fits
-    params = []
-    for name in added:
-        j = fits[0].names.index(name)
-        v = np.array([f.values[j] for f in fits])
-        se = np.array([f.stderr[j] for f in fits])
-        w = 1.0 / np.maximum(se, 1e-300) ** 2
-        params.append({"coefficient": name, "value": float(np.sum(w * v) / np.sum(w)),
-                       "stderr": float(np.sqrt(1.0 / np.sum(w)))})
+    params = [dict(zip(("coefficient", "value", "stderr"), (name, *_pooled(ev.fitted.fits, name))))
+              for name in added]
     s = ev.summary
     return {"name": ev.name, "kind": ev.kind, "terms": ev.terms,
             "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
             "expected_rms": s["expected_rms"], "excess": s["excess"],
             "chi2_red": ev.chi2 / ev.dof, "parameters": params}
+
+
+def config_line(terms: list[str]) -> str:
+    """``terms: [...]`` as it goes under ``model:`` in the config (specs with a comma are
+    quoted, since a YAML flow list splits on commas)."""
+    return "terms: [" + ", ".join(json.dumps(t) if "," in t else t for t in terms) + "]"
+
+
+def add_term_option(term: str) -> str:
+    return "--add-term " + shlex.quote(term)

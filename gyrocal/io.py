@@ -147,7 +147,7 @@ def check_float(schema: pa.Schema, name: str, path: Path) -> None:
         raise LogFormatError(f"column {name} has type {typ}, expected float32 or float64", source=path)
 
 
-def _time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
+def time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
     """Seconds as float64. Timestamps count from the log's first one (kept in ``origin``),
     in integer arithmetic, so epoch times keep their sub-microsecond resolution."""
     typ = col.type
@@ -290,7 +290,7 @@ def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Pa
     batch = {}
     for name, col in zip(record_batch.schema.names, record_batch.columns):
         if name == "t":
-            batch[name] = _time_seconds(col, path, origin)
+            batch[name] = time_seconds(col, path, origin)
         elif name == "mount":
             batch[name] = _mount_codes(col, path)
         else:

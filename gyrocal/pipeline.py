@@ -11,6 +11,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from . import __version__
@@ -68,6 +69,9 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
     fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
                        degree=settings.model.degree, source=label)
     points = fitted.points
+    # The observations' temperature rate spans a hold: apply derives it over as long.
+    covariates = {"temp_rate": {"unit": "degC/min", "window_s": float(np.median(obs["duration"]))}} \
+        if "temp_rate" in model.needs else {}
     cal = Calibration(
         model, fitted.coefficients, settings.model.reference_temperature, meta,
         provenance={"input": source or {}, "versions": versions(),
@@ -75,7 +79,7 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         extra={"points": [
             {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
              **({"excluded_because": r.reason} if not r.used else {})}
-            for r in points.itertuples()]})
+            for r in points.itertuples()]}, covariates=covariates)
     return cal, fitted
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 
 import matplotlib
+import matplotlib.colors
 import matplotlib.ticker
 
 matplotlib.use("Agg")
@@ -161,4 +162,86 @@ def histogram(values: np.ndarray, label: str) -> str:
         ax.xaxis.set_major_locator(matplotlib.ticker.MaxNLocator(4))
         ax.set_title(label, fontsize=8)
         ax.set_ylabel("units")
+        return to_svg(fig)
+
+
+def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
+    """Normalised residuals (residual ÷ noise floor) of every observation and output axis
+    against each covariate; a model that explains the data leaves a band of about ±2."""
+    n = len(covariates)
+    cols = 3
+    rows = -(-n // cols)
+    with matplotlib.rc_context(_RC):
+        fig, ax = figure(10, 2.3 * rows, rows, cols, sharey=True)
+        flat = ax.ravel()
+        for axis, (label, column) in zip(flat, covariates):
+            x = frame[column]
+            ticks = None
+            if not pd.api.types.is_numeric_dtype(x):  # categories side by side
+                ticks = [c for c in pd.unique(x.astype(str)) if c != "nan"]
+                ticks.sort()
+                x = x.astype(str).map({c: i for i, c in enumerate(ticks)}).astype(float)
+            for k, a in enumerate(AXES):
+                offset = (k - 1) * 0.15 if ticks is not None else 0.0
+                axis.scatter(np.asarray(x, float) + offset, frame[f"z_{a}"], s=5,
+                             color=AXIS_COLOURS[a], label=a, alpha=0.7, lw=0, rasterized=True)
+            axis.axhspan(-2, 2, color="#2ca02c", alpha=0.08, lw=0)
+            if ticks is not None:
+                axis.set_xticks(range(len(ticks)), ticks)
+            axis.set_xlabel(label)
+        for axis in flat[n:]:
+            axis.set_visible(False)
+        for axis in ax[:, 0]:
+            axis.set_ylabel("residual ÷ floor")
+        flat[0].legend(fontsize=7, ncol=3, loc="upper right")
+        return to_svg(fig)
+
+
+def heatmaps(maps: list[tuple[str, str, dict]]) -> str:
+    """RMS of the normalised residuals per cell (1: as noise would give), one panel per
+    map; keys are ``"row|column"`` with numeric columns (reference rate)."""
+    with matplotlib.rc_context(_RC):
+        fig, ax = figure(10, 3.0 * len(maps), len(maps), 1)
+        for axis, (row_label, col_label, cells) in zip(ax[:, 0], maps):
+            keys = [k.split("|") for k in cells]
+            row_keys = sorted({r for r, _ in keys}, key=_sort_key)
+            col_keys = sorted({c for _, c in keys}, key=float)
+            grid = np.full((len(row_keys), len(col_keys)), np.nan)
+            for (r, c), v in zip(keys, cells.values()):
+                grid[row_keys.index(r), col_keys.index(c)] = v
+            image = axis.imshow(grid, aspect="auto", cmap="magma_r", interpolation="nearest",
+                                norm=matplotlib.colors.LogNorm(vmin=0.5, vmax=max(np.nanmax(grid), 5.0)))
+            axis.set_yticks(range(len(row_keys)), row_keys)
+            step = max(len(col_keys) // 12, 1)
+            axis.set_xticks(range(0, len(col_keys), step),
+                            [f"{float(c):g}" for c in col_keys[::step]], rotation=45)
+            axis.set_xlabel(col_label)
+            axis.set_ylabel(row_label)
+            axis.grid(False)
+            fig.colorbar(image, ax=axis, label="RMS residual ÷ floor")
+        return to_svg(fig)
+
+
+def _sort_key(text: str):
+    try:
+        return (0, float(text), "")
+    except ValueError:
+        return (1, 0.0, text)
+
+
+def ladder(rows: list[dict]) -> str:
+    """Validation RMS of each model of the ladder, falling toward the noise floor."""
+    rows = [r for r in rows if "validation_rms" in r]
+    with matplotlib.rc_context(_RC):
+        fig, ax = figure(7, 3.0)
+        ax = ax[0, 0]
+        x = np.arange(len(rows))
+        ax.plot(x, [r["validation_rms"] for r in rows], "o-", color="#1f77b4", label="validation RMS")
+        ax.plot(x, [r["expected_rms"] for r in rows], "s:", color="#ff7f0e", ms=4,
+                label="expected of a correct model")
+        ax.plot(x, [r["noise_floor"] for r in rows], "k--", lw=1, label="noise floor")
+        ax.set_xticks(x, [f"step {i}" for i in x])
+        ax.set_yscale("log")
+        ax.set_ylabel("RMS error of hold means, deg/s")
+        ax.legend(fontsize=7)
         return to_svg(fig)

@@ -16,8 +16,12 @@ import numpy as np
 import pandas as pd
 
 from . import failure, plots
-from .calibration import Calibration, load_calibration
+from .calibration import Calibration, dumps, load_calibration
+from .errors import GyrocalError
 from .io import read_table_with_metadata
+from .model import DEFAULT_TERMS, Model
+from .terms import AXES
+from .thermal import fit_grid
 from .validate import METHODS
 
 _ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"),
@@ -37,7 +41,13 @@ def fmt(value, digits: int = 4) -> str:
     return f"{value:.{max(digits - 1, 1)}e}"
 
 
+def pvalue(value) -> str:
+    """p-values below double precision's resolution of 1 - p print as a bound."""
+    return "< 1e-16" if value is not None and float(value) < 1e-16 else fmt(value, 2)
+
+
 _ENV.filters["fmt"] = fmt
+_ENV.filters["pvalue"] = pvalue
 
 
 @dataclass
@@ -58,13 +68,21 @@ class UnitResults:
     log: str = ""
     command: str = ""
     extra: dict = field(default_factory=dict)
+    diagnosis: dict | None = None            # gyrocal.diagnosis/1, or a failure record
+    residuals: pd.DataFrame | None = None    # observations with normalised residuals
+    heatmaps: dict = field(default_factory=dict)
 
     @classmethod
-    def from_run(cls, run, command: str = "") -> UnitResults:
+    def from_run(cls, run, command: str = "", diagnosis=None) -> UnitResults:
+        """``diagnosis``: a :class:`gyrocal.diagnose.Diagnosis` of the same run, if any."""
         seg, val = run.segmentation, run.validation
+        extra = {} if diagnosis is None else dict(
+            diagnosis=json.loads(dumps(diagnosis.to_dict())), residuals=diagnosis.residuals,
+            heatmaps=diagnosis.heatmaps)
         return cls(run.calibration.meta, run.calibration, seg.info, seg.observations,
                    seg.segments, seg.timeline, val.summary, val.holds, val.table_holds,
-                   val.table_samples, val.by_temperature, seg.info.get("path", ""), command)
+                   val.table_samples, val.by_temperature, seg.info.get("path", ""), command,
+                   **extra)
 
     @classmethod
     def from_folder(cls, folder) -> UnitResults:
@@ -74,18 +92,83 @@ class UnitResults:
         table = lambda k: read_table_with_metadata(p[k])[0]  # noqa: E731
         summary = failure.load_json(p["validation"])["summary"]
         cal = load_calibration(p["calibration"])
+        diagnosis = residuals = None
+        heat = {}
+        if p["diagnosis"].exists():
+            diagnosis = failure.read(p["diagnosis"]) or failure.load_json(p["diagnosis"])
+            if diagnosis.get("format") != "gyrocal.failure/1" and p["residuals"].exists():
+                residuals, meta = read_table_with_metadata(p["residuals"])
+                heat = meta.get("heatmaps", {})
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
                    summary, table("holds"), table("table_hold_means"), table("table_samples"),
-                   table("by_temperature"), extra.get("log", ""))
+                   table("by_temperature"), extra.get("log", ""), diagnosis=diagnosis,
+                   residuals=residuals, heatmaps=heat)
 
 
-def _parameter_figure(cal: Calibration) -> str:
+def _parameter_figure(cal: Calibration, obs: pd.DataFrame) -> str:
+    """Grid models: the fitted grid and its interpolation. Continuous models: K and B of the
+    calibration against temperature, over free per-point fits of the seed-000 terms (where
+    the two disagree, the model's temperature dependence is wrong)."""
     g = cal.grid
     lo, hi = g.span
     temps = np.linspace(lo, hi, 200) if hi > lo else np.array([lo])
-    curve = g.at(temps, warn=False)
-    return plots.parameters(g.temperatures, {n: g.values[:, j] for j, n in enumerate(g.names)},
-                            {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
+    if cal.kind != "continuous":
+        curve = g.at(temps, warn=False)
+        return plots.parameters(g.temperatures, {n: g.values[:, j] for j, n in enumerate(g.names)},
+                                {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
+    K, B = cal.matrices_at(temps)
+    curve = _seed000_names(K, B)
+    try:
+        free = fit_grid(Model.from_spec(DEFAULT_TERMS), obs)
+        grid = free.coefficients
+        values = {n: grid.values[:, j] for j, n in enumerate(grid.names)}
+        stderr = {n: grid.stderr[:, j] for j, n in enumerate(grid.names)}
+        points = grid.temperatures
+    except GyrocalError:  # too few points for free fits: the curve alone
+        points, values, stderr = np.array([]), {n: [] for n in curve}, {n: [] for n in curve}
+    return plots.parameters(points, values, stderr, temps, curve)
+
+
+def _seed000_names(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]:
+    out = {}
+    for i, a in enumerate(AXES):
+        out[f"bias.{a}"] = B[:, i]
+        out[f"scale.{a}"] = K[:, i, i] - 1.0
+        for j, b in enumerate(AXES):
+            if a != b:
+                out[f"misalignment.{a}.{b}"] = K[:, i, j]
+    return out
+
+
+# Covariates of the residual plots: (label, residuals column), shown when the log has them.
+RESIDUAL_COVARIATES = (("temperature, °C", "temp"), ("temperature rate, °C/min", "temp_rate"),
+                       ("reference rate, deg/s", "ref_rate"), ("mount", "mount"),
+                       ("accelerometer x, g", "accel_x"), ("accelerometer y, g", "accel_y"),
+                       ("accelerometer z, g", "accel_z"), ("time since start, h", "time_h"),
+                       ("hold duration, s", "duration"))
+
+
+def _diagnosis_context(results: UnitResults) -> dict:
+    diag = results.diagnosis
+    if diag is None:
+        return {"diagnosis": None}
+    if diag.get("format") == "gyrocal.failure/1":
+        return {"diagnosis": None, "diagnosis_error": diag["error"]}
+    context = {"diagnosis": diag, "fig_residuals": "", "fig_heatmaps": "", "fig_ladder": ""}
+    frame = results.residuals
+    if frame is not None and len(frame):
+        frame = frame.assign(time_h=(frame["t_start"] - frame["t_start"].min()) / 3600.0)
+        shown = [(label, c) for label, c in RESIDUAL_COVARIATES
+                 if c in frame and (c == "mount" or np.isfinite(frame[c].to_numpy(float)).any())]
+        context["fig_residuals"] = plots.residuals(frame, shown)
+    maps = [(label, "reference rate, deg/s", results.heatmaps[key])
+            for key, label in (("mount_by_rate", "mount"), ("temperature_by_rate", "temperature, °C"))
+            if results.heatmaps.get(key)]
+    if maps:
+        context["fig_heatmaps"] = plots.heatmaps(maps)
+    if len(diag.get("ladder", [])) > 1:
+        context["fig_ladder"] = plots.ladder(diag["ladder"])
+    return context
 
 
 def write_unit_report(results: UnitResults, path) -> None:
@@ -94,9 +177,16 @@ def write_unit_report(results: UnitResults, path) -> None:
                          results.observations["mount"].astype(str))
     rejected = results.segments[results.segments["kind"] == "rejected"]
     g = cal.grid
-    grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
-                                       for j, n in enumerate(g.names)}}
-                 for p, t in enumerate(g.temperatures)]
+    if cal.kind == "continuous":
+        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
+        grid_rows = []
+        constants = [(n, float(v), float(e), units.get(n, ""))
+                     for n, v, e in zip(g.names, g.values, g.stderr)]
+    else:
+        grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
+                                           for j, n in enumerate(g.names)}}
+                     for p, t in enumerate(g.temperatures)]
+        constants = []
     html = _ENV.get_template("unit_report.html.j2").render(
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
         interpolation=g.method, reference=cal.reference_temperature,
@@ -105,15 +195,17 @@ def write_unit_report(results: UnitResults, path) -> None:
         rejected_counts=rejected["reason"].value_counts().sort_index().to_dict(),
         rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].to_dict("records"),
         points=cal.extra.get("points", []), names=list(g.names), grid_rows=grid_rows,
+        constants=constants,
         table_holds=results.table_holds.to_dict("records"),
         table_samples=results.table_samples.to_dict("records"),
         by_temperature=results.by_temperature.to_dict("records"),
         provenance=cal.provenance, log=results.log, command=results.command,
         fig_timeline=plots.timeline(results.timeline, results.segments),
-        fig_parameters=_parameter_figure(cal),
+        fig_parameters=_parameter_figure(cal, results.observations),
         fig_by_temperature=plots.by_temperature(results.by_temperature),
         fig_before=plots.error_distribution(results.holds, "uncompensated"),
-        fig_after=plots.error_distribution(results.holds, "interpolated"))
+        fig_after=plots.error_distribution(results.holds, "interpolated"),
+        kind=cal.kind, **_diagnosis_context(results))
     _write(path, html)
 
 
@@ -130,6 +222,19 @@ KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm
                   ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
                   ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
                   ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
+
+
+def _missing_effect(path) -> str:
+    """The diagnosis in a few words, for the fleet table."""
+    if not Path(path).exists():
+        return "–"
+    rec = failure.read(path)
+    if rec is not None:
+        return f"diagnosis failed: {rec['error']}"
+    diag = failure.load_json(path)
+    if diag.get("best"):
+        return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
+    return "nothing" if diag.get("explains_the_data") else "unexplained excess"
 
 
 def write_fleet_report(units: list[dict], path) -> None:
@@ -154,7 +259,7 @@ def write_fleet_report(units: list[dict], path) -> None:
             summary = json.loads(p["validation"].read_text())["summary"]
             at_ref = cal.coefficients([cal.reference_temperature], warn=False)
             row.update(status="ok", span=cal.grid.span, summary=summary,
-                       reference=cal.reference_temperature,
+                       reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
                        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
         rows.append(row)
     batches = {}

@@ -35,8 +35,11 @@ UNIT_FILES = {
     "table_hold_means": "table_hold_means.parquet",
     "table_samples": "table_samples.parquet",
     "by_temperature": "by_temperature.parquet",
+    "diagnosis": "diagnosis.json",
+    "residuals": "residuals.parquet",
 }
 VALIDATION_TABLES = ("holds", "table_hold_means", "table_samples", "by_temperature")
+DIAGNOSIS_FILES = ("diagnosis", "residuals")
 
 
 def unit_paths(folder) -> dict[str, Path]:
@@ -102,10 +105,28 @@ def validate_stage(folder, settings: Settings) -> None:
     tmp.replace(paths["validation"])
 
 
+def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None) -> str:
+    """The diagnosis of the unit's observations (JSON) and its normalised residuals
+    (Parquet, heat maps in the metadata); returns the verdict."""
+    from .diagnose import diagnose
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"])
+    obs, _ = read_table_with_metadata(paths["observations"])
+    diag = diagnose(settings, obs)
+    out = Path(output or paths["diagnosis"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(dumps({**diag.to_dict(), **meta}))
+    tmp.replace(out)
+    if residuals is not False:
+        write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
+    return diag.verdict
+
+
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     from .report import UnitResults, write_unit_report
     paths = unit_paths(folder)
-    failure.check_inputs(*paths.values())
+    failure.check_inputs(*(v for k, v in paths.items() if k not in DIAGNOSIS_FILES))
     results = UnitResults.from_folder(folder)
     if settings is not None:
         results.command = reproduce_command(results, settings)

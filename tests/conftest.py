@@ -78,8 +78,14 @@ BAD\tB2\t2026-01-02\tturntable\tlogs/corrupt.parquet
 GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet
 """
 FLEET_CONFIG = """devices: devices.tsv
-demo: {folder: demo/logs, preset: quick, temperatures: [0, 20, 40], rates: [10, 100]}
+demo:
+  folder: demo/logs
+  preset: quick
+  temperatures: [0, 20, 40]
+  rates: [10, 100, 400]
+  units: {A2: {effects: {scale_quadratic: [1.0e-6, -8.0e-7, 6.0e-7]}}}
 model: {terms: [bias, scale, misalignment]}
+diagnosis: {ladder: [{name: "+ nonlinearity", add: [scale_quadratic]}]}
 """
 
 

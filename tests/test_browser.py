@@ -62,13 +62,14 @@ def figures_rendered(page) -> list[dict]:
 def test_unit_report_renders_offline(fleet_run, browser, tmp_path):
     page, outside = open_offline(browser, fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html")
     for table in ("#counts", "#table-hold-means", "#table-samples", "#table-by-temperature",
-                  "#provenance-table"):
+                  "#excess", "#covariates", "#candidates", "#ladder-table", "#provenance-table"):
         rows = page.locator(f"{table} tr")
         assert rows.count() >= 2, table
         assert page.locator(table).bounding_box()["height"] > 20, table
     assert page.locator("#table-hold-means tr").count() == 2 + 9  # two header rows, 3 x 3
     figures = figures_rendered(page)
-    assert len(figures) == 5
+    assert len(figures) == 8  # timeline, parameters, by temperature, 2 error maps, residuals,
+    # heat maps, ladder
     for f in figures:
         assert f["width"] > 200 and f["height"] > 150 and f["rasters_ok"], f
     assert "leave-temperature-out RMS" in page.locator("#verdict").inner_text()

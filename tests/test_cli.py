@@ -21,8 +21,8 @@ def gyrocal(*args):
 def test_help_lists_the_commands():
     out = gyrocal("--help")
     assert out.returncode == 0
-    for command in ("simulate", "calibrate", "apply", "segment", "fit", "validate", "report",
-                    "fleet"):
+    for command in ("simulate", "calibrate", "diagnose", "apply", "segment", "fit", "validate",
+                    "report", "fleet"):
         assert command in out.stdout
 
 
@@ -69,6 +69,12 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
      "unknown model term 'nope'"),
     (lambda d: d.joinpath("m.yaml").write_text("terms: [bias]\ninterpolation: cosine\n"),
      ["calibrate", "{d}/l.parquet", "--model", "{d}/m.yaml", "-o", "{d}/c.json"], "interpolation method 'cosine' is not known"),
+    (lambda d: None, ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"warp": [1, 2, 3]}}'],
+     "unknown simulated effect 'warp'"),
+    (lambda d: None, ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"scale_cubic": [1]}}'],
+     "scale_cubic must be 3 finite numbers"),
+    (lambda d: None, ["diagnose", "{d}/l.parquet", "--add-term", "bias_temp_poly(degree=9)", "-o", "{d}/d.json"],
+     "degree must be an integer from 1 to 5"),
 ])
 def test_bad_input_is_one_line_and_exit_2(tmp_path, make, args, expected):
     make(tmp_path)
@@ -98,3 +104,29 @@ def test_an_internal_error_is_one_line_and_exit_1(monkeypatch, capsys):
     err = capsys.readouterr().err.strip()
     assert err == ("gyrocal: internal error: RuntimeError: something unexpected "
                    "(rerun with --debug for a traceback)")
+
+
+def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term(tmp_path, capsys):
+    log = tmp_path / "u.parquet"
+    assert main("simulate", "--log", log, "--preset", "quick", "--temperatures=0,10,20,30",
+                "--effects", '{"scale_asymmetry": [3e-4, -2e-4, 2.5e-4]}') == 0
+    model = tmp_path / "model.yaml"
+    model.write_text("model:\n  terms: [bias, scale, misalignment]\n")
+    out = tmp_path / "d.json"
+    assert main("diagnose", log, "--protocol", "turntable", "-o", out, "--model", model,
+                "--residuals", tmp_path / "r.parquet") == 0
+    assert "Missing effect: scale_asymmetry" in capsys.readouterr().out
+    doc = json.loads(out.read_text())
+    assert doc["excess"] == pytest.approx(doc["validation_rms"] / doc["noise_floor"], rel=1e-12)
+    ranked = [c for c in doc["candidates"] if c["validation_rms_with"] is not None]
+    assert ranked[0]["term"] == "scale_asymmetry"
+    assert [c["validation_rms_with"] for c in ranked] == sorted(c["validation_rms_with"] for c in ranked)
+    assert all(0 <= c["p_value"] <= 1 for c in ranked)
+    residuals = pq.read_table(tmp_path / "r.parquet")
+    assert {"z_x", "resid_y", "floor_z", "temp", "ref_rate", "mount"} <= set(residuals.column_names)
+    for candidate in doc["candidates"]:  # every printed name is accepted back
+        args = cli.build_parser().parse_args(["diagnose", str(log), "-o", "x", "--add-term", candidate["term"]])
+        assert candidate["term"] in cli._settings(args).model.terms
+    again = tmp_path / "d2.json"
+    assert main("diagnose", log, "-o", again, "--add-term", doc["best"]["term"]) == 0
+    assert json.loads(again.read_text())["best"] is None

@@ -67,9 +67,47 @@ def test_nothing_to_do_the_second_time_and_a_model_change_reruns_only_its_jobs(f
     assert "Nothing to be done" in out.stdout + out.stderr
     out = snakemake(fleet_run, "--dry-run", "--config",
                     'model={"terms": ["bias", "scale", "misalignment"], "interpolation": "spline"}')
-    stats = out.stdout[out.stdout.index("Job stats"):].split("\n\n")[0]
-    counts = {line.split()[0]: int(line.split()[1]) for line in stats.splitlines()[3:] if line.strip()}
-    assert counts == {"fit": 5, "validate": 5, "report": 5, "fleet": 1, "all": 1, "total": 17}
+    counts = job_counts(out)
+    assert counts == {"fit": 5, "validate": 5, "diagnose": 5, "report": 5, "fleet": 1, "all": 1,
+                      "total": 22}
+    out = snakemake(fleet_run, "--dry-run", "--config", 'diagnosis={"ladder": ["scale_cubic"]}')
+    assert job_counts(out) == {"diagnose": 5, "report": 5, "fleet": 1, "all": 1, "total": 12}
+
+
+def job_counts(out) -> dict[str, int]:
+    """Jobs per rule from Snakemake's job statistics (dry run or real)."""
+    text = out.stdout + out.stderr
+    stats = text[text.index("Job stats"):].split("\n\n")[0]
+    return {line.split()[0]: int(line.split()[1]) for line in stats.splitlines()[3:] if line.strip()}
+
+
+def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(fleet_run, tmp_path):
+    """The loop of the README: read the diagnosis, add the term, re-run, see the error fall."""
+    folder = ("results", "B2", "A2", "2026-01-02")
+    diagnosis = json.loads(fleet_run.joinpath(*folder, "diagnosis.json").read_text())
+    assert diagnosis["best"]["term"] == "scale_quadratic"
+    page = (fleet_run / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
+    line = "terms: [bias, scale, misalignment, scale_quadratic]"
+    assert diagnosis["best"]["config_line"] == line and f'<pre id="config-line">{line}</pre>' in page
+    for batch, device, session in GOOD[:2]:  # the units without the effect: nothing missing
+        other = json.loads((fleet_run / "results" / batch / device / session / "diagnosis.json").read_text())
+        assert other["best"] is None and other["explains_the_data"], other["verdict"]
+
+    again = tmp_path / "again"
+    shutil.copytree(fleet_run, again, symlinks=True)
+    config = (again / "config.yaml").read_text().replace(
+        "model: {terms: [bias, scale, misalignment]}", "model: {" + line + "}")
+    (again / "config.yaml").write_text(config)
+    out = snakemake(again)
+    assert out.returncode == 0, out.stderr[-2000:]
+    ran = job_counts(out)
+    assert "segment" not in ran and "simulate" not in ran and ran["fit"] == 5
+    after = json.loads(again.joinpath(*folder, "diagnosis.json").read_text())
+    # Three temperature points leave the interpolation error of the cubic bias at 20 °C,
+    # the same for every unit; what the term removes is the rest.
+    assert after["validation_rms"] < 0.2 * diagnosis["validation_rms"]
+    assert after["explains_the_data"] and after["best"] is None
+
 
 
 def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
@@ -124,3 +162,28 @@ def test_lint_clean_and_formatted():
     fmt = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow"],
                          cwd=REPO, capture_output=True, text=True, timeout=300)
     assert fmt.returncode == 0, fmt.stderr[-2000:]
+
+
+def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
+    import re
+
+    from gyrocal.diagnose import diagnose
+    from gyrocal.io import read_table_with_metadata
+    from gyrocal.report import fmt
+    folder = fleet_run / "results" / "B2" / "A2" / "2026-01-02"
+    obs = read_table_with_metadata(folder / "observations.parquet")[0]
+    settings = Settings.from_dict({"diagnosis": {"ladder": [{"name": "+ nonlinearity",
+                                                             "add": ["scale_quadratic"]}]}})
+    ladder = diagnose(settings, obs).ladder
+    page = (fleet_run / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
+    table = page[page.index('<table id="ladder-table">'):]
+    table = table[:table.index("</table>")]
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", row, re.S) for row in table.split("<tr>")[2:]]
+    assert len(rows) == len(ladder) == 2
+    for cells, step in zip(rows, ladder):
+        assert cells[1].startswith(step["name"])
+        assert cells[3:7] == [fmt(step["validation_rms"]), fmt(step["excess"], 3),
+                              fmt(step["expected_rms"]), fmt(step["chi2_red"], 3)]
+    added = rows[1][7]
+    for p in ladder[1]["parameters"]:
+        assert f"{p['coefficient']} = {fmt(p['value'], 3)} ± {fmt(p['stderr'], 2)}" in added

@@ -26,14 +26,16 @@ MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
 
 def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit | None = None,
                   rng: np.random.Generator, device: str = "U001", batch: str = "B1",
-                  session: str = "2026-01-01", seed: int | None = None) -> dict:
-    """Render one unit's log to ``path`` and its truth beside it; return the truth."""
+                  session: str = "2026-01-01", seed: int | None = None,
+                  effects: dict | None = None) -> dict:
+    """Render one unit's log to ``path`` and its truth beside it; return the truth.
+    ``effects`` adds errors beyond the seed-000 model (:meth:`GyroUnit.with_effects`)."""
     if protocol not in PROTOCOLS:
         raise ConfigError(f"unknown protocol {protocol!r}; this simulator knows "
                           f"{', '.join(PROTOCOLS)}")
     rig_cls, renderer = PROTOCOLS[protocol]
     rig = rig or rig_cls()
-    unit = unit or GyroUnit.random(rng)
+    unit = (unit or GyroUnit.random(rng)).with_effects(effects)
     path = Path(path)
     schedule = renderer(rig, unit, rng, path)
     truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
@@ -56,7 +58,8 @@ def load_truth(log_path) -> dict:
 
 def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int = 0,
              rig=None, unit: GyroUnit | None = None, batch: str = "B1",
-             session: str = "2026-01-01", device_prefix: str = "U") -> Path:
+             session: str = "2026-01-01", device_prefix: str = "U",
+             effects: dict | None = None) -> Path:
     """Simulate ``units`` units into ``out_dir``; return the manifest path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -66,7 +69,7 @@ def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int 
         name = f"{device}.parquet"
         simulate_unit(out / name, protocol=protocol, rig=rig, unit=unit,
                       rng=np.random.default_rng(child), device=device, batch=batch,
-                      session=session, seed=seed)
+                      session=session, seed=seed, effects=effects)
         rows.append((device, batch, session, protocol, name))
     manifest = out / "devices.tsv"
     manifest.write_text("\n".join("\t".join(r) for r in [MANIFEST_COLUMNS, *rows]) + "\n")

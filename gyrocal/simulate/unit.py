@@ -11,12 +11,16 @@ white noise. The electronics then low-pass, saturate at the full-scale range and
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 from scipy.signal import lfilter
 
+from ..errors import ConfigError
+
 AXES = "xyz"
+EFFECTS = {"scale_quadratic": (3,), "scale_cubic": (3,), "scale_asymmetry": (3,),
+           "g_sensitivity": (3, 3), "temp_rate": (3,)}  # field -> shape
 
 # Seed 000, Eq 23: the unit's K_g at 25 °C, reordered as the 3x3 K and B of Eq 11-12.
 SEED000_K25 = np.array([[1.0005, -0.0188, 0.0012],
@@ -66,6 +70,23 @@ class GyroUnit:
         e += specific_force @ np.asarray(self.g_sensitivity).T
         e += np.asarray(temp_rate, dtype=float)[:, None] * np.asarray(self.temp_rate)
         return e
+
+    def with_effects(self, effects: dict | None) -> GyroUnit:
+        """This unit with the effects beyond the seed-000 model set, e.g.
+        ``{"scale_quadratic": [1e-6, 0, 0]}`` (names and shapes checked)."""
+        changes = {}
+        for name, value in (effects or {}).items():
+            if name not in EFFECTS:
+                raise ConfigError(f"unknown simulated effect {name!r}; known: {', '.join(EFFECTS)}")
+            try:
+                array = np.asarray(value, dtype=float)
+            except (TypeError, ValueError):
+                array = None
+            if array is None or array.shape != EFFECTS[name] or not np.isfinite(array).all():
+                raise ConfigError(f"simulated effect {name} must be {EFFECTS[name][0]} finite numbers"
+                                  + (" per row, 3 rows" if len(EFFECTS[name]) == 2 else ""))
+            changes[name] = _tuples(array) if array.ndim == 2 else tuple(float(x) for x in array)
+        return replace(self, **changes)
 
     def noise_std(self, sample_rate: float) -> float:
         """Per-sample white-noise standard deviation over the Nyquist band."""

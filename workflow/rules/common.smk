@@ -33,6 +33,11 @@ UNITS = {
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
 SEGMENTATION = json.dumps({"segmentation": config["segmentation"]}, sort_keys=True)
 MODEL = json.dumps({"model": config["model"]}, sort_keys=True)
+DIAGNOSIS = json.dumps(
+    {"model": config["model"], "diagnosis": config["diagnosis"]}, sort_keys=True
+)
+# The user's own term files are inputs: editing one re-runs what fits with it.
+TERM_FILES = config["model"].get("term_files", [])
 
 
 wildcard_constraints:
@@ -61,6 +66,18 @@ def unit_args(wildcards):
         f"--{key} {shlex.quote(row[key])}"
         for key in ("device", "batch", "session", "protocol")
     )
+
+
+def demo_unit_options(wildcards):
+    """Simulator options of a demo unit: effects beyond the default model, its mounts."""
+    settings = config["demo"].get("units", {}).get(wildcards.device, {})
+    options = []
+    if settings.get("mounts"):
+        options.append(f"--mounts={shlex.quote(','.join(settings['mounts']))}")
+    if settings.get("effects"):
+        effects = json.dumps(settings["effects"], sort_keys=True)
+        options.append(f"--effects {shlex.quote(effects)}")
+    return " ".join(options)
 
 
 def unit_reports():

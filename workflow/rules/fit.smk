@@ -1,6 +1,7 @@
 rule fit:
     input:
         obs="results/{batch}/{device}/{session}/observations.parquet",
+        terms=TERM_FILES,
     output:
         cal="results/{batch}/{device}/{session}/calibration.json",
     log:

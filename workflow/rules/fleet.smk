@@ -7,6 +7,7 @@ rule fleet:
         manifest=config["devices"],
         calibrations=unit_files("calibration.json"),
         validations=unit_files("validation.json"),
+        diagnoses=unit_files("diagnosis.json"),
         reports=unit_reports(),
     output:
         index=report(

@@ -9,6 +9,9 @@ rule report:
         table_hold_means="results/{batch}/{device}/{session}/table_hold_means.parquet",
         table_samples="results/{batch}/{device}/{session}/table_samples.parquet",
         by_temperature="results/{batch}/{device}/{session}/by_temperature.parquet",
+        diagnosis="results/{batch}/{device}/{session}/diagnosis.json",
+        residuals="results/{batch}/{device}/{session}/residuals.parquet",
+        terms=TERM_FILES,
     output:
         "reports/{batch}/{device}/{session}.html",
     log:
@@ -21,7 +24,7 @@ rule report:
         gyrocal=GYROCAL,
         unit=unit_args,
         settings=lambda wildcards: json.dumps(
-            {"segmentation": config["segmentation"], "model": config["model"]},
+            {k: config[k] for k in ("segmentation", "model", "diagnosis")},
             sort_keys=True,
         ),
         version=GYROCAL_VERSION,

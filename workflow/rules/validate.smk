@@ -1,6 +1,7 @@
 rule validate:
     input:
         obs="results/{batch}/{device}/{session}/observations.parquet",
+        terms=TERM_FILES,
         cal="results/{batch}/{device}/{session}/calibration.json",
     output:
         validation="results/{batch}/{device}/{session}/validation.json",
