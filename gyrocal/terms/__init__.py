@@ -71,7 +71,7 @@ class Term:
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         missing = sorted(c for c in self.needs if c not in data)
         if missing:
-            raise MissingInputError(f"term {self.name} needs {', '.join(missing)}, which the "
+            raise MissingInputError(f"term {self.spec_string()} needs {', '.join(missing)}, which the "
                                     f"data lack", source=source)
 
 
