@@ -46,8 +46,11 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RAT
     centres = (np.arange(len(counts)) + 0.5) * width
     means = np.interp(centres, centres[filled], sums[filled] / counts[filled])
     half = max(int(round(window_s / width / 2)), 1)
-    padded = np.pad(means, half, mode="reflect", reflect_type="odd") if len(means) > half \
-        else np.pad(means, half, mode="edge")
+    if len(means) <= 2 * half:  # the whole log is shorter than the window: one slope
+        lags = centres - centres.mean()
+        rate[good] = 60.0 * np.sum(lags * means) / max(np.sum(lags ** 2), 1e-300)
+        return rate
+    padded = np.pad(means, half, mode="reflect", reflect_type="odd")
     lags = np.arange(-half, half + 1, dtype=float)
     slope = np.convolve(padded, lags[::-1] / (np.sum(lags ** 2) * width), mode="valid")  # °C/s
     rate[good] = 60.0 * np.interp(tg - tg[0], centres, slope)
@@ -89,6 +92,10 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
         table = dataset.to_table(columns=["t", "temp"])
         check_float(schema, "temp", path)
         seconds = time_seconds(table.column("t").combine_chunks(), path, [])
+        steps = np.diff(seconds[np.isfinite(seconds)])
+        if steps.size and steps.min() <= 0:
+            raise LogFormatError("column t does not increase strictly, so the temperature rate "
+                                 "the calibration needs cannot be derived", source=path)
         window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
         temp_rate = temperature_rate(seconds, to_internal_units(
             "temp", table.column("temp").to_numpy().astype(np.float64), units), window)

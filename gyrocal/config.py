@@ -69,9 +69,20 @@ class ModelSettings:
                                   for label, formula in self.expressions)
 
     def with_terms(self, extra: tuple) -> ModelSettings:
-        have = {make_term(t).spec_string() for t in self.term_specs()}
-        added = tuple(t for t in extra if make_term(t).spec_string() not in have)
-        return replace(self, terms=self.terms + added) if added else self
+        """The model with ``extra`` terms added. A term of the same identity as one already
+        in the model replaces it in place (a new degree, an expression's new formula)."""
+        terms, expressions = list(self.terms), dict(self.expressions)
+        for spec in extra:
+            term = make_term(spec)
+            if term.name == "expression" and term.label in expressions:
+                expressions[term.label] = term.formula
+                continue
+            keys = [make_term(t).identity for t in terms]
+            if term.identity in keys:
+                terms[keys.index(term.identity)] = term.spec_string()
+            else:
+                terms.append(term.spec_string())
+        return replace(self, terms=tuple(terms), expressions=tuple(sorted(expressions.items())))
 
     def build(self) -> Model:
         for path in self.term_files:

@@ -31,7 +31,7 @@ import pandas as pd
 from scipy import stats
 
 from .config import Settings
-from .errors import ConfigError, GyrocalError, IdentifiabilityError, MissingInputError
+from .errors import GyrocalError, MissingInputError
 from .model import columns_of
 from .terms import AXES, TERMS, make_term
 from .terms.effects import CANDIDATES
@@ -98,6 +98,7 @@ class Diagnosis:
     verdict: str
     heatmaps: dict
     residuals: pd.DataFrame                   # observations + resid_, floor_, z_ per axis
+    config_line: str = ""                     # the model: lines that add the best candidate
     ladder: list[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -113,7 +114,7 @@ class Diagnosis:
             "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
             "verdict": self.verdict,
             "best": None if self.best is None else {
-                **self.best.to_dict(), "config_line": config_line(self.base.terms + [self.best.term]),
+                **self.best.to_dict(), "config_line": self.config_line,
                 "option": add_term_option(self.best.term)},
             "candidates": [c.to_dict() for c in self.candidates],
             "covariates": self.covariates,
@@ -132,12 +133,10 @@ def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Eval
 
 
 def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
-    """The settings with ``spec`` added to the model (replacing a term of the same name,
-    so ``bias_temp_poly(degree=3)`` supersedes ``bias_temp_poly(degree=2)``)."""
-    term = make_term(spec)
-    kept = tuple(t for t in settings.model.terms if make_term(t).name != term.name)
-    model = replace(settings.model, terms=kept + (term.spec_string(),), kind=kind or settings.model.kind)
-    return replace(settings, model=model)
+    """The settings with ``spec`` added to the model (replacing a term of the same
+    identity, so ``bias_temp_poly(degree=3)`` supersedes ``bias_temp_poly(degree=2)``)."""
+    model = settings.model.with_terms((spec,))
+    return replace(settings, model=replace(model, kind=kind or model.kind))
 
 
 def candidate_terms(settings: Settings) -> list[str]:
@@ -146,7 +145,7 @@ def candidate_terms(settings: Settings) -> list[str]:
     the model, e.g. a higher degree); temperature-only terms only for continuous models."""
     model = settings.model.build()
     have = {t.spec_string() for t in model.terms}
-    have_names = {t.name for t in model.terms}
+    have_keys = {t.identity for t in model.terms}
     files = {str(Path(f).resolve()) for f in settings.model.term_files}
     user_file_terms = [n for n, cls in TERMS.items() if getattr(cls, "source_file", None) in files]
     requested = {make_term(spec).spec_string() for spec in settings.diagnosis.candidates}
@@ -154,7 +153,7 @@ def candidate_terms(settings: Settings) -> list[str]:
     for spec in [*CANDIDATES, *settings.diagnosis.candidates, *user_file_terms]:
         term = make_term(spec)
         label = term.spec_string()
-        if label in have or label in out or (term.name in have_names and label not in requested):
+        if label in have or label in out or (term.identity in have_keys and label not in requested):
             continue
         if settings.model.kind == "grid" and term.varies_with_temperature:
             continue
@@ -192,8 +191,9 @@ def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: 
 
 
 def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
-                     dof: int) -> tuple[list[dict], dict]:
-    """Share of the excess χ² each covariate's bins account for, ranked; heat maps."""
+                     dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
+    """Share of the excess χ² each covariate's bins account for, ranked; heat maps. Without
+    a significant excess there is nothing to share out: the shares are None."""
     frame = pd.DataFrame({k: v for k, v in data.items() if np.ndim(v) == 1})
     frame["mount"] = obs["mount"].astype(str).to_numpy()
     frame["abs_rate"] = np.abs(data["ref_rate"])
@@ -223,9 +223,10 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
             part = zz[index.to_numpy()]
             explained += float(np.sum(len(part) * part.mean(axis=0) ** 2))
         chance = 3.0 * groups.ngroups  # a unit-normal residual mean per bin and axis
+        share = min(max(explained - chance, 0.0) / excess, 1.0) if excess_significant else None
         rows.append({"covariate": label, "bins": int(groups.ngroups),  # axis x covariate
-                     "share_of_excess": max(explained - chance, 0.0) / excess})
-    rows.sort(key=lambda r: -r["share_of_excess"])
+                     "share_of_excess": share})
+    rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
     rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
     idx = pd.Series(np.arange(len(frame)))
     rate_bins = frame["ref_rate"].round(3).to_numpy()
@@ -252,7 +253,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                       **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
     excess_p = float(stats.chi2.sf(base.chi2, base.dof))
     explains = excess_p >= alpha / 2
-    covariates, heat = _covariate_table(obs, data, np.nan_to_num(z), fitted_rows, base.dof)
+    covariates, heat = _covariate_table(obs, data, np.nan_to_num(z), fitted_rows, base.dof,
+                                        not explains)
 
     names = candidate_terms(settings)
     candidates: list[Candidate] = []
@@ -265,17 +267,22 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
             continue
         try:
             ext = evaluate(extended(settings, spec), obs, spec)
-        except (IdentifiabilityError, MissingInputError, ConfigError) as exc:
-            candidates.append(Candidate(spec, "not identifiable", reason=_reason(exc)))
+        except MissingInputError as exc:
+            candidates.append(Candidate(spec, "missing inputs", reason=_reason(exc)))
             continue
         except GyrocalError as exc:
             candidates.append(Candidate(spec, "not identifiable", reason=_reason(exc)))
             continue
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
+            candidates.append(Candidate(spec, "failed", reason=f"{type(exc).__name__}: {exc}"))
+            continue
         added = [c for c in ext.fitted.names if c not in base.fitted.names]
         df_num, df_den = base.dof - ext.dof, ext.dof
-        if df_num <= 0 or df_den <= 0 or len(ext.fitted.fits) != len(base.fitted.fits):
-            candidates.append(Candidate(spec, "not identifiable",
-                                        reason="leaves fewer temperature points or no degrees of freedom"))
+        problem = ("it leaves fewer temperature points" if len(ext.fitted.fits) != len(base.fitted.fits)
+                   else "it adds no coefficient to the model" if df_num <= 0
+                   else "it leaves no degree of freedom" if df_den <= 0 else None)
+        if problem:
+            candidates.append(Candidate(spec, "not identifiable", reason=problem))
             continue
         f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
         p = float(stats.f.sf(f_stat, df_num, df_den))
@@ -290,12 +297,13 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     candidates = ranked + [c for c in candidates if c.status != "ranked"]
     best = next((c for c in ranked if c.significant
                  and c.validation_rms_with < base.summary["validation_rms"]), None)
-    verdict = _verdict(base, best, explains, chi2_red, covariates, settings)
+    verdict = _verdict(base, best, explains, rms_over_floor, covariates)
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
            for i, a in enumerate(AXES)})
     diag = Diagnosis(base, alpha, chi2_red, rms_over_floor, excess_p, explains, covariates,
-                     candidates, best, verdict, heat, residuals)
+                     candidates, best, verdict, heat, residuals,
+                     config_line=config_line(extended(settings, best.term).model) if best else "")
     diag.ladder = ladder(settings, obs, base)
     return diag
 
@@ -309,24 +317,24 @@ def _p(value: float) -> str:
     return "< 1e-16" if value < 1e-16 else f"= {value:.2g}"
 
 
-def _verdict(base, best, explains, chi2_red, covariates, settings) -> str:
-    factor = np.sqrt(chi2_red["all"])
+def _verdict(base, best, explains, rms_over_floor, covariates) -> str:
+    factor = rms_over_floor["all"]
     if best is not None:
-        size = best.size[0] if best.size else None
+        sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
+        top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
+               f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
         return (f"Missing effect: {best.term}. Adding it lowers the validation RMS from "
                 f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
                 f"({best.gain_pct:.0f} % less; F-test p {_p(best.p_value)}); its largest "
-                f"contribution is {best.peak_effect:.3g} deg/s"
-                + (f" ({size['coefficient']} = {size['value']:.3g} ± {size['stderr']:.2g} {size['unit']})"
-                   if size else "") + ".")
+                f"contribution to a hold is {best.peak_effect:.3g} deg/s{top}.")
     if not explains:
-        where = covariates[0]["covariate"] if covariates and covariates[0]["share_of_excess"] > 0 else None
-        return (f"The model does not explain the data, by a factor {factor:.2f} (residuals over "
-                "the noise floor), and no candidate term accounts for it"
-                + (f"; the excess lives mostly with {where} "
-                   f"({100 * covariates[0]['share_of_excess']:.0f} % of it)." if where else "."))
-    return (f"The model explains the data (residuals {factor:.2f} times the noise floor, "
-            "as noise alone would give): nothing is missing.")
+        lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+        return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                "times their noise floor, and no candidate term accounts for it"
+                + (f"; the excess lives mostly with {lead['covariate']} "
+                   f"({100 * lead['share_of_excess']:.0f} % of it)." if lead else "."))
+    return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
+            "their noise floor, as white noise within the holds would leave; nothing is missing.")
 
 
 def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:
@@ -343,6 +351,9 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict
         except GyrocalError as exc:
             rows.append({"name": step["name"], "error": _reason(exc)})
             continue
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
+            rows.append({"name": step["name"], "error": f"{type(exc).__name__}: {exc}"})
+            continue
         added = [c for c in ev.fitted.names if c not in base.fitted.names]
         rows.append(_ladder_row(ev, added))
     return rows
@@ -358,10 +369,16 @@ def _ladder_row(ev: Evaluation, added: list[str]) -> dict:
             "chi2_red": ev.chi2 / ev.dof, "parameters": params}
 
 
-def config_line(terms: list[str]) -> str:
-    """``terms: [...]`` as it goes under ``model:`` in the config (specs with a comma are
-    quoted, since a YAML flow list splits on commas)."""
-    return "terms: [" + ", ".join(json.dumps(t) if "," in t else t for t in terms) + "]"
+def config_line(model) -> str:
+    """The ``model:`` lines of the config for ``model`` (a ModelSettings): ``terms: [...]``
+    and, when it has any, ``expressions: {...}``. Specs other than plain names are quoted."""
+    quote = lambda t: t if t.isidentifier() else json.dumps(t)  # noqa: E731
+    terms = [make_term(t).spec_string() for t in model.terms]
+    lines = ["terms: [" + ", ".join(quote(t) for t in terms) + "]"]
+    if model.expressions:
+        lines.append("expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions)
+                     + "}")
+    return "\n".join(lines)
 
 
 def add_term_option(term: str) -> str:

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .errors import ConfigError, IdentifiabilityError
+from .errors import ConfigError, IdentifiabilityError, MissingInputError
 from .terms import AXES, Term, make_term
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
@@ -180,6 +180,19 @@ def observation_floor(obs) -> np.ndarray:
     return std / np.sqrt(data["n"])[:, None]
 
 
+def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) -> None:
+    """A regressor that is NaN or infinite for some holds (an accelerometer that dropped
+    out, a formula outside its domain) is refused, naming its term and how many holds."""
+    for term in model.terms:
+        for name in term.coefficients():
+            bad = ~np.isfinite(np.broadcast_to(design[name], (n_obs,)))
+            if bad.any():
+                raise MissingInputError(
+                    f"term {term.spec_string()} is not finite for {int(bad.sum())} of {n_obs} "
+                    f"holds{f' at {label}' if label else ''} (inputs: {', '.join(sorted(term.needs))})",
+                    source=source)
+
+
 def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
@@ -191,6 +204,7 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     model.check_inputs(data, source)
     n_obs = len(data["gyro_x"])
     design = model.design(data)
+    _check_finite(model, design, n_obs, source, label)
     floor = observation_floor(data)
     # A hold whose scatter is zero (a constant, quantised output) would get infinite
     # weight: no observation is trusted more than a thousandth of the typical floor.

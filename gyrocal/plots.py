@@ -231,11 +231,12 @@ def _sort_key(text: str):
 
 def ladder(rows: list[dict]) -> str:
     """Validation RMS of each model of the ladder, falling toward the noise floor."""
-    rows = [r for r in rows if "validation_rms" in r]
+    steps = [i for i, r in enumerate(rows) if "validation_rms" in r]  # numbered as in the table
+    rows = [rows[i] for i in steps]
     with matplotlib.rc_context(_RC):
         fig, ax = figure(7, 3.0)
         ax = ax[0, 0]
-        x = np.arange(len(rows))
+        x = np.array(steps)
         ax.plot(x, [r["validation_rms"] for r in rows], "o-", color="#1f77b4", label="validation RMS")
         ax.plot(x, [r["expected_rms"] for r in rows], "s:", color="#ff7f0e", ms=4,
                 label="expected of a correct model")

@@ -48,6 +48,7 @@ def pvalue(value) -> str:
 
 _ENV.filters["fmt"] = fmt
 _ENV.filters["pvalue"] = pvalue
+_ENV.filters["prel"] = lambda v: pvalue(v) if pvalue(v).startswith("<") else "= " + pvalue(v)
 
 
 @dataclass

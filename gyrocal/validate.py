@@ -102,10 +102,22 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
     used = fitted.used_points()
+    plan = None
     if len(used) >= 2:
-        interp, single, clamped, ref_temp = _leave_temperature_out(model, fitted, data,
-                                                                   reference_temperature)
+        try:
+            plan = _leave_temperature_out(model, fitted, data, reference_temperature)
+        except _CannotLeaveOut:
+            if fitted.kind == "grid":
+                raise
+            # A continuous model whose temperature terms need every point (a degree-2
+            # polynomial on three points): only holds can be left out.
+    if plan is not None:
+        interp, single, clamped, ref_temp = plan
         held_out = "temperature"
+    elif len(used) >= 2:
+        interp, clamped = _leave_hold_out(model, fitted, data, every_point=True)
+        single, ref_temp = interp, data["temp"].copy()
+        held_out = "hold"
     else:
         interp, clamped = _leave_hold_out(model, fitted, data)
         single, ref_temp = interp, np.full(n, float(fitted.points.loc[fitted.points["used"], "temp"].iloc[0]))
@@ -181,8 +193,8 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         rows = np.flatnonzero(point == p)
         loo = fitted.leave_out(int(p))
         if loo is None:
-            raise GyrocalError(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
-                               "nothing to calibrate from")
+            raise _CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
+                                  "nothing to calibrate from")
         interp.values[rows] = loo.coefficients_at(temp[rows])
         interp.cov[rows] = loo.covariance_at(temp[rows])
         lo, hi = loo.coefficients.span
@@ -196,17 +208,18 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     return interp, single, clamped, ref_temp
 
 
-def _leave_hold_out(model: Model, fitted, data: dict):
-    """One usable temperature point: each of its holds is compensated by the fit of the
-    point's other holds (holds of points that could not be fitted use the whole fit)."""
+def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = False):
+    """One usable temperature point (or, ``every_point``, one continuous fit over all
+    points): each of its holds is compensated by the fit of the other holds (holds of
+    points that could not be fitted use the whole fit)."""
     n = len(data["temp"])
     point = data["point"].astype(int)
-    only = fitted.used_points()[0]
     whole = fitted.fits[0]
     plan = _Plan(model, fitted.names, np.tile(whole.values, (n, 1)),
                  np.tile(whole.covariance, (n, 1, 1)), data["temp"].copy())
-    mine = np.flatnonzero(point == only)
-    clamped = point != only
+    fitted_rows = np.isin(point, fitted.used_points()) if every_point else point == fitted.used_points()[0]
+    mine = np.flatnonzero(fitted_rows)
+    clamped = ~fitted_rows
     for i in mine:
         others = mine[mine != i]
         try:
@@ -216,6 +229,10 @@ def _leave_hold_out(model: Model, fitted, data: dict):
             continue
         plan.values[i], plan.cov[i] = result.values, result.covariance
     return plan, clamped
+
+
+class _CannotLeaveOut(GyrocalError):
+    """A temperature point cannot be left out: what remains does not determine the model."""
 
 
 def _pooled_rms(values: np.ndarray) -> float:

@@ -65,6 +65,19 @@ def truth_coefficients(unit: GyroUnit, temp: float) -> dict[str, float]:
     return out
 
 
+@pytest.fixture
+def registry():
+    """Terms registered by a test's term files are forgotten afterwards."""
+    from gyrocal.terms import TERMS
+    from gyrocal.terms import user
+    terms, loaded = dict(TERMS), dict(user._LOADED)
+    yield
+    TERMS.clear()
+    TERMS.update(terms)
+    user._LOADED.clear()
+    user._LOADED.update(loaded)
+
+
 def with_rig(**kw):
     return replace(TurntableProtocol.quick(temperatures=TEMPS), **kw)
 

@@ -122,6 +122,9 @@ def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term
     assert ranked[0]["term"] == "scale_asymmetry"
     assert [c["validation_rms_with"] for c in ranked] == sorted(c["validation_rms_with"] for c in ranked)
     assert all(0 <= c["p_value"] <= 1 for c in ranked)
+    # Significant only below the candidates' Bonferroni share of half the level.
+    assert doc["best"]["p_value"] < doc["significance"] / 2 / len(ranked)
+    assert all(c["significant"] == (c["p_value"] < doc["significance"] / 2 / len(ranked)) for c in ranked)
     residuals = pq.read_table(tmp_path / "r.parquet")
     assert {"z_x", "resid_y", "floor_z", "temp", "ref_rate", "mount"} <= set(residuals.column_names)
     for candidate in doc["candidates"]:  # every printed name is accepted back

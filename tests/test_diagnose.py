@@ -60,18 +60,56 @@ def test_a_missing_effect_is_ranked_first_and_adding_it_reaches_the_floor(effect
     assert "nothing is missing" in fixed.verdict
 
 
-def test_on_data_the_model_explains_false_alarms_stay_within_the_significance():
-    alpha, runs = 0.05, 80
+def _alarms(seeds, alpha) -> int:
     settings = replace(Settings(), diagnosis=DiagnosisSettings(significance=alpha))
     alarms = 0
-    for seed in range(runs):
+    for seed in seeds:
         rng = np.random.default_rng(seed)
         obs = observations(GyroUnit.random(rng), rng, temperatures=(0.0, 20.0, 40.0),
                            rates=(1.0, 10.0, 100.0, 400.0))
         diag = diagnose(settings, obs)
         alarms += diag.best is not None or not diag.explains
-    # Family-wise at alpha by construction; fail only if the rate is clearly above it.
+    return alarms
+
+
+def test_on_data_the_model_explains_false_alarms_stay_within_the_significance():
+    from concurrent.futures import ProcessPoolExecutor
+    alpha, runs = 0.05, 400
+    with ProcessPoolExecutor(2) as pool:
+        alarms = sum(pool.map(_alarms, [range(0, runs, 2), range(1, runs, 2)], [alpha] * 2))
+    # Family-wise at alpha by construction (measured: 2-4 %). Fails when the rate is
+    # clearly above alpha: 8.25 % or more is one chance in a thousand at a true 5 %.
     assert alarms <= stats.binom.ppf(0.999, runs, alpha), alarms
+
+
+def test_with_nothing_missing_no_share_of_an_excess_is_invented():
+    rng = np.random.default_rng(2)
+    diag = diagnose(Settings(), observations(GyroUnit.seed000(), rng, temperatures=(0.0, 20.0, 40.0)))
+    assert diag.explains and diag.best is None
+    assert all(row["share_of_excess"] is None for row in diag.covariates)
+    assert "nothing is missing" in diag.verdict
+
+
+def test_a_covariate_with_gaps_or_a_failing_candidate_does_not_stop_the_diagnosis(tmp_path, registry):
+    rng = np.random.default_rng(3)
+    obs = observations(GyroUnit.seed000().with_effects({"scale_quadratic": (1e-6, 0, 0)}), rng,
+                       temperatures=(0.0, 20.0, 40.0), mounts=SIX_MOUNTS)
+    obs.loc[[5, 40], "accel_x"] = np.nan  # the accelerometer dropped out during two holds
+    term_file = tmp_path / "broken.py"
+    term_file.write_text(
+        "from dataclasses import dataclass\n"
+        "from gyrocal.terms import AXES, Term, register_term\n"
+        "@register_term('broken_term')\n@dataclass(frozen=True)\nclass Broken(Term):\n"
+        "    needs = frozenset({'temp'})\n"
+        "    def coefficients(self):\n        return [f'broken_term.{a}' for a in AXES]\n"
+        "    def columns(self, data):\n        raise KeyError('a bug in the user term')\n")
+    settings = replace(Settings(), model=ModelSettings.from_dict({"term_files": [str(term_file)]}))
+    diag = diagnose(settings, obs)
+    assert diag.best is not None and diag.best.term == "scale_quadratic"
+    status = {c.term: (c.status, c.reason) for c in diag.candidates}
+    assert status["g_sensitivity"][0] == "missing inputs"
+    assert "not finite for 2 of" in status["g_sensitivity"][1]
+    assert status["broken_term"][0] == "failed" and "a bug in the user term" in status["broken_term"][1]
 
 
 def test_a_temperature_only_effect_is_found_in_a_continuous_model():
@@ -123,14 +161,25 @@ def test_candidates_exclude_what_the_model_has_and_grid_models_skip_temperature_
     assert extended(asked, "bias_temp_poly(degree=3)").model.terms.count("bias_temp_poly(degree=3)") == 1
 
 
-def test_every_printed_candidate_name_is_accepted_back():
-    settings = replace(Settings(), model=ModelSettings.from_dict({"kind": "continuous"}))
-    for name in candidate_terms(settings):
-        assert make_term(name).spec_string() == name
-        assert name in settings.model.with_terms((name,)).terms
-    line = config_line(["bias", "scale_temp_poly(degree=2, t_ref=20.0)"])
+def test_every_printed_candidate_name_and_config_line_is_accepted_back():
     import yaml
-    assert yaml.safe_load(line)["terms"] == ["bias", "scale_temp_poly(degree=2, t_ref=20.0)"]
+    expression = {"name": "expression", "label": "door", "formula": "temp_rate * abs(rate_z)"}
+    model = ModelSettings.from_dict({"kind": "continuous", "expressions": {"door": "temp_rate"},
+                                     "terms": ["bias", "scale", "misalignment", "bias_temp_poly"]})
+    settings = replace(Settings(), model=model, diagnosis=DiagnosisSettings.from_dict(
+        {"candidates": ["bias_temp_poly(degree=3)", expression]}))
+    names = candidate_terms(settings)
+    assert {"bias_temp_poly(degree=3)", "expression(label='door', formula='temp_rate * abs(rate_z)')"} <= set(names)
+    for name in names:
+        assert make_term(name).spec_string() == name
+        added = extended(settings, name).model
+        added.build()  # no clash: a term of the same identity is replaced, not doubled
+        # The config line the report prints gives the same model when pasted under model:.
+        pasted = ModelSettings.from_dict({"kind": "continuous", **yaml.safe_load(config_line(added))})
+        assert pasted.build().names == added.build().names
+        assert name in [make_term(t).spec_string() for t in pasted.term_specs()]
+    assert config_line(ModelSettings.from_dict({"terms": ["bias", "scale_temp_poly(degree=2, t_ref=20.0)"]})) \
+        == 'terms: [bias, "scale_temp_poly(degree=2, t_ref=20.0)"]'
 
 
 def test_the_ladder_steps_add_terms_and_fall_toward_the_floor(effect_logs):

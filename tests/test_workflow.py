@@ -112,8 +112,9 @@ def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(flee
 
 def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     before = {p.relative_to(fleet_run): p.read_bytes() for p in
-              [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("reports/**/*.html")]}
-    assert len(before) == 5 + 5 + 1
+              [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("reports/**/*.html"),
+               *fleet_run.glob("results/*/*/*/diagnosis.json"), *fleet_run.glob("results/*/*/*/residuals.parquet")]}
+    assert len(before) == 5 + 5 + 1 + 5 + 5
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):

@@ -33,6 +33,8 @@ def observations(unit: GyroUnit, rng: np.random.Generator, *,
                          + unit.effects(w_true[None], force[None], np.array([rate]))[0])
                 std = sigma * rng.uniform(0.9, 1.1, 3)
                 w = ideal + rng.normal(0.0, std / np.sqrt(samples))
+                # What segmentation reports is the sample std of the hold, not the true one.
+                std = std * np.sqrt(rng.chisquare(samples - 1, 3) / (samples - 1))
                 rows.append(dict(
                     hold=len(rows), t_start=len(rows) * 10.0, t_end=len(rows) * 10.0 + 6.0,
                     duration=6.0, n=samples, mount=mount, axis="xyz"[axis], sign=sign,

@@ -63,10 +63,17 @@ class Term:
     def spec_string(self) -> str:
         """The term as ``--add-term`` and config files take it: ``name`` or
         ``name(key=value, ...)`` for settings that differ from the defaults."""
-        defaults = type(self)()
-        changed = {k: v for k, v in self.params().items() if getattr(defaults, k) != v}
+        defaults = {f.name: f.default for f in dataclasses.fields(self)} \
+            if dataclasses.is_dataclass(self) else {}
+        changed = {k: v for k, v in self.params().items() if defaults.get(k, dataclasses.MISSING) != v}
         return self.name + ("(" + ", ".join(f"{k}={v!r}" for k, v in changed.items()) + ")"
                             if changed else "")
+
+    @property
+    def identity(self) -> tuple:
+        """What makes two terms the same effect: a model holds one term per identity, and
+        adding one replaces the other (``bias_temp_poly(degree=3)`` replaces degree 2)."""
+        return (self.name,)
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         missing = sorted(c for c in self.needs if c not in data)

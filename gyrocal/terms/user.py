@@ -8,8 +8,8 @@ code has changed.
 
 An expression term is a formula over observation columns (``accel_x * rate_y``,
 ``temp_rate ** 2``, ``abs(rate_z)``), one coefficient per output axis. Formulas are read by
-a small interpreter that knows numbers, column names, + - * / **, unary minus and a few
-functions: nothing else in the formula can run.
+a small interpreter that knows numbers, the columns of ``FORMULA_COLUMNS``, + - * / **,
+unary minus and a few one-argument functions: nothing else in the formula can run.
 """
 
 from __future__ import annotations
@@ -69,6 +69,11 @@ _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
               ast.Div: np.divide, ast.Pow: np.power}
 
 
+# Columns a formula may read: those every observation table has, which apply can also
+# give for every sample (temp_rate derived from the log's t and temp).
+FORMULA_COLUMNS = ("temp", "temp_rate", "rate_x", "rate_y", "rate_z", "accel_x", "accel_y", "accel_z")
+
+
 def formula_names(formula: str) -> frozenset[str]:
     tree = _parse(formula)
     return frozenset(n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
@@ -76,9 +81,11 @@ def formula_names(formula: str) -> frozenset[str]:
 
 
 def _parse(formula: str) -> ast.AST:
+    if not isinstance(formula, str) or len(formula) > 500:
+        raise ConfigError(f"a formula must be text of at most 500 characters, got {formula!r:.60}")
     try:
         tree = ast.parse(formula, mode="eval").body
-    except SyntaxError:
+    except (SyntaxError, ValueError, MemoryError, RecursionError):
         raise ConfigError(f"cannot read the formula {formula!r}") from None
     for node in ast.walk(tree):
         allowed = (ast.BinOp, ast.UnaryOp, ast.USub, ast.UAdd, ast.Name, ast.Constant,
@@ -87,11 +94,25 @@ def _parse(formula: str) -> ast.AST:
             raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
                               "(numbers, columns, + - * / **, abs sqrt exp log sign sin cos)")
         if isinstance(node, ast.Call) and (not isinstance(node.func, ast.Name)
-                                           or node.func.id not in _FUNCTIONS or node.keywords):
-            raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} may be called")
-        if isinstance(node, ast.Constant) and not isinstance(node.value, (int, float)):
-            raise ConfigError(f"formula {formula!r}: only numbers may appear as constants")
+                                           or node.func.id not in _FUNCTIONS or node.keywords
+                                           or len(node.args) != 1):
+            raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} may be called, "
+                              "each with one argument")
+        if isinstance(node, ast.Constant):
+            if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) \
+                    or not _finite_number(node.value):
+                raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
+        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id not in FORMULA_COLUMNS:
+            raise ConfigError(f"formula {formula!r}: {node.id} is not a column a formula can read "
+                              f"({', '.join(FORMULA_COLUMNS)})")
     return tree
+
+
+def _finite_number(value) -> bool:
+    try:
+        return bool(np.isfinite(float(value)))
+    except OverflowError:
+        return False
 
 
 def evaluate(formula: str, data) -> np.ndarray:
@@ -124,6 +145,10 @@ class Expression(Term):
         if not self.label.isidentifier():
             raise ConfigError(f"expression label {self.label!r} must be a plain name")
         object.__setattr__(self, "needs", formula_names(self.formula))
+
+    @property
+    def identity(self) -> tuple:
+        return (self.name, self.label)
 
     def coefficients(self):
         return [f"{self.label}.{a}" for a in AXES]
