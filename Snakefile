@@ -22,6 +22,7 @@ include: "workflow/rules/validate.smk"
 include: "workflow/rules/diagnose.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/fleet.smk"
+include: "workflow/rules/paper.smk"
 
 
 rule all:

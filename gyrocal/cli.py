@@ -9,6 +9,7 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ConfigError, GyrocalError
+from .paper import add_parser as add_paper_parser
 
 EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
 
@@ -34,6 +35,16 @@ def _settings(args):
         base = settings.to_dict()
         settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
             k: v for k, v in values.items() if k not in base})
+    # A servo or sweep log is fitted with its protocol's model; --model and --add-term
+    # then change that model. A servo calibration is seed 001's six parameters, whatever
+    # the model: there they only change what the diagnosis reads.
+    protocol = getattr(args, "protocol", None)
+    if protocol == "servo" and args.command in ("calibrate", "fit") and (
+            getattr(args, "model", None) or getattr(args, "add_term", None)):
+        raise ConfigError("a servo calibration is seed 001's six-parameter model; --model and "
+                          "--add-term change the model the diagnosis reads: use them with "
+                          "gyrocal diagnose")
+    settings = settings.for_protocol(protocol)
     if getattr(args, "model", None):
         values = read_yaml(args.model)
         values = values.get("model", values)
@@ -50,6 +61,10 @@ def _settings(args):
         settings = replace(settings, model=settings.model.with_terms(tuple(args.add_term)))
         settings.model.build()  # unknown names fail here, before any work
     return settings
+
+
+def _num(value, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
 
 
 def _json_object(text: str | None, option: str) -> dict:
@@ -72,37 +87,64 @@ def _meta(args) -> dict:
 def cmd_simulate(args) -> int:
     from dataclasses import replace
 
-    from .simulate import GyroUnit, TurntableProtocol, simulate, simulate_unit
+    from .simulate import GyroUnit, SweepProtocol, SweepUnit, TurntableProtocol, simulate, simulate_unit
     from .simulate.fleet import unit_for
-    if args.protocol != "turntable":
-        raise ConfigError(f"protocol {args.protocol!r} cannot be simulated by this version "
-                          "of gyrocal (supported: turntable)")
     if (args.out is None) == (args.log is None):
         raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
-    base = TurntableProtocol.quick() if args.preset == "quick" else TurntableProtocol()
-    knobs = {k: v for k, v in dict(
-        temperatures=args.temperatures, rates=args.rates, mounts=args.mounts,
-        sample_rate=args.sample_rate, soak_s=args.soak_s, hold_s=args.hold_s,
-        handling_s=args.handling_s).items() if v is not None}
+    if args.protocol == "sweep":
+        base = SweepProtocol.demo() if args.preset == "quick" else SweepProtocol.seed003()
+        turntable_only = [f"--{k.replace('_', '-')}" for k in (
+            "temperatures", "rates", "mounts", "hold_s", "handling_s", "no_accel")
+            if getattr(args, k)]
+        if turntable_only:
+            raise ConfigError(f"{', '.join(turntable_only)} belong to the turntable protocol, "
+                              "not to sweep")
+        knobs = {k: v for k, v in dict(sample_rate=args.sample_rate, soak_s=args.soak_s).items()
+                 if v is not None}
+    elif args.protocol == "servo":
+        from .simulate import ServoProtocol
+        # quick: three revolutions per rotation, so each can be validated on the others
+        base = ServoProtocol(revolutions=3) if args.preset == "quick" else ServoProtocol()
+        turntable_only = [f"--{k.replace('_', '-')}" for k in (
+            "temperatures", "rates", "mounts", "hold_s", "handling_s", "soak_s", "no_accel")
+            if getattr(args, k)]
+        if turntable_only:
+            raise ConfigError(f"{', '.join(turntable_only)} belong to the turntable protocol, "
+                              "not to servo")
+        knobs = {k: v for k, v in dict(sample_rate=args.sample_rate).items() if v is not None}
+    elif args.protocol == "turntable":
+        base = TurntableProtocol.quick() if args.preset == "quick" else TurntableProtocol()
+        knobs = {k: v for k, v in dict(
+            temperatures=args.temperatures, rates=args.rates, mounts=args.mounts,
+            sample_rate=args.sample_rate, soak_s=args.soak_s, hold_s=args.hold_s,
+            handling_s=args.handling_s).items() if v is not None}
+        if args.no_accel:
+            knobs["accel_columns"] = False
+    else:
+        raise ConfigError(f"protocol {args.protocol!r} cannot be simulated by this version "
+                          "of gyrocal (supported: turntable, servo, sweep)")
     if args.no_mount_column:
         knobs["mount_column"] = False
-    if args.no_accel:
-        knobs["accel_columns"] = False
     rig = replace(base, **knobs)
+    if args.protocol == "servo" and args.unit == "seed000":
+        raise ConfigError("--unit seed000 has no servo counterpart; the servo paper's units "
+                          "are drawn at random (seed 001 Section III)")
     effects = _json_object(args.effects, "--effects")
     if args.log is not None:
         # One log of one unit: the unit follows from its device id, the noise from the
         # session too, so every session of a device is the same physical unit.
         import numpy as np
         device = args.device or "U001"
-        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000")
+        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000",
+                              protocol=args.protocol)
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
-        simulate_unit(args.log, rig=rig, unit=unit, rng=np.random.default_rng(seed),
-                      device=device, batch=args.batch, session=args.session, seed=seed,
-                      effects=effects)
+        simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
+                      rng=np.random.default_rng(seed), device=device, batch=args.batch,
+                      session=args.session, seed=seed, effects=effects)
         print(f"wrote {args.log}")
         return 0
-    unit = GyroUnit.seed000() if args.unit == "seed000" else None
+    seed_unit = SweepUnit.seed003 if args.protocol == "sweep" else GyroUnit.seed000
+    unit = seed_unit() if args.unit == "seed000" else None
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
                         rig=rig, unit=unit, batch=args.batch, session=args.session,
                         device_prefix=args.device_prefix, effects=effects)
@@ -190,8 +232,9 @@ def cmd_calibrate(args) -> int:
           f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)")
     print(f"  leave-{s['held_out']}-out RMS {s['validation_rms']:.3g} deg/s: noise floor "
           f"{s['noise_floor']:.3g} ({s['excess']:.2f}x), expected of a correct model "
-          f"{s['expected_rms']:.3g} ({s['excess_over_expected']:.2f}x); single-temperature "
-          f"{s['single_rms']:.3g}, uncompensated {s['uncompensated_rms']:.3g}")
+          f"{_num(s['expected_rms'], '.3g')} ({_num(s['excess_over_expected'], '.2f')}x); "
+          + (f"single-temperature {s['single_rms']:.3g}, " if s.get("single_rms") is not None else "")
+          + f"uncompensated {s['uncompensated_rms']:.3g}")
     if args.report:
         print(f"  report -> {args.report}")
     return 0
@@ -268,7 +311,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", choices=["seed", "quick"], default="seed",
                    help="seed: the full seed-000 protocol; quick: a log of minutes")
     p.add_argument("--unit", choices=["random", "seed000"], default="random",
-                   help="random production units, or seed 000's unit (Eq 23)")
+                   help="random production units, or the seed paper's unit (turntable: seed 000 "
+                   "Eq 23; sweep: seed 003's L3GD20 sizes)")
     p.add_argument("--device", help="with --log: the unit (its parameters follow from it)")
     p.add_argument("--batch", default="B1")
     p.add_argument("--session", default="2026-01-01")
@@ -360,6 +404,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="fleet summary .html")
     p.add_argument("--bundle", help="also gather all reports into this folder")
     p.set_defaults(func=cmd_fleet)
+    add_paper_parser(sub)
     return parser
 
 

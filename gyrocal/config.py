@@ -138,21 +138,88 @@ class DiagnosisSettings:
                 "ladder": [{**step, "add": list(step["add"])} for step in self.ladder]}
 
 
+# What the servo and sweep protocols fit and try by default; ``protocols:`` in the config
+# overrides any of it. Sweep: seed 003's conventional drift model (linear in ΔT, fitted
+# jointly over the sweep) with its modified model (Eq 16, + ΔT²) as the candidate and the
+# ladder's step. Servo: the 12-parameter model on whole-revolution means (the hand-mounting
+# tilt of each axis lands in the misalignment), beside the paper's own six-parameter fit.
+PROTOCOL_DEFAULTS = {
+    "servo": {"options": {}, "model": {"terms": list(DEFAULT_TERMS)}, "diagnosis": {}},
+    "sweep": {"options": {"window_s": 20.0, "point_span": 10.0},
+              "model": {"kind": "continuous", "terms": ["bias", "bias_temp_poly(degree=1)"]},
+              "diagnosis": {"candidates": ["bias_temp_poly(degree=2)"],
+                            "ladder": [{"name": "modified: + ΔT² (seed 003 Eq 16)",
+                                        "add": ["bias_temp_poly(degree=2)"]}]}},
+}
+PROTOCOL_OPTIONS = {"servo": {"min_revolutions"},
+                    "sweep": {"window_s", "point_span", "motion_factor", "settle_windows", "fill",
+                              "min_span", "min_windows"}}
+
+
 @dataclass(frozen=True)
 class Settings:
     segmentation: SegmentConfig = field(default_factory=SegmentConfig)
     model: ModelSettings = field(default_factory=ModelSettings)
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
+    protocols: tuple = ()       # (name, {options, model, diagnosis}) overrides, checked
+    resolved_for: str | None = None   # the protocol for_protocol() has settled these for
 
     @classmethod
     def from_dict(cls, values: dict | None) -> Settings:
         values = dict(values or {})
         for name in values:
-            if name not in ("segmentation", "model", "diagnosis"):
-                raise ConfigError(f"unknown setting {name}; known: diagnosis, model, segmentation")
-        return cls(SegmentConfig.from_dict(values.get("segmentation")),
-                   ModelSettings.from_dict(values.get("model")),
-                   DiagnosisSettings.from_dict(values.get("diagnosis")))
+            if name not in ("segmentation", "model", "diagnosis", "protocols"):
+                raise ConfigError(f"unknown setting {name}; known: diagnosis, model, protocols, "
+                                  "segmentation")
+        model = ModelSettings.from_dict(values.get("model"))  # registers the user's terms first
+        protocols = values.get("protocols") or {}
+        if not isinstance(protocols, dict):
+            raise ConfigError("protocols must map protocol names to settings")
+        checked = []
+        for name, section in sorted(protocols.items()):
+            if name not in PROTOCOL_DEFAULTS:
+                raise ConfigError(f"unknown protocol protocols.{name}; known: "
+                                  f"{', '.join(sorted(PROTOCOL_DEFAULTS))}")
+            section = _mapping(section, f"protocols.{name}")
+            for key in section:
+                if key not in ("options", "model", "diagnosis"):
+                    raise ConfigError(f"unknown setting protocols.{name}.{key}; known: "
+                                      "diagnosis, model, options")
+            for key, value in _mapping(section.get("options"), f"protocols.{name}.options").items():
+                if key not in PROTOCOL_OPTIONS[name]:
+                    raise ConfigError(f"unknown setting protocols.{name}.options.{key}; known: "
+                                      f"{', '.join(sorted(PROTOCOL_OPTIONS[name]))}")
+                _check_option(f"protocols.{name}.options.{key}", key, value)
+            ModelSettings.from_dict(_mapping(section.get("model"), f"protocols.{name}.model"),
+                                    key=f"protocols.{name}.model")
+            DiagnosisSettings.from_dict(_mapping(section.get("diagnosis"), f"protocols.{name}.diagnosis"),
+                                        key=f"protocols.{name}.diagnosis")
+            checked.append((name, section))
+        return cls(SegmentConfig.from_dict(values.get("segmentation")), model,
+                   DiagnosisSettings.from_dict(values.get("diagnosis")), tuple(checked))
+
+    def for_protocol(self, protocol: str | None) -> Settings:
+        """The settings a log of ``protocol`` is processed with: the turntable's are the
+        top-level ones; servo and sweep take their defaults, overridden key by key by
+        ``protocols.<name>`` (the significance level is the top-level one unless set)."""
+        if protocol in (None, "turntable") or protocol not in PROTOCOL_DEFAULTS \
+                or self.resolved_for == protocol:
+            return self
+        default = PROTOCOL_DEFAULTS[protocol]
+        override = dict(self.protocols).get(protocol, {})
+        # The user's term files and one-line terms serve every protocol.
+        model = {**default["model"], "term_files": list(self.model.term_files),
+                 "expressions": dict(self.model.expressions), **(override.get("model") or {})}
+        diagnosis = {"significance": self.diagnosis.significance, **default["diagnosis"],
+                     **(override.get("diagnosis") or {})}
+        return replace(self, model=ModelSettings.from_dict(model, key=f"protocols.{protocol}.model"),
+                       diagnosis=DiagnosisSettings.from_dict(diagnosis,
+                                                             key=f"protocols.{protocol}.diagnosis"),
+                       resolved_for=protocol)
+
+    def protocol_options(self, protocol: str) -> dict:
+        default = PROTOCOL_DEFAULTS.get(protocol, {}).get("options", {})
+        return {**default, **(dict(self.protocols).get(protocol, {}).get("options") or {})}
 
     @classmethod
     def load(cls, path) -> Settings:
@@ -164,12 +231,41 @@ class Settings:
             raise ConfigError(str(exc), source=path) from None
 
     def to_dict(self) -> dict:
-        return {"segmentation": asdict(self.segmentation), "model": self.model.to_dict(),
-                "diagnosis": self.diagnosis.to_dict()}
+        out = {"segmentation": asdict(self.segmentation), "model": self.model.to_dict(),
+               "diagnosis": self.diagnosis.to_dict()}
+        if self.protocols:
+            out["protocols"] = {name: section for name, section in self.protocols}
+        return out
 
     def sha256(self) -> str:
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
+
+
+# Protocol options: (type, lowest allowed value, whether the lowest is allowed).
+OPTION_RANGES = {"window_s": (float, 0.0, False), "point_span": (float, 0.0, False),
+                 "motion_factor": (float, 0.0, False), "fill": (float, 0.0, False),
+                 "min_span": (float, 0.0, False), "min_windows": (int, 1, True),
+                 "settle_windows": (int, 0, True), "min_revolutions": (int, 1, True)}
+
+
+def _check_option(key: str, name: str, value) -> None:
+    kind, low, inclusive = OPTION_RANGES[name]
+    ok_type = (isinstance(value, int) if kind is int else isinstance(value, (int, float))) \
+        and not isinstance(value, bool)
+    if not ok_type or not math.isfinite(value) or value < low or (value == low and not inclusive) \
+            or (name == "fill" and value > 1):
+        what = "a whole number" if kind is int else "a number"
+        bound = f"{'at least' if inclusive else 'above'} {low:g}" + (" and at most 1" if name == "fill" else "")
+        raise ConfigError(f"{key} must be {what} {bound}, got {value!r}")
+
+
+def _mapping(value, key: str) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise ConfigError(f"{key} must be a mapping, got {value!r}")
+    return dict(value)
 
 
 def _sequence(value, key: str) -> list:

@@ -23,14 +23,14 @@ from .segment import LOG_COLUMNS, Segmentation, segment
 from .thermal import ContinuousFit, GridFit, fit_model
 from .validate import Validation, validate
 
-PROTOCOLS = ("turntable",)
+PROTOCOLS = ("turntable", "servo", "sweep")
 
 
 @dataclass(frozen=True)
 class Run:
     calibration: Calibration
     segmentation: Segmentation
-    fitted: GridFit | ContinuousFit
+    fitted: GridFit | ContinuousFit | None     # None for a servo session (seed 001's own fit)
     validation: Validation
 
 
@@ -50,13 +50,19 @@ def versions() -> dict[str, str]:
     return out
 
 
-def segment_log(path, settings: Settings) -> Segmentation:
-    """Read and segment a log; its SHA-256 is computed on a second thread meanwhile
-    (hashlib releases the GIL), since hashing a large log costs as much as reading it."""
+def segment_log(path, settings: Settings, protocol: str = "turntable") -> Segmentation:
+    """Read and segment a log into observations by its protocol's rules; its SHA-256 is
+    computed on a second thread meanwhile (hashlib releases the GIL), since hashing a large
+    log costs as much as reading it."""
+    check_protocol(protocol)
     with ThreadPoolExecutor(1) as pool:
         digest = pool.submit(file_sha256, path)
         log = read_log(path, optional=LOG_COLUMNS)
-        seg = segment(log, settings.segmentation)
+        if protocol == "turntable":
+            seg = segment(log, settings.segmentation)
+        else:
+            from . import protocols
+            seg = protocols.SEGMENTERS[protocol](log, settings.protocol_options(protocol))
         seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
     return seg
@@ -64,7 +70,14 @@ def segment_log(path, settings: Settings) -> Segmentation:
 
 def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
                            source: dict | None = None, label=None
-                           ) -> tuple[Calibration, GridFit | ContinuousFit]:
+                           ) -> tuple[Calibration, GridFit | ContinuousFit | None]:
+    """The calibration of one unit's observations. A servo session's is seed 001's own
+    six-parameter fit (no common-model fit comes back: None)."""
+    provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
+    if meta.get("protocol") == "servo":
+        from .protocols import servo_calibration
+        return servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
+                                 meta=meta, provenance=provenance), None
     model = settings.model.build()
     fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
                        degree=settings.model.degree, source=label)
@@ -74,8 +87,7 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         if "temp_rate" in model.needs else {}
     cal = Calibration(
         model, fitted.coefficients, settings.model.reference_temperature, meta,
-        provenance={"input": source or {}, "versions": versions(),
-                    "config_sha256": settings.sha256()},
+        provenance=provenance,
         extra={"points": [
             {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
              **({"excluded_because": r.reason} if not r.used else {})}
@@ -86,13 +98,15 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
 def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
         device: str | None = None, batch: str | None = None, session: str | None = None) -> Run:
     """Calibrate one log end to end."""
-    settings = settings or Settings()
-    check_protocol(protocol)
-    seg = segment_log(path, settings)
+    settings = (settings or Settings()).for_protocol(protocol)
+    seg = segment_log(path, settings, protocol)
     meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
             "session": session, "protocol": protocol}
     cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
                                            source=seg.info["source"], label=path)
+    if protocol == "servo":
+        from .protocols import servo_validation
+        return Run(cal, seg, fitted, servo_validation(seg.observations, cal))
     val = validate(cal.model, seg.observations, fitted,
                    reference_temperature=settings.model.reference_temperature)
     return Run(cal, seg, fitted, val)

@@ -246,3 +246,49 @@ def ladder(rows: list[dict]) -> str:
         ax.set_ylabel("RMS error of hold means, deg/s")
         ax.legend(fontsize=7)
         return to_svg(fig)
+
+
+def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
+    """Seed 003: drift error of each window against temperature, training and verification
+    sweeps, with each drift model's curve over the training range."""
+    with matplotlib.rc_context(_RC):
+        fig, axes = figure(7.5, 2.6, 1, 3)
+        for i, a in enumerate("xyz"):
+            ax = axes[0, i]
+            ax.plot(train["temp"], train[f"err_{a}"], ".", ms=2, color="#999999", label="training sweep")
+            if verify is not train:
+                ax.plot(verify["temp"], verify[f"err_{a}"], ".", ms=2, color="#2ca02c",
+                        label="verification sweep")
+            order = np.argsort(train["temp"].to_numpy())
+            curve = train.iloc[order]
+            for (name, model), style in zip(models.items(), ("--", "-", ":", "-.")):
+                ax.plot(curve["temp"], model.predict(curve)[:, i], style, lw=1, label=name)
+            ax.set_title(f"gyro {a}")
+            ax.set_xlabel("temperature, °C")
+            if i == 0:
+                ax.set_ylabel("drift error, deg/s")
+        axes[0, 0].legend(fontsize=6)
+        return to_svg(fig)
+
+
+def servo_errors(holds: pd.DataFrame) -> str:
+    """Seed 001: per revolution, the error of the rate's magnitude against the servo speed,
+    before calibration and validated after it, with the revolution's noise floor."""
+    with matplotlib.rc_context(_RC):
+        fig, axes = figure(7.5, 2.6, 1, 2)
+        x = np.arange(len(holds))
+        labels = holds["direction"].astype(str).to_numpy()
+        for ax, column, title in ((axes[0, 0], "uncompensated_error", "uncompensated"),
+                                  (axes[0, 1], "validated_error", "validated (leave-one-revolution-out)")):
+            ax.plot(x, holds[column], "o", ms=3, color="#1f77b4")
+            if column == "validated_error":
+                floor = holds["noise_floor"].to_numpy()
+                ax.fill_between(x, -2 * floor, 2 * floor, color="#2ca02c", alpha=0.15, lw=0,
+                                label="±2 noise floor")
+                ax.legend(fontsize=7)
+            ax.axhline(0, color="k", lw=0.6)
+            ax.set_title(title)
+            ax.set_xticks(x, labels, fontsize=6)
+            ax.set_xlabel("revolution (rotation direction)")
+        axes[0, 0].set_ylabel("|ω| error, deg/s")
+        return to_svg(fig)

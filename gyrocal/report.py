@@ -72,6 +72,17 @@ class UnitResults:
     diagnosis: dict | None = None            # gyrocal.diagnosis/1, or a failure record
     residuals: pd.DataFrame | None = None    # observations with normalised residuals
     heatmaps: dict = field(default_factory=dict)
+    protocol: dict | None = None              # the servo's or the sweep's own methods
+    protocol_figures: list = field(default_factory=list)
+
+    def __post_init__(self):
+        from .protocols import analysis
+        if self.protocol is None:
+            try:
+                self.protocol, self.protocol_figures = analysis(self.meta.get("protocol"),
+                                                                self.observations)
+            except GyrocalError as exc:  # the common sections still stand
+                self.protocol = {"protocol": self.meta.get("protocol"), "error": str(exc)}
 
     @classmethod
     def from_run(cls, run, command: str = "", diagnosis=None) -> UnitResults:
@@ -202,11 +213,14 @@ def write_unit_report(results: UnitResults, path) -> None:
         by_temperature=results.by_temperature.to_dict("records"),
         provenance=cal.provenance, log=results.log, command=results.command,
         fig_timeline=plots.timeline(results.timeline, results.segments),
-        fig_parameters=_parameter_figure(cal, results.observations),
-        fig_by_temperature=plots.by_temperature(results.by_temperature),
-        fig_before=plots.error_distribution(results.holds, "uncompensated"),
-        fig_after=plots.error_distribution(results.holds, "interpolated"),
-        kind=cal.kind, **_diagnosis_context(results))
+        **(dict(fig_servo=plots.servo_errors(results.holds)) if cal.meta.get("protocol") == "servo"
+           else dict(  # servo: section 2-3 of its own
+            fig_parameters=_parameter_figure(cal, results.observations),
+            fig_by_temperature=plots.by_temperature(results.by_temperature),
+            fig_before=plots.error_distribution(results.holds, "uncompensated"),
+            fig_after=plots.error_distribution(results.holds, "interpolated"))),
+        kind=cal.kind, protocol=results.protocol, protocol_figures=results.protocol_figures,
+        **_diagnosis_context(results))
     _write(path, html)
 
 
@@ -259,6 +273,7 @@ def write_fleet_report(units: list[dict], path) -> None:
             cal = load_calibration(p["calibration"])
             summary = json.loads(p["validation"].read_text())["summary"]
             at_ref = cal.coefficients([cal.reference_temperature], warn=False)
+            row["calibration"] = cal
             row.update(status="ok", span=cal.grid.span, summary=summary,
                        reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
                        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
@@ -273,5 +288,50 @@ def write_fleet_report(units: list[dict], path) -> None:
         ("excess over the noise floor", [r["summary"]["excess"] for r in ok])]]
     html = _ENV.get_template("fleet_report.html.j2").render(
         batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
-        total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok))
+        total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
+        servo_vs_turntable=servo_versus_turntable(ok))
     _write(path, html)
+
+
+def servo_versus_turntable(rows: list[dict]) -> list[dict]:
+    """Units calibrated both on the servo and on the turntable: scale factor (K[a,a] − 1) and
+    bias of each calibration at the servo session's temperature, their difference and its
+    size in combined standard errors (seed 001 Tables II–III compare the two methods so).
+    The turntable session nearest in date stands for the unit; its standard errors count
+    where it is a temperature grid (a continuous model's K and B combine several terms)."""
+    by_device: dict[str, dict[str, list]] = {}
+    for row in rows:
+        by_device.setdefault(row["device"], {}).setdefault(row["protocol"], []).append(row)
+    out = []
+    for device, sessions in sorted(by_device.items()):
+        for servo in sessions.get("servo", []):
+            tables = sessions.get("turntable", [])
+            if not tables:
+                continue
+            table = min(tables, key=lambda r: abs(np.datetime64(r["session"] or "1970-01-01")
+                                                  - np.datetime64(servo["session"] or "1970-01-01")))
+            s_cal, t_cal = servo["calibration"], table["calibration"]
+            temp = np.array([s_cal.grid.temperatures[0]])
+            s_err = s_cal.grid.stderr_at(temp)
+            t_err = t_cal.grid.stderr_at(temp) if t_cal.kind == "temperature_grid" else {}
+            (s_K,), (s_B,) = s_cal.matrices_at(temp)
+            (t_K,), (t_B,) = t_cal.matrices_at(temp)
+            params = []
+            for i, a in enumerate(AXES):
+                for name, label, factor, s_val, t_val in (
+                        (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
+                        (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i])):
+                    diff = float(s_val - t_val)
+                    se = float(np.hypot(s_err[name][0], t_err[name][0])) if name in t_err else None
+                    params.append({"parameter": label, "servo": float(s_val) * factor,
+                                   "servo_se": float(s_err[name][0]) * factor,
+                                   "turntable": float(t_val) * factor,
+                                   "turntable_se": None if se is None else float(t_err[name][0]) * factor,
+                                   "difference": diff * factor,
+                                   "sigmas": diff / se if se else None})
+            params.sort(key=lambda p: not p["parameter"].startswith("scale"))
+            out.append({"device": device, "servo_session": servo["session"],
+                        "turntable_session": table["session"], "temperature": float(temp[0]),
+                        "servo_report": servo["report"], "turntable_report": table["report"],
+                        "rows": params})
+    return out

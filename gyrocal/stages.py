@@ -21,7 +21,7 @@ from .calibration import dumps, load_calibration, save_calibration
 from .config import Settings
 from .errors import GyrocalError
 from .io import read_table_with_metadata, write_table
-from .pipeline import calibrate_observations, check_protocol, segment_log
+from .pipeline import calibrate_observations, segment_log
 from .thermal import fit_model
 from .validate import validate
 
@@ -64,8 +64,7 @@ def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
 
 
 def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
-    check_protocol(meta.get("protocol") or "turntable")
-    seg = segment_log(log, settings)
+    seg = segment_log(log, settings, meta.get("protocol") or "turntable")
     paths = unit_paths(folder)
     paths["observations"].parent.mkdir(parents=True, exist_ok=True)
     extra = {"info": seg.info, "meta": meta, "log": str(log),
@@ -89,13 +88,22 @@ def validate_stage(folder, settings: Settings) -> None:
     failure.check_inputs(paths["observations"], paths["calibration"])
     obs, _ = read_table_with_metadata(paths["observations"])
     cal = load_calibration(paths["calibration"])
-    model = settings.model.build()
-    fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
-                       degree=settings.model.degree, source=paths["observations"])
-    if not np.array_equal(fitted.coefficients.values, cal.grid.values):
-        raise GyrocalError("the calibration was not fitted from these observations with "
-                           "these settings: run the fit stage again", source=paths["calibration"])
-    val = validate(model, obs, fitted, reference_temperature=settings.model.reference_temperature)
+    stale = GyrocalError("the calibration was not fitted from these observations with these "
+                         "settings: run the fit stage again", source=paths["calibration"])
+    if cal.meta.get("protocol") == "servo":
+        from .protocols import servo_calibration, servo_validation
+        again = servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
+                                  meta=cal.meta, provenance=cal.provenance)
+        if not np.array_equal(again.grid.values, cal.grid.values):
+            raise stale
+        val = servo_validation(obs, cal)
+    else:
+        model = settings.model.build()
+        fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
+                           degree=settings.model.degree, source=paths["observations"])
+        if not np.array_equal(fitted.coefficients.values, cal.grid.values):
+            raise stale
+        val = validate(model, obs, fitted, reference_temperature=settings.model.reference_temperature)
     write_table(val.holds, paths["holds"], {"summary": val.summary})
     write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
     write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})

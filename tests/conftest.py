@@ -89,6 +89,8 @@ A1\tB1\t2026-03-01\tturntable\tdemo/logs/B1/A1/2026-03-01.parquet
 A2\tB2\t2026-01-02\tturntable\tdemo/logs/B2/A2/2026-01-02.parquet
 BAD\tB2\t2026-01-02\tturntable\tlogs/corrupt.parquet
 GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet
+S1\tB3\t2026-01-04\tservo\tdemo/logs/B3/S1/2026-01-04.parquet
+W1\tB3\t2026-01-05\tsweep\tdemo/logs/B3/W1/2026-01-05.parquet
 """
 FLEET_CONFIG = """devices: devices.tsv
 demo:
@@ -114,7 +116,7 @@ def snakemake(workdir, *args, timeout=900):
 
 @pytest.fixture(scope="session")
 def fleet_run(tmp_path_factory):
-    """A small fleet through the whole workflow: three demo unit sessions (one device
+    """A small fleet through the whole workflow: five demo unit sessions (one device
     twice), one corrupt log and one missing log."""
     wd = tmp_path_factory.mktemp("fleet")
     (wd / "logs").mkdir()

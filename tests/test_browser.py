@@ -81,12 +81,12 @@ def test_unit_report_renders_offline(fleet_run, browser, tmp_path):
 def test_fleet_report_renders_offline_and_links_every_unit(fleet_run, browser, tmp_path):
     page, outside = open_offline(browser, fleet_run / "reports" / "index.html")
     rows = page.locator("table.units tr")
-    assert rows.count() == 2 + 5  # a header per batch
+    assert rows.count() == 3 + 7  # a header per batch
     assert page.locator("tr.failed").count() == 2
     figures = figures_rendered(page)
     assert len(figures) == 10 and all(f["width"] > 100 for f in figures)
     links = page.locator("table.units a").evaluate_all("as => as.map(a => a.href)")
-    assert len(links) == 5
+    assert len(links) == 7
     for href in links:
         target = page.context.new_page()
         target.goto(href)

@@ -22,7 +22,7 @@ def test_help_lists_the_commands():
     out = gyrocal("--help")
     assert out.returncode == 0
     for command in ("simulate", "calibrate", "diagnose", "apply", "segment", "fit", "validate",
-                    "report", "fleet"):
+                    "report", "fleet", "paper"):
         assert command in out.stdout
 
 
@@ -63,8 +63,8 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
     (lambda d: None, ["calibrate", "{d}/absent.parquet", "-o", "{d}/c.json"], "no such file"),
     (lambda d: d.joinpath("c.json").write_text("{}"), ["apply", "{d}/c.json", "{d}/l.parquet", "-o", "{d}/o"],
      "format is None"),
-    (lambda d: None, ["calibrate", "{d}/l.parquet", "--protocol", "servo", "-o", "{d}/c.json"],
-     "protocol 'servo' is not supported"),
+    (lambda d: None, ["calibrate", "{d}/l.parquet", "--protocol", "gimbal", "-o", "{d}/c.json"],
+     "protocol 'gimbal' is not supported"),
     (lambda d: None, ["calibrate", "{d}/l.parquet", "--add-term", "nope", "-o", "{d}/c.json"],
      "unknown model term 'nope'"),
     (lambda d: d.joinpath("m.yaml").write_text("terms: [bias]\ninterpolation: cosine\n"),

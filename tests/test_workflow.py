@@ -50,9 +50,34 @@ def test_the_tables_hold_the_numbers_the_library_computes(fleet_run):
                                       rtol=1e-12)
 
 
+@pytest.mark.parametrize("batch, device, session, protocol",
+                         [("B3", "S1", "2026-01-04", "servo"), ("B3", "W1", "2026-01-05", "sweep")])
+def test_servo_and_sweep_units_run_through_the_workflow_as_the_library_runs_them(
+        fleet_run, batch, device, session, protocol):
+    folder = fleet_run / "results" / batch / device / session
+    log = fleet_run / "demo" / "logs" / batch / device / f"{session}.parquet"
+    direct = run(log, Settings(), protocol=protocol)
+    cal = load_calibration(folder / "calibration.json")
+    assert cal.meta["protocol"] == protocol
+    np.testing.assert_array_equal(cal.grid.values, direct.calibration.grid.values)
+    summary = json.loads((folder / "validation.json").read_text())["summary"]
+    assert summary["validation_rms"] == pytest.approx(direct.validation.summary["validation_rms"],
+                                                      rel=1e-12)
+    diagnosis = json.loads((folder / "diagnosis.json").read_text())
+    html = (fleet_run / "reports" / batch / device / f"{session}.html").read_text()
+    assert diagnosis["verdict"].split(":")[0] in html
+    if protocol == "servo":
+        assert "Six-observation calibration (seed 001)" in html and "Algorithm 1" in html
+        assert diagnosis["explains_the_data"]        # the 12 parameters absorb the mounting tilt
+    else:
+        assert "Drift models and bias stability (seed 003)" in html and "BS3" in html
+        assert diagnosis["best"]["term"] == "bias_temp_poly"   # ΔT² (Eq 16) is missing
+        assert diagnosis["ladder"][-1]["excess"] < 1.2
+
+
 def test_a_corrupt_or_missing_log_fails_its_unit_alone(fleet_run):
     index = (fleet_run / "reports" / "index.html").read_text()
-    assert "5 unit sessions: 3 calibrated" in index and "2 failed" in index
+    assert "7 unit sessions: 5 calibrated" in index and "2 failed" in index
     for batch, device, session, message in FAILED:
         folder = fleet_run / "results" / batch / device / session
         with pytest.raises(CalibrationFileError, match="holds no calibration: the segment stage failed"):
@@ -114,7 +139,7 @@ def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     before = {p.relative_to(fleet_run): p.read_bytes() for p in
               [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("reports/**/*.html"),
                *fleet_run.glob("results/*/*/*/diagnosis.json"), *fleet_run.glob("results/*/*/*/residuals.parquet")]}
-    assert len(before) == 5 + 5 + 1 + 5 + 5
+    assert len(before) == 7 + 7 + 1 + 7 + 7
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):
@@ -152,7 +177,7 @@ def test_a_bad_manifest_stops_with_the_line_named(fleet_run, tmp_path):
                                           + "bad id!\tB1\t2026-01-01\tturntable\tx.parquet\n")
     out = snakemake(tmp_path, "--dry-run")
     assert out.returncode != 0
-    assert "line 7: device 'bad id!' does not match" in out.stdout + out.stderr
+    assert "line 9: device 'bad id!' does not match" in out.stdout + out.stderr
 
 
 def test_lint_clean_and_formatted():
@@ -188,3 +213,9 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     added = rows[1][7]
     for p in ladder[1]["parameters"]:
         assert f"{p['coefficient']} = {fmt(p['value'], 3)} ± {fmt(p['stderr'], 2)}" in added
+
+
+def test_the_paper_rule_is_planned_by_name_and_not_by_default(fleet_run):
+    out = snakemake(fleet_run, "--dry-run", "paper")
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert job_counts(out) == {"paper": 1, "total": 1}

@@ -14,13 +14,19 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from .servo import ServoProtocol, ServoUnit, render_servo
+from .sweep import SweepProtocol, SweepUnit, render_sweep
 from .turntable import SEED000_RATES, SEED000_TEMPERATURES, TurntableProtocol, render
 from .unit import GyroUnit
 
-__all__ = ["GyroUnit", "TurntableProtocol", "simulate", "simulate_unit", "load_truth",
+__all__ = ["GyroUnit", "TurntableProtocol", "SweepProtocol", "SweepUnit", "ServoProtocol",
+           "ServoUnit", "simulate", "simulate_unit", "load_truth",
            "SEED000_RATES", "SEED000_TEMPERATURES"]
 
-PROTOCOLS = {"turntable": (TurntableProtocol, render)}
+# protocol -> (rig, renderer, unit): the unit class draws random units and reads truth back.
+PROTOCOLS = {"turntable": (TurntableProtocol, render, GyroUnit),
+             "sweep": (SweepProtocol, render_sweep, SweepUnit),
+             "servo": (ServoProtocol, render_servo, ServoUnit)}
 MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
 
 
@@ -33,9 +39,9 @@ def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit
     if protocol not in PROTOCOLS:
         raise ConfigError(f"unknown protocol {protocol!r}; this simulator knows "
                           f"{', '.join(PROTOCOLS)}")
-    rig_cls, renderer = PROTOCOLS[protocol]
+    rig_cls, renderer, unit_cls = PROTOCOLS[protocol]
     rig = rig or rig_cls()
-    unit = (unit or GyroUnit.random(rng)).with_effects(effects)
+    unit = (unit or unit_cls.random(rng)).with_effects(effects)
     path = Path(path)
     schedule = renderer(rig, unit, rng, path)
     truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
@@ -52,7 +58,7 @@ def truth_path(log_path) -> Path:
 
 def load_truth(log_path) -> dict:
     truth = json.loads(truth_path(log_path).read_text())
-    truth["unit"] = GyroUnit.from_dict(truth["unit"])
+    truth["unit"] = PROTOCOLS[truth.get("protocol", "turntable")][2].from_dict(truth["unit"])
     return truth
 
 

@@ -31,13 +31,16 @@ UNITS = {
     for row in read_manifest(config["devices"])
 }
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
-SEGMENTATION = json.dumps({"segmentation": config["segmentation"]}, sort_keys=True)
-MODEL = json.dumps({"model": config["model"]}, sort_keys=True)
-DIAGNOSIS = json.dumps(
-    {"model": config["model"], "diagnosis": config["diagnosis"]}, sort_keys=True
-)
+# A servo or sweep unit also gets its protocol's section (config `protocols:`).
+SEGMENTATION = {"segmentation": config["segmentation"]}
+MODEL = {"model": config["model"]}
+DIAGNOSIS = {"model": config["model"], "diagnosis": config["diagnosis"]}
 # The user's own term files are inputs: editing one re-runs what fits with it.
-TERM_FILES = config["model"].get("term_files", [])
+TERM_FILES = config["model"].get("term_files", []) + [
+    path
+    for section in config.get("protocols", {}).values()
+    for path in (section or {}).get("model", {}).get("term_files", [])
+]
 
 
 wildcard_constraints:
@@ -60,6 +63,51 @@ def log_input(wildcards):
     return []
 
 
+# What a servo or sweep job reads besides its protocol's defaults (gyrocal/config.py
+# PROTOCOL_DEFAULTS): the turntable's model and ladder are not theirs, so changing those
+# leaves their jobs alone. A servo calibration is seed 001's six parameters: its fit and
+# validation read no model.
+PROTOCOL_READS = {
+    "segment": ("options",),
+    "fit": ("model",),
+    "validate": ("model",),
+    "diagnose": ("model", "diagnosis"),
+    "report": ("options", "model", "diagnosis"),
+}
+
+
+def settings_json(settings, stage):
+    """The settings a unit's ``stage`` job reads, as JSON (a parameter: when it changes,
+    the job re-runs)."""
+
+    def for_unit(wildcards):
+        protocol = unit(wildcards)["protocol"]
+        if protocol == "turntable":
+            return json.dumps(settings, sort_keys=True)
+        reads = PROTOCOL_READS[stage]
+        if protocol == "servo" and stage in ("fit", "validate"):
+            reads = ()
+        own = {}
+        user_terms = {
+            k: config["model"][k]
+            for k in ("term_files", "expressions")
+            if config["model"].get(k)
+        }
+        if "model" in reads and user_terms:
+            own["model"] = user_terms
+        if "diagnosis" in reads:
+            own["diagnosis"] = {
+                "significance": config["diagnosis"].get("significance", 0.01)
+            }
+        section = config.get("protocols", {}).get(protocol) or {}
+        section = {k: v for k, v in section.items() if k in reads}
+        if section:
+            own["protocols"] = {protocol: section}
+        return json.dumps(own, sort_keys=True)
+
+    return for_unit
+
+
 def unit_args(wildcards):
     row = unit(wildcards)
     return " ".join(
@@ -69,9 +117,15 @@ def unit_args(wildcards):
 
 
 def demo_unit_options(wildcards):
-    """Simulator options of a demo unit: effects beyond the default model, its mounts."""
+    """Simulator options of a demo unit: its protocol, effects beyond the default model,
+    its mounts."""
     settings = config["demo"].get("units", {}).get(wildcards.device, {})
-    options = []
+    protocol = unit(wildcards)["protocol"]
+    options = [f"--protocol {protocol}"]
+    if protocol == "turntable":  # the set points and rates of the turntable demo
+        for key in ("temperatures", "rates"):
+            values = ",".join(str(v) for v in config["demo"][key])
+            options.append(f"--{key}={values}")
     if settings.get("mounts"):
         options.append(f"--mounts={shlex.quote(','.join(settings['mounts']))}")
     if settings.get("effects"):

@@ -14,7 +14,7 @@ rule diagnose:
     params:
         gyrocal=GYROCAL,
         unit=unit_args,
-        settings=DIAGNOSIS,
+        settings=settings_json(DIAGNOSIS, "diagnose"),
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} diagnose --unit $(dirname {input.obs:q}) -o {output.diagnosis:q} "

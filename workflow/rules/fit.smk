@@ -13,7 +13,7 @@ rule fit:
     params:
         gyrocal=GYROCAL,
         unit=unit_args,
-        settings=MODEL,
+        settings=settings_json(MODEL, "fit"),
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} fit $(dirname {input.obs:q}) {params.unit} --settings-json {params.settings:q} "

@@ -23,9 +23,8 @@ rule report:
     params:
         gyrocal=GYROCAL,
         unit=unit_args,
-        settings=lambda wildcards: json.dumps(
-            {k: config[k] for k in ("segmentation", "model", "diagnosis")},
-            sort_keys=True,
+        settings=settings_json(
+            {k: config[k] for k in ("segmentation", "model", "diagnosis")}, "report"
         ),
         version=GYROCAL_VERSION,
     shell:

@@ -15,7 +15,7 @@ rule segment:
         gyrocal=GYROCAL,
         log=lambda wildcards: unit(wildcards)["log"],
         unit=unit_args,
-        settings=SEGMENTATION,
+        settings=settings_json(SEGMENTATION, "segment"),
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} segment {params.log:q} --out $(dirname {output.obs:q}) {params.unit} "

@@ -13,13 +13,10 @@ rule simulate:
         ENV
     params:
         gyrocal=GYROCAL,
-        temperatures=",".join(str(t) for t in config["demo"]["temperatures"]),
-        rates=",".join(str(r) for r in config["demo"]["rates"]),
         preset=config["demo"]["preset"],
         unit=demo_unit_options,
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} simulate --log {output:q} --device {wildcards.device:q} "
         "--batch {wildcards.batch:q} --session {wildcards.session:q} "
-        "--preset {params.preset} --temperatures={params.temperatures} "
-        "--rates={params.rates} {params.unit} > {log:q} 2>&1"
+        "--preset {params.preset} {params.unit} > {log:q} 2>&1"

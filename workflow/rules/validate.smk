@@ -18,7 +18,7 @@ rule validate:
     params:
         gyrocal=GYROCAL,
         unit=unit_args,
-        settings=MODEL,
+        settings=settings_json(MODEL, "validate"),
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} validate $(dirname {input.obs:q}) {params.unit} "

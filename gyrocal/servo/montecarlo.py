@@ -1,0 +1,287 @@
+"""The simulation study of seed 001, Section III: estimation errors of k and b over many
+simulated units and runs (Figs 2 and 5), and their mean squared error against the servo
+speed (Fig. 4, Eq 9).
+
+Each run is one six-observation calibration (Fig. 1). An observation is the mean raw output
+over one revolution (Eq 8), generated directly in distribution: per-sample white noise of
+standard deviation σ averaged over N samples is N(0, σ²/N) per axis, so no sample is
+drawn. The true rate is the servo speed about the sensor axis tilted by the hand-mounting
+misalignment (its sine ~ U(0, 10 %), Section III-A 2), in a random azimuth); raw output
+``m = g / k - b`` (seed 001's convention, see :mod:`gyrocal.servo.fit`).
+
+Speed ripple (Section III-A 4, 5 % of the speed): ``ripple_mode="periodic"`` (default) is the
+servo of Section II-B, whose ripple is periodic in the revolution and cancels in the
+revolution mean; ``"white"`` takes assumption 4 literally, independent per-sample speed
+errors, whose revolution mean is N(0, (0.05 ω)² / N) common to the three axes and enters
+against the commanded speed. The paper's spreads (scale errors ~5.7x smaller than at σ = 0.2
+with σ = 0.035, the same ratio for biases) fit the periodic ripple; white ripple would
+dominate the scale error at σ = 0.035.
+
+Speed and sample count: the paper does not state them for Section III-A. Three of its
+figures agree with 3 rad/s and one revolution at 200 Hz (N = 419): the first-iteration
+offsets of Table I, the ratio of scale to bias error in Fig. 2 (≈ k²/ω ≈ 0.31) and the
+bias spread (σ/√(2N) per side). Those are the defaults of :func:`study`. For Fig. 4 the
+paper says the bias MSE does not change with speed, which holds only for a fixed sample
+count per observation: :func:`speed_sweep` keeps N fixed (419) unless told otherwise.
+
+Algorithm 1 runs batched over all runs (:func:`gyrocal.servo.fit.algorithm1`, stacked 6x6
+solves). The LM reference is scipy's ``least_squares(method="lm")`` called per run (about
+0.5 ms each); ``lm_runs`` limits it to the first runs of every set.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import matplotlib
+import numpy as np
+import pandas as pd
+
+matplotlib.use("Agg")
+from matplotlib.figure import Figure  # noqa: E402
+
+from ..errors import ConfigError  # noqa: E402
+from ..simulate.servo import DIRECTIONS, direction_axis, draw_parameters, tilted_axes  # noqa: E402
+from .fit import (PARAMETERS, ServoFit, ServoFitError, algorithm1, fit_iterative,  # noqa: E402
+                  initial_guess, lm_solve, parameters_from_beta)
+
+CONDITIONS = {"normal": (1, False), "extreme": (2, True)}   # name -> (seed code, extreme ranges)
+PAPER_SPEED = 3.0            # rad/s, see the module docstring
+PAPER_RATE = 200.0           # Hz, Section III-A 3)
+PAPER_SAMPLES = int(round(PAPER_RATE * 2 * math.pi / PAPER_SPEED))   # one revolution: 419
+FIG4_SPEEDS = tuple(np.round(np.arange(0.3, 3.0 + 1e-9, 0.1), 1))    # Section III-B
+_RC = {"svg.hashsalt": "gyrocal-servo", "svg.fonttype": "none", "font.size": 9,
+       "axes.grid": True, "grid.alpha": 0.3}
+
+
+def _rng(*key: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(k) for k in key]))
+
+
+def _noise_code(noise: float) -> int:
+    return int(round(noise * 1e6))
+
+
+def simulate_observations(k: np.ndarray, b: np.ndarray, n_runs: int, rng: np.random.Generator, *,
+                          speed: float, noise: float, samples: int, ripple: float = 0.05,
+                          ripple_mode: str = "periodic", misalignment: float = 0.1,
+                          directions=DIRECTIONS) -> np.ndarray:
+    """Six-observation runs for parameter sets k, b (S, 3): mean raw outputs (S, n_runs, 6, 3)
+    in rad/s. The same draws serve every ``speed``, ``noise`` and ``ripple_mode``, so runs
+    differing only in those are paired."""
+    if ripple_mode not in ("periodic", "white"):
+        raise ConfigError(f"ripple_mode must be 'periodic' or 'white'; got {ripple_mode!r}")
+    k = np.asarray(k, dtype=float)[:, None, None, :]
+    b = np.asarray(b, dtype=float)[:, None, None, :]
+    S, n_obs = k.shape[0], len(directions)
+    axis, sign = (np.array(x) for x in zip(*(direction_axis(d) for d in directions)))
+    tilt = np.arcsin(rng.uniform(0.0, misalignment, (S, n_runs, n_obs)))
+    azimuth = rng.uniform(0.0, 2 * math.pi, (S, n_runs, n_obs))
+    z_noise = rng.standard_normal((S, n_runs, n_obs, 3))
+    z_ripple = rng.standard_normal((S, n_runs, n_obs))
+    a = sign[:, None] * tilted_axes(axis, tilt, azimuth)
+    factor = 1.0 + (ripple / math.sqrt(samples) * z_ripple if ripple_mode == "white" else 0.0)
+    g = speed * np.asarray(factor)[..., None] * a
+    return g / k - b + noise / math.sqrt(samples) * z_noise
+
+
+def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int = 50) -> dict:
+    """Algorithm 1 on runs m (R, 6, 3): k, b (R, 3), iterations, converged (R,)."""
+    out = algorithm1(m, np.full(m.shape[:-1], speed), tol=tol, max_iter=max_iter)
+    ok = out["converged"] & out["positive"]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        k, b = parameters_from_beta(np.where(ok[:, None], out["beta"], 1.0))
+    return dict(k=k, b=b, iterations=out["iterations"], converged=ok)
+
+
+def convergence_run(k, b, rng: np.random.Generator, *, speed: float = PAPER_SPEED,
+                    noise: float = 0.035, samples: int = PAPER_SAMPLES, tol: float = 1e-6) -> ServoFit:
+    """One simulated six-observation calibration of the unit (k, b), fitted by Algorithm 1
+    with its trace: the iteration-by-iteration estimates of Table I."""
+    m = simulate_observations(np.asarray(k, dtype=float)[None], np.asarray(b, dtype=float)[None], 1, rng,
+                              speed=speed, noise=noise, samples=samples)[0, 0]
+    return fit_iterative(m, np.full(6, speed), tol=tol)
+
+
+def lm_batch(m: np.ndarray, speed: float) -> dict:
+    """scipy LM per run on m (R, 6, 3), started at Algorithm 1's first step."""
+    R = m.shape[0]
+    k, b = np.ones((R, 3)), np.zeros((R, 3))
+    nfev = np.zeros(R, dtype=int)
+    ok = np.zeros(R, dtype=bool)
+    omega = np.full(m.shape[1], speed)
+    for r in range(R):
+        try:
+            x0 = initial_guess(m[r], omega)
+        except (ServoFitError, np.linalg.LinAlgError):   # no start: a failed run, counted
+            continue
+        res = lm_solve(m[r], omega, x0)
+        if res.success and np.isfinite(res.x).all():
+            k[r], b[r], nfev[r], ok[r] = np.abs(res.x[:3]), res.x[3:], res.nfev, True
+    return dict(k=k, b=b, iterations=nfev, converged=ok)
+
+
+def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
+    S, R = k_true.shape[0], fit["k"].shape[0] // k_true.shape[0]
+    ok = fit["converged"]
+    cols = {"condition": condition, "noise": noise, "method": method,
+            "set": np.repeat(np.arange(S), R), "run": np.tile(np.arange(R), S),
+            "converged": ok, "iterations": fit["iterations"]}
+    true = np.repeat(np.hstack([k_true, b_true]), R, axis=0)
+    est = np.hstack([fit["k"], fit["b"]])
+    for j, p in enumerate(PARAMETERS):
+        cols[f"{p}_true"] = true[:, j]
+        cols[f"{p}_err"] = np.where(ok, est[:, j] - true[:, j], np.nan)   # NaN: no estimate
+    return pd.DataFrame(cols)
+
+
+def study(n_sets: int = 30, n_runs: int = 500, noise=(0.035, 0.2), conditions=("normal", "extreme"),
+          seed: int = 0, method=("iterative", "lm"), *, speed: float = PAPER_SPEED,
+          samples: int | None = None, sample_rate: float = PAPER_RATE, ripple: float = 0.05,
+          ripple_mode: str = "periodic", misalignment: float = 0.1,
+          lm_runs: int | None = None) -> pd.DataFrame:
+    """Estimation errors (estimate − truth) of k and b, one row per condition, noise level,
+    parameter set, run and method (Section III-A and III-C).
+
+    ``n_sets`` units are drawn per condition (shared by the noise levels); each is
+    calibrated ``n_runs`` times. ``samples`` per observation defaults to one revolution at
+    ``speed`` and ``sample_rate``. Columns: condition, noise (rad/s), method, set, run,
+    converged, iterations (β0 updates; LM: function evaluations), ``<p>_true``, ``<p>_err``
+    for p in kx..bz (b in rad/s); errors are NaN only where a run gave no estimate.
+    """
+    methods = (method,) if isinstance(method, str) else tuple(method)
+    noises = (noise,) if np.isscalar(noise) else tuple(noise)
+    conds = (conditions,) if isinstance(conditions, str) else tuple(conditions)
+    bad = [c for c in conds if c not in CONDITIONS] + [x for x in methods if x not in ("iterative", "lm")]
+    if bad:
+        raise ConfigError(f"unknown condition or method {', '.join(map(repr, bad))}; conditions: "
+                          f"{', '.join(CONDITIONS)}; methods: iterative, lm")
+    n = samples or int(round(sample_rate * 2 * math.pi / speed))
+    frames = []
+    for cond in conds:
+        code, extreme = CONDITIONS[cond]
+        k, b = draw_parameters(_rng(seed, code), n_sets, extreme=extreme)
+        for sigma in noises:
+            m = simulate_observations(k, b, n_runs, _rng(seed, code, _noise_code(sigma), 1),
+                                      speed=speed, noise=sigma, samples=n, ripple=ripple,
+                                      ripple_mode=ripple_mode, misalignment=misalignment)
+            flat = m.reshape(-1, 6, 3)
+            for meth in methods:
+                if meth == "iterative":
+                    fit = fit_batch(flat, speed)
+                    frames.append(_frame(cond, sigma, meth, k, b, fit))
+                else:
+                    sub = m if lm_runs is None else m[:, :lm_runs]
+                    fit = lm_batch(sub.reshape(-1, 6, 3), speed)
+                    frames.append(_frame(cond, sigma, meth, k, b, fit))
+    return pd.concat(frames, ignore_index=True)
+
+
+def box_stats(df: pd.DataFrame, by=("condition", "noise", "method")) -> pd.DataFrame:
+    """Box-plot statistics of the errors per group and parameter, plus ``k`` and ``b``
+    pooled over the axes and ``all`` six pooled: count, min, q1, median, q3, max, the
+    whiskers (furthest errors within 1.5 IQR of the box) and the number beyond them."""
+    by = list(by)
+    long = df.melt(id_vars=by, value_vars=[f"{p}_err" for p in PARAMETERS],
+                   var_name="parameter", value_name="error").dropna(subset=["error"])
+    long["parameter"] = long["parameter"].str.removesuffix("_err")
+    pooled = long.assign(parameter=long["parameter"].str[0])
+    everything = long.assign(parameter="all")
+    long = pd.concat([long, pooled, everything], ignore_index=True)
+    keys = by + ["parameter"]
+    g = long.groupby(keys, sort=True)["error"]
+    out = pd.DataFrame({"count": g.size(), "min": g.min(), "q1": g.quantile(0.25),
+                        "median": g.median(), "q3": g.quantile(0.75), "max": g.max()})
+    iqr = out["q3"] - out["q1"]
+    lo_fence = (out["q1"] - 1.5 * iqr).rename("lo_fence")
+    hi_fence = (out["q3"] + 1.5 * iqr).rename("hi_fence")
+    merged = long.join(lo_fence, on=keys).join(hi_fence, on=keys)
+    inside = merged[(merged["error"] >= merged["lo_fence"]) & (merged["error"] <= merged["hi_fence"])]
+    gi = inside.groupby(keys, sort=True)["error"]
+    out["whisker_lo"] = gi.min()
+    out["whisker_hi"] = gi.max()
+    out["outliers"] = out["count"] - gi.size().reindex(out.index, fill_value=0)
+    return out.reset_index()
+
+
+def speed_sweep(speeds=FIG4_SPEEDS, *, n_sets: int = 30, n_runs: int = 500, noise=(0.035, 0.2),
+                condition: str = "normal", seed: int = 0, samples: int | None = PAPER_SAMPLES,
+                sample_rate: float = PAPER_RATE, ripple: float = 0.05, ripple_mode: str = "periodic",
+                misalignment: float = 0.1) -> pd.DataFrame:
+    """Mean squared error (Eq 9) of each parameter against the servo speed (Fig. 4), with
+    Algorithm 1. The same units and draws serve every speed. ``samples=None``: one
+    revolution per observation at each speed (N falls as the speed rises). Columns: speed
+    (rad/s), noise, runs, failed (no convergence), ``mse_<p>``, ``mse_k``, ``mse_b`` (means
+    over the axes; b in (rad/s)²)."""
+    code, extreme = CONDITIONS[condition]
+    k, b = draw_parameters(_rng(seed, code), n_sets, extreme=extreme)
+    rows = []
+    for sigma in ((noise,) if np.isscalar(noise) else tuple(noise)):
+        for w in speeds:
+            n = samples or int(round(sample_rate * 2 * math.pi / w))
+            m = simulate_observations(k, b, n_runs, _rng(seed, code, _noise_code(sigma), 2),
+                                      speed=float(w), noise=sigma, samples=n, ripple=ripple,
+                                      ripple_mode=ripple_mode, misalignment=misalignment)
+            fit = fit_batch(m.reshape(-1, 6, 3), float(w))
+            ok = fit["converged"]
+            err = np.hstack([fit["k"], fit["b"]])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
+            mse = np.mean(err ** 2, axis=0)
+            row = {"speed": float(w), "noise": sigma, "samples": n, "runs": int(ok.size),
+                   "failed": int((~ok).sum())}
+            row.update({f"mse_{p}": float(v) for p, v in zip(PARAMETERS, mse)})
+            row["mse_k"], row["mse_b"] = float(mse[:3].mean()), float(mse[3:].mean())
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _save(fig: Figure, path) -> Path:
+    path = Path(path)
+    with matplotlib.rc_context(_RC):
+        fig.savefig(path, format="svg", metadata={"Date": None, "Creator": "gyrocal"})
+    return path
+
+
+def plot_error_boxes(df: pd.DataFrame, path, *, title: str | None = None) -> Path:
+    """Box plots of the errors (Figs 2 and 5): a row per (condition, noise), a column per
+    method, a box per parameter (whiskers at 1.5 IQR). Deterministic SVG."""
+    groups = sorted(df.groupby(["condition", "noise"]).groups)
+    methods = [m for m in ("lm", "iterative") if m in set(df["method"])]
+    names = {"lm": "Levenberg-Marquardt", "iterative": "Algorithm 1"}
+    with matplotlib.rc_context(_RC):
+        fig = Figure(figsize=(4.2 * len(methods), 2.8 * len(groups)), layout="constrained")
+        axes = fig.subplots(len(groups), len(methods), squeeze=False)
+        for i, (cond, sigma) in enumerate(groups):
+            for j, meth in enumerate(methods):
+                ax = axes[i, j]
+                sub = df[(df["condition"] == cond) & (df["noise"] == sigma) & (df["method"] == meth)]
+                data = [sub[f"{p}_err"].dropna().to_numpy() for p in PARAMETERS]
+                parts = ax.boxplot(data, whis=1.5, flierprops={"markersize": 2, "alpha": 0.4})
+                for flier in parts["fliers"]:      # thousands of points: an image layer
+                    flier.set_rasterized(True)
+                ax.set_xticks(range(1, 7), [f"{p[0]}{p[1]}" for p in PARAMETERS])
+                ax.axhline(0.0, color="#888", lw=0.6)
+                ax.set_title(f"{cond}, σ = {sigma:g} rad/s, {names[meth]}", fontsize=9)
+                ax.set_ylabel("estimate − truth (1; b: rad/s)")
+        if title:
+            fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_speed_sweep(sweep: pd.DataFrame, path) -> Path:
+    """MSE of each parameter against the servo speed (Fig. 4): a panel per noise level."""
+    levels = sorted(sweep["noise"].unique())
+    with matplotlib.rc_context(_RC):
+        fig = Figure(figsize=(4.5 * len(levels), 3.4), layout="constrained")
+        axes = fig.subplots(1, len(levels), squeeze=False)[0]
+        for ax, sigma in zip(axes, levels):
+            sub = sweep[sweep["noise"] == sigma].sort_values("speed")
+            for p in PARAMETERS:
+                ax.plot(sub["speed"], sub[f"mse_{p}"], marker="o", ms=2.5, lw=1,
+                        ls="-" if p[0] == "k" else "--", label=p)
+            ax.set_yscale("log")
+            ax.set_xlabel("servo speed, rad/s")
+            ax.set_ylabel("MSE (Eq 9)")
+            ax.set_title(f"σ = {sigma:g} rad/s")
+            ax.legend(ncol=2, fontsize=7)
+    return _save(fig, path)
