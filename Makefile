@@ -6,7 +6,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock | sha256sum | cut -c1-12)
 
-.PHONY: demo test bench chromium clean
+.PHONY: demo test bench system-packages clean
 
 $(STAMP): pyproject.toml setup.py requirements.lock
 	rm -f $(VENV)/.installed-*
@@ -22,18 +22,23 @@ demo: $(STAMP)
 	@echo "demo done: fleet summary reports/index.html, unit reports reports/<batch>/<device>/<session>.html,"
 	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json"
 
-test: $(STAMP) chromium
+test: system-packages $(STAMP)
 	$(BIN)/python -m pytest
 
-# Debian's Chromium for the browser test, installed when missing and possible.
-chromium:
-	@command -v chromium >/dev/null 2>&1 || { \
+# Debian packages the tests use, installed when missing and possible: Chromium for the
+# browser test, gcc for the firmware export test (and the C kernel, built on install).
+system-packages:
+	@missing=""; \
+	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
+	command -v gcc >/dev/null 2>&1 || missing="$$missing gcc libc6-dev"; \
+	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing Debian's chromium for the browser test"; \
-	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; \
+	    echo "installing Debian's$$missing for the tests"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	  else \
-	    echo "chromium is not installed and cannot be installed here: the browser test is skipped"; \
-	  fi; }
+	    echo "$$missing: not installed and cannot be installed here; the tests that need them are skipped"; \
+	  fi; \
+	fi
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/pipeline.py

@@ -30,3 +30,4 @@ rule all:
         unit_reports(),
         "reports/index.html",
         "results/report_bundle",
+        "results/eol.json",

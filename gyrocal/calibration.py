@@ -259,6 +259,7 @@ def save_calibration(cal: Calibration, path) -> None:
     path = Path(path)
     text = dumps(cal.to_dict())
     tmp = path.with_name(path.name + ".tmp")
+    path.parent.mkdir(parents=True, exist_ok=True)
     tmp.write_text(text)
     os.replace(tmp, path)
 

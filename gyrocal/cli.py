@@ -9,6 +9,8 @@ from pathlib import Path
 
 from . import __version__
 from .errors import ConfigError, GyrocalError
+from .export import add_export_parser
+from .lookup import add_lookup_parser
 from .paper import add_parser as add_paper_parser
 
 EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
@@ -130,13 +132,28 @@ def cmd_simulate(args) -> int:
         raise ConfigError("--unit seed000 has no servo counterpart; the servo paper's units "
                           "are drawn at random (seed 001 Section III)")
     effects = _json_object(args.effects, "--effects")
+    if args.bias_shift is not None and args.protocol != "turntable":
+        raise ConfigError("--bias-shift applies to turntable units")
+    if args.bias_shift is not None and len(args.bias_shift) != 3:
+        raise ConfigError(f"--bias-shift takes three numbers (deg/s, x,y,z), got {len(args.bias_shift)}")
+
+    import numpy as np
+
+    def shifted(unit):
+        """The unit after its bias moved by --bias-shift (a unit that drifted since)."""
+        if args.bias_shift is None:
+            return unit
+        poly = np.array(unit.bias_poly, dtype=float)
+        poly[:, 0] += np.array(args.bias_shift)
+        return replace(unit, bias_poly=tuple(map(tuple, poly)))
+
     if args.log is not None:
         # One log of one unit: the unit follows from its device id, the noise from the
         # session too, so every session of a device is the same physical unit.
-        import numpy as np
         device = args.device or "U001"
         unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000",
                               protocol=args.protocol)
+        unit = shifted(unit)
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
                       rng=np.random.default_rng(seed), device=device, batch=args.batch,
@@ -145,6 +162,8 @@ def cmd_simulate(args) -> int:
         return 0
     seed_unit = SweepUnit.seed003 if args.protocol == "sweep" else GyroUnit.seed000
     unit = seed_unit() if args.unit == "seed000" else None
+    if args.bias_shift is not None:
+        raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
                         rig=rig, unit=unit, batch=args.batch, session=args.session,
                         device_prefix=args.device_prefix, effects=effects)
@@ -193,7 +212,11 @@ def cmd_fleet(args) -> int:
     from .manifest import read_manifest
     from .stages import fleet_stage
     rows = read_manifest(args.manifest)
-    fleet_stage(rows, args.results, args.reports, args.output, args.bundle)
+    settings = None
+    if args.settings_json is not None:
+        from .fleet import FleetSettings
+        settings = FleetSettings.from_dict(_json_object(args.settings_json, "--settings-json"))
+    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol)
     print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
 
@@ -326,6 +349,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--handling-s", type=float)
     p.add_argument("--no-mount-column", action="store_true")
     p.add_argument("--no-accel", action="store_true")
+    p.add_argument("--bias-shift", type=_floats, help="with --log: add this to the unit's bias, "
+                   "deg/s x,y,z (a unit that drifted between sessions)")
     p.add_argument("--effects", help="errors beyond the seed-000 model as JSON, e.g. "
                    "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)")
     p.set_defaults(func=cmd_simulate)
@@ -403,8 +428,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reports", default="reports", help="root of the units' reports")
     p.add_argument("-o", "--output", required=True, help="fleet summary .html")
     p.add_argument("--bundle", help="also gather all reports into this folder")
+    p.add_argument("--settings-json", help="end of line, outliers and drift as one JSON object "
+                   "(spec, outliers, drift: see config/config.yaml)")
+    p.add_argument("--eol", help="also write the end-of-line verdicts and yields as JSON")
     p.set_defaults(func=cmd_fleet)
     add_paper_parser(sub)
+    add_lookup_parser(sub)
+    add_export_parser(sub)
     return parser
 
 

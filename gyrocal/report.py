@@ -252,9 +252,12 @@ def _missing_effect(path) -> str:
     return "nothing" if diag.get("explains_the_data") else "unexplained excess"
 
 
-def write_fleet_report(units: list[dict], path) -> None:
+def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) -> None:
     """The fleet summary: per batch, one row per unit and session; failed units with
-    their error; distributions of the key parameters across the calibrated units."""
+    their error; distributions of the key parameters across the calibrated units. With
+    ``settings`` (:class:`gyrocal.fleet.FleetSettings`): end-of-line verdicts and yield,
+    outliers against the batch, drift pages of devices with several sessions (beside the
+    summary, ``drift/<device>.html``) and the machine-readable ``eol_json``."""
     from .stages import unit_paths
     rows = []
     for unit in units:
@@ -286,10 +289,24 @@ def write_fleet_report(units: list[dict], path) -> None:
         *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
         ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
         ("excess over the noise floor", [r["summary"]["excess"] for r in ok])]]
+    fleet = None
+    if settings is not None:
+        from .fleet import audit, drift_page_name, eol_document, json_safe
+        fleet = audit(units, ok, settings)
+        for row in rows:
+            verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
+            if verdict is not None:
+                row["eol"] = {"passed": verdict.passed, "reasons": list(verdict.reasons)}
+        for unit in fleet["drift"]:
+            unit["page"] = drift_page_name(unit["device"])
+            page = _ENV.get_template("drift_report.html.j2").render(unit=unit, tolerance=settings.drift_tolerance)
+            _write(Path(path).parent / unit["page"], page)
+        if eol_json is not None:
+            _write(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
     html = _ENV.get_template("fleet_report.html.j2").render(
         batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
         total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
-        servo_vs_turntable=servo_versus_turntable(ok))
+        servo_vs_turntable=servo_versus_turntable(ok), fleet=fleet)
     _write(path, html)
 
 

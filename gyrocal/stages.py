@@ -153,16 +153,19 @@ def reproduce_command(results, settings: Settings) -> str:
     return " ".join(shlex.quote(w) for w in words)
 
 
-def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None) -> None:
-    """The fleet summary over every manifest row, calibrated or failed, and (optionally) a
-    self-contained folder of all unit reports for ``snakemake --report``."""
+def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None,
+                settings=None, eol_json=None) -> None:
+    """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
+    a :class:`gyrocal.fleet.FleetSettings`: end of line, outliers, drift pages and
+    ``eol_json``), and (optionally) a self-contained folder of all unit reports for
+    ``snakemake --report``."""
     from .report import write_fleet_report
     units = []
     for row in rows:
         folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
         units.append({"row": row, "folder": folder,
                       "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
-    write_fleet_report(units, out_index)
+    write_fleet_report(units, out_index, settings, eol_json)
     if bundle is not None:
         bundle = Path(bundle)
         if bundle.exists():
@@ -175,3 +178,10 @@ def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=
             if source.exists():
                 shutil.copyfile(source, target)
         shutil.copyfile(out_index, bundle / "index.html")
+        drift_pages = Path(out_index).parent / "drift"
+        if settings is not None and drift_pages.is_dir():
+            from .fleet import drift_devices
+            (bundle / "drift").mkdir()
+            for device in drift_devices(rows):
+                if (drift_pages / f"{device}.html").exists():
+                    shutil.copyfile(drift_pages / f"{device}.html", bundle / "drift" / f"{device}.html")

@@ -101,6 +101,8 @@ demo:
   units: {A2: {effects: {scale_quadratic: [1.0e-6, -8.0e-7, 6.0e-7]}}}
 model: {terms: [bias, scale, misalignment]}
 diagnosis: {ladder: [{name: "+ nonlinearity", add: [scale_quadratic]}]}
+spec: {turntable: {excess: 5, "parameters": {"bias.*": 0.5}}}
+drift: {tolerance: {"bias.*": 0.005}}
 """
 
 

@@ -84,7 +84,8 @@ def test_fleet_report_renders_offline_and_links_every_unit(fleet_run, browser, t
     assert rows.count() == 3 + 7  # a header per batch
     assert page.locator("tr.failed").count() == 2
     figures = figures_rendered(page)
-    assert len(figures) == 10 and all(f["width"] > 100 for f in figures)
+    # 10 histograms and the outliers' distributions
+    assert len(figures) == 11 and all(f["width"] > 100 for f in figures)
     links = page.locator("table.units a").evaluate_all("as => as.map(a => a.href)")
     assert len(links) == 7
     for href in links:

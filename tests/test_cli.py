@@ -22,7 +22,7 @@ def test_help_lists_the_commands():
     out = gyrocal("--help")
     assert out.returncode == 0
     for command in ("simulate", "calibrate", "diagnose", "apply", "segment", "fit", "validate",
-                    "report", "fleet", "paper"):
+                    "report", "fleet", "paper", "lookup", "export"):
         assert command in out.stdout
 
 

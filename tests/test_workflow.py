@@ -139,7 +139,7 @@ def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     before = {p.relative_to(fleet_run): p.read_bytes() for p in
               [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("reports/**/*.html"),
                *fleet_run.glob("results/*/*/*/diagnosis.json"), *fleet_run.glob("results/*/*/*/residuals.parquet")]}
-    assert len(before) == 7 + 7 + 1 + 7 + 7
+    assert len(before) == 7 + 7 + 1 + 1 + 7 + 7   # the drift page of A1 too
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):
@@ -219,3 +219,26 @@ def test_the_paper_rule_is_planned_by_name_and_not_by_default(fleet_run):
     out = snakemake(fleet_run, "--dry-run", "paper")
     assert out.returncode == 0, out.stderr[-2000:]
     assert job_counts(out) == {"paper": 1, "total": 1}
+
+
+def test_end_of_line_verdicts_yield_and_drift_pages(fleet_run):
+    eol = json.loads((fleet_run / "results" / "eol.json").read_text())
+    units = {(u["device"], u["session"]): u for u in eol["units"]}
+    # A2 carries a scale nonlinearity the model lacks: 16× the floor fails the 5× limit
+    # (three set points: interpolating the clean units' bias leaves them about 2.5×)
+    a2 = units[("A2", "2026-01-02")]
+    assert not a2["passed"] and any("excess over the noise floor" in r for r in a2["reasons"])
+    assert units[("A1", "2026-01-01")]["passed"] and units[("A1", "2026-03-01")]["passed"]
+    assert not units[("BAD", "2026-01-02")]["calibrated"]
+    yields = {y["batch"]: y for y in eol["yield"]}
+    assert yields["B1"]["yield_pct"] == 100.0 and yields["B1"]["units"] == 2
+    assert yields["B2"]["passed"] == 0 and yields["B2"]["no_calibration"] == 2
+    assert ("S1", "2026-01-04") not in units          # no servo limits: not judged
+    # A1 twice, the same simulated unit: no drift, and the old calibration still holds
+    (a1,) = eol["drift"]
+    assert a1["device"] == "A1" and a1["flagged"] == []
+    assert a1["revalidation"]["holds"], a1["revalidation"]["verdict"]
+    page = (fleet_run / "reports" / "drift" / "A1.html").read_text()
+    assert "No parameter changed beyond its tolerance" in page
+    index = (fleet_run / "reports" / "index.html").read_text()
+    assert 'href="drift/A1.html"' in index and "End of line: yield per batch" in index

@@ -6,6 +6,7 @@ import shlex
 import sys
 
 from gyrocal import __version__ as GYROCAL_VERSION
+from gyrocal.fleet import drift_devices
 from gyrocal.manifest import (
     BATCH_PATTERN,
     DEVICE_PATTERN,
@@ -30,6 +31,8 @@ UNITS = {
     (row["batch"], row["device"], row["session"]): row
     for row in read_manifest(config["devices"])
 }
+# Devices with two or more turntable sessions get a drift page.
+DRIFT_DEVICES = drift_devices(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
 # A servo or sweep unit also gets its protocol's section (config `protocols:`).
 SEGMENTATION = {"segmentation": config["segmentation"]}
@@ -128,6 +131,9 @@ def demo_unit_options(wildcards):
             options.append(f"--{key}={values}")
     if settings.get("mounts"):
         options.append(f"--mounts={shlex.quote(','.join(settings['mounts']))}")
+    shift = settings.get("bias_shift", {}).get(wildcards.session)
+    if shift:
+        options.append("--bias-shift=" + ",".join(str(v) for v in shift))
     if settings.get("effects"):
         effects = json.dumps(settings["effects"], sort_keys=True)
         options.append(f"--effects {shlex.quote(effects)}")

@@ -9,8 +9,14 @@ rule diagnose:
         "logs/diagnose/{batch}/{device}/{session}.log",
     benchmark:
         "results/benchmark/diagnose/{batch}/{device}/{session}.tsv"
+    group:
+        "unit"
     conda:
         ENV
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 1000 * attempt,
+        runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
         unit=unit_args,

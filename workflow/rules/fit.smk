@@ -8,8 +8,14 @@ rule fit:
         "logs/fit/{batch}/{device}/{session}.log",
     benchmark:
         "results/benchmark/fit/{batch}/{device}/{session}.tsv"
+    group:
+        "unit"
     conda:
         ENV
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 1000 * attempt,
+        runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
         unit=unit_args,

@@ -21,15 +21,26 @@ rule fleet:
             caption="../report/units.rst",
             category="Units",
         ),
+        eol="results/eol.json",
+        drift=[f"reports/drift/{device}.html" for device in DRIFT_DEVICES],
     log:
         "logs/fleet.log",
     benchmark:
         "results/benchmark/fleet.tsv"
     conda:
         ENV
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 2000 * attempt,
+        runtime=lambda wildcards, attempt: 30 * attempt,
     params:
         gyrocal=GYROCAL,
+        settings=json.dumps(
+            {k: config.get(k, {}) for k in ("spec", "outliers", "drift")},
+            sort_keys=True,
+        ),
         version=GYROCAL_VERSION,
     shell:
         "{params.gyrocal} fleet --manifest {input.manifest:q} --results results --reports reports "
-        "-o {output.index:q} --bundle {output.bundle:q} > {log:q} 2>&1"
+        "-o {output.index:q} --bundle {output.bundle:q} --settings-json {params.settings:q} "
+        "--eol {output.eol:q} > {log:q} 2>&1"

@@ -18,8 +18,14 @@ rule report:
         "logs/report/{batch}/{device}/{session}.log",
     benchmark:
         "results/benchmark/report/{batch}/{device}/{session}.tsv"
+    group:
+        "unit"
     conda:
         ENV
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 1000 * attempt,
+        runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
         unit=unit_args,

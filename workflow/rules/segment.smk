@@ -9,8 +9,14 @@ rule segment:
         "logs/segment/{batch}/{device}/{session}.log",
     benchmark:
         "results/benchmark/segment/{batch}/{device}/{session}.tsv"
+    group:
+        "unit"
     conda:
         ENV
+    threads: 2
+    resources:
+        mem_mb=lambda wildcards, attempt: 2000 * attempt,
+        runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
         log=lambda wildcards: unit(wildcards)["log"],

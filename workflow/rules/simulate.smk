@@ -9,8 +9,14 @@ rule simulate:
         "logs/simulate/{batch}/{device}/{session}.log",
     benchmark:
         "results/benchmark/simulate/{batch}/{device}/{session}.tsv"
+    group:
+        "unit"
     conda:
         ENV
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 1500 * attempt,
+        runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
         preset=config["demo"]["preset"],

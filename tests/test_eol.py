@@ -1,0 +1,290 @@
+"""End of line: spec limits, verdicts, yield, fleet outliers (calibrations made in memory)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from gyrocal import failure
+from gyrocal.calibration import Calibration, save_calibration
+from gyrocal.errors import ConfigError, InputError
+from gyrocal.eol import (MAD_Z, SpecLimits, Verdict, batch_yield, fleet_outliers, judge, judge_folder,
+                         parameter_table, parameters_at, plot_parameter_distributions)
+from gyrocal.io import write_table
+from gyrocal.model import Model
+from gyrocal.simulate import GyroUnit
+from gyrocal.thermal import ConstantCoefficients, TemperatureGrid
+
+from .conftest import truth_coefficients
+
+BIAS_SE, RATIO_SE = 3e-4, 3e-6  # deg/s; 1: typical of a quick turntable session
+
+GOOD = GyroUnit(scale=(1.001, 0.999, 1.0005), scale_tc=(1e-5, -1e-5, 2e-5),
+                misalignment=((0.0, 2e-3, -1e-3), (1.5e-3, 0.0, 5e-4), (-2e-3, 1e-3, 0.0)),
+                bias_poly=((0.01, 1e-4, 2e-6, 0.0), (-0.02, -2e-4, -1e-6, 0.0), (0.005, 3e-4, 3e-6, 0.0)))
+
+LIMITS = {
+    "parameters": {"scale.*": 5000, "bias.*": 0.05, "misalignment.*": 5},
+    "temperature_coefficients": {"scale.*": 50, "bias.*": 0.001},
+    "validation_rms": 0.005, "excess": 1.5,
+    "temperature_span": [0, 40], "temperature_span_tolerance": 1.0,
+    "min_holds": 100, "min_hold_share": 0.9, "min_temperature_points": 3,
+}
+GOOD_SUMMARY = {"validation_rms": 0.0024, "excess": 1.05}
+GOOD_INFO = {"holds_accepted": 189, "rejected_by_reason": {"handling_motion": 6, "not_steady": 3},
+             "temperature_points": 3}
+
+
+def grid_calibration(unit: GyroUnit, temps=(0.0, 20.0, 40.0), **meta) -> Calibration:
+    """The seed-000 model's calibration of ``unit`` as an exact grid (no noise)."""
+    model = Model.from_spec()
+    names = tuple(model.names)
+    values = np.array([[truth_coefficients(unit, t)[n] for n in names] for t in temps])
+    stderr = np.tile([BIAS_SE if n.startswith("bias") else RATIO_SE for n in names], (len(temps), 1))
+    grid = TemperatureGrid(np.asarray(temps, dtype=float), names, values, stderr)
+    meta = {"device": "U1", "batch": "B1", "session": "2026-01-01", "protocol": "turntable", **meta}
+    return Calibration(model, grid, 25.0, meta)
+
+
+def test_parameters_in_engineering_units():
+    p = parameters_at(grid_calibration(GOOD)).set_index("parameter")
+    np.testing.assert_allclose(p.loc["scale.x", "value"], 1000.0, rtol=1e-9)        # ppm
+    np.testing.assert_allclose(p.loc["misalignment.x.y", "value"], 1.001 * 2.0, rtol=1e-9)  # K_xy, mrad
+    np.testing.assert_allclose(p.loc["bias.y", "value"], -0.02, rtol=1e-12)          # deg/s
+    np.testing.assert_allclose(p.loc["scale.x", "stderr"], RATIO_SE * 1e6, rtol=0.2)  # interpolated
+
+
+def test_continuous_model_reads_K_and_B_with_propagated_errors():
+    """bias.x at T of bias + bias_temp_poly(degree=1) is b + c1 (T − 25) and its error the
+    two errors in quadrature; d/dT is c1."""
+    model = Model.from_spec(["bias", "scale", "bias_temp_poly(degree=1)"])
+    names = tuple(model.names)
+    values = {n: 0.0 for n in names} | {"bias.x": 0.02, "bias_temp_poly.x.c1": 3e-4, "scale.x": 1e-3}
+    stderr = {n: 1e-6 for n in names} | {"bias.x": 2e-4, "bias_temp_poly.x.c1": 1e-5}
+    grid = ConstantCoefficients(np.array([0.0, 40.0]), names, np.array([values[n] for n in names]),
+                                np.array([stderr[n] for n in names]))
+    cal = Calibration(model, grid, 25.0, {"device": "C1"})
+    p = parameters_at(cal, 35.0).set_index("parameter")
+    np.testing.assert_allclose(p.loc["bias.x", "value"], 0.02 + 3e-4 * 10, rtol=1e-12)
+    np.testing.assert_allclose(p.loc["bias.x", "stderr"], np.hypot(2e-4, 10 * 1e-5), rtol=1e-9)
+    np.testing.assert_allclose(p.loc["scale.x", "value"], 1000.0, rtol=1e-9)
+    v = judge(cal, None, None, SpecLimits.from_dict({"temperature_coefficients": {"bias.x": 2e-4}}))
+    assert v.reasons == ("d(bias.x)/dT = 0.0003 deg/s/°C exceeds ±0.0002 deg/s/°C over 0.0 to 40.0 °C",)
+
+
+def test_unit_inside_spec_passes_with_every_limit_checked():
+    limits = SpecLimits.from_dict(LIMITS)
+    v = judge(grid_calibration(GOOD), GOOD_SUMMARY, GOOD_INFO, limits)
+    assert v.passed and v.reasons == () and v.calibrated
+    assert all(c["passed"] for c in v.checked.values())
+    # 12 parameters, 6 temperature coefficients (scale, bias), and the six other limits.
+    assert len(v.checked) == 12 + 6 + 6
+    # The bias curve is quadratic: its largest slope over 0-40 °C is at an end.
+    dT = np.array([-25.0, 15.0])
+    np.testing.assert_allclose(v.checked["d(bias.z)/dT"]["value"], np.max(np.abs(3e-4 + 2 * 3e-6 * dT)),
+                               rtol=1e-9)
+    assert v.checked["min_hold_share"]["value"] == pytest.approx(189 / 192, rel=1e-12)  # not handling
+    json.dumps(v.to_dict(), allow_nan=False)
+
+
+def test_unit_outside_spec_fails_with_every_reason():
+    bias = np.array(GOOD.bias_poly)
+    bias[1, 0] = 0.08
+    bad = replace(GOOD, scale=(1.00521, 0.999, 1.0005), scale_tc=(1e-5, -1e-5, 8e-5),
+                  bias_poly=tuple(map(tuple, bias)))
+    cal = grid_calibration(bad, temps=(5.0, 20.0, 40.0))
+    v = judge(cal, {"validation_rms": 0.0123, "excess": 1.2}, {**GOOD_INFO, "holds_accepted": 80},
+              SpecLimits.from_dict(LIMITS))
+    assert not v.passed
+    assert v.reasons == (
+        "bias.y = 0.08 deg/s exceeds ±0.05 deg/s at 25 °C",
+        "scale.x = 5210 ppm exceeds ±5000 ppm at 25 °C",
+        "d(scale.z)/dT = 80.04 ppm/°C exceeds ±50 ppm/°C over 5.0 to 40.0 °C",  # 1.0005 × 8e-5
+        "validation RMS = 0.0123 deg/s exceeds 0.005 deg/s",
+        "calibrated span 5.0 to 40.0 °C does not reach 0 °C (tolerance 1 °C)",
+        "accepted holds = 80 below the minimum 100",
+    )
+    failed = sorted(k for k, c in v.checked.items() if not c["passed"])
+    assert failed == ["bias.y", "d(scale.z)/dT", "min_holds", "scale.x", "temperature_span", "validation_rms"]
+
+
+def test_range_limits_and_most_specific_pattern():
+    """``scale.x`` has its own range, so ``scale.*``'s ±800 ppm does not apply to it."""
+    limits = SpecLimits.from_dict({"parameters": {"scale.*": 800, "scale.x": [900, 1100],
+                                                  "bias.y": [-0.01, 0.0]}})
+    v = judge(grid_calibration(GOOD), None, None, limits)
+    assert v.checked["scale.x"] == {"value": pytest.approx(1000.0, rel=1e-9), "limit": [900.0, 1100.0],
+                                    "unit": "ppm", "passed": True}
+    assert v.reasons == ("bias.y = -0.02 deg/s outside [-0.01, 0] deg/s at 25 °C",
+                         "scale.y = -1000 ppm exceeds ±800 ppm at 25 °C")
+
+
+def test_limits_that_cannot_be_checked_fail():
+    """A single-temperature calibration has no temperature coefficient, a unit without a
+    validation summary no RMS, a servo session no rejection counts: each fails, saying so."""
+    cal = grid_calibration(GOOD, temps=(22.0,), protocol="servo")
+    limits = SpecLimits.from_dict({"temperature_coefficients": {"bias.*": 0.001}, "validation_rms": 0.01,
+                                   "min_hold_share": 0.5})
+    v = judge(cal, None, {"holds_accepted": 6}, limits)
+    assert v.reasons == (
+        "d(bias.*)/dT not available: calibrated at a single temperature (22.0 °C)",
+        "validation RMS not available: no validation summary",
+        "accepted hold share not available: the segmentation reports no rejected holds for this protocol",
+    )
+
+
+def test_failed_calibration_fails_and_yield_per_batch():
+    limits = SpecLimits.from_dict(LIMITS)
+    ok = lambda device, batch: judge(grid_calibration(GOOD, device=device, batch=batch),  # noqa: E731
+                                     GOOD_SUMMARY, GOOD_INFO, limits)
+    record = failure.record("segment", InputError("no hold passed the checks"),
+                            {"device": "X9", "batch": "B2", "session": "2026-01-02"})
+    lost = judge(record, None, None, limits)
+    assert not lost.passed and not lost.calibrated
+    assert lost.reasons == ("calibration failed: the segment stage failed: no hold passed the checks",)
+    bad = judge(grid_calibration(GOOD, device="U4"), {"validation_rms": 0.02, "excess": 1.0}, GOOD_INFO, limits)
+    verdicts = {"U1": ok("U1", "B1"), "U2": ok("U2", "B1"), "U3": ok("U3", "B1"), "U4": bad,
+                "U5": ok("U5", "B2"), "X9": lost}
+    y = batch_yield(verdicts)
+    assert y.to_dict("records") == [
+        {"batch": "B1", "units": 4, "passed": 3, "failed": 1, "no_calibration": 0, "yield_pct": 75.0},
+        {"batch": "B2", "units": 2, "passed": 1, "failed": 1, "no_calibration": 1, "yield_pct": 50.0}]
+
+
+def test_judge_folder_reads_results_and_failure_records(tmp_path):
+    limits = SpecLimits.from_dict(LIMITS)
+    good = tmp_path / "good"
+    good.mkdir()
+    cal = grid_calibration(GOOD)
+    save_calibration(cal, good / "calibration.json")
+    (good / "validation.json").write_text(json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY}))
+    write_table(pd.DataFrame({"hold": [0]}), good / "observations.parquet", {"info": GOOD_INFO})
+    assert judge_folder(good, limits).passed
+    lost = tmp_path / "lost"
+    rec = failure.record("fit", InputError("scale.y not excited"), {"device": "U9", "batch": "B1"})
+    failure.write([lost / "calibration.json", lost / "observations.parquet"], rec)
+    v = judge_folder(lost, limits)
+    assert v.reasons == ("calibration failed: the fit stage failed: scale.y not excited",)
+    assert v.meta["device"] == "U9"
+    v = judge_folder(tmp_path / "absent", limits)
+    assert not v.passed and "no such file" in v.reasons[0]
+
+
+@pytest.mark.parametrize("spec, message", [
+    ({"validation_rsm": 0.01}, "unknown setting spec.validation_rsm"),
+    ({"parameters": {"sclae.*": 10}}, "'sclae.*' names no known term"),
+    ({"parameters": {"scale x": 10}}, "is not a parameter name"),
+    ({"parameters": {"scale.*": -1}}, "spec.parameters.scale.* must be positive"),
+    ({"parameters": {"bias.x": [0.1, -0.1]}}, "low 0.1 exceeds high -0.1"),
+    ({"temperature_coefficients": {"bias.*": [0, 1]}}, "must be a finite number"),
+    ({"min_hold_share": 1.5}, "is a share"),
+    ({"min_holds": 10.5}, "must be a whole number"),
+    ({"temperature_span": [40]}, "must be [low, high]"),
+    ({"excess": float("nan")}, "spec.excess must be a finite number"),
+    (["validation_rms"], "spec must be a mapping"),
+])
+def test_spec_limits_refuse_bad_settings(spec, message):
+    with pytest.raises(ConfigError, match=None) as err:
+        SpecLimits.from_dict(spec)
+    assert message in str(err.value)
+
+
+def test_spec_limits_round_trip():
+    limits = SpecLimits.from_dict(LIMITS)
+    assert SpecLimits.from_dict(limits.to_dict()) == limits
+    assert SpecLimits.from_dict(None) == SpecLimits()
+    assert judge(grid_calibration(GOOD), None, None, SpecLimits()) == \
+        Verdict(True, (), {}, {"device": "U1", "batch": "B1", "session": "2026-01-01", "protocol": "turntable"})
+
+
+# -- outliers -------------------------------------------------------------------------------
+def fleet_table(seed=5) -> pd.DataFrame:
+    rng = np.random.default_rng(seed)
+    rows = []
+    for batch, n in (("B1", 8), ("B2", 8), ("B3", 4)):
+        for i in range(n):
+            rows.append({"device": f"{batch}-{i}", "batch": batch, "session": "2026-01-01",
+                         "scale.x": rng.normal(500, 30), "scale.y": rng.normal(-200, 30),
+                         "bias.x": rng.normal(0.0, 0.01)})
+    table = pd.DataFrame(rows)
+    table.loc[table["device"] == "B1-5", "scale.y"] += 400      # > 10 σ from its batch
+    table.loc[table["device"] == "B3-1", "bias.x"] = 1.0        # a small batch is not judged
+    return table
+
+
+def reference_z(table: pd.DataFrame) -> pd.DataFrame:
+    """The modified z-score computed directly, batch by batch, parameter by parameter."""
+    rows = []
+    for batch, part in table.groupby("batch"):
+        for p in ("scale.x", "scale.y", "bias.x"):
+            x = part[p].to_numpy()
+            med = np.median(x)
+            mad = np.median(np.abs(x - med))
+            for device, xi in zip(part["device"], x):
+                rows.append((batch, device, p, MAD_Z * (xi - med) / mad, len(x)))
+    return pd.DataFrame(rows, columns=["batch", "device", "parameter", "z", "count"])
+
+
+def test_outlier_in_a_batch_of_eight_is_flagged_with_its_parameter():
+    table = fleet_table()
+    flagged = fleet_outliers(table)
+    assert flagged[["device", "parameter"]].values.tolist() == [["B1-5", "scale.y"]]
+    ref = reference_z(table)
+    expected = ref[(ref["count"] >= 5) & (ref["z"].abs() > 3.5)]
+    assert expected[["device", "parameter"]].values.tolist() == [["B1-5", "scale.y"]]
+    np.testing.assert_allclose(flagged["z"], expected["z"], rtol=1e-12)
+    row = flagged.iloc[0]
+    b1 = table.loc[table["batch"] == "B1", "scale.y"]
+    np.testing.assert_allclose([row["median"], row["mad"]],
+                               [b1.median(), (b1 - b1.median()).abs().median()], rtol=1e-12)
+    assert list(flagged.columns) == ["device", "batch", "session", "parameter", "value", "median", "mad",
+                                     "z", "note"]
+    # The far larger bias of B3-1 is not flagged: its batch has four units, and says so.
+    assert flagged.attrs["small_batches"] == {"B3": 4}
+    assert flagged.attrs["notes"] == ["batch B3: 4 units, fewer than 5: no outlier flags"]
+    assert fleet_outliers(table, threshold=50.0).empty
+
+
+def test_outliers_when_mad_is_zero():
+    n = 7
+    table = pd.DataFrame({"device": [f"U{i}" for i in range(n)], "batch": "B1",
+                          "misalignment.x.y": [0.0] * (n - 1) + [0.4],            # one differs
+                          "fixed": [2.5] * n,                                    # all identical
+                          "rounding": [1.0] * (n - 1) + [1.0 * (1 + 1e-13)]})    # a rounding step
+    flagged = fleet_outliers(table)
+    assert flagged[["device", "parameter", "note"]].values.tolist() == [
+        ["U6", "misalignment.x.y", "differs from identical others"]]
+    assert flagged["z"].iloc[0] == np.inf and flagged["mad"].iloc[0] == 0.0
+
+
+def test_outliers_skip_missing_values_and_need_the_batch_column():
+    table = fleet_table()
+    table.loc[table["batch"] == "B2", "bias.x"] = np.nan        # e.g. a model without the term
+    table.loc[table["device"] == "B2-0", "bias.x"] = 5.0
+    flagged = fleet_outliers(table)
+    assert flagged["device"].tolist() == ["B1-5"]
+    assert "batch B2: bias.x known for fewer than 5 units: not checked" in flagged.attrs["notes"]
+    with pytest.raises(InputError, match="no column 'lot'"):
+        fleet_outliers(table, by="lot")
+
+
+def test_parameter_table_and_distribution_plot(tmp_path):
+    cals = [grid_calibration(GOOD, device=f"U{i}") for i in range(5)]
+    cals.append(grid_calibration(replace(GOOD, scale=(1.004, 0.999, 1.0005)), device="U5"))
+    table = parameter_table(cals)
+    assert table.shape == (6, 3 + 12)
+    flagged = fleet_outliers(table)
+    # K = diag(s)(I + M): a scale factor carries its row's cross-axis terms along.
+    assert flagged[["device", "parameter"]].values.tolist() == [
+        ["U5", "scale.x"], ["U5", "misalignment.x.y"], ["U5", "misalignment.x.z"]]
+    assert set(flagged["note"]) == {"differs from identical others"}
+    path = tmp_path / "dist.svg"
+    table = table[["device", "batch", "session", "bias.x", "scale.x", "misalignment.x.y", "misalignment.x.z"]]
+    svg = plot_parameter_distributions(table, flagged, path)
+    assert svg.startswith("<svg") and path.read_text() == svg
+    assert plot_parameter_distributions(table, flagged, None) == svg   # deterministic
+    assert svg.count(">U5<") == 3            # labelled in each panel that flags it, and only it
