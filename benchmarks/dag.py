@@ -1,0 +1,128 @@
+"""Benchmark: how long Snakemake takes to plan a large fleet (``snakemake -n``).
+
+Writes a synthetic manifest of N unit sessions (turntable, 100 units per batch) and a small
+config into a temporary folder and times a dry run of the repository's workflow on it, each
+in a fresh process, on the cores of this machine. The logs need not exist:
+
+* ``demo`` (default) — the paths lie under the demo folder, so each unit also gets the
+  ``simulate`` job that would make its log: 6 jobs per unit;
+* ``fleet`` — the paths lie elsewhere and are missing, which ``log_input``
+  (workflow/rules/common.smk) plans as a segment job without input (its failure is recorded
+  when it runs): 5 jobs per unit, the shape of a fleet whose logs exist.
+
+The dry run is ``snakemake -n --quiet``: the plan alone. Without ``--quiet`` Snakemake also
+prints every job (about 6 MB for 1,000 units), which doubles the time; ``--listing`` times
+that too. Prints the jobs planned, wall and CPU seconds, peak memory and the cost per unit.
+``--cprofile FILE`` runs the largest N under cProfile and prints where the time goes.
+
+    python benchmarks/dag.py [--units 1000 10000] [--layout demo|fleet] [--repeat 1]
+                             [--listing] [--cprofile dag.prof] [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = """devices: devices.tsv
+demo:
+  folder: demo/logs
+  preset: quick
+  temperatures: [0, 20, 40]
+  rates: [10, 100, 400]
+model: {terms: [bias, scale, misalignment]}
+"""
+
+
+def write_fleet(folder: Path, n: int, layout: str) -> None:
+    """A manifest of ``n`` unit sessions and the config naming it (same bytes every time)."""
+    root = "demo/logs" if layout == "demo" else "rig"
+    lines = ["device\tbatch\tsession\tprotocol\tpath"]
+    for i in range(n):
+        batch, device, session = f"B{i // 100:04d}", f"U{i:05d}", "2026-01-01"
+        lines.append(f"{device}\t{batch}\t{session}\tturntable\t{root}/{batch}/{device}/{session}.parquet")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "devices.tsv").write_text("\n".join(lines) + "\n")
+    (folder / "config.yaml").write_text(CONFIG)
+
+
+def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False) -> dict:
+    """One ``snakemake -n`` in a fresh process: wall and CPU seconds, peak RSS."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    prefix = [sys.executable] + (["-m", "cProfile", "-o", str(cprofile)] if cprofile else [])
+    command = prefix + ["-m", "snakemake", "--dry-run", "--snakefile", str(REPO / "Snakefile"),
+                        "--directory", str(folder), "--configfile", str(folder / "config.yaml"),
+                        "--cores", str(os.cpu_count() or 1)] + ([] if listing else ["--quiet"])
+    t0 = time.perf_counter()
+    out = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    if out.returncode != 0:
+        sys.exit(f"snakemake -n failed in {folder}:\n{out.stderr[-3000:]}")
+    return {"wall": wall, "cpu": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
+            "peak_mib": after.ru_maxrss / 1024}
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import snakemake
+    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+            f"Snakemake {snakemake.__version__}")
+
+
+def print_profile(path: Path, limit: int = 25) -> None:
+    import pstats
+    stats = pstats.Stats(str(path))
+    stats.sort_stats("cumulative").print_stats(r"snakemake/(dag|jobs|rules|workflow)\.py|common\.smk", limit)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--units", type=int, nargs="+", default=[1000, 10000])
+    parser.add_argument("--layout", choices=["demo", "fleet"], default="demo")
+    parser.add_argument("--repeat", type=int, default=1)
+    parser.add_argument("--listing", action="store_true", help="also time -n without --quiet")
+    parser.add_argument("--cprofile", type=Path, help="profile the largest N into this file")
+    parser.add_argument("--keep", type=Path, help="write the fleets here instead of a temporary folder")
+    args = parser.parse_args()
+
+    print(machine())
+    # Per unit: segment, fit, validate, diagnose, report (+ simulate); then fleet and all.
+    per_unit = 6 if args.layout == "demo" else 5
+    print(f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
+          f"{'ms/unit':>8}")
+    with tempfile.TemporaryDirectory() as tmp:
+        base = args.keep or Path(tmp)
+        for n in args.units:
+            folder = base / f"{args.layout}{n}"
+            write_fleet(folder, n, args.layout)
+            for _ in range(args.repeat):
+                for listing in ([False, True] if args.listing else [False]):
+                    r = dry_run(folder, listing=listing)
+                    print(f"{n:>7} {per_unit * n + 2:>7} {'listing' if listing else 'quiet':>8} "
+                          f"{r['wall']:>8.1f} {r['cpu']:>8.1f} {r['peak_mib']:>9.0f} "
+                          f"{1000 * r['wall'] / n:>8.1f}", flush=True)
+        if args.cprofile:
+            n = max(args.units)
+            dry_run(base / f"{args.layout}{n}", cprofile=args.cprofile)
+            print(f"\ncProfile of N = {n} ({args.cprofile}), cumulative:")
+            print_profile(args.cprofile)
+
+
+if __name__ == "__main__":
+    main()
