@@ -20,12 +20,26 @@ import numpy as np
 
 from .errors import CalibrationFileError, CorruptFileError, GyrocalError
 from .model import Model
+from .terms import AXES
 from .thermal import ConstantCoefficients, TemperatureGrid, check_method
 
 FORMAT = "gyrocal.calibration/1"
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
 UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
 
+
+
+def standard_coefficients(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]:
+    """K (n,3,3) and B (n,3) as the seed-000 terms' coefficients: ``bias.a`` = B_a,
+    ``scale.a`` = K_aa − 1, ``misalignment.a.b`` = K_ab (Eq 12, names of docs/method.md)."""
+    out = {}
+    for i, a in enumerate(AXES):
+        out[f"bias.{a}"] = B[:, i]
+        out[f"scale.{a}"] = K[:, i, i] - 1.0
+        for j, b in enumerate(AXES):
+            if i != j:
+                out[f"misalignment.{a}.{b}"] = K[:, i, j]
+    return out
 
 @dataclass(frozen=True)
 class Calibration:

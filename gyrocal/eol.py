@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .calibration import Calibration, load_calibration
+from .calibration import Calibration, load_calibration, standard_coefficients
 from .errors import ConfigError, GyrocalError, InputError
 
 AXES = ("x", "y", "z")
@@ -55,16 +55,8 @@ def _display(cal: Calibration) -> dict[str, tuple[str, float]]:
 
 
 def _standard_from_KB(K: np.ndarray, B: np.ndarray, names) -> dict[str, np.ndarray]:
-    """bias.a = B_a, scale.a = K_aa − 1, misalignment.a.b = K_ab (seed 000 Eq 12 with the
-    naming of docs/method.md), for those of ``names`` the model has."""
-    out = {}
-    for i, a in enumerate(AXES):
-        out[f"bias.{a}"] = B[:, i]
-        out[f"scale.{a}"] = K[:, i, i] - 1.0
-        for j, b in enumerate(AXES):
-            if i != j:
-                out[f"misalignment.{a}.{b}"] = K[:, i, j]
-    return {n: v for n, v in out.items() if n in names}
+    """The seed-000 coefficients of K and B, for those of ``names`` the model has."""
+    return {n: v for n, v in standard_coefficients(K, B).items() if n in names}
 
 
 def _linearise(cal: Calibration, coefs: dict, temps: np.ndarray):

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from . import failure, plots
-from .calibration import Calibration, dumps, load_calibration
+from .calibration import Calibration, dumps, load_calibration, standard_coefficients
 from .errors import GyrocalError
 from .io import read_table_with_metadata
 from .model import DEFAULT_TERMS, Model
@@ -129,7 +129,7 @@ def _parameter_figure(cal: Calibration, obs: pd.DataFrame) -> str:
         return plots.parameters(g.temperatures, {n: g.values[:, j] for j, n in enumerate(g.names)},
                                 {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
     K, B = cal.matrices_at(temps)
-    curve = _seed000_names(K, B)
+    curve = standard_coefficients(K, B)
     try:
         free = fit_grid(Model.from_spec(DEFAULT_TERMS), obs)
         grid = free.coefficients
@@ -139,17 +139,6 @@ def _parameter_figure(cal: Calibration, obs: pd.DataFrame) -> str:
     except GyrocalError:  # too few points for free fits: the curve alone
         points, values, stderr = np.array([]), {n: [] for n in curve}, {n: [] for n in curve}
     return plots.parameters(points, values, stderr, temps, curve)
-
-
-def _seed000_names(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]:
-    out = {}
-    for i, a in enumerate(AXES):
-        out[f"bias.{a}"] = B[:, i]
-        out[f"scale.{a}"] = K[:, i, i] - 1.0
-        for j, b in enumerate(AXES):
-            if a != b:
-                out[f"misalignment.{a}.{b}"] = K[:, i, j]
-    return out
 
 
 # Covariates of the residual plots: (label, residuals column), shown when the log has them.

@@ -108,52 +108,53 @@ class TempRate(Term):
         return {f"{self.name}.{a}": rate for a in AXES}
 
 
+class _RatePerAxis(Term):
+    """One coefficient per output axis times a function of that axis's own rate."""
+
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    @staticmethod
+    def shape(rate: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}": self.shape(np.asarray(data[f"rate_{a}"], dtype=float)) for a in AXES}
+
+
 @register_term("scale_quadratic")
 @dataclass(frozen=True)
-class ScaleQuadratic(Term):
+class ScaleQuadratic(_RatePerAxis):
     """Even scale-factor nonlinearity, ``e_a += k_a ω_a²``: the same error for both turning
     directions, growing with the square of the rate. [1/(deg/s)]"""
 
     unit = "1/(deg/s)"
-    needs = frozenset({"rate_x", "rate_y", "rate_z"})
-
-    def coefficients(self):
-        return [f"{self.name}.{a}" for a in AXES]
-
-    def columns(self, data):
-        return {f"{self.name}.{a}": np.asarray(data[f"rate_{a}"], dtype=float) ** 2 for a in AXES}
+    shape = staticmethod(np.square)
 
 
 @register_term("scale_cubic")
 @dataclass(frozen=True)
-class ScaleCubic(Term):
+class ScaleCubic(_RatePerAxis):
     """Odd scale-factor nonlinearity, ``e_a += k_a ω_a³``: an S-shaped deviation from the
     linear scale at high rates. [1/(deg/s)²]"""
 
     unit = "1/(deg/s)^2"
-    needs = frozenset({"rate_x", "rate_y", "rate_z"})
 
-    def coefficients(self):
-        return [f"{self.name}.{a}" for a in AXES]
-
-    def columns(self, data):
-        return {f"{self.name}.{a}": np.asarray(data[f"rate_{a}"], dtype=float) ** 3 for a in AXES}
+    @staticmethod
+    def shape(rate):
+        return rate ** 3
 
 
 @register_term("scale_asymmetry")
 @dataclass(frozen=True)
-class ScaleAsymmetry(Term):
+class ScaleAsymmetry(_RatePerAxis):
     """Scale-factor asymmetry, ``e_a += k_a |ω_a|``: a different scale factor for positive
     and negative rates (the scale is ``1 + s ± k``). [1]"""
 
     unit = "1"
-    needs = frozenset({"rate_x", "rate_y", "rate_z"})
-
-    def coefficients(self):
-        return [f"{self.name}.{a}" for a in AXES]
-
-    def columns(self, data):
-        return {f"{self.name}.{a}": np.abs(np.asarray(data[f"rate_{a}"], dtype=float)) for a in AXES}
+    shape = staticmethod(np.abs)
 
 
 @register_term("g_sensitivity")
