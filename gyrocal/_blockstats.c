@@ -73,6 +73,31 @@ void NAME(const T *x, int64_t blocks, int64_t size, double *mean, int64_t mean_s
     }                                                                                    \
 }
 
+/* Overlapping Allan variance sums (gyrocal/noise.py): for each averaging factor m[j],
+ * out[j] = sum over i < N - 2m of (theta[i+2m] - 2 theta[i+m] + theta[i])^2, in one read of
+ * theta per factor instead of numpy's four passes with temporaries. */
+void second_diff_sumsq(const double *theta, int64_t n, const int64_t *m, int64_t k, double *out)
+{
+    for (int64_t j = 0; j < k; j++) {
+        const int64_t step = m[j], count = n - 2 * step;
+        double acc[LANES] = {0};
+        int64_t i = 0;
+        for (; i + LANES <= count; i += LANES) {
+            for (int l = 0; l < LANES; l++) {
+                const double d = theta[i + l + 2 * step] - 2.0 * theta[i + l + step] + theta[i + l];
+                acc[l] += d * d;
+            }
+        }
+        for (int l = 0; i < count; i++, l++) {
+            const double d = theta[i + 2 * step] - 2.0 * theta[i + step] + theta[i];
+            acc[l] += d * d;
+        }
+        double total = 0;
+        for (int l = 0; l < LANES; l++) total += acc[l];
+        out[j] = count > 0 ? total : 0.0;
+    }
+}
+
 MOMENTS(block_moments_f32, float)
 MOMENTS(block_moments_f64, double)
 MEAN(block_mean_f32, float)

@@ -132,6 +132,9 @@ def cmd_simulate(args) -> int:
         raise ConfigError("--unit seed000 has no servo counterpart; the servo paper's units "
                           "are drawn at random (seed 001 Section III)")
     effects = _json_object(args.effects, "--effects")
+    noise = None
+    if args.noise is not None:
+        noise = _json_object(args.noise, "--noise") if args.noise.lstrip().startswith("{") else args.noise
     if args.bias_shift is not None and args.protocol != "turntable":
         raise ConfigError("--bias-shift applies to turntable units")
     if args.bias_shift is not None and len(args.bias_shift) != 3:
@@ -157,7 +160,7 @@ def cmd_simulate(args) -> int:
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
                       rng=np.random.default_rng(seed), device=device, batch=args.batch,
-                      session=args.session, seed=seed, effects=effects)
+                      session=args.session, seed=seed, effects=effects, noise=noise)
         print(f"wrote {args.log}")
         return 0
     seed_unit = SweepUnit.seed003 if args.protocol == "sweep" else GyroUnit.seed000
@@ -166,7 +169,7 @@ def cmd_simulate(args) -> int:
         raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
                         rig=rig, unit=unit, batch=args.batch, session=args.session,
-                        device_prefix=args.device_prefix, effects=effects)
+                        device_prefix=args.device_prefix, effects=effects, noise=noise)
     print(f"wrote {args.units} log(s) and manifest {manifest}")
     return 0
 
@@ -185,6 +188,34 @@ def cmd_segment(args) -> int:
                     lambda: segment_stage(args.log, out, settings, _meta(args)))
     print(f"segmentation -> {out}")
     return status
+
+
+def cmd_noise(args) -> int:
+    """The session's noise: IEEE Std 952 terms of its static stretches, per temperature point
+    and pooled (gyrocal.floor); the whole characterisation as JSON with -o."""
+    from .calibration import dumps
+    from .pipeline import segment_log
+    settings = _settings(args)
+    noise = segment_log(args.log, settings, args.protocol).info["noise"]
+    if args.output:
+        Path(args.output).write_text(dumps(noise))
+    if "session" not in noise:
+        print(f"{args.log}: {noise['reason']}; no noise model")
+        return 0
+    print(f"{args.log}: {noise['stretches']} static stretches, {noise['static_seconds']:.1f} s "
+          "(terms per axis x / y / z)")
+    print(f"{'static data':>22}  {'ARW deg/sqrt(h)':>24}  {'bias instability deg/h':>24}  "
+          f"{'RRW deg/h/sqrt(h)':>24}")
+    rows = [("all", noise["session"]), *((f"{p['temp']:.4g} C ({p['seconds']:.0f} s)", p)
+                                        for p in noise["points"])]
+    for label, entry in rows:
+        if "terms" not in entry:
+            print(f"{label:>22}  no static stretch to fit")
+            continue
+        t = entry["terms"]
+        print(f"{label:>22}  " + "  ".join(f"{' / '.join(f'{v:.3g}' for v in t[k]):>24}"
+                                            for k in ("arw", "bias_instability", "rrw")))
+    return 0
 
 
 def cmd_fit(args) -> int:
@@ -353,6 +384,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "deg/s x,y,z (a unit that drifted between sessions)")
     p.add_argument("--effects", help="errors beyond the seed-000 model as JSON, e.g. "
                    "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)")
+    p.add_argument("--noise", help="coloured noise beside the white: a grade (low, mid, high) or "
+                   "levels as JSON, e.g. '{\"bias_instability\": 6, \"rrw\": 20}' (deg/h, "
+                   "deg/h/sqrt(h); gyrocal/simulate/noise.py)")
     p.set_defaults(func=cmd_simulate)
 
     def common(q, model=True):
@@ -399,6 +433,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--terms", action="append", metavar="FILE",
                    help="the term file a calibration's own terms come from (repeatable)")
     p.set_defaults(func=cmd_apply)
+
+    p = sub.add_parser("noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's "
+                       "static stretches")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", help="the whole characterisation as JSON")
+    p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])
+    common(p, model=False)
+    p.set_defaults(func=cmd_noise)
 
     p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")
     p.add_argument("log")

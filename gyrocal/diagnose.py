@@ -4,7 +4,9 @@ Three questions, answered from the observations alone:
 
 1. **Does the model explain the data?** The in-sample residuals of every fit, divided by
    each observation's noise floor, should scatter like unit normals: χ² against its
-   degrees of freedom, overall and per output axis.
+   degrees of freedom, overall and per output axis. When the session's noise model has bias
+   instability or rate random walk, χ² and the F-tests below come from the generalised
+   least-squares fits that account for the holds' shared wander (:func:`gyrocal.model.fit`).
 2. **Where does the excess live?** For every covariate the log offers (temperature, its
    rate, the reference rate, its magnitude and direction, the mount, the accelerometer,
    time, hold length), the share of the excess χ² that the covariate's bins account for,
@@ -297,7 +299,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     candidates = ranked + [c for c in candidates if c.status != "ranked"]
     best = next((c for c in ranked if c.significant
                  and c.validation_rms_with < base.summary["validation_rms"]), None)
-    verdict = _verdict(base, best, explains, rms_over_floor, covariates)
+    verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs)
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
            for i, a in enumerate(AXES)})
@@ -317,7 +319,7 @@ def _p(value: float) -> str:
     return "< 1e-16" if value < 1e-16 else f"= {value:.2g}"
 
 
-def _verdict(base, best, explains, rms_over_floor, covariates) -> str:
+def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False) -> str:
     factor = rms_over_floor["all"]
     if best is not None:
         sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
@@ -334,7 +336,8 @@ def _verdict(base, best, explains, rms_over_floor, covariates) -> str:
                 + (f"; the excess lives mostly with {lead['covariate']} "
                    f"({100 * lead['share_of_excess']:.0f} % of it)." if lead else "."))
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
-            "their noise floor, as white noise within the holds would leave; nothing is missing.")
+            "their noise floor, as " + ("the sensor's noise model" if noise_model else
+                                         "white noise within the holds") + " would leave; nothing is missing.")
 
 
 def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:

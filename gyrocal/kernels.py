@@ -19,7 +19,8 @@ def _load():
         return None
     try:
         lib = ctypes.CDLL(importlib.import_module("gyrocal._blockstats").__file__)
-    except (ImportError, OSError):
+        lib.second_diff_sumsq  # noqa: B018 - an extension built from older sources lacks it
+    except (ImportError, OSError, AttributeError):
         return None
     i64, p = ctypes.c_int64, ctypes.c_void_p
     for name in ("block_moments_f32", "block_moments_f64"):
@@ -29,6 +30,8 @@ def _load():
                  "block_finite_mean_f64"):
         getattr(lib, name).argtypes = [p, i64, i64, p, i64]
         getattr(lib, name).restype = None
+    lib.second_diff_sumsq.argtypes = [p, i64, p, i64, p]
+    lib.second_diff_sumsq.restype = None
     return lib
 
 
@@ -83,3 +86,26 @@ def block_mean(v: np.ndarray, out: np.ndarray, *, finite_only: bool = False) -> 
         out[~np.isfinite(out)] = np.nan
     else:
         out[:] = v.sum(axis=1, dtype=np.float64) / size
+
+
+_BLOCK = 1 << 14  # numpy path: (block,) temporaries of 128 KB stay in cache
+
+
+def second_diff_sumsq(theta: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """For each averaging factor m_j: sum_i (theta[i+2m] - 2 theta[i+m] + theta[i])^2 over a
+    1-D float64 angle sequence (the overlapping Allan variance's sums, gyrocal/noise.py)."""
+    theta = np.ascontiguousarray(theta, dtype=np.float64)
+    m = np.ascontiguousarray(m, dtype=np.int64)
+    out = np.zeros(m.size)
+    if LIB is not None:  # ctypes releases the GIL: stretches on two threads run in parallel
+        LIB.second_diff_sumsq(theta.ctypes.data, theta.size, m.ctypes.data, m.size, out.ctypes.data)
+        return out
+    for j, step in enumerate(m):
+        count = theta.size - 2 * int(step)
+        for i0 in range(0, count, _BLOCK):
+            i1 = min(i0 + _BLOCK, count)
+            d = theta[i0 + 2 * step:i1 + 2 * step] - theta[i0 + step:i1 + step]
+            d -= theta[i0 + step:i1 + step]
+            d += theta[i0:i1]
+            out[j] += d @ d
+    return out

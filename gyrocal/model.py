@@ -174,8 +174,17 @@ def columns_of(obs) -> dict[str, np.ndarray]:
 
 
 def observation_floor(obs) -> np.ndarray:
-    """Noise floor of each observation's mean (n, 3): within-hold std / sqrt(n), deg/s."""
+    """Noise floor of each observation's mean (n, 3), deg/s.
+
+    From the session's noise model when segmentation characterised it (``floor_*``, and across
+    temperature points ``wander_*`` in quadrature: :mod:`gyrocal.floor`); otherwise the
+    white-noise floor, within-hold std / sqrt(n)."""
     data = columns_of(obs)
+    if "floor_x" in data:
+        floor = np.column_stack([data[f"floor_{a}"] for a in "xyz"])
+        if "wander_x" in data and np.unique(data["point"]).size > 1:
+            floor = np.hypot(floor, np.column_stack([data[f"wander_{a}"] for a in "xyz"]))
+        return floor
     std = np.column_stack([data["std_x"], data["std_y"], data["std_z"]])
     return std / np.sqrt(data["n"])[:, None]
 
@@ -191,6 +200,38 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
                     f"term {term.spec_string()} is not finite for {int(bad.sum())} of {n_obs} "
                     f"holds{f' at {label}' if label else ''} (inputs: {', '.join(sorted(term.needs))})",
                     source=source)
+
+
+MAX_CORRELATED = 3000  # observations up to which correlated noise is fitted exactly (O(n^3))
+
+
+def _whiteners(data: dict, floor: np.ndarray) -> list:
+    """Per output axis, the map that makes the observations' noise unit white.
+
+    Independent noise (white, or no noise model): divide by the floor. With bias instability or
+    rate random walk in the session's noise model (``white_*``, ``flicker_*``, ``rrw_*`` columns,
+    :mod:`gyrocal.floor`), the hold means share slow wander, and holds close in time err alike;
+    the fit is then generalised least squares with that covariance, C = L L^T and L^-1 applied,
+    so that the chi-square and the F-tests of the diagnosis count the evidence honestly (a wander
+    that follows the protocol's order of rates would otherwise pass for a rate effect)."""
+    n = len(floor)
+    coloured = "white_x" in data and 1 < n <= MAX_CORRELATED and any(
+        np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in AXES)
+    if not coloured:
+        return [lambda m, w=1.0 / floor[:, i]: m * (w[:, None] if np.ndim(m) == 2 else w)
+                for i in range(3)]
+    from scipy.linalg import cho_factor, solve_triangular
+
+    from .floor import time_covariances
+    flicker, walk = time_covariances(data["t_start"], data["t_end"])
+    out = []
+    for i, a in enumerate(AXES):
+        white = np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
+        cov = flicker * float(np.max(data[f"flicker_{a}"])) ** 2 + walk * float(np.max(data[f"rrw_{a}"])) ** 2
+        cov[np.diag_indices(n)] += white ** 2
+        lower = cho_factor(cov, lower=True)[0]
+        out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
+    return out
 
 
 def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
@@ -209,6 +250,7 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     # A hold whose scatter is zero (a constant, quantised output) would get infinite
     # weight: no observation is trusted more than a thousandth of the typical floor.
     floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))
+    whiteners = _whiteners(data, floor)
     where = f" at {label}" if label else ""
 
     names: list[str] = []
@@ -223,8 +265,8 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
             continue
         X = np.column_stack([np.broadcast_to(design[c], (n_obs,)) for c in cols])
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
-        sw = 1.0 / floor[:, i]
-        Xw, yw = X * sw[:, None], y * sw
+        whiten = whiteners[i]
+        Xw, yw = whiten(X), whiten(y)
         scale = np.linalg.norm(Xw, axis=0)
         dead = scale == 0
         scale[dead] = 1.0
@@ -247,7 +289,7 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
                 source=source)
         theta = (Vt.T @ ((U.T @ yw) / s)) / scale
         r = y - X @ theta
-        c2 = float(np.sum((r * sw) ** 2))
+        c2 = float(np.sum(whiten(r) ** 2))
         cov = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
         names += cols
         values.append(theta)

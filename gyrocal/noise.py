@@ -8,8 +8,8 @@ estimator at tau = m / rate is (NIST SP 1065, eq. 11)
     sigma^2(tau) = 1 / (2 tau^2 (N - 2m)) * sum_{i=0}^{N-2m-1} (theta_{i+2m} - 2 theta_{i+m} + theta_i)^2.
 
 Removing the mean before the cumulative sum leaves every second difference unchanged and keeps the
-angle small, so a long soak with a large bias loses no precision. The sum is evaluated per tau in
-cache-sized column blocks: one pass over the data per tau, no loop per sample.
+angle small, so a long soak with a large bias loses no precision. The sum takes one read of the
+angle per tau (``gyrocal/_blockstats.c``; cache-sized numpy blocks where it is not built).
 
 Noise model fitted to sigma^2 (IEEE Std 952, eq. C.41 without the drift-ramp term)
 
@@ -28,14 +28,15 @@ import numpy as np
 from scipy import optimize, stats
 
 from .errors import InputError
+from .kernels import second_diff_sumsq
 
-__all__ = ["AllanResult", "NoiseTerms", "allan_deviation", "fit_noise_terms", "MIN_SAMPLES",
-           "FLICKER_FACTOR"]
+__all__ = ["AllanResult", "NoiseTerms", "allan_deviation", "pooled_allan_deviation", "stretch_sums",
+           "pooled_from_sums", "StretchSums", "barnes_b1",
+           "fit_noise_terms", "MIN_SAMPLES", "FLICKER_FACTOR"]
 
 MIN_SAMPLES = 8  # fewer samples give a single-octave curve with one or two terms: nothing to fit
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643: Allan plateau / B
 _EDF_READING = 10.0  # min(adev) reading skips long taus whose scatter (~1/sqrt(2 edf)) > 22 %
-_BLOCK = 1 << 14  # columns per block: (axes, block) temporaries of ~0.4 MB stay in cache
 
 # SI (deg, s) -> IEEE Std 952 reporting units
 _TO_ARW = 60.0  # deg/sqrt(s) -> deg/sqrt(h)
@@ -109,17 +110,28 @@ def edf_overlapping(n_phase, m) -> np.ndarray:
     return np.maximum(np.minimum(np.minimum(white, flicker), walk), 1.0)
 
 
-def _second_diff_sumsq(theta: np.ndarray, m: int) -> np.ndarray:
-    """sum_i (theta[i+2m] - 2 theta[i+m] + theta[i])^2 per row, blockwise (theta is (axes, N))."""
-    count = theta.shape[1] - 2 * m
-    acc = np.zeros(theta.shape[0])
-    for i0 in range(0, count, _BLOCK):
-        i1 = min(i0 + _BLOCK, count)
-        d = theta[:, i0 + 2 * m:i1 + 2 * m] - theta[:, i0 + m:i1 + m]
-        d -= theta[:, i0 + m:i1 + m]
-        d += theta[:, i0:i1]
-        acc += np.einsum("ij,ij->i", d, d)
-    return acc
+def _sumsq(cols: np.ndarray, rate: float, m: np.ndarray, overlapping: bool = True) -> np.ndarray:
+    """(len(m), axes) sums of squared second differences of the integrated angle per tau."""
+    n = cols.shape[0]
+    sumsq = np.empty((m.size, cols.shape[1]))
+    theta = np.zeros((1, n + 1))  # one axis at a time: contiguous, and peak memory of one axis
+    for j in range(cols.shape[1]):
+        col = cols[:, j]
+        np.cumsum(col - col.mean(), out=theta[0, 1:])
+        theta /= rate
+        if overlapping:
+            sumsq[:, j] = second_diff_sumsq(theta[0], m)
+        else:
+            for i, mj in enumerate(m):
+                d = np.diff(theta[0, ::mj], 2)
+                sumsq[i, j] = d @ d
+    return sumsq
+
+
+def _interval(adev, edf, level):
+    lo = adev * np.sqrt(edf / stats.chi2.ppf(0.5 + level / 2, edf))[:, None]
+    hi = adev * np.sqrt(edf / stats.chi2.ppf(0.5 - level / 2, edf))[:, None]
+    return lo, hi
 
 
 def allan_deviation(x, rate: float, *, taus="octave", overlapping: bool = True,
@@ -147,18 +159,7 @@ def allan_deviation(x, rate: float, *, taus="octave", overlapping: bool = True,
 
     cols = x.reshape(n, -1)
     tau = m / rate
-    sumsq = np.empty((m.size, cols.shape[1]))
-    theta = np.zeros((1, n + 1))  # one axis at a time: contiguous, and peak memory of one axis
-    for j in range(cols.shape[1]):
-        col = cols[:, j]
-        np.cumsum(col - col.mean(), out=theta[0, 1:])
-        theta /= rate
-        if overlapping:
-            sumsq[:, j] = [_second_diff_sumsq(theta, int(mj))[0] for mj in m]
-        else:
-            for i, mj in enumerate(m):
-                d = np.diff(theta[0, ::mj], 2)
-                sumsq[i, j] = d @ d
+    sumsq = _sumsq(cols, rate, m, overlapping)
     if overlapping:
         n_terms = n + 1 - 2 * m
         edf = edf_overlapping(n + 1, m)
@@ -167,12 +168,86 @@ def allan_deviation(x, rate: float, *, taus="octave", overlapping: bool = True,
         edf = n_terms.astype(float)
     avar = sumsq / (2.0 * tau[:, None] ** 2 * n_terms[:, None])
     adev = np.sqrt(avar)
-    lo = adev * np.sqrt(edf / stats.chi2.ppf(0.5 + level / 2, edf))[:, None]
-    hi = adev * np.sqrt(edf / stats.chi2.ppf(0.5 - level / 2, edf))[:, None]
+    lo, hi = _interval(adev, edf, level)
     if x.ndim == 1:
         adev, lo, hi = adev[:, 0], lo[:, 0], hi[:, 0]
     return AllanResult(tau=tau, m=m, adev=adev, n_terms=np.asarray(n_terms), edf=edf, lo=lo,
                        hi=hi, rate=rate, n_samples=n, overlapping=overlapping, level=level)
+
+
+@dataclass(frozen=True)
+class StretchSums:
+    """One static stretch's share of a pooled Allan deviation: per octave m = 1, 2, 4, ... its
+    sums of squared second differences (k, axes), their count and equivalent degrees of
+    freedom, and its within-stretch sum of squares about the mean (axes,)."""
+
+    sumsq: np.ndarray
+    n_terms: np.ndarray
+    edf: np.ndarray
+    n: int
+    centred_sumsq: np.ndarray
+
+
+def stretch_sums(x, rate: float) -> StretchSums:
+    """The sums one stretch ((n, axes), n >= MIN_SAMPLES, finite) adds to a pooled estimate."""
+    x = np.asarray(x, dtype=float)
+    x = x.reshape(x.shape[0], -1)
+    n = x.shape[0]
+    if n < MIN_SAMPLES or not np.all(np.isfinite(x)):
+        raise InputError(f"stretch_sums: need at least {MIN_SAMPLES} finite samples, found {n}")
+    m = 2 ** np.arange(int(math.log2(n // 2)) + 1)
+    centred = x - x.mean(axis=0)
+    return StretchSums(sumsq=_sumsq(x, float(rate), m), n_terms=n + 1 - 2 * m,
+                       edf=edf_overlapping(n + 1, m), n=n,
+                       centred_sumsq=np.einsum("ij,ij->j", centred, centred))
+
+
+def pooled_from_sums(parts, rate: float, *, level: float = 0.683) -> AllanResult:
+    """The pooled Allan deviation of stretches given by their :func:`stretch_sums`."""
+    parts = list(parts)
+    if not parts:
+        raise InputError(f"pooled_allan_deviation: no stretch of at least {MIN_SAMPLES} samples")
+    k = max(p.sumsq.shape[0] for p in parts)
+    axes = parts[0].sumsq.shape[1]
+    if any(p.sumsq.shape[1] != axes for p in parts):
+        raise InputError("pooled_allan_deviation: stretches need the same axes")
+    m = 2 ** np.arange(k)
+    sumsq, n_terms, edf = np.zeros((k, axes)), np.zeros(k), np.zeros(k)
+    for p in parts:
+        j = p.sumsq.shape[0]
+        sumsq[:j] += p.sumsq
+        n_terms[:j] += p.n_terms
+        edf[:j] += p.edf
+    tau = m / float(rate)
+    adev = np.sqrt(sumsq / (2.0 * tau[:, None] ** 2 * n_terms[:, None]))
+    lo, hi = _interval(adev, edf, level)
+    return AllanResult(tau=tau, m=m, adev=adev, n_terms=n_terms.astype(np.int64), edf=edf, lo=lo,
+                       hi=hi, rate=float(rate), n_samples=int(sum(p.n for p in parts)), level=level)
+
+
+def pooled_allan_deviation(stretches, rate: float, *, level: float = 0.683) -> AllanResult:
+    """Overlapping Allan deviation of one sensor from several static stretches ((n_i, axes) each).
+
+    A soak per mount or several pauses at one temperature are not one record; joining them would
+    put a step at every seam. Instead, at each octave tau the squared second differences of every
+    stretch at least 2m samples long are summed and divided by their total count (the estimator
+    of the module docstring over the union), and their edf add up. One stretch gives
+    :func:`allan_deviation`'s result exactly. Stretches under MIN_SAMPLES are skipped.
+    """
+    parts = [np.asarray(x, dtype=float) for x in stretches]
+    return pooled_from_sums([stretch_sums(x, rate) for x in parts if x.shape[0] >= MIN_SAMPLES], rate,
+                            level=level)
+
+
+def barnes_b1(count, mu: int) -> np.ndarray:
+    """Barnes' bias function B1: the expected sample variance (ddof 1) of ``count`` adjacent
+    tau-means over the Allan variance at tau, for noise whose Allan variance grows as tau^mu
+    (mu = -1 white rate, 0 flicker, 1 random walk; NIST SP 1065, section 5.15). It is 1 for white
+    noise at any count and for every noise at count 2; counts under 2 are taken as 2."""
+    M = np.maximum(np.asarray(count, dtype=float), 2.0)
+    if mu == 0:
+        return M * np.log(M) / (2.0 * (M - 1.0) * math.log(2.0))
+    return M * (1.0 - M ** mu) / (2.0 * (M - 1.0) * (1.0 - 2.0 ** mu))
 
 
 _TERMS = ("quantisation", "arw", "bias_instability", "rrw")
@@ -244,6 +319,31 @@ class NoiseTerms:
         if not np.all(np.isfinite(t)) or np.any(t <= 0):
             raise InputError(f"NoiseTerms.floor: durations must be positive and finite, found {t}")
         return self.adev(t)
+
+    def _parts(self, tau) -> np.ndarray:
+        """(..., axes, 4) Allan variance of each term (Q, N, B, K) at ``tau``."""
+        return _design(np.asarray(tau, dtype=float))[..., None, :] * self._coefficients()
+
+    def _per_axis(self, out):
+        return out[..., 0] if np.ndim(self.arw) == 0 else out
+
+    def mean_variance(self, duration_s, count=2.0) -> np.ndarray:
+        """Variance ((deg/s)^2) of a ``duration_s``-long mean about the mean of ``count`` such
+        means in a row: each term's Allan variance at tau = T times its :func:`barnes_b1`.
+        With count 2 this is the Allan variance itself (:meth:`floor` squared); flicker and
+        random walk make holds scatter more the longer the stretch a fit pools them over.
+        ``duration_s`` and ``count`` broadcast; per-axis terms append an axis dimension."""
+        parts = self._parts(duration_s)
+        count = np.asarray(count, dtype=float)[..., None]
+        parts[..., 2] *= barnes_b1(count, 0)
+        parts[..., 3] *= barnes_b1(count, 1)
+        return self._per_axis(parts.sum(axis=-1))
+
+    def coloured_variance(self, tau) -> np.ndarray:
+        """Flicker plus random-walk Allan variance ((deg/s)^2) at ``tau`` (s): how far apart the
+        means of stretches ``tau`` apart wander beyond white noise."""
+        parts = self._parts(tau)
+        return self._per_axis(parts[..., 2] + parts[..., 3])
 
     def to_dict(self) -> dict:
         units = {"arw": "deg/sqrt(h)", "bias_instability": "deg/h", "rrw": "deg/h/sqrt(h)",

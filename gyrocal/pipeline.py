@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import importlib.metadata
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +18,7 @@ from . import __version__
 from .calibration import Calibration
 from .config import Settings
 from .errors import ConfigError
+from .floor import add_floor_columns, characterise, noise_record
 from .io import file_sha256, read_log
 from .segment import LOG_COLUMNS, Segmentation, segment
 from .thermal import ContinuousFit, GridFit, fit_model
@@ -65,19 +66,31 @@ def segment_log(path, settings: Settings, protocol: str = "turntable") -> Segmen
             seg = protocols.SEGMENTERS[protocol](log, settings.protocol_options(protocol))
         seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
-    return seg
+    return with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
+
+
+def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float) -> Segmentation:
+    """``seg`` with the session's noise characterisation in ``info["noise"]`` and every
+    observation's noise floor from it (:mod:`gyrocal.floor`)."""
+    summary = characterise(log, seg, protocol, max_temp_rate=max_temp_rate)
+    obs = add_floor_columns(seg.observations, summary, float(seg.info.get("sample_rate") or 0.0))
+    return replace(seg, observations=obs, info={**seg.info, "noise": summary})
 
 
 def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
-                           source: dict | None = None, label=None
+                           source: dict | None = None, label=None, noise: dict | None = None
                            ) -> tuple[Calibration, GridFit | ContinuousFit | None]:
     """The calibration of one unit's observations. A servo session's is seed 001's own
-    six-parameter fit (no common-model fit comes back: None)."""
+    six-parameter fit (no common-model fit comes back: None). ``noise``, segmentation's noise
+    characterisation, is kept in the file (:func:`gyrocal.floor.noise_record`)."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
     if meta.get("protocol") == "servo":
         from .protocols import servo_calibration
-        return servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
-                                 meta=meta, provenance=provenance), None
+        cal = servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
+                                meta=meta, provenance=provenance)
+        if noise:
+            cal.extra["noise"] = noise_record(noise)
+        return cal, None
     model = settings.model.build()
     fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
                        degree=settings.model.degree, source=label)
@@ -91,7 +104,8 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         extra={"points": [
             {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
              **({"excluded_because": r.reason} if not r.used else {})}
-            for r in points.itertuples()]}, covariates=covariates)
+            for r in points.itertuples()],
+            **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
     return cal, fitted
 
 
@@ -103,7 +117,8 @@ def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
     meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
             "session": session, "protocol": protocol}
     cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
-                                           source=seg.info["source"], label=path)
+                                           source=seg.info["source"], label=path,
+                                           noise=seg.info.get("noise"))
     if protocol == "servo":
         from .protocols import servo_validation
         return Run(cal, seg, fitted, servo_validation(seg.observations, cal))

@@ -292,3 +292,42 @@ def servo_errors(holds: pd.DataFrame) -> str:
             ax.set_xlabel("revolution (rotation direction)")
         axes[0, 0].set_ylabel("|ω| error, deg/s")
         return to_svg(fig)
+
+
+def allan(noise: dict) -> str:
+    """Overlapping Allan deviation of the session's static stretches per axis (error bars: the
+    confidence interval from the edf), the fitted IEEE Std 952 model and its slopes (-1/2 angle
+    random walk, 0 bias instability, +1/2 rate random walk), and each temperature point's
+    curve in grey."""
+    from .floor import terms_of
+    session = noise["session"]
+    curve = session["allan"]
+    tau = np.asarray(curve["tau_s"])
+    adev, lo, hi = (np.asarray(curve[k]) for k in ("adev", "lo", "hi"))
+    terms = terms_of(session)
+    grid = np.geomspace(tau[0], tau[-1], 200)
+    model = terms.adev(grid)
+    arw, bi, rrw = (np.atleast_1d(np.asarray(getattr(terms, k), float))
+                    for k in ("arw", "bias_instability", "rrw"))
+    with matplotlib.rc_context(_RC):
+        fig, ax = figure(10, 3.4, 1, 3, sharey=True)
+        for i, a in enumerate(AXES):
+            axis = ax[0, i]
+            for point in noise.get("points", []):
+                if "allan" in point:
+                    axis.loglog(point["allan"]["tau_s"], np.asarray(point["allan"]["adev"])[:, i],
+                                color="#bbbbbb", lw=0.7)
+            axis.errorbar(tau, adev[:, i], yerr=[adev[:, i] - lo[:, i], hi[:, i] - adev[:, i]],
+                          fmt="o", ms=3, color=AXIS_COLOURS[a], lw=0.8, label="measured")
+            axis.loglog(grid, model[:, i], color="k", lw=1, label="fitted model")
+            slopes = (("−½: angle random walk", arw[i] / 60.0 / np.sqrt(grid)),
+                      ("0: bias instability", np.full_like(grid, 0.6643 * bi[i] / 3600.0)),
+                      ("+½: rate random walk", rrw[i] / 3600.0 ** 1.5 * np.sqrt(grid / 3.0)))
+            for (label, line), style in zip(slopes, (":", "--", "-.")):
+                if np.all(line > 0):
+                    axis.loglog(grid, line, "k", ls=style, lw=0.7, label=label)
+            axis.set_xlabel("averaging time τ, s")
+            axis.set_title(f"gyro {a}")
+        ax[0, 0].set_ylabel("Allan deviation, deg/s")
+        ax[0, 2].legend(fontsize=7, loc="best")
+        return to_svg(fig)

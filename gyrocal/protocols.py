@@ -332,7 +332,10 @@ def servo_validation(obs: pd.DataFrame, cal):
             keep = np.arange(len(obs)) != r
             fit = fit_observations(data.iloc[keep], method="iterative")
             compensated[r] = fit.compensate(m[r:r + 1])[0]
-    noise = data[[f"gyro_{a}_noise" for a in AXES]].to_numpy() / np.sqrt(data["n"].to_numpy())[:, None]
+    if "floor_x" in obs:  # the session's noise model (gyrocal.floor): one point, no wander
+        noise = obs[[f"floor_{a}" for a in AXES]].to_numpy(float)
+    else:
+        noise = data[[f"gyro_{a}_noise" for a in AXES]].to_numpy() / np.sqrt(data["n"].to_numpy())[:, None]
     norm = np.linalg.norm(compensated, axis=1)
     direction = compensated / norm[:, None]
     floor = np.sqrt(((direction * k * noise) ** 2).sum(axis=1))

@@ -172,6 +172,32 @@ def _diagnosis_context(results: UnitResults) -> dict:
     return context
 
 
+def _noise_context(noise: dict | None) -> dict:
+    """The sensor-noise section: which floor applies, the terms per temperature point (each
+    axis x / y / z) and the Allan deviation figure."""
+    if not noise:  # observations written before noise characterisation
+        return {"noise": None}
+    from .floor import floor_terms
+    rows = []
+    entries = ([("all static stretches", noise["session"], noise["stretches"], noise["static_seconds"])]
+               if "session" in noise else [])
+    entries += [(f"{p['temp']:.4g} °C", p, p["stretches"], p["seconds"]) for p in noise["points"]]
+    for label, entry, count, seconds in entries:
+        terms = entry.get("terms")
+        rows.append({"label": label, "stretches": count, "seconds": seconds,
+                     **({k: np.atleast_1d(terms[k]).tolist() for k in
+                         ("arw", "bias_instability", "rrw", "quantisation", "bias_instability_min")}
+                        if terms else {}),
+                     "from_point": entry.get("noise_from_point")})
+    used = None
+    if "session" in noise:
+        t = floor_terms(noise["session"])
+        used = {"bias_instability": np.atleast_1d(t.bias_instability).tolist(),
+                "rrw": np.atleast_1d(t.rrw).tolist()}
+    return {"noise": noise, "noise_rows": rows, "noise_used": used,
+            "fig_allan": plots.allan(noise) if "session" in noise else None}
+
+
 def write_unit_report(results: UnitResults, path) -> None:
     cal, info = results.calibration, results.seg_info
     counts = pd.crosstab(results.observations["point_temp"].round(2),
@@ -209,7 +235,7 @@ def write_unit_report(results: UnitResults, path) -> None:
             fig_before=plots.error_distribution(results.holds, "uncompensated"),
             fig_after=plots.error_distribution(results.holds, "interpolated"))),
         kind=cal.kind, protocol=results.protocol, protocol_figures=results.protocol_figures,
-        **_diagnosis_context(results))
+        **_noise_context(info.get("noise")), **_diagnosis_context(results))
     _write(path, html)
 
 

@@ -79,7 +79,7 @@ def fit_stage(folder, settings: Settings, meta: dict) -> None:
     failure.check_inputs(paths["observations"])
     obs, extra = read_table_with_metadata(paths["observations"])
     cal, _ = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
-                                    label=paths["observations"])
+                                    label=paths["observations"], noise=extra["info"].get("noise"))
     save_calibration(cal, paths["calibration"])
 
 

@@ -17,7 +17,9 @@ holds (leave one hold out), and ``single`` equals ``interpolated``.
 Errors are compensated rate minus true rate, per output axis, on hold means (systematic
 error) and on samples (total error: the hold-mean error plus the within-hold scatter mapped
 through the compensation). Beside them stand the noise floor — what a perfect calibration
-would leave: within-hold std / sqrt(n) for hold means, the within-hold std for samples —
+would leave: the session's noise model at each hold's duration for hold means
+(:func:`gyrocal.model.observation_floor`; within-hold std / sqrt(n) without one), the
+within-hold std for samples —
 and the expected RMS: the floor plus the calibration's own uncertainty carried to each hold
 (coefficient covariance through the interpolation weights and the model's columns), i.e.
 what an adequate model should reach. Per-sample variances neglect correlation between the

@@ -66,3 +66,16 @@ def test_segmentation_is_the_same_on_either_path(logs, monkeypatch):
         np.testing.assert_allclose(a[c], b[c], rtol=0, atol=1e-7)  # floor ≈ 2e-3 deg/s
     for c in ("std_x", "std_y", "std_z"):
         np.testing.assert_allclose(a[c], b[c], rtol=1e-4)
+
+
+def test_second_difference_sums_match_numpy_and_a_direct_sum(monkeypatch):
+    rng = np.random.default_rng(9)
+    theta = np.cumsum(rng.normal(0, 0.01, 40_003))  # odd length: the lanes' tail is exercised
+    m = np.array([1, 2, 3, 64, 1024, 20_001, 20_002])
+    direct = [float(np.sum((theta[2 * k:] - 2 * theta[k:-k] + theta[:-2 * k]) ** 2)) for k in m]
+    compiled = kernels.second_diff_sumsq(theta, m)
+    monkeypatch.setattr(kernels, "LIB", None)
+    fallback = kernels.second_diff_sumsq(theta, m)
+    np.testing.assert_allclose(compiled, direct, rtol=1e-12)
+    np.testing.assert_allclose(fallback, direct, rtol=1e-12)
+    assert compiled[-2] > 0 and compiled[-1] == 0.0  # one difference left, then none

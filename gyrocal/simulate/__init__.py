@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError
+from .noise import add_coloured_noise, noise_levels
 from .servo import ServoProtocol, ServoUnit, render_servo
 from .sweep import SweepProtocol, SweepUnit, render_sweep
 from .turntable import SEED000_RATES, SEED000_TEMPERATURES, TurntableProtocol, render
@@ -33,9 +34,11 @@ MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
 def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit | None = None,
                   rng: np.random.Generator, device: str = "U001", batch: str = "B1",
                   session: str = "2026-01-01", seed: int | None = None,
-                  effects: dict | None = None) -> dict:
+                  effects: dict | None = None, noise=None) -> dict:
     """Render one unit's log to ``path`` and its truth beside it; return the truth.
-    ``effects`` adds errors beyond the seed-000 model (:meth:`GyroUnit.with_effects`)."""
+    ``effects`` adds errors beyond the seed-000 model (:meth:`GyroUnit.with_effects`);
+    ``noise`` (a grade or levels, :func:`gyrocal.simulate.noise.noise_levels`) adds coloured
+    noise to the unit's white noise."""
     if protocol not in PROTOCOLS:
         raise ConfigError(f"unknown protocol {protocol!r}; this simulator knows "
                           f"{', '.join(PROTOCOLS)}")
@@ -43,10 +46,13 @@ def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit
     rig = rig or rig_cls()
     unit = (unit or unit_cls.random(rng)).with_effects(effects)
     path = Path(path)
+    levels = noise_levels(noise) if noise is not None else None
     schedule = renderer(rig, unit, rng, path)
+    if levels:
+        add_coloured_noise(path, levels, rng)
     truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
                  protocol=protocol, seed=seed, unit=unit.to_dict(), rig=rig.to_dict(),
-                 **schedule)
+                 **({"coloured_noise": levels} if levels else {}), **schedule)
     truth_path(path).write_text(json.dumps(truth, indent=1) + "\n")
     return truth
 
@@ -65,7 +71,7 @@ def load_truth(log_path) -> dict:
 def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int = 0,
              rig=None, unit: GyroUnit | None = None, batch: str = "B1",
              session: str = "2026-01-01", device_prefix: str = "U",
-             effects: dict | None = None) -> Path:
+             effects: dict | None = None, noise=None) -> Path:
     """Simulate ``units`` units into ``out_dir``; return the manifest path."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -75,7 +81,7 @@ def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int 
         name = f"{device}.parquet"
         simulate_unit(out / name, protocol=protocol, rig=rig, unit=unit,
                       rng=np.random.default_rng(child), device=device, batch=batch,
-                      session=session, seed=seed, effects=effects)
+                      session=session, seed=seed, effects=effects, noise=noise)
         rows.append((device, batch, session, protocol, name))
     manifest = out / "devices.tsv"
     manifest.write_text("\n".join("\t".join(r) for r in [MANIFEST_COLUMNS, *rows]) + "\n")

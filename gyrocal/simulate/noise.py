@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import ConfigError
 
-__all__ = ["GRADES", "coloured_noise"]
+__all__ = ["GRADES", "coloured_noise", "noise_levels", "add_coloured_noise"]
 
 # Typical datasheet / published Allan-analysis ranges, middle of each class:
 # low  — consumer MEMS (phone/drone IMUs): noise density ~0.005-0.01 deg/s/sqrt(Hz), i.e.
@@ -76,3 +76,41 @@ def coloured_noise(rng: np.random.Generator, n: int, rate: float, *, arw: float,
         angle = rng.standard_normal((n + 1, axes)) * (quantisation / 3600.0)
         out += np.diff(angle, axis=0) * rate
     return out
+
+
+def noise_levels(spec) -> dict:
+    """Coloured-noise levels from a grade name (``low``, ``mid``, ``high``: the bias instability,
+    rate random walk and quantisation of :data:`GRADES`) or a mapping of those keys. ARW is not
+    taken: every simulated unit already has its white noise (its noise density)."""
+    if isinstance(spec, str):
+        if spec not in GRADES:
+            raise ConfigError(f"noise grade {spec!r}: expected one of {', '.join(GRADES)} or levels")
+        spec = GRADES[spec]
+    if not isinstance(spec, dict):
+        raise ConfigError(f"noise: expected a grade name or a mapping of levels, found {spec!r}")
+    keys = ("bias_instability", "rrw", "quantisation")
+    unknown = sorted(set(spec) - set(keys) - {"arw"})
+    if unknown:
+        raise ConfigError(f"noise: unknown level(s) {', '.join(unknown)}; known: {', '.join(keys)}")
+    return {k: float(spec.get(k, 0.0)) for k in keys}
+
+
+def add_coloured_noise(path, levels: dict, rng: np.random.Generator) -> None:
+    """Add bias instability, rate random walk and quantisation noise (``levels`` in the units
+    above) to the gyro columns of the log at ``path``, in place. Drawn over the whole log at its
+    median sample rate, so the flicker's low frequencies run across the renderers' chunks."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    if not any(levels.values()):
+        return
+    table = pq.read_table(path)
+    t = table.column("t").to_numpy()
+    rate = 1.0 / float(np.median(np.diff(t)))
+    noise = coloured_noise(rng, len(t), rate, arw=0.0, **levels)
+    for i, axis in enumerate("xyz"):
+        name = f"gyro_{axis}"
+        column = table.column(name)
+        values = column.to_numpy().astype(np.float64) + noise[:, i]
+        table = table.set_column(table.schema.get_field_index(name), name,
+                                 pa.array(values.astype(column.type.to_pandas_dtype())))
+    pq.write_table(table, path)

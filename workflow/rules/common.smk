@@ -131,6 +131,12 @@ def demo_unit_options(wildcards):
             options.append(f"--{key}={values}")
     if settings.get("mounts"):
         options.append(f"--mounts={shlex.quote(','.join(settings['mounts']))}")
+    if settings.get("soak_s"):
+        options.append(f"--soak-s={settings['soak_s']}")
+    noise = settings.get("noise")
+    if noise:
+        noise = noise if isinstance(noise, str) else json.dumps(noise, sort_keys=True)
+        options.append(f"--noise {shlex.quote(noise)}")
     shift = settings.get("bias_shift", {}).get(wildcards.session)
     if shift:
         options.append("--bias-shift=" + ",".join(str(v) for v in shift))

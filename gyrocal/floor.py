@@ -1,0 +1,310 @@
+"""The honest noise floor: each observation's noise from the sensor's own static stretches.
+
+A real MEMS gyro is not a white-noise source: bias instability (flicker) and rate random walk
+move a hold's mean by more than (within-hold std)/sqrt(n), and they move the bias between
+temperature points that hours separate. A floor that ignores them makes every real unit look as
+if an effect were missing. So, for every session:
+
+1. the log's static stretches are found from its segmentation (:func:`static_stretches`);
+2. their overlapping Allan deviation is pooled over the session (the model the floors use) and
+   per temperature point (the terms' temperature dependence), and the IEEE Std 952 terms are
+   fitted (:mod:`gyrocal.noise`); bias instability and rate random walk enter the floors only
+   where detected (:func:`floor_terms`);
+3. every observation gets two standard deviations per axis (columns of the observation table):
+
+   * ``floor_*``: its mean about the mean of its temperature point's holds, T = n / rate long:
+     ``NoiseTerms.mean_variance(T, M)`` with M = (span of the point's holds) / T, i.e. each
+     term's Allan variance at T times Barnes' B1(M); plus the hold's own white scatter beyond the
+     static one, (s^2 - s0^2) / n, which table wobble or vibration adds while rotating;
+   * ``wander_*``: its point's mean about a smooth curve across temperature: the flicker and
+     random-walk Allan variance at the time between neighbouring points.
+
+   A fit inside one temperature point sees ``floor``; a fit or comparison across points sees
+   ``floor`` and ``wander`` in quadrature (:func:`gyrocal.model.observation_floor`). The fits
+   themselves use the full covariance of the hold means (``white_*``, ``flicker_*``, ``rrw_*``
+   columns and :func:`time_covariances`): holds close in time share the wander.
+
+With white noise alone, ``floor`` is the noise density over sqrt(T), what std/sqrt(n) gives,
+and ``wander`` vanishes. When nothing static can be characterised, the columns are left out and
+every consumer falls back to std/sqrt(n); the summary (``Segmentation.info["noise"]``) says so.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError
+from .noise import MIN_SAMPLES, NoiseTerms, fit_noise_terms, pooled_from_sums, stretch_sums
+
+AXES = "xyz"
+MIN_STATIC_S = 1.0      # a stretch this long adds its short taus to the pooled estimate
+MIN_STATIC_SAMPLES = 64
+MIN_TOTAL_S = 10.0      # less static time in all reaches too few octaves to tell terms apart
+MERGE_GAP_S = 1.0       # stretches closer than this are one stretch (a hold that ends a soak)
+QUIET_BLOCK_S = 1.0     # servo pauses: blocks judged quiet by their scatter
+QUIET_FACTOR = 2.0      # a block scattering more than this × the median block is moving
+FALLBACK = "within-hold scatter"
+STATIC = "noise model of the static stretches"
+
+
+def _merge(start: np.ndarray, end: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Union of intervals, joining those less than ``gap`` apart."""
+    if start.size == 0:
+        return start, end
+    order = np.argsort(start)
+    start, end = start[order], np.maximum.accumulate(end[order])
+    new = np.r_[True, start[1:] - end[:-1] > gap]
+    group = np.cumsum(new) - 1
+    return start[new], np.maximum.reduceat(end, np.flatnonzero(new))[: group[-1] + 1]
+
+
+def _intersect(a0, a1, b0, b1) -> tuple[np.ndarray, np.ndarray]:
+    """Pairwise intersection of two sorted sets of disjoint intervals."""
+    lo = np.maximum(a0[:, None], b0[None, :])
+    hi = np.minimum(a1[:, None], b1[None, :])
+    keep = hi > lo
+    return lo[keep], hi[keep]
+
+
+def _quiet_runs(t: np.ndarray, gyro: np.ndarray, still: np.ndarray, rate: float):
+    """Runs of whole blocks where the reference is still and the gyro scatters no more than
+    QUIET_FACTOR × the median still block (a hand moving the unit scatters far more); one block
+    either side of such a block is dropped as settling."""
+    size = max(int(round(QUIET_BLOCK_S * rate)), 2)
+    nb = len(t) // size
+    if nb < 3:
+        return np.array([]), np.array([])
+    g = gyro[: nb * size].reshape(nb, size, 3)
+    block_still = still[: nb * size].reshape(nb, size).all(axis=1)
+    spread = g.std(axis=1).max(axis=1)
+    if not block_still.any():
+        return np.array([]), np.array([])
+    moving = block_still & (spread > QUIET_FACTOR * np.median(spread[block_still]))
+    quiet = block_still & ~moving & ~np.r_[moving[1:], False] & ~np.r_[False, moving[:-1]]
+    edges = np.diff(np.r_[0, quiet.astype(np.int8), 0])
+    first, stop = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return t[first * size], t[stop * size - 1]
+
+
+def static_stretches(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> pd.DataFrame:
+    """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature.
+
+    turntable: the soaks and rate-0 holds segmentation found (motion already rejected), inside
+    its stable-temperature periods; sweep: runs of adjacent windows whose temperature rate is
+    under ``max_temp_rate`` °C/min (the soak before the first ramp, the dwells at the targets);
+    servo: the pauses between rotations (reference rate 0), in quiet blocks only, since the
+    unit is turned by hand between rotations.
+    """
+    if protocol == "turntable":
+        s = seg.segments
+        pick = (s["kind"] == "soak") | ((s["kind"] == "hold") & (s["ref_rate"] == 0))
+        t0, t1 = _merge(s.loc[pick, "t_start"].to_numpy(float), s.loc[pick, "t_end"].to_numpy(float),
+                        MERGE_GAP_S)
+        st = seg.stable_periods
+        t0, t1 = _intersect(t0, t1, st["t_start"].to_numpy(float), st["t_end"].to_numpy(float))
+    elif protocol == "sweep":
+        obs = seg.observations
+        steady = np.abs(obs["temp_rate"].to_numpy(float)) <= max_temp_rate
+        rate = float(seg.info.get("sample_rate", 1.0))
+        t0, t1 = _merge(obs.loc[steady, "t_start"].to_numpy(float), obs.loc[steady, "t_end"].to_numpy(float),
+                        2.0 / rate)
+    elif protocol == "servo":
+        t = log.column("t")
+        gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
+        t0, t1 = _quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+    else:
+        raise InputError(f"no static stretches are defined for protocol {protocol!r}")
+    out = pd.DataFrame({"t_start": np.asarray(t0, float), "t_end": np.asarray(t1, float)})
+    out = out[out["t_end"] - out["t_start"] >= MIN_STATIC_S].sort_values("t_start")
+    return out.reset_index(drop=True)
+
+
+def _slices(t: np.ndarray, stretches: pd.DataFrame) -> list[slice]:
+    lo = np.searchsorted(t, stretches["t_start"].to_numpy(), side="left")
+    hi = np.searchsorted(t, stretches["t_end"].to_numpy(), side="right")
+    return [slice(a, b) for a, b in zip(lo, hi) if b - a >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES)]
+
+
+def _model(parts: list, rate: float) -> dict | None:
+    """Pooled Allan deviation, fitted terms and within-stretch sample variance of stretches
+    given by their :func:`gyrocal.noise.stretch_sums`, JSON-plain; None when they reach too few
+    octaves for a fit."""
+    try:
+        allan = pooled_from_sums(parts, rate)
+        terms = fit_noise_terms(allan)
+    except InputError:
+        return None
+    variance = sum(p.centred_sumsq for p in parts) / (sum(p.n for p in parts) - len(parts))
+    return {"sample_variance": variance.tolist(),
+            "allan": {"tau_s": allan.tau.tolist(), "adev": allan.adev.tolist(), "lo": allan.lo.tolist(),
+                      "hi": allan.hi.tolist(), "edf": allan.edf.tolist(), "level": allan.level},
+            "terms": terms.to_dict()}
+
+
+def characterise(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> dict:
+    """Noise of the session, JSON-plain: ``session`` pools every static stretch (the model the
+    floors use: a few short soaks per temperature cannot pin down flicker and random walk, all
+    of them together can), ``points`` the same per temperature point (the terms' temperature
+    dependence; a point without static stretches is listed without them); ``source`` says
+    which floor applies and ``reason`` why the fallback did. Each stretch is read once: the
+    pooled estimates are sums over stretches, computed on two threads (numpy releases the GIL)."""
+    obs = seg.observations
+    rate = float(seg.info.get("sample_rate") or 0.0)
+    summary = {"source": FALLBACK, "points": [], "static_seconds": 0.0,
+               "reason": f"less than {MIN_TOTAL_S:g} s of static data with a steady temperature "
+                         "in the log"}
+    if obs.empty or rate <= 0:
+        return summary
+    stretches = static_stretches(log, seg, protocol, max_temp_rate=max_temp_rate)
+    slices = _slices(log.column("t"), stretches)
+    seconds = sum(s.stop - s.start for s in slices) / rate
+    if seconds < MIN_TOTAL_S:
+        return summary
+    temp = log.column("temp")
+    columns = [log.column(f"gyro_{a}") for a in AXES]
+    with ThreadPoolExecutor(2) as pool:
+        parts = list(pool.map(lambda s: stretch_sums(np.column_stack([c[s] for c in columns]), rate),
+                              slices))
+    session = _model(parts, rate)
+    if session is None:
+        summary["reason"] = "the static stretches are too short for a noise model"
+        return summary
+    points = obs.groupby("point")["point_temp"].first()
+    temps = np.array([float(np.mean(temp[s])) for s in slices])
+    # each stretch belongs to the temperature point nearest its mean temperature
+    nearest = np.abs(temps[:, None] - points.to_numpy()[None, :]).argmin(axis=1)
+    rows = []
+    for k, (point, point_temp) in enumerate(points.items()):
+        mine = [p for p, j in zip(parts, nearest) if j == k]
+        row = {"point": int(point), "temp": float(point_temp), "stretches": len(mine),
+               "seconds": float(sum(p.n for p in mine) / rate)}
+        row.update((_model(mine, rate) or {}) if mine else {})
+        rows.append(row)
+    longest = max(p.n for p in parts) / rate
+    return {"source": STATIC, "static_seconds": float(seconds), "stretches": len(parts),
+            "longest_static_s": float(longest), "session": session, "points": rows}
+
+
+def terms_of(entry: dict) -> NoiseTerms:
+    """The :class:`NoiseTerms` of one point of a :func:`characterise` summary."""
+    d = entry["terms"]
+    keys = ("arw", "bias_instability", "rrw", "quantisation")
+    kw = {k: np.asarray(d[k], float) for k in keys}
+    kw.update({f"{k}_stderr": np.asarray(d[f"{k}_stderr"], float) for k in keys})
+    return NoiseTerms(**kw, bias_instability_min=np.asarray(d["bias_instability_min"], float),
+                      tau_min=np.asarray(d["tau_min"], float), chi2_reduced=np.asarray(d["chi2_reduced"], float),
+                      tau_range=tuple(d["tau_range_s"]))
+
+
+DETECTION_Z = 3.0  # a coloured term counts when its fit exceeds this many standard errors
+
+
+def floor_terms(model: dict) -> NoiseTerms:
+    """The session's terms as the floors use them: bias instability and rate random walk only
+    where the static data detect them (fit >= DETECTION_Z standard errors). A few minutes of
+    white noise fit a flicker level of a few deg/h at two standard errors; counted, it would
+    raise the floor of a white-noise unit by a third and hide real effects."""
+    terms = terms_of(model)
+    kw = {}
+    for name in ("bias_instability", "rrw"):
+        value = np.asarray(getattr(terms, name), float)
+        error = np.asarray(getattr(terms, f"{name}_stderr"), float)
+        kw[name] = np.where(value >= DETECTION_Z * error, value, 0.0)
+    return replace(terms, **kw)
+
+
+def add_floor_columns(obs: pd.DataFrame, summary: dict, rate: float) -> pd.DataFrame:
+    """``obs`` with ``floor_*`` and ``wander_*`` (deg/s) from the session's noise model;
+    unchanged when the summary has none (the std/sqrt(n) fallback)."""
+    if "session" not in summary or obs.empty or rate <= 0:
+        return obs
+    obs = obs.copy()
+    model = summary["session"]
+    terms = floor_terms(model)
+    duration = obs["n"].to_numpy(float) / rate
+    span = obs.groupby("point").agg(t0=("t_start", "min"), t1=("t_end", "max"))
+    count = (span["t1"] - span["t0"]).reindex(obs["point"]).to_numpy() / duration
+    mids = ((span["t0"] + span["t1"]) / 2).sort_values().to_numpy()
+    between = float(np.median(np.diff(mids))) if mids.size > 1 else 0.0
+    std = obs[[f"std_{a}" for a in AXES]].to_numpy(float)
+    extra = np.clip(std ** 2 - np.asarray(model["sample_variance"])[None, :], 0.0, None)
+    extra /= obs["n"].to_numpy(float)[:, None]
+    white = replace(terms, bias_instability=np.zeros(3), rrw=np.zeros(3))
+    floor2 = terms.mean_variance(duration, count) + extra
+    wander = np.sqrt(terms.coloured_variance(between)) if between > 0 else np.zeros(3)
+    white2 = white.mean_variance(duration) + extra
+    flicker = np.asarray(terms.bias_instability, float) / 3600.0          # deg/h -> deg/s
+    walk = np.asarray(terms.rrw, float) / 3600.0 ** 1.5                    # -> deg/s/sqrt(s)
+    for i, a in enumerate(AXES):
+        obs[f"floor_{a}"] = np.sqrt(floor2[:, i])
+        obs[f"wander_{a}"] = wander[i]
+        obs[f"white_{a}"] = np.sqrt(white2[:, i])
+        obs[f"flicker_{a}"] = flicker[i]
+        obs[f"rrw_{a}"] = walk[i]
+    summary["between_points_s"] = between
+    return obs
+
+
+POLES_PER_DECADE = 2  # flicker as a sum of Gauss-Markov processes: ripple well under 1 %
+
+
+def time_covariances(t_start: np.ndarray, t_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Covariance (n, n) of observation means per unit flicker level B = 1 deg/s and per unit
+    random walk K = 1 deg/s/sqrt(s), for observations over [t_start, t_end] (disjoint).
+
+    Random walk: the mean of K W(t) over [a_i, b_i] and [a_j, b_j] (i first) covary by K^2 times
+    the earlier one's mid-time, and vary by K^2 (a + T/3), times from the first observation
+    (a shift adds a constant to every entry, which the bias term absorbs). Flicker (two-sided PSD
+    B^2 / (2 pi f), IEEE Std 952) is a sum of Gauss-Markov processes with correlation times
+    spaced 10^(1/POLES_PER_DECADE) apart, each of variance B^2 ln(ratio) / pi, from a hundredth of
+    the shortest observation (faster ones add 2 c / T to a mean's variance alone) to ten times the
+    whole span; the covariance of two interval means of a
+    process of variance q^2 and time constant c is q^2 c^2 / (T_i T_j) (1 - e^(-T_i/c))
+    (1 - e^(-T_j/c)) e^(-gap/c), and the variance q^2 2 c^2 / T^2 (T/c - 1 + e^(-T/c))."""
+    a = np.asarray(t_start, float)
+    b = np.asarray(t_end, float)
+    a, b = a - a.min(), b - a.min()
+    T = np.maximum(b - a, 1e-9)
+    first = a[:, None] <= a[None, :]
+    mid = (a + b) / 2
+    walk = np.where(first, mid[:, None], mid[None, :])
+    np.fill_diagonal(walk, a + T / 3)
+    ratio = 10.0 ** (1.0 / POLES_PER_DECADE)
+    lo, hi = 0.01 * T.min(), 10.0 * max(b.max(), T.max())
+    poles = lo * ratio ** np.arange(int(np.ceil(np.log(hi / lo) / np.log(ratio))) + 1)
+    q2 = np.log(ratio) / np.pi
+    gap = np.abs(np.where(first, a[None, :] - b[:, None], a[:, None] - b[None, :]))
+    np.fill_diagonal(gap, np.inf)
+    flicker = np.zeros_like(walk)
+    variance = np.zeros_like(T)
+    for c in poles:
+        x = T / c
+        edge = -np.expm1(-x) / x                                       # (1 - e^-x) / x
+        flicker += np.outer(edge, edge) * np.exp(-gap / c)
+        variance += 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x ** 2)
+    # poles faster than the first average out within an observation: 2 c / T each, summed
+    variance += 2 * poles[0] / T / (ratio - 1.0)
+    np.fill_diagonal(flicker, variance)
+    return q2 * flicker, walk
+
+
+def noise_record(summary: dict) -> dict:
+    """What a calibration file keeps of the noise characterisation: the terms (IEEE Std 952
+    units), the session's and per temperature point, and which floor the fit used."""
+    out = {"floor": summary["source"]}
+    if "reason" in summary:
+        out["reason"] = summary["reason"]
+    if "session" not in summary:
+        return out
+    used = floor_terms(summary["session"])
+    out.update(static_seconds=summary["static_seconds"], stretches=summary["stretches"],
+               session=summary["session"]["terms"],
+               floor_terms={"bias_instability": np.asarray(used.bias_instability).tolist(),
+                            "rrw": np.asarray(used.rrw).tolist(), "detection_z": DETECTION_Z},
+               points=[{"temperature": p["temp"], "stretches": p["stretches"], "seconds": p["seconds"],
+                        **({"terms": p["terms"]} if "terms" in p else {})} for p in summary["points"]])
+    return out
