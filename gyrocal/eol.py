@@ -40,6 +40,8 @@ STANDARD_TERMS = ("bias", "scale", "misalignment")
 MIN_BATCH = 5            # fewer units than this: a median/MAD says nothing, no outlier flags
 MAD_Z = 0.6745           # Φ⁻¹(0.75): MAD / 0.6745 estimates σ for normal data (Iglewicz & Hoaglin)
 TC_SAMPLES = 401         # temperatures at which d/dT is evaluated across the calibrated span
+NOISE_LIMITS = {"arw": ("angle random walk", "deg/√h"), "bias_instability": ("bias instability", "deg/h"),
+                "rrw": ("rate random walk", "deg/h/√h"), "quantisation": ("quantisation noise", "arcsec")}
 
 
 # -- parameters of a calibration ------------------------------------------------------------
@@ -202,6 +204,8 @@ class SpecLimits:
     ``temperature_span``: the calibrated points must reach both ends (°C), within
     ``temperature_span_tolerance``. ``min_holds``, ``min_hold_share`` (accepted holds over
     candidate holds, 0–1) and ``min_temperature_points`` from the segmentation info.
+    ``noise``: the largest axis' IEEE Std 952 term of the session's static data, from the
+    calibration file's ``noise`` (:data:`NOISE_LIMITS` names the terms and units).
     """
 
     parameters: tuple[tuple[str, tuple[float, float]], ...] = ()
@@ -214,10 +218,11 @@ class SpecLimits:
     min_holds: int | None = None
     min_hold_share: float | None = None
     min_temperature_points: int | None = None
+    noise: tuple[tuple[str, float], ...] = ()
 
     KEYS = ("parameters", "temperature_coefficients", "temperature", "validation_rms", "excess",
             "temperature_span", "temperature_span_tolerance", "min_holds", "min_hold_share",
-            "min_temperature_points")
+            "min_temperature_points", "noise")
 
     @classmethod
     def from_dict(cls, d: Mapping | None, key: str = "spec") -> SpecLimits:
@@ -238,6 +243,10 @@ class SpecLimits:
             else:
                 out[name] = tuple((p, _number(v, f"{key}.{name}.{p}", positive=True))
                                   for p, v in section.items())
+        section = d.get("noise") or {}
+        if not isinstance(section, Mapping) or any(k not in NOISE_LIMITS for k in section):
+            raise ConfigError(f"{key}.noise must map noise terms ({', '.join(NOISE_LIMITS)}) to limits")
+        out["noise"] = tuple((k, _number(v, f"{key}.noise.{k}", positive=True)) for k, v in section.items())
         for name in ("temperature", "validation_rms", "excess", "min_hold_share"):
             if d.get(name) is not None:
                 out[name] = _number(d[name], f"{key}.{name}", positive=name != "temperature")
@@ -261,7 +270,9 @@ class SpecLimits:
     def to_dict(self) -> dict:
         d = {"parameters": {p: (list(r) if r[0] != -r[1] else r[1]) for p, r in self.parameters},
              "temperature_coefficients": dict(self.temperature_coefficients)}
-        for name in self.KEYS[2:]:
+        if self.noise:
+            d["noise"] = dict(self.noise)
+        for name in self.KEYS[2:-1]:
             value = getattr(self, name)
             if value is not None:
                 d[name] = list(value) if isinstance(value, tuple) else value
@@ -383,6 +394,17 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
         text = f"{_fmt(value)} deg/s exceeds {lim:g} deg/s" if unit == "deg/s" \
             else f"{value:.3g}× exceeds {lim:g}×"
         record(key, float(value), lim, unit, value <= lim, f"{what} = {text}")
+
+    noise = cal.extra.get("noise") or {}
+    for term, lim in limits.noise:
+        what, unit = NOISE_LIMITS[term]
+        if "session" not in noise:
+            unavailable(f"noise.{term}", what, noise.get("reason", "the calibration has no noise "
+                                                                  "characterisation"))
+            continue
+        value = float(np.max(noise["session"][term]))
+        record(f"noise.{term}", value, lim, unit, value <= lim,
+               f"{what} = {value:.3g} {unit} exceeds {lim:g} {unit} (largest axis)")
 
     if limits.temperature_span is not None:
         want_lo, want_hi = limits.temperature_span

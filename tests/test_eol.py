@@ -185,6 +185,8 @@ def test_judge_folder_reads_results_and_failure_records(tmp_path):
     ({"min_holds": 10.5}, "must be a whole number"),
     ({"temperature_span": [40]}, "must be [low, high]"),
     ({"excess": float("nan")}, "spec.excess must be a finite number"),
+    ({"noise": {"white": 1.0}}, "spec.noise must map noise terms"),
+    ({"noise": {"arw": -1.0}}, "spec.noise.arw must be positive"),
     (["validation_rms"], "spec must be a mapping"),
 ])
 def test_spec_limits_refuse_bad_settings(spec, message):
@@ -193,8 +195,23 @@ def test_spec_limits_refuse_bad_settings(spec, message):
     assert message in str(err.value)
 
 
+def test_noise_limits_judge_the_largest_axis_and_fail_without_a_noise_model():
+    limits = SpecLimits.from_dict({"noise": {"arw": 0.4, "bias_instability": 10.0}})
+    terms = {"arw": [0.30, 0.31, 0.45], "bias_instability": [6.0, 5.5, 7.0]}
+    cal = grid_calibration(GOOD)
+    cal.extra["noise"] = {"floor": "noise model of the static stretches", "session": terms}
+    v = judge(cal, None, None, limits)
+    assert not v.passed and v.reasons == ("angle random walk = 0.45 deg/√h exceeds 0.4 deg/√h "
+                                          "(largest axis)",)
+    assert v.checked["noise.bias_instability"] == {"value": 7.0, "limit": 10.0, "unit": "deg/h",
+                                                   "passed": True}
+    bare = judge(grid_calibration(GOOD), None, None, limits)
+    assert not bare.passed and len(bare.reasons) == 2
+    assert "no noise characterisation" in bare.reasons[0]
+
+
 def test_spec_limits_round_trip():
-    limits = SpecLimits.from_dict(LIMITS)
+    limits = SpecLimits.from_dict({**LIMITS, "noise": {"arw": 0.5}})
     assert SpecLimits.from_dict(limits.to_dict()) == limits
     assert SpecLimits.from_dict(None) == SpecLimits()
     assert judge(grid_calibration(GOOD), None, None, SpecLimits()) == \
