@@ -292,6 +292,9 @@ def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) ->
             summary = json.loads(p["validation"].read_text())["summary"]
             at_ref = cal.coefficients([cal.reference_temperature], warn=False)
             row["calibration"] = cal
+            session_noise = (cal.extra.get("noise") or {}).get("session")
+            row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
+                if session_noise else None
             row.update(status="ok", span=cal.grid.span, summary=summary,
                        reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
                        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
@@ -303,7 +306,9 @@ def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) ->
     figures = [(label, plots.histogram(np.array(values), label)) for label, values in [
         *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
         ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
-        ("excess over the noise floor", [r["summary"]["excess"] for r in ok])]]
+        ("excess over the noise floor", [r["summary"]["excess"] for r in ok]),
+        ("angle random walk, deg/√h (largest axis)", [r["noise"]["arw"][0] if r["noise"] else np.nan
+                                                       for r in ok])]]
     fleet = None
     if settings is not None:
         from .fleet import audit, drift_page_name, eol_document, json_safe
@@ -323,6 +328,13 @@ def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) ->
         total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
         servo_vs_turntable=servo_versus_turntable(ok), fleet=fleet)
     _write(path, html)
+
+
+def _largest_axis(terms: dict, name: str) -> tuple[float, float]:
+    """(value, standard error) of a noise term on the axis where it is largest."""
+    values = np.atleast_1d(terms[name])
+    i = int(np.argmax(values))
+    return float(values[i]), float(np.atleast_1d(terms[f"{name}_stderr"])[i])
 
 
 def servo_versus_turntable(rows: list[dict]) -> list[dict]:
