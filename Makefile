@@ -26,11 +26,13 @@ test: system-packages $(STAMP)
 	$(BIN)/python -m pytest
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
-# browser test, gcc for the firmware export test (and the C kernel, built on install).
+# browser test, gcc for the firmware export test (and the C kernel, built on install),
+# rsync for the object-storage test (Snakemake's fs storage plugin copies with it).
 system-packages:
 	@missing=""; \
 	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
 	command -v gcc >/dev/null 2>&1 || missing="$$missing gcc libc6-dev"; \
+	command -v rsync >/dev/null 2>&1 || missing="$$missing rsync"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing Debian's$$missing for the tests"; \

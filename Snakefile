@@ -1,5 +1,6 @@
-# gyrocal fleet workflow: per unit and session, segment -> fit -> validate and diagnose ->
-# report, then the fleet summary. Logic lives in the gyrocal package; rules only wire files.
+# gyrocal fleet workflow: per unit and session, segment -> analyse (fit, validate,
+# diagnose) -> report, then the fleet summary. Logic lives in the gyrocal package; rules
+# only wire files.
 from snakemake.utils import min_version, validate
 
 min_version("9.0")
@@ -17,9 +18,7 @@ report: "workflow/report/workflow.rst"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/segment.smk"
-include: "workflow/rules/fit.smk"
-include: "workflow/rules/validate.smk"
-include: "workflow/rules/diagnose.smk"
+include: "workflow/rules/analyse.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/fleet.smk"
 include: "workflow/rules/paper.smk"

@@ -2,13 +2,14 @@
 
 Writes a synthetic manifest of N unit sessions (turntable, 100 units per batch) and a small
 config into a temporary folder and times a dry run of the repository's workflow on it, each
-in a fresh process, on the cores of this machine. The logs need not exist:
+in a fresh process, on the cores of this machine. No log needs any content:
 
 * ``demo`` (default) — the paths lie under the demo folder, so each unit also gets the
-  ``simulate`` job that would make its log: 6 jobs per unit;
-* ``fleet`` — the paths lie elsewhere and are missing, which ``log_input``
-  (workflow/rules/common.smk) plans as a segment job without input (its failure is recorded
-  when it runs): 5 jobs per unit, the shape of a fleet whose logs exist.
+  ``simulate`` job that would make its log: 4 jobs per unit (simulate, segment, analyse,
+  report);
+* ``fleet`` — the paths lie elsewhere, in empty files (planning looks only at a log's
+  existence and time stamp): 3 jobs per unit (segment, analyse, report), the shape of a
+  production fleet whose logs exist.
 
 The dry run is ``snakemake -n --quiet``: the plan alone. Without ``--quiet`` Snakemake also
 prints every job (about 6 MB for 1,000 units), which doubles the time; ``--listing`` times
@@ -24,7 +25,6 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import resource
 import subprocess
 import sys
 import tempfile
@@ -43,32 +43,40 @@ model: {terms: [bias, scale, misalignment]}
 
 
 def write_fleet(folder: Path, n: int, layout: str) -> None:
-    """A manifest of ``n`` unit sessions and the config naming it (same bytes every time)."""
+    """A manifest of ``n`` unit sessions and the config naming it (same bytes every time);
+    for the fleet layout, an empty file at each log's path."""
     root = "demo/logs" if layout == "demo" else "rig"
     lines = ["device\tbatch\tsession\tprotocol\tpath"]
     for i in range(n):
         batch, device, session = f"B{i // 100:04d}", f"U{i:05d}", "2026-01-01"
-        lines.append(f"{device}\t{batch}\t{session}\tturntable\t{root}/{batch}/{device}/{session}.parquet")
+        path = f"{root}/{batch}/{device}/{session}.parquet"
+        lines.append(f"{device}\t{batch}\t{session}\tturntable\t{path}")
+        if layout == "fleet":
+            (folder / path).parent.mkdir(parents=True, exist_ok=True)
+            (folder / path).touch()
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "devices.tsv").write_text("\n".join(lines) + "\n")
     (folder / "config.yaml").write_text(CONFIG)
 
 
 def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False) -> dict:
-    """One ``snakemake -n`` in a fresh process: wall and CPU seconds, peak RSS."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    """One ``snakemake -n`` in a fresh process: wall and CPU seconds, peak RSS. The usage
+    is that one child's (``wait4``): the high-water mark of all children
+    (``RUSAGE_CHILDREN``) would carry a larger earlier run's over."""
     prefix = [sys.executable] + (["-m", "cProfile", "-o", str(cprofile)] if cprofile else [])
     command = prefix + ["-m", "snakemake", "--dry-run", "--snakefile", str(REPO / "Snakefile"),
                         "--directory", str(folder), "--configfile", str(folder / "config.yaml"),
                         "--cores", str(os.cpu_count() or 1)] + ([] if listing else ["--quiet"])
-    t0 = time.perf_counter()
-    out = subprocess.run(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    wall = time.perf_counter() - t0
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    if out.returncode != 0:
-        sys.exit(f"snakemake -n failed in {folder}:\n{out.stderr[-3000:]}")
-    return {"wall": wall, "cpu": (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime),
-            "peak_mib": after.ru_maxrss / 1024}
+    with tempfile.TemporaryFile("w+") as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        proc.returncode = os.waitstatus_to_exitcode(status)
+        if proc.returncode != 0:
+            err.seek(0)
+            sys.exit(f"snakemake -n failed in {folder}:\n{err.read()[-3000:]}")
+    return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "peak_mib": usage.ru_maxrss / 1024}
 
 
 def machine() -> str:
@@ -102,8 +110,8 @@ def main() -> None:
     args = parser.parse_args()
 
     print(machine())
-    # Per unit: segment, fit, validate, diagnose, report (+ simulate); then fleet and all.
-    per_unit = 6 if args.layout == "demo" else 5
+    # Per unit: segment, analyse, report (+ simulate); then fleet and all.
+    per_unit = 4 if args.layout == "demo" else 3
     print(f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
           f"{'ms/unit':>8}")
     with tempfile.TemporaryDirectory() as tmp:

@@ -232,6 +232,16 @@ def cmd_validate(args) -> int:
     return _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
 
 
+def cmd_analyse(args) -> int:
+    from .stages import analyse_stage
+    settings = _settings(args)
+    verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures)
+    print(f"calibration, validation and diagnosis -> {args.unit}")
+    if verdict is not None:
+        print(f"  {verdict}")
+    return 0
+
+
 def cmd_report(args) -> int:
     from .stages import report_stage
     settings = _settings(args)
@@ -456,6 +466,12 @@ def build_parser() -> argparse.ArgumentParser:
         unit(p)
         common(p)
         p.set_defaults(func=func)
+
+    p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
+    p.add_argument("unit", help="the unit's results folder")
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_analyse)
 
     p = sub.add_parser("report", help="stage: the unit's HTML report")
     p.add_argument("unit", help="the unit's results folder")

@@ -30,8 +30,10 @@ def _complaint(path, line: int, row: dict):
 
 
 def read_manifest(path) -> list[dict[str, str]]:
-    """Rows of a manifest, each with ``log`` (the path resolved against the manifest's
-    folder). Raises :class:`ConfigError` naming the row and column of the first problem."""
+    """Rows of a manifest, each with ``log``: the path resolved against the manifest's
+    folder, or a URL (``s3://bucket/key``, anything with ``://``) as written, for the
+    workflow to retrieve through Snakemake's storage plugins (docs/cluster.md). Raises
+    :class:`ConfigError` naming the row and column of the first problem."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -72,7 +74,8 @@ def read_manifest(path) -> list[dict[str, str]]:
             raise ConfigError(f"line {line}: device {row['device']} session {row['session']} "
                               f"is listed twice (first on line {seen[key]})", source=path)
         seen[key] = line
-        row["log"] = os.path.normpath(path.parent / row["path"])
+        # Normalising would also fold a URL's "//" (s3://b/k -> s3:/b/k).
+        row["log"] = row["path"] if "://" in row["path"] else os.path.normpath(path.parent / row["path"])
         rows.append(row)
     if not rows:
         raise ConfigError("manifest lists no logs", source=path)

@@ -131,6 +131,25 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     return diag.verdict
 
 
+def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool) -> str | None:
+    """Fit, validate and diagnose a segmented unit in one process: the workflow's
+    ``analyse`` rule, one job where three would each start Python and cost Snakemake a
+    job to plan. Each step runs as its own stage (:func:`run_stage`) with the outputs and
+    failure records that ``gyrocal fit``, ``validate`` and ``diagnose --unit`` write: a
+    failed fit is recorded in the calibration and passed on to the validation, and the
+    diagnosis, which reads only the observations, still runs. Returns the diagnosis
+    verdict (None when it failed and was recorded)."""
+    paths = unit_paths(folder)
+    verdict = []
+    steps = (("fit", ["calibration"], lambda: fit_stage(folder, settings, meta)),
+             ("validate", ["validation", *VALIDATION_TABLES], lambda: validate_stage(folder, settings)),
+             ("diagnose", list(DIAGNOSIS_FILES),
+              lambda: verdict.append(diagnose_stage(folder, settings, meta))))
+    for stage, outputs, work in steps:
+        run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
+    return verdict[0] if verdict else None
+
+
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     from .report import UnitResults, write_unit_report
     paths = unit_paths(folder)

@@ -61,15 +61,15 @@ def figures_rendered(page) -> list[dict]:
 
 def test_unit_report_renders_offline(fleet_run, browser, tmp_path):
     page, outside = open_offline(browser, fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html")
-    for table in ("#counts", "#table-hold-means", "#table-samples", "#table-by-temperature",
+    for table in ("#counts", "#noise-terms", "#table-hold-means", "#table-samples", "#table-by-temperature",
                   "#excess", "#covariates", "#candidates", "#ladder-table", "#provenance-table"):
         rows = page.locator(f"{table} tr")
         assert rows.count() >= 2, table
         assert page.locator(table).bounding_box()["height"] > 20, table
     assert page.locator("#table-hold-means tr").count() == 2 + 9  # two header rows, 3 x 3
     figures = figures_rendered(page)
-    assert len(figures) == 8  # timeline, parameters, by temperature, 2 error maps, residuals,
-    # heat maps, ladder
+    assert len(figures) == 9  # timeline, Allan deviation, parameters, by temperature, 2 error
+    # maps, residuals, heat maps, ladder
     for f in figures:
         assert f["width"] > 200 and f["height"] > 150 and f["rasters_ok"], f
     assert "leave-temperature-out RMS" in page.locator("#verdict").inner_text()
@@ -84,8 +84,8 @@ def test_fleet_report_renders_offline_and_links_every_unit(fleet_run, browser, t
     assert rows.count() == 3 + 7  # a header per batch
     assert page.locator("tr.failed").count() == 2
     figures = figures_rendered(page)
-    # 10 histograms and the outliers' distributions
-    assert len(figures) == 11 and all(f["width"] > 100 for f in figures)
+    # 11 histograms and the outliers' distributions
+    assert len(figures) == 12 and all(f["width"] > 100 for f in figures)
     links = page.locator("table.units a").evaluate_all("as => as.map(a => a.href)")
     assert len(links) == 7
     for href in links:

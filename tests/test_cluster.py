@@ -1,6 +1,7 @@
 """The workflow on a batch system: resources on every rule, one submission per unit, and the
-cluster-generic profile (workflow/profiles/cluster-generic, whose submit.sh stands in for a
-scheduler on this machine) end to end on a small fleet, byte for byte as a local run."""
+cluster-generic profile (profiles/cluster-generic, whose submit.sh stands in for a
+scheduler on this machine) end to end on a small fleet, byte for byte as a local run; and
+the analyse job, which does in one process what fit, validate and diagnose do in three."""
 
 from __future__ import annotations
 
@@ -9,18 +10,24 @@ import json
 import re
 import shutil
 
+import numpy as np
 import pytest
 
+from gyrocal import failure
 from gyrocal.calibration import load_calibration
+from gyrocal.cli import main
+from gyrocal.errors import CorruptFileError
+from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
+from gyrocal.stages import UNIT_FILES
 
 from .conftest import FLEET_CONFIG, REPO, snakemake
 
-PROFILES = REPO / "workflow" / "profiles"
+PROFILES = REPO / "profiles"
 UNITS = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
 MANIFEST = "device\tbatch\tsession\tprotocol\tpath\n" + "".join(
     f"{d}\t{b}\t{s}\tturntable\tdemo/logs/{b}/{d}/{s}.parquet\n" for b, d, s in UNITS)
 CONFIG = FLEET_CONFIG  # the workflow test's fleet settings
-UNIT_RULES = {"simulate", "segment", "fit", "validate", "diagnose", "report"}
+UNIT_RULES = {"simulate", "segment", "analyse", "report"}
 
 needs_plugin = pytest.mark.skipif(
     importlib.util.find_spec("snakemake_executor_plugin_cluster_generic") is None,
@@ -77,7 +84,7 @@ def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     for name, (resources, _) in planned.items():
         if name != "all":
             assert re.search(r"\bmem_mb=\d+", resources) and re.search(r"\bruntime=\d+", resources), name
-    assert planned["segment"][1] == 2 and planned["fit"][1] == 1
+    assert planned["segment"][1] == 2 and planned["analyse"][1] == 1
 
 
 @needs_plugin
@@ -107,11 +114,10 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
         log = (cluster / "logs" / "cluster" / f"{job_id}.log").read_text()
         assert set(re.findall(r"^\s*(?:local)?rule (\w+):$", log, flags=re.M)) == UNIT_RULES
         assert (cluster / "logs" / "cluster" / f"{job_id}.rc").read_text().strip() == "0"
-        # One unit's jobs run one after another but for fit and diagnose side by side:
-        # the widest layer sets threads and memory (segment: 2 threads, 2000 MB), and the
-        # five layers of 5 minutes add up to the runtime.
+        # One unit's jobs run one after another: the widest sets threads and memory
+        # (segment: 2 threads, 2000 MB), and the four steps of 5 minutes add up.
         assert props["threads"] == 2
-        assert props["resources"]["mem_mb"] == 2000 and props["resources"]["runtime"] == 25
+        assert props["resources"]["mem_mb"] == 2000 and props["resources"]["runtime"] == 20
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 
@@ -119,10 +125,84 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
                     reason="snakemake-executor-plugin-slurm is not installed")
 def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
     """The SLURM profile parses with its plugin and groups the units (a dry run: no
-    SLURM here). Two units, five to a job: one group job."""
+    SLURM here). Two units, five to a job: one group job of their 4 jobs each, the fleet
+    summary and `all`."""
     folder = fleet_folder(tmp_path / "slurm")
     out = snakemake(folder, "--profile", str(PROFILES / "slurm"), "--dry-run")
     assert out.returncode == 0, out.stderr[-3000:]
     text = out.stdout + out.stderr
     assert text.count("Group job unit") == 1
-    assert re.search(r"^total\s+14$", text, flags=re.M)
+    assert re.search(r"^total\s+10$", text, flags=re.M)
+
+
+META = ["--device", "A1", "--batch", "B1", "--session", "2026-01-01", "--protocol", "turntable"]
+SEGMENT_FILES = ("observations", "segments", "timeline")
+# A temperature-only term cannot be fitted point by point: the fit fails on its own.
+SETTINGS = {"calibrated": {"model": {"terms": ["bias", "scale", "misalignment"]}},
+            "fit fails": {"model": {"terms": ["bias", "scale", "misalignment", "bias_temp_poly"]}},
+            "segment failed": {"model": {"terms": ["bias", "scale", "misalignment"]}}}
+
+
+@pytest.fixture(scope="module")
+def segmented(tmp_path_factory):
+    """A quick simulated log's segmentation (the segment stage's three files)."""
+    base = tmp_path_factory.mktemp("analyse")
+    log = base / "A1.parquet"
+    simulate_unit(log, rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0)),
+                  unit=GyroUnit.seed000(), rng=np.random.default_rng(11), device="A1", seed=11)
+    assert main(["segment", str(log), "--out", str(base / "unit"), *META]) == 0
+    return base / "unit"
+
+
+@pytest.mark.parametrize("case", list(SETTINGS))
+def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path, case):
+    """The analyse job's files, failure records included, are byte for byte those of the
+    three stage commands run one after another."""
+    folders = {name: tmp_path / name for name in ("three", "one")}
+    for folder in folders.values():
+        folder.mkdir()
+        if case == "segment failed":
+            rec = failure.record("segment", CorruptFileError("not a readable Parquet file", source="x"),
+                                 {"device": "A1", "batch": "B1", "session": "2026-01-01"})
+            failure.write([folder / UNIT_FILES[k] for k in SEGMENT_FILES], rec)
+        else:
+            for k in SEGMENT_FILES:
+                shutil.copyfile(segmented / UNIT_FILES[k], folder / UNIT_FILES[k])
+    args = [*META, "--settings-json", json.dumps(SETTINGS[case]), "--record-failures"]
+    three = folders["three"]
+    assert main(["fit", str(three), *args]) == 0
+    assert main(["validate", str(three), *args]) == 0
+    assert main(["diagnose", "--unit", str(three), "-o", str(three / "diagnosis.json"),
+                 "--residuals", str(three / "residuals.parquet"), *args]) == 0
+    assert main(["analyse", str(folders["one"]), *args]) == 0
+
+    names = sorted(p.name for p in three.iterdir())
+    assert names == sorted(UNIT_FILES.values())
+    assert sorted(p.name for p in folders["one"].iterdir()) == names
+    for name in names:
+        assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name
+    stage = {name: (failure.read(folders["one"] / name) or {}).get("stage") for name in names}
+    analysed = [v for k, v in UNIT_FILES.items() if k not in SEGMENT_FILES]
+    if case == "calibrated":
+        assert not any(stage.values())
+        assert load_calibration(folders["one"] / "calibration.json").meta["device"] == "A1"
+    elif case == "fit fails":
+        # recorded by the fit, passed on to the validation; the diagnosis ran and recorded
+        # its own failure on the same model
+        assert {name: stage[name] for name in analysed} == {
+            name: "diagnose" if name in ("diagnosis.json", "residuals.parquet") else "fit"
+            for name in analysed}
+        assert "bias_temp_poly" in failure.read(folders["one"] / "calibration.json")["error"]
+    else:
+        assert {stage[name] for name in analysed} == {"segment"}
+
+
+def test_analyse_without_recording_failures_stops_at_the_failed_step(segmented, tmp_path, capsys):
+    """Like `gyrocal fit`: one line, exit 2, and nothing written after the failure."""
+    for k in SEGMENT_FILES:
+        shutil.copyfile(segmented / UNIT_FILES[k], tmp_path / UNIT_FILES[k])
+    code = main(["analyse", str(tmp_path), *META, "--settings-json",
+                 json.dumps(SETTINGS["fit fails"])])
+    assert code == 2
+    assert capsys.readouterr().err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(UNIT_FILES[k] for k in SEGMENT_FILES)

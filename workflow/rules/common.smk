@@ -1,5 +1,6 @@
 # Shared by every rule: the manifest as a dict, wildcard patterns, settings as parameters.
 # Kept cheap: it runs whenever the workflow plans, for every unit of the fleet.
+import gc
 import json
 import os
 import shlex
@@ -13,6 +14,14 @@ from gyrocal.manifest import (
     SESSION_PATTERN,
     read_manifest,
 )
+
+# Planning builds millions of small objects (jobs, files, wildcards) that live until
+# Snakemake exits, and Python's cyclic collector at its default thresholds scans them
+# again and again: a fifth of the time to plan 10,000 units (docs/cluster.md). What
+# exists after parsing is left out of its scans and it runs far less often; the jobs'
+# own processes keep Python's defaults.
+gc.freeze()
+gc.set_threshold(100_000, 50, 1000)
 
 
 envvars:
@@ -36,8 +45,7 @@ DRIFT_DEVICES = drift_devices(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
 # A servo or sweep unit also gets its protocol's section (config `protocols:`).
 SEGMENTATION = {"segmentation": config["segmentation"]}
-MODEL = {"model": config["model"]}
-DIAGNOSIS = {"model": config["model"], "diagnosis": config["diagnosis"]}
+ANALYSIS = {"model": config["model"], "diagnosis": config["diagnosis"]}
 # The user's own term files are inputs: editing one re-runs what fits with it.
 TERM_FILES = config["model"].get("term_files", []) + [
     path
@@ -59,22 +67,33 @@ def unit(wildcards):
 def log_input(wildcards):
     """The unit's log as an input when it exists or the demo can make it; otherwise none,
     so that the segment stage records the missing file as this unit's failure instead
-    of stopping the fleet."""
+    of stopping the fleet. A URL in the manifest is a log in object storage, which
+    Snakemake retrieves before the segment job runs."""
     path = unit(wildcards)["log"]
+    if "://" in path:
+        return storage_log(path)
     if os.path.exists(path) or os.path.dirname(path).startswith(DEMO_LOGS + os.sep):
         return path
     return []
 
 
+def storage_log(url):
+    """A log's URL as a storage input: ``s3://bucket/key`` (or any scheme a storage plugin
+    accepts) through the plugin Snakemake infers from it; ``fs:///path`` through the fs
+    plugin, whose queries are plain paths (a folder every node mounts)."""
+    scheme, _, rest = url.partition("://")
+    if scheme == "fs":
+        return storage.fs(rest)
+    return storage(url)
+
+
 # What a servo or sweep job reads besides its protocol's defaults (gyrocal/config.py
 # PROTOCOL_DEFAULTS): the turntable's model and ladder are not theirs, so changing those
-# leaves their jobs alone. A servo calibration is seed 001's six parameters: its fit and
-# validation read no model.
+# leaves their jobs alone. (A servo calibration is seed 001's six parameters: of the
+# analysis, only its diagnosis reads the model.)
 PROTOCOL_READS = {
     "segment": ("options",),
-    "fit": ("model",),
-    "validate": ("model",),
-    "diagnose": ("model", "diagnosis"),
+    "analyse": ("model", "diagnosis"),
     "report": ("options", "model", "diagnosis"),
 }
 
@@ -88,8 +107,6 @@ def settings_json(settings, stage):
         if protocol == "turntable":
             return json.dumps(settings, sort_keys=True)
         reads = PROTOCOL_READS[stage]
-        if protocol == "servo" and stage in ("fit", "validate"):
-            reads = ()
         own = {}
         user_terms = {
             k: config["model"][k]
@@ -148,7 +165,3 @@ def demo_unit_options(wildcards):
 
 def unit_reports():
     return [f"reports/{b}/{d}/{s}.html" for (b, d, s) in UNITS]
-
-
-def unit_files(name):
-    return [f"results/{b}/{d}/{s}/{name}" for (b, d, s) in UNITS]

@@ -1,8 +1,7 @@
 rule report:
+    # What the analyse job writes: it runs after the unit's segmentation, so these are
+    # newer than every file the report reads, and one set of inputs re-runs it for any.
     input:
-        obs="results/{batch}/{device}/{session}/observations.parquet",
-        segments="results/{batch}/{device}/{session}/segments.parquet",
-        timeline="results/{batch}/{device}/{session}/timeline.parquet",
         cal="results/{batch}/{device}/{session}/calibration.json",
         validation="results/{batch}/{device}/{session}/validation.json",
         holds="results/{batch}/{device}/{session}/validation_holds.parquet",
@@ -34,5 +33,5 @@ rule report:
         ),
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} report $(dirname {input.obs:q}) -o {output:q} {params.unit} "
+        "{params.gyrocal} report $(dirname {input.cal:q}) -o {output:q} {params.unit} "
         "--settings-json {params.settings:q} --record-failures > {log:q} 2>&1"

@@ -19,7 +19,9 @@ rule segment:
         runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
-        log=lambda wildcards: unit(wildcards)["log"],
+        # Snakemake's local copy of a log in storage; the manifest's path otherwise (a
+        # missing log has no input: the stage records it).
+        log=lambda wildcards, input: input.log or unit(wildcards)["log"],
         unit=unit_args,
         settings=settings_json(SEGMENTATION, "segment"),
         version=GYROCAL_VERSION,
