@@ -200,20 +200,28 @@ def terms_of(entry: dict) -> NoiseTerms:
                       tau_range=tuple(d["tau_range_s"]))
 
 
-DETECTION_Z = 3.0  # a coloured term counts when its fit exceeds this many standard errors
+DETECTION_Z = 3.0  # a coloured term counts when its variance coefficient is this many s.e. above 0
+
+
+def detected(value, error, z: float = DETECTION_Z) -> np.ndarray:
+    """Whether a fitted term (``value``, with the ``error`` :class:`NoiseTerms` reports for it)
+    is detected: its variance coefficient c = value^2 at least ``z`` standard errors s above
+    zero. The reported error is sqrt(c + s) - sqrt(c) (in the term's unit), so
+    s = (value + error)^2 - value^2."""
+    value, error = np.asarray(value, float), np.asarray(error, float)
+    return value ** 2 >= z * ((value + error) ** 2 - value ** 2)
 
 
 def floor_terms(model: dict) -> NoiseTerms:
     """The session's terms as the floors use them: bias instability and rate random walk only
-    where the static data detect them (fit >= DETECTION_Z standard errors). A few minutes of
-    white noise fit a flicker level of a few deg/h at two standard errors; counted, it would
-    raise the floor of a white-noise unit by a third and hide real effects."""
+    where the static data detect them (:func:`detected`). A few minutes of white noise fit a
+    flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
+    third and hide real effects."""
     terms = terms_of(model)
     kw = {}
     for name in ("bias_instability", "rrw"):
         value = np.asarray(getattr(terms, name), float)
-        error = np.asarray(getattr(terms, f"{name}_stderr"), float)
-        kw[name] = np.where(value >= DETECTION_Z * error, value, 0.0)
+        kw[name] = np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
     return replace(terms, **kw)
 
 

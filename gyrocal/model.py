@@ -220,7 +220,7 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     if not coloured:
         return [lambda m, w=1.0 / floor[:, i]: m * (w[:, None] if np.ndim(m) == 2 else w)
                 for i in range(3)]
-    from scipy.linalg import cho_factor, solve_triangular
+    from scipy.linalg import LinAlgError, cho_factor, solve_triangular
 
     from .floor import time_covariances
     flicker, walk = time_covariances(data["t_start"], data["t_end"])
@@ -229,7 +229,11 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
         white = np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
         cov = flicker * float(np.max(data[f"flicker_{a}"])) ** 2 + walk * float(np.max(data[f"rrw_{a}"])) ** 2
         cov[np.diag_indices(n)] += white ** 2
-        lower = cho_factor(cov, lower=True)[0]
+        try:
+            lower = cho_factor(cov, lower=True)[0]
+        except LinAlgError:  # observations overlapping in time (no segmenter makes them)
+            out.append(lambda m, w=1.0 / floor[:, i]: m * (w[:, None] if np.ndim(m) == 2 else w))
+            continue
         out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
     return out
 

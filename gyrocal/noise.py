@@ -242,7 +242,8 @@ def pooled_allan_deviation(stretches, rate: float, *, level: float = 0.683) -> A
 def barnes_b1(count, mu: int) -> np.ndarray:
     """Barnes' bias function B1: the expected sample variance (ddof 1) of ``count`` adjacent
     tau-means over the Allan variance at tau, for noise whose Allan variance grows as tau^mu
-    (mu = -1 white rate, 0 flicker, 1 random walk; NIST SP 1065, section 5.15). It is 1 for white
+    (mu = -2 quantisation, -1 white rate, 0 flicker, 1 random walk; NIST SP 1065, section 5.15).
+    It is 1 for white
     noise at any count and for every noise at count 2; counts under 2 are taken as 2."""
     M = np.maximum(np.asarray(count, dtype=float), 2.0)
     if mu == 0:
@@ -328,13 +329,16 @@ class NoiseTerms:
         return out[..., 0] if np.ndim(self.arw) == 0 else out
 
     def mean_variance(self, duration_s, count=2.0) -> np.ndarray:
-        """Variance ((deg/s)^2) of a ``duration_s``-long mean about the mean of ``count`` such
-        means in a row: each term's Allan variance at tau = T times its :func:`barnes_b1`.
-        With count 2 this is the Allan variance itself (:meth:`floor` squared); flicker and
-        random walk make holds scatter more the longer the stretch a fit pools them over.
-        ``duration_s`` and ``count`` broadcast; per-axis terms append an axis dimension."""
+        """Expected sample variance (ddof 1, (deg/s)^2) of ``count`` adjacent ``duration_s``-long
+        means: each term's Allan variance at tau = T times its :func:`barnes_b1` (quantisation
+        mu = -2, white -1, flicker 0, random walk 1). It is the scatter a fit with a free
+        bias leaves in such means; with count 2 it is the Allan variance itself (:meth:`floor`
+        squared). Flicker and random walk make holds scatter more the longer the stretch a fit
+        pools them over. ``duration_s`` and ``count`` broadcast; per-axis terms append an axis
+        dimension."""
         parts = self._parts(duration_s)
         count = np.asarray(count, dtype=float)[..., None]
+        parts[..., 0] *= barnes_b1(count, -2)
         parts[..., 2] *= barnes_b1(count, 0)
         parts[..., 3] *= barnes_b1(count, 1)
         return self._per_axis(parts.sum(axis=-1))

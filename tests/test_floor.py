@@ -123,8 +123,11 @@ def test_coloured_noise_and_a_complete_model_raise_no_alarm(low_grade_units):
     # family-wise 1 % per unit: two alarms in ten is already a one-in-200 event
     assert alarms <= stats.binom.ppf(0.995, len(clean), 0.01), [u["best"] for u in clean]
     rms = np.array([u["rms"] for u in clean])
-    # ~700 residuals per unit: the RMS of unit normals has a spread of about 1/sqrt(2 * 700)
-    assert abs(rms.mean() - 1.0) < 0.05, rms
+    # ~700 residuals per unit: the RMS of unit normals has a spread of about 1/sqrt(2 * 700);
+    # 600 s soaks cannot resolve this grade's rate random walk at three standard errors, so
+    # the floor leaves it out and runs a few per cent low (docs/method.md): 10 % is the
+    # accuracy claimed where the static data resolve the dominant term.
+    assert abs(rms.mean() - 1.0) < 0.1 and rms.max() < 1.2, rms
     excess = np.array([u["excess"] for u in clean])
     assert 0.7 < np.median(excess) < 1.3, excess
     # the white-noise floor calls every one of these units incomplete: the test can fail
@@ -133,11 +136,14 @@ def test_coloured_noise_and_a_complete_model_raise_no_alarm(low_grade_units):
 
 
 def test_coloured_noise_and_a_hidden_effect_it_is_found_and_removed(low_grade_units):
-    _, hidden = low_grade_units
+    clean, hidden = low_grade_units
+    complete = np.array([u["rms"] for u in clean])
     for unit in hidden:
         assert unit["best"] == "scale_quadratic"
         assert unit["rms"] > 2.0
-        assert unit["fixed_rms"] == pytest.approx(1.0, abs=0.1)
+        # removed: the residuals look like those of the complete-model units of the same grade
+        # (within three times the RMS's sampling spread, 1/sqrt(2 * 700) ~ 0.027)
+        assert complete.min() - 0.08 < unit["fixed_rms"] < complete.max() + 0.08
 
 
 def test_white_noise_floor_is_unchanged(tmp_path):
