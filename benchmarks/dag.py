@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from host import cores, cpu_name
+
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = """devices: devices.tsv
 demo:
@@ -80,16 +82,8 @@ def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False) -
 
 
 def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     import snakemake
-    return (f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, "
+    return (f"{cpu_name()}, {cores()}, Python {platform.python_version()}, "
             f"Snakemake {snakemake.__version__}")
 
 

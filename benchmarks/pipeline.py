@@ -26,6 +26,8 @@ import sys
 import time
 from pathlib import Path
 
+from host import cores, cpu_name
+
 CACHE = Path(__file__).resolve().parent / ".cache"
 LOG = CACHE / "seed_protocol" / "U001.parquet"
 
@@ -73,18 +75,10 @@ def measure(mode: str) -> dict:
 
 
 def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
     mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2 ** 30
     import numpy
     import pyarrow
-    return (f"{cpu}, {os.cpu_count()} cores, {mem:.0f} GiB; Python {platform.python_version()}, "
+    return (f"{cpu_name()}, {cores()}, {mem:.0f} GiB; Python {platform.python_version()}, "
             f"numpy {numpy.__version__}, pyarrow {pyarrow.__version__}")
 
 

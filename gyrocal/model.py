@@ -217,9 +217,13 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     n = len(floor)
     coloured = "white_x" in data and 1 < n <= MAX_CORRELATED and any(
         np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in AXES)
+
+    def divide(i):
+        w = 1.0 / floor[:, i]
+        return lambda m: m * (w[:, None] if np.ndim(m) == 2 else w)
+
     if not coloured:
-        return [lambda m, w=1.0 / floor[:, i]: m * (w[:, None] if np.ndim(m) == 2 else w)
-                for i in range(3)]
+        return [divide(i) for i in range(3)]
     from scipy.linalg import LinAlgError, cho_factor, solve_triangular
 
     from .floor import time_covariances
@@ -232,7 +236,7 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
         try:
             lower = cho_factor(cov, lower=True)[0]
         except LinAlgError:  # observations overlapping in time (no segmenter makes them)
-            out.append(lambda m, w=1.0 / floor[:, i]: m * (w[:, None] if np.ndim(m) == 2 else w))
+            out.append(divide(i))
             continue
         out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
     return out

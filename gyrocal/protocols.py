@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from .io import GYRO, MOUNTS, RigLog
+from .model import observation_floor
 from .segment import Segmentation
 
 AXES = ("x", "y", "z")
@@ -332,10 +333,9 @@ def servo_validation(obs: pd.DataFrame, cal):
             keep = np.arange(len(obs)) != r
             fit = fit_observations(data.iloc[keep], method="iterative")
             compensated[r] = fit.compensate(m[r:r + 1])[0]
-    if "floor_x" in obs:  # the session's noise model (gyrocal.floor): one point, no wander
-        noise = obs[[f"floor_{a}" for a in AXES]].to_numpy(float)
-    else:
-        noise = data[[f"gyro_{a}_noise" for a in AXES]].to_numpy() / np.sqrt(data["n"].to_numpy())[:, None]
+    # the session's noise model where segmentation made one; else the white-noise level
+    # over sqrt(n) (segment_servo stores it as the revolutions' std)
+    noise = observation_floor(obs)
     norm = np.linalg.norm(compensated, axis=1)
     direction = compensated / norm[:, None]
     floor = np.sqrt(((direction * k * noise) ** 2).sum(axis=1))
