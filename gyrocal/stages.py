@@ -154,6 +154,13 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     from .report import UnitResults, write_unit_report
     paths = unit_paths(folder)
     failure.check_inputs(*(v for k, v in paths.items() if k not in DIAGNOSIS_FILES))
+    # The workflow declares the unit's products, not the tables written beside them
+    # (workflow/rules/analyse.smk): name a table deleted since they were made.
+    missing = [name for key, name in UNIT_FILES.items()
+               if key not in DIAGNOSIS_FILES and not paths[key].exists()]
+    if missing:
+        raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
+                           "folder and run the workflow again to rebuild it", source=folder)
     results = UnitResults.from_folder(folder)
     if settings is not None:
         results.command = reproduce_command(results, settings)

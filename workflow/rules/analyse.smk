@@ -2,6 +2,15 @@
 # that always run together. One job instead of three is a third of the jobs Snakemake
 # plans per unit (docs/cluster.md) and two Python start-ups fewer; each step still writes
 # its own outputs and failure records (gyrocal/stages.py analyse_stage).
+#
+# The rules declare the files another job reads: here the calibration, validation and
+# diagnosis, which the report and the fleet summary read. The tables only the report
+# reads (validation_holds, table_hold_means, table_samples, by_temperature, residuals;
+# the segmentation's segments and timeline) are written beside them by the same job,
+# every time, and are not declared: each declared file costs Snakemake work per unit as
+# it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
+# either (Snakemake leaves a missing intermediate file alone while what was made from it
+# is up to date). A report rendered after one was deleted names it.
 
 
 rule analyse:
@@ -11,12 +20,7 @@ rule analyse:
     output:
         cal="results/{batch}/{device}/{session}/calibration.json",
         validation="results/{batch}/{device}/{session}/validation.json",
-        holds="results/{batch}/{device}/{session}/validation_holds.parquet",
-        table_hold_means="results/{batch}/{device}/{session}/table_hold_means.parquet",
-        table_samples="results/{batch}/{device}/{session}/table_samples.parquet",
-        by_temperature="results/{batch}/{device}/{session}/by_temperature.parquet",
         diagnosis="results/{batch}/{device}/{session}/diagnosis.json",
-        residuals="results/{batch}/{device}/{session}/residuals.parquet",
     log:
         "logs/analyse/{batch}/{device}/{session}.log",
     benchmark:
@@ -31,9 +35,8 @@ rule analyse:
         runtime=lambda wildcards, attempt: 5 * attempt,
     params:
         gyrocal=GYROCAL,
-        unit=unit_args,
-        settings=settings_json(ANALYSIS, "analyse"),
+        args=stage_args(ANALYSIS, "analyse"),
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} analyse $(dirname {input.obs:q}) {params.unit} "
-        "--settings-json {params.settings:q} --record-failures > {log:q} 2>&1"
+        "{params.gyrocal} analyse $(dirname {input.obs:q}) {params.args} "
+        "--record-failures > {log:q} 2>&1"
