@@ -10,7 +10,8 @@
 # every time, and are not declared: each declared file costs Snakemake work per unit as
 # it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
 # either (Snakemake leaves a missing intermediate file alone while what was made from it
-# is up to date). A report rendered after one was deleted names it.
+# is up to date). A report rendered after one was deleted names it (the residuals: it
+# leaves out their section, as for a diagnosis written without them).
 
 
 rule analyse:
