@@ -11,13 +11,13 @@ Reference: an anchor tool took 727.7 s for that many samples; the target is unde
 from __future__ import annotations
 
 import argparse
-import os
 import platform
 import statistics
 import time
 import tracemalloc
 
 import numpy as np
+from host import cores, cpu_name
 
 from gyrocal.noise import allan_deviation, fit_noise_terms
 from gyrocal.simulate.noise import GRADES, coloured_noise
@@ -49,8 +49,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
 
-    print(f"machine: {platform.machine()} {platform.processor() or ''} cpus={os.cpu_count()} "
-          f"python={platform.python_version()} numpy={np.__version__} {platform.platform()}")
+    print(f"machine: {cpu_name()}, {cores()}, Python {platform.python_version()}, "
+          f"numpy {np.__version__}, {platform.platform()}")
     x3 = coloured_noise(np.random.default_rng(0), args.samples, RATE, **GRADES["low"])
     x1 = np.ascontiguousarray(x3[:, 0])
     print(f"samples: {args.samples} at {RATE:g} Hz ({args.samples / RATE / 3600:.1f} h), "

@@ -243,8 +243,8 @@ def barnes_b1(count, mu: int) -> np.ndarray:
     """Barnes' bias function B1: the expected sample variance (ddof 1) of ``count`` adjacent
     tau-means over the Allan variance at tau, for noise whose Allan variance grows as tau^mu
     (mu = -2 quantisation, -1 white rate, 0 flicker, 1 random walk; NIST SP 1065, section 5.15).
-    It is 1 for white
-    noise at any count and for every noise at count 2; counts under 2 are taken as 2."""
+    It is 1 for white noise at any count and for every noise at count 2; counts under 2 are
+    taken as 2."""
     M = np.maximum(np.asarray(count, dtype=float), 2.0)
     if mu == 0:
         return M * np.log(M) / (2.0 * (M - 1.0) * math.log(2.0))
