@@ -17,44 +17,10 @@ import pyarrow.parquet as pq
 from .calibration import Calibration
 from .errors import LogFormatError
 from .io import GYRO, time_seconds, check_float, declared_units, open_dataset, to_internal_units
+from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, Series, temperature_rate  # noqa: F401
 
 BATCH_ROWS = 1 << 20
-DERIVED = ("rate_x", "rate_y", "rate_z", "temp_rate")  # solved for, or computed here
-TEMP_RATE_WINDOW_S = 60.0  # a seed-000 hold, for calibration files that do not say
-
-
-def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S
-                     ) -> np.ndarray:
-    """Temperature rate (°C/min) at every sample: the least-squares slope of the logged
-    temperature over a centred window, computed on bin means (1 s, or a twentieth of the
-    window if shorter) by one convolution and interpolated to the samples. Non-finite
-    inputs give NaN.
-
-    Bins without samples are filled linearly; the series is extended at both ends by odd
-    reflection, which keeps a linear trend, so the slope near the ends is not biased to 0.
-    """
-    rate = np.full(len(t), np.nan)
-    good = np.isfinite(t) & np.isfinite(temp)
-    if good.sum() < 2:
-        return rate
-    tg, Tg = t[good], temp[good]
-    width = min(1.0, window_s / 20.0)
-    index = np.floor((tg - tg[0]) / width).astype(np.int64)
-    counts = np.bincount(index)
-    sums = np.bincount(index, weights=Tg)
-    filled = counts > 0
-    centres = (np.arange(len(counts)) + 0.5) * width
-    means = np.interp(centres, centres[filled], sums[filled] / counts[filled])
-    half = max(int(round(window_s / width / 2)), 1)
-    if len(means) <= 2 * half:  # the whole log is shorter than the window: one slope
-        lags = centres - centres.mean()
-        rate[good] = 60.0 * np.sum(lags * means) / max(np.sum(lags ** 2), 1e-300)
-        return rate
-    padded = np.pad(means, half, mode="reflect", reflect_type="odd")
-    lags = np.arange(-half, half + 1, dtype=float)
-    slope = np.convolve(padded, lags[::-1] / (np.sum(lags ** 2) * width), mode="valid")  # °C/s
-    rate[good] = 60.0 * np.interp(tg - tg[0], centres, slope)
-    return rate
+DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
 
 
 def apply_calibration(cal: Calibration, path, out) -> dict:
@@ -67,8 +33,9 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     path, out = Path(path), Path(out)
     dataset = open_dataset(path)
     schema = dataset.schema
-    needed = [*GYRO, "temp"] + sorted(c for c in cal.model.needs if c not in (*DERIVED, "temp"))
-    missing = [c for c in needed if c not in schema.names]
+    needs = cal.model.needs
+    needed = [*GYRO, "temp"] + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
+    missing = [c for c in ["t", *needed] if c not in schema.names]
     if missing:
         raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}",
                              source=path)
@@ -84,22 +51,25 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
         metadata[b"gyrocal.units"] = json.dumps({k: v for k, v in units.items() if k != "gyro"}).encode()
     out_schema = out_schema.with_metadata(metadata)
 
-    temp_rate = None
-    if "temp_rate" in cal.model.needs:  # needs the whole temperature record, not a batch
-        if "t" not in schema.names:
-            raise LogFormatError("cannot apply the calibration: its temp_rate term needs the t column",
-                                 source=path)
+    # Series signals (time since the first sample, the temperature rate, lags) are defined
+    # on the whole record, as in the fit (gyrocal.signals): the time of the first sample is
+    # read first, and the temperature record whole when a term reads more than t.
+    origin: list = []
+    first = dataset.head(1, columns=["t"]).column("t")
+    t0 = float(time_seconds(first.combine_chunks(), path, origin)[0]) if len(first) else 0.0
+    series = None
+    if needs & {"temp_rate", "temp_lag"}:
         table = dataset.to_table(columns=["t", "temp"])
-        check_float(schema, "temp", path)
-        seconds = time_seconds(table.column("t").combine_chunks(), path, [])
+        seconds = time_seconds(table.column("t").combine_chunks(), path, origin)
         steps = np.diff(seconds[np.isfinite(seconds)])
         if steps.size and steps.min() <= 0:
-            raise LogFormatError("column t does not increase strictly, so the temperature rate "
-                                 "the calibration needs cannot be derived", source=path)
-        window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
-        temp_rate = temperature_rate(seconds, to_internal_units(
-            "temp", table.column("temp").to_numpy().astype(np.float64), units), window)
+            raise LogFormatError("column t does not increase strictly, so the temperature record "
+                                 "the calibration's terms read cannot be derived", source=path)
+        temp = to_internal_units("temp", table.column("temp").to_numpy().astype(np.float64), units)
         del table
+        good = np.isfinite(seconds) & np.isfinite(temp)
+        window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
+        series = Series(seconds[good] - t0, temp[good], t0, window)
 
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     tmp = out.with_name(out.name + ".tmp")
@@ -109,11 +79,14 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])
             data = {c: cols[c] for c in needed if c not in GYRO}
-            if temp_rate is not None:
-                data["temp_rate"] = temp_rate[counts["rows"]:counts["rows"] + batch.num_rows]
+            data["t"] = time_seconds(batch.column("t"), path, origin) - t0
+            if series is not None:
+                data["series"] = series
+                data["temp_rate"] = series.at("temp_rate", data["t"])
             good = np.all(np.isfinite(gyro), axis=1)
-            for v in data.values():
-                good &= np.isfinite(v)
+            for k, v in data.items():
+                if k != "series":
+                    good &= np.isfinite(v)
             result = np.full_like(gyro, np.nan)
             if good.any():
                 sub = {k: v[good] for k, v in data.items()}

@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import CalibrationFileError, CorruptFileError, GyrocalError
+from .errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
 from .model import Model
+from .signals import SERIES_INPUTS, Inputs
 from .terms import AXES
 from .thermal import ConstantCoefficients, TemperatureGrid, check_method
 
@@ -67,16 +68,34 @@ class Calibration:
 
     def _neutral(self, n: int, temp) -> dict[str, np.ndarray]:
         """Covariates at their reference values: temperature as given, others zero."""
-        data = {name: np.zeros(n) for name in self.model.needs}
+        data = {name: np.zeros(n) for name in self.model.needs if name not in SERIES_INPUTS}
         data["temp"] = np.broadcast_to(self.clamp(temp), (n,)).copy()
         return data
 
+    @property
+    def static_model(self) -> Model:
+        """The model's terms that read no series signal: what K(T) and B(T) describe. Terms
+        of time or temperature history (a warm-up, a lag) are the contract's "other terms"."""
+        data = Inputs(self._neutral(1, [self.reference_temperature]))
+        data.update({c: np.zeros(1) for c in ("rate_x", "rate_y", "rate_z")})
+        keep = []
+        for term in self.model.terms:
+            probe = Inputs(data)
+            try:
+                term.columns(probe)
+            except MissingInputError:
+                continue
+            if not probe.read & SERIES_INPUTS:
+                keep.append(term)
+        return Model(tuple(keep))
+
     def matrices_at(self, temps) -> tuple[np.ndarray, np.ndarray]:
-        """K (n, 3, 3) and B (n, 3) at temperatures: the affine part of the model with
-        covariates other than temperature at zero."""
+        """K (n, 3, 3) and B (n, 3) at temperatures: the affine part of the model's static
+        terms (:attr:`static_model`) with covariates other than temperature at zero."""
         temps = np.atleast_1d(np.asarray(temps, dtype=float))
         coefs = self.coefficients(temps, warn=False)
-        return self.model.linearise(coefs, self._neutral(len(temps), temps), np.zeros((len(temps), 3)))
+        return self.static_model.linearise(coefs, self._neutral(len(temps), temps),
+                                           np.zeros((len(temps), 3)))
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """K and B at the calibration's own temperature points."""

@@ -183,7 +183,7 @@ def cmd_segment(args) -> int:
     from .stages import UNIT_FILES, segment_stage
     settings = _settings(args)
     out = Path(args.out)
-    files = [out / UNIT_FILES[k] for k in ("observations", "segments", "timeline")]
+    files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
     status = _stage(args, "segment", files,
                     lambda: segment_stage(args.log, out, settings, _meta(args)))
     print(f"segmentation -> {out}")

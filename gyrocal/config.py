@@ -23,6 +23,9 @@ from .terms.user import load_term_file
 from .thermal import check_method
 
 
+EXPRESSION_KEYS = frozenset({"formula", "parameters", "profile", "scope"})
+
+
 @dataclass(frozen=True)
 class ModelSettings:
     """The error model and how it is carried across temperature."""
@@ -47,8 +50,11 @@ class ModelSettings:
         for path in term_files:
             load_term_file(path)  # registers its terms before the term list is checked
         expressions = values.get("expressions") or {}
-        if not isinstance(expressions, dict) or not all(isinstance(v, str) for v in expressions.values()):
-            raise ConfigError(f"{key}.expressions must map names to formulas")
+        if not isinstance(expressions, dict) or not all(
+                isinstance(v, str) or (isinstance(v, dict) and isinstance(v.get("formula"), str)
+                                       and set(v) <= EXPRESSION_KEYS) for v in expressions.values()):
+            raise ConfigError(f"{key}.expressions must map names to formulas, or to mappings of "
+                              f"{', '.join(sorted(EXPRESSION_KEYS))} (formula required)")
         expressions = tuple(sorted(expressions.items()))
         terms = tuple(_sequence(values.get("terms", DEFAULT_TERMS), f"{key}.terms"))
         kind = values.get("kind", "grid")
@@ -65,8 +71,10 @@ class ModelSettings:
         return settings
 
     def term_specs(self) -> tuple:
-        return self.terms + tuple({"name": "expression", "label": label, "formula": formula}
-                                  for label, formula in self.expressions)
+        return self.terms + tuple(
+            {"name": "expression", "label": label,
+             **({"formula": value} if isinstance(value, str) else value)}
+            for label, value in self.expressions)
 
     def with_terms(self, extra: tuple) -> ModelSettings:
         """The model with ``extra`` terms added. A term of the same identity as one already
@@ -75,7 +83,8 @@ class ModelSettings:
         for spec in extra:
             term = make_term(spec)
             if term.name == "expression" and term.label in expressions:
-                expressions[term.label] = term.formula
+                spec = {k: v for k, v in term.spec().items() if k not in ("name", "label")}
+                expressions[term.label] = spec["formula"] if set(spec) == {"formula"} else spec
                 continue
             keys = [make_term(t).identity for t in terms]
             if term.identity in keys:

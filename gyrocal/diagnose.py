@@ -128,6 +128,7 @@ def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Eval
     model = settings.model.build()
     m = settings.model
     fitted = fit_model(model, obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    model = fitted.model
     summary = validate(model, obs, fitted, reference_temperature=m.reference_temperature).summary
     chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
     dof = sum(sum(f.dof.values()) for f in fitted.fits)
@@ -166,9 +167,11 @@ def candidate_terms(settings: Settings) -> list[str]:
 def _pooled(fits, name: str) -> tuple[float, float]:
     """Inverse-variance mean of one coefficient over the fits (one per temperature point,
     or the single continuous fit) and its standard error."""
-    j = fits[0].names.index(name)
-    v = np.array([f.values[j] for f in fits])
-    w = 1.0 / np.maximum(np.array([f.stderr[j] for f in fits]), 1e-300) ** 2
+    # A joint grid fit holds a point-scope coefficient as ``<name>.@<point>``, one per point.
+    pairs = [(f.values[j], f.stderr[j]) for f in fits for j, n in enumerate(f.names)
+             if n == name or n.split(".@")[0] == name]
+    v = np.array([p[0] for p in pairs])
+    w = 1.0 / np.maximum(np.array([p[1] for p in pairs]), 1e-300) ** 2
     return float(np.sum(w * v) / np.sum(w)), float(np.sqrt(1.0 / np.sum(w)))
 
 
@@ -185,8 +188,8 @@ def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: 
     for result, rows in zip(fits, evaluation.fitted.rows):
         design = model.design({k: v[rows] for k, v in obs_data.items()})
         for a in AXES:
-            contribution = sum(result.coef(n) * np.asarray(design[n]) for n in added
-                               if n.split(".")[1] == a)
+            contribution = sum(result.coef(n) * np.asarray(design[n]) for n in result.names
+                               if n.split(".@")[0] in added and n.split(".")[1] == a)
             if np.ndim(contribution):
                 peak = max(peak, float(np.max(np.abs(contribution))))
     return size, peak
@@ -280,7 +283,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
             continue
         added = [c for c in ext.fitted.names if c not in base.fitted.names]
         df_num, df_den = base.dof - ext.dof, ext.dof
-        problem = ("it leaves fewer temperature points" if len(ext.fitted.fits) != len(base.fitted.fits)
+        problem = ("it leaves fewer temperature points"
+                   if len(ext.fitted.used_points()) != len(base.fitted.used_points())
                    else "it adds no coefficient to the model" if df_num <= 0
                    else "it leaves no degree of freedom" if df_den <= 0 else None)
         if problem:

@@ -179,9 +179,9 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     cal = _load(previous_cal)
     if not isinstance(observations, pd.DataFrame):
         from .failure import check_inputs
-        from .io import read_table_with_metadata
+        from .stages import read_observations
         check_inputs(observations)
-        observations, _ = read_table_with_metadata(observations)
+        observations, _ = read_observations(observations)
     if cal.meta.get("protocol") == "servo" or "revolution" in observations.columns:
         raise InputError("revalidation needs holds with a known true rate (turntable or sweep "
                          "sessions); a servo session's hand mount leaves the rate's direction unknown")

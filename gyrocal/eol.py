@@ -63,7 +63,7 @@ def _standard_from_KB(K: np.ndarray, B: np.ndarray, names) -> dict[str, np.ndarr
 
 def _linearise(cal: Calibration, coefs: dict, temps: np.ndarray):
     n = len(temps)
-    return cal.model.linearise(coefs, cal._neutral(n, temps), np.zeros((n, 3)))
+    return cal.static_model.linearise(coefs, cal._neutral(n, temps), np.zeros((n, 3)))
 
 
 def parameter_curves(cal: Calibration, temps) -> dict[str, np.ndarray]:

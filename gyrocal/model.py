@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import ConfigError, IdentifiabilityError, MissingInputError
+from .signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
 from .terms import AXES, Term, make_term
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
@@ -76,9 +77,38 @@ class Model:
             term.check_inputs(data, source)
 
     def design(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """Regressor columns by coefficient name, one value per row of ``data``.
+
+        ``data`` holds observation columns (one row per hold) or samples. For holds, a term
+        that reads a series signal (``t``, ``temp_rate``, a lag) is evaluated at quadrature
+        nodes inside every hold and averaged (:mod:`gyrocal.signals`); other terms read
+        only what is constant within a hold and are evaluated on the hold's values."""
+        holds = "t_start" in data
+        if holds:
+            base, context = hold_inputs(data)
+        else:
+            base = Inputs({k: v for k, v in data.items() if k != "series"}, data.get("series"),
+                          data.get("t"))
+            context = {"span": None}
+        n = len(data[RATE_COLUMNS[0]])
+        nodes = None
         out: dict[str, np.ndarray] = {}
         for term in self.terms:
-            out.update(term.columns(data))
+            inputs = Inputs(base, base.series, base.times)
+            try:
+                columns = term.columns(inputs)
+                if context["span"] is not None and inputs.read & SERIES_INPUTS:
+                    if nodes is None:
+                        nodes = quadrature_inputs(base, context["series"], context["span"])
+                    at_nodes = term.columns(Inputs(nodes, nodes.series, nodes.times))
+                    columns = {k: node_means(np.asarray(v, float), n) for k, v in at_nodes.items()}
+            except MissingInputError as exc:
+                raise MissingInputError(f"term {term.spec_string()} reads an input it cannot "
+                                        f"have: {exc}") from None
+            missing = [c for c in term.coefficients() if c not in columns]
+            if missing:
+                raise ConfigError(f"term {term.spec_string()} gives no column for {', '.join(missing)}")
+            out.update(columns)
         return out
 
     def error(self, coefs: Mapping[str, np.ndarray | float], data: Mapping) -> np.ndarray:
@@ -166,11 +196,17 @@ NON_NUMERIC = ("mount", "axis", "mount_source")
 
 
 def columns_of(obs) -> dict[str, np.ndarray]:
-    """Numeric observation columns as float arrays (what terms read); a mapping passes through."""
+    """Numeric observation columns as float arrays (what terms read), with the session's
+    record (``series``, :mod:`gyrocal.signals`) when the table carries one in its attrs; a
+    mapping passes through."""
     if not isinstance(obs, pd.DataFrame):
         return obs
-    return {c: obs[c].to_numpy(dtype=float) for c in obs.columns
+    data = {c: obs[c].to_numpy(dtype=float) for c in obs.columns
             if c not in NON_NUMERIC and pd.api.types.is_numeric_dtype(obs[c])}
+    series = obs.attrs.get("series")
+    if series is not None:  # the session's record, for terms that read series signals
+        data["series"] = series
+    return data
 
 
 def observation_floor(obs) -> np.ndarray:

@@ -21,6 +21,7 @@ from .errors import ConfigError
 from .floor import add_floor_columns, characterise, noise_record
 from .io import file_sha256, read_log
 from .segment import LOG_COLUMNS, Segmentation, segment
+from .signals import TEMP_RATE_WINDOW_S, Series, history
 from .thermal import ContinuousFit, GridFit, fit_model
 from .validate import Validation, validate
 
@@ -66,7 +67,19 @@ def segment_log(path, settings: Settings, protocol: str = "turntable") -> Segmen
             seg = protocols.SEGMENTERS[protocol](log, settings.protocol_options(protocol))
         seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
-    return with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
+    seg = with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
+    # The temperature rate is a slope over a window as long as a typical hold, for the fit
+    # and for apply (the calibration file records the window).
+    obs = seg.observations
+    window = float(np.median(obs["duration"])) if len(obs) else TEMP_RATE_WINDOW_S
+    return with_series(seg, history(log.column("t"), log.column("temp"), window_s=window))
+
+
+def with_series(seg: Segmentation, series: Series) -> Segmentation:
+    """``seg`` whose observations carry the session's record (terms read series signals
+    from it: :mod:`gyrocal.signals`)."""
+    seg.observations.attrs["series"] = series
+    return seg
 
 
 def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float) -> Segmentation:
@@ -95,8 +108,11 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
     fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
                        degree=settings.model.degree, source=label)
     points = fitted.points
-    # The observations' temperature rate spans a hold: apply derives it over as long.
-    covariates = {"temp_rate": {"unit": "degC/min", "window_s": float(np.median(obs["duration"]))}} \
+    model = fitted.model  # with any profiled setting at its fitted value
+    # Apply derives the temperature rate over the window the fit's record used.
+    series = obs.attrs.get("series")
+    window = series.temp_rate_window_s if series is not None else float(np.median(obs["duration"]))
+    covariates = {"temp_rate": {"unit": "degC/min", "window_s": window}} \
         if "temp_rate" in model.needs else {}
     cal = Calibration(
         model, fitted.coefficients, settings.model.reference_temperature, meta,
@@ -105,6 +121,7 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
             {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
              **({"excluded_because": r.reason} if not r.used else {})}
             for r in points.itertuples()],
+            **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
             **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
     return cal, fitted
 

@@ -213,8 +213,13 @@ def write_unit_report(results: UnitResults, path) -> None:
         grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
                                            for j, n in enumerate(g.names)}}
                      for p, t in enumerate(g.temperatures)]
-        constants = []
+        # Session-wide (scope global) terms hold one value at every grid point.
+        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
+        session = {c for t in cal.model.terms if t.coefficient_scope == "global" for c in t.coefficients()}
+        constants = [(n, float(g.values[0, j]), float(g.stderr[0, j]), units.get(n, ""))
+                     for j, n in enumerate(g.names) if n in session]
     html = _ENV.get_template("unit_report.html.j2").render(
+        profiled=cal.extra.get("profiled", []),
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
         interpolation=g.method, reference=cal.reference_temperature,
         counts_columns=list(counts.columns),

@@ -22,11 +22,13 @@ from .config import Settings
 from .errors import GyrocalError
 from .io import read_table_with_metadata, write_table
 from .pipeline import calibrate_observations, segment_log
+from .signals import Series
 from .thermal import fit_model
 from .validate import validate
 
 UNIT_FILES = {
     "observations": "observations.parquet",
+    "history": "history.parquet",
     "segments": "segments.parquet",
     "timeline": "timeline.parquet",
     "calibration": "calibration.json",
@@ -69,15 +71,31 @@ def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
     paths["observations"].parent.mkdir(parents=True, exist_ok=True)
     extra = {"info": seg.info, "meta": meta, "log": str(log),
              "segmentation": settings.to_dict()["segmentation"]}
+    series = seg.observations.attrs.get("series")
+    if series is not None:
+        write_table(series.to_frame(), paths["history"], series.metadata())
     write_table(seg.observations, paths["observations"], extra)
     write_table(seg.segments, paths["segments"], {"meta": meta})
     write_table(seg.timeline, paths["timeline"], {"meta": meta})
 
 
+def read_observations(paths):
+    """A unit's observation table and its metadata (``paths``: the unit's paths, or the
+    observations file), the table carrying the session's record when segmentation wrote
+    one beside it (``history.parquet``)."""
+    observations = Path(paths["observations"] if isinstance(paths, dict) else paths)
+    obs, extra = read_table_with_metadata(observations)
+    history = observations.with_name(UNIT_FILES["history"])
+    if history.exists():
+        frame, meta = read_table_with_metadata(history)
+        obs.attrs["series"] = Series.from_frame(frame, meta)
+    return obs, extra
+
+
 def fit_stage(folder, settings: Settings, meta: dict) -> None:
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"])
-    obs, extra = read_table_with_metadata(paths["observations"])
+    obs, extra = read_observations(paths)
     cal, _ = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
                                     label=paths["observations"], noise=extra["info"].get("noise"))
     save_calibration(cal, paths["calibration"])
@@ -86,7 +104,7 @@ def fit_stage(folder, settings: Settings, meta: dict) -> None:
 def validate_stage(folder, settings: Settings) -> None:
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"], paths["calibration"])
-    obs, _ = read_table_with_metadata(paths["observations"])
+    obs, _ = read_observations(paths)
     cal = load_calibration(paths["calibration"])
     stale = GyrocalError("the calibration was not fitted from these observations with these "
                          "settings: run the fit stage again", source=paths["calibration"])
@@ -103,7 +121,7 @@ def validate_stage(folder, settings: Settings) -> None:
                            degree=settings.model.degree, source=paths["observations"])
         if not np.array_equal(fitted.coefficients.values, cal.grid.values):
             raise stale
-        val = validate(model, obs, fitted, reference_temperature=settings.model.reference_temperature)
+        val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature)
     write_table(val.holds, paths["holds"], {"summary": val.summary})
     write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
     write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})
@@ -119,7 +137,7 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     from .diagnose import diagnose
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"])
-    obs, _ = read_table_with_metadata(paths["observations"])
+    obs, _ = read_observations(paths)
     diag = diagnose(settings, obs)
     out = Path(output or paths["diagnosis"])
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -157,7 +175,7 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     # The workflow declares the unit's products, not the tables written beside them
     # (workflow/rules/analyse.smk): name a table deleted since they were made.
     missing = [name for key, name in UNIT_FILES.items()
-               if key not in DIAGNOSIS_FILES and not paths[key].exists()]
+               if key not in (*DIAGNOSIS_FILES, "history") and not paths[key].exists()]
     if missing:
         raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
                            "folder and run the workflow again to rebuild it", source=folder)

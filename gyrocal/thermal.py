@@ -30,6 +30,7 @@ from scipy.interpolate import CubicSpline
 
 from .errors import ConfigError, GyrocalError, IdentifiabilityError
 from .model import FitResult, Model, columns_of, fit
+from .terms import Term
 
 METHODS = ("lagrange3", "linear", "spline", "poly")
 
@@ -204,7 +205,12 @@ class GridFit:
     points: pd.DataFrame              # point, temp, holds, used, reason
     excluded: dict[int, str] = field(default_factory=dict)
     rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
+    profiled: tuple = ()               # nonlinear settings found by profiling
     kind: ClassVar[str] = "grid"
+
+    @property
+    def model(self) -> Model:
+        return self.fits[0].model
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -226,6 +232,10 @@ class GridFit:
     def covariance_at(self, temp) -> np.ndarray:
         cov = np.array([f.covariance for f in self.fits])
         return np.einsum("np,pcd->ncd", self.grid.weights(temp) ** 2, cov)
+
+    def point_fit(self, point: int) -> FitResult:
+        """The calibration at one point: that point's own fit."""
+        return self.fits[self.used_points().index(int(point))]
 
     def leave_out(self, point: int) -> GridFit | None:
         """The calibration without ``point``: the other points' fits (each used its own
@@ -251,6 +261,7 @@ class ContinuousFit:
     data: dict                        # the numeric observation columns fitted
     points: pd.DataFrame
     excluded: dict[int, str] = field(default_factory=dict)
+    profiled: tuple = ()
     kind: ClassVar[str] = "continuous"
 
     @property
@@ -352,16 +363,203 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
 
 
+class _AtPoint(Term):
+    """A point-scope term's coefficients at one temperature point of a joint grid fit:
+    its columns on that point's holds, zero elsewhere (names ``<coefficient>.@<point>``)."""
+
+    def __init__(self, term: Term, point: int):
+        self.term, self.point = term, int(point)
+        self.name = term.name
+
+    @property
+    def needs(self):
+        return self.term.needs
+
+    def spec_string(self) -> str:
+        return self.term.spec_string()
+
+    def coefficients(self) -> list[str]:
+        return [f"{c}.@{self.point}" for c in self.term.coefficients()]
+
+    def columns(self, data):
+        here = np.asarray(data["point"]) == self.point
+        return {f"{k}.@{self.point}": np.where(here, np.asarray(v, float), 0.0)
+                for k, v in self.term.columns(data).items()}
+
+
+def global_terms(model: Model) -> list[Term]:
+    return [t for t in model.terms if t.coefficient_scope == "global"]
+
+
+@dataclass(frozen=True)
+class JointGridFit:
+    """A grid model with session-wide (scope global) terms: every point's own coefficients
+    and the global ones fitted in one least-squares problem over the points' holds. The
+    grid holds each global coefficient at every point (interpolating a constant gives it
+    back), so files and apply read it as any grid."""
+
+    model: Model
+    fit: FitResult                      # of the joint model (names with ``.@<point>``)
+    data: dict                          # the observation columns of the points fitted
+    grid: TemperatureGrid
+    points: pd.DataFrame
+    excluded: dict[int, str] = field(default_factory=dict)
+    rows: tuple[np.ndarray, ...] = ()   # the observation rows the fit used
+    point_ids: tuple[int, ...] = ()     # grid order
+    profiled: tuple = ()
+    kind: ClassVar[str] = "grid"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.grid.names
+
+    @property
+    def coefficients(self) -> TemperatureGrid:
+        return self.grid
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]:
+        return (self.fit,)
+
+    def used_points(self) -> list[int]:
+        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+
+    def outside(self, temp) -> np.ndarray:
+        return self.grid.outside(temp)
+
+    def coefficients_at(self, temp) -> np.ndarray:
+        return self.grid.weights(temp) @ self.grid.values
+
+    def _mapping(self, weights: np.ndarray) -> np.ndarray:
+        """(n, C, J): coefficient values at n temperatures from the joint parameters."""
+        joint = {name: j for j, name in enumerate(self.fit.names)}
+        A = np.zeros((len(weights), len(self.names), len(joint)))
+        for c, name in enumerate(self.names):
+            if name in joint:
+                A[:, c, joint[name]] = 1.0
+            else:
+                for k, p in enumerate(self.point_ids):
+                    A[:, c, joint[f"{name}.@{p}"]] = weights[:, k]
+        return A
+
+    def covariance_at(self, temp) -> np.ndarray:
+        A = self._mapping(self.grid.weights(np.atleast_1d(np.asarray(temp, float))))
+        return np.einsum("ncj,jk,ndk->ncd", A, self.fit.covariance, A)
+
+    def point_fit(self, point: int):
+        """The calibration at one point: its own coefficients and the global ones."""
+        k = self.point_ids.index(int(point))
+        A = self._mapping(np.eye(len(self.point_ids))[k:k + 1])[0]
+        return _PointCalibration(self.grid.values[k], A @ self.fit.covariance @ A.T)
+
+    def leave_out(self, point: int) -> JointGridFit | None:
+        """Refitted without ``point``'s holds (the global coefficients change with it)."""
+        if point not in self.used_points():
+            return self
+        if len(self.used_points()) < 2:
+            return None
+        keep = self.data["point"].astype(int) != point
+        try:
+            return _fit_joint(self.model, {k: v[keep] for k, v in self.data.items()},
+                              method=self.grid.method, degree=self.grid.degree)
+        except IdentifiabilityError:
+            return None
+
+
+@dataclass(frozen=True)
+class _PointCalibration:
+    values: np.ndarray
+    covariance: np.ndarray
+
+
+def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=None,
+               rows: np.ndarray | None = None, excluded=None, extra_points=()) -> JointGridFit:
+    point = data["point"].astype(int)
+    ids = [int(p) for p in np.unique(point)]
+    temps = np.array([float(data["temp"][point == p].mean()) for p in ids])
+    order = np.argsort(temps, kind="stable")
+    ids, temps = [ids[i] for i in order], temps[order]
+    local = [t for t in model.terms if t.coefficient_scope != "global"]
+    joint = Model(tuple(_AtPoint(t, p) for t in local for p in ids) + tuple(global_terms(model)))
+    result = fit(joint, data, source=source, label="all temperature points")
+    index = {name: j for j, name in enumerate(result.names)}
+    values = np.empty((len(ids), len(model.names)))
+    stderr = np.empty_like(values)
+    for c, name in enumerate(model.names):
+        if name in index:
+            values[:, c], stderr[:, c] = result.values[index[name]], result.stderr[index[name]]
+        else:
+            for k, p in enumerate(ids):
+                j = index[f"{name}.@{p}"]
+                values[k, c], stderr[k, c] = result.values[j], result.stderr[j]
+    grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
+    table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps)]
+    table += list(extra_points)
+    points = pd.DataFrame(table, columns=["point", "temp", "holds", "used", "reason"]) \
+        .sort_values("point", kind="stable").reset_index(drop=True)
+    rows = np.arange(len(point)) if rows is None else rows
+    return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids))
+
+
+def _check_point_terms(model: Model, data: dict, source=None) -> None:
+    """Refuse a point-scope term that is constant within every temperature point (other
+    than the bias itself): per-point coefficients of it cannot be told from the bias."""
+    point = data["point"].astype(int)
+    local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
+    design = local.design(data)
+    for term in local.terms:
+        for name in term.coefficients():
+            col = np.broadcast_to(np.asarray(design[name], float), point.shape)
+            if not np.all(np.isfinite(col)):
+                continue  # the fit refuses it, naming the holds
+            size = float(np.max(np.abs(col))) if col.size else 0.0
+            if size == 0.0 or np.ptp(col) <= 1e-9 * size:
+                continue  # zero or constant everywhere: the fit itself judges it
+            spread = max(float(np.ptp(col[point == p])) for p in np.unique(point))
+            if spread <= 1e-9 * size:
+                raise ConfigError(
+                    f"term {term.spec_string()} does not vary within a temperature point, so its "
+                    "coefficients cannot be fitted point by point (each point's bias absorbs "
+                    f"it): fit it once for the session with {term.name}(scope='global'), or use "
+                    "model kind continuous", source=source)
+
+
 def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",
-              degree: int = 3, source=None) -> GridFit | ContinuousFit:
-    """A model fitted as a temperature grid (per point, interpolated) or continuously."""
+              degree: int = 3, source=None) -> GridFit | ContinuousFit | JointGridFit:
+    """A model fitted as a temperature grid (per point, interpolated, with global terms
+    fitted jointly) or continuously. Nonlinear settings of its terms (``profile``) are
+    found by profiling (:mod:`gyrocal.profile`)."""
+    if kind not in ("grid", "continuous"):
+        raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
+    if any(t.nonlinear() for t in model.terms):
+        from .profile import profiled_fit
+        return profiled_fit(model, lambda m: _fit_linear(m, obs, kind=kind, method=method,
+                                                          degree=degree, source=source))
+    return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
+
+
+def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None):
     if kind == "continuous":
         return fit_continuous(model, obs, source=source)
-    if kind != "grid":
-        raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
-    temperature_only = [t.spec_string() for t in model.terms if t.varies_with_temperature]
+    temperature_only = [t.spec_string() for t in model.terms
+                        if t.varies_with_temperature and t.coefficient_scope != "global"]
     if temperature_only:
         raise ConfigError(f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
                           "on temperature alone and cannot be fitted point by point: use model "
                           "kind continuous")
-    return fit_grid(model, obs, method=method, degree=degree, source=source)
+    data = columns_of(obs)
+    _check_point_terms(model, data, source)
+    if not global_terms(model):
+        return fit_grid(model, obs, method=method, degree=degree, source=source)
+    check_method(method, degree)
+    # Points whose own holds cannot determine their coefficients are left out, as in a
+    # plain grid; the rest are fitted together with the global terms.
+    local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
+    per_point = fit_grid(local, data, method=method, degree=degree, source=source) if local.terms else None
+    used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
+    rows = np.flatnonzero(np.isin(data["point"].astype(int), used))
+    dropped = [] if per_point is None else [
+        tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
+    return _fit_joint(model, {k: v[rows] for k, v in data.items()}, method=method, degree=degree,
+                      source=source, rows=rows, excluded=per_point.excluded if per_point else {},
+                      extra_points=dropped)

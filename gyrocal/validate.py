@@ -109,7 +109,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         try:
             plan = _leave_temperature_out(model, fitted, data, reference_temperature)
         except _CannotLeaveOut:
-            if fitted.kind == "grid":
+            if fitted.kind == "grid" and not hasattr(fitted, "fit"):
                 raise
             # A continuous model whose temperature terms need every point (a degree-2
             # polynomial on three points): only holds can be left out.
@@ -182,7 +182,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     def single_fit(p):
         if p not in single_fits:
             if fitted.kind == "grid":
-                single_fits[p] = fitted.fits[used.index(p)]
+                single_fits[p] = fitted.point_fit(p)
             else:
                 keep = point == p
                 single_fits[p] = fit(one_point, {k: v[keep] for k, v in data.items()})

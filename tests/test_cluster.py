@@ -136,7 +136,7 @@ def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
 
 
 META = ["--device", "A1", "--batch", "B1", "--session", "2026-01-01", "--protocol", "turntable"]
-SEGMENT_FILES = ("observations", "segments", "timeline")
+SEGMENT_FILES = ("observations", "history", "segments", "timeline")
 # A temperature-only term cannot be fitted point by point: the fit fails on its own.
 SETTINGS = {"calibrated": {"model": {"terms": ["bias", "scale", "misalignment"]}},
             "fit fails": {"model": {"terms": ["bias", "scale", "misalignment", "bias_temp_poly"]}},

@@ -1,10 +1,17 @@
 """Physical effects as terms of the gyro error model, and the registry that names them.
 
 The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
-terms, each linear in its coefficients. A term turns observation columns (the true rate in
-the sensor frame ``rate_x/y/z``, ``temp``, ``temp_rate``, ...) into named regressor
-columns, one per coefficient. Names are ``<term>.<output axis>[.<detail>]``: the output
-axis is always the second part, so a fit can take each output axis's columns by name.
+terms, each linear in its coefficients. A term defines its regressor columns per sample,
+one per coefficient, from the inputs of :mod:`gyrocal.signals` (the true rate in the sensor
+frame ``rate_x/y/z``, ``ref_rate``, ``accel_x/y/z``, ``temp``, and the series signals ``t``,
+``temp_rate`` and ``data.lag(...)``); the library takes hold means for the fit and samples
+for apply, so both see the same effect. Names are ``<term>.<output axis>[.<detail>]``: the
+output axis is always the second part, so a fit can take each output axis's columns by name.
+
+A term's coefficients are per temperature point (``scope = "point"``: a grid model fits
+them at every point and interpolates) or one set for the session (``scope = "global"``:
+fitted jointly over all points). Settings named in ``profile`` (a time constant, a lag) are
+nonlinear parameters: the fit searches them within their bounds (:mod:`gyrocal.profile`).
 
 With the base terms the seed-000 model (Eq 12) reads ``w = K w_true + B``, where
 ``K = I + scale + misalignment`` and ``B = bias``; see :mod:`gyrocal.terms.base`.
@@ -37,6 +44,8 @@ class Term:
     needs: ClassVar[frozenset[str]] = frozenset()   # observation columns required
     unit: ClassVar[str] = ""                         # unit of the coefficients
     varies_with_temperature: ClassVar[bool] = False  # depends on temperature alone
+    scope: ClassVar[str] = "point"                   # "point" or "global" in a grid model
+    profile: ClassVar[Mapping[str, tuple[float, float]]] = {}  # nonlinear setting -> bounds
 
     def coefficients(self) -> list[str]:
         """Full coefficient names, in a fixed order."""
@@ -55,6 +64,8 @@ class Term:
         """What a calibration file stores to rebuild the term; a user term also records the
         file it came from and that file's SHA-256."""
         spec = {"name": self.name, **self.params()}
+        if self.coefficient_scope != self.default_scope():
+            spec["scope"] = self.coefficient_scope
         source = getattr(type(self), "source_file", None)
         if source:
             spec["source"] = {"file": Path(source).name, "sha256": type(self).source_sha256}
@@ -63,9 +74,11 @@ class Term:
     def spec_string(self) -> str:
         """The term as ``--add-term`` and config files take it: ``name`` or
         ``name(key=value, ...)`` for settings that differ from the defaults."""
-        defaults = {f.name: f.default for f in dataclasses.fields(self)} \
-            if dataclasses.is_dataclass(self) else {}
+        defaults = {f.name: f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+                    for f in dataclasses.fields(self)} if dataclasses.is_dataclass(self) else {}
         changed = {k: v for k, v in self.params().items() if defaults.get(k, dataclasses.MISSING) != v}
+        if self.coefficient_scope != self.default_scope():
+            changed["scope"] = self.coefficient_scope
         return self.name + ("(" + ", ".join(f"{k}={v!r}" for k, v in changed.items()) + ")"
                             if changed else "")
 
@@ -75,8 +88,31 @@ class Term:
         adding one replaces the other (``bias_temp_poly(degree=3)`` replaces degree 2)."""
         return (self.name,)
 
+    @property
+    def coefficient_scope(self) -> str:
+        """``point`` or ``global``: where a grid model fits this term's coefficients (the
+        class's ``scope``, unless the term was made with ``scope=...``)."""
+        return getattr(self, "_scope", None) or self.default_scope()
+
+    def default_scope(self) -> str:
+        return self.scope
+
+    def nonlinear(self) -> dict[str, tuple[float, float]]:
+        """Settings fitted by profiling, with their search bounds (both > 0)."""
+        return dict(self.profile)
+
+    def with_settings(self, **values) -> Term:
+        """The same term, scope kept, with some settings changed (a profiled parameter)."""
+        term = dataclasses.replace(self, **values)
+        if getattr(self, "_scope", None):
+            object.__setattr__(term, "_scope", self._scope)
+        return term
+
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
-        missing = sorted(c for c in self.needs if c not in data)
+        from ..signals import SERIES_INPUTS
+        series = "series" in data or "t" in data
+        missing = sorted(c for c in self.needs if c not in data
+                         and not (series and c in SERIES_INPUTS))
         if missing:
             raise MissingInputError(f"term {self.spec_string()} needs {', '.join(missing)}, which the "
                                     f"data lack", source=source)
@@ -132,10 +168,16 @@ def make_term(spec) -> Term:
     if isinstance(source, Mapping) and source.get("sha256") != getattr(cls, "source_sha256", None):
         raise ConfigError(f"term {name} was fitted with {source.get('file')} of SHA-256 "
                           f"{str(source.get('sha256'))[:12]}…, but the loaded definition differs")
+    scope = params.pop("scope", None)
+    if scope not in (None, "point", "global"):
+        raise ConfigError(f"term {name}: scope must be 'point' or 'global', got {scope!r}")
     try:
-        return cls(**params)
+        term = cls(**params)
     except TypeError as exc:
         raise ConfigError(f"term {name}: {exc}") from None
+    if scope is not None:
+        object.__setattr__(term, "_scope", scope)
+    return term
 
 
 from . import base, effects, user  # noqa: E402,F401  (register the library's terms)

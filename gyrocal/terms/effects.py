@@ -108,6 +108,36 @@ class TempRate(Term):
         return {f"{self.name}.{a}": rate for a in AXES}
 
 
+@register_term("temp_lag")
+@dataclass(frozen=True)
+class TempLag(Term):
+    """Bias of a die whose temperature lags the sensor's: ``e_a += c_a (T_τ − T)``, where
+    ``T_τ`` is the logged temperature through a first-order lag of time constant ``τ`` (s).
+
+    The sensor reads the package while the bias follows the die (seed 000 Eq 9-10: thermal
+    gradients across the sensor); a calibration against the logged temperature then errs by
+    the bias's temperature coefficient ``c_a`` times the lag, about ``−c_a τ dT/dt`` on a
+    ramp (``temp_rate`` is that first-order form). ``τ`` is found by profiling; ``c_a`` is
+    one per session (scope global). [deg/s/°C]"""
+
+    tau: float = 900.0
+    unit = "deg/s/degC"
+    needs = frozenset({"temp_lag"})
+    scope = "global"
+    profile = {"tau": (60.0, 14400.0)}
+
+    def __post_init__(self):
+        if isinstance(self.tau, bool) or not isinstance(self.tau, (int, float)) or not self.tau > 0:
+            raise ConfigError(f"term {self.name}: tau must be a positive number of seconds, got {self.tau!r}")
+
+    def coefficients(self):
+        return [f"{self.name}.{a}" for a in AXES]
+
+    def columns(self, data):
+        lagging = data.lag("temp", self.tau) - data.lag("temp", 0)
+        return {f"{self.name}.{a}": lagging for a in AXES}
+
+
 class _RatePerAxis(Term):
     """One coefficient per output axis times a function of that axis's own rate."""
 

@@ -6,19 +6,22 @@ loaded by path; its SHA-256 is recorded in every calibration that uses one of it
 loading such a calibration checks it, so a calibration is never applied with a term whose
 code has changed.
 
-An expression term is a formula over observation columns (``accel_x * rate_y``,
-``temp_rate ** 2``, ``abs(rate_z)``), one coefficient per output axis. Formulas are read by
-a small interpreter that knows numbers, the columns of ``FORMULA_COLUMNS``, + - * / **,
-unary minus and a few one-argument functions: nothing else in the formula can run.
+An expression term is a formula of the inputs every term has (``accel_x * rate_y``,
+``temp_rate ** 2``, ``exp(-t / tau)``, ``lag(temp, 900) - temp``), one coefficient per
+output axis. Formulas are read by a small interpreter that knows numbers, the inputs of
+``FORMULA_COLUMNS``, the expression's named parameters, + - * / **, unary minus, a few
+one-argument functions and ``lag``: nothing else in the formula can run.
 """
 
 from __future__ import annotations
 
 import ast
+import dataclasses
 import hashlib
 import importlib.util
 import sys
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -67,44 +70,60 @@ _FUNCTIONS = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sig
               "sin": np.sin, "cos": np.cos}
 _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
               ast.Div: np.divide, ast.Pow: np.power}
+# lag(x, tau): the series signal x (temp or temp_rate) through a first-order lag of tau seconds.
+LAGGABLE = ("temp", "temp_rate")
+
+# What a formula may read: the inputs every term has (gyrocal.signals), per sample in apply
+# and as hold means in the fit. ``t`` is seconds since the log's first sample.
+FORMULA_COLUMNS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "ref_rate",
+                   "accel_x", "accel_y", "accel_z")
+SERIES_NAMES = frozenset({"t", "temp_rate"})
 
 
-# Columns a formula may read: those every observation table has, which apply can also
-# give for every sample (temp_rate derived from the log's t and temp).
-FORMULA_COLUMNS = ("temp", "temp_rate", "rate_x", "rate_y", "rate_z", "accel_x", "accel_y", "accel_z")
+def formula_names(formula: str, parameters=()) -> frozenset[str]:
+    """Inputs a formula reads (``temp_lag`` for a lag), its parameters excluded."""
+    tree = _parse(formula, parameters)
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
+             and n.id not in _FUNCTIONS and n.id != "lag" and n.id not in parameters}
+    if any(isinstance(n, ast.Call) and n.func.id == "lag" for n in ast.walk(tree)):
+        names.add("temp_lag")
+    return frozenset(names)
 
 
-def formula_names(formula: str) -> frozenset[str]:
-    tree = _parse(formula)
-    return frozenset(n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
-                     and n.id not in _FUNCTIONS)
-
-
-def _parse(formula: str) -> ast.AST:
+def _parse(formula: str, parameters=()) -> ast.AST:
     if not isinstance(formula, str) or len(formula) > 500:
         raise ConfigError(f"a formula must be text of at most 500 characters, got {formula!r:.60}")
     try:
         tree = ast.parse(formula, mode="eval").body
     except (SyntaxError, ValueError, MemoryError, RecursionError):
         raise ConfigError(f"cannot read the formula {formula!r}") from None
+    known = (*FORMULA_COLUMNS, *parameters)
     for node in ast.walk(tree):
         allowed = (ast.BinOp, ast.UnaryOp, ast.USub, ast.UAdd, ast.Name, ast.Constant,
                    ast.Call, ast.Load, *_OPERATORS)
         if not isinstance(node, allowed):
             raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
-                              "(numbers, columns, + - * / **, abs sqrt exp log sign sin cos)")
-        if isinstance(node, ast.Call) and (not isinstance(node.func, ast.Name)
-                                           or node.func.id not in _FUNCTIONS or node.keywords
-                                           or len(node.args) != 1):
-            raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} may be called, "
-                              "each with one argument")
+                              "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign "
+                              "sin cos, lag)")
+        if isinstance(node, ast.Call):
+            if not isinstance(node.func, ast.Name) or node.keywords:
+                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} and lag may be called")
+            if node.func.id == "lag":
+                if len(node.args) != 2 or not isinstance(node.args[0], ast.Name) \
+                        or node.args[0].id not in LAGGABLE:
+                    raise ConfigError(f"formula {formula!r}: write lag(temp, tau) or "
+                                      "lag(temp_rate, tau), tau in seconds (a number or a parameter)")
+            elif node.func.id not in _FUNCTIONS or len(node.args) != 1:
+                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
+                                  "each) and lag(temp, tau) may be called")
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) \
                     or not _finite_number(node.value):
                 raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
-        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id not in FORMULA_COLUMNS:
-            raise ConfigError(f"formula {formula!r}: {node.id} is not a column a formula can read "
-                              f"({', '.join(FORMULA_COLUMNS)})")
+        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id != "lag" \
+                and node.id not in known:
+            raise ConfigError(f"formula {formula!r}: {node.id} is neither an input a formula can "
+                              f"read ({', '.join(FORMULA_COLUMNS)}) nor one of its parameters")
     return tree
 
 
@@ -115,44 +134,116 @@ def _finite_number(value) -> bool:
         return False
 
 
-def evaluate(formula: str, data) -> np.ndarray:
+def evaluate(formula: str, data, parameters: Mapping[str, float] | None = None) -> np.ndarray:
+    """The formula over ``data`` (a mapping of inputs; ``data.lag`` for lags) with the
+    parameters' values."""
+    parameters = dict(parameters or {})
+
     def value(node):
         if isinstance(node, ast.Constant):
             return float(node.value)
         if isinstance(node, ast.Name):
+            if node.id in parameters:
+                return float(parameters[node.id])
             return np.asarray(data[node.id], dtype=float)
         if isinstance(node, ast.UnaryOp):
             v = value(node.operand)
             return -v if isinstance(node.op, ast.USub) else v
         if isinstance(node, ast.BinOp):
             return _OPERATORS[type(node.op)](value(node.left), value(node.right))
+        if node.func.id == "lag":
+            tau = value(node.args[1])
+            if np.ndim(tau) or not lag_time_constant_ok(tau):
+                raise ConfigError(f"formula {formula!r}: a lag's time constant must be a number "
+                                  f"of seconds >= 0, got {tau!r}")
+            return data.lag(node.args[0].id, float(tau))
         return _FUNCTIONS[node.func.id](*[value(a) for a in node.args])
     with np.errstate(all="ignore"):
-        return value(_parse(formula))
+        return value(_parse(formula, tuple(parameters)))
+
+
+def lag_time_constant_ok(tau) -> bool:
+    return bool(np.isfinite(tau) and tau >= 0)
+
+
+def _plain_parameters(values, formula: str, what: str) -> dict:
+    if values is None:
+        return {}
+    if not isinstance(values, Mapping):
+        raise ConfigError(f"expression {formula!r}: {what} must be a mapping of names")
+    out = {}
+    for name, value in values.items():
+        if not isinstance(name, str) or not name.isidentifier() or name in FORMULA_COLUMNS \
+                or name in _FUNCTIONS or name == "lag":
+            raise ConfigError(f"expression {formula!r}: {name!r} cannot name a parameter "
+                              "(a plain name that is not an input or a function)")
+        out[name] = value
+    return out
 
 
 @register_term("expression")
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Expression(Term):
-    """``e_a += c_a · f(columns)`` for a formula ``f`` of observation columns, under the
-    coefficient prefix ``label``. [deg/s per unit of the formula]"""
+    """``e_a += c_a · f(inputs)`` for a formula ``f`` under the coefficient prefix ``label``.
+
+    ``parameters`` gives the formula's named constants their values; ``profile`` gives a
+    nonlinear parameter (a time constant, in seconds) its search bounds ``[low, high]``,
+    and the fit finds its value (:mod:`gyrocal.profile`), which the calibration then holds
+    under ``parameters``. A formula reading ``t``, ``temp_rate`` or a lag describes a
+    session-wide effect: its coefficients default to ``scope: global``. [deg/s per unit of
+    the formula]"""
 
     label: str = "expression"
     formula: str = "0"
+    parameters: dict = field(default_factory=dict)
+    profile: dict = field(default_factory=dict)
     unit = "deg/s/formula"
 
     def __post_init__(self):
         if not self.label.isidentifier():
             raise ConfigError(f"expression label {self.label!r} must be a plain name")
-        object.__setattr__(self, "needs", formula_names(self.formula))
+        parameters = _plain_parameters(self.parameters, self.formula, "parameters")
+        profile = _plain_parameters(self.profile, self.formula, "profile")
+        for name, value in parameters.items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite_number(value):
+                raise ConfigError(f"expression {self.label}: parameter {name} must be a finite number, "
+                                  f"got {value!r}")
+        for name, bounds in profile.items():
+            ok = isinstance(bounds, (list, tuple)) and len(bounds) == 2 and all(
+                isinstance(b, (int, float)) and not isinstance(b, bool) and _finite_number(b) for b in bounds)
+            if not ok or not 0 < bounds[0] < bounds[1]:
+                raise ConfigError(f"expression {self.label}: profile {name} must be [low, high] "
+                                  f"with 0 < low < high, got {bounds!r}")
+            profile[name] = [float(bounds[0]), float(bounds[1])]
+            parameters.setdefault(name, float(np.sqrt(bounds[0] * bounds[1])))
+        object.__setattr__(self, "parameters", {k: parameters[k] for k in sorted(parameters)})
+        object.__setattr__(self, "profile", {k: profile[k] for k in sorted(profile)})
+        object.__setattr__(self, "needs", formula_names(self.formula, tuple(self.parameters)))
+
+    def __eq__(self, other):
+        return isinstance(other, Expression) and self.params() == other.params()
+
+    __hash__ = None
 
     @property
     def identity(self) -> tuple:
         return (self.name, self.label)
 
+    def default_scope(self) -> str:
+        return "global" if self.needs & {"t", "temp_rate", "temp_lag"} else "point"
+
+    def nonlinear(self) -> dict[str, tuple[float, float]]:
+        return {k: tuple(v) for k, v in self.profile.items()}
+
+    def with_settings(self, **values) -> Term:
+        term = dataclasses.replace(self, parameters={**self.parameters, **values})
+        if getattr(self, "_scope", None):
+            object.__setattr__(term, "_scope", self._scope)
+        return term
+
     def coefficients(self):
         return [f"{self.label}.{a}" for a in AXES]
 
     def columns(self, data):
-        v = np.broadcast_to(evaluate(self.formula, data), (len(data["rate_x"]),))
+        v = np.broadcast_to(evaluate(self.formula, data, self.parameters), (len(data["rate_x"]),))
         return {f"{self.label}.{a}": v for a in AXES}

@@ -1,0 +1,866 @@
+"""Independent simulator of MEMS-gyroscope calibration-rig logs.
+
+Written only from the log contract (/work/shared/spec/log-format.md), the three physics
+papers in /work/shared/seeds and general MEMS-gyro physics, by someone who did not read
+gyrocal's own simulator, terms, tests or docs.  numpy + pyarrow only.
+
+API
+---
+    unit = make_unit(effect="warmup", protocol="turntable3", noise="white", seed=7)
+    info = write_session(unit, path, session=0, seed=123, rate_hz=25.0, **overrides)
+
+``effect`` is one name of ``EFFECTS`` (or several joined by "+", e.g. "warmup+g_sensitivity").
+The base sensor (K(T), B(T), noise, thermal constants) depends only on ``seed`` and
+``noise``, not on the effect, so ``make_unit("none", seed=7)`` and
+``make_unit("warmup", seed=7)`` are the same physical unit with and without the effect.
+
+Sensor model (per sample, deg/s, T in degC, T_ref = 25 degC):
+
+    w = K(T_k) w_true + B(T_k) + sum(effects) + noise
+    K(T)  = I + diag(s0 + s1 dT + s2 dT^2) + M          (M: off-diagonal misalignment)
+    B(T)  = b0 + b1 dT + b2 dT^2,        dT = T_k - 25
+    T_k   = true (noise-free) sensor temperature, or the die temperature for "die_lag".
+"""
+from __future__ import annotations
+
+import json
+import math
+import zlib
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+__all__ = ["UnitSpec", "make_unit", "write_session", "simulate_session", "EFFECTS",
+           "PROTOCOLS", "NOISES"]
+
+G0 = 9.80665            # m/s^2 per g
+T_REF = 25.0            # degC, reference of the polynomials
+ROOM_T = 22.0           # degC, where the unit was stored before the session
+D2R = math.pi / 180.0
+
+EFFECTS: dict[str, str] = {
+    "none": "clean unit: only the temperature-dependent linear model K(T) w + B(T) plus noise",
+    "g_sensitivity": "bias proportional to specific force (g-sensitivity of the proof mass), e = G f",
+    "g_squared": "bias proportional to the square of specific force (anisoelasticity), e = G2 (f*f)",
+    "die_lag": "MEMS die temperature lags the logged temperature sensor (first order, 10-20 min); "
+               "bias (strong TC) and scale follow the die",
+    "warmup": "turn-on transient of the bias, A exp(-t_since_power_on / tau), tau 15-25 min",
+    "bias_ramp": "slow linear-in-time bias drift after power-on (charging/aging), e = d t",
+    "run_to_run_bias": "turn-on to turn-on bias repeatability: a new constant offset every session",
+    "scale_quadratic": "even scale-factor nonlinearity, e = k u^2",
+    "scale_asymmetry": "different scale for positive and negative rate, e = k |u|",
+    "scale_cubic": "odd cubic scale-factor nonlinearity, e = k u^3",
+    "rate_dependent_bias_sat": "output compresses smoothly near full scale (soft clip of order 8)",
+    "cross_coupling": "products of rates on different sense axes (centrifugal coupling), "
+                      "e_a = sum C_a,bc u_b u_c",
+    "temp_rate": "thermal-gradient bias proportional to dT/dt of the package, e = q dT/dt",
+    "bias_quadratic_temp": "strong extra bias curvature with temperature, e = c (T - 25)^2",
+    "hysteresis": "thermal hysteresis: bias depends on whether temperature rose or fell "
+                  "(Duhem state that switches smoothly over a few degC of travel)",
+    "vibration_rectification": "rectified motor/bearing vibration of the rig: bias grows with the "
+                               "square of the rig speed, depending on orientation",
+}
+
+PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo")
+NOISES = ("white", "coloured")
+
+_MOUNT_LABELS = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+
+# --------------------------------------------------------------------------------------
+# small helpers
+# --------------------------------------------------------------------------------------
+def _rng(*keys) -> np.random.Generator:
+    ent = []
+    for k in keys:
+        if isinstance(k, str):
+            ent.append(zlib.crc32(k.encode()))
+        else:
+            ent.append(int(k) & 0xFFFFFFFF)
+    return np.random.default_rng(np.random.SeedSequence(ent))
+
+
+def _signs(rng, n):
+    return np.where(rng.random(n) < 0.5, -1.0, 1.0)
+
+
+def _u(rng, lo, hi, n=None):
+    return rng.uniform(lo, hi, n)
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating,)):
+        return float(x)
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (np.bool_,)):
+        return bool(x)
+    return x
+
+
+def _mount_R(label: str) -> np.ndarray:
+    """Body->rig rotation for a mount: the sensor axis `label` points up the rig axis (+z rig).
+
+    Columns are the body axes expressed in the rig frame."""
+    base = {
+        "x": np.array([[0., 1., 0.], [0., 0., 1.], [1., 0., 0.]]),   # bx->rz, by->rx, bz->ry
+        "y": np.array([[0., 0., 1.], [1., 0., 0.], [0., 1., 0.]]),   # by->rz, bz->rx, bx->ry
+        "z": np.eye(3),
+    }[label[1]]
+    if label[0] == "-":
+        base = np.diag([1.0, -1.0, -1.0]) @ base                     # 180 deg about rig x
+    return base
+
+
+def _rotvec_to_R(v: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(v))
+    if th < 1e-15:
+        return np.eye(3)
+    k = v / th
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(th) * Kx + (1 - math.cos(th)) * (Kx @ Kx)
+
+
+def _R_to_rotvec(Q: np.ndarray) -> np.ndarray:
+    c = float(np.clip((np.trace(Q) - 1) / 2, -1.0, 1.0))
+    th = math.acos(c)
+    if th < 1e-12:
+        return np.zeros(3)
+    if math.pi - th < 1e-6:
+        B = (Q + np.eye(3)) / 2
+        i = int(np.argmax(np.diag(B)))
+        k = B[:, i] / math.sqrt(max(B[i, i], 1e-300))
+        return k / np.linalg.norm(k) * th
+    k = np.array([Q[2, 1] - Q[1, 2], Q[0, 2] - Q[2, 0], Q[1, 0] - Q[0, 1]]) / (2 * math.sin(th))
+    return k * th
+
+
+def _rotate(rv: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v (n,3) by rotation vectors rv (n,3) (Rodrigues, vectorised)."""
+    th = np.linalg.norm(rv, axis=1, keepdims=True)
+    safe = np.where(th < 1e-15, 1.0, th)
+    k = rv / safe
+    c, s = np.cos(th), np.sin(th)
+    kv = np.sum(k * v, axis=1, keepdims=True)
+    out = v * c + np.cross(k, v) * s + k * kv * (1 - c)
+    return np.where(th < 1e-15, v, out)
+
+
+def _right_jacobian_apply(e: np.ndarray, ed: np.ndarray) -> np.ndarray:
+    """Body angular velocity contribution J_r(e) e_dot of R = Exp(e) (vectorised)."""
+    th = np.linalg.norm(e, axis=1, keepdims=True)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    a = np.where(small, 0.5, (1 - np.cos(ths)) / ths ** 2)
+    b = np.where(small, 1.0 / 6.0, (ths - np.sin(ths)) / ths ** 3)
+    exed = np.cross(e, ed)
+    return ed - a * exed + b * np.cross(e, exed)
+
+
+# --------------------------------------------------------------------------------------
+# thermal: chamber (piecewise linear) -> sensor (1st-order lag) -> die (1st-order lag)
+# --------------------------------------------------------------------------------------
+def _thermal(knots_t, knots_T, tau_s, tau_d, t):
+    """Exact response of a cascade of first-order lags to a piecewise-linear chamber.
+
+    Returns Tc, Ts, dTs/dt, Td (Td is None when tau_d is None).  Both lags start
+    equilibrated with the chamber at t = knots_t[0]."""
+    kt = np.asarray(knots_t, float)
+    kT = np.asarray(knots_T, float)
+    tend = max(float(t[-1]), float(kt[-1])) + 1.0
+    if kt[-1] < tend:
+        kt = np.append(kt, tend)
+        kT = np.append(kT, kT[-1])
+    Tc = np.interp(t, kt, kT)
+    Ts = np.empty_like(t)
+    dTs = np.empty_like(t)
+    Td = np.empty_like(t) if tau_d is not None else None
+    y1 = kT[0]
+    y2 = kT[0]
+    t1, t2 = tau_s, tau_d
+    if tau_d is not None and abs(t1 - t2) < 1e-6 * t1:
+        t2 = t1 * (1 + 1e-6)
+    idx = np.searchsorted(t, kt, side="left")
+    for k in range(len(kt) - 1):
+        dt_seg = kt[k + 1] - kt[k]
+        if dt_seg <= 0:
+            continue
+        u0 = kT[k]
+        r = (kT[k + 1] - kT[k]) / dt_seg
+        c1 = y1 - u0 + r * t1
+        i0, i1 = idx[k], idx[k + 1]
+        s = t[i0:i1] - kt[k]
+        e1 = np.exp(-s / t1)
+        Ts[i0:i1] = u0 + r * s - r * t1 + c1 * e1
+        dTs[i0:i1] = r - c1 / t1 * e1
+        if tau_d is not None:
+            A = c1 * t1 / (t1 - t2)
+            c2 = y2 - u0 + r * (t1 + t2) - A
+            Td[i0:i1] = u0 + r * s - r * (t1 + t2) + A * e1 + c2 * np.exp(-s / t2)
+        # state at the end of the interval
+        E1 = math.exp(-dt_seg / t1)
+        ny1 = u0 + r * dt_seg - r * t1 + c1 * E1
+        if tau_d is not None:
+            y2 = u0 + r * dt_seg - r * (t1 + t2) + A * E1 + c2 * math.exp(-dt_seg / t2)
+        y1 = ny1
+    return Tc, Ts, dTs, Td
+
+
+# --------------------------------------------------------------------------------------
+# unit
+# --------------------------------------------------------------------------------------
+@dataclass
+class UnitSpec:
+    """One physical unit: its base parameters, noise parameters and effect parameters."""
+    effect: str
+    protocol: str
+    noise: str
+    seed: int
+    params: dict = field(default_factory=dict)
+
+    @property
+    def effects(self) -> list[str]:
+        return [e for e in self.effect.split("+") if e and e != "none"]
+
+    def to_dict(self) -> dict:
+        return _jsonable({"effect": self.effect, "protocol": self.protocol, "noise": self.noise,
+                          "seed": self.seed, "params": self.params})
+
+
+def _draw_base(seed):
+    r = _rng(seed, "base")
+    p = {}
+    p["T_ref"] = T_REF
+    p["s0"] = _signs(r, 3) * _u(r, 0.005, 0.02, 3)               # scale error
+    p["s1"] = _signs(r, 3) * _u(r, 50e-6, 300e-6, 3)             # /degC
+    p["s2"] = _signs(r, 3) * _u(r, 0.01e-6, 0.05e-6, 3)          # /degC^2
+    M = np.zeros((3, 3))
+    off = [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)]
+    vals = _signs(r, 6) * _u(r, 0.002, 0.01, 6)
+    for (i, j), v in zip(off, vals):
+        M[i, j] = v
+    p["M"] = M
+    p["b0"] = _signs(r, 3) * _u(r, 0.1, 1.0, 3)                   # deg/s
+    p["b1"] = _signs(r, 3) * _u(r, 0.005, 0.02, 3)                # deg/s/degC
+    p["b2"] = _signs(r, 3) * _u(r, 0.2e-5, 1.0e-5, 3)             # deg/s/degC^2
+    p["tau_sensor_s"] = float(_u(r, 80.0, 120.0))                  # sensor vs chamber
+    p["temp_noise_c"] = float(_u(r, 0.01, 0.05))
+    p["temp_lsb_c"] = 0.0625 if r.random() < 0.5 else 0.0
+    p["accel_bias_g"] = _u(r, -0.01, 0.01, 3)
+    p["accel_scale"] = _u(r, -0.003, 0.003, 3)
+    p["accel_noise_g"] = float(_u(r, 0.001, 0.003))
+    d = r.normal(size=3)
+    p["imu_offset_m"] = d / np.linalg.norm(d) * _u(r, 0.005, 0.02)   # from the rig axis
+    return p
+
+
+def _draw_noise(seed, noise):
+    r = _rng(seed, "noise")
+    arw = float(_u(r, 0.005, 0.02)) * _u(r, 0.8, 1.2, 3)           # deg/s/sqrt(Hz)
+    gm_sigma = _u(r, 0.002, 0.01, 3)
+    gm_tau = _u(r, 100.0, 1000.0, 3)
+    rrw = _u(r, 0.0, 2e-5, 3)                                        # deg/s/sqrt(s)
+    p = {"kind": noise, "arw_dps_rthz": arw}
+    if noise == "coloured":
+        p.update({"gm_sigma_dps": gm_sigma, "gm_tau_s": gm_tau, "rrw_dps_rts": rrw})
+    return p
+
+
+def _draw_effect(seed, name):
+    r = _rng(seed, "effect", name)
+    if name == "g_sensitivity":
+        G = _u(r, -0.03, 0.03, (3, 3))
+        G[np.diag_indices(3)] = _signs(r, 3) * _u(r, 0.08, 0.2, 3)
+        return {"G_dps_per_g": G}
+    if name == "g_squared":
+        return {"G2_dps_per_g2": _signs(r, 9).reshape(3, 3) * _u(r, 0.02, 0.08, (3, 3))}
+    if name == "die_lag":
+        return {"tau_die_s": float(_u(r, 600.0, 1200.0)),
+                "b1_die_dps_per_c": _signs(r, 3) * _u(r, 0.02, 0.05, 3)}
+    if name == "warmup":
+        return {"A_dps": _signs(r, 3) * _u(r, 0.2, 0.4, 3), "tau_s": float(_u(r, 900.0, 1500.0))}
+    if name == "bias_ramp":
+        return {"d_dps_per_h": _signs(r, 3) * _u(r, 0.03, 0.1, 3)}
+    if name == "run_to_run_bias":
+        return {"sigma_dps": _u(r, 0.05, 0.2, 3)}
+    if name == "scale_quadratic":
+        return {"k_per_dps": _signs(r, 3) * _u(r, 0.05, 0.3, 3) / 400.0 ** 2}
+    if name == "scale_asymmetry":
+        return {"k": _signs(r, 3) * _u(r, 200e-6, 800e-6, 3)}
+    if name == "scale_cubic":
+        return {"k_per_dps2": _signs(r, 3) * _u(r, 0.05, 0.3, 3) / 400.0 ** 3}
+    if name == "rate_dependent_bias_sat":
+        n = 8.0
+        d = _u(r, 0.1, 0.4, 3)                                     # deficit at 400 deg/s
+        x = 400.0
+        W = x / ((x / (x - d)) ** n - 1.0) ** (1.0 / n)
+        return {"order": n, "W_dps": W, "deficit_at_400_dps": d}
+    if name == "cross_coupling":
+        return {"C_per_dps": _signs(r, 9).reshape(3, 3) * _u(r, 0.5e-6, 2e-6, (3, 3)),
+                "pairs": ["xy", "xz", "yz"]}
+    if name == "temp_rate":
+        return {"q_dps_per_c_per_min": _signs(r, 3) * _u(r, 0.05, 0.2, 3)}
+    if name == "bias_quadratic_temp":
+        return {"c_dps_per_c2": _signs(r, 3) * _u(r, 1e-4, 3e-4, 3), "T0_c": T_REF}
+    if name == "hysteresis":
+        return {"h_dps": _signs(r, 3) * _u(r, 0.02, 0.05, 3), "dT_switch_c": float(_u(r, 2.0, 5.0))}
+    if name == "vibration_rectification":
+        return {"V_dps": _signs(r, 9).reshape(3, 3) * _u(r, 0.03, 0.15, (3, 3)),
+                "ref_speed_dps": 400.0}
+    raise ValueError(f"unknown effect {name!r}; known: {sorted(EFFECTS)}")
+
+
+def make_unit(effect: str = "none", protocol: str = "turntable3", noise: str = "white",
+              seed: int = 0, **overrides) -> UnitSpec:
+    """Draw one unit's parameters, deterministically from ``seed``.
+
+    ``overrides`` replace drawn parameters: a base key (e.g. ``b1=[...]``,
+    ``tau_sensor_s=100``), a noise key (``arw_dps_rthz=...``) or an effect parameter as
+    ``<effect>__<key>`` (e.g. ``warmup__tau_s=1200``)."""
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; known: {PROTOCOLS}")
+    if noise not in NOISES:
+        raise ValueError(f"unknown noise {noise!r}; known: {NOISES}")
+    names = [e for e in effect.split("+") if e]
+    for e in names:
+        if e not in EFFECTS:
+            raise ValueError(f"unknown effect {e!r}; known: {sorted(EFFECTS)}")
+    params = {"base": _draw_base(seed), "noise": _draw_noise(seed, noise), "effects": {}}
+    for e in names:
+        if e != "none":
+            params["effects"][e] = _draw_effect(seed, e)
+    for k, v in overrides.items():
+        if "__" in k:
+            e, kk = k.split("__", 1)
+            params["effects"].setdefault(e, {})[kk] = np.asarray(v) if isinstance(v, (list, tuple)) else v
+        elif k in params["base"]:
+            params["base"][k] = np.asarray(v) if isinstance(v, (list, tuple)) else v
+        elif k in params["noise"] or k in ("gm_sigma_dps", "gm_tau_s", "rrw_dps_rts"):
+            params["noise"][k] = np.asarray(v) if isinstance(v, (list, tuple)) else v
+        else:
+            raise ValueError(f"unknown unit override {k!r}")
+    return UnitSpec(effect="+".join(names) if names else "none", protocol=protocol,
+                    noise=noise, seed=int(seed), params=params)
+
+
+def _b1(unit):
+    eff = unit.params["effects"]
+    if "die_lag" in eff:
+        return np.asarray(eff["die_lag"]["b1_die_dps_per_c"], float)
+    return np.asarray(unit.params["base"]["b1"], float)
+
+
+def K_of_T(unit, T):
+    """True K at (die/sensor) temperature T (scalar) -> (3,3)."""
+    b = unit.params["base"]
+    dT = T - T_REF
+    s = b["s0"] + b["s1"] * dT + b["s2"] * dT * dT
+    return np.eye(3) + np.diag(s) + np.asarray(b["M"])
+
+
+def B_of_T(unit, T):
+    b = unit.params["base"]
+    dT = T - T_REF
+    return np.asarray(b["b0"]) + _b1(unit) * dT + np.asarray(b["b2"]) * dT * dT
+
+
+# --------------------------------------------------------------------------------------
+# protocol timelines
+# --------------------------------------------------------------------------------------
+class _Timeline:
+    def __init__(self, T0):
+        self.phases: list[dict] = []
+        self.t = 0.0
+        self.knots_t = [0.0]
+        self.knots_T = [float(T0)]
+        self.mounts: list[dict] = []
+
+    def mount(self, label, R):
+        self.mounts.append({"label": label, "R": R})
+        return len(self.mounts) - 1
+
+    def add(self, kind, dur, mount, r0=0.0, r1=None, **extra):
+        if dur <= 0:
+            return
+        r1 = r0 if r1 is None else r1
+        self.phases.append(dict(kind=kind, t0=self.t, t1=self.t + dur, mount=mount,
+                                r0=float(r0), r1=float(r1), **extra))
+        self.t += dur
+
+    def chamber_ramp(self, T_to, rate_c_per_s):
+        T_from = self.knots_T[-1]
+        dur = abs(T_to - T_from) / rate_c_per_s
+        if self.knots_t[-1] < self.t:
+            self.knots_t.append(self.t)
+            self.knots_T.append(T_from)
+        self.knots_t.append(self.t + dur)
+        self.knots_T.append(float(T_to))
+        return dur
+
+    def rate_change(self, r_from, r_to, accel, mount, **extra):
+        if r_from != r_to:
+            self.add("rate_ramp", abs(r_to - r_from) / accel, mount, r_from, r_to, **extra)
+
+    def handling(self, m_from, m_to, rng, still_s=3.0):
+        self.add("rest", still_s, m_from)
+        dur = float(rng.uniform(8.0, 12.0))
+        nb = 3
+        bump = {
+            "amp_rad": rng.uniform(1.0, 4.0, (3, nb)) * D2R * _signs(rng, 3 * nb).reshape(3, nb),
+            "freq_hz": rng.uniform(0.3, 1.5, (3, nb)),
+            "phase": rng.uniform(0, 2 * np.pi, (3, nb)),
+            "acc_amp_g": rng.uniform(0.02, 0.1, (3, nb)),
+            "acc_freq_hz": rng.uniform(0.5, 3.0, (3, nb)),
+            "acc_phase": rng.uniform(0, 2 * np.pi, (3, nb)),
+        }
+        self.add("handling", dur, m_from, 0.0, 0.0, to_mount=m_to, bump=bump)
+        self.add("rest", still_s, m_to)
+
+
+def _protocol_defaults(protocol):
+    common = {"sensor_offset": True}
+    if protocol in ("turntable3", "turntable6"):
+        return {**common,
+                "temps": [-20.0, 5.0, 30.0, 55.0], "rates": [10.0, 50.0, 100.0, 200.0, 400.0],
+                "hold_s": 20.0, "table_accel_dps2": 200.0, "chamber_rate_c_per_min": 8.0,
+                "soak_s": 480.0, "initial_rest_s": 60.0,
+                "mounts": ["+x", "+y", "+z"] if protocol == "turntable3"
+                else ["+x", "-x", "+y", "-y", "+z", "-z"],
+                "fixture_misalign_deg": 0.0}
+    if protocol == "sweep":
+        return {**common, "sweep_low_c": -20.0, "sweep_high_c": 60.0, "ramp_c_per_h": 30.0,
+                "dwell_s": 1200.0, "sweep_rate_dps": 0.0, "mount": "+z"}
+    if protocol == "servo":
+        return {**common, "servo_speed_dps": 3.0 / D2R, "servo_revs": 3, "ripple": 0.005,
+                "ripple_harmonic": 1, "servo_accel_dps2": 600.0, "pause_s": 3.0,
+                "initial_rest_s": 5.0, "servo_temp_c": 25.0, "misalign_deg": [2.0, 6.0],
+                "servo_six_mounts": False}
+    raise ValueError(protocol)
+
+
+def _build_timeline(protocol, pp, rng):
+    if protocol in ("turntable3", "turntable6"):
+        temps = [float(x) for x in pp["temps"]]
+        tl = _Timeline(temps[0])
+        mis = float(pp["fixture_misalign_deg"])
+        mids = {}
+        for lab in pp["mounts"]:
+            R = _mount_R(lab)
+            if mis > 0:
+                v = rng.normal(size=3)
+                R = R @ _rotvec_to_R(v / np.linalg.norm(v) * mis * D2R * rng.uniform(0.5, 1.0))
+            mids[lab] = tl.mount(lab, R)
+        labels = list(pp["mounts"])
+        acc = float(pp["table_accel_dps2"])
+        hold = float(pp["hold_s"])
+        seq = [0.0]
+        for r in pp["rates"]:
+            seq += [float(r), -float(r)]
+        cur_m = mids[labels[0]]
+        tl.add("rest", float(pp["initial_rest_s"]), cur_m, setpoint=temps[0])
+        for it, T in enumerate(temps):
+            if it > 0:
+                nm = mids[labels[0]]
+                if nm != cur_m:
+                    tl.handling(cur_m, nm, rng)
+                    cur_m = nm
+                dur = tl.chamber_ramp(T, float(pp["chamber_rate_c_per_min"]) / 60.0)
+                tl.add("chamber_ramp", dur, cur_m, setpoint=T)
+                tl.add("soak", float(pp["soak_s"]), cur_m, setpoint=T)
+            for im, lab in enumerate(labels):
+                m = mids[lab]
+                if m != cur_m:
+                    tl.handling(cur_m, m, rng)
+                    cur_m = m
+                r_prev = 0.0
+                for r in seq:
+                    tl.rate_change(r_prev, r, acc, m, setpoint=T)
+                    tl.add("hold", hold, m, r, setpoint=T)
+                    r_prev = r
+                tl.rate_change(r_prev, 0.0, acc, m, setpoint=T)
+        tl.add("rest", 5.0, cur_m, setpoint=temps[-1])
+        return tl
+    if protocol == "sweep":
+        lo, hi = float(pp["sweep_low_c"]), float(pp["sweep_high_c"])
+        rate = float(pp["ramp_c_per_h"]) / 3600.0
+        tl = _Timeline(lo)
+        m = tl.mount(pp["mount"], _mount_R(pp["mount"]))
+        w = float(pp["sweep_rate_dps"])
+        dw = float(pp["dwell_s"])
+        tl.add("dwell", dw, m, w, setpoint=lo)
+        tl.add("temp_ramp_up", tl.chamber_ramp(hi, rate), m, w)
+        tl.add("dwell", dw, m, w, setpoint=hi)
+        tl.add("temp_ramp_down", tl.chamber_ramp(lo, rate), m, w)
+        tl.add("dwell", dw, m, w, setpoint=lo)
+        return tl
+    if protocol == "servo":
+        tl = _Timeline(float(pp["servo_temp_c"]))
+        w = float(pp["servo_speed_dps"])
+        revs = int(pp["servo_revs"])
+        acc = float(pp["servo_accel_dps2"])
+        lo_m, hi_m = pp["misalign_deg"]
+        if pp["servo_six_mounts"]:
+            plan = [("+x", [1]), ("-x", [1]), ("+y", [1]), ("-y", [1]), ("+z", [1]), ("-z", [1])]
+        else:
+            plan = [("+x", [1, -1]), ("+y", [1, -1]), ("+z", [1, -1])]
+        mids = []
+        for lab, _ in plan:
+            v = rng.normal(size=3)
+            ang = rng.uniform(lo_m, hi_m)
+            err = v / np.linalg.norm(v) * ang * D2R
+            mids.append(tl.mount(lab, _mount_R(lab) @ _rotvec_to_R(err)))
+            tl.mounts[-1]["misalign_rotvec_rad"] = err
+        cur = mids[0]
+        tl.add("rest", float(pp["initial_rest_s"]), cur)
+        T_rev = 360.0 / w
+        for (lab, dirs), m in zip(plan, mids):
+            if m != cur:
+                tl.handling(cur, m, rng)
+                cur = m
+            for sgn in dirs:
+                r = sgn * w
+                tl.rate_change(0.0, r, acc, m)
+                tl.add("rotation", revs * T_rev, m, r, revs=revs,
+                       ripple_phase=float(rng.uniform(0, 2 * np.pi)))
+                tl.rate_change(r, 0.0, acc, m)
+                tl.add("rest", float(pp["pause_s"]), m)
+        return tl
+    raise ValueError(protocol)
+
+
+# --------------------------------------------------------------------------------------
+# noise
+# --------------------------------------------------------------------------------------
+def _ar1(n, phi, sig_innov, x0, z):
+    """x[k] = phi x[k-1] + sig_innov z[k], x[-1] = x0; vectorised in blocks."""
+    out = np.empty(n)
+    lphi = -math.log(phi) if phi < 1 else 0.0
+    L = n if lphi == 0 else max(1, int(30.0 / lphi))
+    x = x0
+    for s in range(0, n, L):
+        e = min(n, s + L)
+        k = np.arange(1, e - s + 1, dtype=float)
+        pw = np.exp(-lphi * k)                      # phi^k
+        S = np.cumsum(sig_innov * z[s:e] / pw)      # sum phi^-j q_j
+        out[s:e] = pw * (x + S)
+        x = out[e - 1]
+    return out
+
+
+def _noise(unit, n, fs, rng):
+    npar = unit.params["noise"]
+    arw = np.asarray(npar["arw_dps_rthz"], float)
+    w = rng.standard_normal((n, 3)) * (arw * math.sqrt(fs))
+    if unit.noise == "coloured":
+        dt = 1.0 / fs
+        for a in range(3):
+            sig = float(npar["gm_sigma_dps"][a])
+            tau = float(npar["gm_tau_s"][a])
+            phi = math.exp(-dt / tau)
+            z = rng.standard_normal(n)
+            x0 = rng.standard_normal() * sig
+            w[:, a] += _ar1(n, phi, sig * math.sqrt(1 - phi * phi), x0, z)
+            q = float(npar["rrw_dps_rts"][a])
+            if q > 0:
+                w[:, a] += np.cumsum(rng.standard_normal(n)) * q * math.sqrt(dt)
+    return w
+
+
+def _noise_floor(unit, hold_s):
+    npar = unit.params["noise"]
+    arw = np.asarray(npar["arw_dps_rthz"], float)
+    var = arw ** 2 / hold_s
+    white = np.sqrt(var)
+    if unit.noise == "coloured":
+        sig = np.asarray(npar["gm_sigma_dps"], float)
+        tau = np.asarray(npar["gm_tau_s"], float)
+        x = hold_s / tau
+        var = var + sig ** 2 * 2.0 / x ** 2 * (x - 1 + np.exp(-x))
+    tot = np.sqrt(var)
+    return {"hold_s": hold_s, "white_hold_mean_std_dps": white, "hold_mean_std_dps": tot,
+            "rms_dps": float(np.sqrt(np.mean(var))),
+            "note": "std of a hold mean (white + Gauss-Markov over one hold); the GM part "
+                    "is correlated between neighbouring holds"}
+
+
+# --------------------------------------------------------------------------------------
+# session
+# --------------------------------------------------------------------------------------
+def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: float = 25.0,
+                     **overrides) -> tuple[dict, dict]:
+    """Simulate one session; returns (columns, info).  See write_session."""
+    pp = _protocol_defaults(unit.protocol)
+    for k, v in overrides.items():
+        if k not in pp:
+            raise ValueError(f"unknown override {k!r} for protocol {unit.protocol}; "
+                             f"known: {sorted(pp)}")
+        pp[k] = v
+    fs = float(rate_hz)
+    rs = _rng(unit.seed, "session", session, seed)
+    r_tl = _rng(unit.seed, "timeline", session, seed)
+    tl = _build_timeline(unit.protocol, pp, r_tl)
+    base = unit.params["base"]
+    eff = unit.params["effects"]
+
+    t_offset = float(rs.uniform(1.0, 8.0))
+    N = int(math.floor(tl.t * fs))
+    tr = np.arange(N) / fs                                  # relative to power-on
+    # ---------------- kinematics per phase ----------------
+    ref = np.zeros(N)
+    rig_rate = np.zeros(N)                                  # true rig rate (deg/s)
+    omega = np.zeros((N, 3))                                # true body rate (deg/s)
+    fspec = np.zeros((N, 3))                                # specific force (g)
+    axis_b = np.zeros((N, 3))                               # rig axis in body frame
+    mount_idx = np.zeros(N, dtype=np.int64)
+    p_b = np.asarray(base["imu_offset_m"], float) if pp["sensor_offset"] else np.zeros(3)
+    t0s = np.array([ph["t0"] for ph in tl.phases])
+    starts = np.searchsorted(tr, t0s, side="left")
+    ends = np.append(starts[1:], N)
+    ez = np.array([0.0, 0.0, 1.0])
+    ripple = float(pp.get("ripple", 0.0))
+    rip_h = int(pp.get("ripple_harmonic", 1))
+    for ph, i0, i1 in zip(tl.phases, starts, ends):
+        if i1 <= i0:
+            continue
+        tt = tr[i0:i1] - ph["t0"]
+        D = ph["t1"] - ph["t0"]
+        R = tl.mounts[ph["mount"]]["R"]
+        mount_idx[i0:i1] = ph["mount"]
+        if ph["kind"] != "handling":
+            a = R.T @ ez
+            axis_b[i0:i1] = a
+            r = ph["r0"] + (ph["r1"] - ph["r0"]) * tt / D
+            al = np.full_like(tt, (ph["r1"] - ph["r0"]) / D)
+            ref[i0:i1] = r
+            if ph["kind"] == "rotation" and ripple > 0:
+                T_rev = 360.0 / abs(ph["r0"])
+                arg = 2 * np.pi * rip_h * tt / T_rev + ph["ripple_phase"]
+                al = r * ripple * 2 * np.pi * rip_h / T_rev * np.cos(arg)
+                r = r * (1.0 + ripple * np.sin(arg))
+            rig_rate[i0:i1] = r
+            omega[i0:i1] = r[:, None] * a[None, :]
+            p_perp = p_b - a * (a @ p_b)
+            axp = np.cross(a, p_b)
+            fspec[i0:i1] = (a[None, :]
+                            + (-(r * D2R) ** 2)[:, None] * p_perp[None, :] / G0
+                            + (al * D2R)[:, None] * axp[None, :] / G0)
+        else:
+            R_new = tl.mounts[ph["to_mount"]]["R"]
+            Q = R.T @ R_new
+            rv = _R_to_rotvec(Q)
+            th = np.linalg.norm(rv)
+            n = rv / th if th > 0 else np.zeros(3)
+            u = tt / D
+            s = u - np.sin(2 * np.pi * u) / (2 * np.pi)
+            sd = (1 - np.cos(2 * np.pi * u)) / D
+            bp = ph["bump"]
+            win = np.sin(np.pi * u) ** 2
+            wind = np.pi / D * np.sin(2 * np.pi * u)
+            arg = 2 * np.pi * bp["freq_hz"][None, :, :] * tt[:, None, None] + bp["phase"][None]
+            sw = np.sum(bp["amp_rad"][None] * np.sin(arg), axis=2)             # (n,3)
+            cw = np.sum(bp["amp_rad"][None] * 2 * np.pi * bp["freq_hz"][None] * np.cos(arg), axis=2)
+            e = win[:, None] * sw
+            ed = wind[:, None] * sw + win[:, None] * cw
+            main_rv = (th * s)[:, None] * n[None, :]
+            g_old = R.T @ ez
+            f_g = _rotate(-e, _rotate(-main_rv, np.broadcast_to(g_old, (len(tt), 3))))
+            w_main = (th * sd)[:, None] * n[None, :]
+            om = _rotate(-e, w_main) + _right_jacobian_apply(e, ed)           # rad/s
+            omega[i0:i1] = om / D2R
+            arg2 = 2 * np.pi * bp["acc_freq_hz"][None] * tt[:, None, None] + bp["acc_phase"][None]
+            fh = win[:, None] * np.sum(bp["acc_amp_g"][None] * np.sin(arg2), axis=2)
+            fspec[i0:i1] = f_g + fh
+            axis_b[i0:i1] = f_g                                               # approx. up
+    # ---------------- thermal ----------------
+    tau_d = float(eff["die_lag"]["tau_die_s"]) if "die_lag" in eff else None
+    Tc, Ts, dTs, Td = _thermal(tl.knots_t, tl.knots_T, float(base["tau_sensor_s"]), tau_d, tr)
+    Tk = Td if Td is not None else Ts
+    dT = (Tk - T_REF)[:, None]
+    # ---------------- base sensor ----------------
+    s_T = base["s0"][None] + base["s1"][None] * dT + base["s2"][None] * dT ** 2
+    M = np.asarray(base["M"], float)
+    u_lin = omega + s_T * omega + omega @ M.T                   # K(T) w_true
+    bias = base["b0"][None] + _b1(unit)[None] * dT + base["b2"][None] * dT ** 2
+    gyro = u_lin + bias
+    # ---------------- effects ----------------
+    contrib = {}
+    truth_eff = {}
+    for name in unit.effects:
+        ep = eff[name]
+        e = np.zeros((N, 3))
+        if name == "g_sensitivity":
+            e = fspec @ np.asarray(ep["G_dps_per_g"]).T
+        elif name == "g_squared":
+            e = (fspec ** 2) @ np.asarray(ep["G2_dps_per_g2"]).T
+        elif name == "die_lag":
+            pass                                        # acts through Tk above
+        elif name == "warmup":
+            e = np.asarray(ep["A_dps"])[None] * np.exp(-tr / float(ep["tau_s"]))[:, None]
+        elif name == "bias_ramp":
+            e = np.asarray(ep["d_dps_per_h"])[None] * (tr / 3600.0)[:, None]
+        elif name == "run_to_run_bias":
+            off = _rng(unit.seed, "run_to_run", session).standard_normal(3) * np.asarray(ep["sigma_dps"])
+            e = np.broadcast_to(off, (N, 3)).copy()
+            truth_eff[name] = {"session_offset_dps": off}
+        elif name == "scale_quadratic":
+            e = np.asarray(ep["k_per_dps"])[None] * u_lin ** 2
+        elif name == "scale_asymmetry":
+            e = np.asarray(ep["k"])[None] * np.abs(u_lin)
+        elif name == "scale_cubic":
+            e = np.asarray(ep["k_per_dps2"])[None] * u_lin ** 3
+        elif name == "rate_dependent_bias_sat":
+            W = np.asarray(ep["W_dps"])[None]
+            nn = float(ep["order"])
+            e = u_lin / (1.0 + (np.abs(u_lin) / W) ** nn) ** (1.0 / nn) - u_lin
+        elif name == "cross_coupling":
+            C = np.asarray(ep["C_per_dps"])
+            prods = np.stack([u_lin[:, 0] * u_lin[:, 1], u_lin[:, 0] * u_lin[:, 2],
+                              u_lin[:, 1] * u_lin[:, 2]], axis=1)
+            e = prods @ C.T
+        elif name == "temp_rate":
+            e = np.asarray(ep["q_dps_per_c_per_min"])[None] * (dTs * 60.0)[:, None]
+        elif name == "bias_quadratic_temp":
+            e = np.asarray(ep["c_dps_per_c2"])[None] * ((Ts - float(ep["T0_c"])) ** 2)[:, None]
+        elif name == "hysteresis":
+            state = _duhem(Ts, float(ep["dT_switch_c"]), -1.0 if Ts[0] < ROOM_T else 1.0)
+            e = np.asarray(ep["h_dps"])[None] * state[:, None]
+            truth_eff[name] = {"initial_state": -1.0 if Ts[0] < ROOM_T else 1.0}
+        elif name == "vibration_rectification":
+            P = (rig_rate / float(ep["ref_speed_dps"])) ** 2
+            e = ((axis_b ** 2) @ np.asarray(ep["V_dps"]).T) * P[:, None]
+        contrib[name] = e
+        gyro = gyro + e
+    # ---------------- noise ----------------
+    r_noise = _rng(unit.seed, "noise_session", session, seed)
+    gyro = gyro + _noise(unit, N, fs, r_noise)
+    r_t = _rng(unit.seed, "temp_session", session, seed)
+    temp = Ts + r_t.standard_normal(N) * float(base["temp_noise_c"])
+    lsb = float(base["temp_lsb_c"])
+    if lsb > 0:
+        temp = np.round(temp / lsb) * lsb
+    r_a = _rng(unit.seed, "accel_session", session, seed)
+    vib_g = 0.01 * (rig_rate / 400.0) ** 2
+    acc = ((1.0 + np.asarray(base["accel_scale"]))[None] * fspec + np.asarray(base["accel_bias_g"])[None]
+           + r_a.standard_normal((N, 3)) * (float(base["accel_noise_g"]) + vib_g)[:, None])
+    t = t_offset + tr
+    labels = np.array([m["label"] for m in tl.mounts], dtype=object)
+    cols = {
+        "t": t, "gyro_x": gyro[:, 0], "gyro_y": gyro[:, 1], "gyro_z": gyro[:, 2],
+        "temp": temp, "ref_rate": ref.copy(), "mount": labels[mount_idx],
+        "accel_x": acc[:, 0].astype(np.float32), "accel_y": acc[:, 1].astype(np.float32),
+        "accel_z": acc[:, 2].astype(np.float32),
+    }
+    # ---------------- truth ----------------
+    hold_s = float(pp.get("hold_s", 20.0)) if unit.protocol.startswith("turntable") else (
+        float(pp["servo_revs"]) * 360.0 / float(pp["servo_speed_dps"]) if unit.protocol == "servo"
+        else 20.0)
+    if unit.protocol.startswith("turntable"):
+        grid = [float(x) for x in pp["temps"]]
+    elif unit.protocol == "sweep":
+        grid = list(np.arange(float(pp["sweep_low_c"]), float(pp["sweep_high_c"]) + 1e-9, 5.0))
+    else:
+        grid = [float(pp["servo_temp_c"])]
+    phases = [{"kind": ph["kind"], "t_start": ph["t0"] + t_offset, "t_end": ph["t1"] + t_offset,
+               "mount": tl.mounts[ph["mount"]]["label"], "ref_rate_start": ph["r0"],
+               "ref_rate_end": ph["r1"],
+               **({"setpoint_c": ph["setpoint"]} if "setpoint" in ph else {}),
+               **({"to_mount": tl.mounts[ph["to_mount"]]["label"]} if "to_mount" in ph else {}),
+               **({"revs": ph["revs"], "ripple_phase": ph["ripple_phase"]} if "revs" in ph else {})}
+              for ph in tl.phases]
+    info = {
+        "generator": "benchmarks.zoo.generator",
+        "protocol": unit.protocol,
+        "effect": unit.effect,
+        "effects": unit.effects,
+        "effect_descriptions": {e: EFFECTS[e] for e in (unit.effects or ["none"])},
+        "unit_seed": unit.seed, "session": int(session), "session_seed": int(seed),
+        "rate_hz": fs, "n_rows": int(N), "t_first": float(t[0]), "t_last": float(t[-1]),
+        "power_on_t": float(t[0]), "duration_s": float(tr[-1]),
+        "protocol_params": pp,
+        "model": "w = K(T_k) w_true + B(T_k) + effects + noise; K = I + diag(s0+s1 dT+s2 dT^2) + M; "
+                 "B = b0 + b1 dT + b2 dT^2; dT = T_k - 25; T_k = "
+                 + ("die temperature (lagging the sensor)" if tau_d is not None else
+                    "true (noise-free) sensor temperature"),
+        "temperature_driving_K_B": "die" if tau_d is not None else "sensor",
+        "base": {**base, "b1_effective": _b1(unit)},
+        "K_B_vs_temperature": [{"T_c": T, "K": K_of_T(unit, T), "B_dps": B_of_T(unit, T)}
+                               for T in grid],
+        "effect_params": {**eff, **{k: {**eff.get(k, {}), **v} for k, v in truth_eff.items()}},
+        "effect_rms_dps": {k: np.sqrt(np.mean(v ** 2, axis=0)) for k, v in contrib.items()},
+        "effect_max_abs_dps": {k: np.max(np.abs(v), axis=0) for k, v in contrib.items()},
+        "noise": unit.params["noise"],
+        "noise_floor_hint": _noise_floor(unit, hold_s)["rms_dps"],
+        "noise_floor_detail": _noise_floor(unit, hold_s),
+        "thermal": {"tau_sensor_s": float(base["tau_sensor_s"]), "tau_die_s": tau_d,
+                    "chamber_knots_t": [k + t_offset for k in tl.knots_t],
+                    "chamber_knots_c": tl.knots_T,
+                    "temp_noise_c": float(base["temp_noise_c"]), "temp_lsb_c": lsb},
+        "mounts": [{"label": m["label"], "R_body_to_rig": m["R"],
+                    **({"misalign_rotvec_rad": m["misalign_rotvec_rad"]}
+                       if "misalign_rotvec_rad" in m else {})} for m in tl.mounts],
+        "phases": phases,
+    }
+    return cols, _jsonable(info)
+
+
+def _duhem(T, dT_switch, s0):
+    """Hysteresis state in [-1, 1]: relaxes toward sign(dT/dt) over dT_switch of travel."""
+    d = np.diff(T, prepend=T[0])
+    d = np.where(np.abs(d) < 1e-9, 0.0, d)
+    sg = np.sign(d)
+    # forward-fill zero signs with the previous non-zero sign (zero steps change nothing)
+    nz = np.nonzero(sg)[0]
+    out = np.full(len(T), float(s0))
+    if len(nz) == 0:
+        return out
+    U = np.cumsum(np.abs(d))
+    change = nz[np.r_[True, sg[nz][1:] != sg[nz][:-1]]]
+    bounds = np.append(change, len(T))
+    state = float(s0)
+    out[:bounds[0]] = state
+    for k in range(len(change)):
+        i0, i1 = bounds[k], bounds[k + 1]
+        tgt = sg[i0]
+        Ustart = U[i0 - 1] if i0 > 0 else 0.0
+        seg = tgt + (state - tgt) * np.exp(-(U[i0:i1] - Ustart) / dT_switch)
+        out[i0:i1] = seg
+        state = float(seg[-1])
+    return out
+
+
+def write_session(unit: UnitSpec, path, session: int = 0, seed: int = 0, rate_hz: float = 25.0,
+                  **overrides) -> dict:
+    """Write one session of ``unit`` as a Parquet rig log (per the contract); return its truth.
+
+    ``overrides`` are protocol parameters (see ``_protocol_defaults``), e.g.
+    ``ramp_c_per_h=45`` for a sweep, ``temps=[-20, 10, 40]``, ``hold_s=25``."""
+    cols, info = simulate_session(unit, session=session, seed=seed, rate_hz=rate_hz, **overrides)
+    arrays = [pa.array(cols["t"], pa.float64()),
+              pa.array(cols["gyro_x"], pa.float64()), pa.array(cols["gyro_y"], pa.float64()),
+              pa.array(cols["gyro_z"], pa.float64()), pa.array(cols["temp"], pa.float64()),
+              pa.array(cols["ref_rate"], pa.float64()),
+              pa.array(cols["mount"].tolist(), pa.string()),
+              pa.array(cols["accel_x"], pa.float32()), pa.array(cols["accel_y"], pa.float32()),
+              pa.array(cols["accel_z"], pa.float32())]
+    names = ["t", "gyro_x", "gyro_y", "gyro_z", "temp", "ref_rate", "mount",
+             "accel_x", "accel_y", "accel_z"]
+    table = pa.Table.from_arrays(arrays, names=names)
+    pq.write_table(table, str(path), compression="zstd", use_dictionary=["mount"])
+    info["path"] = str(path)
+    return info
+
+
+if __name__ == "__main__":          # tiny smoke run: python -m benchmarks.zoo.generator OUT.parquet
+    import sys
+    u = make_unit("warmup", "turntable3", "white", seed=7)
+    inf = write_session(u, sys.argv[1] if len(sys.argv) > 1 else "/tmp/zoo_smoke.parquet", 0, 1)
+    print(json.dumps({k: inf[k] for k in ("protocol", "effect", "n_rows", "noise_floor_hint")}))

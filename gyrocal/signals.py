@@ -1,0 +1,253 @@
+"""The signals an effect term reads, defined once per sample for fit and apply alike.
+
+A term (:mod:`gyrocal.terms`) turns inputs into regressor columns. Its inputs are of two
+kinds:
+
+* **hold-constant**: the true rate in the sensor frame (``rate_x/y/z``), ``ref_rate``, the
+  accelerometer (``accel_x/y/z``) and the temperature ``temp``. Within a hold the rig turns
+  at one rate on one mount at a stable temperature, so these are the hold's means.
+* **series signals**, which change within a hold and may depend on the whole record before
+  it: ``t`` (seconds since the log's first sample, i.e. since power-on for a log that
+  starts with the unit), ``temp_rate`` (°C/min, the least-squares slope over a centred
+  window, :func:`temperature_rate`) and the temperature through a first-order
+  lag of time constant τ (``data.lag("temp", tau)``, :func:`first_order_lag`).
+
+Series signals come from a :class:`Series`: the session's time and temperature record. At
+apply time that is the log's own samples. For the fit it is a :class:`Series` of bin means
+(at most ``MAX_BINS`` bins of at least 1 s, written by segmentation as ``history.parquet``),
+and a hold's regressor is the mean of the per-sample regressor over the hold, taken by
+Gauss-Legendre quadrature at ``NODES`` times inside the hold. So one definition serves both:
+the fit never sees a hold-level stand-in of ``t`` or of the lag, and a user never handles
+hold columns.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .errors import MissingInputError
+
+SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag"})   # computed from the record
+HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
+                         "accel_z", "temp"})
+MAX_BINS = 50_000
+MIN_BIN_S = 1.0
+NODES = 8
+_NODE_X, _NODE_W = np.polynomial.legendre.leggauss(NODES)
+_NODE_X = 0.5 * (_NODE_X + 1.0)       # on [0, 1]
+_NODE_W = 0.5 * _NODE_W               # sum to 1
+TEMP_RATE_WINDOW_S = 60.0
+
+
+def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S
+                     ) -> np.ndarray:
+    """Temperature rate (°C/min) at every sample: the least-squares slope of the logged
+    temperature over a centred window, computed on bin means (1 s, or a twentieth of the
+    window if shorter) by one convolution and interpolated to the samples. Non-finite
+    inputs give NaN.
+
+    Bins without samples are filled linearly; the series is extended at both ends by odd
+    reflection, which keeps a linear trend, so the slope near the ends is not biased to 0.
+    """
+    rate = np.full(len(t), np.nan)
+    good = np.isfinite(t) & np.isfinite(temp)
+    if good.sum() < 2:
+        return rate
+    tg, Tg = t[good], temp[good]
+    width = min(1.0, window_s / 20.0)
+    index = np.floor((tg - tg[0]) / width).astype(np.int64)
+    counts = np.bincount(index)
+    sums = np.bincount(index, weights=Tg)
+    filled = counts > 0
+    centres = (np.arange(len(counts)) + 0.5) * width
+    means = np.interp(centres, centres[filled], sums[filled] / counts[filled])
+    half = max(int(round(window_s / width / 2)), 1)
+    if len(means) <= 2 * half:  # the whole log is shorter than the window: one slope
+        lags = centres - centres.mean()
+        rate[good] = 60.0 * np.sum(lags * means) / max(np.sum(lags ** 2), 1e-300)
+        return rate
+    padded = np.pad(means, half, mode="reflect", reflect_type="odd")
+    lags = np.arange(-half, half + 1, dtype=float)
+    slope = np.convolve(padded, lags[::-1] / (np.sum(lags ** 2) * width), mode="valid")  # °C/s
+    rate[good] = 60.0 * np.interp(tg - tg[0], centres, slope)
+    return rate
+
+
+def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
+    """``y`` with ``τ dy/dt = x − y`` and ``y(t_0) = x(t_0)`` (equilibrium at the start).
+
+    Exact for ``x`` linear between samples (ramp-invariant discretisation), so bin means
+    and raw samples of the same record give the same lagged signal to O((Δt/τ)²): with
+    ``a = exp(−Δt/τ)``, ``y_k = a y_{k−1} + x_k − a x_{k−1} − (x_k − x_{k−1}) (τ/Δt)(1 − a)``.
+    The recursion ``y_k = a_k y_{k−1} + u_k`` is solved in closed form by cumulative sums,
+    in chunks short enough (50 τ) that the running products stay in floating range."""
+    t = np.asarray(t, dtype=float)
+    x = np.asarray(x, dtype=float)
+    y = np.empty_like(x)
+    if len(x) == 0:
+        return y
+    if not (np.isfinite(tau) and tau > 0):
+        raise ValueError(f"a lag time constant must be positive, got {tau!r}")
+    dt = np.diff(t)
+    a = np.exp(-dt / tau)
+    ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
+    u = x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a)
+    y[0] = x[0]
+    elapsed = (t - t[0]) / tau
+    edges = np.searchsorted(elapsed, np.arange(50.0, elapsed[-1] + 50.0, 50.0))
+    start, state = 1, x[0]
+    for stop in [*edges.tolist(), len(x)]:
+        stop = max(min(stop, len(x)), start)
+        if stop == start:
+            continue
+        log_p = np.cumsum(np.log(a[start - 1:stop - 1]))         # log Π a up to k
+        p = np.exp(log_p)
+        y[start:stop] = p * (state + np.cumsum(u[start - 1:stop - 1] / p))
+        state, start = y[stop - 1], stop
+    return y
+
+
+@dataclass(frozen=True, eq=False)
+class Series:
+    """A session's time (s since its first sample) and temperature (°C) record, with the
+    series signals derived from it on demand (cached). Shared by every subset of a
+    session's holds: indexing it returns itself, so it rides along when observation columns
+    are subset row by row."""
+
+    t: np.ndarray
+    temp: np.ndarray
+    t0: float = 0.0                   # the first sample's time in the log's own clock
+    temp_rate_window_s: float = TEMP_RATE_WINDOW_S
+    _cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __getitem__(self, rows):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def signal(self, name: str, tau: float | None = None) -> np.ndarray:
+        key = (name, tau)
+        if key not in self._cache:
+            if name == "temp_rate":
+                value = temperature_rate(self.t, self.temp, self.temp_rate_window_s)
+            elif name == "temp":
+                value = self.temp
+            else:
+                raise KeyError(name)
+            if tau is not None:
+                value = first_order_lag(self.t, value, tau)
+            self._cache[key] = value
+        return self._cache[key]
+
+    def at(self, name: str, times: np.ndarray, tau: float | None = None) -> np.ndarray:
+        """A signal at ``times`` (s since the first sample), linear between record points."""
+        return np.interp(times, self.t, self.signal(name, tau))
+
+    # -- the history file ----------------------------------------------------------------
+    def to_frame(self) -> pd.DataFrame:
+        return pd.DataFrame({"t": self.t, "temp": self.temp})
+
+    @classmethod
+    def from_frame(cls, frame: pd.DataFrame, meta: dict) -> Series:
+        return cls(frame["t"].to_numpy(float), frame["temp"].to_numpy(float), float(meta["t0"]),
+                   float(meta["temp_rate_window_s"]))
+
+    def metadata(self) -> dict:
+        return {"t0": self.t0, "temp_rate_window_s": self.temp_rate_window_s}
+
+
+def history(t: np.ndarray, temp: np.ndarray, t0: float | None = None, *,
+            window_s: float = TEMP_RATE_WINDOW_S) -> Series:
+    """A session's record as bin means: bins of at least ``MIN_BIN_S`` and at most
+    ``MAX_BINS`` of them, times counted from ``t0`` (default: the first sample)."""
+    t = np.asarray(t, dtype=float)
+    temp = np.asarray(temp, dtype=float)
+    t0 = float(t[0]) if t0 is None else float(t0)
+    rel = t - t0
+    width = max(MIN_BIN_S, float(rel[-1]) / MAX_BINS) if len(rel) else MIN_BIN_S
+    index = np.floor(rel / width).astype(np.int64)
+    counts = np.bincount(index)
+    filled = counts > 0
+    mean_t = np.bincount(index, weights=rel)[filled] / counts[filled]
+    mean_temp = np.bincount(index, weights=temp)[filled] / counts[filled]
+    return Series(mean_t, mean_temp, t0, window_s)
+
+
+class Inputs(dict):
+    """What a term's ``columns`` reads: input arrays by name (one value per evaluation
+    point: a quadrature node of a hold, or a sample), plus :meth:`lag`. Records what was
+    read, so the library knows which terms vary within a hold."""
+
+    def __init__(self, columns, series: Series | None = None, times: np.ndarray | None = None):
+        super().__init__(columns)
+        self.series = series
+        self.times = times
+        self.read: set[str] = set()
+
+    def __getitem__(self, name):
+        self.read.add(name)
+        try:
+            return super().__getitem__(name)
+        except KeyError:
+            raise MissingInputError(f"{name} is not an input here (inputs: "
+                                    f"{', '.join(sorted(k for k in self if k != 'series'))})") from None
+
+    def lag(self, name: str, tau: float) -> np.ndarray:
+        """``name`` (``temp`` or ``temp_rate``) through a first-order lag of ``tau`` seconds
+        (``tau = 0``: the record itself, never clamped to a calibrated range)."""
+        self.read.add("temp_lag")
+        if self.series is None or self.times is None:
+            raise MissingInputError(f"the lag of {name} needs the session's temperature record, "
+                                    "which these observations lack (segment the log again)")
+        try:
+            tau = float(tau)
+        except (TypeError, ValueError):
+            raise MissingInputError(f"a lag time constant must be a number of seconds, got {tau!r}") from None
+        if not (np.isfinite(tau) and tau >= 0):
+            raise MissingInputError(f"a lag time constant must be a number of seconds >= 0, got {tau!r}")
+        if name not in ("temp", "temp_rate"):
+            raise MissingInputError(f"only temp and temp_rate can be lagged, not {name}")
+        return self.series.at(name, self.times, tau or None)
+
+
+def hold_inputs(data) -> tuple[Inputs, dict]:
+    """Inputs at hold level (each hold's own columns; ``t`` its mid time) and what the
+    quadrature needs: the series and each hold's span. Without a record (observation
+    tables from before this format, hand-built tests), series signals are not inputs and
+    ``temp_rate`` is the hold's own slope."""
+    series = data.get("series") if hasattr(data, "get") else None
+    columns = {k: v for k, v in data.items() if k != "series"}
+    span = None
+    if series is not None and "t_start" in columns:
+        lo = np.asarray(columns["t_start"], float) - series.t0
+        hi = np.asarray(columns["t_end"], float) - series.t0
+        columns["t"] = 0.5 * (lo + hi)
+        span = (lo, hi)
+    return Inputs(columns, series, columns.get("t") if series is not None else None), \
+        {"series": series, "span": span}
+
+
+def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
+    """Inputs at ``NODES`` times inside every hold: hold-constant columns repeated, series
+    signals from the record at the nodes (hold ``i``'s nodes are rows ``i*NODES`` on)."""
+    lo, hi = span
+    times = (lo[:, None] + (hi - lo)[:, None] * _NODE_X[None, :]).ravel()
+    n = len(lo)
+    columns = {}
+    for k, v in dict.items(base):
+        if k in ("t", "temp_rate"):
+            continue
+        v = np.asarray(v)
+        columns[k] = np.repeat(v, NODES) if v.ndim == 1 and len(v) == n else v
+    columns["t"] = times
+    columns["temp_rate"] = series.at("temp_rate", times)
+    return Inputs(columns, series, times)
+
+
+def node_means(values: np.ndarray, n: int) -> np.ndarray:
+    """Hold means of a regressor evaluated at the quadrature nodes."""
+    return np.broadcast_to(values, (n * NODES,)).reshape(n, NODES) @ _NODE_W
