@@ -101,7 +101,7 @@ class Model:
                     if nodes is None:
                         nodes = quadrature_inputs(base, context["series"], context["span"])
                     at_nodes = term.columns(Inputs(nodes, nodes.series, nodes.times))
-                    columns = {k: node_means(np.asarray(v, float), n) for k, v in at_nodes.items()}
+                    columns = {k: node_means(v, nodes.plan) for k, v in at_nodes.items()}
             except MissingInputError as exc:
                 raise MissingInputError(f"term {term.spec_string()} reads an input it cannot "
                                         f"have: {exc}") from None

@@ -14,9 +14,9 @@ kinds:
 
 Series signals come from a :class:`Series`: the session's time and temperature record. At
 apply time that is the log's own samples. For the fit it is a :class:`Series` of bin means
-(at most ``MAX_BINS`` bins of at least 1 s, written by segmentation as ``history.parquet``),
-and a hold's regressor is the mean of the per-sample regressor over the hold, taken by
-Gauss-Legendre quadrature at ``NODES`` times inside the hold. So one definition serves both:
+(at most ``MAX_BINS`` bins of about 1 s, written by segmentation as ``history.parquet``),
+and a hold's regressor is the mean of the per-sample regressor over the hold, taken by the
+trapezoid rule over the record's points inside the hold (:func:`quadrature_inputs`). So one definition serves both:
 the fit never sees a hold-level stand-in of ``t`` or of the lag, and a user never handles
 hold columns.
 """
@@ -34,20 +34,22 @@ SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag"})   # computed from the 
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
                          "accel_z", "temp"})
 MAX_BINS = 50_000
-MIN_BIN_S = 1.0
-NODES = 8
-_NODE_X, _NODE_W = np.polynomial.legendre.leggauss(NODES)
-_NODE_X = 0.5 * (_NODE_X + 1.0)       # on [0, 1]
-_NODE_W = 0.5 * _NODE_W               # sum to 1
 TEMP_RATE_WINDOW_S = 60.0
 
 
-def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S
-                     ) -> np.ndarray:
+def bin_width(duration_s: float, window_s: float) -> float:
+    """Bins of the record: 1 s, or a twentieth of the temperature-rate window if shorter,
+    widened so that a record has at most ``MAX_BINS``. The fit's record (bin means) and
+    apply's samples share them, so both see the same temperature rate."""
+    return max(min(1.0, window_s / 20.0), float(duration_s) / MAX_BINS)
+
+
+def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S,
+                     weights: np.ndarray | None = None) -> np.ndarray:
     """Temperature rate (°C/min) at every sample: the least-squares slope of the logged
-    temperature over a centred window, computed on bin means (1 s, or a twentieth of the
-    window if shorter) by one convolution and interpolated to the samples. Non-finite
-    inputs give NaN.
+    temperature over a centred window, computed on bin means (:func:`bin_width`) by one
+    convolution and interpolated to the samples. ``weights`` count the samples behind each
+    point when the points are themselves bin means. Non-finite inputs give NaN.
 
     Bins without samples are filled linearly; the series is extended at both ends by odd
     reflection, which keeps a linear trend, so the slope near the ends is not biased to 0.
@@ -57,10 +59,11 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RAT
     if good.sum() < 2:
         return rate
     tg, Tg = t[good], temp[good]
-    width = min(1.0, window_s / 20.0)
+    wg = np.ones(len(tg)) if weights is None else np.asarray(weights, float)[good]
+    width = bin_width(tg[-1] - tg[0], window_s)
     index = np.floor((tg - tg[0]) / width).astype(np.int64)
-    counts = np.bincount(index)
-    sums = np.bincount(index, weights=Tg)
+    counts = np.bincount(index, weights=wg)
+    sums = np.bincount(index, weights=wg * Tg)
     filled = counts > 0
     centres = (np.arange(len(counts)) + 0.5) * width
     means = np.interp(centres, centres[filled], sums[filled] / counts[filled])
@@ -94,7 +97,7 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     dt = np.diff(t)
     a = np.exp(-dt / tau)
     ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
-    u = x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a)
+    u = np.where(dt > 0, x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a), 0.0)
     y[0] = x[0]
     elapsed = (t - t[0]) / tau
     edges = np.searchsorted(elapsed, np.arange(50.0, elapsed[-1] + 50.0, 50.0))
@@ -121,6 +124,7 @@ class Series:
     temp: np.ndarray
     t0: float = 0.0                   # the first sample's time in the log's own clock
     temp_rate_window_s: float = TEMP_RATE_WINDOW_S
+    weight: np.ndarray | None = None  # samples behind each point, when they are bin means
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __getitem__(self, rows):
@@ -133,7 +137,7 @@ class Series:
         key = (name, tau)
         if key not in self._cache:
             if name == "temp_rate":
-                value = temperature_rate(self.t, self.temp, self.temp_rate_window_s)
+                value = temperature_rate(self.t, self.temp, self.temp_rate_window_s, self.weight)
             elif name == "temp":
                 value = self.temp
             else:
@@ -149,12 +153,13 @@ class Series:
 
     # -- the history file ----------------------------------------------------------------
     def to_frame(self) -> pd.DataFrame:
-        return pd.DataFrame({"t": self.t, "temp": self.temp})
+        weight = np.ones(len(self.t)) if self.weight is None else self.weight
+        return pd.DataFrame({"t": self.t, "temp": self.temp, "n": weight})
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame, meta: dict) -> Series:
         return cls(frame["t"].to_numpy(float), frame["temp"].to_numpy(float), float(meta["t0"]),
-                   float(meta["temp_rate_window_s"]))
+                   float(meta["temp_rate_window_s"]), frame["n"].to_numpy(float))
 
     def metadata(self) -> dict:
         return {"t0": self.t0, "temp_rate_window_s": self.temp_rate_window_s}
@@ -162,19 +167,27 @@ class Series:
 
 def history(t: np.ndarray, temp: np.ndarray, t0: float | None = None, *,
             window_s: float = TEMP_RATE_WINDOW_S) -> Series:
-    """A session's record as bin means: bins of at least ``MIN_BIN_S`` and at most
-    ``MAX_BINS`` of them, times counted from ``t0`` (default: the first sample)."""
+    """A session's record as bin means, in the bins :func:`temperature_rate` uses, times
+    counted from ``t0`` (default: the first sample)."""
     t = np.asarray(t, dtype=float)
     temp = np.asarray(temp, dtype=float)
     t0 = float(t[0]) if t0 is None else float(t0)
     rel = t - t0
-    width = max(MIN_BIN_S, float(rel[-1]) / MAX_BINS) if len(rel) else MIN_BIN_S
-    index = np.floor(rel / width).astype(np.int64)
+    width = bin_width(rel[-1] - rel[0], window_s) if len(rel) else 1.0
+    index = np.floor((rel - rel[0]) / width).astype(np.int64)
     counts = np.bincount(index)
     filled = counts > 0
     mean_t = np.bincount(index, weights=rel)[filled] / counts[filled]
     mean_temp = np.bincount(index, weights=temp)[filled] / counts[filled]
-    return Series(mean_t, mean_temp, t0, window_s)
+    weight = counts[filled].astype(float)
+    # The first and last samples themselves bound the record (with no weight of their own:
+    # they are in the first and last bins), so that a lag starts from the same state as on
+    # the samples and nothing is extrapolated at the ends.
+    if len(rel) and mean_t[0] > rel[0]:
+        mean_t, mean_temp, weight = np.r_[rel[0], mean_t], np.r_[temp[0], mean_temp], np.r_[0.0, weight]
+    if len(rel) and mean_t[-1] < rel[-1]:
+        mean_t, mean_temp, weight = np.r_[mean_t, rel[-1]], np.r_[mean_temp, temp[-1]], np.r_[weight, 0.0]
+    return Series(mean_t, mean_temp, t0, window_s, weight)
 
 
 class Inputs(dict):
@@ -232,22 +245,46 @@ def hold_inputs(data) -> tuple[Inputs, dict]:
 
 
 def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
-    """Inputs at ``NODES`` times inside every hold: hold-constant columns repeated, series
-    signals from the record at the nodes (hold ``i``'s nodes are rows ``i*NODES`` on)."""
+    """Inputs at the record's points inside every hold and at its two ends: hold-constant
+    columns repeated, series signals from the record. A hold's mean is then the trapezoid
+    rule over them (``plan``: each hold's first node and the nodes' weights), which is
+    exact for the record's own piecewise-linear interpolant, as apply samples it."""
     lo, hi = span
-    times = (lo[:, None] + (hi - lo)[:, None] * _NODE_X[None, :]).ravel()
     n = len(lo)
+    first = np.searchsorted(series.t, lo, side="right")
+    last = np.searchsorted(series.t, hi, side="left")
+    inside = np.maximum(last - first, 0)
+    sizes = inside + 2
+    starts = np.r_[0, np.cumsum(sizes)[:-1]]
+    hold = np.repeat(np.arange(n), sizes)
+    position = np.arange(int(sizes.sum())) - starts[hold]          # 0 .. size-1 in a hold
+    record = first[hold] + position - 1                              # record index, inner nodes
+    times = np.where(position == 0, lo[hold],
+                     np.where(position == sizes[hold] - 1, hi[hold],
+                              series.t[np.clip(record, 0, len(series.t) - 1)]))
+    # Trapezoid weights: half the span to each neighbour, over the hold's length.
+    before = np.r_[0.0, np.diff(times)]
+    after = np.r_[np.diff(times), 0.0]
+    before[position == 0] = 0.0
+    after[position == sizes[hold] - 1] = 0.0
+    length = (hi - lo)[hold]
+    weights = np.where(length > 0, 0.5 * (before + after) / np.where(length > 0, length, 1.0),
+                       1.0 / sizes[hold])
     columns = {}
     for k, v in dict.items(base):
         if k in ("t", "temp_rate"):
             continue
         v = np.asarray(v)
-        columns[k] = np.repeat(v, NODES) if v.ndim == 1 and len(v) == n else v
+        columns[k] = v[hold] if v.ndim == 1 and len(v) == n else v
     columns["t"] = times
     columns["temp_rate"] = series.at("temp_rate", times)
-    return Inputs(columns, series, times)
+    nodes = Inputs(columns, series, times)
+    nodes.plan = (starts, weights)
+    return nodes
 
 
-def node_means(values: np.ndarray, n: int) -> np.ndarray:
+def node_means(values: np.ndarray, plan) -> np.ndarray:
     """Hold means of a regressor evaluated at the quadrature nodes."""
-    return np.broadcast_to(values, (n * NODES,)).reshape(n, NODES) @ _NODE_W
+    starts, weights = plan
+    values = np.broadcast_to(np.asarray(values, float), weights.shape)
+    return np.add.reduceat(values * weights, starts)

@@ -501,10 +501,17 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
     return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids))
 
 
+# A per-point regressor whose within-point scatter is below this fraction of its whole
+# scatter is, to a per-point fit, a copy of the bias (temperature alone, say).
+MIN_WITHIN_POINT = 0.01
+
+
 def _check_point_terms(model: Model, data: dict, source=None) -> None:
-    """Refuse a point-scope term that is constant within every temperature point (other
-    than the bias itself): per-point coefficients of it cannot be told from the bias."""
+    """Refuse a point-scope term that does not vary within the temperature points: its
+    per-point coefficients cannot be told from each point's bias."""
     point = data["point"].astype(int)
+    _, index = np.unique(point, return_inverse=True)
+    counts = np.bincount(index)
     local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
     design = local.design(data)
     for term in local.terms:
@@ -512,16 +519,19 @@ def _check_point_terms(model: Model, data: dict, source=None) -> None:
             col = np.broadcast_to(np.asarray(design[name], float), point.shape)
             if not np.all(np.isfinite(col)):
                 continue  # the fit refuses it, naming the holds
-            size = float(np.max(np.abs(col))) if col.size else 0.0
-            if size == 0.0 or np.ptp(col) <= 1e-9 * size:
-                continue  # zero or constant everywhere: the fit itself judges it
-            spread = max(float(np.ptp(col[point == p])) for p in np.unique(point))
-            if spread <= 1e-9 * size:
+            total = float(np.sqrt(np.mean((col - col.mean()) ** 2)))
+            if total <= 1e-12 * max(float(np.max(np.abs(col))), 1e-300):
+                continue  # constant everywhere (the bias): the fit itself judges it
+            means = np.bincount(index, weights=col) / counts
+            within = float(np.sqrt(np.mean((col - means[index]) ** 2)))
+            if within < MIN_WITHIN_POINT * total:
+                how = ("add scope: global to its expression" if term.name == "expression"
+                       else f"write it {term.name}(scope='global')")
                 raise ConfigError(
-                    f"term {term.spec_string()} does not vary within a temperature point, so its "
-                    "coefficients cannot be fitted point by point (each point's bias absorbs "
-                    f"it): fit it once for the session with {term.name}(scope='global'), or use "
-                    "model kind continuous", source=source)
+                    f"term {term.spec_string()} does not vary within a temperature point (its "
+                    f"scatter there is {within / total:.1%} of its scatter overall), so per-point "
+                    f"coefficients of it cannot be told from each point's bias: to fit it once for "
+                    f"the session, {how}; or use model kind continuous", source=source)
 
 
 def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",

@@ -10,7 +10,8 @@ output axis is always the second part, so a fit can take each output axis's colu
 
 A term's coefficients are per temperature point (``scope = "point"``: a grid model fits
 them at every point and interpolates) or one set for the session (``scope = "global"``:
-fitted jointly over all points). Settings named in ``profile`` (a time constant, a lag) are
+fitted jointly over all points); by default (``auto``) a term that reads a series signal is
+global and any other per point. Settings named in ``profile`` (a time constant, a lag) are
 nonlinear parameters: the fit searches them within their bounds (:mod:`gyrocal.profile`).
 
 With the base terms the seed-000 model (Eq 12) reads ``w = K w_true + B``, where
@@ -44,7 +45,8 @@ class Term:
     needs: ClassVar[frozenset[str]] = frozenset()   # observation columns required
     unit: ClassVar[str] = ""                         # unit of the coefficients
     varies_with_temperature: ClassVar[bool] = False  # depends on temperature alone
-    scope: ClassVar[str] = "point"                   # "point" or "global" in a grid model
+    scope: ClassVar[str] = "auto"   # "point" or "global" in a grid model; auto: global
+                                    # when the term reads a series signal (t, temp_rate, lag)
     profile: ClassVar[Mapping[str, tuple[float, float]]] = {}  # nonlinear setting -> bounds
 
     def coefficients(self) -> list[str]:
@@ -95,7 +97,27 @@ class Term:
         return getattr(self, "_scope", None) or self.default_scope()
 
     def default_scope(self) -> str:
-        return self.scope
+        if self.scope != "auto":
+            return self.scope
+        if "_auto_scope" not in self.__dict__:  # the probe runs once per term
+            object.__setattr__(self, "_auto_scope", "global" if self.reads_series() else "point")
+        return self.__dict__["_auto_scope"]
+
+    def reads_series(self) -> bool:
+        """Whether the term reads ``t``, ``temp_rate`` or a lag: an effect of time or of
+        the temperature's history, one per session (each temperature point covers only
+        its own block of time). Found by evaluating it on a probe of every input."""
+        from ..signals import HOLD_INPUTS, SERIES_INPUTS, Inputs, Series
+        probe_t = np.array([0.0, 600.0])
+        probe = Inputs({**{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS}, "t": probe_t,
+                        "temp_rate": np.array([0.1, 0.2])},
+                       Series(probe_t, np.array([20.0, 21.0])), probe_t)
+        try:
+            with np.errstate(all="ignore"):
+                self.columns(probe)
+        except Exception:  # noqa: BLE001 - a term that fails on the probe: go by its needs
+            return bool(self.needs & SERIES_INPUTS)
+        return bool(probe.read & SERIES_INPUTS)
 
     def nonlinear(self) -> dict[str, tuple[float, float]]:
         """Settings fitted by profiling, with their search bounds (both > 0)."""

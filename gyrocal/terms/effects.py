@@ -123,7 +123,6 @@ class TempLag(Term):
     tau: float = 900.0
     unit = "deg/s/degC"
     needs = frozenset({"temp_lag"})
-    scope = "global"
     profile = {"tau": (60.0, 14400.0)}
 
     def __post_init__(self):

@@ -229,9 +229,6 @@ class Expression(Term):
     def identity(self) -> tuple:
         return (self.name, self.label)
 
-    def default_scope(self) -> str:
-        return "global" if self.needs & {"t", "temp_rate", "temp_lag"} else "point"
-
     def nonlinear(self) -> dict[str, tuple[float, float]]:
         return {k: tuple(v) for k, v in self.profile.items()}
 
