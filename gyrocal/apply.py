@@ -33,7 +33,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     path, out = Path(path), Path(out)
     dataset = open_dataset(path)
     schema = dataset.schema
-    needs = cal.model.needs
+    needs = cal.model.inputs
     needed = [*GYRO, "temp"] + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
     missing = [c for c in ["t", *needed] if c not in schema.names]
     if missing:
@@ -73,6 +73,16 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
 
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     tmp = out.with_name(out.name + ".tmp")
+    try:
+        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # never leave half a file behind
+        raise
+    tmp.replace(out)
+    return counts
+
+
+def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:
     with pq.ParquetWriter(tmp, out_schema) as writer:
         for batch in dataset.to_batches(batch_size=BATCH_ROWS):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
@@ -97,5 +107,3 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
             writer.write_table(pa.Table.from_arrays(arrays, schema=out_schema))
             counts["rows"] += batch.num_rows
             counts["nonfinite"] += int((~good).sum())
-    tmp.replace(out)
-    return counts

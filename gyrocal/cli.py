@@ -299,6 +299,14 @@ def cmd_calibrate(args) -> int:
           f"{_num(s['expected_rms'], '.3g')} ({_num(s['excess_over_expected'], '.2f')}x); "
           + (f"single-temperature {s['single_rms']:.3g}, " if s.get("single_rms") is not None else "")
           + f"uncompensated {s['uncompensated_rms']:.3g}")
+    for p in result.calibration.extra.get("profiled", []):
+        print(f"  {p['term']} {p['parameter']} = {p['value']:.4g}"
+              + (f" ± {p['stderr']:.2g}" if p.get("stderr") is not None else ""))
+        if p["at_bound"]:
+            print(f"gyrocal: warning: {p['term']} {p['parameter']} is at a bound of "
+                  f"{p['bounds'][0]:g} to {p['bounds'][1]:g}: the effect may be absent or "
+                  "another one missing (a continuous model needs temperature terms); check the "
+                  "fit before widening the bounds", file=sys.stderr)
     if args.report:
         print(f"  report -> {args.report}")
     return 0

@@ -35,6 +35,7 @@ from scipy import stats
 from .config import Settings
 from .errors import GyrocalError, MissingInputError
 from .model import columns_of
+from .signals import SERIES_INPUTS
 from .terms import AXES, TERMS, make_term
 from .terms.effects import CANDIDATES
 from .thermal import fit_model, in_sample
@@ -74,13 +75,20 @@ class Candidate:
     size: list[dict] = field(default_factory=list)
     peak_effect: float | None = None         # deg/s over the observations
     reason: str = ""
+    expected_with: float | None = None       # what a correct model would leave, deg/s
+    explains_excess: bool = False            # validation RMS within chance of that
+    tied_with: list[str] = field(default_factory=list)   # fits this protocol cannot tell apart
+    together: list[str] = field(default_factory=list)    # also missing: named with this one
+    alone_rms: float | None = None                       # validation RMS with this one alone
 
     def to_dict(self) -> dict:
         out = {"term": self.term, "status": self.status,
                "validation_rms_with": self.validation_rms_with, "p_value": self.p_value}
         if self.status == "ranked":
             out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
-                       significant=self.significant, size=self.size, peak_effect=self.peak_effect)
+                       significant=self.significant, size=self.size, peak_effect=self.peak_effect,
+                       expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
+                       tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms)
         else:
             out["reason"] = self.reason
         return out
@@ -97,6 +105,7 @@ class Diagnosis:
     covariates: list[dict]
     candidates: list[Candidate]
     best: Candidate | None
+    partial: list[Candidate]
     verdict: str
     heatmaps: dict
     residuals: pd.DataFrame                   # observations + resid_, floor_, z_ per axis
@@ -117,7 +126,11 @@ class Diagnosis:
             "verdict": self.verdict,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
-                "option": add_term_option(self.best.term)},
+                "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
+            "partial": [{"term": c.term, "validation_rms_with": c.validation_rms_with,
+                         "expected_rms_with": c.expected_with, "gain_pct": c.gain_pct,
+                         "remaining_excess": c.validation_rms_with / c.expected_with
+                         if c.expected_with else None} for c in self.partial],
             "candidates": [c.to_dict() for c in self.candidates],
             "covariates": self.covariates,
             "ladder": self.ladder,
@@ -262,11 +275,14 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                                         not explains)
 
     names = candidate_terms(settings)
+    tolerance = explained_tolerance(obs, base.summary["holds_scored"], alpha)
     candidates: list[Candidate] = []
     tested = []
     for spec in names:
         term = make_term(spec)
-        missing = sorted(c for c in term.needs if c not in data and not c.startswith("rate_"))
+        series = "series" in data
+        missing = sorted(c for c in term.needs if c not in data and not c.startswith("rate_")
+                         and not (series and c in SERIES_INPUTS))
         if missing:
             candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
             continue
@@ -294,24 +310,109 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
         p = float(stats.f.sf(f_stat, df_num, df_den))
         size, peak = _effect_size(ext, spec, added, data)
         v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
-        candidates.append(Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
-                                    100.0 * (1 - v1 / v0), False, size, peak))
-        tested.append(candidates[-1])
+        candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
+                              100.0 * (1 - v1 / v0), False, size, peak,
+                              expected_with=ext.summary["expected_rms"])
+        # It explains the excess when what is left is what a correct model leaves: in the
+        # fit itself (χ² within chance) or on the holds left out.
+        candidate.explains_excess = (float(stats.chi2.sf(ext.chi2, ext.dof)) >= alpha / 2
+                                     or v1 <= ext.summary["expected_rms"] * tolerance)
+        candidate.chi2 = ext.chi2
+        candidates.append(candidate)
+        tested.append(candidate)
     for c in tested:  # Bonferroni over the candidates actually tested
         c.significant = c.p_value < alpha / 2 / max(len(tested), 1)
+    _mark_ties(tested)
     ranked = sorted(tested, key=lambda c: c.validation_rms_with)
     candidates = ranked + [c for c in candidates if c.status != "ranked"]
-    best = next((c for c in ranked if c.significant
-                 and c.validation_rms_with < base.summary["validation_rms"]), None)
-    verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs)
+    useful = [c for c in ranked if c.significant and not explains
+              and c.validation_rms_with < base.summary["validation_rms"]]
+    # Named only when it explains the excess: what is left is what a correct model leaves.
+    best = next((c for c in useful if c.explains_excess), None)
+    if best is None and useful:
+        # Two effects missing at once: the most useful term, then each other one on top.
+        best = _second_step(settings, obs, useful[0], ranked, alpha, base.summary["validation_rms"],
+                            tolerance)
+    # Otherwise, terms that take away a real part of it are reported as partial.
+    partial = [] if best else [c for c in useful if _practical_gain(base, c)][:3]
+    verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs, partial)
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
            for i, a in enumerate(AXES)})
     diag = Diagnosis(base, alpha, chi2_red, rms_over_floor, excess_p, explains, covariates,
-                     candidates, best, verdict, heat, residuals,
-                     config_line=config_line(extended(settings, best.term).model) if best else "")
+                     candidates, best, partial, verdict, heat, residuals,
+                     config_line=config_line(_extended_all(settings, best).model) if best else "")
     diag.ladder = ladder(settings, obs, base)
     return diag
+
+
+def _extended_all(settings: Settings, best: Candidate) -> Settings:
+    for spec in (best.term, *best.together):
+        settings = extended(settings, spec)
+    return settings
+
+
+def _second_step(settings: Settings, obs, first: Candidate, ranked: list[Candidate],
+                 alpha: float, base_rms: float, tolerance: float) -> Candidate | None:
+    """``first`` with one more term that, added on top, explains the excess (F-test of the
+    second addition, Bonferroni over the pairs tried); None when no pair does."""
+    start = evaluate(extended(settings, first.term), obs, first.term)
+    others = [c for c in ranked if c is not first and c.term not in first.tied_with]
+    found = []
+    for c in others:
+        try:
+            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term)
+        except Exception:  # noqa: BLE001 - as for single candidates: not a pair to name
+            continue
+        df_num, df_den = start.dof - ext.dof, ext.dof
+        if df_num <= 0 or df_den <= 0 or len(ext.fitted.used_points()) != len(start.fitted.used_points()):
+            continue
+        f_stat = ((start.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
+        p = float(stats.f.sf(f_stat, df_num, df_den))
+        v = ext.summary["validation_rms"]
+        if p < alpha / 2 / max(len(others), 1) and (
+                float(stats.chi2.sf(ext.chi2, ext.dof)) >= alpha / 2
+                or v <= ext.summary["expected_rms"] * tolerance):
+            found.append((v, c.term, ext))
+    if not found:
+        return None
+    v, term, ext = min(found, key=lambda f: f[0])
+    return replace(first, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
+                   explains_excess=True, together=[term], alone_rms=first.validation_rms_with,
+                   gain_pct=100.0 * (1 - v / base_rms))
+
+
+def explained_tolerance(obs, holds: int, alpha: float) -> float:
+    """How far above what a correct model would leave a validation RMS may lie and still
+    count as explained: chance (:func:`chance_bound`) times twice the floor's own relative
+    uncertainty. The floor comes from the session's static data, T seconds of it; the
+    Allan deviation at a hold's length τ is then known to about ``sqrt(τ / 2T)``."""
+    static = float(getattr(obs, "attrs", {}).get("static_seconds") or 0.0)
+    hold = float(np.median(obs["duration"])) if "duration" in obs else 0.0
+    floor_se = float(np.sqrt(hold / (2.0 * static))) if static > 0 and hold > 0 else 0.0
+    return chance_bound(holds, alpha) * (1.0 + 2.0 * min(floor_se, 0.5))
+
+
+def chance_bound(holds: int, alpha: float) -> float:
+    """How far above the RMS a correct model should leave a validation RMS of ``holds``
+    holds (three errors each) may lie by chance: ``sqrt(χ²_N(1 − α/2) / N)``."""
+    n = 3 * max(int(holds), 1)
+    return float(np.sqrt(stats.chi2.ppf(1.0 - alpha / 2, n) / n))
+
+
+def _practical_gain(base: Evaluation, c: Candidate) -> bool:
+    """A term takes away a practical part of the excess: at least a quarter of the
+    validation RMS above what a correct model leaves."""
+    v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
+    return v0 > expected and (v0 - c.validation_rms_with) >= 0.25 * (v0 - expected)
+
+
+def _mark_ties(tested: list[Candidate]) -> None:
+    """Candidates whose extended fits are the same to a part in 10⁶ (χ²) add the same
+    columns in this protocol's span (a quadratic and an asymmetric scale at one speed)."""
+    for c in tested:
+        c.tied_with = [o.term for o in tested if o is not c and o.df == c.df
+                       and abs(o.chi2 - c.chi2) <= 1e-6 * max(c.chi2, 1e-300)]
 
 
 def _reason(exc: BaseException) -> str:
@@ -323,22 +424,39 @@ def _p(value: float) -> str:
     return "< 1e-16" if value < 1e-16 else f"= {value:.2g}"
 
 
-def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False) -> str:
+def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
+             partial=()) -> str:
     factor = rms_over_floor["all"]
     if best is not None:
         sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
         top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
                f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
+        tied = (f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the "
+                "data identically." if best.tied_with else "")
+        if best.together:
+            return (f"Missing effects: {best.term} and {', '.join(best.together)}. Adding both "
+                    f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
+                    f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+                    f"({best.expected_with:.3g}); {best.term} alone takes it to {best.alone_rms:.3g}.")
         return (f"Missing effect: {best.term}. Adding it lowers the validation RMS from "
                 f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
-                f"({best.gain_pct:.0f} % less; F-test p {_p(best.p_value)}); its largest "
-                f"contribution to a hold is {best.peak_effect:.3g} deg/s{top}.")
+                f"({best.gain_pct:.0f} % less; F-test p {_p(best.p_value)}), what a correct model "
+                f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
+                f"{best.peak_effect:.3g} deg/s{top}.{tied}")
     if not explains:
         lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+        where = (f"; the excess lives mostly with {lead['covariate']} "
+                 f"({100 * lead['share_of_excess']:.0f} % of it)" if lead else "")
+        if partial:
+            first = partial[0]
+            return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                    f"times their noise floor. No library or listed term explains it; "
+                    f"{first.term} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
+                    f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
+                    f" times what a correct model would leave){where}. The missing effect is likely "
+                    "outside the library: write it as a term (docs/effects.md).")
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                "times their noise floor, and no candidate term accounts for it"
-                + (f"; the excess lives mostly with {lead['covariate']} "
-                   f"({100 * lead['share_of_excess']:.0f} % of it)." if lead else "."))
+                "times their noise floor, and no candidate term accounts for it" + where + ".")
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
             "their noise floor, as " + ("the sensor's noise model" if noise_model else
                                          "white noise within the holds") + " would leave; nothing is missing.")

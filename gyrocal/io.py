@@ -377,6 +377,9 @@ OBS_META_KEY = b"gyrocal.observations"
 
 def write_table(frame, path, metadata: dict | None = None) -> None:
     """A pandas table as Parquet, with JSON metadata under ``gyrocal.observations``."""
+    if frame.attrs:  # in-memory companions (the session's record) are not file metadata
+        frame = frame.copy(deep=False)
+        frame.attrs = {}
     table = pa.Table.from_pandas(frame, preserve_index=False)
     if metadata is not None:
         table = table.replace_schema_metadata({**(table.schema.metadata or {}),

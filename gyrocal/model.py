@@ -72,6 +72,11 @@ class Model:
     def needs(self) -> frozenset[str]:
         return frozenset().union(*(t.needs for t in self.terms)) if self.terms else frozenset()
 
+    @property
+    def inputs(self) -> frozenset[str]:
+        """Every input the terms read, declared or found by probing them."""
+        return frozenset().union(*(t.inputs() for t in self.terms)) if self.terms else frozenset()
+
     def check_inputs(self, data: Mapping, source=None) -> None:
         for term in self.terms:
             term.check_inputs(data, source)

@@ -87,6 +87,7 @@ def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: fl
     observation's noise floor from it (:mod:`gyrocal.floor`)."""
     summary = characterise(log, seg, protocol, max_temp_rate=max_temp_rate)
     obs = add_floor_columns(seg.observations, summary, float(seg.info.get("sample_rate") or 0.0))
+    obs.attrs["static_seconds"] = float(summary.get("static_seconds") or 0.0)
     return replace(seg, observations=obs, info={**seg.info, "noise": summary})
 
 

@@ -31,6 +31,7 @@ import pandas as pd
 from .errors import MissingInputError
 
 SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag"})   # computed from the record
+HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point"})  # spans, rate, grid point
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
                          "accel_z", "temp"})
 MAX_BINS = 50_000
@@ -206,16 +207,17 @@ class Inputs(dict):
         try:
             return super().__getitem__(name)
         except KeyError:
-            raise MissingInputError(f"{name} is not an input here (inputs: "
-                                    f"{', '.join(sorted(k for k in self if k != 'series'))})") from None
+            shown = sorted(k for k in self if k not in ("series", "t_start", "t_end", "point"))
+            raise MissingInputError(f"{name} is not an input here (inputs: {', '.join(shown)})") from None
 
-    def lag(self, name: str, tau: float) -> np.ndarray:
+    def lag(self, name: str, tau: float) -> np.ndarray:  # noqa: D417
         """``name`` (``temp`` or ``temp_rate``) through a first-order lag of ``tau`` seconds
         (``tau = 0``: the record itself, never clamped to a calibrated range)."""
         self.read.add("temp_lag")
         if self.series is None or self.times is None:
             raise MissingInputError(f"the lag of {name} needs the session's temperature record, "
-                                    "which these observations lack (segment the log again)")
+                                    "which is not at hand here (observations segmented before "
+                                    "gyrocal kept it: segment the log again)")
         try:
             tau = float(tau)
         except (TypeError, ValueError):
@@ -233,7 +235,9 @@ def hold_inputs(data) -> tuple[Inputs, dict]:
     tables from before this format, hand-built tests), series signals are not inputs and
     ``temp_rate`` is the hold's own slope."""
     series = data.get("series") if hasattr(data, "get") else None
-    columns = {k: v for k, v in data.items() if k != "series"}
+    # A term sees its inputs, not the observation table's other columns (noise terms, hold
+    # numbers): what it reads in the fit, apply can give it for every sample.
+    columns = {k: v for k, v in data.items() if k in HOLD_INPUTS or k in HOLD_PLUMBING}
     span = None
     if series is not None and "t_start" in columns:
         lo = np.asarray(columns["t_start"], float) - series.t0

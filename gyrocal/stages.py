@@ -85,6 +85,8 @@ def read_observations(paths):
     one beside it (``history.parquet``)."""
     observations = Path(paths["observations"] if isinstance(paths, dict) else paths)
     obs, extra = read_table_with_metadata(observations)
+    if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
+        obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
     history = observations.with_name(UNIT_FILES["history"])
     if history.exists():
         frame, meta = read_table_with_metadata(history)

@@ -525,13 +525,14 @@ def _check_point_terms(model: Model, data: dict, source=None) -> None:
             means = np.bincount(index, weights=col) / counts
             within = float(np.sqrt(np.mean((col - means[index]) ** 2)))
             if within < MIN_WITHIN_POINT * total:
-                how = ("add scope: global to its expression" if term.name == "expression"
-                       else f"write it {term.name}(scope='global')")
+                # Each point's own bias takes any function of what is constant within the
+                # point, per point or global: only a model without per-point biases fits it.
                 raise ConfigError(
                     f"term {term.spec_string()} does not vary within a temperature point (its "
-                    f"scatter there is {within / total:.1%} of its scatter overall), so per-point "
-                    f"coefficients of it cannot be told from each point's bias: to fit it once for "
-                    f"the session, {how}; or use model kind continuous", source=source)
+                    f"scatter there is {within / total:.1%} of its scatter overall), so a grid "
+                    "model's per-point biases absorb it: use model kind continuous, with the "
+                    "bias's own temperature dependence as terms (bias_temp_poly, scale_temp_poly, "
+                    "misalignment_temp)", source=source)
 
 
 def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",

@@ -233,7 +233,7 @@ def test_a_warmup_term_file_with_no_inputs_declared_calibrates_and_applies(warmu
 def test_a_point_term_that_does_not_vary_within_a_point_is_refused_with_what_to_do(observed):
     _, obs = observed
     settings = with_model(expressions={"T2": "temp ** 2"})
-    with pytest.raises(ConfigError, match=r"does not vary within a temperature point.*scope: global.*continuous"):
+    with pytest.raises(ConfigError, match=r"does not vary within a temperature point.*use model kind continuous"):
         m = settings.model
         fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
     # Said global, it is no longer refused for this: the joint fit judges it by its own
@@ -288,3 +288,38 @@ def test_scope_round_trips_through_the_spec():
     with pytest.raises(ConfigError, match="scope"):
         make_term("scale(scope='everywhere')")
     assert math.isclose(make_term("temp_lag").with_settings(tau=5.0).tau, 5.0)
+
+
+UNDECLARED = textwrap.dedent('''
+    from dataclasses import dataclass
+    from gyrocal.terms import AXES, Term, register_term
+
+    @register_term("undeclared_test")
+    @dataclass(frozen=True)
+    class Undeclared(Term):
+        """Reads the reference rate, the temperature rate and a lag, declaring none."""
+        unit = "deg/s"
+        def coefficients(self):
+            return [f"undeclared_test.{a}" for a in AXES]
+        def columns(self, data):
+            v = data["ref_rate"] * data["temp_rate"] + data.lag("temp", 600.0) - data["temp"]
+            return {f"undeclared_test.{a}": v for a in AXES}
+    ''')
+
+
+def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmup_sessions, tmp_path):
+    (s0, s1), _ = warmup_sessions
+    term_file = tmp_path / "undeclared.py"
+    term_file.write_text(UNDECLARED)
+    cal = tmp_path / "cal.json"
+    assert main(["calibrate", str(s0), "--terms", str(term_file), "--add-term", "undeclared_test",
+                 "-o", str(cal)]) == 0
+    out = tmp_path / "out.parquet"
+    assert main(["apply", str(cal), str(s1), "--terms", str(term_file), "-o", str(out)]) == 0
+    assert np.isfinite(pq.read_table(out, columns=["gyro_z"]).column("gyro_z").to_numpy()).all()
+    # A log without what the term reads is refused, leaving no partial output behind.
+    table = pq.read_table(s1)
+    bare = tmp_path / "bare.parquet"
+    pq.write_table(table.drop_columns(["ref_rate"]), bare)
+    assert main(["apply", str(cal), str(bare), "--terms", str(term_file), "-o", str(tmp_path / "x.parquet")]) == 2
+    assert not list(tmp_path.glob("*.tmp"))

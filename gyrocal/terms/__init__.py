@@ -106,18 +106,27 @@ class Term:
     def reads_series(self) -> bool:
         """Whether the term reads ``t``, ``temp_rate`` or a lag: an effect of time or of
         the temperature's history, one per session (each temperature point covers only
-        its own block of time). Found by evaluating it on a probe of every input."""
-        from ..signals import HOLD_INPUTS, SERIES_INPUTS, Inputs, Series
-        probe_t = np.array([0.0, 600.0])
-        probe = Inputs({**{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS}, "t": probe_t,
-                        "temp_rate": np.array([0.1, 0.2])},
-                       Series(probe_t, np.array([20.0, 21.0])), probe_t)
-        try:
-            with np.errstate(all="ignore"):
-                self.columns(probe)
-        except Exception:  # noqa: BLE001 - a term that fails on the probe: go by its needs
-            return bool(self.needs & SERIES_INPUTS)
-        return bool(probe.read & SERIES_INPUTS)
+        its own block of time)."""
+        from ..signals import SERIES_INPUTS
+        return bool(self.inputs() & SERIES_INPUTS)
+
+    def inputs(self) -> frozenset[str]:
+        """The inputs the term reads: its ``needs`` and what it reads when evaluated on a
+        probe of every input (so a term that forgot to declare one still gets it in
+        ``apply``)."""
+        if "_inputs" not in self.__dict__:
+            from ..signals import HOLD_INPUTS, Inputs, Series
+            probe_t = np.array([0.0, 600.0])
+            probe = Inputs({**{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS}, "t": probe_t,
+                            "temp_rate": np.array([0.1, 0.2])},
+                           Series(probe_t, np.array([20.0, 21.0])), probe_t)
+            try:
+                with np.errstate(all="ignore"):
+                    self.columns(probe)
+            except Exception:  # noqa: BLE001 - a term that fails on the probe: its needs
+                pass
+            object.__setattr__(self, "_inputs", frozenset(self.needs | probe.read))
+        return self.__dict__["_inputs"]
 
     def nonlinear(self) -> dict[str, tuple[float, float]]:
         """Settings fitted by profiling, with their search bounds (both > 0)."""

@@ -206,4 +206,4 @@ class GSensitivity(Term):
 
 # Tried by the diagnosis when not in the model, in this order (ties keep it).
 CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "temp_rate",
-              "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)", "misalignment_temp")
+              "temp_lag", "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)", "misalignment_temp")
