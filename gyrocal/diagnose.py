@@ -208,42 +208,96 @@ def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: 
     return size, peak
 
 
+# The grouping each covariate is measured against: rate effects show on the axis that
+# turns, so they are judged within the rotating axis; drift within a temperature point is
+# judged within the point (what changes there is time, not the temperature).
+BASELINE = {"|rate|": "rotating axis", "direction": "rotating axis",
+            "reference rate": "rotating axis", "time within a temperature point": "point"}
+
+
+def _partition(values: np.ndarray) -> np.ndarray:
+    return np.unique(values.astype(str), return_inverse=True)[1]
+
+
+def _between(z: np.ndarray, labels: np.ndarray) -> tuple[float, int]:
+    """Σ over groups and axes of n · mean(z)², and the number of groups."""
+    counts = np.bincount(labels)
+    sums = np.stack([np.bincount(labels, weights=z[:, i]) for i in range(z.shape[1])], axis=1)
+    used = counts > 0
+    return float(np.sum(sums[used] ** 2 / counts[used, None])), int(used.sum())
+
+
 def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
                      dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
-    """Share of the excess χ² each covariate's bins account for, ranked; heat maps. Without
-    a significant excess there is nothing to share out: the shares are None."""
+    """Share of the excess χ² each covariate accounts for, ranked; heat maps.
+
+    A covariate's share is what grouping the holds by it adds to the grouping it is judged
+    against (:data:`BASELINE`; none for most), beyond chance: for unit-normal residuals the
+    gain is χ² with 3 degrees of freedom per extra group, whose expectation is subtracted
+    and whose p-value is reported. Covariates that group the holds identically (on three
+    mounts: the mount, the rotating axis and the accelerometer) are one row, since the
+    protocol cannot tell them apart. Without a significant excess there is nothing to share
+    out: the shares are None."""
     frame = pd.DataFrame({k: v for k, v in data.items() if np.ndim(v) == 1})
     frame["mount"] = obs["mount"].astype(str).to_numpy()
+    frame["rotating axis"] = obs["axis"].astype(str).to_numpy()
     frame["abs_rate"] = np.abs(data["ref_rate"])
     frame["direction"] = np.sign(data["ref_rate"])
     frame["time"] = (data["t_start"] - data["t_start"].min()) / 3600.0
-    frame = frame[fitted_rows]
+    frame = frame[fitted_rows].reset_index(drop=True)
     zz = z[fitted_rows]
-    rotating = obs["axis"].astype(str).to_numpy()[fitted_rows]
     total = float(np.sum(zz ** 2))
     excess = max(total - dof, 1e-9)
-    rows = []
-    for label, column in COVARIATES.items():
+    labels: dict[str, np.ndarray] = {}
+    for label, column in {**COVARIATES, "rotating axis": "rotating axis"}.items():
         if column not in frame:
             continue
         values = frame[column]
-        if column != "mount" and not np.isfinite(values.to_numpy(dtype=float)).all():
+        if column not in ("mount", "rotating axis") and not np.isfinite(values.to_numpy(dtype=float)).all():
             continue
-        if column == "mount" or values.nunique() <= 8:
-            bins = values.astype(str).to_numpy()
+        if column in ("mount", "rotating axis") or values.nunique() <= 8:
+            labels[label] = _partition(values.to_numpy())
         else:
-            bins = pd.qcut(values.rank(method="first"), 8, labels=False).to_numpy()
-        explained = 0.0
-        # Within the rotating axis: rate effects show on the axis that turns, so a bin of
-        # |rate| pooled over mounts would average them away.
-        groups = pd.Series(np.arange(len(frame))).groupby([rotating, bins])
-        for _, index in groups:
-            part = zz[index.to_numpy()]
-            explained += float(np.sum(len(part) * part.mean(axis=0) ** 2))
-        chance = 3.0 * groups.ngroups  # a unit-normal residual mean per bin and axis
-        share = min(max(explained - chance, 0.0) / excess, 1.0) if excess_significant else None
-        rows.append({"covariate": label, "bins": int(groups.ngroups),  # axis x covariate
-                     "share_of_excess": share})
+            labels[label] = pd.qcut(values.rank(method="first"), 8, labels=False).to_numpy()
+    if "point" in frame and frame["point"].nunique() > 1:
+        point = _partition(frame["point"].to_numpy())
+        within = np.zeros(len(frame), dtype=np.int64)
+        for p in np.unique(point):  # time quartiles inside each point
+            rows = np.flatnonzero(point == p)
+            within[rows] = pd.qcut(frame["time"].iloc[rows].rank(method="first"),
+                                   min(4, len(rows)), labels=False).to_numpy()
+        labels["time within a temperature point"] = point * 4 + within
+        labels["point"] = point
+    # Covariates that group the holds the same way are one: the protocol confounds them.
+    groups: list[list[str]] = []
+    for label in labels:
+        if label == "point":
+            continue
+        for g in groups:
+            if _same_partition(labels[g[0]], labels[label]):
+                g.append(label)
+                break
+        else:
+            groups.append([label])
+    rows = []
+    for names in groups:
+        lead = names[0]
+        base_name = BASELINE.get(lead)
+        base = labels.get(base_name) if base_name else None
+        base = np.zeros(len(frame), dtype=np.int64) if base is None else base
+        joint = _partition(np.char.add(np.char.add(base.astype(str), "|"), labels[lead].astype(str)))
+        ss_joint, k_joint = _between(zz, joint)
+        ss_base, k_base = _between(zz, base)
+        df = 3 * (k_joint - k_base)
+        gain = ss_joint - ss_base
+        p = float(stats.chi2.sf(gain, df)) if df > 0 else 1.0
+        share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
+        row = {"covariate": " = ".join(names) if len(names) > 1 else lead, "bins": int(k_joint),
+               "share_of_excess": share, "p_value": p, "within": base_name}
+        if len(names) > 1:
+            row["confounded"] = names
+            row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
+        rows.append(row)
     rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
     rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
     idx = pd.Series(np.arange(len(frame)))
@@ -254,6 +308,12 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
         "temperature_by_rate": {f"{t}|{r}": rms(g) for (t, r), g in idx.groupby([temp_bins, rate_bins])},
     }
     return rows, heat
+
+
+def _same_partition(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two labellings split the holds into the same groups."""
+    pairs = np.unique(np.stack([a, b], axis=1), axis=0)
+    return len(pairs) == len(np.unique(a)) == len(np.unique(b))
 
 
 def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:

@@ -30,3 +30,26 @@ def test_the_smallest_zoo_is_diagnosed_without_a_wrong_name(case, tmp_path):
         assert row["outcome"] == "named right", row["verdict"]
         assert row["next_after"] <= NEXT_SESSION_LIMIT
         assert row["next_before"] > 2 * NEXT_SESSION_LIMIT  # the effect was there to find
+
+
+def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
+    """A warm-up on three mounts: the excess is drift within each temperature point (time,
+    not temperature); the mount and the rotating axis, which this protocol cannot tell
+    apart, are one row; and a covariate is not credited with another's excess."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    log = tmp_path / "warmup.parquet"
+    write_session(make_unit(effect="warmup", protocol="turntable3", noise="white", seed=2), log,
+                  session=0, seed=7, rate_hz=25.0)
+    diag = diagnose(Settings(), segment_log(log, Settings()).observations)
+    rows = diag.covariates
+    assert rows[0]["covariate"] == "time within a temperature point" and rows[0]["p_value"] < 1e-6
+    assert any(r.get("confounded") == ["mount", "rotating axis"] for r in rows)
+    rate_rows = [r for r in rows if r["covariate"] in ("|rate|", "direction", "reference rate")]
+    assert rate_rows and all(r["within"] == "rotating axis" for r in rate_rows)
+    # Before, shares were taken within the rotating axis, which on three mounts is the
+    # mount: every covariate got the mount's share (99.9 % each in the issue's report).
+    assert sum((r["share_of_excess"] or 0) > 0.5 for r in rows) <= len(rows) // 3
