@@ -33,6 +33,7 @@ import pandas as pd
 from scipy import stats
 
 from .config import Settings
+from .floor import with_upper_floor
 from .errors import GyrocalError, MissingInputError
 from .model import columns_of
 from .signals import SERIES_INPUTS
@@ -111,6 +112,7 @@ class Diagnosis:
     residuals: pd.DataFrame                   # observations + resid_, floor_, z_ per axis
     config_line: str = ""                     # the model: lines that add the best candidate
     ladder: list[dict] = field(default_factory=list)
+    within_noise: dict | None = None          # the χ² test with the slow noise at its upper bound
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -124,6 +126,7 @@ class Diagnosis:
             "chi2_red": self.chi2_red, "rms_over_floor": self.rms_over_floor,
             "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
             "verdict": self.verdict,
+            "within_noise_uncertainty": self.within_noise,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
@@ -331,6 +334,16 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                       **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
     excess_p = float(stats.chi2.sf(base.chi2, base.dof))
     explains = excess_p >= alpha / 2
+    within_noise = None
+    if not explains:
+        # Slow wander the static data could not rule out may be all the excess is.
+        upper = with_upper_floor(obs)
+        if upper is not None:
+            wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
+            within_noise = {"excess_p_value": float(stats.chi2.sf(wide.chi2, wide.dof)),
+                            "chi2_red": wide.chi2 / wide.dof,
+                            "static_seconds": float(obs.attrs.get("static_seconds") or 0.0)}
+            within_noise["explains"] = within_noise["excess_p_value"] >= alpha / 2
     covariates, heat = _covariate_table(obs, data, np.nan_to_num(z), fitted_rows, base.dof,
                                         not explains)
 
@@ -395,7 +408,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                             tolerance)
     # Otherwise, terms that take away a real part of it are reported as partial.
     partial = [] if best else [c for c in useful if _practical_gain(base, c)][:3]
-    verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs, partial)
+    verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs, partial,
+                       within_noise)
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
            for i, a in enumerate(AXES)})
@@ -403,6 +417,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                      candidates, best, partial, verdict, heat, residuals,
                      config_line=config_line(_extended_all(settings, best).model) if best else "")
     diag.ladder = ladder(settings, obs, base)
+    diag.within_noise = within_noise
     return diag
 
 
@@ -485,8 +500,14 @@ def _p(value: float) -> str:
 
 
 def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
-             partial=()) -> str:
+             partial=(), within_noise=None) -> str:
     factor = rms_over_floor["all"]
+    caveat = ""
+    if within_noise is not None and within_noise.get("explains"):
+        caveat = (f" Caution: with the slow wander (bias instability, rate random walk) that the "
+                  f"{within_noise['static_seconds']:.0f} s of static data cannot rule out, the reduced "
+                  f"χ² would be {within_noise['chi2_red']:.2f}: the excess may be noise; longer static "
+                  "stretches (soaks, a still rig before and after) would tell.")
     if best is not None:
         sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
         top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
@@ -514,9 +535,9 @@ def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool
                     f"{first.term} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
                     f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
                     f" times what a correct model would leave){where}. The missing effect is likely "
-                    "outside the library: write it as a term (docs/effects.md).")
+                    "outside the library: write it as a term (docs/effects.md)." + caveat)
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                "times their noise floor, and no candidate term accounts for it" + where + ".")
+                "times their noise floor, and no candidate term accounts for it" + where + "." + caveat)
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
             "their noise floor, as " + ("the sensor's noise model" if noise_model else
                                          "white noise within the holds") + " would leave; nothing is missing.")

@@ -225,14 +225,50 @@ def floor_terms(model: dict) -> NoiseTerms:
     return replace(terms, **kw)
 
 
+UPPER_Z = 2.0  # the slow terms' upper bound: their variance coefficient 2 s.e. up
+
+
+def upper_terms(model: dict, z: float = UPPER_Z) -> NoiseTerms:
+    """The session's terms with bias instability and rate random walk at their upper bound
+    (variance coefficient ``z`` standard errors above its estimate, detected or not): the
+    most slow wander the static data cannot rule out. A few minutes of static data leave
+    wander of correlation times beyond them nearly unconstrained."""
+    terms = terms_of(model)
+    kw = {}
+    for name in ("bias_instability", "rrw"):
+        value = np.asarray(getattr(terms, name), float)
+        s = (value + np.asarray(getattr(terms, f"{name}_stderr"), float)) ** 2 - value ** 2
+        kw[name] = np.sqrt(value ** 2 + z * np.clip(s, 0.0, None))
+    return replace(terms, **kw)
+
+
+FLOOR_COLUMNS = ("floor", "wander", "white", "flicker", "rrw")
+
+
 def add_floor_columns(obs: pd.DataFrame, summary: dict, rate: float) -> pd.DataFrame:
-    """``obs`` with ``floor_*`` and ``wander_*`` (deg/s) from the session's noise model;
-    unchanged when the summary has none (the std/sqrt(n) fallback)."""
+    """``obs`` with ``floor_*`` and ``wander_*`` (deg/s) from the session's noise model, and
+    the same columns with the slow terms at their upper bound (``upper_floor_*``, ...:
+    :func:`upper_terms`); unchanged when the summary has none (the std/sqrt(n) fallback)."""
     if "session" not in summary or obs.empty or rate <= 0:
         return obs
-    obs = obs.copy()
+    obs = _floor_columns(obs.copy(), summary, rate, floor_terms(summary["session"]), "")
+    return _floor_columns(obs, summary, rate, upper_terms(summary["session"]), "upper_")
+
+
+def with_upper_floor(obs: pd.DataFrame) -> pd.DataFrame | None:
+    """``obs`` whose floor columns are the upper-bound ones (None when it has none)."""
+    if "upper_floor_x" not in obs:
+        return None
+    out = obs.copy()
+    for k in FLOOR_COLUMNS:
+        for a in AXES:
+            out[f"{k}_{a}"] = obs[f"upper_{k}_{a}"]
+    return out
+
+
+def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTerms,
+                   prefix: str) -> pd.DataFrame:
     model = summary["session"]
-    terms = floor_terms(model)
     duration = obs["n"].to_numpy(float) / rate
     span = obs.groupby("point").agg(t0=("t_start", "min"), t1=("t_end", "max"))
     count = (span["t1"] - span["t0"]).reindex(obs["point"]).to_numpy() / duration
@@ -248,11 +284,11 @@ def add_floor_columns(obs: pd.DataFrame, summary: dict, rate: float) -> pd.DataF
     flicker = np.asarray(terms.bias_instability, float) / 3600.0          # deg/h -> deg/s
     walk = np.asarray(terms.rrw, float) / 3600.0 ** 1.5                    # -> deg/s/sqrt(s)
     for i, a in enumerate(AXES):
-        obs[f"floor_{a}"] = np.sqrt(floor2[:, i])
-        obs[f"wander_{a}"] = wander[i]
-        obs[f"white_{a}"] = np.sqrt(white2[:, i])
-        obs[f"flicker_{a}"] = flicker[i]
-        obs[f"rrw_{a}"] = walk[i]
+        obs[f"{prefix}floor_{a}"] = np.sqrt(floor2[:, i])
+        obs[f"{prefix}wander_{a}"] = wander[i]
+        obs[f"{prefix}white_{a}"] = np.sqrt(white2[:, i])
+        obs[f"{prefix}flicker_{a}"] = flicker[i]
+        obs[f"{prefix}rrw_{a}"] = walk[i]
     summary["between_points_s"] = between
     return obs
 

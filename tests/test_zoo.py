@@ -53,3 +53,21 @@ def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
     # Before, shares were taken within the rotating axis, which on three mounts is the
     # mount: every covariate got the mount's share (99.9 % each in the issue's report).
     assert sum((r["share_of_excess"] or 0) > 0.5 for r in rows) <= len(rows) // 3
+
+
+def test_on_coloured_noise_the_verdict_says_the_excess_may_be_unresolved_wander(tmp_path):
+    """A complete unit with Gauss-Markov bias wander of 200-860 s correlation time: a few
+    minutes of static data cannot resolve it, and the verdict says so with the test it ran."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    log = tmp_path / "coloured.parquet"
+    write_session(make_unit(effect="none", protocol="turntable3", noise="coloured", seed=1), log,
+                  session=0, seed=1000, rate_hz=25.0)
+    diag = diagnose(Settings(), segment_log(log, Settings()).observations)
+    assert diag.best is None
+    if not diag.explains:
+        assert diag.within_noise is not None and diag.within_noise["explains"]
+        assert "the excess may be noise" in diag.verdict
