@@ -109,7 +109,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         try:
             plan = _leave_temperature_out(model, fitted, data, reference_temperature)
         except _CannotLeaveOut:
-            if fitted.kind == "grid" and not hasattr(fitted, "fit"):
+            if fitted.kind == "grid":  # a joint grid too: its holds cannot be left out alone
                 raise
             # A continuous model whose temperature terms need every point (a degree-2
             # polynomial on three points): only holds can be left out.

@@ -323,3 +323,18 @@ def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmu
     pq.write_table(table.drop_columns(["ref_rate"]), bare)
     assert main(["apply", str(cal), str(bare), "--terms", str(term_file), "-o", str(tmp_path / "x.parquet")]) == 2
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_a_joint_grid_that_cannot_leave_a_point_out_says_so(observed, monkeypatch):
+    """A global term only one point determines: validation cannot leave that point out and
+    says so, in one line, rather than failing inside."""
+    from gyrocal.errors import GyrocalError
+    from gyrocal.thermal import JointGridFit
+    from gyrocal.validate import validate
+    _, obs = observed
+    m = with_model(expressions={"warmup": {"formula": "exp(-t / 1200)"}}).model
+    fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    assert isinstance(fitted, JointGridFit)
+    monkeypatch.setattr(JointGridFit, "leave_out", lambda self, point: None)
+    with pytest.raises(GyrocalError, match="leaves nothing to calibrate from"):
+        validate(fitted.model, obs, fitted)
