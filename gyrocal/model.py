@@ -95,7 +95,6 @@ class Model:
             base = Inputs({k: v for k, v in data.items() if k != "series"}, data.get("series"),
                           data.get("t"))
             context = {"span": None}
-        n = len(data[RATE_COLUMNS[0]])
         nodes = None
         out: dict[str, np.ndarray] = {}
         for term in self.terms:

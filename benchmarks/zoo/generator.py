@@ -27,7 +27,6 @@ import json
 import math
 import zlib
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
