@@ -134,11 +134,12 @@ class Series:
     def __deepcopy__(self, memo):
         return self
 
-    def signal(self, name: str, tau: float | None = None) -> np.ndarray:
-        key = (name, tau)
+    def signal(self, name: str, tau: float | None = None, window: float | None = None) -> np.ndarray:
+        key = (name, tau, window)
         if key not in self._cache:
             if name == "temp_rate":
-                value = temperature_rate(self.t, self.temp, self.temp_rate_window_s, self.weight)
+                value = temperature_rate(self.t, self.temp, window or self.temp_rate_window_s,
+                                         self.weight)
             elif name == "temp":
                 value = self.temp
             else:
@@ -148,9 +149,11 @@ class Series:
             self._cache[key] = value
         return self._cache[key]
 
-    def at(self, name: str, times: np.ndarray, tau: float | None = None) -> np.ndarray:
-        """A signal at ``times`` (s since the first sample), linear between record points."""
-        return np.interp(times, self.t, self.signal(name, tau))
+    def at(self, name: str, times: np.ndarray, tau: float | None = None,
+           window: float | None = None) -> np.ndarray:
+        """A signal at ``times`` (s since the first sample), linear between record points;
+        ``window``: the temperature rate's window, when not the session's."""
+        return np.interp(times, self.t, self.signal(name, tau, window))
 
     # -- the history file ----------------------------------------------------------------
     def to_frame(self) -> pd.DataFrame:
@@ -209,6 +212,14 @@ class Inputs(dict):
         except KeyError:
             shown = sorted(k for k in self if k not in ("series", "t_start", "t_end", "point"))
             raise MissingInputError(f"{name} is not an input here (inputs: {', '.join(shown)})") from None
+
+    def temp_rate_over(self, window_s: float) -> np.ndarray:
+        """The temperature rate (°C/min) over a centred window of ``window_s`` seconds."""
+        self.read.add("temp_rate")
+        if self.series is None or self.times is None:
+            raise MissingInputError("a temperature rate over a chosen window needs the session's "
+                                    "temperature record, which is not at hand here")
+        return self.series.at("temp_rate", self.times, window=float(window_s))
 
     def lag(self, name: str, tau: float) -> np.ndarray:  # noqa: D417
         """``name`` (``temp`` or ``temp_rate``) through a first-order lag of ``tau`` seconds

@@ -95,16 +95,21 @@ class MisalignmentTemp(Term):
 @dataclass(frozen=True)
 class TempRate(Term):
     """Bias proportional to the rate of temperature change, ``e_a += c_a dT/dt``: thermal
-    gradients across the sensor while it warms or cools (seed 000 Eq 9-10). [deg/s per °C/min]"""
+    gradients across the sensor while it warms or cools (seed 000 Eq 9-10). The rate is the
+    slope over a centred window; the window is profiled (2-900 s): a short one follows fast
+    changes, a long one averages a coarse temperature sensor's steps. [deg/s per °C/min]"""
 
+    window_s: float = 0.0   # s; 0: the session's (a typical hold), else this window
     unit = "deg/s/(degC/min)"
     needs = frozenset({"temp_rate"})
+    profile = {"window_s": (2.0, 900.0)}
 
     def coefficients(self):
         return [f"{self.name}.{a}" for a in AXES]
 
     def columns(self, data):
-        rate = np.asarray(data["temp_rate"], dtype=float)
+        rate = np.asarray(data.temp_rate_over(self.window_s) if self.window_s > 0
+                          and getattr(data, "series", None) is not None else data["temp_rate"], dtype=float)
         return {f"{self.name}.{a}": rate for a in AXES}
 
 
