@@ -35,7 +35,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     schema = dataset.schema
     needs = cal.model.inputs
     needed = [*GYRO, "temp"] + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
-    missing = [c for c in ["t", *needed] if c not in schema.names]
+    missing = [c for c in ([*needed, "t"] if needs & SERIES_INPUTS else needed) if c not in schema.names]
     if missing:
         raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}",
                              source=path)
@@ -55,8 +55,8 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     # on the whole record, as in the fit (gyrocal.signals): the time of the first sample is
     # read first, and the temperature record whole when a term reads more than t.
     origin: list = []
-    first = dataset.head(1, columns=["t"]).column("t")
-    t0 = float(time_seconds(first.combine_chunks(), path, origin)[0]) if len(first) else 0.0
+    reads_time = bool(needs & SERIES_INPUTS)
+    t0 = _first_time(dataset, path, units, origin) if reads_time else 0.0
     series = None
     if needs & {"temp_rate", "temp_lag"}:
         table = dataset.to_table(columns=["t", "temp"])
@@ -74,12 +74,27 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     tmp = out.with_name(out.name + ".tmp")
     try:
-        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts)
+        _write(dataset, tmp, out_schema, cal, needed, units, path, origin,
+               t0 if reads_time else None, series, counts)
     except BaseException:
         tmp.unlink(missing_ok=True)  # never leave half a file behind
         raise
     tmp.replace(out)
     return counts
+
+
+def _first_time(dataset, path, units, origin) -> float:
+    """The time of the first row the fit kept (``read_log``: finite time, gyro, temperature
+    and reference rate): series signals count ``t`` from it on both sides."""
+    names = [c for c in ("t", *GYRO, "temp", "ref_rate") if c in dataset.schema.names]
+    for batch in dataset.to_batches(columns=names):
+        t = time_seconds(batch.column("t"), path, origin)
+        good = np.isfinite(t)
+        for c in names[1:]:
+            good &= np.isfinite(batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64))
+        if good.any():
+            return float(t[np.argmax(good)])
+    raise LogFormatError("no row has a finite time, gyro and temperature", source=path)
 
 
 def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:
@@ -89,7 +104,8 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])
             data = {c: cols[c] for c in needed if c not in GYRO}
-            data["t"] = time_seconds(batch.column("t"), path, origin) - t0
+            if t0 is not None:  # the model reads series signals: time since the first row
+                data["t"] = time_seconds(batch.column("t"), path, origin) - t0
             if series is not None:
                 data["series"] = series
                 data["temp_rate"] = series.at("temp_rate", data["t"])

@@ -68,7 +68,7 @@ class Calibration:
 
     def _neutral(self, n: int, temp) -> dict[str, np.ndarray]:
         """Covariates at their reference values: temperature as given, others zero."""
-        data = {name: np.zeros(n) for name in self.model.needs if name not in SERIES_INPUTS}
+        data = {name: np.zeros(n) for name in self.model.inputs if name not in SERIES_INPUTS}
         data["temp"] = np.broadcast_to(self.clamp(temp), (n,)).copy()
         return data
 

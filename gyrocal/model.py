@@ -101,7 +101,7 @@ class Model:
             inputs = Inputs(base, base.series, base.times)
             try:
                 columns = term.columns(inputs)
-                if context["span"] is not None and inputs.read & SERIES_INPUTS:
+                if context["span"] is not None and len(context["span"][0]) and inputs.read & SERIES_INPUTS:
                     if nodes is None:
                         nodes = quadrature_inputs(base, context["series"], context["span"])
                     at_nodes = term.columns(Inputs(nodes, nodes.series, nodes.times))

@@ -114,7 +114,7 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
     series = obs.attrs.get("series")
     window = series.temp_rate_window_s if series is not None else float(np.median(obs["duration"]))
     covariates = {"temp_rate": {"unit": "degC/min", "window_s": window}} \
-        if "temp_rate" in model.needs else {}
+        if "temp_rate" in model.inputs else {}
     cal = Calibration(
         model, fitted.coefficients, settings.model.reference_temperature, meta,
         provenance=provenance,

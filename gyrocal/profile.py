@@ -53,6 +53,7 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
         return cache[key]
 
     current = model
+    flat: set = set()
     for _ in range(2 if len(targets) > 1 else 1):
         for index, name, (lo, hi) in targets:
             def chi2_at(log_value, base=current, index=index, name=name):
@@ -62,6 +63,10 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
             k = int(np.argmin(values))
             if not np.isfinite(values[k]):
                 raise evaluate(_with(current, index, name, math.exp(grid[k])))[1]
+            finite = [v for v in values if np.isfinite(v)]
+            if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
+                flat.add((index, name))  # the data do not depend on it: keep the setting
+                continue
             a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
             found = minimize_scalar(chi2_at, bounds=(a, b), method="bounded",
                                     options={"xatol": 1e-4})
@@ -78,14 +83,20 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
         value = float(getattr(current.terms[index], name, None)
                       if not hasattr(current.terms[index], "parameters")
                       else current.terms[index].parameters[name])
+        term = current.terms[index]
+        if (index, name) in flat:  # e.g. a temperature-rate window without the record
+            report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
+                           "value": value, "stderr": None, "bounds": [float(lo), float(hi)],
+                           "at_bound": False, "identified": False})
+            continue
         x0, h = math.log(value), 0.02
         near = [evaluate(_with(current, index, name, math.exp(x0 + d)))[0] for d in (-h, h)]
         curvature = (near[0] - 2 * chi2 + near[1]) / h ** 2
         sigma_log = math.sqrt(2 * s2 / curvature) if curvature > 0 and np.isfinite(curvature) else math.inf
         at_bound = value <= lo * 1.0001 or value >= hi / 1.0001
-        term = current.terms[index]
         report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
                        "value": value, "stderr": value * sigma_log if np.isfinite(sigma_log) else None,
-                       "bounds": [float(lo), float(hi)], "at_bound": bool(at_bound)})
+                       "bounds": [float(lo), float(hi)], "at_bound": bool(at_bound),
+                       "identified": True})
     object.__setattr__(fitted, "profiled", tuple(report))
     return fitted

@@ -87,7 +87,8 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     and raw samples of the same record give the same lagged signal to O((Δt/τ)²): with
     ``a = exp(−Δt/τ)``, ``y_k = a y_{k−1} + x_k − a x_{k−1} − (x_k − x_{k−1}) (τ/Δt)(1 − a)``.
     The recursion ``y_k = a_k y_{k−1} + u_k`` is solved in closed form by cumulative sums,
-    in chunks short enough (50 τ) that the running products stay in floating range."""
+    in chunks of at most 50 time constants, so that the running products stay in floating
+    range; a gap longer than that starts afresh."""
     t = np.asarray(t, dtype=float)
     x = np.asarray(x, dtype=float)
     y = np.empty_like(x)
@@ -96,19 +97,23 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     if not (np.isfinite(tau) and tau > 0):
         raise ValueError(f"a lag time constant must be positive, got {tau!r}")
     dt = np.diff(t)
-    a = np.exp(-dt / tau)
+    lam = dt / tau                                            # time constants per step
+    a = np.exp(-lam)
     ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
     u = np.where(dt > 0, x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a), 0.0)
     y[0] = x[0]
-    elapsed = (t - t[0]) / tau
-    edges = np.searchsorted(elapsed, np.arange(50.0, elapsed[-1] + 50.0, 50.0))
+    cum = np.concatenate([[0.0], np.cumsum(lam)])
     start, state = 1, x[0]
-    for stop in [*edges.tolist(), len(x)]:
-        stop = max(min(stop, len(x)), start)
-        if stop == start:
+    while start < len(x):
+        if lam[start - 1] > 50.0:  # a gap of many time constants: the past is forgotten
+            y[start] = u[start - 1] + a[start - 1] * state
+            state, start = y[start], start + 1
             continue
-        log_p = np.cumsum(np.log(a[start - 1:stop - 1]))         # log Π a up to k
-        p = np.exp(log_p)
+        stop = min(max(int(np.searchsorted(cum, cum[start - 1] + 50.0, side="right")), start + 1), len(x))
+        big = np.flatnonzero(lam[start:stop - 1] > 50.0)
+        if big.size:
+            stop = start + 1 + int(big[0])
+        p = np.exp(-np.cumsum(lam[start - 1:stop - 1]))       # Π a up to k, >= e^-50
         y[start:stop] = p * (state + np.cumsum(u[start - 1:stop - 1] / p))
         state, start = y[stop - 1], stop
     return y

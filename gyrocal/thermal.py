@@ -461,7 +461,8 @@ class JointGridFit:
         keep = self.data["point"].astype(int) != point
         try:
             return _fit_joint(self.model, {k: v[keep] for k, v in self.data.items()},
-                              method=self.grid.method, degree=self.grid.degree)
+                              method=self.grid.method, degree=self.grid.degree,
+                              rows=self.rows[0][keep], excluded=self.excluded)
         except IdentifiabilityError:
             return None
 

@@ -90,9 +90,12 @@ def test_first_order_lag_follows_a_ramp_and_agrees_across_sampling():
     fine = first_order_lag(t, x + np.sin(t / 300.0), tau)
     # To 1e-4 °C: within a 1 s bin the record is linear but for the sine's curvature.
     np.testing.assert_allclose(coarse.at("temp", t, tau), fine, atol=1e-4)
-    # Chunking keeps long records in range (50 time constants per chunk).
+    # Chunking keeps long records in range (50 time constants per chunk), and a logging gap
+    # of many time constants starts afresh rather than overflowing.
     long_t = np.arange(0.0, 1e6, 10.0)
     assert np.all(np.isfinite(first_order_lag(long_t, np.ones_like(long_t), 60.0)))
+    gap = np.r_[0:100.0, 50100:50200.0]
+    np.testing.assert_allclose(first_order_lag(gap, np.full_like(gap, 3.0), 60.0), 3.0)
 
 
 def hold_means_of_samples(log, obs, term) -> dict[str, np.ndarray]:
@@ -338,3 +341,38 @@ def test_a_joint_grid_that_cannot_leave_a_point_out_says_so(observed, monkeypatc
     monkeypatch.setattr(JointGridFit, "leave_out", lambda self, point: None)
     with pytest.raises(GyrocalError, match="leaves nothing to calibrate from"):
         validate(fitted.model, obs, fitted)
+
+
+def test_a_setting_the_data_do_not_depend_on_is_kept_and_reported_not_identified(observed):
+    """Without the session's record a temperature-rate window changes nothing: profiling
+    keeps the setting (the session's window) instead of a value picked from a flat χ²."""
+    _, obs = observed
+    bare = obs.copy()
+    bare.attrs = {}
+    m = with_model(terms=["bias", "scale", "misalignment", "temp_rate"]).model
+    fitted = fit_model(m.build(), bare, kind=m.kind, method=m.interpolation, degree=m.degree)
+    (p,) = fitted.profiled
+    assert p["identified"] is False and p["value"] == 0.0 and p["stderr"] is None
+
+
+def test_apply_counts_time_from_the_first_row_the_fit_kept(warmup_sessions, tmp_path):
+    """A log whose first rows have no valid temperature: the fit drops them, and apply
+    counts t from the same first kept row; rows without a time are left out, not all."""
+    (s0, _), _ = warmup_sessions
+    table = pq.read_table(s0)
+    temp = table.column("temp").to_numpy().copy()
+    temp[:250] = np.nan                                       # the first 10 s at 25 Hz
+    broken = tmp_path / "late_temp.parquet"
+    pq.write_table(table.set_column(table.schema.get_field_index("temp"), "temp",
+                                    __import__("pyarrow").array(temp)), broken)
+    result = run(broken, with_model(expressions={"warmup": WARMUP_FORMULA}))
+    out = tmp_path / "out.parquet"
+    from gyrocal.apply import apply_calibration
+    counts = apply_calibration(result.calibration, broken, out)
+    assert counts["nonfinite"] == 250
+    plain = run(broken).calibration
+    assert apply_calibration(plain, broken, tmp_path / "plain.parquet")["nonfinite"] == 250
+    # Compensated holds of the same log sit at the floor: t agrees between fit and apply.
+    gyro = pq.read_table(out, columns=["gyro_x"]).column("gyro_x").to_numpy()
+    assert np.isfinite(gyro[250:]).all()
+    assert result.validation.summary["excess"] < NEXT_SESSION_LIMIT
