@@ -7,6 +7,8 @@ against local minima), then a bounded 1-D search around the best scan point. The
 error comes from the profile's curvature, ``σ² = 2 s² / (d²χ²/dθ²)`` with ``s²`` the
 reduced χ² (the coefficient covariances are scaled the same way), taken on log θ and
 carried to θ. Several nonlinear parameters are profiled one after another, twice round.
+Every value is judged on the temperature points the fit at the start values kept: a value
+that loses a point would win on a smaller χ² for that alone, so it is refused.
 """
 
 from __future__ import annotations
@@ -42,17 +44,24 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
                for name, bounds in term.nonlinear().items()]
     cache: dict = {}
 
+    points: list = []   # the temperature points every value is judged on: at the start values
+
     def evaluate(m: Model):
         key = tuple(t.spec_string() for t in m.terms)
         if key not in cache:
             try:
                 fitted = fit_linear(m)
-                cache[key] = (total_chi2(fitted)[0], fitted)
+                used = tuple(fitted.used_points())
+                points.append(used) if not points else None
+                # χ² over fewer points is smaller for that alone: such a value is refused.
+                chi2 = total_chi2(fitted)[0] if used == points[0] else math.inf
+                cache[key] = (chi2, fitted)
             except GyrocalError as exc:
                 cache[key] = (math.inf, exc)
         return cache[key]
 
     current = model
+    evaluate(model)  # fixes the points every value is judged on
     flat: set = set()
     for _ in range(2 if len(targets) > 1 else 1):
         for index, name, (lo, hi) in targets:
@@ -62,7 +71,9 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
             values = [chi2_at(g) for g in grid]
             k = int(np.argmin(values))
             if not np.isfinite(values[k]):
-                raise evaluate(_with(current, index, name, math.exp(grid[k])))[1]
+                failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
+                raise failure if isinstance(failure, GyrocalError) else GyrocalError(
+                    f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
             finite = [v for v in values if np.isfinite(v)]
             if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
                 flat.add((index, name))  # the data do not depend on it: keep the setting
@@ -75,7 +86,8 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
 
     chi2, fitted = evaluate(current)
     if not np.isfinite(chi2):
-        raise fitted
+        raise fitted if isinstance(fitted, GyrocalError) else GyrocalError(
+            "the profiled fit leaves out temperature points the start values kept")
     dof = total_chi2(fitted)[1]
     s2 = chi2 / max(dof, 1)
     report = []
