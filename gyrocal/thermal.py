@@ -196,21 +196,8 @@ def _warn_outside(coefs, temp: np.ndarray) -> None:
             "the calibration at the nearest end"), stacklevel=3)
 
 
-@dataclass(frozen=True)
-class GridFit:
-    """Per-temperature fits and the grid built from those that succeeded."""
-
-    grid: TemperatureGrid
-    fits: tuple[FitResult, ...]
-    points: pd.DataFrame              # point, temp, holds, used, reason
-    excluded: dict[int, str] = field(default_factory=dict)
-    rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
-    profiled: tuple = ()               # nonlinear settings found by profiling
-    kind: ClassVar[str] = "grid"
-
-    @property
-    def model(self) -> Model:
-        return self.fits[0].model
+class _OnAGrid:
+    """What a temperature-grid fit reads from its grid and points table."""
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -228,6 +215,24 @@ class GridFit:
 
     def coefficients_at(self, temp) -> np.ndarray:
         return self.grid.weights(temp) @ self.grid.values
+
+
+@dataclass(frozen=True)
+class GridFit(_OnAGrid):
+    """Per-temperature fits and the grid built from those that succeeded."""
+
+    grid: TemperatureGrid
+    fits: tuple[FitResult, ...]
+    points: pd.DataFrame              # point, temp, holds, used, reason
+    excluded: dict[int, str] = field(default_factory=dict)
+    rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
+    profiled: tuple = ()               # nonlinear settings found by profiling
+    kind: ClassVar[str] = "grid"
+
+    @property
+    def model(self) -> Model:
+        return self.fits[0].model
+
 
     def covariance_at(self, temp) -> np.ndarray:
         cov = np.array([f.covariance for f in self.fits])
@@ -392,7 +397,7 @@ def global_terms(model: Model) -> list[Term]:
 
 
 @dataclass(frozen=True)
-class JointGridFit:
+class JointGridFit(_OnAGrid):
     """A grid model with session-wide (scope global) terms: every point's own coefficients
     and the global ones fitted in one least-squares problem over the points' holds. The
     grid holds each global coefficient at every point (interpolating a constant gives it
@@ -410,25 +415,9 @@ class JointGridFit:
     kind: ClassVar[str] = "grid"
 
     @property
-    def names(self) -> tuple[str, ...]:
-        return self.grid.names
-
-    @property
-    def coefficients(self) -> TemperatureGrid:
-        return self.grid
-
-    @property
     def fits(self) -> tuple[FitResult, ...]:
         return (self.fit,)
 
-    def used_points(self) -> list[int]:
-        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
-
-    def outside(self, temp) -> np.ndarray:
-        return self.grid.outside(temp)
-
-    def coefficients_at(self, temp) -> np.ndarray:
-        return self.grid.weights(temp) @ self.grid.values
 
     def _mapping(self, weights: np.ndarray) -> np.ndarray:
         """(n, C, J): coefficient values at n temperatures from the joint parameters."""
