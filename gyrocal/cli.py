@@ -235,7 +235,8 @@ def cmd_validate(args) -> int:
 def cmd_analyse(args) -> int:
     from .stages import analyse_stage
     settings = _settings(args)
-    verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures)
+    verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
+                            other=args.other_session)
     print(f"calibration, validation and diagnosis -> {args.unit}")
     if verdict is not None:
         print(f"  {verdict}")
@@ -321,19 +322,25 @@ def cmd_diagnose(args) -> int:
     if (args.log is None) == (args.unit is None):
         raise ConfigError("give the log, or --unit DIR of a segmented unit")
 
-    def diagnose_folder(folder):
+    def diagnose_folder(folder, other=None):
         verdict = diagnose_stage(folder, settings, _meta(args), output=args.output,
-                                 residuals=args.residuals or False)
+                                 residuals=args.residuals or False, other=other)
         print(f"diagnosis -> {args.output}")
         print(f"  {verdict}")
 
     def work():
-        if args.unit is not None:
-            return diagnose_folder(args.unit)
-        check_protocol(args.protocol)
-        with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as folder:
+        with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
+            other = args.other_session
+            if other is not None and not Path(other).is_dir():
+                check_protocol(args.protocol)
+                other = Path(scratch) / "other"
+                segment_stage(args.other_session, other, settings, _meta(args))
+            if args.unit is not None:
+                return diagnose_folder(args.unit, other)
+            check_protocol(args.protocol)
+            folder = Path(scratch) / "unit"
             segment_stage(args.log, folder, settings, _meta(args))
-            diagnose_folder(folder)
+            diagnose_folder(folder, other)
 
     outputs = [args.output] + ([args.residuals] if args.residuals else [])
     return run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
@@ -440,6 +447,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--unit", help="a unit's results folder (workflow stage)")
     p.add_argument("-o", "--output", required=True, help="diagnosis .json")
     p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
+    p.add_argument("--other-session", metavar="LOG_OR_DIR",
+                   help="another session of the same unit (its log, or its results folder): "
+                        "candidates are judged by how they carry over to it")
     unit(p)
     common(p)
     p.set_defaults(func=cmd_diagnose)
@@ -477,6 +487,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
     p.add_argument("unit", help="the unit's results folder")
+    p.add_argument("--other-session", metavar="DIR",
+                   help="the results folder of another session of the unit, segmented: the "
+                        "diagnosis judges candidates by how they carry over to it")
     unit(p)
     common(p)
     p.set_defaults(func=cmd_analyse)

@@ -81,6 +81,9 @@ class Candidate:
     tied_with: list[str] = field(default_factory=list)   # fits this protocol cannot tell apart
     together: list[str] = field(default_factory=list)    # also missing: named with this one
     alone_rms: float | None = None                       # validation RMS with this one alone
+    leftover: dict | None = None             # the covariate its residuals still follow most
+    next_session: dict | None = None         # how the extended model carries over
+    chi2: float | None = None                # of the extended fit, for ties
 
     def to_dict(self) -> dict:
         out = {"term": self.term, "status": self.status,
@@ -89,7 +92,8 @@ class Candidate:
             out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
                        significant=self.significant, size=self.size, peak_effect=self.peak_effect,
                        expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
-                       tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms)
+                       tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms,
+                       leftover=self.leftover, next_session=self.next_session)
         else:
             out["reason"] = self.reason
         return out
@@ -113,6 +117,9 @@ class Diagnosis:
     config_line: str = ""                     # the model: lines that add the best candidate
     ladder: list[dict] = field(default_factory=list)
     within_noise: dict | None = None          # the χ² test with the slow noise at its upper bound
+    next_session: dict | None = None          # the configured model on another session
+    advice: list[str] = field(default_factory=list)
+    time_drift: dict | None = None            # TIME_DRIFT's fit: the rival no term can beat
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -127,6 +134,9 @@ class Diagnosis:
             "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
             "verdict": self.verdict,
             "within_noise_uncertainty": self.within_noise,
+            "next_session": self.next_session,
+            "advice": self.advice,
+            "time_drift": self.time_drift,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
@@ -210,6 +220,12 @@ def _effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: 
                 peak = max(peak, float(np.max(np.abs(contribution))))
     return size, peak
 
+
+LEFTOVER_FRACTION = 0.02  # of the configured model's excess χ²/dof: see _Judge.explains
+NEGLIGIBLE_OVER_FLOOR = 1.2  # structure left within this many times the floor is negligible
+SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
+
+TIME_LIKE = ("time", "time within a temperature point", "hold duration")
 
 # The grouping each covariate is measured against: rate effects show on the axis that
 # turns, so they are judged within the rotating axis; drift within a temperature point is
@@ -296,7 +312,8 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
         p = float(stats.chi2.sf(gain, df)) if df > 0 else 1.0
         share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
         row = {"covariate": " = ".join(names) if len(names) > 1 else lead, "bins": int(k_joint),
-               "share_of_excess": share, "p_value": p, "within": base_name}
+               "share_of_excess": share, "p_value": p, "within": base_name,
+               "chi2_beyond_chance": max(gain - df, 0.0)}
         if len(names) > 1:
             row["confounded"] = names
             row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
@@ -319,8 +336,12 @@ def _same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     return len(pairs) == len(np.unique(a)) == len(np.unique(b))
 
 
-def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
-    """Diagnose ``settings.model`` on the observations; see the module docstring."""
+def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None = None) -> Diagnosis:
+    """Diagnose ``settings.model`` on the observations; see the module docstring.
+
+    ``other``, the observations of another session of the same unit, is what the user's
+    calibration will meet: each model is then also judged by how it carries over to it
+    (:func:`carry_over`), and an excess whose pattern does not repeat there is noise."""
     alpha = settings.diagnosis.significance
     base = evaluate(settings, obs, "configured model")
     data = columns_of(obs)
@@ -334,8 +355,18 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                       **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
     excess_p = float(stats.chi2.sf(base.chi2, base.dof))
     explains = excess_p >= alpha / 2
+    judge = _Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))
+    base_next = judge.carry(base)
+    if base_next is not None and "error" in base_next:
+        judge.other = None    # the other session cannot be used: judged on this one alone
+    unrepeated = False
+    if not explains and usable(base_next) and base_next["unrepeated_p_value"] is not None:
+        # An excess that does not come back in the other session, whose residuals differ
+        # from this one's by more than the floor, is slow noise, not an effect.
+        unrepeated = explains = (base_next["repeat_p_value"] >= alpha / 2
+                                 and base_next["unrepeated_p_value"] < alpha / 2)
     within_noise = None
-    if not explains:
+    if not explains and not usable(base_next):
         # Slow wander the static data could not rule out may be all the excess is.
         upper = with_upper_floor(obs)
         if upper is not None:
@@ -386,11 +417,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
         candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
                               100.0 * (1 - v1 / v0), False, size, peak,
                               expected_with=ext.summary["expected_rms"])
-        # It explains the excess when what is left is what a correct model leaves: in the
-        # fit itself (χ² within chance) or on the holds left out.
-        candidate.explains_excess = (float(stats.chi2.sf(ext.chi2, ext.dof)) >= alpha / 2
-                                     or v1 <= ext.summary["expected_rms"] * tolerance)
         candidate.chi2 = ext.chi2
+        candidate.explains_excess = judge.explains(ext, candidate, base_next, tolerance)
         candidates.append(candidate)
         tested.append(candidate)
     for c in tested:  # Bonferroni over the candidates actually tested
@@ -398,18 +426,37 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
     _mark_ties(tested)
     ranked = sorted(tested, key=lambda c: c.validation_rms_with)
     candidates = ranked + [c for c in candidates if c.status != "ranked"]
-    useful = [c for c in ranked if c.significant and not explains
-              and c.validation_rms_with < base.summary["validation_rms"]]
+    v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
+    useful = [c for c in ranked if c.significant and not explains and c.validation_rms_with < v0]
+    if usable(base_next):  # what the user will meet: the other session first
+        useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
     # Named only when it explains the excess: what is left is what a correct model leaves.
     best = next((c for c in useful if c.explains_excess), None)
-    if best is None and useful:
+    drift = _time_drift(judge, settings, obs, base, base_next, tolerance) if not explains else None
+    if best is not None and drift is not None and drift["explains"] and "time" not in _kinds(best.term):
+        # Within a soak the mounts follow each other in time: a term that is constant per
+        # mount (a g-sensitivity) and a bias drifting in time can fit the same steps. When
+        # the drift explains the excess too, the protocol cannot name either.
+        drift["rival_of"] = best.term
+        best = None
+    # Two effects at once are looked for only when the held-out error is above what a
+    # correct model leaves by more than that figure's uncertainty: among the tens of pairs,
+    # some fit a small excess by chance, and passing the checks of what is left is weak
+    # evidence when there is little left to test.
+    resolvable = v0 > expected * tolerance
+    if best is None and useful and resolvable and _practical_gain(base, useful[0]):
         # Two effects missing at once: the most useful term, then each other one on top.
-        best = _second_step(settings, obs, useful[0], ranked, alpha, base.summary["validation_rms"],
-                            tolerance)
+        best = _second_step(judge, useful[0], ranked, base.summary["validation_rms"], tolerance)
     # Otherwise, terms that take away a real part of it are reported as partial.
-    partial = [] if best else [c for c in useful if _practical_gain(base, c)][:3]
+    timed = best is None and drift is not None and drift["explains"]
+    # A drift in time that explains the excess is the finding: terms that fit a part of it
+    # are not reported as partial explanations.
+    partial = [] if best or timed else [c for c in useful if _practical_gain(base, c)][:3]
     verdict = _verdict(base, best, explains, rms_over_floor, covariates, "floor_x" in obs, partial,
-                       within_noise)
+                       within_noise, unrepeated, base_next if usable(base_next) else None,
+                       None if timed else tolerance)
+    if timed:
+        verdict += " " + _drift_sentence(base, drift)
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", resid), ("floor", floor), ("z", z))
            for i, a in enumerate(AXES)})
@@ -418,7 +465,259 @@ def diagnose(settings: Settings, obs: pd.DataFrame) -> Diagnosis:
                      config_line=config_line(_extended_all(settings, best).model) if best else "")
     diag.ladder = ladder(settings, obs, base)
     diag.within_noise = within_noise
+    diag.next_session = base_next
+    diag.advice = advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
+    diag.time_drift = drift
     return diag
+
+
+# A bias drifting linearly in time, fitted per temperature point on a grid: not an effect of
+# the library but the rival every soaked protocol must rule out (a warm-up, a ramp).
+TIME_DRIFT = {"name": "expression", "formula": "t"}
+
+
+def _time_drift(judge: "_Judge", settings, obs, base: Evaluation, base_next, tolerance) -> dict | None:
+    """How far a bias drifting in time within each temperature point takes the held-out
+    error, and whether it explains the excess as a named term would have to; None where time
+    within a point is not separable from temperature (a sweep) or the fit cannot be made."""
+    if not judge.soaked or "t_start" not in obs:
+        return None
+    try:
+        ev = evaluate(extended(settings, TIME_DRIFT), obs, "bias drifting in time")
+    except GyrocalError:
+        return None
+    probe = Candidate("expression(formula='t')", "ranked")
+    explains = judge.explains(ev, probe, base_next, tolerance)
+    return {"validation_rms": ev.summary["validation_rms"], "expected_rms": ev.summary["expected_rms"],
+            "explains": bool(explains and ev.summary["validation_rms"] < base.summary["validation_rms"]),
+            "leftover": probe.leftover, "next_session": probe.next_session, "rival_of": None}
+
+
+def _drift_sentence(base: Evaluation, drift: dict) -> str:
+    rival = (f" {drift['rival_of']} fits it as well, and neither can be named: the mounts follow "
+             "each other in time, so this protocol cannot tell an effect constant per mount from "
+             "a drift."
+             if drift["rival_of"] else "")
+    return (f"A bias drifting linearly in time within each temperature point explains the excess "
+            f"(validation RMS {base.summary['validation_rms']:.3g} → {drift['validation_rms']:.3g} deg/s, "
+            f"what a correct model would leave: {drift['expected_rms']:.3g}): the missing effect "
+            f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}")
+
+
+class _Judge:
+    """Whether a model leaves only what a correct one would, from one session or two.
+
+    One session: its in-sample χ² is within chance or its validation RMS within chance of
+    what a correct model leaves, *and* its residuals follow no covariate beyond chance (a
+    term that soaks up most of an effect it is not, as a g-sensitivity on a linear time
+    drift whose holds run in order of speed, leaves the rest lined up with time or rate).
+    Two sessions: what its residuals still hold does not repeat in the other session, and
+    it does not carry over worse than the configured model."""
+
+    def __init__(self, settings, obs, data, other, alpha, base_excess: float):
+        self.settings, self.obs, self.data, self.other, self.alpha = settings, obs, data, other, alpha
+        self.base_excess = base_excess   # the configured model's χ²/dof − 1
+        if other is not None and ("revolution" in obs or "revolution" in other):
+            self.other = None  # a servo session's hand mount leaves the true rate unknown
+        # Time is not temperature only where each point soaks at one temperature (not a sweep).
+        self.soaked = bool("point" in obs and float(
+            obs.groupby("point")["temp"].agg(lambda t: t.max() - t.min()).max()) < SOAKED_SPREAD)
+        # The session's noise model has slow terms (bias instability, rate random walk):
+        # holds close in time share their wander, which groups them by time.
+        self.slow_known = any(float(np.nanmax(obs[f"{k}_{a}"])) > 0 for k in ("flicker", "rrw")
+                              for a in AXES if f"{k}_{a}" in obs)
+
+    def carry(self, ev: Evaluation) -> dict | None:
+        """:func:`carry_over` to the other session; None without one, ``{"error": ...}``
+        when this model cannot be applied there (a term reading an input it lacks)."""
+        if self.other is None:
+            return None
+        try:
+            return carry_over(self.settings, ev, self.obs, self.other)
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: note it
+            return {"error": _reason(exc) if isinstance(exc, GyrocalError) else f"{type(exc).__name__}: {exc}"}
+
+    def leftover(self, ev: Evaluation) -> dict:
+        resid, floor, rows = in_sample(ev.fitted, len(self.obs))
+        table, _ = _covariate_table(self.obs, self.data, np.nan_to_num(resid / floor), rows,
+                                    ev.dof, True)
+        worst = min(table, key=lambda r: r["p_value"])
+        return {"covariate": worst["covariate"],
+                "p_value": min(1.0, worst["p_value"] * len(table)),  # Bonferroni
+                "chi2_red_share": worst["chi2_beyond_chance"] / max(ev.dof, 1)}
+
+    def explains(self, ext: Evaluation, candidate: Candidate, base_next, tolerance) -> bool:
+        half = self.alpha / 2
+        candidate.leftover = left = self.leftover(ext)
+        candidate.next_session = nxt = self.carry(ext) if usable(base_next) else None
+        # Structure left over counts when it is real and not negligible. The right effect
+        # fitted in a shape some per cent off leaves real but tiny structure; negligible is
+        # small beside the effect (2 % of the excess, a shape about 15 % off in amplitude)
+        # and beside the floor (within 1.2 times it). A wrong term that merely correlates
+        # with the effect leaves more.
+        sizeable = left["chi2_red_share"] > min(LEFTOVER_FRACTION * self.base_excess,
+                                                NEGLIGIBLE_OVER_FLOOR ** 2 - 1.0)
+        structure = sizeable and left["p_value"] < half
+        in_chance = (float(stats.chi2.sf(ext.chi2, ext.dof)) >= half
+                     or ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
+        # Slow noise lines residuals up with time and nothing else: structure in rate, mount
+        # or temperature is an effect, and structure in time is one too unless slow noise is
+        # known, from the static data's noise model or from two sessions that differ by more
+        # than the floor (unrepeated_p_value).
+        slow_noise = self.slow_known or (usable(nxt) and nxt["unrepeated_p_value"] is not None
+                                         and nxt["unrepeated_p_value"] < half)
+        exempt = self.soaked and slow_noise and left["covariate"] in TIME_LIKE
+        if not usable(nxt):
+            return in_chance and (not structure or exempt)
+        # Two independent looks at what is left, combined (Fisher): its structure in this
+        # session and its repetition in the other. What is left is within chance, or known
+        # to be slow noise; and the other session is no worse than with the configured model.
+        combined = nxt["repeat_p_value"]
+        if sizeable and not exempt:
+            combined = float(stats.combine_pvalues(np.maximum([left["p_value"], combined], 1e-300))[1])
+        nxt["left_p_value"] = combined
+        return (combined >= half and (in_chance or slow_noise)
+                and nxt["validation_rms"] <= base_next["validation_rms"])
+
+
+def usable(nxt) -> bool:
+    """A carry-over to another session that could be made and tested."""
+    return nxt is not None and "error" not in nxt and nxt.get("repeat_p_value") is not None
+
+
+def carry_over(settings: Settings, ev: Evaluation, obs: pd.DataFrame, other: pd.DataFrame) -> dict:
+    """``ev``'s calibration (the fit of ``settings`` extended by the candidate; its
+    reference temperature is ``settings``') applied to another session of the unit
+    (:func:`gyrocal.drift.revalidate`) and whether the pattern of its residuals repeats there
+    (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
+    from .drift import hold_errors, revalidate
+    from .pipeline import calibrate_observations
+    cal, _ = calibrate_observations(obs, settings, meta={"protocol": "diagnosis"}, fitted=ev.fitted)
+    r = revalidate(cal, other)
+    errors, floor1 = hold_errors(cal, other)
+    resid, floor0, rows = in_sample(ev.fitted, len(obs))
+    z0, z1 = (resid / floor0)[rows], errors / floor1
+    out = {"validation_rms": r["validation_rms"], "noise_floor": r["noise_floor"],
+           "excess": r["excess"], "expected_rms": r["expected_rms"], "holds": r["holds"],
+           "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
+           "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1)}
+    if not all(np.isfinite(v) for v in out.values() if isinstance(v, float)):
+        raise GyrocalError("the other session's errors are not finite")
+    return out
+
+
+REPEAT_DRAWS = 9999
+POINT_MATCH = 3.0   # °C: soaked points of two sessions closer than this are the same point
+
+
+def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFrame:
+    """Each hold's cell, the key two sessions of one protocol share (temperature, mount,
+    rate and, along a sweep, the direction the temperature moves), and its block of
+    neighbouring cells (10 °C × mount) whose errors a slow wander shares."""
+    temp = obs["temp"].to_numpy(float)
+    point_temp = obs["point_temp"].to_numpy(float) if "point_temp" in obs else temp
+    if "point" in obs:
+        spread = obs.groupby(obs["point"].to_numpy())["temp"].transform(lambda t: t.max() - t.min())
+        soaked = spread.to_numpy() < soaked_spread
+    else:
+        soaked = np.zeros(len(obs), dtype=bool)
+    # Holds of one soaked point share its temperature; along a sweep, 2 °C bins and the
+    # direction of the ramp (on a soak the temperature rate is noise: no direction).
+    tbin = np.where(soaked, point_temp, 2.0 * np.round(temp / 2.0))
+    rate = obs["temp_rate"].to_numpy(float) if "temp_rate" in obs else np.zeros(len(obs))
+    rising = np.where(soaked, 0.0, np.sign(np.round(np.nan_to_num(rate), 1)))
+    return pd.DataFrame({"temp": tbin, "soaked": soaked, "mount": obs["mount"].astype(str).to_numpy(),
+                         "rate": np.round(obs["ref_rate"].to_numpy(float), 1), "rising": rising})
+
+
+def _snap(cells1: pd.DataFrame, cells0: pd.DataFrame) -> pd.DataFrame:
+    """Session 1's soaked point temperatures moved to session 0's nearest, when within
+    :data:`POINT_MATCH` (set points drift a little between sessions)."""
+    points0 = np.unique(cells0.loc[cells0["soaked"], "temp"])
+    if points0.size == 0:
+        return cells1
+    t = cells1["temp"].to_numpy(float)
+    nearest = points0[np.abs(t[:, None] - points0[None, :]).argmin(axis=1)]
+    snap = cells1["soaked"].to_numpy() & (np.abs(nearest - t) <= POINT_MATCH)
+    return cells1.assign(temp=np.where(snap, nearest, t))
+
+
+KEY = ["temp", "mount", "rate", "rising"]
+
+
+def _shared_cells(obs0, z0, obs1, z1):
+    """Per cell both sessions have: the mean residual of each (n, 3), the number of holds
+    averaged in each, and the cell's block; session 1's offset per axis removed. None when
+    fewer than 6 blocks are shared."""
+    c0 = _cells(obs0)
+    c1 = _snap(_cells(obs1), c0)
+
+    def means(cells, z):
+        frame = pd.concat([cells[KEY].reset_index(drop=True),
+                           pd.DataFrame(np.nan_to_num(np.asarray(z, float)), columns=list(AXES))], axis=1)
+        grouped = frame.groupby(KEY, sort=True)
+        return grouped[list(AXES)].mean(), grouped.size()
+
+    m0, k0 = means(c0, z0)
+    m1, k1 = means(c1, z1)
+    m1 = m1 - m1.mean()
+    shared = m0.index.intersection(m1.index)
+    if shared.empty:
+        return None
+    block = (np.floor(shared.get_level_values("temp").to_numpy(float) / 10.0).astype(int).astype(str)
+             + "|" + shared.get_level_values("mount").to_numpy().astype(str))
+    if np.unique(block).size < 6:
+        return None
+    return (m0.loc[shared].to_numpy(), m1.loc[shared].to_numpy(), k0.loc[shared].to_numpy(float),
+            k1.loc[shared].to_numpy(float), block)
+
+
+def repeat_p_value(obs0: pd.DataFrame, z0: np.ndarray, obs1: pd.DataFrame, z1: np.ndarray,
+                   draws: int = REPEAT_DRAWS) -> float | None:
+    """How likely, were the two sessions' residuals independent, a pattern that repeats as
+    much as this one. Two-sided: a model wrong in a way that depends on the session's
+    conditions (a lag at another ramp rate) can leave the pattern reversed.
+
+    The residuals ``z`` (hold error ÷ floor, per axis) are averaged per cell shared by the
+    sessions, and each block's mean per axis is removed from both: what is compared is the
+    pattern within blocks (over rate, direction, time within a point), which a wander across
+    blocks (bias instability, a random walk over the session) leaves alone. The statistic is
+    |Σ z0·z1| over cells and axes. Its null distribution flips the sign of session 1's cells
+    a whole block and axis at a time: wander within a block correlates its holds within a
+    session, not across sessions, so flipping blocks keeps that correlation. Draws from a
+    fixed seed: the same data give the same p. None when fewer than 6 blocks are shared."""
+    shared = _shared_cells(obs0, z0, obs1, z1)
+    if shared is None:
+        return None
+    a, b, _, _, block = shared
+    labels, codes = np.unique(block, return_inverse=True)
+
+    def within(m):
+        sums = np.stack([np.bincount(codes, weights=m[:, i], minlength=labels.size) for i in range(3)], axis=1)
+        return m - (sums / np.bincount(codes, minlength=labels.size)[:, None])[codes]
+
+    products = within(a) * within(b)                                       # (cells, 3)
+    per_block = np.stack([np.bincount(codes, weights=products[:, i], minlength=labels.size)
+                          for i in range(products.shape[1])], axis=1).ravel()
+    observed = per_block.sum()
+    signs = np.random.default_rng(0).choice((-1.0, 1.0), size=(draws, per_block.size))
+    null = signs @ per_block
+    return float((1 + np.count_nonzero(np.abs(null) >= abs(observed) * (1 - 1e-12))) / (draws + 1))
+
+
+def unrepeated_p_value(obs0, z0, obs1, z1) -> float | None:
+    """Whether the sessions differ by more than white noise. Per shared cell, the
+    difference of the two sessions' mean residuals over its standard deviation for white
+    noise at the floor, ``sqrt(1/k0 + 1/k1)`` for cells of k0 and k1 holds, is a unit normal
+    when what is left repeats; a χ² excess is noise between holds that the floor leaves out:
+    slow wander. (Session 0's in-sample residuals scatter a little less than unit normals, by
+    the fit's leverage: the test errs towards finding no wander.)"""
+    shared = _shared_cells(obs0, z0, obs1, z1)
+    if shared is None:
+        return None
+    a, b, k0, k1, _ = shared
+    d = ((a - a.mean(axis=0)) - b) / np.sqrt(1.0 / k0 + 1.0 / k1)[:, None]
+    return float(stats.chi2.sf(float(np.sum(d ** 2)), d.size - 3))
 
 
 def _extended_all(settings: Settings, best: Candidate) -> Settings:
@@ -427,11 +726,13 @@ def _extended_all(settings: Settings, best: Candidate) -> Settings:
     return settings
 
 
-def _second_step(settings: Settings, obs, first: Candidate, ranked: list[Candidate],
-                 alpha: float, base_rms: float, tolerance: float) -> Candidate | None:
+def _second_step(judge: _Judge, first: Candidate, ranked: list[Candidate], base_rms: float,
+                 tolerance: float) -> Candidate | None:
     """``first`` with one more term that, added on top, explains the excess (F-test of the
     second addition, Bonferroni over the pairs tried); None when no pair does."""
+    settings, obs, alpha = judge.settings, judge.obs, judge.alpha
     start = evaluate(extended(settings, first.term), obs, first.term)
+    start_next = judge.carry(start) if judge.other is not None else None
     others = [c for c in ranked if c is not first and c.term not in first.tied_with]
     found = []
     for c in others:
@@ -444,16 +745,18 @@ def _second_step(settings: Settings, obs, first: Candidate, ranked: list[Candida
             continue
         f_stat = ((start.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
         p = float(stats.f.sf(f_stat, df_num, df_den))
-        v = ext.summary["validation_rms"]
-        if p < alpha / 2 / max(len(others), 1) and (
-                float(stats.chi2.sf(ext.chi2, ext.dof)) >= alpha / 2
-                or v <= ext.summary["expected_rms"] * tolerance):
-            found.append((v, c.term, ext))
+        if p >= alpha / 2 / max(len(others), 1):
+            continue
+        if ext.summary["validation_rms"] >= first.validation_rms_with:
+            continue  # the second term must help on the holds left out too
+        pair = replace(first, together=[c.term])
+        if judge.explains(ext, pair, start_next, tolerance):
+            found.append((ext.summary["validation_rms"], c.term, ext, pair))
     if not found:
         return None
-    v, term, ext = min(found, key=lambda f: f[0])
-    return replace(first, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
-                   explains_excess=True, together=[term], alone_rms=first.validation_rms_with,
+    v, term, ext, pair = min(found, key=lambda f: f[0])
+    return replace(pair, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
+                   explains_excess=True, alone_rms=first.validation_rms_with,
                    gain_pct=100.0 * (1 - v / base_rms))
 
 
@@ -500,8 +803,33 @@ def _p(value: float) -> str:
 
 
 def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
-             partial=(), within_noise=None) -> str:
+             partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
+             tolerance=None) -> str:
+    text = _session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
+                            partial, within_noise, unrepeated, base_next, tolerance)
+    if base_next is None or base_next["holds"] or best is not None:
+        return text
+    if unrepeated:
+        return text + (f" On the other session the errors are {base_next['excess']:.3g} times the "
+                       "floor from the same noise: holds minutes apart scatter more than the floor "
+                       "from the static data says.")
+    if explains:
+        return text + (f" On the other session the calibration's errors are {base_next['excess']:.3g} "
+                       "times the floor: it does not carry over, the unit changed between sessions "
+                       "(run-to-run bias, drift; gyrocal revalidate and gyrocal drift say which "
+                       "parameters).")
+    return text + f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+
+
+def _session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
+                     within_noise, unrepeated, base_next, tolerance=None) -> str:
     factor = rms_over_floor["all"]
+    s = base.summary
+    small = ""
+    if tolerance is not None and s["validation_rms"] <= s["expected_rms"] * tolerance:
+        small = (f" On the holds left out its error is {s['validation_rms'] / s['expected_rms']:.2f} times "
+                 f"what a correct model would leave, within that figure's uncertainty (up to "
+                 f"{tolerance:.2f}): the excess is too small to attribute to an effect.")
     caveat = ""
     if within_noise is not None and within_noise.get("explains"):
         caveat = (f" Caution: with the slow wander (bias instability, rate random walk) that the "
@@ -514,16 +842,21 @@ def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool
                f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
         tied = (f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the "
                 "data identically." if best.tied_with else "")
+        carried = ""
+        if base_next is not None and usable(best.next_session):
+            carried = (f" On the other session the error falls from {base_next['excess']:.3g} to "
+                       f"{best.next_session['excess']:.3g} times the floor.")
         if best.together:
             return (f"Missing effects: {best.term} and {', '.join(best.together)}. Adding both "
                     f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
                     f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-                    f"({best.expected_with:.3g}); {best.term} alone takes it to {best.alone_rms:.3g}.")
+                    f"({best.expected_with:.3g}); {best.term} alone takes it to {best.alone_rms:.3g}."
+                    + carried)
         return (f"Missing effect: {best.term}. Adding it lowers the validation RMS from "
                 f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
                 f"({best.gain_pct:.0f} % less; F-test p {_p(best.p_value)}), what a correct model "
                 f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
-                f"{best.peak_effect:.3g} deg/s{top}.{tied}")
+                f"{best.peak_effect:.3g} deg/s{top}.{tied}{carried}")
     if not explains:
         lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
         where = (f"; the excess lives mostly with {lead['covariate']} "
@@ -537,10 +870,87 @@ def _verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool
                     f" times what a correct model would leave){where}. The missing effect is likely "
                     "outside the library: write it as a term (docs/effects.md)." + caveat)
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                "times their noise floor, and no candidate term accounts for it" + where + "." + caveat)
+                "times their noise floor, and no candidate term accounts for it" + where + "." + small
+                + caveat)
+    if unrepeated:
+        return (f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
+                f"noise floor, but their pattern does not come back in the other session (p = "
+                f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
+                "resolve, not a missing effect.")
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
             "their noise floor, as " + ("the sensor's noise model" if noise_model else
                                          "white noise within the holds") + " would leave; nothing is missing.")
+
+
+# What separates effects of each kind of input, for a protocol that cannot tell them apart.
+SEPARATES = {
+    "accel": "mounts that put gravity along each axis in both directions (the six-mount "
+             "protocol) separate orientation effects from the bias",
+    "rate": "holds at several speeds in both directions on every axis separate the even and "
+            "odd shapes of the rate",
+    "thermal": "two sweeps at different ramp rates separate the temperature's rate and lag "
+               "from the temperature itself",
+    "time": "revisiting the first temperature point at the end of the session separates "
+            "drift in time from temperature; another session (--other-session) tells a "
+            "drift that repeats from slow noise",
+}
+
+
+def _kinds(term: str) -> set[str]:
+    t = make_term(term)
+    inputs = set(t.inputs())
+    kinds = set()
+    if any(i.startswith("accel") for i in inputs):
+        kinds.add("accel")
+    if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
+        kinds.add("rate")
+    if inputs & {"temp_rate", "temp_lag"}:
+        kinds.add("thermal")
+    if "t" in inputs:
+        kinds.add("time")
+    return kinds
+
+
+def advice(best, partial, candidates, covariates, explains: bool, has_other: bool,
+           drift: dict | None = None) -> list[str]:
+    """What to do next, in sentences: what would separate effects this protocol confounds
+    (and that either one compensates what it sees), where an unexplained excess lives and
+    how to write the effect, and when another session would decide."""
+    out = []
+    if best is None and drift is not None and drift["explains"]:
+        out.append("Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
+                   "a bias drifting linearly within each point, and a term file can give it the "
+                   "shape of the drift (docs/effects.md, section 7)"
+                   + ("; visiting the first mount again at the end of a point separates a drift "
+                      f"from {drift['rival_of']}" if drift["rival_of"] else "") + ".")
+    if best is not None and best.tied_with:
+        kinds = set().union(*(_kinds(t) for t in (best.term, *best.tied_with)))
+        out.append(f"{best.term} and {', '.join(best.tied_with)} fit this session identically: "
+                   f"either compensates what this protocol sees (validation RMS "
+                   f"{best.validation_rms_with:.3g} deg/s). To tell them apart: "
+                   + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES) + ".")
+    if explains or best is not None:
+        return out
+    blocked = [c for c in candidates if c.status == "not identifiable"]
+    for c in blocked:
+        kinds = _kinds(c.term)
+        if kinds:
+            out.append(f"{c.term} cannot be fitted from this protocol ({c.reason}): "
+                       + "; ".join(SEPARATES[k] for k in sorted(kinds)) + ".")
+    for c in partial[:1]:
+        if c.leftover is not None:
+            out.append(f"With {c.term} the residuals still follow {c.leftover['covariate']} "
+                       f"(p = {c.leftover['p_value']:.2g}): the effect is likely another shape "
+                       "of that covariate; write it as a term (docs/effects.md).")
+    lead = covariates[0]["covariate"] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+    if lead is not None and lead.startswith("time") and not (drift and drift["explains"]):
+        out.append("The excess follows time: a warm-up or a drift. Write it as a term of t with "
+                   "a global coefficient (docs/effects.md, section 7, works one through); "
+                   + SEPARATES["time"] + ".")
+    if not has_other:
+        out.append("Diagnose with another session of the unit (--other-session) to judge the "
+                   "candidates by how they carry over to it, as a calibration will be used.")
+    return out
 
 
 def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:

@@ -151,6 +151,16 @@ def _diag(var: np.ndarray) -> np.ndarray:
     return out
 
 
+def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Each hold's error (n, 3) after ``cal``'s interpolated compensation, as
+    :func:`revalidate` scores it, and the hold's noise floor (n, 3), deg/s."""
+    data = columns_of(obs)
+    stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
+    interp, _, _ = _plans(cal, data["temp"])
+    errors, _, _ = _compensate(interp, stack("gyro"), stack("rate"), stack("std"), data)
+    return errors, observation_floor(data)
+
+
 def revalidate(previous_cal, observations, *, max_excess: float | None = None,
                alpha: float = 1e-3, span_margin: float = 1.0) -> dict:
     """Does the previous session's calibration still hold on the new session's holds?

@@ -167,6 +167,25 @@ def drift_devices(rows: list[dict]) -> list[str]:
     return sorted(d for d, n in counts.items() if n >= 2)
 
 
+def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
+    """For each unit session, another session of the same device and protocol whose
+    carry-over judges the diagnosis' candidates (:func:`gyrocal.diagnose.diagnose`): the
+    next in session order, the one before for the last. Turntable and sweep sessions only
+    (a servo's hand mount leaves the true rate unknown)."""
+    by_device: dict[tuple, list[tuple]] = {}
+    for row in rows:
+        if row["protocol"] in ("turntable", "sweep"):
+            key = (row["batch"], row["device"], row["session"])
+            by_device.setdefault((row["device"], row["protocol"]), []).append(key)
+    out = {}
+    for keys in by_device.values():
+        keys.sort(key=lambda k: (k[2], k[0]))
+        for i, key in enumerate(keys):
+            if len(keys) > 1:
+                out[key] = keys[i + 1] if i + 1 < len(keys) else keys[i - 1]
+    return out
+
+
 def json_safe(value):
     """Nested values with numpy scalars as Python numbers and inf/NaN as None."""
     if isinstance(value, dict):

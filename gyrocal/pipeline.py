@@ -92,11 +92,13 @@ def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: fl
 
 
 def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
-                           source: dict | None = None, label=None, noise: dict | None = None
+                           source: dict | None = None, label=None, noise: dict | None = None,
+                           fitted: GridFit | ContinuousFit | None = None
                            ) -> tuple[Calibration, GridFit | ContinuousFit | None]:
     """The calibration of one unit's observations. A servo session's is seed 001's own
     six-parameter fit (no common-model fit comes back: None). ``noise``, segmentation's noise
-    characterisation, is kept in the file (:func:`gyrocal.floor.noise_record`)."""
+    characterisation, is kept in the file (:func:`gyrocal.floor.noise_record`). ``fitted``, a
+    fit of ``settings.model`` to ``obs`` already made, is used rather than fitting again."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
     if meta.get("protocol") == "servo":
         from .protocols import servo_calibration
@@ -105,9 +107,10 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         if noise:
             cal.extra["noise"] = noise_record(noise)
         return cal, None
-    model = settings.model.build()
-    fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
-                       degree=settings.model.degree, source=label)
+    if fitted is None:
+        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
+                           method=settings.model.interpolation, degree=settings.model.degree,
+                           source=label)
     points = fitted.points
     model = fitted.model  # with any profiled setting at its fitted value
     # Apply derives the temperature rate over the window the fit's record used.

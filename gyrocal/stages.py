@@ -133,25 +133,38 @@ def validate_stage(folder, settings: Settings) -> None:
     tmp.replace(paths["validation"])
 
 
-def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None) -> str:
+def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
+                   other=None) -> str:
     """The diagnosis of the unit's observations (JSON) and its normalised residuals
-    (Parquet, heat maps in the metadata); returns the verdict."""
+    (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
+    folder of another session of the unit, judges the candidates by how they carry over."""
     from .diagnose import diagnose
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"])
     obs, _ = read_observations(paths)
-    diag = diagnose(settings, obs)
+    other_obs, other_note = None, {}
+    if other is not None:
+        # Another session only sharpens the judgement: one whose segmentation failed is
+        # noted in the diagnosis, which goes on without it.
+        try:
+            other_paths = unit_paths(other)
+            failure.check_inputs(other_paths["observations"])
+            other_obs, _ = read_observations(other_paths)
+        except GyrocalError as exc:
+            other_note = {"other_session_error": str(exc)}
+    diag = diagnose(settings, obs, other_obs)
     out = Path(output or paths["diagnosis"])
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(dumps({**diag.to_dict(), **meta}))
+    tmp.write_text(dumps({**diag.to_dict(), **other_note, **meta}))
     tmp.replace(out)
     if residuals is not False:
         write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
     return diag.verdict
 
 
-def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool) -> str | None:
+def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool,
+                  other=None) -> str | None:
     """Fit, validate and diagnose a segmented unit in one process: the workflow's
     ``analyse`` rule, one job where three would each start Python and cost Snakemake a
     job to plan. Each step runs as its own stage (:func:`run_stage`) with the outputs and
@@ -164,7 +177,7 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     steps = (("fit", ["calibration"], lambda: fit_stage(folder, settings, meta)),
              ("validate", ["validation", *VALIDATION_TABLES], lambda: validate_stage(folder, settings)),
              ("diagnose", list(DIAGNOSIS_FILES),
-              lambda: verdict.append(diagnose_stage(folder, settings, meta))))
+              lambda: verdict.append(diagnose_stage(folder, settings, meta, other=other))))
     for stage, outputs, work in steps:
         run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
     return verdict[0] if verdict else None

@@ -262,3 +262,24 @@ def test_end_of_line_verdicts_yield_and_drift_pages(fleet_run):
     assert "No parameter changed beyond its tolerance" in page
     index = (fleet_run / "reports" / "index.html").read_text()
     assert 'href="drift/A1.html"' in index and "End of line: yield per batch" in index
+
+
+def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
+    """The workflow hands each session of A1 the other's observations, and the diagnosis
+    it writes is the library's with both; A2, with one session, is diagnosed alone."""
+    from gyrocal.diagnose import diagnose
+    from gyrocal.stages import read_observations
+
+    def folder(key):
+        return fleet_run / "results" / key[0] / key[1] / key[2]
+
+    for this, other in ((GOOD[0], GOOD[1]), (GOOD[1], GOOD[0])):
+        written = json.loads((folder(this) / "diagnosis.json").read_text())
+        direct = diagnose(Settings(), read_observations(folder(this) / "observations.parquet")[0],
+                          read_observations(folder(other) / "observations.parquet")[0])
+        assert written["next_session"] is not None
+        for key in ("validation_rms", "excess", "repeat_p_value"):
+            assert written["next_session"][key] == pytest.approx(direct.next_session[key], rel=1e-12)
+        assert written["verdict"] == direct.verdict
+    alone = json.loads((folder(GOOD[2]) / "diagnosis.json").read_text())
+    assert alone["next_session"] is None

@@ -17,6 +17,7 @@
 rule analyse:
     input:
         obs="results/{batch}/{device}/{session}/observations.parquet",
+        other=other_observations,
         terms=TERM_FILES,
     output:
         cal="results/{batch}/{device}/{session}/calibration.json",
@@ -37,7 +38,8 @@ rule analyse:
     params:
         gyrocal=GYROCAL,
         args=stage_args(ANALYSIS, "analyse"),
+        other=other_session_option,
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} analyse $(dirname {input.obs:q}) {params.args} "
+        "{params.gyrocal} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
         "--record-failures > {log:q} 2>&1"

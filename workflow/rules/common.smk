@@ -7,7 +7,7 @@ import shlex
 import sys
 
 from gyrocal import __version__ as GYROCAL_VERSION
-from gyrocal.fleet import drift_devices
+from gyrocal.fleet import drift_devices, other_sessions
 from gyrocal.manifest import (
     BATCH_PATTERN,
     DEVICE_PATTERN,
@@ -42,6 +42,8 @@ UNITS = {
 }
 # Devices with two or more turntable sessions get a drift page.
 DRIFT_DEVICES = drift_devices(UNITS.values())
+# The diagnosis judges a unit's candidates on another session of the same device.
+OTHER_SESSION = other_sessions(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
 # A servo or sweep unit also gets its protocol's section (config `protocols:`).
 SEGMENTATION = {"segmentation": config["segmentation"]}
@@ -62,6 +64,23 @@ wildcard_constraints:
 
 def unit(wildcards):
     return UNITS[(wildcards.batch, wildcards.device, wildcards.session)]
+
+
+def other_observations(wildcards):
+    other = OTHER_SESSION.get((wildcards.batch, wildcards.device, wildcards.session))
+    return (
+        []
+        if other is None
+        else [f"results/{other[0]}/{other[1]}/{other[2]}/observations.parquet"]
+    )
+
+
+def other_session_option(wildcards, input):
+    return (
+        f"--other-session {shlex.quote(os.path.dirname(input.other[0]))}"
+        if input.other
+        else ""
+    )
 
 
 def log_input(wildcards):
