@@ -38,7 +38,7 @@ system-packages:
 	    echo "installing Debian's$$missing for the tests"; \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; \
 	  else \
-	    echo "$$missing: not installed and cannot be installed here; the tests that need them are skipped"; \
+	    echo "$$missing: not installed and cannot be installed here; the tests that need them are skipped (CI fails them)"; \
 	  fi; \
 	fi
 

@@ -1,7 +1,9 @@
 # gyrocal fleet workflow: per unit and session, segment -> analyse (fit, validate,
 # diagnose) -> report, then the fleet summary. Logic lives in the gyrocal package; rules
 # only wire files.
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
+
+from gyrocal.schema import check
 
 min_version("9.0")
 
@@ -9,7 +11,11 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
-validate(config, "config/schemas/config.schema.yaml")
+# Checked against gyrocal/schemas/config.schema.yaml and completed with its defaults, as
+# the command line checks the settings it reads: the same bounds, defaults and messages.
+config.update(
+    check(config, source=" + ".join(map(str, workflow.configfiles)) or "--config")
+)
 
 
 report: "workflow/report/workflow.rst"

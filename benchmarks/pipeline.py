@@ -37,7 +37,7 @@ def child(mode: str) -> None:
 
     from gyrocal.config import Settings
     from gyrocal.pipeline import run
-    from gyrocal.segment import LOG_COLUMNS
+    from gyrocal.turntable.segment import LOG_COLUMNS
     from gyrocal.io import REQUIRED
     columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in pq.read_schema(LOG).names]
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -48,7 +48,7 @@ def child(mode: str) -> None:
         nbytes = table.nbytes
     elif mode == "chain":
         from gyrocal.io import read_log
-        from gyrocal.segment import segment
+        from gyrocal.turntable.segment import segment
         from gyrocal.thermal import fit_grid
         from gyrocal.validate import validate
         settings = Settings()

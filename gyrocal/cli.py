@@ -7,7 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import __version__
+from . import __version__, protocols
 from .errors import ConfigError, GyrocalError
 from .export import add_export_parser
 from .lookup import add_lookup_parser
@@ -38,12 +38,12 @@ def _settings(args):
         settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
             k: v for k, v in values.items() if k not in base})
     # A servo or sweep log is fitted with its protocol's model; --model and --add-term
-    # then change that model. A servo calibration is seed 001's six parameters, whatever
-    # the model: there they only change what the diagnosis reads.
+    # then change that model. A protocol with a calibration of its own (the servo's, seed
+    # 001's six parameters) ignores the model: there they only change what the diagnosis reads.
     protocol = getattr(args, "protocol", None)
-    if protocol == "servo" and args.command in ("calibrate", "fit") and (
+    if args.command in ("calibrate", "fit") and protocols.get(protocol).calibrate is not None and (
             getattr(args, "model", None) or getattr(args, "add_term", None)):
-        raise ConfigError("a servo calibration is seed 001's six-parameter model; --model and "
+        raise ConfigError(f"a {protocol} calibration is the protocol's own model; --model and "
                           "--add-term change the model the diagnosis reads: use them with "
                           "gyrocal diagnose")
     settings = settings.for_protocol(protocol)
@@ -89,54 +89,23 @@ def _meta(args) -> dict:
 def cmd_simulate(args) -> int:
     from dataclasses import replace
 
-    from .simulate import GyroUnit, SweepProtocol, SweepUnit, TurntableProtocol, simulate, simulate_unit
+    from .simulate import published_unit, rig_for, simulate, simulate_unit
     from .simulate.fleet import unit_for
     if (args.out is None) == (args.log is None):
         raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
-    if args.protocol == "sweep":
-        base = SweepProtocol.demo() if args.preset == "quick" else SweepProtocol.seed003()
-        turntable_only = [f"--{k.replace('_', '-')}" for k in (
-            "temperatures", "rates", "mounts", "hold_s", "handling_s", "no_accel")
-            if getattr(args, k)]
-        if turntable_only:
-            raise ConfigError(f"{', '.join(turntable_only)} belong to the turntable protocol, "
-                              "not to sweep")
-        knobs = {k: v for k, v in dict(sample_rate=args.sample_rate, soak_s=args.soak_s).items()
-                 if v is not None}
-    elif args.protocol == "servo":
-        from .simulate import ServoProtocol
-        # quick: three revolutions per rotation, so each can be validated on the others
-        base = ServoProtocol(revolutions=3) if args.preset == "quick" else ServoProtocol()
-        turntable_only = [f"--{k.replace('_', '-')}" for k in (
-            "temperatures", "rates", "mounts", "hold_s", "handling_s", "soak_s", "no_accel")
-            if getattr(args, k)]
-        if turntable_only:
-            raise ConfigError(f"{', '.join(turntable_only)} belong to the turntable protocol, "
-                              "not to servo")
-        knobs = {k: v for k, v in dict(sample_rate=args.sample_rate).items() if v is not None}
-    elif args.protocol == "turntable":
-        base = TurntableProtocol.quick() if args.preset == "quick" else TurntableProtocol()
-        knobs = {k: v for k, v in dict(
-            temperatures=args.temperatures, rates=args.rates, mounts=args.mounts,
-            sample_rate=args.sample_rate, soak_s=args.soak_s, hold_s=args.hold_s,
-            handling_s=args.handling_s).items() if v is not None}
-        if args.no_accel:
-            knobs["accel_columns"] = False
-    else:
-        raise ConfigError(f"protocol {args.protocol!r} cannot be simulated by this version "
-                          "of gyrocal (supported: turntable, servo, sweep)")
-    if args.no_mount_column:
-        knobs["mount_column"] = False
-    rig = replace(base, **knobs)
-    if args.protocol == "servo" and args.unit == "seed000":
-        raise ConfigError("--unit seed000 has no servo counterpart; the servo paper's units "
-                          "are drawn at random (seed 001 Section III)")
+    options = {"temperatures": "--temperatures", "rates": "--rates", "mounts": "--mounts",
+               "sample_rate": "--sample-rate", "soak_s": "--soak-s", "hold_s": "--hold-s",
+               "handling_s": "--handling-s", "accel_columns": "--no-accel",
+               "mount_column": "--no-mount-column"}
+    knobs = {k: getattr(args, k) for k in options if k in vars(args)}
+    knobs.update(accel_columns=False if args.no_accel else None,
+                 mount_column=False if args.no_mount_column else None)
+    rig = rig_for(args.protocol, args.preset, knobs, options)
+    published = published_unit(args.protocol) if args.unit == "seed000" else None
     effects = _json_object(args.effects, "--effects")
     noise = None
     if args.noise is not None:
         noise = _json_object(args.noise, "--noise") if args.noise.lstrip().startswith("{") else args.noise
-    if args.bias_shift is not None and args.protocol != "turntable":
-        raise ConfigError("--bias-shift applies to turntable units")
     if args.bias_shift is not None and len(args.bias_shift) != 3:
         raise ConfigError(f"--bias-shift takes three numbers (deg/s, x,y,z), got {len(args.bias_shift)}")
 
@@ -156,6 +125,9 @@ def cmd_simulate(args) -> int:
         device = args.device or "U001"
         unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000",
                               protocol=args.protocol)
+        if args.bias_shift is not None and not hasattr(unit, "bias_poly"):
+            raise ConfigError(f"--bias-shift applies to units with a bias polynomial, not to a "
+                              f"{args.protocol} unit")
         unit = shifted(unit)
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
         simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
@@ -163,12 +135,10 @@ def cmd_simulate(args) -> int:
                       session=args.session, seed=seed, effects=effects, noise=noise)
         print(f"wrote {args.log}")
         return 0
-    seed_unit = SweepUnit.seed003 if args.protocol == "sweep" else GyroUnit.seed000
-    unit = seed_unit() if args.unit == "seed000" else None
     if args.bias_shift is not None:
         raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
     manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
-                        rig=rig, unit=unit, batch=args.batch, session=args.session,
+                        rig=rig, unit=published, batch=args.batch, session=args.session,
                         device_prefix=args.device_prefix, effects=effects, noise=noise)
     print(f"wrote {args.units} log(s) and manifest {manifest}")
     return 0
@@ -180,7 +150,8 @@ def _stage(args, stage: str, outputs, work) -> int:
 
 
 def cmd_segment(args) -> int:
-    from .stages import UNIT_FILES, segment_stage
+    from .stages import segment_stage
+    from .unit_folder import UNIT_FILES
     settings = _settings(args)
     out = Path(args.out)
     files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
@@ -219,14 +190,16 @@ def cmd_noise(args) -> int:
 
 
 def cmd_fit(args) -> int:
-    from .stages import UNIT_FILES, fit_stage
+    from .stages import fit_stage
+    from .unit_folder import UNIT_FILES
     settings = _settings(args)
     return _stage(args, "fit", [Path(args.unit) / UNIT_FILES["calibration"]],
                   lambda: fit_stage(args.unit, settings, _meta(args)))
 
 
 def cmd_validate(args) -> int:
-    from .stages import UNIT_FILES, VALIDATION_TABLES, validate_stage
+    from .stages import validate_stage
+    from .unit_folder import UNIT_FILES, VALIDATION_TABLES
     settings = _settings(args)
     files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
     return _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
@@ -265,7 +238,7 @@ def cmd_fleet(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from .calibration import save_calibration
-    from .io import write_table
+    from .tables import write_table
     from .pipeline import run
     settings = _settings(args)
     result = run(args.log, settings, protocol=args.protocol, device=args.device,
@@ -285,11 +258,15 @@ def cmd_calibrate(args) -> int:
     if args.report:
         import shlex
 
-        from .diagnose import diagnose
+        from . import protocols
+        from .diagnose import diagnose, evaluation_of
         from .report import UnitResults, write_unit_report
-        diag = diagnose(settings, result.segmentation.observations)
-        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag),
-                          args.report)
+        obs = result.segmentation.observations
+        base = None if result.fitted is None else evaluation_of(
+            settings, result.fitted, result.validation.summary, "configured model")
+        diag = diagnose(settings, obs, base=base)
+        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag,
+                                               protocols.analysis(args.protocol, obs)), args.report)
     s = result.validation.summary
     print(f"calibration -> {args.output}")
     print(f"  {result.segmentation.info['holds_accepted']} holds, "
@@ -316,7 +293,7 @@ def cmd_calibrate(args) -> int:
 def cmd_diagnose(args) -> int:
     import tempfile
 
-    from .pipeline import check_protocol
+    from .protocols import check as check_protocol
     from .stages import diagnose_stage, run_stage, segment_stage
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
@@ -381,7 +358,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 parser_class=OneLineParser)
 
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
-    p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])
+    p.add_argument("--protocol", default=protocols.DEFAULT, choices=protocols.names())
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--out", help="folder for N units' logs, truth JSON and devices.tsv")
     where.add_argument("--log", help="one log of the unit --device at session --session")
@@ -428,7 +405,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--device")
         q.add_argument("--batch")
         q.add_argument("--session")
-        q.add_argument("--protocol", default="turntable")
+        q.add_argument("--protocol", default=protocols.DEFAULT)
         if failures:
             q.add_argument("--record-failures", action="store_true",
                            help="on failure write failure records and exit 0 (fleet runs)")
@@ -466,7 +443,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "static stretches")
     p.add_argument("log")
     p.add_argument("-o", "--output", help="the whole characterisation as JSON")
-    p.add_argument("--protocol", default="turntable", choices=["turntable", "servo", "sweep"])
+    p.add_argument("--protocol", default=protocols.DEFAULT, choices=protocols.names())
     common(p, model=False)
     p.set_defaults(func=cmd_noise)
 

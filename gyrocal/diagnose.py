@@ -151,14 +151,20 @@ class Diagnosis:
 
 
 def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Evaluation:
-    model = settings.model.build()
+    """``settings.model`` fitted to ``obs`` and validated leaving temperature points out."""
     m = settings.model
-    fitted = fit_model(model, obs, kind=m.kind, method=m.interpolation, degree=m.degree)
-    model = fitted.model
-    summary = validate(model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    summary = validate(fitted.model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    return evaluation_of(settings, fitted, summary, name)
+
+
+def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model") -> Evaluation:
+    """A fit of ``settings.model`` and its validation summary, made elsewhere (the analyse
+    job's fit and validate stages), as the diagnosis reads them."""
     chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
     dof = sum(sum(f.dof.values()) for f in fitted.fits)
-    return Evaluation(name, [t.spec_string() for t in model.terms], m.kind, fitted, summary, chi2, dof)
+    return Evaluation(name, [t.spec_string() for t in fitted.model.terms], settings.model.kind,
+                      fitted, summary, chi2, dof)
 
 
 def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
@@ -336,14 +342,18 @@ def _same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     return len(pairs) == len(np.unique(a)) == len(np.unique(b))
 
 
-def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None = None) -> Diagnosis:
+def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None = None, *,
+             base: Evaluation | None = None) -> Diagnosis:
     """Diagnose ``settings.model`` on the observations; see the module docstring.
 
     ``other``, the observations of another session of the same unit, is what the user's
     calibration will meet: each model is then also judged by how it carries over to it
-    (:func:`carry_over`), and an excess whose pattern does not repeat there is noise."""
+    (:func:`carry_over`), and an excess whose pattern does not repeat there is noise.
+    ``base``, the configured model already fitted and validated on ``obs``
+    (:func:`evaluation_of`), is used rather than fitting again."""
     alpha = settings.diagnosis.significance
-    base = evaluate(settings, obs, "configured model")
+    if base is None:
+        base = evaluate(settings, obs, "configured model")
     data = columns_of(obs)
     n = len(obs)
     resid, floor, fitted_rows = in_sample(base.fitted, n)
@@ -592,7 +602,7 @@ def carry_over(settings: Settings, ev: Evaluation, obs: pd.DataFrame, other: pd.
     (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
     from .drift import hold_errors, revalidate
     from .pipeline import calibrate_observations
-    cal, _ = calibrate_observations(obs, settings, meta={"protocol": "diagnosis"}, fitted=ev.fitted)
+    cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted)
     r = revalidate(cal, other)
     errors, floor1 = hold_errors(cal, other)
     resid, floor0, rows = in_sample(ev.fitted, len(obs))

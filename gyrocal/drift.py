@@ -9,7 +9,7 @@ old calibration still holds on new data.
   output axis, against the noise floor).
 * :func:`plot_drift` — parameters versus session date with error bars.
 
-Parameters and their units are those of :func:`gyrocal.eol.parameters_at` (scale in ppm,
+Parameters and their units are those of :func:`gyrocal.parameters.parameters_at` (scale in ppm,
 misalignment in mrad, bias in deg/s).
 """
 
@@ -23,9 +23,10 @@ import pandas as pd
 from scipy.stats import chi2
 
 from .calibration import Calibration, load_calibration
-from .eol import _number, _write, check_patterns, match_pattern, parameters_at
 from .errors import ConfigError, InputError
+from .limits import check_patterns, finite_number, match_pattern
 from .model import columns_of, observation_floor
+from .parameters import parameters_at
 from .terms import AXES
 from .validate import METHODS, _compensate, _Plan, _pooled_rms, _table, reference_point
 
@@ -67,10 +68,10 @@ def parameter_changes(calibrations, *, temperature: float | None = None,
     missing = [i for i, c in enumerate(cals) if not c.meta.get("session")]
     if missing:
         raise InputError(f"drift audit: calibration {missing[0] + 1} of device {devices[0]} has no session date")
-    z_limit = _number(z_limit, "z_limit", positive=True)
+    z_limit = finite_number(z_limit, "z_limit", positive=True)
     tolerance = dict(tolerance or {})
     check_patterns(tolerance, "drift tolerance")
-    tol_of = {p: _number(v, f"drift tolerance {p}") for p, v in tolerance.items()}
+    tol_of = {p: finite_number(v, f"drift tolerance {p}") for p, v in tolerance.items()}
     if any(v < 0 for v in tol_of.values()):
         bad = next(p for p, v in tol_of.items() if v < 0)
         raise ConfigError(f"drift tolerance {bad} must be at least 0, got {tol_of[bad]!r}")
@@ -189,18 +190,19 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     cal = _load(previous_cal)
     if not isinstance(observations, pd.DataFrame):
         from .failure import check_inputs
-        from .stages import read_observations
+        from .unit_folder import read_observations
         check_inputs(observations)
         observations, _ = read_observations(observations)
-    if cal.meta.get("protocol") == "servo" or "revolution" in observations.columns:
+    from . import protocols
+    if not protocols.get(cal.meta.get("protocol")).known_rate or "revolution" in observations.columns:
         raise InputError("revalidation needs holds with a known true rate (turntable or sweep "
                          "sessions); a servo session's hand mount leaves the rate's direction unknown")
     obs = observations.reset_index(drop=True)
     if obs.empty:
         raise InputError("revalidation: the new session has no holds")
     if max_excess is not None:
-        max_excess = _number(max_excess, "max_excess", positive=True)
-    alpha = _number(alpha, "alpha", positive=True)
+        max_excess = finite_number(max_excess, "max_excess", positive=True)
+    alpha = finite_number(alpha, "alpha", positive=True)
     if alpha >= 1:
         raise ConfigError(f"alpha must be below 1, got {alpha!r}")
     data = columns_of(obs)
@@ -212,7 +214,7 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     errors = {"uncompensated": (w - rate, sd ** 2, zero),
               "single": _compensate(single, w, rate, sd, data),
               "interpolated": _compensate(interp, w, rate, sd, data)}
-    span_margin = _number(span_margin, "span_margin")
+    span_margin = finite_number(span_margin, "span_margin")
     lo, hi = cal.grid.span
     beyond = np.maximum(lo - data["temp"], data["temp"] - hi)
     clamped = beyond > max(span_margin, 0.0)
@@ -268,10 +270,9 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
     """Each parameter of :func:`parameter_changes` against session date with 1-σ error
     bars; flagged sessions ringed in red, the first session's value ± tolerance shaded.
     Deterministic SVG; written to ``path_or_none`` when given."""
-    from matplotlib import rc_context
     from matplotlib.dates import AutoDateLocator, ConciseDateFormatter
 
-    from .plots import _RC, figure, to_svg
+    from .plots import figure, figure_style, to_svg, write_svg
     if changes.empty:
         raise InputError("drift plot: no parameter changes to plot")
     params = list(dict.fromkeys(changes["parameter"]))
@@ -279,7 +280,7 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
     use_dates = not dates.isna().any()
     cols = min(3, len(params))
     rows = math.ceil(len(params) / cols)
-    with rc_context(_RC):
+    with figure_style():
         fig, axes = figure(10, 2.2 * rows + 0.4, rows, cols)
         for k, axis in enumerate(axes.ravel()):
             if k >= len(params):
@@ -308,4 +309,4 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
                 axis.xaxis.set_major_formatter(ConciseDateFormatter(locator))
                 axis.tick_params(axis="x", labelsize=7)
         fig.supxlabel("session", fontsize=9)
-        return _write(to_svg(fig), path_or_none)
+        return write_svg(to_svg(fig), path_or_none)

@@ -51,13 +51,13 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import jinja2
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from . import __version__
 from .calibration import Calibration, dumps, load_calibration
 from .errors import ConfigError, InputError
+from .pages import ENV
 
 FORMAT = "gyrocal.firmware/1"
 FORMATS = {"c-header": ".h", "json": ".json"}
@@ -251,11 +251,11 @@ def c_comment(value) -> str:
     return text.replace("*/", "* /").replace("/*", "/ *")
 
 
-_ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"), autoescape=False,
-                          undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
-                          trim_blocks=True, lstrip_blocks=True)
-_ENV.filters.update(c_number=c_number, c_array=lambda v: c_array(np.asarray(v).tolist()),
-                    c_string=c_string, c_comment=c_comment)
+# The pages' environment, for C: nothing HTML-escaped (strings are made safe for C by the
+# filters below), and block tags on lines of their own leave no blank lines.
+_ENV = ENV.overlay(autoescape=False, trim_blocks=True, lstrip_blocks=True)
+_ENV.filters = {**ENV.filters, "c_number": c_number, "c_array": lambda v: c_array(np.asarray(v).tolist()),
+                "c_string": c_string, "c_comment": c_comment}
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:

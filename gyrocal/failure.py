@@ -15,11 +15,11 @@ import json
 import os
 from pathlib import Path
 
-import jinja2
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from .errors import CorruptFileError, GyrocalError
+from .pages import render_page
 
 FORMAT = "gyrocal.failure/1"
 META_KEY = b"gyrocal.failure"
@@ -72,16 +72,6 @@ def check_inputs(*paths) -> None:
             raise UpstreamFailure(found)
 
 
-_PAGE = jinja2.Template("""<!DOCTYPE html>
-<html lang="en"><head><meta charset="utf-8"><title>gyrocal · {{ r.device }} · failed</title>
-<style>body{font:14px/1.4 system-ui,sans-serif;margin:2em auto;max-width:60em}
-.failed{padding:.8em;background:#fdecea;border-left:4px solid #b00}</style></head>
-<body><h1>{{ r.device }} · {{ r.session }}</h1>
-<p class="failed">No calibration: the <b>{{ r.stage }}</b> stage failed.<br>
-<code>{{ r.error }}</code></p></body></html>
-""", autoescape=True)
-
-
 def write(outputs, rec: dict) -> None:
     """Write ``rec`` into every output path, in the form its suffix calls for."""
     for out in outputs:
@@ -92,7 +82,7 @@ def write(outputs, rec: dict) -> None:
             table = pa.table({"failed": pa.array([], type=pa.bool_())})
             pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(rec).encode()}), tmp)
         elif out.suffix == ".html":
-            tmp.write_text(_PAGE.render(r=rec))
+            tmp.write_text(render_page("failure.html.j2", r=rec))
         else:
             tmp.write_text(json.dumps(rec, indent=2) + "\n")
         os.replace(tmp, out)

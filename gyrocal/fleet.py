@@ -2,13 +2,14 @@
 against the batch, and drift audits of devices calibrated more than once.
 
 The settings come from the workflow config's ``spec``, ``outliers`` and ``drift`` sections
-(:class:`FleetSettings`); the numbers from :mod:`gyrocal.eol` and :mod:`gyrocal.drift`. The
-output is JSON-plain, written to the fleet's ``eol.json`` for production systems and
-rendered in the fleet summary and one drift page per audited device.
+(:class:`FleetSettings`); the numbers from :mod:`gyrocal.eol`, :mod:`gyrocal.outliers` and
+:mod:`gyrocal.drift`. The output is JSON-plain, written to the fleet's ``eol.json`` for
+production systems and rendered in the fleet summary and one drift page per audited device.
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -16,44 +17,36 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from . import failure, protocols, schema
 from .errors import ConfigError, GyrocalError
+from .terms import AXES
 
-PROTOCOLS = ("turntable", "servo", "sweep")
 
 
 @dataclass(frozen=True)
 class FleetSettings:
     spec: dict = field(default_factory=dict)          # protocol -> SpecLimits
-    outlier_threshold: float = 3.5
+    outlier_threshold: float = schema.defaults("config", "outliers")["threshold"]
     drift_tolerance: dict = field(default_factory=dict)
     drift_temperature: float | None = None
     drift_max_excess: float | None = None
 
     @classmethod
     def from_dict(cls, values: dict | None) -> FleetSettings:
-        from .eol import SpecLimits
+        from .limits import SpecLimits
         values = dict(values or {})
         spec = values.get("spec") or {}
         if not isinstance(spec, dict):
             raise ConfigError("spec must map protocols to limits")
         limits = {}
         for protocol, section in spec.items():
-            if protocol not in PROTOCOLS:
-                raise ConfigError(f"unknown protocol spec.{protocol}; known: {', '.join(PROTOCOLS)}")
+            if protocol not in protocols.names():
+                raise ConfigError(f"unknown protocol spec.{protocol}; known: {', '.join(protocols.names())}")
             limits[protocol] = SpecLimits.from_dict(section, key=f"spec.{protocol}")
-        outliers = values.get("outliers") or {}
-        threshold = outliers.get("threshold", 3.5) if isinstance(outliers, dict) else None
-        if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) \
-                or not math.isfinite(threshold) or threshold <= 0:
-            raise ConfigError(f"outliers.threshold must be a positive number, got {threshold!r}")
-        drift = values.get("drift") or {}
-        if not isinstance(drift, dict) or set(drift) - {"tolerance", "temperature", "max_excess"}:
-            raise ConfigError("drift takes tolerance, temperature and max_excess")
-        tolerance = drift.get("tolerance") or {}
-        if not isinstance(tolerance, dict):
-            raise ConfigError("drift.tolerance must map parameter patterns to changes")
-        return cls(limits, float(threshold), dict(tolerance), drift.get("temperature"),
-                   drift.get("max_excess"))
+        outliers = schema.check(values.get("outliers") or {}, "config", "outliers")
+        drift = schema.check(values.get("drift") or {}, "config", "drift")
+        return cls(limits, float(outliers["threshold"]), dict(drift.get("tolerance", {})),
+                   drift.get("temperature"), drift.get("max_excess"))
 
 
 def _finite(value):
@@ -85,9 +78,12 @@ def end_of_line(units: list[dict], settings: FleetSettings) -> dict:
 
 
 def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict], list[str], str]:
-    """Turntable units against their batch: (flagged rows, notes, distributions figure)."""
-    from .eol import fleet_outliers, parameter_table, plot_parameter_distributions
-    rows = [u for u in calibrated if u["protocol"] == "turntable"]
+    """Units of a protocol with fleet audits (the turntable) against their batch: (flagged
+    rows, notes, distributions figure)."""
+    from .outliers import fleet_outliers
+    from .parameters import parameter_table
+    from .plots import plot_parameter_distributions
+    rows = [u for u in calibrated if protocols.get(u["protocol"]).fleet_audits]
     if not rows:
         return [], [], ""
     table = parameter_table([u["calibration"] for u in rows])
@@ -98,13 +94,13 @@ def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict
 
 
 def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings) -> list[dict]:
-    """Devices with two or more turntable sessions: parameter changes with their
-    significance, and the previous session's calibration re-validated on the newest
-    session's holds."""
+    """Devices with two or more sessions of a protocol with fleet audits (the turntable):
+    parameter changes with their significance, and the previous session's calibration
+    re-validated on the newest session's holds."""
     from .drift import parameter_changes, plot_drift, revalidate
     by_device: dict[str, list[dict]] = {}
     for unit in calibrated:
-        if unit["protocol"] == "turntable":
+        if protocols.get(unit["protocol"]).fleet_audits:
             by_device.setdefault(unit["device"], []).append(unit)
     audits = []
     for device, sessions in sorted(by_device.items()):
@@ -143,6 +139,121 @@ def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings) ->
             "drift": drift_audits(calibrated, folders, settings)}
 
 
+def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict:
+    """What the fleet page shows, read from every unit's folder (``units``: each with its
+    manifest ``row``, results ``folder`` and ``report`` link): a row per unit session,
+    calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
+    (end of line, outliers, drift; each unit's verdict also in its row) and the servo
+    versus turntable comparisons."""
+    from .calibration import load_calibration
+    from .unit_folder import unit_paths
+    rows = []
+    for unit in units:
+        row = dict(unit["row"])
+        p = unit_paths(unit["folder"])
+        row["report"] = unit["report"]
+        records = (failure.read(p[k]) for k in ("validation", "calibration", "observations"))
+        rec = next((r for r in records if r is not None), None)
+        if rec is not None:
+            row.update(status="failed", stage=rec["stage"], error=rec["error"],
+                       internal=rec.get("internal", False))
+        elif not p["validation"].exists() or not p["calibration"].exists():
+            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
+                       "did not run to the end (see the workflow's logs)", internal=True)
+        else:
+            cal = load_calibration(p["calibration"])
+            summary = json.loads(p["validation"].read_text())["summary"]
+            at_ref = cal.coefficients([cal.reference_temperature], warn=False)
+            row["calibration"] = cal
+            session_noise = (cal.extra.get("noise") or {}).get("session")
+            row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
+                if session_noise else None
+            row.update(status="ok", span=cal.grid.span, summary=summary,
+                       reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
+                       params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
+        rows.append(row)
+    ok = [r for r in rows if r["status"] == "ok"]
+    fleet = None
+    if settings is not None:
+        fleet = audit(units, ok, settings)
+        for row in rows:
+            verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
+            if verdict is not None:
+                row["eol"] = {"passed": verdict.passed, "reasons": list(verdict.reasons)}
+    return {"rows": rows, "ok": ok, "fleet": fleet, "servo_vs_turntable": servo_versus_turntable(ok)}
+
+
+# (coefficient, column heading, factor to the unit shown, significant digits)
+KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm", 1e6, 4),
+                  ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
+                  ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
+                  ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
+
+
+def _missing_effect(path) -> str:
+    """The diagnosis in a few words, for the fleet table."""
+    if not Path(path).exists():
+        return "–"
+    rec = failure.read(path)
+    if rec is not None:
+        return f"diagnosis failed: {rec['error']}"
+    diag = failure.load_json(path)
+    if diag.get("best"):
+        return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
+    return "nothing" if diag.get("explains_the_data") else "unexplained excess"
+
+
+def _largest_axis(terms: dict, name: str) -> tuple[float, float]:
+    """(value, standard error) of a noise term on the axis where it is largest."""
+    values = np.atleast_1d(terms[name])
+    i = int(np.argmax(values))
+    return float(values[i]), float(np.atleast_1d(terms[f"{name}_stderr"])[i])
+
+
+def servo_versus_turntable(rows: list[dict]) -> list[dict]:
+    """Units calibrated both on the servo and on the turntable: scale factor (K[a,a] − 1) and
+    bias of each calibration at the servo session's temperature, their difference and its
+    size in combined standard errors (seed 001 Tables II–III compare the two methods so).
+    The turntable session nearest in date stands for the unit; its standard errors count
+    where it is a temperature grid (a continuous model's K and B combine several terms)."""
+    by_device: dict[str, dict[str, list]] = {}
+    for row in rows:
+        by_device.setdefault(row["device"], {}).setdefault(row["protocol"], []).append(row)
+    out = []
+    for device, sessions in sorted(by_device.items()):
+        for servo in sessions.get("servo", []):
+            tables = sessions.get("turntable", [])
+            if not tables:
+                continue
+            table = min(tables, key=lambda r: abs(np.datetime64(r["session"] or "1970-01-01")
+                                                  - np.datetime64(servo["session"] or "1970-01-01")))
+            s_cal, t_cal = servo["calibration"], table["calibration"]
+            temp = np.array([s_cal.grid.temperatures[0]])
+            s_err = s_cal.grid.stderr_at(temp)
+            t_err = t_cal.grid.stderr_at(temp) if t_cal.kind == "temperature_grid" else {}
+            (s_K,), (s_B,) = s_cal.matrices_at(temp)
+            (t_K,), (t_B,) = t_cal.matrices_at(temp)
+            params = []
+            for i, a in enumerate(AXES):
+                for name, label, factor, s_val, t_val in (
+                        (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
+                        (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i])):
+                    diff = float(s_val - t_val)
+                    se = float(np.hypot(s_err[name][0], t_err[name][0])) if name in t_err else None
+                    params.append({"parameter": label, "servo": float(s_val) * factor,
+                                   "servo_se": float(s_err[name][0]) * factor,
+                                   "turntable": float(t_val) * factor,
+                                   "turntable_se": None if se is None else float(t_err[name][0]) * factor,
+                                   "difference": diff * factor,
+                                   "sigmas": diff / se if se else None})
+            params.sort(key=lambda p: not p["parameter"].startswith("scale"))
+            out.append({"device": device, "servo_session": servo["session"],
+                        "turntable_session": table["session"], "temperature": float(temp[0]),
+                        "servo_report": servo["report"], "turntable_report": table["report"],
+                        "rows": params})
+    return out
+
+
 def eol_document(result: dict, settings: FleetSettings) -> dict:
     """The machine-readable end-of-line record: every judged unit and the batch yields."""
     verdicts = [{**v.to_dict(), "batch": key[0], "device": key[1], "session": key[2]}
@@ -159,10 +270,11 @@ def drift_page_name(device: str) -> str:
 
 
 def drift_devices(rows: list[dict]) -> list[str]:
-    """Devices the manifest lists with two or more turntable sessions (their drift pages)."""
+    """Devices the manifest lists with two or more sessions of a protocol with fleet audits
+    (the turntable): their drift pages."""
     counts: dict[str, int] = {}
     for row in rows:
-        if row["protocol"] == "turntable":
+        if protocols.get(row["protocol"]).fleet_audits:
             counts[row["device"]] = counts.get(row["device"], 0) + 1
     return sorted(d for d, n in counts.items() if n >= 2)
 
@@ -170,11 +282,11 @@ def drift_devices(rows: list[dict]) -> list[str]:
 def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
     """For each unit session, another session of the same device and protocol whose
     carry-over judges the diagnosis' candidates (:func:`gyrocal.diagnose.diagnose`): the
-    next in session order, the one before for the last. Turntable and sweep sessions only
-    (a servo's hand mount leaves the true rate unknown)."""
+    next in session order, the one before for the last. Sessions of protocols whose
+    observations carry the true rate only (not a servo's hand mount)."""
     by_device: dict[tuple, list[tuple]] = {}
     for row in rows:
-        if row["protocol"] in ("turntable", "sweep"):
+        if protocols.get(row["protocol"]).known_rate:
             key = (row["batch"], row["device"], row["session"])
             by_device.setdefault((row["device"], row["protocol"]), []).append(key)
     out = {}

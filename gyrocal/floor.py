@@ -51,7 +51,7 @@ FALLBACK = "within-hold scatter"
 STATIC = "noise model of the static stretches"
 
 
-def _merge(start: np.ndarray, end: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
+def merge_intervals(start: np.ndarray, end: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
     """Union of intervals, joining those less than ``gap`` apart."""
     if start.size == 0:
         return start, end
@@ -62,7 +62,7 @@ def _merge(start: np.ndarray, end: np.ndarray, gap: float) -> tuple[np.ndarray, 
     return start[new], np.maximum.reduceat(end, np.flatnonzero(new))[: group[-1] + 1]
 
 
-def _intersect(a0, a1, b0, b1) -> tuple[np.ndarray, np.ndarray]:
+def intersect_intervals(a0, a1, b0, b1) -> tuple[np.ndarray, np.ndarray]:
     """Pairwise intersection of two sorted sets of disjoint intervals."""
     lo = np.maximum(a0[:, None], b0[None, :])
     hi = np.minimum(a1[:, None], b1[None, :])
@@ -70,7 +70,7 @@ def _intersect(a0, a1, b0, b1) -> tuple[np.ndarray, np.ndarray]:
     return lo[keep], hi[keep]
 
 
-def _quiet_runs(t: np.ndarray, gyro: np.ndarray, still: np.ndarray, rate: float):
+def quiet_runs(t: np.ndarray, gyro: np.ndarray, still: np.ndarray, rate: float):
     """Runs of whole blocks where the reference is still and the gyro scatters no more than
     QUIET_FACTOR × the median still block (a hand moving the unit scatters far more); one block
     either side of such a block is dropped as settling."""
@@ -91,33 +91,11 @@ def _quiet_runs(t: np.ndarray, gyro: np.ndarray, still: np.ndarray, rate: float)
 
 
 def static_stretches(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> pd.DataFrame:
-    """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature.
-
-    turntable: the soaks and rate-0 holds segmentation found (motion already rejected), inside
-    its stable-temperature periods; sweep: runs of adjacent windows whose temperature rate is
-    under ``max_temp_rate`` °C/min (the soak before the first ramp, the dwells at the targets);
-    servo: the pauses between rotations (reference rate 0), in quiet blocks only, since the
-    unit is turned by hand between rotations.
-    """
-    if protocol == "turntable":
-        s = seg.segments
-        pick = (s["kind"] == "soak") | ((s["kind"] == "hold") & (s["ref_rate"] == 0))
-        t0, t1 = _merge(s.loc[pick, "t_start"].to_numpy(float), s.loc[pick, "t_end"].to_numpy(float),
-                        MERGE_GAP_S)
-        st = seg.stable_periods
-        t0, t1 = _intersect(t0, t1, st["t_start"].to_numpy(float), st["t_end"].to_numpy(float))
-    elif protocol == "sweep":
-        obs = seg.observations
-        steady = np.abs(obs["temp_rate"].to_numpy(float)) <= max_temp_rate
-        rate = float(seg.info.get("sample_rate", 1.0))
-        t0, t1 = _merge(obs.loc[steady, "t_start"].to_numpy(float), obs.loc[steady, "t_end"].to_numpy(float),
-                        2.0 / rate)
-    elif protocol == "servo":
-        t = log.column("t")
-        gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
-        t0, t1 = _quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
-    else:
-        raise InputError(f"no static stretches are defined for protocol {protocol!r}")
+    """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature,
+    as the protocol finds them (:attr:`gyrocal.protocols.Protocol.static`), at least
+    ``MIN_STATIC_S`` long."""
+    from . import protocols
+    t0, t1 = protocols.get(protocol).static(log, seg, max_temp_rate)
     out = pd.DataFrame({"t_start": np.asarray(t0, float), "t_end": np.asarray(t1, float)})
     out = out[out["t_end"] - out["t_start"] >= MIN_STATIC_S].sort_values("t_start")
     return out.reset_index(drop=True)

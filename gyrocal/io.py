@@ -18,7 +18,6 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
-import pyarrow.parquet as pq
 
 from .errors import CorruptFileError, EmptyLogError, LogFormatError
 
@@ -101,7 +100,7 @@ def open_dataset(path: Path) -> ds.Dataset:
             dataset = ds.dataset(files, format="parquet")
         return dataset
     except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
+        raise CorruptFileError(f"not a readable Parquet file ({first_line(exc)})", source=path) from None
 
 
 def _first_time(fragment) -> float | None:
@@ -116,7 +115,8 @@ def _first_time(fragment) -> float | None:
         return None
 
 
-def _first_line(exc: BaseException) -> str:
+def first_line(exc: BaseException) -> str:
+    """An exception's first line, for a one-line error (Arrow's messages run to many)."""
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
 
@@ -249,7 +249,7 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     try:
         table = dataset.to_table(columns=wanted, use_threads=True)
     except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"cannot read Parquet data ({_first_line(exc)})", source=path) from None
+        raise CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path) from None
 
     batches: list[dict[str, np.ndarray]] = []
     rows, dropped, previous_t = 0, 0, -np.inf
@@ -370,35 +370,3 @@ def file_sha256(path: str | os.PathLike) -> str:
     except OSError as exc:
         raise CorruptFileError(f"cannot read file ({exc.strerror})", source=path) from None
     return digest.hexdigest()
-
-
-OBS_META_KEY = b"gyrocal.observations"
-
-
-def write_table(frame, path, metadata: dict | None = None) -> None:
-    """A pandas table as Parquet, with JSON metadata under ``gyrocal.observations``."""
-    if frame.attrs:  # in-memory companions (the session's record) are not file metadata
-        frame = frame.copy(deep=False)
-        frame.attrs = {}
-    table = pa.Table.from_pandas(frame, preserve_index=False)
-    if metadata is not None:
-        table = table.replace_schema_metadata({**(table.schema.metadata or {}),
-                                               OBS_META_KEY: json.dumps(metadata).encode()})
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
-
-
-def read_table_with_metadata(path):
-    """(pandas table, metadata dict) of a file written by :func:`write_table`."""
-    path = Path(path)
-    try:
-        table = pq.read_table(path)
-    except FileNotFoundError:
-        raise CorruptFileError("no such file", source=path) from None
-    except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"not a readable Parquet file ({_first_line(exc)})", source=path) from None
-    raw = (table.schema.metadata or {}).get(OBS_META_KEY)
-    if raw is None:
-        raise LogFormatError("is not a table written by gyrocal", source=path)
-    return table.to_pandas(), json.loads(raw)

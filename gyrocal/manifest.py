@@ -1,32 +1,31 @@
-"""The device manifest (contract section 3), read and checked.
+"""The device manifest (contract section 3), read and checked against its schema
+(``gyrocal/schemas/manifest.schema.yaml``, one row).
 
-Deliberately light (standard library only): the workflow reads the manifest every time it
-plans, for every unit of a fleet.
+Kept light (no numpy or pandas): the workflow reads the manifest every time it plans, for
+every unit of a fleet.
 """
 
 from __future__ import annotations
 
 import csv
-import datetime as dt
 import os
-import re
 from pathlib import Path
 
+from . import schema
 from .errors import ConfigError, CorruptFileError
 
-COLUMNS = ("device", "batch", "session", "protocol", "path")
-DEVICE_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
-BATCH_PATTERN = r"[^/\\\t\n]+"
-SESSION_PATTERN = r"\d{4}-\d{2}-\d{2}"
-PROTOCOLS = ("turntable", "servo", "sweep")
-_DEVICE = re.compile(DEVICE_PATTERN)
-_BATCH = re.compile(BATCH_PATTERN)
+_ROW = schema.load("manifest")
+COLUMNS = tuple(_ROW["required"])
 
 
-def _complaint(path, line: int, row: dict):
-    def bad(column: str, why: str):
-        raise ConfigError(f"line {line}: {column} {row[column]!r} {why}", source=path)
-    return bad
+def _pattern(column: str) -> str:
+    """A column's pattern without its anchors, as the workflow's wildcards take it."""
+    return _ROW["properties"][column]["pattern"].removeprefix("^").removesuffix("$")
+
+
+DEVICE_PATTERN = _pattern("device")
+BATCH_PATTERN = _pattern("batch")
+SESSION_PATTERN = _pattern("session")
 
 
 def read_manifest(path) -> list[dict[str, str]]:
@@ -49,26 +48,18 @@ def read_manifest(path) -> list[dict[str, str]]:
                           f"{', '.join(missing)} (tab-separated, header {' '.join(COLUMNS)})",
                           source=path)
     rows, seen = [], {}
+    valid = {c: set() for c in COLUMNS}   # each value checked once: batches, sessions repeat
     for line, row in enumerate(reader, start=2):
         if not any((v or "").strip() for v in row.values()):
             continue  # blank line
         row = {c: (row.get(c) or "").strip() for c in COLUMNS}
-        bad = _complaint(path, line, row)
-
-        if not _DEVICE.fullmatch(row["device"]):
-            bad("device", f"does not match ^{DEVICE_PATTERN}$")
-        if not _BATCH.fullmatch(row["batch"]):
-            bad("batch", "must be non-empty without slashes or tabs")
-        try:
-            if not re.fullmatch(SESSION_PATTERN, row["session"]):
-                raise ValueError
-            dt.date.fromisoformat(row["session"])
-        except ValueError:
-            bad("session", "is not an ISO date YYYY-MM-DD")
-        if row["protocol"] not in PROTOCOLS:
-            bad("protocol", f"is not one of {', '.join(PROTOCOLS)}")
-        if not row["path"]:
-            bad("path", "is empty")
+        for column, value in row.items():
+            if value not in valid[column]:
+                try:
+                    schema.check(value, "manifest", column)
+                except ConfigError as exc:
+                    raise ConfigError(f"line {line}: {exc}", source=path) from None
+                valid[column].add(value)
         key = (row["device"], row["session"])
         if key in seen:
             raise ConfigError(f"line {line}: device {row['device']} session {row['session']} "

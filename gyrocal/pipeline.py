@@ -14,19 +14,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__
+from . import __version__, protocols
 from .calibration import Calibration
 from .config import Settings
-from .errors import ConfigError
 from .floor import add_floor_columns, characterise, noise_record
+from .holds import Segmentation
 from .io import file_sha256, read_log
-from .segment import LOG_COLUMNS, Segmentation, segment
+from .turntable.segment import LOG_COLUMNS
 from .signals import TEMP_RATE_WINDOW_S, Series, history
 from .thermal import ContinuousFit, GridFit, fit_model
-from .validate import Validation, validate
-
-PROTOCOLS = ("turntable", "servo", "sweep")
-
+from .validate import Validation, free_point_fits, validate
 
 @dataclass(frozen=True)
 class Run:
@@ -34,12 +31,6 @@ class Run:
     segmentation: Segmentation
     fitted: GridFit | ContinuousFit | None     # None for a servo session (seed 001's own fit)
     validation: Validation
-
-
-def check_protocol(protocol: str) -> None:
-    if protocol not in PROTOCOLS:
-        raise ConfigError(f"protocol {protocol!r} is not supported by this version of gyrocal "
-                          f"(supported: {', '.join(PROTOCOLS)})")
 
 
 def versions() -> dict[str, str]:
@@ -52,19 +43,15 @@ def versions() -> dict[str, str]:
     return out
 
 
-def segment_log(path, settings: Settings, protocol: str = "turntable") -> Segmentation:
+def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT) -> Segmentation:
     """Read and segment a log into observations by its protocol's rules; its SHA-256 is
     computed on a second thread meanwhile (hashlib releases the GIL), since hashing a large
     log costs as much as reading it."""
-    check_protocol(protocol)
+    segmenter = protocols.get(protocol).segment
     with ThreadPoolExecutor(1) as pool:
         digest = pool.submit(file_sha256, path)
         log = read_log(path, optional=LOG_COLUMNS)
-        if protocol == "turntable":
-            seg = segment(log, settings.segmentation)
-        else:
-            from . import protocols
-            seg = protocols.SEGMENTERS[protocol](log, settings.protocol_options(protocol))
+        seg = segmenter(log, settings)
         seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
     seg = with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
@@ -95,15 +82,16 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
                            source: dict | None = None, label=None, noise: dict | None = None,
                            fitted: GridFit | ContinuousFit | None = None
                            ) -> tuple[Calibration, GridFit | ContinuousFit | None]:
-    """The calibration of one unit's observations. A servo session's is seed 001's own
-    six-parameter fit (no common-model fit comes back: None). ``noise``, segmentation's noise
-    characterisation, is kept in the file (:func:`gyrocal.floor.noise_record`). ``fitted``, a
-    fit of ``settings.model`` to ``obs`` already made, is used rather than fitting again."""
+    """The calibration of one unit's observations: the common model's fit, or the
+    protocol's own (:attr:`gyrocal.protocols.Protocol.calibrate`; a servo session's is seed
+    001's six-parameter fit, and no common-model fit comes back: None). ``noise``,
+    segmentation's noise characterisation, is kept in the file
+    (:func:`gyrocal.floor.noise_record`). ``fitted``, a fit of ``settings.model`` to ``obs``
+    already made, is used rather than fitting again."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
-    if meta.get("protocol") == "servo":
-        from .protocols import servo_calibration
-        cal = servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
-                                meta=meta, provenance=provenance)
+    own = protocols.get(meta.get("protocol")).calibrate
+    if own is not None:
+        cal = own(obs, settings, meta, provenance)
         if noise:
             cal.extra["noise"] = noise_record(noise)
         return cal, None
@@ -130,7 +118,7 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
     return cal, fitted
 
 
-def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
+def run(path, settings: Settings | None = None, *, protocol: str = protocols.DEFAULT,
         device: str | None = None, batch: str | None = None, session: str | None = None) -> Run:
     """Calibrate one log end to end."""
     settings = (settings or Settings()).for_protocol(protocol)
@@ -140,9 +128,14 @@ def run(path, settings: Settings | None = None, *, protocol: str = "turntable",
     cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
                                            source=seg.info["source"], label=path,
                                            noise=seg.info.get("noise"))
-    if protocol == "servo":
-        from .protocols import servo_validation
-        return Run(cal, seg, fitted, servo_validation(seg.observations, cal))
-    val = validate(cal.model, seg.observations, fitted,
-                   reference_temperature=settings.model.reference_temperature)
-    return Run(cal, seg, fitted, val)
+    return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings))
+
+
+def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings) -> Validation:
+    """The calibration's validation: the protocol's own (a servo's leave-revolution-out), or
+    the common model's leave-temperature-out from ``fitted``."""
+    own = protocols.get(cal.meta.get("protocol")).validate
+    if own is not None:
+        return own(obs, cal)
+    val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature)
+    return replace(val, free_points=free_point_fits(obs)) if cal.kind == "continuous" else val

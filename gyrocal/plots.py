@@ -7,6 +7,8 @@ with a fixed hash salt, no date, and text kept as text; data strings never go in
 from __future__ import annotations
 
 import io
+import math
+from pathlib import Path
 
 import matplotlib
 import matplotlib.colors
@@ -17,28 +19,48 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from .outliers import MIN_BATCH, parameter_columns  # noqa: E402
+
 AXES = ("x", "y", "z")
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
 METHOD_STYLE = {"uncompensated": ("#7f7f7f", "o"), "single": ("#ff7f0e", "s"),
                 "interpolated": ("#1f77b4", "^")}
 REASON_COLOURS = ["#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22", "#17becf",
                   "#ff7f0e", "#7f7f7f", "#2ca02c", "#1f77b4"]
-_RC = {"svg.hashsalt": "gyrocal", "svg.fonttype": "none", "font.size": 9,
-       "axes.grid": True, "grid.alpha": 0.3, "axes.spines.top": False,
-       "axes.spines.right": False}
+# The one style of gyrocal's figures. The hash salt fixes the ids inside an SVG and the
+# metadata leaves the date out, so a figure is the same bytes on every run.
+STYLE = {"svg.hashsalt": "gyrocal", "svg.fonttype": "none", "font.size": 9,
+         "axes.grid": True, "grid.alpha": 0.3, "axes.spines.top": False,
+         "axes.spines.right": False}
+SVG_METADATA = {"Date": None, "Creator": "gyrocal"}
+
+
+def figure_style(overrides: dict | None = None):
+    """Context to draw and save figures in: :data:`STYLE`, with ``overrides`` (rcParams)."""
+    return matplotlib.rc_context({**STYLE, **(overrides or {})})
 
 
 def to_svg(fig: Figure) -> str:
     buf = io.StringIO()
-    with matplotlib.rc_context(_RC):
-        fig.savefig(buf, format="svg", metadata={"Date": None, "Creator": "gyrocal"},
+    with figure_style():
+        fig.savefig(buf, format="svg", metadata=SVG_METADATA,
                     bbox_inches="tight", dpi=110)  # dpi: the rasterised data layers
     svg = buf.getvalue()
     return svg[svg.index("<svg"):]  # inline: drop the XML prolog and doctype
 
 
+def write_svg(svg: str, path_or_none) -> str:
+    """``svg`` written to ``path_or_none`` (atomically) when given; returned either way."""
+    if path_or_none is not None:
+        path = Path(path_or_none)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text(svg)
+        tmp.replace(path)
+    return svg
+
+
 def figure(w: float, h: float, rows: int = 1, cols: int = 1, **kw):
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig = Figure(figsize=(w, h), layout="constrained")
         axes = fig.subplots(rows, cols, squeeze=False, **kw)
     return fig, axes
@@ -47,7 +69,7 @@ def figure(w: float, h: float, rows: int = 1, cols: int = 1, **kw):
 def timeline(timeline: pd.DataFrame, segments: pd.DataFrame) -> str:
     """Temperature, reference rate and gyro over the session; accepted holds shaded,
     rejected segments marked by reason (seed 000 Section 3.2's protocol, as found)."""
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 6.5, 3, 1, sharex=True)
         ax = ax[:, 0]
         hours = lambda t: (np.asarray(t) - timeline["t_start"].iloc[0]) / 3600.0  # noqa: E731
@@ -89,7 +111,7 @@ def parameters(grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: 
               ("cross-axis term K[a,b], ×10⁻³", [f"misalignment.{a}.{b}" for a in AXES for b in AXES
                                                   if a != b], 1e3),
               ("bias, deg/s", [f"bias.{a}" for a in AXES], 1.0)]
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 3.2, 1, 3)
         for axis, (label, names, scale) in zip(ax[0], groups):
             for k, name in enumerate(n for n in names if n in values):
@@ -108,7 +130,7 @@ def parameters(grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: 
 
 def by_temperature(table: pd.DataFrame) -> str:
     """Leave-temperature-out RMS per held-out point and method, with the noise floor."""
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(7, 3.2)
         ax = ax[0, 0]
         for method, (colour, marker) in METHOD_STYLE.items():
@@ -128,7 +150,7 @@ def error_distribution(holds: pd.DataFrame, method: str) -> str:
     """Error of each hold mean against the reference rate, one panel per rotating axis
     (rows) and output axis (columns), coloured by temperature (seed 000 Figs. 7-8)."""
     rows = holds[holds["method"] == method]
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 7.5, 3, 3, sharex="row")
         lo, hi = float(holds["temp"].min()), float(holds["temp"].max())
         for i, rot in enumerate(AXES):
@@ -154,7 +176,7 @@ def histogram(values: np.ndarray, label: str) -> str:
     """Distribution of one quantity across the fleet's calibrated units."""
     values = np.asarray(values, float)
     values = values[np.isfinite(values)]
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(3.3, 2.4)
         ax = ax[0, 0]
         if values.size:
@@ -171,7 +193,7 @@ def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
     n = len(covariates)
     cols = 3
     rows = -(-n // cols)
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 2.3 * rows, rows, cols, sharey=True)
         flat = ax.ravel()
         for axis, (label, column) in zip(flat, covariates):
@@ -200,7 +222,7 @@ def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
 def heatmaps(maps: list[tuple[str, str, dict]]) -> str:
     """RMS of the normalised residuals per cell (1: as noise would give), one panel per
     map; keys are ``"row|column"`` with numeric columns (reference rate)."""
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 3.0 * len(maps), len(maps), 1)
         for axis, (row_label, col_label, cells) in zip(ax[:, 0], maps):
             keys = [k.split("|") for k in cells]
@@ -233,7 +255,7 @@ def ladder(rows: list[dict]) -> str:
     """Validation RMS of each model of the ladder, falling toward the noise floor."""
     steps = [i for i, r in enumerate(rows) if "validation_rms" in r]  # numbered as in the table
     rows = [rows[i] for i in steps]
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(7, 3.0)
         ax = ax[0, 0]
         x = np.array(steps)
@@ -251,7 +273,7 @@ def ladder(rows: list[dict]) -> str:
 def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
     """Seed 003: drift error of each window against temperature, training and verification
     sweeps, with each drift model's curve over the training range."""
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, axes = figure(7.5, 2.6, 1, 3)
         for i, a in enumerate("xyz"):
             ax = axes[0, i]
@@ -274,7 +296,7 @@ def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
 def servo_errors(holds: pd.DataFrame) -> str:
     """Seed 001: per revolution, the error of the rate's magnitude against the servo speed,
     before calibration and validated after it, with the revolution's noise floor."""
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, axes = figure(7.5, 2.6, 1, 2)
         x = np.arange(len(holds))
         labels = holds["direction"].astype(str).to_numpy()
@@ -309,7 +331,7 @@ def allan(noise: dict) -> str:
     model = terms.adev(grid)
     arw, bi, rrw = (np.atleast_1d(np.asarray(getattr(terms, k), float))
                     for k in ("arw", "bias_instability", "rrw"))
-    with matplotlib.rc_context(_RC):
+    with figure_style():
         fig, ax = figure(10, 3.4, 1, 3, sharey=True)
         for i, a in enumerate(AXES):
             axis = ax[0, i]
@@ -331,3 +353,56 @@ def allan(noise: dict) -> str:
         ax[0, 0].set_ylabel("Allan deviation, deg/s")
         ax[0, 2].legend(fontsize=7, loc="best")
         return to_svg(fig)
+
+
+def plot_parameter_distributions(table: pd.DataFrame, flagged: pd.DataFrame, path_or_none=None, *,
+                                 by: str = "batch", label: str = "device") -> str:
+    """Each parameter's values per batch (one panel per parameter, units as points, the
+    batch median as a bar, batches too small to judge in grey, unit counts in the axis
+    labels), flagged units ringed in red and labelled by ``label``.
+    Deterministic SVG; written to ``path_or_none`` when given."""
+    params = parameter_columns(table, by)
+    batches = sorted(table[by].astype(str).where(table[by].notna(), "").unique())
+    position = {b: i for i, b in enumerate(batches)}
+    frame = table.reset_index(drop=True)
+    bkey = frame[by].astype(str).where(frame[by].notna(), "")
+    # Deterministic spread of a batch's points across ±0.3 of its slot, by row order.
+    rank = bkey.groupby(bkey).cumcount().to_numpy()
+    size = bkey.map(bkey.value_counts()).to_numpy()
+    x = bkey.map(position).to_numpy(dtype=float) + np.where(size > 1, (rank / np.maximum(size - 1, 1) - 0.5) * 0.6, 0)
+    ids = [c for c in flagged.columns if c in frame.columns and c not in params]
+    hit = frame.reset_index().merge(flagged[ids + ["parameter"]], on=ids, how="inner") if len(flagged) else None
+    counts = bkey.value_counts()
+    ticks = [f"{b} ({counts[b]})" for b in batches]   # unit count; grey points: too few to judge
+    cols = min(3, max(len(params), 1))
+    rows = max(math.ceil(len(params) / cols), 1)
+    with figure_style():
+        fig, axes = figure(10, 2.3 * rows + 0.4, rows, cols)
+        for k, axis in enumerate(axes.ravel()):
+            if k >= len(params):
+                axis.set_visible(False)
+                continue
+            p = params[k]
+            v = frame[p].to_numpy(dtype=float)
+            ok = np.isfinite(v)
+            small = (size < MIN_BATCH)
+            axis.plot(x[ok & ~small], v[ok & ~small], "o", ms=3, color="#1f77b4", alpha=0.8)
+            axis.plot(x[ok & small], v[ok & small], "o", ms=3, color="#999999", alpha=0.8)
+            medians = frame[ok].groupby(bkey[ok])[p].median()
+            for b, m in medians.items():
+                axis.plot([position[b] - 0.35, position[b] + 0.35], [m, m], color="#444", lw=1.2)
+            if hit is not None:
+                mine = hit[hit["parameter"] == p]
+                idx = mine["index"].to_numpy()
+                axis.plot(x[idx], v[idx], "o", ms=8, mfc="none", mec="#d62728", mew=1.5)
+                if label in frame.columns:
+                    for i in idx:
+                        axis.annotate(str(frame[label].iloc[i]), (x[i], v[i]), xytext=(4, 3),
+                                      textcoords="offset points", fontsize=7, color="#d62728",
+                                      parse_math=False)
+            axis.set_title(p, fontsize=9, parse_math=False)
+            axis.set_xticks(range(len(batches)), ticks, rotation=30 if len(batches) > 4 else 0,
+                            fontsize=7, parse_math=False)
+            axis.set_xlim(-0.6, len(batches) - 0.4)
+        return write_svg(to_svg(fig), path_or_none)
+

@@ -11,44 +11,15 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import jinja2
 import numpy as np
 import pandas as pd
 
-from . import failure, plots
+from . import failure, plots, protocols
 from .calibration import Calibration, dumps, load_calibration, standard_coefficients
-from .errors import GyrocalError
-from .io import read_table_with_metadata
-from .model import DEFAULT_TERMS, Model
-from .terms import AXES
-from .thermal import fit_grid
+from .pages import render_page
+from .tables import read_table_with_metadata
+from .unit_folder import unit_paths
 from .validate import METHODS
-
-_ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"),
-                          autoescape=jinja2.select_autoescape(["html", "j2"]),
-                          undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
-
-
-def fmt(value, digits: int = 4) -> str:
-    """Numbers as engineers read them: fixed for ordinary sizes, scientific otherwise."""
-    if value is None or isinstance(value, str):
-        return "–" if value is None else value
-    value = float(value)
-    if not np.isfinite(value):
-        return "–"
-    if value == 0 or 1e-3 <= abs(value) < 1e5:
-        return f"{value:.{digits}g}"
-    return f"{value:.{max(digits - 1, 1)}e}"
-
-
-def pvalue(value) -> str:
-    """p-values below double precision's resolution of 1 - p print as a bound."""
-    return "< 1e-16" if value is not None and float(value) < 1e-16 else fmt(value, 2)
-
-
-_ENV.filters["fmt"] = fmt
-_ENV.filters["pvalue"] = pvalue
-_ENV.filters["prel"] = lambda v: pvalue(v) if pvalue(v).startswith("<") else "= " + pvalue(v)
 
 
 @dataclass
@@ -74,31 +45,25 @@ class UnitResults:
     heatmaps: dict = field(default_factory=dict)
     protocol: dict | None = None              # the servo's or the sweep's own methods
     protocol_figures: list = field(default_factory=list)
-
-    def __post_init__(self):
-        from .protocols import analysis
-        if self.protocol is None:
-            try:
-                self.protocol, self.protocol_figures = analysis(self.meta.get("protocol"),
-                                                                self.observations)
-            except GyrocalError as exc:  # the common sections still stand
-                self.protocol = {"protocol": self.meta.get("protocol"), "error": str(exc)}
+    free_points: pd.DataFrame | None = None   # continuous models: free per-point fits
 
     @classmethod
-    def from_run(cls, run, command: str = "", diagnosis=None) -> UnitResults:
-        """``diagnosis``: a :class:`gyrocal.diagnose.Diagnosis` of the same run, if any."""
+    def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
+        """``diagnosis``: a :class:`gyrocal.diagnose.Diagnosis` of the same run, if any;
+        ``analysis``: its protocol's own methods (:func:`gyrocal.protocols.analysis`)."""
         seg, val = run.segmentation, run.validation
         extra = {} if diagnosis is None else dict(
             diagnosis=json.loads(dumps(diagnosis.to_dict())), residuals=diagnosis.residuals,
             heatmaps=diagnosis.heatmaps)
+        if analysis is not None:
+            extra.update(protocol=analysis[0], protocol_figures=list(analysis[1]))
         return cls(run.calibration.meta, run.calibration, seg.info, seg.observations,
                    seg.segments, seg.timeline, val.summary, val.holds, val.table_holds,
                    val.table_samples, val.by_temperature, seg.info.get("path", ""), command,
-                   **extra)
+                   free_points=val.free_points, **extra)
 
     @classmethod
     def from_folder(cls, folder) -> UnitResults:
-        from .stages import unit_paths
         p = unit_paths(folder)
         obs, extra = read_table_with_metadata(p["observations"])
         table = lambda k: read_table_with_metadata(p[k])[0]  # noqa: E731
@@ -111,16 +76,20 @@ class UnitResults:
             if diagnosis.get("format") != "gyrocal.failure/1" and p["residuals"].exists():
                 residuals, meta = read_table_with_metadata(p["residuals"])
                 heat = meta.get("heatmaps", {})
+        own = failure.load_json(p["protocol"])
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
                    summary, table("holds"), table("table_hold_means"), table("table_samples"),
                    table("by_temperature"), extra.get("log", ""), diagnosis=diagnosis,
-                   residuals=residuals, heatmaps=heat)
+                   residuals=residuals, heatmaps=heat, protocol=own["results"],
+                   protocol_figures=own["figures"],
+                   free_points=table("free_points") if p["free_points"].exists() else None)
 
 
-def _parameter_figure(cal: Calibration, obs: pd.DataFrame) -> str:
+def _parameter_figure(cal: Calibration, free_points: pd.DataFrame | None) -> str:
     """Grid models: the fitted grid and its interpolation. Continuous models: K and B of the
-    calibration against temperature, over free per-point fits of the seed-000 terms (where
-    the two disagree, the model's temperature dependence is wrong)."""
+    calibration against temperature, over free per-point fits of the seed-000 terms
+    (:func:`gyrocal.validate.free_point_fits`; where the two disagree, the model's
+    temperature dependence is wrong)."""
     g = cal.grid
     lo, hi = g.span
     temps = np.linspace(lo, hi, 200) if hi > lo else np.array([lo])
@@ -130,14 +99,13 @@ def _parameter_figure(cal: Calibration, obs: pd.DataFrame) -> str:
                                 {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
     K, B = cal.matrices_at(temps)
     curve = standard_coefficients(K, B)
-    try:
-        free = fit_grid(Model.from_spec(DEFAULT_TERMS), obs)
-        grid = free.coefficients
-        values = {n: grid.values[:, j] for j, n in enumerate(grid.names)}
-        stderr = {n: grid.stderr[:, j] for j, n in enumerate(grid.names)}
-        points = grid.temperatures
-    except GyrocalError:  # too few points for free fits: the curve alone
+    if free_points is None or free_points.empty:  # too few points for free fits: the curve alone
         points, values, stderr = np.array([]), {n: [] for n in curve}, {n: [] for n in curve}
+    else:
+        names = [c for c in free_points.columns if c != "temp" and not c.endswith("_stderr")]
+        points = free_points["temp"].to_numpy()
+        values = {n: free_points[n].to_numpy() for n in names}
+        stderr = {n: free_points[f"{n}_stderr"].to_numpy() for n in names}
     return plots.parameters(points, values, stderr, temps, curve)
 
 
@@ -203,6 +171,8 @@ def write_unit_report(results: UnitResults, path) -> None:
     counts = pd.crosstab(results.observations["point_temp"].round(2),
                          results.observations["mount"].astype(str))
     rejected = results.segments[results.segments["kind"] == "rejected"]
+    protocol = protocols.get(cal.meta.get("protocol"))
+    own_figure = protocol.validation_figure
     g = cal.grid
     if cal.kind == "continuous":
         units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
@@ -218,8 +188,8 @@ def write_unit_report(results: UnitResults, path) -> None:
         session = {c for t in cal.model.terms if t.coefficient_scope == "global" for c in t.coefficients()}
         constants = [(n, float(g.values[0, j]), float(g.stderr[0, j]), units.get(n, ""))
                      for j, n in enumerate(g.names) if n in session]
-    html = _ENV.get_template("unit_report.html.j2").render(
-        profiled=cal.extra.get("profiled", []),
+    html = render_page(
+        "unit_report.html.j2", profiled=cal.extra.get("profiled", []),
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
         interpolation=g.method, reference=cal.reference_temperature,
         counts_columns=list(counts.columns),
@@ -233,13 +203,15 @@ def write_unit_report(results: UnitResults, path) -> None:
         by_temperature=results.by_temperature.to_dict("records"),
         provenance=cal.provenance, log=results.log, command=results.command,
         fig_timeline=plots.timeline(results.timeline, results.segments),
-        **(dict(fig_servo=plots.servo_errors(results.holds)) if cal.meta.get("protocol") == "servo"
-           else dict(  # servo: section 2-3 of its own
-            fig_parameters=_parameter_figure(cal, results.observations),
+        **(dict(fig_servo=own_figure(results.holds)) if own_figure is not None
+           else dict(  # a protocol validated its own way: section 2-3 of its own
+            fig_parameters=_parameter_figure(cal, results.free_points),
             fig_by_temperature=plots.by_temperature(results.by_temperature),
             fig_before=plots.error_distribution(results.holds, "uncompensated"),
             fig_after=plots.error_distribution(results.holds, "interpolated"))),
         kind=cal.kind, protocol=results.protocol, protocol_figures=results.protocol_figures,
+        sections_template=protocol.report_sections, section_template=protocol.report_section,
+        validated_as=protocol.validated_as,
         **_noise_context(info.get("noise")), **_diagnosis_context(results))
     _write(path, html)
 
@@ -252,58 +224,15 @@ def _write(path, text: str) -> None:
     tmp.replace(path)
 
 
-# (coefficient, column heading, factor to the unit shown, significant digits)
-KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm", 1e6, 4),
-                  ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
-                  ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
-                  ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
-
-
-def _missing_effect(path) -> str:
-    """The diagnosis in a few words, for the fleet table."""
-    if not Path(path).exists():
-        return "–"
-    rec = failure.read(path)
-    if rec is not None:
-        return f"diagnosis failed: {rec['error']}"
-    diag = failure.load_json(path)
-    if diag.get("best"):
-        return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
-    return "nothing" if diag.get("explains_the_data") else "unexplained excess"
-
-
-def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) -> None:
-    """The fleet summary: per batch, one row per unit and session; failed units with
-    their error; distributions of the key parameters across the calibrated units. With
-    ``settings`` (:class:`gyrocal.fleet.FleetSettings`): end-of-line verdicts and yield,
-    outliers against the batch, drift pages of devices with several sessions (beside the
-    summary, ``drift/<device>.html``) and the machine-readable ``eol_json``."""
-    from .stages import unit_paths
-    rows = []
-    for unit in units:
-        row = dict(unit["row"])
-        p = unit_paths(unit["folder"])
-        row["report"] = unit["report"]
-        records = (failure.read(p[k]) for k in ("validation", "calibration", "observations"))
-        rec = next((r for r in records if r is not None), None)
-        if rec is not None:
-            row.update(status="failed", stage=rec["stage"], error=rec["error"],
-                       internal=rec.get("internal", False))
-        elif not p["validation"].exists() or not p["calibration"].exists():
-            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
-                       "did not run to the end (see the workflow's logs)", internal=True)
-        else:
-            cal = load_calibration(p["calibration"])
-            summary = json.loads(p["validation"].read_text())["summary"]
-            at_ref = cal.coefficients([cal.reference_temperature], warn=False)
-            row["calibration"] = cal
-            session_noise = (cal.extra.get("noise") or {}).get("session")
-            row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
-                if session_noise else None
-            row.update(status="ok", span=cal.grid.span, summary=summary,
-                       reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
-                       params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
-        rows.append(row)
+def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> None:
+    """The fleet summary page from :func:`gyrocal.fleet.fleet_summary`: per batch, one row
+    per unit and session; failed units with their error; distributions of the key
+    parameters across the calibrated units. With ``settings``
+    (:class:`gyrocal.fleet.FleetSettings`): end-of-line verdicts and yield, outliers
+    against the batch, drift pages of devices with several sessions (beside the summary,
+    ``drift/<device>.html``) and the machine-readable ``eol_json``."""
+    from .fleet import KEY_PARAMETERS, drift_page_name, eol_document, json_safe
+    rows, ok, fleet = summary["rows"], summary["ok"], summary["fleet"]
     batches = {}
     for row in rows:
         batches.setdefault(row["batch"], []).append(row)
@@ -314,73 +243,18 @@ def write_fleet_report(units: list[dict], path, settings=None, eol_json=None) ->
         ("excess over the noise floor", [r["summary"]["excess"] for r in ok]),
         ("angle random walk, deg/√h (largest axis)", [r["noise"]["arw"][0] if r["noise"] else np.nan
                                                        for r in ok])]]
-    fleet = None
-    if settings is not None:
-        from .fleet import audit, drift_page_name, eol_document, json_safe
-        fleet = audit(units, ok, settings)
-        for row in rows:
-            verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
-            if verdict is not None:
-                row["eol"] = {"passed": verdict.passed, "reasons": list(verdict.reasons)}
+    if fleet is not None:
         for unit in fleet["drift"]:
             unit["page"] = drift_page_name(unit["device"])
-            page = _ENV.get_template("drift_report.html.j2").render(unit=unit, tolerance=settings.drift_tolerance)
+            page = render_page("drift_report.html.j2", unit=unit, tolerance=settings.drift_tolerance)
             _write(Path(path).parent / unit["page"], page)
         if eol_json is not None:
             _write(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
-    html = _ENV.get_template("fleet_report.html.j2").render(
+    html = render_page(
+        "fleet_report.html.j2",
         batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
         total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
-        servo_vs_turntable=servo_versus_turntable(ok), fleet=fleet)
+        servo_vs_turntable=summary["servo_vs_turntable"], fleet=fleet)
     _write(path, html)
 
 
-def _largest_axis(terms: dict, name: str) -> tuple[float, float]:
-    """(value, standard error) of a noise term on the axis where it is largest."""
-    values = np.atleast_1d(terms[name])
-    i = int(np.argmax(values))
-    return float(values[i]), float(np.atleast_1d(terms[f"{name}_stderr"])[i])
-
-
-def servo_versus_turntable(rows: list[dict]) -> list[dict]:
-    """Units calibrated both on the servo and on the turntable: scale factor (K[a,a] − 1) and
-    bias of each calibration at the servo session's temperature, their difference and its
-    size in combined standard errors (seed 001 Tables II–III compare the two methods so).
-    The turntable session nearest in date stands for the unit; its standard errors count
-    where it is a temperature grid (a continuous model's K and B combine several terms)."""
-    by_device: dict[str, dict[str, list]] = {}
-    for row in rows:
-        by_device.setdefault(row["device"], {}).setdefault(row["protocol"], []).append(row)
-    out = []
-    for device, sessions in sorted(by_device.items()):
-        for servo in sessions.get("servo", []):
-            tables = sessions.get("turntable", [])
-            if not tables:
-                continue
-            table = min(tables, key=lambda r: abs(np.datetime64(r["session"] or "1970-01-01")
-                                                  - np.datetime64(servo["session"] or "1970-01-01")))
-            s_cal, t_cal = servo["calibration"], table["calibration"]
-            temp = np.array([s_cal.grid.temperatures[0]])
-            s_err = s_cal.grid.stderr_at(temp)
-            t_err = t_cal.grid.stderr_at(temp) if t_cal.kind == "temperature_grid" else {}
-            (s_K,), (s_B,) = s_cal.matrices_at(temp)
-            (t_K,), (t_B,) = t_cal.matrices_at(temp)
-            params = []
-            for i, a in enumerate(AXES):
-                for name, label, factor, s_val, t_val in (
-                        (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
-                        (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i])):
-                    diff = float(s_val - t_val)
-                    se = float(np.hypot(s_err[name][0], t_err[name][0])) if name in t_err else None
-                    params.append({"parameter": label, "servo": float(s_val) * factor,
-                                   "servo_se": float(s_err[name][0]) * factor,
-                                   "turntable": float(t_val) * factor,
-                                   "turntable_se": None if se is None else float(t_err[name][0]) * factor,
-                                   "difference": diff * factor,
-                                   "sigmas": diff / se if se else None})
-            params.sort(key=lambda p: not p["parameter"].startswith("scale"))
-            out.append({"device": device, "servo_session": servo["session"],
-                        "turntable_session": table["session"], "temperature": float(temp[0]),
-                        "servo_report": servo["report"], "turntable_report": table["report"],
-                        "rows": params})
-    return out

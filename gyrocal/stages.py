@@ -1,6 +1,6 @@
 """The workflow's stages: one function per rule, files in and files out.
 
-Each unit and session has a results folder (``UNIT_FILES`` names its files). A stage that
+Each unit and session has a results folder (:mod:`gyrocal.unit_folder` names its files). A stage that
 cannot process its unit writes failure records in place of its outputs (see
 :mod:`gyrocal.failure`), so a fleet run always completes and reports every unit.
 """
@@ -14,39 +14,15 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
-
-from . import failure
+from . import failure, protocols
 from .calibration import dumps, load_calibration, save_calibration
 from .config import Settings
 from .errors import GyrocalError
-from .io import read_table_with_metadata, write_table
-from .pipeline import calibrate_observations, segment_log
-from .signals import Series
+from .pipeline import calibrate_observations, segment_log, validation
+from .tables import write_table
 from .thermal import fit_model
-from .validate import validate
-
-UNIT_FILES = {
-    "observations": "observations.parquet",
-    "history": "history.parquet",
-    "segments": "segments.parquet",
-    "timeline": "timeline.parquet",
-    "calibration": "calibration.json",
-    "validation": "validation.json",
-    "holds": "validation_holds.parquet",
-    "table_hold_means": "table_hold_means.parquet",
-    "table_samples": "table_samples.parquet",
-    "by_temperature": "by_temperature.parquet",
-    "diagnosis": "diagnosis.json",
-    "residuals": "residuals.parquet",
-}
-VALIDATION_TABLES = ("holds", "table_hold_means", "table_samples", "by_temperature")
-DIAGNOSIS_FILES = ("diagnosis", "residuals")
-
-
-def unit_paths(folder) -> dict[str, Path]:
-    return {k: Path(folder) / v for k, v in UNIT_FILES.items()}
-
+from .unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
+                          read_observations, unit_paths)
 
 def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
               record_failures: bool) -> int:
@@ -66,7 +42,7 @@ def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
 
 
 def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
-    seg = segment_log(log, settings, meta.get("protocol") or "turntable")
+    seg = segment_log(log, settings, meta.get("protocol"))
     paths = unit_paths(folder)
     paths["observations"].parent.mkdir(parents=True, exist_ok=True)
     extra = {"info": seg.info, "meta": meta, "log": str(log),
@@ -79,65 +55,62 @@ def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
     write_table(seg.timeline, paths["timeline"], {"meta": meta})
 
 
-def read_observations(paths):
-    """A unit's observation table and its metadata (``paths``: the unit's paths, or the
-    observations file), the table carrying the session's record when segmentation wrote
-    one beside it (``history.parquet``)."""
-    observations = Path(paths["observations"] if isinstance(paths, dict) else paths)
-    obs, extra = read_table_with_metadata(observations)
-    if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
-        obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
-    history = observations.with_name(UNIT_FILES["history"])
-    if history.exists():
-        frame, meta = read_table_with_metadata(history)
-        obs.attrs["series"] = Series.from_frame(frame, meta)
-    return obs, extra
-
-
-def fit_stage(folder, settings: Settings, meta: dict) -> None:
+def fit_stage(folder, settings: Settings, meta: dict):
+    """The unit's calibration; returns the common model's fit (None for a protocol with a
+    calibration of its own) for the stages after it in the same job."""
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"])
     obs, extra = read_observations(paths)
-    cal, _ = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
-                                    label=paths["observations"], noise=extra["info"].get("noise"))
+    cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
+                                         label=paths["observations"], noise=extra["info"].get("noise"))
     save_calibration(cal, paths["calibration"])
+    return fitted
 
 
-def validate_stage(folder, settings: Settings) -> None:
+def validate_stage(folder, settings: Settings, fitted=None):
+    """The calibration's validation tables and summary; returns the validation. ``fitted``,
+    the fit the calibration was made from in the same job, spares fitting again (the
+    leave-temperature-out validation needs the per-point fits, not only the file). A
+    calibration made from another log or other settings than these is refused: staleness is
+    read from the hashes the file records (the log's SHA-256, the settings')."""
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"], paths["calibration"])
-    obs, _ = read_observations(paths)
+    obs, extra = read_observations(paths)
     cal = load_calibration(paths["calibration"])
-    stale = GyrocalError("the calibration was not fitted from these observations with these "
-                         "settings: run the fit stage again", source=paths["calibration"])
-    if cal.meta.get("protocol") == "servo":
-        from .protocols import servo_calibration, servo_validation
-        again = servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
-                                  meta=cal.meta, provenance=cal.provenance)
-        if not np.array_equal(again.grid.values, cal.grid.values):
-            raise stale
-        val = servo_validation(obs, cal)
-    else:
-        model = settings.model.build()
-        fitted = fit_model(model, obs, kind=settings.model.kind, method=settings.model.interpolation,
-                           degree=settings.model.degree, source=paths["observations"])
-        if not np.array_equal(fitted.coefficients.values, cal.grid.values):
-            raise stale
-        val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature)
+    if (cal.provenance.get("config_sha256") != settings.sha256()
+            or cal.provenance.get("input") != extra["info"]["source"]):
+        raise GyrocalError("the calibration was not fitted from these observations with these "
+                           "settings: run the fit stage again", source=paths["calibration"])
+    if fitted is None and protocols.get(cal.meta.get("protocol")).validate is None:
+        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
+                           method=settings.model.interpolation, degree=settings.model.degree,
+                           source=paths["observations"])
+    val = validation(obs, cal, fitted, settings)
+    results, figures = protocols.analysis(cal.meta.get("protocol"), obs)
+    _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
+    if val.free_points is not None:
+        write_table(val.free_points, paths["free_points"], {})
     write_table(val.holds, paths["holds"], {"summary": val.summary})
     write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
     write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})
     write_table(val.by_temperature, paths["by_temperature"], {"summary": val.summary})
-    tmp = paths["validation"].with_name(paths["validation"].name + ".tmp")
-    tmp.write_text(dumps({"format": "gyrocal.validation/1", **cal.meta, "summary": val.summary}))
-    tmp.replace(paths["validation"])
+    _write_json(paths["validation"], {"format": "gyrocal.validation/1", **cal.meta, "summary": val.summary})
+    return val
+
+
+def _write_json(path: Path, document: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(dumps(document))
+    tmp.replace(path)
 
 
 def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
-                   other=None) -> str:
+                   other=None, base=None) -> str:
     """The diagnosis of the unit's observations (JSON) and its normalised residuals
     (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
-    folder of another session of the unit, judges the candidates by how they carry over."""
+    folder of another session of the unit, judges the candidates by how they carry over;
+    ``base``, the configured model's fit and validation made in the same job
+    (:func:`gyrocal.diagnose.evaluation_of`), spares making them again."""
     from .diagnose import diagnose
     paths = unit_paths(folder)
     failure.check_inputs(paths["observations"])
@@ -152,7 +125,7 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
             other_obs, _ = read_observations(other_paths)
         except GyrocalError as exc:
             other_note = {"other_session_error": str(exc)}
-    diag = diagnose(settings, obs, other_obs)
+    diag = diagnose(settings, obs, other_obs, base=base)
     out = Path(output or paths["diagnosis"])
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp")
@@ -166,21 +139,35 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
 def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool,
                   other=None) -> str | None:
     """Fit, validate and diagnose a segmented unit in one process: the workflow's
-    ``analyse`` rule, one job where three would each start Python and cost Snakemake a
-    job to plan. Each step runs as its own stage (:func:`run_stage`) with the outputs and
-    failure records that ``gyrocal fit``, ``validate`` and ``diagnose --unit`` write: a
-    failed fit is recorded in the calibration and passed on to the validation, and the
-    diagnosis, which reads only the observations, still runs. Returns the diagnosis
-    verdict (None when it failed and was recorded)."""
+    ``analyse`` rule, one job where several would each start
+    Python and cost Snakemake a job to plan. The configured model is fitted once: the
+    validation and the diagnosis take that fit. Each step runs as its own stage
+    (:func:`run_stage`) with the outputs and failure records that ``gyrocal fit``,
+    ``validate`` and ``diagnose --unit`` write: a failed fit is recorded in the calibration
+    and passed on to the validation, and the diagnosis, which reads only the observations,
+    still runs (fitting for itself). Returns the diagnosis verdict (None when it failed and
+    was recorded)."""
+    from .diagnose import evaluation_of
     paths = unit_paths(folder)
-    verdict = []
-    steps = (("fit", ["calibration"], lambda: fit_stage(folder, settings, meta)),
-             ("validate", ["validation", *VALIDATION_TABLES], lambda: validate_stage(folder, settings)),
-             ("diagnose", list(DIAGNOSIS_FILES),
-              lambda: verdict.append(diagnose_stage(folder, settings, meta, other=other))))
+    made: dict = {}
+
+    def fit():
+        made["fitted"] = fit_stage(folder, settings, meta)
+
+    def check():
+        val = validate_stage(folder, settings, made.get("fitted"))
+        if made.get("fitted") is not None:
+            made["base"] = evaluation_of(settings, made["fitted"], val.summary, "configured model")
+
+    def diagnosis():
+        made["verdict"] = diagnose_stage(folder, settings, meta, other=other, base=made.get("base"))
+
+    steps = (("fit", ["calibration"], fit),
+             ("validate", ["validation", *VALIDATION_TABLES], check),
+             ("diagnose", list(DIAGNOSIS_FILES), diagnosis))
     for stage, outputs, work in steps:
         run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
-    return verdict[0] if verdict else None
+    return made.get("verdict")
 
 
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:
@@ -190,7 +177,7 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     # The workflow declares the unit's products, not the tables written beside them
     # (workflow/rules/analyse.smk): name a table deleted since they were made.
     missing = [name for key, name in UNIT_FILES.items()
-               if key not in (*DIAGNOSIS_FILES, "history") and not paths[key].exists()]
+               if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not paths[key].exists()]
     if missing:
         raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
                            "folder and run the workflow again to rebuild it", source=folder)
@@ -203,7 +190,7 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
 def reproduce_command(results, settings: Settings) -> str:
     meta = results.meta
     words = ["gyrocal", "calibrate", results.log or "LOG.parquet", "--protocol",
-             meta.get("protocol") or "turntable"]
+             meta.get("protocol") or protocols.DEFAULT]
     for key in ("device", "batch", "session"):
         if meta.get(key):
             words += [f"--{key}", str(meta[key])]
@@ -218,13 +205,14 @@ def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=
     a :class:`gyrocal.fleet.FleetSettings`: end of line, outliers, drift pages and
     ``eol_json``), and (optionally) a self-contained folder of all unit reports for
     ``snakemake --report``."""
+    from .fleet import fleet_summary
     from .report import write_fleet_report
     units = []
     for row in rows:
         folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
         units.append({"row": row, "folder": folder,
                       "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
-    write_fleet_report(units, out_index, settings, eol_json)
+    write_fleet_report(fleet_summary(units, settings), out_index, settings, eol_json)
     if bundle is not None:
         bundle = Path(bundle)
         if bundle.exists():

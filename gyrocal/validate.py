@@ -50,6 +50,7 @@ class Validation:
     table_samples: pd.DataFrame      # the same on samples
     by_temperature: pd.DataFrame     # RMS per held-out temperature and method
     summary: dict = field(default_factory=dict)
+    free_points: pd.DataFrame | None = None   # continuous models: free_point_fits()
 
 
 @dataclass
@@ -306,3 +307,19 @@ def _by_temperature(holds: pd.DataFrame) -> pd.DataFrame:
         out[f"{name}_rms"] = np.sqrt(e2[:, m])
     out["noise_floor"] = np.sqrt(f2[:, METHODS.index("interpolated")])
     return out
+
+
+def free_point_fits(obs: pd.DataFrame) -> pd.DataFrame:
+    """The seed-000 terms fitted freely at each temperature point (``temp``, each
+    coefficient and its ``_stderr``): what a temperature-continuous model's K and B are
+    checked against, since where the two disagree its temperature dependence is wrong. No
+    rows when the points are too few to fit."""
+    from .model import DEFAULT_TERMS
+    from .thermal import fit_grid
+    try:
+        grid = fit_grid(Model.from_spec(DEFAULT_TERMS), obs).coefficients
+    except GyrocalError:
+        return pd.DataFrame({"temp": np.array([], dtype=float)})
+    return pd.DataFrame({"temp": grid.temperatures,
+                         **{n: grid.values[:, j] for j, n in enumerate(grid.names)},
+                         **{f"{n}_stderr": grid.stderr[:, j] for j, n in enumerate(grid.names)}})

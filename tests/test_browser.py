@@ -7,22 +7,23 @@ self-contained report makes none.
 
 from __future__ import annotations
 
-import os
+import importlib.util
 import shutil
 
 import pytest
 
+from .conftest import needs
+
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-if CHROMIUM is None:
-    if os.environ.get("GYROCAL_REQUIRE_BROWSER"):
-        raise RuntimeError("GYROCAL_REQUIRE_BROWSER is set but no chromium is installed")
-    pytest.skip("no chromium on this machine (make test installs it where it can)",
-                allow_module_level=True)
-sync_api = pytest.importorskip("playwright.sync_api")
+pytestmark = [needs({"chromium": CHROMIUM is not None,
+                     "playwright": importlib.util.find_spec("playwright") is not None},
+                    "Debian's chromium, which make test installs where it can; playwright: a test extra"),
+              pytest.mark.slow]   # on the workflow's fleet run
 
 
 @pytest.fixture(scope="module")
 def browser():
+    from playwright import sync_api
     with sync_api.sync_playwright() as p:
         b = p.chromium.launch(executable_path=CHROMIUM, args=[
             "--no-sandbox", "--disable-gpu", "--disable-background-networking",

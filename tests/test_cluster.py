@@ -18,9 +18,9 @@ from gyrocal.calibration import load_calibration
 from gyrocal.cli import main
 from gyrocal.errors import CorruptFileError
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
-from gyrocal.stages import UNIT_FILES
+from gyrocal.unit_folder import UNIT_FILES
 
-from .conftest import FLEET_CONFIG, REPO, snakemake
+from .conftest import FLEET_CONFIG, REPO, needs, snakemake
 
 PROFILES = REPO / "profiles"
 UNITS = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
@@ -29,10 +29,10 @@ MANIFEST = "device\tbatch\tsession\tprotocol\tpath\n" + "".join(
 CONFIG = FLEET_CONFIG  # the workflow test's fleet settings
 UNIT_RULES = {"simulate", "segment", "analyse", "report"}
 
-needs_plugin = pytest.mark.skipif(
-    importlib.util.find_spec("snakemake_executor_plugin_cluster_generic") is None,
-    reason="snakemake-executor-plugin-cluster-generic is not installed "
-           "(pip install snakemake-executor-plugin-cluster-generic)")
+# The profile's submit.sh, status.sh and cancel.sh are bash scripts.
+needs_plugin = needs({"snakemake-executor-plugin-cluster-generic":
+                      importlib.util.find_spec("snakemake_executor_plugin_cluster_generic") is not None,
+                      "bash": shutil.which("bash") is not None}, "a test extra; bash: Debian's")
 
 
 def fleet_folder(path):
@@ -55,8 +55,6 @@ def unit_outputs(root) -> dict:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """The same two-unit fleet run locally on two cores and through the cluster profile."""
-    if shutil.which("bash") is None:
-        pytest.skip("the stand-in scheduler of the cluster profile needs bash")
     base = tmp_path_factory.mktemp("cluster")
     local, cluster = fleet_folder(base / "local"), fleet_folder(base / "cluster")
     out = snakemake(local)
@@ -87,6 +85,7 @@ def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     assert planned["segment"][1] == 2 and planned["analyse"][1] == 1
 
 
+@pytest.mark.slow
 @needs_plugin
 def test_the_cluster_run_gives_the_local_runs_outputs_byte_for_byte(runs):
     local, cluster = runs
@@ -99,6 +98,7 @@ def test_the_cluster_run_gives_the_local_runs_outputs_byte_for_byte(runs):
         assert (cal.meta["device"], cal.meta["batch"], cal.meta["session"]) == (device, batch, session)
 
 
+@pytest.mark.slow
 @needs_plugin
 def test_each_unit_is_one_submission_running_its_whole_chain(runs):
     """Grouping: one scheduler job per unit (simulate to report) and one for the fleet
@@ -121,8 +121,8 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 
-@pytest.mark.skipif(importlib.util.find_spec("snakemake_executor_plugin_slurm") is None,
-                    reason="snakemake-executor-plugin-slurm is not installed")
+@needs({"snakemake-executor-plugin-slurm": importlib.util.find_spec("snakemake_executor_plugin_slurm") is not None},
+       "a test extra")
 def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
     """The SLURM profile parses with its plugin and groups the units (a dry run: no
     SLURM here). Two units, five to a job: one group job of their 4 jobs each, the fleet
@@ -177,12 +177,13 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
     assert main(["analyse", str(folders["one"]), *args]) == 0
 
     names = sorted(p.name for p in three.iterdir())
-    assert names == sorted(UNIT_FILES.values())
+    # every file of a unit folder but free_points (a continuous model's, not this grid's)
+    assert names == sorted(v for k, v in UNIT_FILES.items() if k != "free_points")
     assert sorted(p.name for p in folders["one"].iterdir()) == names
     for name in names:
         assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name
     stage = {name: (failure.read(folders["one"] / name) or {}).get("stage") for name in names}
-    analysed = [v for k, v in UNIT_FILES.items() if k not in SEGMENT_FILES]
+    analysed = [v for k, v in UNIT_FILES.items() if k not in SEGMENT_FILES and v in names]
     if case == "calibrated":
         assert not any(stage.values())
         assert load_calibration(folders["one"] / "calibration.json").meta["device"] == "A1"

@@ -37,6 +37,7 @@ def effect_logs(tmp_path_factory):
             for k, (name, (fx, rig)) in enumerate(EFFECTS.items())}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect", list(EFFECTS))
 def test_a_missing_effect_is_ranked_first_and_adding_it_reaches_the_floor(effect, effect_logs):
     settings = Settings()
@@ -72,6 +73,7 @@ def _alarms(seeds, alpha) -> int:
     return alarms
 
 
+@pytest.mark.slow
 def test_on_data_the_model_explains_false_alarms_stay_within_the_significance():
     from concurrent.futures import ProcessPoolExecutor
     alpha, runs = 0.05, 400

@@ -13,7 +13,7 @@ from gyrocal import failure
 from gyrocal.config import Settings
 from gyrocal.drift import parameter_changes, plot_drift, revalidate
 from gyrocal.errors import ConfigError, InputError
-from gyrocal.io import write_table
+from gyrocal.tables import write_table
 from gyrocal.pipeline import calibrate_observations, segment_log
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 

@@ -205,6 +205,7 @@ def test_a_warmup_formula_in_a_continuous_model_carries_to_the_next_session(warm
     assert next_session_excess(cal, s1) < NEXT_SESSION_LIMIT
 
 
+@pytest.mark.slow
 def test_a_warmup_term_file_with_no_inputs_declared_calibrates_and_applies(warmup_sessions, tmp_path, capsys):
     (s0, s1), _ = warmup_sessions
     term_file = tmp_path / "warmup_terms.py"

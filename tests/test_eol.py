@@ -12,9 +12,12 @@ import pytest
 from gyrocal import failure
 from gyrocal.calibration import Calibration, save_calibration
 from gyrocal.errors import ConfigError, InputError
-from gyrocal.eol import (MAD_Z, SpecLimits, Verdict, batch_yield, fleet_outliers, judge, judge_folder,
-                         parameter_table, parameters_at, plot_parameter_distributions)
-from gyrocal.io import write_table
+from gyrocal.eol import Verdict, batch_yield, judge, judge_folder
+from gyrocal.limits import SpecLimits
+from gyrocal.outliers import MAD_Z, fleet_outliers
+from gyrocal.parameters import parameter_table, parameters_at
+from gyrocal.plots import plot_parameter_distributions
+from gyrocal.tables import write_table
 from gyrocal.model import Model
 from gyrocal.simulate import GyroUnit
 from gyrocal.thermal import ConstantCoefficients, TemperatureGrid

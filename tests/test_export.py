@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 
@@ -24,12 +23,11 @@ from gyrocal.model import DEFAULT_TERMS, Model
 from gyrocal.simulate import GyroUnit
 from gyrocal.thermal import ConstantCoefficients, TemperatureGrid, interpolation_weights
 
-from .conftest import make_log, truth_coefficients
+from .conftest import make_log, needs, truth_coefficients
 
 GCC = shutil.which("gcc")
-# CI sets GYROCAL_REQUIRE_GCC=1: there a missing compiler fails the test instead of skipping it.
-needs_gcc = pytest.mark.skipif(GCC is None and not os.environ.get("GYROCAL_REQUIRE_GCC"), reason="gcc not found: the compiled C check needs it "
-                               "(Debian: apt-get install gcc libc6-dev, as `make system-packages` does)")
+needs_gcc = needs({"gcc": GCC is not None}, "the compiled C check needs it; Debian: apt-get "
+                  "install gcc libc6-dev, as make system-packages does")
 # The bound: the C code must reproduce apply to 1e-6 deg/s on every sample. Both
 # compute in double; what separates them is rounding (a few 1e-16 of 400 deg/s).
 ATOL = 1e-6

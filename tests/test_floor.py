@@ -104,6 +104,7 @@ def low_grade_units(tmp_path_factory):
     return clean, hidden
 
 
+@pytest.mark.slow
 def test_bias_instability_of_the_soaks_is_recovered_and_kept(low_grade_units):
     clean, _ = low_grade_units
     for unit in clean[:3]:
@@ -117,6 +118,7 @@ def test_bias_instability_of_the_soaks_is_recovered_and_kept(low_grade_units):
         assert record["floor_terms"]["bias_instability"] == pytest.approx(used.bias_instability.tolist())
 
 
+@pytest.mark.slow
 def test_coloured_noise_and_a_complete_model_raise_no_alarm(low_grade_units):
     clean, _ = low_grade_units
     alarms = sum(u["alarm"] for u in clean)
@@ -135,6 +137,7 @@ def test_coloured_noise_and_a_complete_model_raise_no_alarm(low_grade_units):
     assert min(u["white_rms"] for u in clean) > 3.0
 
 
+@pytest.mark.slow
 def test_coloured_noise_and_a_hidden_effect_it_is_found_and_removed(low_grade_units):
     clean, hidden = low_grade_units
     complete = np.array([u["rms"] for u in clean])

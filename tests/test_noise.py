@@ -13,13 +13,15 @@ from gyrocal.noise import (FLICKER_FACTOR, AllanResult, NoiseTerms, allan_deviat
                            fit_noise_terms)
 from gyrocal.simulate.noise import GRADES, coloured_noise
 
+from .conftest import needs
+
 try:
     import allantools
 except ImportError:  # test-only reference implementation
     allantools = None
 
-needs_allantools = pytest.mark.skipif(allantools is None,
-                                      reason="allantools (test extra) not installed: no reference ADEV")
+needs_allantools = needs({"allantools": allantools is not None},
+                         "a test extra: the reference Allan deviation")
 
 TERMS = ("arw", "bias_instability", "rrw", "quantisation")
 

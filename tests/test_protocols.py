@@ -10,17 +10,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from gyrocal import protocols
 from gyrocal.apply import apply_calibration
 from gyrocal.calibration import load_calibration, save_calibration
 from gyrocal.config import Settings
 from gyrocal.diagnose import diagnose
 from gyrocal.errors import ConfigError
 from gyrocal.pipeline import run
-from gyrocal.protocols import sweep_analysis
 from gyrocal.report import UnitResults, write_unit_report
 from gyrocal.simulate import simulate_unit
 from gyrocal.simulate.servo import ServoProtocol, ServoUnit
 from gyrocal.simulate.sweep import SweepProtocol, SweepUnit
+from gyrocal.sweep.protocol import sweep_analysis
 
 from .test_cli import gyrocal
 
@@ -134,12 +135,15 @@ def test_sweep_analysis_trains_on_one_sweep_and_verifies_on_the_other(sweep_log)
     assert all(poly[axis]["P3"] < 0.2 for axis in "xyz")
 
 
+@pytest.mark.slow
 def test_sweep_report_shows_the_seed_003_tables(sweep_log, tmp_path):
     path, _ = sweep_log
     settings = Settings().for_protocol("sweep")
     result = run(path, settings, protocol="sweep")
     out = tmp_path / "r.html"
-    write_unit_report(UnitResults.from_run(result, "", diagnose(settings, result.segmentation.observations)), out)
+    obs = result.segmentation.observations
+    write_unit_report(UnitResults.from_run(result, "", diagnose(settings, obs),
+                                           protocols.analysis("sweep", obs)), out)
     html = out.read_text()
     assert "Drift models and bias stability (seed 003)" in html
     assert "verified on sweep 2" in html
@@ -158,6 +162,7 @@ def test_protocol_settings_are_checked_and_resolved_once():
     assert s.for_protocol("turntable") is s
 
 
+@pytest.mark.slow
 def test_cli_diagnose_and_add_term_on_a_sweep(sweep_log, tmp_path):
     path, _ = sweep_log
     out = gyrocal("diagnose", str(path), "--protocol", "sweep", "-o", str(tmp_path / "d.json"))
@@ -182,7 +187,7 @@ def test_simulate_cli_writes_servo_and_sweep_logs_and_refuses_turntable_knobs(tm
     assert out.returncode == 0, out.stderr
     out = gyrocal("simulate", "--protocol", "sweep", "--log", str(tmp_path / "w.parquet"),
                "--preset", "quick", "--rates", "1,2")
-    assert out.returncode == 2 and "--rates belong to the turntable protocol" in out.stderr
+    assert out.returncode == 2 and "--rates do not apply to the sweep rig" in out.stderr
 
 
 def test_a_single_revolution_per_direction_is_scored_in_sample_without_inventing_a_ratio(tmp_path):
@@ -196,7 +201,7 @@ def test_a_single_revolution_per_direction_is_scored_in_sample_without_inventing
 
 
 def test_servo_and_turntable_sessions_of_one_unit_agree_within_their_errors(tmp_path):
-    from gyrocal.report import servo_versus_turntable
+    from gyrocal.fleet import servo_versus_turntable
     from gyrocal.simulate import TurntableProtocol
     from gyrocal.simulate.fleet import unit_for
     rows = []

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from gyrocal.errors import GyrocalError, SegmentationError
 from gyrocal.io import read_log
-from gyrocal.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
+from gyrocal.turntable.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
 from gyrocal.simulate import load_truth
 
 from .conftest import TEMPS, make_log

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 
 from gyrocal.calibration import load_calibration
-from gyrocal.io import read_table_with_metadata
+from gyrocal.tables import read_table_with_metadata
 from gyrocal.manifest import read_manifest
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
-from .conftest import snakemake
+from .conftest import needs, snakemake
 
 UNIT = ("B1", "A1", "2026-01-01")
 FOLDER = "results/{}/{}/{}".format(*UNIT)
@@ -29,16 +29,10 @@ FOLDER = "results/{}/{}/{}".format(*UNIT)
 TARGETS = [f"{FOLDER}/{name}" for name in ("calibration.json", "validation.json", "diagnosis.json")]
 CONFIG = "devices: devices.tsv\nmodel: {terms: [bias, scale, misalignment]}\n"
 
-# CI sets GYROCAL_REQUIRE_RSYNC=1: there a missing plugin or rsync fails the tests that
-# need them instead of skipping them.
-MISSING = [name for name, found in (
-    ("snakemake-storage-plugin-fs", importlib.util.find_spec("snakemake_storage_plugin_fs") is not None),
-    ("rsync", shutil.which("rsync") is not None)) if not found]
-REQUIRED = bool(os.environ.get("GYROCAL_REQUIRE_RSYNC"))
-needs_storage = pytest.mark.skipif(
-    bool(MISSING) and not REQUIRED,
-    reason=f"{' and '.join(MISSING)} not installed: the fs storage provider needs both "
-           "(pip install snakemake-storage-plugin-fs; apt-get install rsync)")
+needs_storage = needs({"snakemake-storage-plugin-fs": importlib.util.find_spec("snakemake_storage_plugin_fs") is not None,
+                       "rsync": shutil.which("rsync") is not None},
+                      "the fs storage provider needs both: a test extra; Debian's rsync, which "
+                      "make test installs where it can")
 
 
 def fleet(folder, path):
@@ -65,8 +59,6 @@ def test_a_url_in_the_manifest_is_kept_as_written_and_a_path_is_resolved(tmp_pat
 def runs(tmp_path_factory):
     """One quick simulated log in a storage folder, calibrated by the workflow twice: the
     manifest naming its path, and naming it as an fs:// URL."""
-    if MISSING:
-        pytest.fail(f"GYROCAL_REQUIRE_RSYNC is set but {' and '.join(MISSING)} is not installed")
     base = tmp_path_factory.mktemp("storage")
     log = base / "store" / "line3" / "A1-2026-01-01.parquet"
     log.parent.mkdir(parents=True)
@@ -81,6 +73,7 @@ def runs(tmp_path_factory):
     return plain, remote, outputs, log
 
 
+@pytest.mark.slow
 @needs_storage
 def test_a_log_in_storage_is_retrieved_and_calibrated_as_from_its_path(runs):
     plain, remote, outputs, log = runs
@@ -97,6 +90,7 @@ def test_a_log_in_storage_is_retrieved_and_calibrated_as_from_its_path(runs):
     assert (cal.meta["batch"], cal.meta["device"], cal.meta["session"]) == UNIT
 
 
+@pytest.mark.slow
 @needs_storage
 def test_the_second_plan_finds_nothing_to_do(runs):
     """Snakemake asks the storage for the log's time stamp: unchanged, nothing re-runs."""
@@ -118,18 +112,14 @@ def test_a_missing_object_stops_the_plan_naming_it(tmp_path):
     assert f"{tmp_path / 'store' / 'absent.parquet'} (in storage)" in text
 
 
-S3_MISSING = [name for name, module in (("snakemake-storage-plugin-s3", "snakemake_storage_plugin_s3"),
-                                        ("moto", "moto"), ("flask", "flask"), ("flask-cors", "flask_cors"))
-              if importlib.util.find_spec(module) is None]
-needs_s3 = pytest.mark.skipif(bool(S3_MISSING) and not REQUIRED,
-                              reason=f"{', '.join(S3_MISSING)} not installed (test extras)")
+needs_s3 = needs({name: importlib.util.find_spec(module) is not None for name, module in (
+    ("snakemake-storage-plugin-s3", "snakemake_storage_plugin_s3"), ("moto", "moto"),
+    ("flask", "flask"), ("flask-cors", "flask_cors"))}, "test extras")
 
 
 @pytest.fixture(scope="module")
 def s3_server():
     """moto's S3-compatible server on a free local port, with the bucket ``rig-logs``."""
-    if S3_MISSING:
-        pytest.fail(f"GYROCAL_REQUIRE_RSYNC is set but {', '.join(S3_MISSING)} is not installed")
     import boto3
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
@@ -153,6 +143,8 @@ def s3_server():
         server.wait(10)
 
 
+@pytest.mark.slow
+@needs_storage  # the fs run is its reference
 @needs_s3
 def test_a_log_in_s3_is_retrieved_and_calibrated_as_from_its_path(runs, s3_server, tmp_path):
     plain, _, _, log = runs

@@ -389,6 +389,7 @@ def test_design_reproduces_the_papers_l3gd20_numbers():
 
 # -- the regenerated paper tables ----------------------------------------------------------------
 
+@pytest.mark.slow
 def test_seed003_tables_and_figures(tmp_path):
     from gyrocal.paper import seed003
     tables = seed003.tables(seed=0, quick=True)

@@ -19,7 +19,7 @@ from gyrocal.calibration import load_calibration, save_calibration
 from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.pipeline import run, segment_log
-from gyrocal.segment import SegmentConfig
+from gyrocal.turntable.segment import SegmentConfig
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
 from gyrocal.terms import user as user_terms
@@ -87,6 +87,7 @@ def hold_errors(applied, truth_log, obs) -> np.ndarray:
     return np.array(errors)
 
 
+@pytest.mark.slow
 def test_a_users_term_file_is_fitted_diagnosed_written_and_applied(tmp_path, registry, capsys):
     workflow = tmp_path / "my_workflow"
     workflow.mkdir()
@@ -218,6 +219,7 @@ def test_temperature_rate_is_the_local_slope():
     assert np.isnan(temperature_rate(t[:1], temp[:1])).all()
 
 
+@pytest.mark.slow
 def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
     # The chamber door lets the die warm and cool around each handling: holds see dT/dt.
     unit = GyroUnit.seed000().with_effects({"temp_rate": (0.02, -0.015, 0.01)})

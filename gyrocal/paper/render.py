@@ -16,21 +16,14 @@ import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-import jinja2
-
 from .. import __version__
 from ..errors import InputError
-from ..report import fmt
+from ..pages import fmt, render_page
 from .table import PaperTable
 
 OUTPUTS = ("tables.md", "tables.csv", "index.html")
 DIGITS = {"published": 5, "regenerated": 5, "ratio": 3}   # significant digits shown
 CSV_DIGITS = 6
-
-_ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal", "templates"),
-                          autoescape=jinja2.select_autoescape(["html", "j2"]),
-                          undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
-_ENV.filters["fmt"] = fmt
 
 
 def _csv_number(value) -> str:
@@ -127,8 +120,8 @@ def page(tables: Sequence[PaperTable], figures: Mapping[str, Sequence[Path]],
                              "notes": list(t.notes)} for t in tables if t.seed == s],
                  "figures": [_inline(Path(p)) for p in figures.get(s, ())]}
                 for s in _seeds(tables, figures)]
-    return _ENV.get_template("paper.html.j2").render(
-        version=__version__, about=about, sections=sections, skipped=sorted(skipped.items()))
+    return render_page("paper.html.j2", version=__version__, about=about, sections=sections,
+                       skipped=sorted(skipped.items()))
 
 
 def _write(path: Path, text: str) -> None:

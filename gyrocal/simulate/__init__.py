@@ -9,6 +9,7 @@ from ``SeedSequence(seed).spawn(units)[i]``.
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,35 @@ PROTOCOLS = {"turntable": (TurntableProtocol, render, GyroUnit),
              "sweep": (SweepProtocol, render_sweep, SweepUnit),
              "servo": (ServoProtocol, render_servo, ServoUnit)}
 MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
+# protocol -> preset -> rig: "seed" the paper's schedule, "quick" a log of minutes (the
+# servo's three revolutions per rotation, so each can be validated on the others).
+PRESETS = {"turntable": {"seed": TurntableProtocol, "quick": TurntableProtocol.quick},
+           "sweep": {"seed": SweepProtocol.seed003, "quick": SweepProtocol.demo},
+           "servo": {"seed": ServoProtocol, "quick": lambda: ServoProtocol(revolutions=3)}}
+# protocol -> the unit its paper publishes (turntable: seed 000 Eq 23; sweep: seed 003's
+# L3GD20 sizes); the servo paper's units are drawn at random (seed 001 Section III).
+PUBLISHED_UNITS = {"turntable": GyroUnit.seed000, "sweep": SweepUnit.seed003}
+
+
+def rig_for(protocol: str, preset: str, knobs: dict, labels: dict | None = None):
+    """The ``preset`` rig of ``protocol`` with ``knobs`` (rig fields; None: left as is)
+    set; a knob the rig does not have is refused, named by ``labels`` (the CLI's options)."""
+    if protocol not in PRESETS:
+        raise ConfigError(f"protocol {protocol!r} cannot be simulated by this version of "
+                          f"gyrocal (supported: {', '.join(PRESETS)})")
+    base = PRESETS[protocol][preset]()
+    given = {k: v for k, v in knobs.items() if v is not None}
+    foreign = [(labels or {}).get(k, k) for k in given if k not in base.__dataclass_fields__]
+    if foreign:
+        raise ConfigError(f"{', '.join(foreign)} do not apply to the {protocol} rig")
+    return replace(base, **given)
+
+
+def published_unit(protocol: str):
+    if protocol not in PUBLISHED_UNITS:
+        raise ConfigError(f"--unit seed000 has no {protocol} counterpart: that paper's units "
+                          "are drawn at random")
+    return PUBLISHED_UNITS[protocol]()
 
 
 def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit | None = None,

@@ -1,14 +1,15 @@
 # Fit, validate and diagnose a unit in one job (`gyrocal analyse`): three steps of seconds
-# that always run together. One job instead of three is a third of the jobs Snakemake
-# plans per unit (docs/cluster.md) and two Python start-ups fewer; each step still writes
-# its own outputs and failure records (gyrocal/stages.py analyse_stage).
+# that always run together, sharing one fit of the configured model. One job instead of
+# three is a third of the jobs Snakemake plans per unit (docs/cluster.md) and two Python
+# start-ups fewer; each step still writes its own outputs and failure records
+# (gyrocal/stages.py analyse_stage).
 #
 # The rules declare the files another job reads: here the calibration, validation and
-# diagnosis, which the report and the fleet summary read. The tables only the report
-# reads (validation_holds, table_hold_means, table_samples, by_temperature, residuals;
-# the segmentation's segments and timeline) are written beside them by the same job,
-# every time, and are not declared: each declared file costs Snakemake work per unit as
-# it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
+# diagnosis, which the report and the fleet summary read. The files only the report
+# reads (validation_holds, table_hold_means, table_samples, by_temperature, residuals,
+# protocol.json; the segmentation's segments and timeline) are written beside them by the
+# same job, every time, and are not declared: each declared file costs Snakemake work per
+# unit as it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
 # either (Snakemake leaves a missing intermediate file alone while what was made from it
 # is up to date). A report rendered after one was deleted names it (the residuals: it
 # leaves out their section, as for a diagnosis written without them).

@@ -7,6 +7,7 @@ import shlex
 import sys
 
 from gyrocal import __version__ as GYROCAL_VERSION
+from gyrocal import protocols
 from gyrocal.fleet import drift_devices, other_sessions
 from gyrocal.manifest import (
     BATCH_PATTERN,
@@ -106,8 +107,8 @@ def storage_log(url):
     return storage(url)
 
 
-# What a servo or sweep job reads besides its protocol's defaults (gyrocal/config.py
-# PROTOCOL_DEFAULTS): the turntable's model and ladder are not theirs, so changing those
+# What a servo or sweep job reads besides its protocol's defaults (the Protocol's
+# defaults): the turntable's model and ladder are not theirs, so changing those
 # leaves their jobs alone. (A servo calibration is seed 001's six parameters: of the
 # analysis, only its diagnosis reads the model.)
 PROTOCOL_READS = {
@@ -120,7 +121,7 @@ PROTOCOL_READS = {
 def protocol_settings(settings, stage, protocol):
     """The settings a ``protocol`` unit's ``stage`` job reads, as JSON (part of a
     parameter: when it changes, the job re-runs)."""
-    if protocol == "turntable":
+    if protocols.get(protocol).top_level_settings:
         return json.dumps(settings, sort_keys=True)
     reads = PROTOCOL_READS[stage]
     own = {}
@@ -132,9 +133,7 @@ def protocol_settings(settings, stage, protocol):
     if "model" in reads and user_terms:
         own["model"] = user_terms
     if "diagnosis" in reads:
-        own["diagnosis"] = {
-            "significance": config["diagnosis"].get("significance", 0.01)
-        }
+        own["diagnosis"] = {"significance": config["diagnosis"]["significance"]}
     section = config.get("protocols", {}).get(protocol) or {}
     section = {k: v for k, v in section.items() if k in reads}
     if section:
@@ -184,7 +183,9 @@ def demo_unit_options(wildcards):
     settings = config["demo"].get("units", {}).get(wildcards.device, {})
     protocol = unit(wildcards)["protocol"]
     options = [f"--protocol {protocol}"]
-    if protocol == "turntable":  # the set points and rates of the turntable demo
+    # The demo's top-level set points and rates, like the config's top-level settings, are
+    # the default protocol's (the turntable's).
+    if protocols.get(protocol).top_level_settings:
         for key in ("temperatures", "rates"):
             values = ",".join(str(v) for v in config["demo"][key])
             options.append(f"--{key}={values}")

@@ -22,14 +22,16 @@ Block-level work is vectorised; hold statistics are ``reduceat`` sums over hold 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from .blocks import block_statistics
-from .errors import ConfigError, SegmentationError
-from .io import GYRO, MOUNTS, RigLog, read_log
+from .. import schema
+from ..blocks import block_statistics
+from ..errors import SegmentationError
+from ..holds import Segmentation
+from ..io import GYRO, MOUNTS, RigLog, read_log
 
 LOG_COLUMNS = ("mount", "accel_x", "accel_y", "accel_z")  # optional columns segmentation uses
 
@@ -47,74 +49,38 @@ REASONS = {
 }
 
 
+_DEFAULTS = schema.defaults("config", "segmentation")
+
+
 @dataclass(frozen=True)
 class SegmentConfig:
-    """Knobs of segmentation. Rates in deg/s, times in s, temperature rates in °C/min."""
+    """Knobs of segmentation; what each means, its default and its bounds are in the config
+    schema (``segmentation:``). Rates in deg/s, times in s, temperature rates in °C/min."""
 
-    block_s: float = 0.5             # block length; holds are resolved to whole blocks
-    rate_tol_abs: float = 0.005      # reference counts as constant within abs + rel·|rate|
-    rate_tol_rel: float = 1e-3
-    gap_factor: float = 10.0         # a sample interval this many times nominal is a gap
-    gap_bridge_s: float = 2.0        # a logging gap this short does not interrupt a hold
-    trim_s: float = 0.4              # transient trimmed from both ends of every hold
-    settle_s: float = 1.0            # margin kept clear of handling motion
-    min_hold_s: float | None = None  # None: a quarter of the typical rotating hold
-    soak_min_s: float | None = None  # None: five typical rotating holds
-    max_temp_rate: float = 0.1       # °C/min; faster means the temperature is not stable
-    temp_window_s: float = 60.0      # window of the rate estimate for stable periods
-    temp_gap: float = 2.0            # °C between holds that separates temperature points
-    motion_sigma: float = 6.0        # motion threshold in units of the noise of the test
-    motion_floor: float = 0.02       # deg/s; block-mean changes below this are never motion
-    noise_cap: float = 5.0           # a run's noise may exceed the log's by at most this
-    mount_min_rate: float = 5.0      # holds this fast tell their mount from the gyro
-    agree_scale: float = 0.1         # gyro may differ from reference by scale·|rate| + bias
-    agree_bias: float = 5.0
-    saturation_fraction: float = 0.01
-    full_scale: float | None = None  # deg/s; when given, saturation is judged against it
+    block_s: float = _DEFAULTS["block_s"]
+    rate_tol_abs: float = _DEFAULTS["rate_tol_abs"]
+    rate_tol_rel: float = _DEFAULTS["rate_tol_rel"]
+    gap_factor: float = _DEFAULTS["gap_factor"]
+    gap_bridge_s: float = _DEFAULTS["gap_bridge_s"]
+    trim_s: float = _DEFAULTS["trim_s"]
+    settle_s: float = _DEFAULTS["settle_s"]
+    min_hold_s: float | None = _DEFAULTS["min_hold_s"]
+    soak_min_s: float | None = _DEFAULTS["soak_min_s"]
+    max_temp_rate: float = _DEFAULTS["max_temp_rate"]
+    temp_window_s: float = _DEFAULTS["temp_window_s"]
+    temp_gap: float = _DEFAULTS["temp_gap"]
+    motion_sigma: float = _DEFAULTS["motion_sigma"]
+    motion_floor: float = _DEFAULTS["motion_floor"]
+    noise_cap: float = _DEFAULTS["noise_cap"]
+    mount_min_rate: float = _DEFAULTS["mount_min_rate"]
+    agree_scale: float = _DEFAULTS["agree_scale"]
+    agree_bias: float = _DEFAULTS["agree_bias"]
+    saturation_fraction: float = _DEFAULTS["saturation_fraction"]
+    full_scale: float | None = _DEFAULTS["full_scale"]
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> SegmentConfig:
-        values = dict(values or {})
-        known = {f.name for f in fields(cls)}
-        for name, value in values.items():
-            if name not in known:
-                raise ConfigError(f"unknown setting {key}.{name}; known: {', '.join(sorted(known))}")
-            if value is None and name in _OPTIONAL:
-                continue
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-                raise ConfigError(f"{key}.{name} must be a number, got {value!r}")
-            low, inclusive = _LOWER_BOUNDS.get(name, (0.0, True))
-            if value < low or (value == low and not inclusive):
-                relation = "at least" if inclusive else "more than"
-                raise ConfigError(f"{key}.{name} must be {relation} {low:g}, got {value!r}")
-        return cls(**values)
-
-
-_OPTIONAL = {"min_hold_s", "soak_min_s", "full_scale"}
-# (bound, inclusive); every other setting must be >= 0
-_LOWER_BOUNDS = {"block_s": (0.0, False), "gap_factor": (1.0, False), "motion_sigma": (0.0, False),
-                 "noise_cap": (1.0, True), "temp_window_s": (0.0, False), "full_scale": (0.0, False),
-                 "saturation_fraction": (0.0, False)}
-
-
-@dataclass(frozen=True)
-class Segmentation:
-    """Result of :func:`segment`: one row per accepted hold, plus what else was found."""
-
-    observations: pd.DataFrame
-    segments: pd.DataFrame           # every phase: hold, soak, ramp, gap, transient, rejected
-    stable_periods: pd.DataFrame     # t_start, t_end, temp of stable-temperature stretches
-    timeline: pd.DataFrame           # the session in at most 2000 buckets, for plots
-    info: dict = field(default_factory=dict)
-
-    def rejected(self) -> pd.DataFrame:
-        return self.segments[self.segments["kind"] == "rejected"].reset_index(drop=True)
-
-    def counts(self) -> pd.DataFrame:
-        """Accepted holds per temperature point (rows) and mount (columns)."""
-        obs = self.observations
-        table = pd.crosstab(obs["point_temp"].round(2), obs["mount"].astype(str))
-        return table.reindex(columns=[m for m in MOUNTS if m in table.columns])
+        return cls(**schema.check(values or {}, "config", "segmentation", key=key))
 
 
 def segment_file(path, config: SegmentConfig | None = None) -> tuple[RigLog, Segmentation]:

@@ -1,0 +1,201 @@
+"""The wiring: protocols come from the registry, modules import without cycles, and the
+analyse job fits the configured model once."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+from gyrocal import protocols
+from gyrocal.errors import ConfigError
+
+PACKAGE = Path(__file__).resolve().parents[1] / "gyrocal"
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+        out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def _imports(name: str, path: Path, modules: dict) -> set[str]:
+    """Every gyrocal module ``name`` imports, at module level or inside a function."""
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module or ""
+            targets = [f"{module}.{a.name}" if f"{module}.{a.name}" in modules else module
+                       for a in node.names]
+        elif isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        else:
+            continue
+        for target in targets:
+            while target not in modules and "." in target:
+                target = target.rsplit(".", 1)[0]
+            # a package's own modules importing it (for its __init__) is not a cycle
+            if target in modules and target != name and not name.startswith(target + "."):
+                found.add(target)
+    return found
+
+
+def test_no_import_cycle_in_the_package():
+    modules = _modules()
+    graph = {m: _imports(m, p, modules) for m, p in modules.items()}
+    done, path = set(), []
+
+    def visit(m):
+        if m in path:
+            raise AssertionError("import cycle: " + " -> ".join(path[path.index(m):] + [m]))
+        if m in done:
+            return
+        path.append(m)
+        for n in sorted(graph[m]):
+            visit(n)
+        path.pop()
+        done.add(m)
+
+    for m in sorted(graph):
+        visit(m)
+
+
+def test_no_module_compares_a_protocol_by_name_outside_the_registry():
+    """Protocol names appear in comparisons only in the registry and the protocols' own
+    packages (the simulator keys its rigs by name in tables, which is not a comparison)."""
+    names = set(protocols.names())
+    own = {PACKAGE / "protocols.py", *(PACKAGE / n / "protocol.py" for n in names)}
+    offenders = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if path in own:
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.Compare):
+                continue
+            for side in (node.left, *node.comparators):
+                values = side.elts if isinstance(side, (ast.Tuple, ast.List, ast.Set)) else [side]
+                if any(isinstance(v, ast.Constant) and v.value in names for v in values):
+                    offenders.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno}")
+    assert not offenders, offenders
+
+
+def test_the_registry_knows_the_built_in_protocols_and_refuses_others():
+    assert protocols.names()[:3] == ("turntable", "servo", "sweep")
+    for name in protocols.names():
+        p = protocols.get(name)
+        assert p.name == name and callable(p.segment) and callable(p.static)
+    assert protocols.get(None) is protocols.get("turntable")
+    # Only the turntable's calibrations feed batch outliers and drift pages; only the
+    # servo has a calibration and validation of its own, and no known true rate.
+    assert [n for n in protocols.names() if protocols.get(n).fleet_audits] == ["turntable"]
+    assert [n for n in protocols.names() if protocols.get(n).calibrate] == ["servo"]
+    assert [n for n in protocols.names() if not protocols.get(n).known_rate] == ["servo"]
+    with pytest.raises(ConfigError, match="protocol 'hand' is not supported.*turntable, servo, sweep"):
+        protocols.get("hand")
+
+
+def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
+    """Adding a protocol is one registration: a log of it is segmented by its segmenter."""
+    from gyrocal.config import Settings
+    from gyrocal.pipeline import segment_log
+    from gyrocal.simulate import TurntableProtocol, simulate_unit
+    from gyrocal.turntable import protocol as turntable
+    import numpy as np
+    from dataclasses import replace
+
+    log = tmp_path / "u.parquet"
+    simulate_unit(log, rig=TurntableProtocol.quick(temperatures=(20.0,), rates=(10.0, 100.0)),
+                  rng=np.random.default_rng(3))
+    seen = []
+
+    def segment(log, settings):
+        seen.append(log.path)
+        return turntable.TURNTABLE.segment(log, settings)
+
+    protocols.register(replace(turntable.TURNTABLE, name="renamed_turntable", segment=segment))
+    try:
+        assert "renamed_turntable" in protocols.names()
+        seg = segment_log(log, Settings(), "renamed_turntable")
+        assert seen and len(seg.observations) > 0
+    finally:
+        protocols._REGISTRY.pop("renamed_turntable")
+
+
+def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
+    """Fit, validation and diagnosis share one fit of the configured model (the diagnosis
+    fits only its candidates), and what they write is what separate stages write."""
+    import numpy as np
+
+    from gyrocal import diagnose, pipeline, stages, thermal
+    from gyrocal.config import Settings
+    from gyrocal.simulate import TurntableProtocol, simulate_unit
+
+    log = tmp_path / "u.parquet"
+    simulate_unit(log, rig=TurntableProtocol.quick(), rng=np.random.default_rng(5))
+    settings = Settings()
+    meta = {"device": "U", "batch": "B", "session": "2026-01-01", "protocol": "turntable"}
+    folder = tmp_path / "unit"
+    stages.segment_stage(log, folder, settings, meta)
+    configured = [t.spec_string() for t in settings.model.build().terms]
+    fits = []
+
+    def counting(model, *args, **kwargs):
+        if [t.spec_string() for t in model.terms] == configured:
+            fits.append(1)
+        return thermal.fit_model(model, *args, **kwargs)
+
+    for module in (pipeline, stages, diagnose):
+        monkeypatch.setattr(module, "fit_model", counting)
+    stages.analyse_stage(folder, settings, meta, record_failures=False)
+    assert len(fits) == 1
+    joint = {f: (folder / f).read_bytes() for f in ("calibration.json", "validation.json", "diagnosis.json")}
+
+    # The same stages run one by one (the CLI's fit, validate, diagnose) write the same bytes.
+    apart = tmp_path / "apart"
+    stages.segment_stage(log, apart, settings, meta)
+    stages.fit_stage(apart, settings, meta)
+    stages.validate_stage(apart, settings)
+    stages.diagnose_stage(apart, settings, meta)
+    for name, data in joint.items():
+        assert (apart / name).read_bytes() == data, name
+
+
+def test_a_calibration_from_other_settings_is_refused_without_refitting(tmp_path):
+    import numpy as np
+
+    from gyrocal import stages
+    from gyrocal.config import Settings
+    from gyrocal.errors import GyrocalError
+    from gyrocal.simulate import TurntableProtocol, simulate_unit
+
+    log = tmp_path / "u.parquet"
+    simulate_unit(log, rig=TurntableProtocol.quick(), rng=np.random.default_rng(6))
+    settings = Settings()
+    meta = {"protocol": "turntable"}
+    stages.segment_stage(log, tmp_path, settings, meta)
+    stages.fit_stage(tmp_path, settings, meta)
+    other = Settings.from_dict({"model": {"interpolation": "linear"}})
+    with pytest.raises(GyrocalError, match="not fitted from these observations with these settings"):
+        stages.validate_stage(tmp_path, other)
+    stages.validate_stage(tmp_path, settings)  # its own settings: accepted
+
+
+def test_the_schemas_name_the_registrys_protocols():
+    """The manifest's protocol column and the config's per-protocol sections list the
+    protocols the registry knows, no more and no fewer."""
+    from gyrocal import schema
+
+    manifest = schema.load("manifest")
+    assert manifest["properties"]["protocol"]["enum"] == list(protocols.names())
+    config = schema.load("config")
+    assert sorted(config["properties"]["spec"]["properties"]) == sorted(protocols.names())
+    own = [n for n in protocols.names() if not protocols.get(n).top_level_settings]
+    assert sorted(config["properties"]["protocols"]["properties"]) == sorted(own)

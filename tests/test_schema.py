@@ -1,0 +1,106 @@
+"""The config and manifest schemas: one source of bounds and defaults, one wording of errors."""
+
+from __future__ import annotations
+
+from dataclasses import fields
+
+import jsonschema
+import pytest
+import yaml
+
+from gyrocal import schema
+from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
+from gyrocal.errors import ConfigError
+from gyrocal.manifest import read_manifest
+from gyrocal.turntable.segment import SegmentConfig
+
+from .conftest import FLEET_CONFIG, REPO
+
+
+@pytest.mark.parametrize("name", ["config", "manifest"])
+def test_the_schemas_are_valid_json_schemas(name):
+    jsonschema.Draft202012Validator.check_schema(schema.load(name))
+
+
+def test_the_settings_take_their_defaults_from_the_schema():
+    seg = schema.section("config", "segmentation")["properties"]
+    assert [f.name for f in fields(SegmentConfig)] == list(seg)
+    assert SegmentConfig() == SegmentConfig(**{k: p["default"] for k, p in seg.items()})
+    model, diagnosis = schema.defaults("config", "model"), schema.defaults("config", "diagnosis")
+    assert (ModelSettings().kind, ModelSettings().interpolation, ModelSettings().degree,
+            ModelSettings().reference_temperature) == (model["kind"], model["interpolation"],
+                                                       model["degree"], model["reference_temperature"])
+    assert DiagnosisSettings().significance == diagnosis["significance"]
+    # Calibration files record this hash: the defaults' values and types are unchanged.
+    assert Settings().sha256() == "e041b8f90aa1cf2db8734d878adabc266bbb32cfcc1f78d9ee7a1489b8b6c1dd"
+    assert Settings.from_dict({}) == Settings()
+    assert ModelSettings.from_dict({"terms": ("bias", "scale")}).terms == ("bias", "scale")
+
+
+@pytest.mark.parametrize("section, values, message", [
+    ("segmentation", {"trim_s": -1}, "segmentation.trim_s must be at least 0, got -1"),
+    ("segmentation", {"temp_gap": float("inf")}, "segmentation.temp_gap must be a number, got inf"),
+    ("model", {"interpolation": "cosine"}, "model.interpolation method 'cosine' is not known; "
+                                           "choose one of lagrange3, linear, spline, poly"),
+    ("model", {"degree": 2.0}, "model.degree must be a whole number, got 2.0"),
+    ("model", {"expressions": {"door": {"formula": "t", "scope": "all"}}},
+     "model.expressions.door.scope 'all' is not known; choose one of point, global"),
+    ("diagnosis", {"significance": 1}, "diagnosis.significance must be less than 1, got 1"),
+    ("diagnosis", {"ladder": [{"add": ["scale_quadratic"], "kind": "joint"}]},
+     "diagnosis.ladder[0].kind 'joint' is not known; choose one of grid, continuous, null"),
+    ("protocols", {"sweep": {"options": {"fill": 2}}}, "protocols.sweep.options.fill must be at most 1, got 2"),
+    ("protocols", {"servo": {"options": {"min_revolutions": 0.5}}},
+     "protocols.servo.options.min_revolutions must be a whole number, got 0.5"),
+    ("protocols", {"sweep": {"model": {"kind": "joint"}}},
+     "protocols.sweep.model.kind 'joint' is not known; choose one of grid, continuous"),
+])
+def test_the_workflow_and_the_library_refuse_a_value_in_the_same_words(section, values, message):
+    config = yaml.safe_load(FLEET_CONFIG) | {section: values}
+    with pytest.raises(ConfigError) as workflow:
+        schema.check(config, source="config.yaml")
+    with pytest.raises(ConfigError) as library:
+        Settings.from_dict({section: values})
+    assert str(workflow.value) == f"config.yaml: {message}"
+    assert str(library.value) == message
+
+
+def test_defaults_complete_the_config_but_not_a_protocols_override():
+    config = schema.check({"devices": "d.tsv", "model": {"terms": ["bias"]},
+                           "protocols": {"sweep": {"model": {"terms": ["bias"]}}}})
+    assert config["model"] == {"terms": ["bias"], **schema.defaults("config", "model")}
+    assert config["segmentation"]["block_s"] == SegmentConfig().block_s
+    assert config["diagnosis"]["significance"] == DiagnosisSettings().significance
+    assert config["protocols"] == {"sweep": {"model": {"terms": ["bias"]}}}  # the sweep's own kind stays
+    assert Settings.from_dict({"protocols": config["protocols"]}).for_protocol("sweep").model.kind == "continuous"
+
+
+def test_the_demo_config_passes():
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    assert schema.check(config)["demo"] == config["demo"]
+
+
+HEADER = "device\tbatch\tsession\tprotocol\tpath\n"
+
+
+@pytest.mark.parametrize("row, message", [
+    ("bad id!\tB1\t2026-01-01\tturntable\tx.parquet", "device 'bad id!' does not match ^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"),
+    ("U1\tB/1\t2026-01-01\tturntable\tx.parquet", "batch 'B/1' must be non-empty without slashes or tabs"),
+    ("U1\tB1\t2026-02-30\tturntable\tx.parquet", "session '2026-02-30' is not an ISO date YYYY-MM-DD"),
+    ("U1\tB1\t26-2-3\tturntable\tx.parquet", "session '26-2-3' is not an ISO date YYYY-MM-DD"),
+    ("U1\tB1\t2026-01-01\tgimbal\tx.parquet", "protocol 'gimbal' is not known; choose one of turntable, servo, sweep"),
+    ("U1\tB1\t2026-01-01\tservo\t", "path '' is empty"),
+])
+def test_a_bad_manifest_row_is_named_by_line_and_column(tmp_path, row, message):
+    path = tmp_path / "devices.tsv"
+    path.write_text(HEADER + "U0\tB1\t2026-01-01\tturntable\tu0.parquet\n" + row + "\n")
+    with pytest.raises(ConfigError) as err:
+        read_manifest(path)
+    assert str(err.value) == f"{path}: line 3: {message}"
+
+
+def test_a_good_manifest_reads_every_row(tmp_path):
+    path = tmp_path / "devices.tsv"
+    path.write_text(HEADER + "U0\tB1\t2026-01-01\tturntable\tlogs/u0.parquet\n"
+                    "U1\tB1\t2026-01-01\tsweep\ts3://bucket/u1.parquet\n")
+    rows = read_manifest(path)
+    assert [r["log"] for r in rows] == [str(tmp_path / "logs" / "u0.parquet"), "s3://bucket/u1.parquet"]
