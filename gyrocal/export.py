@@ -52,7 +52,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from . import __version__
 from .calibration import Calibration, dumps, load_calibration
@@ -155,6 +154,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
     elif method == "spline":
+        from scipy.interpolate import CubicSpline  # half a second to import: only for a spline
         c = CubicSpline(temps, Y, bc_type="natural").c.transpose(1, 0, 2)   # (P-1, 4, 12)
         tables.update(spline_K=c[..., :9].reshape(P - 1, 4, 3, 3), spline_B=c[..., 9:].copy())
     elif method == "poly":

@@ -26,7 +26,6 @@ from typing import ClassVar
 
 import numpy as np
 import pandas as pd
-from scipy.interpolate import CubicSpline
 
 from .errors import ConfigError, GyrocalError, IdentifiabilityError
 from .model import FitResult, Model, columns_of, fit
@@ -76,6 +75,7 @@ def linear_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
 def spline_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
     if len(nodes) < 3:
         return linear_weights(nodes, x)
+    from scipy.interpolate import CubicSpline  # half a second to import: only when a spline is used
     return CubicSpline(nodes, np.eye(len(nodes)), bc_type="natural")(x)
 
 
