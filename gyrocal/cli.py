@@ -293,7 +293,6 @@ def cmd_calibrate(args) -> int:
 def cmd_diagnose(args) -> int:
     import tempfile
 
-    from .protocols import check as check_protocol
     from .stages import diagnose_stage, run_stage, segment_stage
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
@@ -309,12 +308,12 @@ def cmd_diagnose(args) -> int:
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
             other = args.other_session
             if other is not None and not Path(other).is_dir():
-                check_protocol(args.protocol)
+                protocols.get(args.protocol)
                 other = Path(scratch) / "other"
                 segment_stage(args.other_session, other, settings, _meta(args))
             if args.unit is not None:
                 return diagnose_folder(args.unit, other)
-            check_protocol(args.protocol)
+            protocols.get(args.protocol)
             folder = Path(scratch) / "unit"
             segment_stage(args.log, folder, settings, _meta(args))
             diagnose_folder(folder, other)

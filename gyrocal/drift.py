@@ -272,21 +272,15 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
     Deterministic SVG; written to ``path_or_none`` when given."""
     from matplotlib.dates import AutoDateLocator, ConciseDateFormatter
 
-    from .plots import figure, figure_style, to_svg, write_svg
+    from .plots import figure_style, panels, to_svg, write_svg
     if changes.empty:
         raise InputError("drift plot: no parameter changes to plot")
     params = list(dict.fromkeys(changes["parameter"]))
     dates = pd.to_datetime(changes["session"], errors="coerce")
     use_dates = not dates.isna().any()
-    cols = min(3, len(params))
-    rows = math.ceil(len(params) / cols)
     with figure_style():
-        fig, axes = figure(10, 2.2 * rows + 0.4, rows, cols)
-        for k, axis in enumerate(axes.ravel()):
-            if k >= len(params):
-                axis.set_visible(False)
-                continue
-            p = params[k]
+        fig, grid = panels(params, 2.2)
+        for axis, p in grid:
             part = changes[changes["parameter"] == p]
             x = dates[part.index] if use_dates else np.arange(len(part))
             axis.errorbar(x, part["value"], yerr=part["stderr"], fmt="o-", ms=3, lw=0.8,

@@ -66,6 +66,18 @@ def figure(w: float, h: float, rows: int = 1, cols: int = 1, **kw):
     return fig, axes
 
 
+def panels(names: list, row_height: float):
+    """A figure of one panel per name, three to a row, the spare panels hidden:
+    (figure, [(axis, name), ...]). Call it inside :func:`figure_style`."""
+    cols = min(3, max(len(names), 1))
+    rows = max(math.ceil(len(names) / cols), 1)
+    fig, axes = figure(10, row_height * rows + 0.4, rows, cols)
+    flat = list(axes.ravel())
+    for axis in flat[len(names):]:
+        axis.set_visible(False)
+    return fig, list(zip(flat, names))
+
+
 def timeline(timeline: pd.DataFrame, segments: pd.DataFrame) -> str:
     """Temperature, reference rate and gyro over the session; accepted holds shaded,
     rejected segments marked by reason (seed 000 Section 3.2's protocol, as found)."""
@@ -374,15 +386,9 @@ def plot_parameter_distributions(table: pd.DataFrame, flagged: pd.DataFrame, pat
     hit = frame.reset_index().merge(flagged[ids + ["parameter"]], on=ids, how="inner") if len(flagged) else None
     counts = bkey.value_counts()
     ticks = [f"{b} ({counts[b]})" for b in batches]   # unit count; grey points: too few to judge
-    cols = min(3, max(len(params), 1))
-    rows = max(math.ceil(len(params) / cols), 1)
     with figure_style():
-        fig, axes = figure(10, 2.3 * rows + 0.4, rows, cols)
-        for k, axis in enumerate(axes.ravel()):
-            if k >= len(params):
-                axis.set_visible(False)
-                continue
-            p = params[k]
+        fig, grid = panels(params, 2.3)
+        for axis, p in grid:
             v = frame[p].to_numpy(dtype=float)
             ok = np.isfinite(v)
             small = (size < MIN_BATCH)

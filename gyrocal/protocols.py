@@ -92,10 +92,6 @@ def get(name: str | None) -> Protocol:
     return _REGISTRY[name]
 
 
-def check(name: str | None) -> None:
-    get(name)
-
-
 def analysis(name: str | None, obs) -> tuple[dict | None, list[str]]:
     """The protocol's own methods on its observations (:attr:`Protocol.analysis`); a
     failure is recorded in the results, since the report's common sections still stand."""
