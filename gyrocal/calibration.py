@@ -18,13 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from . import formats
 from .errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
 from .model import Model
 from .signals import SERIES_INPUTS, Inputs
 from .terms import AXES
 from .thermal import ConstantCoefficients, TemperatureGrid, check_method
 
-FORMAT = "gyrocal.calibration/1"
+FORMAT = formats.CALIBRATION
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
 UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
 

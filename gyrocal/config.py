@@ -210,5 +210,5 @@ def read_yaml(path) -> dict:
 def _own_settings() -> dict[str, dict]:
     """The default settings of each protocol whose settings are not the top-level ones."""
     from . import protocols
-    return {n: protocols.get(n).defaults for n in protocols.names()
-            if not protocols.get(n).top_level_settings}
+    own = {n: protocols.settings_defaults(n) for n in protocols.names()}
+    return {n: d for n, d in own.items() if d is not None}

@@ -49,14 +49,17 @@ import hashlib
 import json
 import os
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from . import __version__
-from .calibration import Calibration, dumps, load_calibration
 from .errors import ConfigError, InputError
-from .pages import ENV
+
+if TYPE_CHECKING:  # the CLI registers export at start-up: what it reads is imported on use
+    from .calibration import Calibration
 
 FORMAT = "gyrocal.firmware/1"
 FORMATS = {"c-header": ".h", "json": ".json"}
@@ -251,15 +254,19 @@ def c_comment(value) -> str:
     return text.replace("*/", "* /").replace("/*", "/ *")
 
 
-# The pages' environment, for C: nothing HTML-escaped (strings are made safe for C by the
-# filters below), and block tags on lines of their own leave no blank lines.
-_ENV = ENV.overlay(autoescape=False, trim_blocks=True, lstrip_blocks=True)
-_ENV.filters = {**ENV.filters, "c_number": c_number, "c_array": lambda v: c_array(np.asarray(v).tolist()),
-                "c_string": c_string, "c_comment": c_comment}
+@cache
+def _c_environment():
+    """The pages' environment, for C: nothing HTML-escaped (strings are made safe for C by
+    the filters below), and block tags on lines of their own leave no blank lines."""
+    from .pages import ENV
+    env = ENV.overlay(autoescape=False, trim_blocks=True, lstrip_blocks=True)
+    env.filters = {**ENV.filters, "c_number": c_number, "c_string": c_string, "c_comment": c_comment,
+                   "c_array": lambda v: c_array(np.asarray(v).tolist())}
+    return env
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:
-    return _ENV.get_template("compensation.h.j2").render(
+    return _c_environment().get_template("compensation.h.j2").render(
         t=tables, meta={k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
         source=_source_info(source), version=__version__, format=FORMAT,
         n=len(tables.temperature))
@@ -267,6 +274,7 @@ def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) ->
 
 def _render(cal: Calibration, tables: FirmwareTables, fmt: str, source) -> str:
     if fmt == "json":
+        from .calibration import dumps
         return dumps(to_document(cal, tables, source=source))
     return render_c_header(cal, tables, source=source)
 
@@ -320,6 +328,7 @@ def infer_format(output) -> str:
 
 def cmd_export(args) -> int:
     fmt = args.format or infer_format(args.output)
+    from .calibration import load_calibration
     _precheck(args.calibration)
     cal = load_calibration(args.calibration)
     tables = export_calibration(cal, fmt, args.output, source=args.calibration)

@@ -18,10 +18,11 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from . import formats
 from .errors import CorruptFileError, GyrocalError
 from .pages import render_page
 
-FORMAT = "gyrocal.failure/1"
+FORMAT = formats.FAILURE
 META_KEY = b"gyrocal.failure"
 
 

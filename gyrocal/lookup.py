@@ -23,10 +23,16 @@ import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from .calibration import FORMAT_FAMILY, Calibration
+from . import formats
 from .errors import ConfigError, GyrocalError, InputError
-from .failure import FORMAT as FAILURE_FORMAT
+
+if TYPE_CHECKING:
+    from .calibration import Calibration
+
+FORMAT_FAMILY = formats.CALIBRATION.split("/")[0]
+FAILURE_FORMAT = formats.FAILURE
 
 DEFAULT_MAX_DAYS = 30
 DIRECTIONS = (None, "before", "after")
@@ -199,7 +205,7 @@ def find_calibration(caldir, device: str, date=None, direction: str | None = Non
     readable = []
     for entry in entries:  # only the device's files are parsed in full
         try:
-            readable.append((entry, Calibration.from_dict(entry.doc, source=entry.path)))
+            readable.append((entry, _calibration().from_dict(entry.doc, source=entry.path)))
         except GyrocalError as exc:
             unreadable.append(str(exc))
     skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
@@ -238,6 +244,11 @@ def find_calibration(caldir, device: str, date=None, direction: str | None = Non
         warning = (f"the nearest calibration of {device} (session {entry.session}) is "
                    f"{abs(days)} days {side} {date.isoformat()}, more than {max_days:g}")
     return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped)
+
+
+def _calibration():
+    from .calibration import Calibration  # on demand: the CLI registers lookup at start-up
+    return Calibration
 
 
 def _some(names: list[str], shown: int = 5) -> str:

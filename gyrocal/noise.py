@@ -25,7 +25,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import optimize, stats
 
 from .errors import InputError
 from .kernels import second_diff_sumsq
@@ -129,8 +128,11 @@ def _sumsq(cols: np.ndarray, rate: float, m: np.ndarray, overlapping: bool = Tru
 
 
 def _interval(adev, edf, level):
-    lo = adev * np.sqrt(edf / stats.chi2.ppf(0.5 + level / 2, edf))[:, None]
-    hi = adev * np.sqrt(edf / stats.chi2.ppf(0.5 - level / 2, edf))[:, None]
+    """The two-sided interval at ``level`` from chi-squared quantiles with ``edf`` degrees
+    of freedom, 2 P^-1(edf/2, q) (scipy.special: scipy.stats takes a second to import)."""
+    from scipy.special import gammaincinv
+    lo = adev * np.sqrt(edf / (2.0 * gammaincinv(edf / 2.0, 0.5 + level / 2)))[:, None]
+    hi = adev * np.sqrt(edf / (2.0 * gammaincinv(edf / 2.0, 0.5 - level / 2)))[:, None]
     return lo, hi
 
 
@@ -367,13 +369,14 @@ def _fit_axis(tau, avar, edf, iterations: int = 6):
     Var(avar_hat) ~ 2 avar^2 / edf; weights use the model's avar (iteratively reweighted) so a
     point that happens to fall low does not pull the fit down with an inflated weight.
     """
+    from scipy.optimize import nnls  # on use: scipy.optimize takes half a second to import
     A = _design(tau)
     sigma2 = avar.copy()
     for _ in range(iterations):
         w = np.sqrt(edf / 2.0) / sigma2
         Aw = A * w[:, None]
         norm = np.linalg.norm(Aw, axis=0)  # columns span ~10 decades: solve in unit columns
-        coef = optimize.nnls(Aw / norm, avar * w)[0] / norm
+        coef = nnls(Aw / norm, avar * w)[0] / norm
         model = A @ coef
         sigma2 = np.where(model > 0, model, avar)
     w = np.sqrt(edf / 2.0) / sigma2

@@ -81,6 +81,16 @@ def names() -> tuple[str, ...]:
     return tuple(BUILTIN) + tuple(n for n in _REGISTRY if n not in BUILTIN)
 
 
+def settings_defaults(name: str) -> dict | None:
+    """A protocol's own settings by default (:attr:`Protocol.defaults`), None when the
+    config's top-level settings are its own. A built-in protocol's are read from its
+    package's ``defaults`` module, so that loading a config imports no protocol's code."""
+    if name not in _REGISTRY and name in BUILTIN:
+        return importlib.import_module(BUILTIN[name].rsplit(".", 1)[0] + ".defaults").DEFAULTS
+    protocol = get(name)
+    return None if protocol.top_level_settings else protocol.defaults
+
+
 def get(name: str | None) -> Protocol:
     """The protocol called ``name`` (None: the default, the turntable)."""
     name = name or DEFAULT

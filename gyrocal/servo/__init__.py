@@ -1,8 +1,26 @@
 """Servo-aided six-observation calibration (seed 001): rotations found in a log, Algorithm 1
 and its Levenberg-Marquardt reference, and the Monte-Carlo study of Section III."""
 
-from .fit import ServoFit, ServoFitError, fit_iterative, fit_lm, fit_observations
-from .rotations import Rotations, find_rotations, g_optimal_warnings
+
+_WHERE = {
+    "ServoFit": "fit",
+    "ServoFitError": "fit",
+    "fit_iterative": "fit",
+    "fit_lm": "fit",
+    "fit_observations": "fit",
+    "Rotations": "rotations",
+    "find_rotations": "rotations",
+    "g_optimal_warnings": "rotations",
+}
 
 __all__ = ["Rotations", "ServoFit", "ServoFitError", "find_rotations", "fit_iterative", "fit_lm",
            "fit_observations", "g_optimal_warnings"]
+
+
+def __getattr__(name: str):
+    """The package's names are imported on first use (PEP 562): registering the protocol
+    or reading its defaults imports none of its methods."""
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

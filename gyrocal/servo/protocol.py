@@ -11,8 +11,9 @@ import pandas as pd
 from ..floor import quiet_runs
 from ..holds import AXES, Segmentation, hold_table, timeline
 from ..io import RigLog
-from ..model import DEFAULT_TERMS, observation_floor
+from ..model import observation_floor
 from ..protocols import Protocol, register
+from .defaults import DEFAULTS
 
 
 def _temperature_slopes(log: RigLog, t_start: np.ndarray, t_end: np.ndarray) -> np.ndarray:
@@ -224,8 +225,6 @@ def _validation_figure(holds: pd.DataFrame) -> str:
 
 # The 12-parameter model on whole-revolution means (the hand-mounting tilt of each axis
 # lands in the misalignment), for the diagnosis, beside the paper's own six-parameter fit.
-DEFAULTS = {"options": {}, "model": {"terms": list(DEFAULT_TERMS)}, "diagnosis": {}}
-
 SERVO = register(Protocol(
     "servo", "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
     segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),

@@ -22,7 +22,8 @@ import pandas as pd
 
 from ..errors import ConfigError, SegmentationError
 from ..io import GYRO, MOUNTS, RigLog
-from ..simulate.servo import DIRECTIONS
+
+DIRECTIONS = MOUNTS   # the G-optimal design's six rotation directions (seed 001 Section II-B)
 
 AXES = "xyz"
 

@@ -30,7 +30,7 @@ from ..errors import ConfigError
 from ..io import MOUNTS
 
 DEG = 180.0 / math.pi
-DIRECTIONS = ("+x", "-x", "+y", "-y", "+z", "-z")   # the G-optimal design, seed 001 Section II-B
+DIRECTIONS = MOUNTS   # the G-optimal design, seed 001 Section II-B
 
 
 @dataclass(frozen=True)

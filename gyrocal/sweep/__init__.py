@@ -10,11 +10,33 @@ Typical use::
     table = stability_table(verify, {"conventional": conventional, "modified": modified})
 """
 
-from .design import SweepDesign, conduction_time, datasheet_drift, jump_interval, ramp_rate
-from .models import DriftModel, fit_drift, rbf_layout
-from .stability import bias_stability, improvements, reference_errors, stability_table
-from .windows import split_sweeps, sweep_windows
+
+_WHERE = {
+    "SweepDesign": "design",
+    "conduction_time": "design",
+    "datasheet_drift": "design",
+    "jump_interval": "design",
+    "ramp_rate": "design",
+    "DriftModel": "models",
+    "fit_drift": "models",
+    "rbf_layout": "models",
+    "bias_stability": "stability",
+    "improvements": "stability",
+    "reference_errors": "stability",
+    "stability_table": "stability",
+    "split_sweeps": "windows",
+    "sweep_windows": "windows",
+}
 
 __all__ = ["SweepDesign", "conduction_time", "datasheet_drift", "jump_interval", "ramp_rate",
            "DriftModel", "fit_drift", "rbf_layout", "bias_stability", "reference_errors", "improvements",
            "stability_table", "split_sweeps", "sweep_windows"]
+
+
+def __getattr__(name: str):
+    """The package's names are imported on first use (PEP 562): registering the protocol
+    or reading its defaults imports none of its methods."""
+    if name not in _WHERE:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

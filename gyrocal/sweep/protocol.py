@@ -12,6 +12,7 @@ from ..floor import merge_intervals
 from ..holds import AXES, Segmentation, hold_table, temperature_points, timeline
 from ..io import MOUNTS, RigLog
 from ..protocols import Protocol, register
+from .defaults import DEFAULTS
 
 
 def segment_sweep(log: RigLog, options: dict) -> Segmentation:
@@ -138,12 +139,6 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
 
 # Seed 003's conventional drift model (linear in ΔT, fitted jointly over the sweep), with
 # its modified model (Eq 16, + ΔT²) as the diagnosis' candidate and the ladder's step.
-DEFAULTS = {"options": {"window_s": 20.0, "point_span": 10.0},
-            "model": {"kind": "continuous", "terms": ["bias", "bias_temp_poly(degree=1)"]},
-            "diagnosis": {"candidates": ["bias_temp_poly(degree=2)"],
-                          "ladder": [{"name": "modified: + ΔT² (seed 003 Eq 16)",
-                                      "add": ["bias_temp_poly(degree=2)"]}]}}
-
 SWEEP = register(Protocol(
     "sweep", "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)",
     segment=lambda log, settings: segment_sweep(log, settings.protocol_options("sweep")),
