@@ -341,6 +341,27 @@ def cmd_apply(args) -> int:
     return 0
 
 
+def cmd_verify(args) -> int:
+    """Whether a log is the one a calibration records as its input, by the hash the file
+    names (BLAKE3 now, SHA-256 in files written before)."""
+    import json
+
+    from .errors import CalibrationFileError
+    from .io import verify_source
+    try:
+        doc = json.loads(Path(args.calibration).read_text())
+        record = doc["provenance"]["input"]
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read ({exc.strerror})", source=args.calibration) from None
+    except (ValueError, KeyError, TypeError):
+        raise CalibrationFileError("holds no provenance.input record", source=args.calibration) from None
+    if not isinstance(record, dict):
+        raise CalibrationFileError("provenance.input is not a record", source=args.calibration)
+    algorithm = verify_source(record, args.log)
+    print(f"{args.log} is the input of {args.calibration} ({algorithm})")
+    return 0
+
+
 class OneLineParser(argparse.ArgumentParser):
     """Usage mistakes are bad input too: one line on stderr, exit status 2."""
 
@@ -437,6 +458,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--terms", action="append", metavar="FILE",
                    help="the term file a calibration's own terms come from (repeatable)")
     p.set_defaults(func=cmd_apply)
+
+    p = sub.add_parser("verify", help="check that a log is the input a calibration records "
+                       "(its hash)")
+    p.add_argument("calibration")
+    p.add_argument("log")
+    p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's "
                        "static stretches")

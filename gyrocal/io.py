@@ -353,20 +353,63 @@ def _continue_labels(codes: np.ndarray, previous: np.int8) -> tuple[np.ndarray, 
     return filled, filled[-1]
 
 
-def file_sha256(path: str | os.PathLike) -> str:
-    """SHA-256 of a file, or of a directory dataset (its Parquet files in name order)."""
+# The input's hash in a calibration's provenance: BLAKE3, a cryptographic hash that SIMD
+# makes fast on any CPU (SHA-256 costs as much as reading a log where the CPU has no SHA
+# instructions). The record names its algorithm; files written before keep SHA-256.
+HASH_ALGORITHM = "blake3"
+HASH_ALGORITHMS = ("blake3", "sha256")
+
+
+def _hasher(algorithm: str):
+    if algorithm == "blake3":
+        import blake3
+        return blake3.blake3()
+    if algorithm == "sha256":
+        return hashlib.sha256()
+    raise ValueError(f"unknown hash algorithm {algorithm!r}")
+
+
+def file_digest(path: str | os.PathLike, algorithm: str = HASH_ALGORITHM) -> str:
+    """Hex digest of a file, or of a directory dataset (its Parquet files' relative names
+    and digests, in name order). hashlib and blake3 release the GIL, so it runs beside a read."""
     path = Path(path)
     if path.is_dir():
-        outer = hashlib.sha256()
+        outer = _hasher(algorithm)
         for part in sorted(p for p in path.rglob("*.parquet") if p.is_file()):
             outer.update(part.relative_to(path).as_posix().encode() + b"\0")
-            outer.update(bytes.fromhex(file_sha256(part)))
+            outer.update(bytes.fromhex(file_digest(part, algorithm)))
         return outer.hexdigest()
-    digest = hashlib.sha256()
+    digest = _hasher(algorithm)
     try:
         with open(path, "rb") as fh:
-            for block in iter(lambda: fh.read(1 << 20), b""):
+            for block in iter(lambda: fh.read(1 << 22), b""):
                 digest.update(block)
     except OSError as exc:
         raise CorruptFileError(f"cannot read file ({exc.strerror})", source=path) from None
     return digest.hexdigest()
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    return file_digest(path, "sha256")
+
+
+def source_digest(record: dict) -> tuple[str, str] | None:
+    """(algorithm, digest) of a provenance input record, whichever algorithm it names."""
+    for algorithm in HASH_ALGORITHMS:
+        if isinstance(record.get(algorithm), str):
+            return algorithm, record[algorithm]
+    return None
+
+
+def verify_source(record: dict, path: str | os.PathLike) -> str:
+    """The algorithm by which ``path`` is the input ``record`` describes; a
+    :class:`LogFormatError` naming the file when it is not, or when the record holds no hash."""
+    found = source_digest(record)
+    if found is None:
+        raise LogFormatError(f"the record names no input hash (one of {', '.join(HASH_ALGORITHMS)})",
+                             source=path)
+    algorithm, expected = found
+    if file_digest(path, algorithm) != expected:
+        raise LogFormatError(f"is not the log the calibration was made from ({algorithm} "
+                             f"{expected[:12]}…)", source=path)
+    return algorithm

@@ -19,7 +19,7 @@ from .calibration import Calibration
 from .config import Settings
 from .floor import add_floor_columns, characterise, noise_record
 from .holds import Segmentation
-from .io import file_sha256, read_log
+from .io import HASH_ALGORITHM, file_digest, read_log
 from .turntable.segment import LOG_COLUMNS
 from .signals import TEMP_RATE_WINDOW_S, Series, history
 from .thermal import ContinuousFit, GridFit, fit_model
@@ -44,15 +44,14 @@ def versions() -> dict[str, str]:
 
 
 def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT) -> Segmentation:
-    """Read and segment a log into observations by its protocol's rules; its SHA-256 is
-    computed on a second thread meanwhile (hashlib releases the GIL), since hashing a large
-    log costs as much as reading it."""
+    """Read and segment a log into observations by its protocol's rules; its hash
+    (:data:`gyrocal.io.HASH_ALGORITHM`) is computed on a second thread meanwhile."""
     segmenter = protocols.get(protocol).segment
     with ThreadPoolExecutor(1) as pool:
-        digest = pool.submit(file_sha256, path)
+        digest = pool.submit(file_digest, path)
         log = read_log(path, optional=LOG_COLUMNS)
         seg = segmenter(log, settings)
-        seg.info["source"] = {"name": Path(path).name, "sha256": digest.result(),
+        seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
     seg = with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
     # The temperature rate is a slope over a window as long as a typical hold, for the fit

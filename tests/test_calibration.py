@@ -38,7 +38,7 @@ def test_file_round_trips_byte_for_byte(complete_run, tmp_path):
     doc = json.loads(first.read_text())
     assert doc["format"] == "gyrocal.calibration/1"
     assert doc["units"]["B"] == "deg/s" and doc["model"]["interpolation"]["method"] == "lagrange3"
-    assert len(doc["provenance"]["input"]["sha256"]) == 64
+    assert len(doc["provenance"]["input"]["blake3"]) == 64
     assert len(doc["provenance"]["config_sha256"]) == 64
     K = np.array(doc["grid"]["K"])
     assert K.shape == (len(doc["grid"]["temperature"]), 3, 3)

@@ -20,7 +20,7 @@ def gyrocal(*args):
 
 
 COMMANDS = {"simulate", "calibrate", "diagnose", "apply", "noise", "segment", "fit", "validate",
-            "analyse", "report", "fleet", "paper", "lookup", "export"}
+            "analyse", "report", "fleet", "paper", "lookup", "export", "verify"}
 
 
 def test_help_lists_the_commands():
@@ -66,6 +66,29 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
     assert main("report", unit, "-o", tmp_path / "unit.html") == 0
     staged = json.loads((unit / "calibration.json").read_text())
     assert staged["grid"]["coefficients"] == doc["grid"]["coefficients"]
+    capsys.readouterr()
+    assert main("verify", cal, logs / "U001.parquet") == 0
+    assert "(blake3)" in capsys.readouterr().out
+
+
+def test_verify_accepts_an_old_sha256_record_and_refuses_another_log(tmp_path, capsys):
+    """Files written before BLAKE3 record the input's SHA-256: they still verify; a log
+    that is not the input is refused in one line, naming it."""
+    import hashlib
+    log, other = tmp_path / "a.parquet", tmp_path / "b.parquet"
+    log.write_bytes(b"PAR1 one log")
+    other.write_bytes(b"PAR1 another")
+    cal = tmp_path / "old.json"
+    cal.write_text(json.dumps({"provenance": {"input": {
+        "name": "a.parquet", "sha256": hashlib.sha256(log.read_bytes()).hexdigest()}}}))
+    assert main("verify", cal, log) == 0
+    assert "(sha256)" in capsys.readouterr().out
+    assert main("verify", cal, other) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "b.parquet" in err and "sha256" in err
+    cal.write_text(json.dumps({"provenance": {"input": {"name": "a.parquet"}}}))
+    assert main("verify", cal, log) == 2
+    assert "names no input hash" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("make, args, expected", [

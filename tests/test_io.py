@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gyrocal.errors import CorruptFileError, EmptyLogError, GyrocalError, LogFormatError
-from gyrocal.io import MOUNTS, file_sha256, read_log
+from gyrocal.io import MOUNTS, file_digest, file_sha256, read_log
 
 
 def table(n=100, **overrides):
@@ -84,6 +84,7 @@ def test_directory_dataset_is_ordered_by_time_not_by_name(tmp_path):
     assert len(log) == 1200
     assert np.all(np.diff(log.column("t")) > 0)
     assert len(file_sha256(folder)) == 64
+    assert len(file_digest(folder)) == 64 and file_digest(folder) != file_sha256(folder)
 
 
 def test_mount_labels_become_codes_and_nulls_continue_the_last_label(tmp_path):
@@ -197,10 +198,13 @@ def test_any_table_gives_a_log_or_a_gyrocal_error(tmp_path, data, n):
         assert np.all(np.diff(log.column("t")) > 0)
 
 
-def test_sha256_is_of_the_bytes(tmp_path):
+def test_hashes_are_of_the_bytes(tmp_path):
     import hashlib
+
+    import blake3
     path = write(tmp_path, table())
     assert file_sha256(path) == hashlib.sha256(path.read_bytes()).hexdigest()
+    assert file_digest(path) == blake3.blake3(path.read_bytes()).hexdigest()
 
 
 def test_empty_error_is_a_format_error(tmp_path):
