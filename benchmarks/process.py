@@ -1,17 +1,21 @@
 """Benchmark: what the user waits for. Whole processes, imports included, side by side.
 
-For the full seed-000 protocol log of ``benchmarks/pipeline.py`` (100 Hz, simulated once
-into ``benchmarks/.cache``), each run starts, one after the other:
+For the full seed-000 turntable protocol (seed 7) at each sample rate asked (25, 100 and
+1000 Hz by default; a log is simulated once, batch by batch, into a cache outside the
+repository: ``$GYROCAL_BENCH_CACHE``, else ``~/.cache/gyrocal/benchmarks``), each run
+starts, one after the other:
 
 * read       — a Python process that only reads the columns gyrocal reads
                (``pyarrow.parquet.read_table``);
-* calibrate  — ``python -m gyrocal calibrate LOG -o CAL.json``.
+* calibrate  — ``python -m gyrocal calibrate LOG -o CAL.json``;
+* diagnose   — ``python -m gyrocal diagnose LOG -o DIAG.json``;
+* apply      — ``python -m gyrocal apply CAL.json LOG -o OUT.parquet``.
 
-Runs are interleaved; printed are the median and quartiles of each process's wall time,
-of the paired ratio calibrate ÷ read, and each process's peak resident memory (its own
-``ru_maxrss``, from ``wait4``), with the machine and the date.
+Runs are interleaved; printed per rate are the median and quartiles of each process's wall
+time, of its paired ratio to the read-only process, and its peak resident memory (its own
+``ru_maxrss``, from ``wait4``) in MiB and per million rows, with the machine and the date.
 
-    python benchmarks/process.py [--repeat 7]
+    python benchmarks/process.py [--rates 25,100,1000] [--repeat 5] [--only calibrate,apply]
 """
 
 from __future__ import annotations
@@ -24,12 +28,27 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from host import cores, cpu_name
-from pipeline import LOG
 
 ROOT = Path(__file__).resolve().parents[1]
+CACHE = Path(os.environ.get("GYROCAL_BENCH_CACHE", Path.home() / ".cache" / "gyrocal" / "benchmarks"))
+PROCESSES = ("read", "calibrate", "diagnose", "apply")
+
+
+def log_at(rate: float) -> Path:
+    """The full seed-000 protocol log at ``rate`` Hz, simulated once (the simulator writes
+    it chunk by chunk, so a 1 kHz log needs no more memory than a 100 Hz one)."""
+    path = CACHE / f"seed_protocol_{rate:g}hz" / "U001.parquet"
+    if not path.exists():
+        sys.path.insert(0, str(ROOT))
+        from gyrocal.simulate import rig_for, simulate
+        rig = replace(rig_for("turntable", "seed", {}), sample_rate=float(rate))
+        print(f"# simulating {path} (once)", flush=True)
+        simulate(path.parent, units=1, seed=7, rig=rig)
+    return path
 
 
 def run(argv: list[str]) -> tuple[float, float]:
@@ -45,46 +64,60 @@ def run(argv: list[str]) -> tuple[float, float]:
 
 
 def quartiles(values: list[float]) -> tuple[float, float, float]:
+    if len(values) < 2:
+        return values[0], values[0], values[0]
     q1, q2, q3 = statistics.quantiles(values, n=4, method="inclusive")
     return q1, q2, q3
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=7)
-    args = parser.parse_args()
-    if not LOG.exists():  # the same log as benchmarks/pipeline.py
-        from gyrocal.simulate import simulate
-        simulate(LOG.parent, units=1, seed=7)
+def commands(log: Path, scratch: Path) -> dict[str, list[str]]:
     import pyarrow.parquet as pq
-
+    sys.path.insert(0, str(ROOT))
     from gyrocal.io import REQUIRED
     from gyrocal.turntable.segment import LOG_COLUMNS
-    columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in pq.read_schema(LOG).names]
-    rows = pq.read_metadata(LOG).num_rows
-    with tempfile.TemporaryDirectory() as scratch:
-        commands = {
-            "read": [sys.executable, "-c", "import sys, pyarrow.parquet as pq; "
-                     f"pq.read_table(sys.argv[1], columns={columns!r})", str(LOG)],
-            "calibrate": [sys.executable, "-m", "gyrocal", "calibrate", str(LOG), "-o",
-                          str(Path(scratch) / "cal.json")],
-        }
-        results = {name: [] for name in commands}
-        for _ in range(args.repeat):
-            for name, argv in commands.items():
-                results[name].append(run(argv))
-    print(f"# {dt.date.today()}, {cpu_name()}, {cores()}, Python "
-          f"{sys.version.split()[0]}; {rows:,} rows at 100 Hz, {args.repeat} interleaved runs")
-    print(f"{'process':<10} {'wall s: median':>15} {'(quartiles)':>16} {'peak RSS MiB':>13} "
-          f"{'bytes/row':>10}")
-    for name, values in results.items():
-        q1, q2, q3 = quartiles([w for w, _ in values])
-        peak = max(m for _, m in values)
-        print(f"{name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>16} {peak:>13.0f} "
-              f"{peak * 2 ** 20 / rows:>10.0f}")
-    ratio = [c[0] / r[0] for c, r in zip(results["calibrate"], results["read"])]
-    q1, q2, q3 = quartiles(ratio)
-    print(f"calibrate ÷ read, paired: median {q2:.2f}× (quartiles {q1:.2f}–{q3:.2f})")
+    names = pq.read_schema(log).names
+    columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in names]
+    gyrocal = [sys.executable, "-m", "gyrocal"]
+    return {
+        "read": [sys.executable, "-c", "import sys, pyarrow.parquet as pq; "
+                 f"pq.read_table(sys.argv[1], columns={columns!r})", str(log)],
+        "calibrate": [*gyrocal, "calibrate", str(log), "-o", str(scratch / "cal.json")],
+        "diagnose": [*gyrocal, "diagnose", str(log), "-o", str(scratch / "diag.json")],
+        "apply": [*gyrocal, "apply", str(scratch / "cal.json"), str(log), "-o",
+                  str(scratch / "applied.parquet")],
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rates", default="25,100,1000", help="sample rates, Hz")
+    parser.add_argument("--repeat", type=int, default=5)
+    parser.add_argument("--only", default=",".join(PROCESSES[1:]),
+                        help="gyrocal processes to time beside the read-only one")
+    args = parser.parse_args()
+    import pyarrow.parquet as pq
+    wanted = ["read"] + [p for p in PROCESSES[1:] if p in args.only.split(",")]
+    print(f"# {dt.date.today()}, {cpu_name()}, {cores()}, Python {sys.version.split()[0]}; "
+          f"{args.repeat} interleaved runs per process")
+    print(f"{'rate':>6} {'rows':>12} {'process':<10} {'wall s: median':>15} {'(quartiles)':>14} "
+          f"{'÷ read':>7} {'(quartiles)':>14} {'peak MiB':>9} {'MiB/Mrow':>9}")
+    for rate in (float(r) for r in args.rates.split(",")):
+        log = log_at(rate)
+        rows = pq.read_metadata(log).num_rows
+        with tempfile.TemporaryDirectory() as scratch:
+            argv = commands(log, Path(scratch))
+            run(argv["calibrate"])   # apply reads the calibration; also warms the page cache
+            results = {name: [] for name in wanted}
+            for _ in range(args.repeat):
+                for name in wanted:
+                    results[name].append(run(argv[name]))
+        for name, values in results.items():
+            q1, q2, q3 = quartiles([w for w, _ in values])
+            r1, r2, r3 = quartiles([w / r[0] for (w, _), r in zip(values, results["read"])])
+            peak = max(m for _, m in values)
+            print(f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
+                  f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
+                  flush=True)
 
 
 if __name__ == "__main__":

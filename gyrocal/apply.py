@@ -16,7 +16,8 @@ import pyarrow.parquet as pq
 
 from .calibration import Calibration
 from .errors import LogFormatError
-from .io import GYRO, time_seconds, check_float, declared_units, open_dataset, to_internal_units
+from .io import (GYRO, check_float, declared_units, open_dataset, record_batches, time_seconds,
+                 to_internal_units)
 from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, Series, temperature_rate  # noqa: F401
 
 BATCH_ROWS = 1 << 20
@@ -99,7 +100,7 @@ def _first_time(dataset, path, units, origin) -> float:
 
 def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:
     with pq.ParquetWriter(tmp, out_schema) as writer:
-        for batch in dataset.to_batches(batch_size=BATCH_ROWS):
+        for batch in record_batches(dataset, dataset.schema.names, BATCH_ROWS):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])

@@ -104,17 +104,74 @@ class BlockAccumulator:
         return out
 
 
+FIRST_ROWS = 20001   # the sample interval is the median step of the first rows
+
+
+def _size(t: np.ndarray, block_s: float) -> tuple[int, float]:
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
+    return (max(4, int(round(block_s / dt))) if dt > 0 else 4), dt
+
+
+class BlockSink:
+    """Block statistics made while a log is read (``read_log(sink=...)``): the first rows
+    are held until they give the sample interval, then every batch is reduced as it comes,
+    so the samples need not stay in memory. ``result()`` is what :func:`block_statistics`
+    returns for the same log and block length."""
+
+    def __init__(self, block_s: float):
+        self.block_s = block_s
+        self.names: tuple[str, ...] = ()
+        self.rows_bound = 0
+        self._held: list[dict[str, np.ndarray]] = []
+        self._acc: BlockAccumulator | None = None
+        self.size, self.dt = 4, float("nan")
+
+    def open(self, names: tuple[str, ...], rows_bound: int) -> None:
+        """The columns the batches hold, and at most how many rows they hold in all."""
+        self.names, self.rows_bound = names, rows_bound
+
+    def push(self, batch: dict[str, np.ndarray]) -> None:
+        if self._acc is not None:
+            self._acc.push(batch)
+            return
+        self._held.append(batch)
+        if sum(len(b["t"]) for b in self._held) >= FIRST_ROWS:
+            self._start()
+
+    def _start(self) -> None:
+        t = np.concatenate([b["t"] for b in self._held])[:FIRST_ROWS]
+        self.size, self.dt = _size(t, self.block_s)
+        self._acc = BlockAccumulator(self.size, self.names, self.rows_bound // self.size)
+        for batch in self._held:
+            self._acc.push(batch)
+        self._held = []
+
+    def result(self) -> tuple[dict[str, np.ndarray], int, float]:
+        if self._acc is None:
+            if not self._held:
+                return {}, self.size, self.dt
+            self._start()
+        return self._acc.result(), self.size, self.dt
+
+
 def block_statistics(log: RigLog, block_s: float, *, workers: int | None = None
                      ) -> tuple[dict[str, np.ndarray], int, float]:
     """Per-block statistics of a whole log: (statistics, block size, sample interval).
 
-    The rows are split at a block boundary into one part per worker thread; the compiled
-    kernels release the GIL, so the parts are reduced in parallel, then joined in order.
+    Made while the log was read when it was read with a :class:`BlockSink` of this block
+    length. Otherwise, for a log in memory, the rows are split at a block boundary into one
+    part per worker thread (the compiled kernels release the GIL, so the parts are reduced
+    in parallel, then joined in order); a log not in memory is read again, batch by batch.
     """
-    t = log.rows("t", 0, min(len(log), 20001))
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else float("nan")
-    size = max(4, int(round(block_s / dt))) if dt > 0 else 4
+    if block_s in log.blocks:
+        return log.blocks[block_s]
+    size, dt = _size(log.rows("t", 0, min(len(log), FIRST_ROWS)), block_s)
     n_blocks = len(log) // size
+    if not log.in_memory:
+        acc = BlockAccumulator(size, log.names, n_blocks)
+        for batch in log.scan():
+            acc.push(batch)
+        return acc.result(), size, dt
     if workers is None:
         workers = min(2, os.cpu_count() or 1) if LIB is not None and n_blocks >= 20_000 else 1
     bounds = [round(i * n_blocks / workers) * size for i in range(workers + 1)]

@@ -524,10 +524,31 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     print(f"gyrocal: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
+# Modules a command imports only after it has read the log (the noise fit's scipy.optimize
+# and scipy.special, the model fit's scipy.linalg): imported on a second thread from the
+# start, they load while the log is being read (Arrow decodes without holding the GIL).
+WARM_IMPORTS = ("scipy.linalg", "scipy.special", "scipy.optimize")
+READS_A_LOG = {"calibrate", "diagnose", "segment", "noise"}
+
+
+def _warm_imports() -> None:
+    def load():
+        import importlib
+        for name in WARM_IMPORTS:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - the command imports it again and says why
+                return
+    import threading
+    threading.Thread(target=load, name="warm-imports", daemon=True).start()
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     warnings.showwarning = _one_line_warning
+    if argv is None and args.command in READS_A_LOG:
+        _warm_imports()
     try:
         return args.func(args)
     except GyrocalError as exc:

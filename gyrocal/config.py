@@ -195,7 +195,7 @@ class Settings:
 def read_yaml(path) -> dict:
     path = Path(path)
     try:
-        values = yaml.safe_load(path.read_text())
+        values = yaml.load(path.read_text(), Loader=schema.SAFE_LOADER)
     except FileNotFoundError:
         raise CorruptFileError("no such file", source=path) from None
     except yaml.YAMLError as exc:

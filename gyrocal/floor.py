@@ -101,10 +101,49 @@ def static_stretches(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> 
     return out.reset_index(drop=True)
 
 
-def _slices(t: np.ndarray, stretches: pd.DataFrame) -> list[slice]:
-    lo = np.searchsorted(t, stretches["t_start"].to_numpy(), side="left")
-    hi = np.searchsorted(t, stretches["t_end"].to_numpy(), side="right")
-    return [slice(a, b) for a, b in zip(lo, hi) if b - a >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES)]
+class StretchSampler:
+    """The samples of the static stretches, gathered from a log given batch by batch
+    (``push``: dicts with t, temp and the gyro axes), each stretch reduced to its
+    :func:`gyrocal.noise.stretch_sums` as soon as it is complete, so that no more than one
+    stretch is held at a time. A stretch is the rows with t_start <= t <= t_end; one
+    shorter than the noise model needs is left out. ``result()``: per stretch kept, its
+    sums, its sample count and its mean temperature."""
+
+    NAMES = ("t", "temp", *(f"gyro_{a}" for a in AXES))
+
+    def __init__(self, stretches: pd.DataFrame, rate: float):
+        self.start = stretches["t_start"].to_numpy(float)
+        self.end = stretches["t_end"].to_numpy(float)
+        self.rate = rate
+        self._pieces: dict[int, list[dict[str, np.ndarray]]] = {}
+        self._done: dict[int, tuple] = {}
+        self._pool = ThreadPoolExecutor(2)   # numpy releases the GIL: sums beside the read
+
+    def push(self, batch: dict[str, np.ndarray]) -> None:
+        t = batch["t"]
+        lo = np.searchsorted(t, self.start, side="left")
+        hi = np.searchsorted(t, self.end, side="right")
+        for k in np.flatnonzero(hi > lo):
+            self._pieces.setdefault(int(k), []).append(
+                {c: batch[c][lo[k]:hi[k]] for c in self.NAMES[1:]})
+        for k in [k for k in self._pieces if self.end[k] < t[-1]]:
+            self._close(k)
+
+    def _close(self, k: int) -> None:
+        pieces = self._pieces.pop(k)
+        cols = {c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
+                for c in self.NAMES[1:]}
+        n = len(cols["temp"])
+        if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
+            gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
+            self._done[k] = (self._pool.submit(stretch_sums, gyro, self.rate), n,
+                             float(np.mean(cols["temp"])))
+
+    def result(self) -> list[tuple]:
+        for k in list(self._pieces):
+            self._close(k)
+        self._pool.shutdown()
+        return [(sums.result(), n, temp) for _, (sums, n, temp) in sorted(self._done.items())]
 
 
 def _model(parts: list, rate: float) -> dict | None:
@@ -123,13 +162,14 @@ def _model(parts: list, rate: float) -> dict | None:
             "terms": terms.to_dict()}
 
 
-def characterise(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> dict:
+def characterise(log, seg, protocol: str, *, max_temp_rate: float = 0.1, sampled=None) -> dict:
     """Noise of the session, JSON-plain: ``session`` pools every static stretch (the model the
     floors use: a few short soaks per temperature cannot pin down flicker and random walk, all
     of them together can), ``points`` the same per temperature point (the terms' temperature
     dependence; a point without static stretches is listed without them); ``source`` says
     which floor applies and ``reason`` why the fallback did. Each stretch is read once: the
-    pooled estimates are sums over stretches, computed on two threads (numpy releases the GIL)."""
+    pooled estimates are sums over stretches (:class:`StretchSampler`; ``sampled``, its
+    result when the caller read the log for it, with other consumers)."""
     obs = seg.observations
     rate = float(seg.info.get("sample_rate") or 0.0)
     summary = {"source": FALLBACK, "points": [], "static_seconds": 0.0,
@@ -137,22 +177,21 @@ def characterise(log, seg, protocol: str, *, max_temp_rate: float = 0.1) -> dict
                          "in the log"}
     if obs.empty or rate <= 0:
         return summary
-    stretches = static_stretches(log, seg, protocol, max_temp_rate=max_temp_rate)
-    slices = _slices(log.column("t"), stretches)
-    seconds = sum(s.stop - s.start for s in slices) / rate
+    if sampled is None:
+        sampler = StretchSampler(static_stretches(log, seg, protocol, max_temp_rate=max_temp_rate), rate)
+        for batch in log.scan(StretchSampler.NAMES):
+            sampler.push(batch)
+        sampled = sampler.result()
+    seconds = sum(n for _, n, _ in sampled) / rate
     if seconds < MIN_TOTAL_S:
         return summary
-    temp = log.column("temp")
-    columns = [log.column(f"gyro_{a}") for a in AXES]
-    with ThreadPoolExecutor(2) as pool:
-        parts = list(pool.map(lambda s: stretch_sums(np.column_stack([c[s] for c in columns]), rate),
-                              slices))
+    parts = [sums for sums, _, _ in sampled]
     session = _model(parts, rate)
     if session is None:
         summary["reason"] = "the static stretches are too short for a noise model"
         return summary
     points = obs.groupby("point")["point_temp"].first()
-    temps = np.array([float(np.mean(temp[s])) for s in slices])
+    temps = np.array([temp for _, _, temp in sampled])
     # each stretch belongs to the temperature point nearest its mean temperature
     nearest = np.abs(temps[:, None] - points.to_numpy()[None, :]).argmin(axis=1)
     rows = []

@@ -11,6 +11,7 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
+import pyarrow.parquet as pq
 
 from .errors import CorruptFileError, EmptyLogError, LogFormatError
 
@@ -41,46 +43,85 @@ _QUANTITY_OF = {**{c: "gyro" for c in GYRO}, "ref_rate": "ref_rate",
 
 @dataclass(frozen=True)
 class RigLog:
-    """Validated columns of one log, kept as the zero-copy record batches Arrow read.
+    """Validated columns of one log, in internal units, batch by batch.
 
-    Each batch maps column name to a numpy array in internal units; ``mount`` (when read)
-    holds int8 indices into ``MOUNTS``, -1 where null. Stages that stream (segmentation)
-    walk ``batches``; others call :meth:`column`, which concatenates on demand.
+    Each batch maps column name to a numpy array; ``mount`` (when read) holds int8 indices
+    into ``MOUNTS``, -1 where null. ``batches`` holds every batch when the log was kept in
+    memory; a log read with a memory budget it exceeds keeps none (``batches`` is None) and
+    :meth:`scan` reads the file again, batch by batch, for each stage that needs samples.
+    ``blocks`` holds block statistics made while the log was read
+    (:class:`gyrocal.blocks.BlockSink`), by block length.
     """
 
     path: str
-    batches: tuple[dict[str, np.ndarray], ...]
+    batches: tuple[dict[str, np.ndarray], ...] | None
     rows_read: int
     rows_dropped: int
     declared_units: dict[str, str] = field(default_factory=dict)
     time_origin: str | None = None   # ISO time of t = 0 when the log's t is a timestamp
+    columns: tuple[str, ...] = ()    # the columns read (when ``batches`` is None)
+    rows_kept: int = 0               # the rows kept (when ``batches`` is None)
+    span: tuple[float, float] = (0.0, 0.0)   # first and last kept t (when ``batches`` is None)
+    blocks: dict = field(default_factory=dict, compare=False)
+    reread: Callable | None = field(default=None, compare=False, repr=False)
 
     @property
     def names(self) -> tuple[str, ...]:
-        return tuple(self.batches[0])
+        return tuple(self.batches[0]) if self.batches is not None else self.columns
 
     def __contains__(self, name: str) -> bool:
-        return name in self.batches[0]
+        return name in self.names
 
     def __len__(self) -> int:
-        return sum(len(b["t"]) for b in self.batches)
+        return sum(len(b["t"]) for b in self.batches) if self.batches is not None else self.rows_kept
+
+    @property
+    def time_span(self) -> tuple[float, float]:
+        """The first and last kept rows' t."""
+        if self.batches is None:
+            return self.span
+        return float(self.batches[0]["t"][0]), float(self.batches[-1]["t"][-1])
+
+    @property
+    def in_memory(self) -> bool:
+        return self.batches is not None
+
+    def scan(self, names=None) -> Iterator[dict[str, np.ndarray]]:
+        """The kept rows of ``names`` (default: every column read), batch by batch, in
+        order: from memory, or read from the file again."""
+        names = tuple(names or self.names)
+        if self.batches is not None:
+            for b in self.batches:
+                yield {k: b[k] for k in names}
+        else:
+            yield from self.reread(names)
 
     def column(self, name: str) -> np.ndarray:
-        parts = [b[name] for b in self.batches]
+        parts = [b[name] for b in self.scan((name,))]
         return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def rows(self, name: str, start: int, stop: int) -> np.ndarray:
         """Rows ``start:stop`` of one column, gathered across batches."""
-        out, offset = [], 0
-        for b in self.batches:
-            n = len(b["t"])
-            lo, hi = max(start - offset, 0), min(stop - offset, n)
-            if lo < hi:
-                out.append(b[name][lo:hi])
+        return self.row_ranges((name,), [(start, stop)])[0][name]
+
+    def row_ranges(self, names, ranges) -> list[dict[str, np.ndarray]]:
+        """Rows ``start:stop`` of the columns ``names`` for each (start, stop) in ``ranges``,
+        gathered in one pass over the batches."""
+        names, ranges = tuple(names), [(int(a), int(b)) for a, b in ranges]
+        parts: list[list[dict]] = [[] for _ in ranges]
+        end = max((b for _, b in ranges), default=0)
+        offset = 0
+        for batch in self.scan(names):
+            n = len(batch[names[0]])
+            for k, (start, stop) in enumerate(ranges):
+                lo, hi = max(start - offset, 0), min(stop - offset, n)
+                if lo < hi:
+                    parts[k].append({c: batch[c][lo:hi] for c in names})
             offset += n
-            if offset >= stop:
+            if offset >= end:
                 break
-        return np.concatenate(out) if len(out) != 1 else out[0]
+        return [{c: (p[0][c] if len(p) == 1 else np.concatenate([q[c] for q in p]) if p else
+                     np.empty(0)) for c in names} for p in parts]
 
 
 def open_dataset(path: Path) -> ds.Dataset:
@@ -227,13 +268,58 @@ def _reject_unknown_mounts(values: pa.Array, lookup: pa.Array, used, path: Path)
 
 
 def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
-             required: tuple[str, ...] = REQUIRED) -> RigLog:
+             required: tuple[str, ...] = REQUIRED, sink=None, keep_bytes: float | None = None
+             ) -> RigLog:
     """Read and validate a rig log, returning only ``required`` plus present ``optional`` columns.
 
-    Rows with a non-finite value in any numeric column read are dropped and counted.
+    Rows with a non-finite value in any numeric column read are dropped and counted. The
+    log is read batch by batch; ``sink`` (a :class:`gyrocal.blocks.BlockSink`) sees each,
+    and its block statistics are kept in ``blocks``. The batches are kept in memory while
+    they take at most ``keep_bytes`` (None: always); past that none are, and stages read
+    the file again (:meth:`RigLog.scan`).
     Raises a :class:`LogFormatError` (or subclass) naming the file and the problem.
     """
     path = Path(path)
+    dataset, wanted, units = _open_checked(path, optional, required)
+    if sink is not None:
+        sink.open(tuple(wanted), dataset.count_rows())
+    batches: list[dict[str, np.ndarray]] | None = []
+    kept_bytes, kept_rows, first, last = 0, 0, None, 0.0
+    stream = _batches(dataset, wanted, required, units, path)
+    for batch in stream:
+        if sink is not None:
+            sink.push(batch)
+        kept_rows += len(batch["t"])
+        first = float(batch["t"][0]) if first is None else first
+        last = float(batch["t"][-1])
+        if batches is not None:
+            batches.append(batch)
+            kept_bytes += sum(v.nbytes for v in batch.values())
+            if keep_bytes is not None and kept_bytes > keep_bytes:
+                batches = None
+    rows, dropped, origin = stream.state
+    if rows == 0:
+        raise EmptyLogError("the log has no rows", source=path)
+    if not kept_rows:
+        raise EmptyLogError(f"all {rows} rows hold a non-finite value", source=path)
+    time_origin = None
+    if origin:
+        value, unit = origin[0]
+        time_origin = str(np.datetime64(value, unit))
+
+    def reread(names):
+        columns = [c for c in wanted if c in names or c in required]
+        for batch in _batches(open_dataset(path), columns, required, units, path):
+            yield {k: batch[k] for k in names}
+
+    return RigLog(str(path), tuple(batches) if batches is not None else None, rows, dropped,
+                  units, time_origin, columns=tuple(wanted), rows_kept=kept_rows,
+                  span=(first, last), reread=reread,
+                  blocks={sink.block_s: sink.result()} if sink is not None else {})
+
+
+def _open_checked(path: Path, optional, required):
+    """The dataset, the columns to read and the declared units, with the schema checked."""
     dataset = open_dataset(path)
     schema = dataset.schema
     names = set(schema.names)
@@ -245,44 +331,68 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     for name in wanted:
         if name not in ("t", "mount"):
             check_float(schema, name, path)
-    units = declared_units(schema, path)
-    try:
-        table = dataset.to_table(columns=wanted, use_threads=True)
-    except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path) from None
+    return dataset, wanted, declared_units(schema, path)
 
-    batches: list[dict[str, np.ndarray]] = []
-    rows, dropped, previous_t = 0, 0, -np.inf
-    origin: list = []
-    last_mount = np.int8(-1)
-    for record_batch in table.to_batches():
-        if record_batch.num_rows == 0:
-            continue
-        batch = _convert_batch(record_batch, units, path, origin)
-        if "mount" in batch:
-            batch["mount"], last_mount = _continue_labels(batch["mount"], last_mount)
-        # Only the columns a stage requires decide which rows are usable: a missing value
-        # in an optional column (a slower accelerometer, a file without it) stays NaN.
-        keep = _finite_rows({k: batch[k] for k in required})
-        positions = None
-        if keep is not None:
-            dropped += len(keep) - int(np.count_nonzero(keep))
-            positions = np.flatnonzero(keep)
-            batch = {k: v[keep] for k, v in batch.items()}
-        if len(batch["t"]):
-            _check_time(batch["t"], previous_t, rows, positions, path)
-            previous_t = batch["t"][-1]
-            batches.append(batch)
-        rows += record_batch.num_rows
-    if rows == 0:
-        raise EmptyLogError("the log has no rows", source=path)
-    if not batches:
-        raise EmptyLogError(f"all {rows} rows hold a non-finite value", source=path)
-    time_origin = None
-    if origin:
-        value, unit = origin[0]
-        time_origin = str(np.datetime64(value, unit))
-    return RigLog(str(path), tuple(batches), rows, dropped, units, time_origin)
+
+READ_BATCH_ROWS = 1 << 17
+READ_BUFFER_BYTES = 1 << 20
+
+
+def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None
+                   ) -> Iterator[pa.RecordBatch]:
+    """The dataset's rows of ``columns``, batch by batch, in order, in memory that does not
+    grow with the log: each column chunk is read through a buffer of ``READ_BUFFER_BYTES``
+    (Arrow's default reads a row group's chunks whole, and pre-buffers the file's ahead;
+    a 1 kHz log's row group can hold a few hundred MB)."""
+    files = getattr(dataset, "files", None) or []
+    batch_rows = batch_rows or READ_BATCH_ROWS
+    if len(files) == 1:
+        reader = pq.ParquetFile(files[0], pre_buffer=False, buffer_size=READ_BUFFER_BYTES)
+        yield from reader.iter_batches(batch_size=batch_rows, columns=list(columns), use_threads=True)
+        return
+    scan = ds.ParquetFragmentScanOptions(pre_buffer=False, use_buffered_stream=True,
+                                         buffer_size=READ_BUFFER_BYTES)
+    yield from dataset.to_batches(columns=list(columns), use_threads=True, batch_size=batch_rows,
+                                  fragment_scan_options=scan, batch_readahead=4, fragment_readahead=1)
+
+
+class _batches:
+    """The log's batches converted and checked, non-finite rows dropped; ``state`` holds
+    (rows read, rows dropped, time origin) once consumed."""
+
+    def __init__(self, dataset, wanted, required, units, path):
+        self.args = dataset, wanted, required, units, path
+        self.state = (0, 0, [])
+
+    def __iter__(self):
+        dataset, wanted, required, units, path = self.args
+        rows, dropped, previous_t = 0, 0, -np.inf
+        origin: list = []
+        last_mount = np.int8(-1)
+        try:
+            for record_batch in record_batches(dataset, wanted):
+                if record_batch.num_rows == 0:
+                    continue
+                batch = _convert_batch(record_batch, units, path, origin)
+                if "mount" in batch:
+                    batch["mount"], last_mount = _continue_labels(batch["mount"], last_mount)
+                # Only the columns a stage requires decide which rows are usable: a missing
+                # value in an optional column (a slower accelerometer, a file without it)
+                # stays NaN.
+                keep = _finite_rows({k: batch[k] for k in required})
+                positions = None
+                if keep is not None:
+                    dropped += len(keep) - int(np.count_nonzero(keep))
+                    positions = np.flatnonzero(keep)
+                    batch = {k: v[keep] for k, v in batch.items()}
+                rows += record_batch.num_rows
+                self.state = (rows, dropped, origin)
+                if len(batch["t"]):
+                    _check_time(batch["t"], previous_t, rows - record_batch.num_rows, positions, path)
+                    previous_t = batch["t"][-1]
+                    yield batch
+        except (pa.ArrowInvalid, OSError) as exc:
+            raise CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path) from None
 
 
 def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path,

@@ -17,11 +17,12 @@ import pandas as pd
 from . import __version__, protocols
 from .calibration import Calibration
 from .config import Settings
-from .floor import add_floor_columns, characterise, noise_record
+from .blocks import BlockSink
+from .floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
 from .holds import Segmentation
 from .io import HASH_ALGORITHM, file_digest, read_log
 from .turntable.segment import LOG_COLUMNS
-from .signals import TEMP_RATE_WINDOW_S, Series, history
+from .signals import TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .thermal import ContinuousFit, GridFit, fit_model
 from .validate import Validation, free_point_fits, validate
 
@@ -43,22 +44,44 @@ def versions() -> dict[str, str]:
     return out
 
 
-def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT) -> Segmentation:
+# The decoded columns of a log are kept in memory up to this size; a larger log is reduced
+# to block statistics as it is read and read again, batch by batch, for what needs samples
+# (noise, the temperature record), so that memory does not grow with the log.
+KEEP_BYTES = 512 * 2 ** 20
+
+
+def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT, *,
+                keep_bytes: float | None = KEEP_BYTES) -> Segmentation:
     """Read and segment a log into observations by its protocol's rules; its hash
-    (:data:`gyrocal.io.HASH_ALGORITHM`) is computed on a second thread meanwhile."""
-    segmenter = protocols.get(protocol).segment
+    (:data:`gyrocal.io.HASH_ALGORITHM`) is computed on a second thread meanwhile. Then one
+    more pass over its samples (from memory, or from the file) gives the noise of its
+    static stretches and its temperature record."""
+    rules = protocols.get(protocol)
+    sink = BlockSink(rules.reading_blocks(settings)) if rules.reading_blocks else None
     with ThreadPoolExecutor(1) as pool:
         digest = pool.submit(file_digest, path)
-        log = read_log(path, optional=LOG_COLUMNS)
-        seg = segmenter(log, settings)
+        log = read_log(path, optional=LOG_COLUMNS, sink=sink,
+                       keep_bytes=keep_bytes if sink is not None else None)
+        seg = rules.segment(log, settings)
         seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
-    seg = with_noise_floor(log, seg, protocol, max_temp_rate=settings.segmentation.max_temp_rate)
     # The temperature rate is a slope over a window as long as a typical hold, for the fit
     # and for apply (the calibration file records the window).
     obs = seg.observations
     window = float(np.median(obs["duration"])) if len(obs) else TEMP_RATE_WINDOW_S
-    return with_series(seg, history(log.column("t"), log.column("temp"), window_s=window))
+    max_temp_rate = settings.segmentation.max_temp_rate
+    rate = float(seg.info.get("sample_rate") or 0.0)
+    stretches = static_stretches(log, seg, protocol, max_temp_rate=max_temp_rate) \
+        if len(obs) and rate > 0 else None
+    sampler = StretchSampler(stretches, rate) if stretches is not None else None
+    record = HistoryBins(*log.time_span, window_s=window)
+    for batch in log.scan(StretchSampler.NAMES):
+        record.push(batch["t"], batch["temp"])
+        if sampler is not None:
+            sampler.push(batch)
+    seg = with_noise_floor(log, seg, protocol, max_temp_rate=max_temp_rate,
+                           sampled=sampler.result() if sampler is not None else None)
+    return with_series(seg, record.result())
 
 
 def with_series(seg: Segmentation, series: Series) -> Segmentation:
@@ -68,10 +91,12 @@ def with_series(seg: Segmentation, series: Series) -> Segmentation:
     return seg
 
 
-def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float) -> Segmentation:
+def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float,
+                     sampled=None) -> Segmentation:
     """``seg`` with the session's noise characterisation in ``info["noise"]`` and every
-    observation's noise floor from it (:mod:`gyrocal.floor`)."""
-    summary = characterise(log, seg, protocol, max_temp_rate=max_temp_rate)
+    observation's noise floor from it (:mod:`gyrocal.floor`; ``sampled``: the static
+    stretches' sums, when already gathered)."""
+    summary = characterise(log, seg, protocol, max_temp_rate=max_temp_rate, sampled=sampled)
     obs = add_floor_columns(seg.observations, summary, float(seg.info.get("sample_rate") or 0.0))
     obs.attrs["static_seconds"] = float(summary.get("static_seconds") or 0.0)
     return replace(seg, observations=obs, info={**seg.info, "noise": summary})

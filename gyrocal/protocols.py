@@ -64,6 +64,11 @@ class Protocol:
     # another session (drift audits, the diagnosis' other session). A servo's hand mount
     # leaves the rate's direction unknown.
     known_rate: bool = True
+    # settings -> the block length (s) the segmenter starts from, when it works from block
+    # statistics (gyrocal.blocks): they are made while the log is read, and a log too large
+    # to keep in memory is read again for what needs samples. None: the segmenter reads
+    # whole columns, and the log is kept in memory.
+    reading_blocks: Callable | None = None
     # Calibrations are temperature grids of one model, comparable across a batch and across
     # a device's sessions: the fleet's outlier table and drift pages.
     fleet_audits: bool = False

@@ -179,24 +179,71 @@ def history(t: np.ndarray, temp: np.ndarray, t0: float | None = None, *,
     """A session's record as bin means, in the bins :func:`temperature_rate` uses, times
     counted from ``t0`` (default: the first sample)."""
     t = np.asarray(t, dtype=float)
-    temp = np.asarray(temp, dtype=float)
-    t0 = float(t[0]) if t0 is None else float(t0)
-    rel = t - t0
-    width = bin_width(rel[-1] - rel[0], window_s) if len(rel) else 1.0
-    index = np.floor((rel - rel[0]) / width).astype(np.int64)
-    counts = np.bincount(index)
-    filled = counts > 0
-    mean_t = np.bincount(index, weights=rel)[filled] / counts[filled]
-    mean_temp = np.bincount(index, weights=temp)[filled] / counts[filled]
-    weight = counts[filled].astype(float)
-    # The first and last samples themselves bound the record (with no weight of their own:
-    # they are in the first and last bins), so that a lag starts from the same state as on
-    # the samples and nothing is extrapolated at the ends.
-    if len(rel) and mean_t[0] > rel[0]:
-        mean_t, mean_temp, weight = np.r_[rel[0], mean_t], np.r_[temp[0], mean_temp], np.r_[0.0, weight]
-    if len(rel) and mean_t[-1] < rel[-1]:
-        mean_t, mean_temp, weight = np.r_[mean_t, rel[-1]], np.r_[mean_temp, temp[-1]], np.r_[weight, 0.0]
-    return Series(mean_t, mean_temp, t0, window_s, weight)
+    if not len(t):
+        return Series(np.empty(0), np.empty(0), 0.0 if t0 is None else float(t0), window_s, np.empty(0))
+    bins = HistoryBins(float(t[0]), float(t[-1]), t0, window_s=window_s)
+    bins.push(t, temp)
+    return bins.result()
+
+
+class HistoryBins:
+    """:func:`history` of a record given in consecutive pieces (a log read batch by batch):
+    each bin's samples are summed in one piece, in order, so the result is the same to the
+    bit whatever the pieces. ``t_first`` and ``t_last`` are the record's first and last
+    times (the bin width depends on its duration)."""
+
+    def __init__(self, t_first: float, t_last: float, t0: float | None = None, *,
+                 window_s: float = TEMP_RATE_WINDOW_S):
+        self.t0 = float(t_first) if t0 is None else float(t0)
+        self.rel_first = float(t_first) - self.t0
+        self.width = bin_width((float(t_last) - self.t0) - self.rel_first, window_s)
+        self.window_s = window_s
+        self._carry: tuple[np.ndarray, np.ndarray] | None = None
+        self._out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._ends: list[tuple[float, float]] = []
+
+    def push(self, t: np.ndarray, temp: np.ndarray) -> None:
+        rel = np.asarray(t, dtype=float) - self.t0
+        temp = np.asarray(temp, dtype=float)
+        if not len(rel):
+            return
+        if not self._ends:
+            self._ends.append((rel[0], temp[0]))
+        self._last = (rel[-1], temp[-1])
+        if self._carry is not None:
+            rel, temp = np.concatenate((self._carry[0], rel)), np.concatenate((self._carry[1], temp))
+        index = np.floor((rel - self.rel_first) / self.width).astype(np.int64)
+        split = int(np.searchsorted(index, index[-1], side="left"))  # the last bin may go on
+        self._reduce(index[:split], rel[:split], temp[:split])
+        self._carry = (rel[split:], temp[split:])
+
+    def _reduce(self, index, rel, temp) -> None:
+        if not len(index):
+            return
+        index = index - index[0]
+        counts = np.bincount(index)
+        filled = counts > 0
+        self._out.append((np.bincount(index, weights=rel)[filled] / counts[filled],
+                          np.bincount(index, weights=temp)[filled] / counts[filled],
+                          counts[filled].astype(float)))
+
+    def result(self) -> Series:
+        if self._carry is not None:
+            rel, temp = self._carry
+            self._reduce(np.floor((rel - self.rel_first) / self.width).astype(np.int64), rel, temp)
+            self._carry = None
+        if not self._out:
+            return Series(np.empty(0), np.empty(0), self.t0, self.window_s, np.empty(0))
+        mean_t, mean_temp, weight = (np.concatenate(k) for k in zip(*self._out))
+        (first, temp_first), (last, temp_last) = self._ends[0], self._last
+        # The first and last samples themselves bound the record (with no weight of their
+        # own: they are in the first and last bins), so that a lag starts from the same
+        # state as on the samples and nothing is extrapolated at the ends.
+        if mean_t[0] > first:
+            mean_t, mean_temp, weight = np.r_[first, mean_t], np.r_[temp_first, mean_temp], np.r_[0.0, weight]
+        if mean_t[-1] < last:
+            mean_t, mean_temp, weight = np.r_[mean_t, last], np.r_[mean_temp, temp_last], np.r_[weight, 0.0]
+        return Series(mean_t, mean_temp, self.t0, self.window_s, weight)
 
 
 class Inputs(dict):

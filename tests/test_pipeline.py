@@ -168,3 +168,44 @@ def test_the_same_log_written_other_ways_gives_the_same_calibration(logs, tmp_pa
         pq.write_table(table.slice(k * step, step), folder / f"part-{4 - k}.parquet")
     grid = run(folder).calibration.grid  # blocks assembled across files: summation order only
     np.testing.assert_allclose(grid.values, reference.values, rtol=1e-9, atol=0)
+
+
+def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeypatch):
+    """A log larger than the memory budget is reduced to block statistics as it is read and
+    read again for the noise and the temperature record. With batches of a prime number of
+    rows (so blocks, record bins and static stretches straddle them) and no budget, the
+    observations, the noise, the record and the segmentation's info are the in-memory
+    path's, bit for bit."""
+    import pandas as pd
+
+    from gyrocal import io
+    from gyrocal.config import Settings
+    from gyrocal.pipeline import segment_log
+    settings = Settings()
+    path = logs["complete"]
+    kept = segment_log(path, settings)
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 4999)
+    streamed = segment_log(path, settings, keep_bytes=0)
+    pd.testing.assert_frame_equal(streamed.observations, kept.observations, check_exact=True)
+    pd.testing.assert_frame_equal(streamed.segments, kept.segments, check_exact=True)
+    from gyrocal.floor import STATIC
+    assert streamed.info == kept.info and streamed.info["noise"]["source"] == STATIC
+    a, b = (s.observations.attrs["series"] for s in (kept, streamed))
+    for name in ("t", "temp", "weight"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+
+
+def test_history_of_pieces_is_the_history_of_the_whole():
+    """Bin sums are made within one piece, so any cut of the record gives the same bits."""
+    from gyrocal.signals import HistoryBins, history
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.005, 0.015, 20_000))
+    temp = 25 + np.cumsum(rng.normal(0, 0.01, t.size)).astype(np.float32)
+    whole = history(t, temp, window_s=30.0)
+    cuts = np.sort(rng.choice(np.arange(1, t.size), 40, replace=False))
+    bins = HistoryBins(t[0], t[-1], window_s=30.0)
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, t.size]):
+        bins.push(t[lo:hi], temp[lo:hi])
+    pieces = bins.result()
+    for name in ("t", "temp", "weight"):
+        np.testing.assert_array_equal(getattr(pieces, name), getattr(whole, name))

@@ -451,11 +451,11 @@ def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
         hi, lo = blk["gyro_max"], blk["gyro_min"]
     reach = 8.0 * np.sqrt(var)
     near = ((mean + reach >= hi) | (mean - reach <= lo)).any(axis=1)
-    for i in np.flatnonzero(near):
-        worst = 0
-        for a, name in enumerate(GYRO):
-            x = log.rows(name, c0[i] * size, c1[i] * size)
-            worst = max(worst, int(np.count_nonzero((x >= hi[a]) | (x <= lo[a]))))
+    near = np.flatnonzero(near)
+    samples = log.row_ranges(GYRO, [(c0[i] * size, c1[i] * size) for i in near]) if near.size else []
+    for i, x in zip(near, samples):
+        worst = max(int(np.count_nonzero((x[name] >= hi[a]) | (x[name] <= lo[a])))
+                    for a, name in enumerate(GYRO))
         share[i] = worst / n[i] if (worst >= 2 or full_scale) else 0.0
     return share
 
