@@ -16,9 +16,9 @@ import pyarrow.parquet as pq
 
 from .calibration import Calibration
 from .errors import LogFormatError
-from .io import (GYRO, check_float, declared_units, open_dataset, record_batches, time_seconds,
-                 to_internal_units)
-from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, Series, temperature_rate  # noqa: F401
+from .io import (GYRO, REQUIRED, check_float, declared_units, open_dataset, read_log,
+                 record_batches, time_seconds, to_internal_units)
+from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 
 BATCH_ROWS = 1 << 20
 DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
@@ -53,30 +53,17 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     out_schema = out_schema.with_metadata(metadata)
 
     # Series signals (time since the first sample, the temperature rate, lags) are defined
-    # on the whole record, as in the fit (gyrocal.signals): the time of the first sample is
-    # read first, and the temperature record whole when a term reads more than t.
+    # on the whole record, as in the fit (gyrocal.pipeline.segment_log): time counts from
+    # the first row the fit would keep, and the record is the same bin means, gathered in
+    # a first pass over the file.
     origin: list = []
-    reads_time = bool(needs & SERIES_INPUTS)
-    t0 = _first_time(dataset, path, units, origin) if reads_time else 0.0
-    series = None
-    if needs & {"temp_rate", "temp_lag"}:
-        table = dataset.to_table(columns=["t", "temp"])
-        seconds = time_seconds(table.column("t").combine_chunks(), path, origin)
-        steps = np.diff(seconds[np.isfinite(seconds)])
-        if steps.size and steps.min() <= 0:
-            raise LogFormatError("column t does not increase strictly, so the temperature record "
-                                 "the calibration's terms read cannot be derived", source=path)
-        temp = to_internal_units("temp", table.column("temp").to_numpy().astype(np.float64), units)
-        del table
-        good = np.isfinite(seconds) & np.isfinite(temp)
-        window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
-        series = Series(seconds[good] - t0, temp[good], t0, window)
-
+    t0, series = None, None
+    if needs & SERIES_INPUTS:
+        t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"})
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     tmp = out.with_name(out.name + ".tmp")
     try:
-        _write(dataset, tmp, out_schema, cal, needed, units, path, origin,
-               t0 if reads_time else None, series, counts)
+        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts)
     except BaseException:
         tmp.unlink(missing_ok=True)  # never leave half a file behind
         raise
@@ -84,18 +71,21 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     return counts
 
 
-def _first_time(dataset, path, units, origin) -> float:
-    """The time of the first row the fit kept (``read_log``: finite time, gyro, temperature
-    and reference rate): series signals count ``t`` from it on both sides."""
-    names = [c for c in ("t", *GYRO, "temp", "ref_rate") if c in dataset.schema.names]
-    for batch in dataset.to_batches(columns=names):
-        t = time_seconds(batch.column("t"), path, origin)
-        good = np.isfinite(t)
-        for c in names[1:]:
-            good &= np.isfinite(batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64))
-        if good.any():
-            return float(t[np.argmax(good)])
-    raise LogFormatError("no row has a finite time, gyro and temperature", source=path)
+def _record(cal: Calibration, path: Path, names, whole: bool) -> tuple[float, Series | None]:
+    """The first kept row's time (the rule of :func:`gyrocal.io.read_log`: finite time,
+    gyro, temperature and, when logged, reference rate) and, when ``whole``, the
+    temperature record as the fit makes it (:class:`gyrocal.signals.HistoryBins`), in
+    memory that does not grow with the log."""
+    required = tuple(c for c in REQUIRED if c != "ref_rate" or c in names)
+    log = read_log(path, optional=(), required=required, keep_bytes=0)
+    first, last = log.time_span
+    if not whole:
+        return first, None
+    window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
+    record = HistoryBins(first, last, window_s=window)
+    for batch in log.scan(("t", "temp")):
+        record.push(batch["t"], batch["temp"])
+    return first, record.result()
 
 
 def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:

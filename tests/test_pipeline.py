@@ -209,3 +209,24 @@ def test_history_of_pieces_is_the_history_of_the_whole():
     pieces = bins.result()
     for name in ("t", "temp", "weight"):
         np.testing.assert_array_equal(getattr(pieces, name), getattr(whole, name))
+
+
+def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
+    """A model with a temperature-rate term is applied with the record the fit saw: the
+    same bin means of the same kept rows, gathered in a pass that keeps no batch."""
+    import pyarrow.parquet as pq
+
+    from gyrocal import apply, io
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import extended
+    from gyrocal.pipeline import segment_log
+    path = logs["complete"]
+    settings = extended(Settings(), "temp_rate")
+    cal = run(path, settings).calibration
+    fitted = segment_log(path, settings).observations.attrs["series"]
+    assert cal.covariates["temp_rate"]["window_s"] == fitted.temp_rate_window_s
+    monkeypatch.setattr(io, "READ_BATCH_ROWS", 4999)
+    t0, record = apply._record(cal, path, pq.read_schema(path).names, True)
+    assert t0 == fitted.t0
+    for name in ("t", "temp", "weight"):
+        np.testing.assert_array_equal(getattr(record, name), getattr(fitted, name))

@@ -14,11 +14,12 @@ import pyarrow.parquet as pq
 import pytest
 
 from gyrocal import cli
-from gyrocal.apply import apply_calibration, temperature_rate
+from gyrocal.apply import apply_calibration
 from gyrocal.calibration import load_calibration, save_calibration
 from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.pipeline import run, segment_log
+from gyrocal.signals import temperature_rate
 from gyrocal.turntable.segment import SegmentConfig
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
