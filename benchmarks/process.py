@@ -13,7 +13,8 @@ starts, one after the other:
 
 Runs are interleaved; printed per rate are the median and quartiles of each process's wall
 time, of its paired ratio to the read-only process, and its peak resident memory (its own
-``ru_maxrss``, from ``wait4``) in MiB and per million rows, with the machine and the date.
+``ru_maxrss``, from ``wait4``) in MiB and per million rows, with the machine and the date;
+then ``diagnose`` against ``calibrate``, paired.
 
     python benchmarks/process.py [--rates 25,100,1000] [--repeat 5] [--only calibrate,apply]
 """
@@ -117,6 +118,11 @@ def main() -> None:
             peak = max(m for _, m in values)
             print(f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
                   f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
+                  flush=True)
+        if "diagnose" in results and "calibrate" in results:
+            d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results["diagnose"],
+                                                                    results["calibrate"])])
+            print(f"{rate:>6g} {'':>12} diagnose ÷ calibrate, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})",
                   flush=True)
 
 

@@ -524,11 +524,20 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
     print(f"gyrocal: warning: {' '.join(str(message).split())}", file=sys.stderr)
 
 
-# Modules a command imports only after it has read the log (the noise fit's scipy.optimize
-# and scipy.special, the model fit's scipy.linalg): imported on a second thread from the
-# start, they load while the log is being read (Arrow decodes without holding the GIL).
+# A command that reads a log starts decoding it at once, on a thread (gyrocal.readahead),
+# and imports meanwhile what it runs; modules it would import only after the read (the
+# noise fit's scipy.optimize and scipy.special, the model fit's scipy.linalg) are imported
+# on another thread from the start. Imports hold the GIL; Arrow's decoding does not.
 WARM_IMPORTS = ("scipy.linalg", "scipy.special", "scipy.optimize")
 READS_A_LOG = {"calibrate", "diagnose", "segment", "noise"}
+
+
+def _read_ahead(args) -> None:
+    log = getattr(args, "log", None)
+    if log is not None:
+        from . import readahead
+        readahead.start(log)
+    _warm_imports()
 
 
 def _warm_imports() -> None:
@@ -548,7 +557,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     warnings.showwarning = _one_line_warning
     if argv is None and args.command in READS_A_LOG:
-        _warm_imports()
+        _read_ahead(args)
     try:
         return args.func(args)
     except GyrocalError as exc:

@@ -21,6 +21,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
+from . import readahead
 from .errors import CorruptFileError, EmptyLogError, LogFormatError
 
 GYRO = ("gyro_x", "gyro_y", "gyro_z")
@@ -334,8 +335,8 @@ def _open_checked(path: Path, optional, required):
     return dataset, wanted, declared_units(schema, path)
 
 
-READ_BATCH_ROWS = 1 << 17
-READ_BUFFER_BYTES = 1 << 20
+READ_BATCH_ROWS = readahead.BATCH_ROWS
+READ_BUFFER_BYTES = readahead.BUFFER_BYTES
 
 
 def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None
@@ -347,6 +348,10 @@ def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None
     files = getattr(dataset, "files", None) or []
     batch_rows = batch_rows or READ_BATCH_ROWS
     if len(files) == 1:
+        ahead = readahead.take(files[0], columns, batch_rows, READ_BUFFER_BYTES)
+        if ahead is not None:  # decoded while the process started (gyrocal.readahead)
+            yield from ahead
+            return
         reader = pq.ParquetFile(files[0], pre_buffer=False, buffer_size=READ_BUFFER_BYTES)
         yield from reader.iter_batches(batch_size=batch_rows, columns=list(columns), use_threads=True)
         return

@@ -47,7 +47,7 @@ def versions() -> dict[str, str]:
 # The decoded columns of a log are kept in memory up to this size; a larger log is reduced
 # to block statistics as it is read and read again, batch by batch, for what needs samples
 # (noise, the temperature record), so that memory does not grow with the log.
-KEEP_BYTES = 512 * 2 ** 20
+KEEP_BYTES = 384 * 2 ** 20
 
 
 def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT, *,

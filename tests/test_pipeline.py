@@ -230,3 +230,29 @@ def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
     assert t0 == fitted.t0
     for name in ("t", "temp", "weight"):
         np.testing.assert_array_equal(getattr(record, name), getattr(fitted, name))
+
+
+def test_a_log_read_ahead_segments_to_the_same_bits(logs):
+    """The command line decodes the log on a thread while it imports (gyrocal.readahead);
+    the reader takes those batches instead of reading the file, and nothing changes. A
+    read-ahead the reader cannot use (other columns) is dropped and the file read."""
+    import pandas as pd
+
+    from gyrocal import io, readahead
+    from gyrocal.config import Settings
+    from gyrocal.pipeline import segment_log
+    from gyrocal.turntable.segment import LOG_COLUMNS
+    assert set(io.REQUIRED + LOG_COLUMNS) <= set(readahead.COLUMNS)
+    path = logs["complete"]
+    direct = segment_log(path, Settings())
+    readahead.start(path)
+    (reading,) = readahead._pending.values()
+    ahead = segment_log(path, Settings())
+    reading.thread.join(timeout=10)
+    # Taken by the reader and read to the end: not dropped, nothing left waiting.
+    assert not readahead._pending and not reading.stopped.is_set() and reading.batches.empty()
+    pd.testing.assert_frame_equal(ahead.observations, direct.observations, check_exact=True)
+    assert ahead.info == direct.info
+    readahead.start(path)
+    assert readahead.take(path, ("t", "not_a_column"), io.READ_BATCH_ROWS, io.READ_BUFFER_BYTES) is None
+    assert not readahead._pending
