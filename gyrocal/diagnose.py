@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
-from scipy import stats
+from scipy import special
 
 from .config import Settings
 from .floor import with_upper_floor
@@ -48,6 +48,27 @@ COVARIATES = {
     "accel_x": "accel_x", "accel_y": "accel_y", "accel_z": "accel_z",
     "time": "time", "hold duration": "duration",
 }
+
+
+# The χ² and F tails the tests below use, from scipy.special as scipy.stats computes them
+# (chi2.sf is chdtrc, chi2.ppf 2·gammaincinv(df/2, q), f.sf fdtrc; 1 below the support):
+# the same numbers without importing scipy.stats, which takes longer than a diagnosis.
+def chi2_sf(x, df) -> float:
+    return float(special.chdtrc(df, 0.0 if x < 0 else x))
+
+
+def chi2_ppf(q, df) -> float:
+    return float(2.0 * special.gammaincinv(df / 2.0, q))
+
+
+def f_sf(x, df_num, df_den) -> float:
+    return float(special.fdtrc(df_num, df_den, 0.0 if x < 0 else x))
+
+
+def fisher_combined(*p_values) -> float:
+    """Fisher's combination of independent p-values (each floored at 1e-300)."""
+    p = np.maximum(np.asarray(p_values, dtype=float), 1e-300)
+    return chi2_sf(-2.0 * np.sum(np.log(p)), 2 * p.size)
 
 
 @dataclass
@@ -315,7 +336,7 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
         ss_base, k_base = _between(zz, base)
         df = 3 * (k_joint - k_base)
         gain = ss_joint - ss_base
-        p = float(stats.chi2.sf(gain, df)) if df > 0 else 1.0
+        p = float(chi2_sf(gain, df)) if df > 0 else 1.0
         share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
         row = {"covariate": " = ".join(names) if len(names) > 1 else lead, "bins": int(k_joint),
                "share_of_excess": share, "p_value": p, "within": base_name,
@@ -363,7 +384,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     chi2_red = {"all": base.chi2 / base.dof, **{a: chi2_axis[a] / dof_axis[a] for a in AXES}}
     rms_over_floor = {"all": float(np.sqrt(np.nanmean(z ** 2))),
                       **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
-    excess_p = float(stats.chi2.sf(base.chi2, base.dof))
+    excess_p = float(chi2_sf(base.chi2, base.dof))
     explains = excess_p >= alpha / 2
     judge = _Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))
     base_next = judge.carry(base)
@@ -381,7 +402,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         upper = with_upper_floor(obs)
         if upper is not None:
             wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
-            within_noise = {"excess_p_value": float(stats.chi2.sf(wide.chi2, wide.dof)),
+            within_noise = {"excess_p_value": float(chi2_sf(wide.chi2, wide.dof)),
                             "chi2_red": wide.chi2 / wide.dof,
                             "static_seconds": float(obs.attrs.get("static_seconds") or 0.0)}
             within_noise["explains"] = within_noise["excess_p_value"] >= alpha / 2
@@ -421,7 +442,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
             candidates.append(Candidate(spec, "not identifiable", reason=problem))
             continue
         f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
-        p = float(stats.f.sf(f_stat, df_num, df_den))
+        p = float(f_sf(f_stat, df_num, df_den))
         size, peak = _effect_size(ext, spec, added, data)
         v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
         candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
@@ -568,7 +589,7 @@ class _Judge:
         sizeable = left["chi2_red_share"] > min(LEFTOVER_FRACTION * self.base_excess,
                                                 NEGLIGIBLE_OVER_FLOOR ** 2 - 1.0)
         structure = sizeable and left["p_value"] < half
-        in_chance = (float(stats.chi2.sf(ext.chi2, ext.dof)) >= half
+        in_chance = (float(chi2_sf(ext.chi2, ext.dof)) >= half
                      or ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
         # Slow noise lines residuals up with time and nothing else: structure in rate, mount
         # or temperature is an effect, and structure in time is one too unless slow noise is
@@ -584,7 +605,7 @@ class _Judge:
         # to be slow noise; and the other session is no worse than with the configured model.
         combined = nxt["repeat_p_value"]
         if sizeable and not exempt:
-            combined = float(stats.combine_pvalues(np.maximum([left["p_value"], combined], 1e-300))[1])
+            combined = fisher_combined(left["p_value"], combined)
         nxt["left_p_value"] = combined
         return (combined >= half and (in_chance or slow_noise)
                 and nxt["validation_rms"] <= base_next["validation_rms"])
@@ -727,7 +748,7 @@ def unrepeated_p_value(obs0, z0, obs1, z1) -> float | None:
         return None
     a, b, k0, k1, _ = shared
     d = ((a - a.mean(axis=0)) - b) / np.sqrt(1.0 / k0 + 1.0 / k1)[:, None]
-    return float(stats.chi2.sf(float(np.sum(d ** 2)), d.size - 3))
+    return float(chi2_sf(float(np.sum(d ** 2)), d.size - 3))
 
 
 def _extended_all(settings: Settings, best: Candidate) -> Settings:
@@ -754,7 +775,7 @@ def _second_step(judge: _Judge, first: Candidate, ranked: list[Candidate], base_
         if df_num <= 0 or df_den <= 0 or len(ext.fitted.used_points()) != len(start.fitted.used_points()):
             continue
         f_stat = ((start.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
-        p = float(stats.f.sf(f_stat, df_num, df_den))
+        p = float(f_sf(f_stat, df_num, df_den))
         if p >= alpha / 2 / max(len(others), 1):
             continue
         if ext.summary["validation_rms"] >= first.validation_rms_with:
@@ -785,7 +806,7 @@ def chance_bound(holds: int, alpha: float) -> float:
     """How far above the RMS a correct model should leave a validation RMS of ``holds``
     holds (three errors each) may lie by chance: ``sqrt(χ²_N(1 − α/2) / N)``."""
     n = 3 * max(int(holds), 1)
-    return float(np.sqrt(stats.chi2.ppf(1.0 - alpha / 2, n) / n))
+    return float(np.sqrt(chi2_ppf(1.0 - alpha / 2, n) / n))
 
 
 def _practical_gain(base: Evaluation, c: Candidate) -> bool:

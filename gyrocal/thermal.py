@@ -433,7 +433,9 @@ class JointGridFit(_OnAGrid):
 
     def covariance_at(self, temp) -> np.ndarray:
         A = self._mapping(self.grid.weights(np.atleast_1d(np.asarray(temp, float))))
-        return np.einsum("ncj,jk,ndk->ncd", A, self.fit.covariance, A)
+        # Two products, not one three-operand einsum: numpy's einsum would loop over all
+        # five indices at once (n·c²·j², seconds for a diagnosis' candidates).
+        return (A @ self.fit.covariance) @ A.transpose(0, 2, 1)
 
     def point_fit(self, point: int):
         """The calibration at one point: its own coefficients and the global ones."""
@@ -534,24 +536,25 @@ def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3
         raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
     if any(t.nonlinear() for t in model.terms):
         from .profile import profiled_fit
-        return profiled_fit(model, lambda m: _fit_linear(m, obs, kind=kind, method=method,
+        data = columns_of(obs)  # once, not at each of the profile's few dozen fits
+        return profiled_fit(model, lambda m: _fit_linear(m, data, kind=kind, method=method,
                                                           degree=degree, source=source))
     return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
 
 
 def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None):
+    data = columns_of(obs)
     if kind == "continuous":
-        return fit_continuous(model, obs, source=source)
+        return fit_continuous(model, data, source=source)
     temperature_only = [t.spec_string() for t in model.terms
                         if t.varies_with_temperature and t.coefficient_scope != "global"]
     if temperature_only:
         raise ConfigError(f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
                           "on temperature alone and cannot be fitted point by point: use model "
                           "kind continuous")
-    data = columns_of(obs)
     _check_point_terms(model, data, source)
     if not global_terms(model):
-        return fit_grid(model, obs, method=method, degree=degree, source=source)
+        return fit_grid(model, data, method=method, degree=degree, source=source)
     check_method(method, degree)
     # Points whose own holds cannot determine their coefficients are left out, as in a
     # plain grid; the rest are fitted together with the global terms.

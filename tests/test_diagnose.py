@@ -194,3 +194,19 @@ def test_the_ladder_steps_add_terms_and_fall_toward_the_floor(effect_logs):
     assert [p["coefficient"] for p in ladder[1]["parameters"]] == [
         "scale_quadratic.x", "scale_quadratic.y", "scale_quadratic.z"]
     assert "condition number" in ladder[2]["error"]  # three mounts cannot separate g from bias
+
+
+def test_the_tails_are_scipy_stats_own_numbers():
+    """The diagnosis takes its χ² and F tails from scipy.special (scipy.stats takes longer
+    to import than a diagnosis runs): the same numbers, to the bit, below the support too."""
+    from gyrocal.diagnose import chi2_ppf, chi2_sf, f_sf, fisher_combined
+    rng = np.random.default_rng(5)
+    for x, df, df_den, q in zip(np.r_[rng.uniform(-5, 400, 400), 0.0, -1.0, np.inf],
+                                np.r_[rng.integers(1, 3000, 400), 1, 2, 3],
+                                np.r_[rng.integers(1, 3000, 400), 4, 5, 6], rng.uniform(0, 1, 403)):
+        assert chi2_sf(x, df) == stats.chi2.sf(x, df)
+        assert f_sf(x, df, df_den) == stats.f.sf(x, df, df_den)
+        assert chi2_ppf(q, df) == stats.chi2.ppf(q, df)
+    for _ in range(200):
+        p = rng.uniform(0, 1, 2) ** rng.uniform(0.1, 30)
+        assert fisher_combined(*p) == stats.combine_pvalues(np.maximum(p, 1e-300))[1]
