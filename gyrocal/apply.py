@@ -20,7 +20,7 @@ from .io import (GYRO, REQUIRED, check_float, declared_units, open_dataset, read
                  record_batches, time_seconds, to_internal_units)
 from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 
-BATCH_ROWS = 1 << 20
+BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
 DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
 
 
