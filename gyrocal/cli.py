@@ -7,6 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
+from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
 from . import __version__, protocols
 from .errors import ConfigError, GyrocalError
 from .export import add_export_parser

@@ -167,3 +167,19 @@ def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term
     again = tmp_path / "d2.json"
     assert main("diagnose", log, "-o", again, "--add-term", doc["best"]["term"]) == 0
     assert json.loads(again.read_text())["best"] is None
+
+
+def test_the_command_line_sets_one_blas_thread_before_numpy_loads():
+    """The BLAS thread count is read when numpy loads: gyrocal.blas_threads must come first,
+    and a count the user set is kept."""
+    import os
+    probe = ("import os, sys, gyrocal.cli; order = list(sys.modules); "
+             "print(order.index('gyrocal.blas_threads') < order.index('numpy'), "
+             "os.environ['OPENBLAS_NUM_THREADS'])")
+    env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out == ["True", "1"]
+    out = subprocess.run([sys.executable, "-c", probe], env={**env, "OPENBLAS_NUM_THREADS": "3"},
+                         capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["True", "3"]
