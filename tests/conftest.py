@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 
+from gyrocal import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
+
 import numpy as np
 import pytest
 from hypothesis import settings
