@@ -200,15 +200,16 @@ class HistoryBins:
         self.window_s = window_s
         self._carry: tuple[np.ndarray, np.ndarray] | None = None
         self._out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._ends: list[tuple[float, float]] = []
+        self._first: tuple[float, float] | None = None   # (t, temp) of the first sample
+        self._last: tuple[float, float] | None = None    # and of the last
 
     def push(self, t: np.ndarray, temp: np.ndarray) -> None:
         rel = np.asarray(t, dtype=float) - self.t0
         temp = np.asarray(temp, dtype=float)
         if not len(rel):
             return
-        if not self._ends:
-            self._ends.append((rel[0], temp[0]))
+        if self._first is None:
+            self._first = (rel[0], temp[0])
         self._last = (rel[-1], temp[-1])
         if self._carry is not None:
             rel, temp = np.concatenate((self._carry[0], rel)), np.concatenate((self._carry[1], temp))
@@ -235,7 +236,7 @@ class HistoryBins:
         if not self._out:
             return Series(np.empty(0), np.empty(0), self.t0, self.window_s, np.empty(0))
         mean_t, mean_temp, weight = (np.concatenate(k) for k in zip(*self._out))
-        (first, temp_first), (last, temp_last) = self._ends[0], self._last
+        (first, temp_first), (last, temp_last) = self._first, self._last
         # The first and last samples themselves bound the record (with no weight of their
         # own: they are in the first and last bins), so that a lag starts from the same
         # state as on the samples and nothing is extrapolated at the ends.
