@@ -359,8 +359,11 @@ def _covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: 
 
 def _same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two labellings split the holds into the same groups."""
-    pairs = np.unique(np.stack([a, b], axis=1), axis=0)
-    return len(pairs) == len(np.unique(a)) == len(np.unique(b))
+    # Labels are small non-negative integers (_partition, qcut): count distinct pairs as
+    # distinct integers, a hash rather than the sort of a row-wise unique.
+    a, b = a.astype(np.int64), b.astype(np.int64)
+    pairs = a * (int(b.max()) + 1) + b
+    return len(np.unique(pairs)) == len(np.unique(a)) == len(np.unique(b))
 
 
 def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None = None, *,

@@ -234,10 +234,11 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
     out, a formula outside its domain) is refused, naming its term and how many holds."""
     for term in model.terms:
         for name in term.coefficients():
-            bad = ~np.isfinite(np.broadcast_to(design[name], (n_obs,)))
+            bad = ~np.isfinite(design[name])   # a constant column is a scalar
             if bad.any():
+                count = int(bad.sum()) if np.ndim(bad) else n_obs
                 raise MissingInputError(
-                    f"term {term.spec_string()} is not finite for {int(bad.sum())} of {n_obs} "
+                    f"term {term.spec_string()} is not finite for {count} of {n_obs} "
                     f"holds{f' at {label}' if label else ''} (inputs: {', '.join(sorted(term.needs))})",
                     source=source)
 
@@ -311,7 +312,9 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
         cols = model.axis_names(axis)
         if not cols:
             continue
-        X = np.column_stack([np.broadcast_to(design[c], (n_obs,)) for c in cols])
+        X = np.empty((n_obs, len(cols)))
+        for j, c in enumerate(cols):
+            X[:, j] = design[c]   # a constant column is a scalar
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
         whiten = whiteners[i]
         Xw, yw = whiten(X), whiten(y)
