@@ -14,10 +14,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from . import atomic
 from .calibration import Calibration
 from .errors import LogFormatError
-from .io import (GYRO, REQUIRED, check_float, declared_units, open_dataset, read_log,
-                 record_batches, time_seconds, to_internal_units)
+from .io import (GYRO, READ_ERRORS, REQUIRED, check_float, declared_units, open_dataset,
+                 read_error, read_log, record_batches, time_seconds, to_internal_units)
 from .signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 
 BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
@@ -61,13 +62,8 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     if needs & SERIES_INPUTS:
         t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"})
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
-    tmp = out.with_name(out.name + ".tmp")
-    try:
+    with atomic.replacing(out) as tmp:  # never leave half a file behind
         _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts)
-    except BaseException:
-        tmp.unlink(missing_ok=True)  # never leave half a file behind
-        raise
-    tmp.replace(out)
     return counts
 
 
@@ -88,9 +84,18 @@ def _record(cal: Calibration, path: Path, names, whole: bool) -> tuple[float, Se
     return first, record.result()
 
 
+def _read(dataset, path):
+    """The log's batches; data Arrow cannot read is an error naming the log (the output's
+    own errors, raised by the writer, are not caught here)."""
+    try:
+        yield from record_batches(dataset, dataset.schema.names, BATCH_ROWS)
+    except READ_ERRORS as exc:
+        raise read_error(exc, path) from None
+
+
 def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:
     with pq.ParquetWriter(tmp, out_schema) as writer:
-        for batch in record_batches(dataset, dataset.schema.names, BATCH_ROWS):
+        for batch in _read(dataset, path):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])
@@ -107,8 +112,13 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             result = np.full_like(gyro, np.nan)
             if good.any():
                 sub = {k: v[good] for k, v in data.items()}
-                result[good] = cal.compensate(gyro[good], sub, warn=False)
+                with np.errstate(over="ignore", invalid="ignore"):  # counted just below
+                    result[good] = cal.compensate(gyro[good], sub, warn=False)
                 counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
+            # A finite output too large to compensate (its terms overflow) is written as
+            # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
+            good &= np.all(np.isfinite(result), axis=1)
+            result[~good] = np.nan
             arrays = [pa.array(result[:, GYRO.index(name)]) if name in GYRO else batch.column(name)
                       for name in out_schema.names]
             writer.write_table(pa.Table.from_arrays(arrays, schema=out_schema))

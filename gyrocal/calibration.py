@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import formats
+from . import atomic, formats
 from .errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
 from .model import Model
 from .signals import SERIES_INPUTS, Inputs
@@ -292,10 +291,8 @@ def _dump(value, indent: str, level: int) -> str:
 def save_calibration(cal: Calibration, path) -> None:
     path = Path(path)
     text = dumps(cal.to_dict())
-    tmp = path.with_name(path.name + ".tmp")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    atomic.write_text(path, text)
 
 
 def load_calibration(path) -> Calibration:

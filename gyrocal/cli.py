@@ -170,7 +170,8 @@ def cmd_noise(args) -> int:
     settings = _settings(args)
     noise = segment_log(args.log, settings, args.protocol).info["noise"]
     if args.output:
-        Path(args.output).write_text(dumps(noise))
+        from .atomic import write_text
+        write_text(args.output, dumps(noise))
     if "session" not in noise:
         print(f"{args.log}: {noise['reason']}; no noise model")
         return 0
@@ -286,6 +287,8 @@ def cmd_calibrate(args) -> int:
                   f"{p['bounds'][0]:g} to {p['bounds'][1]:g}: the effect may be absent or "
                   "another one missing (a continuous model needs temperature terms); check the "
                   "fit before widening the bounds", file=sys.stderr)
+    for w in result.calibration.extra.get("warnings", []):
+        print(f"gyrocal: warning: {w['code']}: {w['message']}", file=sys.stderr)
     if args.report:
         print(f"  report -> {args.report}")
     return 0
@@ -337,7 +340,7 @@ def cmd_apply(args) -> int:
                       f"{lo:g} to {hi:g} °C and use the nearest end's calibration", stacklevel=1)
     if counts["nonfinite"]:
         warnings.warn(f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
-                      "were written as NaN", stacklevel=1)
+                      "(or rates too large to compensate) were written as NaN", stacklevel=1)
     print(f"{counts['rows']} rows compensated -> {args.output}")
     return 0
 
@@ -416,7 +419,7 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
         q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
         q.add_argument("--terms", action="append", metavar="FILE",
-                       help="a Python file registering your own terms (repeatable)")
+                       help="a Python file registering your own terms (repeatable); it runs as code")
         if model:
             q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
             q.add_argument("--add-term", action="append", metavar="NAME",

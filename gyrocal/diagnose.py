@@ -626,7 +626,7 @@ def carry_over(settings: Settings, ev: Evaluation, obs: pd.DataFrame, other: pd.
     (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
     from .drift import hold_errors, revalidate
     from .pipeline import calibrate_observations
-    cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted)
+    cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
     errors, floor1 = hold_errors(cal, other)
     resid, floor0, rows = in_sample(ev.fitted, len(obs))

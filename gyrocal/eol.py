@@ -194,6 +194,14 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
                    n >= limits.min_temperature_points,
                    f"temperature points = {int(n)} below the minimum {limits.min_temperature_points}")
 
+    if limits.fail_on_warnings:
+        warned = [w for w in cal.extra.get("warnings", [])
+                  if limits.fail_on_warnings is True or w["code"] in limits.fail_on_warnings]
+        checked["warnings"] = {"value": [w["code"] for w in warned], "limit": limits.fail_on_warnings
+                               if limits.fail_on_warnings is True else list(limits.fail_on_warnings),
+                               "unit": None, "passed": not warned}
+        reasons += [f"plausibility warning {w['code']}: {w['message']}" for w in warned]
+
     meta = {k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")}
     return Verdict(not reasons, tuple(reasons), checked, meta)
 

@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -55,7 +54,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import __version__
+from . import __version__, atomic
 from .errors import ConfigError, InputError
 
 if TYPE_CHECKING:  # the CLI registers export at start-up: what it reads is imported on use
@@ -296,10 +295,8 @@ def export_calibration(cal: Calibration, fmt: str, out, *, source=None) -> Firmw
     tables = firmware_tables(cal, source=source)
     text = _render(cal, tables, fmt, source)
     out = Path(out)
-    tmp = out.with_name(out.name + ".tmp")
     try:
-        tmp.write_text(text)
-        os.replace(tmp, out)
+        atomic.write_text(out, text)
     except OSError as exc:
         raise InputError(f"cannot write the export ({exc.strerror})", source=out) from None
     return tables

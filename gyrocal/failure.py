@@ -12,13 +12,12 @@ is a page saying what failed.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from . import formats
+from . import atomic, formats
 from .errors import CorruptFileError, GyrocalError
 from .pages import render_page
 
@@ -35,9 +34,13 @@ class UpstreamFailure(GyrocalError):
 
 
 def record(stage: str, error: BaseException | str, meta: dict | None = None) -> dict:
-    internal = not isinstance(error, GyrocalError)
+    """The failure record of ``stage`` failing with ``error`` (an exception, or the reason
+    as text: a job the workflow's limits ended, :mod:`gyrocal.guard`)."""
+    internal = not isinstance(error, (GyrocalError, str, MemoryError))
     text = " ".join(str(error).split())
-    if internal:
+    if isinstance(error, MemoryError):  # the machine's memory, not a bug of the stage
+        text = "ran out of memory" + (f" ({text})" if text else "")
+    elif internal:
         text = f"internal error: {type(error).__name__}: {text}"
     return {"format": FORMAT, **{k: (meta or {}).get(k) for k in
                                  ("device", "batch", "session", "protocol")},
@@ -78,15 +81,14 @@ def write(outputs, rec: dict) -> None:
     for out in outputs:
         out = Path(out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = out.with_name(out.name + ".tmp")
         if out.suffix == ".parquet":
             table = pa.table({"failed": pa.array([], type=pa.bool_())})
-            pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(rec).encode()}), tmp)
+            with atomic.replacing(out) as tmp:
+                pq.write_table(table.replace_schema_metadata({META_KEY: json.dumps(rec).encode()}), tmp)
         elif out.suffix == ".html":
-            tmp.write_text(render_page("failure.html.j2", r=rec))
+            atomic.write_text(out, render_page("failure.html.j2", r=rec))
         else:
-            tmp.write_text(json.dumps(rec, indent=2) + "\n")
-        os.replace(tmp, out)
+            atomic.write_text(out, json.dumps(rec, indent=2) + "\n")
 
 
 def load_json(path) -> dict:

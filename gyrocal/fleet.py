@@ -165,6 +165,7 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
             summary = json.loads(p["validation"].read_text())["summary"]
             at_ref = cal.coefficients([cal.reference_temperature], warn=False)
             row["calibration"] = cal
+            row["warnings"] = cal.extra.get("warnings", [])
             session_noise = (cal.extra.get("noise") or {}).get("session")
             row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
                 if session_noise else None

@@ -136,8 +136,9 @@ class StretchSampler:
         n = len(cols["temp"])
         if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
             gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
+            # in float64: a float32 column's own accumulator overflows near its largest value
             self._done[k] = (self._pool.submit(stretch_sums, gyro, self.rate), n,
-                             float(np.mean(cols["temp"])))
+                             float(np.mean(cols["temp"], dtype=np.float64)))
 
     def result(self) -> list[tuple]:
         for k in list(self._pieces):

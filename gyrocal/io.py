@@ -33,8 +33,8 @@ UNITS_KEY = b"gyrocal.units"
 # Accepted unit strings per quantity and the factor to the internal unit. The contract
 # defines "gyro" and "ref_rate"; "accel" and "temp" are documented extensions.
 UNIT_FACTORS = {
-    "gyro": {"deg/s": 1.0, "rad/s": 180.0 / math.pi},
-    "ref_rate": {"deg/s": 1.0, "rad/s": 180.0 / math.pi},
+    "gyro": {"deg/s": 1.0, "rad/s": 180.0 / math.pi, "mdps": 1e-3},
+    "ref_rate": {"deg/s": 1.0, "rad/s": 180.0 / math.pi, "mdps": 1e-3},
     "accel": {"g": 1.0, "m/s^2": 1.0 / 9.80665, "m/s2": 1.0 / 9.80665},
     "temp": {"degC": 0.0, "°C": 0.0, "C": 0.0, "K": -273.15},  # offsets, not factors
 }
@@ -65,6 +65,7 @@ class RigLog:
     span: tuple[float, float] = (0.0, 0.0)   # first and last kept t (when ``batches`` is None)
     blocks: dict = field(default_factory=dict, compare=False)
     reread: Callable | None = field(default=None, compare=False, repr=False)
+    input_stats: dict | None = field(default=None, compare=False)  # gyrocal.plausibility.InputStats
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -131,7 +132,9 @@ def open_dataset(path: Path) -> ds.Dataset:
         if not path.is_dir():
             if not path.exists():
                 raise CorruptFileError("no such file", source=path)
-            return ds.dataset(path, format="parquet")
+            dataset = ds.dataset(path, format="parquet")
+            dataset.schema.names  # noqa: B018 - a damaged column name fails here (UTF-8)
+            return dataset
         files = sorted(str(p) for p in path.rglob("*.parquet") if p.is_file())
         if not files:
             raise CorruptFileError("directory holds no .parquet files", source=path)
@@ -140,9 +143,13 @@ def open_dataset(path: Path) -> ds.Dataset:
         if all(s is not None for s in starts):
             files = [f for _, f in sorted(zip(starts, files))]
             dataset = ds.dataset(files, format="parquet")
+        dataset.schema.names  # noqa: B018
         return dataset
     except (pa.ArrowInvalid, OSError) as exc:
         raise CorruptFileError(f"not a readable Parquet file ({first_line(exc)})", source=path) from None
+    except UnicodeDecodeError:
+        raise CorruptFileError("not a readable Parquet file (a column name is not UTF-8)",
+                               source=path) from None
 
 
 def _first_time(fragment) -> float | None:
@@ -153,14 +160,34 @@ def _first_time(fragment) -> float | None:
         lows = [v["min"] if isinstance(v, dict) else v for v in stats if v is not None]
         lows = [v.timestamp() if hasattr(v, "timestamp") else v for v in lows]
         return float(min(lows)) if lows else None
-    except (KeyError, TypeError, ValueError, pa.ArrowException):
+    except (KeyError, TypeError, ValueError, OverflowError, pa.ArrowException):
+        # OverflowError: a timestamp statistic beyond Python's datetime range (year 9999)
         return None
 
 
 def first_line(exc: BaseException) -> str:
-    """An exception's first line, for a one-line error (Arrow's messages run to many)."""
+    """An exception's first line, for a one-line error (Arrow's messages run to many, and
+    its dataset errors wrap the reader's reason, which comes last, in sentences that repeat
+    the file's path: the reason alone is kept)."""
     text = str(exc).strip().splitlines()
-    return text[0] if text else type(exc).__name__
+    line = text[0] if text else type(exc).__name__
+    if line.startswith("Error creating dataset") and ": " in line:
+        line = line.rsplit(": ", 1)[1].rstrip(".")
+    return line
+
+
+# What Arrow raises on data it cannot read: damaged pages (ArrowInvalid, OSError) and a
+# directory's files that disagree on a column's type, which its scanner cannot cast to the
+# first file's (ArrowNotImplementedError, ArrowTypeError).
+READ_ERRORS = (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError, OSError)
+
+
+def read_error(exc: BaseException, path) -> CorruptFileError | LogFormatError:
+    """The gyrocal error, naming the log, for one of :data:`READ_ERRORS` met reading it."""
+    if isinstance(exc, (pa.ArrowNotImplementedError, pa.ArrowTypeError)):
+        return LogFormatError(f"a column cannot be read as one type ({first_line(exc)}); the "
+                              "files of a directory must agree on column types", source=path)
+    return CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path)
 
 
 def declared_units(schema: pa.Schema, path: Path) -> dict[str, str]:
@@ -176,7 +203,7 @@ def declared_units(schema: pa.Schema, path: Path) -> dict[str, str]:
         raise LogFormatError("metadata gyrocal.units must be a JSON object", source=path)
     for quantity, unit in units.items():
         allowed = UNIT_FACTORS.get(quantity)
-        if allowed is not None and unit not in allowed:
+        if allowed is not None and (not isinstance(unit, str) or unit not in allowed):
             raise LogFormatError(
                 f"metadata gyrocal.units gives {quantity} in {unit!r}; expected one of "
                 f"{', '.join(allowed)}", source=path)
@@ -283,10 +310,16 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     path = Path(path)
     dataset, wanted, units = _open_checked(path, optional, required)
     if sink is not None:
-        sink.open(tuple(wanted), dataset.count_rows())
+        try:  # opens every file's footer: a directory's unreadable part shows here first
+            rows_bound = dataset.count_rows()
+        except READ_ERRORS as exc:
+            raise read_error(exc, path) from None
+        sink.open(tuple(wanted), rows_bound)
     batches: list[dict[str, np.ndarray]] | None = []
     kept_bytes, kept_rows, first, last = 0, 0, None, 0.0
-    stream = _batches(dataset, wanted, required, units, path)
+    from .plausibility import InputStats
+    stats = InputStats() if "temp" in required else None
+    stream = _batches(dataset, wanted, required, units, path, stats)
     for batch in stream:
         if sink is not None:
             sink.push(batch)
@@ -302,7 +335,11 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     if rows == 0:
         raise EmptyLogError("the log has no rows", source=path)
     if not kept_rows:
-        raise EmptyLogError(f"all {rows} rows hold a non-finite value", source=path)
+        empty = [k for k, n in (stats.nonfinite if stats is not None else {}).items() if n == rows]
+        raise EmptyLogError(f"all {rows} rows hold a non-finite value"
+                            + (f": {'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} "
+                               f"{'hold' if len(empty) > 1 else 'holds'} no finite value" if empty else ""),
+                            source=path)
     time_origin = None
     if origin:
         value, unit = origin[0]
@@ -316,7 +353,8 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     return RigLog(str(path), tuple(batches) if batches is not None else None, rows, dropped,
                   units, time_origin, columns=tuple(wanted), rows_kept=kept_rows,
                   span=(first, last), reread=reread,
-                  blocks={sink.block_s: sink.result()} if sink is not None else {})
+                  blocks={sink.block_s: sink.result()} if sink is not None else {},
+                  input_stats=stats.summary() if stats is not None else None)
 
 
 def _open_checked(path: Path, optional, required):
@@ -365,9 +403,10 @@ class _batches:
     """The log's batches converted and checked, non-finite rows dropped; ``state`` holds
     (rows read, rows dropped, time origin) once consumed."""
 
-    def __init__(self, dataset, wanted, required, units, path):
+    def __init__(self, dataset, wanted, required, units, path, stats=None):
         self.args = dataset, wanted, required, units, path
         self.state = (0, 0, [])
+        self.stats = stats   # a gyrocal.plausibility.InputStats, fed when given
 
     def __iter__(self):
         dataset, wanted, required, units, path = self.args
@@ -385,6 +424,8 @@ class _batches:
                 # value in an optional column (a slower accelerometer, a file without it)
                 # stays NaN.
                 keep = _finite_rows({k: batch[k] for k in required})
+                if self.stats is not None:
+                    self.stats.push_raw(batch, keep is not None)
                 positions = None
                 if keep is not None:
                     dropped += len(keep) - int(np.count_nonzero(keep))
@@ -395,9 +436,11 @@ class _batches:
                 if len(batch["t"]):
                     _check_time(batch["t"], previous_t, rows - record_batch.num_rows, positions, path)
                     previous_t = batch["t"][-1]
+                    if self.stats is not None:
+                        self.stats.push(batch)
                     yield batch
-        except (pa.ArrowInvalid, OSError) as exc:
-            raise CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path) from None
+        except READ_ERRORS as exc:
+            raise read_error(exc, path) from None
 
 
 def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path,
@@ -405,12 +448,31 @@ def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Pa
     batch = {}
     for name, col in zip(record_batch.schema.names, record_batch.columns):
         if name == "t":
-            batch[name] = time_seconds(col, path, origin)
+            batch[name] = _reading(time_seconds(col, path, origin), TIME_LIMIT)
         elif name == "mount":
             batch[name] = _mount_codes(col, path)
         else:
-            batch[name] = to_internal_units(name, col.to_numpy(zero_copy_only=False), units)
+            batch[name] = _reading(to_internal_units(name, col.to_numpy(zero_copy_only=False), units))
     return batch
+
+
+# The contract lets every reading column be float32, so a value beyond float32's range is no
+# reading in any unit (the same log written as float32 would hold inf there): it counts as
+# non-finite, its row dropped (an optional column's value: missing). No sum, mean or square
+# of readings then overflows float64 downstream.
+READING_LIMIT = float(np.finfo(np.float32).max)
+# Likewise a float t beyond what a timestamp column can hold (int64 seconds) is no time; so
+# no difference of two times overflows.
+TIME_LIMIT = float(2 ** 63)
+
+
+def _reading(values: np.ndarray, limit: float = READING_LIMIT) -> np.ndarray:
+    if values.dtype != np.float64 or not values.size:
+        return values   # float32 holds nothing beyond it
+    if values.min() >= -limit and values.max() <= limit:
+        return values   # the common case; a NaN fails both tests and gets the exact one
+    beyond = np.abs(values) > limit
+    return np.where(beyond, np.copysign(np.inf, values), values) if beyond.any() else values
 
 
 def to_internal_units(name: str, values: np.ndarray, units: dict[str, str]) -> np.ndarray:
@@ -419,11 +481,14 @@ def to_internal_units(name: str, values: np.ndarray, units: dict[str, str]) -> n
     unit = units.get(quantity) if quantity else None
     if unit is None:
         return values
-    if quantity == "temp":
-        offset = UNIT_FACTORS["temp"][unit]
-        return values + offset if offset else values
-    factor = UNIT_FACTORS[quantity][unit]
-    return values * factor if factor != 1.0 else values
+    # A value the conversion takes beyond the float range is inf: non-finite, like its
+    # input should have been (see READING_LIMIT).
+    with np.errstate(over="ignore"):
+        if quantity == "temp":
+            offset = UNIT_FACTORS["temp"][unit]
+            return values + offset if offset else values
+        factor = UNIT_FACTORS[quantity][unit]
+        return values * factor if factor != 1.0 else values
 
 
 def _finite_rows(columns: dict[str, np.ndarray]) -> np.ndarray | None:

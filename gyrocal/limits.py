@@ -78,6 +78,8 @@ class SpecLimits:
     candidate holds, 0–1) and ``min_temperature_points`` from the segmentation info.
     ``noise``: the largest axis' IEEE Std 952 term of the session's static data, from the
     calibration file's ``noise`` (:data:`NOISE_LIMITS` names the terms and units).
+    ``fail_on_warnings``: true fails a unit with any plausibility warning in its calibration
+    file (:mod:`gyrocal.plausibility`), a list of codes fails those only.
     """
 
     parameters: tuple[tuple[str, tuple[float, float]], ...] = ()
@@ -91,10 +93,11 @@ class SpecLimits:
     min_hold_share: float | None = None
     min_temperature_points: int | None = None
     noise: tuple[tuple[str, float], ...] = ()
+    fail_on_warnings: bool | tuple[str, ...] = False
 
     KEYS = ("parameters", "temperature_coefficients", "temperature", "validation_rms", "excess",
             "temperature_span", "temperature_span_tolerance", "min_holds", "min_hold_share",
-            "min_temperature_points", "noise")
+            "min_temperature_points", "noise", "fail_on_warnings")
 
     @classmethod
     def from_dict(cls, d: Mapping | None, key: str = "spec") -> SpecLimits:
@@ -138,6 +141,8 @@ class SpecLimits:
             if tol < 0:
                 raise ConfigError(f"{key}.temperature_span_tolerance must be at least 0, got {tol!r}")
             out["temperature_span_tolerance"] = tol
+        if d.get("fail_on_warnings") is not None:
+            out["fail_on_warnings"] = _warning_codes(d["fail_on_warnings"], f"{key}.fail_on_warnings")
         return cls(**out)
 
     def to_dict(self) -> dict:
@@ -145,9 +150,25 @@ class SpecLimits:
              "temperature_coefficients": dict(self.temperature_coefficients)}
         if self.noise:
             d["noise"] = dict(self.noise)
-        for name in self.KEYS[2:-1]:
+        for name in self.KEYS[2:-2]:
             value = getattr(self, name)
             if value is not None:
                 d[name] = list(value) if isinstance(value, tuple) else value
+        if self.fail_on_warnings:
+            w = self.fail_on_warnings
+            d["fail_on_warnings"] = list(w) if isinstance(w, tuple) else w
         return d
+
+
+def _warning_codes(value, key: str) -> bool | tuple[str, ...]:
+    """true, false, or a list of plausibility warning codes (each checked: a typo is refused)."""
+    from .plausibility import CODES
+    if isinstance(value, bool):
+        return value
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise ConfigError(f"{key} must be true, false or a list of warning codes, got {value!r}")
+    unknown = [v for v in value if v not in CODES]
+    if unknown:
+        raise ConfigError(f"{key}: {unknown[0]!r} is no warning code (known: {', '.join(CODES)})")
+    return tuple(value)
 

@@ -133,8 +133,10 @@ class Model:
         J = np.empty(w_true.shape + (3,))
         for j in range(3):
             probe = w_true.copy()
-            probe[:, j] += 1.0
-            J[:, :, j] = self._output(coefs, covariates, probe) - f0
+            # 1 deg/s, or a step the rounding of a huge rate does not swallow (J singular)
+            step = np.maximum(1.0, np.abs(w_true[:, j]) * 2.0 ** -26)
+            probe[:, j] += step
+            J[:, :, j] = (self._output(coefs, covariates, probe) - f0) / step[:, None]
         return J, f0 - np.einsum("nij,nj->ni", J, w_true)
 
     def _output(self, coefs, covariates, w_true):
@@ -150,9 +152,13 @@ class Model:
         """
         J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
         w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        # The solve mixes a row's axes: none converges below the rounding of the row's
+        # largest output (a huge output on one axis would otherwise keep the loop going, to
+        # linearise where a step of 1 deg/s is lost in rounding and J is singular).
+        floor = 64 * np.finfo(float).eps * np.abs(w).max(axis=-1, keepdims=True)
         for _ in range(max_iter):
             resid = w - self._output(coefs, covariates, w_true)
-            if not np.any(np.abs(resid) > tol * (1.0 + np.abs(w))):
+            if not np.any(np.abs(resid) > np.maximum(tol * (1.0 + np.abs(w)), floor)):
                 break
             J, _ = self.linearise(coefs, covariates, w_true)
             w_true = w_true + np.linalg.solve(J, resid[..., None])[..., 0]
@@ -297,8 +303,12 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     _check_finite(model, design, n_obs, source, label)
     floor = observation_floor(data)
     # A hold whose scatter is zero (a constant, quantised output) would get infinite
-    # weight: no observation is trusted more than a thousandth of the typical floor.
-    floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))
+    # weight: no observation is trusted more than a thousandth of the typical floor (the
+    # largest when most holds of an axis have none; equal weights when none has any, as
+    # from an axis stuck for part of the log).
+    typical = np.median(floor, axis=0)
+    typical = np.where(typical > 0, typical, floor.max(axis=0, initial=0.0))
+    floor = np.maximum(floor, 1e-3 * np.where(typical > 0, typical, 1e3))
     whiteners = _whiteners(data, floor)
     where = f" at {label}" if label else ""
 

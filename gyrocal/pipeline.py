@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from . import __version__, protocols
+from . import __version__, plausibility, protocols
 from .calibration import Calibration
 from .config import Settings
 from .blocks import BlockSink
@@ -62,9 +62,12 @@ def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT, *,
         digest = pool.submit(file_digest, path)
         log = read_log(path, optional=LOG_COLUMNS, sink=sink,
                        keep_bytes=keep_bytes if sink is not None else None)
+        plausibility.log_errors(log.input_stats, path)
         seg = rules.segment(log, settings)
         seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
+        if log.input_stats is not None:
+            seg.info["input_stats"] = log.input_stats
     # The temperature rate is a slope over a window as long as a typical hold, for the fit
     # and for apply (the calibration file records the window).
     obs = seg.observations
@@ -104,20 +107,26 @@ def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: fl
 
 def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
                            source: dict | None = None, label=None, noise: dict | None = None,
-                           fitted: GridFit | ContinuousFit | None = None
-                           ) -> tuple[Calibration, GridFit | ContinuousFit | None]:
+                           fitted: GridFit | ContinuousFit | None = None, info: dict | None = None,
+                           checks: bool = True) -> tuple[Calibration, GridFit | ContinuousFit | None]:
     """The calibration of one unit's observations: the common model's fit, or the
     protocol's own (:attr:`gyrocal.protocols.Protocol.calibrate`; a servo session's is seed
     001's six-parameter fit, and no common-model fit comes back: None). ``noise``,
     segmentation's noise characterisation, is kept in the file
     (:func:`gyrocal.floor.noise_record`). ``fitted``, a fit of ``settings.model`` to ``obs``
-    already made, is used rather than fitting again."""
+    already made, is used rather than fitting again. ``info``, segmentation's, gives the
+    read's statistics to the plausibility checks (:mod:`gyrocal.plausibility`), which raise
+    where the log cannot be right and leave their warnings in the file's ``warnings``
+    (``checks=False``: none, for the diagnosis' candidate models)."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
     own = protocols.get(meta.get("protocol")).calibrate
     if own is not None:
         cal = own(obs, settings, meta, provenance)
         if noise:
             cal.extra["noise"] = noise_record(noise)
+        if checks:
+            cal.extra["warnings"] = plausibility.review(obs, info, cal, None,
+                                                        protocol=meta.get("protocol"), source=label)
         return cal, None
     if fitted is None:
         fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
@@ -139,6 +148,9 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
             for r in points.itertuples()],
             **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
             **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
+    if checks:
+        cal.extra["warnings"] = plausibility.review(obs, info, cal, fitted,
+                                                    protocol=meta.get("protocol"), source=label)
     return cal, fitted
 
 
@@ -151,7 +163,7 @@ def run(path, settings: Settings | None = None, *, protocol: str = protocols.DEF
             "session": session, "protocol": protocol}
     cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
                                            source=seg.info["source"], label=path,
-                                           noise=seg.info.get("noise"))
+                                           noise=seg.info.get("noise"), info=seg.info)
     return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings))
 
 

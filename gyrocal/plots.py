@@ -19,6 +19,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
+from . import atomic  # noqa: E402
 from .outliers import MIN_BATCH, parameter_columns  # noqa: E402
 
 AXES = ("x", "y", "z")
@@ -52,10 +53,7 @@ def to_svg(fig: Figure) -> str:
 def write_svg(svg: str, path_or_none) -> str:
     """``svg`` written to ``path_or_none`` (atomically) when given; returned either way."""
     if path_or_none is not None:
-        path = Path(path_or_none)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text(svg)
-        tmp.replace(path)
+        atomic.write_text(path_or_none, svg)
     return svg
 
 

@@ -72,6 +72,10 @@ class Protocol:
     # Calibrations are temperature grids of one model, comparable across a batch and across
     # a device's sessions: the fleet's outlier table and drift pages.
     fleet_audits: bool = False
+    # Each hold turns one sensor axis (its mount) about the rig axis, which points up: gravity
+    # shows along the mount on the accelerometer, and a balanced protocol turns every axis
+    # both ways (gyrocal.plausibility checks both).
+    axis_mounts: bool = False
 
 
 def register(protocol: Protocol) -> Protocol:

@@ -191,6 +191,7 @@ def write_unit_report(results: UnitResults, path) -> None:
     html = render_page(
         "unit_report.html.j2", profiled=cal.extra.get("profiled", []),
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
+        input_warnings=cal.extra.get("warnings", []),
         interpolation=g.method, reference=cal.reference_temperature,
         counts_columns=list(counts.columns),
         counts=[(t, [int(v) for v in r]) for t, r in counts.iterrows()],
@@ -217,11 +218,10 @@ def write_unit_report(results: UnitResults, path) -> None:
 
 
 def _write(path, text: str) -> None:
+    from .atomic import write_text
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    write_text(path, text)
 
 
 def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> None:
@@ -254,6 +254,7 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
         "fleet_report.html.j2",
         batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
         total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
+        warned=sum(1 for r in ok if r.get("warnings")),
         servo_vs_turntable=summary["servo_vs_turntable"], fleet=fleet)
     _write(path, html)
 

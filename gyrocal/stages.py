@@ -14,7 +14,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from . import failure, protocols
+from . import atomic, failure, protocols
 from .calibration import dumps, load_calibration, save_calibration
 from .config import Settings
 from .errors import GyrocalError
@@ -62,7 +62,8 @@ def fit_stage(folder, settings: Settings, meta: dict):
     failure.check_inputs(paths["observations"])
     obs, extra = read_observations(paths)
     cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
-                                         label=paths["observations"], noise=extra["info"].get("noise"))
+                                         label=paths["observations"], noise=extra["info"].get("noise"),
+                                         info=extra["info"])
     save_calibration(cal, paths["calibration"])
     return fitted
 
@@ -99,9 +100,7 @@ def validate_stage(folder, settings: Settings, fitted=None):
 
 
 def _write_json(path: Path, document: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(dumps(document))
-    tmp.replace(path)
+    atomic.write_text(path, dumps(document))
 
 
 def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
@@ -128,9 +127,7 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     diag = diagnose(settings, obs, other_obs, base=base)
     out = Path(output or paths["diagnosis"])
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    tmp.write_text(dumps({**diag.to_dict(), **other_note, **meta}))
-    tmp.replace(out)
+    _write_json(out, {**diag.to_dict(), **other_note, **meta})
     if residuals is not False:
         write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
     return diag.verdict
@@ -214,21 +211,25 @@ def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=
                       "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
     write_fleet_report(fleet_summary(units, settings), out_index, settings, eol_json)
     if bundle is not None:
-        bundle = Path(bundle)
-        if bundle.exists():
-            shutil.rmtree(bundle)
-        bundle.mkdir(parents=True)
+        _write_bundle(Path(bundle), units, reports_root, out_index, rows, settings)
+
+
+def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) -> None:
+    """A self-contained folder of every unit report, the fleet summary and the drift
+    pages, put in place whole: a job killed while copying leaves the old folder."""
+    bundle.parent.mkdir(parents=True, exist_ok=True)
+    with atomic.replacing_folder(bundle) as tmp:
         for unit in units:
             source = Path(reports_root) / unit["report"]
-            target = bundle / unit["report"]
+            target = tmp / unit["report"]
             target.parent.mkdir(parents=True, exist_ok=True)
             if source.exists():
                 shutil.copyfile(source, target)
-        shutil.copyfile(out_index, bundle / "index.html")
+        shutil.copyfile(out_index, tmp / "index.html")
         drift_pages = Path(out_index).parent / "drift"
         if settings is not None and drift_pages.is_dir():
             from .fleet import drift_devices
-            (bundle / "drift").mkdir()
+            (tmp / "drift").mkdir()
             for device in drift_devices(rows):
                 if (drift_pages / f"{device}.html").exists():
-                    shutil.copyfile(drift_pages / f"{device}.html", bundle / "drift" / f"{device}.html")
+                    shutil.copyfile(drift_pages / f"{device}.html", tmp / "drift" / f"{device}.html")

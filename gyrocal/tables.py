@@ -5,12 +5,12 @@ stages' observations, segments, validation and diagnosis tables), and back.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from . import atomic
 from .errors import CorruptFileError, LogFormatError
 from .io import first_line
 
@@ -26,9 +26,8 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
     if metadata is not None:
         table = table.replace_schema_metadata({**(table.schema.metadata or {}),
                                                OBS_META_KEY: json.dumps(metadata).encode()})
-    tmp = Path(path).with_name(Path(path).name + ".tmp")
-    pq.write_table(table, tmp)
-    os.replace(tmp, path)
+    with atomic.replacing(path) as tmp:
+        pq.write_table(table, tmp)
 
 
 def read_table_with_metadata(path):

@@ -308,3 +308,21 @@ def test_parameter_table_and_distribution_plot(tmp_path):
     assert svg.startswith("<svg") and path.read_text() == svg
     assert plot_parameter_distributions(table, flagged, None) == svg   # deterministic
     assert svg.count(">U5<") == 3            # labelled in each panel that flags it, and only it
+
+
+def test_end_of_line_can_fail_a_unit_on_its_plausibility_warnings():
+    cal = grid_calibration(GOOD)
+    warning = {"code": "temperature_dropout", "message": "temp is missing in 17% of the rows",
+               "evidence": {"share": 0.17}}
+    cal.extra["warnings"] = [warning]
+    assert judge(cal, GOOD_SUMMARY, GOOD_INFO, SpecLimits()).passed   # not asked: not judged
+    verdict = judge(cal, GOOD_SUMMARY, GOOD_INFO, SpecLimits.from_dict({"fail_on_warnings": True}))
+    assert not verdict.passed
+    assert verdict.reasons == ("plausibility warning temperature_dropout: temp is missing in 17% of the rows",)
+    assert verdict.checked["warnings"] == {"value": ["temperature_dropout"], "limit": True, "unit": None,
+                                           "passed": False}
+    other = SpecLimits.from_dict({"fail_on_warnings": ["accel_units", "sample_jitter"]})
+    assert judge(cal, GOOD_SUMMARY, GOOD_INFO, other).passed
+    assert SpecLimits.from_dict(other.to_dict()) == other
+    with pytest.raises(ConfigError, match="'accel_unit' is no warning code"):
+        SpecLimits.from_dict({"fail_on_warnings": ["accel_unit"]})

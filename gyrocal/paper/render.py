@@ -16,7 +16,7 @@ import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .. import __version__
+from .. import __version__, atomic
 from ..errors import InputError
 from ..pages import fmt, render_page
 from .table import PaperTable
@@ -125,9 +125,7 @@ def page(tables: Sequence[PaperTable], figures: Mapping[str, Sequence[Path]],
 
 
 def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text, encoding="utf-8", newline="\n")
-    tmp.replace(path)
+    atomic.write_text(path, text, encoding="utf-8", newline="\n")
 
 
 def render(tables: Sequence[PaperTable], out_dir, *, figures: Mapping[str, Sequence] | None = None,

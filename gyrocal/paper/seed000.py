@@ -357,5 +357,5 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{SEED}-fig-9-rms-at-25c.svg"
-    path.write_text(plots.to_svg(fig))
+    plots.write_svg(plots.to_svg(fig), path)
     return [path]

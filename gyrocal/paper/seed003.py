@@ -239,7 +239,7 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     """Drift against ΔT with both models' fits (I3G4250D, each axis on its training sweep),
     and raw against compensated output over a verification sweep (L3GD20, cf. Fig. 11).
     SVG, byte-identical for the same seed."""
-    from ..plots import figure, to_svg
+    from ..plots import figure, to_svg, write_svg
 
     study = _study(int(seed), bool(quick))
     out = Path(out_dir)
@@ -267,7 +267,7 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     ax[1, 0].set_ylabel("residual, deg/s")
     ax[0, 0].legend(loc="best", fontsize=7)
     path = out / "003-drift-vs-dT.svg"
-    path.write_text(to_svg(fig))
+    write_svg(to_svg(fig), path)
     paths.append(path)
 
     ex = study["l3gd20_example"]
@@ -281,6 +281,6 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     ax[1].set_xlabel("time, h")
     ax[1].legend(loc="best", fontsize=7)
     path = out / "003-compensated.svg"
-    path.write_text(to_svg(fig))
+    write_svg(to_svg(fig), path)
     paths.append(path)
     return paths

@@ -41,7 +41,7 @@ import pandas as pd
 matplotlib.use("Agg")
 from matplotlib.figure import Figure  # noqa: E402
 
-from .. import plots  # noqa: E402
+from .. import atomic, plots  # noqa: E402
 from ..errors import ConfigError  # noqa: E402
 from ..simulate.servo import DIRECTIONS, direction_axis, draw_parameters, tilted_axes  # noqa: E402
 from .fit import (PARAMETERS, ServoFit, ServoFitError, algorithm1, fit_iterative,  # noqa: E402
@@ -239,8 +239,8 @@ def speed_sweep(speeds=FIG4_SPEEDS, *, n_sets: int = 30, n_runs: int = 500, nois
 
 def _save(fig: Figure, path) -> Path:
     path = Path(path)
-    with plots.figure_style(_STYLE):
-        fig.savefig(path, format="svg", metadata=plots.SVG_METADATA)
+    with plots.figure_style(_STYLE), atomic.replacing(path) as tmp:
+        fig.savefig(tmp, format="svg", metadata=plots.SVG_METADATA)
     return path
 
 

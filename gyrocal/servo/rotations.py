@@ -174,16 +174,24 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     mid = angle_start + 0.5 * step
     total = csum[last] - offset
     half_sample = 0.5 * step[last]
-    whole = np.floor((total + half_sample) / 360.0).astype(int)     # whole revolutions per run
-    rev = np.floor(mid / 360.0).astype(int)
+    whole = np.floor((total + half_sample) / 360.0)     # whole revolutions per run
+    rev = np.floor(mid / 360.0)       # floats: counted as integers only once the runs are usable
     keep = on & (rev < whole[np.maximum(run - 1, 0)])
-    usable = whole >= min_revolutions
+    # Revolutions are cut by integrating ref_rate from sample to sample: a run turning half a
+    # revolution or more per sample cannot be cut (and may count more than an int64 holds).
+    cuttable = np.maximum.reduceat(step, starts) < 180.0
+    usable = (whole >= min_revolutions) & cuttable
     keep &= usable[np.maximum(run - 1, 0)]
 
     warnings: list[str] = []
     for r in np.flatnonzero(~usable & (total >= 180.0)):
         warnings.append(f"rotation at t={t[starts[r]]:.2f} s covers {total[r] / 360.0:.2f} revolutions, "
-                        f"fewer than {min_revolutions} whole; not used")
+                        + (f"fewer than {min_revolutions} whole; not used" if cuttable[r] else
+                           "half a revolution or more per sample: cannot be cut; not used"))
+    if not keep.any() and not cuttable.all():
+        raise SegmentationError(f"ref_rate turns the servo half a revolution or more per sample "
+                                f"(up to {np.abs(ref[on]).max():.3g} deg/s at {1 / nominal:.3g} Hz): "
+                                "no revolution can be cut", source=log.path)
     if not keep.any():
         longest = float(total.max())
         raise SegmentationError(f"no stretch of constant non-zero ref_rate covers a whole revolution "
@@ -191,9 +199,10 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
 
     # Whole revolutions: contiguous sample ranges, in time order.
     sel = np.flatnonzero(keep)
+    rev = rev[sel].astype(int)       # revolution of each selected sample
     usable_index = np.cumsum(usable) - 1                # run -> rotation index
     rotation_of = usable_index[run[sel] - 1]
-    key = rotation_of.astype(np.int64) * (int(rev[sel].max()) + 1) + rev[sel]
+    key = rotation_of.astype(np.int64) * (int(rev.max()) + 1) + rev
     bounds = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     counts = np.diff(np.r_[bounds, len(sel)])
     seg = np.repeat(np.arange(len(bounds)), counts)     # revolution id per selected sample
@@ -208,7 +217,7 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     noise = np.sqrt(np.column_stack([np.bincount(seg[1:], weights=d2[:, j], minlength=len(bounds))
                                      for j in range(3)]) / (2.0 * np.maximum(pairs, 1))[:, None])
     table = pd.DataFrame({
-        "rotation": rotation_of[bounds], "revolution": rev[sel][bounds],
+        "rotation": rotation_of[bounds], "revolution": rev[bounds],
         "t_start": t[sel][bounds], "t_end": t[sel][bounds + counts - 1], "n": counts,
         "gyro_x": mean[:, 0], "gyro_y": mean[:, 1], "gyro_z": mean[:, 2],
         "gyro_x_std": std[:, 0], "gyro_y_std": std[:, 1], "gyro_z_std": std[:, 2],

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import atomic
 from ..errors import ConfigError
 from .noise import add_coloured_noise, noise_levels
 from .servo import ServoProtocol, ServoUnit, render_servo
@@ -77,13 +78,16 @@ def simulate_unit(path, *, protocol: str = "turntable", rig=None, unit: GyroUnit
     unit = (unit or unit_cls.random(rng)).with_effects(effects)
     path = Path(path)
     levels = noise_levels(noise) if noise is not None else None
-    schedule = renderer(rig, unit, rng, path)
-    if levels:
-        add_coloured_noise(path, levels, rng)
-    truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
-                 protocol=protocol, seed=seed, unit=unit.to_dict(), rig=rig.to_dict(),
-                 **({"coloured_noise": levels} if levels else {}), **schedule)
-    truth_path(path).write_text(json.dumps(truth, indent=1) + "\n")
+    # The log appears last, whole and with its noise, after its truth: a log that exists
+    # is a finished one (the workflow's simulate job declares only the log).
+    with atomic.replacing(path) as tmp:
+        schedule = renderer(rig, unit, rng, tmp)
+        if levels:
+            add_coloured_noise(tmp, levels, rng)
+        truth = dict(format="gyrocal.truth/1", device=device, batch=batch, session=session,
+                     protocol=protocol, seed=seed, unit=unit.to_dict(), rig=rig.to_dict(),
+                     **({"coloured_noise": levels} if levels else {}), **schedule)
+        atomic.write_text(truth_path(path), json.dumps(truth, indent=1) + "\n")
     return truth
 
 
@@ -114,5 +118,5 @@ def simulate(out_dir, *, protocol: str = "turntable", units: int = 1, seed: int 
                       session=session, seed=seed, effects=effects, noise=noise)
         rows.append((device, batch, session, protocol, name))
     manifest = out / "devices.tsv"
-    manifest.write_text("\n".join("\t".join(r) for r in [MANIFEST_COLUMNS, *rows]) + "\n")
+    atomic.write_text(manifest, "\n".join("\t".join(r) for r in [MANIFEST_COLUMNS, *rows]) + "\n")
     return manifest

@@ -27,4 +27,5 @@ def static(log, seg, max_temp_rate: float):
 TURNTABLE = register(Protocol(
     "turntable", "multi-temperature turntable: soaks, constant-rate holds on several mounts (seed 000)",
     segment=_segment, static=static, top_level_settings=True, fleet_audits=True,
+    axis_mounts=True,
     reading_blocks=lambda settings: settings.segmentation.block_s))

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from .. import schema
+from .. import plausibility, schema
 from ..blocks import block_statistics
 from ..errors import SegmentationError
 from ..holds import Segmentation
@@ -257,6 +257,13 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     reject((err > limit).any(axis=1) & (mounts >= 0), "gyro_disagrees",
            lambda i: f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
                      f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}")
+    turning = (mounts >= 0) & (np.abs(h["ref"]) > 10 * cfg.agree_bias)
+    disagree = turning & (reason == "gyro_disagrees")
+    # Most of an axis' holds off by one ratio: a unit or a sign, not a few bad holds.
+    plausibility.rate_ratio_check(
+        {"xyz"[a]: h["mean"][disagree & (axis == a), a] / (sign * h["ref"])[disagree & (axis == a)]
+         for a in range(3)},
+        {"xyz"[a]: int(np.count_nonzero(turning & (axis == a))) for a in range(3)}, source=log.path)
     # A short hold's rate estimate is noisy: reject only rates significantly over the limit.
     reject(np.abs(h["temp_rate"]) - 3.0 * h["temp_rate_sd"] > cfg.max_temp_rate,
            "unstable_temperature", lambda i: f"{h['temp_rate'][i]:.3g} ± "
@@ -345,7 +352,8 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
 
 def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Per-run mean of (k, m) block values over the run's quiet blocks."""
-    sums = np.column_stack([np.bincount(run, weights=values[:, a] * quiet, minlength=len(count))
+    # where, not a product: a block variance that overflowed to inf times 0 would be NaN.
+    sums = np.column_stack([np.bincount(run, weights=np.where(quiet, values[:, a], 0.0), minlength=len(count))
                             for a in range(values.shape[1])])
     return sums / np.maximum(count, 1)[:, None]
 
@@ -438,10 +446,13 @@ def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
     """Share of each hold's samples at the output limit.
 
     The limit is ``full_scale`` (within 0.1 %) when the sensor's range is configured;
-    otherwise the log's extreme output values, which a clipped hold piles samples onto.
-    Without the range a sensor quieter than one quantisation step could pile samples onto
-    its top level unclipped, so configure ``full_scale`` for such sensors. Only holds within
-    eight standard deviations of a limit are read back and counted.
+    otherwise the log's extreme output values, which a clipped hold piles samples onto: the
+    extreme level then holds more samples than the level next to it, where an unclipped
+    noise tail holds fewer (a quantised output reaches its extreme value several times a
+    hold without being clipped). Without the range a sensor quieter than one quantisation
+    step could pile samples onto its top level unclipped, so configure ``full_scale`` for
+    such sensors. Only holds within eight standard deviations of a limit are read back and
+    counted.
     """
     share = np.zeros(len(c0))
     if full_scale:
@@ -454,10 +465,23 @@ def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
     near = np.flatnonzero(near)
     samples = log.row_ranges(GYRO, [(c0[i] * size, c1[i] * size) for i in near]) if near.size else []
     for i, x in zip(near, samples):
-        worst = max(int(np.count_nonzero((x[name] >= hi[a]) | (x[name] <= lo[a])))
-                    for a, name in enumerate(GYRO))
+        worst = max(_piled(x[name], hi[a], lo[a], bool(full_scale)) for a, name in enumerate(GYRO))
         share[i] = worst / n[i] if (worst >= 2 or full_scale) else 0.0
     return share
+
+
+def _piled(x: np.ndarray, hi: float, lo: float, known_range: bool) -> int:
+    """Samples at a limit; without a known range, only a limit level holding at least
+    twice the samples of the level next to it counts (a pile, not a tail)."""
+    most = 0
+    for at_limit, inside, nearest in ((x >= hi, x < hi, np.max), (x <= lo, x > lo, np.min)):
+        count = int(np.count_nonzero(at_limit))
+        if count and not known_range and inside.any():
+            rest = x[inside]
+            if count < 2 * int(np.count_nonzero(rest == nearest(rest))):
+                count = 0
+        most = max(most, count)
+    return most
 
 
 def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):

@@ -37,10 +37,11 @@ rule analyse:
         mem_mb=lambda wildcards, attempt: 1000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
     params:
-        gyrocal=GYROCAL,
+        guard=GUARD,
+        limits=job_limits,
         args=stage_args(ANALYSIS, "analyse"),
         other=other_session_option,
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
+        "{params.guard} {params.limits} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
         "--record-failures > {log:q} 2>&1"

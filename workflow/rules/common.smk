@@ -35,6 +35,9 @@ os.environ["PATH"] = (
     os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
 )
 GYROCAL = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal"
+# A unit's segment, analyse and report jobs run under gyrocal.guard: at a limit of the
+# config's job_limits it ends the stage and records the unit's failure with the reason.
+GUARD = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal.guard"
 ENV = "../envs/gyrocal.yaml"
 DEMO_LOGS = os.path.normpath(config["demo"]["folder"])
 UNITS = {
@@ -65,6 +68,27 @@ wildcard_constraints:
 
 def unit(wildcards):
     return UNITS[(wildcards.batch, wildcards.device, wildcards.session)]
+
+
+def limit_options(limits):
+    return " ".join(
+        f"--{key.replace('_', '-')} {limits[key]:g}"
+        for key in ("memory_mb", "timeout_s")
+        if limits.get(key) is not None
+    )
+
+
+# The guard's options per device: a parameter, so raising a device's limit re-runs its
+# jobs (a unit that failed on it gets another chance), and only its.
+LIMITS = limit_options(config["job_limits"])
+DEVICE_LIMITS = {
+    device: limit_options({**config["job_limits"], **own})
+    for device, own in config["job_limits"]["devices"].items()
+}
+
+
+def job_limits(wildcards):
+    return DEVICE_LIMITS.get(wildcards.device, LIMITS)
 
 
 def other_observations(wildcards):

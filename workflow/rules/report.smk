@@ -21,11 +21,12 @@ rule report:
         mem_mb=lambda wildcards, attempt: 1000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
     params:
-        gyrocal=GYROCAL,
+        guard=GUARD,
+        limits=job_limits,
         args=stage_args(
             {k: config[k] for k in ("segmentation", "model", "diagnosis")}, "report"
         ),
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} report $(dirname {input.cal:q}) -o {output:q} {params.args} "
+        "{params.guard} {params.limits} report $(dirname {input.cal:q}) -o {output:q} {params.args} "
         "--record-failures > {log:q} 2>&1"

@@ -16,9 +16,10 @@ rule segment:
         mem_mb=lambda wildcards, attempt: 2000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
     params:
-        gyrocal=GYROCAL,
+        guard=GUARD,
+        limits=job_limits,
         args=segment_args,
         version=GYROCAL_VERSION,
     shell:
-        "{params.gyrocal} segment {params.args} --out $(dirname {output.obs:q}) "
+        "{params.guard} {params.limits} segment {params.args} --out $(dirname {output.obs:q}) "
         "--record-failures > {log:q} 2>&1"

@@ -1,0 +1,196 @@
+"""Faults in the workflow (issue 17): a job killed mid-write leaves nothing a rerun would
+take as complete and the rerun finishes; a job past its memory or time limit is its
+unit's failure, with the reason, in the fleet summary. Real Snakemake runs on a fleet of
+tiny logs."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from gyrocal import atomic, failure
+from gyrocal.calibration import load_calibration
+from gyrocal.simulate import TurntableProtocol, simulate_unit
+from gyrocal.tables import write_table
+
+from .conftest import REPO, snakemake
+
+SESSION = "2026-01-01"
+CONFIG = """devices: devices.tsv
+model: {terms: [bias, scale, misalignment]}
+diagnosis: {ladder: []}
+spec: {turntable: {excess: 5}}
+"""
+
+
+@pytest.fixture(scope="module")
+def tiny_logs(tmp_path_factory):
+    """Three units' logs of three set points and rates (a few seconds of holds each)."""
+    folder = tmp_path_factory.mktemp("fault-logs")
+    rig = TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0), rates=(10.0, 100.0, 400.0))
+    for i, device in enumerate(("K1", "K2", "K3")):
+        simulate_unit(folder / f"{device}.parquet", rig=rig, rng=np.random.default_rng(70 + i),
+                      device=device, seed=70 + i)
+    return folder
+
+
+def fleet(tmp_path, logs, devices, config=CONFIG):
+    wd = tmp_path / "fleet"
+    (wd / "logs").mkdir(parents=True)
+    rows = ["device\tbatch\tsession\tprotocol\tpath"]
+    for device in devices:
+        shutil.copy(logs / f"{device}.parquet", wd / "logs")
+        rows.append(f"{device}\tB1\t{SESSION}\tturntable\tlogs/{device}.parquet")
+    (wd / "devices.tsv").write_text("\n".join(rows) + "\n")
+    (wd / "config.yaml").write_text(config)
+    return wd
+
+
+def unit(wd, device):
+    return wd / "results" / "B1" / device / SESSION
+
+
+def assert_every_file_whole(wd):
+    """Every result, report and summary that exists reads as what its name says."""
+    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
+             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
+    assert files
+    for path in files:
+        if path.suffix == ".parquet":
+            pq.read_table(path)
+        elif path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".html":
+            assert path.read_text().rstrip().endswith("</html>"), path
+
+
+def leftovers(wd):
+    """Temporary files and folders (pathlib's * matches hidden names too)."""
+    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
+            for p in (wd / root).rglob(pattern)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kill", ["the job", "the whole run"])
+def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill):
+    """The analyse job of K1 is held between its complete temporary validation.json and
+    the rename (the test seam of gyrocal.atomic), then killed with SIGKILL: its writing
+    process alone (Snakemake sees the job fail) or Snakemake with every job (a node lost)."""
+    # Beside K1, K2 shows the rest of the fleet going on past a failed job.
+    wd = fleet(tmp_path, tiny_logs, ("K1", "K2") if kill == "the job" else ("K1",))
+    target = unit(wd, "K1") / "validation.json"
+    env = {**os.environ, atomic.PAUSE_ENV: f"K1/{SESSION}/validation.json:600"}
+    log = open(tmp_path / "snakemake.log", "w")
+    run = subprocess.Popen(
+        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+         "--directory", str(wd), "--configfile", str(wd / "config.yaml"), "--cores", "2"],
+        env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (held := list(target.parent.glob(".validation.json.*.tmp"))):
+            assert run.poll() is None and time.monotonic() < deadline, "the job never paused"
+            time.sleep(0.1)
+        if kill == "the job":
+            os.kill(int(held[0].name.split(".")[3]), signal.SIGKILL)  # .NAME.PID.XXXXXX.tmp
+        else:
+            os.killpg(run.pid, signal.SIGKILL)
+        run.wait(timeout=120)
+    finally:
+        if run.poll() is None:
+            os.killpg(run.pid, signal.SIGKILL)
+        log.close()
+    assert run.returncode != 0
+    assert not target.exists()
+    assert_every_file_whole(wd)
+    if kill == "the job":  # Snakemake removed the failed job's outputs; K2 went on
+        assert not (unit(wd, "K1") / "calibration.json").exists()
+        assert (wd / "reports" / "B1" / "K2" / f"{SESSION}.html").exists()
+    else:
+        assert snakemake(wd, "--unlock").returncode == 0
+    plan = snakemake(wd, "--dry-run")
+    assert re.search(r"rule analyse:\n(?:\s+\w+: .*\n)*?\s+wildcards: batch=B1, device=K1,",
+                     plan.stdout), plan.stdout[-3000:]
+
+    out = snakemake(wd)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert_every_file_whole(wd)
+    assert not leftovers(wd)
+    cal = load_calibration(unit(wd, "K1") / "calibration.json")
+    assert cal.meta["device"] == "K1"
+    assert json.loads(target.read_text())["summary"]["validation_rms"] > 0
+    units = "2 unit sessions: 2 calibrated" if kill == "the job" else "1 unit session: 1 calibrated"
+    assert units in (wd / "reports" / "index.html").read_text()
+
+
+@pytest.mark.slow
+def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny_logs, tmp_path):
+    """K2 may hold 50 MiB (a Python with pandas alone takes more); K3's segmentation is
+    held past its 5 s. Both are recorded as failed with the reason; K1 is calibrated."""
+    config = CONFIG + "job_limits: {devices: {K2: {memory_mb: 50}, K3: {timeout_s: 5}}}\n"
+    wd = fleet(tmp_path, tiny_logs, ("K1", "K2", "K3"), config)
+    env = {atomic.PAUSE_ENV: f"K3/{SESSION}/observations.parquet:120"}
+    out = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+         "--directory", str(wd), "--configfile", str(wd / "config.yaml"), "--cores", "2"],
+        env={**os.environ, **env}, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr[-3000:]
+    memory, time_out = "ran out of memory (limit 50 MiB)", "timed out after 5 s"
+
+    obs = pq.read_schema(unit(wd, "K3") / "observations.parquet").metadata
+    record = json.loads(obs[b"gyrocal.failure"])
+    assert (record["stage"], record["error"], record["device"]) == ("segment", time_out, "K3")
+    assert memory in json.loads((unit(wd, "K2") / "validation.json").read_text())["error"]
+    assert load_calibration(unit(wd, "K1") / "calibration.json").meta["device"] == "K1"
+
+    index = (wd / "reports" / "index.html").read_text()
+    assert "3 unit sessions: 1 calibrated" in index and "2 failed" in index
+    assert memory in index and time_out in index
+    eol = {u["device"]: u for u in json.loads((wd / "results" / "eol.json").read_text())["units"]}
+    assert not eol["K2"]["calibrated"] and any(memory in r for r in eol["K2"]["reasons"])
+    assert not eol["K3"]["calibrated"] and any(time_out in r for r in eol["K3"]["reasons"])
+    assert eol["K1"]["calibrated"]
+    assert time_out in (wd / "reports" / "B1" / "K3" / f"{SESSION}.html").read_text()
+    assert_every_file_whole(wd)
+    assert not leftovers(wd)
+
+
+def test_a_memory_error_is_recorded_as_such():
+    rec = failure.record("fit", MemoryError("Unable to allocate 8.00 GiB"), {"device": "K1"})
+    assert rec["error"] == "ran out of memory (Unable to allocate 8.00 GiB)" and not rec["internal"]
+    assert failure.record("fit", "timed out after 5 s")["error"] == "timed out after 5 s"
+
+
+def test_a_write_that_fails_leaves_the_file_it_replaces(tmp_path):
+    path = tmp_path / "table.parquet"
+    write_table(pd.DataFrame({"x": [1.0, 2.0]}), path, {"run": 1})
+    before = path.read_bytes()
+    with pytest.raises(pa.ArrowException):  # a column Parquet cannot hold
+        write_table(pd.DataFrame({"x": [object()]}), path, {"run": 2})
+    assert path.read_bytes() == before
+    with pytest.raises(RuntimeError), atomic.replacing(path) as tmp:
+        tmp.write_bytes(b"PAR1 half a file")
+        raise RuntimeError("killed")
+    assert path.read_bytes() == before
+    folder = tmp_path / "bundle"
+    folder.mkdir()
+    (folder / "index.html").write_text("old")
+    with pytest.raises(RuntimeError), atomic.replacing_folder(folder) as tmp:
+        (tmp / "index.html").write_text("half")
+        raise RuntimeError("killed")
+    assert (folder / "index.html").read_text() == "old"
+    with atomic.replacing_folder(folder) as tmp:
+        (tmp / "index.html").write_text("new")
+    assert (folder / "index.html").read_text() == "new"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle", "table.parquet"]
