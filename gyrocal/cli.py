@@ -233,7 +233,8 @@ def cmd_fleet(args) -> int:
     if args.settings_json is not None:
         from .fleet import FleetSettings
         settings = FleetSettings.from_dict(_json_object(args.settings_json, "--settings-json"))
-    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol)
+    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol,
+                args.table)
     print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
 
@@ -517,6 +518,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--settings-json", help="end of line, outliers and drift as one JSON object "
                    "(spec, outliers, drift: see config/config.yaml)")
     p.add_argument("--eol", help="also write the end-of-line verdicts and yields as JSON")
+    p.add_argument("--table", help="also write the fleet as one Parquet table, a row per unit "
+                   "session (docs/fleet-table.md)")
     p.set_defaults(func=cmd_fleet)
     add_paper_parser(sub)
     add_lookup_parser(sub)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pyarrow as pa
 
 from . import failure, protocols, schema
 from .errors import ConfigError, GyrocalError
@@ -308,3 +309,65 @@ def json_safe(value):
     if isinstance(value, np.generic):
         value = value.item()
     return _finite(value)
+
+
+# The fleet table's fixed columns (results/fleet.parquet; docs/fleet-table.md says each one).
+TABLE_COLUMNS = (
+    ("device", pa.string()), ("batch", pa.string()), ("session", pa.string()),
+    ("protocol", pa.string()), ("status", pa.string()), ("failed_stage", pa.string()),
+    ("error", pa.string()), ("reference_temperature", pa.float64()),
+    ("temperature_min", pa.float64()), ("temperature_max", pa.float64()),
+    ("validation_rms", pa.float64()), ("noise_floor", pa.float64()), ("excess", pa.float64()),
+    ("excess_over_expected", pa.float64()), ("missing_effect", pa.string()),
+    ("warnings", pa.list_(pa.string())), ("eol_passed", pa.bool_()),
+    ("eol_reasons", pa.list_(pa.string())), ("input_name", pa.string()),
+    ("input_hash", pa.string()), ("input_hash_algorithm", pa.string()),
+    ("gyrocal_version", pa.string()),
+)
+
+
+def fleet_table(summary: dict) -> pa.Table:
+    """One row per unit session of :func:`fleet_summary`'s result, calibrated or failed: its
+    identity, outcome, validation, warnings, end-of-line verdict and input hash, then every
+    parameter of its calibration at its reference temperature in display units (scale in
+    ppm, misalignment in mrad, bias in deg/s: :func:`gyrocal.parameters.parameters_at`) with
+    its standard error (``<name>_stderr``). A value a unit does not have is null."""
+    from .io import HASH_ALGORITHM
+    from .parameters import parameters_at
+    columns: dict[str, list] = {name: [] for name, _ in TABLE_COLUMNS}
+    params: dict[str, dict[int, float]] = {}
+    for i, row in enumerate(summary["rows"]):
+        ok = row["status"] == "ok"
+        cal = row.get("calibration")
+        s = row.get("summary") or {}
+        source = (cal.provenance.get("input") or {}) if cal is not None else {}
+        algorithm = next((a for a in ("blake3", "sha256") if a in source), HASH_ALGORITHM if ok else None)
+        eol = row.get("eol")
+        values = {
+            "device": row["device"], "batch": row["batch"], "session": row["session"],
+            "protocol": row["protocol"], "status": row["status"],
+            "failed_stage": None if ok else row.get("stage"), "error": None if ok else row.get("error"),
+            "reference_temperature": cal.reference_temperature if ok else None,
+            "temperature_min": row["span"][0] if ok else None,
+            "temperature_max": row["span"][1] if ok else None,
+            **{k: _finite(s.get(k)) for k in ("validation_rms", "noise_floor", "excess",
+                                               "excess_over_expected")},
+            "missing_effect": row.get("missing") if ok else None,
+            "warnings": [w["code"] for w in row.get("warnings", [])] if ok else None,
+            "eol_passed": eol["passed"] if eol else None,
+            "eol_reasons": eol["reasons"] if eol else None,
+            "input_name": source.get("name"), "input_hash": source.get(algorithm) if algorithm else None,
+            "input_hash_algorithm": algorithm if source.get(algorithm) else None,
+            "gyrocal_version": (cal.provenance.get("versions") or {}).get("gyrocal") if ok else None,
+        }
+        for name, _ in TABLE_COLUMNS:
+            columns[name].append(values[name])
+        if ok:
+            for name, value, stderr in parameters_at(cal)[["parameter", "value", "stderr"]].itertuples(index=False):
+                params.setdefault(name, {})[i] = _finite(value)
+                params.setdefault(f"{name}_stderr", {})[i] = _finite(stderr)
+    n = len(summary["rows"])
+    arrays = {name: pa.array(columns[name], type=kind) for name, kind in TABLE_COLUMNS}
+    for name in sorted(params, key=lambda k: (k.removesuffix("_stderr"), k.endswith("_stderr"))):
+        arrays[name] = pa.array([params[name].get(i) for i in range(n)], type=pa.float64())
+    return pa.table(arrays)

@@ -197,19 +197,26 @@ def reproduce_command(results, settings: Settings) -> str:
 
 
 def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None,
-                settings=None, eol_json=None) -> None:
+                settings=None, eol_json=None, table=None) -> None:
     """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
     a :class:`gyrocal.fleet.FleetSettings`: end of line, outliers, drift pages and
-    ``eol_json``), and (optionally) a self-contained folder of all unit reports for
-    ``snakemake --report``."""
-    from .fleet import fleet_summary
+    ``eol_json``), the fleet as one table (``table``: Parquet, a row per unit session) and
+    (optionally) a self-contained folder of all unit reports for ``snakemake --report``."""
+    from .fleet import fleet_summary, fleet_table
     from .report import write_fleet_report
     units = []
     for row in rows:
         folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
         units.append({"row": row, "folder": folder,
                       "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
-    write_fleet_report(fleet_summary(units, settings), out_index, settings, eol_json)
+    summary = fleet_summary(units, settings)
+    write_fleet_report(summary, out_index, settings, eol_json)
+    if table is not None:
+        import pyarrow.parquet as pq
+        frame = fleet_table(summary)
+        frame = frame.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
+        with atomic.replacing(table) as tmp:
+            pq.write_table(frame, tmp)
     if bundle is not None:
         _write_bundle(Path(bundle), units, reports_root, out_index, rows, settings)
 

@@ -317,3 +317,34 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
         assert written["verdict"] == direct.verdict
     alone = json.loads((folder(GOOD[2]) / "diagnosis.json").read_text())
     assert alone["next_session"] is None
+
+
+@pytest.mark.slow
+def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
+    import pyarrow.parquet as pq
+    table = pq.read_table(fleet_run / "results" / "fleet.parquet")
+    assert table.schema.metadata[b"gyrocal.format"] == b"gyrocal.fleet/1"
+    rows = {(r["device"], r["session"]): r for r in table.to_pylist()}
+    assert len(rows) == table.num_rows == 7          # every manifest row, failed ones too
+    bad = rows[("BAD", "2026-01-02")]
+    assert bad["status"] == "failed" and bad["failed_stage"] == "segment" and bad["error"]
+    assert bad["scale.x"] is None and bad["input_hash"] is None
+    a1 = rows[("A1", "2026-01-01")]
+    cal = json.loads((fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "calibration.json").read_text())
+    assert a1["status"] == "ok" and a1["eol_passed"] is True and a1["warnings"] == []
+    assert a1["input_hash"] == cal["provenance"]["input"][a1["input_hash_algorithm"]]
+    validation = json.loads((fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "validation.json").read_text())
+    assert a1["excess"] == validation["summary"]["excess"]
+    # parameters at the reference temperature in display units, as the unit's file gives them
+    from gyrocal.calibration import load_calibration
+    from gyrocal.parameters import parameters_at
+    at_ref = parameters_at(load_calibration(fleet_run / "results" / "B1" / "A1" / "2026-01-01"
+                                            / "calibration.json")).set_index("parameter")
+    for name in ("scale.x", "misalignment.x.y", "bias.z"):
+        assert a1[name] == at_ref.loc[name, "value"] and a1[f"{name}_stderr"] == at_ref.loc[name, "stderr"]
+    assert a1["scale.x_stderr"] > 0 and rows[("A2", "2026-01-02")]["eol_passed"] is False
+    assert rows[("S1", "2026-01-04")]["eol_passed"] is None   # no servo limits: not judged
+    # a drift audit is one query
+    frame = table.to_pandas()
+    drift = frame[frame.status == "ok"].groupby("device")["bias.x"].agg(["count", "max", "min"])
+    assert drift.loc["A1", "count"] == 2

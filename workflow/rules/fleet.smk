@@ -23,6 +23,7 @@ rule fleet:
             category="Units",
         ),
         eol="results/eol.json",
+        table="results/fleet.parquet",
         drift=[f"reports/drift/{device}.html" for device in DRIFT_DEVICES],
     log:
         "logs/fleet.log",
@@ -44,4 +45,4 @@ rule fleet:
     shell:
         "{params.gyrocal} fleet --manifest {input.manifest:q} --results results --reports reports "
         "-o {output.index:q} --bundle {output.bundle:q} --settings-json {params.settings:q} "
-        "--eol {output.eol:q} > {log:q} 2>&1"
+        "--eol {output.eol:q} --table {output.table:q} > {log:q} 2>&1"
