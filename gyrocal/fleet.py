@@ -10,7 +10,6 @@ production systems and rendered in the fleet summary and one drift page per audi
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import pandas as pd
 import pyarrow as pa
 
 from . import failure, protocols, schema
+from .formats import finite_or_none as _finite, json_safe  # noqa: F401 - json_safe for report
 from .errors import ConfigError, GyrocalError
 from .terms import AXES
 
@@ -50,11 +50,6 @@ class FleetSettings:
                    drift.get("temperature"), drift.get("max_excess"))
 
 
-def _finite(value):
-    """inf and NaN have no place in a file: they become None (printed as –)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
 
 
 def _records(frame: pd.DataFrame) -> list[dict]:
@@ -300,17 +295,6 @@ def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
     return out
 
 
-def json_safe(value):
-    """Nested values with numpy scalars as Python numbers and inf/NaN as None."""
-    if isinstance(value, dict):
-        return {str(k): json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [json_safe(v) for v in value]
-    if isinstance(value, np.generic):
-        value = value.item()
-    return _finite(value)
-
-
 # The fleet table's fixed columns (results/fleet.parquet; docs/fleet-table.md says each one).
 TABLE_COLUMNS = (
     ("device", pa.string()), ("batch", pa.string()), ("session", pa.string()),
@@ -332,7 +316,7 @@ def fleet_table(summary: dict) -> pa.Table:
     parameter of its calibration at its reference temperature in display units (scale in
     ppm, misalignment in mrad, bias in deg/s: :func:`gyrocal.parameters.parameters_at`) with
     its standard error (``<name>_stderr``). A value a unit does not have is null."""
-    from .io import HASH_ALGORITHM
+    from .io import source_digest
     from .parameters import parameters_at
     columns: dict[str, list] = {name: [] for name, _ in TABLE_COLUMNS}
     params: dict[str, dict[int, float]] = {}
@@ -341,7 +325,7 @@ def fleet_table(summary: dict) -> pa.Table:
         cal = row.get("calibration")
         s = row.get("summary") or {}
         source = (cal.provenance.get("input") or {}) if cal is not None else {}
-        algorithm = next((a for a in ("blake3", "sha256") if a in source), HASH_ALGORITHM if ok else None)
+        algorithm, digest = source_digest(source) or (None, None)
         eol = row.get("eol")
         values = {
             "device": row["device"], "batch": row["batch"], "session": row["session"],
@@ -356,8 +340,7 @@ def fleet_table(summary: dict) -> pa.Table:
             "warnings": [w["code"] for w in row.get("warnings", [])] if ok else None,
             "eol_passed": eol["passed"] if eol else None,
             "eol_reasons": eol["reasons"] if eol else None,
-            "input_name": source.get("name"), "input_hash": source.get(algorithm) if algorithm else None,
-            "input_hash_algorithm": algorithm if source.get(algorithm) else None,
+            "input_name": source.get("name"), "input_hash": digest, "input_hash_algorithm": algorithm,
             "gyrocal_version": (cal.provenance.get("versions") or {}).get("gyrocal") if ok else None,
         }
         for name, _ in TABLE_COLUMNS:

@@ -124,10 +124,17 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         cal = own(obs, settings, meta, provenance)
         if noise:
             cal.extra["noise"] = noise_record(noise)
-        if checks:
-            cal.extra["warnings"] = plausibility.review(obs, info, cal, None,
-                                                        protocol=meta.get("protocol"), source=label)
-        return cal, None
+        fitted = None
+    else:
+        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted)
+    if checks:
+        cal.extra["warnings"] = plausibility.review(obs, info, cal, protocol=meta.get("protocol"),
+                                                    source=label)
+    return cal, fitted
+
+
+def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
+    """The common model's calibration (and fit, unless ``fitted`` is given)."""
     if fitted is None:
         fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
                            method=settings.model.interpolation, degree=settings.model.degree,
@@ -148,9 +155,6 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
             for r in points.itertuples()],
             **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
             **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
-    if checks:
-        cal.extra["warnings"] = plausibility.review(obs, info, cal, fitted,
-                                                    protocol=meta.get("protocol"), source=label)
     return cal, fitted
 
 

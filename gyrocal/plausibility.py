@@ -26,6 +26,7 @@ import math
 import numpy as np
 
 from .errors import InputError
+from .formats import json_safe
 
 AXES = ("x", "y", "z")
 
@@ -75,20 +76,7 @@ class ImplausibleInputError(InputError):
 
 
 def finding(code: str, message: str, **evidence) -> dict:
-    return {"code": code, "message": " ".join(message.split()), "evidence": _plain(evidence)}
-
-
-def _plain(value):
-    """JSON-plain and finite: numpy scalars to Python, non-finite floats to None."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return [_plain(v) for v in value]
-    if isinstance(value, (np.integer, int)) and not isinstance(value, bool):
-        return int(value)
-    if isinstance(value, (np.floating, float)):
-        return float(value) if math.isfinite(value) else None
-    return value
+    return {"code": code, "message": " ".join(message.split()), "evidence": json_safe(evidence)}
 
 
 class InputStats:
@@ -98,7 +86,6 @@ class InputStats:
 
     def __init__(self):
         self.rows = 0
-        self.temp_nonfinite = 0
         self.temp_nonfinite_span = [math.inf, -math.inf]
         self.temp_min, self.temp_max = math.inf, -math.inf
         self.out_of_range = 0
@@ -128,17 +115,15 @@ class InputStats:
             return
         for name in ("t", "gyro_x", "gyro_y", "gyro_z", "temp", "ref_rate"):
             if name in batch:
-                n_bad = int(np.count_nonzero(~np.isfinite(batch[name])))
+                bad = ~np.isfinite(batch[name])
+                n_bad = int(np.count_nonzero(bad))
                 if n_bad:
                     self.nonfinite[name] = self.nonfinite.get(name, 0) + n_bad
-        bad = ~np.isfinite(temp)
-        n_bad = int(np.count_nonzero(bad))
-        if n_bad:
-            self.temp_nonfinite += n_bad
-            tb = t[bad if finite_t is None else bad & finite_t]
-            if tb.size:
-                self.temp_nonfinite_span = [min(self.temp_nonfinite_span[0], float(tb[0])),
-                                            max(self.temp_nonfinite_span[1], float(tb[-1]))]
+                if n_bad and name == "temp":   # where the temperature sensor dropped out
+                    tb = t[bad if finite_t is None else bad & finite_t]
+                    if tb.size:
+                        self.temp_nonfinite_span = [min(self.temp_nonfinite_span[0], float(tb[0])),
+                                                    max(self.temp_nonfinite_span[1], float(tb[-1]))]
 
     def push(self, batch: dict) -> None:
         """The rows kept (finite, time strictly increasing)."""
@@ -236,10 +221,9 @@ class InputStats:
         np.subtract(t[1:], t[:-1], out=dt[len(dt) - (len(t) - 1):])
         self.last_raw_t = float(t[-1])
         if self.nominal_dt is None:
-            dt = dt.copy()
             if self.pending is None:
                 return   # settled without a usable interval
-            self.pending.append(dt)
+            self.pending.append(dt.copy())   # the buffer is reused
             if sum(len(d) for d in self.pending) < self.NOMINAL_INTERVALS:
                 return
             self._settle()
@@ -274,9 +258,9 @@ class InputStats:
             self._settle()
         self._end_open_run()   # the last run ends with the log (a partial block left out)
         run_s, run_t, run_value = self.longest_run
-        return _plain({
-            "rows": self.rows, "temp_nonfinite": self.temp_nonfinite,
-            "temp_nonfinite_span": self.temp_nonfinite_span if self.temp_nonfinite else None,
+        return json_safe({
+            "rows": self.rows, "temp_nonfinite": self.nonfinite.get("temp", 0),
+            "temp_nonfinite_span": self.temp_nonfinite_span if "temp" in self.nonfinite else None,
             "temp_range": [self.temp_min, self.temp_max] if self.first_t is not None else None,
             "temp_out_of_range": self.out_of_range,
             "temp_finest_step": self.finest_step,
@@ -427,7 +411,8 @@ def rate_ratio_check(ratios: dict, turning: dict, source=None) -> None:
 
 REFERENCE_SIGN = ("ref_rate has the opposite sign convention (positive is right-handed about the rig "
                   "axis, which points up)")
-AXIS_SIGN = "gyro_{axes} has the opposite sign: a left-handed axis convention or a reversed mount label"
+AXIS_SIGN_CAUSE = "a left-handed axis convention or a reversed mount label"
+AXIS_SIGN = "gyro_{axes} has the opposite sign: " + AXIS_SIGN_CAUSE
 
 
 def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=None,
@@ -467,7 +452,7 @@ def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=N
         raise ImplausibleInputError(
             f"gyro_{', gyro_'.join(flipped)} read{'s' if len(flipped) == 1 else ''} against the "
             f"reference (scale {', '.join(f'{diag[AXES.index(a)]:.4g}' for a in flipped)}) while the "
-            "other axes agree: a left-handed axis convention or a reversed mount label", source=source)
+            f"other axes agree: {AXIS_SIGN_CAUSE}", source=source)
     def worst(i, j):   # the entry furthest from nominal over the points, and where
         dev = np.abs(Ks[:, i, j] - (1.0 if i == j else 0.0))
         k = int(np.argmax(dev))
@@ -694,9 +679,8 @@ def fit_findings(cal) -> list[dict]:
             f"calibrated at one temperature ({used[0]['temperature']:.1f} °C): nothing is known "
             "of the unit's temperature dependence, and the calibration applies as it is at every "
             "temperature", temperature=used[0]["temperature"]))
-    holds = np.array([p["holds"] for p in points], float)
     if len(points) > 1:
-        typical = float(np.median(holds))
+        typical = float(np.median([p["holds"] for p in points]))
         thin = [p for p in points if p["used"] and p["holds"] < 0.5 * typical]
         if thin:
             out.append(finding(
@@ -718,7 +702,7 @@ def fit_findings(cal) -> list[dict]:
     return out
 
 
-def review(obs, info: dict | None, cal, fitted, *, protocol: str | None, source=None) -> list[dict]:
+def review(obs, info: dict | None, cal, *, protocol: str | None, source=None) -> list[dict]:
     """Every check on one unit session: raises :class:`ImplausibleInputError` where the log
     cannot be right, returns the warnings otherwise (the order of :data:`CODES`)."""
     info = info or {}
