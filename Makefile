@@ -23,7 +23,7 @@ demo: $(STAMP)
 	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json"
 
 test: system-packages $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadfile
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernel, built on install),

@@ -36,7 +36,14 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     dataset = open_dataset(path)
     schema = dataset.schema
     needs = cal.model.inputs
-    needed = [*GYRO, "temp"] + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
+    # A log with no temperature (a hand-rotation session may have none) takes a
+    # calibration made at one temperature as it is: there is nothing to interpolate.
+    constant_temp = None
+    grid_temps = getattr(cal.grid, "temperatures", ())
+    if "temp" not in schema.names and len(grid_temps) == 1 and not needs & SERIES_INPUTS:
+        constant_temp = float(grid_temps[0])
+    needed = [*GYRO, *(["temp"] if constant_temp is None else [])] \
+        + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
     missing = [c for c in ([*needed, "t"] if needs & SERIES_INPUTS else needed) if c not in schema.names]
     if missing:
         raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}",
@@ -63,7 +70,8 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
         t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"})
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     with atomic.replacing(out) as tmp:  # never leave half a file behind
-        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts)
+        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
+               constant_temp)
     return counts
 
 
@@ -93,13 +101,16 @@ def _read(dataset, path):
         raise read_error(exc, path) from None
 
 
-def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts) -> None:
+def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
+           constant_temp=None) -> None:
     with pq.ParquetWriter(tmp, out_schema) as writer:
         for batch in _read(dataset, path):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
                                          .astype(np.float64), units) for c in needed}
             gyro = np.column_stack([cols[c] for c in GYRO])
             data = {c: cols[c] for c in needed if c not in GYRO}
+            if constant_temp is not None:
+                data["temp"] = np.full(len(gyro), constant_temp)
             if t0 is not None:  # the model reads series signals: time since the first row
                 data["t"] = time_seconds(batch.column("t"), path, origin) - t0
             if series is not None:

@@ -367,6 +367,19 @@ def cmd_verify(args) -> int:
     return 0
 
 
+def cmd_import(args) -> int:
+    """A rig's CSV/TSV, a ROS 2 bag or an MCAP file as a contract log (docs/import.md)."""
+    from .importer import import_log
+    summary = import_log(args.source, args.output, args.map, fmt=args.format,
+                         sample_rate=args.sample_rate, sections=args.sections)
+    start, end = summary.span
+    print(f"{summary.rows} rows -> {args.output}: t {start:.6g} to {end:.6g} s "
+          f"({end - start:.6g} s); {'; '.join(summary.mapped)}")
+    for note in summary.notes:
+        print(f"gyrocal: note: {note}", file=sys.stderr)
+    return 0
+
+
 class OneLineParser(argparse.ArgumentParser):
     """Usage mistakes are bad input too: one line on stderr, exit status 2."""
 
@@ -521,6 +534,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--table", help="also write the fleet as one Parquet table, a row per unit "
                    "session (docs/fleet-table.md)")
     p.set_defaults(func=cmd_fleet)
+    p = sub.add_parser("import", help="convert a CSV/TSV, ROS 2 bag or MCAP file into a rig "
+                       "log (docs/import.md)")
+    p.add_argument("source", help="the CSV/TSV file, rosbag2 directory or .mcap file")
+    p.add_argument("-o", "--output", required=True, help="the log to write, .parquet")
+    p.add_argument("--map", help="the import map, YAML: columns or topics and their units")
+    p.add_argument("--format", choices=("csv", "tsv", "ros2", "mcap"),
+                   help="the source's format (default: from its name)")
+    p.add_argument("--sample-rate", type=float, metavar="HZ",
+                   help="t = sample index / HZ (the map's time.column, else the row number)")
+    p.add_argument("--sections", metavar="FILE",
+                   help="a section list in imucal's format: writes the section column")
+    p.set_defaults(func=cmd_import)
     add_paper_parser(sub)
     add_lookup_parser(sub)
     add_export_parser(sub)

@@ -12,7 +12,7 @@ import json
 import math
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -124,6 +124,27 @@ class RigLog:
                 break
         return [{c: (p[0][c] if len(p) == 1 else np.concatenate([q[c] for q in p]) if p else
                      np.empty(0)) for c in names} for p in parts]
+
+
+def with_constants(log: RigLog, values: dict[str, float]) -> RigLog:
+    """``log`` with a constant column for each name in ``values`` it does not hold (a
+    protocol that does without a contract column, :attr:`gyrocal.protocols.Protocol.without`)."""
+    values = {k: float(v) for k, v in values.items() if k not in log}
+    if not values:
+        return log
+
+    def fill(batch):
+        n = len(batch["t"])
+        return {**batch, **{k: np.full(n, v) for k, v in values.items()}}
+
+    reread = log.reread
+    if reread is not None:
+        def reread(names, _inner=log.reread):
+            own = [c for c in names if c not in values]
+            for batch in _inner(tuple(dict.fromkeys(("t", *own)))):
+                yield {k: v for k, v in fill(batch).items() if k in names}
+    return replace(log, batches=None if log.batches is None else tuple(fill(b) for b in log.batches),
+                   columns=log.columns + tuple(values), reread=reread)
 
 
 def open_dataset(path: Path) -> ds.Dataset:
@@ -318,7 +339,7 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     batches: list[dict[str, np.ndarray]] | None = []
     kept_bytes, kept_rows, first, last = 0, 0, None, 0.0
     from .plausibility import InputStats
-    stats = InputStats() if "temp" in required else None
+    stats = InputStats() if "temp" in wanted else None
     stream = _batches(dataset, wanted, required, units, path, stats)
     for batch in stream:
         if sink is not None:

@@ -20,7 +20,7 @@ from .config import Settings
 from .blocks import BlockSink
 from .floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
 from .holds import Segmentation
-from .io import HASH_ALGORITHM, file_digest, read_log
+from .io import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
 from .turntable.segment import LOG_COLUMNS
 from .signals import TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .thermal import ContinuousFit, GridFit, fit_model
@@ -60,14 +60,19 @@ def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT, *,
     sink = BlockSink(rules.reading_blocks(settings)) if rules.reading_blocks else None
     with ThreadPoolExecutor(1) as pool:
         digest = pool.submit(file_digest, path)
-        log = read_log(path, optional=LOG_COLUMNS, sink=sink,
+        log = read_log(path, optional=LOG_COLUMNS + rules.without, sink=sink,
+                       required=tuple(c for c in REQUIRED if c not in rules.without),
                        keep_bytes=keep_bytes if sink is not None else None)
+        filled = [c for c in rules.without if c not in log]
+        log = with_constants(log, {"ref_rate": 0.0, "temp": settings.model.reference_temperature})
         plausibility.log_errors(log.input_stats, path)
         seg = rules.segment(log, settings)
         seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
         if log.input_stats is not None:
             seg.info["input_stats"] = log.input_stats
+        if filled:
+            seg.info["filled_columns"] = filled
     # The temperature rate is a slope over a window as long as a typical hold, for the fit
     # and for apply (the calibration file records the window).
     obs = seg.observations

@@ -44,6 +44,8 @@ CODES = {
     "dropped_samples": "samples missing between regular ones",
     "holds_rejected": "holds rejected for saturation, disagreement with the reference or instability",
     "single_temperature": "a turntable calibration from one temperature point",
+    "temperature_not_logged": "no temperature column: the calibration is given at the reference temperature",
+    "phases_doubtful": "segmentation left out a move meant as a turn, or took one for several turns",
     "point_few_holds": "a temperature point with under half the typical number of holds",
     "point_excluded": "a temperature point left out of the calibration",
     "holds_disagree_with_reference": "holds off by over 20 noise floors where their rate is not at other points",
@@ -669,7 +671,9 @@ def protocols_calibrate(cal) -> bool:
 def fit_findings(cal) -> list[dict]:
     """Warnings from the fit: one temperature point only, points left out or thin."""
     out = []
-    if cal.kind != "temperature_grid" or protocols_calibrate(cal):
+    from . import protocols
+    if cal.kind != "temperature_grid" or protocols_calibrate(cal) \
+            or protocols.get(cal.meta.get("protocol")).one_temperature:
         return out   # a continuous fit's points are bins, a servo's one temperature its design
     points = cal.extra.get("points") or []
     used = [p for p in points if p["used"]]
@@ -722,6 +726,14 @@ def review(obs, info: dict | None, cal, *, protocol: str | None, source=None) ->
         joined.source = exc.source
         raise joined from None
     found += seen + rejection_findings(info)
+    for note in info.get("segmentation_warnings") or ():
+        found.append(finding("phases_doubtful", note))
+    if "temp" in (info.get("filled_columns") or ()):
+        found.append(finding(
+            "temperature_not_logged",
+            f"the log has no temp column: the calibration holds at the session's unknown "
+            f"temperature and is given at {float(cal.grid.temperatures[0]):.1f} °C, the reference "
+            "temperature", filled="temp"))
     found += fit_findings(cal)
     order = list(CODES)
     return sorted(found, key=lambda f: order.index(f["code"]))

@@ -23,7 +23,7 @@ from .errors import ConfigError
 
 DEFAULT = "turntable"
 BUILTIN = {"turntable": "gyrocal.turntable.protocol", "servo": "gyrocal.servo.protocol",
-           "sweep": "gyrocal.sweep.protocol"}
+           "sweep": "gyrocal.sweep.protocol", "ferraris": "gyrocal.ferraris.protocol"}
 _REGISTRY: dict[str, Protocol] = {}
 
 
@@ -76,6 +76,12 @@ class Protocol:
     # shows along the mount on the accelerometer, and a balanced protocol turns every axis
     # both ways (gyrocal.plausibility checks both).
     axis_mounts: bool = False
+    # Contract columns the protocol can do without (a hand has no encoder; a bench session
+    # may log no temperature): read when present, otherwise ref_rate reads 0 and temp the
+    # model's reference temperature, and the calibration's warnings say so.
+    without: tuple[str, ...] = ()
+    # The protocol runs at one temperature by design: one temperature point is no warning.
+    one_temperature: bool = False
 
 
 def register(protocol: Protocol) -> Protocol:

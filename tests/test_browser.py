@@ -33,8 +33,8 @@ def browser():
         b.close()
 
 
-def open_offline(browser, path):
-    context = browser.new_context(viewport={"width": 1300, "height": 900})
+def open_offline(browser, path, viewport=(1300, 900)):
+    context = browser.new_context(viewport={"width": viewport[0], "height": viewport[1]})
     outside = []
 
     def guard(route):
@@ -95,4 +95,119 @@ def test_fleet_report_renders_offline_and_links_every_unit(fleet_run, browser, t
         assert target.locator("h1").count() == 1
         target.close()
     page.screenshot(path=str(tmp_path / "fleet.png"), full_page=True)
+    assert outside == []
+
+
+# The worst cases of a fleet summary's rows: names as long as the manifest allows (64
+# characters; a batch name may hold spaces), a failed unit's long one-line error, a unit
+# with several plausibility warnings.
+LONG_DEVICE = "IMU-7-line-3_station-12.rev-C_serial-0000001234567890-calib.retry"[:64]
+LONG_BATCH = "lot 2026-W03 Munich line 7 night shift rework after supplier change"[:64]
+LONG_ERROR = ("the log's mount column names orientations the protocol does not define ('+x+y', "
+              "'-z?', 'tilt 45'); expected one of +x, -x, +y, -y, +z, -z for every hold; rows 120 "
+              "to 98 304 of the log are affected, so no hold can be assigned a known rate and the "
+              "segmentation has nothing to calibrate on (check the rig's export settings)")
+WARNINGS = (
+    ("protocol_unbalanced", "the protocol is unbalanced: mount -z is missing while ±x, ±y have both: "
+     "errors that a balanced protocol averages out (a g-sensitivity, a scale asymmetry) go into "
+     "the fitted terms"),
+    ("temperature_stuck", "temp reads exactly 24.5 °C for 1800 s from t = 3600 s, although it "
+     "resolves steps of 0.0625 °C elsewhere: a stuck sensor; holds in that stretch are "
+     "calibrated at a temperature the unit may not have had"),
+    ("sample_jitter", "3.2% of the sample intervals differ from the nominal 0.01 s by over 10%: "
+     "timestamps from a jittery clock; rates and hold boundaries are still computed from them"),
+    ("holds_rejected", "7 of 120 holds were rejected (gyro_disagrees: 2, not_steady: 5): the "
+     "calibration rests on the rest; the report's segment list shows each one"))
+
+
+def worst_case_fleet_summary(fleet_run, out):
+    """The fleet summary of the workflow's fleet run, read from its unit files as the fleet
+    job reads them (servo, sweep, a turntable unit twice, two failed units), with device A2
+    and batch B2 renamed to 64 characters, BAD's error made long and A1's first session given
+    four warnings; its unit links go to the run's unit reports."""
+    import csv
+
+    import yaml
+
+    from gyrocal.fleet import FleetSettings, fleet_summary
+    from gyrocal.plausibility import finding
+    from gyrocal.report import write_fleet_report
+    units = []
+    with open(fleet_run / "devices.tsv", newline="") as f:
+        for row in csv.DictReader(f, delimiter="\t"):
+            folder = fleet_run / "results" / row["batch"] / row["device"] / row["session"]
+            report = fleet_run / "reports" / row["batch"] / row["device"] / f"{row['session']}.html"
+            row.update(device=LONG_DEVICE if row["device"] == "A2" else row["device"],
+                       batch=LONG_BATCH if row["batch"] == "B2" else row["batch"])
+            units.append({"row": row, "folder": folder, "report": report.as_uri()})
+    settings = FleetSettings.from_dict(yaml.safe_load((fleet_run / "config.yaml").read_text()))
+    summary = fleet_summary(units, settings)
+    for row in summary["rows"]:
+        if row["device"] == "BAD":
+            row["error"] = LONG_ERROR
+        if (row["device"], row["session"]) == ("A1", "2026-01-01"):
+            row["warnings"] = [finding(code, message) for code, message in WARNINGS]
+    write_fleet_report(summary, out / "index.html", settings)
+    return out / "index.html"
+
+
+def test_fleet_summary_fits_a_1400_px_screen(fleet_run, browser, tmp_path):
+    """At 1400 px the fleet summary does not scroll sideways, no table is wider than the
+    window and every row is one line; long texts are clipped, in full in the row's
+    disclosure and its title."""
+    from PIL import Image
+    index = worst_case_fleet_summary(fleet_run, tmp_path)
+    page, outside = open_offline(browser, index, viewport=(1400, 900))
+    protocols = page.locator("table.units td:nth-child(3)").all_inner_texts()
+    assert sorted(set(protocols)) == ["servo", "sweep", "turntable"] and protocols.count("turntable") == 5
+
+    def fits():
+        return page.evaluate("""() => ({
+            scroll: Math.max(document.documentElement.scrollWidth, document.body.scrollWidth),
+            tables: Array.from(document.querySelectorAll('table')).filter(t => t.checkVisibility())
+                .map(t => t.getBoundingClientRect().right),
+            panels: Array.from(document.querySelectorAll('details[open] > div')).map(d => {
+                const b = d.getBoundingClientRect(); return [b.left, b.right]; })})""")
+    layout = fits()
+    assert layout["scroll"] <= 1400 and len(layout["tables"]) == 3 + 2   # units; yield, drift
+    assert all(0 < right <= 1400 for right in layout["tables"]), layout
+    # every body row of a table one line tall (an unopened disclosure included)
+    def row_heights(selector):
+        return page.evaluate("""s => Array.from(document.querySelectorAll(s)).map(r => ({
+            height: r.getBoundingClientRect().height,
+            line: parseFloat(getComputedStyle(r.cells[0]).lineHeight)}))""",
+                             selector)
+    rows = row_heights("table.units tbody tr, #yield-table tr:not(:first-child), #drift-table tbody tr")
+    assert len(rows) == 7 + 2 + 1
+    assert all(r["height"] < 2 * r["line"] for r in rows), rows
+    # clipped, with the whole text in a title and a disclosure per row
+    link = page.locator("table.units a", has_text="IMU-7-line")
+    assert link.get_attribute("title") == LONG_DEVICE
+    assert link.evaluate("a => a.scrollWidth > a.clientWidth")
+    assert page.locator("table.units tbody tr").count() == page.locator("table.units tbody tr details").count() == 7
+    bad = page.locator("tr.failed", has_text="BAD").locator("details")
+    summary = bad.locator("summary")
+    assert summary.get_attribute("title") == f"segment: {LONG_ERROR}"
+    assert summary.evaluate("s => s.scrollWidth > s.clientWidth")       # clipped to one line
+    assert not bad.locator("div").is_visible()
+    summary.click()                                                       # open it: the whole error
+    assert bad.locator("div").is_visible() and LONG_ERROR in bad.locator("div").inner_text()
+    warned = page.locator("table.units tbody tr").first
+    assert warned.locator("td").nth(7).inner_text() == "4"
+    warned.locator("summary").click()
+    text = warned.locator("details > div").inner_text()
+    assert "4 warnings: protocol_unbalanced, temperature_stuck, sample_jitter, holds_rejected" in text
+    assert all(message in text for _, message in WARNINGS) and "× expected" in text
+    for d in page.locator("details.table").all():                        # the parameter tables
+        d.locator("summary").click()
+    layout = fits()
+    assert layout["scroll"] <= 1400 and len(layout["tables"]) == 2 * 3 + 2, layout
+    assert all(0 < right <= 1400 for right in layout["tables"]), layout
+    assert len(layout["panels"]) == 2 and all(0 <= left < right <= 1400 for left, right in layout["panels"])
+    rows = row_heights("table.parameters tbody tr")
+    assert len(rows) == 5 and all(r["height"] < 2 * r["line"] for r in rows), rows
+    shot = tmp_path / "fleet-1400.png"
+    page.screenshot(path=str(shot), full_page=True)
+    with Image.open(shot) as image:
+        assert image.width == 1400 and len(image.convert("RGB").getcolors(1 << 24)) > 100
     assert outside == []

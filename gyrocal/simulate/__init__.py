@@ -16,6 +16,7 @@ import numpy as np
 
 from .. import atomic
 from ..errors import ConfigError
+from .ferraris import FerrarisProtocol, render_ferraris
 from .noise import add_coloured_noise, noise_levels
 from .servo import ServoProtocol, ServoUnit, render_servo
 from .sweep import SweepProtocol, SweepUnit, render_sweep
@@ -29,13 +30,15 @@ __all__ = ["GyroUnit", "TurntableProtocol", "SweepProtocol", "SweepUnit", "Servo
 # protocol -> (rig, renderer, unit): the unit class draws random units and reads truth back.
 PROTOCOLS = {"turntable": (TurntableProtocol, render, GyroUnit),
              "sweep": (SweepProtocol, render_sweep, SweepUnit),
-             "servo": (ServoProtocol, render_servo, ServoUnit)}
+             "servo": (ServoProtocol, render_servo, ServoUnit),
+             "ferraris": (FerrarisProtocol, render_ferraris, GyroUnit)}
 MANIFEST_COLUMNS = ("device", "batch", "session", "protocol", "path")
 # protocol -> preset -> rig: "seed" the paper's schedule, "quick" a log of minutes (the
 # servo's three revolutions per rotation, so each can be validated on the others).
 PRESETS = {"turntable": {"seed": TurntableProtocol, "quick": TurntableProtocol.quick},
            "sweep": {"seed": SweepProtocol.seed003, "quick": SweepProtocol.demo},
-           "servo": {"seed": ServoProtocol, "quick": lambda: ServoProtocol(revolutions=3)}}
+           "servo": {"seed": ServoProtocol, "quick": lambda: ServoProtocol(revolutions=3)},
+           "ferraris": {"seed": FerrarisProtocol, "quick": FerrarisProtocol}}
 # protocol -> the unit its paper publishes (turntable: seed 000 Eq 23; sweep: seed 003's
 # L3GD20 sizes); the servo paper's units are drawn at random (seed 001 Section III).
 PUBLISHED_UNITS = {"turntable": GyroUnit.seed000, "sweep": SweepUnit.seed003}

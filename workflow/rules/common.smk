@@ -40,6 +40,9 @@ GYROCAL = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPAT
 GUARD = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal.guard"
 ENV = "../envs/gyrocal.yaml"
 DEMO_LOGS = os.path.normpath(config["demo"]["folder"])
+# Real recordings the demo imports with `gyrocal import` (data/real/<name>/: the recording,
+# its import map and its licence), as demo/real/<name>.parquet.
+REAL_LOGS = os.path.normpath("demo/real")
 UNITS = {
     (row["batch"], row["device"], row["session"]): row
     for row in read_manifest(config["devices"])
@@ -116,7 +119,11 @@ def log_input(wildcards):
     path = unit(wildcards)["log"]
     if "://" in path:
         return storage_log(path)
-    if os.path.exists(path) or os.path.dirname(path).startswith(DEMO_LOGS + os.sep):
+    if (
+        os.path.exists(path)
+        or os.path.dirname(path).startswith(DEMO_LOGS + os.sep)
+        or os.path.dirname(path) == REAL_LOGS
+    ):
         return path
     return []
 

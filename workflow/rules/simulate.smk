@@ -26,3 +26,22 @@ rule simulate:
         "{params.gyrocal} simulate --log {output:q} --device {wildcards.device:q} "
         "--batch {wildcards.batch:q} --session {wildcards.session:q} "
         "--preset {params.preset} {params.unit} > {log:q} 2>&1"
+
+
+# A real recording of the demo, converted to a contract log by `gyrocal import`.
+rule import_real:
+    input:
+        source="data/real/{name}/session.csv",
+        map="data/real/{name}/import.yaml",
+    output:
+        f"{REAL_LOGS}/{{name}}.parquet",
+    log:
+        "logs/import/{name}.log",
+    conda:
+        ENV
+    threads: 1
+    params:
+        gyrocal=GYROCAL,
+        version=GYROCAL_VERSION,
+    shell:
+        "{params.gyrocal} import {input.source:q} --map {input.map:q} -o {output:q} > {log:q} 2>&1"

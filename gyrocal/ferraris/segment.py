@@ -1,0 +1,298 @@
+"""The phases of a hand-rotation (Ferraris) session: six static faces and a full turn about
+each sensor axis, found in the data or taken from a person's annotation.
+
+From the data: the unit is still where the gyro stays within a few noise levels of its
+resting output for a while (blocks of ``block_s``); a still stretch of at least
+``min_still_s`` is a *rest*, and its face is the axis the accelerometer finds gravity on.
+Between rests the unit moves. A *turn* is a chain of moves between rests on the same face
+whose rotation lies along that face's axis (a turn done in steps rests in between); its
+angle, integrated from the gyro, must come within ``angle_tolerance`` of a whole number of
+full turns, which then is the reference. Each face's longest rest is its observation.
+
+From a ``section`` column (``x_p`` ... ``z_a``, ``x_rot`` ... ``z_rot``: the contract's
+extension, docs/log-format.md) the labelled samples are the observations; the data only
+give each turn's direction.
+
+Each observation becomes a hold of the common schema (:mod:`gyrocal.holds`): a face is a
+hold at rate 0 with the up axis as its mount; a turn is a hold whose reference rate is its
+known angle over its duration, so that its time-weighted mean output obeys the model of the
+mean rate exactly, ``mean(w) = K θ n / T + B`` (what the 12-parameter model fits). A turn's
+spread (``std_*``) carries the uncertainty of the hand's angle, so every fit and floor that
+reads it weighs the turn by what it can tell.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pyarrow.parquet as pq
+
+from ..errors import ConfigError, SegmentationError
+from ..holds import AXES, Segmentation, hold_table, timeline
+from ..io import ACCEL, GYRO, RigLog
+
+FACES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
+TURNS = ("x_rot", "y_rot", "z_rot")
+LABELS = FACES + TURNS
+FULL_TURN = 360.0
+
+
+def face_mount(label: str) -> str:
+    """``x_p`` → ``+x`` (x up), ``x_a`` → ``-x``."""
+    return ("+" if label[2] == "p" else "-") + label[0]
+
+
+def mount_label(mount: str) -> str:
+    return f"{mount[1]}_{'p' if mount[0] == '+' else 'a'}"
+
+
+def _options(options: dict) -> dict:
+    known = {"block_s": 0.1, "min_still_s": 1.0, "still_rate": 2.0, "still_sigmas": 8.0,
+             "edge_s": 0.1, "turn_margin_s": 2.0, "angle_tolerance": 0.15, "angle_uncertainty_deg": 1.0,
+             "tilt_uncertainty_deg": 0.5, "min_gravity_share": 0.8}
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown ferraris option(s) {', '.join(unknown)} "
+                          f"(known: {', '.join(known)})")
+    out = {**known, **options}
+    for k, v in out.items():
+        if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+            raise ConfigError(f"ferraris option {k} must be a number >= 0; got {v!r}")
+    return out
+
+
+def read_sections(log: RigLog, t: np.ndarray) -> np.ndarray | None:
+    """The ``section`` label of every kept row (None when the log has no such column):
+    read beside the numeric columns and matched on ``t``, which is strictly increasing,
+    since rows with a non-finite value were dropped from those."""
+    try:
+        schema = pq.read_schema(log.path)
+    except (OSError, ValueError):   # a dataset directory: no annotation support there
+        return None
+    if "section" not in schema.names:
+        return None
+    table = pq.read_table(log.path, columns=["t", "section"])
+    labels = table.column("section").to_pandas().astype(object).to_numpy()
+    t_all = table.column("t").to_numpy(zero_copy_only=False).astype(float)
+    if len(t_all) != len(t):
+        rows = np.searchsorted(t_all, t)
+        labels = labels[np.clip(rows, 0, len(labels) - 1)]
+    labels = np.where(pd.isna(labels), "", labels).astype(str)
+    unknown = sorted(set(np.unique(labels)) - set(LABELS) - {""})
+    if unknown:
+        raise SegmentationError(f"column section holds {', '.join(map(repr, unknown[:5]))}; "
+                                f"expected {' '.join(LABELS)} or empty", source=log.path)
+    return labels
+
+
+def _runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and end (exclusive) of each run of True."""
+    edges = np.diff(np.r_[0, flags.astype(np.int8), 0])
+    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+
+
+def _face_of(accel_mean: np.ndarray, share: float) -> str | None:
+    """The face a rest lies on: the axis that takes ``share`` of gravity (in g: 0.6–1.4)."""
+    norm = float(np.linalg.norm(accel_mean))
+    if not 0.6 <= norm <= 1.4:
+        return None
+    k = int(np.argmax(np.abs(accel_mean)))
+    if abs(accel_mean[k]) < share * norm:
+        return None
+    return ("+" if accel_mean[k] > 0 else "-") + AXES[k]
+
+
+def white_noise(gyro: np.ndarray) -> np.ndarray:
+    """Per-axis white noise (deg/s per sample) from successive differences, robustly (the
+    median absolute difference ignores the motion)."""
+    d = np.diff(gyro, axis=0)
+    return np.median(np.abs(d - np.median(d, axis=0)), axis=0) / 0.6745 / np.sqrt(2.0)
+
+
+def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts: dict,
+                source=None) -> tuple[list[tuple[str, int, int]], list[str], dict[str, float]]:
+    """(label, first row, end row) of each face and turn found from the data, warnings, and
+    per axis the largest rotation not taken for a turn (deg)."""
+    if accel is None:
+        raise SegmentationError("a ferraris log needs accel_x, accel_y, accel_z to find its "
+                                "static faces, or a section column that names them", source=source)
+    n = len(t)
+    dt = float(np.median(np.diff(t))) if n > 1 else 0.0
+    block = max(1, int(round(opts["block_s"] / dt))) if dt > 0 else 1
+    nb = n // block
+    if nb < 3:
+        raise SegmentationError(f"the log has {n} samples: too short for a ferraris session",
+                                source=source)
+    g = gyro[:nb * block].reshape(nb, block, 3)
+    rest_level = np.median(g.mean(axis=1), axis=0)          # the unit rests most of the time
+    sigma = white_noise(gyro)
+    limit = max(opts["still_rate"], opts["still_sigmas"] * float(np.max(sigma)))
+    still_block = np.abs(g - rest_level).max(axis=(1, 2)) < limit
+    lo, hi = _runs(still_block)
+    min_blocks = max(1, int(np.ceil(opts["min_still_s"] / (block * dt))))
+    keep = (hi - lo) >= min_blocks
+    edge = int(round(opts["edge_s"] / dt))
+    rests = [(int(a) * block + edge, int(b) * block - edge) for a, b in zip(lo[keep], hi[keep])]
+    rests = [(a, b) for a, b in rests if b - a >= 2]
+    if len(rests) < 2:
+        raise SegmentationError(f"found {len(rests)} still stretch(es) of {opts['min_still_s']:g} s "
+                                "or more; a ferraris session rests on six faces", source=source)
+    faces = [_face_of(accel[a:b].mean(axis=0), opts["min_gravity_share"]) for a, b in rests]
+    # bias for classifying moves only (the fit estimates its own)
+    bias = np.mean([gyro[a:b].mean(axis=0) for a, b in rests], axis=0)
+    dts = np.diff(t, append=t[-1] + dt)
+    dts = np.where(dts > 3 * dt, dt, dts)
+    csum = np.vstack([np.zeros(3), np.cumsum((gyro - bias) * dts[:, None], axis=0)])
+
+    warnings: list[str] = []
+    phases: list[tuple[str, int, int]] = []
+    largest: dict[str, float] = {}    # per axis, the largest rotation not taken for a turn
+    margin = int(round(opts["turn_margin_s"] / dt))
+    i = 0
+    while i < len(rests) - 1:
+        face = faces[i]
+        if face is None:
+            i += 1
+            continue
+        axis = AXES.index(face[1])
+        j, total = i, np.zeros(3)
+        while j < len(rests) - 1 and faces[j + 1] == face:
+            move = csum[rests[j + 1][0]] - csum[rests[j][1]]
+            if abs(move[axis]) < opts["min_gravity_share"] * np.linalg.norm(move):
+                break   # not a rotation about the vertical axis: the unit was handled
+            total += move
+            j += 1
+        if j > i and abs(total[axis]) > FULL_TURN / 4:
+            turns = max(1, int(round(abs(total[axis]) / FULL_TURN)))
+            off = abs(abs(total[axis]) / (turns * FULL_TURN) - 1.0)
+            t_a, t_b = t[rests[i][1]], t[rests[j][0]]
+            if off <= opts["angle_tolerance"]:
+                # the turn reaches into the rests on either side, so that no slow start or
+                # end of the motion is lost from its integral (the bias over them is fitted)
+                # (at most half of each rest: a hand's slow start and finish lie under the
+                # stillness threshold for a few tenths of a second)
+                phases.append((f"{face[1]}_rot", max((rests[i][0] + rests[i][1]) // 2, rests[i][1] - margin),
+                               min((rests[j][0] + rests[j][1]) // 2, rests[j][0] + margin)))
+                if turns > 1:
+                    warnings.append(f"the turn about {face[1]} at t = {t_a:.1f}–{t_b:.1f} s reads "
+                                    f"{total[axis]:.0f}°: taken as {turns} full turns")
+            else:
+                if abs(total[axis]) > abs(largest.get(face[1], 0.0)):
+                    largest[face[1]] = float(total[axis])
+                if abs(total[axis]) >= 0.75 * FULL_TURN:   # meant as a turn, surely
+                    warnings.append(f"a rotation about {face[1]} at t = {t_a:.1f}–{t_b:.1f} s reads "
+                                    f"{total[axis]:.0f}°, not a whole number of turns (within "
+                                    f"{opts['angle_tolerance']:.0%}); not used")
+        i = max(j, i + 1)
+    for label in FACES:
+        mount = face_mount(label)
+        mine = [(b - a, a, b) for (a, b), f in zip(rests, faces) if f == mount]
+        if mine:
+            _, a, b = max(mine)
+            phases.append((label, a, b))
+    return phases, warnings, largest
+
+
+def phases_from_sections(labels: np.ndarray) -> list[tuple[str, int, int]]:
+    """(label, first row, end row) of every annotated section; a label on several separate
+    stretches keeps its longest (a person marks each part once)."""
+    out = []
+    for label in LABELS:
+        lo, hi = _runs(labels == label)
+        if len(lo):
+            k = int(np.argmax(hi - lo))
+            out.append((label, int(lo[k]), int(hi[k])))
+    return out
+
+
+def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
+    """The session's faces and turns as holds (module docstring)."""
+    opts = _options(options)
+    t = log.column("t")
+    gyro = np.column_stack([log.column(c) for c in GYRO]).astype(float)
+    accel = np.column_stack([log.column(c) for c in ACCEL]).astype(float) \
+        if all(c in log for c in ACCEL) else None
+    temp = log.column("temp").astype(float)
+    labels = read_sections(log, t)
+    warnings: list[str] = []
+    largest: dict[str, float] = {}
+    if labels is not None and (labels != "").any():
+        phases, source = phases_from_sections(labels), "annotation"
+    else:
+        phases, warnings, largest = find_phases(t, gyro, accel, opts, source=log.path)
+        source = "data"
+    found = {p[0] for p in phases}
+    missing = [x for x in LABELS if x not in found]
+    if missing:
+        what = [f"the {face_mount(m)} face ({m[0]} {'up' if m[2] == 'p' else 'down'})"
+                if m in FACES else f"a full turn about {m[0]}"
+                + (f" (its largest rotation reads {largest[m[0]]:.0f}°)" if m[0] in largest else "")
+                for m in missing]
+        raise SegmentationError(f"the session lacks {', '.join(what)}"
+                                + ("" if source == "annotation" else " (found from the data)"),
+                                source=log.path)
+    phases.sort(key=lambda p: p[1])
+    dt = float(np.median(np.diff(t)))
+    sigma = white_noise(gyro)
+    rows = []
+    for label, a, b in phases:
+        seg_t = t[a:b]
+        # each sample stands for the interval up to the next one (a gap counts one interval)
+        w_dt = np.diff(np.r_[seg_t, seg_t[-1] + dt])
+        w_dt = np.where(w_dt > 3 * dt, dt, w_dt)
+        T = float(w_dt.sum())
+        mean = (gyro[a:b] * w_dt[:, None]).sum(axis=0) / T
+        row = {"section": label, "kind": "turn" if label in TURNS else "face", "first": a,
+               "t_start": float(seg_t[0]), "t_end": float(seg_t[-1]), "n": b - a, "T": T,
+               "gyro": mean, "temp": float(temp[a:b].mean()),
+               "accel": accel[a:b].mean(axis=0) if accel is not None else np.full(3, np.nan)}
+        if label in TURNS:
+            axis = AXES.index(label[0])
+            raw = float((gyro[a:b, axis] * w_dt).sum())
+            # a turn's direction from the data; the rest before it holds the bias, which
+            # the sign of a whole turn cannot drown
+            turns = max(1, int(round(abs(raw) / FULL_TURN)))
+            angle = np.sign(raw) * turns * FULL_TURN
+            up = _face_of(row["accel"], opts["min_gravity_share"]) if accel is not None else None
+            mount = up if up is not None and up[1] == label[0] else "+" + label[0]
+            row.update(mount=mount, angle=angle, raw_angle=raw, turns=turns,
+                       ref_rate=(1.0 if mount[0] == "+" else -1.0) * angle / T)
+            # the hand's angle error moves the turning axis' mean by δθ / T, the unit's
+            # tilt on the table the other two by θ δφ / T: as spread, so that std / √n
+            # is the mean's uncertainty
+            extra = np.full(3, np.deg2rad(opts["tilt_uncertainty_deg"]) * abs(angle) / T)
+            extra[axis] = opts["angle_uncertainty_deg"] / T
+            row["std"] = np.sqrt(sigma ** 2 + (b - a) * extra ** 2)
+        else:
+            row.update(mount=face_mount(label), angle=0.0, raw_angle=0.0, turns=0, ref_rate=0.0,
+                       std=gyro[a:b].std(axis=0, ddof=1))
+        rows.append(row)
+    k = len(rows)
+    col = lambda key: np.array([r[key] for r in rows])  # noqa: E731
+    obs = hold_table(
+        t_start=col("t_start"), t_end=col("t_end"), n=col("n"),
+        mount=np.array([r["mount"] for r in rows], dtype=object), mount_source=source,
+        ref_rate=col("ref_rate"), gyro=np.vstack(col("gyro")), std=np.vstack(col("std")),
+        temp=col("temp"), temp_rate=np.zeros(k), point=np.zeros(k, np.int64),
+        point_temp=np.full(k, float(np.mean(col("temp")))))
+    obs["duration"] = col("T")   # the integration time: what the turn's rate divides by
+    for i, a in enumerate(AXES):
+        obs[f"accel_{a}"] = np.vstack(col("accel"))[:, i] if accel is not None else np.nan
+    if accel is None:
+        obs = obs.drop(columns=[f"accel_{a}" for a in AXES])
+    obs["section"] = col("section").astype(str)
+    obs["phase"] = col("kind").astype(str)
+    obs["angle"] = col("angle")
+    obs["raw_angle"] = col("raw_angle")
+    segments = pd.DataFrame({"kind": "hold", "reason": "", "detail": obs["section"],
+                             "t_start": obs["t_start"], "t_end": obs["t_end"],
+                             "ref_rate": obs["ref_rate"], "hold": obs["hold"]}).astype(
+        {"kind": "string", "reason": "string", "detail": "string"})
+    info = {"protocol": "ferraris", "path": str(log.path), "rows_read": log.rows_read,
+            "rows_dropped": log.rows_dropped, "rows_used": int(obs["n"].sum()),
+            "sample_rate": float(1.0 / dt), "typical_hold_s": float(np.median(obs["duration"])),
+            "holds_accepted": int(k), "phases_from": source, "segmentation_warnings": warnings,
+            "white_noise": [float(s) for s in sigma]}
+    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
+    return Segmentation(obs, segments, stable, timeline(log), info)
+

@@ -1,0 +1,148 @@
+"""``gyrocal import``: what rigs and robots write (CSV, TSV, ROS 2 bags, MCAP) as contract logs.
+
+A source is read and written a batch at a time, so a file of any size converts in a few
+tens of MB (docs/import.md has the figure). The output holds the contract's columns in the
+contract's units and records where it came from (``gyrocal.import`` in the Parquet
+key-value metadata: source name and SHA-256, the map, the gyrocal version), nothing that
+changes between runs: the same input gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import threading
+from pathlib import Path
+
+from .. import __version__
+from ..atomic import replacing
+from ..errors import ConfigError, CorruptFileError
+from .mapping import TIME_UNITS, ImportMap, load_map
+from .sink import METADATA_KEY, LogSink, Summary
+
+__all__ = ["import_log", "Summary", "METADATA_KEY"]
+
+
+def import_log(source, output, map_path=None, *, fmt: str | None = None,
+               sample_rate: float | None = None, sections=None) -> Summary:
+    """Convert ``source`` into the contract log ``output`` (written atomically).
+
+    ``map_path`` is the YAML map; ``fmt``, ``sample_rate`` and ``sections`` are the command
+    line's flags, which take precedence over it. Bad input raises an
+    :class:`~gyrocal.errors.InputError` naming the file and the problem.
+    """
+    source, output = Path(source), Path(output)
+    if not source.exists():
+        raise CorruptFileError("no such file or directory", source=source)
+    spec = load_map(map_path, source, fmt=fmt, sample_rate=sample_rate, sections=sections)
+    if output.resolve() == source.resolve():
+        raise ConfigError("the output would overwrite the source", source=output)
+    if output.is_dir():
+        raise ConfigError("is a directory; give the log's file name", source=output)
+    map_name = Path(map_path).name if map_path is not None else "the default map"
+    digest = _Digest(source)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with replacing(output) as tmp:
+        sink = None
+        try:
+            if spec.is_tabular:
+                from . import tabular
+                spec = tabular.resolve_columns(source, spec,
+                                               tabular.read_header(source, spec.delimiter), map_name)
+                sink = _sink(tmp, source, spec, tabular.locate)
+                rows = tabular.convert(source, spec, sink)
+                extra, mapped, notes = {}, _mapped(spec), []
+            else:
+                from . import bags
+
+                def make_sink(locate, hint):
+                    nonlocal sink
+                    sink = _sink(tmp, source, spec, locate, hint)
+                    return sink
+                sink, rows, extra, mapped, notes = bags.convert(source, spec, make_sink, map_name)
+            if spec.sections:
+                mapped.append(f"section from {Path(spec.sections_file).name} "
+                              f"({len(spec.sections)} labels)")
+            metadata = {"gyrocal": __version__, "map": _recorded_map(spec),
+                        "source": {"name": source.name, "format": spec.format,
+                                   "sha256": digest.result()}, **extra}
+            summary = sink.finish(metadata, rows)
+        except BaseException:
+            if sink is not None:
+                sink.abort()
+            raise
+    summary.mapped, summary.notes = mapped, notes
+    return summary
+
+
+def _sink(path, source, spec: ImportMap, locate, hint: str = "") -> LogSink:
+    return LogSink(path, source, locate, spec.sections, spec.sections_file, hint=hint)
+
+
+def _mapped(spec: ImportMap) -> list[str]:
+    """What the table's columns became, for the command's line."""
+    if spec.sample_rate is not None:
+        index = spec.time_column or "row number"
+        out = [f"t = {index} / {spec.sample_rate:g} Hz"]
+    else:
+        unit = next(u for u, f in TIME_UNITS.items() if f == spec.time_factor)
+        out = [f"t from {spec.time_column} ({unit})"]
+    out.append(f"gyro from {','.join(spec.gyro)} ({spec.gyro_scale.unit})")
+    if spec.accel:
+        out.append(f"accel from {','.join(spec.accel)} ({spec.accel_scale.unit})")
+    for name, scale in (("temp", spec.temp_scale), ("ref_rate", spec.ref_scale)):
+        if getattr(spec, name):
+            out.append(f"{name} from {getattr(spec, name)} ({scale.unit})")
+    if spec.mount:
+        out.append(f"mount from {spec.mount}")
+    return out
+
+
+def _recorded_map(spec: ImportMap) -> dict:
+    """The map as used, for provenance: the section list by name and content (a path
+    would differ between machines)."""
+    raw = dict(spec.raw)
+    if spec.sections:
+        raw["sections"] = {"file": Path(spec.sections_file).name,
+                           "spans": {k: list(v) for k, v in spec.sections.items()}}
+    return raw
+
+
+class _Digest:
+    """SHA-256 of the source, computed on a thread while it is converted (hashlib lets go
+    of the GIL), so provenance costs no extra wall time. A directory (a rosbag2 bag) hashes
+    its files' relative names and digests, in name order."""
+
+    def __init__(self, path: Path):
+        self.value: str | None = None
+        self.error: OSError | None = None
+        self.thread = threading.Thread(target=self._run, args=(path,), daemon=True)
+        self.thread.start()
+
+    def _run(self, path: Path) -> None:
+        try:
+            if path.is_dir():
+                outer = hashlib.sha256()
+                for part in sorted(p for p in path.rglob("*") if p.is_file()):
+                    outer.update(part.relative_to(path).as_posix().encode() + b"\0")
+                    outer.update(bytes.fromhex(_file_sha256(part)))
+                self.value = outer.hexdigest()
+            else:
+                self.value = _file_sha256(path)
+        except OSError as exc:
+            self.error = exc
+
+    def result(self) -> str:
+        self.thread.join()
+        if self.error is not None:
+            raise CorruptFileError(f"cannot read ({self.error.strerror})",
+                                   source=self.error.filename or "source")
+        return self.value
+
+
+def _file_sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 22), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
