@@ -339,7 +339,7 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     batches: list[dict[str, np.ndarray]] | None = []
     kept_bytes, kept_rows, first, last = 0, 0, None, 0.0
     from .plausibility import InputStats
-    stats = InputStats() if "temp" in wanted else None
+    stats = InputStats()
     stream = _batches(dataset, wanted, required, units, path, stats)
     for batch in stream:
         if sink is not None:

@@ -109,8 +109,8 @@ class InputStats:
         """Every row as read, before rows with non-finite values are dropped (``suspicious``:
         the batch has some, so each column's are counted). Sample intervals are judged here,
         so that rows dropped for a NaN elsewhere do not look like samples the logger lost."""
-        t, temp = batch["t"], batch["temp"]
-        self.rows += len(temp)
+        t = batch["t"]
+        self.rows += len(t)
         finite_t = None if np.isfinite(t.sum()) else np.isfinite(t)
         self._intervals(t if finite_t is None else t[finite_t])
         if not suspicious:
@@ -129,7 +129,7 @@ class InputStats:
 
     def push(self, batch: dict) -> None:
         """The rows kept (finite, time strictly increasing)."""
-        t, temp = batch["t"], batch["temp"]
+        t, temp = batch["t"], batch.get("temp")   # a log may have none (Protocol.without)
         if not len(t):
             return
         for name in ("gyro_x", "gyro_y", "gyro_z"):
@@ -142,6 +142,9 @@ class InputStats:
                     self.gyro_beyond += int(np.count_nonzero(size > GYRO_LIMIT))
                     self.gyro_garbled += int(np.count_nonzero(size > GARBLED_LIMIT))
         self.first_t = float(t[0]) if self.first_t is None else self.first_t
+        self.last_t = float(t[-1])
+        if temp is None:
+            return
         self.temp_min = min(self.temp_min, float(temp.min()))
         self.temp_max = max(self.temp_max, float(temp.max()))
         if self.temp_min < TEMP_RANGE[0] or self.temp_max > TEMP_RANGE[1]:
@@ -263,7 +266,7 @@ class InputStats:
         return json_safe({
             "rows": self.rows, "temp_nonfinite": self.nonfinite.get("temp", 0),
             "temp_nonfinite_span": self.temp_nonfinite_span if "temp" in self.nonfinite else None,
-            "temp_range": [self.temp_min, self.temp_max] if self.first_t is not None else None,
+            "temp_range": [self.temp_min, self.temp_max] if self.temp_min <= self.temp_max else None,
             "temp_out_of_range": self.out_of_range,
             "temp_finest_step": self.finest_step,
             "temp_longest_run_s": run_s, "temp_longest_run_at": run_t,

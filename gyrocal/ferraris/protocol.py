@@ -18,7 +18,8 @@ import pandas as pd
 from ..holds import AXES
 from ..protocols import Protocol, register
 from .defaults import DEFAULTS
-from .segment import FACES, TURNS, segment_ferraris
+from . import FACES, TURNS
+from .segment import segment_ferraris
 
 
 def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
@@ -60,8 +61,9 @@ def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> p
         rows.append({"turn": r.section, "known_deg": float(r.angle),
                      "raw_deg": float(w[j] * r.duration),
                      "compensated_deg": float(compensated[j]),
-                     "error_raw_deg": float(w[j] * r.duration - r.angle),
-                     "error_deg": float(compensated[j] - r.angle),
+                     # read minus known in magnitude: + reads too much of a turn
+                     "error_raw_deg": float(abs(w[j] * r.duration) - abs(r.angle)),
+                     "error_deg": float(abs(compensated[j]) - abs(r.angle)),
                      "off_axis_deg": float(np.hypot(*np.delete(compensated, j)))})
     return pd.DataFrame(rows)
 

@@ -23,27 +23,22 @@ reads it weighs the turn by what it can tell.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
-import pyarrow.parquet as pq
 
 from ..errors import ConfigError, SegmentationError
 from ..holds import AXES, Segmentation, hold_table, timeline
-from ..io import ACCEL, GYRO, RigLog
+from ..io import ACCEL, GYRO, RigLog, open_dataset, time_seconds
+from . import FACES, LABELS, TURNS
 
-FACES = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
-TURNS = ("x_rot", "y_rot", "z_rot")
-LABELS = FACES + TURNS
 FULL_TURN = 360.0
 
 
 def face_mount(label: str) -> str:
     """``x_p`` → ``+x`` (x up), ``x_a`` → ``-x``."""
     return ("+" if label[2] == "p" else "-") + label[0]
-
-
-def mount_label(mount: str) -> str:
-    return f"{mount[1]}_{'p' if mount[0] == '+' else 'a'}"
 
 
 def _options(options: dict) -> dict:
@@ -63,17 +58,14 @@ def _options(options: dict) -> dict:
 
 def read_sections(log: RigLog, t: np.ndarray) -> np.ndarray | None:
     """The ``section`` label of every kept row (None when the log has no such column):
-    read beside the numeric columns and matched on ``t``, which is strictly increasing,
-    since rows with a non-finite value were dropped from those."""
-    try:
-        schema = pq.read_schema(log.path)
-    except (OSError, ValueError):   # a dataset directory: no annotation support there
+    read beside the numeric columns and matched on ``t`` (seconds as the read gives them,
+    strictly increasing), since rows with a non-finite value were dropped from those."""
+    dataset = open_dataset(Path(log.path))
+    if "section" not in dataset.schema.names:
         return None
-    if "section" not in schema.names:
-        return None
-    table = pq.read_table(log.path, columns=["t", "section"])
+    table = dataset.to_table(columns=["t", "section"])
     labels = table.column("section").to_pandas().astype(object).to_numpy()
-    t_all = table.column("t").to_numpy(zero_copy_only=False).astype(float)
+    t_all = time_seconds(table.column("t").combine_chunks(), Path(log.path), [])
     if len(t_all) != len(t):
         rows = np.searchsorted(t_all, t)
         labels = labels[np.clip(rows, 0, len(labels) - 1)]
@@ -184,9 +176,18 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
                                     f"{total[axis]:.0f}°, not a whole number of turns (within "
                                     f"{opts['angle_tolerance']:.0%}); not used")
         i = max(j, i + 1)
+    # a face's observation shares no sample with a turn: its rest less the turns' windows
+    turning = np.zeros(n + 1, dtype=bool)
+    for _, a, b in phases:
+        turning[a:b] = True
     for label in FACES:
         mount = face_mount(label)
-        mine = [(b - a, a, b) for (a, b), f in zip(rests, faces) if f == mount]
+        mine = []
+        for (a, b), f in zip(rests, faces):
+            if f == mount:
+                lo, hi = _runs(~turning[a:b])
+                mine += [(int(h - l), a + int(l), a + int(h)) for l, h in zip(lo, hi)]
+        mine = [m for m in mine if m[0] >= 2]
         if mine:
             _, a, b = max(mine)
             phases.append((label, a, b))
@@ -234,9 +235,16 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
     phases.sort(key=lambda p: p[1])
     dt = float(np.median(np.diff(t)))
     sigma = white_noise(gyro)
+    face_rows = [(a, b) for label, a, b in phases if label in FACES]
+    rest_bias = np.mean([gyro[a:b].mean(axis=0) for a, b in face_rows], axis=0)
     rows = []
     for label, a, b in phases:
         seg_t = t[a:b]
+        if label in TURNS and b - a > 1 and np.max(np.diff(seg_t)) > 1.5 * dt:
+            k = int(np.argmax(np.diff(seg_t)))
+            raise SegmentationError(
+                f"the turn about {label[0]} has a gap of {seg_t[k + 1] - seg_t[k]:.3g} s at "
+                f"t = {seg_t[k]:.2f} s: its angle cannot be integrated", source=log.path)
         # each sample stands for the interval up to the next one (a gap counts one interval)
         w_dt = np.diff(np.r_[seg_t, seg_t[-1] + dt])
         w_dt = np.where(w_dt > 3 * dt, dt, w_dt)
@@ -249,10 +257,14 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
         if label in TURNS:
             axis = AXES.index(label[0])
             raw = float((gyro[a:b, axis] * w_dt).sum())
-            # a turn's direction from the data; the rest before it holds the bias, which
-            # the sign of a whole turn cannot drown
-            turns = max(1, int(round(abs(raw) / FULL_TURN)))
-            angle = np.sign(raw) * turns * FULL_TURN
+            # a turn's direction and count from the data, less the faces' resting output
+            turned = raw - rest_bias[axis] * T
+            turns = max(1, int(round(abs(turned) / FULL_TURN)))
+            if abs(abs(turned) / (turns * FULL_TURN) - 1.0) > opts["angle_tolerance"]:
+                raise SegmentationError(
+                    f"the {label} section turns {turned:.0f}° about {label[0]}, not a whole "
+                    f"number of turns (within {opts['angle_tolerance']:.0%})", source=log.path)
+            angle = np.sign(turned) * turns * FULL_TURN
             up = _face_of(row["accel"], opts["min_gravity_share"]) if accel is not None else None
             mount = up if up is not None and up[1] == label[0] else "+" + label[0]
             row.update(mount=mount, angle=angle, raw_angle=raw, turns=turns,

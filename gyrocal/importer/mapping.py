@@ -15,11 +15,11 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..errors import ConfigError
+from ..ferraris import LABELS as SECTION_LABELS
 
 FORMATS = ("csv", "tsv", "ros2", "mcap")
 TABULAR = ("csv", "tsv")
 AXES = ("x", "y", "z")
-SECTION_LABELS = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot", "z_rot")
 G0 = 9.80665  # m/s² per g (standard gravity), as gyrocal.io converts
 
 # Factor to the contract's unit; "counts" takes its factor from the sensitivity.

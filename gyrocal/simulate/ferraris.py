@@ -19,9 +19,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from ..ferraris import FACES
 from .unit import Electronics, GyroUnit
 
-FACE_ORDER = ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a")
 
 
 def _rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
@@ -102,7 +102,7 @@ def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Genera
 
     faces, turns = [], []
     still(1.0)
-    for face in FACE_ORDER:
+    for face in FACES:
         carry_to(_up(face))
         k0 = sum(len(a) for a in att)
         still(rig.face_s, face)

@@ -33,6 +33,7 @@ rule import_real:
     input:
         source="data/real/{name}/session.csv",
         map="data/real/{name}/import.yaml",
+        sections="data/real/{name}/sections.json",
     output:
         f"{REAL_LOGS}/{{name}}.parquet",
     log:
