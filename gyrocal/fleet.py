@@ -165,7 +165,9 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
             session_noise = (cal.extra.get("noise") or {}).get("session")
             row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
                 if session_noise else None
-            row.update(status="ok", span=cal.grid.span, summary=summary,
+            # a session that logged no temperature has no span, only its stand-in
+            logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
+            row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
                        reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
                        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
         rows.append(row)
@@ -332,8 +334,8 @@ def fleet_table(summary: dict) -> pa.Table:
             "protocol": row["protocol"], "status": row["status"],
             "failed_stage": None if ok else row.get("stage"), "error": None if ok else row.get("error"),
             "reference_temperature": cal.reference_temperature if ok else None,
-            "temperature_min": row["span"][0] if ok else None,
-            "temperature_max": row["span"][1] if ok else None,
+            "temperature_min": row["span"][0] if ok and row["span"] else None,
+            "temperature_max": row["span"][1] if ok and row["span"] else None,
             **{k: _finite(s.get(k)) for k in ("validation_rms", "noise_floor", "excess",
                                                "excess_over_expected")},
             "missing_effect": row.get("missing") if ok else None,

@@ -310,3 +310,26 @@ def test_without_temperature_the_read_still_checks_the_timing(tmp_path):
     pq.write_table(table.filter(pa.array(keep)), path)
     cal = run(path, Settings().for_protocol("ferraris"), protocol="ferraris").calibration
     assert "dropped_samples" in {w["code"] for w in cal.extra["warnings"]}
+
+
+def test_a_session_without_temperature_in_the_fleet(tmp_path):
+    """Through the workflow's stages (segment, analyse, report) and the fleet: the unit is
+    calibrated, its report renders, and its temperature span is null, not the stand-in."""
+    from gyrocal.fleet import fleet_summary, fleet_table
+    from gyrocal.stages import analyse_stage, report_stage, segment_stage
+    path, _ = ferraris_log(tmp_path, seed=18, temperature=None)
+    folder = tmp_path / "results" / "H1"
+    meta = {"device": "H1", "batch": "B1", "session": "2026-01-01", "protocol": "ferraris"}
+    settings = Settings().for_protocol("ferraris")
+    segment_stage(path, folder, settings, meta)
+    analyse_stage(folder, settings, meta, record_failures=False)
+    report_stage(folder, tmp_path / "H1.html", settings)
+    assert "temperature_not_logged" in (tmp_path / "H1.html").read_text()
+    summary = fleet_summary([{"row": {**meta, "path": str(path)}, "folder": folder,
+                              "report": "H1.html"}])
+    row = summary["rows"][0]
+    assert row["status"] == "ok", row.get("error")
+    assert row["span"] is None
+    table = fleet_table(summary).to_pylist()[0]
+    assert table["temperature_min"] is None and table["temperature_max"] is None
+    assert "temperature_not_logged" in table["warnings"]
