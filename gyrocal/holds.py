@@ -33,6 +33,13 @@ def timeline(log: RigLog, buckets: int = TIMELINE_BUCKETS) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
+def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start and stop (exclusive) indices of the True runs of a boolean array: how the
+    segmenters cut a flag per sample or block into stretches."""
+    d = np.diff(np.r_[0, np.asarray(mask).astype(np.int8), 0])
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
 def temperature_points(temp: np.ndarray, span: float) -> tuple[np.ndarray, np.ndarray]:
     """Group observations into temperature points ``span`` °C wide (bins aligned to 0 °C),
     numbered in order of temperature; returns (point, the point's mean temperature)."""

@@ -132,19 +132,10 @@ def with_constants(log: RigLog, values: dict[str, float]) -> RigLog:
     values = {k: float(v) for k, v in values.items() if k not in log}
     if not values:
         return log
-
-    def fill(batch):
-        n = len(batch["t"])
-        return {**batch, **{k: np.full(n, v) for k, v in values.items()}}
-
-    reread = log.reread
-    if reread is not None:
-        def reread(names, _inner=log.reread):
-            own = [c for c in names if c not in values]
-            for batch in _inner(tuple(dict.fromkeys(("t", *own)))):
-                yield {k: v for k, v in fill(batch).items() if k in names}
-    return replace(log, batches=None if log.batches is None else tuple(fill(b) for b in log.batches),
-                   columns=log.columns + tuple(values), reread=reread)
+    if log.batches is None:   # such a protocol reads whole columns (no reading_blocks)
+        raise ValueError("constant columns are added to a log kept in memory")
+    return replace(log, columns=log.columns + tuple(values), batches=tuple(
+        {**b, **{k: np.full(len(b["t"]), v) for k, v in values.items()}} for b in log.batches))
 
 
 def open_dataset(path: Path) -> ds.Dataset:
@@ -570,13 +561,15 @@ def _hasher(algorithm: str):
     raise ValueError(f"unknown hash algorithm {algorithm!r}")
 
 
-def file_digest(path: str | os.PathLike, algorithm: str = HASH_ALGORITHM) -> str:
-    """Hex digest of a file, or of a directory dataset (its Parquet files' relative names
-    and digests, in name order). hashlib and blake3 release the GIL, so it runs beside a read."""
+def file_digest(path: str | os.PathLike, algorithm: str = HASH_ALGORITHM, *,
+                files: str = "*.parquet") -> str:
+    """Hex digest of a file, or of a directory (its ``files``' relative names and digests,
+    in name order: a dataset's Parquet files, by default). hashlib and blake3 release the
+    GIL, so it runs beside a read."""
     path = Path(path)
     if path.is_dir():
         outer = _hasher(algorithm)
-        for part in sorted(p for p in path.rglob("*.parquet") if p.is_file()):
+        for part in sorted(p for p in path.rglob(files) if p.is_file()):
             outer.update(part.relative_to(path).as_posix().encode() + b"\0")
             outer.update(bytes.fromhex(file_digest(part, algorithm)))
         return outer.hexdigest()

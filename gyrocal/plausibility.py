@@ -665,19 +665,14 @@ def rejection_findings(info: dict) -> list[dict]:
                     rejected=rejected, candidates=candidates)]
 
 
-def protocols_calibrate(cal) -> bool:
-    """Whether the calibration's protocol has a calibration of its own (a servo's)."""
-    from . import protocols
-    return protocols.get(cal.meta.get("protocol")).calibrate is not None
-
-
 def fit_findings(cal) -> list[dict]:
     """Warnings from the fit: one temperature point only, points left out or thin."""
-    out = []
     from . import protocols
-    if cal.kind != "temperature_grid" or protocols_calibrate(cal) \
-            or protocols.get(cal.meta.get("protocol")).one_temperature:
-        return out   # a continuous fit's points are bins, a servo's one temperature its design
+    out = []
+    # a continuous fit's points are bins; a servo's or a hand session's one temperature is
+    # its design
+    if cal.kind != "temperature_grid" or protocols.get(cal.meta.get("protocol")).one_temperature:
+        return out
     points = cal.extra.get("points") or []
     used = [p for p in points if p["used"]]
     if len(used) == 1:

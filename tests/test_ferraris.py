@@ -38,6 +38,14 @@ def settings_with(**options) -> Settings:
     return Settings.from_dict({"protocols": {"ferraris": {"options": options}}}).for_protocol("ferraris")
 
 
+def K_stderr(cal) -> np.ndarray:
+    """The standard errors of K's entries, laid out as K."""
+    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    return np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
+                     [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
+                     [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
+
+
 def expected_K(truth) -> np.ndarray:
     """What a turn can show of K: each column is K times the turn's true rotation axis and
     angle over the nominal full turn (the unit's tilt lands in the cross-axis terms)."""
@@ -60,9 +68,7 @@ def test_recovers_what_the_turns_show_within_the_noise(tmp_path, seed, rig):
     se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
     unit = GyroUnit.from_dict(truth["unit"])
     want = expected_K(truth)
-    K_se = np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
-                     [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
-                     [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
+    K_se = K_stderr(cal)
     assert np.all(np.abs(K - want) < 4 * K_se), (K - want) / K_se
     B_se = np.array([se[f"bias.{a}"] for a in "xyz"])
     assert np.all(np.abs(B - unit.B(25.0)) < 4 * B_se), (B - unit.B(25.0)) / B_se
@@ -192,9 +198,7 @@ def test_real_session_agrees_with_imucal(tmp_path):
               protocol="ferraris").calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
     se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
-    K_se = np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
-                     [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
-                     [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
+    K_se = K_stderr(cal)
     B_se = np.array([se[f"bias.{a}"] for a in "xyz"])
     ref = imucal_calibration()
     K_ref = ref.K_g @ ref.R_g

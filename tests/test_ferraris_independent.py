@@ -18,6 +18,7 @@ from gyrocal.errors import GyrocalError
 from gyrocal.pipeline import run
 
 from .ferraris_gen.generate import KINDS, session
+from .test_ferraris import K_stderr
 
 NOISE_ONLY = Settings.from_dict({"protocols": {"ferraris": {"options": {
     "angle_uncertainty_deg": 0.0, "tilt_uncertainty_deg": 0.0}}}}).for_protocol("ferraris")
@@ -32,13 +33,6 @@ def sessions(tmp_path_factory):
             for kind in KINDS for seed in SEEDS}
 
 
-def _K_se(cal) -> np.ndarray:
-    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
-    return np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
-                     [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
-                     [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
-
-
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("kind", [k for k, v in KINDS.items() if v.expect == "calibrate"])
 def test_good_sessions_recover_the_truth(sessions, kind, seed):
@@ -47,7 +41,7 @@ def test_good_sessions_recover_the_truth(sessions, kind, seed):
     cal = run(path, NOISE_ONLY, protocol="ferraris").calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
     B_se = np.array([dict(zip(cal.grid.names, cal.grid.stderr[0]))[f"bias.{a}"] for a in "xyz"])
-    z_K = (K - np.asarray(truth["K_nominal"])) / _K_se(cal)
+    z_K = (K - np.asarray(truth["K_nominal"])) / K_stderr(cal)
     z_B = (B - np.asarray(truth["b_expected"])) / B_se
     assert np.abs(z_K).max() < 4, z_K
     assert np.abs(z_B).max() < 4, z_B

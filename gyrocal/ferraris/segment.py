@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import ConfigError, SegmentationError
-from ..holds import AXES, Segmentation, hold_table, timeline
+from ..holds import AXES, Segmentation, hold_table, timeline, true_runs
 from ..io import ACCEL, GYRO, RigLog, open_dataset, time_seconds
 from . import FACES, LABELS, TURNS
 
@@ -77,12 +77,6 @@ def read_sections(log: RigLog, t: np.ndarray) -> np.ndarray | None:
     return labels
 
 
-def _runs(flags: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end (exclusive) of each run of True."""
-    edges = np.diff(np.r_[0, flags.astype(np.int8), 0])
-    return np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
-
-
 def _face_of(accel_mean: np.ndarray, share: float) -> str | None:
     """The face a rest lies on: the axis that takes ``share`` of gravity (in g: 0.6–1.4)."""
     norm = float(np.linalg.norm(accel_mean))
@@ -101,15 +95,16 @@ def white_noise(gyro: np.ndarray) -> np.ndarray:
     return np.median(np.abs(d - np.median(d, axis=0)), axis=0) / 0.6745 / np.sqrt(2.0)
 
 
-def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts: dict,
+def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts: dict, *,
+                dt: float, sigma: np.ndarray, spans: np.ndarray,
                 source=None) -> tuple[list[tuple[str, int, int]], list[str], dict[str, float]]:
     """(label, first row, end row) of each face and turn found from the data, warnings, and
-    per axis the largest rotation not taken for a turn (deg)."""
+    per axis the largest rotation not taken for a turn (deg). ``dt``: the typical sample
+    interval; ``sigma``: the white noise per axis; ``spans``: each sample's interval."""
     if accel is None:
         raise SegmentationError("a ferraris log needs accel_x, accel_y, accel_z to find its "
                                 "static faces, or a section column that names them", source=source)
     n = len(t)
-    dt = float(np.median(np.diff(t))) if n > 1 else 0.0
     block = max(1, int(round(opts["block_s"] / dt))) if dt > 0 else 1
     nb = n // block
     if nb < 3:
@@ -117,10 +112,9 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
                                 source=source)
     g = gyro[:nb * block].reshape(nb, block, 3)
     rest_level = np.median(g.mean(axis=1), axis=0)          # the unit rests most of the time
-    sigma = white_noise(gyro)
     limit = max(opts["still_rate"], opts["still_sigmas"] * float(np.max(sigma)))
     still_block = np.abs(g - rest_level).max(axis=(1, 2)) < limit
-    lo, hi = _runs(still_block)
+    lo, hi = true_runs(still_block)
     min_blocks = max(1, int(np.ceil(opts["min_still_s"] / (block * dt))))
     keep = (hi - lo) >= min_blocks
     edge = int(round(opts["edge_s"] / dt))
@@ -132,9 +126,7 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
     faces = [_face_of(accel[a:b].mean(axis=0), opts["min_gravity_share"]) for a, b in rests]
     # bias for classifying moves only (the fit estimates its own)
     bias = np.mean([gyro[a:b].mean(axis=0) for a, b in rests], axis=0)
-    dts = np.diff(t, append=t[-1] + dt)
-    dts = np.where(dts > 3 * dt, dt, dts)
-    csum = np.vstack([np.zeros(3), np.cumsum((gyro - bias) * dts[:, None], axis=0)])
+    csum = np.vstack([np.zeros(3), np.cumsum((gyro - bias) * spans[:, None], axis=0)])
 
     warnings: list[str] = []
     phases: list[tuple[str, int, int]] = []
@@ -185,7 +177,7 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
         mine = []
         for (a, b), f in zip(rests, faces):
             if f == mount:
-                lo, hi = _runs(~turning[a:b])
+                lo, hi = true_runs(~turning[a:b])
                 mine += [(int(h - l), a + int(l), a + int(h)) for l, h in zip(lo, hi)]
         mine = [m for m in mine if m[0] >= 2]
         if mine:
@@ -199,7 +191,7 @@ def phases_from_sections(labels: np.ndarray) -> list[tuple[str, int, int]]:
     stretches keeps its longest (a person marks each part once)."""
     out = []
     for label in LABELS:
-        lo, hi = _runs(labels == label)
+        lo, hi = true_runs(labels == label)
         if len(lo):
             k = int(np.argmax(hi - lo))
             out.append((label, int(lo[k]), int(hi[k])))
@@ -215,12 +207,18 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
         if all(c in log for c in ACCEL) else None
     temp = log.column("temp").astype(float)
     labels = read_sections(log, t)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    sigma = white_noise(gyro)
+    # each sample stands for the interval up to the next one (a gap counts one interval)
+    spans = np.diff(t, append=t[-1] + dt)
+    spans = np.where(spans > 3 * dt, dt, spans)
     warnings: list[str] = []
     largest: dict[str, float] = {}
     if labels is not None and (labels != "").any():
         phases, source = phases_from_sections(labels), "annotation"
     else:
-        phases, warnings, largest = find_phases(t, gyro, accel, opts, source=log.path)
+        phases, warnings, largest = find_phases(t, gyro, accel, opts, dt=dt, sigma=sigma,
+                                                spans=spans, source=log.path)
         source = "data"
     found = {p[0] for p in phases}
     missing = [x for x in LABELS if x not in found]
@@ -233,8 +231,6 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
                                 + ("" if source == "annotation" else " (found from the data)"),
                                 source=log.path)
     phases.sort(key=lambda p: p[1])
-    dt = float(np.median(np.diff(t)))
-    sigma = white_noise(gyro)
     face_rows = [(a, b) for label, a, b in phases if label in FACES]
     rest_bias = np.mean([gyro[a:b].mean(axis=0) for a, b in face_rows], axis=0)
     rows = []
@@ -245,9 +241,8 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
             raise SegmentationError(
                 f"the turn about {label[0]} has a gap of {seg_t[k + 1] - seg_t[k]:.3g} s at "
                 f"t = {seg_t[k]:.2f} s: its angle cannot be integrated", source=log.path)
-        # each sample stands for the interval up to the next one (a gap counts one interval)
-        w_dt = np.diff(np.r_[seg_t, seg_t[-1] + dt])
-        w_dt = np.where(w_dt > 3 * dt, dt, w_dt)
+        w_dt = spans[a:b].copy()
+        w_dt[-1] = dt   # the phase's last sample: its interval, not the one into the next phase
         T = float(w_dt.sum())
         mean = (gyro[a:b] * w_dt[:, None]).sum(axis=0) / T
         row = {"section": label, "kind": "turn" if label in TURNS else "face", "first": a,

@@ -9,13 +9,13 @@ changes between runs: the same input gives the same bytes.
 
 from __future__ import annotations
 
-import hashlib
-import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import __version__
 from ..atomic import replacing
 from ..errors import ConfigError, CorruptFileError
+from ..io import file_digest
 from .mapping import TIME_UNITS, ImportMap, load_map
 from .sink import METADATA_KEY, LogSink, Summary
 
@@ -39,9 +39,10 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
     if output.is_dir():
         raise ConfigError("is a directory; give the log's file name", source=output)
     map_name = Path(map_path).name if map_path is not None else "the default map"
-    digest = _Digest(source)
     output.parent.mkdir(parents=True, exist_ok=True)
-    with replacing(output) as tmp:
+    # the source's SHA-256 on a thread while it converts (a bag directory: all its files)
+    with ThreadPoolExecutor(1) as pool, replacing(output) as tmp:
+        digest = pool.submit(file_digest, source, "sha256", files="*")
         sink = None
         try:
             if spec.is_tabular:
@@ -105,44 +106,4 @@ def _recorded_map(spec: ImportMap) -> dict:
         raw["sections"] = {"file": Path(spec.sections_file).name,
                            "spans": {k: list(v) for k, v in spec.sections.items()}}
     return raw
-
-
-class _Digest:
-    """SHA-256 of the source, computed on a thread while it is converted (hashlib lets go
-    of the GIL), so provenance costs no extra wall time. A directory (a rosbag2 bag) hashes
-    its files' relative names and digests, in name order."""
-
-    def __init__(self, path: Path):
-        self.value: str | None = None
-        self.error: OSError | None = None
-        self.thread = threading.Thread(target=self._run, args=(path,), daemon=True)
-        self.thread.start()
-
-    def _run(self, path: Path) -> None:
-        try:
-            if path.is_dir():
-                outer = hashlib.sha256()
-                for part in sorted(p for p in path.rglob("*") if p.is_file()):
-                    outer.update(part.relative_to(path).as_posix().encode() + b"\0")
-                    outer.update(bytes.fromhex(_file_sha256(part)))
-                self.value = outer.hexdigest()
-            else:
-                self.value = _file_sha256(path)
-        except OSError as exc:
-            self.error = exc
-
-    def result(self) -> str:
-        self.thread.join()
-        if self.error is not None:
-            raise CorruptFileError(f"cannot read ({self.error.strerror})",
-                                   source=self.error.filename or "source")
-        return self.value
-
-
-def _file_sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 22), b""):
-            digest.update(block)
-    return digest.hexdigest()
 

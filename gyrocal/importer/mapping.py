@@ -16,15 +16,15 @@ from pathlib import Path
 
 from ..errors import ConfigError
 from ..ferraris import LABELS as SECTION_LABELS
+from ..io import UNIT_FACTORS
 
 FORMATS = ("csv", "tsv", "ros2", "mcap")
 TABULAR = ("csv", "tsv")
 AXES = ("x", "y", "z")
-G0 = 9.80665  # m/s² per g (standard gravity), as gyrocal.io converts
-
-# Factor to the contract's unit; "counts" takes its factor from the sensitivity.
-RATE_UNITS = {"deg/s": 1.0, "rad/s": 180.0 / math.pi, "mdps": 1e-3, "counts": None}
-ACCEL_UNITS = {"g": 1.0, "m/s^2": 1.0 / G0, "mg": 1e-3, "counts": None}
+# Factor to the contract's unit, as a log's declared units convert (gyrocal.io); "counts"
+# takes its factor from the sensitivity.
+RATE_UNITS = {**UNIT_FACTORS["gyro"], "counts": None}
+ACCEL_UNITS = {"g": 1.0, "m/s^2": UNIT_FACTORS["accel"]["m/s^2"], "mg": 1e-3, "counts": None}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 TEMP_UNITS = ("degC", "K", "degF")
 TIME_SOURCES = ("header", "log")

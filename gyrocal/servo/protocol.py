@@ -229,6 +229,6 @@ SERVO = register(Protocol(
     "servo", "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
     segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
     static=static, calibrate=_calibrate, validate=servo_validation, analysis=analysis,
-    validation_figure=_validation_figure, known_rate=False,
+    validation_figure=_validation_figure, known_rate=False, one_temperature=True,
     report_sections="protocols/servo_sections.html.j2",
     validated_as="Seed 001 six-parameter calibration; validated", defaults=DEFAULTS))

@@ -30,7 +30,7 @@ import pandas as pd
 from .. import plausibility, schema
 from ..blocks import block_statistics
 from ..errors import SegmentationError
-from ..holds import Segmentation
+from ..holds import Segmentation, true_runs
 from ..io import GYRO, MOUNTS, RigLog, read_log
 
 LOG_COLUMNS = ("mount", "accel_x", "accel_y", "accel_z")  # optional columns segmentation uses
@@ -116,12 +116,6 @@ def _typical_rotating_run(blk, size, dt, cfg) -> float | None:
     return float(np.median(lengths) * size * dt) if len(lengths) else None
 
 
-def _runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start and stop (exclusive) indices of the True runs of a boolean array."""
-    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
-
-
 def _median(values: np.ndarray, axis=None, limit: int = 50_000):
     """Median of a deterministic stride sample: robust levels need no more than 50k values."""
     step = max(1, len(values) // limit)
@@ -203,15 +197,15 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     long_enough = (c1 - c0) * block_dt >= max(min_hold, block_dt)
 
     segments: list[tuple] = []  # (kind, reason, detail, first block, stop block)
-    for b0, b1 in zip(*_runs(~const & ~in_gap)):
+    for b0, b1 in zip(*true_runs(~const & ~in_gap)):
         segments.append(("ramp", "", "", b0, b1))
-    for b0, b1 in zip(*_runs(in_gap)):
+    for b0, b1 in zip(*true_runs(in_gap)):
         segments.append(("gap", "", "", b0, b1))
-    for b0, b1 in zip(*_runs(active)):
+    for b0, b1 in zip(*true_runs(active)):
         segments.append(("rejected", "handling_motion",
                          f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
                          f"at reference {r[b0]:.4g} deg/s", b0, b1))
-    for b0, b1 in zip(*_runs(near_motion & const & ~active)):
+    for b0, b1 in zip(*true_runs(near_motion & const & ~active)):
         segments.append(("transient", "", "settling after motion", b0, b1))
     for i in np.flatnonzero(is_soak):
         segments.append(("soak", "", "", starts[i], h_start[i]))
@@ -561,7 +555,7 @@ def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
     lo = np.arange(0, nb - width + 1, step)
     t_mid = (blk["t_first"] + blk["t_last"]) / 2
     stable = np.abs(_window_rate(temp, t_mid, lo, lo + width)) <= cfg.max_temp_rate
-    a, b = _runs(stable)
+    a, b = true_runs(stable)
     first, last = lo[a], np.minimum(lo[b - 1] + width, nb)
     p = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
     return pd.DataFrame({"t_start": blk["t_first"][first], "t_end": blk["t_last"][last - 1],
