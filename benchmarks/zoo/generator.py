@@ -20,6 +20,9 @@ Sensor model (per sample, deg/s, T in degC, T_ref = 25 degC):
     K(T)  = I + diag(s0 + s1 dT + s2 dT^2) + M          (M: off-diagonal misalignment)
     B(T)  = b0 + b1 dT + b2 dT^2,        dT = T_k - 25
     T_k   = true (noise-free) sensor temperature, or the die temperature for "die_lag".
+
+"die_lag_curved" replaces the polynomials by the die's own curves (a cubic bias, a stronger
+scale TC) and makes every other temperature effect of the unit follow the die too.
 """
 from __future__ import annotations
 
@@ -61,7 +64,37 @@ EFFECTS: dict[str, str] = {
                   "(Duhem state that switches smoothly over a few degC of travel)",
     "vibration_rectification": "rectified motor/bearing vibration of the rig: bias grows with the "
                                "square of the rig speed, depending on orientation",
+    # the die's own temperature: every temperature dependence felt through a lag
+    "die_lag_curved": "die lags the sensor (first order, 5-20 min) and the whole temperature model "
+                      "follows the die: K(Td), B(Td) with a strong DT^2 and DT^3 bias curve and a "
+                      "stronger scale TC; other temperature effects of the unit follow the die too",
+    # products of two inputs
+    "scale_warmup": "scale factor relaxing after power-on, e = u s exp(-t/tau) (own-axis rate x time)",
+    "scale_temp_rate": "scale factor proportional to the temperature rate (thermal gradient across the "
+                       "sense structure), e = u q dT/dt",
+    "misalign_warp_tanh": "package warp tilts the sense axes with temperature, saturating past the "
+                          "adhesive's transition: e = Mw w tanh((T - Tg)/W), Mw off-diagonal",
+    # non-polynomial shapes of one input
+    "bias_bump_temp": "mode crossing near one temperature: Gaussian bias bump "
+                      "h exp(-(T-Tb)^2/(2 sig^2))",
+    "bias_tanh_temp": "bias transition across a temperature, e = a tanh((T - Tt)/w)",
+    "scale_low_rate_tanh": "low-rate scale excess that saturates, e = a tanh(u/W), W 20-80 deg/s",
+    "warmup_two_exp": "turn-on transient of two thermal time constants, "
+                      "A1 exp(-t/tau1) + A2 exp(-t/tau2)",
+    "warmup_power_law": "turn-on transient decaying as a power law, A (1 + t/t0)^-p",
+    # steps
+    "bias_step_temp": "firmware compensation table switching at a sensor temperature, with hysteresis",
+    "bias_step_time": "mode change (re-trim/latch) a fixed time after power-on: a bias step",
+    # histories of the rotation
+    "motor_heating_bias": "local heating by the rig motor: bias follows a first-order lag of the "
+                          "mechanical power (rig rate squared), tau minutes",
+    "table_angle_bias": "a lab-fixed horizontal disturbance field seen through the turning table: "
+                        "bias periodic in the accumulated table angle",
 }
+
+# effects whose parameters live in the unit but whose state restarts at every power-on
+SESSION_RESTART = ("warmup", "bias_ramp", "run_to_run_bias", "scale_warmup", "warmup_two_exp",
+                   "warmup_power_law", "bias_step_time", "motor_heating_bias", "table_angle_bias")
 
 PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo")
 NOISES = ("white", "coloured")
@@ -315,6 +348,45 @@ def _draw_effect(seed, name):
     if name == "vibration_rectification":
         return {"V_dps": _signs(r, 9).reshape(3, 3) * _u(r, 0.03, 0.15, (3, 3)),
                 "ref_speed_dps": 400.0}
+    if name == "die_lag_curved":
+        return {"tau_die_s": float(_u(r, 300.0, 1200.0)),
+                "b1_die_dps_per_c": _signs(r, 3) * _u(r, 0.02, 0.05, 3),     # replaces base b1
+                "c2_dps_per_c2": _signs(r, 3) * _u(r, 1e-4, 3e-4, 3),        # added to base b2
+                "c3_dps_per_c3": _signs(r, 3) * _u(r, 0.5e-6, 2e-6, 3),
+                "s1_die_per_c": _signs(r, 3) * _u(r, 100e-6, 400e-6, 3),     # replaces base s1
+                "s2_die_per_c2": _signs(r, 3) * _u(r, 0.3e-6, 1e-6, 3)}      # added to base s2
+    if name == "scale_warmup":
+        return {"s": _signs(r, 3) * _u(r, 300e-6, 1000e-6, 3), "tau_s": float(_u(r, 600.0, 1800.0))}
+    if name == "scale_temp_rate":
+        return {"q_per_c_per_min": _signs(r, 3) * _u(r, 500e-6, 2000e-6, 3)}
+    if name == "misalign_warp_tanh":
+        Mw = _signs(r, 9).reshape(3, 3) * _u(r, 0.5e-3, 2e-3, (3, 3))
+        Mw[np.diag_indices(3)] = 0.0
+        return {"Mw_rad": Mw, "T_g_c": float(_u(r, 10.0, 40.0)), "W_c": float(_u(r, 8.0, 15.0))}
+    if name == "bias_bump_temp":
+        return {"h_dps": _signs(r, 3) * _u(r, 0.05, 0.2, 3), "T_b_c": float(_u(r, 0.0, 40.0)),
+                "sigma_c": float(_u(r, 5.0, 10.0))}
+    if name == "bias_tanh_temp":
+        return {"a_dps": _signs(r, 3) * _u(r, 0.03, 0.1, 3), "T_t_c": float(_u(r, 0.0, 40.0)),
+                "w_c": float(_u(r, 3.0, 8.0))}
+    if name == "scale_low_rate_tanh":
+        return {"a_dps": _signs(r, 3) * _u(r, 0.05, 0.2, 3), "W_dps": _u(r, 20.0, 80.0, 3)}
+    if name == "warmup_two_exp":
+        return {"A1_dps": _signs(r, 3) * _u(r, 0.1, 0.3, 3), "tau1_s": float(_u(r, 120.0, 300.0)),
+                "A2_dps": _signs(r, 3) * _u(r, 0.1, 0.3, 3), "tau2_s": float(_u(r, 1800.0, 3600.0))}
+    if name == "warmup_power_law":
+        return {"A_dps": _signs(r, 3) * _u(r, 0.2, 0.4, 3), "t0_s": float(_u(r, 30.0, 120.0)),
+                "p": float(_u(r, 0.3, 0.7))}
+    if name == "bias_step_temp":
+        return {"step_dps": _signs(r, 3) * _u(r, 0.03, 0.1, 3), "T_switch_c": float(_u(r, 0.0, 45.0)),
+                "hysteresis_c": float(_u(r, 1.0, 4.0))}
+    if name == "bias_step_time":
+        return {"step_dps": _signs(r, 3) * _u(r, 0.03, 0.1, 3), "t_step_s": float(_u(r, 1200.0, 3600.0))}
+    if name == "motor_heating_bias":
+        return {"H_dps": _signs(r, 3) * _u(r, 0.2, 0.5, 3), "tau_s": float(_u(r, 180.0, 600.0)),
+                "ref_speed_dps": 400.0, "exponent": 2.0}
+    if name == "table_angle_bias":
+        return {"S_dps": _signs(r, 3) * _u(r, 0.02, 0.06, 3)}
     raise ValueError(f"unknown effect {name!r}; known: {sorted(EFFECTS)}")
 
 
@@ -333,6 +405,8 @@ def make_unit(effect: str = "none", protocol: str = "turntable3", noise: str = "
     for e in names:
         if e not in EFFECTS:
             raise ValueError(f"unknown effect {e!r}; known: {sorted(EFFECTS)}")
+    if "die_lag" in names and "die_lag_curved" in names:
+        raise ValueError("die_lag and die_lag_curved are two models of the same die: choose one")
     params = {"base": _draw_base(seed), "noise": _draw_noise(seed, noise), "effects": {}}
     for e in names:
         if e != "none":
@@ -341,6 +415,11 @@ def make_unit(effect: str = "none", protocol: str = "turntable3", noise: str = "
         if "__" in k:
             e, kk = k.split("__", 1)
             params["effects"].setdefault(e, {})[kk] = np.asarray(v) if isinstance(v, (list, tuple)) else v
+        elif k == "imu_radius_m":
+            # distance of the IMU from the rig axis, same direction as drawn; 0 puts it on the axis
+            d = np.asarray(params["base"]["imu_offset_m"], float)
+            params["base"]["imu_offset_m"] = d / np.linalg.norm(d) * float(v)
+            params["base"]["imu_radius_m"] = float(v)
         elif k in params["base"]:
             params["base"][k] = np.asarray(v) if isinstance(v, (list, tuple)) else v
         elif k in params["noise"] or k in ("gm_sigma_dps", "gm_tau_s", "rrw_dps_rts"):
@@ -355,13 +434,37 @@ def _b1(unit):
     eff = unit.params["effects"]
     if "die_lag" in eff:
         return np.asarray(eff["die_lag"]["b1_die_dps_per_c"], float)
+    if "die_lag_curved" in unit.effects:
+        return np.asarray(eff["die_lag_curved"]["b1_die_dps_per_c"], float)
     return np.asarray(unit.params["base"]["b1"], float)
+
+
+def _die_curves(unit):
+    """die_lag_curved: scale and bias polynomials in dT = Td - 25, lowest power first."""
+    b = unit.params["base"]
+    ep = unit.params["effects"]["die_lag_curved"]
+    def f(x):
+        return np.asarray(x, float)
+    scale = [f(b["s0"]), f(ep["s1_die_per_c"]), f(b["s2"]) + f(ep["s2_die_per_c2"])]
+    bias = [f(b["b0"]), f(ep["b1_die_dps_per_c"]), f(b["b2"]) + f(ep["c2_dps_per_c2"]),
+            f(ep["c3_dps_per_c3"])]
+    return scale, bias
+
+
+def _poly(coeffs, dT):
+    """sum_k c_k dT^k with c_k (3,) and dT (n,1) or scalar."""
+    out = 0.0
+    for k, c in enumerate(coeffs):
+        out = out + c * dT ** k
+    return out
 
 
 def K_of_T(unit, T):
     """True K at (die/sensor) temperature T (scalar) -> (3,3)."""
     b = unit.params["base"]
     dT = T - T_REF
+    if "die_lag_curved" in unit.effects:
+        return np.eye(3) + np.diag(_poly(_die_curves(unit)[0], dT)) + np.asarray(b["M"])
     s = b["s0"] + b["s1"] * dT + b["s2"] * dT * dT
     return np.eye(3) + np.diag(s) + np.asarray(b["M"])
 
@@ -369,6 +472,8 @@ def K_of_T(unit, T):
 def B_of_T(unit, T):
     b = unit.params["base"]
     dT = T - T_REF
+    if "die_lag_curved" in unit.effects:
+        return _poly(_die_curves(unit)[1], dT)
     return np.asarray(b["b0"]) + _b1(unit) * dT + np.asarray(b["b2"]) * dT * dT
 
 
@@ -680,15 +785,26 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
             fspec[i0:i1] = f_g + fh
             axis_b[i0:i1] = f_g                                               # approx. up
     # ---------------- thermal ----------------
-    tau_d = float(eff["die_lag"]["tau_die_s"]) if "die_lag" in eff else None
+    curved = "die_lag_curved" in unit.effects
+    tau_d = float(eff["die_lag"]["tau_die_s"]) if "die_lag" in eff else (
+        float(eff["die_lag_curved"]["tau_die_s"]) if curved else None)
     Tc, Ts, dTs, Td = _thermal(tl.knots_t, tl.knots_T, float(base["tau_sensor_s"]), tau_d, tr)
     Tk = Td if Td is not None else Ts
     dT = (Tk - T_REF)[:, None]
+    # the temperature (and its rate) that the unit's other temperature effects feel: the die
+    # for die_lag_curved (tau_d dTd/dt = Ts - Td), the true sensor otherwise
+    T_eff = Td if curved else Ts
+    dT_eff = (Ts - Td) / tau_d if curved else dTs
     # ---------------- base sensor ----------------
-    s_T = base["s0"][None] + base["s1"][None] * dT + base["s2"][None] * dT ** 2
     M = np.asarray(base["M"], float)
+    if curved:
+        s_curve, b_curve = _die_curves(unit)
+        s_T = _poly([c[None] for c in s_curve], dT)
+        bias = _poly([c[None] for c in b_curve], dT)
+    else:
+        s_T = base["s0"][None] + base["s1"][None] * dT + base["s2"][None] * dT ** 2
+        bias = base["b0"][None] + _b1(unit)[None] * dT + base["b2"][None] * dT ** 2
     u_lin = omega + s_T * omega + omega @ M.T                   # K(T) w_true
-    bias = base["b0"][None] + _b1(unit)[None] * dT + base["b2"][None] * dT ** 2
     gyro = u_lin + bias
     # ---------------- effects ----------------
     contrib = {}
@@ -702,6 +818,17 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
             e = (fspec ** 2) @ np.asarray(ep["G2_dps_per_g2"]).T
         elif name == "die_lag":
             pass                                        # acts through Tk above
+        elif name == "die_lag_curved":
+            # acts through Tk and the curves above; reported as what the lag does: the same
+            # curves felt at Td minus felt at the sensor temperature Ts
+            dTs_ = (Ts - T_REF)[:, None]
+            s_s = _poly([c[None] for c in s_curve], dTs_)
+            e = (u_lin + bias) - (omega + s_s * omega + omega @ M.T
+                                  + _poly([c[None] for c in b_curve], dTs_))
+            contrib[name] = e
+            truth_eff[name] = {"bias_poly_dps": b_curve, "scale_poly": s_curve,
+                               "poly_variable": "Td - 25 degC, lowest power first"}
+            continue                                    # already in gyro
         elif name == "warmup":
             e = np.asarray(ep["A_dps"])[None] * np.exp(-tr / float(ep["tau_s"]))[:, None]
         elif name == "bias_ramp":
@@ -726,16 +853,62 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                               u_lin[:, 1] * u_lin[:, 2]], axis=1)
             e = prods @ C.T
         elif name == "temp_rate":
-            e = np.asarray(ep["q_dps_per_c_per_min"])[None] * (dTs * 60.0)[:, None]
+            e = np.asarray(ep["q_dps_per_c_per_min"])[None] * (dT_eff * 60.0)[:, None]
         elif name == "bias_quadratic_temp":
-            e = np.asarray(ep["c_dps_per_c2"])[None] * ((Ts - float(ep["T0_c"])) ** 2)[:, None]
+            e = np.asarray(ep["c_dps_per_c2"])[None] * ((T_eff - float(ep["T0_c"])) ** 2)[:, None]
         elif name == "hysteresis":
-            state = _duhem(Ts, float(ep["dT_switch_c"]), -1.0 if Ts[0] < ROOM_T else 1.0)
+            state = _duhem(T_eff, float(ep["dT_switch_c"]), -1.0 if T_eff[0] < ROOM_T else 1.0)
             e = np.asarray(ep["h_dps"])[None] * state[:, None]
-            truth_eff[name] = {"initial_state": -1.0 if Ts[0] < ROOM_T else 1.0}
+            truth_eff[name] = {"initial_state": -1.0 if T_eff[0] < ROOM_T else 1.0}
         elif name == "vibration_rectification":
             P = (rig_rate / float(ep["ref_speed_dps"])) ** 2
             e = ((axis_b ** 2) @ np.asarray(ep["V_dps"]).T) * P[:, None]
+        elif name == "scale_warmup":
+            e = u_lin * np.asarray(ep["s"])[None] * np.exp(-tr / float(ep["tau_s"]))[:, None]
+        elif name == "scale_temp_rate":
+            e = u_lin * np.asarray(ep["q_per_c_per_min"])[None] * (dT_eff * 60.0)[:, None]
+        elif name == "misalign_warp_tanh":
+            x = np.tanh((T_eff - float(ep["T_g_c"])) / float(ep["W_c"]))
+            e = (omega @ np.asarray(ep["Mw_rad"]).T) * x[:, None]
+        elif name == "bias_bump_temp":
+            x = np.exp(-0.5 * ((T_eff - float(ep["T_b_c"])) / float(ep["sigma_c"])) ** 2)
+            e = np.asarray(ep["h_dps"])[None] * x[:, None]
+        elif name == "bias_tanh_temp":
+            x = np.tanh((T_eff - float(ep["T_t_c"])) / float(ep["w_c"]))
+            e = np.asarray(ep["a_dps"])[None] * x[:, None]
+        elif name == "scale_low_rate_tanh":
+            e = np.asarray(ep["a_dps"])[None] * np.tanh(u_lin / np.asarray(ep["W_dps"])[None])
+        elif name == "warmup_two_exp":
+            e = (np.asarray(ep["A1_dps"])[None] * np.exp(-tr / float(ep["tau1_s"]))[:, None]
+                 + np.asarray(ep["A2_dps"])[None] * np.exp(-tr / float(ep["tau2_s"]))[:, None])
+        elif name == "warmup_power_law":
+            x = (1.0 + tr / float(ep["t0_s"])) ** (-float(ep["p"]))
+            e = np.asarray(ep["A_dps"])[None] * x[:, None]
+        elif name == "bias_step_temp":
+            # the firmware reads its sensor (Ts, even when the die lags), so the switch follows Ts
+            Tsw, hw = float(ep["T_switch_c"]), float(ep["hysteresis_c"])
+            state, s0 = _schmitt(Ts, Tsw, hw)
+            e = np.asarray(ep["step_dps"])[None] * state[:, None]
+            truth_eff[name] = {"initial_state": s0, "switch_up_at_c": Tsw + hw / 2,
+                               "switch_down_at_c": Tsw - hw / 2}
+        elif name == "bias_step_time":
+            e = np.asarray(ep["step_dps"])[None] * (tr >= float(ep["t_step_s"]))[:, None]
+        elif name == "motor_heating_bias":
+            P = (np.abs(rig_rate) / float(ep["ref_speed_dps"])) ** float(ep["exponent"])
+            h = _lag(P, float(ep["tau_s"]), 1.0 / fs)
+            e = np.asarray(ep["H_dps"])[None] * h[:, None]
+        elif name == "table_angle_bias":
+            th0 = float(_rng(unit.seed, "table_angle", session, seed).uniform(0.0, 360.0))
+            th = th0 + np.concatenate([[0.0], np.cumsum(0.5 * (rig_rate[1:] + rig_rate[:-1]))]) / fs
+            # a lab-fixed horizontal field seen in the turning table frame, then in the body
+            f_rig = np.stack([np.cos(th * D2R), -np.sin(th * D2R), np.zeros(N)], axis=1)
+            f_body = np.zeros((N, 3))
+            for m, mt in enumerate(tl.mounts):
+                sel = mount_idx == m
+                f_body[sel] = f_rig[sel] @ mt["R"]                      # R^T v, row-wise
+            e = np.asarray(ep["S_dps"])[None] * f_body
+            truth_eff[name] = {"table_angle_at_power_on_deg": th0,
+                               "field_in_rig_frame": "(cos th, -sin th, 0), th = table angle"}
         contrib[name] = e
         gyro = gyro + e
     # ---------------- noise ----------------
@@ -790,6 +963,12 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                  + ("die temperature (lagging the sensor)" if tau_d is not None else
                     "true (noise-free) sensor temperature"),
         "temperature_driving_K_B": "die" if tau_d is not None else "sensor",
+        **({"model_die_curves": "die_lag_curved: K = I + diag(s0 + s1_die dT + (s2 + s2_die) dT^2) + M, "
+                                "B = b0 + b1_die dT + (b2 + c2) dT^2 + c3 dT^3, dT = Td - 25; "
+                                "tau_d dTd/dt = Ts - Td",
+            "temperature_driving_effects": "die (every temperature effect but bias_step_temp, "
+                                           "which switches on the sensor reading)"}
+           if curved else {}),
         "base": {**base, "b1_effective": _b1(unit)},
         "K_B_vs_temperature": [{"T_c": T, "K": K_of_T(unit, T), "B_dps": B_of_T(unit, T)}
                                for T in grid],
@@ -809,6 +988,28 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
         "phases": phases,
     }
     return cols, _jsonable(info)
+
+
+def _lag(x, tau, dt):
+    """First-order lag tau dy/dt = x - y of a sampled input, exact for x linear between
+    samples (first-order hold); y starts at x[0]."""
+    e = math.exp(-dt / tau)
+    c = tau * (1.0 - e) / dt
+    inn = (1.0 - c) * x
+    inn[1:] += (c - e) * x[:-1]
+    inn[0] += (c - e) * x[0]
+    return _ar1(len(x), e, 1.0, float(x[0]), inn)
+
+
+def _schmitt(T, T_switch, width):
+    """Two-state switch with hysteresis: 1 once T >= T_switch + width/2, 0 once
+    T <= T_switch - width/2, unchanged in between; starts from the side of T_switch T[0] is on."""
+    s0 = 1.0 if T[0] >= T_switch else 0.0
+    ev = np.where(T >= T_switch + width / 2, 1.0, np.where(T <= T_switch - width / 2, 0.0, np.nan))
+    idx = np.where(np.isnan(ev), -1, np.arange(len(T)))
+    last = np.maximum.accumulate(idx)
+    state = np.where(last >= 0, ev[np.maximum(last, 0)], s0)
+    return state, s0
 
 
 def _duhem(T, dT_switch, s0):
