@@ -35,7 +35,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-__all__ = ["UnitSpec", "make_unit", "write_session", "simulate_session", "EFFECTS",
+__all__ = ["UnitSpec", "make_unit", "write_session", "simulate_session", "EFFECTS", "SESSION_RESTART",
            "PROTOCOLS", "NOISES"]
 
 G0 = 9.80665            # m/s^2 per g
