@@ -69,9 +69,10 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     if needs & SERIES_INPUTS:
         t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"})
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
+    transforms = cal.model.sample_transforms()   # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
         _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
-               constant_temp)
+               constant_temp, transforms)
     return counts
 
 
@@ -102,7 +103,7 @@ def _read(dataset, path):
 
 
 def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
-           constant_temp=None) -> None:
+           constant_temp=None, transforms=()) -> None:
     with pq.ParquetWriter(tmp, out_schema) as writer:
         for batch in _read(dataset, path):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
@@ -116,6 +117,8 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             if series is not None:
                 data["series"] = series
                 data["temp_rate"] = series.at("temp_rate", data["t"])
+            for transform in transforms:
+                data = transform(data)
             good = np.all(np.isfinite(gyro), axis=1)
             for k, v in data.items():
                 if k != "series":

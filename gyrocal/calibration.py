@@ -104,8 +104,13 @@ class Calibration:
     def compensate(self, gyro: np.ndarray, data: dict, *, warn: bool = True) -> np.ndarray:
         """True rates (n, 3) from raw outputs (n, 3); ``data`` holds ``temp`` and whatever
         else the model's terms need. Temperatures outside the calibrated range use the
-        calibration at the nearest end (warned)."""
+        calibration at the nearest end (warned). A model whose temperature is the die's
+        filters ``temp`` over ``data``'s samples, taken as a record from its start, unless
+        ``data`` holds it filtered already (``temp_logged`` beside it)."""
         self.model.check_inputs({**data, "rate_x": 0, "rate_y": 0, "rate_z": 0})
+        if "temp_logged" not in data:  # samples from the record's start (apply filters batches)
+            for transform in self.model.sample_transforms():
+                data = transform(data)
         coefs = self.coefficients(data["temp"], warn=warn)
         w_true, _ = self.model.compensate(coefs, np.asarray(gyro, dtype=float),
                                           {**data, "temp": self.clamp(data["temp"])})
@@ -115,14 +120,19 @@ class Calibration:
     def to_dict(self) -> dict:
         K, B = self.matrices()
         g = self.grid
+        extra_grid = {}
         if self.kind == "continuous":
             coefficients = {n: float(v) for n, v in zip(g.names, g.values)}
             stderr = {n: float(v) for n, v in zip(g.names, g.stderr)}
             interpolation = {"method": "none", "outside_range": "clamp"}
+            if g.fitted_span is not None:
+                extra_grid["span"] = [float(v) for v in g.fitted_span]
         else:
             coefficients = {n: g.values[:, j].tolist() for j, n in enumerate(g.names)}
             stderr = {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)}
             interpolation = {"method": g.method, "degree": g.degree, "outside_range": "clamp"}
+        if g.covariance is not None:
+            extra_grid["covariance"] = np.asarray(g.covariance, dtype=float).tolist()
         body = {
             "format": FORMAT,
             **{k: self.meta.get(k) for k in ("device", "batch", "session", "protocol")},
@@ -140,6 +150,7 @@ class Calibration:
                 "B": B.tolist(),
                 "coefficients": coefficients,
                 "stderr": stderr,
+                **extra_grid,
             },
             "provenance": self.provenance,
             **self.extra,
@@ -213,9 +224,17 @@ class Calibration:
             fail("grid temperatures must increase strictly")
         if kind != "continuous" and (values.shape[0] != len(temps) or stderr.shape[0] != len(temps)):
             fail("grid coefficients and temperatures differ in length")
+        covariance = _covariance(grid_d.get("covariance"), stderr, fail)
+        span = None
+        if kind == "continuous" and "span" in grid_d:
+            span = _floats(grid_d["span"], "grid.span", fail)
+            if span.shape != (2,) or not span[0] <= temps[0] <= temps[-1] <= span[1]:
+                fail("grid.span must be [low, high] around the grid temperatures")
+            span = (float(span[0]), float(span[1]))
         try:
-            grid = ConstantCoefficients(temps, names, values, stderr) if kind == "continuous" \
-                else TemperatureGrid(temps, names, values, stderr, method, degree)
+            grid = ConstantCoefficients(temps, names, values, stderr, fitted_span=span,
+                                        covariance=covariance) if kind == "continuous" \
+                else TemperatureGrid(temps, names, values, stderr, method, degree, covariance)
         except GyrocalError as exc:
             fail(f"grid: {exc}")
         known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid",
@@ -239,6 +258,26 @@ class Calibration:
                 not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12):
             fail("grid K and B do not match the coefficients (edited by hand?)")
         return cal
+
+
+def _covariance(value, stderr: np.ndarray, fail) -> np.ndarray | None:
+    """The grid's coefficient covariances (per point, or one for a continuous model):
+    finite, symmetric, their diagonal the squared standard errors. Absent in files of
+    older gyrocal versions: None."""
+    if value is None:
+        return None
+    try:
+        cov = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        fail("grid.covariance must be nested lists of numbers")
+    C = stderr.shape[-1]
+    if cov.shape != stderr.shape + (C,) or not np.all(np.isfinite(cov)):
+        fail(f"grid.covariance must hold a finite {C} x {C} matrix per point")
+    diag = np.diagonal(cov, axis1=-2, axis2=-1)
+    if not (np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=0.0)
+            and np.allclose(diag, stderr ** 2, rtol=1e-6, atol=0.0)):
+        fail("grid.covariance is not symmetric with the squared standard errors on its diagonal")
+    return cov
 
 
 def _number(value, what: str, fail) -> float:

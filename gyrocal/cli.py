@@ -308,6 +308,10 @@ def cmd_diagnose(args) -> int:
                                  residuals=args.residuals or False, other=other)
         print(f"diagnosis -> {args.output}")
         print(f"  {verdict}")
+        import json
+        offered = json.loads(Path(args.output).read_text()).get("best")
+        if offered:
+            print(f"  to add it: gyrocal calibrate LOG -o CAL.json {offered['option']}")
 
     def work():
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:

@@ -124,38 +124,31 @@ def parameter_changes(calibrations, *, temperature: float | None = None,
 def _plans(cal: Calibration, temp: np.ndarray):
     """The calibration as validation's per-hold plans: at each hold's temperature
     (``interpolated``, clamped to the calibrated span) and at its reference point only
-    (``single``, seed 000's one-temperature method). The file holds standard errors, not
-    covariances: coefficients are taken as uncorrelated."""
+    (``single``, seed 000's one-temperature method), with the coefficients' covariance the
+    file holds (standard errors alone, as uncorrelated, in files without it)."""
     n, names = len(temp), tuple(cal.grid.names)
     at = cal.clamp(temp)
     g = cal.grid
     if cal.kind == "continuous":
         values = np.tile(np.asarray(g.values, dtype=float), (n, 1))
-        var = np.tile(np.asarray(g.stderr, dtype=float) ** 2, (n, 1))
+        cov = np.array(g.covariance_at(at))
         ref_temp = float(cal.clamp(cal.reference_temperature))
-        single = _Plan(cal.model, names, values, _diag(var), np.full(n, ref_temp))
+        single = _Plan(cal.model, names, values, cov.copy(), np.full(n, ref_temp))
     else:
-        coefs, se = cal.coefficients(at, warn=False), g.stderr_at(at)
+        coefs = cal.coefficients(at, warn=False)
         values = np.column_stack([coefs[k] for k in names])
-        var = np.column_stack([se[k] for k in names]) ** 2
+        cov = g.covariance_at(at)
         k = reference_point(g.temperatures, cal.reference_temperature)
         ref_temp = float(g.temperatures[k])
-        single = _Plan(cal.model, names, np.tile(g.values[k], (n, 1)), _diag(np.tile(g.stderr[k] ** 2, (n, 1))),
-                       np.full(n, ref_temp))
-    return _Plan(cal.model, names, values, _diag(var), at), single, ref_temp
-
-
-def _diag(var: np.ndarray) -> np.ndarray:
-    out = np.zeros(var.shape + (var.shape[1],))
-    idx = np.arange(var.shape[1])
-    out[:, idx, idx] = var
-    return out
+        single = _Plan(cal.model, names, np.tile(g.values[k], (n, 1)),
+                       g.covariance_at(np.full(n, ref_temp)), np.full(n, ref_temp))
+    return _Plan(cal.model, names, values, cov, at), single, ref_temp
 
 
 def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """Each hold's error (n, 3) after ``cal``'s interpolated compensation, as
     :func:`revalidate` scores it, and the hold's noise floor (n, 3), deg/s."""
-    data = columns_of(obs)
+    data = cal.model.transform_inputs(columns_of(obs))
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     interp, _, _ = _plans(cal, data["temp"])
     errors, _, _ = _compensate(interp, stack("gyro"), stack("rate"), stack("std"), data)
@@ -205,7 +198,7 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     alpha = finite_number(alpha, "alpha", positive=True)
     if alpha >= 1:
         raise ConfigError(f"alpha must be below 1, got {alpha!r}")
-    data = columns_of(obs)
+    data = cal.model.transform_inputs(columns_of(obs))
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
     n = len(obs)

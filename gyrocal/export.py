@@ -63,6 +63,11 @@ if TYPE_CHECKING:  # the CLI registers export at start-up: what it reads is impo
 FORMAT = "gyrocal.firmware/1"
 FORMATS = {"c-header": ".h", "json": ".json"}
 BASE_TERMS = ("bias", "scale", "misalignment")   # the terms of w = K(T) w_true + B(T)
+# Where T is the die's: the logged temperature through a first-order lag, run as a filter.
+DIE_TERM = "die_temperature"
+DIE_FILTER = ("T_die[k] = a T_die[k-1] + T[k] - a T[k-1] - (T[k] - T[k-1]) (tau / dt) (1 - a), "
+              "a = exp(-dt / tau), dt = t[k] - t[k-1] > 0 (T_die kept when dt <= 0 or an input "
+              "is not finite); T_die[0] = T[0]")
 # Continuous models may add these: affine in the rate, polynomial in temperature.
 TEMPERATURE_TERMS = ("bias_temp_poly", "scale_temp_poly", "misalignment_temp")
 MAX_DEGREE = 8          # of K(T), B(T) in a continuous model (the terms allow 5)
@@ -91,10 +96,11 @@ class FirmwareTables:
     poly_half_range: float | None = None
     poly_K: np.ndarray | None = None       # (d+1, 3, 3)
     poly_B: np.ndarray | None = None       # (d+1, 3)
+    die_tau: float | None = None           # s: T is the die's, the logged one lagged
 
 
 def supported_terms(kind: str) -> tuple[str, ...]:
-    return BASE_TERMS + (TEMPERATURE_TERMS if kind == "continuous" else ())
+    return BASE_TERMS + (DIE_TERM,) + (TEMPERATURE_TERMS if kind == "continuous" else ())
 
 
 def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
@@ -150,8 +156,9 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     method = declared if cal.kind == "temperature_grid" else "poly"
     if method in ("lagrange3", "spline") and P < 3:
         method = "linear"                  # as thermal.lagrange3_weights / spline_weights
+    die = [t for t in cal.model.terms if t.name == DIE_TERM]
     tables = dict(temperature=temps, K=K, B=B, K_inv=np.linalg.inv(K), method=method,
-                  calibration_method=declared)
+                  calibration_method=declared, die_tau=float(die[0].tau) if die else None)
     Y = np.concatenate([K.reshape(P, 9), B], axis=1)   # every entry, one column each
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
@@ -210,6 +217,11 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
         doc["poly"] = {"degree": tables.degree, "centre": tables.poly_centre,
                        "half_range": tables.poly_half_range, "K": tables.poly_K.tolist(),
                        "B": tables.poly_B.tolist()}
+    if tables.die_tau is not None:
+        doc["model"] = "w = K(T_die) w_true + B(T_die)"
+        doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"
+        doc["die_temperature"] = {"tau_s": tables.die_tau, "filter": DIE_FILTER,
+                                  "time": "t in seconds, increasing"}
     return doc
 
 

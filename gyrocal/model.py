@@ -81,6 +81,18 @@ class Model:
         for term in self.terms:
             term.check_inputs(data, source)
 
+    def transform_inputs(self, data: Mapping) -> Mapping:
+        """Observation columns as the terms read them: a term may redefine an input for all
+        of them (``die_temperature``: the temperature every dependence is evaluated at).
+        Always computed from the logged inputs, so applying it twice changes nothing."""
+        for term in self.terms:
+            data = term.transform_inputs(data)
+        return data
+
+    def sample_transforms(self) -> list:
+        """The terms' stateful transforms of samples in time order (:meth:`Term.sample_transform`)."""
+        return [f for f in (t.sample_transform() for t in self.terms) if f is not None]
+
     def design(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         """Regressor columns by coefficient name, one value per row of ``data``.
 

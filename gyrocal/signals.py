@@ -80,8 +80,9 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RAT
     return rate
 
 
-def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
-    """``y`` with ``τ dy/dt = x − y`` and ``y(t_0) = x(t_0)`` (equilibrium at the start).
+def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float, initial: float | None = None) -> np.ndarray:
+    """``y`` with ``τ dy/dt = x − y`` and ``y(t_0) = x(t_0)`` (equilibrium at the start), or
+    ``initial`` when given (the state a record given in pieces carries over).
 
     Exact for ``x`` linear between samples (ramp-invariant discretisation), so bin means
     and raw samples of the same record give the same lagged signal to O((Δt/τ)²): with
@@ -101,9 +102,9 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
     a = np.exp(-lam)
     ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
     u = np.where(dt > 0, x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a), 0.0)
-    y[0] = x[0]
+    y[0] = x[0] if initial is None else float(initial)
     cum = np.concatenate([[0.0], np.cumsum(lam)])
-    start, state = 1, x[0]
+    start, state = 1, y[0]
     while start < len(x):
         if lam[start - 1] > 50.0:  # a gap of many time constants: the past is forgotten
             y[start] = u[start - 1] + a[start - 1] * state
@@ -117,6 +118,32 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float) -> np.ndarray:
         y[start:stop] = p * (state + np.cumsum(u[start - 1:stop - 1] / p))
         state, start = y[stop - 1], stop
     return y
+
+
+class LagFilter:
+    """:func:`first_order_lag` of a record given in consecutive pieces (``apply``'s
+    batches): the last point and its output carry the state. Points where time or input
+    is not finite are skipped and read NaN, as the fit's record leaves them out."""
+
+    def __init__(self, tau: float):
+        self.tau = float(tau)
+        self.last: tuple[float, float, float] | None = None     # t, x, y
+
+    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
+        out = np.full(len(x), np.nan)
+        good = np.isfinite(t) & np.isfinite(x)
+        if not good.any():
+            return out
+        tg, xg = t[good], x[good]
+        if self.last is None:
+            y = first_order_lag(tg, xg, self.tau)
+        else:
+            lt, lx, ly = self.last
+            y = first_order_lag(np.r_[lt, tg], np.r_[lx, xg], self.tau, initial=ly)[1:]
+        self.last = (float(tg[-1]), float(xg[-1]), float(y[-1]))
+        out[good] = y
+        return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,6 +376,18 @@ def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
     nodes = Inputs(columns, series, times)
     nodes.plan = (starts, weights)
     return nodes
+
+
+def hold_means_of_lag(data, name: str, tau: float) -> np.ndarray | None:
+    """Each hold's mean of ``name`` through a first-order lag of ``tau`` seconds, by the
+    quadrature of :func:`quadrature_inputs`; None without the session's record."""
+    base, context = hold_inputs(data)
+    if context["span"] is None:
+        return None
+    if not len(context["span"][0]):
+        return np.empty(0)
+    nodes = quadrature_inputs(base, context["series"], context["span"])
+    return node_means(context["series"].at(name, nodes.times, float(tau)), nodes.plan)
 
 
 def node_means(values: np.ndarray, plan) -> np.ndarray:

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import numpy as np
@@ -120,6 +120,7 @@ class TemperatureGrid:
     stderr: np.ndarray                # (P, C)
     method: str = "lagrange3"
     degree: int = 3
+    covariance: np.ndarray | None = None   # (P, C, C): each point's coefficients
 
     def __post_init__(self):
         check_method(self.method, self.degree)
@@ -152,10 +153,29 @@ class TemperatureGrid:
         S = np.sqrt(self.weights(temp) ** 2 @ self.stderr ** 2)
         return {n: S[:, j] for j, n in enumerate(self.names)}
 
+    def covariance_at(self, temp) -> np.ndarray:
+        """(n, C, C): the interpolated coefficients' covariance, the points' taken as
+        independent (a joint fit's points share their global coefficients, whose own
+        variance each point's matrix holds); from the standard errors alone, as
+        uncorrelated, when the grid has no covariances."""
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        return np.einsum("np,pcd->ncd", self.weights(temp) ** 2, cov)
+
     def without(self, index: int) -> TemperatureGrid:
         keep = np.arange(len(self.temperatures)) != index
         return TemperatureGrid(self.temperatures[keep], self.names, self.values[keep],
-                               self.stderr[keep], self.method, self.degree)
+                               self.stderr[keep], self.method, self.degree,
+                               None if self.covariance is None else self.covariance[keep])
+
+
+def diagonal(variances: np.ndarray) -> np.ndarray:
+    """(..., C) variances as (..., C, C) diagonal covariances."""
+    out = np.zeros(variances.shape + (variances.shape[-1],))
+    idx = np.arange(variances.shape[-1])
+    out[..., idx, idx] = variances
+    return out
+
 
 @dataclass(frozen=True)
 class ConstantCoefficients:
@@ -169,9 +189,22 @@ class ConstantCoefficients:
     stderr: np.ndarray                # (C,)
     method: str = "continuous"
     degree: int = 0
+    fitted_span: tuple[float, float] | None = None   # the fitted holds' temperatures
+    covariance: np.ndarray | None = None             # (C, C)
+
+    def covariance_at(self, temp) -> np.ndarray:
+        """(n, C, C): the coefficients' covariance at each temperature (the same for all)."""
+        n = len(np.atleast_1d(temp))
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        return np.broadcast_to(cov, (n,) + cov.shape)
 
     @property
     def span(self) -> tuple[float, float]:
+        """Where the model was fitted: its holds' lowest to highest temperature (a
+        point's mean lies inside its holds' range, so the points' extremes would clamp
+        the ends of a sweep the terms were fitted on); the points' without that record."""
+        if self.fitted_span is not None:
+            return float(self.fitted_span[0]), float(self.fitted_span[1])
         return float(self.temperatures[0]), float(self.temperatures[-1])
 
     def outside(self, temp) -> np.ndarray:
@@ -284,7 +317,10 @@ class ContinuousFit:
     @property
     def coefficients(self) -> ConstantCoefficients:
         temps = np.sort(self.points.loc[self.points["used"], "temp"].to_numpy(dtype=float))
-        return ConstantCoefficients(temps, self.names, self.fit.values, self.fit.stderr)
+        held = np.asarray(self.data["temp"], dtype=float)
+        span = (min(float(held.min()), temps[0]), max(float(held.max()), temps[-1]))
+        return ConstantCoefficients(temps, self.names, self.fit.values, self.fit.stderr,
+                                    fitted_span=span, covariance=self.fit.covariance)
 
     def used_points(self) -> list[int]:
         return [int(p) for p in self.points.loc[self.points["used"], "point"]]
@@ -363,7 +399,8 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
         raise first_error if first_error else GyrocalError("no observations to fit", source=source)
     names = fits[0].names
     grid = TemperatureGrid(np.array(temps), names, np.array([f.values for f in fits]),
-                           np.array([f.stderr for f in fits]), method, degree)
+                           np.array([f.stderr for f in fits]), method, degree,
+                           np.array([f.covariance for f in fits]))
     points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
     return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
 
@@ -393,7 +430,9 @@ class _AtPoint(Term):
 
 
 def global_terms(model: Model) -> list[Term]:
-    return [t for t in model.terms if t.coefficient_scope == "global"]
+    """Terms with session-wide coefficients (one that adds none, a die temperature, is not
+    fitted jointly for that)."""
+    return [t for t in model.terms if t.coefficient_scope == "global" and t.coefficients()]
 
 
 @dataclass(frozen=True)
@@ -485,6 +524,8 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
                 j = index[f"{name}.@{p}"]
                 values[k, c], stderr[k, c] = result.values[j], result.stderr[j]
     grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
+    joint_fit = JointGridFit(model, result, data, grid, pd.DataFrame(), {}, (), tuple(ids))
+    grid = replace(grid, covariance=np.array([joint_fit.point_fit(p).covariance for p in ids]))
     table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps)]
     table += list(extra_points)
     points = pd.DataFrame(table, columns=["point", "temp", "holds", "used", "reason"]) \
@@ -543,7 +584,7 @@ def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3
 
 
 def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None):
-    data = columns_of(obs)
+    data = model.transform_inputs(columns_of(obs))
     if kind == "continuous":
         return fit_continuous(model, data, source=source)
     temperature_only = [t.spec_string() for t in model.terms

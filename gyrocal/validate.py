@@ -101,7 +101,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     point is left out of its own fit instead.
     """
     n = len(obs)
-    data = columns_of(obs)
+    data = model.transform_inputs(columns_of(obs))
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
     used = fitted.used_points()

@@ -134,7 +134,8 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
     fits only its candidates), and what they write is what separate stages write."""
     import numpy as np
 
-    from gyrocal import diagnose, pipeline, stages, thermal
+    from gyrocal import pipeline, stages, thermal
+    from gyrocal.diagnose import evaluation
     from gyrocal.config import Settings
     from gyrocal.simulate import TurntableProtocol, simulate_unit
 
@@ -152,7 +153,7 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
             fits.append(1)
         return thermal.fit_model(model, *args, **kwargs)
 
-    for module in (pipeline, stages, diagnose):
+    for module in (pipeline, stages, evaluation):
         monkeypatch.setattr(module, "fit_model", counting)
     stages.analyse_stage(folder, settings, meta, record_failures=False)
     assert len(fits) == 1

@@ -85,6 +85,10 @@ def test_round_trip_keeps_non_default_settings(complete_run, tmp_path, method, d
     (lambda d: d["model"]["interpolation"].update(degree="two"), "degree must be a non-negative integer"),
     (lambda d: d["model"].update(reference_temperature="room"), "reference_temperature must be a number"),
     (lambda d: d["units"].update(rate="rad/s"), "units {'rate': 'rad/s'}"),
+    (lambda d: d["grid"]["covariance"][0][0].__setitem__(1, 1.0), "grid.covariance is not symmetric"),
+    (lambda d: d["grid"]["covariance"][0][0].__setitem__(0, 1.0), "squared standard errors on its diagonal"),
+    (lambda d: d["grid"]["covariance"].pop(), "grid.covariance must hold a finite 12 x 12 matrix per point"),
+    (lambda d: d["grid"].update(covariance="none"), "grid.covariance must"),
 ])
 def test_bad_files_are_refused_with_one_line(complete_run, tmp_path, edit, message):
     doc = complete_run.calibration.to_dict()
@@ -188,3 +192,56 @@ def test_apply_refuses_a_log_without_temperature(tmp_path):
                              "gyro_z": np.zeros(n)}), src)
     with pytest.raises(LogFormatError, match="lacks temp"):
         apply_calibration(identity_calibration(), src, tmp_path / "o.parquet")
+
+
+def test_each_point_keeps_its_coefficient_covariance(complete_run, tmp_path):
+    """The file carries each point's covariance as the fit made it, read back to the bit;
+    a file of an earlier version without it still loads (standard errors as uncorrelated)."""
+    cal = complete_run.calibration
+    fits = complete_run.fitted.fits
+    np.testing.assert_array_equal(cal.grid.covariance, np.array([f.covariance for f in fits]))
+    path = tmp_path / "cal.json"
+    save_calibration(cal, path)
+    again = load_calibration(path)
+    np.testing.assert_array_equal(again.grid.covariance, cal.grid.covariance)
+    doc = json.loads(path.read_text())
+    doc["grid"].pop("covariance")
+    older = Calibration.from_dict(doc)
+    assert older.grid.covariance is None
+    np.testing.assert_allclose(np.diagonal(older.grid.covariance_at([5.0])[0]),
+                               np.diagonal(again.grid.covariance_at([5.0])[0]), rtol=1e-12)
+
+
+def test_what_another_session_should_leave_counts_correlated_coefficients():
+    """A bias and a scale known only together (their errors anticorrelated, as from holds
+    at one speed): at that speed the calibration's own error nearly cancels, and what
+    revalidation expects of another session says so; taken as uncorrelated it would not."""
+    import pandas as pd
+    from gyrocal.drift import revalidate
+    from gyrocal.thermal import ConstantCoefficients
+
+    sb, ss, rho, w = 0.01, 1e-4, -0.99, 100.0     # deg/s, 1, -, deg/s: sb = w·ss
+    model = Model.from_spec(["bias", "scale"])
+    names = tuple(model.names)
+    cov = np.diag([sb ** 2] * 3 + [ss ** 2] * 3)
+    for i in range(3):
+        cov[i, i + 3] = cov[i + 3, i] = rho * sb * ss
+    values = np.zeros(6)
+    stderr = np.sqrt(np.diag(cov))
+    meta = {"device": "D", "protocol": "turntable"}
+    correlated = Calibration(model, ConstantCoefficients(np.array([25.0]), names, values, stderr,
+                                                         covariance=cov), meta=meta)
+    plain = Calibration(model, ConstantCoefficients(np.array([25.0]), names, values, stderr), meta=meta)
+    n, floor = 40, 0.001
+    rng = np.random.default_rng(0)
+    obs = pd.DataFrame({"axis": "x", "mount": "+x", "temp": 25.0, "ref_rate": w, "n": 100.0,
+                        "rate_x": w, "rate_y": 0.0, "rate_z": 0.0,
+                        **{f"gyro_{a}": (w if a == "x" else 0.0) + floor * rng.standard_normal(n) for a in "xyz"},
+                        **{f"std_{a}": floor * 10.0 for a in "xyz"}}, index=range(n))
+    calibration_var = sb ** 2 + (w * ss) ** 2 + 2 * w * rho * sb * ss          # on x, per hold
+    with_cov = revalidate(correlated, obs)["expected_rms"] ** 2
+    without = revalidate(plain, obs)["expected_rms"] ** 2
+    # expected² = floor² + (calibration variance on x + bias variance on y and z) / 3
+    # (to 1e-4: the terms are evaluated at the compensated rates, which carry the noise)
+    np.testing.assert_allclose(with_cov, floor ** 2 + (calibration_var + 2 * sb ** 2) / 3, rtol=1e-4)
+    np.testing.assert_allclose(without, floor ** 2 + (sb ** 2 + (w * ss) ** 2 + 2 * sb ** 2) / 3, rtol=1e-4)

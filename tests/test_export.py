@@ -325,3 +325,60 @@ def test_cli_formats_and_errors(tmp_path, capsys):
     with pytest.raises(UnsupportedModelError, match=r"quadratic.json: .*term scale_quadratic is beyond"):
         export_cli(bad, "-o", tmp_path / "q.h")
     assert not (tmp_path / "q.h").exists()
+
+
+# Reads n x 5 doubles (t in s, gyro x, y, z in deg/s, temp in degC), writes n x 4 as DRIVER.
+DIE_DRIVER = r"""
+#include <stdio.h>
+#include "compensation.h"
+
+int main(int argc, char **argv)
+{
+    FILE *in, *out;
+    double s[5], r[4];
+    gyrocal_die_state die = GYROCAL_DIE_STATE_INIT;
+    if (argc != 3 || !(in = fopen(argv[1], "rb")) || !(out = fopen(argv[2], "wb")))
+        return 2;
+    while (fread(s, sizeof(double), 5, in) == 5) {
+        r[3] = gyrocal_compensate_sample(&die, s[0], s + 1, s[4], r);
+        fwrite(r, sizeof(double), 4, out);
+    }
+    fclose(in);
+    return fclose(out) != 0;
+}
+"""
+
+
+@needs_gcc
+@pytest.mark.parametrize("case", ["lagrange3", "continuous"])
+def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
+    """A calibration at the die's temperature: the header carries the lag as a filter with
+    its state, and the compiled code, fed the samples in order, reproduces apply."""
+    cal = make_calibration(case)
+    from gyrocal.model import Model
+    cal = Calibration(Model(cal.model.terms + (Model.from_spec(["die_temperature(tau=45.0)"]).terms)),
+                      cal.grid, meta=dict(META))
+    cal_path, expected = applied(cal, log, tmp_path)
+    header = export_text(load_calibration(cal_path), "c-header", source=cal_path)
+    assert "#define GYROCAL_DIE_TAU (45.0)" in header
+    document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
+    assert document["die_temperature"]["tau_s"] == 45.0
+    (tmp_path / "compensation.h").write_text(header)
+    (tmp_path / "driver.c").write_text(DIE_DRIVER)
+    exe = tmp_path / "driver"
+    built = subprocess.run([GCC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
+                            "-o", str(exe), str(tmp_path / "driver.c"), "-lm"], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    t = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
+    data = np.column_stack([t.column(c).to_numpy() for c in t.column_names]).astype(np.float64)
+    data.tofile(tmp_path / "in.f64")
+    run = subprocess.run([str(exe), str(tmp_path / "in.f64"), str(tmp_path / "out.f64")], capture_output=True)
+    assert run.returncode == 0
+    result = np.fromfile(tmp_path / "out.f64", dtype=np.float64).reshape(-1, 4)
+    good = np.isfinite(data).all(axis=1)
+    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
+    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
+    # Teeth: the same compensation at the logged temperature differs by far more.
+    logged = cal.compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4],
+                                              "temp_logged": data[good, 4]}, warn=False)
+    assert np.max(np.abs(result[good, :3] - logged)) > 1e-3

@@ -240,3 +240,23 @@ def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
     apply_calibration(run(log, settings).calibration, log, applied)
     without = hold_errors(applied, log, obs)
     assert np.sqrt(np.mean(with_term ** 2)) < 0.5 * np.sqrt(np.mean(without ** 2))
+
+
+def test_a_term_restricted_to_the_part_a_protocol_sees_round_trips():
+    from gyrocal.config import ModelSettings
+    from gyrocal.errors import ConfigError
+    from gyrocal.terms import Restricted, make_term
+
+    part = make_term('g_sensitivity(drop=["x.z", "y.z", "z.z"])')
+    assert isinstance(part, Restricted)
+    assert part.coefficients() == [f"g_sensitivity.{a}.{b}" for a in "xyz" for b in "xy"]
+    assert make_term(part.spec()).spec_string() == part.spec_string()
+    assert make_term(part.spec_string()) == part
+    columns = part.columns({f"accel_{b}": np.arange(3.0) + i for i, b in enumerate("xyz")})
+    assert sorted(columns) == part.coefficients()
+    # The same effect: in a model it replaces the full term, and the full term replaces it.
+    model = ModelSettings().with_terms(("g_sensitivity",)).with_terms((part.spec_string(),))
+    assert model.terms[-1] == part.spec_string() and len(model.terms) == 4
+    assert ModelSettings(terms=model.terms).with_terms(("g_sensitivity",)).terms[-1] == "g_sensitivity"
+    with pytest.raises(ConfigError, match="has no coefficient x.w to drop"):
+        make_term('g_sensitivity(drop=["x.w"])')

@@ -61,14 +61,15 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     follow each other in time, so a g-sensitivity fitted per point takes up most of the
     ramp as per-mount steps (in this unit it even reaches what a correct model leaves). A
     bias drifting in time explains it as well: nothing is named, the drift is reported, and
-    the drift the advice offers carries over to the unit's next session."""
+    the drift the advice offers carries over to the unit's next session. (Unit 2's ramp,
+    1.3 times the floor, is within the held-out error's own uncertainty: no gain to name.)"""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.config import Settings
     from gyrocal.diagnose import TIME_DRIFT, diagnose, extended
     from gyrocal.drift import revalidate
     from gyrocal.pipeline import run, segment_log
 
-    unit = make_unit(effect="bias_ramp", protocol="turntable3", noise="white", seed=2)
+    unit = make_unit(effect="bias_ramp", protocol="turntable3", noise="white", seed=3)
     logs = [tmp_path / f"s{s}.parquet" for s in (0, 1)]
     for s, log in enumerate(logs):
         write_session(unit, log, session=s, seed=2000 + s, rate_hz=25.0)
@@ -84,24 +85,97 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     assert r["holds"] and r["validation_rms"] <= NEXT_SESSION_LIMIT * r["noise_floor"], r["verdict"]
 
 
-def test_on_coloured_noise_one_session_says_the_excess_may_be_unresolved_wander(tmp_path):
+@pytest.mark.parametrize("protocol", ["turntable3", "turntable6"])
+def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tmp_path):
     """A complete unit with Gauss-Markov bias wander of 100-1000 s correlation time, one
-    session: a few minutes of static data cannot resolve it, nothing is named, and the
-    verdict says the excess may be that wander and what would tell."""
+    session (the command line's default): the in-sample residuals exceed the floor from a
+    few minutes of static data, but the held-out error is what a correct model leaves, so
+    no term has anything to take away: nothing is named, not even as partial, and the
+    verdict says another session would tell wander from an effect."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline import segment_log
 
     log = tmp_path / "coloured.parquet"
-    write_session(make_unit(effect="none", protocol="turntable3", noise="coloured", seed=1), log,
+    write_session(make_unit(effect="none", protocol=protocol, noise="coloured", seed=1), log,
                   session=0, seed=1000, rate_hz=25.0)
     diag = diagnose(Settings(), segment_log(log, Settings()).observations)
-    assert diag.best is None
-    if not diag.explains:
-        assert diag.within_noise is not None and diag.within_noise["explains"]
-        assert "the excess may be noise" in diag.verdict
-        assert any("--other-session" in a for a in diag.advice)
+    assert diag.best is None and not diag.partial, diag.verdict
+    assert diag.explains, diag.verdict
+    s = diag.base.summary
+    if diag.rms_over_floor["all"] > 1.5:        # the wander shows in-sample: said so
+        assert "--other-session" in diag.verdict and diag.within_noise["explains"]
+        assert s["validation_rms"] <= s["expected_rms"] * 1.2
+
+
+def _next_session_over_floor(logs, settings, fix, protocol="turntable"):
+    from gyrocal.diagnose import extended
+    from gyrocal.drift import revalidate
+    from gyrocal.pipeline import run, segment_log
+    for term in fix:
+        settings = extended(settings, term)
+    cal = run(logs[0], settings, protocol=protocol).calibration
+    r = revalidate(cal, segment_log(logs[-1], settings, protocol).observations)
+    return r["validation_rms"] / r["noise_floor"], cal
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("one_session", [False, True])
+def test_three_mounts_offer_the_part_of_a_g_sensitivity_they_see(one_session, tmp_path):
+    """The IMU on the table's axis, one mount per axis: its accelerometer reads gravity alone,
+    the same on every hold of a mount, so a g-sensitivity's third column is the bias less
+    the other two. The diagnosis names g_sensitivity and fits the part the protocol sees;
+    calibrated with it, the next session is within 1.2 times the floor."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    unit = make_unit(effect="g_sensitivity", protocol="turntable3", noise="white", seed=1,
+                     imu_radius_m=0.0)
+    logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
+    for s, log in enumerate(logs):
+        write_session(unit, log, session=s, seed=1000 + s, rate_hz=25.0)
+    settings = Settings()
+    obs = [segment_log(log, settings).observations for log in logs[:2]]
+    diag = diagnose(settings, obs[0], None if one_session else obs[1])
+    assert diag.best is not None and diag.best.part_of == "g_sensitivity", diag.verdict
+    assert "cannot separate" in diag.verdict and "outside the library" not in diag.verdict
+    blocked = next(c for c in diag.candidates if c.term == "g_sensitivity")
+    assert blocked.status == "not identifiable" and blocked.seen_part == diag.best.term
+    offered = diag.to_dict()["best"]
+    assert offered["option"].startswith("--add-term 'g_sensitivity(drop=")
+    before, _ = _next_session_over_floor(logs, settings, [])
+    after, _ = _next_session_over_floor(logs, settings, [diag.best.term, *diag.best.together])
+    assert before > 10 and after <= NEXT_SESSION_LIMIT, (before, after)
+
+
+@pytest.mark.slow
+def test_a_die_that_lags_is_found_and_carries_to_another_ramp_rate(tmp_path):
+    """A sweep whose whole temperature model (a curved bias) is felt at a die lagging the
+    sensor by minutes: the diagnosis offers the die's temperature with the bias curve;
+    fitted at 30 °C/h, the calibration holds within 1.2 times the floor at 45 °C/h, and
+    the lag found is the generator's within the profile's uncertainty."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    unit = make_unit(effect="die_lag_curved", protocol="sweep", noise="white", seed=1)
+    logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
+    for s, (log, ramp) in enumerate(zip(logs, (30.0, 60.0, 45.0))):
+        info = write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=ramp)
+    tau = info["effect_params"]["die_lag_curved"]["tau_die_s"]
+    settings = Settings().for_protocol("sweep")
+    obs = [segment_log(log, settings, "sweep").observations for log in logs[:2]]
+    diag = diagnose(settings, obs[0], obs[1])
+    offered = [diag.best.term, *diag.best.together] if diag.best else []
+    assert "die_temperature" in offered, diag.verdict
+    after, cal = _next_session_over_floor(logs, settings, offered, "sweep")
+    assert after <= NEXT_SESSION_LIMIT, after
+    found = next(p for p in cal.extra["profiled"] if p["term"] == "die_temperature")
+    assert abs(found["value"] - tau) <= 5 * found["stderr"] + 1.0, (found, tau)
 
 
 def _sessions_of_cells(rng, blocks=12, cells_per_block=8):

@@ -48,6 +48,7 @@ class Term:
     scope: ClassVar[str] = "auto"   # "point" or "global" in a grid model; auto: global
                                     # when the term reads a series signal (t, temp_rate, lag)
     profile: ClassVar[Mapping[str, tuple[float, float]]] = {}  # nonlinear setting -> bounds
+    moving_temperature: ClassVar[bool] = False  # seen only where the temperature moves in a point
 
     def coefficients(self) -> list[str]:
         """Full coefficient names, in a fixed order."""
@@ -139,6 +140,17 @@ class Term:
             object.__setattr__(term, "_scope", self._scope)
         return term
 
+    def transform_inputs(self, data):
+        """Hold-level inputs every term of the model reads, as this term redefines them (a
+        die temperature for the logged one); most terms leave them as they are."""
+        return data
+
+    def sample_transform(self):
+        """For samples in time order, given in consecutive pieces: a callable taking and
+        returning the inputs as :meth:`transform_inputs` redefines them, with the state it
+        carries between pieces; None for a term that redefines nothing."""
+        return None
+
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         from ..signals import SERIES_INPUTS
         series = "series" in data or "t" in data
@@ -147,6 +159,108 @@ class Term:
         if missing:
             raise MissingInputError(f"term {self.spec_string()} needs {', '.join(missing)}, which the "
                                     f"data lack", source=source)
+
+
+class Restricted(Term):
+    """A term with some of its coefficients held at zero (``drop``, names without the
+    term's own): the part of an effect a protocol can tell apart from the rest of the
+    model. On three mounts with gravity along one axis each, a g-sensitivity's column of
+    the third axis is the bias less the other two; without it, the other two coefficients
+    fit each output's sensitivity differences, which is all those mounts show and all a
+    session of the same protocol needs. The same effect as the full term: it replaces it
+    in a model, and the full term replaces it."""
+
+    def __init__(self, term: Term, drop):
+        if isinstance(drop, str) or not isinstance(drop, (list, tuple)):
+            raise ConfigError(f"term {term.name}: drop must be a list of coefficient names, got {drop!r}")
+        prefix = term.name + "."
+        own = [c.removeprefix(prefix) for c in term.coefficients()]
+        unknown = [d for d in drop if d not in own]
+        if unknown:
+            raise ConfigError(f"term {term.name} has no coefficient {', '.join(map(str, unknown))} "
+                              f"to drop (it has {', '.join(own)})")
+        self.term = term
+        self.drop = tuple(d for d in own if d in set(drop))
+        self.name = term.name
+
+    def __eq__(self, other):
+        return isinstance(other, Restricted) and (self.term, self.drop) == (other.term, other.drop)
+
+    def __hash__(self):
+        return hash((self.term, self.drop))
+
+    def __getattr__(self, attribute):   # unit, needs, profile, ... are the term's
+        if attribute.startswith("__") or attribute in ("term", "drop"):
+            raise AttributeError(attribute)
+        return getattr(self.term, attribute)
+
+    @property
+    def needs(self):
+        return self.term.needs
+
+    @property
+    def unit(self):
+        return self.term.unit
+
+    @property
+    def varies_with_temperature(self):
+        return self.term.varies_with_temperature
+
+    @property
+    def profile(self):
+        return self.term.profile
+
+    @property
+    def moving_temperature(self):
+        return self.term.moving_temperature
+
+    def coefficients(self) -> list[str]:
+        dropped = {f"{self.term.name}.{d}" for d in self.drop}
+        return [c for c in self.term.coefficients() if c not in dropped]
+
+    def columns(self, data):
+        kept = set(self.coefficients())
+        return {k: v for k, v in self.term.columns(data).items() if k in kept}
+
+    def params(self) -> dict:
+        return {**self.term.params(), "drop": list(self.drop)}
+
+    def spec(self) -> dict:
+        return {**self.term.spec(), "drop": list(self.drop)}
+
+    def spec_string(self) -> str:
+        inner = self.term.spec_string()
+        setting = "drop=[" + ", ".join(f'"{d}"' for d in self.drop) + "]"   # shell-quotable
+        return inner[:-1] + f", {setting})" if inner.endswith(")") else f"{inner}({setting})"
+
+    @property
+    def identity(self) -> tuple:
+        return self.term.identity
+
+    @property
+    def coefficient_scope(self) -> str:
+        return self.term.coefficient_scope
+
+    def default_scope(self) -> str:
+        return self.term.default_scope()
+
+    def inputs(self) -> frozenset[str]:
+        return self.term.inputs()
+
+    def nonlinear(self):
+        return self.term.nonlinear()
+
+    def with_settings(self, **values) -> Term:
+        return Restricted(self.term.with_settings(**values), self.drop)
+
+    def check_inputs(self, data, source=None) -> None:
+        self.term.check_inputs(data, source)
+
+    def transform_inputs(self, data):
+        return self.term.transform_inputs(data)
+
+    def sample_transform(self):
+        return self.term.sample_transform()
 
 
 def register_term(name: str):
@@ -202,13 +316,14 @@ def make_term(spec) -> Term:
     scope = params.pop("scope", None)
     if scope not in (None, "point", "global"):
         raise ConfigError(f"term {name}: scope must be 'point' or 'global', got {scope!r}")
+    drop = params.pop("drop", None)
     try:
         term = cls(**params)
     except TypeError as exc:
         raise ConfigError(f"term {name}: {exc}") from None
     if scope is not None:
         object.__setattr__(term, "_scope", scope)
-    return term
+    return term if not drop else Restricted(term, drop)
 
 
 from . import base, effects, user  # noqa: E402,F401  (register the library's terms)

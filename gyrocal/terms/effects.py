@@ -142,6 +142,66 @@ class TempLag(Term):
         return {f"{self.name}.{a}": lagging for a in AXES}
 
 
+@register_term("die_temperature")
+@dataclass(frozen=True)
+class DieTemperature(Term):
+    """The temperature every temperature dependence of the model is evaluated at: the MEMS
+    die's, the logged temperature through a first-order lag of time constant ``τ`` (s).
+
+    The sensor reads the package while the die, where scale and bias are made, follows it
+    with a delay (seed 000 Eq 9-10: thermal gradients across the sensor). ``temp_lag``
+    writes the first-order consequence of that, ``c (T_τ − T)``; this term moves the whole
+    temperature dependence (the grid's interpolation temperature and every term of
+    temperature) to ``T_τ``, so a curved dependence is felt at the die too. It adds no
+    coefficient; ``τ`` is found by profiling, and ``apply`` and the firmware export run the
+    same lag as a filter over the samples. [s]"""
+
+    tau: float = 600.0
+    unit = "s"
+    needs = frozenset({"temp", "t"})
+    profile = {"tau": (30.0, 14400.0)}
+    moving_temperature = True
+
+    def __post_init__(self):
+        if isinstance(self.tau, bool) or not isinstance(self.tau, (int, float)) or not self.tau > 0:
+            raise ConfigError(f"term {self.name}: tau must be a positive number of seconds, got {self.tau!r}")
+
+    def coefficients(self):
+        return []
+
+    def columns(self, data):
+        return {}
+
+    def transform_inputs(self, data):
+        """``data`` with ``temp`` at the die: each hold's mean of the lagged record (the
+        logged temperature kept as ``temp_logged``). Samples are filtered by ``apply``."""
+        from ..errors import MissingInputError
+        from ..signals import hold_means_of_lag
+        if "t_start" not in data:
+            return data
+        logged = np.asarray(data.get("temp_logged", data["temp"]), dtype=float)
+        die = hold_means_of_lag(data, "temp", self.tau)
+        if die is None:
+            raise MissingInputError("the die temperature needs the session's temperature record, "
+                                    "which these observations lack (segment the log again)")
+        return {**data, "temp": die, "temp_logged": logged}
+
+    def sample_transform(self):
+        return _DieFilter(self.tau)
+
+
+class _DieFilter:
+    """The die temperature of samples given batch by batch (``t`` in seconds)."""
+
+    def __init__(self, tau: float):
+        from ..signals import LagFilter
+        self.lag = LagFilter(tau)
+
+    def __call__(self, data):
+        logged = np.asarray(data["temp"], dtype=float)
+        return {**data, "temp": self.lag(data["t"], logged), "temp_logged": logged}
+
+
 class _RatePerAxis(Term):
     """One coefficient per output axis times a function of that axis's own rate."""
 
@@ -211,4 +271,5 @@ class GSensitivity(Term):
 
 # Tried by the diagnosis when not in the model, in this order (ties keep it).
 CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "temp_rate",
-              "temp_lag", "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)", "misalignment_temp")
+              "temp_lag", "die_temperature", "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)",
+              "misalignment_temp")

@@ -8,7 +8,9 @@ code has changed.
 
 An expression term is a formula of the inputs every term has (``accel_x * rate_y``,
 ``temp_rate ** 2``, ``exp(-t / tau)``, ``lag(temp, 900) - temp``), one coefficient per
-output axis. Formulas are read by a small interpreter that knows numbers, the inputs of
+output axis. ``rate_own`` and ``accel_own`` are the output axis's own rate and
+acceleration, so an effect that acts on each axis through its own rate is one formula
+(``rate_own * exp(-t / tau)``: a scale that relaxes after power-on) rather than three. Formulas are read by a small interpreter that knows numbers, the inputs of
 ``FORMULA_COLUMNS``, the expression's named parameters, + - * / **, unary minus, a few
 one-argument functions and ``lag``: nothing else in the formula can run.
 """
@@ -76,7 +78,9 @@ LAGGABLE = ("temp", "temp_rate")
 # What a formula may read: the inputs every term has (gyrocal.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
 FORMULA_COLUMNS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "ref_rate",
-                   "accel_x", "accel_y", "accel_z")
+                   "accel_x", "accel_y", "accel_z", "rate_own", "accel_own")
+# The output axis's own input: rate_own is rate_x in the x output's column, and so on.
+OWN_AXIS = {"rate_own": "rate", "accel_own": "accel"}
 SERIES_NAMES = frozenset({"t", "temp_rate"})
 
 
@@ -85,9 +89,17 @@ def formula_names(formula: str, parameters=()) -> frozenset[str]:
     tree = _parse(formula, parameters)
     names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
              and n.id not in _FUNCTIONS and n.id != "lag" and n.id not in parameters}
+    for own, kind in OWN_AXIS.items():
+        if own in names:
+            names = (names - {own}) | {f"{kind}_{a}" for a in AXES}
     if any(isinstance(n, ast.Call) and n.func.id == "lag" for n in ast.walk(tree)):
         names.add("temp_lag")
     return frozenset(names)
+
+
+def reads_own_axis(formula: str, parameters=()) -> bool:
+    """Whether a formula reads an output axis's own input (``rate_own``, ``accel_own``)."""
+    return any(isinstance(n, ast.Name) and n.id in OWN_AXIS for n in ast.walk(_parse(formula, parameters)))
 
 
 def _parse(formula: str, parameters=()) -> ast.AST:
@@ -242,5 +254,27 @@ class Expression(Term):
         return [f"{self.label}.{a}" for a in AXES]
 
     def columns(self, data):
-        v = np.broadcast_to(evaluate(self.formula, data, self.parameters), (len(data["rate_x"]),))
-        return {f"{self.label}.{a}": v for a in AXES}
+        n = (len(data["rate_x"]),)
+        if not reads_own_axis(self.formula, tuple(self.parameters)):
+            v = np.broadcast_to(evaluate(self.formula, data, self.parameters), n)
+            return {f"{self.label}.{a}": v for a in AXES}
+        return {f"{self.label}.{a}": np.broadcast_to(
+            evaluate(self.formula, _own_axis(data, a), self.parameters), n) for a in AXES}
+
+
+class _OwnAxis:
+    """``data`` as one output axis's formula reads it: ``rate_own`` is that axis's rate."""
+
+    def __init__(self, data, axis: str):
+        self.data, self.axis = data, axis
+
+    def __getitem__(self, name):
+        kind = OWN_AXIS.get(name)
+        return self.data[f"{kind}_{self.axis}" if kind else name]
+
+    def lag(self, name, tau):
+        return self.data.lag(name, tau)
+
+
+def _own_axis(data, axis: str) -> _OwnAxis:
+    return _OwnAxis(data, axis)

@@ -1,0 +1,220 @@
+"""Where the model fails and which physical effect is missing.
+
+One module per question: :mod:`.where` (where the model fails), :mod:`.effects` (which
+effect is missing), :mod:`.sessions` (how a calibration carries over to another session),
+:mod:`.verdict` (the verdict and the advice); :mod:`.evaluation` fits and validates the
+models they compare, :mod:`.stats` holds the tails and bounds of the tests.
+
+Three questions, answered from the observations alone:
+
+1. **Does the model explain the data?** The in-sample residuals of every fit, divided by
+   each observation's noise floor, should scatter like unit normals: χ² against its
+   degrees of freedom, overall and per output axis. When the session's noise model has bias
+   instability or rate random walk, χ² and the F-tests below come from the generalised
+   least-squares fits that account for the holds' shared wander (:func:`gyrocal.model.fit`).
+2. **Where does the excess live?** For every covariate the log offers (temperature, its
+   rate, the reference rate, its magnitude and direction, the mount, the accelerometer,
+   time, hold length), the share of the excess χ² that the covariate's bins account for,
+   beyond what bins explain by chance. Ranked, plus heat maps (mount × rate, temperature ×
+   rate).
+3. **Which effect is missing?** Every candidate term (the library's, those the user names,
+   those of the user's term files) is added to the model in turn; the extended model is
+   refitted and validated the same way. Candidates are ranked by the validation RMS they
+   reach; each gets a nested-model F-test against the base model and the fitted size of the
+   effect in physical units. The significance level is family-wise: half goes to the χ²
+   test of question 1, half is shared (Bonferroni) by the candidates, so on data the model
+   explains the diagnosis raises a false alarm at most that often.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from ..config import Settings
+from ..floor import with_upper_floor
+from ..model import columns_of
+from ..terms import AXES
+from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
+                      rank_candidates, second_step, time_drift)
+from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
+                         evaluation_of, extended, ladder)
+from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
+                       usable)
+from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
+from .verdict import advice, drift_sentence, input_kinds, verdict as make_verdict
+from .where import COVARIATES, covariate_table, fit_quality
+
+__all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
+           "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
+           "diagnose", "evaluate", "evaluation_of", "explained_tolerance", "extended", "f_sf",
+           "fisher_combined", "mark_ties", "repeat_p_value", "shared_fraction", "unrepeated_p_value"]
+
+
+@dataclass
+class Diagnosis:
+    base: Evaluation
+    significance: float
+    chi2_red: dict[str, float]               # overall and per output axis
+    rms_over_floor: dict[str, float]
+    excess_p_value: float
+    explains: bool
+    covariates: list[dict]
+    candidates: list[Candidate]
+    best: Candidate | None
+    partial: list[Candidate]
+    verdict: str
+    heatmaps: dict
+    residuals: pd.DataFrame                   # observations + resid_, floor_, z_ per axis
+    config_line: str = ""                     # the model: lines that add the best candidate
+    ladder: list[dict] = field(default_factory=list)
+    within_noise: dict | None = None          # the χ² test with the slow noise at its upper bound
+    next_session: dict | None = None          # the configured model on another session
+    advice: list[str] = field(default_factory=list)
+    time_drift: dict | None = None            # TIME_DRIFT's fit: the rival no term can beat
+
+    def to_dict(self) -> dict:
+        s = self.base.summary
+        return {
+            "format": "gyrocal.diagnosis/1",
+            "model": {"terms": self.base.terms, "kind": self.base.kind},
+            "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
+            "excess": s["excess"], "expected_rms": s["expected_rms"],
+            "excess_over_expected": s["excess_over_expected"], "held_out": s["held_out"],
+            "significance": self.significance,
+            "chi2_red": self.chi2_red, "rms_over_floor": self.rms_over_floor,
+            "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
+            "verdict": self.verdict,
+            "within_noise_uncertainty": self.within_noise,
+            "next_session": self.next_session,
+            "advice": self.advice,
+            "time_drift": self.time_drift,
+            "best": None if self.best is None else {
+                **self.best.to_dict(), "config_line": self.config_line,
+                "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
+            "partial": [{"term": c.term, "validation_rms_with": c.validation_rms_with,
+                         "expected_rms_with": c.expected_with, "gain_pct": c.gain_pct,
+                         "remaining_excess": c.validation_rms_with / c.expected_with
+                         if c.expected_with else None, "part_of": c.part_of,
+                         "option": c.option, "config_line": c.config_line} for c in self.partial],
+            "candidates": [c.to_dict() for c in self.candidates],
+            "covariates": self.covariates,
+            "ladder": self.ladder,
+        }
+
+
+# The most useful terms each tried as the first of two missing effects: the one that
+# gains most alone is not always part of the pair (a temperature lag's first-order form
+# beats a die temperature alone, whose pair with a cubic bias is the effect).
+PAIR_STARTS = 3
+
+
+def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None = None, *,
+             base: Evaluation | None = None) -> Diagnosis:
+    """Diagnose ``settings.model`` on the observations; see the module docstring.
+
+    ``other``, the observations of another session of the same unit, is what the user's
+    calibration will meet: each model is then also judged by how it carries over to it
+    (:func:`carry_over`), and an excess whose pattern does not repeat there is noise.
+    ``base``, the configured model already fitted and validated on ``obs``
+    (:func:`evaluation_of`), is used rather than fitting again."""
+    alpha = settings.diagnosis.significance
+    if base is None:
+        base = evaluate(settings, obs, "configured model")
+    data = columns_of(obs)
+    quality = fit_quality(base, len(obs))
+    explains = quality.excess_p_value >= alpha / 2
+    judge = Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))
+    base_next = judge.carry(base)
+    if base_next is not None and "error" in base_next:
+        judge.other = None    # the other session cannot be used: judged on this one alone
+    unrepeated = False
+    if not explains and usable(base_next) and base_next["unrepeated_p_value"] is not None:
+        # An excess that does not come back in the other session, whose residuals differ
+        # from this one's by more than the floor, is slow noise, not an effect.
+        unrepeated = explains = base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
+    tolerance = explained_tolerance(obs, base.summary["holds_scored"], alpha)
+    v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
+    # The held-out error misses what a correct model leaves by more than the validation's
+    # own uncertainty (chance, over the holds scored): only then is there something for a
+    # term to take away, and a term's gain must exceed that uncertainty too.
+    bound = chance_bound(base.summary["holds_scored"], alpha)
+    resolvable = v0 > expected * bound
+    within_noise = None
+    if not explains and not usable(base_next):
+        # Slow wander the static data could not rule out may be all the excess is.
+        upper = with_upper_floor(obs)
+        if upper is not None:
+            wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
+            within_noise = {"excess_p_value": float(chi2_sf(wide.chi2, wide.dof)),
+                            "chi2_red": wide.chi2 / wide.dof,
+                            "expected_rms": float(wide.summary["expected_rms"]),
+                            "static_seconds": float(obs.attrs.get("static_seconds") or 0.0)}
+            within_noise["explains"] = within_noise["excess_p_value"] >= alpha / 2
+
+    candidates = rank_candidates(judge, base, candidate_terms(settings), base_next, tolerance)
+    ranked = [c for c in candidates if c.status == "ranked"]
+    for c in ranked:
+        c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
+    # No name without a gain: a term is named, or reported as partial, only when the model
+    # misses what a correct one leaves and the term takes away a practical part of that.
+    useful = [c for c in ranked if c.significant and not explains
+              and practical_gain(base, c, bound)]
+    drift = time_drift(judge, settings, obs, base, base_next, tolerance, bound) if not explains else None
+    # One session whose in-sample excess the slow noise the static data cannot rule out
+    # accounts for, whose held-out error is within what a correct model leaves under that
+    # noise too, and that no term nor a drift in time takes a practical part of: nothing
+    # in it asks for an effect (slow wander and a one-off effect look alike in one
+    # session; another one tells them apart).
+    noise_explains = bool(
+        not explains and within_noise is not None and within_noise["explains"]
+        and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
+                                and not (drift and drift["explains"]))))
+    if noise_explains:
+        explains, useful, drift = True, [], None
+    covariates, heat = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows,
+                                       base.dof, not explains)
+    if usable(base_next):  # what the user will meet: the other session first
+        useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
+    # Named only when it explains the excess: what is left is what a correct model leaves.
+    best = next((c for c in useful if c.explains_excess), None)
+    if best is not None and drift is not None and drift["explains"] and "time" not in input_kinds(best.term):
+        # Within a soak the mounts follow each other in time: a term that is constant per
+        # mount (a g-sensitivity) and a bias drifting in time can fit the same steps. When
+        # the drift explains the excess too, the protocol cannot name either.
+        drift["rival_of"] = best.term
+        best = None
+    # Two effects at once are looked for only when the held-out error is above what a
+    # correct model leaves by more than that figure's uncertainty: among the tens of pairs,
+    # some fit a small excess by chance, and passing the checks of what is left is weak
+    # evidence when there is little left to test.
+    for first in useful[:PAIR_STARTS] if best is None else ():
+        # Two effects missing at once: one of the most useful terms, then each other on top.
+        best = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance)
+        if best is not None:
+            break
+    # Otherwise, terms that take away a real part of it are reported as partial.
+    timed = best is None and drift is not None and drift["explains"]
+    # A drift in time that explains the excess is the finding: terms that fit a part of it
+    # are not reported as partial explanations.
+    partial = [] if best or timed else useful[:3]
+    text = make_verdict(base, best, explains, quality.rms_over_floor, covariates, "floor_x" in obs,
+                        partial, within_noise, unrepeated, base_next if usable(base_next) else None,
+                        None if timed else tolerance, noise_explains=noise_explains,
+                        unseparable=[c for c in candidates if c.status == "not identifiable"])
+    if timed:
+        text += " " + drift_sentence(base, drift)
+    residuals = obs.reset_index(drop=True).assign(
+        **{f"{q}_{a}": v[:, i] for q, v in (("resid", quality.resid), ("floor", quality.floor),
+                                             ("z", quality.z)) for i, a in enumerate(AXES)})
+    diag = Diagnosis(base, alpha, quality.chi2_red, quality.rms_over_floor, quality.excess_p_value,
+                     explains, covariates, candidates, best, partial, text, heat, residuals,
+                     config_line=config_line(extended_all(settings, best).model) if best else "")
+    diag.ladder = ladder(settings, obs, base)
+    diag.within_noise = within_noise
+    diag.next_session = base_next
+    diag.advice = advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
+    diag.time_drift = drift
+    return diag

@@ -1,0 +1,318 @@
+"""Which effect is missing: every candidate term added to the model in turn, refitted,
+validated and judged on what it leaves (in this session and, given one, in another)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import GyrocalError, MissingInputError
+from ..signals import SERIES_INPUTS
+from ..config import Settings
+from ..terms import AXES, make_term
+from .evaluation import (Evaluation, add_term_option, config_line, effect_size, evaluate, extended,
+                         identifiable_part, reason)
+from .sessions import SOAKED_SPREAD, carry_over, slow_noise, usable
+from .stats import chi2_sf, f_sf, fisher_combined
+from .where import TIME_LIKE, leftover
+
+@dataclass
+class Candidate:
+    term: str
+    status: str                              # ranked | not identifiable | missing inputs
+    validation_rms_with: float | None = None
+    p_value: float | None = None
+    f_statistic: float | None = None
+    df: tuple[int, int] | None = None
+    gain_pct: float | None = None
+    significant: bool = False
+    size: list[dict] = field(default_factory=list)
+    peak_effect: float | None = None         # deg/s over the observations
+    reason: str = ""
+    expected_with: float | None = None       # what a correct model would leave, deg/s
+    explains_excess: bool = False            # validation RMS within chance of that
+    tied_with: list[str] = field(default_factory=list)   # fits this protocol cannot tell apart
+    together: list[str] = field(default_factory=list)    # also missing: named with this one
+    alone_rms: float | None = None                       # validation RMS with this one alone
+    leftover: dict | None = None             # the covariate its residuals still follow most
+    next_session: dict | None = None         # how the extended model carries over
+    chi2: float | None = None                # of the extended fit, for ties
+    part_of: str | None = None               # the library term this is the protocol's part of
+    seen_part: str | None = None             # not identifiable: the part fitted instead
+    excited: bool = True                     # its columns are not all zero on these holds
+    option: str = ""                         # the command-line option that adds it
+    config_line: str = ""                    # the model: lines of the config with it
+
+    def to_dict(self) -> dict:
+        out = {"term": self.term, "status": self.status,
+               "validation_rms_with": self.validation_rms_with, "p_value": self.p_value}
+        if self.status == "ranked":
+            out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
+                       significant=self.significant, size=self.size, peak_effect=self.peak_effect,
+                       expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
+                       tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms,
+                       leftover=self.leftover, next_session=self.next_session,
+                       part_of=self.part_of, option=self.option, config_line=self.config_line)
+        else:
+            out["reason"] = self.reason
+            if self.seen_part:
+                out["seen_part"] = self.seen_part
+        return out
+
+
+LEFTOVER_FRACTION = 0.02  # of the configured model's excess χ²/dof: see Judge.explains
+NEGLIGIBLE_OVER_FLOOR = 1.2  # structure left within this many times the floor is negligible
+
+class Judge:
+    """Whether a model leaves only what a correct one would, from one session or two.
+
+    One session: its in-sample χ² is within chance or its validation RMS within chance of
+    what a correct model leaves, *and* its residuals follow no covariate beyond chance (a
+    term that soaks up most of an effect it is not, as a g-sensitivity on a linear time
+    drift whose holds run in order of speed, leaves the rest lined up with time or rate).
+    Two sessions: what its residuals still hold does not repeat in the other session, and
+    it does not carry over worse than the configured model."""
+
+    def __init__(self, settings, obs, data, other, alpha, base_excess: float):
+        self.settings, self.obs, self.data, self.other, self.alpha = settings, obs, data, other, alpha
+        self.base_excess = base_excess   # the configured model's χ²/dof − 1
+        if other is not None and ("revolution" in obs or "revolution" in other):
+            self.other = None  # a servo session's hand mount leaves the true rate unknown
+        # Time is not temperature only where each point soaks at one temperature (not a sweep).
+        self.soaked = bool("point" in obs and float(
+            obs.groupby("point")["temp"].agg(lambda t: t.max() - t.min()).max()) < SOAKED_SPREAD)
+        # The session's noise model has slow terms (bias instability, rate random walk):
+        # holds close in time share their wander, which groups them by time.
+        self.slow_known = any(float(np.nanmax(obs[f"{k}_{a}"])) > 0 for k in ("flicker", "rrw")
+                              for a in AXES if f"{k}_{a}" in obs)
+
+    def carry(self, ev: Evaluation) -> dict | None:
+        """:func:`carry_over` to the other session; None without one, ``{"error": ...}``
+        when this model cannot be applied there (a term reading an input it lacks)."""
+        if self.other is None:
+            return None
+        try:
+            return carry_over(self.settings, ev, self.obs, self.other)
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: note it
+            return {"error": reason(exc) if isinstance(exc, GyrocalError) else f"{type(exc).__name__}: {exc}"}
+
+    def leftover(self, ev: Evaluation) -> dict:
+        return leftover(self.obs, self.data, ev)
+
+    def explains(self, ext: Evaluation, candidate: Candidate, base_next, tolerance) -> bool:
+        half = self.alpha / 2
+        candidate.leftover = left = self.leftover(ext)
+        candidate.next_session = nxt = self.carry(ext) if usable(base_next) else None
+        # Structure left over counts when it is real and not negligible. The right effect
+        # fitted in a shape some per cent off leaves real but tiny structure; negligible is
+        # small beside the effect (2 % of the excess, a shape about 15 % off in amplitude)
+        # and beside the floor (within 1.2 times it). A wrong term that merely correlates
+        # with the effect leaves more.
+        sizeable = left["chi2_red_share"] > min(LEFTOVER_FRACTION * self.base_excess,
+                                                NEGLIGIBLE_OVER_FLOOR ** 2 - 1.0)
+        structure = sizeable and left["p_value"] < half
+        in_chance = (float(chi2_sf(ext.chi2, ext.dof)) >= half
+                     or ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
+        # Slow noise lines residuals up with time and nothing else: structure in rate, mount
+        # or temperature is an effect, and structure in time is one too unless slow noise is
+        # known, from the static data's noise model or from two sessions that differ by more
+        # than the floor (unrepeated_p_value).
+        slow = self.slow_known or slow_noise(nxt, self.alpha)
+        exempt = self.soaked and slow and left["covariate"] in TIME_LIKE
+        if not usable(nxt):
+            return in_chance and (not structure or exempt)
+        # Two independent looks at what is left, combined (Fisher): its structure in this
+        # session and its repetition in the other. What is left is within chance, or known
+        # to be slow noise; and the other session is no worse than with the configured model.
+        combined = nxt["repeat_p_value"]
+        if sizeable and not exempt:
+            combined = fisher_combined(left["p_value"], combined)
+        nxt["left_p_value"] = combined
+        return (combined >= half and (in_chance or slow)
+                and nxt["validation_rms"] <= base_next["validation_rms"])
+
+
+# A bias drifting linearly in time, fitted per temperature point on a grid: not an effect of
+# the library but the rival every soaked protocol must rule out (a warm-up, a ramp).
+TIME_DRIFT = {"name": "expression", "formula": "t"}
+
+
+def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, tolerance, bound
+               ) -> dict | None:
+    """How far a bias drifting in time within each temperature point takes the held-out
+    error, and whether it explains the excess as a named term would have to; None where time
+    within a point is not separable from temperature (a sweep) or the fit cannot be made."""
+    if not judge.soaked or "t_start" not in obs:
+        return None
+    try:
+        ev = evaluate(extended(settings, TIME_DRIFT), obs, "bias drifting in time")
+    except GyrocalError:
+        return None
+    probe = Candidate("expression(formula='t')", "ranked")
+    explains = judge.explains(ev, probe, base_next, tolerance)
+    gain = practical_gain(base, float(ev.summary["validation_rms"]), bound)
+    return {"validation_rms": ev.summary["validation_rms"], "expected_rms": ev.summary["expected_rms"],
+            "explains": bool(explains and gain),
+            "option": add_term_option("expression(formula='t')"),
+            "config_line": config_line(extended(settings, TIME_DRIFT).model),
+            "leftover": probe.leftover, "next_session": probe.next_session, "rival_of": None}
+
+
+def extended_all(settings: Settings, best: Candidate) -> Settings:
+    for spec in (best.term, *best.together):
+        settings = extended(settings, spec)
+    return settings
+
+
+def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rms: float,
+                 tolerance: float) -> Candidate | None:
+    """``first`` with one more term that, added on top, explains the excess (F-test of the
+    second addition, Bonferroni over the pairs tried); None when no pair does."""
+    settings, obs, alpha = judge.settings, judge.obs, judge.alpha
+    start = evaluate(extended(settings, first.term), obs, first.term)
+    start_next = judge.carry(start) if judge.other is not None else None
+    others = [c for c in ranked if c is not first and c.term not in first.tied_with]
+    found = []
+    for c in others:
+        try:
+            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term)
+        except Exception:  # noqa: BLE001 - as for single candidates: not a pair to name
+            continue
+        df_num, df_den = start.dof - ext.dof + _added_nonlinear(start, ext), ext.dof
+        if df_num <= 0 or df_den <= 0 or len(ext.fitted.used_points()) != len(start.fitted.used_points()):
+            continue
+        f_stat = ((start.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
+        p = float(f_sf(f_stat, df_num, df_den))
+        if p >= alpha / 2 / max(len(others), 1):
+            continue
+        if ext.summary["validation_rms"] >= first.validation_rms_with:
+            continue  # the second term must help on the holds left out too
+        pair = replace(first, together=[c.term])
+        if judge.explains(ext, pair, start_next, tolerance):
+            found.append((ext.summary["validation_rms"], c.term, ext, pair))
+    if not found:
+        return None
+    v, term, ext, pair = min(found, key=lambda f: f[0])
+    return replace(pair, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
+                   explains_excess=True, alone_rms=first.validation_rms_with,
+                   gain_pct=100.0 * (1 - v / base_rms))
+
+
+def practical_gain(base: Evaluation, c: Candidate | float, bound: float) -> bool:
+    """A term (or a model reaching the validation RMS ``c``) takes away a practical part of
+    the excess: the configured model's held-out error is above what a correct model leaves
+    by more than the validation's own uncertainty (``bound``, :func:`chance_bound` of the
+    holds scored), and the term lowers it by more than that uncertainty and by at least a
+    quarter of the excess."""
+    v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
+    gain = v0 - (c if isinstance(c, float) else c.validation_rms_with)
+    return (v0 > expected * bound and gain > v0 * (1.0 - 1.0 / bound)
+            and gain >= 0.25 * (v0 - expected))
+
+
+def mark_ties(tested: list[Candidate]) -> None:
+    """Candidates whose extended fits are the same to a part in 10⁶ (χ²) add the same
+    columns in this protocol's span (a quadratic and an asymmetric scale at one speed)."""
+    for c in tested:
+        c.tied_with = [o.term for o in tested if o is not c and o.df == c.df
+                       and abs(o.chi2 - c.chi2) <= 1e-6 * max(c.chi2, 1e-300)]
+
+
+def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next, tolerance
+                    ) -> list[Candidate]:
+    """Every candidate added to the configured model in turn, refitted, validated, tested
+    against the model (nested F-test, Bonferroni over the candidates tested) and judged
+    (:meth:`Judge.explains`); ranked by the validation RMS they reach, then the candidates
+    that could not be fitted, with their reason."""
+    settings, obs, data, alpha = judge.settings, judge.obs, judge.data, judge.alpha
+    candidates: list[Candidate] = []
+    tested = []
+    queue = [(spec, None) for spec in names]
+    while queue:
+        spec, part_of = queue.pop(0)
+        term = make_term(spec)
+        if term.moving_temperature and judge.soaked:
+            candidates.append(Candidate(spec, "not identifiable", reason=(
+                "the temperature holds still within every point: it changes nothing there")))
+            continue
+        series = "series" in data
+        missing = sorted(c for c in term.needs if c not in data and not c.startswith("rate_")
+                         and not (series and c in SERIES_INPUTS))
+        if missing:
+            candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
+            continue
+        try:
+            ext = evaluate(extended(settings, spec), obs, spec)
+        except MissingInputError as exc:
+            candidates.append(Candidate(spec, "missing inputs", reason=reason(exc)))
+            continue
+        except GyrocalError as exc:
+            candidates.append(Candidate(spec, "not identifiable", reason=reason(exc),
+                                        excited=_excited(extended(settings, spec), term, data)))
+            if part_of is None:
+                part = _seen_part(settings, obs, spec)
+                if part is not None:   # what the protocol can see of it, judged the same way
+                    queue.insert(0, (part, spec))
+            continue
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
+            candidates.append(Candidate(spec, "failed", reason=f"{type(exc).__name__}: {exc}"))
+            continue
+        added = [c for c in ext.fitted.names if c not in base.fitted.names]
+        df_num, df_den = base.dof - ext.dof + _added_nonlinear(base, ext), ext.dof
+        problem = ("it leaves fewer temperature points"
+                   if len(ext.fitted.used_points()) != len(base.fitted.used_points())
+                   else "it adds no coefficient to the model" if df_num <= 0
+                   else "it leaves no degree of freedom" if df_den <= 0 else None)
+        if problem:
+            candidates.append(Candidate(spec, "not identifiable", reason=problem))
+            continue
+        f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
+        p = float(f_sf(f_stat, df_num, df_den))
+        size, peak = effect_size(ext, spec, added, data)
+        v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
+        candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
+                              100.0 * (1 - v1 / v0), False, size, peak,
+                              expected_with=ext.summary["expected_rms"])
+        candidate.chi2 = ext.chi2
+        candidate.part_of = part_of
+        candidate.explains_excess = judge.explains(ext, candidate, base_next, tolerance)
+        candidates.append(candidate)
+        tested.append(candidate)
+    for c in tested:  # Bonferroni over the candidates actually tested
+        c.significant = c.p_value < alpha / 2 / max(len(tested), 1)
+    for c in candidates:  # the full term's reason stays with the part that was fitted
+        if c.status == "not identifiable":
+            c.seen_part = next((t.term for t in tested if t.part_of == c.term), None)
+    mark_ties(tested)
+    ranked = sorted(tested, key=lambda c: c.validation_rms_with)
+    return ranked + [c for c in candidates if c.status != "ranked"]
+
+
+def _added_nonlinear(base: Evaluation, ext: Evaluation) -> int:
+    """The profiled settings (a time constant) an extension adds: parameters of the F-test
+    as its coefficients are."""
+    return len(_profiled(ext) - _profiled(base))
+
+
+def _profiled(ev: Evaluation) -> set:
+    """The nonlinear settings a fit found by profiling and the data identified."""
+    return {(p["term"], p["parameter"]) for p in getattr(ev.fitted, "profiled", ()) or ()
+            if p.get("identified", True)}
+
+
+def _seen_part(settings, obs, spec) -> str | None:
+    try:
+        return identifiable_part(settings, obs, spec)
+    except GyrocalError:
+        return None
+
+
+def _excited(settings, term, data) -> bool:
+    """Whether any of ``term``'s columns is not zero on the holds."""
+    try:
+        model = settings.model.build()
+        design = model.design(model.transform_inputs(data))
+    except Exception:  # noqa: BLE001 - a term that cannot even be evaluated: say nothing of it
+        return False
+    return any(np.any(np.asarray(design[c]) != 0) for c in term.coefficients() if c in design)

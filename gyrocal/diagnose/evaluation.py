@@ -1,0 +1,221 @@
+"""Models the diagnosis compares: the configured one and its extensions, each fitted and
+validated leaving temperature points out, and the config that writes them."""
+
+from __future__ import annotations
+
+import json
+import shlex
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..config import Settings
+from ..errors import GyrocalError
+from ..model import columns_of
+from ..terms import AXES, TERMS, make_term
+from ..terms.effects import CANDIDATES
+from ..thermal import fit_model
+from ..validate import validate
+
+
+@dataclass
+class Evaluation:
+    """A model fitted and validated: what the diagnosis compares."""
+
+    name: str
+    terms: list[str]
+    kind: str
+    fitted: object
+    summary: dict
+    chi2: float
+    dof: int
+
+
+def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Evaluation:
+    """``settings.model`` fitted to ``obs`` and validated leaving temperature points out."""
+    m = settings.model
+    fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    summary = validate(fitted.model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    return evaluation_of(settings, fitted, summary, name)
+
+
+def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model") -> Evaluation:
+    """A fit of ``settings.model`` and its validation summary, made elsewhere (the analyse
+    job's fit and validate stages), as the diagnosis reads them."""
+    chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
+    dof = sum(sum(f.dof.values()) for f in fitted.fits)
+    return Evaluation(name, [t.spec_string() for t in fitted.model.terms], settings.model.kind,
+                      fitted, summary, chi2, dof)
+
+
+def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
+    """The settings with ``spec`` added to the model (replacing a term of the same
+    identity, so ``bias_temp_poly(degree=3)`` supersedes ``bias_temp_poly(degree=2)``)."""
+    model = settings.model.with_terms((spec,))
+    return replace(settings, model=replace(model, kind=kind or model.kind))
+
+
+def candidate_terms(settings: Settings) -> list[str]:
+    """The library's candidates and every term of the model's term files whose effect the
+    model lacks, plus the candidates the user names (these may also supersede a term of
+    the model, e.g. a higher degree); temperature-only terms only for continuous models."""
+    model = settings.model.build()
+    have = {t.spec_string() for t in model.terms}
+    have_keys = {t.identity for t in model.terms}
+    files = {str(Path(f).resolve()) for f in settings.model.term_files}
+    user_file_terms = [n for n, cls in TERMS.items() if getattr(cls, "source_file", None) in files]
+    requested = {make_term(spec).spec_string() for spec in settings.diagnosis.candidates}
+    out = []
+    for spec in [*CANDIDATES, *settings.diagnosis.candidates, *user_file_terms]:
+        term = make_term(spec)
+        label = term.spec_string()
+        if label in have or label in out or (term.identity in have_keys and label not in requested):
+            continue
+        if settings.model.kind == "grid" and term.varies_with_temperature:
+            continue
+        out.append(label)
+    return out
+
+
+def pooled(fits, name: str) -> tuple[float, float]:
+    """Inverse-variance mean of one coefficient over the fits (one per temperature point,
+    or the single continuous fit) and its standard error."""
+    # A joint grid fit holds a point-scope coefficient as ``<name>.@<point>``, one per point.
+    pairs = [(f.values[j], f.stderr[j]) for f in fits for j, n in enumerate(f.names)
+             if n == name or n.split(".@")[0] == name]
+    v = np.array([p[0] for p in pairs])
+    w = 1.0 / np.maximum(np.array([p[1] for p in pairs]), 1e-300) ** 2
+    return float(np.sum(w * v) / np.sum(w)), float(np.sqrt(1.0 / np.sum(w)))
+
+
+def effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
+                ) -> tuple[list[dict], float]:
+    """Each added coefficient pooled over the fits, and the largest contribution of the
+    added term to any observation (deg/s)."""
+    fits = evaluation.fitted.fits
+    unit = make_term(spec).unit
+    size = [dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit)))
+            for name in added]
+    model = fits[0].model
+    peak = 0.0
+    for result, rows in zip(fits, evaluation.fitted.rows):
+        design = model.design({k: v[rows] for k, v in obs_data.items()})
+        for a in AXES:
+            contribution = sum(result.coef(n) * np.asarray(design[n]) for n in result.names
+                               if n.split(".@")[0] in added and n.split(".")[1] == a)
+            if np.ndim(contribution):
+                peak = max(peak, float(np.max(np.abs(contribution))))
+    return size, peak
+
+
+def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:
+    """The base model, then each configured step added to the one before."""
+    rows = [_ladder_row(base, [])]
+    current = settings
+    for step in settings.diagnosis.ladder:
+        for spec in step["add"]:
+            current = extended(current, spec, step["kind"])
+        if step["kind"] and not step["add"]:
+            current = replace(current, model=replace(current.model, kind=step["kind"]))
+        try:
+            ev = evaluate(current, obs, step["name"])
+        except GyrocalError as exc:
+            rows.append({"name": step["name"], "error": reason(exc)})
+            continue
+        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
+            rows.append({"name": step["name"], "error": f"{type(exc).__name__}: {exc}"})
+            continue
+        added = [c for c in ev.fitted.names if c not in base.fitted.names]
+        rows.append(_ladder_row(ev, added))
+    return rows
+
+
+def _ladder_row(ev: Evaluation, added: list[str]) -> dict:
+    params = [dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name))))
+              for name in added]
+    s = ev.summary
+    return {"name": ev.name, "kind": ev.kind, "terms": ev.terms,
+            "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
+            "expected_rms": s["expected_rms"], "excess": s["excess"],
+            "chi2_red": ev.chi2 / ev.dof, "parameters": params}
+
+
+def config_line(model) -> str:
+    """The ``model:`` lines of the config for ``model`` (a ModelSettings): ``terms: [...]``
+    and, when it has any, ``expressions: {...}``. Specs other than plain names are quoted."""
+    def quote(t):
+        if t.isidentifier():
+            return t
+        return f"'{t}'" if '"' in t and "'" not in t else json.dumps(t)   # YAML scalars
+    terms = [make_term(t).spec_string() for t in model.terms]
+    lines = ["terms: [" + ", ".join(quote(t) for t in terms) + "]"]
+    if model.expressions:
+        lines.append("expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions)
+                     + "}")
+    return "\n".join(lines)
+
+
+def add_term_option(term: str) -> str:
+    return "--add-term " + shlex.quote(term)
+
+
+def reason(exc: BaseException) -> str:
+    """An error's message without the file it names (the diagnosis reports on one log)."""
+    text = str(exc)
+    return text.split(": ", 1)[1] if text.startswith("/") and ": " in text else text
+
+
+def identifiable_part(settings: Settings, obs: pd.DataFrame, spec: str) -> str | None:
+    """``spec`` restricted to the coefficients this protocol can tell apart from the rest of
+    the model (:class:`gyrocal.terms.Restricted`): its columns, weighted by the holds'
+    floors as the fit weights them, added one by one in the term's order, each kept only
+    while the model's design stays as well conditioned as a fit requires (a third of
+    :data:`gyrocal.model.MAX_CONDITION`, for margin). A grid model's point coefficients are
+    judged at every point, and a coefficient dependent at any is dropped. None when every
+    coefficient can be fitted (the term is not the problem) or none can."""
+    from ..model import MAX_CONDITION, axis_of, observation_floor
+    from ..terms import Restricted
+    term = make_term(spec)
+    base = settings.model.build()
+    model = extended(settings, spec).model.build()
+    data = model.transform_inputs(columns_of(obs))
+    design = model.design(data)
+    floor = observation_floor(data)
+    n = len(floor)
+    point = np.asarray(data["point"], dtype=int) if "point" in data else np.zeros(n, dtype=int)
+    grid = settings.model.kind == "grid"
+    points = np.unique(point) if grid else np.array([0])
+
+    def per_point(name, global_scope):
+        column = np.broadcast_to(np.asarray(design[name], dtype=float), (n,))
+        if not grid or global_scope:
+            return [column]
+        return [np.where(point == p, column, 0.0) for p in points]
+
+    scope = {t.spec_string(): t.coefficient_scope == "global" for t in model.terms}
+    global_of = {c: scope[t.spec_string()] for t in model.terms for c in t.coefficients()}
+    dependent = set()
+    for i, axis in enumerate(AXES):
+        w = 1.0 / floor[:, i]
+        kept = [c * w for name in base.names if axis_of(name) == axis
+                for c in per_point(name, global_of.get(name, False))]
+        kept = [c / np.linalg.norm(c) for c in kept if np.linalg.norm(c) > 0]
+        for name in term.coefficients():
+            if axis_of(name) != axis:
+                continue
+            trial = [c * w for c in per_point(name, global_of[name])]
+            trial = [c / np.linalg.norm(c) for c in trial if np.linalg.norm(c) > 0]
+            if not trial:
+                dependent.add(name)
+                continue
+            s = np.linalg.svd(np.column_stack(kept + trial), compute_uv=False)
+            if s[-1] <= s[0] / (MAX_CONDITION / 3):
+                dependent.add(name)
+            else:
+                kept += trial
+    if not dependent or len(dependent) == len(term.coefficients()):
+        return None
+    prefix = term.name + "."
+    return Restricted(term, [c.removeprefix(prefix) for c in term.coefficients() if c in dependent]).spec_string()

@@ -1,0 +1,186 @@
+"""The other session: a calibration judged as its user meets it, on another session of
+the unit, and whether what a model leaves repeats there or differs by slow noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ..config import Settings
+from ..errors import GyrocalError
+from ..terms import AXES
+from ..thermal import in_sample
+from .stats import chi2_sf
+
+SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
+
+
+def usable(nxt) -> bool:
+    """A carry-over to another session that could be made and tested."""
+    return nxt is not None and "error" not in nxt and nxt.get("repeat_p_value") is not None
+
+
+def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> dict:
+    """``ev``'s calibration (the fit of ``settings`` extended by the candidate; its
+    reference temperature is ``settings``') applied to another session of the unit
+    (:func:`gyrocal.drift.revalidate`) and whether the pattern of its residuals repeats there
+    (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
+    from ..drift import hold_errors, revalidate
+    from ..pipeline import calibrate_observations
+    cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
+    r = revalidate(cal, other)
+    errors, floor1 = hold_errors(cal, other)
+    resid, floor0, rows = in_sample(ev.fitted, len(obs))
+    z0, z1 = (resid / floor0)[rows], errors / floor1
+    out = {"validation_rms": r["validation_rms"], "noise_floor": r["noise_floor"],
+           "excess": r["excess"], "expected_rms": r["expected_rms"], "holds": r["holds"],
+           "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
+           "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
+           "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1)}
+    if not all(np.isfinite(v) for v in out.values() if isinstance(v, float)):
+        raise GyrocalError("the other session's errors are not finite")
+    return out
+
+
+REPEAT_DRAWS = 9999
+POINT_MATCH = 3.0   # °C: soaked points of two sessions closer than this are the same point
+
+
+def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFrame:
+    """Each hold's cell, the key two sessions of one protocol share (temperature, mount,
+    rate and, along a sweep, the direction the temperature moves), and its block of
+    neighbouring cells (10 °C × mount) whose errors a slow wander shares."""
+    temp = obs["temp"].to_numpy(float)
+    point_temp = obs["point_temp"].to_numpy(float) if "point_temp" in obs else temp
+    if "point" in obs:
+        spread = obs.groupby(obs["point"].to_numpy())["temp"].transform(lambda t: t.max() - t.min())
+        soaked = spread.to_numpy() < soaked_spread
+    else:
+        soaked = np.zeros(len(obs), dtype=bool)
+    # Holds of one soaked point share its temperature; along a sweep, 2 °C bins and the
+    # direction of the ramp (on a soak the temperature rate is noise: no direction).
+    tbin = np.where(soaked, point_temp, 2.0 * np.round(temp / 2.0))
+    rate = obs["temp_rate"].to_numpy(float) if "temp_rate" in obs else np.zeros(len(obs))
+    rising = np.where(soaked, 0.0, np.sign(np.round(np.nan_to_num(rate), 1)))
+    return pd.DataFrame({"temp": tbin, "soaked": soaked, "mount": obs["mount"].astype(str).to_numpy(),
+                         "rate": np.round(obs["ref_rate"].to_numpy(float), 1), "rising": rising})
+
+
+def _snap(cells1: pd.DataFrame, cells0: pd.DataFrame) -> pd.DataFrame:
+    """Session 1's soaked point temperatures moved to session 0's nearest, when within
+    :data:`POINT_MATCH` (set points drift a little between sessions)."""
+    points0 = np.unique(cells0.loc[cells0["soaked"], "temp"])
+    if points0.size == 0:
+        return cells1
+    t = cells1["temp"].to_numpy(float)
+    nearest = points0[np.abs(t[:, None] - points0[None, :]).argmin(axis=1)]
+    snap = cells1["soaked"].to_numpy() & (np.abs(nearest - t) <= POINT_MATCH)
+    return cells1.assign(temp=np.where(snap, nearest, t))
+
+
+KEY = ["temp", "mount", "rate", "rising"]
+
+
+def _shared_cells(obs0, z0, obs1, z1):
+    """Per cell both sessions have: the mean residual of each (n, 3), the number of holds
+    averaged in each, and the cell's block; session 1's offset per axis removed. None when
+    fewer than 6 blocks are shared."""
+    c0 = _cells(obs0)
+    c1 = _snap(_cells(obs1), c0)
+
+    def means(cells, z):
+        frame = pd.concat([cells[KEY].reset_index(drop=True),
+                           pd.DataFrame(np.nan_to_num(np.asarray(z, float)), columns=list(AXES))], axis=1)
+        grouped = frame.groupby(KEY, sort=True)
+        return grouped[list(AXES)].mean(), grouped.size()
+
+    m0, k0 = means(c0, z0)
+    m1, k1 = means(c1, z1)
+    m1 = m1 - m1.mean()
+    shared = m0.index.intersection(m1.index)
+    if shared.empty:
+        return None
+    block = (np.floor(shared.get_level_values("temp").to_numpy(float) / 10.0).astype(int).astype(str)
+             + "|" + shared.get_level_values("mount").to_numpy().astype(str))
+    if np.unique(block).size < 6:
+        return None
+    return (m0.loc[shared].to_numpy(), m1.loc[shared].to_numpy(), k0.loc[shared].to_numpy(float),
+            k1.loc[shared].to_numpy(float), block)
+
+
+def repeat_p_value(obs0: pd.DataFrame, z0: np.ndarray, obs1: pd.DataFrame, z1: np.ndarray,
+                   draws: int = REPEAT_DRAWS) -> float | None:
+    """How likely, were the two sessions' residuals independent, a pattern that repeats as
+    much as this one. Two-sided: a model wrong in a way that depends on the session's
+    conditions (a lag at another ramp rate) can leave the pattern reversed.
+
+    The residuals ``z`` (hold error ÷ floor, per axis) are averaged per cell shared by the
+    sessions, and each block's mean per axis is removed from both: what is compared is the
+    pattern within blocks (over rate, direction, time within a point), which a wander across
+    blocks (bias instability, a random walk over the session) leaves alone. The statistic is
+    |Σ z0·z1| over cells and axes. Its null distribution flips the sign of session 1's cells
+    a whole block and axis at a time: wander within a block correlates its holds within a
+    session, not across sessions, so flipping blocks keeps that correlation. Draws from a
+    fixed seed: the same data give the same p. None when fewer than 6 blocks are shared."""
+    shared = _shared_cells(obs0, z0, obs1, z1)
+    if shared is None:
+        return None
+    a, b, _, _, block = shared
+    labels, codes = np.unique(block, return_inverse=True)
+
+    def within(m):
+        sums = np.stack([np.bincount(codes, weights=m[:, i], minlength=labels.size) for i in range(3)], axis=1)
+        return m - (sums / np.bincount(codes, minlength=labels.size)[:, None])[codes]
+
+    products = within(a) * within(b)                                       # (cells, 3)
+    per_block = np.stack([np.bincount(codes, weights=products[:, i], minlength=labels.size)
+                          for i in range(products.shape[1])], axis=1).ravel()
+    observed = per_block.sum()
+    signs = np.random.default_rng(0).choice((-1.0, 1.0), size=(draws, per_block.size))
+    null = signs @ per_block
+    return float((1 + np.count_nonzero(np.abs(null) >= abs(observed) * (1 - 1e-12))) / (draws + 1))
+
+
+def unrepeated_p_value(obs0, z0, obs1, z1) -> float | None:
+    """Whether the sessions differ by more than white noise. Per shared cell, the
+    difference of the two sessions' mean residuals over its standard deviation for white
+    noise at the floor, ``sqrt(1/k0 + 1/k1)`` for cells of k0 and k1 holds, is a unit normal
+    when what is left repeats; a χ² excess is noise between holds that the floor leaves out:
+    slow wander. (Session 0's in-sample residuals scatter a little less than unit normals, by
+    the fit's leverage: the test errs towards finding no wander.)"""
+    shared = _shared_cells(obs0, z0, obs1, z1)
+    if shared is None:
+        return None
+    a, b, k0, k1, _ = shared
+    d = ((a - a.mean(axis=0)) - b) / np.sqrt(1.0 / k0 + 1.0 / k1)[:, None]
+    return float(chi2_sf(float(np.sum(d ** 2)), d.size - 3))
+
+
+# Above this share of their pattern in common, two sessions' residuals repeat: slow noise,
+# independent between sessions, leaves about none in common (two independent wanders can
+# correlate by chance, seldom this much).
+REPEATS_SHARE = 0.5
+
+
+def shared_fraction(obs0, z0, obs1, z1) -> float | None:
+    """How much of the two sessions' residual pattern over the cells they share is common:
+    ``1 − Σ(a − b)² / Σ(a² + b²)``, ``a`` and ``b`` the cell means less each session's mean
+    per axis. About 0 for independent noise, slow wander included, and 1 for a pattern
+    that repeats. Whole blocks count here (:func:`repeat_p_value` leaves their means out):
+    an effect constant over a block, as a g-sensitivity on one mount is, repeats as whole
+    blocks. None when fewer than 6 blocks are shared."""
+    shared = _shared_cells(obs0, z0, obs1, z1)
+    if shared is None:
+        return None
+    a, b = shared[0] - shared[0].mean(axis=0), shared[1] - shared[1].mean(axis=0)
+    power = float(np.sum(a ** 2 + b ** 2))
+    return float(1.0 - np.sum((a - b) ** 2) / power) if power > 0 else 0.0
+
+
+def slow_noise(nxt, alpha: float) -> bool:
+    """The sessions differ by more than the floor (:func:`unrepeated_p_value`) and do not
+    share their pattern (:func:`shared_fraction`): slow noise, not an effect."""
+    return (usable(nxt) and nxt["unrepeated_p_value"] is not None
+            and nxt["unrepeated_p_value"] < alpha / 2
+            and (nxt.get("shared_fraction") is None or nxt["shared_fraction"] < REPEATS_SHARE))
+

@@ -1,0 +1,200 @@
+"""The verdict and the advice: what the diagnosis found, in sentences, and what to do next."""
+
+from __future__ import annotations
+
+from ..terms import make_term
+from .sessions import usable
+from .stats import p_text
+
+
+def drift_sentence(base, drift: dict) -> str:
+    rival = (f" {drift['rival_of']} fits it as well, and neither can be named: the mounts follow "
+             "each other in time, so this protocol cannot tell an effect constant per mount from "
+             "a drift."
+             if drift["rival_of"] else "")
+    return (f"A bias drifting linearly in time within each temperature point explains the excess "
+            f"(validation RMS {base.summary['validation_rms']:.3g} → {drift['validation_rms']:.3g} deg/s, "
+            f"what a correct model would leave: {drift['expected_rms']:.3g}): the missing effect "
+            f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}")
+
+
+def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
+            partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
+            tolerance=None, *, noise_explains: bool = False, unseparable=()) -> str:
+    text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
+                           partial, within_noise, unrepeated, base_next, tolerance,
+                           noise_explains=noise_explains, unseparable=unseparable)
+    if base_next is None or base_next["holds"] or best is not None:
+        return text
+    if unrepeated:
+        return text + (f" On the other session the errors are {base_next['excess']:.3g} times the "
+                       "floor from the same noise: holds minutes apart scatter more than the floor "
+                       "from the static data says.")
+    if explains:
+        return text + (f" On the other session the calibration's errors are {base_next['excess']:.3g} "
+                       "times the floor: it does not carry over, the unit changed between sessions "
+                       "(run-to-run bias, drift; gyrocal revalidate and gyrocal drift say which "
+                       "parameters).")
+    return text + f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+
+
+def _separation(c) -> str:
+    """What of a library term the protocol cannot separate, for the part it fitted, and
+    what would."""
+    dropped = make_term(c.term).drop
+    remedy = "; ".join(SEPARATES[k] for k in sorted(input_kinds(c.term)) if k in SEPARATES)
+    return (f"this protocol cannot separate {', '.join(f'{c.part_of}.{d}' for d in dropped)} from "
+            "the rest of the model" + (f" ({remedy})" if remedy else ""))
+
+
+def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
+                    within_noise, unrepeated, base_next, tolerance=None, *,
+                    noise_explains: bool = False, unseparable=()) -> str:
+    factor = rms_over_floor["all"]
+    s = base.summary
+    held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
+    small = ""
+    if tolerance is not None and held_out <= tolerance:
+        small = (f" On the holds left out its error is {held_out:.2f} times what a correct model "
+                 f"would leave, within that figure's uncertainty (up to {tolerance:.2f}): the "
+                 "excess is too small to attribute to an effect.")
+    if best is not None:
+        sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
+        top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
+               f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
+        tied = (f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the "
+                "data identically." if best.tied_with else "")
+        carried = ""
+        if base_next is not None and usable(best.next_session):
+            carried = (f" On the other session the error falls from {base_next['excess']:.3g} to "
+                       f"{best.next_session['excess']:.3g} times the floor.")
+        name = (f"{best.part_of}, the part this protocol can see ({best.term})" if best.part_of
+                else best.term)
+        seen = (f" That is as much of {best.part_of} as this protocol shows, and what its "
+                f"sessions need: {_separation(best)}." if best.part_of else "")
+        if best.together:
+            return (f"Missing effects: {name} and {', '.join(best.together)}. Adding both "
+                    f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
+                    f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+                    f"({best.expected_with:.3g}); {best.term} alone takes it to {best.alone_rms:.3g}."
+                    + seen + carried)
+        return (f"Missing effect: {name}. Adding it lowers the validation RMS from "
+                f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
+                f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
+                f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
+                f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}")
+    if noise_explains:
+        wide = s["validation_rms"] / within_noise["expected_rms"]
+        return (f"The model explains the data as far as one session can tell: its in-sample "
+                f"residuals, {factor:.2f} times the floor from the static data, are within the "
+                f"slow wander that {within_noise['static_seconds']:.0f} s of static data cannot rule "
+                f"out (reduced χ² {within_noise['chi2_red']:.2f} with it), on the holds left out its "
+                f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
+                "noise, and no term takes a practical part of it away. Another session of the unit "
+                "(--other-session) would tell slow wander from an effect.")
+    if not explains:
+        lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+        where = (f"; the excess lives mostly with {lead['covariate']} "
+                 f"({100 * lead['share_of_excess']:.0f} % of it)" if lead else "")
+        if partial:
+            first = partial[0]
+            name = f"{first.part_of}, the part this protocol can see," if first.part_of else first.term
+            outside = (f" The rest may be {first.part_of} beyond what {_separation(first)}, or "
+                       "another effect." if first.part_of else
+                       " The missing effect is likely outside the library: write it as a term "
+                       "(docs/effects.md).")
+            return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                    f"times their noise floor. No library or listed term explains it; "
+                    f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
+                    f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
+                    f" times what a correct model would leave){where}.{outside}")
+        return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                "times their noise floor, and no candidate term accounts for it" + where + "." + small)
+    if unrepeated:
+        return (f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
+                f"noise floor, but their pattern does not come back in the other session (p = "
+                f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
+                "resolve, not a missing effect.")
+    return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
+            "their noise floor, as " + ("the sensor's noise model" if noise_model else
+                                         "white noise within the holds") + " would leave; nothing is missing.")
+
+
+# What separates effects of each kind of input, for a protocol that cannot tell them apart.
+SEPARATES = {
+    "accel": "mounts that put gravity along each axis in both directions (the six-mount "
+             "protocol) separate orientation effects from the bias",
+    "rate": "holds at several speeds in both directions on every axis separate the even and "
+            "odd shapes of the rate",
+    "thermal": "two sweeps at different ramp rates separate the temperature's rate and lag "
+               "from the temperature itself",
+    "time": "revisiting the first temperature point at the end of the session separates "
+            "drift in time from temperature; another session (--other-session) tells a "
+            "drift that repeats from slow noise",
+}
+
+
+def input_kinds(term: str) -> set[str]:
+    t = make_term(term)
+    inputs = set(t.inputs())
+    kinds = set()
+    if any(i.startswith("accel") for i in inputs):
+        kinds.add("accel")
+    if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
+        kinds.add("rate")
+    if inputs & {"temp_rate", "temp_lag"}:
+        kinds.add("thermal")
+    if "t" in inputs:
+        kinds.add("time")
+    return kinds
+
+
+def advice(best, partial, candidates, covariates, explains: bool, has_other: bool,
+           drift: dict | None = None) -> list[str]:
+    """What to do next, in sentences: what would separate effects this protocol confounds
+    (and that either one compensates what it sees), where an unexplained excess lives and
+    how to write the effect, and when another session would decide."""
+    out = []
+    if best is None and drift is not None and drift["explains"]:
+        out.append("Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
+                   "a bias drifting linearly within each point, and a term file can give it the "
+                   "shape of the drift (docs/effects.md, section 7)"
+                   + ("; visiting the first mount again at the end of a point separates a drift "
+                      f"from {drift['rival_of']}" if drift["rival_of"] else "") + ".")
+    if best is not None and best.tied_with:
+        kinds = set().union(*(input_kinds(t) for t in (best.term, *best.tied_with)))
+        out.append(f"{best.term} and {', '.join(best.tied_with)} fit this session identically: "
+                   f"either compensates what this protocol sees (validation RMS "
+                   f"{best.validation_rms_with:.3g} deg/s). To tell them apart: "
+                   + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES) + ".")
+    if best is not None and best.part_of:
+        out.append(f"{best.option} adds what this protocol can see of {best.part_of}; a "
+                   f"calibration made so holds for sessions of the same protocol. To fit all of it: "
+                   + "; ".join(SEPARATES[k] for k in sorted(input_kinds(best.term)) if k in SEPARATES)
+                   + ".")
+    if explains or best is not None:
+        return out
+    # A term the holds do not excite at all (a scale on a rig that does not turn) shows
+    # nothing in them either: only one the protocol sees but cannot separate is worth a word.
+    blocked = [c for c in candidates if c.status == "not identifiable" and c.excited]
+    for c in blocked:
+        kinds = input_kinds(c.term)
+        if kinds:
+            seen = (f" (the part it can see, {c.seen_part}, is ranked with the candidates)"
+                    if getattr(c, "seen_part", None) else "")
+            out.append(f"{c.term} cannot be fitted from this protocol ({c.reason}){seen}: "
+                       + "; ".join(SEPARATES[k] for k in sorted(kinds)) + ".")
+    for c in partial[:1]:
+        if c.leftover is not None:
+            out.append(f"With {c.term} the residuals still follow {c.leftover['covariate']} "
+                       f"(p = {c.leftover['p_value']:.2g}): the effect is likely another shape "
+                       "of that covariate; write it as a term (docs/effects.md).")
+    lead = covariates[0]["covariate"] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+    if lead is not None and lead.startswith("time") and not (drift and drift["explains"]):
+        out.append("The excess follows time: a warm-up or a drift. Write it as a term of t with "
+                   "a global coefficient (docs/effects.md, section 7, works one through); "
+                   + SEPARATES["time"] + ".")
+    if not has_other:
+        out.append("Diagnose with another session of the unit (--other-session) to judge the "
+                   "candidates by how they carry over to it, as a calibration will be used.")
+    return out
