@@ -223,6 +223,82 @@ def test_real_session_phases_from_the_data_match_the_annotation(tmp_path):
     assert (turns.loc[["x_rot", "y_rot", "z_rot"], "angle"] == -360.0).all()   # clockwise, as imucal's
 
 
+def imucal_terms(ref) -> dict[str, float]:
+    """imucal's calibration as gyrocal's parameters (``w = K w_true + B``: K − I and B)."""
+    K = ref.K_g @ ref.R_g
+    out = {f"bias.{a}": float(ref.b_g[i]) for i, a in enumerate("xyz")}
+    for i, a in enumerate("xyz"):
+        for j, b in enumerate("xyz"):
+            name = f"scale.{a}" if i == j else f"misalignment.{a}.{b}"
+            out[name] = float(K[i, j] - (i == j))
+    return out
+
+
+def z_against_imucal(cal, ref) -> dict[str, float]:
+    """Every term's difference from imucal's, in the calibration's standard errors."""
+    want = imucal_terms(ref)
+    return {name: (value - want[name]) / se for name, value, se
+            in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0])}
+
+
+def cut_to_sections(path: Path, *, rows_as_time: bool) -> Path:
+    """The real session as a recording trimmed to its annotated sections: the handling
+    between them dropped, the sections joined in time order with no move between them.
+    ``rows_as_time``: time counts the kept rows (no gap where a cut was), else it keeps the
+    sample index (a gap at every cut)."""
+    sections = json.loads((REAL / "sections.json").read_text())
+    table = pq.read_table(path)
+    keep = np.zeros(table.num_rows, bool)
+    for span in sections.values():
+        keep[span["start"]:span["end"]] = True
+    table = table.filter(pa.array(keep))
+    if rows_as_time:
+        table = table.set_column(0, "t", pa.array(np.arange(table.num_rows) / RATE))
+    out = path.with_name(f"cut_{rows_as_time}.parquet")
+    pq.write_table(table, out)
+    return out
+
+
+@needs({"imucal": HAS_IMUCAL}, "pip install imucal, or make test")
+@pytest.mark.parametrize("rows_as_time", [False, True])
+def test_real_session_cut_to_its_sections_segments_from_the_data(tmp_path, rows_as_time):
+    """A recording trimmed to its sections has no move between one face and the next: the
+    six faces are one still stretch whose gravity turns by 90° or 180° from face to face.
+    Found from the data alone, the sections are the person's (each turn to the sample) and
+    the calibration agrees with imucal's within 3 noise-only standard errors on every term."""
+    cut = cut_to_sections(real_log(tmp_path, annotated=False), rows_as_time=rows_as_time)
+    result = run(cut, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
+                 protocol="ferraris")
+    info = result.segmentation.info
+    assert info["phases_from"] == "data" and info["cuts"] == 8
+    obs = result.segmentation.observations.set_index("section")
+    sections = json.loads((REAL / "sections.json").read_text())
+    start = {}   # each section's first row in the cut log
+    at = 0
+    for label, span in sorted(sections.items(), key=lambda kv: kv[1]["start"]):
+        start[label], at = at, at + span["end"] - span["start"]
+    t = pq.read_table(cut, columns=["t"]).column("t").to_numpy()
+    for label in ("x_rot", "y_rot", "z_rot"):
+        span = sections[label]
+        assert obs.loc[label, "n"] == span["end"] - span["start"], label
+        assert obs.loc[label, "t_start"] == t[start[label]]
+        assert obs.loc[label, "angle"] == -360.0
+    for label in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a"):
+        first = t[start[label]]
+        last = t[start[label] + sections[label]["end"] - sections[label]["start"] - 1]
+        assert first <= obs.loc[label, "t_start"] and obs.loc[label, "t_end"] <= last, label
+        assert obs.loc[label, "n"] >= 0.9 * (sections[label]["end"] - sections[label]["start"]) - 25
+    z = z_against_imucal(result.calibration, imucal_calibration())
+    assert max(abs(v) for v in z.values()) < 3, z
+
+
+def test_real_session_uncut_finds_no_cut(tmp_path):
+    """The whole recording, handling moves and all, is one piece: no cut is taken for a move."""
+    seg = segment_log(real_log(tmp_path, annotated=False), Settings().for_protocol("ferraris"),
+                      "ferraris")
+    assert seg.info["cuts"] == 0
+
+
 def test_real_session_turns_read_360_after_compensation(tmp_path):
     """Each turn's angle integrated from the samples compensated by ``gyrocal apply``: the raw
     output misses a full turn by up to 12°; the compensated one reads it within 1°. A turn is
