@@ -292,6 +292,67 @@ def test_real_session_cut_to_its_sections_segments_from_the_data(tmp_path, rows_
     assert max(abs(v) for v in z.values()) < 3, z
 
 
+# The map of the real session in imucal's labelled form: nothing but the map is needed.
+LABELLED_MAP = """\
+time: {column: samples, sample_rate: 102.4, sort: true}   # the rows come grouped by label
+gyro: {x: gyr_x, y: gyr_y, z: gyr_z, unit: deg/s}
+accel: {x: acc_x, y: acc_y, z: acc_z, unit: m/s^2}
+sections: {column: part}
+"""
+
+
+def labelled_session(folder: Path, *, label: bool = True) -> Path:
+    """The real session in imucal's labelled form, the one ``ferraris_regions_from_df``
+    takes: a ``part`` column naming every row's section and the sample index as
+    ``samples``, cut to the sections (the handling between them dropped), rows grouped by
+    label in imucal's order (x_a before x_p). ``label=False``: the same file without its
+    label column."""
+    data = pd.read_csv(REAL / "session.csv").rename(columns={"n_samples": "samples"})
+    sections = json.loads((REAL / "sections.json").read_text())
+    parts = [data.iloc[span["start"]:span["end"]].assign(part=label_)
+             for label_, span in sorted(sections.items())]
+    table = pd.concat(parts)[["part", "samples", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]]
+    if not label:
+        table = table.drop(columns="part")
+    path = folder / ("labelled.csv" if label else "unlabelled.csv")
+    table.to_csv(path, index=False)
+    return path
+
+
+def imported(tmp_path, source: Path, map_text: str) -> Path:
+    """``gyrocal import SOURCE --map MAP`` as a user runs it."""
+    from gyrocal import cli
+    (tmp_path / "map.yaml").write_text(map_text)
+    out = tmp_path / (source.stem + ".parquet")
+    assert cli.main(["import", str(source), "--map", str(tmp_path / "map.yaml"), "-o", str(out)]) == 0
+    return out
+
+
+@needs({"imucal": HAS_IMUCAL}, "pip install imucal, or make test")
+def test_imucal_labelled_session_imports_with_its_map_and_calibrates_as_imucal(tmp_path):
+    """imucal's labelled form, its sections as a label column on every row and its rows
+    grouped by label, imports from its own file with a map alone. Calibrated from that
+    annotation, every term lies within 1 noise-only standard error of imucal's calibration
+    of the same file (read by imucal's own ferraris_regions_from_df); the same file
+    without its label column, segmented from the data alone, within 3."""
+    from imucal import FerrarisCalibration, ferraris_regions_from_df
+    source = labelled_session(tmp_path)
+    frame = pd.read_csv(source).set_index("part")
+    ref = FerrarisCalibration().compute(ferraris_regions_from_df(frame), sampling_rate_hz=RATE,
+                                        from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+    noise_only = settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0)
+    marked = run(imported(tmp_path, source, LABELLED_MAP), noise_only, protocol="ferraris")
+    assert marked.segmentation.info["phases_from"] == "annotation"
+    z = z_against_imucal(marked.calibration, ref)
+    assert max(abs(v) for v in z.values()) < 1, z
+    plain_map = "\n".join(line for line in LABELLED_MAP.splitlines() if "part" not in line)
+    found = run(imported(tmp_path, labelled_session(tmp_path, label=False), plain_map), noise_only,
+                protocol="ferraris")
+    assert found.segmentation.info["phases_from"] == "data"
+    z = z_against_imucal(found.calibration, ref)
+    assert max(abs(v) for v in z.values()) < 3, z
+
+
 def test_real_session_uncut_finds_no_cut(tmp_path):
     """The whole recording, handling moves and all, is one piece: no cut is taken for a move."""
     seg = segment_log(real_log(tmp_path, annotated=False), Settings().for_protocol("ferraris"),
