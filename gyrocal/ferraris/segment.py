@@ -33,7 +33,7 @@ import pandas as pd
 
 from ..errors import ConfigError, SegmentationError
 from ..holds import AXES, Segmentation, hold_table, timeline, true_runs
-from ..io import ACCEL, GYRO, RigLog, open_dataset, time_seconds
+from ..io import ACCEL, GYRO, RigLog, declared_units, open_dataset, time_seconds
 from . import FACES, LABELS, TURNS
 
 FULL_TURN = 360.0
@@ -69,7 +69,8 @@ def read_sections(log: RigLog, t: np.ndarray) -> np.ndarray | None:
         return None
     table = dataset.to_table(columns=["t", "section"])
     labels = table.column("section").to_pandas().astype(object).to_numpy()
-    t_all = time_seconds(table.column("t").combine_chunks(), Path(log.path), [])
+    t_all = time_seconds(table.column("t").combine_chunks(), Path(log.path), [],
+                         declared_units(dataset.schema, Path(log.path)))
     if len(t_all) != len(t):
         rows = np.searchsorted(t_all, t)
         labels = labels[np.clip(rows, 0, len(labels) - 1)]
