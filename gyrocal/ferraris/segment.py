@@ -177,8 +177,9 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
     limit = max(opts["still_rate"], opts["still_sigmas"] * float(np.max(sigma)))
     still_block = np.abs(g - rest_level).max(axis=(1, 2)) < limit
     # a run of still blocks ends at a cut, and where a piece's partial block was left out
-    piece = np.searchsorted(cuts, starts, side="right")
-    contiguous = np.r_[False, (starts[1:] == starts[:-1] + block) & (piece[1:] == piece[:-1])]
+    block_piece = np.searchsorted(cuts, starts, side="right")
+    contiguous = np.r_[False, (starts[1:] == starts[:-1] + block)
+                       & (block_piece[1:] == block_piece[:-1])]
     lo, hi = true_runs(still_block)
     runs = []
     for a, b in zip(lo, hi):

@@ -147,9 +147,7 @@ class LogSink:
             raise LogFormatError(f"{self.locate(int(rows[i]))}: section {values[i].as_py()!r} is "
                                  f"not one of {' '.join(LABELS)} (or an empty cell)",
                                  source=self.source)
-        codes = index.to_numpy(zero_copy_only=False)
-        codes = np.where(np.isnan(codes), -1, codes).astype(np.int8) if index.null_count \
-            else codes.astype(np.int8)
+        codes = index.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
         # the runs of one label (or none) in this batch: a loop per run, not per sample
         starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
         ends = np.r_[starts[1:], len(codes)]
