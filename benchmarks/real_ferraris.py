@@ -7,8 +7,11 @@ Prints, for every scale, cross-axis and bias term: gyrocal's value with two stan
 errors (the noise's alone, and with the hand's assumed errors: a 1° guide, a unit flat to
 0.5°), imucal's value, their difference and the difference in units of each standard error;
 then the same for gyrocal with the acceleration sensitivity added (imucal's model) and for
-the phases found from the data instead of the annotation; then every turn's integrated
-angle, raw and after each compensation (a full turn reads 360°)."""
+the phases found from the data instead of the annotation; for the session in imucal's
+labelled form (its sections as a label column, rows grouped by label, the handling cut
+away: tests/test_ferraris.py makes it), imported with a map alone, from its labels and from
+the data alone; then every turn's integrated angle, raw and after each compensation (a full
+turn reads 360°)."""
 
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from gyrocal.apply import apply_calibration  # noqa: E402
 from gyrocal.config import Settings  # noqa: E402
 from gyrocal.importer import import_log  # noqa: E402
 from gyrocal.pipeline import run  # noqa: E402
+from tests.test_ferraris import LABELLED_MAP, labelled_session  # noqa: E402
 
 REAL = ROOT / "data" / "real" / "imucal-ferraris"
 RATE = 102.4
@@ -132,11 +136,20 @@ def main(argv=None) -> int:
                          if not line.startswith("sections"))
         (tmp / "plain.yaml").write_text(text)
         import_log(REAL / "session.csv", plain, tmp / "plain.yaml")
+        labelled, cut = tmp / "labelled.parquet", tmp / "cut.parquet"
+        (tmp / "labelled.yaml").write_text(LABELLED_MAP)
+        import_log(labelled_session(tmp), labelled, tmp / "labelled.yaml")
+        (tmp / "cut.yaml").write_text("\n".join(line for line in LABELLED_MAP.splitlines()
+                                                if "part" not in line))
+        import_log(labelled_session(tmp, label=False), cut, tmp / "cut.yaml")
         for title, log, terms in [
                 ("annotated sections, default model (12 parameters)", annotated, None),
                 ("annotated sections, + g_sensitivity (imucal's model)", annotated,
                  ["bias", "scale", "misalignment", "g_sensitivity"]),
-                ("phases found from the data, default model", plain, None)]:
+                ("phases found from the data, default model", plain, None),
+                ("imucal's labelled form, from its label column, default model", labelled, None),
+                ("imucal's labelled form without its labels: cut to its sections, phases "
+                 "found from the data, default model", cut, None)]:
             print(f"\n## {title}\n")
             print(show(comparison(log, ref, terms=terms)))
         print("\n## every turn's angle, integrated over its annotated section\n")

@@ -113,7 +113,7 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             if constant_temp is not None:
                 data["temp"] = np.full(len(gyro), constant_temp)
             if t0 is not None:  # the model reads series signals: time since the first row
-                data["t"] = time_seconds(batch.column("t"), path, origin) - t0
+                data["t"] = time_seconds(batch.column("t"), path, origin, units) - t0
             if series is not None:
                 data["series"] = series
                 data["temp_rate"] = series.at("temp_rate", data["t"])

@@ -37,6 +37,9 @@ UNIT_FACTORS = {
     "ref_rate": {"deg/s": 1.0, "rad/s": 180.0 / math.pi, "mdps": 1e-3},
     "accel": {"g": 1.0, "m/s^2": 1.0 / 9.80665, "m/s2": 1.0 / 9.80665},
     "temp": {"degC": 0.0, "°C": 0.0, "C": 0.0, "K": -273.15},  # offsets, not factors
+    # a float t counted in another unit than the contract's seconds (a timestamp carries
+    # its own)
+    "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
 }
 _QUANTITY_OF = {**{c: "gyro" for c in GYRO}, "ref_rate": "ref_rate",
                 **{c: "accel" for c in ACCEL}, "temp": "temp"}
@@ -228,11 +231,16 @@ def check_float(schema: pa.Schema, name: str, path: Path) -> None:
         raise LogFormatError(f"column {name} has type {typ}, expected float32 or float64", source=path)
 
 
-def time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
+def time_seconds(col: pa.Array, path: Path, origin: list, units: dict | None = None) -> np.ndarray:
     """Seconds as float64. Timestamps count from the log's first one (kept in ``origin``),
-    in integer arithmetic, so epoch times keep their sub-microsecond resolution."""
+    in integer arithmetic, so epoch times keep their sub-microsecond resolution; a float
+    column in the unit ``units`` declares for ``t`` (default: seconds)."""
     typ = col.type
+    unit = (units or {}).get("t", "s")
     if pa.types.is_timestamp(typ):
+        if unit != "s":
+            raise LogFormatError(f"metadata gyrocal.units gives t in {unit!r}, but column t is a "
+                                 f"timestamp, which carries its own unit ({typ.unit})", source=path)
         scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[typ.unit]
         ints = col.cast(pa.int64())
         missing = ints.is_null().to_numpy(zero_copy_only=False) if ints.null_count else None
@@ -245,7 +253,8 @@ def time_seconds(col: pa.Array, path: Path, origin: list) -> np.ndarray:
             seconds[missing] = np.nan
         return seconds
     if pa.types.is_float64(typ) or pa.types.is_float32(typ):
-        return np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+        seconds = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
+        return seconds * UNIT_FACTORS["t"][unit] if unit != "s" else seconds
     raise LogFormatError(f"column t has type {typ}, expected float64 seconds or a timestamp",
                          source=path)
 
@@ -460,7 +469,7 @@ def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Pa
     batch = {}
     for name, col in zip(record_batch.schema.names, record_batch.columns):
         if name == "t":
-            batch[name] = _reading(time_seconds(col, path, origin), TIME_LIMIT)
+            batch[name] = _reading(time_seconds(col, path, origin, units), TIME_LIMIT)
         elif name == "mount":
             batch[name] = _mount_codes(col, path)
         else:

@@ -17,6 +17,7 @@ import pandas as pd
 from . import __version__, plausibility, protocols
 from .calibration import Calibration
 from .config import Settings
+from .errors import SegmentationError
 from .blocks import BlockSink
 from .floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
 from .holds import Segmentation
@@ -66,7 +67,10 @@ def segment_log(path, settings: Settings, protocol: str = protocols.DEFAULT, *,
         filled = [c for c in rules.without if c not in log]
         log = with_constants(log, {"ref_rate": 0.0, "temp": settings.model.reference_temperature})
         plausibility.log_errors(log.input_stats, path)
-        seg = rules.segment(log, settings)
+        try:
+            seg = rules.segment(log, settings)
+        except SegmentationError as exc:
+            raise plausibility.explain_segmentation(exc, log.input_stats, path) from None
         seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
                               "rows": log.rows_read, "rows_dropped": log.rows_dropped}
         if log.input_stats is not None:

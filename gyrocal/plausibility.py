@@ -40,6 +40,7 @@ CODES = {
     "accel_units": "the accelerometer reads about 9.8 at rest: m/s², not g",
     "accel_scale": "the accelerometer's magnitude at rest is far from 1 g",
     "mount_contradicts_gravity": "mount labels that disagree with gravity on the accelerometer",
+    "time_base_implausible": "a sample interval, hold length or session length no rig records",
     "sample_jitter": "sample intervals scattered by more than 10 % of the nominal",
     "dropped_samples": "samples missing between regular ones",
     "holds_rejected": "holds rejected for saturation, disagreement with the reference or instability",
@@ -71,6 +72,17 @@ RUN_BREAK_S = 60.0           # a pause this long ends a run of one temperature v
 GYRO_LIMIT = 1e4             # deg/s: beyond every MEMS gyro's range (±4000 deg/s at most)
 GARBLED_LIMIT = 1e8          # no unit makes a gyro read this (4000 deg/s in mdps is 4e6)
 GARBLED_SHARE = 0.01         # of the samples beyond it: the columns are corrupt, not spiked
+# What rigs record (s): samples from 100 kHz (beyond any MEMS gyro's output rate) to 0.5 Hz
+# (a slow thermal logger), holds (a constant rate, a revolution, a face) of 0.05 s to an
+# hour, sessions of a second to a month. Beyond the second bounds nothing records at all.
+TIME_PLAUSIBLE = {"sample interval": (1e-5, 2.0), "hold": (0.05, 3600.0),
+                  "session": (1.0, 30 * 86400.0)}
+TIME_POSSIBLE = {"sample interval": (1e-6, 60.0), "hold": (0.005, 86400.0),
+                 "session": (0.1, 366 * 86400.0)}
+# Units a time column is written in by mistake for seconds: factor to seconds, name, and
+# the gyrocal.units entry that declares it (None: convert t to seconds).
+TIME_MISTAKES = ((1e-3, "milliseconds", "ms"), (1e-6, "microseconds", "us"),
+                 (1e-9, "nanoseconds", "ns"), (60.0, "minutes", None), (3600.0, "hours", None))
 
 
 class ImplausibleInputError(InputError):
@@ -279,11 +291,105 @@ class InputStats:
             "gyro_garbled": self.gyro_garbled})
 
 
+def duration_text(seconds: float) -> str:
+    """A duration as a person reads it: 12 µs, 0.01 s, 5.6 h, 55 days."""
+    for size, unit in ((86400.0 * 365.25, "years"), (86400.0, "days"), (3600.0, "h"),
+                       (60.0, "min"), (1.0, "s"), (1e-3, "ms"), (1e-6, "µs")):
+        if seconds >= size or unit == "µs":
+            value = seconds / size
+            return f"{value:,.0f} {unit}" if value >= 1000 else f"{value:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+_TIME_WORDS = {"sample interval": "samples {} apart", "hold": "holds of {}",
+               "session": "a session of {}"}
+
+
+def _time_said(values: dict, names: list[str]) -> str:
+    parts = [_TIME_WORDS[q].format(duration_text(values[q])) for q in names]
+    return " and ".join(parts) if len(parts) < 3 else f"{parts[0]}, {parts[1]} and {parts[2]}"
+
+
+def _time_off(values: dict, bounds: dict) -> list[str]:
+    return [q for q, v in values.items() if not bounds[q][0] <= v <= bounds[q][1]]
+
+
+def time_base_review(stats: dict | None, hold_s: float | None = None) -> dict | None:
+    """The time base against what rigs record: the nominal sample interval, the session's
+    length and, where the protocol's holds last as long as the rig held them, their typical
+    length. None when all are what rigs record; else what is off (``odd``), the values, and
+    the first unit (t in ms, µs, ns, min, h) that brings all of them into what rigs record
+    (``fix``: factor, name, declared unit; None when none does) and whether it is an error:
+    two of them off, or one that nothing records, with a fix."""
+    measured = {}
+    if stats and stats.get("nominal_dt"):
+        measured["sample interval"] = float(stats["nominal_dt"])
+    if hold_s:
+        measured["hold"] = float(hold_s)
+    if stats and stats.get("duration_s"):
+        measured["session"] = float(stats["duration_s"])
+    odd = _time_off(measured, TIME_PLAUSIBLE)
+    if not odd:
+        return None
+    fix = next(((f, name, unit) for f, name, unit in TIME_MISTAKES
+                if not _time_off({q: v * f for q, v in measured.items()}, TIME_PLAUSIBLE)), None)
+    error = fix is not None and (len(odd) >= 2 or bool(_time_off(measured, TIME_POSSIBLE)))
+    return {"odd": odd, "measured": measured, "fix": fix, "error": error}
+
+
+def _time_fix_text(review: dict) -> str:
+    """'in milliseconds, samples 10 ms apart: declare it ...'"""
+    factor, name, unit = review["fix"]
+    scaled = {q: v * factor for q, v in review["measured"].items()}
+    how = (f'declare it in the log\'s metadata gyrocal.units as {{"t": "{unit}"}} (an import '
+           f"map: time.unit {unit})" if unit else "convert t to seconds")
+    return f"in {name}, {_time_said(scaled, review['odd'])}: {how}"
+
+
+def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | None, dict | None]:
+    """(an error's message, a warning) of :func:`time_base_review`. Rates are per second of
+    the sensor's own clock, so a wrong time unit leaves K and B alone but not the noise
+    figures (ARW, Allan deviation), the noise floor's time terms or time-read terms."""
+    review = time_base_review(stats, hold_s)
+    if review is None:
+        return None, None
+    odd, measured = review["odd"], review["measured"]
+    said = _time_said(measured, odd)
+    if review["error"]:
+        return f"t does not count seconds: {said}, which no rig records; {_time_fix_text(review)}", None
+    evidence = {q.replace(" ", "_") + "_s": v for q, v in measured.items()}
+    consequence = "the noise figures (ARW, Allan deviation) and time-read terms take t as seconds"
+    if review["fix"] is None:
+        return None, finding("time_base_implausible", f"{said}, which rigs do not record: "
+                             f"{consequence}; check the time column", odd=odd, **evidence)
+    return None, finding("time_base_implausible",
+                         f"{said}, which rigs do not record; {_time_fix_text(review)}, if t counts "
+                         f"{review['fix'][1]}; {consequence}", unit_factor=review["fix"][0],
+                         odd=odd, **evidence)
+
+
+def explain_segmentation(exc: InputError, stats: dict | None, source=None) -> InputError:
+    """A segmentation's failure on a log whose time base is off where a unit factor would
+    set it right: the time base is the likelier cause, so the error says it as well."""
+    review = time_base_review(stats)
+    if review is None or review["fix"] is None:
+        return exc
+    reason = str(exc).removeprefix(f"{exc.source}: ") if exc.source else str(exc)
+    return ImplausibleInputError(
+        f"{reason}; t may not count seconds: {_time_said(review['measured'], review['odd'])}, "
+        f"which rigs do not record; {_time_fix_text(review)}", source=source)
+
+
 def log_errors(stats: dict | None, source=None) -> None:
     """Raise where the read's :class:`InputStats` show the log cannot be right: a
-    temperature in kelvin, a gyro axis that never changes."""
+    temperature in kelvin, a gyro axis that never changes, a time base in another unit
+    than seconds (the sample interval and the session's length; holds are judged after
+    segmentation, in :func:`review`)."""
     if not stats or not stats.get("rows"):
         return
+    error, _ = time_base(stats)
+    if error is not None:
+        raise ImplausibleInputError(error, source=source)
     lo_hi = stats.get("temp_range")
     if lo_hi is not None and KELVIN_RANGE[0] <= lo_hi[0] and lo_hi[1] <= KELVIN_RANGE[1]:
         raise ImplausibleInputError(
@@ -708,7 +814,12 @@ def review(obs, info: dict | None, cal, *, protocol: str | None, source=None) ->
     """Every check on one unit session: raises :class:`ImplausibleInputError` where the log
     cannot be right, returns the warnings otherwise (the order of :data:`CODES`)."""
     info = info or {}
-    found = log_findings(info.get("input_stats"), source)
+    from . import protocols
+    timed = protocols.get(protocol).timed_holds
+    error, warning = time_base(info.get("input_stats"), info.get("typical_hold_s") if timed else None)
+    if error is not None:
+        raise ImplausibleInputError(error, source=source)
+    found = log_findings(info.get("input_stats"), source) + ([warning] if warning else [])
     Ks = cal.matrices()[0]
     names = set(cal.model.names)
     identified = tuple(f"scale.{a}" in names for a in AXES)

@@ -82,6 +82,9 @@ class Protocol:
     without: tuple[str, ...] = ()
     # The protocol runs at one temperature by design: one temperature point is no warning.
     one_temperature: bool = False
+    # Its holds last as long as the rig held them (a sweep's windows have a set length):
+    # their typical length tells the time base's unit (gyrocal.plausibility.time_base).
+    timed_holds: bool = True
 
 
 def register(protocol: Protocol) -> Protocol:

@@ -223,6 +223,143 @@ def test_real_session_phases_from_the_data_match_the_annotation(tmp_path):
     assert (turns.loc[["x_rot", "y_rot", "z_rot"], "angle"] == -360.0).all()   # clockwise, as imucal's
 
 
+def imucal_terms(ref) -> dict[str, float]:
+    """imucal's calibration as gyrocal's parameters (``w = K w_true + B``: K − I and B)."""
+    K = ref.K_g @ ref.R_g
+    out = {f"bias.{a}": float(ref.b_g[i]) for i, a in enumerate("xyz")}
+    for i, a in enumerate("xyz"):
+        for j, b in enumerate("xyz"):
+            name = f"scale.{a}" if i == j else f"misalignment.{a}.{b}"
+            out[name] = float(K[i, j] - (i == j))
+    return out
+
+
+def z_against_imucal(cal, ref) -> dict[str, float]:
+    """Every term's difference from imucal's, in the calibration's standard errors."""
+    want = imucal_terms(ref)
+    return {name: (value - want[name]) / se for name, value, se
+            in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0])}
+
+
+def cut_to_sections(path: Path, *, rows_as_time: bool) -> Path:
+    """The real session as a recording trimmed to its annotated sections: the handling
+    between them dropped, the sections joined in time order with no move between them.
+    ``rows_as_time``: time counts the kept rows (no gap where a cut was), else it keeps the
+    sample index (a gap at every cut)."""
+    sections = json.loads((REAL / "sections.json").read_text())
+    table = pq.read_table(path)
+    keep = np.zeros(table.num_rows, bool)
+    for span in sections.values():
+        keep[span["start"]:span["end"]] = True
+    table = table.filter(pa.array(keep))
+    if rows_as_time:
+        table = table.set_column(0, "t", pa.array(np.arange(table.num_rows) / RATE))
+    out = path.with_name(f"cut_{rows_as_time}.parquet")
+    pq.write_table(table, out)
+    return out
+
+
+@needs({"imucal": HAS_IMUCAL}, "pip install imucal, or make test")
+@pytest.mark.parametrize("rows_as_time", [False, True])
+def test_real_session_cut_to_its_sections_segments_from_the_data(tmp_path, rows_as_time):
+    """A recording trimmed to its sections has no move between one face and the next: the
+    six faces are one still stretch whose gravity turns by 90° or 180° from face to face.
+    Found from the data alone, the sections are the person's (each turn to the sample) and
+    the calibration agrees with imucal's within 3 noise-only standard errors on every term."""
+    cut = cut_to_sections(real_log(tmp_path, annotated=False), rows_as_time=rows_as_time)
+    result = run(cut, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
+                 protocol="ferraris")
+    info = result.segmentation.info
+    assert info["phases_from"] == "data" and info["cuts"] == 8
+    obs = result.segmentation.observations.set_index("section")
+    sections = json.loads((REAL / "sections.json").read_text())
+    start = {}   # each section's first row in the cut log
+    at = 0
+    for label, span in sorted(sections.items(), key=lambda kv: kv[1]["start"]):
+        start[label], at = at, at + span["end"] - span["start"]
+    t = pq.read_table(cut, columns=["t"]).column("t").to_numpy()
+    for label in ("x_rot", "y_rot", "z_rot"):
+        span = sections[label]
+        assert obs.loc[label, "n"] == span["end"] - span["start"], label
+        assert obs.loc[label, "t_start"] == t[start[label]]
+        assert obs.loc[label, "angle"] == -360.0
+    for label in ("x_p", "x_a", "y_p", "y_a", "z_p", "z_a"):
+        first = t[start[label]]
+        last = t[start[label] + sections[label]["end"] - sections[label]["start"] - 1]
+        assert first <= obs.loc[label, "t_start"] and obs.loc[label, "t_end"] <= last, label
+        assert obs.loc[label, "n"] >= 0.9 * (sections[label]["end"] - sections[label]["start"]) - 25
+    z = z_against_imucal(result.calibration, imucal_calibration())
+    assert max(abs(v) for v in z.values()) < 3, z
+
+
+# The map of the real session in imucal's labelled form: nothing but the map is needed.
+LABELLED_MAP = """\
+time: {column: samples, sample_rate: 102.4, sort: true}   # the rows come grouped by label
+gyro: {x: gyr_x, y: gyr_y, z: gyr_z, unit: deg/s}
+accel: {x: acc_x, y: acc_y, z: acc_z, unit: m/s^2}
+sections: {column: part}
+"""
+
+
+def labelled_session(folder: Path, *, label: bool = True) -> Path:
+    """The real session in imucal's labelled form, the one ``ferraris_regions_from_df``
+    takes: a ``part`` column naming every row's section and the sample index as
+    ``samples``, cut to the sections (the handling between them dropped), rows grouped by
+    label in imucal's order (x_a before x_p). ``label=False``: the same file without its
+    label column."""
+    data = pd.read_csv(REAL / "session.csv").rename(columns={"n_samples": "samples"})
+    sections = json.loads((REAL / "sections.json").read_text())
+    parts = [data.iloc[span["start"]:span["end"]].assign(part=label_)
+             for label_, span in sorted(sections.items())]
+    table = pd.concat(parts)[["part", "samples", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]]
+    if not label:
+        table = table.drop(columns="part")
+    path = folder / ("labelled.csv" if label else "unlabelled.csv")
+    table.to_csv(path, index=False)
+    return path
+
+
+def imported(tmp_path, source: Path, map_text: str) -> Path:
+    """``gyrocal import SOURCE --map MAP`` as a user runs it."""
+    from gyrocal import cli
+    (tmp_path / "map.yaml").write_text(map_text)
+    out = tmp_path / (source.stem + ".parquet")
+    assert cli.main(["import", str(source), "--map", str(tmp_path / "map.yaml"), "-o", str(out)]) == 0
+    return out
+
+
+@needs({"imucal": HAS_IMUCAL}, "pip install imucal, or make test")
+def test_imucal_labelled_session_imports_with_its_map_and_calibrates_as_imucal(tmp_path):
+    """imucal's labelled form, its sections as a label column on every row and its rows
+    grouped by label, imports from its own file with a map alone. Calibrated from that
+    annotation, every term lies within 1 noise-only standard error of imucal's calibration
+    of the same file (read by imucal's own ferraris_regions_from_df); the same file
+    without its label column, segmented from the data alone, within 3."""
+    from imucal import FerrarisCalibration, ferraris_regions_from_df
+    source = labelled_session(tmp_path)
+    frame = pd.read_csv(source).set_index("part")
+    ref = FerrarisCalibration().compute(ferraris_regions_from_df(frame), sampling_rate_hz=RATE,
+                                        from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+    noise_only = settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0)
+    marked = run(imported(tmp_path, source, LABELLED_MAP), noise_only, protocol="ferraris")
+    assert marked.segmentation.info["phases_from"] == "annotation"
+    z = z_against_imucal(marked.calibration, ref)
+    assert max(abs(v) for v in z.values()) < 1, z
+    plain_map = "\n".join(line for line in LABELLED_MAP.splitlines() if "part" not in line)
+    found = run(imported(tmp_path, labelled_session(tmp_path, label=False), plain_map), noise_only,
+                protocol="ferraris")
+    assert found.segmentation.info["phases_from"] == "data"
+    z = z_against_imucal(found.calibration, ref)
+    assert max(abs(v) for v in z.values()) < 3, z
+
+
+def test_real_session_uncut_finds_no_cut(tmp_path):
+    """The whole recording, handling moves and all, is one piece: no cut is taken for a move."""
+    seg = segment_log(real_log(tmp_path, annotated=False), Settings().for_protocol("ferraris"),
+                      "ferraris")
+    assert seg.info["cuts"] == 0
+
+
 def test_real_session_turns_read_360_after_compensation(tmp_path):
     """Each turn's angle integrated from the samples compensated by ``gyrocal apply``: the raw
     output misses a full turn by up to 12°; the compensated one reads it within 1°. A turn is

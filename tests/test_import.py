@@ -18,6 +18,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gyrocal import __version__, cli
+from gyrocal.errors import LogFormatError
 from gyrocal.importer import bags, import_log, sink, tabular
 
 from .conftest import needs
@@ -194,6 +195,76 @@ def test_the_section_column_holds_the_samples_imucal_reads_for_each_section(tmp_
         accel = np.c_[got["accel_x"][rows], got["accel_y"][rows], got["accel_z"][rows]]
         np.testing.assert_array_equal(gyro, getattr(regions, f"gyr_{label}"))
         np.testing.assert_allclose(accel * G0, getattr(regions, f"acc_{label}"), rtol=1e-15)
+
+
+def european(source: Path, out: Path) -> list[int]:
+    """``source`` (a plain CSV) as a rig in much of the world writes it: ``;`` between the
+    columns, a decimal comma, two comment lines before the header and one among the rows,
+    and a row of units under the header. Returns the file line of each data row."""
+    lines = source.read_text().splitlines()
+    header, rows = lines[0].split(","), [line.split(",") for line in lines[1:]]
+    units = {"acc_x": "m/s²", "acc_y": "m/s²", "acc_z": "m/s²", "gyr_x": "°/s", "gyr_y": "[deg/s]",
+             "gyr_z": "dps"}
+    text = ["# exported by the rig's own tool", "# unit 0042, operator 7", ";".join(header),
+            ";".join(units.get(name, "") for name in header)]
+    where = []
+    for k, row in enumerate(rows):
+        if k == len(rows) // 2:
+            text.append("  # the operator paused here")
+        text.append(";".join(cell.replace(".", ",") for cell in row))
+        where.append(len(text))
+    out.write_text("\n".join(text) + "\n", encoding="utf-8")
+    return where
+
+
+EUROPEAN_MAP = """\
+delimiter: ";"
+decimal: ","
+comment: "#"
+units_row: true
+"""
+
+
+def test_decimal_commas_comments_and_a_units_row_give_the_same_log(tmp_path, monkeypatch):
+    """The real session in imucal's labelled form, written as rigs in much of the world write
+    a table, imports to the log the plain file gives, value for value and label for label,
+    across many small blocks (a comment line inside one); an error's line number counts
+    every line of the file, comments and units row included."""
+    from .test_ferraris import LABELLED_MAP, labelled_session
+    monkeypatch.setattr(tabular, "BLOCK_BYTES", 1 << 14)
+    plain = labelled_session(tmp_path)
+    (tmp_path / "plain.yaml").write_text(LABELLED_MAP)
+    (tmp_path / "eu.yaml").write_text(EUROPEAN_MAP + LABELLED_MAP)
+    eu = tmp_path / "eu.csv"
+    lines = european(plain, eu)
+    import_log(plain, tmp_path / "plain.parquet", tmp_path / "plain.yaml")
+    summary = import_log(eu, tmp_path / "eu.parquet", tmp_path / "eu.yaml")
+    assert summary.rows == len(lines) == 4382
+    assert pq.read_table(tmp_path / "eu.parquet").equals(pq.read_table(tmp_path / "plain.parquet"))
+    text = eu.read_text().splitlines()
+    k = len(lines) * 3 // 4          # past the comment among the rows
+    cells = text[lines[k] - 1].split(";")
+    cells[6] = "0,5.1"
+    text[lines[k] - 1] = ";".join(cells)
+    eu.write_text("\n".join(text) + "\n")
+    with pytest.raises(LogFormatError, match=rf"eu\.csv: line {lines[k]}, column gyr_y: '0,5\.1' is not a number$"):
+        import_log(eu, tmp_path / "bad.parquet", tmp_path / "eu.yaml")
+
+
+def test_a_label_column_is_checked_as_a_section_list_is(tmp_path):
+    """Labels land on their rows, an empty cell is outside every section, and the labels of
+    rows out of time order are ordered with them."""
+    (tmp_path / "rig.csv").write_text("n,a,b,c,part\n3,1,2,3,y_p\n0,1,2,3,x_p\n1,1,2,3,x_p\n"
+                                      "2,1,2,3, \n4,1,2,3,y_p\n")
+    (tmp_path / "map.yaml").write_text("time: {column: n, sample_rate: 10, sort: true}\n"
+                                       "gyro: {x: a, y: b, z: c, unit: deg/s}\n"
+                                       "sections: {column: part}\n")
+    summary = import_log(tmp_path / "rig.csv", tmp_path / "out.parquet", tmp_path / "map.yaml")
+    got = columns(tmp_path / "out.parquet")
+    assert list(got["t"]) == [0.0, 0.1, 0.2, 0.3, 0.4]
+    assert list(got["section"]) == ["x_p", "x_p", None, "y_p", "y_p"]
+    assert summary.labels == ("x_p", "y_p")
+    assert provenance(tmp_path / "out.parquet")["map"]["sections"] == {"column": "part"}
 
 
 # --- bags and MCAP --------------------------------------------------------------------------
@@ -481,6 +552,13 @@ def _csv(tmp_path, text, name="rig.csv"):
     return [tmp_path / name, "--map", tmp_path / "map.yaml"]
 
 
+def _labelled(tmp_path, text, map_extra="sections: {column: part}\n", time="{column: n, unit: s}"):
+    (tmp_path / "rig.csv").write_text(text)
+    (tmp_path / "map.yaml").write_text(f"time: {time}\ngyro: {{x: a, y: b, z: c, unit: deg/s}}\n"
+                                       + map_extra)
+    return [tmp_path / "rig.csv", "--map", tmp_path / "map.yaml"]
+
+
 def _map(tmp_path, text):
     (tmp_path / "rig.csv").write_text("n,a,b,c\n0,1,2,3\n")
     (tmp_path / "bad.yaml").write_text(text)
@@ -548,6 +626,36 @@ ERRORS = {
         lambda d: _csv(d, "n,a,b,c\n0,1,2,3\n1,1,2,3\n1,1,2,3\n"),
         r"rig\.csv: time is not strictly increasing: line 4 has t=1\.0 s after t=1\.0 s$"),
     "empty result": (lambda d: _csv(d, "n,a,b,c\n"), r"rig\.csv: no samples to import$"),
+    "rows grouped by label": (
+        lambda d: _labelled(d, "n,a,b,c,part\n5,1,2,3,x_a\n6,1,2,3,x_a\n0,1,2,3,x_p\n"),
+        r"rig\.csv: time is not strictly increasing: line 4 has t=0\.0 s after t=6\.0 s; if the file "
+        r"lists its rows in another order \(grouped by label, say\), sort: true under time in "
+        r"map\.yaml orders them by n$"),
+    "equal times, sorted": (
+        lambda d: _labelled(d, "n,a,b,c\n1,1,2,3\n0,1,2,3\n0,1,2,3\n", "",
+                            "{column: n, unit: s, sort: true}"),
+        r"rig\.csv: time is not strictly increasing: line 4 has t=0\.0 s after t=0\.0 s$"),
+    "unknown section label": (
+        lambda d: _labelled(d, "n,a,b,c,part\n0,1,2,3,x_p\n1,1,2,3,x_rotation\n"),
+        r"rig\.csv: line 3: section 'x_rotation' is not one of x_p x_a y_p y_a z_p z_a x_rot y_rot "
+        r"z_rot \(or an empty cell\)$"),
+    "a section in two stretches": (
+        lambda d: _labelled(d, "n,a,b,c,part\n0,1,2,3,x_p\n1,1,2,3,x_p\n2,1,2,3,y_p\n3,1,2,3,x_p\n"),
+        r"rig\.csv: line 5: section x_p starts again after other rows \(it ran from line 2 to line "
+        r"3\); a section is one stretch of samples in time order$"),
+    "units row against the map": (
+        lambda d: _labelled(d, "n,a,b,c\ns,rad/s,rad/s,rad/s\n0,1,2,3\n", "units_row: true\n"),
+        r"rig\.csv: the units row gives 'rad/s' for column 'a', which map\.yaml maps as gyro\.x in "
+        r"deg/s: correct the map's unit \(or the column\)$"),
+    "sort with a section list": (
+        lambda d: _labelled(d, "n,a,b,c\n0,1,2,3\n", "sections: s.json\n",
+                            "{column: n, unit: s, sort: true}"),
+        r"map\.yaml: a section list counts the file's rows as they stand; with time\.sort give the "
+        r"annotation as a label column \(sections: \{column: NAME\}\)$"),
+    "decimal comma, comma delimiter": (
+        lambda d: _labelled(d, "n,a,b,c\n0,1,2,3\n", "decimal: ','\n"),
+        r"map\.yaml: decimal and delimiter are both ',': a file with decimal commas separates its "
+        r'columns with another character \(delimiter: ";"\)$'),
     "unknown key": (lambda d: _map(d, "time: {column: n, unit: s}\ngyro: {x: a, y: b, z: c, unit: deg/s}\n"
                                       "temperature: {column: t}\n"),
                     r"bad\.yaml: unknown key 'temperature' in the map; expected one of format, "),

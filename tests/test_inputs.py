@@ -156,6 +156,7 @@ KINDS = {
     "units declared: gyro in rad/s": (lambda g: with_units(scaled(g, GYRO, math.pi / 180), '{"gyro": "rad/s"}'),
                                       "ok", None),
     "units declared: gyro in mdps": (lambda g: with_units(scaled(g, GYRO, 1000.0), '{"gyro": "mdps"}'), "ok", None),
+    "units declared: t in ms": (lambda g: with_units(scaled(g, ["t"], 1000.0), '{"t": "ms"}'), "ok", None),
     # -- the contract kept, the content implausible --------------------------------------------
     "gyro in rad/s, undeclared": (lambda g: scaled(g, GYRO, math.pi / 180), "error", r"look like rad/s"),
     "reference in rad/s, undeclared": (lambda g: scaled(g, ["ref_rate"], math.pi / 180), "error",
@@ -170,6 +171,13 @@ KINDS = {
     "a mount missing": (mount_missing, "error", r"excite|z"),
     "temperature in kelvin, undeclared": (lambda g: column(g, "temp", g["temp"].to_numpy() + 273.15),
                                           "error", r"kelvin"),
+    "time in milliseconds, undeclared": (lambda g: scaled(g, ["t"], 1000.0), "error",
+                                         r"t does not count seconds: samples 10 s apart and a session "
+                                         r"of 32\.9 days, .*; in milliseconds, samples 10 ms apart .*"
+                                         r'\{"t": "ms"\}'),
+    "time in microseconds, undeclared": (lambda g: scaled(g, ["t"], 1e6), "error",
+                                         r"t does not count seconds: samples 2\.78 h apart and a "
+                                         r"session of .* years, .*in microseconds, samples 10 ms apart"),
     "temperature sensor dropout": (lambda g: temp_stretch(g, np.nan), "warning", "temperature_dropout"),
     "temperature stuck": (lambda g: temp_stretch(g, "stuck"), "warning", "temperature_stuck"),
     "temperature error code": (lambda g: temp_stretch(g, 850.0), "warning", "temperature_out_of_range"),
@@ -306,6 +314,33 @@ def test_reports_escape_every_string_from_data(good, tmp_path):
     html = fleet.read_text()
     assert "<img" not in html and html.count("&lt;img src=x onerror=alert(1)&gt;") >= 3
     assert "1 with plausibility warnings" in html and "1 warning: protocol_unbalanced" in html
+
+
+@pytest.mark.parametrize("stats, hold, outcome", [
+    # the catalogue's log (100 Hz, 32 min, holds of 6 s) as it is: nothing to say
+    ({"nominal_dt": 0.01, "duration_s": 1898.0}, 5.8, None),
+    # a slow thermal logger: 1 sample/s over ten days
+    ({"nominal_dt": 1.0, "duration_s": 10 * 86400.0}, None, None),
+    # a 1 kHz log in ms: samples 1 s apart (a slow logger's), but holds of 5.6 h and 108
+    # days of it: t in ms
+    ({"nominal_dt": 1.0, "duration_s": 9.4e6}, 20000.0, "error ms"),
+    # one odd figure only: samples 10 s apart in a 28-hour session of 2-minute holds
+    ({"nominal_dt": 10.0, "duration_s": 1.0e5}, 120.0, "warning ms"),
+    # a month and a half of a 100 Hz log: long, and no unit explains it
+    ({"nominal_dt": 0.01, "duration_s": 45 * 86400.0}, 30.0, "warning"),
+])
+def test_the_time_base_against_what_rigs_record(stats, hold, outcome):
+    """Errors where the figures are what no rig records and one unit factor explains them
+    all, warnings where one figure is odd; the factor is named where it explains it."""
+    from gyrocal.plausibility import time_base
+    error, warning = time_base({"rows": 1000, **stats}, hold)
+    if outcome is None:
+        assert error is None and warning is None
+    elif outcome.startswith("error"):
+        assert warning is None and "in milliseconds" in error and '{"t": "ms"}' in error
+    else:
+        assert error is None and warning["code"] == "time_base_implausible"
+        assert ("in milliseconds" in warning["message"]) == outcome.endswith("ms")
 
 
 def test_every_kind_is_in_the_documented_table():

@@ -181,13 +181,19 @@ def test_cli_diagnose_and_add_term_on_a_sweep(sweep_log, tmp_path):
     assert out.returncode == 2 and "use them with gyrocal diagnose" in out.stderr
 
 
-def test_simulate_cli_writes_servo_and_sweep_logs_and_refuses_turntable_knobs(tmp_path):
+def test_simulate_cli_writes_servo_sweep_and_ferraris_logs_and_refuses_turntable_knobs(tmp_path):
     out = gyrocal("simulate", "--protocol", "servo", "--log", str(tmp_path / "s.parquet"),
                "--preset", "quick")
     assert out.returncode == 0, out.stderr
     out = gyrocal("simulate", "--protocol", "sweep", "--log", str(tmp_path / "w.parquet"),
                "--preset", "quick", "--rates", "1,2")
     assert out.returncode == 2 and "--rates do not apply to the sweep rig" in out.stderr
+    # one hand-rotation log of a device (its unit as in its turntable sessions)
+    out = gyrocal("simulate", "--protocol", "ferraris", "--log", str(tmp_path / "f.parquet"))
+    assert out.returncode == 0, out.stderr
+    out = gyrocal("calibrate", str(tmp_path / "f.parquet"), "--protocol", "ferraris", "-o",
+                  str(tmp_path / "f.json"))
+    assert out.returncode == 0, out.stderr
 
 
 def test_a_single_revolution_per_direction_is_scored_in_sample_without_inventing_a_ratio(tmp_path):

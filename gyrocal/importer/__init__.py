@@ -47,10 +47,10 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
         try:
             if spec.is_tabular:
                 from . import tabular
-                spec = tabular.resolve_columns(source, spec,
-                                               tabular.read_header(source, spec.delimiter), map_name)
-                sink = _sink(tmp, source, spec, tabular.locate)
-                rows = tabular.convert(source, spec, sink)
+                table = tabular.Table(source, spec)
+                spec = tabular.resolve_columns(table, spec, map_name)
+                sink = _sink(tmp, source, spec, table.locate, _order_hint(spec, map_name))
+                rows = tabular.convert(table, sink)
                 extra, mapped, notes = {}, _mapped(spec), []
             else:
                 from . import bags
@@ -67,6 +67,9 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
                         "source": {"name": source.name, "format": spec.format,
                                    "sha256": digest.result()}, **extra}
             summary = sink.finish(metadata, rows)
+            if spec.section_column:
+                mapped.append(f"section from column {spec.section_column} "
+                              f"({len(summary.labels)} labels)")
         except BaseException:
             if sink is not None:
                 sink.abort()
@@ -75,7 +78,22 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
     return summary
 
 
-def _sink(path, source, spec: ImportMap, locate, hint: str = "") -> LogSink:
+def _order_hint(spec: ImportMap, map_name: str):
+    """What a table's time-order error adds: a file whose rows go back in time may list
+    them in another order (grouped by label, as imucal writes them), which the map can
+    undo; equal times cannot be ordered."""
+    if spec.sort or not spec.time_column:
+        return ""
+
+    def hint(t: float, before: float) -> str:
+        if t >= before:
+            return ""
+        return (f"; if the file lists its rows in another order (grouped by label, say), "
+                f"sort: true under time in {map_name} orders them by {spec.time_column}")
+    return hint
+
+
+def _sink(path, source, spec: ImportMap, locate, hint="") -> LogSink:
     return LogSink(path, source, locate, spec.sections, spec.sections_file, hint=hint)
 
 
@@ -87,6 +105,8 @@ def _mapped(spec: ImportMap) -> list[str]:
     else:
         unit = next(u for u, f in TIME_UNITS.items() if f == spec.time_factor)
         out = [f"t from {spec.time_column} ({unit})"]
+    if spec.sort:
+        out[0] += f", rows ordered by {spec.time_column}"
     out.append(f"gyro from {','.join(spec.gyro)} ({spec.gyro_scale.unit})")
     if spec.accel:
         out.append(f"accel from {','.join(spec.accel)} ({spec.accel_scale.unit})")

@@ -30,8 +30,10 @@ TEMP_UNITS = ("degC", "K", "degF")
 TIME_SOURCES = ("header", "log")
 
 # Keys allowed at each level (strict: an unknown key is most often a typo).
-TOP_KEYS = ("format", "delimiter", "time", "gyro", "accel", "temp", "ref_rate", "mount",
-            "sections", "topics")
+TOP_KEYS = ("format", "delimiter", "decimal", "comment", "units_row", "time", "gyro", "accel",
+            "temp", "ref_rate", "mount", "sections", "topics")
+TABULAR_KEYS = ("gyro", "accel", "temp", "ref_rate", "mount", "delimiter", "decimal", "comment",
+                "units_row")
 TRIAD_KEYS = ("x", "y", "z", "unit", "sensitivity", "offset")
 TOPIC_KEYS = ("imu", "temperature", "ref_rate")
 HELD_KEYS = ("topic", "field", "unit", "sensitivity", "offset")
@@ -89,6 +91,10 @@ class ImportMap:
 
     format: str
     delimiter: str = ","
+    decimal: str = "."                      # the decimal separator ("," in much of the world)
+    comment: str | None = None              # lines starting with it are skipped
+    units_row: bool = False                 # a row of units under the header
+    sort: bool = False                      # order the rows by the time (or index) column
     time_column: str | None = None
     time_factor: float | None = None        # seconds per time unit
     sample_rate: float | None = None        # t = index / rate (index: time_column or row)
@@ -107,6 +113,7 @@ class ImportMap:
     ref_topic: Held | None = None
     sections: dict[str, tuple[int, int]] | None = None
     sections_file: str | None = None
+    section_column: str | None = None       # the annotation as a label on every row
     optional_defaults: bool = False         # no map: optional columns taken only when present
     raw: dict = field(default_factory=dict, compare=False)
 
@@ -131,7 +138,13 @@ class ImportMap:
         for name in ("temp", "ref_rate", "mount"):
             if getattr(self, name):
                 out.setdefault(getattr(self, name), f"{name}.column")
+        if self.section_column:
+            out.setdefault(self.section_column, "sections.column")
         return out
+
+    def text_columns(self) -> list[str]:
+        """The mapped columns read as text (labels), not numbers."""
+        return [c for c in (self.mount, self.section_column) if c]
 
 
 def format_of(source: Path) -> str | None:
@@ -184,11 +197,23 @@ def load_map(map_path: str | Path | None, source: Path, *, fmt: str | None = Non
         spec = _bag(values, chosen, check)
     if values.get("sections") is not None:
         path = values["sections"]
-        if not isinstance(path, str) or not path:
-            raise ConfigError("sections must be the path of a section list", source=where)
-        resolved = Path(path) if Path(path).is_absolute() else sections_base / path
-        spec["sections"] = read_sections(resolved)
-        spec["sections_file"] = str(resolved)
+        if isinstance(path, dict):
+            check.keys(path, ("column",), "sections")
+            if chosen not in TABULAR:
+                check.fail(f"sections.column applies to CSV/TSV; give a {chosen} source's "
+                           "annotation as a section list")
+            spec["section_column"] = check.name(path.get("column"), "sections.column")
+        elif not isinstance(path, str) or not path:
+            check.fail("sections must be the path of a section list, or {column: NAME}: a "
+                       "column that labels every row with its section")
+        else:
+            if spec.get("sort"):
+                check.fail("a section list counts the file's rows as they stand; with "
+                           "time.sort give the annotation as a label column "
+                           "(sections: {column: NAME})")
+            resolved = Path(path) if Path(path).is_absolute() else sections_base / path
+            spec["sections"] = read_sections(resolved)
+            spec["sections_file"] = str(resolved)
     raw = {k: v for k, v in values.items() if v is not None}
     raw["format"] = chosen
     return ImportMap(format=chosen, raw=raw, **spec)
@@ -294,16 +319,33 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
     if values.get("topics") is not None:
         check.fail(f"topics applies to bags and MCAP files, not to {fmt}")
     spec: dict = {"delimiter": "\t" if fmt == "tsv" else ","}
-    if values.get("delimiter") is not None:
-        d = values["delimiter"]
-        if not isinstance(d, str) or len(d) != 1 or d in "\"\r\n":
-            check.fail(f"delimiter must be one character, got {d!r}")
-        spec["delimiter"] = d
+    for key in ("delimiter", "decimal", "comment"):
+        d = values.get(key)
+        if d is not None:
+            if not isinstance(d, str) or len(d) != 1 or d in "\"\r\n":
+                check.fail(f"{key} must be one character, got {d!r}")
+            spec[key] = d
+    if spec.get("decimal", ".") == spec["delimiter"]:
+        check.fail(f"decimal and delimiter are both {spec['delimiter']!r}: a file with decimal "
+                   "commas separates its columns with another character (delimiter: \";\")")
+    if spec.get("comment") in (spec["delimiter"], spec.get("decimal", ".")):
+        check.fail(f"comment {spec['comment']!r} is also the delimiter or the decimal separator")
+    if values.get("units_row") is not None:
+        if not isinstance(values["units_row"], bool):
+            check.fail(f"units_row must be true or false, got {values['units_row']!r}")
+        spec["units_row"] = values["units_row"]
     time = values.get("time")
     if time is None:
         check.fail("time is missing: give time: {column: NAME, unit: s} or a sample rate "
                    "(time: {sample_rate: HZ} or --sample-rate)")
-    check.keys(time, ("column", "unit", "sample_rate"), "time")
+    check.keys(time, ("column", "unit", "sample_rate", "sort"), "time")
+    if time.get("sort") is not None:
+        if not isinstance(time["sort"], bool):
+            check.fail(f"time.sort must be true or false, got {time['sort']!r}")
+        if time["sort"] and time.get("column") is None:
+            check.fail("time.sort orders the rows by time.column: name the time or sample-index "
+                       "column")
+        spec["sort"] = time["sort"]
     if "sample_rate" in time:
         if "unit" in time:
             check.fail("time: give unit (a time column) or sample_rate (a sample index), not both")
@@ -342,7 +384,7 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
 
 
 def _bag(values: dict, fmt: str, check: _Checker) -> dict:
-    for key in ("gyro", "accel", "temp", "ref_rate", "mount", "delimiter"):
+    for key in TABULAR_KEYS:
         if values.get(key) is not None:
             check.fail(f"{key} applies to CSV/TSV; in a {fmt} source a sensor_msgs/msg/Imu gives "
                        "the rates (rad/s) and accelerations (m/s^2); map other topics under topics:")

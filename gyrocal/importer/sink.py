@@ -19,6 +19,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..errors import ConfigError, EmptyLogError, LogFormatError
+from ..ferraris import LABELS
 from ..io import ACCEL, GYRO, MOUNTS
 
 ORDER = ("t", *GYRO, "temp", "ref_rate", *ACCEL, "mount", "section")
@@ -28,6 +29,7 @@ METADATA_KEY = b"gyrocal.import"
 ROW_GROUP_ROWS = 1 << 17
 MOUNT_TYPE = pa.dictionary(pa.int8(), pa.string())
 _MOUNTS = pa.array(MOUNTS, pa.string())
+_LABELS = pa.array(LABELS, pa.string())
 
 
 @dataclass
@@ -39,23 +41,29 @@ class Summary:
     columns: tuple[str, ...] = ()
     mapped: list[str] = field(default_factory=list)   # "gyro from gyr_x.. (deg/s)", ...
     notes: list[str] = field(default_factory=list)    # rows dropped, and why
+    labels: tuple[str, ...] = ()                      # a label column's sections, in order
 
 
 class LogSink:
     """The output log, written to ``path`` batch by batch.
 
     ``locate(row)`` describes a source row for messages ("line 12", "message 7 on /imu");
-    ``sections`` maps labels to (start, end) source rows, end exclusive; ``hint`` ends a
-    time-order error (what to change in the map).
+    ``sections`` maps labels to (start, end) source rows, end exclusive; a batch may carry
+    the labels instead, as a ``section`` text column (the map's label column), checked as a
+    section list is; ``hint(t, before)`` ends a time-order error (what to change in the map).
     """
 
     def __init__(self, path: Path, source: Path, locate: Callable[[int], str],
                  sections: dict[str, tuple[int, int]] | None = None, sections_file=None,
-                 hint: str = ""):
-        self.path, self.source, self.locate, self.hint = path, source, locate, hint
+                 hint: Callable[[float, float], str] | str = ""):
+        self.path, self.source, self.locate = path, source, locate
+        self.hint = hint if callable(hint) else (lambda t, before: hint)
         self.sections = sections or {}
         self.sections_file = sections_file
         self.labels = pa.array(list(self.sections), pa.string())
+        # a label column: each label's (first, last) source row as written, the one open
+        self.stretches: dict[str, list[int]] = {}
+        self.open_label: str | None = None
         self.writer: pq.ParquetWriter | None = None
         self.schema: pa.Schema | None = None
         self.rows, self.first, self.last, self.last_row = 0, None, -np.inf, None
@@ -73,7 +81,9 @@ class LogSink:
         arrays = {name: batch[name] for name in ORDER if name in batch}
         if "mount" in arrays:
             arrays["mount"] = self._mounts(arrays["mount"], rows)
-        if self.sections:
+        if "section" in arrays:
+            arrays["section"] = self._labels(arrays["section"], rows)
+        elif self.sections:
             arrays["section"] = self._section_column(rows)
         table = pa.record_batch([pa.array(v) if isinstance(v, np.ndarray) else v
                                  for v in arrays.values()], names=list(arrays))
@@ -112,8 +122,8 @@ class LogSink:
                 return
             i, before = int(steps[0]) + 1, float(t[steps[0]])
         raise LogFormatError(f"time is not strictly increasing: {self.locate(int(rows[i]))} has "
-                             f"t={float(t[i])!r} s after t={before!r} s{self.hint}",
-                             source=self.source)
+                             f"t={float(t[i])!r} s after t={before!r} s"
+                             f"{self.hint(float(t[i]), before)}", source=self.source)
 
     def _mounts(self, values: pa.Array, rows: np.ndarray) -> pa.Array:
         """Mount labels as a dictionary in the order of gyrocal.io.MOUNTS (its fast path)."""
@@ -124,6 +134,35 @@ class LogSink:
             raise LogFormatError(f"{self.locate(int(rows[i]))}: mount {values[i].as_py()!r} is "
                                  f"not one of {' '.join(MOUNTS)}", source=self.source)
         return pa.DictionaryArray.from_arrays(index.cast(pa.int8()), _MOUNTS)
+
+    def _labels(self, values: pa.Array, rows: np.ndarray) -> pa.Array:
+        """A label column's text as the section column, checked as a section list is: known
+        labels only (an empty cell is outside every section), each label one stretch of
+        samples in time order (a section list gives each one start and one end)."""
+        values = pc.if_else(pc.equal(values, ""), pa.scalar(None, pa.string()), values)
+        index = pc.index_in(values, value_set=_LABELS)
+        unknown = pc.and_(pc.is_null(index), pc.is_valid(values))
+        if pc.any(unknown).as_py():
+            i = int(np.flatnonzero(unknown.to_numpy(zero_copy_only=False))[0])
+            raise LogFormatError(f"{self.locate(int(rows[i]))}: section {values[i].as_py()!r} is "
+                                 f"not one of {' '.join(LABELS)} (or an empty cell)",
+                                 source=self.source)
+        codes = index.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
+        # the runs of one label (or none) in this batch: a loop per run, not per sample
+        starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
+        ends = np.r_[starts[1:], len(codes)]
+        for a, b in zip(starts, ends):
+            label = LABELS[codes[a]] if codes[a] >= 0 else None
+            if label is not None and label != self.open_label and label in self.stretches:
+                first, last = self.stretches[label]
+                raise LogFormatError(
+                    f"{self.locate(int(rows[a]))}: section {label} starts again after other "
+                    f"rows (it ran from {self.locate(first)} to {self.locate(last)}); a section "
+                    "is one stretch of samples in time order", source=self.source)
+            if label is not None:
+                self.stretches.setdefault(label, [int(rows[a]), 0])[1] = int(rows[b - 1])
+            self.open_label = label
+        return pa.DictionaryArray.from_arrays(pa.array(codes, mask=codes < 0), _LABELS)
 
     def _section_column(self, rows: np.ndarray) -> pa.Array:
         codes = np.full(len(rows), -1, dtype=np.int8)
@@ -148,7 +187,7 @@ class LogSink:
         self.writer.close()
         self.writer = None
         return Summary(rows=self.rows, span=(self.first, self.last),
-                       columns=tuple(self.schema.names))
+                       columns=tuple(self.schema.names), labels=tuple(self.stretches))
 
     def abort(self) -> None:
         if self.writer is not None:

@@ -29,7 +29,9 @@ def _turntable_unit(rng, seed000: bool):
     return GyroUnit.seed000() if seed000 else GyroUnit.random(rng)
 
 
-UNITS = {"turntable": _turntable_unit, "servo": _servo_unit, "sweep": _sweep_unit}
+# a hand-rotation session is of the same physical unit as its turntable sessions
+UNITS = {"turntable": _turntable_unit, "servo": _servo_unit, "sweep": _sweep_unit,
+         "ferraris": _turntable_unit}
 
 
 def unit_for(device: str, session: str, *, seed000: bool = False, protocol: str = "turntable"

@@ -143,4 +143,4 @@ SWEEP = register(Protocol(
     "sweep", "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)",
     segment=lambda log, settings: segment_sweep(log, settings.protocol_options("sweep")),
     static=static, analysis=analysis, report_section="protocols/sweep_section.html.j2",
-    defaults=DEFAULTS))
+    defaults=DEFAULTS, timed_holds=False))

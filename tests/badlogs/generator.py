@@ -661,6 +661,20 @@ def _(tbl, rng):
     return _keep(tbl, _col(tbl, "ref_rate") >= 0)
 
 
+# --- added later by gyrocal's developers (not independent of gyrocal; see NOTE.md) --------
+@_kind("time_in_ms", "implausible", "t written in milliseconds where the contract says seconds",
+       "refuse", "error: the sample interval (50 s) and the session (108 days) are what no rig "
+       "records; in ms they are 50 ms and 2.6 h")
+def _(tbl, rng):
+    return _scaled(tbl, ["t"], lambda t: t * 1e3)
+
+
+@_kind("time_in_us", "implausible", "t written in microseconds where the contract says seconds",
+       "refuse", "error: samples 14 h apart over three centuries; in µs, 50 ms over 2.6 h")
+def _(tbl, rng):
+    return _scaled(tbl, ["t"], lambda t: t * 1e6)
+
+
 def write_all(folder, seed: int = 0) -> dict[str, Path]:
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
