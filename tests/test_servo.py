@@ -392,6 +392,31 @@ def test_symmetric_algorithm1_solves_nine_rotations_exactly():
         fit_symmetric(m[:8], np.full(8, 3.0))
 
 
+def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_path):
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.errors import ConfigError
+    from gyrocal.pipeline import run
+    path = tmp_path / "fixture.parquet"
+    write_session(make_unit(effect="none", protocol="servo", seed=4), path, session=0, seed=1,
+                  misalign_deg=[0.0, 0.0])
+    result = run(path, Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "fixture"}}}}),
+                 protocol="servo")
+    cal, summary = result.calibration, result.validation.summary
+    assert cal.extra["servo"]["model"]["used"] == "fixture"
+    assert {"misalignment.x.y", "misalignment.z.x"} <= set(cal.grid.names)
+    assert summary["servo_model"] == "fixture" and "commanded rate vector" in summary["quantity"]
+    # 18 held-out revolutions: the RMS scatters by about 1/√36 of itself; three times that.
+    assert summary["validation_rms"] <= 1.5 * summary["expected_rms"]
+    assert summary["uncompensated_rms"] > 100 * summary["validation_rms"]
+    default = run(path, protocol="servo")
+    assert default.calibration.extra["servo"]["model"] == {
+        "configured": "auto", "used": "seed001", "why": default.calibration.extra["servo"]["model"]["why"]}
+    assert set(default.calibration.grid.names) == {f"{t}.{a}" for t in ("bias", "scale") for a in "xyz"}
+    with pytest.raises(ConfigError, match="calibration"):
+        Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "full"}}}})
+
+
 def test_cross_axis_study_says_what_the_terms_cost_and_gain():
     from gyrocal.servo.montecarlo import cross_axis_study, cross_axis_summary
     df = cross_axis_study(n_sets=4, n_runs=40, noise=0.001)
