@@ -202,7 +202,7 @@ def write_unit_report(results: UnitResults, path) -> None:
         table_holds=results.table_holds.to_dict("records"),
         table_samples=results.table_samples.to_dict("records"),
         by_temperature=results.by_temperature.to_dict("records"),
-        provenance=cal.provenance, log=results.log, command=results.command,
+        provenance=cal.provenance, log=results.log, command=results.command, calibration_extra=cal.extra,
         fig_timeline=plots.timeline(results.timeline, results.segments),
         **(dict(fig_servo=own_figure(results.holds)) if own_figure is not None
            else dict(  # a protocol validated its own way: section 2-3 of its own

@@ -211,3 +211,86 @@ def test_fleet_summary_fits_a_1400_px_screen(fleet_run, browser, tmp_path):
     with Image.open(shot) as image:
         assert image.width == 1400 and len(image.convert("RGB").getcolors(1 << 24)) > 100
     assert outside == []
+
+
+REPO_ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def hand_rotation_report(tmp_path_factory):
+    """The unit report of the real hand-rotation recording (the demo's IMU1) as the workflow
+    makes it: imported, segmented, analysed and reported by the stage commands."""
+    from gyrocal.cli import main
+    d = tmp_path_factory.mktemp("ferraris")
+    real = REPO_ROOT / "data" / "real" / "imucal-ferraris"
+    unit = ["--device", "IMU1", "--batch", "R1", "--session", "2018-01-01", "--protocol", "ferraris"]
+    for argv in (["import", str(real / "session.csv"), "--map", str(real / "import.yaml"),
+                  "-o", str(d / "imucal.parquet")],
+                 ["segment", str(d / "imucal.parquet"), "--out", str(d / "unit"), *unit],
+                 ["analyse", str(d / "unit"), *unit],
+                 ["report", str(d / "unit"), "-o", str(d / "IMU1.html"), *unit]):
+        assert main(argv) == 0, argv
+    return d / "IMU1.html"
+
+
+@pytest.fixture(scope="module")
+def papers_page(tmp_path_factory):
+    """The papers' page (`gyrocal paper --quick`: every seed's tables and figures)."""
+    from gyrocal.cli import main
+    out = tmp_path_factory.mktemp("paper")
+    assert main(["paper", "--out", str(out), "--quick"]) == 0
+    return out / "index.html"
+
+
+# What may not pass the right edge of a 1400 px window: the page itself and every block that
+# holds data (a table, a figure, a pre, a disclosure's summary line).
+WIDTHS = """() => ({
+    scroll: Math.max(document.documentElement.scrollWidth, document.body.scrollWidth),
+    beyond: Array.from(document.querySelectorAll('table, figure, pre, summary, h1, h2, p'))
+        .filter(e => e.getBoundingClientRect().right > 1400)
+        .map(e => `${e.tagName.toLowerCase()}#${e.id} ${Math.round(e.getBoundingClientRect().right)} px`)})"""
+
+
+def test_no_page_of_a_demo_run_is_wider_than_1400_px(fleet_run, browser, hand_rotation_report,
+                                                     papers_page, tmp_path):
+    """Every page the workflow writes, at a 1400 px window, with its disclosures closed and
+    open: the unit reports of every protocol, the failed units' pages, the drift page, the
+    fleet summary and the papers' page. Long values wrap or open in full from a clipped line;
+    the wide parameter grid comes as tables of eight temperature points."""
+    from PIL import Image
+    pages = sorted((fleet_run / "reports").rglob("*.html")) + [hand_rotation_report, papers_page]
+    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    context.route("**/*", lambda route: route.continue_() if route.request.url.startswith("file://")
+                  else route.abort())
+    page = context.new_page()
+    kinds = []
+    for path in pages:
+        page.goto(path.as_uri(), wait_until="load")
+        heading = page.locator("h1").inner_text()
+        kinds.append(page.locator("p.small").first.inner_text().rsplit("protocol ", 1)[-1]
+                     if heading.startswith("Calibration of") else
+                     "failed" if page.locator("p.failed").count() else heading.split(" ")[0].lower())
+        closed = page.evaluate(WIDTHS)
+        count = page.evaluate("() => { const d = document.querySelectorAll('details');"
+                              " d.forEach(x => x.open = true); return d.length; }")
+        opened = page.evaluate(WIDTHS)
+        for state, layout in (("closed", closed), ("open", opened)):
+            assert layout["scroll"] <= 1400 and not layout["beyond"], (path, state, layout)
+        if heading.startswith("Calibration of"):
+            assert count >= 1, path   # the reproduce command at least
+    # every protocol's unit report, two failed units, the drift page, the fleet and papers' pages
+    assert sorted(kinds) == sorted(["turntable"] * 3 + ["servo", "sweep", "ferraris", "failed", "failed",
+                                    "drift", "fleet", "seed"]), kinds
+    # the long reproduce command is one clipped line until opened
+    page.goto(pages[0].as_uri(), wait_until="load")
+    command = page.locator("#provenance-table details.long summary")
+    assert command.evaluate("s => s.scrollWidth > s.clientWidth")
+    line = float(command.evaluate("s => parseFloat(getComputedStyle(s).lineHeight)"))
+    assert command.bounding_box()["height"] < 2 * line
+    command.click()
+    assert command.bounding_box()["height"] > 3 * line and command.evaluate("s => s.scrollWidth <= s.clientWidth")
+    shot = tmp_path / "unit-1400.png"
+    page.screenshot(path=str(shot), full_page=True)
+    with Image.open(shot) as image:
+        assert image.width == 1400
+    context.close()

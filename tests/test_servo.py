@@ -306,3 +306,136 @@ def test_paper_tables_and_figures(tmp_path):
     for p, q in zip(paths, again):
         text = p.read_text()
         assert text.startswith("<?xml") and "<dc:date>" not in text and p.read_bytes() == q.read_bytes()
+
+
+# --- cross-axis terms: what a servo log can tell of them ----------------------------------------
+# The independent generator (benchmarks/zoo) turns its unit about three mounts, each both
+# ways; a hand mount is 2-6° off the axis in a random direction, new every session.
+
+def zoo_servo(tmp_path, seed, sessions=(0,), **overrides):
+    """Revolutions of zoo servo sessions of unit ``seed`` (one table, the sessions in turn),
+    the unit's true K and B at 25 °C and the sessions' truth records."""
+    from benchmarks.zoo.generator import B_of_T, K_of_T, make_unit, write_session
+    unit = make_unit(effect="none", protocol="servo", seed=seed)
+    tables, infos = [], []
+    for s in sessions:
+        path = tmp_path / f"zoo-{seed}-{s}.parquet"
+        infos.append(write_session(unit, path, session=s, seed=100 + s, **overrides))
+        tables.append(find_rotations(read_log(path)).revolutions)
+    return pd.concat(tables, ignore_index=True), K_of_T(unit, 25.0), B_of_T(unit, 25.0), infos
+
+
+def stderr_matrix(fit) -> tuple[np.ndarray, np.ndarray]:
+    se = fit.coefficient_errors()
+    K = np.array([[se[f"scale.{a}" if a == b else f"misalignment.{a}.{b}"] for b in "xyz"] for a in "xyz"])
+    return K, np.array([se[f"bias.{a}"] for a in "xyz"])
+
+
+def test_a_fixture_gives_every_term_from_the_off_axis_outputs(tmp_path):
+    from gyrocal.servo.fit import fit_model
+    revs, K, B, _ = zoo_servo(tmp_path, 3, misalign_deg=[0.0, 0.0])
+    fit, used, _ = fit_model(revs, "fixture")
+    K_se, B_se = stderr_matrix(fit)
+    assert used == "fixture" and np.all(K_se < 2e-4) and np.all(B_se < 1e-2)
+    assert np.all(np.abs(fit.K - K) <= 4 * K_se) and np.all(np.abs(fit.B - B) <= 4 * B_se)
+    assert np.abs(K - np.diag(np.diag(K))).max() > 20 * K_se.max()   # the terms were there to find
+
+
+def test_a_hand_mount_puts_its_tilt_into_the_off_axis_outputs(tmp_path):
+    # What the fixture model fits on hand mounts is K U, U the mounts' true rotation axes:
+    # the tilt, a property of the session, many standard errors beside the unit's own terms.
+    from gyrocal.servo.fit import fit_model
+    revs, K, B, (info,) = zoo_servo(tmp_path, 3)
+    fit, _, _ = fit_model(revs, "fixture")
+    K_se, _ = stderr_matrix(fit)
+    U = np.column_stack([np.asarray(m["R_body_to_rig"])[2] for m in info["mounts"]])   # +x, +y, +z
+    assert np.all(np.abs(fit.K - K @ U) <= 4 * K_se)
+    assert np.abs(fit.K - K).max() > 100 * K_se.max()
+
+
+def test_cross_terms_from_magnitudes_need_six_axes(tmp_path):
+    from gyrocal.servo.fit import fit_model
+    one, K, B, _ = zoo_servo(tmp_path, 2)
+    with pytest.raises(ServoFitError, match="do not determine the symmetric cross terms"):
+        fit_model(one, "symmetric")
+    fit, used, why = fit_model(one, "auto")
+    assert used == "seed001" and "six or more axes" in why and fit.K.shape == (3, 3)
+    # Two sessions' mounts: six hand-placed axes, each turned both ways.
+    two, _, _, _ = zoo_servo(tmp_path, 2, sessions=(0, 1))
+    fit, used, why = fit_model(two, "auto")
+    assert used == "symmetric" and "χ²" in why
+    # Magnitudes see K only up to a rotation: the symmetric factor P of K = P Q.
+    w, V = np.linalg.eigh(K @ K.T)
+    P = (V * np.sqrt(w)) @ V.T
+    K_se, B_se = stderr_matrix(fit)
+    assert np.allclose(fit.K, fit.K.T, atol=1e-12)
+    assert np.all(np.abs(fit.K - P) <= 4 * K_se) and np.all(np.abs(fit.B - B) <= 4 * B_se)
+
+
+def test_symmetric_algorithm1_solves_nine_rotations_exactly():
+    from gyrocal.servo.fit import algorithm1_symmetric, fit_symmetric, symmetric_parameters
+    rng = np.random.default_rng(5)
+    A = np.eye(3) + 0.02 * rng.standard_normal((3, 3))
+    K = (A + A.T) / 2
+    B = np.array([0.05, -0.08, 0.03])
+    axes = rng.standard_normal((9, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    m = 3.0 * axes @ K.T + B
+    fit = fit_symmetric(m, np.full(9, 3.0), tol=1e-14)
+    np.testing.assert_allclose(fit.K, K, atol=1e-10)
+    np.testing.assert_allclose(fit.B, np.degrees(B), atol=1e-8)
+    np.testing.assert_allclose(fit.residuals, 0.0, atol=1e-10)
+    batch = algorithm1_symmetric(np.stack([m, m]), np.full((2, 9), 3.0), tol=1e-14)
+    C, b = symmetric_parameters(batch["beta"])
+    np.testing.assert_allclose(np.linalg.inv(C[1]), fit.K, atol=1e-12)
+    with pytest.raises(ServoFitError, match="at least 9"):
+        fit_symmetric(m[:8], np.full(8, 3.0))
+
+
+def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_path):
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.errors import ConfigError
+    from gyrocal.pipeline import run
+    path = tmp_path / "fixture.parquet"
+    write_session(make_unit(effect="none", protocol="servo", seed=4), path, session=0, seed=1,
+                  misalign_deg=[0.0, 0.0])
+    result = run(path, Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "fixture"}}}}),
+                 protocol="servo")
+    cal, summary = result.calibration, result.validation.summary
+    assert cal.extra["servo"]["model"]["used"] == "fixture"
+    assert {"misalignment.x.y", "misalignment.z.x"} <= set(cal.grid.names)
+    assert summary["servo_model"] == "fixture" and "commanded rate vector" in summary["quantity"]
+    # 18 held-out revolutions: the RMS scatters by about 1/√36 of itself; three times that.
+    assert summary["validation_rms"] <= 1.5 * summary["expected_rms"]
+    assert summary["uncompensated_rms"] > 100 * summary["validation_rms"]
+    default = run(path, protocol="servo")
+    assert default.calibration.extra["servo"]["model"] == {
+        "configured": "auto", "used": "seed001", "why": default.calibration.extra["servo"]["model"]["why"]}
+    assert set(default.calibration.grid.names) == {f"{t}.{a}" for t in ("bias", "scale") for a in "xyz"}
+    with pytest.raises(ConfigError, match="calibration"):
+        Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "full"}}}})
+
+
+def test_cross_axis_study_says_what_the_terms_cost_and_gain():
+    from gyrocal.servo.montecarlo import cross_axis_study, cross_axis_summary
+    df = cross_axis_study(n_sets=4, n_runs=40, noise=0.001)
+    pd.testing.assert_frame_equal(df, cross_axis_study(n_sets=4, n_runs=40, noise=0.001))
+    s = cross_axis_summary(df).set_index(["mounting", "design", "model"])
+    # Three axes never determine the symmetric terms; with six (a 45° wedge) they bring a
+    # hand-mounted unit's magnitude to its noise floor, where seed 001's model misses by
+    # its cross terms times the diagonal.
+    assert s.loc[("hand", "three axes", "symmetric"), "estimated"] == 0
+    assert s.loc[("hand", "six axes", "symmetric"), "magnitude_floor"] < 1.5
+    assert s.loc[("hand", "six axes", "seed001"), "magnitude_floor"] > 20
+    assert s.loc[("hand", "six axes", "auto"), "magnitude_floor"] < 1.5
+    # On hand mounts the fixture model takes the tilt for cross terms: worse than none.
+    assert s.loc[("hand", "three axes", "fixture"), "magnitude_floor"] > \
+        5 * s.loc[("hand", "three axes", "seed001"), "magnitude_floor"]
+    # With a fixture every term comes from the off-axis outputs: the vector to its floor
+    # (√3 for the three axes' noise), seed 001's model left with the cross terms.
+    assert s.loc[("fixture", "three axes", "fixture"), "nominal_floor"] < 2.5
+    assert s.loc[("fixture", "three axes", "seed001"), "nominal_floor"] > 50
+    # No calibration knows the next hand mount's tilt: against the commanded axis every
+    # model stays thousands of times the floor at this noise.
+    assert (s.xs("hand")["nominal_floor"].dropna() > 1000).all()

@@ -3,4 +3,7 @@ key by key); read without importing the protocol's code."""
 
 from ..model import DEFAULT_TERMS
 
-DEFAULTS = {"options": {}, "model": {"terms": list(DEFAULT_TERMS)}, "diagnosis": {}}
+# The servo calibration's model (gyrocal.servo.fit.MODELS): auto takes the symmetric
+# cross-axis terms where the rotations determine and show them, seed 001's bias and scale
+# otherwise (three rotation axes never determine them).
+DEFAULTS = {"options": {"calibration": "auto"}, "model": {"terms": list(DEFAULT_TERMS)}, "diagnosis": {}}

@@ -287,3 +287,149 @@ def plot_speed_sweep(sweep: pd.DataFrame, path) -> Path:
             ax.set_title(f"σ = {sigma:g} rad/s")
             ax.legend(ncol=2, fontsize=7)
     return _save(fig, path)
+
+
+# ---------------------------------------------------------------------------------------
+# What the cross-axis terms cost and gain (beyond Section III). The unit now has cross-axis
+# sensitivity: raw output m = K g + B with K = diag(1/k) + M, M off-diagonal ~ U(±cross);
+# seed 001's k and b as in Section III-A. Each run calibrates on one session's rotations and
+# is judged on the next session's (the same design, new mounts): what its user meets.
+
+CROSS_DESIGNS = {
+    # Fig. 1: one rotation each way about each sensor axis
+    "three axes": tuple((d, None) for d in DIRECTIONS),
+    # Fig. 1 twice, the unit re-mounted in between: twelve hand-placed axes near three
+    "three axes twice": tuple((d, None) for d in DIRECTIONS * 2),
+    # Fig. 1 and each way about the three face diagonals (the unit on a 45° wedge)
+    "six axes": tuple((d, None) for d in DIRECTIONS) + tuple(
+        (f"{s}{a}{b}", np.array([1.0 if c in (a, b) else 0.0 for c in "xyz"]) * (1 if s == "+" else -1)
+         / math.sqrt(2)) for a, b in (("x", "y"), ("x", "z"), ("y", "z")) for s in "+-"),
+}
+CROSS_MOUNTINGS = {"hand": 0.1, "fixture": 0.0}   # sine of the largest tilt (Section III-A 2)
+
+
+def _design_axes(design: str, mounting: str, shape: tuple, rng: np.random.Generator):
+    """Rotation axes (*shape, n, 3) of ``design`` as mounted: each nominal axis tilted by a
+    tilt whose sine is U(0, CROSS_MOUNTINGS[mounting]) toward a random azimuth, new for every
+    rotation (as Section III's simulation mounts each of its six), and the nominal rate
+    directions (n, 3)."""
+    spec = CROSS_DESIGNS[design]
+    nominal = np.array([np.eye(3)[direction_axis(d)[0]] * direction_axis(d)[1] if v is None else v
+                        for d, v in spec])
+    n = len(nominal)
+    tilt = np.arcsin(rng.uniform(0.0, CROSS_MOUNTINGS[mounting], (*shape, n)))
+    azimuth = rng.uniform(0.0, 2 * math.pi, (*shape, n))
+    # two unit vectors perpendicular to each nominal axis
+    helper = np.where(np.abs(nominal[:, :1]) < 0.9, np.eye(3)[0], np.eye(3)[1])
+    e1 = np.cross(nominal, helper)
+    e1 /= np.linalg.norm(e1, axis=1)[:, None]
+    e2 = np.cross(nominal, e1)
+    axes = (np.cos(tilt)[..., None] * nominal + (np.sin(tilt) * np.cos(azimuth))[..., None] * e1
+            + (np.sin(tilt) * np.sin(azimuth))[..., None] * e2)
+    return axes, nominal
+
+
+def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) -> dict:
+    """K (R, 3, 3) and B (R, 3) of each model on runs m (R, n, 3) (rad/s; revolution means'
+    noise ``sem``), NaN where a run gives no estimate: the symmetric model where the
+    rotations do not determine its cross terms (:func:`gyrocal.servo.fit.fit_model`'s rule)
+    or it does not converge; ``auto`` as :func:`gyrocal.servo.fit.fit_model` chooses."""
+    from scipy.special import chdtrc
+
+    from .fit import (CROSS_ALPHA, CROSS_PAIRS, MAX_CROSS_STDERR, algorithm1_symmetric, cross_chi2,
+                      cross_stderr, symmetric_covariance, symmetric_parameters)
+    R = m.shape[0]
+    out = {}
+    s = fit_batch(m, speed)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out["seed001"] = (np.where(s["converged"][:, None, None], np.eye(3) / s["k"][:, None, :], np.nan),
+                          -s["b"])
+    X = np.column_stack([nominal * speed, np.ones(len(nominal))])
+    coef = np.linalg.pinv(X) @ m                     # (R, 4, 3): one design for every run
+    out["fixture"] = (np.swapaxes(coef[:, :3], 1, 2), coef[:, 3])
+    nan = (np.full((R, 3, 3), np.nan), np.full((R, 3), np.nan))
+    out["symmetric"], use = nan, np.zeros(R, dtype=bool)
+    if m.shape[1] >= 9:
+        m_sem = np.full(m.shape, sem)
+        start_k = np.where(s["converged"][:, None], s["k"], 1.0)
+        identified = s["converged"] & (cross_stderr(symmetric_covariance(
+            start_k[:, :, None] * np.eye(3), -np.where(s["converged"][:, None], s["b"], 0.0), m, m_sem)) <= MAX_CROSS_STDERR)
+        a = algorithm1_symmetric(m, np.full(m.shape[:-1], speed))
+        ok = identified & a["converged"] & a["positive"]
+        C, B = symmetric_parameters(np.where(ok[:, None], a["beta"], np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
+        K = np.linalg.inv(C)
+        out["symmetric"] = (np.where(ok[:, None, None], K, np.nan), np.where(ok[:, None], B, np.nan))
+        chi2 = cross_chi2(K, symmetric_covariance(C, B, m, m_sem))
+        use = ok & (chdtrc(len(CROSS_PAIRS), np.nan_to_num(chi2, nan=0.0)) < CROSS_ALPHA)
+    out["auto"] = (np.where(use[:, None, None], out["symmetric"][0], out["seed001"][0]),
+                   np.where(use[:, None], out["symmetric"][1], out["seed001"][1]))
+    return out
+
+
+def cross_axis_study(n_sets: int = 30, n_runs: int = 200, noise=(0.035,), *, cross: float = 0.01,
+                     designs=tuple(CROSS_DESIGNS), mountings=tuple(CROSS_MOUNTINGS), seed: int = 0,
+                     speed: float = PAPER_SPEED, samples: int = PAPER_SAMPLES) -> pd.DataFrame:
+    """Next-session errors of seed 001's model, the symmetric and the fixture model, one
+    row per mounting, design, noise, model, set and run.
+
+    Each run draws a calibration session and a next session of the same unit (new mounts,
+    new noise; a fixture holds the commanded axes), fits each model on the first and
+    compensates the second. Columns: ``magnitude`` (RMS of |ŵ| − ω: what a servo can judge
+    on a hand mount), ``nominal`` (RMS length of ŵ minus the commanded rate vector: what it
+    can judge with a fixture), ``true`` (RMS length of ŵ minus the true rate vector, which
+    only a simulation knows), the same three for the raw output (``raw_*``), ``floor`` (the
+    revolution mean's noise, σ/√N) and ``estimated`` (False where the model gave no
+    estimate); rad/s."""
+    code = 3
+    rows = []
+    k, b = draw_parameters(_rng(seed, code), n_sets)
+    M = _rng(seed, code, 1).uniform(-cross, cross, (n_sets, 3, 3)) * (1 - np.eye(3))
+    K = np.eye(3) / k[:, None, :] + M                       # (S, 3, 3): w = K g + B
+    B = -b
+    for mounting in mountings:
+        for design in designs:
+            for sigma in ((noise,) if np.isscalar(noise) else tuple(noise)):
+                rng = _rng(seed, code, _noise_code(sigma), 2, list(CROSS_MOUNTINGS).index(mounting),
+                           list(CROSS_DESIGNS).index(design))
+                sessions = []
+                for _ in range(2):
+                    axes, nominal = _design_axes(design, mounting, (n_sets, n_runs), rng)
+                    g = speed * axes                                          # (S, R, n, 3)
+                    m = np.einsum("sij,srnj->srni", K, g) + B[:, None, None, :] \
+                        + sigma / math.sqrt(samples) * rng.standard_normal(g.shape)
+                    sessions.append((g, m))
+                (g0, m0), (g1, m1) = sessions
+                fits = _cross_fits(m0.reshape(-1, *m0.shape[2:]), speed, nominal, sigma / math.sqrt(samples))
+                g1f, m1f = g1.reshape(-1, *g1.shape[2:]), m1.reshape(-1, *m1.shape[2:])
+                commanded = speed * nominal
+
+                def scores(w):
+                    return (np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
+                            np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
+                            np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)))
+                raw = scores(m1f)
+                for model, (Kf, Bf) in fits.items():
+                    ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
+                    safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
+                    w = np.linalg.solve(safe_K[:, None], (m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :])[..., None])[..., 0]
+                    mag, nom, true = scores(w)
+                    rows.append(pd.DataFrame({
+                        "mounting": mounting, "design": design, "noise": sigma, "model": model,
+                        "set": np.repeat(np.arange(n_sets), n_runs), "run": np.tile(np.arange(n_runs), n_sets),
+                        "estimated": ok, "magnitude": np.where(ok, mag, np.nan), "nominal": np.where(ok, nom, np.nan),
+                        "true": np.where(ok, true, np.nan), "raw_magnitude": raw[0], "raw_nominal": raw[1],
+                        "raw_true": raw[2], "floor": sigma / math.sqrt(samples)}))
+    return pd.concat(rows, ignore_index=True)
+
+
+def cross_axis_summary(df: pd.DataFrame) -> pd.DataFrame:
+    """Per mounting, design, noise and model: the share of runs with an estimate and, by
+    each judge, the median next-session error over the floor (``<judge>_floor``) and the
+    median improvement over the raw output (``gain_<judge>``, raw ÷ compensated)."""
+    keys = [df[k] for k in ("mounting", "design", "noise", "model")]
+    g = df.groupby(keys, sort=False)
+    out = g.agg(runs=("run", "size"), estimated=("estimated", "mean"))
+    for judge in ("magnitude", "nominal", "true"):
+        out[f"{judge}_floor"] = (df[judge] / df["floor"]).groupby(keys, sort=False).median()
+        out[f"gain_{judge}"] = (df[f"raw_{judge}"] / df[judge]).groupby(keys, sort=False).median()
+    return out.reset_index()

@@ -40,7 +40,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     (successive differences) over √n: the servo's ripple cancels over a whole revolution
     and must not inflate the floor."""
     from . import find_rotations
-    rot = find_rotations(log, **options)
+    rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
     rev = rot.revolutions
     gyro = rev[[f"gyro_{a}" for a in AXES]].to_numpy()
     noise = rev[[f"gyro_{a}_noise" for a in AXES]].to_numpy()
@@ -71,11 +71,19 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
 
 
 SERVO_TERMS = ("bias", "scale")
+CROSS_TERMS = ("bias", "scale", "misalignment")
+# How the report's headline names each model's validated figure, and the parameters a
+# held-out error's leverage counts (the fixture model: a regression of four per output axis).
+MODEL_LABELS = {"seed001": "Seed 001 six-parameter calibration",
+                "symmetric": "Servo calibration with the symmetric cross-axis terms (nine parameters)",
+                "fixture": "Servo calibration with every cross-axis term (twelve parameters, fixture)"}
+LEVERAGE = {"seed001": 6, "symmetric": 9, "fixture": 4}
 
 
 def _servo_input(obs: pd.DataFrame) -> pd.DataFrame:
     """Revolution means in the form :func:`gyrocal.servo.fit.fit_observations` reads: the
-    servo speed as |ref_rate|, the white-noise level per axis and the sample count."""
+    servo speed as |ref_rate|, the white-noise level per axis, the sample count and the
+    rotation's direction."""
     cols = ["gyro_x", "gyro_y", "gyro_z", "n", *[f"gyro_{a}_noise" for a in AXES]]
     missing = [c for c in cols if c not in obs]
     if missing:
@@ -84,7 +92,14 @@ def _servo_input(obs: pd.DataFrame) -> pd.DataFrame:
                          "protocol servo")
     out = obs[cols].copy()
     out["ref_rate"] = obs["ref_rate"].abs()
+    out["direction"] = obs["mount"].astype(str).to_numpy()
     return out
+
+
+def servo_model(obs: pd.DataFrame, model: str, seed001=None):
+    """(fit, model used, why) of the configured servo ``model`` (:func:`gyrocal.servo.fit.fit_model`)."""
+    from .fit import fit_model
+    return fit_model(_servo_input(obs), model, seed001=seed001)
 
 
 def servo_fits(obs: pd.DataFrame):
@@ -96,17 +111,21 @@ def servo_fits(obs: pd.DataFrame):
 
 
 def servo_calibration(obs: pd.DataFrame, *, reference_temperature: float, meta: dict,
-                      provenance: dict):
-    """The calibration file of a servo session: ``K = diag(1/k)``, ``B = −b`` of Algorithm 1
-    (:mod:`gyrocal.servo.fit` gives the mapping) as the terms bias and scale at the session's
-    mean temperature, with both fits and the convergence trace carried along."""
+                      provenance: dict, model: str = "auto"):
+    """The calibration file of a servo session at the session's mean temperature, by the
+    servo ``model`` (:data:`gyrocal.servo.fit.MODELS`): seed 001's ``K = diag(1/k)``,
+    ``B = −b`` of Algorithm 1 (:mod:`gyrocal.servo.fit` gives the mapping) as the terms bias
+    and scale, or a full K (the symmetric or the fixture model) as bias, scale and
+    misalignment; both seed-001 fits, the convergence trace and the model's choice carried
+    along."""
     from ..calibration import Calibration
     from ..model import Model
     from ..thermal import TemperatureGrid
     iterative, lm = servo_fits(obs)
-    model = Model.from_spec(SERVO_TERMS)
-    values, errors = iterative.coefficients(), iterative.coefficient_errors()
-    names = tuple(model.names)
+    fit, used, why = servo_model(obs, model, iterative)
+    model_terms = Model.from_spec(SERVO_TERMS if used == "seed001" else CROSS_TERMS)
+    values, errors = fit.coefficients(), fit.coefficient_errors()
+    names = tuple(model_terms.names)
     temp = float(np.mean(obs["temp"]))
     grid = TemperatureGrid(np.array([temp]), names, np.array([[values[n] for n in names]]),
                            np.array([[errors[n] for n in names]]))
@@ -120,27 +139,51 @@ def servo_calibration(obs: pd.DataFrame, *, reference_temperature: float, meta: 
              "settled_at": int(iterative.settled_at()),
              "max_difference_lm": float(np.max(np.abs(both[0] - both[1]))),
              "revolutions": int(len(obs)), "rotations": int(obs["rotation"].nunique())
-             if "rotation" in obs else None}
+             if "rotation" in obs else None,
+             "model": {"configured": model, "used": used, "why": why,
+                       **({} if used == "seed001" else {"fit": fit.summary()})}}
     points = [{"temperature": temp, "holds": int(len(obs)), "used": True}]
-    return Calibration(model, grid, reference_temperature, meta, provenance=provenance,
+    return Calibration(model_terms, grid, reference_temperature, meta, provenance=provenance,
                        extra={"points": points, "servo": servo})
 
 
+def _used_model(cal) -> str:
+    """The servo model a calibration holds (seed 001's for files written before the choice)."""
+    return ((cal.extra.get("servo") or {}).get("model") or {}).get("used", "seed001")
+
+
+def _refit(data: pd.DataFrame, used: str):
+    """The servo model ``used`` fitted again on a subset (leave-one-out): the same model,
+    not a new choice."""
+    from .fit import DEG, observation_arrays, fit_fixture, fit_observations, fit_symmetric, nominal_rates
+    if used == "seed001":
+        return fit_observations(data, method="iterative")
+    m, omega, m_sem, directions = observation_arrays(data)
+    if used == "fixture":
+        return fit_fixture(m, nominal_rates(directions, omega), m_sem=m_sem)
+    return fit_symmetric(m / DEG, omega / DEG)
+
+
 def servo_validation(obs: pd.DataFrame, cal):
-    """Each revolution compensated by Algorithm 1 fitted on the other revolutions (when every
-    rotation has two or more; otherwise in-sample, and said so): the error of the
-    compensated rate's magnitude against the servo speed (the quantity Eq 2 matches), per
-    rotation direction, beside the uncompensated error and the noise floor of each
-    revolution mean (the white-noise level over √n, projected on the rotation axis)."""
-    from .fit import fit_observations
+    """Each revolution compensated by the calibration's model fitted on the other
+    revolutions (when every rotation has two or more; otherwise in-sample, and said so),
+    per rotation direction, beside the uncompensated error and the noise floor of each
+    revolution mean (the white-noise level over √n). Seed 001's and the symmetric model are
+    scored on what they match, the compensated rate's magnitude against the servo speed
+    (Eq 2; the mount's tilt does not enter it), its floor the noise projected on the
+    rotation axis; the fixture model on the length of the compensated rate's difference from
+    the commanded rate vector, its floor the noise of all three axes."""
+    from .fit import nominal_rates
     from ..validate import Validation
+    used = _used_model(cal)
     data = _servo_input(obs)
     m = data[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
     omega = data["ref_rate"].to_numpy()
-    coefficients = cal.coefficients(np.array([float(np.mean(obs["temp"]))]), warn=False)
-    k = 1.0 / (1.0 + np.array([coefficients[f"scale.{a}"][0] for a in AXES]))
-    bias = np.array([coefficients[f"bias.{a}"][0] for a in AXES])
-    in_sample = (m - bias) * k
+    (K,), (B,) = cal.matrices_at(np.array([float(np.mean(obs["temp"]))]))
+    if used == "seed001":   # K⁻¹ = diag(k), as Eq 1 compensates
+        in_sample = (m - B) * (1.0 / np.diag(K))
+    else:
+        in_sample = np.linalg.solve(K, (m - B).T).T
     rotation = obs["rotation"].to_numpy() if "rotation" in obs else np.arange(len(obs))
     # Leaving a revolution out keeps the fit identifiable while its direction has another.
     held_out = bool(obs["mount"].astype(str).value_counts().min() >= 2)
@@ -148,17 +191,22 @@ def servo_validation(obs: pd.DataFrame, cal):
     if held_out:
         for r in range(len(obs)):  # one refit per revolution (a few dozen), not per sample
             keep = np.arange(len(obs)) != r
-            fit = fit_observations(data.iloc[keep], method="iterative")
+            fit = _refit(data.iloc[keep], used)
             compensated[r] = fit.compensate(m[r:r + 1])[0]
     # the session's noise model where segmentation made one; else the white-noise level
     # over sqrt(n) (segment_servo stores it as the revolutions' std)
-    noise = observation_floor(obs)
-    norm = np.linalg.norm(compensated, axis=1)
-    direction = compensated / norm[:, None]
-    floor = np.sqrt(((direction * k * noise) ** 2).sum(axis=1))
-    errors = {"uncompensated": np.linalg.norm(m, axis=1) - omega,
-              "in_sample": np.linalg.norm(in_sample, axis=1) - omega,
-              "validated": norm - omega}
+    noise = observation_floor(obs) @ np.abs(np.linalg.inv(K)).T
+    if used == "fixture":
+        rates = nominal_rates(data["direction"], omega)
+        error = lambda rate: np.linalg.norm(rate - rates, axis=1)  # noqa: E731
+        floor = np.sqrt((noise ** 2).sum(axis=1))
+        quantity = "length of the compensated rate's difference from the commanded rate vector"
+    else:
+        error = lambda rate: np.linalg.norm(rate, axis=1) - omega  # noqa: E731
+        direction = compensated / np.linalg.norm(compensated, axis=1)[:, None]
+        floor = np.sqrt(((direction * noise) ** 2).sum(axis=1))
+        quantity = "magnitude of the compensated rate minus the servo speed"
+    errors = {"uncompensated": error(m), "in_sample": error(in_sample), "validated": error(compensated)}
     holds = pd.DataFrame({"hold": obs["hold"].to_numpy(), "direction": obs["mount"].astype(str).to_numpy(),
                           "rotation": rotation, "omega": omega, "noise_floor": floor,
                           **{f"{name}_error": e for name, e in errors.items()}})
@@ -172,10 +220,10 @@ def servo_validation(obs: pd.DataFrame, cal):
         rows.append(row)
     table = pd.DataFrame(rows)
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
-    n, p = len(obs), 6
+    n, p = len(obs), LEVERAGE[used]
     noise_floor = rms(floor)
-    # A correct six-parameter model leaves the floor ×√(1 + p/n) on held-out revolutions
-    # (leverage p/n on average), ×√(1 − p/n) in-sample; six revolutions leave nothing.
+    # A correct model of p parameters leaves the floor ×√(1 + p/n) on held-out revolutions
+    # (leverage p/n on average), ×√(1 − p/n) in-sample; p revolutions leave nothing.
     expected = noise_floor * np.sqrt(1 + p / n) if held_out else \
         (noise_floor * np.sqrt(1 - p / n) if n > p else None)
     validation = rms(errors["validated"])
@@ -190,7 +238,8 @@ def servo_validation(obs: pd.DataFrame, cal):
                "held_out": "revolution" if held_out else
                "nothing (one revolution per direction: in-sample)",
                "scored": "all", "holds_scored": int(n), "temperature_points": 1,
-               "model_kind": "servo", "quantity": "magnitude of the compensated rate minus the servo speed"}
+               "model_kind": "servo", "servo_model": used, "quantity": quantity,
+               "validated_as": f"{MODEL_LABELS[used]}; validated"}
     by_temperature = pd.DataFrame({"temp": [summary["reference_temperature"]], "holds": [n],
                                    "validated_rms": [validation], "noise_floor": [noise_floor]})
     return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
@@ -215,7 +264,8 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
 
 def _calibrate(obs, settings, meta, provenance):
     return servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
-                             meta=meta, provenance=provenance)
+                             meta=meta, provenance=provenance,
+                             model=settings.protocol_options("servo").get("calibration", "auto"))
 
 
 def _validation_figure(holds: pd.DataFrame) -> str:
