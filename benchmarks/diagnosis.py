@@ -9,8 +9,12 @@ is scored against what the generator put in:
 
 * ``named right``   — the case's library term is named (``best``, or a term the protocol
                       cannot tell from it, reported with it);
+* ``offered``       — an effect outside the library: a term of free shape offered (an
+                      empirical spline or a parametric formula), judged on the unseen session;
+* ``said why``      — an effect outside the library, no term offered, and the verdict says why
+                      none can and what protocol would tell;
 * ``outside``       — an effect outside the library: no term named, the model said not to
-                      explain the data;
+                      explain the data (without a reason);
 * ``partial``       — a term reported as explaining part of the excess (not named);
 * ``named wrong``   — a term named that is not the effect;
 * ``missed``        — a library effect, nothing named;
@@ -77,6 +81,21 @@ CASES = [
     ("vibration_rectification", "turntable3", "white", "outside"),
     ("cross_coupling", "turntable3", "white", "outside"),  # real but about 1.3x the floor
     ("run_to_run_bias", "turntable3", "white", "none"),
+    # Outside the library (the zoo's second set): products of two inputs, shapes no
+    # polynomial has, steps and histories. The diagnosis must offer a term of free shape
+    # that holds on the unseen session, or say why none can and what would tell.
+    ("scale_warmup", "turntable3", "white", "outside"),
+    ("warmup_two_exp", "turntable3", "white", "outside"),
+    ("warmup_power_law", "turntable3", "white", "outside"),
+    ("bias_step_time", "turntable3", "white", "outside"),
+    ("motor_heating_bias", "turntable3", "white", "outside"),
+    ("table_angle_bias", "turntable3", "white", "outside"),
+    ("scale_low_rate_tanh", "turntable3", "white", "outside"),
+    ("misalign_warp_tanh", "turntable3", "white", "outside"),
+    ("bias_bump_temp", "sweep", "white", "outside"),
+    ("bias_tanh_temp", "sweep", "white", "outside"),
+    ("bias_step_temp", "sweep", "white", "outside"),
+    ("scale_temp_rate", "sweep", "white", "outside", {}, {"sweep_rate_dps": 100.0}),
     # The servo's six rotations share one speed: quadratic and asymmetric scale tie.
     ("scale_quadratic", "servo", "white", "scale_quadratic"),
 ]
@@ -90,8 +109,8 @@ RATE_HZ = {"sweep": 5.0}
 
 
 def label(case) -> str:
-    """The case's protocol as the tables show it (with the unit's overrides)."""
-    overrides = case[4] if len(case) > 4 else {}
+    """The case's protocol as the tables show it (with the unit's and the sessions' overrides)."""
+    overrides = {**(case[4] if len(case) > 4 else {}), **(case[5] if len(case) > 5 else {})}
     return case[1] + "".join(f" {k}={v:g}" for k, v in overrides.items())
 
 
@@ -105,15 +124,16 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
 
     effect, protocol, noise, expected = case[:4]
     overrides = case[4] if len(case) > 4 else {}
+    session_overrides = case[5] if len(case) > 5 else {}
     gyrocal_protocol = "turntable" if protocol.startswith("turntable") else protocol
     unit = make_unit(effect=effect, protocol=protocol, noise=noise, seed=unit_seed, **overrides)
     logs = []
-    tag = "".join(f"-{k}{v:g}" for k, v in overrides.items())
+    tag = "".join(f"-{k}{v:g}" for k, v in {**overrides, **session_overrides}.items())
     for s in (0, 1, 2):
         path = Path(folder) / f"{effect}-{protocol}{tag}-{noise}-{unit_seed}-s{s}.parquet"
-        overrides = {"ramp_c_per_h": (30.0, 60.0, 45.0)[s]} if protocol == "sweep" else {}
+        ramp = {"ramp_c_per_h": (30.0, 60.0, 45.0)[s]} if protocol == "sweep" else {}
         info = write_session(unit, path, session=s, seed=1000 * unit_seed + s,
-                             rate_hz=RATE_HZ.get(protocol, 25.0), **overrides)
+                             rate_hz=RATE_HZ.get(protocol, 25.0), **ramp, **session_overrides)
         logs.append(path)
     true_floor = float(info["noise_floor_hint"])   # session 2's, by the generator
     settings = Settings().for_protocol(gyrocal_protocol)
@@ -137,15 +157,19 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
                partial=[p["term"] for p in partial] if partial else [],
                validation_excess=d["excess"])
     named = best.split("(")[0] if best else None
+    row["family"] = (d["best"] or {}).get("family")
+    row["unexplained"] = d.get("unexplained")
     if expected == "none":
         outcome = "false alarm" if (best or not d["explains_the_data"]) else "quiet"
+    elif expected == "outside" and row["family"]:
+        outcome = "offered"            # a term of free shape: judged on the unseen session
     elif named is not None:
         also = [t.split("(")[0] for t in together]
         outcome = "named right" if expected in (named, *tied, *also) else "named wrong"
     elif row["partial"]:
         outcome = "partial"
     elif expected == "outside":
-        outcome = "outside" if not d["explains_the_data"] else "missed"
+        outcome = ("said why" if row["unexplained"] else "outside") if not d["explains_the_data"] else "missed"
     else:
         outcome = "missed"
     row["outcome"] = outcome
@@ -216,6 +240,13 @@ def main(argv=None) -> int:
         print(f"next session after the named fix (named right; coloured noise ÷ the complete "
               f"unit's): max {max(fixed):.3g}x, {sum(f <= 1.2 for f in fixed)} of {len(fixed)} "
               "within 1.2x")
+    outside = [r for r in rows if r["expected"] == "outside"]
+    offered = [r for r in outside if r.get("outcome") == "offered" and isinstance(r.get("next_after"), float)]
+    held = sum(r["next_after"] <= 1.2 for r in offered)
+    why = sum(r.get("outcome") == "said why" for r in outside)
+    print(f"outside the library: {len(outside)} units; a term of free shape offered {len(offered)} "
+          f"({held} within 1.2x on the unseen session); no offer and said why {why}; "
+          f"neither {len(outside) - held - why}")
     print()
     print(markdown_table(rows))
     if args.out:

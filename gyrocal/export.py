@@ -97,10 +97,18 @@ class FirmwareTables:
     poly_K: np.ndarray | None = None       # (d+1, 3, 3)
     poly_B: np.ndarray | None = None       # (d+1, 3)
     die_tau: float | None = None           # s: T is the die's, the logged one lagged
+    splines: tuple = ()                    # empirical terms: dicts of input, by, knots, coefficients
+
+
+# Empirical terms firmware evaluates beside K and B: a spline of time since power-on or of
+# the temperature, added to B or (times the own rate) to K's diagonal, keeps the model
+# affine in the true rate.
+SPLINE_TERM = "smooth"
+SPLINE_INPUTS = ("t", "temp")
 
 
 def supported_terms(kind: str) -> tuple[str, ...]:
-    return BASE_TERMS + (DIE_TERM,) + (TEMPERATURE_TERMS if kind == "continuous" else ())
+    return BASE_TERMS + (DIE_TERM, SPLINE_TERM) + (TEMPERATURE_TERMS if kind == "continuous" else ())
 
 
 def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
@@ -108,8 +116,9 @@ def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
     names = []
     for spec in specs:
         name = spec.get("name") if isinstance(spec, dict) else spec
-        if name not in supported_terms(kind):
-            names.append(str(name))
+        spline_ok = not isinstance(spec, dict) or (spec.get("input") in SPLINE_INPUTS and not spec.get("drop"))
+        if name not in supported_terms(kind) or (name == SPLINE_TERM and not spline_ok):
+            names.append(str(name) + (f"(input={spec.get('input')})" if name == SPLINE_TERM else ""))
     return names
 
 
@@ -144,12 +153,52 @@ def _legendre_fit(cal: Calibration, source) -> dict:
                                 f"degree {MAX_DEGREE} or less in temperature", source=source)
 
 
+def _splines(cal: Calibration) -> tuple:
+    """The calibration's empirical terms as firmware evaluates them: the clamped cubic
+    B-spline's full knot vector and, per output axis, the coefficients of all its basis
+    functions (those the term leaves out at 0). Their coefficients are session-wide or
+    continuous: the same at every grid point."""
+    out = []
+    for term in cal.model.terms:
+        if term.name != SPLINE_TERM:
+            continue
+        knots = np.asarray(term.knots, dtype=float)
+        vector = np.r_[[knots[0]] * 3, knots, [knots[-1]] * 3]
+        dropped = 2 - int(term.linear)
+        values = cal.grid.at(np.array([cal.grid.temperatures[0]]), warn=False)
+        coefficients = np.zeros((3, len(knots) + 2))
+        for i, a in enumerate("xyz"):
+            for j in range(term.size):
+                coefficients[i, dropped + j] = float(values[f"{term.label}.{a}.k{j + 1}"][0])
+        out.append({"label": term.label, "input": term.input, "by": term.by, "knots": vector,
+                    "coefficients": coefficients})
+    return tuple(out)
+
+
+def _without_splines(cal: Calibration) -> Calibration:
+    """``cal`` without its empirical terms (firmware adds them to K and B itself)."""
+    from dataclasses import replace
+
+    from .model import Model
+    if not any(t.name == SPLINE_TERM for t in cal.model.terms):
+        return cal
+    model = Model(tuple(t for t in cal.model.terms if t.name != SPLINE_TERM))
+    keep = [j for j, n in enumerate(cal.grid.names) if n in set(model.names)]
+    g = cal.grid
+    cov = None if g.covariance is None else g.covariance[..., keep, :][..., keep]
+    grid = replace(g, names=tuple(g.names[j] for j in keep), values=g.values[..., keep],
+                   stderr=g.stderr[..., keep], covariance=cov)
+    return replace(cal, model=model, grid=grid)
+
+
 def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     """The tables of :class:`FirmwareTables` for ``cal``; refuses models beyond K and B."""
     extra = unsupported_terms(cal.model.spec(), cal.kind)
     if extra:
         _refuse(extra, cal.kind, source)
     temps = np.asarray(cal.grid.temperatures, dtype=float)
+    splines = _splines(cal)
+    cal = _without_splines(cal)
     K, B = cal.matrices()
     P = len(temps)
     declared = cal.grid.method
@@ -158,7 +207,8 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
         method = "linear"                  # as thermal.lagrange3_weights / spline_weights
     die = [t for t in cal.model.terms if t.name == DIE_TERM]
     tables = dict(temperature=temps, K=K, B=B, K_inv=np.linalg.inv(K), method=method,
-                  calibration_method=declared, die_tau=float(die[0].tau) if die else None)
+                  calibration_method=declared, die_tau=float(die[0].tau) if die else None,
+                  splines=splines)
     Y = np.concatenate([K.reshape(P, 9), B], axis=1)   # every entry, one column each
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
@@ -178,6 +228,9 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     for name, value in tables.items():
         if isinstance(value, np.ndarray) and not np.all(np.isfinite(value)):
             raise InputError(f"cannot export for firmware: {name} is not finite", source=source)
+    for s in splines:
+        if not np.all(np.isfinite(s["coefficients"])):
+            raise InputError(f"cannot export for firmware: {s['label']} is not finite", source=source)
     return FirmwareTables(**tables)
 
 
@@ -217,6 +270,13 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
         doc["poly"] = {"degree": tables.degree, "centre": tables.poly_centre,
                        "half_range": tables.poly_half_range, "K": tables.poly_K.tolist(),
                        "B": tables.poly_B.tolist()}
+    if tables.splines:
+        doc["splines"] = [{"label": s["label"], "input": s["input"], "by": s["by"], "degree": 3,
+                           "knots": s["knots"].tolist(), "coefficients": s["coefficients"].tolist(),
+                           "adds_to": "K diagonal (times nothing: K_aa += s_a(x))" if s["by"]
+                           else "B (B_a += s_a(x))", "outside_knots": "clamp"}
+                          for s in tables.splines]
+        doc["time"] = "t: seconds since power-on"
     if tables.die_tau is not None:
         doc["model"] = "w = K(T_die) w_true + B(T_die)"
         doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"

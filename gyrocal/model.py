@@ -301,6 +301,40 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     return out
 
 
+# A term with a roughness penalty (an empirical spline) is penalised this much relative to
+# what the data tell of its coefficients: negligible where holds determine them, enough to
+# carry the smoothest curve across a stretch of its input without holds (a temperature
+# point left out to validate). Whether the penalised model is determined at all is judged
+# with the penalty at full weight: a direction only the penalty fixes is not a collinearity.
+PENALTY_WEIGHT = 1e-4
+
+
+def _penalty_rows(model: Model, cols: list[str], scale: np.ndarray,
+                  weight: float = PENALTY_WEIGHT) -> np.ndarray | None:
+    """Rows appended to the column-scaled, whitened design of one output axis: for each
+    term with a penalty ``c' Ω c`` (:meth:`gyrocal.terms.Term.penalty`), ``sqrt(λ e) V'``
+    on its columns, ``Ω / (scale scale') = V diag(e) V'``, ``λ`` the penalty weight times the
+    number of its columns over ``trace(Ω)`` (each scaled column has unit norm)."""
+    blocks = []
+    index = {c: j for j, c in enumerate(cols)}
+    for term in model.terms:
+        mine = [c for c in term.coefficients() if c in index]
+        omega = term.penalty(mine) if mine else None
+        if omega is None:
+            continue
+        J = np.array([index[c] for c in mine])
+        scaled = omega / np.outer(scale[J], scale[J])
+        e, V = np.linalg.eigh(scaled)
+        keep = e > 1e-12 * max(e.max(), 1e-300)
+        if not keep.any():
+            continue
+        lam = weight * len(J) / float(np.trace(scaled))
+        block = np.zeros((int(keep.sum()), len(cols)))
+        block[:, J] = (np.sqrt(lam * e[keep])[:, None] * V[:, keep].T)
+        blocks.append(block)
+    return np.vstack(blocks) if blocks else None
+
+
 def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
@@ -343,16 +377,25 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
         scale = np.linalg.norm(Xw, axis=0)
         dead = scale == 0
         scale[dead] = 1.0
-        U, s, Vt = np.linalg.svd(Xw / scale, full_matrices=False)
+        rows = _penalty_rows(model, cols, scale)
+        A = np.vstack([Xw / scale, rows]) if rows is not None else Xw / scale
+        if rows is not None:
+            yw = np.concatenate([yw, np.zeros(len(rows))])
+            dead &= ~np.any(rows != 0, axis=0)   # the penalty carries a column without holds
+        U, s, Vt = np.linalg.svd(A, full_matrices=False)
+        check, check_Vt = s, Vt
+        if rows is not None:   # judged with the penalty at full weight (PENALTY_WEIGHT)
+            _, check, check_Vt = np.linalg.svd(np.vstack([Xw / scale, _penalty_rows(model, cols, scale, 1.0)]),
+                                               full_matrices=False)
         # Columns that only noise keeps apart (an accelerometer that reads the same on
         # every mount but for its noise) fit noise, not physics: refuse them too.
-        weak = s <= s[0] / MAX_CONDITION if s.size else np.array([], bool)
+        weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
         if dead.any() or weak.any():
             involved = set(np.flatnonzero(dead))
             for k in np.flatnonzero(weak):
-                involved |= set(np.flatnonzero(np.abs(Vt[k]) > 0.1))
+                involved |= set(np.flatnonzero(np.abs(check_Vt[k]) > 0.1))
             unexcited += [cols[j] for j in sorted(involved)]
-            worst = max(worst, float(s[0] / max(s[-1], 1e-300)))
+            worst = max(worst, float(check[0] / max(check[-1], 1e-300)))
             continue
         n_dof = n_obs - len(cols)
         if n_dof < 1:

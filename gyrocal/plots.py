@@ -229,6 +229,31 @@ def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
         return to_svg(fig)
 
 
+def shape_estimate(estimate: dict) -> str:
+    """The diagnosis' smooth estimate of the residuals (or of the scale change, for a
+    product with the own rate) against the leading input, per output axis, with its ±2σ
+    band: the shape a term of the missing effect should have."""
+    x = np.asarray(estimate["x"], dtype=float)
+    unit = estimate["unit"]
+    if unit == "s" and x.max() > 600:
+        x, unit = x / 60.0, "min"
+    product = estimate["of"] == "scale change"
+    factor, ylabel = (1e6, "scale change, ×10⁻⁶") if product else (1.0, "residual, deg/s")
+    with figure_style():
+        fig, ax = figure(10, 2.6, 1, 3, sharey=True)
+        for axis, a in zip(ax[0], AXES):
+            curve = estimate["axes"].get(a)
+            axis.axhline(0.0, color="k", lw=0.6)
+            if curve is not None:
+                axis.fill_between(x, np.asarray(curve["low"]) * factor, np.asarray(curve["high"]) * factor,
+                                  color=AXIS_COLOURS[a], alpha=0.2, lw=0)
+                axis.plot(x, np.asarray(curve["fit"]) * factor, color=AXIS_COLOURS[a], lw=1.5)
+            axis.set_title(f"output {a}", fontsize=9)
+            axis.set_xlabel(f"{estimate['input']}, {unit}", parse_math=False)
+        ax[0, 0].set_ylabel(ylabel)
+        return to_svg(fig)
+
+
 def heatmaps(maps: list[tuple[str, str, dict]]) -> str:
     """RMS of the normalised residuals per cell (1: as noise would give), one panel per
     map; keys are ``"row|column"`` with numeric columns (reference rate)."""

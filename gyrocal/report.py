@@ -123,7 +123,8 @@ def _diagnosis_context(results: UnitResults) -> dict:
         return {"diagnosis": None}
     if diag.get("format") == "gyrocal.failure/1":
         return {"diagnosis": None, "diagnosis_error": diag["error"]}
-    context = {"diagnosis": diag, "fig_residuals": "", "fig_heatmaps": "", "fig_ladder": ""}
+    context = {"diagnosis": diag, "fig_residuals": "", "fig_heatmaps": "", "fig_ladder": "",
+               "fig_shape": plots.shape_estimate(diag["shape_estimate"]) if diag.get("shape_estimate") else ""}
     frame = results.residuals
     if frame is not None and len(frame):
         frame = frame.assign(time_h=(frame["t_start"] - frame["t_start"].min()) / 3600.0)

@@ -109,7 +109,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     if len(used) >= 2:
         try:
             plan = _leave_temperature_out(model, fitted, data, reference_temperature)
-        except _CannotLeaveOut:
+        except CannotLeaveOut:
             if fitted.kind == "grid":  # a joint grid too: its holds cannot be left out alone
                 raise
             # A continuous model whose temperature terms need every point (a degree-2
@@ -196,7 +196,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         rows = np.flatnonzero(point == p)
         loo = fitted.leave_out(int(p))
         if loo is None:
-            raise _CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
+            raise CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
                                   "nothing to calibrate from")
         interp.values[rows] = loo.coefficients_at(temp[rows])
         interp.cov[rows] = loo.covariance_at(temp[rows])
@@ -234,7 +234,7 @@ def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = Fal
     return plan, clamped
 
 
-class _CannotLeaveOut(GyrocalError):
+class CannotLeaveOut(GyrocalError):
     """A temperature point cannot be left out: what remains does not determine the model."""
 
 

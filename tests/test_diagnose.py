@@ -214,3 +214,29 @@ def test_the_tails_are_scipy_stats_own_numbers():
     for _ in range(200):
         p = rng.uniform(0, 1, 2) ** rng.uniform(0.1, 30)
         assert fisher_combined(*p) == stats.combine_pvalues(np.maximum(p, 1e-300))[1]
+
+
+def test_products_with_the_own_rate_are_told_from_the_other_axes_and_from_chance():
+    """Where it fails, products: a scale that changes with an input shows as per-bin slopes
+    of each axis' residuals against its own rate, not the other axes'; on residuals that are
+    noise the product rows are significant only at their level."""
+    from gyrocal.diagnose.where import _product_rows
+
+    rng = np.random.default_rng(3)
+    n = 240
+    time_bins = np.repeat(np.arange(8), n // 8)
+    rates = np.zeros((n, 3))
+    axis = np.tile(np.repeat(np.arange(3), 10), n // 30)
+    rates[np.arange(n), axis] = np.tile(np.linspace(-400, 400, 10), n // 10)
+    drift = np.linspace(-1.0, 1.0, 8)[time_bins]            # a scale change with time, 3σ at 400
+    z = rng.standard_normal((n, 3)) + (3.0 / 400) * rates * drift[:, None]
+    rows = {r["covariate"]: r for r in _product_rows({"time": time_bins}, z, rates, 1.0, True)}
+    own, cross = rows["rate × time (own axis)"], rows["rate × time (cross axes)"]
+    assert own["p_value"] < 1e-10 and cross["p_value"] > 1e-3
+    assert own["chi2_beyond_chance"] > 10 * cross["chi2_beyond_chance"]
+    alarms = 0
+    for _ in range(200):
+        noise = rng.standard_normal((n, 3))
+        alarms += any(r["p_value"] < 0.05 for r in _product_rows({"time": time_bins}, noise, rates, 1.0, True))
+    # Two rows at 5 % each: about 19 of 200 with at least one below; 34 is beyond 99.9 %.
+    assert alarms <= 34

@@ -336,7 +336,7 @@ int main(int argc, char **argv)
 {
     FILE *in, *out;
     double s[5], r[4];
-    gyrocal_die_state die = GYROCAL_DIE_STATE_INIT;
+    gyrocal_state die = GYROCAL_STATE_INIT;
     if (argc != 3 || !(in = fopen(argv[1], "rb")) || !(out = fopen(argv[2], "wb")))
         return 2;
     while (fread(s, sizeof(double), 5, in) == 5) {
@@ -382,3 +382,80 @@ def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
     logged = cal.compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4],
                                               "temp_logged": data[good, 4]}, warn=False)
     assert np.max(np.abs(result[good, :3] - logged)) > 1e-3
+
+
+SPLINE_DRIVER = DIE_DRIVER
+
+
+def spline_calibration(kind: str):
+    """The seed-000 unit with empirical terms firmware can evaluate: a spline of time since
+    power-on on a grid; a continuous model with a spline of the temperature (a bias) and
+    one of time times the own rate (a scale relaxing after power-on)."""
+    from gyrocal.model import Model
+    if kind == "grid":
+        cal = grid_calibration((0.0, 10.0, 20.0, 30.0), "lagrange3", 2)
+        extra = ['smooth(input="t", knots=[0.0, 20.0, 60.0, 120.0])']
+    else:
+        cal = continuous_calibration((0.0, 10.0, 20.0, 30.0))
+        extra = ['smooth(input="temp", knots=[-10.0, 5.0, 20.0, 40.0], linear=False)',
+                 'smooth(input="t", knots=[0.0, 30.0, 120.0], by="rate_own")']
+    model = Model(cal.model.terms + Model.from_spec(extra).terms)
+    new = [n for n in model.names if n not in cal.grid.names]
+    rng = np.random.default_rng(4)
+    size = np.array([1e-3 if "by_rate" in n else 0.2 for n in new])
+    add = size * rng.standard_normal(len(new))
+    g = cal.grid
+    if kind == "grid":
+        values = np.column_stack([g.values, np.tile(add, (len(g.temperatures), 1))])
+        grid = TemperatureGrid(g.temperatures, tuple(model.names), values, np.full_like(values, 1e-4),
+                               g.method, g.degree)
+    else:
+        values = np.r_[g.values, add]
+        grid = ConstantCoefficients(g.temperatures, tuple(model.names), values, np.abs(values) + 1e-6)
+    return Calibration(model, grid, meta=dict(META))
+
+
+@needs_gcc
+@pytest.mark.parametrize("kind", ["grid", "continuous"])
+def test_compiled_c_adds_the_empirical_terms_as_apply_does(kind, log, tmp_path):
+    """Splines of time since power-on and of the temperature (a bias, or a scale by the own
+    rate): the header evaluates them by de Boor's algorithm and adds them to B or K's
+    diagonal; fed the samples in order, the compiled code reproduces apply."""
+    cal = spline_calibration(kind)
+    cal_path, expected = applied(cal, log, tmp_path)
+    header = export_text(load_calibration(cal_path), "c-header", source=cal_path)
+    assert "gyrocal_bspline" in header and "gyrocal_compensate_sample" in header
+    document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
+    assert {s["input"] for s in document["splines"]} == ({"t"} if kind == "grid" else {"t", "temp"})
+    (tmp_path / "compensation.h").write_text(header)
+    (tmp_path / "driver.c").write_text(SPLINE_DRIVER)
+    exe = tmp_path / "driver"
+    built = subprocess.run([GCC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
+                            "-o", str(exe), str(tmp_path / "driver.c"), "-lm"], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    t = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
+    data = np.column_stack([t.column(c).to_numpy() for c in t.column_names]).astype(np.float64)
+    data.tofile(tmp_path / "in.f64")
+    run = subprocess.run([str(exe), str(tmp_path / "in.f64"), str(tmp_path / "out.f64")], capture_output=True)
+    assert run.returncode == 0
+    result = np.fromfile(tmp_path / "out.f64", dtype=np.float64).reshape(-1, 4)
+    good = np.isfinite(data).all(axis=1)
+    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
+    # Teeth: without the splines the compensation differs by far more.
+    from gyrocal.export import _without_splines
+    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0] - data[0, 0],
+                                                              "temp": data[good, 4]}, warn=False)
+    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+
+
+def test_splines_of_other_inputs_are_refused_by_name():
+    from gyrocal.model import Model
+    cal = grid_calibration((0.0, 10.0, 20.0, 30.0))
+    model = Model(cal.model.terms + Model.from_spec(
+        ['smooth(input="rate_own", knots=[-400.0, 0.0, 400.0], linear=False)']).terms)
+    names = tuple(model.names)
+    values = np.zeros((4, len(names)))
+    cal = Calibration(model, TemperatureGrid(np.array([0.0, 10.0, 20.0, 30.0]), names, values,
+                                             np.full_like(values, 1e-4)), meta=dict(META))
+    with pytest.raises(UnsupportedModelError, match=r"smooth\(input=rate_own\)"):
+        export_text(cal, "c-header")

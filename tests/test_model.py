@@ -157,3 +157,45 @@ def test_a_registered_term_takes_part_like_the_library_ones():
         assert abs(result.values[i] - k2) < 4 * result.stderr[i]
     finally:
         TERMS.pop("test_rate_squared")
+
+
+def _spline_holds(t, seed=0, floor=0.002):
+    """Hold means whose bias follows a smooth warm-up in t, with white noise at the floor."""
+    rng = np.random.default_rng(seed)
+    n = len(t)
+    truth = 0.3 * np.exp(-t / 800.0)
+    data = {"t_start": t - 10.0, "t_end": t + 10.0, "n": np.full(n, 100.0),
+            **{f"rate_{a}": np.zeros(n) for a in "xyz"}}
+    from gyrocal.signals import Series
+    record = np.arange(0.0, t.max() + 60.0, 1.0)
+    data["series"] = Series(record, np.full(record.size, 25.0), 0.0, 60.0, np.ones(record.size))
+    for a in "xyz":
+        data[f"gyro_{a}"] = 0.1 + truth + floor * rng.standard_normal(n)
+        data[f"std_{a}"] = np.full(n, floor * 10.0)
+    return data, truth
+
+
+def test_a_light_penalty_leaves_a_well_sampled_spline_as_least_squares_fits_it():
+    """Where holds determine every coefficient, the spline's penalty changes the fitted hold
+    means by far less than their noise floor; across a stretch without holds it draws a bounded curve
+    where least squares alone would have no answer."""
+    from gyrocal.model import fit
+    spec = 'smooth(input="t", knots=[20.0, 600.0, 1500.0, 3000.0, 5000.0])'
+    model = Model.from_spec(["bias", spec])
+    data, truth = _spline_holds(np.arange(20.0, 5000.0, 40.0))
+    result = fit(model, data)
+    names = model.axis_names("x")
+    design = model.design(data)
+    X = np.column_stack([np.broadcast_to(np.asarray(design[n], float), (len(truth),)) for n in names])
+    plain, *_ = np.linalg.lstsq(X, data["gyro_x"], rcond=None)
+    penalised = np.array([result.coef(n) for n in names])
+    # The fitted hold means (bias and spline are correlated: compare what they predict).
+    assert np.max(np.abs(X @ penalised - X @ plain)) < 0.2 * 0.002
+    gap = (data["t_start"] < 1200) | (data["t_start"] > 2600)
+    holed = {k: (v[gap] if np.ndim(v) == 1 and len(v) == len(gap) else v) for k, v in data.items()}
+    bridged = fit(model, holed)
+    inside = np.linspace(1250.0, 2550.0, 20)
+    shape = model.terms[1].shape({n: bridged.coef(n) for n in bridged.names}, inside, "x")
+    # The bridge stays within the warm-up's own range at the gap's ends (no wild swing).
+    ends = model.terms[1].shape({n: bridged.coef(n) for n in bridged.names}, np.array([1200.0, 2600.0]), "x")
+    assert np.all(shape <= ends.max() + 0.01) and np.all(shape >= ends.min() - 0.01)

@@ -260,3 +260,48 @@ def test_a_term_restricted_to_the_part_a_protocol_sees_round_trips():
     assert ModelSettings(terms=model.terms).with_terms(("g_sensitivity",)).terms[-1] == "g_sensitivity"
     with pytest.raises(ConfigError, match="has no coefficient x.w to drop"):
         make_term('g_sensitivity(drop=["x.w"])')
+
+
+def test_an_empirical_term_is_a_spline_without_its_constant():
+    from gyrocal.errors import ConfigError
+    from gyrocal.terms import make_term
+    from gyrocal.terms.empirical import spline_basis
+
+    term = make_term('smooth(input="t", knots=[0.0, 100.0, 400.0, 1000.0])')
+    assert make_term(term.spec_string()) == term and make_term(term.spec()) == term
+    assert term.coefficient_scope == "global" and term.size == 5        # K + 1: the constant left out
+    x = np.linspace(-50.0, 1200.0, 400)
+    basis = spline_basis(x, term.knots)
+    first = 1.0 - basis.sum(axis=1)                  # the B-splines sum to one: the one left out
+    assert np.all(first >= -1e-12) and first[x <= 0].min() == pytest.approx(1.0)
+    np.testing.assert_array_equal(basis[x >= 1000], basis[x >= 1000][:1].repeat((x >= 1000).sum(), 0))
+    # A cubic is in the span (with the constant), to rounding: the basis is a cubic spline.
+    u = np.clip(x, 0, 1000) / 1000
+    cubic = 3 * u ** 3 - u ** 2 + 0.5 * u
+    design = np.column_stack([np.ones_like(x), basis])
+    coef, *_ = np.linalg.lstsq(design, cubic, rcond=None)
+    assert np.max(np.abs(design @ coef - cubic)) < 1e-12
+    omega = term.penalty(term.coefficients()[:term.size])
+    assert np.all(np.linalg.eigvalsh(omega) > -1e-12)
+    by_rate = make_term('smooth(input="temp", knots=[-20.0, 25.0, 70.0], by="rate_own", linear=False)')
+    assert by_rate.varies_with_temperature and by_rate.unit == "1" and by_rate.size == 3
+    cols = by_rate.columns({"temp": np.array([25.0, 25.0]), "rate_x": np.array([2.0, 0.0]),
+                            "rate_y": np.zeros(2), "rate_z": np.zeros(2)})
+    assert cols["smooth_temp_by_rate.x.k1"][1] == 0.0 and cols["smooth_temp_by_rate.x.k1"][0] != 0.0
+    for bad in ('smooth(input="pressure", knots=[0, 1])', 'smooth(input="t", knots=[1, 0])',
+                'smooth(input="t", knots=[0, 1], by="accel")'):
+        with pytest.raises(ConfigError):
+            make_term(bad)
+
+
+def test_an_own_axis_formula_is_the_three_per_axis_formulas():
+    from gyrocal.model import Model
+    from gyrocal.signals import Inputs
+
+    rng = np.random.default_rng(0)
+    data = Inputs({f"rate_{a}": rng.normal(0, 100, 5) for a in "xyz"} | {"t": np.arange(5.0) * 60})
+    own = Model.from_spec([{"name": "expression", "label": "sw", "formula": "rate_own * exp(-t / 300)"}])
+    design = own.design(data)
+    for a in "xyz":
+        np.testing.assert_allclose(design[f"sw.{a}"], data[f"rate_{a}"] * np.exp(-data["t"] / 300))
+    assert own.terms[0].needs == {"rate_x", "rate_y", "rate_z", "t"}

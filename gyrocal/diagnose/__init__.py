@@ -36,16 +36,18 @@ import pandas as pd
 from ..config import Settings
 from ..floor import with_upper_floor
 from ..model import columns_of
-from ..terms import AXES
+from ..terms import AXES, make_term
 from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
-                      rank_candidates, second_step, time_drift)
+                      practical_gain_next, rank_candidates, second_step, time_drift)
 from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
-                         evaluation_of, extended, ladder)
+                         evaluation_of, extended, ladder, pooled)
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
 from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
-from .verdict import advice, drift_sentence, input_kinds, verdict as make_verdict
-from .where import COVARIATES, covariate_table, fit_quality
+from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
+from .shapes import describe, shape_terms
+from .where import input_values
+from .where import COVARIATES, covariate_table, fit_quality, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -74,6 +76,8 @@ class Diagnosis:
     next_session: dict | None = None          # the configured model on another session
     advice: list[str] = field(default_factory=list)
     time_drift: dict | None = None            # TIME_DRIFT's fit: the rival no term can beat
+    shape_estimate: dict | None = None        # the residuals against the leading input
+    unexplained: dict | None = None           # why no term of free shape was offered
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -91,6 +95,8 @@ class Diagnosis:
             "next_session": self.next_session,
             "advice": self.advice,
             "time_drift": self.time_drift,
+            "shape_estimate": self.shape_estimate,
+            "unexplained": self.unexplained,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
@@ -163,17 +169,6 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     useful = [c for c in ranked if c.significant and not explains
               and practical_gain(base, c, bound)]
     drift = time_drift(judge, settings, obs, base, base_next, tolerance, bound) if not explains else None
-    # One session whose in-sample excess the slow noise the static data cannot rule out
-    # accounts for, whose held-out error is within what a correct model leaves under that
-    # noise too, and that no term nor a drift in time takes a practical part of: nothing
-    # in it asks for an effect (slow wander and a one-off effect look alike in one
-    # session; another one tells them apart).
-    noise_explains = bool(
-        not explains and within_noise is not None and within_noise["explains"]
-        and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
-                                and not (drift and drift["explains"]))))
-    if noise_explains:
-        explains, useful, drift = True, [], None
     covariates, heat = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows,
                                        base.dof, not explains)
     if usable(base_next):  # what the user will meet: the other session first
@@ -186,15 +181,34 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         # the drift explains the excess too, the protocol cannot name either.
         drift["rival_of"] = best.term
         best = None
-    # Two effects at once are looked for only when the held-out error is above what a
-    # correct model leaves by more than that figure's uncertainty: among the tens of pairs,
-    # some fit a small excess by chance, and passing the checks of what is left is weak
-    # evidence when there is little left to test.
     for first in useful[:PAIR_STARTS] if best is None else ():
         # Two effects missing at once: one of the most useful terms, then each other on top.
         best = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance)
         if best is not None:
             break
+    lead = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    why, shaped = None, []
+    if best is None and resolvable and not explains:
+        # Nothing in the library explains it: terms of free shape for the inputs that
+        # carry the excess, judged as the library's are.
+        best, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound)
+        candidates = candidates + tried
+        shaped = [c for c in tried if c.status == "ranked" and c.significant and (
+            practical_gain(base, c, bound) if c.validated else practical_gain_next(base_next, c, bound))]
+        if best is None:
+            why = unexplained(tried, covariates, usable(base_next))
+    # One session whose in-sample excess the slow noise the static data cannot rule out
+    # accounts for, whose held-out error is within what a correct model leaves under that
+    # noise too, and that no term, no drift in time and no term of free shape takes a
+    # practical part of: nothing in it asks for an effect (slow wander and a one-off
+    # effect look alike in one session; another one tells them apart).
+    noise_explains = bool(
+        best is None and not explains and within_noise is not None and within_noise["explains"]
+        and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
+                                and not shaped and not (drift and drift["explains"]))))
+    if noise_explains:
+        explains, useful, drift, why = True, [], None, None
+    estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]
     # A drift in time that explains the excess is the finding: terms that fit a part of it
@@ -206,6 +220,9 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         unseparable=[c for c in candidates if c.status == "not identifiable"])
     if timed:
         text += " " + drift_sentence(base, drift)
+    if why is not None:
+        text += (f" No term of free shape can be offered: {why['text']}; {why['would_tell']} "
+                 "would tell.")
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", quality.resid), ("floor", quality.floor),
                                              ("z", quality.z)) for i, a in enumerate(AXES)})
@@ -217,4 +234,55 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.next_session = base_next
     diag.advice = advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
     diag.time_drift = drift
+    diag.shape_estimate = estimate
+    diag.unexplained = why
     return diag
+
+
+def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, tolerance, bound):
+    """The best term of free shape (:mod:`.shapes`) that explains the excess, with its shape
+    described and the parametric families that explain it as well; and every one tried."""
+    settings, obs, data = judge.settings, judge.obs, judge.data
+    shapes = {s.spec: s for s in shape_terms(settings, obs, data, covariates, quality.fitted_rows)}
+    tried = rank_candidates(judge, base, list(shapes), base_next, tolerance, in_sample=True)
+    good, gaining = [], []
+    for c in tried:
+        shape = shapes.get(c.part_of or c.term)
+        if c.status != "ranked" or shape is None:
+            continue
+        c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
+        c.family = shape.family
+        gain = practical_gain(base, c, bound) if c.validated else practical_gain_next(base_next, c, bound)
+        if c.significant and gain:
+            gaining.append(c)
+            if c.explains_excess:
+                good.append((c, shape))
+    if not good and gaining:
+        # Two shapes at once (a fast and a slow warm-up): the most useful, then each other.
+        gaining.sort(key=lambda c: c.validation_rms_with)
+        ranked = [c for c in tried if c.status == "ranked" and c.term in shapes]
+        for first in gaining[:2]:
+            pair = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance,
+                               in_sample=True)
+            if pair is not None:
+                good.append((pair, shapes[first.term]))
+                break
+    if not good:
+        return None, tried
+    if usable(base_next):
+        good.sort(key=lambda g: g[0].next_session["validation_rms"] if usable(g[0].next_session) else np.inf)
+    else:
+        good.sort(key=lambda g: g[0].validation_rms_with)
+    # The empirical term when it explains, the parametric families that do as well beside it.
+    best, shape = next((g for g in good if g[1].kind == "empirical"), good[0])
+    terms = [make_term(t) for t in (best.term, *best.together)]
+    values = {n: 0.0 for t in terms for n in t.coefficients()}
+    if best.together:   # a pair: its coefficients as fitted together
+        fitted = evaluate(extended_all(settings, best), obs, best.term, in_sample=True).fitted
+        values.update({n: pooled(fitted.fits, n)[0] for n in values})
+    else:
+        values.update({z["coefficient"]: z["value"] for z in best.size})
+    x = input_values(obs, data, shape.input)[quality.fitted_rows]
+    best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)
+    best.also = [c for c, _ in good if c is not best]
+    return best, tried

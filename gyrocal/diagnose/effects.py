@@ -41,8 +41,13 @@ class Candidate:
     part_of: str | None = None               # the library term this is the protocol's part of
     seen_part: str | None = None             # not identifiable: the part fitted instead
     excited: bool = True                     # its columns are not all zero on these holds
+    validated: bool = True                   # by leaving points out (else in-sample figures)
     option: str = ""                         # the command-line option that adds it
     config_line: str = ""                    # the model: lines of the config with it
+    profiled: list = field(default_factory=list)   # its nonlinear settings as fitted
+    family: str | None = None                # a term of free shape: smooth, decay, ...
+    shape: str = ""                          # named, of free shape: a sentence on its shape
+    also: list = field(default_factory=list)  # other terms of free shape that explain it too
 
     def to_dict(self) -> dict:
         out = {"term": self.term, "status": self.status,
@@ -53,7 +58,13 @@ class Candidate:
                        expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
                        tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms,
                        leftover=self.leftover, next_session=self.next_session,
-                       part_of=self.part_of, option=self.option, config_line=self.config_line)
+                       part_of=self.part_of, option=self.option, config_line=self.config_line,
+                       profiled=self.profiled)
+            if self.family:
+                out.update(family=self.family, shape=self.shape,
+                           also=[{"term": c.term, "family": c.family, "option": c.option,
+                                  "config_line": c.config_line, "profiled": c.profiled,
+                                  "validation_rms_with": c.validation_rms_with} for c in self.also])
         else:
             out["reason"] = self.reason
             if self.seen_part:
@@ -112,8 +123,11 @@ class Judge:
         sizeable = left["chi2_red_share"] > min(LEFTOVER_FRACTION * self.base_excess,
                                                 NEGLIGIBLE_OVER_FLOOR ** 2 - 1.0)
         structure = sizeable and left["p_value"] < half
+        validated = ext.summary["held_out"] != "none"
         in_chance = (float(chi2_sf(ext.chi2, ext.dof)) >= half
-                     or ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
+                     or (validated and ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
+                     or (not validated and usable(nxt)
+                         and nxt["validation_rms"] <= nxt["expected_rms"] * tolerance))
         # Slow noise lines residuals up with time and nothing else: structure in rate, mount
         # or temperature is an effect, and structure in time is one too unless slow noise is
         # known, from the static data's noise model or from two sessions that differ by more
@@ -121,7 +135,9 @@ class Judge:
         slow = self.slow_known or slow_noise(nxt, self.alpha)
         exempt = self.soaked and slow and left["covariate"] in TIME_LIKE
         if not usable(nxt):
-            return in_chance and (not structure or exempt)
+            # A fit that could not be validated by leaving points out is judged by the
+            # other session or not at all.
+            return validated and in_chance and (not structure or exempt)
         # Two independent looks at what is left, combined (Fisher): its structure in this
         # session and its repetition in the other. What is left is within chance, or known
         # to be slow noise; and the other session is no worse than with the configured model.
@@ -166,17 +182,21 @@ def extended_all(settings: Settings, best: Candidate) -> Settings:
 
 
 def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rms: float,
-                 tolerance: float) -> Candidate | None:
+                tolerance: float, *, in_sample: bool = False) -> Candidate | None:
     """``first`` with one more term that, added on top, explains the excess (F-test of the
     second addition, Bonferroni over the pairs tried); None when no pair does."""
     settings, obs, alpha = judge.settings, judge.obs, judge.alpha
-    start = evaluate(extended(settings, first.term), obs, first.term)
+    try:
+        start = evaluate(extended(settings, first.term), obs, first.term, in_sample=in_sample)
+    except GyrocalError:
+        return None
     start_next = judge.carry(start) if judge.other is not None else None
     others = [c for c in ranked if c is not first and c.term not in first.tied_with]
     found = []
     for c in others:
         try:
-            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term)
+            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term,
+                           in_sample=in_sample)
         except Exception:  # noqa: BLE001 - as for single candidates: not a pair to name
             continue
         df_num, df_den = start.dof - ext.dof + _added_nonlinear(start, ext), ext.dof
@@ -211,6 +231,16 @@ def practical_gain(base: Evaluation, c: Candidate | float, bound: float) -> bool
             and gain >= 0.25 * (v0 - expected))
 
 
+def practical_gain_next(base_next, c: Candidate, bound: float) -> bool:
+    """:func:`practical_gain` on the other session: for a term no point could be left out
+    for, what its calibration takes away there is the held-out gain."""
+    if not (usable(base_next) and usable(c.next_session)):
+        return False
+    v0, expected = base_next["validation_rms"], base_next["expected_rms"]
+    gain = v0 - c.next_session["validation_rms"]
+    return v0 > expected * bound and gain > v0 * (1.0 - 1.0 / bound) and gain >= 0.25 * (v0 - expected)
+
+
 def mark_ties(tested: list[Candidate]) -> None:
     """Candidates whose extended fits are the same to a part in 10⁶ (χ²) add the same
     columns in this protocol's span (a quadratic and an asymmetric scale at one speed)."""
@@ -219,8 +249,8 @@ def mark_ties(tested: list[Candidate]) -> None:
                        and abs(o.chi2 - c.chi2) <= 1e-6 * max(c.chi2, 1e-300)]
 
 
-def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next, tolerance
-                    ) -> list[Candidate]:
+def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next, tolerance, *,
+                    in_sample: bool = False) -> list[Candidate]:
     """Every candidate added to the configured model in turn, refitted, validated, tested
     against the model (nested F-test, Bonferroni over the candidates tested) and judged
     (:meth:`Judge.explains`); ranked by the validation RMS they reach, then the candidates
@@ -243,7 +273,7 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
             candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
             continue
         try:
-            ext = evaluate(extended(settings, spec), obs, spec)
+            ext = evaluate(extended(settings, spec), obs, spec, in_sample=in_sample)
         except MissingInputError as exc:
             candidates.append(Candidate(spec, "missing inputs", reason=reason(exc)))
             continue
@@ -275,7 +305,9 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
                               100.0 * (1 - v1 / v0), False, size, peak,
                               expected_with=ext.summary["expected_rms"])
         candidate.chi2 = ext.chi2
+        candidate.validated = ext.summary["held_out"] != "none"
         candidate.part_of = part_of
+        candidate.profiled = list(getattr(ext.fitted, "profiled", ()) or ())
         candidate.explains_excess = judge.explains(ext, candidate, base_next, tolerance)
         candidates.append(candidate)
         tested.append(candidate)

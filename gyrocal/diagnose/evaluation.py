@@ -17,7 +17,7 @@ from ..model import columns_of
 from ..terms import AXES, TERMS, make_term
 from ..terms.effects import CANDIDATES
 from ..thermal import fit_model
-from ..validate import validate
+from ..validate import CannotLeaveOut, validate
 
 
 @dataclass
@@ -33,12 +33,33 @@ class Evaluation:
     dof: int
 
 
-def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model") -> Evaluation:
-    """``settings.model`` fitted to ``obs`` and validated leaving temperature points out."""
+def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model", *,
+             in_sample: bool = False) -> Evaluation:
+    """``settings.model`` fitted to ``obs`` and validated leaving temperature points out.
+    ``in_sample``: where no point can be left out (a term whose shape lies within one
+    point's stretch of time: without the point it is a copy of the points' biases), the
+    summary of the fit's own residuals instead, marked ``held_out: "none"``."""
     m = settings.model
     fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
-    summary = validate(fitted.model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    try:
+        summary = validate(fitted.model, obs, fitted, reference_temperature=m.reference_temperature).summary
+    except CannotLeaveOut:
+        if not in_sample:
+            raise
+        summary = in_sample_summary(fitted, obs)
     return evaluation_of(settings, fitted, summary, name)
+
+
+def in_sample_summary(fitted, obs) -> dict:
+    """A validation summary's figures from a fit's own residuals: RMS, floor, and the floor
+    as what a correct model would leave (its own fit removes a little more)."""
+    from ..thermal import in_sample
+    resid, floor, rows = in_sample(fitted, len(obs))
+    rms = float(np.sqrt(np.mean(resid[rows] ** 2)))
+    floor_rms = float(np.sqrt(np.mean(floor[rows] ** 2)))
+    return {"validation_rms": rms, "noise_floor": floor_rms, "expected_rms": floor_rms,
+            "excess": rms / floor_rms, "excess_over_expected": rms / floor_rms,
+            "held_out": "none", "holds_scored": int(rows.sum())}
 
 
 def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model") -> Evaluation:

@@ -68,6 +68,8 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
         if base_next is not None and usable(best.next_session):
             carried = (f" On the other session the error falls from {base_next['excess']:.3g} to "
                        f"{best.next_session['excess']:.3g} times the floor.")
+        if getattr(best, "family", None):
+            return _free_shape_verdict(base, best, carried)
         name = (f"{best.part_of}, the part this protocol can see ({best.term})" if best.part_of
                 else best.term)
         seen = (f" That is as much of {best.part_of} as this protocol shows, and what its "
@@ -119,6 +121,27 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
             "their noise floor, as " + ("the sensor's noise model" if noise_model else
                                          "white noise within the holds") + " would leave; nothing is missing.")
 
+
+def _profiled_text(c) -> str:
+    values = [f"{p['parameter']} = {p['value']:.4g}" + (f" ± {p['stderr']:.2g}" if p.get("stderr") else "")
+              for p in c.profiled if p.get("identified", True)]
+    return f" ({', '.join(values)})" if values else ""
+
+
+def _free_shape_verdict(base, best, carried: str) -> str:
+    """A term of free shape named: the shape in words, what it reaches, and the parametric
+    forms that explain it as well."""
+    also = "".join(f" As a formula, {c.term}{_profiled_text(c)} explains it as well "
+                   f"(validation RMS {c.validation_rms_with:.3g} deg/s)." for c in best.also[:2])
+    what = "An empirical term" if best.family == "smooth" else f"A {best.family} formula"
+    return (f"Missing effect, outside the library: {best.shape} {what}, {best.term}"
+            f"{_profiled_text(best)}, lowers the validation RMS from {base.summary['validation_rms']:.3g} "
+            f"to {best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+            f"({best.expected_with:.3g}).{also}{carried}")
+
+
+# Terms the diagnosis makes up for a shape (their failures are said in the verdict instead).
+FREE_SHAPE_TERMS = ("smooth", "expression")
 
 # What separates effects of each kind of input, for a protocol that cannot tell them apart.
 SEPARATES = {
@@ -176,7 +199,8 @@ def advice(best, partial, candidates, covariates, explains: bool, has_other: boo
         return out
     # A term the holds do not excite at all (a scale on a rig that does not turn) shows
     # nothing in them either: only one the protocol sees but cannot separate is worth a word.
-    blocked = [c for c in candidates if c.status == "not identifiable" and c.excited]
+    blocked = [c for c in candidates if c.status == "not identifiable" and c.excited
+               and not getattr(c, "family", None) and make_term(c.term).name not in FREE_SHAPE_TERMS]
     for c in blocked:
         kinds = input_kinds(c.term)
         if kinds:
@@ -198,3 +222,62 @@ def advice(best, partial, candidates, covariates, explains: bool, has_other: boo
         out.append("Diagnose with another session of the unit (--other-session) to judge the "
                    "candidates by how they carry over to it, as a calibration will be used.")
     return out
+
+
+# What a protocol would add to tell an effect of each kind of covariate apart.
+WOULD_TELL = {
+    "time": "another session of the unit (--other-session), whose warm-up starts again, or "
+            "a temperature point revisited at the end of the session",
+    "temperature": "more temperature points (a sweep, or a grid finer where the excess lives)",
+    "rate": "holds at more speeds, in both directions, on every axis",
+    "mount": "mounts that put each axis up and down (the six-mount protocol)",
+}
+
+
+def _covariate_kind(label: str) -> str:
+    if "time" in label or "duration" in label:
+        return "time"
+    if "temperature" in label:
+        return "temperature"
+    if "rate" in label or "direction" in label:
+        return "rate"
+    return "mount"
+
+
+def unexplained(tried, covariates, has_other: bool) -> dict | None:
+    """Why no term of free shape could be offered, and what protocol would tell: terms
+    that fit the excess but could not be validated by leaving points out (their shape
+    lies within one point's stretch of time), terms that gain here but not on the other
+    session, terms that take away part of it and leave it following another covariate, or
+    none that describes it as a function of one input. None without terms tried."""
+    ranked = [c for c in tried if c.status == "ranked"]
+    if not ranked:
+        return None
+    lead = next((r["covariate"] for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    kind = _covariate_kind(lead or "")
+    unvalidated = [c for c in ranked if not c.validated and c.significant]
+    if unvalidated and not has_other:
+        c = min(unvalidated, key=lambda c: c.validation_rms_with)
+        return {"reason": "unvalidated", "term": c.term,
+                "text": f"{c.term} fits it within this session (in-sample RMS {c.validation_rms_with:.3g} "
+                        "deg/s), but its shape lies within one temperature point's stretch of time, which "
+                        "leaving that point out to validate cannot check",
+                "would_tell": WOULD_TELL["time"]}
+    best = min(ranked, key=lambda c: c.validation_rms_with)
+    if has_other and best.next_session and "validation_rms" in best.next_session:
+        return {"reason": "does not carry over", "term": best.term,
+                "text": f"the shape that fits best, {best.term}, does not hold on the other session "
+                        f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
+                        "is not the same function of its input from one session to the next",
+                "would_tell": WOULD_TELL[kind]}
+    left = best.leftover or {}
+    follows = left.get("covariate")
+    if follows and left.get("p_value", 1.0) < 0.01:
+        return {"reason": "depends on more than one input", "term": best.term,
+                "text": f"the shape that fits best, {best.term}, leaves residuals that still follow "
+                        f"{follows}: the effect depends on more than the one input a term of free shape "
+                        "reads",
+                "would_tell": WOULD_TELL[_covariate_kind(follows)]}
+    return {"reason": "no shape of one input", "term": None,
+            "text": f"no smooth function of {lead or 'the inputs tried'} describes it",
+            "would_tell": WOULD_TELL[kind]}

@@ -139,6 +139,8 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
             row["confounded"] = names
             row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
         rows.append(row)
+    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float)[fitted_rows] for a in AXES])
+    rows += _product_rows(labels, zz, rates, excess, excess_significant)
     rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
     rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
     idx = pd.Series(np.arange(len(frame)))
@@ -149,6 +151,65 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
         "temperature_by_rate": {f"{t}|{r}": rms(g) for (t, r), g in idx.groupby([temp_bins, rate_bins])},
     }
     return rows, heat
+
+
+# Inputs whose product with the output axis's own rate (a scale changing with them) or the
+# other axes' rates (cross-axis terms changing with them) the table also tries.
+PRODUCT_INPUTS = ("time", "time within a temperature point", "temperature", "temperature rate")
+
+
+def _product_rows(labels: dict, z: np.ndarray, rates: np.ndarray, excess: float,
+                  excess_significant: bool) -> list[dict]:
+    """Rows for products of the rates with an input: within each bin of the input, the
+    residuals of each output axis regressed on its own rate (``own axis``: 1 degree of
+    freedom per bin and axis) or on the two other rates (``cross axes``: 2). What the
+    per-bin slopes explain is the gain, judged beyond chance as the other rows are. The fit
+    has taken out one slope per temperature point already (its scale and cross-axis
+    terms): what is left is a slope that changes with the input."""
+    if not np.any(rates):
+        return []
+    out = []
+    for name in PRODUCT_INPUTS:
+        if name not in labels:
+            continue
+        bins = _partition(labels[name])
+        for kind in ("own axis", "cross axes"):
+            gain, df = _binned_slopes(bins, z, rates, own=kind == "own axis")
+            if df == 0:
+                continue
+            p = float(chi2_sf(gain, df))
+            share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
+            out.append({"covariate": f"rate × {name} ({kind})", "bins": int(bins.max()) + 1,
+                        "share_of_excess": share, "p_value": p, "within": None,
+                        "chi2_beyond_chance": max(gain - df, 0.0), "product": {"input": name, "axes": kind}})
+    return out
+
+
+def _binned_slopes(bins: np.ndarray, z: np.ndarray, rates: np.ndarray, *, own: bool) -> tuple[float, int]:
+    """What per-bin least-squares slopes of each axis' residuals on its own rate (one
+    regressor) or on the two other rates (two) explain, summed over bins and axes, and
+    their number (degrees of freedom), from per-bin sums (normal equations)."""
+    k = int(bins.max()) + 1
+    sums = lambda v: np.bincount(bins, weights=v, minlength=k)  # noqa: E731
+    gain, df = 0.0, 0
+    for i in range(3):
+        if own:
+            zw, ww = sums(z[:, i] * rates[:, i]), sums(rates[:, i] ** 2)
+            used = ww > 0
+            gain += float(np.sum(zw[used] ** 2 / ww[used]))
+            df += int(used.sum())
+            continue
+        j, l = [b for b in range(3) if b != i]
+        a, b, c = sums(rates[:, j] ** 2), sums(rates[:, j] * rates[:, l]), sums(rates[:, l] ** 2)
+        u, v = sums(z[:, i] * rates[:, j]), sums(z[:, i] * rates[:, l])
+        det = a * c - b * b
+        full = det > 1e-9 * np.maximum(a * c, 1e-300)
+        # Two regressors where they are not collinear in the bin, else the one that is there.
+        gain += float(np.sum((c * u * u - 2 * b * u * v + a * v * v)[full] / det[full]))
+        single = ~full & ((a > 0) | (c > 0))
+        gain += float(np.sum(np.where(a > 0, u * u / np.where(a > 0, a, 1.0), v * v / np.where(c > 0, c, 1.0))[single]))
+        df += 2 * int(full.sum()) + int(single.sum())
+    return gain, df
 
 
 def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
@@ -169,3 +230,88 @@ def leftover(obs: pd.DataFrame, data: dict, evaluation) -> dict:
     return {"covariate": worst["covariate"],
             "p_value": min(1.0, worst["p_value"] * len(table)),  # Bonferroni
             "chi2_red_share": worst["chi2_beyond_chance"] / max(evaluation.dof, 1)}
+
+
+# The input a covariate row stands for, as a term reads it (the shape's x axis).
+INPUT_OF = {"time": "t", "time within a temperature point": "t_point", "temperature": "temp",
+            "temperature rate": "temp_rate", "|rate|": "abs_rate", "reference rate": "rate_own",
+            "direction": "rate_own", "hold duration": "duration"}
+INPUT_UNIT = {"t": "s", "t_point": "s", "temp": "degC", "temp_rate": "degC/min", "abs_rate": "deg/s",
+              "rate_own": "deg/s", "duration": "s"}
+SHAPE_KNOTS = 5
+SHAPE_POINTS = 61
+
+
+def input_values(obs: pd.DataFrame, data: dict, name: str) -> np.ndarray:
+    """(n, 3) values of an input at the holds, per output axis (the same on the three but
+    for the own-axis rate): time since the log's first sample or since its point's first
+    hold (s), temperature, its rate, |reference rate|, the axis's own rate, hold length."""
+    n = len(obs)
+    if name in ("t", "t_point"):
+        series = data.get("series")
+        t0 = series.t0 if series is not None else float(np.min(data["t_start"]))
+        x = 0.5 * (np.asarray(data["t_start"]) + np.asarray(data["t_end"])) - t0
+        if name == "t_point" and "point" in data:
+            start = pd.Series(x).groupby(np.asarray(data["point"])).transform("min").to_numpy()
+            x = x - start
+    elif name == "abs_rate":
+        x = np.abs(np.asarray(data["ref_rate"], dtype=float))
+    elif name == "rate_own":
+        return np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
+    else:
+        x = np.asarray(data[name], dtype=float)
+    return np.repeat(np.asarray(x, dtype=float)[:, None], 3, axis=1) if np.ndim(x) else np.full((n, 3), x)
+
+
+def knots_for(values: np.ndarray, count: int = SHAPE_KNOTS) -> list[float] | None:
+    """Knots at quantiles of an input's distinct values (None with fewer than three)."""
+    distinct = np.unique(np.round(np.asarray(values, dtype=float)[np.isfinite(values)], 9))
+    if distinct.size < 3:
+        return None
+    knots = np.quantile(distinct, np.linspace(0.0, 1.0, min(count, distinct.size)))
+    knots = np.unique([float(f"{k:.4g}") for k in knots])   # as a person would write them
+    return [float(k) for k in knots] if knots.size >= 3 else None
+
+
+def shape_estimate(obs: pd.DataFrame, data: dict, quality: FitQuality, row: dict) -> dict | None:
+    """A smooth estimate of what the residuals of each output axis do against the input of a
+    covariate row, with its ±2σ band: a natural cubic spline (knots at quantiles) fitted
+    by weighted least squares to the residuals (deg/s), or for a product row to their
+    slope against the own rate (a scale change, as a fraction). The band's σ comes from the
+    fit's covariance scaled by its reduced χ² when that is above 1. None for a covariate
+    without a numeric input (the mount) or with too few distinct values."""
+    from ..terms.empirical import spline_basis
+    product = row.get("product")
+    label = product["input"] if product else row["covariate"].split(" = ")[0]
+    name = INPUT_OF.get(label)
+    if name is None or (product and product["axes"] != "own axis"):
+        return None
+    x_all = input_values(obs, data, name)
+    rows = quality.fitted_rows
+    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
+    knots = knots_for(x_all[rows])
+    if knots is None:
+        return None
+    grid = np.linspace(knots[0], knots[-1], SHAPE_POINTS)
+    out = {"covariate": row["covariate"], "input": name, "unit": INPUT_UNIT[name],
+           "of": "scale change" if product else "residual", "value_unit": "1" if product else "deg/s",
+           "x": grid.tolist(), "knots": knots, "axes": {}}
+    for i, a in enumerate(AXES):
+        x, r, f = x_all[rows, i], quality.resid[rows, i], quality.floor[rows, i]
+        design = np.column_stack([np.ones(len(x)), spline_basis(x, knots)])
+        at = np.column_stack([np.ones(grid.size), spline_basis(grid, knots)])
+        if product:
+            design = design * rates[rows, i][:, None]
+            if not np.any(design):
+                continue
+        w = 1.0 / f
+        coef, _, rank, _ = np.linalg.lstsq(design * w[:, None], r * w, rcond=1e-9)
+        if rank < design.shape[1]:
+            continue
+        chi2_red = float(np.sum(((r - design @ coef) * w) ** 2)) / max(len(r) - rank, 1)
+        cov = np.linalg.inv((design * w[:, None]).T @ (design * w[:, None])) * max(chi2_red, 1.0)
+        fit = at @ coef
+        sigma = np.sqrt(np.einsum("ij,jk,ik->i", at, cov, at))
+        out["axes"][a] = {"fit": fit.tolist(), "low": (fit - 2 * sigma).tolist(),
+                          "high": (fit + 2 * sigma).tolist()}
+    return out if out["axes"] else None

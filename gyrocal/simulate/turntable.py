@@ -210,7 +210,7 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
             sensor = np.round(sensor / protocol.temp_lsb) * protocol.temp_lsb
 
             die_rate = np.gradient(die) * fs * 60.0  # °C/min, for the temp_rate effect
-            gyro = electronics.measure(w_true, die, gravity, die_rate)
+            gyro = electronics.measure(w_true, die, gravity, die_rate, t - t0)
             cols = {"t": pa.array(t), "gyro_x": gyro[:, 0], "gyro_y": gyro[:, 1],
                     "gyro_z": gyro[:, 2], "temp": pa.array(sensor.astype(np.float32)),
                     "ref_rate": pa.array(table)}

@@ -20,7 +20,7 @@ from ..errors import ConfigError
 
 AXES = "xyz"
 EFFECTS = {"scale_quadratic": (3,), "scale_cubic": (3,), "scale_asymmetry": (3,),
-           "g_sensitivity": (3, 3), "temp_rate": (3,)}  # field -> shape
+           "g_sensitivity": (3, 3), "temp_rate": (3,), "warmup": (3,)}  # field -> shape
 
 # Seed 000, Eq 23: the unit's K_g at 25 °C, reordered as the 3x3 K and B of Eq 11-12.
 SEED000_K25 = np.array([[1.0005, -0.0188, 0.0012],
@@ -49,6 +49,9 @@ class GyroUnit:
     scale_asymmetry: tuple[float, float, float] = (0.0, 0.0, 0.0)   # 1
     g_sensitivity: tuple[tuple[float, ...], ...] = ((0.0,) * 3,) * 3  # deg/s/g
     temp_rate: tuple[float, float, float] = (0.0, 0.0, 0.0)         # deg/s per °C/min
+    # Beyond the library: a bias settling after power-on, A exp(-t / warmup_tau_s).
+    warmup: tuple[float, float, float] = (0.0, 0.0, 0.0)            # deg/s at power-on
+    warmup_tau_s: float = 900.0
 
     def K(self, temp) -> np.ndarray:
         """K(T) for scalar or array T: shape (..., 3, 3)."""
@@ -62,13 +65,16 @@ class GyroUnit:
         c = np.asarray(self.bias_poly)
         return c[:, 0] + dT * (c[:, 1] + dT * (c[:, 2] + dT * c[:, 3]))
 
-    def effects(self, w_true: np.ndarray, specific_force: np.ndarray, temp_rate: np.ndarray
-                ) -> np.ndarray:
-        """Error (n, 3) of the effects beyond K and B, in the library's term conventions."""
+    def effects(self, w_true: np.ndarray, specific_force: np.ndarray, temp_rate: np.ndarray,
+                t: np.ndarray | None = None) -> np.ndarray:
+        """Error (n, 3) of the effects beyond K and B, in the library's term conventions;
+        ``t``, seconds since power-on, for the warm-up (none without it)."""
         e = (np.asarray(self.scale_quadratic) * w_true ** 2 + np.asarray(self.scale_cubic) * w_true ** 3
              + np.asarray(self.scale_asymmetry) * np.abs(w_true))
         e += specific_force @ np.asarray(self.g_sensitivity).T
         e += np.asarray(temp_rate, dtype=float)[:, None] * np.asarray(self.temp_rate)
+        if t is not None and np.any(self.warmup):
+            e += np.exp(-np.asarray(t, dtype=float) / self.warmup_tau_s)[:, None] * np.asarray(self.warmup)
         return e
 
     def with_effects(self, effects: dict | None) -> GyroUnit:
@@ -146,15 +152,16 @@ class Electronics:
     _zi: np.ndarray | None = field(default=None, repr=False)
 
     def measure(self, w_true: np.ndarray, temp: np.ndarray, specific_force: np.ndarray | None = None,
-                temp_rate: np.ndarray | None = None) -> np.ndarray:
+                temp_rate: np.ndarray | None = None, t: np.ndarray | None = None) -> np.ndarray:
         """Gyro output (n, 3) float32 for true rates (n, 3) at die temperatures (n,), with the
-        specific force (n, 3, g) and the die's temperature rate (n, °C/min) the effects read."""
+        specific force (n, 3, g), the die's temperature rate (n, °C/min) and the time since
+        power-on (n, s) the effects read."""
         u = self.unit
         K = u.K(temp)
         ideal = np.einsum("nij,nj->ni", K, w_true) + u.B(temp)
         n = len(w_true)
         ideal += u.effects(w_true, np.zeros((n, 3)) if specific_force is None else specific_force,
-                           np.zeros(n) if temp_rate is None else temp_rate)
+                           np.zeros(n) if temp_rate is None else temp_rate, t)
         a = np.exp(-2 * np.pi * u.bandwidth_hz / self.sample_rate)
         if self._zi is None:
             self._zi = ideal[0] * a

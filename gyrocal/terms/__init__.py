@@ -151,6 +151,11 @@ class Term:
         carries between pieces; None for a term that redefines nothing."""
         return None
 
+    def penalty(self, names: list[str]) -> np.ndarray | None:
+        """A roughness penalty ``c' Ω c`` on the coefficients ``names`` (of one output axis):
+        Ω (symmetric, positive semi-definite), or None for an unpenalised term."""
+        return None
+
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         from ..signals import SERIES_INPUTS
         series = "series" in data or "t" in data
@@ -262,6 +267,9 @@ class Restricted(Term):
     def sample_transform(self):
         return self.term.sample_transform()
 
+    def penalty(self, names):
+        return self.term.penalty(names)
+
 
 def register_term(name: str):
     """Class decorator adding a term to the registry under ``name``."""
@@ -326,4 +334,4 @@ def make_term(spec) -> Term:
     return term if not drop else Restricted(term, drop)
 
 
-from . import base, effects, user  # noqa: E402,F401  (register the library's terms)
+from . import base, effects, empirical, user  # noqa: E402,F401  (register the library's terms)

@@ -69,7 +69,7 @@ def load_term_file(path) -> tuple[str, list[str]]:
 
 
 _FUNCTIONS = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sign": np.sign,
-              "sin": np.sin, "cos": np.cos}
+              "tanh": np.tanh, "sin": np.sin, "cos": np.cos}
 _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
               ast.Div: np.divide, ast.Pow: np.power}
 # lag(x, tau): the series signal x (temp or temp_rate) through a first-order lag of tau seconds.
@@ -115,7 +115,7 @@ def _parse(formula: str, parameters=()) -> ast.AST:
                    ast.Call, ast.Load, *_OPERATORS)
         if not isinstance(node, allowed):
             raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
-                              "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign "
+                              "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign tanh "
                               "sin cos, lag)")
         if isinstance(node, ast.Call):
             if not isinstance(node.func, ast.Name) or node.keywords:

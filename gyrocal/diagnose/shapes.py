@@ -1,0 +1,178 @@
+"""The shape of an effect outside the library.
+
+When no library term explains the excess, the inputs that carry it (the leading rows of
+:func:`gyrocal.diagnose.where.covariate_table`, products with the own rate included) are
+given terms of free shape: an empirical term (:class:`gyrocal.terms.empirical.Smooth`, a
+natural cubic spline of the input, times the own rate for a product) and parametric
+families of that input (a decay, a power law, a step, a bump, a saturation), their
+nonlinear parameters profiled. They are judged exactly as the library's terms
+(:func:`gyrocal.diagnose.effects.rank_candidates`), and the one named comes with a sentence
+on its shape.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..terms import AXES, make_term
+from .where import INPUT_OF, input_values, knots_for
+
+LEADING = 2          # inputs of the leading covariate rows given terms of free shape
+# The input a term of free shape reads for each input of the covariate table: time within
+# a point is read as time since power-on (the term must mean the same in apply), |rate|
+# and the rate's direction as the own rate.
+TERM_INPUT = {"t": "t", "t_point": "t", "temp": "temp", "temp_rate": "temp_rate",
+              "abs_rate": "rate_own", "rate_own": "rate_own"}
+UNITS = {"t": "s", "temp": "°C", "temp_rate": "°C/min", "rate_own": "deg/s"}
+
+
+@dataclass(frozen=True)
+class Shape:
+    """A term of free shape the diagnosis tries: its spec, what it is, and its input."""
+
+    spec: str
+    kind: str            # empirical | parametric
+    family: str          # smooth, decay, power, step, bump, saturation, product
+    input: str
+    by: str | None = None
+
+
+def _round(bounds: dict) -> dict:
+    return {k: [float(f"{v:.3g}") for v in b] for k, b in bounds.items()}
+
+
+def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, str, dict]]:
+    """Parametric families of one input: (family, formula of ``{x}``, profile bounds). Bounds
+    are positive (the profile scans them on a log scale): a location is measured from just
+    below the lowest value seen."""
+    span = max(hi - lo, 1e-9)
+    base = float(f"{lo - 0.01 * span:.4g}")
+    if name == "t":
+        # A decay within minutes of power-on and one over the session, apart: two at once
+        # (a fast and a slow warm-up) are then two terms the profile keeps distinct.
+        split = min(600.0, 0.2 * hi)
+        return [("decay", "exp(-{x} / tau)", {"tau": [split, 4.0 * hi]}),
+                ("fast decay", "exp(-{x} / tau)", {"tau": [max(hold / 2, 5.0), split]}),
+                ("power", "(1 + {x} / t0) ** (-p)", {"t0": [1.0, hi], "p": [0.05, 4.0]}),
+                ("step", f"tanh(({{x}} - {base!r} - m) / {max(hold / 4, 1.0)!r})",
+                 {"m": [0.005 * span, 1.01 * span]})]
+    if name == "temp":
+        return [("bump", f"exp(-(({{x}} - {base!r} - m) / w) ** 2)", {"m": [0.005 * span, 1.01 * span],
+                                                                   "w": [0.02 * span, span]}),
+                ("step", f"tanh(({{x}} - {base!r} - m) / w)", {"m": [0.005 * span, 1.01 * span],
+                                                           "w": [0.005 * span, 0.5 * span]})]
+    if name == "rate_own":
+        top = max(abs(lo), abs(hi))
+        return [("saturation", "tanh({x} / w)", {"w": [0.01 * top, 10.0 * top]})]
+    return []
+
+
+def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
+                fitted_rows: np.ndarray) -> list[Shape]:
+    """Terms of free shape for the inputs of the leading covariate rows that carry part of
+    the excess (at most :data:`LEADING` inputs)."""
+    shapes: list[Shape] = []
+    seen: set = set()
+    hold = float(np.median(obs["duration"])) if "duration" in obs else 1.0
+    for row in covariates:
+        if not (row.get("share_of_excess") or 0) > 0:
+            continue
+        product = row.get("product")
+        if product and product["axes"] != "own axis":
+            continue
+        label = product["input"] if product else row["covariate"].split(" = ")[0]
+        source = INPUT_OF.get(label)
+        name = TERM_INPUT.get(source)
+        by = "rate_own" if product else None
+        if name is None or (name, by) in seen or (name == "rate_own" and by):
+            continue
+        if name == "temp" and settings.model.kind == "grid":
+            continue   # a shape of temperature alone is each grid point's bias (or scale)
+        seen.add((name, by))
+        values = input_values(obs, data, name)[fitted_rows]
+        knots = knots_for(values)
+        if knots is None:
+            continue
+        # The model holds the linear part already where the scale (a rate) or a temperature
+        # polynomial is in it: the spline's own would be the same column.
+        linear = not (name == "rate_own" or (name == "temp" and _has(settings, "bias_temp_poly")
+                                              and by is None))
+        smooth = make_term({"name": "smooth", "input": name, "knots": knots, "by": by, "linear": linear})
+        shapes.append(Shape(smooth.spec_string(), "empirical", "smooth", name, by))
+        lo, hi = float(np.min(values)), float(np.max(values))
+        for family, formula, profile in _families(name, lo, hi, hold):
+            formula = formula.replace("{x}", name)
+            if by:
+                formula = f"rate_own * {formula}"
+            label_ = f"{family.replace(' ', '_')}_{name}" + ("_by_rate" if by else "")
+            bounds = _round(profile)
+            start = {k: float(f"{np.sqrt(lo_ * hi_):.3g}") for k, (lo_, hi_) in bounds.items()}
+            spec = make_term({"name": "expression", "label": label_, "formula": formula,
+                              "parameters": start, "profile": bounds}).spec_string()
+            shapes.append(Shape(spec, "parametric", family, name, by))
+        if by:
+            spec = make_term({"name": "expression", "label": f"product_{name}",
+                              "formula": f"rate_own * {name}"}).spec_string()
+            shapes.append(Shape(spec, "parametric", "product", name, by))
+        if len(seen) >= LEADING:
+            break
+    return shapes
+
+
+def _has(settings, term_name: str) -> bool:
+    return any(t.name == term_name for t in settings.model.build().terms)
+
+
+def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: int = 201
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted function of its input on one output axis (per unit own rate for a term
+    by the rate), over [lo, hi]."""
+    x = np.linspace(lo, hi, points)
+    inner = getattr(term, "term", term)
+    if inner.name == "smooth":
+        return x, inner.shape(coefficients, x, axis)
+    from ..terms.user import evaluate
+    name = next((n for n in ("t", "temp", "temp_rate") if n in inner.needs), "rate_own")
+    data = {name: x, "rate_own": x if name == "rate_own" else np.ones_like(x)}
+    if "rate_own" in inner.formula and name != "rate_own":
+        data["rate_own"] = np.ones_like(x)
+    values = np.broadcast_to(evaluate(inner.formula, data, inner.parameters), x.shape)
+    return x, coefficients[f"{inner.label}.{axis}"] * values
+
+
+def _quantity(value: float, unit: str) -> str:
+    if unit == "s" and abs(value) >= 120:
+        return f"{value / 60:.3g} min"
+    return f"{value:.3g} {unit}"
+
+
+def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, by) -> str:
+    """A sentence on a fitted shape: per output axis, where it is largest and how large,
+    relative to its value at the far end of the input's range, and by where that falls to
+    half (for a decay)."""
+    unit_x = UNITS.get(input_name, "")
+    unit_y = "of the scale (×10⁻⁶, per unit of own rate)" if by else "deg/s"
+    parts = []
+    for axis in AXES:
+        x = np.linspace(lo, hi, 201)
+        y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms)
+        if by:
+            y = y * 1e6
+        ref = y[-1] if input_name == "t" else np.median(y)
+        rel = y - ref
+        k = int(np.argmax(np.abs(rel)))
+        text = f"{axis} {rel[k]:+.3g} at {_quantity(x[k], unit_x)}"
+        after = np.flatnonzero(np.abs(rel[k:]) <= 0.5 * abs(rel[k]))
+        if input_name == "t" and after.size and k < len(x) - 1:
+            text += f", half of it by {_quantity(x[k + after[0]], unit_x)}"
+        parts.append(text)
+    where = "time since power-on" if input_name == "t" else {
+        "temp": "temperature", "temp_rate": "the temperature's rate",
+        "rate_own": "the axis's own rate"}.get(input_name, input_name)
+    reference = "its value at the end of the session" if input_name == "t" else "its median"
+    kind = "a scale change" if by else "a bias"
+    return (f"{kind} that follows {where}: largest against {reference} at "
+            + "; ".join(parts) + f" ({unit_y}), over {_quantity(lo, unit_x)} to {_quantity(hi, unit_x)}.")
