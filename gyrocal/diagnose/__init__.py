@@ -172,10 +172,12 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         not explains and within_noise is not None and within_noise["explains"]
         and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
                                 and not (drift and drift["explains"]))))
-    if noise_explains:
-        explains, useful, drift = True, [], None
+    # The excess is shared out among the covariates whenever the fit shows one, also when
+    # it is judged noise: where it lives is what tells wander from an effect.
     covariates, heat = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows,
                                        base.dof, not explains)
+    if noise_explains:
+        explains, useful, drift = True, [], None
     if usable(base_next):  # what the user will meet: the other session first
         useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
     # Named only when it explains the excess: what is left is what a correct model leaves.
@@ -190,7 +192,10 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # correct model leaves by more than that figure's uncertainty: among the tens of pairs,
     # some fit a small excess by chance, and passing the checks of what is left is weak
     # evidence when there is little left to test.
-    for first in useful[:PAIR_STARTS] if best is None else ():
+    # A drift in time that explains the excess rules out naming what fits it as per-mount
+    # steps, alone or in a pair (a temperature rate and a g-sensitivity fit a ramp so).
+    blocked = drift is not None and drift["explains"]
+    for first in useful[:PAIR_STARTS] if best is None and not blocked else ():
         # Two effects missing at once: one of the most useful terms, then each other on top.
         best = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance)
         if best is not None:
