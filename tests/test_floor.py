@@ -82,7 +82,7 @@ def _unit(seed: int, grade: str | None, effects=None, rig=RIG, tmp=None) -> dict
     result = run(path, Settings())
     obs = result.segmentation.observations
     white_only = obs.drop(columns=[c for c in obs if c.startswith(("floor_", "wander_", "white_", "flicker_",
-                                                                    "rrw_"))])
+                                                                    "rrw_", "upper_"))])
     honest, white = diagnose(Settings(), obs), diagnose(Settings(), white_only)
     ext = Settings.from_dict({"model": {"terms": ["bias", "scale", "misalignment", "scale_quadratic"]}})
     return {"noise": result.segmentation.info["noise"], "excess": result.validation.summary["excess"],

@@ -94,7 +94,7 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     verdict says another session would tell wander from an effect."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.config import Settings
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnose import diagnose, explained_tolerance
     from gyrocal.pipeline import segment_log
 
     log = tmp_path / "coloured.parquet"
@@ -106,7 +106,8 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     s = diag.base.summary
     if diag.rms_over_floor["all"] > 1.5:        # the wander shows in-sample: said so
         assert "--other-session" in diag.verdict and diag.within_noise["explains"]
-        assert s["validation_rms"] <= s["expected_rms"] * 1.2
+        tolerance = explained_tolerance(diag.residuals, s["holds_scored"], diag.significance)
+        assert s["validation_rms"] <= diag.within_noise["expected_rms"] * tolerance
 
 
 def _next_session_over_floor(logs, settings, fix, protocol="turntable"):

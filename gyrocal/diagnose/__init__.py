@@ -169,6 +169,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     useful = [c for c in ranked if c.significant and not explains
               and practical_gain(base, c, bound)]
     drift = time_drift(judge, settings, obs, base, base_next, tolerance, bound) if not explains else None
+    # The excess is shared out among the covariates whenever the fit shows one, also when
+    # it is judged noise: where it lives is what tells wander from an effect.
     covariates, heat = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows,
                                        base.dof, not explains)
     if usable(base_next):  # what the user will meet: the other session first
@@ -181,7 +183,10 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         # the drift explains the excess too, the protocol cannot name either.
         drift["rival_of"] = best.term
         best = None
-    for first in useful[:PAIR_STARTS] if best is None else ():
+    # A drift in time that explains the excess rules out naming what fits it as per-mount
+    # steps, alone or in a pair (a temperature rate and a g-sensitivity fit a ramp so).
+    blocked = drift is not None and drift["explains"]
+    for first in useful[:PAIR_STARTS] if best is None and not blocked else ():
         # Two effects missing at once: one of the most useful terms, then each other on top.
         best = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance)
         if best is not None:
@@ -191,7 +196,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     if best is None and resolvable and not explains:
         # Nothing in the library explains it: terms of free shape for the inputs that
         # carry the excess, judged as the library's are.
-        best, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound)
+        best, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
+                                 time_only=blocked)
         candidates = candidates + tried
         shaped = [c for c in tried if c.status == "ranked" and c.significant and (
             practical_gain(base, c, bound) if c.validated else practical_gain_next(base_next, c, bound))]
@@ -239,11 +245,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     return diag
 
 
-def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, tolerance, bound):
+def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, tolerance, bound, *,
+               time_only: bool = False):
     """The best term of free shape (:mod:`.shapes`) that explains the excess, with its shape
-    described and the parametric families that explain it as well; and every one tried."""
+    described and the parametric families that explain it as well; and every one tried.
+    ``time_only``: where a drift in time explains the excess, only shapes of time (others
+    would fit it as per-mount steps)."""
     settings, obs, data = judge.settings, judge.obs, judge.data
-    shapes = {s.spec: s for s in shape_terms(settings, obs, data, covariates, quality.fitted_rows)}
+    shapes = {s.spec: s for s in shape_terms(settings, obs, data, covariates, quality.fitted_rows)
+              if not time_only or s.input == "t"}
     tried = rank_candidates(judge, base, list(shapes), base_next, tolerance, in_sample=True)
     good, gaining = [], []
     for c in tried:
