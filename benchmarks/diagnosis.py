@@ -95,7 +95,11 @@ CASES = [
     ("bias_bump_temp", "sweep", "white", "outside"),
     ("bias_tanh_temp", "sweep", "white", "outside"),
     ("bias_step_temp", "sweep", "white", "outside"),
-    ("scale_temp_rate", "sweep", "white", "outside", {}, {"sweep_rate_dps": 100.0}),
+    # A scale changing with the temperature's rate: on a sweep turning at one rate it is a
+    # bias of that rate, the library's temp_rate, which is all the protocol sees; holds at
+    # many rates inside a chamber's settling tell it from one (a turntable, short soaks).
+    ("scale_temp_rate", "sweep", "white", "temp_rate", {}, {"sweep_rate_dps": 100.0}),
+    ("scale_temp_rate", "turntable3", "white", "outside", {}, {"soak_s": 60.0}),
     # The servo's six rotations share one speed: quadratic and asymmetric scale tie.
     ("scale_quadratic", "servo", "white", "scale_quadratic"),
 ]

@@ -134,9 +134,10 @@ def test_a_temperature_only_effect_is_found_in_a_continuous_model():
     assert fixed.base.summary["validation_rms"] <= 1.2 * fixed.base.summary["noise_floor"]
 
 
-def test_without_a_fitting_candidate_the_excess_is_pointed_at_its_covariate(monkeypatch):
+def test_without_a_library_term_the_excess_is_pointed_at_its_covariate_and_shaped(monkeypatch):
     # An error that grows with the temperature rate, with temp_rate withheld from the
-    # candidates: the diagnosis cannot name the term but points at the covariate.
+    # candidates: the diagnosis cannot name a library term; it points at the covariate and
+    # offers a term of free shape of it.
     rng = np.random.default_rng(8)
     unit = GyroUnit.seed000().with_effects({"temp_rate": (0.02, -0.015, 0.01)})
     obs = observations(unit, rng, temperatures=(0.0, 20.0, 40.0), temp_rate_sd=0.5)
@@ -146,9 +147,11 @@ def test_without_a_fitting_candidate_the_excess_is_pointed_at_its_covariate(monk
     import gyrocal.diagnose.evaluation as module
     monkeypatch.setattr(module, "CANDIDATES", tuple(c for c in module.CANDIDATES if c != "temp_rate"))
     blind_diag = diagnose(settings, obs)
-    assert blind_diag.best is None and not blind_diag.explains
+    assert not blind_diag.explains
     assert blind_diag.covariates[0]["covariate"] == "temperature rate"
-    assert "temperature rate" in blind_diag.verdict
+    # Outside the (shortened) library, a term of free shape of that covariate is offered.
+    assert blind_diag.best is not None and blind_diag.best.family is not None
+    assert "temp_rate" in blind_diag.best.term and "outside the library" in blind_diag.verdict
 
 
 def test_candidates_exclude_what_the_model_has_and_grid_models_skip_temperature_only_terms():

@@ -57,7 +57,7 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
         return [("decay", "exp(-{x} / tau)", {"tau": [split, 4.0 * hi]}),
                 ("fast decay", "exp(-{x} / tau)", {"tau": [max(hold / 2, 5.0), split]}),
                 ("power", "(1 + {x} / t0) ** (-p)", {"t0": [1.0, hi], "p": [0.05, 4.0]}),
-                ("step", f"tanh(({{x}} - {base!r} - m) / {max(hold / 4, 1.0)!r})",
+                ("step", f"tanh(({{x}} - {base!r} - m) / {float(f'{max(hold / 4, 1.0):.2g}')!r})",
                  {"m": [0.005 * span, 1.01 * span]})]
     if name == "temp":
         return [("bump", f"exp(-(({{x}} - {base!r} - m) / w) ** 2)", {"m": [0.005 * span, 1.01 * span],
@@ -150,29 +150,31 @@ def _quantity(value: float, unit: str) -> str:
 
 
 def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, by) -> str:
-    """A sentence on a fitted shape: per output axis, where it is largest and how large,
-    relative to its value at the far end of the input's range, and by where that falls to
-    half (for a decay)."""
+    """A sentence on a fitted shape: where it is largest against its value at the session's
+    end (time) or its median (other inputs), how large on each output axis, and by when a
+    decay halves."""
     unit_x = UNITS.get(input_name, "")
-    unit_y = "of the scale (×10⁻⁶, per unit of own rate)" if by else "deg/s"
-    parts = []
+    unit_y = "×10⁻⁶ of the scale" if by else "deg/s"
+    x = np.linspace(lo, hi, 201)
+    peaks, halves = [], []
     for axis in AXES:
-        x = np.linspace(lo, hi, 201)
-        y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms)
-        if by:
-            y = y * 1e6
-        ref = y[-1] if input_name == "t" else np.median(y)
-        rel = y - ref
+        y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms) * (1e6 if by else 1.0)
+        rel = y - (y[-1] if input_name == "t" else np.median(y))
         k = int(np.argmax(np.abs(rel)))
-        text = f"{axis} {rel[k]:+.3g} at {_quantity(x[k], unit_x)}"
+        peaks.append((x[k], rel[k]))
         after = np.flatnonzero(np.abs(rel[k:]) <= 0.5 * abs(rel[k]))
-        if input_name == "t" and after.size and k < len(x) - 1:
-            text += f", half of it by {_quantity(x[k + after[0]], unit_x)}"
-        parts.append(text)
+        halves.append(x[k + after[0]] if input_name == "t" and after.size and k < len(x) - 1 else None)
     where = "time since power-on" if input_name == "t" else {
-        "temp": "temperature", "temp_rate": "the temperature's rate",
+        "temp": "the temperature", "temp_rate": "the temperature's rate",
         "rate_own": "the axis's own rate"}.get(input_name, input_name)
-    reference = "its value at the end of the session" if input_name == "t" else "its median"
     kind = "a scale change" if by else "a bias"
-    return (f"{kind} that follows {where}: largest against {reference} at "
-            + "; ".join(parts) + f" ({unit_y}), over {_quantity(lo, unit_x)} to {_quantity(hi, unit_x)}.")
+    reference = "its value at the session's end" if input_name == "t" else "its median"
+    sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks))
+    places = {_quantity(p, unit_x) for p, _ in peaks}
+    at = (f"at {places.pop()}" if len(places) == 1 else
+          "at " + ", ".join(f"{_quantity(p, unit_x)} ({a})" for a, (p, _) in zip(AXES, peaks)))
+    text = f"{kind} that follows {where}: {sizes} {unit_y} {at}, against {reference}"
+    known = [h for h in halves if h is not None]
+    if known:
+        text += f"; half of it by {_quantity(float(np.median(known)), unit_x)}"
+    return text + f" (over {_quantity(lo, unit_x)} to {_quantity(hi, unit_x)})."
