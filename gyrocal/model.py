@@ -249,20 +249,18 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
                     source=source)
 
 
-MAX_CORRELATED = 3000  # observations up to which correlated noise is fitted exactly (O(n^3))
-
-
 def _whiteners(data: dict, floor: np.ndarray) -> list:
     """Per output axis, the map that makes the observations' noise unit white.
 
     Independent noise (white, or no noise model): divide by the floor. With bias instability or
     rate random walk in the session's noise model (``white_*``, ``flicker_*``, ``rrw_*`` columns,
     :mod:`gyrocal.floor`), the hold means share slow wander, and holds close in time err alike;
-    the fit is then generalised least squares with that covariance, C = L L^T and L^-1 applied,
-    so that the chi-square and the F-tests of the diagnosis count the evidence honestly (a wander
-    that follows the protocol's order of rates would otherwise pass for a rate effect)."""
+    the fit is then generalised least squares with that covariance, C = L L^T and L^-1 applied
+    (:mod:`gyrocal.wander`, in time linear in the holds), so that the chi-square and the
+    F-tests of the diagnosis count the evidence honestly (a wander that follows the
+    protocol's order of rates would otherwise pass for a rate effect)."""
     n = len(floor)
-    coloured = "white_x" in data and 1 < n <= MAX_CORRELATED and any(
+    coloured = "white_x" in data and n > 1 and any(
         np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in AXES)
 
     def divide(i):
@@ -271,22 +269,15 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
 
     if not coloured:
         return [divide(i) for i in range(3)]
-    from scipy.linalg import LinAlgError, cho_factor, solve_triangular
-
-    from .floor import time_covariances
-    flicker, walk = time_covariances(data["t_start"], data["t_end"])
-    out = []
-    for i, a in enumerate(AXES):
-        white = np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
-        cov = flicker * float(np.max(data[f"flicker_{a}"])) ** 2 + walk * float(np.max(data[f"rrw_{a}"])) ** 2
-        cov[np.diag_indices(n)] += white ** 2
-        try:
-            lower = cho_factor(cov, lower=True)[0]
-        except LinAlgError:  # observations overlapping in time (no segmenter makes them)
-            out.append(divide(i))
-            continue
-        out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
-    return out
+    from .wander import whiteners
+    white = [np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
+             for i, a in enumerate(AXES)]
+    found = whiteners(data["t_start"], data["t_end"], white,
+                      [float(np.max(data[f"flicker_{a}"])) for a in AXES],
+                      [float(np.max(data[f"rrw_{a}"])) for a in AXES])
+    if found is None:  # observations overlapping in time (no segmenter makes them)
+        return [divide(i) for i in range(3)]
+    return [divide(i) if w is None else w for i, w in enumerate(found)]
 
 
 def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
@@ -327,7 +318,8 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
             X[:, j] = design[c]   # a constant column is a scalar
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
         whiten = whiteners[i]
-        Xw, yw = whiten(X), whiten(y)
+        XY = whiten(np.column_stack([X, y]))   # one pass; each column is whitened alone
+        Xw, yw = XY[:, :-1], XY[:, -1]
         scale = np.linalg.norm(Xw, axis=0)
         dead = scale == 0
         scale[dead] = 1.0
