@@ -249,6 +249,11 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
                     source=source)
 
 
+def subset_design(design: dict, rows) -> dict:
+    """A design's columns at some of its rows (a constant column stays a scalar)."""
+    return {k: v[rows] if np.ndim(v) else v for k, v in design.items()}
+
+
 def _whiteners(data: dict, floor: np.ndarray) -> list:
     """Per output axis, the map that makes the observations' noise unit white.
 
@@ -280,17 +285,20 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     return [divide(i) if w is None else w for i, w in enumerate(found)]
 
 
-def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
+def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None = None) -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
     ``obs`` is an observation table or a mapping of its numeric columns. Refuses
     (:class:`IdentifiabilityError`, naming the coefficients) when the observations do not
-    excite some coefficient, or leave no degree of freedom for the covariance.
+    excite some coefficient, or leave no degree of freedom for the covariance. ``design``,
+    the model's columns on these observations when already made (:func:`subset_design`
+    of a fit of more holds: a hold's columns are its own, as apply evaluates them sample by
+    sample), saves making them again.
     """
     data = columns_of(obs)
     model.check_inputs(data, source)
     n_obs = len(data["gyro_x"])
-    design = model.design(data)
+    design = model.design(data) if design is None else design
     _check_finite(model, design, n_obs, source, label)
     floor = observation_floor(data)
     # A hold whose scatter is zero (a constant, quantised output) would get infinite

@@ -188,3 +188,87 @@ def test_refits_of_the_same_holds_reuse_their_factor(monkeypatch):
     assert len(calls) == 2 * count
     np.testing.assert_array_equal(first.values, fit(MODEL, data).values)
     assert again.n_obs == n
+
+
+# -- refits that reuse what the fit of all holds made ----------------------------------------
+
+@pytest.fixture(scope="module")
+def coloured_sweep(tmp_path_factory):
+    """A short sweep of a complete unit with a Gauss-Markov bias and a rate random walk, from
+    the independent generator, segmented: observations with the noise model's columns and
+    the session's temperature record."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.pipeline import segment_log
+    path = tmp_path_factory.mktemp("sweep") / "sweep.parquet"
+    write_session(make_unit(effect="none", protocol="sweep", noise="coloured", seed=1), path,
+                  session=0, seed=5, rate_hz=5.0, ramp_c_per_h=60.0)
+    obs = segment_log(path, Settings(), "sweep").observations
+    assert max(obs[f"{k}_{a}"].max() for k in ("flicker", "rrw") for a in AXES) > 0  # wander modelled
+    return obs
+
+
+def same_fit(a, b) -> None:
+    for x, y in zip(a.fits, b.fits):
+        np.testing.assert_array_equal(x.values, y.values)
+        np.testing.assert_array_equal(x.stderr, y.stderr)
+        assert x.chi2 == y.chi2
+
+
+def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured_sweep, monkeypatch):
+    """Bit for bit what fitting the remaining holds from scratch gives, with the series
+    terms' quadrature made once: a hold's columns are its own."""
+    from gyrocal import signals
+    from gyrocal.thermal import fit_continuous
+    obs = coloured_sweep
+    model = Model.from_spec(["bias", "bias_temp_poly(degree=1)", "temp_rate"])
+    fitted = fit_continuous(model, obs)
+    calls = []
+    made = signals._nodes
+    monkeypatch.setattr(signals, "_nodes", lambda *x: calls.append(1) or made(*x))
+    points = np.unique(obs["point"])
+    refits = [fitted.leave_out(int(p)) for p in points]
+    assert calls == []
+    monkeypatch.undo()
+    for p, refit in zip(points, refits):
+        keep = obs["point"].to_numpy() != p
+        same_fit(refit, fit_continuous(model, obs[keep]))
+
+
+def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
+    from dataclasses import replace
+
+    from gyrocal.config import ModelSettings, Settings
+    from gyrocal.pipeline import segment_log
+    from gyrocal.thermal import JointGridFit, _fit_joint, fit_model
+    obs = segment_log(logs["complete"], Settings()).observations
+    m = replace(Settings(), model=ModelSettings.from_dict(
+        {"expressions": {"warmup": {"formula": "exp(-t / 1200)"}}})).model
+    fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
+    assert isinstance(fitted, JointGridFit)
+    for p in fitted.used_points()[:3]:
+        keep = fitted.data["point"].astype(int) != p
+        fresh = _fit_joint(fitted.model, {k: v[keep] for k, v in fitted.data.items()},
+                           method=fitted.grid.method, degree=fitted.grid.degree,
+                           rows=fitted.rows[0][keep], excluded=fitted.excluded)
+        same_fit(fitted.leave_out(p), fresh)
+
+
+def test_the_quadrature_nodes_are_made_once_for_the_same_holds(coloured_sweep, monkeypatch):
+    from gyrocal import signals
+    from gyrocal.model import columns_of
+    data = columns_of(coloured_sweep)
+    model = Model.from_spec(["temp_rate"])
+    first = model.design(data)
+    calls = []
+    made = signals._nodes
+    monkeypatch.setattr(signals, "_nodes", lambda *x: calls.append(1) or made(*x))
+    for tau in (60.0, 600.0):   # a profiled lag asks for the same holds at every value
+        Model.from_spec([f"temp_lag(tau={tau})"]).design(data)
+    again = model.design(data)
+    assert calls == []
+    for name in first:
+        np.testing.assert_array_equal(first[name], again[name])
+    data["series"]._cache.clear()
+    for name, values in model.design(data).items():
+        np.testing.assert_array_equal(values, first[name])
