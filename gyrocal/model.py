@@ -118,11 +118,11 @@ class Model:
     def error(self, coefs: Mapping[str, np.ndarray | float], data: Mapping) -> np.ndarray:
         """Modelled error e (n, 3) for coefficients (scalars or per-row arrays)."""
         n = len(data[RATE_COLUMNS[0]])
-        out = np.zeros((n, 3))
+        sums = [np.zeros(n) for _ in AXES]   # per axis, contiguous: faster than a column
         cols = self.design(data)
         for name, column in cols.items():
-            out[:, AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
-        return out
+            sums[AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
+        return np.column_stack(sums)
 
     def linearise(self, coefs, covariates: Mapping, w_true: np.ndarray):
         """Output ``f(w_true) = w_true + e`` near ``w_true`` (n, 3) as ``f ≈ J w_true + c``.
@@ -144,21 +144,31 @@ class Model:
         return w_true + self.error(coefs, data)
 
     def compensate(self, coefs, w: np.ndarray, covariates: Mapping, *, tol: float = 1e-9,
-                   max_iter: int = 20) -> tuple[np.ndarray, np.ndarray]:
+                   max_iter: int = 20, start=None) -> tuple[np.ndarray, np.ndarray]:
         """True rate for outputs ``w`` (n, 3): solve ``w_true + e(w_true) = w``.
 
         Returns (w_true, J) where J is the output's Jacobian at the solution (so the
-        compensation maps output noise through J^-1).
+        compensation maps output noise through J^-1). ``start``: (w_true, J), the first
+        step made elsewhere from the linearisation at zero rate (as
+        :meth:`gyrocal.calibration.Calibration.compensate` does once per distinct row);
+        J may be None, and is returned so when no further step was needed.
         """
-        J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
-        w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        if start is None:
+            J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
+            w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        else:
+            w_true, J = start
         # The solve mixes a row's axes: none converges below the rounding of the row's
         # largest output (a huge output on one axis would otherwise keep the loop going, to
         # linearise where a step of 1 deg/s is lost in rounding and J is singular).
-        floor = 64 * np.finfo(float).eps * np.abs(w).max(axis=-1, keepdims=True)
+        size = np.abs(w)
+        largest = size[..., :1].copy()  # the row's largest output (column by column: a
+        for k in range(1, size.shape[-1]):  # reduction along a short axis is slow)
+            np.maximum(largest, size[..., k:k + 1], out=largest)
+        bound = np.maximum(tol * (1.0 + size), 64 * np.finfo(float).eps * largest)
         for _ in range(max_iter):
             resid = w - self._output(coefs, covariates, w_true)
-            if not np.any(np.abs(resid) > np.maximum(tol * (1.0 + np.abs(w)), floor)):
+            if not np.any(np.abs(resid) > bound):
                 break
             J, _ = self.linearise(coefs, covariates, w_true)
             w_true = w_true + np.linalg.solve(J, resid[..., None])[..., 0]

@@ -144,7 +144,7 @@ class TemperatureGrid:
         """Coefficient arrays at ``temp`` (clamped to the grid, with a warning if so)."""
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
-            _warn_outside(self, temp)
+            warn_outside(self, temp)
         V = self.weights(temp) @ self.values
         return {n: V[:, j] for j, n in enumerate(self.names)}
 
@@ -182,11 +182,12 @@ class ConstantCoefficients:
     def at(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
-            _warn_outside(self, temp)
+            warn_outside(self, temp)
         return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values)}
 
 
-def _warn_outside(coefs, temp: np.ndarray) -> None:
+def warn_outside(coefs, temp: np.ndarray) -> None:
+    """Warn that temperatures outside the calibrated range use the nearest end's."""
     out = coefs.outside(temp)
     if out.any():
         lo, hi = coefs.span
