@@ -248,7 +248,11 @@ def _pooled_rms(values: np.ndarray) -> float:
 
 def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
     """Mean and RMS of the error per rotating axis x output axis for each method."""
-    rotating = np.array([AXES.index(a) for a in holds["axis"]])
+    # the rotating axis' index, by column (a loop over an Arrow string column is slow)
+    axis = holds["axis"].to_numpy(dtype=object)
+    rotating = np.select([axis == a for a in AXES], range(len(AXES)), -1)
+    if (rotating < 0).any():
+        raise ValueError(f"rotating axis {axis[rotating < 0][0]!r} is none of {', '.join(AXES)}")
     method = holds["method"].cat.codes.to_numpy()
     group = rotating * len(METHODS) + method
     n = holds["n"].to_numpy(dtype=float)
