@@ -139,8 +139,8 @@ class Calibration:
 
         Rows that differ only in their output share their coefficients and the model's
         linearisation at zero rate, the first step of the solve: those are made once per
-        distinct row (a log's temperature takes a few dozen values in a batch of 262,144
-        samples) and the solve's check and any further step per sample."""
+        distinct row (a log's temperature takes tens to thousands of values in a batch of
+        262,144 samples), the solve's check and any further step per sample."""
         self.model.check_inputs({**data, "rate_x": 0, "rate_y": 0, "rate_z": 0})
         gyro = np.asarray(gyro, dtype=float)
         temp = np.asarray(data["temp"], dtype=float)
