@@ -7,14 +7,18 @@ starts, one after the other:
 
 * read       — a Python process that only reads the columns gyrocal reads
                (``pyarrow.parquet.read_table``);
+* readwrite  — with ``apply``: a Python process that reads every column batch by batch
+               (262,144 rows, as apply) and writes them back with apply's Parquet settings
+               (``gyrocal.apply.writer_options``): the least an apply can do;
 * calibrate  — ``python -m gyrocal calibrate LOG -o CAL.json``;
 * diagnose   — ``python -m gyrocal diagnose LOG -o DIAG.json``;
 * apply      — ``python -m gyrocal apply CAL.json LOG -o OUT.parquet``.
 
 Runs are interleaved; printed per rate are the median and quartiles of each process's wall
 time, of its paired ratio to the read-only process, and its peak resident memory (its own
-``ru_maxrss``, from ``wait4``) in MiB and per million rows, with the machine and the date;
-then ``diagnose`` against ``calibrate``, paired.
+``ru_maxrss``, from ``wait4``) in MiB and per million rows, with the machine, the date and
+the load average; then ``diagnose`` against ``calibrate`` and ``apply`` against
+``readwrite``, paired.
 
     python benchmarks/process.py [--rates 25,100,1000] [--repeat 5] [--only calibrate,apply]
 """
@@ -36,7 +40,18 @@ from host import cores, cpu_name
 
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = Path(os.environ.get("GYROCAL_BENCH_CACHE", Path.home() / ".cache" / "gyrocal" / "benchmarks"))
-PROCESSES = ("read", "calibrate", "diagnose", "apply")
+PROCESSES = ("read", "readwrite", "calibrate", "diagnose", "apply")
+# apply's batches and Parquet settings (gyrocal.apply: BATCH_ROWS, writer_options), without
+# importing gyrocal: the imports are part of what apply costs beyond reading and writing.
+READ_WRITE = """
+import sys, pyarrow as pa, pyarrow.parquet as pq
+reader = pq.ParquetFile(sys.argv[1], pre_buffer=False, buffer_size=1 << 20)
+schema = reader.schema_arrow
+dictionary = [name for name in schema.names if name not in ("gyro_x", "gyro_y", "gyro_z")]
+with pq.ParquetWriter(sys.argv[2], schema, use_dictionary=dictionary) as writer:
+    for batch in reader.iter_batches(batch_size=1 << 18, use_threads=True):
+        writer.write_table(pa.Table.from_batches([batch], schema=schema))
+"""
 
 
 def log_at(rate: float) -> Path:
@@ -82,6 +97,7 @@ def commands(log: Path, scratch: Path) -> dict[str, list[str]]:
     return {
         "read": [sys.executable, "-c", "import sys, pyarrow.parquet as pq; "
                  f"pq.read_table(sys.argv[1], columns={columns!r})", str(log)],
+        "readwrite": [sys.executable, "-c", READ_WRITE, str(log), str(scratch / "rewritten.parquet")],
         "calibrate": [*gyrocal, "calibrate", str(log), "-o", str(scratch / "cal.json")],
         "diagnose": [*gyrocal, "diagnose", str(log), "-o", str(scratch / "diag.json")],
         "apply": [*gyrocal, "apply", str(scratch / "cal.json"), str(log), "-o",
@@ -93,12 +109,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rates", default="25,100,1000", help="sample rates, Hz")
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--only", default=",".join(PROCESSES[1:]),
+    parser.add_argument("--only", default=",".join(PROCESSES[2:]),
                         help="gyrocal processes to time beside the read-only one")
     args = parser.parse_args()
     import pyarrow.parquet as pq
-    wanted = ["read"] + [p for p in PROCESSES[1:] if p in args.only.split(",")]
-    print(f"# {dt.date.today()}, {cpu_name()}, {cores()}, Python {sys.version.split()[0]}; "
+    only = args.only.split(",")
+    wanted = ["read"] + [p for p in PROCESSES[1:] if p in only or (p == "readwrite" and "apply" in only)]
+    load = os.getloadavg()
+    print(f"# {dt.datetime.now():%Y-%m-%d %H:%M}, {cpu_name()}, {cores()}, Python "
+          f"{sys.version.split()[0]}; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; "
           f"{args.repeat} interleaved runs per process")
     print(f"{'rate':>6} {'rows':>12} {'process':<10} {'wall s: median':>15} {'(quartiles)':>14} "
           f"{'÷ read':>7} {'(quartiles)':>14} {'peak MiB':>9} {'MiB/Mrow':>9}")
@@ -119,11 +138,11 @@ def main() -> None:
             print(f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
                   f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
                   flush=True)
-        if "diagnose" in results and "calibrate" in results:
-            d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results["diagnose"],
-                                                                    results["calibrate"])])
-            print(f"{rate:>6g} {'':>12} diagnose ÷ calibrate, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})",
-                  flush=True)
+        for num, den in (("diagnose", "calibrate"), ("apply", "readwrite")):
+            if num in results and den in results:
+                d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results[num], results[den])])
+                print(f"{rate:>6g} {'':>12} {num} ÷ {den}, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})",
+                      flush=True)
 
 
 if __name__ == "__main__":

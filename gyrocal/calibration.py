@@ -22,12 +22,43 @@ from .errors import CalibrationFileError, CorruptFileError, GyrocalError, Missin
 from .model import Model
 from .signals import SERIES_INPUTS, Inputs
 from .terms import AXES
-from .thermal import ConstantCoefficients, TemperatureGrid, check_method
+from .thermal import ConstantCoefficients, TemperatureGrid, check_method, warn_outside
 
 FORMAT = formats.CALIBRATION
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
 UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
 
+
+
+def distinct_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct rows of float columns (each (n,)), compared bit for bit: a
+    representative row of each, and each row's distinct row (``first[index]`` is a row
+    equal to every row)."""
+    import pandas as pd  # loaded already by the calibration's modules; hashing, no sort
+    n = len(columns[0])
+    index = np.zeros(n, np.int64)
+    for column in columns:
+        bits = np.ascontiguousarray(column, dtype=np.float64).view(np.int64)
+        own, values = pd.factorize(bits)
+        index = pd.factorize(index * len(values) + own)[0]
+    first = np.empty(int(index.max()) + 1 if n else 0, np.int64)
+    first[index] = np.arange(n)
+    return first, index
+
+
+def inverse3(M: np.ndarray) -> np.ndarray:
+    """Inverses of 3 x 3 matrices (n, 3, 3) by their adjugates: vectorised, where LAPACK
+    takes a call per matrix. For the well-conditioned Jacobians of a gyro's output (the
+    identity within a few per cent); the solve's check catches any other."""
+    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
+    d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
+    g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
+    adj = np.stack([np.stack([e * i - f * h, c * h - b * i, b * f - c * e], axis=1),
+                    np.stack([f * g - d * i, a * i - c * g, c * d - a * f], axis=1),
+                    np.stack([d * h - e * g, b * g - a * h, a * e - b * d], axis=1)], axis=1)
+    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return adj / det[:, None, None]
 
 
 def standard_coefficients(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]:
@@ -106,14 +137,39 @@ class Calibration:
         else the model's terms need. Temperatures outside the calibrated range use the
         calibration at the nearest end (warned). A model whose temperature is the die's
         filters ``temp`` over ``data``'s samples, taken as a record from its start, unless
-        ``data`` holds it filtered already (``temp_logged`` beside it)."""
+        ``data`` holds it filtered already (``temp_logged`` beside it).
+
+        Rows that differ only in their output share their coefficients and the model's
+        linearisation at zero rate, the first step of the solve: those are made once per
+        distinct row (a log's temperature takes tens to thousands of values in a batch of
+        262,144 samples), the solve's check and any further step per sample."""
         self.model.check_inputs({**data, "rate_x": 0, "rate_y": 0, "rate_z": 0})
         if "temp_logged" not in data:  # samples from the record's start (apply filters batches)
             for transform in self.model.sample_transforms():
                 data = transform(data)
-        coefs = self.coefficients(data["temp"], warn=warn)
-        w_true, _ = self.model.compensate(coefs, np.asarray(gyro, dtype=float),
-                                          {**data, "temp": self.clamp(data["temp"])})
+        gyro = np.asarray(gyro, dtype=float)
+        temp = np.asarray(data["temp"], dtype=float)
+        if warn:
+            warn_outside(self.grid, temp)
+        covariates = {**data, "temp": self.clamp(temp)}
+        reads = sorted(k for k in self.model.inputs if k in covariates and k != "temp")
+        first, index = (None, None) if self.model.inputs & SERIES_INPUTS else \
+            distinct_rows([temp, *(covariates[k] for k in reads)])
+        if first is None or len(first) > len(temp) // 2:  # little to share (time, noise)
+            w_true, _ = self.model.compensate(self.coefficients(temp, warn=False), gyro, covariates)
+            return w_true
+        at = {k: v[first] if isinstance(v, np.ndarray) and v.ndim else v for k, v in covariates.items()}
+        coefs = self.coefficients(temp[first], warn=False)
+        J, c = self.model.linearise(coefs, at, np.zeros((len(first), 3)))
+        # w_true = J^-1 (w - c) = A w + d per distinct row, spread to the rows in one gather
+        A = inverse3(J)
+        Ad = np.take(np.concatenate([A.reshape(-1, 9), -np.einsum("nij,nj->ni", A, c)], axis=1),
+                     index, axis=0)
+        w_true = np.einsum("nij,nj->ni", Ad[:, :9].reshape(-1, 3, 3), gyro) + Ad[:, 9:]
+        names = list(coefs)
+        spread = np.take(np.stack([coefs[k] for k in names]), index, axis=1)
+        w_true, _ = self.model.compensate(dict(zip(names, spread)), gyro, covariates,
+                                          start=(w_true, None))
         return w_true
 
     # -- file format -----------------------------------------------------------------

@@ -22,7 +22,7 @@ if an effect were missing. So, for every session:
    A fit inside one temperature point sees ``floor``; a fit or comparison across points sees
    ``floor`` and ``wander`` in quadrature (:func:`gyrocal.model.observation_floor`). The fits
    themselves use the full covariance of the hold means (``white_*``, ``flicker_*``, ``rrw_*``
-   columns and :func:`time_covariances`): holds close in time share the wander.
+   columns and :mod:`gyrocal.wander`): holds close in time share the wander.
 
 With white noise alone, ``floor`` is the noise density over sqrt(T), what std/sqrt(n) gives,
 and ``wander`` vanishes. When nothing static can be characterised, the columns are left out and
@@ -309,49 +309,6 @@ def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTe
         obs[f"{prefix}rrw_{a}"] = walk[i]
     summary["between_points_s"] = between
     return obs
-
-
-POLES_PER_DECADE = 2  # flicker as a sum of Gauss-Markov processes: ripple well under 1 %
-
-
-def time_covariances(t_start: np.ndarray, t_end: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Covariance (n, n) of observation means per unit flicker level B = 1 deg/s and per unit
-    random walk K = 1 deg/s/sqrt(s), for observations over [t_start, t_end] (disjoint).
-
-    Random walk: the mean of K W(t) over [a_i, b_i] and [a_j, b_j] (i first) covary by K^2 times
-    the earlier one's mid-time, and vary by K^2 (a + T/3), times from the first observation
-    (a shift adds a constant to every entry, which the bias term absorbs). Flicker (two-sided PSD
-    B^2 / (2 pi f), IEEE Std 952) is a sum of Gauss-Markov processes with correlation times
-    spaced 10^(1/POLES_PER_DECADE) apart, each of variance B^2 ln(ratio) / pi, from a hundredth of
-    the shortest observation (faster ones add 2 c / T to a mean's variance alone) to ten times the
-    whole span; the covariance of two interval means of a
-    process of variance q^2 and time constant c is q^2 c^2 / (T_i T_j) (1 - e^(-T_i/c))
-    (1 - e^(-T_j/c)) e^(-gap/c), and the variance q^2 2 c^2 / T^2 (T/c - 1 + e^(-T/c))."""
-    a = np.asarray(t_start, float)
-    b = np.asarray(t_end, float)
-    a, b = a - a.min(), b - a.min()
-    T = np.maximum(b - a, 1e-9)
-    first = a[:, None] <= a[None, :]
-    mid = (a + b) / 2
-    walk = np.where(first, mid[:, None], mid[None, :])
-    np.fill_diagonal(walk, a + T / 3)
-    ratio = 10.0 ** (1.0 / POLES_PER_DECADE)
-    lo, hi = 0.01 * T.min(), 10.0 * max(b.max(), T.max())
-    poles = lo * ratio ** np.arange(int(np.ceil(np.log(hi / lo) / np.log(ratio))) + 1)
-    q2 = np.log(ratio) / np.pi
-    gap = np.abs(np.where(first, a[None, :] - b[:, None], a[:, None] - b[None, :]))
-    np.fill_diagonal(gap, np.inf)
-    flicker = np.zeros_like(walk)
-    variance = np.zeros_like(T)
-    for c in poles:
-        x = T / c
-        edge = -np.expm1(-x) / x                                       # (1 - e^-x) / x
-        flicker += np.outer(edge, edge) * np.exp(-gap / c)
-        variance += 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x ** 2)
-    # poles faster than the first average out within an observation: 2 c / T each, summed
-    variance += 2 * poles[0] / T / (ratio - 1.0)
-    np.fill_diagonal(flicker, variance)
-    return q2 * flicker, walk
 
 
 def noise_record(summary: dict) -> dict:

@@ -1,8 +1,10 @@
-"""The compiled block kernels (``_blockstats.c``), with the numpy fallback beside them.
+"""The compiled kernels (``_blockstats.c``: block statistics, Allan sums, the semiseparable
+Cholesky of the wander-aware fit), with the numpy fallback beside them.
 
 The extension is optional: where it cannot be built the numpy functions here do the same
-work, more slowly (five passes over each sample instead of one). ``GYROCAL_PURE_NUMPY=1``
-forces the fallback; the tests run both and compare.
+work, more slowly (block statistics in five passes over each sample instead of one, the
+semiseparable recursion one Python step per hold). ``GYROCAL_PURE_NUMPY=1`` forces the
+fallback; the tests run both and compare.
 """
 
 from __future__ import annotations
@@ -109,3 +111,87 @@ def second_diff_sumsq(theta: np.ndarray, m: np.ndarray) -> np.ndarray:
             d += theta[i0:i1]
             out[j] += d @ d
     return out
+
+
+# ---- Diagonal plus semiseparable matrices: the covariance of hold means under wander ----
+
+def _semiseparable_lib():
+    if LIB is None:
+        return None
+    try:
+        factor, solve = LIB.semisep_factor, LIB.semisep_solve
+    except AttributeError:  # an extension built from older sources
+        return None
+    i64, p = ctypes.c_int64, ctypes.c_void_p
+    factor.argtypes = [i64, i64] + [p] * 9
+    factor.restype = i64
+    solve.argtypes = [i64, i64, i64] + [p] * 9
+    solve.restype = None
+    return LIB
+
+
+SEMISEPARABLE = _semiseparable_lib()
+
+
+def _doubles(*arrays):
+    return [np.ascontiguousarray(a, dtype=np.float64) for a in arrays]
+
+
+def semiseparable_cholesky(diag, U, V, alpha, beta, scale=None):
+    """Cholesky factor of C = diag(``diag``) + the semiseparable matrix whose entry for
+    row n after row m is ``sum_k s_k^2 U[n, k] V[m, k] P_k(m, n)``, with ``s`` the
+    column scales (ones by default) and ``P_k(m, n) = alpha[n, k] beta[n-1, k]
+    alpha[n-1, k] ... beta[m+1, k] alpha[m+1, k]`` (decays of at most 1: no product of
+    exponentials overflows). C = L diag(D) L^T with L unit lower triangular,
+    ``L[n, m] = sum_k s_k U[n, k] W[m, k] P_k(m, n)``: returns (W, D), or None when C is
+    not positive definite to rounding. celerite's recursion (Foreman-Mackey et al. 2017),
+    O(n J^2) for n rows and J generator columns; arrays (n, J), (n,) and (J,)."""
+    diag, U, V, alpha, beta = _doubles(diag, U, V, alpha, beta)
+    n, J = U.shape
+    s = np.ones(J) if scale is None else _doubles(scale)[0]
+    W, D = np.empty((n, J)), np.empty(n)
+    if SEMISEPARABLE is not None:
+        work = np.empty(J * J + 3 * J)
+        bad = SEMISEPARABLE.semisep_factor(n, J, *(a.ctypes.data for a in (diag, U, V, s, alpha, beta, W, D, work)))
+        return None if bad else (W, D)
+    S = np.zeros((J, J))
+    for i in range(n):
+        if i:
+            decay = alpha[i] * beta[i - 1]
+            w = alpha[i] * W[i - 1]
+            S = np.outer(decay, decay) * S + D[i - 1] * np.outer(w, w)
+        u = U[i] * s
+        t = S @ u
+        d = diag[i] - u @ t
+        if not d > 0.0:
+            return None
+        D[i] = d
+        W[i] = (V[i] * s - beta[i] * t) / d
+    return W, D
+
+
+def semiseparable_whiten(U, W, D, alpha, beta, Y, scale=None):
+    """``L^-1 Y`` for the Cholesky factor L = L_unit diag(D)^(1/2) of
+    :func:`semiseparable_cholesky` (the same ``U``, decays and ``scale``): the rows of
+    ``Y`` (n,) or (n, p) made unit white, O(n J p)."""
+    Y = np.asarray(Y, dtype=np.float64)
+    flat = Y.ndim == 1
+    Y = np.ascontiguousarray(Y.reshape(len(Y), -1))
+    U, W, D, alpha, beta = _doubles(U, W, D, alpha, beta)
+    n, p = Y.shape
+    J = U.shape[1]
+    s = np.ones(J) if scale is None else _doubles(scale)[0]
+    Z = np.empty((n, p))
+    if SEMISEPARABLE is not None:
+        work = np.empty(J * p + p)
+        SEMISEPARABLE.semisep_solve(n, J, p, *(a.ctypes.data for a in (U, s, W, D, alpha, beta, Y, Z, work)))
+        return Z[:, 0] if flat else Z
+    f = np.zeros((J, p))
+    z = np.zeros(p)
+    for i in range(n):
+        if i:
+            f = (alpha[i] * beta[i - 1])[:, None] * f + (alpha[i] * W[i - 1])[:, None] * z[None, :]
+        z = Y[i] - (U[i] * s) @ f
+        Z[i] = z
+    Z /= np.sqrt(D)[:, None]
+    return Z[:, 0] if flat else Z

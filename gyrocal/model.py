@@ -130,11 +130,11 @@ class Model:
     def error(self, coefs: Mapping[str, np.ndarray | float], data: Mapping) -> np.ndarray:
         """Modelled error e (n, 3) for coefficients (scalars or per-row arrays)."""
         n = len(data[RATE_COLUMNS[0]])
-        out = np.zeros((n, 3))
+        sums = [np.zeros(n) for _ in AXES]   # per axis, contiguous: faster than a column
         cols = self.design(data)
         for name, column in cols.items():
-            out[:, AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
-        return out
+            sums[AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
+        return np.column_stack(sums)
 
     def linearise(self, coefs, covariates: Mapping, w_true: np.ndarray):
         """Output ``f(w_true) = w_true + e`` near ``w_true`` (n, 3) as ``f ≈ J w_true + c``.
@@ -156,21 +156,31 @@ class Model:
         return w_true + self.error(coefs, data)
 
     def compensate(self, coefs, w: np.ndarray, covariates: Mapping, *, tol: float = 1e-9,
-                   max_iter: int = 20) -> tuple[np.ndarray, np.ndarray]:
+                   max_iter: int = 20, start=None) -> tuple[np.ndarray, np.ndarray]:
         """True rate for outputs ``w`` (n, 3): solve ``w_true + e(w_true) = w``.
 
         Returns (w_true, J) where J is the output's Jacobian at the solution (so the
-        compensation maps output noise through J^-1).
+        compensation maps output noise through J^-1). ``start``: (w_true, J), the first
+        step made elsewhere from the linearisation at zero rate (as
+        :meth:`gyrocal.calibration.Calibration.compensate` does once per distinct row);
+        J may be None, and is returned so when no further step was needed.
         """
-        J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
-        w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        if start is None:
+            J, c = self.linearise(coefs, covariates, np.zeros_like(w, dtype=float))
+            w_true = np.linalg.solve(J, (w - c)[..., None])[..., 0]
+        else:
+            w_true, J = start
         # The solve mixes a row's axes: none converges below the rounding of the row's
         # largest output (a huge output on one axis would otherwise keep the loop going, to
         # linearise where a step of 1 deg/s is lost in rounding and J is singular).
-        floor = 64 * np.finfo(float).eps * np.abs(w).max(axis=-1, keepdims=True)
+        size = np.abs(w)
+        largest = size[..., :1].copy()  # the row's largest output (column by column: a
+        for k in range(1, size.shape[-1]):  # reduction along a short axis is slow)
+            np.maximum(largest, size[..., k:k + 1], out=largest)
+        bound = np.maximum(tol * (1.0 + size), 64 * np.finfo(float).eps * largest)
         for _ in range(max_iter):
             resid = w - self._output(coefs, covariates, w_true)
-            if not np.any(np.abs(resid) > np.maximum(tol * (1.0 + np.abs(w)), floor)):
+            if not np.any(np.abs(resid) > bound):
                 break
             J, _ = self.linearise(coefs, covariates, w_true)
             w_true = w_true + np.linalg.solve(J, resid[..., None])[..., 0]
@@ -261,7 +271,9 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
                     source=source)
 
 
-MAX_CORRELATED = 3000  # observations up to which correlated noise is fitted exactly (O(n^3))
+def subset_design(design: dict, rows) -> dict:
+    """A design's columns at some of its rows (a constant column stays a scalar)."""
+    return {k: v[rows] if np.ndim(v) else v for k, v in design.items()}
 
 
 def _whiteners(data: dict, floor: np.ndarray) -> list:
@@ -270,11 +282,12 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     Independent noise (white, or no noise model): divide by the floor. With bias instability or
     rate random walk in the session's noise model (``white_*``, ``flicker_*``, ``rrw_*`` columns,
     :mod:`gyrocal.floor`), the hold means share slow wander, and holds close in time err alike;
-    the fit is then generalised least squares with that covariance, C = L L^T and L^-1 applied,
-    so that the chi-square and the F-tests of the diagnosis count the evidence honestly (a wander
-    that follows the protocol's order of rates would otherwise pass for a rate effect)."""
+    the fit is then generalised least squares with that covariance, C = L L^T and L^-1 applied
+    (:mod:`gyrocal.wander`, in time linear in the holds), so that the chi-square and the
+    F-tests of the diagnosis count the evidence honestly (a wander that follows the
+    protocol's order of rates would otherwise pass for a rate effect)."""
     n = len(floor)
-    coloured = "white_x" in data and 1 < n <= MAX_CORRELATED and any(
+    coloured = "white_x" in data and n > 1 and any(
         np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in AXES)
 
     def divide(i):
@@ -283,22 +296,15 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
 
     if not coloured:
         return [divide(i) for i in range(3)]
-    from scipy.linalg import LinAlgError, cho_factor, solve_triangular
-
-    from .floor import time_covariances
-    flicker, walk = time_covariances(data["t_start"], data["t_end"])
-    out = []
-    for i, a in enumerate(AXES):
-        white = np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
-        cov = flicker * float(np.max(data[f"flicker_{a}"])) ** 2 + walk * float(np.max(data[f"rrw_{a}"])) ** 2
-        cov[np.diag_indices(n)] += white ** 2
-        try:
-            lower = cho_factor(cov, lower=True)[0]
-        except LinAlgError:  # observations overlapping in time (no segmenter makes them)
-            out.append(divide(i))
-            continue
-        out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
-    return out
+    from .wander import whiteners
+    white = [np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
+             for i, a in enumerate(AXES)]
+    found = whiteners(data["t_start"], data["t_end"], white,
+                      [float(np.max(data[f"flicker_{a}"])) for a in AXES],
+                      [float(np.max(data[f"rrw_{a}"])) for a in AXES])
+    if found is None:  # observations overlapping in time (no segmenter makes them)
+        return [divide(i) for i in range(3)]
+    return [divide(i) if w is None else w for i, w in enumerate(found)]
 
 
 # A term with a roughness penalty (an empirical spline) is penalised this much relative to
@@ -335,17 +341,20 @@ def _penalty_rows(model: Model, cols: list[str], scale: np.ndarray,
     return np.vstack(blocks) if blocks else None
 
 
-def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
+def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None = None) -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
     ``obs`` is an observation table or a mapping of its numeric columns. Refuses
     (:class:`IdentifiabilityError`, naming the coefficients) when the observations do not
-    excite some coefficient, or leave no degree of freedom for the covariance.
+    excite some coefficient, or leave no degree of freedom for the covariance. ``design``,
+    the model's columns on these observations when already made (:func:`subset_design`
+    of a fit of more holds: a hold's columns are its own, as apply evaluates them sample by
+    sample), saves making them again.
     """
     data = columns_of(obs)
     model.check_inputs(data, source)
     n_obs = len(data["gyro_x"])
-    design = model.design(data)
+    design = model.design(data) if design is None else design
     _check_finite(model, design, n_obs, source, label)
     floor = observation_floor(data)
     # A hold whose scatter is zero (a constant, quantised output) would get infinite
@@ -373,7 +382,10 @@ def fit(model: Model, obs, *, source=None, label: str = "") -> FitResult:
             X[:, j] = design[c]   # a constant column is a scalar
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
         whiten = whiteners[i]
-        Xw, yw = whiten(X), whiten(y)
+        XY = whiten(np.column_stack([X, y]))   # one pass; each column is whitened alone
+        # contiguous, as whitened apart: a strided vector takes another BLAS path, whose
+        # last bits steer a profiled fit of a jagged chi-square to another local minimum
+        Xw, yw = np.ascontiguousarray(XY[:, :-1]), np.ascontiguousarray(XY[:, -1])
         scale = np.linalg.norm(Xw, axis=0)
         dead = scale == 0
         scale[dead] = 1.0

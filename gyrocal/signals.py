@@ -23,6 +23,7 @@ hold columns.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -343,8 +344,42 @@ def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
     """Inputs at the record's points inside every hold and at its two ends: hold-constant
     columns repeated, series signals from the record. A hold's mean is then the trapezoid
     rule over them (``plan``: each hold's first node and the nodes' weights), which is
-    exact for the record's own piecewise-linear interpolant, as apply samples it."""
+    exact for the record's own piecewise-linear interpolant, as apply samples it. The nodes
+    of the holds last asked for are kept on the series: a profiled fit asks for the same
+    holds' a few dozen times."""
     lo, hi = span
+    n = len(lo)
+    key = ("nodes", hashlib.blake2b(np.ascontiguousarray(lo, float).tobytes()
+                                    + np.ascontiguousarray(hi, float).tobytes(), digest_size=20).digest())
+    nodes = series._cache.get(key)
+    if nodes is None:
+        nodes = _nodes(series, lo, hi)
+        for a in nodes:
+            a.flags.writeable = False   # shared by the fits that ask for these holds
+        kept = [k for k in series._cache if k[0] == "nodes"]
+        for old in kept[:len(kept) - NODE_LAYOUTS_KEPT + 1]:
+            del series._cache[old]
+        series._cache[key] = nodes
+    hold, times, starts, weights, temp_rate = nodes
+    columns = {}
+    for k, v in dict.items(base):
+        if k in ("t", "temp_rate"):
+            continue
+        v = np.asarray(v)
+        columns[k] = v[hold] if v.ndim == 1 and len(v) == n else v
+    columns["t"] = times
+    columns["temp_rate"] = temp_rate
+    out = Inputs(columns, series, times)
+    out.plan = (starts, weights)
+    return out
+
+
+NODE_LAYOUTS_KEPT = 2
+
+
+def _nodes(series: Series, lo: np.ndarray, hi: np.ndarray) -> tuple:
+    """Each node's hold, time and trapezoid weight, each hold's first node, and the
+    temperature rate at the nodes."""
     n = len(lo)
     first = np.searchsorted(series.t, lo, side="right")
     last = np.searchsorted(series.t, hi, side="left")
@@ -365,17 +400,7 @@ def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
     length = (hi - lo)[hold]
     weights = np.where(length > 0, 0.5 * (before + after) / np.where(length > 0, length, 1.0),
                        1.0 / sizes[hold])
-    columns = {}
-    for k, v in dict.items(base):
-        if k in ("t", "temp_rate"):
-            continue
-        v = np.asarray(v)
-        columns[k] = v[hold] if v.ndim == 1 and len(v) == n else v
-    columns["t"] = times
-    columns["temp_rate"] = series.at("temp_rate", times)
-    nodes = Inputs(columns, series, times)
-    nodes.plan = (starts, weights)
-    return nodes
+    return hold, times, starts, weights, series.at("temp_rate", times)
 
 
 def hold_means_of_lag(data, name: str, tau: float) -> np.ndarray | None:

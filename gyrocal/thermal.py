@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from .errors import ConfigError, GyrocalError, IdentifiabilityError
-from .model import FitResult, Model, columns_of, fit
+from .model import FitResult, Model, columns_of, fit, subset_design
 from .terms import Term
 
 METHODS = ("lagrange3", "linear", "spline", "poly")
@@ -145,7 +145,7 @@ class TemperatureGrid:
         """Coefficient arrays at ``temp`` (clamped to the grid, with a warning if so)."""
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
-            _warn_outside(self, temp)
+            warn_outside(self, temp)
         V = self.weights(temp) @ self.values
         return {n: V[:, j] for j, n in enumerate(self.names)}
 
@@ -215,11 +215,12 @@ class ConstantCoefficients:
     def at(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
-            _warn_outside(self, temp)
+            warn_outside(self, temp)
         return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values)}
 
 
-def _warn_outside(coefs, temp: np.ndarray) -> None:
+def warn_outside(coefs, temp: np.ndarray) -> None:
+    """Warn that temperatures outside the calibrated range use the nearest end's."""
     out = coefs.outside(temp)
     if out.any():
         lo, hi = coefs.span
@@ -300,6 +301,7 @@ class ContinuousFit:
     points: pd.DataFrame
     excluded: dict[int, str] = field(default_factory=dict)
     profiled: tuple = ()
+    design: dict | None = field(default=None, repr=False, compare=False)  # the fit's columns
     kind: ClassVar[str] = "continuous"
 
     @property
@@ -342,8 +344,9 @@ class ContinuousFit:
             return self
         if len(np.unique(self.data["point"][keep])) < 1:
             return None
-        try:
-            return fit_continuous(self.model, {k: v[keep] for k, v in self.data.items()})
+        try:  # the holds that stay keep their columns: only the whitening is new
+            return fit_continuous(self.model, {k: v[keep] for k, v in self.data.items()},
+                                  design=None if self.design is None else subset_design(self.design, keep))
         except IdentifiabilityError:
             return None
 
@@ -357,16 +360,20 @@ def in_sample(fitted, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return resid, floor, ~np.isnan(resid[:, 0])
 
 
-def fit_continuous(model: Model, obs, *, source=None) -> ContinuousFit:
+def fit_continuous(model: Model, obs, *, source=None, design: dict | None = None) -> ContinuousFit:
     """Fit a temperature-continuous model jointly over every point (seed 003 Eq 16 style:
-    the temperature dependence is in terms such as ``bias_temp_poly``)."""
+    the temperature dependence is in terms such as ``bias_temp_poly``); ``design``: the
+    model's columns on ``obs`` when already made."""
     data = columns_of(obs)
-    result = fit(model, data, source=source, label="all temperature points")
+    if design is None:
+        model.check_inputs(data, source)
+        design = model.design(data)
+    result = fit(model, data, source=source, label="all temperature points", design=design)
     point = data["point"].astype(int)
     rows = [(int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
             for p in np.unique(point)]
     points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
-    return ContinuousFit(model, result, data, points)
+    return ContinuousFit(model, result, data, points, design=design)
 
 
 def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degree: int = 3,
@@ -451,6 +458,7 @@ class JointGridFit(_OnAGrid):
     rows: tuple[np.ndarray, ...] = ()   # the observation rows the fit used
     point_ids: tuple[int, ...] = ()     # grid order
     profiled: tuple = ()
+    design: dict | None = field(default=None, repr=False, compare=False)  # the joint fit's columns
     kind: ClassVar[str] = "grid"
 
     @property
@@ -489,10 +497,11 @@ class JointGridFit(_OnAGrid):
         if len(self.used_points()) < 2:
             return None
         keep = self.data["point"].astype(int) != point
-        try:
+        try:  # the holds that stay keep their columns (those of the point left out drop)
             return _fit_joint(self.model, {k: v[keep] for k, v in self.data.items()},
                               method=self.grid.method, degree=self.grid.degree,
-                              rows=self.rows[0][keep], excluded=self.excluded)
+                              rows=self.rows[0][keep], excluded=self.excluded,
+                              design=None if self.design is None else subset_design(self.design, keep))
         except IdentifiabilityError:
             return None
 
@@ -504,7 +513,8 @@ class _PointCalibration:
 
 
 def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=None,
-               rows: np.ndarray | None = None, excluded=None, extra_points=()) -> JointGridFit:
+               rows: np.ndarray | None = None, excluded=None, extra_points=(),
+               design: dict | None = None) -> JointGridFit:
     point = data["point"].astype(int)
     ids = [int(p) for p in np.unique(point)]
     temps = np.array([float(data["temp"][point == p].mean()) for p in ids])
@@ -512,7 +522,10 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
     ids, temps = [ids[i] for i in order], temps[order]
     local = [t for t in model.terms if t.coefficient_scope != "global"]
     joint = Model(tuple(_AtPoint(t, p) for t in local for p in ids) + tuple(global_terms(model)))
-    result = fit(joint, data, source=source, label="all temperature points")
+    if design is None:
+        joint.check_inputs(data, source)
+        design = joint.design(data)
+    result = fit(joint, data, source=source, label="all temperature points", design=design)
     index = {name: j for j, name in enumerate(result.names)}
     values = np.empty((len(ids), len(model.names)))
     stderr = np.empty_like(values)
@@ -531,7 +544,8 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
     points = pd.DataFrame(table, columns=["point", "temp", "holds", "used", "reason"]) \
         .sort_values("point", kind="stable").reset_index(drop=True)
     rows = np.arange(len(point)) if rows is None else rows
-    return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids))
+    return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids),
+                        design=design)
 
 
 # A per-point regressor whose within-point scatter is below this fraction of its whole

@@ -245,3 +245,93 @@ def test_what_another_session_should_leave_counts_correlated_coefficients():
     # (to 1e-4: the terms are evaluated at the compensated rates, which carry the noise)
     np.testing.assert_allclose(with_cov, floor ** 2 + (calibration_var + 2 * sb ** 2) / 3, rtol=1e-4)
     np.testing.assert_allclose(without, floor ** 2 + (sb ** 2 + (w * ss) ** 2 + 2 * sb ** 2) / 3, rtol=1e-4)
+
+
+def test_distinct_rows_are_bit_for_bit():
+    from gyrocal.calibration import distinct_rows
+    temp = np.array([20.0, 20.5, 20.0, -0.0, 0.0, 20.5, np.nan, np.nan])
+    accel = np.array([1.0, 1.0, 2.0, 1.0, 1.0, 1.0, 1.0, 1.0])
+    first, index = distinct_rows([temp, accel])
+    assert len(first) == 6   # (20, 1) (20.5, 1) (20, 2) (-0, 1) (0, 1) (nan, 1)
+    for column in (temp, accel):
+        np.testing.assert_array_equal(column[first][index].view(np.int64), column.view(np.int64))
+
+
+def check_compensation_per_distinct_row(cal: Calibration, n=20_000, seed=3, step=1 / 16, **extra):
+    """The shared first step gives what the per-sample solve gives, to the rounding of
+    each row's largest output (the check of every sample is the same)."""
+    from gyrocal import calibration
+    rng = np.random.default_rng(seed)
+    temp = np.round(rng.uniform(-15.0, 55.0, n) / step) * step   # a sensor's steps
+    gyro = rng.normal(0.0, 200.0, (n, 3))
+    data = {"temp": temp, **{k: f(rng, n) for k, f in extra.items()}}
+    shared = []
+    distinct = calibration.distinct_rows
+    calibration.distinct_rows = lambda cols: shared.append(len((found := distinct(cols))[0])) or found
+    try:
+        grouped = cal.compensate(gyro, data, warn=False)
+    finally:
+        calibration.distinct_rows = distinct
+    assert shared and shared[0] <= n // 2   # the shared path was taken
+    covariates = {**data, "temp": cal.clamp(temp)}
+    direct, _ = cal.model.compensate(cal.coefficients(temp, warn=False), gyro, covariates)
+    scale = np.abs(gyro).max(axis=1, keepdims=True)
+    assert np.all(np.abs(grouped - direct) <= 1e-12 * scale), np.max(np.abs(grouped - direct) / scale)
+    return grouped
+
+
+def test_compensation_shares_the_first_step_between_equal_rows(complete_run):
+    cal = complete_run.calibration
+    check_compensation_per_distinct_row(cal)
+    # a model that is not affine in the rate: the per-sample check takes further steps
+    K = np.array(cal.grid.values)
+    model = Model.from_spec(["bias", "scale", "misalignment", "scale_quadratic"])
+    values = np.concatenate([K, np.full((len(K), 3), 3e-6)], axis=1)
+    quad = Calibration(model, TemperatureGrid(cal.grid.temperatures, tuple(model.names), values,
+                                              np.full(values.shape, 1e-6)))
+    out = check_compensation_per_distinct_row(quad)
+    assert np.all(np.isfinite(out))
+    # an input beside the temperature: rows are distinct by both
+    g = Model.from_spec(["bias", "scale", "misalignment", "g_sensitivity"])
+    values = np.concatenate([K, np.full((len(K), len(g.names) - K.shape[1]), 0.01)], axis=1)
+    gcal = Calibration(g, TemperatureGrid(cal.grid.temperatures, tuple(g.names), values,
+                                          np.full(values.shape, 1e-6)))
+    steps = {f"accel_{a}": (lambda rng, n: rng.choice([-1.0, 0.0, 1.0], n)) for a in "xyz"}
+    check_compensation_per_distinct_row(gcal, step=1.0, **steps)
+
+
+def test_apply_writes_the_compensated_rates_without_a_dictionary(complete_run, logs, tmp_path):
+    out = tmp_path / "applied.parquet"
+    apply_calibration(complete_run.calibration, logs["complete"], out)
+    meta = pq.ParquetFile(out).metadata
+    chunks = {meta.row_group(0).column(i).path_in_schema: meta.row_group(0).column(i)
+              for i in range(meta.num_columns)}
+    for c in ("gyro_x", "gyro_y", "gyro_z"):
+        assert not chunks[c].has_dictionary_page
+    assert chunks["mount"].has_dictionary_page
+
+
+def test_an_error_while_applying_leaves_no_output_and_no_thread(complete_run, logs, tmp_path, monkeypatch):
+    import threading
+
+    from gyrocal import apply as apply_module
+    cal = complete_run.calibration
+    calls = []
+    real = Calibration.compensate
+
+    def failing(self, gyro, data, **kw):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("compensation failed")
+        return real(self, gyro, data, **kw)
+
+    monkeypatch.setattr(Calibration, "compensate", failing)
+    monkeypatch.setattr(apply_module, "BATCH_ROWS", 4096)   # several batches
+    out = tmp_path / "applied.parquet"
+    with pytest.raises(RuntimeError, match="compensation failed"):
+        apply_calibration(cal, logs["complete"], out)
+    assert not out.exists() and not list(tmp_path.glob(".applied*"))
+    for thread in threading.enumerate():
+        if thread.name == "apply-read":
+            thread.join(timeout=5)
+            assert not thread.is_alive()

@@ -16,12 +16,14 @@ from scipy import stats
 from gyrocal.calibration import dumps
 from gyrocal.config import Settings
 from gyrocal.diagnose import diagnose
-from gyrocal.floor import FALLBACK, STATIC, floor_terms, time_covariances
+from gyrocal.floor import FALLBACK, STATIC, floor_terms
 from gyrocal.noise import FLICKER_FACTOR, allan_deviation, barnes_b1, pooled_allan_deviation
 from gyrocal.pipeline import run
 from gyrocal.report import UnitResults, write_unit_report
 from gyrocal.simulate import GyroUnit, ServoProtocol, SweepProtocol, TurntableProtocol, simulate_unit
 from gyrocal.simulate.noise import GRADES, coloured_noise
+
+from .wander_reference import held_covariances
 
 AXES = "xyz"
 FLICKER_AVAR = FLICKER_FACTOR ** 2  # Allan variance of unit flicker (B = 1)
@@ -63,9 +65,9 @@ def test_covariance_of_hold_means_reproduces_allan_and_barnes():
     adjacent = lambda c: (c[20, 20] + c[21, 21] - 2 * c[20, 21]) / 2  # noqa: E731
     for T in (0.5, 6.0, 60.0):
         gapped = np.arange(40) * (T + 2.0)  # holds with ramps between them, as on a turntable
-        assert all(np.linalg.eigvalsh(c).min() > 0 for c in time_covariances(gapped, gapped + T))
+        assert all(np.linalg.eigvalsh(c).min() > 0 for c in held_covariances(gapped, gapped + T))
         a = np.arange(40) * T  # back to back: the Allan variance's own setting
-        flicker, walk = time_covariances(a, a + T)
+        flicker, walk = held_covariances(a, a + T)
         assert adjacent(flicker) == pytest.approx(FLICKER_AVAR, rel=0.01)
         assert adjacent(walk) == pytest.approx(T / 3, rel=1e-9)
         for cov, mu, avar in ((flicker, 0, FLICKER_AVAR), (walk, 1, T / 3)):
