@@ -276,6 +276,14 @@ def subset_design(design: dict, rows) -> dict:
     return {k: v[rows] if np.ndim(v) else v for k, v in design.items()}
 
 
+def shares_wander(data) -> bool:
+    """Whether the holds share slow wander (bias instability or rate random walk in the
+    session's noise model), so that the fit whitens them jointly rather than one by one."""
+    return "white_x" in data and len(data["white_x"]) > 1 and any(
+        f"{k}_{a}" in data and bool(np.any(np.asarray(data[f"{k}_{a}"]) > 0))
+        for k in ("flicker", "rrw") for a in AXES)
+
+
 def _whiteners(data: dict, floor: np.ndarray) -> list:
     """Per output axis, the map that makes the observations' noise unit white.
 
@@ -286,15 +294,12 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     (:mod:`gyrocal.wander`, in time linear in the holds), so that the chi-square and the
     F-tests of the diagnosis count the evidence honestly (a wander that follows the
     protocol's order of rates would otherwise pass for a rate effect)."""
-    n = len(floor)
-    coloured = "white_x" in data and n > 1 and any(
-        np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in AXES)
 
     def divide(i):
         w = 1.0 / floor[:, i]
         return lambda m: m * (w[:, None] if np.ndim(m) == 2 else w)
 
-    if not coloured:
+    if not shares_wander(data):
         return [divide(i) for i in range(3)]
     from .wander import whiteners
     white = [np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))

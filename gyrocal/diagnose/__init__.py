@@ -35,7 +35,7 @@ import pandas as pd
 
 from ..config import Settings
 from ..floor import with_upper_floor
-from ..model import columns_of
+from ..model import columns_of, shares_wander
 from ..terms import AXES, make_term
 from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
                       practical_gain_next, rank_candidates, second_step, time_drift)
@@ -46,8 +46,7 @@ from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, 
 from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
 from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
 from .shapes import describe, shape_terms
-from .where import input_values
-from .where import COVARIATES, covariate_table, fit_quality, shape_estimate
+from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -220,7 +219,12 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # A drift in time that explains the excess is the finding: terms that fit a part of it
     # are not reported as partial explanations.
     partial = [] if best or timed else useful[:3]
-    text = make_verdict(base, best, explains, quality.rms_over_floor, covariates, "floor_x" in obs,
+    # Where the holds share slow wander, RMS ÷ floor counts each hold as if its noise were its
+    # own and can sit below 1 while the whitened χ² says the model misses: the verdict gives
+    # sqrt(χ²/dof), the factor its test is made on.
+    shown = ({**quality.rms_over_floor, "all": float(np.sqrt(quality.chi2_red["all"]))}
+             if shares_wander(obs) else quality.rms_over_floor)
+    text = make_verdict(base, best, explains, shown, covariates, "floor_x" in obs,
                         partial, within_noise, unrepeated, base_next if usable(base_next) else None,
                         None if timed else tolerance, noise_explains=noise_explains,
                         unseparable=[c for c in candidates if c.status == "not identifiable"])
