@@ -194,3 +194,28 @@ def test_a_write_that_fails_leaves_the_file_it_replaces(tmp_path):
         (tmp / "index.html").write_text("new")
     assert (folder / "index.html").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle", "table.parquet"]
+
+
+@pytest.mark.parametrize("left, limit, keep", [("1:40", "2:00", 70.0), ("1-02:03:04", "2-00:00:00", 93754.0),
+                                               ("0:20", "1:00", 0.0)])
+def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_limit(
+        tmp_path, monkeypatch, left, limit, keep):
+    """Inside a SLURM job, on the last of the workflow's attempts, the guard asks squeue
+    for the job's time left and keeps 30 s of it for the steps after segmentation (none
+    left: stopped at once). Before the last attempt, and outside SLURM, it does not: the
+    scheduler ends the job and Snakemake retries it with more time."""
+    from gyrocal import guard
+    squeue = tmp_path / "squeue"
+    squeue.write_text(f'#!/bin/sh\necho "$@" > {tmp_path / "args"}\necho "{left}|{limit}"\n')
+    squeue.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("SLURM_JOB_ID", "29")
+    monkeypatch.setenv(guard.ATTEMPTS_ENV, "2")
+    reason = f"would outrun its SLURM job's time limit ({limit}, attempt 2 of 2)"
+    assert guard.scheduler_limit("segment", 2) == (keep, reason)
+    assert (tmp_path / "args").read_text().split() == ["--noheader", "--jobs=29", "--format=%L|%l"]
+    assert guard.scheduler_limit("segment", 1) is None
+    monkeypatch.delenv(guard.ATTEMPTS_ENV)  # run by hand: every attempt is the last
+    assert guard.scheduler_limit("segment", 1)[1] == f"would outrun its SLURM job's time limit ({limit})"
+    monkeypatch.delenv("SLURM_JOB_ID")
+    assert guard.scheduler_limit("segment", 2) is None
