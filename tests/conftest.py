@@ -132,14 +132,19 @@ drift: {tolerance: {"bias.*": 0.005}}
 """
 
 
-def snakemake(workdir, *args, timeout=900):
+def snakemake_command(workdir, *args) -> list[str]:
+    """The command that runs the repository's workflow in ``workdir`` with its config.yaml."""
+    import sys
+    return [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+            "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
+            "--cores", "2", *map(str, args)]
+
+
+def snakemake(workdir, *args, timeout=900, env=None):
     """Run the repository's workflow in ``workdir`` with its config.yaml."""
     import subprocess
-    import sys
-    return subprocess.run(
-        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-         "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
-         "--cores", "2", *args], capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(snakemake_command(workdir, *args), capture_output=True, text=True,
+                          timeout=timeout, env=env)
 
 
 @pytest.fixture(scope="session")
@@ -154,3 +159,9 @@ def fleet_run(tmp_path_factory):
     out = snakemake(wd)
     assert out.returncode == 0, out.stderr[-3000:]
     return wd
+
+
+def pytest_report_header(config):
+    """The SLURM the scheduler tests run on (tests/test_slurm.py), named in every run."""
+    from .slurm import installed_version
+    return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"
