@@ -144,7 +144,7 @@ def scheduler_limit(stage: str, attempt: int | None) -> tuple[float, str] | None
 def watch(child: subprocess.Popen, memory_mb, timeout_s,
           deadline: tuple[float, str] | None = None) -> tuple[int, str | None]:
     """Wait for ``child``; kill it at a limit, or at ``deadline`` (seconds from now, reason).
-    Returns (its wait status, the reason it was killed, or None)."""
+    Returns (its wait status, the reason it was killed or None, its resource usage)."""
     start = time.monotonic()
     reason = None
     while True:
@@ -157,7 +157,7 @@ def watch(child: subprocess.Popen, memory_mb, timeout_s,
             if (reason is None and child.returncode != 0 and memory_mb is not None
                     and usage.ru_maxrss / 1024 > memory_mb):
                 reason = f"ran out of memory (limit {memory_mb:g} MiB)"
-            return child.returncode, reason
+            return child.returncode, reason, usage
         if reason is None:
             if timeout_s is not None and time.monotonic() - start > timeout_s:
                 reason = f"timed out after {timeout_s:g} s"
@@ -187,6 +187,7 @@ def _exit_status(status: int) -> int:
 def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int:
     if not command or command[0] not in STAGES:
         raise SystemExit(f"gyrocal.guard: give one of {', '.join(STAGES)} and its arguments")
+    started = time.monotonic()
     child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
                              preexec_fn=_die_with(os.getpid()))
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
@@ -201,7 +202,13 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
             args = build_parser().parse_args(command)
     except SystemExit:
         args = None
-    status, reason = watch(child, memory_mb, timeout_s, scheduler_limit(command[0], attempt))
+    status, reason, usage = watch(child, memory_mb, timeout_s,
+                                  scheduler_limit(command[0], attempt))
+    # The stage's own cost, in the job's log: what sizes the rules' resources, and what a
+    # workflow run adds to its units' processes (benchmarks/throughput.py).
+    print(f"gyrocal.guard: {command[0]} took {time.monotonic() - started:.2f} s, "
+          f"{usage.ru_utime + usage.ru_stime:.2f} s CPU, {usage.ru_maxrss / 1024:.0f} MiB peak",
+          file=sys.stderr)
     if args is None:
         return _exit_status(status)
     outputs = stage_outputs(args)

@@ -164,6 +164,11 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     assert time_out in (wd / "reports" / "B1" / "K3" / f"{SESSION}.html").read_text()
     assert_every_file_whole(wd)
     assert not leftovers(wd)
+    # Each job's log ends with what its stage cost (benchmarks/throughput.py reads it).
+    for stage in ("segment", "analyse", "report"):
+        log = (wd / "logs" / stage / "B1" / "K1" / f"{SESSION}.log").read_text()
+        assert re.search(rf"^gyrocal.guard: {stage} took [\d.]+ s, [\d.]+ s CPU, \d+ MiB peak$",
+                         log, flags=re.M), log
 
 
 def test_a_memory_error_is_recorded_as_such():
