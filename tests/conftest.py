@@ -147,6 +147,28 @@ def snakemake(workdir, *args, timeout=900, env=None):
                           timeout=timeout, env=env)
 
 
+def assert_every_file_whole(wd):
+    """Every result, report and summary that exists reads as what its name says."""
+    import json
+    import pyarrow.parquet as pq
+    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
+             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
+    assert files
+    for path in files:
+        if path.suffix == ".parquet":
+            pq.read_table(path)
+        elif path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".html":
+            assert path.read_text().rstrip().endswith("</html>"), path
+
+
+def leftovers(wd):
+    """Temporary files and folders (pathlib's * matches hidden names too)."""
+    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
+            for p in (wd / root).rglob(pattern)]
+
+
 @pytest.fixture(scope="session")
 def fleet_run(tmp_path_factory):
     """A small fleet through the whole workflow: five demo unit sessions (one device

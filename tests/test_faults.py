@@ -25,7 +25,7 @@ from gyrocal.calibration import load_calibration
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 from gyrocal.tables import write_table
 
-from .conftest import REPO, snakemake
+from .conftest import REPO, assert_every_file_whole, leftovers, snakemake
 
 SESSION = "2026-01-01"
 CONFIG = """devices: devices.tsv
@@ -60,26 +60,6 @@ def fleet(tmp_path, logs, devices, config=CONFIG):
 
 def unit(wd, device):
     return wd / "results" / "B1" / device / SESSION
-
-
-def assert_every_file_whole(wd):
-    """Every result, report and summary that exists reads as what its name says."""
-    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
-             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
-    assert files
-    for path in files:
-        if path.suffix == ".parquet":
-            pq.read_table(path)
-        elif path.suffix == ".json":
-            json.loads(path.read_text())
-        elif path.suffix == ".html":
-            assert path.read_text().rstrip().endswith("</html>"), path
-
-
-def leftovers(wd):
-    """Temporary files and folders (pathlib's * matches hidden names too)."""
-    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
-            for p in (wd / root).rglob(pattern)]
 
 
 @pytest.mark.slow

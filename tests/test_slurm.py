@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import html
 import importlib.util
-import json
 import os
 import re
 import shutil
@@ -18,7 +17,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pyarrow.parquet as pq
 import pytest
 
 from gyrocal import atomic, failure
@@ -27,7 +25,8 @@ from gyrocal.errors import CalibrationFileError
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 
 from . import slurm
-from .conftest import REPO, needs, snakemake, snakemake_command
+from .conftest import (REPO, assert_every_file_whole, leftovers, needs, snakemake,
+                       snakemake_command)
 
 pytestmark = [pytest.mark.slow,
               needs({**slurm.found(), "snakemake-executor-plugin-slurm":
@@ -93,22 +92,6 @@ def submitted(text: str) -> dict[str, Path]:
 def devices_in(log: Path) -> set[str]:
     """The devices whose jobs a SLURM job ran, from its log."""
     return set(re.findall(r"wildcards: batch=\w+, device=(\w+),", log.read_text()))
-
-
-def assert_whole_and_tidy(root: Path) -> None:
-    """Every result, report and summary reads as what its name says; no temporary file
-    is left (pathlib's * matches hidden names too)."""
-    files = [p for top in ("results", "reports") for p in (root / top).rglob("*")
-             if p.is_file() and "benchmark" not in p.parts]
-    assert files
-    for path in files:
-        assert not path.name.endswith((".tmp", ".old")), path
-        if path.suffix == ".parquet":
-            pq.read_table(path)
-        elif path.suffix == ".json":
-            json.loads(path.read_text())
-        elif path.suffix == ".html":
-            assert path.read_text().rstrip().endswith("</html>"), path
 
 
 def wait_for(found, what: str, proc: subprocess.Popen, log: Path, timeout: float = 300):
@@ -246,15 +229,17 @@ def faults(cluster, runs, tmp_path_factory):
     the other runs. When the running one holds its validation.json (a result or a failure
     record) between the temporary file and the rename, slurmd is restarted, the other job
     still queued, then the running job is cancelled with scancel. The logs are the local
-    run's, at the same paths (no simulate job)."""
+    run's, at the same paths (no simulate job); the units' reports are the targets (no
+    fleet job)."""
     local, _, _ = runs
     wd = fleet_folder(tmp_path_factory.mktemp("slurm-faults") / "fleet",
                       ROW.format(*GOOD[0]) + BAD_ROW)
     for path in (Path("demo", "logs", *GOOD[0][:2], f"{GOOD[0][2]}.parquet"), CORRUPT):
         (wd / path).parent.mkdir(parents=True)
         shutil.copy2(local / path, wd / path)
-    env = {**cluster.env, atomic.PAUSE_ENV: "validation.json:8"}
-    proc, log = start(wd, env, *SLURM, "--group-components", "unit=1")
+    env = {**cluster.env, atomic.PAUSE_ENV: "validation.json:5"}
+    reports = [f"reports/{b}/{d}/{s}.html" for b, d, s in FAULT_UNITS]
+    proc, log = start(wd, env, *reports, *SLURM, "--group-components", "unit=1")
     seen = {}
     try:
         held = wait_for(lambda: sorted(wd.glob("results/*/*/*/.validation.json.*.tmp")),
@@ -265,6 +250,7 @@ def faults(cluster, runs, tmp_path_factory):
         seen["held at the cancel"] = held.exists()
         cluster.client("scancel", seen["job"])
         finish(proc, 600)
+        seen["exit"] = proc.returncode
     finally:
         end(proc)
     return wd, log.read_text(), seen
@@ -282,8 +268,9 @@ def test_a_cancelled_job_and_a_restarted_slurmd_leave_the_local_runs_outputs(fau
     wd, text, seen = faults
     local, _, _ = runs
     assert seen["queued"] and seen["held at the cancel"]
-    assert "Finished jobid: 0 (Rule: all)" in text, text[-4000:] + cluster.logs()
-    assert_whole_and_tidy(wd)
+    assert seen["exit"] == 0, text[-4000:] + cluster.logs()
+    assert_every_file_whole(wd)
+    assert not leftovers(wd)
     expected, got = outputs(local, FAULT_UNITS), outputs(wd, FAULT_UNITS)
     assert got.keys() == expected.keys()
     for path, content in expected.items():
@@ -324,4 +311,5 @@ def test_a_unit_past_its_time_is_retried_with_doubled_resources_then_recorded(sl
         load_calibration(folder / "calibration.json")
     index = html.unescape((wd / "reports" / "index.html").read_text())
     assert "1 unit session: 0 calibrated" in index and reason in index
-    assert_whole_and_tidy(wd)
+    assert_every_file_whole(wd)
+    assert not leftovers(wd)
