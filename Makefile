@@ -28,12 +28,16 @@ test: system-packages $(STAMP)
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernel, built on install),
-# rsync for the object-storage test (Snakemake's fs storage plugin copies with it).
+# rsync for the object-storage test (Snakemake's fs storage plugin copies with it),
+# SLURM and munge for the scheduler tests (tests/slurm.py starts its own one-node cluster).
 system-packages:
 	@missing=""; \
 	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
 	command -v gcc >/dev/null 2>&1 || missing="$$missing gcc libc6-dev"; \
 	command -v rsync >/dev/null 2>&1 || missing="$$missing rsync"; \
+	for tool in sbatch slurmctld slurmd munged; do \
+	  command -v $$tool >/dev/null 2>&1 || test -x /usr/sbin/$$tool || { missing="$$missing slurm-wlm munge"; break; }; \
+	done; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing Debian's$$missing for the tests"; \

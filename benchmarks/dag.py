@@ -13,11 +13,15 @@ in a fresh process, on the cores of this machine. No log needs any content:
 
 The dry run is ``snakemake -n --quiet``: the plan alone. Without ``--quiet`` Snakemake also
 prints every job (about 6 MB for 1,000 units), which doubles the time; ``--listing`` times
-that too. Prints the jobs planned, wall and CPU seconds, peak memory and the cost per unit.
-``--cprofile FILE`` runs the largest N under cProfile and prints where the time goes.
+that too. Prints the jobs planned, wall and CPU seconds, peak memory and the cost per unit,
+each with the machine's load when it ended (``uptime``: a shared machine's load moves a
+wall time by a quarter either way). ``--cprofile FILE`` runs the largest N under cProfile
+and prints where the time goes. ``--one`` also times planning one unit's report in each
+fleet: what every job a cluster runs pays as it starts, since it reads the whole manifest.
 
     python benchmarks/dag.py [--units 1000 10000] [--layout demo|fleet] [--repeat 1]
                              [--listing] [--cprofile dag.prof] [--keep DIR]
+    python benchmarks/dag.py --units 10000 50000 --layout fleet --one   # docs/cluster.md's plan
 """
 
 from __future__ import annotations
@@ -61,14 +65,16 @@ def write_fleet(folder: Path, n: int, layout: str) -> None:
     (folder / "config.yaml").write_text(CONFIG)
 
 
-def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False) -> dict:
+def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False,
+            targets: tuple[str, ...] = ()) -> dict:
     """One ``snakemake -n`` in a fresh process: wall and CPU seconds, peak RSS. The usage
     is that one child's (``wait4``): the high-water mark of all children
     (``RUSAGE_CHILDREN``) would carry a larger earlier run's over."""
     prefix = [sys.executable] + (["-m", "cProfile", "-o", str(cprofile)] if cprofile else [])
     command = prefix + ["-m", "snakemake", "--dry-run", "--snakefile", str(REPO / "Snakefile"),
                         "--directory", str(folder), "--configfile", str(folder / "config.yaml"),
-                        "--cores", str(os.cpu_count() or 1)] + ([] if listing else ["--quiet"])
+                        "--cores", str(os.cpu_count() or 1), *targets]
+    command += [] if listing else ["--quiet"]  # last: it takes an optional value
     with tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=err)
@@ -79,6 +85,10 @@ def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False) -
             err.seek(0)
             sys.exit(f"snakemake -n failed in {folder}:\n{err.read()[-3000:]}")
     return {"wall": wall, "cpu": usage.ru_utime + usage.ru_stime, "peak_mib": usage.ru_maxrss / 1024}
+
+
+def load() -> str:
+    return " ".join(Path("/proc/loadavg").read_text().split()[:3])
 
 
 def machine() -> str:
@@ -101,13 +111,16 @@ def main() -> None:
     parser.add_argument("--listing", action="store_true", help="also time -n without --quiet")
     parser.add_argument("--cprofile", type=Path, help="profile the largest N into this file")
     parser.add_argument("--keep", type=Path, help="write the fleets here instead of a temporary folder")
+    parser.add_argument("--one", action="store_true",
+                        help="also time planning one unit's report in each fleet: what every "
+                             "cluster job pays as it starts (it parses the whole manifest)")
     args = parser.parse_args()
 
     print(machine())
     # Per unit: segment, analyse, report (+ simulate); then fleet and all.
     per_unit = 4 if args.layout == "demo" else 3
     print(f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
-          f"{'ms/unit':>8}")
+          f"{'ms/unit':>8}  load (1, 5, 15 min)")
     with tempfile.TemporaryDirectory() as tmp:
         base = args.keep or Path(tmp)
         for n in args.units:
@@ -118,7 +131,11 @@ def main() -> None:
                     r = dry_run(folder, listing=listing)
                     print(f"{n:>7} {per_unit * n + 2:>7} {'listing' if listing else 'quiet':>8} "
                           f"{r['wall']:>8.1f} {r['cpu']:>8.1f} {r['peak_mib']:>9.0f} "
-                          f"{1000 * r['wall'] / n:>8.1f}", flush=True)
+                          f"{1000 * r['wall'] / n:>8.1f}  {load()}", flush=True)
+                if args.one:
+                    r = dry_run(folder, targets=("reports/B0000/U00000/2026-01-01.html",))
+                    print(f"{n:>7} {per_unit:>7} {'one unit':>8} {r['wall']:>8.1f} "
+                          f"{r['cpu']:>8.1f} {r['peak_mib']:>9.0f} {'':>8}  {load()}", flush=True)
         if args.cprofile:
             n = max(args.units)
             dry_run(base / f"{args.layout}{n}", cprofile=args.cprofile)

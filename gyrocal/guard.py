@@ -12,6 +12,16 @@ rather than setting ``RLIMIT_AS`` in the stage: under an address-space limit, im
 fail to map libraries, OpenBLAS aborts, Arrow cannot start a thread and a stage can even
 hang, each with its own misleading error; killed by the guard, the reason is known.
 
+In a SLURM job, the job's own time limit is a limit too, on the job's last attempt. The
+profiles retry a job the scheduler ended, once, with twice the runtime: before the last
+attempt the scheduler ends a stage that runs too long and the retry gets more time; on
+the last, nothing would follow, and a unit the scheduler ended would have no record and
+hold back the fleet summary. There the guard stops its stage when the job has only
+:data:`KEEP_S` seconds left (time for the unit's steps after it to pass the record on)
+and records "would outrun its SLURM job's time limit (...)". The workflow gives the job's
+attempt (``--attempt``) and the number of attempts (``GYROCAL_ATTEMPTS`` in the
+environment: workflow/rules/common.smk); without them an attempt is the last.
+
 A stage killed by anyone else (the scheduler, the user, a SIGKILL) gets no record: the
 guard exits with the stage's status, Snakemake removes the job's outputs, and a rerun
 runs it again. Writes are atomic (:mod:`gyrocal.atomic`), so the killed stage left no
@@ -24,6 +34,7 @@ import argparse
 import contextlib
 import io
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -35,6 +46,11 @@ from .atomic import PAUSE_ENV, leftovers
 
 STAGES = ("segment", "analyse", "report")
 POLL_S = 0.05  # how often the stage's memory and time are checked
+# Seconds of a SLURM job's time left to the unit's steps after this one when the guard
+# stops a stage on the job's last attempt: each later step passes a failure record on in
+# a few seconds (a process start, a small read and write), Snakemake's job ends after.
+KEEP_S = {"segment": 30.0, "analyse": 20.0, "report": 10.0}
+ATTEMPTS_ENV = "GYROCAL_ATTEMPTS"
 
 
 def stage_outputs(args) -> list[Path]:
@@ -72,9 +88,63 @@ def _die_with(parent: int):
     return setup
 
 
-def watch(child: subprocess.Popen, memory_mb, timeout_s) -> tuple[int, str | None]:
-    """Wait for ``child``; kill it at a limit. Returns (its wait status, the reason it was
-    killed, or None)."""
+def last_attempt(attempt: int | None) -> tuple[bool, str]:
+    """Whether ``attempt`` is its job's last, of the ``GYROCAL_ATTEMPTS`` the workflow
+    allows, and which it is ("attempt 2 of 2"); without either, the last."""
+    try:
+        attempts = int(os.environ.get(ATTEMPTS_ENV, ""))
+    except ValueError:
+        attempts = None
+    if attempt is None or attempts is None:
+        return True, ""
+    return attempt >= attempts, f"attempt {attempt} of {attempts}"
+
+
+def _seconds(text: str) -> float | None:
+    """SLURM's ``[days-][hours:]minutes:seconds`` in seconds; None for UNLIMITED and the
+    like."""
+    match = re.fullmatch(r"(?:(\d+)-)?(?:(\d+):)?(\d+):(\d+)", text.strip())
+    if not match:
+        return None
+    days, hours, minutes, seconds = (int(g or 0) for g in match.groups())
+    return ((days * 24 + hours) * 60 + minutes) * 60 + seconds
+
+
+def slurm_time_left() -> tuple[float, str] | None:
+    """(Seconds the SLURM job this runs in has left, its time limit as SLURM writes it),
+    or None outside SLURM, without a limit, or when squeue cannot tell."""
+    job = os.environ.get("SLURM_JOB_ID")
+    squeue = shutil.which("squeue")
+    if not job or not squeue:
+        return None
+    try:
+        out = subprocess.run([squeue, "--noheader", f"--jobs={job}", "--format=%L|%l"],
+                             capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    left, _, limit = out.stdout.strip().partition("|")
+    seconds = _seconds(left) if out.returncode == 0 else None
+    return None if seconds is None else (seconds, limit)
+
+
+def scheduler_limit(stage: str, attempt: int | None) -> tuple[float, str] | None:
+    """(Seconds from now, reason) at which the guard stops ``stage`` so that its SLURM job
+    ends with the unit's failure recorded rather than at its time limit, on the job's last
+    attempt; None otherwise."""
+    last, which = last_attempt(attempt)
+    found = slurm_time_left() if last else None
+    if found is None:
+        return None
+    left, limit = found
+    where = ", ".join(filter(None, [limit, which]))
+    return (max(left - KEEP_S[stage], 0.0),
+            f"would outrun its SLURM job's time limit ({where})")
+
+
+def watch(child: subprocess.Popen, memory_mb, timeout_s,
+          deadline: tuple[float, str] | None = None) -> tuple[int, str | None]:
+    """Wait for ``child``; kill it at a limit, or at ``deadline`` (seconds from now, reason).
+    Returns (its wait status, the reason it was killed or None, its resource usage)."""
     start = time.monotonic()
     reason = None
     while True:
@@ -87,10 +157,12 @@ def watch(child: subprocess.Popen, memory_mb, timeout_s) -> tuple[int, str | Non
             if (reason is None and child.returncode != 0 and memory_mb is not None
                     and usage.ru_maxrss / 1024 > memory_mb):
                 reason = f"ran out of memory (limit {memory_mb:g} MiB)"
-            return child.returncode, reason
+            return child.returncode, reason, usage
         if reason is None:
             if timeout_s is not None and time.monotonic() - start > timeout_s:
                 reason = f"timed out after {timeout_s:g} s"
+            elif deadline is not None and time.monotonic() - start > deadline[0]:
+                reason = deadline[1]
             elif memory_mb is not None and (_rss_mb(child.pid) or 0) > memory_mb:
                 reason = f"ran out of memory (limit {memory_mb:g} MiB)"
             if reason is not None:
@@ -112,9 +184,10 @@ def _exit_status(status: int) -> int:
     return status if status >= 0 else 128 - status
 
 
-def run(command: list[str], memory_mb=None, timeout_s=None) -> int:
+def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int:
     if not command or command[0] not in STAGES:
         raise SystemExit(f"gyrocal.guard: give one of {', '.join(STAGES)} and its arguments")
+    started = time.monotonic()
     child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
                              preexec_fn=_die_with(os.getpid()))
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
@@ -129,7 +202,13 @@ def run(command: list[str], memory_mb=None, timeout_s=None) -> int:
             args = build_parser().parse_args(command)
     except SystemExit:
         args = None
-    status, reason = watch(child, memory_mb, timeout_s)
+    status, reason, usage = watch(child, memory_mb, timeout_s,
+                                  scheduler_limit(command[0], attempt))
+    # The stage's own cost, in the job's log: what sizes the rules' resources, and what a
+    # workflow run adds to its units' processes (benchmarks/throughput.py).
+    print(f"gyrocal.guard: {command[0]} took {time.monotonic() - started:.2f} s, "
+          f"{usage.ru_utime + usage.ru_stime:.2f} s CPU, {usage.ru_maxrss / 1024:.0f} MiB peak",
+          file=sys.stderr)
     if args is None:
         return _exit_status(status)
     outputs = stage_outputs(args)
@@ -152,9 +231,11 @@ def main(argv=None) -> int:
         description="Run a unit's stage under limits; record the unit as failed at a limit.")
     parser.add_argument("--memory-mb", type=float, help="resident memory, MiB")
     parser.add_argument("--timeout-s", type=float, help="wall time, s")
+    parser.add_argument("--attempt", type=int,
+                        help="the job's attempt, of the GYROCAL_ATTEMPTS in the environment")
     parser.add_argument("command", nargs=argparse.REMAINDER, help="STAGE ARGS... of gyrocal")
     args = parser.parse_args(argv)
-    return run(args.command, args.memory_mb, args.timeout_s)
+    return run(args.command, args.memory_mb, args.timeout_s, args.attempt)
 
 
 if __name__ == "__main__":

@@ -132,14 +132,41 @@ drift: {tolerance: {"bias.*": 0.005}}
 """
 
 
-def snakemake(workdir, *args, timeout=900):
+def snakemake_command(workdir, *args) -> list[str]:
+    """The command that runs the repository's workflow in ``workdir`` with its config.yaml."""
+    import sys
+    return [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
+            "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
+            "--cores", "2", *map(str, args)]
+
+
+def snakemake(workdir, *args, timeout=900, env=None):
     """Run the repository's workflow in ``workdir`` with its config.yaml."""
     import subprocess
-    import sys
-    return subprocess.run(
-        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-         "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
-         "--cores", "2", *args], capture_output=True, text=True, timeout=timeout)
+    return subprocess.run(snakemake_command(workdir, *args), capture_output=True, text=True,
+                          timeout=timeout, env=env)
+
+
+def assert_every_file_whole(wd):
+    """Every result, report and summary that exists reads as what its name says."""
+    import json
+    import pyarrow.parquet as pq
+    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
+             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
+    assert files
+    for path in files:
+        if path.suffix == ".parquet":
+            pq.read_table(path)
+        elif path.suffix == ".json":
+            json.loads(path.read_text())
+        elif path.suffix == ".html":
+            assert path.read_text().rstrip().endswith("</html>"), path
+
+
+def leftovers(wd):
+    """Temporary files and folders (pathlib's * matches hidden names too)."""
+    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
+            for p in (wd / root).rglob(pattern)]
 
 
 @pytest.fixture(scope="session")
@@ -154,3 +181,9 @@ def fleet_run(tmp_path_factory):
     out = snakemake(wd)
     assert out.returncode == 0, out.stderr[-3000:]
     return wd
+
+
+def pytest_report_header(config):
+    """The SLURM the scheduler tests run on (tests/test_slurm.py), named in every run."""
+    from .slurm import installed_version
+    return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"

@@ -124,9 +124,9 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
 @needs({"snakemake-executor-plugin-slurm": importlib.util.find_spec("snakemake_executor_plugin_slurm") is not None},
        "a test extra")
 def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
-    """The SLURM profile parses with its plugin and groups the units (a dry run: no
-    SLURM here). Two units, five to a job: one group job of their 4 jobs each, the fleet
-    summary and `all`."""
+    """The SLURM profile parses with its plugin and groups the units (a dry run;
+    tests/test_slurm.py runs it on a SLURM cluster). Two units, five to a job: one group
+    job of their 4 jobs each, the fleet summary and `all`."""
     folder = fleet_folder(tmp_path / "slurm")
     out = snakemake(folder, "--profile", str(PROFILES / "slurm"), "--dry-run")
     assert out.returncode == 0, out.stderr[-3000:]

@@ -25,7 +25,7 @@ from gyrocal.calibration import load_calibration
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 from gyrocal.tables import write_table
 
-from .conftest import REPO, snakemake
+from .conftest import REPO, assert_every_file_whole, leftovers, snakemake
 
 SESSION = "2026-01-01"
 CONFIG = """devices: devices.tsv
@@ -60,26 +60,6 @@ def fleet(tmp_path, logs, devices, config=CONFIG):
 
 def unit(wd, device):
     return wd / "results" / "B1" / device / SESSION
-
-
-def assert_every_file_whole(wd):
-    """Every result, report and summary that exists reads as what its name says."""
-    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
-             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
-    assert files
-    for path in files:
-        if path.suffix == ".parquet":
-            pq.read_table(path)
-        elif path.suffix == ".json":
-            json.loads(path.read_text())
-        elif path.suffix == ".html":
-            assert path.read_text().rstrip().endswith("</html>"), path
-
-
-def leftovers(wd):
-    """Temporary files and folders (pathlib's * matches hidden names too)."""
-    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
-            for p in (wd / root).rglob(pattern)]
 
 
 @pytest.mark.slow
@@ -164,6 +144,11 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     assert time_out in (wd / "reports" / "B1" / "K3" / f"{SESSION}.html").read_text()
     assert_every_file_whole(wd)
     assert not leftovers(wd)
+    # Each job's log ends with what its stage cost (benchmarks/throughput.py reads it).
+    for stage in ("segment", "analyse", "report"):
+        log = (wd / "logs" / stage / "B1" / "K1" / f"{SESSION}.log").read_text()
+        assert re.search(rf"^gyrocal.guard: {stage} took [\d.]+ s, [\d.]+ s CPU, \d+ MiB peak$",
+                         log, flags=re.M), log
 
 
 def test_a_memory_error_is_recorded_as_such():
@@ -194,3 +179,28 @@ def test_a_write_that_fails_leaves_the_file_it_replaces(tmp_path):
         (tmp / "index.html").write_text("new")
     assert (folder / "index.html").read_text() == "new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle", "table.parquet"]
+
+
+@pytest.mark.parametrize("left, limit, keep", [("1:40", "2:00", 70.0), ("1-02:03:04", "2-00:00:00", 93754.0),
+                                               ("0:20", "1:00", 0.0)])
+def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_limit(
+        tmp_path, monkeypatch, left, limit, keep):
+    """Inside a SLURM job, on the last of the workflow's attempts, the guard asks squeue
+    for the job's time left and keeps 30 s of it for the steps after segmentation (none
+    left: stopped at once). Before the last attempt, and outside SLURM, it does not: the
+    scheduler ends the job and Snakemake retries it with more time."""
+    from gyrocal import guard
+    squeue = tmp_path / "squeue"
+    squeue.write_text(f'#!/bin/sh\necho "$@" > {tmp_path / "args"}\necho "{left}|{limit}"\n')
+    squeue.chmod(0o755)
+    monkeypatch.setenv("PATH", f"{tmp_path}{os.pathsep}{os.environ['PATH']}")
+    monkeypatch.setenv("SLURM_JOB_ID", "29")
+    monkeypatch.setenv(guard.ATTEMPTS_ENV, "2")
+    reason = f"would outrun its SLURM job's time limit ({limit}, attempt 2 of 2)"
+    assert guard.scheduler_limit("segment", 2) == (keep, reason)
+    assert (tmp_path / "args").read_text().split() == ["--noheader", "--jobs=29", "--format=%L|%l"]
+    assert guard.scheduler_limit("segment", 1) is None
+    monkeypatch.delenv(guard.ATTEMPTS_ENV)  # run by hand: every attempt is the last
+    assert guard.scheduler_limit("segment", 1)[1] == f"would outrun its SLURM job's time limit ({limit})"
+    monkeypatch.delenv("SLURM_JOB_ID")
+    assert guard.scheduler_limit("segment", 2) is None

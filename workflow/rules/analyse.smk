@@ -36,6 +36,7 @@ rule analyse:
     resources:
         mem_mb=lambda wildcards, attempt: 1000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
+        attempt=lambda wildcards, attempt: attempt,
     params:
         guard=GUARD,
         limits=job_limits,
@@ -43,5 +44,5 @@ rule analyse:
         other=other_session_option,
         version=GYROCAL_VERSION,
     shell:
-        "{params.guard} {params.limits} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
+        "{params.guard} --attempt {resources.attempt} {params.limits} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
         "--record-failures > {log:q} 2>&1"

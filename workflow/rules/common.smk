@@ -63,6 +63,15 @@ TERM_FILES = config["model"].get("term_files", []) + [
 ]
 
 
+# How many attempts a job has (the profiles retry a job the scheduler ended, once, with
+# doubled resources), for gyrocal.guard: on the last, it records a unit whose stage would
+# outrun its SLURM job's time limit, so that the fleet summary still comes. Known when the
+# run starts, in the main process, whose environment its jobs inherit (sbatch
+# --export=ALL); each job's own attempt is its `attempt` resource, in its command.
+onstart:
+    os.environ.update(GYROCAL_ATTEMPTS=str(workflow.execution_settings.retries + 1))
+
+
 wildcard_constraints:
     batch=BATCH_PATTERN,
     device=DEVICE_PATTERN,

@@ -20,6 +20,7 @@ rule report:
     resources:
         mem_mb=lambda wildcards, attempt: 1000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
+        attempt=lambda wildcards, attempt: attempt,
     params:
         guard=GUARD,
         limits=job_limits,
@@ -28,5 +29,5 @@ rule report:
         ),
         version=GYROCAL_VERSION,
     shell:
-        "{params.guard} {params.limits} report $(dirname {input.cal:q}) -o {output:q} {params.args} "
+        "{params.guard} --attempt {resources.attempt} {params.limits} report $(dirname {input.cal:q}) -o {output:q} {params.args} "
         "--record-failures > {log:q} 2>&1"

@@ -15,11 +15,12 @@ rule segment:
     resources:
         mem_mb=lambda wildcards, attempt: 2000 * attempt,
         runtime=lambda wildcards, attempt: 5 * attempt,
+        attempt=lambda wildcards, attempt: attempt,
     params:
         guard=GUARD,
         limits=job_limits,
         args=segment_args,
         version=GYROCAL_VERSION,
     shell:
-        "{params.guard} {params.limits} segment {params.args} --out $(dirname {output.obs:q}) "
+        "{params.guard} --attempt {resources.attempt} {params.limits} segment {params.args} --out $(dirname {output.obs:q}) "
         "--record-failures > {log:q} 2>&1"
