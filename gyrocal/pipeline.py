@@ -188,5 +188,6 @@ def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings) 
     own = protocols.get(cal.meta.get("protocol")).validate
     if own is not None:
         return own(obs, cal)
-    val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature)
+    val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature,
+                   every_point=False)
     return replace(val, free_points=free_point_fits(obs)) if cal.kind == "continuous" else val

@@ -93,12 +93,19 @@ def single_point_model(model: Model) -> Model:
 
 
 def validate(model: Model, obs: pd.DataFrame, fitted, *,
-             reference_temperature: float = 25.0) -> Validation:
+             reference_temperature: float = 25.0, every_point: bool = True) -> Validation:
     """Compare the three methods on every hold with a calibration that never saw it.
 
     ``fitted`` is a :class:`~gyrocal.thermal.GridFit` or :class:`ContinuousFit`. With two
     or more temperature points each point is held out in turn; with one, each hold of that
     point is left out of its own fit instead.
+
+    A session-wide term that only one point's holds excite (a step in time inside one
+    soak) makes that point impossible to leave out. ``every_point`` then raises
+    :class:`CannotLeaveOut` (the diagnosis compares models on the same holds); otherwise
+    that point's holds are compensated by the whole fit and not scored, and the summary
+    counts them (``points_not_left_out``), so that a calibration with such a term is still
+    made and validated on the other points.
     """
     n = len(obs)
     data = model.transform_inputs(columns_of(obs))
@@ -108,14 +115,15 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     plan = None
     if len(used) >= 2:
         try:
-            plan = _leave_temperature_out(model, fitted, data, reference_temperature)
+            plan = _leave_temperature_out(model, fitted, data, reference_temperature,
+                                          every_point=every_point)
         except CannotLeaveOut:
             if fitted.kind == "grid":  # a joint grid too: its holds cannot be left out alone
                 raise
             # A continuous model whose temperature terms need every point (a degree-2
             # polynomial on three points): only holds can be left out.
     if plan is not None:
-        interp, single, clamped, ref_temp = plan
+        interp, single, clamped, ref_temp, not_left_out = plan
         held_out = "temperature"
     elif len(used) >= 2:
         interp, clamped = _leave_hold_out(model, fitted, data, every_point=True)
@@ -164,14 +172,18 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         "temperature_points": int(len(used)),
         "model_kind": fitted.kind,
     }
+    if plan is not None and not_left_out:
+        summary["points_not_left_out"] = not_left_out
     return Validation(holds, _table(scored, samples=False), _table(scored, samples=True),
                       _by_temperature(holds), summary)
 
 
-def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float):
+def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float, *,
+                           every_point: bool = True):
     """Per hold: the calibration without its own point (interpolated, or refitted for a
     continuous model) and the one-point calibration at the reference point (the next
-    nearest when the reference is the point held out)."""
+    nearest when the reference is the point held out); with ``every_point`` false, a point
+    that cannot be left out gets the whole fit, its holds marked as not scored."""
     n, C = len(data["temp"]), len(fitted.names)
     temp, point = data["temp"], data["point"].astype(int)
     used = fitted.used_points()
@@ -192,23 +204,27 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     interp = _Plan(model, fitted.names, np.empty((n, C)), np.empty((n, C, C)), temp.copy())
     single = _Plan(one_point, tuple(one_point.names), np.empty((n, Cs)), np.empty((n, Cs, Cs)), temp.copy())
     clamped, ref_temp = np.empty(n, dtype=bool), np.empty(n)
+    not_left_out = 0
     for p in np.unique(point):
         rows = np.flatnonzero(point == p)
         loo = fitted.leave_out(int(p))
         if loo is None:
-            raise CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C leaves "
-                                  "nothing to calibrate from")
-        interp.values[rows] = loo.coefficients_at(temp[rows])
-        interp.cov[rows] = loo.covariance_at(temp[rows])
-        lo, hi = loo.coefficients.span
+            if every_point or not_left_out + 1 >= len(used):
+                raise CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C "
+                                      "leaves nothing to calibrate from")
+            not_left_out += 1
+        source = fitted if loo is None else loo
+        interp.values[rows] = source.coefficients_at(temp[rows])
+        interp.cov[rows] = source.covariance_at(temp[rows])
+        lo, hi = source.coefficients.span
         interp.temp[rows] = np.clip(temp[rows], lo, hi)
-        clamped[rows] = loo.outside(temp[rows])
+        clamped[rows] = True if loo is None else loo.outside(temp[rows])
         k = reference_point(point_temps, reference_temperature,
                             exclude=used.index(int(p)) if int(p) in used else None)
         ref = single_fit(used[k])
         single.values[rows], single.cov[rows] = ref.values, ref.covariance
         ref_temp[rows] = point_temps[k]
-    return interp, single, clamped, ref_temp
+    return interp, single, clamped, ref_temp, not_left_out
 
 
 def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = False):

@@ -121,6 +121,13 @@ def hold_means_of_samples(log, obs, term) -> dict[str, np.ndarray]:
 
 
 LIBRARY = sorted(n for n in TERMS if n != "expression")
+# A spline's knots are the user's: its default pair (0, 1) is not a shape of a session's
+# time. These are the spacing the diagnosis offers (holds apart), over a session's time
+# and over rates, alone and times the own rate.
+SPLINES = ['smooth(input="t", knots=[0, 600, 1800, 3600, 5400])',
+           'smooth(input="rate_own", knots=[-400, -100, 0, 100, 400], linear=False)',
+           'smooth(input="t", knots=[0, 900, 2700, 5400], by="rate_own")']
+LIBRARY = [n for n in LIBRARY if n != "smooth"] + SPLINES
 USER_FORMULAS = ["exp(-t / 1000)", "t / 3600 * rate_x", "lag(temp, 900) - temp",
                  "temp_rate * abs(rate_z)", "accel_z * sin(t / 500)"]
 
@@ -165,6 +172,7 @@ def test_fit_and_apply_see_the_same_user_effect(observed, spec):
 
 def test_each_library_term_is_checked():
     assert {"bias", "scale", "misalignment", "temp_lag", "temp_rate", "g_sensitivity"} <= set(LIBRARY)
+    assert set(TERMS) - {"expression"} == {make_term(s).name for s in LIBRARY}
 
 
 # -- the warm-up case end to end -----------------------------------------------------------

@@ -213,6 +213,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                                 and not shaped and not (drift and drift["explains"]))))
     if noise_explains:
         explains, useful, drift, why = True, [], None, None
+    if why is None and not explains and best is None and not resolvable and not noise_explains:
+        # An in-sample excess whose held-out error is within what a correct model leaves,
+        # up to the validation's own uncertainty: too small to name anything from.
+        why = {"reason": "too small", "term": None,
+               "text": (f"on the holds left out the model's error, {v0:.3g} deg/s, is within "
+                        f"what a correct model would leave ({expected:.3g}) up to the validation's "
+                        "own uncertainty: too small to attribute to an effect"),
+               "would_tell": "more holds where the excess lives (longer soaks, more rates or "
+                             "temperatures), or another session (--other-session)"}
     estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]
@@ -230,7 +239,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         unseparable=[c for c in candidates if c.status == "not identifiable"])
     if timed:
         text += " " + drift_sentence(base, drift)
-    if why is not None:
+    if why is not None and not (why["reason"] == "too small" and "too small" in text):
         text += (f" No term of free shape can be offered: {why['text']}; {why['would_tell']} "
                  "would tell.")
     residuals = obs.reset_index(drop=True).assign(

@@ -49,7 +49,9 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
     are positive (the profile scans them on a log scale): a location is measured from just
     below the lowest value seen."""
     span = max(hi - lo, 1e-9)
-    base = float(f"{lo - 0.01 * span:.4g}")
+    origin = float(f"{lo - 0.01 * span:.4g}")
+    # ``{x} - origin`` written as a reader would: "t + 10.3", not "t - -10.3".
+    base = f"{{x}} - {origin!r}" if origin >= 0 else f"{{x}} + {-origin!r}"
     if name == "t":
         # A decay within minutes of power-on and one over the session, apart: two at once
         # (a fast and a slow warm-up) are then two terms the profile keeps distinct.
@@ -57,12 +59,12 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
         return [("decay", "exp(-{x} / tau)", {"tau": [split, 4.0 * hi]}),
                 ("fast decay", "exp(-{x} / tau)", {"tau": [max(hold / 2, 5.0), split]}),
                 ("power", "(1 + {x} / t0) ** (-p)", {"t0": [1.0, hi], "p": [0.05, 4.0]}),
-                ("step", f"tanh(({{x}} - {base!r} - m) / {float(f'{max(hold / 4, 1.0):.2g}')!r})",
+                ("step", f"tanh(({base} - m) / {float(f'{max(hold / 4, 1.0):.2g}')!r})",
                  {"m": [0.005 * span, 1.01 * span]})]
     if name == "temp":
-        return [("bump", f"exp(-(({{x}} - {base!r} - m) / w) ** 2)", {"m": [0.005 * span, 1.01 * span],
+        return [("bump", f"exp(-(({base} - m) / w) ** 2)", {"m": [0.005 * span, 1.01 * span],
                                                                    "w": [0.02 * span, span]}),
-                ("step", f"tanh(({{x}} - {base!r} - m) / w)", {"m": [0.005 * span, 1.01 * span],
+                ("step", f"tanh(({base} - m) / w)", {"m": [0.005 * span, 1.01 * span],
                                                            "w": [0.005 * span, 0.5 * span]})]
     if name == "rate_own":
         top = max(abs(lo), abs(hi))

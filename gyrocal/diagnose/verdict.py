@@ -269,7 +269,12 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
                 "text": f"the shape that fits best, {best.term}, does not hold on the other session "
                         f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
                         "is not the same function of its input from one session to the next",
-                "would_tell": WOULD_TELL[kind]}
+                # Another session is what showed this: what would tell is an input that
+                # follows the effect in both.
+                "would_tell": "a logged input that follows it in both sessions (a temperature "
+                              "nearer its source, the rig's own state such as its motor's "
+                              "temperature), or a protocol that repeats the same history in "
+                              "every session"}
     left = best.leftover or {}
     follows = left.get("covariate")
     if follows and left.get("p_value", 1.0) < 0.01:
