@@ -285,7 +285,13 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
         gaining.sort(key=lambda c: c.validation_rms_with)
         ranked = [c for c in tried if c.status == "ranked" and c.term in shapes]
         for first in gaining[:2]:
-            pair = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance,
+            # An empirical term already spans every shape of its input: it pairs only with
+            # shapes of another input (or the same one times the rate).
+            own = shapes[first.term]
+            partners = [c for c in ranked if not (
+                shapes[c.term].input == own.input and shapes[c.term].by == own.by
+                and "empirical" in (shapes[c.term].kind, own.kind))]
+            pair = second_step(judge, first, partners, base.summary["validation_rms"], tolerance,
                                in_sample=True)
             if pair is not None:
                 good.append((pair, shapes[first.term]))
