@@ -8,7 +8,8 @@ instead of reading the file again. The batches are the ones the reader would hav
 itself (same reader, batch size and buffer), so results are the same to the bit. At most
 ``DEPTH`` batches wait; past that the thread waits for the reader, so memory stays bounded.
 
-Light on purpose: imports only pyarrow.parquet, so that reading starts at once.
+Light on purpose: imports only pyarrow.parquet (and pyarrow.compute, whose functions the
+decoder uses), so that reading starts at once.
 """
 
 from __future__ import annotations
@@ -42,6 +43,12 @@ class ReadAhead:
 
     def _run(self) -> None:
         try:
+            # Arrow's compute functions (a cast the decoder makes) are registered when
+            # pyarrow.compute is first imported: importing it here, under the import lock,
+            # makes sure they are before this thread decodes, whatever the main thread is
+            # importing meanwhile ("No function registered with name: cast" otherwise, now
+            # and then).
+            import pyarrow.compute  # noqa: F401
             import pyarrow.parquet as pq
             reader = pq.ParquetFile(self.path, pre_buffer=False, buffer_size=BUFFER_BYTES)
             names = set(reader.schema_arrow.names)

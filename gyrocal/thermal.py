@@ -592,15 +592,34 @@ def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3
     if any(t.nonlinear() for t in model.terms):
         from .profile import profiled_fit
         data = columns_of(obs)  # once, not at each of the profile's few dozen fits
+        made: dict[str, dict] = {}
+
+        def design_of(m: Model, inputs) -> dict | None:
+            # The profile moves one setting: the other terms' columns are the same at every
+            # value, so each is made once (not where a term moves the inputs themselves).
+            if inputs is not data:
+                return None
+            out: dict = {}
+            for term in m.terms:
+                key = term.spec_string()
+                if key not in made:
+                    made[key] = Model((term,)).design(data)
+                out.update(made[key])
+            return out
         return profiled_fit(model, lambda m: _fit_linear(m, data, kind=kind, method=method,
-                                                          degree=degree, source=source))
+                                                          degree=degree, source=source,
+                                                          design_of=design_of))
     return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
 
 
-def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None):
+def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None,
+                design_of: Callable | None = None):
     data = model.transform_inputs(columns_of(obs))
     if kind == "continuous":
-        return fit_continuous(model, data, source=source)
+        if design_of is None:
+            return fit_continuous(model, data, source=source)
+        model.check_inputs(data, source)
+        return fit_continuous(model, data, source=source, design=design_of(model, data))
     temperature_only = [t.spec_string() for t in model.terms
                         if t.varies_with_temperature and t.coefficient_scope != "global"]
     if temperature_only:

@@ -67,17 +67,27 @@ def _between(z: np.ndarray, labels: np.ndarray) -> tuple[float, int]:
     return float(np.sum(sums[used] ** 2 / counts[used, None])), int(used.sum())
 
 
-def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
-                    dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
-    """Share of the excess χ² each covariate accounts for, ranked; heat maps.
+class _Layout(NamedTuple):
+    """How a session's holds group by each covariate: what :func:`covariate_table` needs
+    besides the residuals, the same for every fit of the same holds."""
+    labels: dict            # covariate label -> group of each fitted hold
+    groups: list            # covariates that group the holds identically, each a list
+    joints: list            # per group: (joint labels with its baseline, baseline labels)
+    product_bins: dict      # input -> bins for the rate-product rows
+    rates: np.ndarray       # (fitted holds, 3) true rates
+    heat: dict              # map name -> [(cell key, rows)]
 
-    A covariate's share is what grouping the holds by it adds to the grouping it is judged
-    against (:data:`BASELINE`; none for most), beyond chance: for unit-normal residuals the
-    gain is χ² with 3 degrees of freedom per extra group, whose expectation is subtracted
-    and whose p-value is reported. Covariates that group the holds identically (on three
-    mounts: the mount, the rotating axis and the accelerometer) are one row, since the
-    protocol cannot tell them apart. Without a significant excess there is nothing to share
-    out: the shares are None."""
+
+# The diagnosis shares out the residuals of many fits of the same holds (every candidate's
+# leftover): their grouping is made once. Entries keep their frames alive, so an id is not
+# reused while cached.
+_LAYOUTS: list = []
+
+
+def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
+    for o, d, r, layout in _LAYOUTS:
+        if o is obs and d is data and np.array_equal(r, fitted_rows):
+            return layout
     frame = pd.DataFrame({k: v for k, v in data.items() if np.ndim(v) == 1})
     frame["mount"] = obs["mount"].astype(str).to_numpy()
     frame["rotating axis"] = obs["axis"].astype(str).to_numpy()
@@ -85,9 +95,6 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
     frame["direction"] = np.sign(data["ref_rate"])
     frame["time"] = (data["t_start"] - data["t_start"].min()) / 3600.0
     frame = frame[fitted_rows].reset_index(drop=True)
-    zz = z[fitted_rows]
-    total = float(np.sum(zz ** 2))
-    excess = max(total - dof, 1e-9)
     labels: dict[str, np.ndarray] = {}
     for label, column in {**COVARIATES, "rotating axis": "rotating axis"}.items():
         if column not in frame:
@@ -119,13 +126,48 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
                 break
         else:
             groups.append([label])
-    rows = []
+    joints = []
     for names in groups:
-        lead = names[0]
-        base_name = BASELINE.get(lead)
+        base_name = BASELINE.get(names[0])
         base = labels.get(base_name) if base_name else None
         base = np.zeros(len(frame), dtype=np.int64) if base is None else base
-        joint = _partition(np.char.add(np.char.add(base.astype(str), "|"), labels[lead].astype(str)))
+        joint = _partition(np.char.add(np.char.add(base.astype(str), "|"), labels[names[0]].astype(str)))
+        joints.append((joint, base))
+    product_bins = {name: _partition(labels[name]) for name in PRODUCT_INPUTS if name in labels}
+    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float)[fitted_rows] for a in AXES])
+    idx = pd.Series(np.arange(len(frame)))
+    rate_bins = frame["ref_rate"].round(3).to_numpy()
+    temp_bins = frame["temp"].round(0).to_numpy()
+    heat = {
+        "mount_by_rate": [(f"{m}|{r}", g.to_numpy()) for (m, r), g in
+                          idx.groupby([frame["mount"].to_numpy(), rate_bins])],
+        "temperature_by_rate": [(f"{t}|{r}", g.to_numpy()) for (t, r), g in
+                                idx.groupby([temp_bins, rate_bins])],
+    }
+    layout = _Layout(labels, groups, joints, product_bins, rates, heat)
+    _LAYOUTS.insert(0, (obs, data, fitted_rows.copy(), layout))
+    del _LAYOUTS[2:]
+    return layout
+
+
+def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
+                    dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
+    """Share of the excess χ² each covariate accounts for, ranked; heat maps.
+
+    A covariate's share is what grouping the holds by it adds to the grouping it is judged
+    against (:data:`BASELINE`; none for most), beyond chance: for unit-normal residuals the
+    gain is χ² with 3 degrees of freedom per extra group, whose expectation is subtracted
+    and whose p-value is reported. Covariates that group the holds identically (on three
+    mounts: the mount, the rotating axis and the accelerometer) are one row, since the
+    protocol cannot tell them apart. Without a significant excess there is nothing to share
+    out: the shares are None."""
+    layout = _layout(obs, data, fitted_rows)
+    zz = z[fitted_rows]
+    total = float(np.sum(zz ** 2))
+    excess = max(total - dof, 1e-9)
+    rows = []
+    for names, (joint, base) in zip(layout.groups, layout.joints):
+        lead = names[0]
         ss_joint, k_joint = _between(zz, joint)
         ss_base, k_base = _between(zz, base)
         df = 3 * (k_joint - k_base)
@@ -133,23 +175,16 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
         p = float(chi2_sf(gain, df)) if df > 0 else 1.0
         share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
         row = {"covariate": " = ".join(names) if len(names) > 1 else lead, "bins": int(k_joint),
-               "share_of_excess": share, "p_value": p, "within": base_name,
+               "share_of_excess": share, "p_value": p, "within": BASELINE.get(lead),
                "chi2_beyond_chance": max(gain - df, 0.0)}
         if len(names) > 1:
             row["confounded"] = names
             row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
         rows.append(row)
-    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float)[fitted_rows] for a in AXES])
-    rows += _product_rows(labels, zz, rates, excess, excess_significant)
+    rows += _product_rows(layout.product_bins, zz, layout.rates, excess, excess_significant)
     rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
-    rms = lambda g: float(np.sqrt(np.mean(zz[g.to_numpy()] ** 2)))  # noqa: E731
-    idx = pd.Series(np.arange(len(frame)))
-    rate_bins = frame["ref_rate"].round(3).to_numpy()
-    temp_bins = frame["temp"].round(0).to_numpy()
-    heat = {
-        "mount_by_rate": {f"{m}|{r}": rms(g) for (m, r), g in idx.groupby([frame["mount"].to_numpy(), rate_bins])},
-        "temperature_by_rate": {f"{t}|{r}": rms(g) for (t, r), g in idx.groupby([temp_bins, rate_bins])},
-    }
+    heat = {name: {key: float(np.sqrt(np.mean(zz[cell] ** 2))) for key, cell in cells}
+            for name, cells in layout.heat.items()}
     return rows, heat
 
 
@@ -158,7 +193,7 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
 PRODUCT_INPUTS = ("time", "time within a temperature point", "temperature", "temperature rate")
 
 
-def _product_rows(labels: dict, z: np.ndarray, rates: np.ndarray, excess: float,
+def _product_rows(product_bins: dict, z: np.ndarray, rates: np.ndarray, excess: float,
                   excess_significant: bool) -> list[dict]:
     """Rows for products of the rates with an input: within each bin of the input, the
     residuals of each output axis regressed on its own rate (``own axis``: 1 degree of
@@ -169,10 +204,7 @@ def _product_rows(labels: dict, z: np.ndarray, rates: np.ndarray, excess: float,
     if not np.any(rates):
         return []
     out = []
-    for name in PRODUCT_INPUTS:
-        if name not in labels:
-            continue
-        bins = _partition(labels[name])
+    for name, bins in product_bins.items():
         for kind in ("own axis", "cross axes"):
             gain, df = _binned_slopes(bins, z, rates, own=kind == "own axis")
             if df == 0:
