@@ -264,7 +264,12 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
                         "leaving that point out to validate cannot check",
                 "would_tell": WOULD_TELL["time"]}
     best = min(ranked, key=lambda c: c.validation_rms_with)
-    if has_other and best.next_session and "validation_rms" in best.next_session:
+    left = best.leftover or {}
+    follows = left.get("covariate") if left.get("p_value", 1.0) < 0.01 else None
+    # "Does not carry over" only of a shape that explains this session: one that leaves
+    # an excess here too, still following another covariate, is the wrong shape.
+    carried = has_other and best.next_session and "validation_rms" in best.next_session
+    if carried and (best.explains_excess or not follows):
         return {"reason": "does not carry over", "term": best.term,
                 "text": f"the shape that fits best, {best.term}, does not hold on the other session "
                         f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
@@ -275,9 +280,7 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
                               "nearer its source, the rig's own state such as its motor's "
                               "temperature), or a protocol that repeats the same history in "
                               "every session"}
-    left = best.leftover or {}
-    follows = left.get("covariate")
-    if follows and left.get("p_value", 1.0) < 0.01:
+    if follows:
         return {"reason": "depends on more than one input", "term": best.term,
                 "text": f"the shape that fits best, {best.term}, leaves residuals that still follow "
                         f"{follows}: the effect depends on more than the one input a term of free shape "
