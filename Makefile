@@ -16,7 +16,8 @@ $(STAMP): pyproject.toml setup.py requirements.lock gyrocal/_blockstats.c
 	$(BIN)/python -m pip install --quiet -c requirements.lock -e '.[test]'
 	touch $@
 
-# The demo fleet (config/devices.tsv: 6 units in 2 batches, one unit twice), simulated
+# The demo fleet (config/devices.tsv: 7 turntable units in 2 batches, one twice; a servo, a
+# sweep and a real hand-rotation session), simulated
 # and calibrated by the workflow.
 demo: $(STAMP)
 	$(BIN)/snakemake --cores all
