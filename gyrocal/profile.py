@@ -79,8 +79,9 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
                 flat.add((index, name))  # the data do not depend on it: keep the setting
                 continue
             a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-            found = minimize_scalar(chi2_at, bounds=(a, b), method="bounded",
-                                    options={"xatol": 1e-3})
+            with np.errstate(invalid="ignore"):   # a refused value's χ² is inf, on purpose
+                found = minimize_scalar(chi2_at, bounds=(a, b), method="bounded",
+                                        options={"xatol": 1e-3})
             best = found.x if found.fun <= values[k] else grid[k]
             current = _with(current, index, name, math.exp(best))
 
