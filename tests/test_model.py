@@ -199,3 +199,15 @@ def test_a_light_penalty_leaves_a_well_sampled_spline_as_least_squares_fits_it()
     # The bridge stays within the warm-up's own range at the gap's ends (no wild swing).
     ends = model.terms[1].shape({n: bridged.coef(n) for n in bridged.names}, np.array([1200.0, 2600.0]), "x")
     assert np.all(shape <= ends.max() + 0.01) and np.all(shape >= ends.min() - 0.01)
+
+
+def test_holds_share_wander_only_with_bias_instability_or_rate_random_walk():
+    """Whether the fit whitens the holds jointly, and the diagnosis' verdict gives
+    sqrt(χ²/dof) rather than RMS ÷ floor: only when the noise model has flicker or RRW."""
+    from gyrocal.model import shares_wander
+    white = {f"white_{a}": np.full(4, 1e-3) for a in "xyz"}
+    quiet = {**white, **{f"{k}_{a}": np.zeros(4) for k in ("flicker", "rrw") for a in "xyz"}}
+    assert not shares_wander({}) and not shares_wander(quiet)
+    assert shares_wander({**quiet, "rrw_y": np.full(4, 1e-5)})
+    assert shares_wander({**quiet, "flicker_x": np.full(4, 1e-4)})
+    assert not shares_wander({k: v[:1] for k, v in {**quiet, "rrw_y": np.full(4, 1e-5)}.items()})
