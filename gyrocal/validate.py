@@ -123,7 +123,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
             # A continuous model whose temperature terms need every point (a degree-2
             # polynomial on three points): only holds can be left out.
     if plan is not None:
-        interp, single, clamped, ref_temp, not_left_out = plan
+        interp, single, clamped, ref_temp, in_sample_rows = plan
         held_out = "temperature"
     elif len(used) >= 2:
         interp, clamped = _leave_hold_out(model, fitted, data, every_point=True)
@@ -151,7 +151,12 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
             holds[f"{kind}_{a}"] = stacked[:, i]
 
     interior = ~clamped
-    use = interior if interior.any() else np.ones(n, dtype=bool)
+    if plan is None:
+        in_sample_rows = np.zeros(n, dtype=bool)
+    # Holds a point could not be left out for are never scored: with no interior hold, the
+    # ones left out (outside the remaining range) are.
+    use = interior if interior.any() else (~in_sample_rows if (~in_sample_rows).any()
+                                           else np.ones(n, dtype=bool))
     scored = holds[np.tile(use, len(METHODS))]
     overall = {m: _pooled_rms(errors[m][0][use]) for m in METHODS}
     floor_all = _pooled_rms(floor[use])
@@ -167,13 +172,13 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         "single_rms": overall["single"],
         "reference_temperature": float(point_temps[reference_point(point_temps, reference_temperature)]),
         "held_out": held_out,
-        "scored": "interior" if interior.any() else "all",
+        "scored": "interior" if interior.any() else ("left-out" if in_sample_rows.any() else "all"),
         "holds_scored": int(use.sum()),
         "temperature_points": int(len(used)),
         "model_kind": fitted.kind,
     }
-    if plan is not None and not_left_out:
-        summary["points_not_left_out"] = not_left_out
+    if in_sample_rows.any():
+        summary["points_not_left_out"] = int(np.unique(data["point"][in_sample_rows]).size)
     return Validation(holds, _table(scored, samples=False), _table(scored, samples=True),
                       _by_temperature(holds), summary)
 
@@ -204,6 +209,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     interp = _Plan(model, fitted.names, np.empty((n, C)), np.empty((n, C, C)), temp.copy())
     single = _Plan(one_point, tuple(one_point.names), np.empty((n, Cs)), np.empty((n, Cs, Cs)), temp.copy())
     clamped, ref_temp = np.empty(n, dtype=bool), np.empty(n)
+    in_sample_rows = np.zeros(n, dtype=bool)
     not_left_out = 0
     for p in np.unique(point):
         rows = np.flatnonzero(point == p)
@@ -213,6 +219,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
                 raise CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C "
                                       "leaves nothing to calibrate from")
             not_left_out += 1
+            in_sample_rows[rows] = True
         source = fitted if loo is None else loo
         interp.values[rows] = source.coefficients_at(temp[rows])
         interp.cov[rows] = source.covariance_at(temp[rows])
@@ -224,7 +231,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         ref = single_fit(used[k])
         single.values[rows], single.cov[rows] = ref.values, ref.covariance
         ref_temp[rows] = point_temps[k]
-    return interp, single, clamped, ref_temp, not_left_out
+    return interp, single, clamped, ref_temp, in_sample_rows
 
 
 def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = False):

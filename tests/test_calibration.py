@@ -337,29 +337,34 @@ def test_an_error_while_applying_leaves_no_output_and_no_thread(complete_run, lo
             assert not thread.is_alive()
 
 
-def test_a_term_only_one_point_excites_is_calibrated_that_point_not_scored(logs):
+@pytest.mark.parametrize("name", ["complete", "random_unit"])
+def test_a_term_only_one_point_excites_is_calibrated_that_point_not_scored(logs, name):
     """A session-wide step in time inside one temperature point's soak: only that point's
     holds see both of its sides, so leaving it out leaves the step undetermined. The
-    calibration is still made, validated on the other points, and the point is counted."""
+    calibration is still made, validated on the other points, and the point is counted
+    and never scored (on three points, the end points left out are what is scored)."""
     from gyrocal.config import Settings
     from gyrocal.diagnose import extended
     from gyrocal.pipeline import run, segment_log
     from gyrocal.validate import CannotLeaveOut, validate
 
     settings = Settings()
-    obs = segment_log(logs["complete"], settings).observations
+    obs = segment_log(logs[name], settings).observations
     middle = obs[obs["point"] == sorted(obs["point"].unique())[1]]
     t0 = float(obs.attrs["series"].t0)
     at = float(middle["t_start"].median()) - t0
     step = f"expression(label='step', formula='tanh((t - {at:.1f}) / 1)')"
-    result = run(logs["complete"], extended(settings, step))
+    result = run(logs[name], extended(settings, step))
     summary = result.validation.summary
     assert summary["points_not_left_out"] == 1
     assert summary["held_out"] == "temperature"
     # Scored: the interior points' holds (the end points, left out, are outside what
     # remains) but the one that could not be left out.
     points = sorted(obs["point"].unique())
-    assert summary["holds_scored"] == int((~obs["point"].isin([points[0], points[1], points[-1]])).sum())
+    interior = ~obs["point"].isin([points[0], points[1], points[-1]])
+    left_out = ~obs["point"].isin([points[1]])
+    assert summary["holds_scored"] == int((interior if interior.any() else left_out).sum())
+    assert summary["scored"] == ("interior" if interior.any() else "left-out")
     assert np.isfinite(summary["validation_rms"])
     with pytest.raises(CannotLeaveOut, match="leaves nothing to calibrate from"):
         validate(result.fitted.model, result.segmentation.observations, result.fitted)

@@ -77,6 +77,7 @@ class Diagnosis:
     time_drift: dict | None = None            # TIME_DRIFT's fit: the rival no term can beat
     shape_estimate: dict | None = None        # the residuals against the leading input
     unexplained: dict | None = None           # why no term of free shape was offered
+    factor: float | None = None               # the verdict's "times their noise floor"
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -89,6 +90,7 @@ class Diagnosis:
             "significance": self.significance,
             "chi2_red": self.chi2_red, "rms_over_floor": self.rms_over_floor,
             "excess_p_value": self.excess_p_value, "explains_the_data": self.explains,
+            "factor": self.factor,
             "verdict": self.verdict,
             "within_noise_uncertainty": self.within_noise,
             "next_session": self.next_session,
@@ -255,6 +257,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.time_drift = drift
     diag.shape_estimate = estimate
     diag.unexplained = why
+    diag.factor = shown["all"]
     return diag
 
 
@@ -287,14 +290,14 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
         for first in gaining[:2]:
             # An empirical term already spans every shape of its input: it pairs only with
             # shapes of another input (or the same one times the rate).
-            own = shapes[first.term]
+            own = shapes[first.part_of or first.term]
             partners = [c for c in ranked if not (
                 shapes[c.term].input == own.input and shapes[c.term].by == own.by
                 and "empirical" in (shapes[c.term].kind, own.kind))]
             pair = second_step(judge, first, partners, base.summary["validation_rms"], tolerance,
                                in_sample=True)
             if pair is not None:
-                good.append((pair, shapes[first.term]))
+                good.append((pair, own))
                 break
     if not good:
         return None, tried
