@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..terms import AXES, make_term
-from .where import INPUT_OF, input_values, knots_for
+from .where import INPUT_OF, SHAPE_KNOTS, input_values, knots_for
 
 LEADING = 2          # inputs of the leading covariate rows given terms of free shape
 # The input a term of free shape reads for each input of the covariate table: time within
@@ -95,7 +95,9 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
             continue   # a shape of temperature alone is each grid point's bias (or scale)
         seen.add((name, by))
         values = input_values(obs, data, name)[fitted_rows]
-        knots = knots_for(values)
+        # A rate's shape turns within tens of deg/s of zero (a saturation, a dead band) and is
+        # seen at many rates in both directions: two knots more than for time or temperature.
+        knots = knots_for(values, SHAPE_KNOTS + 2 if name == "rate_own" else SHAPE_KNOTS)
         if knots is None:
             continue
         # The model holds the linear part already where the scale (a rate) or a temperature
