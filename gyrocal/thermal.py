@@ -592,45 +592,20 @@ def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3
     if any(t.nonlinear() for t in model.terms):
         from .profile import profiled_fit
         data = columns_of(obs)  # once, not at each of the profile's few dozen fits
-        made: dict = {}
-
-        def point_fits(local: Model, inputs):
-            # A joint grid's per-point fit of its point-scope terms decides which points
-            # take part; the profiled term is global, so it is the same at every value.
-            if inputs is not data:
-                return None
-            name = ("points", tuple(t.spec_string() for t in local.terms))
-            if name not in made:
-                made[name] = fit_grid(local, data, method=method, degree=degree, source=source)
-            return made[name]
-
-        def design_of(m: Model, inputs) -> dict | None:
-            # The profile moves one setting: the other terms' columns are the same at every
-            # value, so each is made once (not where a term moves the inputs themselves).
-            if inputs is not data:
-                return None
-            out: dict = {}
-            for term in m.terms:
-                key = term.spec_string()
-                if key not in made:
-                    made[key] = Model((term,)).design(data)
-                out.update(made[key])
-            return out
+        # A joint grid's per-point fit of its point-scope terms decides which points take
+        # part; the profiled term is global, so it is the same at every value: made once.
+        point_fits: dict = {}
         return profiled_fit(model, lambda m: _fit_linear(m, data, kind=kind, method=method,
                                                           degree=degree, source=source,
-                                                          design_of=design_of,
                                                           point_fits=point_fits))
     return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
 
 
 def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None,
-                design_of: Callable | None = None, point_fits: Callable | None = None):
+                point_fits: dict | None = None):
     data = model.transform_inputs(columns_of(obs))
     if kind == "continuous":
-        if design_of is None:
-            return fit_continuous(model, data, source=source)
-        model.check_inputs(data, source)
-        return fit_continuous(model, data, source=source, design=design_of(model, data))
+        return fit_continuous(model, data, source=source)
     temperature_only = [t.spec_string() for t in model.terms
                         if t.varies_with_temperature and t.coefficient_scope != "global"]
     if temperature_only:
@@ -646,9 +621,13 @@ def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, sourc
     local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
     per_point = None
     if local.terms:
-        per_point = point_fits(local, data) if point_fits is not None else None
-        if per_point is None:
-            per_point = fit_grid(local, data, method=method, degree=degree, source=source)
+        # Cached only on the inputs as given: a term that moves them (the die's temperature)
+        # changes every point's fit.
+        cached = point_fits if point_fits is not None and data is obs else {}
+        key = tuple(t.spec_string() for t in local.terms)
+        if key not in cached:
+            cached[key] = fit_grid(local, data, method=method, degree=degree, source=source)
+        per_point = cached[key]
     used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
     rows = np.flatnonzero(np.isin(data["point"].astype(int), used))
     dropped = [] if per_point is None else [

@@ -349,6 +349,23 @@ int main(int argc, char **argv)
 """
 
 
+def compiled_samples(header: str, log, tmp_path):
+    """The log's samples (t, gyro, temp) in time order, and what the compiled header's
+    per-sample compensation (:data:`DIE_DRIVER`) makes of them."""
+    (tmp_path / "compensation.h").write_text(header)
+    (tmp_path / "driver.c").write_text(DIE_DRIVER)
+    exe = tmp_path / "driver"
+    built = subprocess.run([GCC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
+                            "-o", str(exe), str(tmp_path / "driver.c"), "-lm"], capture_output=True, text=True)
+    assert built.returncode == 0, built.stderr
+    t = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
+    data = np.column_stack([t.column(c).to_numpy() for c in t.column_names]).astype(np.float64)
+    data.tofile(tmp_path / "in.f64")
+    run = subprocess.run([str(exe), str(tmp_path / "in.f64"), str(tmp_path / "out.f64")], capture_output=True)
+    assert run.returncode == 0
+    return data, np.fromfile(tmp_path / "out.f64", dtype=np.float64).reshape(-1, 4)
+
+
 @needs_gcc
 @pytest.mark.parametrize("case", ["lagrange3", "continuous"])
 def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
@@ -363,18 +380,7 @@ def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
     assert "#define GYROCAL_DIE_TAU (45.0)" in header
     document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
     assert document["die_temperature"]["tau_s"] == 45.0
-    (tmp_path / "compensation.h").write_text(header)
-    (tmp_path / "driver.c").write_text(DIE_DRIVER)
-    exe = tmp_path / "driver"
-    built = subprocess.run([GCC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
-                            "-o", str(exe), str(tmp_path / "driver.c"), "-lm"], capture_output=True, text=True)
-    assert built.returncode == 0, built.stderr
-    t = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
-    data = np.column_stack([t.column(c).to_numpy() for c in t.column_names]).astype(np.float64)
-    data.tofile(tmp_path / "in.f64")
-    run = subprocess.run([str(exe), str(tmp_path / "in.f64"), str(tmp_path / "out.f64")], capture_output=True)
-    assert run.returncode == 0
-    result = np.fromfile(tmp_path / "out.f64", dtype=np.float64).reshape(-1, 4)
+    data, result = compiled_samples(header, log, tmp_path)
     good = np.isfinite(data).all(axis=1)
     np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
     assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
@@ -382,9 +388,6 @@ def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
     logged = cal.compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4],
                                               "temp_logged": data[good, 4]}, warn=False)
     assert np.max(np.abs(result[good, :3] - logged)) > 1e-3
-
-
-SPLINE_DRIVER = DIE_DRIVER
 
 
 def spline_calibration(kind: str):
@@ -427,18 +430,7 @@ def test_compiled_c_adds_the_empirical_terms_as_apply_does(kind, log, tmp_path):
     assert "gyrocal_bspline" in header and "gyrocal_compensate_sample" in header
     document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
     assert {s["input"] for s in document["splines"]} == ({"t"} if kind == "grid" else {"t", "temp"})
-    (tmp_path / "compensation.h").write_text(header)
-    (tmp_path / "driver.c").write_text(SPLINE_DRIVER)
-    exe = tmp_path / "driver"
-    built = subprocess.run([GCC, "-std=c99", "-O2", "-Wall", "-Wextra", "-pedantic", "-Werror",
-                            "-o", str(exe), str(tmp_path / "driver.c"), "-lm"], capture_output=True, text=True)
-    assert built.returncode == 0, built.stderr
-    t = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
-    data = np.column_stack([t.column(c).to_numpy() for c in t.column_names]).astype(np.float64)
-    data.tofile(tmp_path / "in.f64")
-    run = subprocess.run([str(exe), str(tmp_path / "in.f64"), str(tmp_path / "out.f64")], capture_output=True)
-    assert run.returncode == 0
-    result = np.fromfile(tmp_path / "out.f64", dtype=np.float64).reshape(-1, 4)
+    data, result = compiled_samples(header, log, tmp_path)
     good = np.isfinite(data).all(axis=1)
     np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
     # Teeth: without the splines the compensation differs by far more.
