@@ -185,7 +185,7 @@ def main(argv=None) -> int:
         cells = []
         for model in MODELS:
             x = r[model]
-            cells.append(f"{model} " + (f"refused" if "error" in x else
+            cells.append(f"{model} " + ("refused" if "error" in x else
                                         f"{x['magnitude']:.3g}/{x['nominal']:.3g} ({x['used']})"))
         print(f"unit {r['unit']:2d} {r['case']:10s} truth {r['truth']['magnitude']:.3g}/{r['truth']['nominal']:.3g}; "
               + "; ".join(cells))

@@ -43,6 +43,22 @@ def test_every_hold_found_with_the_right_mount_and_rate(logs, name):
     assert sources <= ({"data", "inherited"} if name == "no_mount" else {"column", "both"})
 
 
+def test_each_hold_starts_at_the_table_angle_its_reference_rate_sums_to(logs):
+    """The table's angle at a hold's start is the reference rate summed over the samples
+    before it (what an effect fixed in the lab is seen through)."""
+    log, seg = segment_file(logs["complete"])
+    table = pq.read_table(logs["complete"], columns=["t", "ref_rate"])
+    t, ref = (table[c].to_numpy().astype(float) for c in ("t", "ref_rate"))
+    dt = float(np.median(np.diff(t)))
+    angle = np.r_[0.0, np.cumsum(ref * dt)]
+    obs = seg.observations
+    start = np.searchsorted(t, obs["t_start"].to_numpy())
+    expected = np.mod(angle[start], 360.0)
+    # Equal but for the order of summation (by blocks here, by samples there).
+    gap = np.abs((obs["table_angle"].to_numpy() - expected + 180.0) % 360.0 - 180.0)
+    assert gap.max() < 1e-6, gap.max()
+
+
 @pytest.mark.parametrize("name", ["complete", "no_mount"])
 def test_nothing_from_handling_motion_which_is_reported(logs, name):
     _, seg = segment_file(logs[name])

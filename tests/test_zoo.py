@@ -318,3 +318,57 @@ def test_a_step_in_time_one_session_cannot_validate_is_said_so(tmp_path):
     assert diag.best is None and not diag.explains, diag.verdict
     assert diag.unexplained is not None and diag.unexplained["reason"] == "unvalidated"
     assert "--other-session" in diag.verdict
+
+
+def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
+    """A field fixed in the lab seen through the turning table (the generator draws the
+    table's angle at power-on anew each session): its pattern does not come back in the
+    other session, which alone would call it slow noise (this unit's verdict before). The
+    table's angle explains it: not an effect of the sensor, and the verdict says what
+    would tell."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    unit = make_unit(effect="table_angle_bias", protocol="turntable3", noise="white", seed=3)
+    logs = [tmp_path / f"s{s}.parquet" for s in range(2)]
+    for s, log in enumerate(logs):
+        write_session(unit, log, session=s, seed=3000 + s, rate_hz=25.0)
+    settings = Settings()
+    obs, other = (segment_log(log, settings).observations for log in logs)
+    diag = diagnose(settings, obs, other)
+    assert diag.best is None and not diag.explains, diag.verdict
+    assert diag.unexplained["reason"] == "fixed in the lab", diag.verdict
+    lab = diag.lab_fixed
+    # What is left after the angle's columns is what noise leaves (the χ² test's level).
+    assert lab["left_p_value"] >= settings.diagnosis.significance / 2
+    assert "encoder" in diag.verdict and "slow noise" not in diag.verdict
+
+
+@pytest.mark.parametrize("effect, seed", [("misalign_warp_tanh", 2), ("none", 1)])
+def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, seed, tmp_path):
+    """A package warp that tilts the sense axes past a glass transition between two set
+    points: every point fits within its noise, so the fit's residuals show nothing, but the
+    misalignment interpolated from the other points misses the one fitted at a point left
+    out (19 standard errors on this unit, the zoo's weakest). A unit with slow wander and
+    nothing missing moves its bias between points, which the test leaves alone: quiet."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.config import Settings
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline import segment_log
+
+    noise = "white" if effect != "none" else "coloured"
+    log = tmp_path / "s0.parquet"
+    write_session(make_unit(effect=effect, protocol="turntable3", noise=noise, seed=seed), log,
+                  session=0, seed=1000 * seed, rate_hz=25.0)
+    settings = Settings()
+    diag = diagnose(settings, segment_log(log, settings).observations)
+    assert diag.explains and diag.best is None, diag.verdict
+    between = diag.between_points
+    if effect == "none":
+        assert not between["fails"] and diag.unexplained is None, diag.verdict
+        return
+    assert between["fails"] and between["worst"]["coefficient"].startswith("misalignment")
+    assert diag.unexplained["reason"] == "between temperature points"
+    assert "nothing is missing" not in diag.verdict and "sweep" in diag.verdict

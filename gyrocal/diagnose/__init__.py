@@ -45,6 +45,8 @@ from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, 
                        usable)
 from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
 from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
+from .between import between_points, between_reason
+from .lab import lab_fixed, lab_reason
 from .shapes import describe, shape_terms
 from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
 
@@ -77,6 +79,8 @@ class Diagnosis:
     time_drift: dict | None = None            # TIME_DRIFT's fit: the rival no term can beat
     shape_estimate: dict | None = None        # the residuals against the leading input
     unexplained: dict | None = None           # why no term of free shape was offered
+    lab_fixed: dict | None = None             # the excess against the table's angle
+    between_points: dict | None = None        # interpolated against fitted, point by point
     factor: float | None = None               # the verdict's "times their noise floor"
 
     def to_dict(self) -> dict:
@@ -98,6 +102,8 @@ class Diagnosis:
             "time_drift": self.time_drift,
             "shape_estimate": self.shape_estimate,
             "unexplained": self.unexplained,
+            "lab_fixed": self.lab_fixed,
+            "between_points": self.between_points,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
@@ -137,8 +143,12 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     base_next = judge.carry(base)
     if base_next is not None and "error" in base_next:
         judge.other = None    # the other session cannot be used: judged on this one alone
+    # An effect fixed in the lab follows the table's angle: it does not repeat between
+    # sessions (the table starts elsewhere) and is no effect of the sensor's.
+    lab = lab_fixed(obs, quality, base.dof, alpha) if not explains else None
+    seen_in_lab = bool(lab and lab["explains"])
     unrepeated = False
-    if not explains and usable(base_next) and base_next["unrepeated_p_value"] is not None:
+    if not explains and not seen_in_lab and usable(base_next) and base_next["unrepeated_p_value"] is not None:
         # An excess that does not come back in the other session, whose residuals differ
         # from this one's by more than the floor, is slow noise, not an effect.
         unrepeated = explains = base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
@@ -194,7 +204,9 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
             break
     lead = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
     why, shaped = None, []
-    if best is None and resolvable and not explains:
+    if best is None and seen_in_lab:
+        why = lab_reason(lab)
+    elif best is None and resolvable and not explains:
         # Nothing in the library explains it: terms of free shape for the inputs that
         # carry the excess, judged as the library's are.
         best, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
@@ -210,7 +222,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # practical part of: nothing in it asks for an effect (slow wander and a one-off
     # effect look alike in one session; another one tells them apart).
     noise_explains = bool(
-        best is None and not explains and within_noise is not None and within_noise["explains"]
+        best is None and not explains and not seen_in_lab and within_noise is not None
+        and within_noise["explains"]
         and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
                                 and not shaped and not (drift and drift["explains"]))))
     if noise_explains:
@@ -224,6 +237,12 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         "own uncertainty: too small to attribute to an effect"),
                "would_tell": "more holds where the excess lives (longer soaks, more rates or "
                              "temperatures), or another session (--other-session)"}
+    # A model that explains the data at its points may still fail between them, which only
+    # leaving points out shows.
+    between = between_points(base.fitted, alpha) if explains and best is None else None
+    if why is None and between is not None and between["fails"]:
+        held_out = s_ex if (s_ex := base.summary.get("excess_over_expected")) and np.isfinite(s_ex) else None
+        why = between_reason(between, held_out)
     estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]
@@ -238,7 +257,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     text = make_verdict(base, best, explains, shown, covariates, "floor_x" in obs,
                         partial, within_noise, unrepeated, base_next if usable(base_next) else None,
                         None if timed else tolerance, noise_explains=noise_explains,
-                        unseparable=[c for c in candidates if c.status == "not identifiable"])
+                        unseparable=[c for c in candidates if c.status == "not identifiable"],
+                        fails_between=bool(why and why["reason"] == "between temperature points"))
     if timed:
         text += " " + drift_sentence(base, drift)
     if why is not None and not (why["reason"] == "too small" and "too small" in text):
@@ -257,6 +277,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.time_drift = drift
     diag.shape_estimate = estimate
     diag.unexplained = why
+    diag.lab_fixed = lab
+    diag.between_points = between
     diag.factor = shown["all"]
     return diag
 

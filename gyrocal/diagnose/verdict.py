@@ -20,10 +20,12 @@ def drift_sentence(base, drift: dict) -> str:
 
 def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
             partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
-            tolerance=None, *, noise_explains: bool = False, unseparable=()) -> str:
+            tolerance=None, *, noise_explains: bool = False, unseparable=(),
+            fails_between: bool = False) -> str:
     text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
                            partial, within_noise, unrepeated, base_next, tolerance,
-                           noise_explains=noise_explains, unseparable=unseparable)
+                           noise_explains=noise_explains, unseparable=unseparable,
+                           fails_between=fails_between)
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
@@ -49,7 +51,7 @@ def _separation(c) -> str:
 
 def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
                     within_noise, unrepeated, base_next, tolerance=None, *,
-                    noise_explains: bool = False, unseparable=()) -> str:
+                    noise_explains: bool = False, unseparable=(), fails_between: bool = False) -> str:
     factor = rms_over_floor["all"]
     s = base.summary
     held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
@@ -117,9 +119,12 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"noise floor, but their pattern does not come back in the other session (p = "
                 f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
                 "resolve, not a missing effect.")
+    floor_by = "the sensor's noise model" if noise_model else "white noise within the holds"
+    if fails_between:
+        return (f"The model explains the data at its temperature points: its in-sample residuals "
+                f"are {factor:.2f} times their noise floor, as {floor_by} would leave.")
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
-            "their noise floor, as " + ("the sensor's noise model" if noise_model else
-                                         "white noise within the holds") + " would leave; nothing is missing.")
+            f"their noise floor, as {floor_by} would leave; nothing is missing.")
 
 
 def _profiled_text(c) -> str:

@@ -224,6 +224,9 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     c0, c1 = c0[long_enough], c1[long_enough]
     h = _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var,
                          level[run[c0]], gain[run[c0]], cfg)
+    # The table's angle at each hold's start, from its first sample: the reference rate
+    # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
+    h["table_angle"] = np.mod(np.r_[0.0, np.cumsum(r * block_dt, dtype=np.float64)][c0], 360.0)
 
     # 4. Checks, in order; the first failing one is the reason.
     reason = np.full(len(c0), "", dtype=object)
@@ -575,7 +578,7 @@ def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -
         "rate_x": rate_vec[a, 0], "rate_y": rate_vec[a, 1], "rate_z": rate_vec[a, 2],
         "gyro_x": h["mean"][a, 0], "gyro_y": h["mean"][a, 1], "gyro_z": h["mean"][a, 2],
         "std_x": std[:, 0], "std_y": std[:, 1], "std_z": std[:, 2],
-        "temp": h["temp"][a], "temp_rate": h["temp_rate"][a],
+        "temp": h["temp"][a], "temp_rate": h["temp_rate"][a], "table_angle": h["table_angle"][a],
     })
     if "accel" in h:
         for i, c in enumerate("xyz"):
