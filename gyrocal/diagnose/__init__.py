@@ -2,8 +2,11 @@
 
 One module per question: :mod:`.where` (where the model fails), :mod:`.effects` (which
 effect is missing), :mod:`.sessions` (how a calibration carries over to another session),
-:mod:`.verdict` (the verdict and the advice); :mod:`.evaluation` fits and validates the
-models they compare, :mod:`.stats` holds the tails and bounds of the tests.
+:mod:`.verdict` (the verdict and the advice); :mod:`.lab` (an effect fixed in the lab, seen
+through the turning table) and :mod:`.between` (a calibration that fits every temperature
+point and misses between them) test for two findings no term can hold; :mod:`.evaluation`
+fits and validates the models they compare, :mod:`.stats` holds the tails and bounds of the
+tests.
 
 Three questions, answered from the observations alone:
 
@@ -205,7 +208,9 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     lead = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
     why, shaped = None, []
     if best is None and seen_in_lab:
-        why = lab_reason(lab)
+        # The angle accounts for the whole excess: what terms or a drift take of it is no
+        # part of the answer.
+        why, useful, drift = lab_reason(lab), [], None
     elif best is None and resolvable and not explains:
         # Nothing in the library explains it: terms of free shape for the inputs that
         # carry the excess, judged as the library's are.
@@ -241,8 +246,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # leaving points out shows.
     between = between_points(base.fitted, alpha) if explains and best is None else None
     if why is None and between is not None and between["fails"]:
-        held_out = s_ex if (s_ex := base.summary.get("excess_over_expected")) and np.isfinite(s_ex) else None
-        why = between_reason(between, held_out)
+        held_out = base.summary.get("excess_over_expected")
+        why = between_reason(between, held_out if held_out is not None and np.isfinite(held_out) else None)
     estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]

@@ -69,8 +69,10 @@ def between_reason(check: dict, held_out: float | None) -> dict:
                      f"points misses its {top['coefficient']} by {abs(top['z']):.3g} standard errors "
                      f"({top['difference']:.3g}; scale and misalignment together p "
                      f"{p_text(check['p_value'])}){error}). The sensor's scale or misalignment changes "
-                     f"with temperature more sharply than {check['temperature_points']} points "
-                     "can follow, and a calibration per point absorbs any shape at the points "
-                     "themselves, so no term fitted to them can show it"),
-            "would_tell": (f"more temperature points around {temps} °C, or a temperature sweep "
-                           "held at rates in both directions")}
+                     f"between the points more than interpolation across {check['temperature_points']} "
+                     "points follows: with temperature, more sharply than they resolve, or with "
+                     "time, since the points follow each other in time; a calibration per point "
+                     "absorbs either at the points themselves, so no term fitted to them shows it"),
+            "would_tell": (f"more temperature points around {temps} °C (or a temperature sweep "
+                           "held at rates in both directions) and the first point revisited at "
+                           "the end of the session")}
