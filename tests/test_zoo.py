@@ -3,6 +3,7 @@ from the independent generator (``benchmarks/zoo``), scored as the benchmark sco
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -344,6 +345,7 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     # What is left after the angle's columns is what noise leaves (the χ² test's level).
     assert lab["left_p_value"] >= settings.diagnosis.significance / 2
     assert "encoder" in diag.verdict and "slow noise" not in diag.verdict
+    json.dumps(diag.to_dict(), allow_nan=False)   # what `gyrocal diagnose` writes
 
 
 @pytest.mark.parametrize("effect, seed", [("misalign_warp_tanh", 2), ("none", 1)])
@@ -372,3 +374,4 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     assert between["fails"] and between["worst"]["coefficient"].startswith("misalignment")
     assert diag.unexplained["reason"] == "between temperature points"
     assert "nothing is missing" not in diag.verdict and "sweep" in diag.verdict
+    json.dumps(diag.to_dict(), allow_nan=False)   # what `gyrocal diagnose` writes

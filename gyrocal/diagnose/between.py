@@ -54,7 +54,7 @@ def between_points(fitted, alpha: float) -> dict | None:
     top = max(points, key=lambda r: r["chi2"])
     p_value = min(1.0, len(points) * float(chi2_sf(top["chi2"], top["dof"])))
     return {"points": points, "worst": top, "p_value": p_value, "temperature_points": len(used),
-            "fails": p_value < alpha / 2}
+            "fails": bool(p_value < alpha / 2)}
 
 
 def between_reason(check: dict, held_out: float | None) -> dict:

@@ -73,10 +73,10 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     p_value = float(f_sf(f, q, left_dof))
     left_p = float(chi2_sf(after, left_dof))
     excess = max(before - dof, 0.0)
-    return {"p_value": p_value, "parameters": q, "chi2_before": before, "chi2_after": after,
-            "dof": left_dof, "share_of_excess": min(gain / excess, 1.0) if excess > 0 else 0.0,
+    return {"p_value": p_value, "parameters": int(q), "chi2_before": before, "chi2_after": after,
+            "dof": int(left_dof), "share_of_excess": min(gain / excess, 1.0) if excess > 0 else 0.0,
             "left_p_value": left_p,
-            "explains": p_value < alpha / 2 and left_p >= alpha / 2}
+            "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2)}
 
 
 def lab_reason(lab: dict) -> dict:
