@@ -54,7 +54,7 @@ def test_each_hold_starts_at_the_table_angle_its_reference_rate_sums_to(logs):
     obs = seg.observations
     start = np.searchsorted(t, obs["t_start"].to_numpy())
     expected = np.mod(angle[start], 360.0)
-    # Equal but for the order of summation (by blocks here, by samples there).
+    # Equal but for the order of summation (by blocks there, by samples here).
     gap = np.abs((obs["table_angle"].to_numpy() - expected + 180.0) % 360.0 - 180.0)
     assert gap.max() < 1e-6, gap.max()
 

@@ -21,10 +21,11 @@ def angle_means(obs) -> np.ndarray:
     hold's start and its constant rate over its duration."""
     start = np.radians(obs["table_angle"].to_numpy(dtype=float))
     turn = np.radians(obs["ref_rate"].to_numpy(dtype=float) * obs["duration"].to_numpy(dtype=float))
-    moving = np.abs(turn) > 1e-9
-    safe = np.where(moving, turn, 1.0)
-    cos_mean = np.where(moving, (np.sin(start + turn) - np.sin(start)) / safe, np.cos(start))
-    sin_mean = np.where(moving, (np.cos(start) - np.cos(start + turn)) / safe, np.sin(start))
+    # The mean of cos and sin over [θ₀, θ₀ + φ] is their value at mid-hold times
+    # sin(φ/2) / (φ/2): no cancellation for a hold that hardly turns, exact at rest.
+    middle = start + turn / 2
+    shrink = np.sinc(turn / (2 * np.pi))
+    cos_mean, sin_mean = np.cos(middle) * shrink, np.sin(middle) * shrink
     return np.column_stack([cos_mean, sin_mean])
 
 
