@@ -19,7 +19,8 @@ is scored against what the generator put in:
 * ``named wrong``   — a term named that is not the effect;
 * ``missed``        — a library effect, nothing named;
 * ``false alarm``   — a complete unit (``none``, or an effect the protocol cannot see):
-                      a term named, or the model said not to explain the data;
+                      a term named, the model said not to explain the data, or a finding
+                      no term holds (``unexplained``);
 * ``quiet``         — a complete unit, the model said to explain the data.
 
 Then the suggested fix (the named term added; nothing when nothing is named) is calibrated
@@ -164,7 +165,9 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     row["family"] = (d["best"] or {}).get("family")
     row["unexplained"] = d.get("unexplained")
     if expected == "none":
-        outcome = "false alarm" if (best or not d["explains_the_data"]) else "quiet"
+        # A finding without a term (fixed in the lab, between temperature points) is an
+        # alarm too on a unit with nothing missing.
+        outcome = "false alarm" if (best or not d["explains_the_data"] or row["unexplained"]) else "quiet"
     elif expected == "outside" and row["family"]:
         outcome = "offered"            # a term of free shape: judged on the unseen session
     elif named is not None:
@@ -282,8 +285,11 @@ def markdown_table(rows) -> str:
         counts = Counter(u.get("outcome", "?") for u in units)
         outcomes = ", ".join(f"{n} {o}" for o, n in counts.items())
         named = sorted({u["best"] for u in units if u.get("best")})
-        if named:
-            outcomes += " (" + ", ".join(named) + ")"
+        # Why nothing was offered, in the diagnosis' own words.
+        reasons = sorted({u["unexplained"]["reason"] for u in units
+                          if u.get("outcome") == "said why" and u.get("unexplained")})
+        if named or reasons:
+            outcomes += " (" + ", ".join(named + [f"why: {r}" for r in reasons]) + ")"
 
         def figure(u):
             before, after = u.get("next_before"), u.get("next_after")

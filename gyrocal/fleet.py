@@ -199,7 +199,11 @@ def _missing_effect(path) -> str:
     diag = failure.load_json(path)
     if diag.get("best"):
         return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
-    return "nothing" if diag.get("explains_the_data") else "unexplained excess"
+    found = "nothing" if diag.get("explains_the_data") else "unexplained excess"
+    why = diag.get("unexplained")
+    # A finding no term holds (fixed in the lab, between temperature points) is news even
+    # where the fit explains the data.
+    return f"{found}: {why['reason']}" if why else found
 
 
 def _largest_axis(terms: dict, name: str) -> tuple[float, float]:

@@ -265,3 +265,33 @@ def test_a_holds_mean_cosine_and_sine_of_the_table_angle_are_its_samples_means(s
     sampled = [np.cos(theta).mean(), np.sin(theta).mean()]
     turn = np.radians(rate * duration)
     np.testing.assert_allclose(angle_means(obs)[0], sampled, rtol=0, atol=turn ** 2 / (24 * n ** 2) + 1e-12)
+
+
+def test_the_lab_and_between_points_tests_alarm_on_complete_units_only_at_their_level():
+    """Complete units (the seed-000 model, nothing missing) with table angles unrelated to
+    the data: the angle's F-test and the between-points χ² (Bonferroni over four interior
+    points, conservative) are below 5 % about as often as chance says, and the
+    between-points test fails at its level (0.5 %) at most as often as chance allows."""
+    from scipy.stats import binom
+
+    from gyrocal.diagnose import evaluate
+    from gyrocal.diagnose.between import between_points
+    from gyrocal.diagnose.lab import lab_fixed
+    from gyrocal.diagnose.where import fit_quality
+
+    rng = np.random.default_rng(5)
+    settings = Settings()
+    draws = 60
+    lab_below, between_below, between_fails = 0, 0, 0
+    for _ in range(draws):
+        obs = observations(GyroUnit.seed000(), rng)
+        obs["table_angle"] = rng.uniform(0, 360, len(obs))
+        base = evaluate(settings, obs, "complete")
+        lab = lab_fixed(obs, fit_quality(base, len(obs)), base.dof, 0.01)
+        between = between_points(base.fitted, 0.01)
+        lab_below += lab["p_value"] < 0.05
+        between_below += between["p_value"] < 0.05
+        between_fails += between["fails"]
+    bound = binom.ppf(0.999, draws, 0.05)          # 10 of 60
+    assert lab_below <= bound and between_below <= bound, (lab_below, between_below)
+    assert between_fails <= binom.ppf(0.999, draws, 0.005)

@@ -49,7 +49,7 @@ from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, 
 from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
 from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
 from .between import between_points, between_reason
-from .lab import lab_fixed, lab_reason
+from .lab import LAB_ADVICE, lab_fixed, lab_reason
 from .shapes import describe, shape_terms
 from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
 
@@ -244,10 +244,16 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                              "temperatures), or another session (--other-session)"}
     # A model that explains the data at its points may still fail between them, which only
     # leaving points out shows.
-    between = between_points(base.fitted, alpha) if explains and best is None else None
+    # Only where the fit's own χ² test passes (not where slow noise was judged to account for
+    # it) and the held-out error misses what a correct model leaves: no name without a gain.
+    fit_passes = quality.excess_p_value >= alpha / 2
+    between = (between_points(base.fitted, alpha)
+               if fit_passes and resolvable and best is None and not noise_explains else None)
     if why is None and between is not None and between["fails"]:
         held_out = base.summary.get("excess_over_expected")
-        why = between_reason(between, held_out if held_out is not None and np.isfinite(held_out) else None)
+        left_out = base.summary.get("held_out") == "temperature" and held_out is not None \
+            and np.isfinite(held_out)
+        why = between_reason(between, held_out if left_out else None)
     estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]
@@ -263,12 +269,14 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         partial, within_noise, unrepeated, base_next if usable(base_next) else None,
                         None if timed else tolerance, noise_explains=noise_explains,
                         unseparable=[c for c in candidates if c.status == "not identifiable"],
-                        fails_between=bool(why and why["reason"] == "between temperature points"))
+                        fails_between=bool(why and why["reason"] == "between temperature points"),
+                        seen_in_lab=seen_in_lab)
     if timed:
         text += " " + drift_sentence(base, drift)
+    if why is not None:
+        why.setdefault("lead", "No term of free shape can be offered")
     if why is not None and not (why["reason"] == "too small" and "too small" in text):
-        text += (f" No term of free shape can be offered: {why['text']}; {why['would_tell']} "
-                 "would tell.")
+        text += f" {why['lead']}: {why['text']}; {why['would_tell']} would tell."
     residuals = obs.reset_index(drop=True).assign(
         **{f"{q}_{a}": v[:, i] for q, v in (("resid", quality.resid), ("floor", quality.floor),
                                              ("z", quality.z)) for i, a in enumerate(AXES)})
@@ -278,7 +286,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.ladder = ladder(settings, obs, base)
     diag.within_noise = within_noise
     diag.next_session = base_next
-    diag.advice = advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
+    diag.advice = [LAB_ADVICE] if seen_in_lab and best is None else \
+        advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
     diag.time_drift = drift
     diag.shape_estimate = estimate
     diag.unexplained = why

@@ -14,19 +14,36 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..thermal import GridFit
 from .stats import chi2_sf, p_text
+
+# Points the interpolation reads at once: with one point left out, at least this many must
+# remain, or the point is interpolated by a lower-order rule than the calibration uses (three
+# points leave two: a line, where the calibration runs a parabola).
+STENCIL = {"lagrange3": 3, "linear": 2, "spline": 4}
+
+
+def _uncertainty(fit) -> np.ndarray:
+    """A point fit's covariance at least as large as the noise floor says: a fit's matrix is
+    scaled by its own reduced χ², which a few holds estimate poorly and can put below 1."""
+    factor = np.array([max(1.0, fit.chi2[a] / fit.dof[a]) / (fit.chi2[a] / fit.dof[a])
+                       if fit.chi2[a] > 0 else 1.0 for a in (n.split(".")[1] for n in fit.names)])
+    return fit.covariance * np.sqrt(np.outer(factor, factor))
 
 
 def between_points(fitted, alpha: float) -> dict | None:
     """Per interior point, χ² of (fitted - interpolated) scale and misalignment against the
-    sum of both covariances; the largest, Bonferroni over the points, judged at ``alpha``/2.
-    None for fits not made per point, or with no interior point left out."""
-    if getattr(fitted, "kind", None) != "grid" or not hasattr(fitted, "point_fit"):
+    sum of both covariances (the point's fit and the others' are independent); the largest,
+    Bonferroni over the points, judged at ``alpha``/2. None for fits not made point by point
+    (a joint grid's points share coefficients), or with no interior point to leave out."""
+    if not isinstance(fitted, GridFit):
         return None
     names = list(fitted.names)
     pick = [i for i, n in enumerate(names) if n.split(".")[0] in ("scale", "misalignment")]
     used = list(fitted.used_points())
-    if not pick or len(used) < 3:
+    grid = fitted.grid
+    stencil = STENCIL.get(grid.method, grid.degree + 1)
+    if not pick or len(used) < stencil + 1:
         return None
     temps = fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float)
     points = []
@@ -36,34 +53,44 @@ def between_points(fitted, alpha: float) -> dict | None:
         if loo is None or loo.outside(at).any():
             continue
         own = fitted.point_fit(int(p))
+        others = np.einsum("p,pcd->cd", loo.grid.weights(at)[0] ** 2,
+                           np.array([_uncertainty(f) for f in loo.fits]))
         diff = (own.values - loo.coefficients_at(at)[0])[pick]
-        cov = (own.covariance + loo.covariance_at(at)[0])[np.ix_(pick, pick)]
-        try:
-            chi2 = float(diff @ np.linalg.solve(cov, diff))
-        except np.linalg.LinAlgError:
+        cov = (_uncertainty(own) + others)[np.ix_(pick, pick)]
+        if not (np.all(np.isfinite(diff)) and np.all(np.isfinite(cov))):
             continue
-        if not np.isfinite(chi2):
+        # A coefficient held fixed has no variance: the pseudo-inverse leaves it out, and
+        # the degrees of freedom are those left.
+        rank = int(np.linalg.matrix_rank(cov))
+        if rank == 0:
             continue
-        z = diff / np.sqrt(np.diag(cov))
+        chi2 = float(diff @ np.linalg.pinv(cov) @ diff)
+        sd = np.sqrt(np.diag(cov))
+        z = np.divide(diff, sd, out=np.zeros_like(diff), where=sd > 0)
         worst = int(np.argmax(np.abs(z)))
-        points.append({"temp": float(temp), "chi2": chi2, "dof": len(pick),
+        points.append({"temp": float(temp), "chi2": chi2, "dof": rank,
+                       "p_value": float(chi2_sf(chi2, rank)),
                        "coefficient": names[pick[worst]], "difference": float(diff[worst]),
                        "z": float(z[worst])})
     if not points:
         return None
-    top = max(points, key=lambda r: r["chi2"])
-    p_value = min(1.0, len(points) * float(chi2_sf(top["chi2"], top["dof"])))
-    return {"points": points, "worst": top, "p_value": p_value, "temperature_points": len(used),
-            "fails": bool(p_value < alpha / 2)}
+    tested = len(points)
+    for r in points:
+        r["p_value"] = min(1.0, tested * r["p_value"])   # Bonferroni over the points
+    top = min(points, key=lambda r: r["p_value"])
+    return {"points": points, "worst": top, "p_value": top["p_value"],
+            "temperature_points": len(used), "fails": bool(top["p_value"] < alpha / 2),
+            "failing": [r["temp"] for r in points if r["p_value"] < alpha / 2]}
 
 
 def between_reason(check: dict, held_out: float | None) -> dict:
     """The verdict's why and what would tell, for a calibration that fails between points."""
     top = check["worst"]
-    temps = ", ".join(f"{r['temp']:.0f}" for r in check["points"])
+    temps = ", ".join(f"{t:.0f}" for t in check["failing"])
     error = (f"; left out, a point's holds err {held_out:.3g} times what a correct model would "
              "leave" if held_out is not None else "")
     return {"reason": "between temperature points", "term": None,
+            "lead": "No term of the sensor can hold it",
             "text": (f"the calibration does not hold between the temperature points (leaving out "
                      f"the point at {top['temp']:.0f} °C, the one interpolated from the other "
                      f"points misses its {top['coefficient']} by {abs(top['z']):.3g} standard errors "

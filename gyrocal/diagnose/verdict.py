@@ -21,11 +21,11 @@ def drift_sentence(base, drift: dict) -> str:
 def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
             partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
             tolerance=None, *, noise_explains: bool = False, unseparable=(),
-            fails_between: bool = False) -> str:
+            fails_between: bool = False, seen_in_lab: bool = False) -> str:
     text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
                            partial, within_noise, unrepeated, base_next, tolerance,
                            noise_explains=noise_explains, unseparable=unseparable,
-                           fails_between=fails_between)
+                           fails_between=fails_between, seen_in_lab=seen_in_lab)
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
@@ -51,7 +51,8 @@ def _separation(c) -> str:
 
 def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
                     within_noise, unrepeated, base_next, tolerance=None, *,
-                    noise_explains: bool = False, unseparable=(), fails_between: bool = False) -> str:
+                    noise_explains: bool = False, unseparable=(), fails_between: bool = False,
+                    seen_in_lab: bool = False) -> str:
     factor = rms_over_floor["all"]
     s = base.summary
     held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
@@ -96,6 +97,11 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
                 "noise, and no term takes a practical part of it away. Another session of the unit "
                 "(--other-session) would tell slow wander from an effect.")
+    if seen_in_lab and best is None:
+        # Where the excess lives among the sensor's inputs, or that it is too small, would
+        # point at an effect of the sensor: the sentence that follows says what it is.
+        return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                "times their noise floor, and no candidate term accounts for it.")
     if not explains:
         lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
         where = (f"; the excess lives mostly with {lead['covariate']} "
