@@ -269,8 +269,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         partial, within_noise, unrepeated, base_next if usable(base_next) else None,
                         None if timed else tolerance, noise_explains=noise_explains,
                         unseparable=[c for c in candidates if c.status == "not identifiable"],
-                        fails_between=bool(why and why["reason"] == "between temperature points"),
-                        seen_in_lab=seen_in_lab)
+                        finding=why["reason"] if why else None)
     if timed:
         text += " " + drift_sentence(base, drift)
     if why is not None:

@@ -65,12 +65,13 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
         ok = np.isfinite(z[:, i])
         w = 1.0 / floor[ok, i, None]
         model = own[ok] * w
-        fits = (model, np.column_stack([model, lab[ok] * w]), np.column_stack([model, offsets[ok] * w]))
-        ranks = [np.linalg.matrix_rank(x) for x in fits]
+        y = z[ok, i]
+        designs = (model, np.column_stack([model, lab[ok] * w]), np.column_stack([model, offsets[ok] * w]))
+        solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]   # coefficients, _, rank, _
+        ranks = [r[2] for r in solved]
         if ranks[1] <= ranks[0]:
             continue
-        rss += [float(np.sum((z[ok, i] - x @ np.linalg.lstsq(x, z[ok, i], rcond=None)[0]) ** 2))
-                for x in fits]
+        rss += [float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved)]
         added += [ranks[1] - ranks[0], ranks[2] - ranks[0]]
     q, left_dof = int(added[0]), dof - int(added[0])
     gain, left = rss[0] - rss[1], rss[1]

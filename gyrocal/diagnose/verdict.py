@@ -21,11 +21,11 @@ def drift_sentence(base, drift: dict) -> str:
 def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
             partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
             tolerance=None, *, noise_explains: bool = False, unseparable=(),
-            fails_between: bool = False, seen_in_lab: bool = False) -> str:
+            finding: str | None = None) -> str:
     text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
                            partial, within_noise, unrepeated, base_next, tolerance,
                            noise_explains=noise_explains, unseparable=unseparable,
-                           fails_between=fails_between, seen_in_lab=seen_in_lab)
+                           finding=finding)
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
@@ -51,8 +51,9 @@ def _separation(c) -> str:
 
 def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
                     within_noise, unrepeated, base_next, tolerance=None, *,
-                    noise_explains: bool = False, unseparable=(), fails_between: bool = False,
-                    seen_in_lab: bool = False) -> str:
+                    noise_explains: bool = False, unseparable=(), finding: str | None = None) -> str:
+    """The verdict on this session; ``finding``, the reason of a finding no term holds
+    (:mod:`.lab`, :mod:`.between`), which the sentence that follows the verdict states."""
     factor = rms_over_floor["all"]
     s = base.summary
     held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
@@ -97,7 +98,7 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
                 "noise, and no term takes a practical part of it away. Another session of the unit "
                 "(--other-session) would tell slow wander from an effect.")
-    if seen_in_lab and best is None:
+    if finding == "fixed in the lab" and best is None:
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
@@ -126,7 +127,7 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
                 "resolve, not a missing effect.")
     floor_by = "the sensor's noise model" if noise_model else "white noise within the holds"
-    if fails_between:
+    if finding == "between temperature points":
         return (f"The model explains the data at its temperature points: its in-sample residuals "
                 f"are {factor:.2f} times their noise floor, as {floor_by} would leave.")
     return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
