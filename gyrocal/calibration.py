@@ -22,7 +22,8 @@ from .errors import CalibrationFileError, CorruptFileError, GyrocalError, Missin
 from .model import Model
 from .signals import SERIES_INPUTS, Inputs
 from .terms import AXES
-from .thermal import ConstantCoefficients, TemperatureGrid, check_method, warn_outside
+from .thermal import (DIAGONAL_RTOL, ConstantCoefficients, TemperatureGrid, check_method,
+                      warn_outside)
 
 FORMAT = formats.CALIBRATION
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
@@ -188,7 +189,7 @@ class Calibration:
             stderr = {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)}
             interpolation = {"method": g.method, "degree": g.degree, "outside_range": "clamp"}
         if g.covariance is not None:
-            extra_grid["covariance"] = np.asarray(g.covariance, dtype=float).tolist()
+            extra_grid["covariance"] = g.covariance.tolist()   # canonical: see thermal.py
         body = {
             "format": FORMAT,
             **{k: self.meta.get(k) for k in ("device", "batch", "session", "protocol")},
@@ -280,7 +281,7 @@ class Calibration:
             fail("grid temperatures must increase strictly")
         if kind != "continuous" and (values.shape[0] != len(temps) or stderr.shape[0] != len(temps)):
             fail("grid coefficients and temperatures differ in length")
-        covariance = _covariance(grid_d.get("covariance"), stderr, fail)
+        covariance = _covariance(grid_d.get("covariance"), stderr, names, temps, fail)
         span = None
         if kind == "continuous" and "span" in grid_d:
             span = _floats(grid_d["span"], "grid.span", fail)
@@ -316,10 +317,59 @@ class Calibration:
         return cal
 
 
-def _covariance(value, stderr: np.ndarray, fail) -> np.ndarray | None:
+# A covariance is judged at its own scale: entry (i, j) against sqrt(C_ii C_jj), so that the
+# covariance between a coefficient of 1e-2 and one of 1e-9 is neither drowned by nor drowns
+# the others. Rounding leaves about 1e-16 of that scale. The diagonal's tolerance
+# (DIAGONAL_RTOL) is the one files already written were read with.
+ASYMMETRY_RTOL = 1e-9     # |C_ij − C_ji| ≤ rtol sqrt(C_ii C_jj)
+CORRELATION_SLACK = 1e-6  # |C_ij| ≤ (1 + slack) sqrt(C_ii C_jj): correlations within ±1
+
+
+def covariance_problem(cov, stderr, names, temps) -> str | None:
+    """What is wrong with a covariance (one per point (P, C, C), or one (C, C)) beside its
+    standard errors, naming the point, the pair of coefficients and the size; None when
+    nothing is."""
+    cov, stderr = np.asarray(cov, dtype=float), np.asarray(stderr, dtype=float)
+    if np.any(stderr < 0):
+        return "stderr holds a negative number"
+    per_point = cov.ndim == 3
+    if not per_point:
+        cov, stderr = cov[None], stderr[None]
+    variance = stderr ** 2
+    scale = stderr[:, :, None] * stderr[:, None, :]          # sqrt(C_ii C_jj) as written
+
+    def at(p):
+        return f" at {float(temps[p]):g} °C (point {p + 1} of {len(temps)})" if per_point else ""
+
+    diag = np.diagonal(cov, axis1=-2, axis2=-1)
+    off = np.abs(diag - variance)
+    if np.any(off > DIAGONAL_RTOL * variance):
+        p, i = np.unravel_index(np.argmax(off / np.where(variance > 0, variance, 1e-300)), off.shape)
+        return (f"grid.covariance{at(p)}: C[{names[i]},{names[i]}] = {float(diag[p, i]):.17g} "
+                f"is not the squared stderr {float(variance[p, i]):.17g}")
+    for size, limit, what in (
+            (np.abs(cov - np.swapaxes(cov, -1, -2)), ASYMMETRY_RTOL * scale,
+             "is not symmetric: |C[{a},{b}] − C[{b},{a}]| = {x:.3g}"),
+            (np.abs(cov), (1 + CORRELATION_SLACK) * scale,
+             "is not a covariance: |C[{a},{b}]| = {x:.3g}")):
+        bad = size > limit
+        if bad.any():
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ratio = np.where(bad, size / scale, 0.0)      # against a zero: infinite
+            p, i, j = np.unravel_index(np.argmax(ratio), ratio.shape)
+            a, b = names[i], names[j]
+            times = f"{float(ratio[p, i, j]):.3g} times" if np.isfinite(ratio[p, i, j]) else \
+                "against a zero"
+            return (f"grid.covariance{at(p)} {what.format(a=a, b=b, x=float(size[p, i, j]))}, "
+                    f"{times} sqrt(C[{a},{a}] C[{b},{b}])")
+    return None
+
+
+def _covariance(value, stderr: np.ndarray, names, temps, fail) -> np.ndarray | None:
     """The grid's coefficient covariances (per point, or one for a continuous model):
-    finite, symmetric, their diagonal the squared standard errors. Absent in files of
-    older gyrocal versions: None."""
+    finite, symmetric, within ±1 in correlation, their diagonal the squared standard
+    errors, each entry judged at its own scale (:func:`covariance_problem`). Absent in
+    files of older gyrocal versions: None."""
     if value is None:
         return None
     try:
@@ -329,10 +379,9 @@ def _covariance(value, stderr: np.ndarray, fail) -> np.ndarray | None:
     C = stderr.shape[-1]
     if cov.shape != stderr.shape + (C,) or not np.all(np.isfinite(cov)):
         fail(f"grid.covariance must hold a finite {C} x {C} matrix per point")
-    diag = np.diagonal(cov, axis1=-2, axis2=-1)
-    if not (np.allclose(cov, np.swapaxes(cov, -1, -2), rtol=1e-9, atol=0.0)
-            and np.allclose(diag, stderr ** 2, rtol=1e-6, atol=0.0)):
-        fail("grid.covariance is not symmetric with the squared standard errors on its diagonal")
+    problem = covariance_problem(cov, stderr, names, temps)
+    if problem:
+        fail(problem)
     return cov
 
 
@@ -384,10 +433,25 @@ def _dump(value, indent: str, level: int) -> str:
 
 
 def save_calibration(cal: Calibration, path) -> None:
+    """Write the calibration file, read back with the loader every reader uses before it
+    takes the target's name: a file that cannot be read, or that reads as another
+    calibration, never leaves the stage."""
     path = Path(path)
     text = dumps(cal.to_dict())
     path.parent.mkdir(parents=True, exist_ok=True)
-    atomic.write_text(path, text)
+    with atomic.replacing(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+        try:
+            again = dumps(load_calibration(tmp).to_dict())
+        except GyrocalError as exc:
+            raise GyrocalError(f"the calibration written does not read back "
+                               f"({str(exc).removeprefix(f'{tmp}: ')}); nothing written",
+                               source=path) from None
+        if again != text:
+            old, new = text.splitlines(), again.splitlines()
+            line = next((i for i, (a, b) in enumerate(zip(old, new)) if a != b), min(len(old), len(new)))
+            raise GyrocalError(f"the calibration written reads back as another one (line {line + 1} "
+                               "differs); nothing written", source=path)
 
 
 def load_calibration(path) -> Calibration:

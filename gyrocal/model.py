@@ -424,9 +424,12 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
         r = y - X @ theta
         c2 = float(np.sum(whiten(r) ** 2))
         cov = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
+        cov = 0.5 * (cov + cov.T)      # the product's triangles differ in their last bits
+        se = np.sqrt(np.diag(cov))
+        cov[np.diag_indices_from(cov)] = se ** 2   # as a calibration file holds it
         names += cols
         values.append(theta)
-        stderr.append(np.sqrt(np.diag(cov)))
+        stderr.append(se)
         blocks.append(cov)
         resid[:, i] = r
         chi2[axis], dof[axis], cond[axis] = c2, n_dof, float(s[0] / s[-1])

@@ -124,6 +124,8 @@ class TemperatureGrid:
 
     def __post_init__(self):
         check_method(self.method, self.degree)
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", canonical_covariance(self.covariance, self.stderr))
         if len(self.temperatures) == 0:
             raise ConfigError("a temperature grid needs at least one point")
         if np.any(np.diff(self.temperatures) <= 0):
@@ -169,6 +171,28 @@ class TemperatureGrid:
                                None if self.covariance is None else self.covariance[keep])
 
 
+DIAGONAL_RTOL = 1e-6   # a covariance's diagonal against the squared standard errors
+
+
+def canonical_covariance(cov, stderr) -> np.ndarray:
+    """A grid's covariance as it is kept and written: exactly symmetric, its diagonal the
+    squares of the standard errors beside it, the rows of a coefficient without uncertainty
+    zero. A fit's matrix products leave the two triangles a few ulps apart, which is
+    rounding; a diagonal that disagrees with the standard errors beyond rounding is a bug
+    upstream, refused rather than hidden."""
+    C = np.array(cov, dtype=float)
+    s = np.asarray(stderr, dtype=float)
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))          # a + b == b + a: exactly symmetric
+    mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s ** 2)
+    if np.any(mismatch > DIAGONAL_RTOL * s ** 2):
+        raise GyrocalError("a covariance's diagonal is not the squared standard errors (off "
+                           f"by up to {float(mismatch.max()):.3g})")
+    C *= (s[..., :, None] != 0) & (s[..., None, :] != 0)
+    idx = np.arange(s.shape[-1])
+    C[..., idx, idx] = s ** 2
+    return C
+
+
 def diagonal(variances: np.ndarray) -> np.ndarray:
     """(..., C) variances as (..., C, C) diagonal covariances."""
     out = np.zeros(variances.shape + (variances.shape[-1],))
@@ -191,6 +215,10 @@ class ConstantCoefficients:
     degree: int = 0
     fitted_span: tuple[float, float] | None = None   # the fitted holds' temperatures
     covariance: np.ndarray | None = None             # (C, C)
+
+    def __post_init__(self):
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", canonical_covariance(self.covariance, self.stderr))
 
     def covariance_at(self, temp) -> np.ndarray:
         """(n, C, C): the coefficients' covariance at each temperature (the same for all)."""

@@ -85,8 +85,8 @@ def test_round_trip_keeps_non_default_settings(complete_run, tmp_path, method, d
     (lambda d: d["model"]["interpolation"].update(degree="two"), "degree must be a non-negative integer"),
     (lambda d: d["model"].update(reference_temperature="room"), "reference_temperature must be a number"),
     (lambda d: d["units"].update(rate="rad/s"), "units {'rate': 'rad/s'}"),
-    (lambda d: d["grid"]["covariance"][0][0].__setitem__(1, 1.0), "grid.covariance is not symmetric"),
-    (lambda d: d["grid"]["covariance"][0][0].__setitem__(0, 1.0), "squared standard errors on its diagonal"),
+    (lambda d: d["grid"]["covariance"][0][0].__setitem__(1, 1.0), "(point 1 of 6) is not symmetric: |C[bias.x,bias.y] − C[bias.y,bias.x]|"),
+    (lambda d: d["grid"]["covariance"][0][0].__setitem__(0, 1.0), "C[bias.x,bias.x] = 1 is not the squared stderr"),
     (lambda d: d["grid"]["covariance"].pop(), "grid.covariance must hold a finite 12 x 12 matrix per point"),
     (lambda d: d["grid"].update(covariance="none"), "grid.covariance must"),
 ])

@@ -18,6 +18,7 @@ from gyrocal.apply import apply_calibration
 from gyrocal.calibration import load_calibration, save_calibration
 from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import diagnose, extended
+from gyrocal.errors import ConfigError
 from gyrocal.pipeline import run, segment_log
 from gyrocal.signals import temperature_rate
 from gyrocal.turntable.segment import SegmentConfig
@@ -137,6 +138,21 @@ def test_a_users_term_file_is_fitted_diagnosed_written_and_applied(tmp_path, reg
     term_file.write_text(TERM_FILE + "# edited\n")
     out = fresh("apply", cal_path, log, "--terms", term_file, "-o", applied)
     assert out.returncode == 2 and "definition differs" in out.stderr
+
+
+def test_the_same_term_file_under_two_paths_loads_once(tmp_path, registry):
+    """Copies of one term file (two workflow folders, one Python process) are one code: the
+    second path gets the first one's terms, where registering them again refused the
+    name; a changed copy is another file and is refused as before."""
+    first, second, changed = (tmp_path / d / "my_terms.py" for d in ("a", "b", "c"))
+    for path, text in ((first, TERM_FILE), (second, TERM_FILE), (changed, TERM_FILE + "\n# v2\n")):
+        path.parent.mkdir()
+        path.write_text(text)
+    digest, added = user_terms.load_term_file(first)
+    assert added == ["rate_root"]
+    assert user_terms.load_term_file(second) == (digest, ["rate_root"])
+    with pytest.raises(ConfigError, match="'rate_root' is already registered"):
+        user_terms.load_term_file(changed)
 
 
 def test_an_expression_term_is_tried_fitted_and_kept_in_the_file(tmp_path):

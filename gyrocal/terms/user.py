@@ -49,6 +49,10 @@ def load_term_file(path) -> tuple[str, list[str]]:
         if _LOADED[key] != digest:
             raise ConfigError(f"term file {path} changed since it was loaded in this process")
         return digest, [n for n, c in TERMS.items() if getattr(c, "source_file", None) == key]
+    same = next((other for other, d in _LOADED.items() if d == digest), None)
+    if same is not None:   # the same code under another path: its terms are registered
+        _LOADED[key] = digest
+        return digest, [n for n, c in TERMS.items() if getattr(c, "source_file", None) == same]
     before = set(TERMS)
     module_name = f"gyrocal_user_terms_{digest[:12]}"
     spec = importlib.util.spec_from_file_location(module_name, path)
