@@ -5,11 +5,11 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
 # The C kernel is built on install: a change to it reinstalls, as a change of dependencies does.
-STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock gyrocal/_blockstats.c | sha256sum | cut -c1-12)
+STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c | sha256sum | cut -c1-12)
 
 .PHONY: demo test bench system-packages clean
 
-$(STAMP): pyproject.toml setup.py requirements.lock gyrocal/_blockstats.c
+$(STAMP): pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c
 	rm -f $(VENV)/.installed-*
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip

@@ -3,7 +3,7 @@
 # only wire files.
 from snakemake.utils import min_version
 
-from gyrocal.schema import check
+from gyrocal.io.schema import check
 
 min_version("9.0")
 
@@ -11,7 +11,7 @@ min_version("9.0")
 configfile: "config/config.yaml"
 
 
-# Checked against gyrocal/schemas/config.schema.yaml and completed with its defaults, as
+# Checked against gyrocal/io/schemas/config.schema.yaml and completed with its defaults, as
 # the command line checks the settings it reads: the same bounds, defaults and messages.
 config.update(
     check(config, source=" + ".join(map(str, workflow.configfiles)) or "--config")

@@ -3,5 +3,5 @@
 # compiler is at hand the build skips it and gyrocal uses its numpy path.
 from setuptools import Extension, setup
 
-setup(ext_modules=[Extension("gyrocal._blockstats", ["gyrocal/_blockstats.c"],
+setup(ext_modules=[Extension("gyrocal.io._blockstats", ["gyrocal/io/_blockstats.c"],
                              optional=True, extra_compile_args=["-O3"])])

@@ -1,6 +1,6 @@
 """Benchmark: overlapping Allan deviation of 4.7 million samples (octave taus, m = 1 ... n/2).
 
-Times ``gyrocal.noise.allan_deviation`` on a (n, 3) and a 1-D record of consumer-grade coloured
+Times ``gyrocal.fit.noise.allan_deviation`` on a (n, 3) and a 1-D record of consumer-grade coloured
 noise (100 Hz, about 13 h), median and minimum of ``--repeat`` runs, then measures the peak
 memory it allocates with tracemalloc in a separate, untimed run (tracemalloc slows allocation).
 Reference: an anchor tool took 727.7 s for that many samples; the target is under 2 s.
@@ -19,7 +19,7 @@ import tracemalloc
 import numpy as np
 from host import cores, cpu_name
 
-from gyrocal.noise import allan_deviation, fit_noise_terms
+from gyrocal.fit.noise import allan_deviation, fit_noise_terms
 from gyrocal.simulate.noise import GRADES, coloured_noise
 
 RATE = 100.0

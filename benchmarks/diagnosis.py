@@ -121,11 +121,11 @@ def label(case) -> str:
 
 def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose, extended
-    from gyrocal.drift import revalidate
-    from gyrocal.errors import GyrocalError
-    from gyrocal.pipeline import run, segment_log
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.io.errors import GyrocalError
+    from gyrocal.pipeline.chain import run, segment_log
 
     effect, protocol, noise, expected = case[:4]
     overrides = case[4] if len(case) > 4 else {}

@@ -31,12 +31,12 @@ ALPHA = 0.01   # the diagnosis' default significance
 
 def run_unit(case, unit_seed: int) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import evaluate
     from gyrocal.diagnose.between import between_points
     from gyrocal.diagnose.lab import lab_fixed
     from gyrocal.diagnose.where import fit_quality
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     effect, protocol, noise = case[:3]
     unit = make_unit(effect=effect, protocol=protocol, noise=noise, seed=unit_seed,

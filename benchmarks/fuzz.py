@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from gyrocal import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
+from gyrocal.run import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
 
 import hypothesis  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402

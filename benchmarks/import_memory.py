@@ -111,7 +111,7 @@ def main() -> None:
     parser.add_argument("--bag", type=int, default=0, help="also a bag of this many Imu messages")
     args = parser.parse_args()
     print(f"gyrocal import, peak memory: {cpu_name()}, {cores()}, {dt.date.today()}")
-    _, floor = measure(["-c", "import gyrocal.cli, gyrocal.importer.tabular"])
+    _, floor = measure(["-c", "import gyrocal.run.cli, gyrocal.importer.tabular"])
     print(f"  floor (python + gyrocal's command line imported): {floor:.0f} MiB")
     sources = [(make_csv(int(r)), int(r)) for r in args.rows.split(",") if r]
     if args.bag:

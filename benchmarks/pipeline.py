@@ -3,7 +3,7 @@
 Prints, for the same Parquet log and the same columns:
 
 * bare   — ``pyarrow.parquet.read_table`` of the columns segmentation reads;
-* chain  — ingest + segment + fit + validate (``gyrocal.pipeline`` without hashing/writing);
+* chain  — ingest + segment + fit + validate (``gyrocal.pipeline.chain`` without hashing/writing);
 * full   — ``gyrocal calibrate`` as a user runs it (adds the input SHA-256 and the file).
 
 Each is timed in a fresh process (imports excluded), repeated and interleaved; medians and
@@ -35,10 +35,10 @@ LOG = CACHE / "seed_protocol" / "U001.parquet"
 def child(mode: str) -> None:
     import pyarrow.parquet as pq
 
-    from gyrocal.config import Settings
-    from gyrocal.pipeline import run
-    from gyrocal.turntable.segment import LOG_COLUMNS
-    from gyrocal.io import REQUIRED
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.pipeline.chain import run
+    from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+    from gyrocal.io.log import REQUIRED
     columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in pq.read_schema(LOG).names]
     usage = resource.getrusage(resource.RUSAGE_SELF)
     base, cpu0 = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
@@ -47,10 +47,10 @@ def child(mode: str) -> None:
         table = pq.read_table(LOG, columns=columns)
         nbytes = table.nbytes
     elif mode == "chain":
-        from gyrocal.io import read_log
-        from gyrocal.turntable.segment import segment
-        from gyrocal.thermal import fit_grid
-        from gyrocal.validate import validate
+        from gyrocal.io.log import read_log
+        from gyrocal.protocols.turntable.segment import segment
+        from gyrocal.fit.thermal import fit_grid
+        from gyrocal.fit.validate import validate
         settings = Settings()
         log = read_log(LOG, optional=LOG_COLUMNS)
         seg = segment(log, settings.segmentation)
@@ -59,7 +59,7 @@ def child(mode: str) -> None:
         validate(model, seg.observations, grid_fit)
         nbytes = 0
     else:
-        from gyrocal.calibration import save_calibration
+        from gyrocal.calibration.file import save_calibration
         save_calibration(run(LOG).calibration, CACHE / "bench.calibration.json")
         nbytes = 0
     wall = time.perf_counter() - t0

@@ -32,9 +32,9 @@ from host import cores, cpu_name  # noqa: E402
 
 def run_case(case, unit_seed: int, folder: str) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
-    from gyrocal.errors import GyrocalError
-    from gyrocal.pipeline import run
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.io.errors import GyrocalError
+    from gyrocal.pipeline.chain import run
 
     effect, protocol, noise, _ = case
     gyrocal_protocol = "turntable" if protocol.startswith("turntable") else protocol

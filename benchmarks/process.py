@@ -9,7 +9,7 @@ starts, one after the other:
                (``pyarrow.parquet.read_table``);
 * readwrite  — with ``apply``: a Python process that reads every column batch by batch
                (262,144 rows, as apply) and writes them back with apply's Parquet settings
-               (``gyrocal.apply.writer_options``): the least an apply can do;
+               (``gyrocal.calibration.apply.writer_options``): the least an apply can do;
 * calibrate  — ``python -m gyrocal calibrate LOG -o CAL.json``;
 * diagnose   — ``python -m gyrocal diagnose LOG -o DIAG.json``;
 * apply      — ``python -m gyrocal apply CAL.json LOG -o OUT.parquet``.
@@ -41,7 +41,7 @@ from host import cores, cpu_name
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = Path(os.environ.get("GYROCAL_BENCH_CACHE", Path.home() / ".cache" / "gyrocal" / "benchmarks"))
 PROCESSES = ("read", "readwrite", "calibrate", "diagnose", "apply")
-# apply's batches and Parquet settings (gyrocal.apply: BATCH_ROWS, writer_options), without
+# apply's batches and Parquet settings (gyrocal.calibration.apply: BATCH_ROWS, writer_options), without
 # importing gyrocal: the imports are part of what apply costs beyond reading and writing.
 READ_WRITE = """
 import sys, pyarrow as pa, pyarrow.parquet as pq
@@ -89,8 +89,8 @@ def quartiles(values: list[float]) -> tuple[float, float, float]:
 def commands(log: Path, scratch: Path) -> dict[str, list[str]]:
     import pyarrow.parquet as pq
     sys.path.insert(0, str(ROOT))
-    from gyrocal.io import REQUIRED
-    from gyrocal.turntable.segment import LOG_COLUMNS
+    from gyrocal.io.log import REQUIRED
+    from gyrocal.protocols.turntable.segment import LOG_COLUMNS
     names = pq.read_schema(log).names
     columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in names]
     gyrocal = [sys.executable, "-m", "gyrocal"]

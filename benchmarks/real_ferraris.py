@@ -26,10 +26,10 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from gyrocal.apply import apply_calibration  # noqa: E402
-from gyrocal.config import Settings  # noqa: E402
+from gyrocal.calibration.apply import apply_calibration  # noqa: E402
+from gyrocal.pipeline.config import Settings  # noqa: E402
 from gyrocal.importer import import_log  # noqa: E402
-from gyrocal.pipeline import run  # noqa: E402
+from gyrocal.pipeline.chain import run  # noqa: E402
 from tests.test_ferraris import LABELLED_MAP, labelled_session  # noqa: E402
 
 REAL = ROOT / "data" / "real" / "imucal-ferraris"

@@ -183,7 +183,7 @@ def write_logs(case: dict, folder: Path, *, small: bool = False) -> list[Path]:
 
 def _cli(argv: list[str]) -> tuple[int, str]:
     """gyrocal's command line in this process: its exit status and what it wrote to stderr."""
-    from gyrocal.cli import main
+    from gyrocal.run.cli import main
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         status = main(argv)
@@ -225,9 +225,9 @@ def _settings_args(case: dict, folder: Path, log: Path) -> list[str]:
 
 def run_case(case: dict, folder: str | Path, *, small: bool = False) -> dict:
     """Calibrate both sessions, then hand the first session's file to every reader."""
-    from gyrocal import drift
-    from gyrocal.calibration import load_calibration
-    from gyrocal.errors import GyrocalError
+    from gyrocal.fleet import drift
+    from gyrocal.calibration.file import load_calibration
+    from gyrocal.io.errors import GyrocalError
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -297,8 +297,8 @@ def settings_without_model(settings: list[str]) -> list[str]:
 
 
 def _observations(log, case, settings_args):
-    from gyrocal.pipeline import segment_log
-    from gyrocal.cli import build_parser, _settings
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.run.cli import build_parser, _settings
     args = build_parser().parse_args(["segment", str(log), "--out", "unused",
                                       *settings_without_model(settings_args)])
     return segment_log(log, _settings(args), args.protocol).observations

@@ -44,10 +44,10 @@ from host import cores, cpu_name
 from process import CACHE, ROOT, log_at, quartiles
 
 PROCESSES = ("calibrate", "diagnose")
-DENSE = ("import sys; sys.path[:0] = [sys.argv.pop(1)]; import gyrocal.blas_threads; "
-         "import gyrocal.model, tests.wander_reference as r; "
-         "gyrocal.model._whiteners = r.dense_model_whiteners; "
-         "from gyrocal.cli import main; sys.argv[0] = 'gyrocal'; sys.exit(main())")
+DENSE = ("import sys; sys.path[:0] = [sys.argv.pop(1)]; import gyrocal.run.blas_threads; "
+         "import gyrocal.fit.model, tests.wander_reference as r; "
+         "gyrocal.fit.model._whiteners = r.dense_model_whiteners; "
+         "from gyrocal.run.cli import main; sys.argv[0] = 'gyrocal'; sys.exit(main())")
 
 
 def zoo_log(path: Path, protocol: str, **session) -> Path:

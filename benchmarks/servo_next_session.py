@@ -24,11 +24,11 @@ could do. Cases:
 * ``six axes`` — sessions 0 and 1 back to back as one log (each axis mounted twice: twelve
   rotations about six hand-placed axes), judged on session 2;
 * ``turntable`` — the same unit seeds as ``turntable3`` units: gyrocal's default turntable
-  calibration of session 0 re-validated on session 1 (:func:`gyrocal.drift.revalidate`:
+  calibration of session 0 re-validated on session 1 (:func:`gyrocal.fleet.drift.revalidate`:
   uncompensated ÷ interpolated RMS of the hold means, the true rate vector known).
 
 Before them, the Monte-Carlo study of the cross-axis terms
-(:func:`gyrocal.servo.montecarlo.cross_axis_study`: seed 001's units with ±1 % cross-axis
+(:func:`gyrocal.protocols.servo.montecarlo.cross_axis_study`: seed 001's units with ±1 % cross-axis
 terms, Section III's hand mounts or a fixture, three axes, three axes twice or six axes, at
 a low noise and the paper's two levels): the next session's median error over the floor and
 the median improvement, by each judge and the truth.
@@ -58,14 +58,14 @@ FIXTURE_DEG = [0.0, 0.05]
 
 
 def _settings(model: str):
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     return Settings.from_dict({"protocols": {"servo": {"options": {"calibration": model}}}})
 
 
 def _revolutions(path):
-    from gyrocal.io import read_log
-    from gyrocal.servo import find_rotations
-    from gyrocal.servo.fit import nominal_rates
+    from gyrocal.io.log import read_log
+    from gyrocal.protocols.servo import find_rotations
+    from gyrocal.protocols.servo.fit import nominal_rates
     r = find_rotations(read_log(path)).revolutions
     m = r[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
     omega = r["ref_rate"].to_numpy()
@@ -102,8 +102,8 @@ def _concatenate(paths, out):
 
 def servo_unit(seed: int, folder: Path) -> list[dict]:
     from benchmarks.zoo.generator import B_of_T, K_of_T, make_unit, write_session
-    from gyrocal.errors import GyrocalError
-    from gyrocal.pipeline import run
+    from gyrocal.io.errors import GyrocalError
+    from gyrocal.pipeline.chain import run
     unit = make_unit(effect="none", protocol="servo", seed=seed)
     truth = K_of_T(unit, 25.0), B_of_T(unit, 25.0)
     rows = []
@@ -134,9 +134,9 @@ def servo_unit(seed: int, folder: Path) -> list[dict]:
 
 def turntable_unit(seed: int, folder: Path) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
-    from gyrocal.drift import revalidate
-    from gyrocal.pipeline import run, segment_log
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run, segment_log
     unit = make_unit(effect="none", protocol="turntable3", seed=seed)
     logs = []
     for s in (0, 1):
@@ -166,7 +166,7 @@ def main(argv=None) -> int:
     from host import cores, cpu_name
     import pandas as pd
 
-    from gyrocal.servo.montecarlo import cross_axis_study, cross_axis_summary
+    from gyrocal.protocols.servo.montecarlo import cross_axis_study, cross_axis_summary
     started = time.perf_counter()
     study = cross_axis_summary(cross_axis_study(noise=(0.001, 0.035, 0.2)))
     study_s = time.perf_counter() - started

@@ -17,7 +17,7 @@ each fleet in a fresh process:
 
 Per run it prints Snakemake's jobs and the scheduler's submissions per unit, the run's
 wall time per unit, the unit's own processes (its segment, analyse and report stages, as
-gyrocal.guard measures them in the job log: wall and CPU seconds), and what the workflow
+gyrocal.run.guard measures them in the job log: wall and CPU seconds), and what the workflow
 adds per unit: the run's wall time beyond its stages and the fleet job. On SLURM it splits
 that into the time inside the jobs (SLURM's elapsed time beyond the stages: Snakemake
 starting in the job, twice, and srun) and outside (submission, queueing, status checks),
@@ -94,7 +94,7 @@ def stage_seconds(folder: Path, devices: list[str]) -> tuple[float, float]:
     for device in devices:
         for stage in STAGES:
             text = (folder / "logs" / stage / "B1" / device / f"{SESSION}.log").read_text()
-            took = re.findall(rf"gyrocal.guard: {stage} took ([\d.]+) s, ([\d.]+) s CPU", text)
+            took = re.findall(rf"gyrocal.run.guard: {stage} took ([\d.]+) s, ([\d.]+) s CPU", text)
             wall, cpu = wall + float(took[-1][0]), cpu + float(took[-1][1])
     return wall, cpu
 

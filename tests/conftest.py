@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import replace
 
-from gyrocal import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
+from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
 
 import numpy as np
 import pytest
@@ -69,7 +69,7 @@ def logs(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def complete_run(logs):
-    from gyrocal.pipeline import run
+    from gyrocal.pipeline.chain import run
     return run(logs["complete"])
 
 

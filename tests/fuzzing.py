@@ -27,9 +27,10 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from hypothesis import strategies as st
 
-from gyrocal import cli, readahead
-from gyrocal import io as gio
-from gyrocal.errors import GyrocalError, InputError
+from gyrocal.run import cli
+from gyrocal.io import readahead
+from gyrocal.io import log as gio
+from gyrocal.io.errors import GyrocalError, InputError
 
 REQUIRED = gio.REQUIRED
 COLUMNS = (*REQUIRED, "mount", *gio.ACCEL)
@@ -471,7 +472,7 @@ def batch_rows(rows: int | None):
         gio.READ_BATCH_ROWS = saved
 
 
-PIPELINE_KEEP = (None, 384 * 2 ** 20, 0)   # in memory; gyrocal.pipeline's budget; re-read
+PIPELINE_KEEP = (None, 384 * 2 ** 20, 0)   # in memory; gyrocal.pipeline.chain's budget; re-read
 
 
 def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | None = None) -> str:
@@ -479,8 +480,8 @@ def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | N
     columns and a block sink). Success: every kept row finite in the required columns,
     ``t`` strictly increasing across batches, mount codes known, rows counted, block
     statistics free of NaN. Failure: a gyrocal input error naming the file in one line."""
-    from gyrocal.blocks import BlockSink
-    from gyrocal.turntable.segment import LOG_COLUMNS
+    from gyrocal.io.blocks import BlockSink
+    from gyrocal.protocols.turntable.segment import LOG_COLUMNS
     sink = BlockSink(1.0)
     try:
         with batch_rows(read_rows):
@@ -541,7 +542,7 @@ def run_cli(argv: list[str], *, as_process_start: bool = False) -> tuple[int, st
     """``gyrocal ARGV`` in this process: (exit status, stdout, stderr, the class of the
     error it printed or ""). With ``as_process_start`` the command line is read from
     ``sys.argv`` as the console entry point does, so the log is decoded ahead on a thread
-    (gyrocal.readahead)."""
+    (gyrocal.io.readahead)."""
     out, err = io.StringIO(), io.StringIO()
     saved_argv = sys.argv
     try:

@@ -1,5 +1,6 @@
-"""The wiring: protocols come from the registry, modules import without cycles, and the
-analyse job fits the configured model once."""
+"""The wiring: the package's folders are layers that import only downwards, protocols come
+from the registry, modules import without cycles, and the analyse job fits the configured
+model once."""
 
 from __future__ import annotations
 
@@ -8,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal import protocols
-from gyrocal.errors import ConfigError
+from gyrocal.protocols import registry
+from gyrocal.io.errors import ConfigError
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gyrocal"
 
@@ -68,11 +69,68 @@ def test_no_import_cycle_in_the_package():
         visit(m)
 
 
+# The folders from the ground up (docs/architecture.md): a folder imports only from folders
+# before it, and only those its __init__ names.
+LAYERS = ("io", "terms", "importer", "simulate", "fit", "calibration", "report", "protocols",
+          "pipeline", "fleet", "diagnose", "paper", "run")
+VAGUE = {"utils", "util", "common", "misc", "helpers", "stuff", "lib", "core", "base_utils"}
+
+
+def _folder(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 2 or (len(parts) == 2 and (PACKAGE / parts[1]).is_dir()) else ""
+
+
+def _declared(folder: str) -> set[str]:
+    """What a folder's __init__ says it may import: its docstring's second line."""
+    doc = ast.get_docstring(ast.parse((PACKAGE / folder / "__init__.py").read_text()))
+    lines = doc.splitlines()
+    assert len(lines) >= 2 and lines[1].startswith("May import: ") and len(lines[0]) > 20, \
+        f"gyrocal/{folder}/__init__.py: line 1 says what lives there, line 2 'May import: ...'"
+    said = lines[1].removeprefix("May import: ").rstrip(".")
+    if said == "no other folder of gyrocal":
+        return set()
+    if said == "every other folder of gyrocal":
+        return set(LAYERS) - {folder}
+    return {name.strip() for name in said.split(",")}
+
+
+def test_the_top_level_is_a_few_folders_each_a_layer():
+    entries = sorted(p.name for p in PACKAGE.iterdir() if p.name != "__pycache__"
+                     and not p.name.endswith(".so"))
+    assert len(entries) <= 15, entries
+    assert {e for e in entries if (PACKAGE / e).is_dir()} == set(LAYERS)
+    assert {e for e in entries if not (PACKAGE / e).is_dir()} == {"__init__.py", "__main__.py"}
+    names = {p.stem for p in PACKAGE.rglob("*.py")} | {p.name for p in PACKAGE.rglob("*") if p.is_dir()}
+    assert not names & VAGUE, names & VAGUE
+
+
+def test_every_folder_imports_only_what_its_init_says_and_only_downwards():
+    """A folder's modules import gyrocal modules of its own folder or of the folders its
+    __init__ names, all of them lower in LAYERS: no import runs up, and no circle between
+    folders can form."""
+    modules = _modules()
+    wrong = []
+    for folder in LAYERS:
+        allowed = _declared(folder)
+        below = set(LAYERS[:LAYERS.index(folder)])
+        assert allowed <= below or allowed == set(LAYERS) - {folder} and folder == LAYERS[-1], \
+            f"gyrocal/{folder} says it may import {sorted(allowed - below)}, which are not below it"
+        for name, path in modules.items():
+            if _folder(name) != folder:
+                continue
+            for target in _imports(name, path, modules):
+                other = _folder(target)
+                if other and other != folder and other not in allowed:
+                    wrong.append(f"{name} -> {target}")
+    assert not wrong, wrong
+
+
 def test_no_module_compares_a_protocol_by_name_outside_the_registry():
     """Protocol names appear in comparisons only in the registry and the protocols' own
     packages (the simulator keys its rigs by name in tables, which is not a comparison)."""
-    names = set(protocols.names())
-    own = {PACKAGE / "protocols.py", *(PACKAGE / n / "protocol.py" for n in names)}
+    names = set(registry.names())
+    own = {PACKAGE / "protocols" / "registry.py", *(PACKAGE / "protocols" / n / "protocol.py" for n in names)}
     offenders = []
     for path in sorted(PACKAGE.rglob("*.py")):
         if path in own:
@@ -88,26 +146,26 @@ def test_no_module_compares_a_protocol_by_name_outside_the_registry():
 
 
 def test_the_registry_knows_the_built_in_protocols_and_refuses_others():
-    assert protocols.names()[:3] == ("turntable", "servo", "sweep")
-    for name in protocols.names():
-        p = protocols.get(name)
+    assert registry.names()[:3] == ("turntable", "servo", "sweep")
+    for name in registry.names():
+        p = registry.get(name)
         assert p.name == name and callable(p.segment) and callable(p.static)
-    assert protocols.get(None) is protocols.get("turntable")
+    assert registry.get(None) is registry.get("turntable")
     # Only the turntable's calibrations feed batch outliers and drift pages; only the
     # servo has a calibration and validation of its own, and no known true rate.
-    assert [n for n in protocols.names() if protocols.get(n).fleet_audits] == ["turntable"]
-    assert [n for n in protocols.names() if protocols.get(n).calibrate] == ["servo"]
-    assert [n for n in protocols.names() if not protocols.get(n).known_rate] == ["servo"]
+    assert [n for n in registry.names() if registry.get(n).fleet_audits] == ["turntable"]
+    assert [n for n in registry.names() if registry.get(n).calibrate] == ["servo"]
+    assert [n for n in registry.names() if not registry.get(n).known_rate] == ["servo"]
     with pytest.raises(ConfigError, match="protocol 'hand' is not supported.*turntable, servo, sweep"):
-        protocols.get("hand")
+        registry.get("hand")
 
 
 def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
     """Adding a protocol is one registration: a log of it is segmented by its segmenter."""
-    from gyrocal.config import Settings
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.pipeline.chain import segment_log
     from gyrocal.simulate import TurntableProtocol, simulate_unit
-    from gyrocal.turntable import protocol as turntable
+    from gyrocal.protocols.turntable import protocol as turntable
     import numpy as np
     from dataclasses import replace
 
@@ -120,13 +178,13 @@ def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
         seen.append(log.path)
         return turntable.TURNTABLE.segment(log, settings)
 
-    protocols.register(replace(turntable.TURNTABLE, name="renamed_turntable", segment=segment))
+    registry.register(replace(turntable.TURNTABLE, name="renamed_turntable", segment=segment))
     try:
-        assert "renamed_turntable" in protocols.names()
+        assert "renamed_turntable" in registry.names()
         seg = segment_log(log, Settings(), "renamed_turntable")
         assert seen and len(seg.observations) > 0
     finally:
-        protocols._REGISTRY.pop("renamed_turntable")
+        registry._REGISTRY.pop("renamed_turntable")
 
 
 def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
@@ -134,9 +192,11 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
     fits only its candidates), and what they write is what separate stages write."""
     import numpy as np
 
-    from gyrocal import pipeline, stages, thermal
+    from gyrocal.pipeline import chain
+    from gyrocal.run import stages
+    from gyrocal.fit import thermal
     from gyrocal.diagnose import evaluation
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.simulate import TurntableProtocol, simulate_unit
 
     log = tmp_path / "u.parquet"
@@ -153,7 +213,7 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
             fits.append(1)
         return thermal.fit_model(model, *args, **kwargs)
 
-    for module in (pipeline, stages, evaluation):
+    for module in (chain, stages, evaluation):
         monkeypatch.setattr(module, "fit_model", counting)
     stages.analyse_stage(folder, settings, meta, record_failures=False)
     assert len(fits) == 1
@@ -172,9 +232,9 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
 def test_a_calibration_from_other_settings_is_refused_without_refitting(tmp_path):
     import numpy as np
 
-    from gyrocal import stages
-    from gyrocal.config import Settings
-    from gyrocal.errors import GyrocalError
+    from gyrocal.run import stages
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.io.errors import GyrocalError
     from gyrocal.simulate import TurntableProtocol, simulate_unit
 
     log = tmp_path / "u.parquet"
@@ -192,11 +252,11 @@ def test_a_calibration_from_other_settings_is_refused_without_refitting(tmp_path
 def test_the_schemas_name_the_registrys_protocols():
     """The manifest's protocol column and the config's per-protocol sections list the
     protocols the registry knows, no more and no fewer."""
-    from gyrocal import schema
+    from gyrocal.io import schema
 
     manifest = schema.load("manifest")
-    assert manifest["properties"]["protocol"]["enum"] == list(protocols.names())
+    assert manifest["properties"]["protocol"]["enum"] == list(registry.names())
     config = schema.load("config")
-    assert sorted(config["properties"]["spec"]["properties"]) == sorted(protocols.names())
-    own = [n for n in protocols.names() if not protocols.get(n).top_level_settings]
+    assert sorted(config["properties"]["spec"]["properties"]) == sorted(registry.names())
+    own = [n for n in registry.names() if not registry.get(n).top_level_settings]
     assert sorted(config["properties"]["protocols"]["properties"]) == sorted(own)

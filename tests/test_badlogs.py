@@ -11,7 +11,7 @@ import json
 import numpy as np
 import pytest
 
-from gyrocal.cli import main
+from gyrocal.run.cli import main
 
 from .badlogs.generator import EXPECT, KINDS, K_at, good_log, sensor_params
 

@@ -129,9 +129,9 @@ def worst_case_fleet_summary(fleet_run, out):
 
     import yaml
 
-    from gyrocal.fleet import FleetSettings, fleet_summary
-    from gyrocal.plausibility import finding
-    from gyrocal.report import write_fleet_report
+    from gyrocal.fleet.summary import FleetSettings, fleet_summary
+    from gyrocal.io.plausibility import finding
+    from gyrocal.fleet.summary import write_fleet_report
     units = []
     with open(fleet_run / "devices.tsv", newline="") as f:
         for row in csv.DictReader(f, delimiter="\t"):
@@ -220,7 +220,7 @@ REPO_ROOT = __import__("pathlib").Path(__file__).resolve().parents[1]
 def hand_rotation_report(tmp_path_factory):
     """The unit report of the real hand-rotation recording (the demo's IMU1) as the workflow
     makes it: imported, segmented, analysed and reported by the stage commands."""
-    from gyrocal.cli import main
+    from gyrocal.run.cli import main
     d = tmp_path_factory.mktemp("ferraris")
     real = REPO_ROOT / "data" / "real" / "imucal-ferraris"
     unit = ["--device", "IMU1", "--batch", "R1", "--session", "2018-01-01", "--protocol", "ferraris"]
@@ -236,7 +236,7 @@ def hand_rotation_report(tmp_path_factory):
 @pytest.fixture(scope="module")
 def papers_page(tmp_path_factory):
     """The papers' page (`gyrocal paper --quick`: every seed's tables and figures)."""
-    from gyrocal.cli import main
+    from gyrocal.run.cli import main
     out = tmp_path_factory.mktemp("paper")
     assert main(["paper", "--out", str(out), "--quick"]) == 0
     return out / "index.html"

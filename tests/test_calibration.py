@@ -9,13 +9,13 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.apply import apply_calibration
-from gyrocal.calibration import Calibration, load_calibration, save_calibration
-from gyrocal.errors import CalibrationFileError, GyrocalError, LogFormatError
-from gyrocal.io import read_log
-from gyrocal.model import Model
+from gyrocal.calibration.apply import apply_calibration
+from gyrocal.calibration.file import Calibration, load_calibration, save_calibration
+from gyrocal.io.errors import CalibrationFileError, GyrocalError, LogFormatError
+from gyrocal.io.log import read_log
+from gyrocal.fit.model import Model
 from gyrocal.simulate import load_truth
-from gyrocal.thermal import TemperatureGrid
+from gyrocal.fit.thermal import TemperatureGrid
 
 
 def identity_calibration(temps=(0.0, 20.0, 40.0)) -> Calibration:
@@ -217,8 +217,8 @@ def test_what_another_session_should_leave_counts_correlated_coefficients():
     at one speed): at that speed the calibration's own error nearly cancels, and what
     revalidation expects of another session says so; taken as uncorrelated it would not."""
     import pandas as pd
-    from gyrocal.drift import revalidate
-    from gyrocal.thermal import ConstantCoefficients
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.fit.thermal import ConstantCoefficients
 
     sb, ss, rho, w = 0.01, 1e-4, -0.99, 100.0     # deg/s, 1, -, deg/s: sb = w·ss
     model = Model.from_spec(["bias", "scale"])
@@ -248,7 +248,7 @@ def test_what_another_session_should_leave_counts_correlated_coefficients():
 
 
 def test_distinct_rows_are_bit_for_bit():
-    from gyrocal.calibration import distinct_rows
+    from gyrocal.calibration.file import distinct_rows
     temp = np.array([20.0, 20.5, 20.0, -0.0, 0.0, 20.5, np.nan, np.nan])
     accel = np.array([1.0, 1.0, 2.0, 1.0, 1.0, 1.0, 1.0, 1.0])
     first, index = distinct_rows([temp, accel])
@@ -260,18 +260,18 @@ def test_distinct_rows_are_bit_for_bit():
 def check_compensation_per_distinct_row(cal: Calibration, n=20_000, seed=3, step=1 / 16, **extra):
     """The shared first step gives what the per-sample solve gives, to the rounding of
     each row's largest output (the check of every sample is the same)."""
-    from gyrocal import calibration
+    from gyrocal.calibration import file
     rng = np.random.default_rng(seed)
     temp = np.round(rng.uniform(-15.0, 55.0, n) / step) * step   # a sensor's steps
     gyro = rng.normal(0.0, 200.0, (n, 3))
     data = {"temp": temp, **{k: f(rng, n) for k, f in extra.items()}}
     shared = []
-    distinct = calibration.distinct_rows
-    calibration.distinct_rows = lambda cols: shared.append(len((found := distinct(cols))[0])) or found
+    distinct = file.distinct_rows
+    file.distinct_rows = lambda cols: shared.append(len((found := distinct(cols))[0])) or found
     try:
         grouped = cal.compensate(gyro, data, warn=False)
     finally:
-        calibration.distinct_rows = distinct
+        file.distinct_rows = distinct
     assert shared and shared[0] <= n // 2   # the shared path was taken
     covariates = {**data, "temp": cal.clamp(temp)}
     direct, _ = cal.model.compensate(cal.coefficients(temp, warn=False), gyro, covariates)
@@ -314,7 +314,7 @@ def test_apply_writes_the_compensated_rates_without_a_dictionary(complete_run, l
 def test_an_error_while_applying_leaves_no_output_and_no_thread(complete_run, logs, tmp_path, monkeypatch):
     import threading
 
-    from gyrocal import apply as apply_module
+    from gyrocal.calibration import apply as apply_module
     cal = complete_run.calibration
     calls = []
     real = Calibration.compensate
@@ -343,10 +343,10 @@ def test_a_term_only_one_point_excites_is_calibrated_that_point_not_scored(logs,
     holds see both of its sides, so leaving it out leaves the step undetermined. The
     calibration is still made, validated on the other points, and the point is counted
     and never scored (on three points, the end points left out are what is scored)."""
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import extended
-    from gyrocal.pipeline import run, segment_log
-    from gyrocal.validate import CannotLeaveOut, validate
+    from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.fit.validate import CannotLeaveOut, validate
 
     settings = Settings()
     obs = segment_log(logs[name], settings).observations

@@ -10,12 +10,12 @@ import sys
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal import cli
+from gyrocal.run import cli
 
 
 def gyrocal(*args):
     """Run the installed console entry point in a subprocess (what rigs and scripts do)."""
-    return subprocess.run([sys.executable, "-m", "gyrocal.cli", *map(str, args)],
+    return subprocess.run([sys.executable, "-m", "gyrocal.run.cli", *map(str, args)],
                           capture_output=True, text=True)
 
 
@@ -129,11 +129,11 @@ def test_usage_mistakes_are_one_line_and_exit_2(args):
 
 
 def test_an_internal_error_is_one_line_and_exit_1(monkeypatch, capsys):
-    import gyrocal.calibration
+    import gyrocal.calibration.file
 
     def broken(path):
         raise RuntimeError("something\nunexpected")
-    monkeypatch.setattr(gyrocal.calibration, "load_calibration", broken)
+    monkeypatch.setattr(gyrocal.calibration.file, "load_calibration", broken)
     assert main("apply", "a.json", "b.parquet", "-o", "c.parquet") == 1
     err = capsys.readouterr().err.strip()
     assert err == ("gyrocal: internal error: RuntimeError: something unexpected "
@@ -170,11 +170,11 @@ def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term
 
 
 def test_the_command_line_sets_one_blas_thread_before_numpy_loads():
-    """The BLAS thread count is read when numpy loads: gyrocal.blas_threads must come first,
+    """The BLAS thread count is read when numpy loads: gyrocal.run.blas_threads must come first,
     and a count the user set is kept."""
     import os
-    probe = ("import os, sys, gyrocal.cli; order = list(sys.modules); "
-             "print(order.index('gyrocal.blas_threads') < order.index('numpy'), "
+    probe = ("import os, sys, gyrocal.run.cli; order = list(sys.modules); "
+             "print(order.index('gyrocal.run.blas_threads') < order.index('numpy'), "
              "os.environ['OPENBLAS_NUM_THREADS'])")
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
     out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,

@@ -13,12 +13,12 @@ import shutil
 import numpy as np
 import pytest
 
-from gyrocal import failure
-from gyrocal.calibration import load_calibration
-from gyrocal.cli import main
-from gyrocal.errors import CorruptFileError
+from gyrocal.io import failure
+from gyrocal.calibration.file import load_calibration
+from gyrocal.run.cli import main
+from gyrocal.io.errors import CorruptFileError
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
-from gyrocal.unit_folder import UNIT_FILES
+from gyrocal.io.unit_folder import UNIT_FILES
 
 from .conftest import FLEET_CONFIG, REPO, needs, snakemake
 

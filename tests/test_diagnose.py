@@ -11,9 +11,9 @@ from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
+from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import candidate_terms, config_line, diagnose, extended
-from gyrocal.pipeline import segment_log
+from gyrocal.pipeline.chain import segment_log
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
 from gyrocal.terms import make_term

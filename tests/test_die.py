@@ -11,13 +11,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyrocal.apply import apply_calibration
-from gyrocal.calibration import Calibration, load_calibration, save_calibration
-from gyrocal.errors import MissingInputError
-from gyrocal.model import Model
-from gyrocal.signals import LagFilter, Series, first_order_lag
+from gyrocal.calibration.apply import apply_calibration
+from gyrocal.calibration.file import Calibration, load_calibration, save_calibration
+from gyrocal.io.errors import MissingInputError
+from gyrocal.fit.model import Model
+from gyrocal.io.signals import LagFilter, Series, first_order_lag
 from gyrocal.terms import make_term
-from gyrocal.thermal import ConstantCoefficients
+from gyrocal.fit.thermal import ConstantCoefficients
 
 
 @given(st.integers(0, 2 ** 31 - 1), st.lists(st.integers(1, 400), min_size=1, max_size=6))
@@ -116,7 +116,7 @@ def ramp_log(path, n=30_000):
 
 
 def test_apply_runs_the_lag_over_the_samples_across_batches(tmp_path, monkeypatch):
-    import gyrocal.apply as apply_module
+    import gyrocal.calibration.apply as apply_module
     cal_path = tmp_path / "cal.json"
     save_calibration(die_calibration(), cal_path)
     cal = load_calibration(cal_path)
@@ -144,7 +144,7 @@ def test_the_lag_comes_back_from_the_file():
 def test_a_fit_finds_the_die_lag_on_holds_of_a_sweep():
     """Holds along a ramp up and down whose bias follows the die's temperature with a
     quadratic: the profile finds τ, and the calibration reproduces the holds."""
-    from gyrocal.thermal import fit_model
+    from gyrocal.fit.thermal import fit_model
     tau, r = 420.0, 1 / 60
     t = np.arange(0.0, 14400.0 + 1.0, 1.0)
     temp = np.where(t < 7200.0, 0.0 + r * t, 0.0 + r * (14400.0 - t))

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from gyrocal import failure
-from gyrocal.config import Settings
-from gyrocal.drift import parameter_changes, plot_drift, revalidate
-from gyrocal.errors import ConfigError, InputError
-from gyrocal.tables import write_table
-from gyrocal.pipeline import calibrate_observations, segment_log
+from gyrocal.io import failure
+from gyrocal.pipeline.config import Settings
+from gyrocal.fleet.drift import parameter_changes, plot_drift, revalidate
+from gyrocal.io.errors import ConfigError, InputError
+from gyrocal.io.tables import write_table
+from gyrocal.pipeline.chain import calibrate_observations, segment_log
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
 TEMPS = (0.0, 20.0, 40.0)

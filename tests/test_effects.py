@@ -18,16 +18,16 @@ import pytest
 from hypothesis import HealthCheck, given, settings as hsettings, strategies as st
 
 from benchmarks.zoo.generator import make_unit, write_session
-from gyrocal.cli import main
-from gyrocal.config import ModelSettings, Settings
-from gyrocal.drift import revalidate
-from gyrocal.errors import ConfigError, IdentifiabilityError
-from gyrocal.model import Model, columns_of
-from gyrocal.pipeline import run, segment_log
-from gyrocal.signals import Inputs, Series, first_order_lag, history
+from gyrocal.run.cli import main
+from gyrocal.pipeline.config import ModelSettings, Settings
+from gyrocal.fleet.drift import revalidate
+from gyrocal.io.errors import ConfigError, IdentifiabilityError
+from gyrocal.fit.model import Model, columns_of
+from gyrocal.pipeline.chain import run, segment_log
+from gyrocal.io.signals import Inputs, Series, first_order_lag, history
 from gyrocal.terms import TERMS, make_term
 from gyrocal.terms.user import load_term_file
-from gyrocal.thermal import fit_model
+from gyrocal.fit.thermal import fit_model
 
 WARMUP_FORMULA = {"formula": "exp(-t / tau)", "profile": {"tau": [60, 14400]}}
 WARMUP_FILE = textwrap.dedent('''
@@ -340,9 +340,9 @@ def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmu
 def test_a_joint_grid_that_cannot_leave_a_point_out_says_so(observed, monkeypatch):
     """A global term only one point determines: validation cannot leave that point out and
     says so, in one line, rather than failing inside."""
-    from gyrocal.errors import GyrocalError
-    from gyrocal.thermal import JointGridFit
-    from gyrocal.validate import validate
+    from gyrocal.io.errors import GyrocalError
+    from gyrocal.fit.thermal import JointGridFit
+    from gyrocal.fit.validate import validate
     _, obs = observed
     m = with_model(expressions={"warmup": {"formula": "exp(-t / 1200)"}}).model
     fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
@@ -376,7 +376,7 @@ def test_apply_counts_time_from_the_first_row_the_fit_kept(warmup_sessions, tmp_
                                     __import__("pyarrow").array(temp)), broken)
     result = run(broken, with_model(expressions={"warmup": WARMUP_FORMULA}))
     out = tmp_path / "out.parquet"
-    from gyrocal.apply import apply_calibration
+    from gyrocal.calibration.apply import apply_calibration
     counts = apply_calibration(result.calibration, broken, out)
     assert counts["nonfinite"] == 250
     plain = run(broken).calibration

@@ -9,18 +9,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal import failure
-from gyrocal.calibration import Calibration, save_calibration
-from gyrocal.errors import ConfigError, InputError
-from gyrocal.eol import Verdict, batch_yield, judge, judge_folder
-from gyrocal.limits import SpecLimits
-from gyrocal.outliers import MAD_Z, fleet_outliers
-from gyrocal.parameters import parameter_table, parameters_at
-from gyrocal.plots import plot_parameter_distributions
-from gyrocal.tables import write_table
-from gyrocal.model import Model
+from gyrocal.io import failure
+from gyrocal.calibration.file import Calibration, save_calibration
+from gyrocal.io.errors import ConfigError, InputError
+from gyrocal.fleet.eol import Verdict, batch_yield, judge, judge_folder
+from gyrocal.fleet.limits import SpecLimits
+from gyrocal.fleet.outliers import MAD_Z, fleet_outliers
+from gyrocal.calibration.parameters import parameter_table, parameters_at
+from gyrocal.fleet.outliers import plot_parameter_distributions
+from gyrocal.io.tables import write_table
+from gyrocal.fit.model import Model
 from gyrocal.simulate import GyroUnit
-from gyrocal.thermal import ConstantCoefficients, TemperatureGrid
+from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid
 
 from .conftest import truth_coefficients
 

@@ -14,14 +14,14 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.interpolate import PPoly
 
-from gyrocal.apply import apply_calibration
-from gyrocal.calibration import Calibration, load_calibration, save_calibration
-from gyrocal.errors import GyrocalError
-from gyrocal.export import (FORMAT, UnsupportedModelError, add_export_parser, export_calibration,
-                            export_text, firmware_tables)
-from gyrocal.model import DEFAULT_TERMS, Model
+from gyrocal.calibration.apply import apply_calibration
+from gyrocal.calibration.file import Calibration, load_calibration, save_calibration
+from gyrocal.io.errors import GyrocalError
+from gyrocal.calibration.export import (FORMAT, UnsupportedModelError, add_export_parser,
+                                        export_calibration, export_text, firmware_tables)
+from gyrocal.fit.model import DEFAULT_TERMS, Model
 from gyrocal.simulate import GyroUnit
-from gyrocal.thermal import ConstantCoefficients, TemperatureGrid, interpolation_weights
+from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid, interpolation_weights
 
 from .conftest import make_log, needs, truth_coefficients
 
@@ -372,7 +372,7 @@ def test_compiled_c_runs_the_die_lag_as_apply_does(case, log, tmp_path):
     """A calibration at the die's temperature: the header carries the lag as a filter with
     its state, and the compiled code, fed the samples in order, reproduces apply."""
     cal = make_calibration(case)
-    from gyrocal.model import Model
+    from gyrocal.fit.model import Model
     cal = Calibration(Model(cal.model.terms + (Model.from_spec(["die_temperature(tau=45.0)"]).terms)),
                       cal.grid, meta=dict(META))
     cal_path, expected = applied(cal, log, tmp_path)
@@ -394,7 +394,7 @@ def spline_calibration(kind: str):
     """The seed-000 unit with empirical terms firmware can evaluate: a spline of time since
     power-on on a grid; a continuous model with a spline of the temperature (a bias) and
     one of time times the own rate (a scale relaxing after power-on)."""
-    from gyrocal.model import Model
+    from gyrocal.fit.model import Model
     if kind == "grid":
         cal = grid_calibration((0.0, 10.0, 20.0, 30.0), "lagrange3", 2)
         extra = ['smooth(input="t", knots=[0.0, 20.0, 60.0, 120.0])']
@@ -434,14 +434,14 @@ def test_compiled_c_adds_the_empirical_terms_as_apply_does(kind, log, tmp_path):
     good = np.isfinite(data).all(axis=1)
     np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
     # Teeth: without the splines the compensation differs by far more.
-    from gyrocal.export import _without_splines
+    from gyrocal.calibration.export import _without_splines
     bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0] - data[0, 0],
                                                               "temp": data[good, 4]}, warn=False)
     assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
 
 
 def test_splines_of_other_inputs_are_refused_by_name():
-    from gyrocal.model import Model
+    from gyrocal.fit.model import Model
     cal = grid_calibration((0.0, 10.0, 20.0, 30.0))
     model = Model(cal.model.terms + Model.from_spec(
         ['smooth(input="rate_own", knots=[-400.0, 0.0, 400.0], linear=False)']).terms)

@@ -20,10 +20,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal import atomic, failure
-from gyrocal.calibration import load_calibration
+from gyrocal.io import atomic, failure
+from gyrocal.calibration.file import load_calibration
 from gyrocal.simulate import TurntableProtocol, simulate_unit
-from gyrocal.tables import write_table
+from gyrocal.io.tables import write_table
 
 from .conftest import REPO, assert_every_file_whole, leftovers, snakemake
 
@@ -66,7 +66,7 @@ def unit(wd, device):
 @pytest.mark.parametrize("kill", ["the job", "the whole run"])
 def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill):
     """The analyse job of K1 is held between its complete temporary validation.json and
-    the rename (the test seam of gyrocal.atomic), then killed with SIGKILL: its writing
+    the rename (the test seam of gyrocal.io.atomic), then killed with SIGKILL: its writing
     process alone (Snakemake sees the job fail) or Snakemake with every job (a node lost)."""
     # Beside K1, K2 shows the rest of the fleet going on past a failed job.
     wd = fleet(tmp_path, tiny_logs, ("K1", "K2") if kill == "the job" else ("K1",))
@@ -147,7 +147,7 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     # Each job's log ends with what its stage cost (benchmarks/throughput.py reads it).
     for stage in ("segment", "analyse", "report"):
         log = (wd / "logs" / stage / "B1" / "K1" / f"{SESSION}.log").read_text()
-        assert re.search(rf"^gyrocal.guard: {stage} took [\d.]+ s, [\d.]+ s CPU, \d+ MiB peak$",
+        assert re.search(rf"^gyrocal.run.guard: {stage} took [\d.]+ s, [\d.]+ s CPU, \d+ MiB peak$",
                          log, flags=re.M), log
 
 
@@ -189,7 +189,7 @@ def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_lim
     for the job's time left and keeps 30 s of it for the steps after segmentation (none
     left: stopped at once). Before the last attempt, and outside SLURM, it does not: the
     scheduler ends the job and Snakemake retries it with more time."""
-    from gyrocal import guard
+    from gyrocal.run import guard
     squeue = tmp_path / "squeue"
     squeue.write_text(f'#!/bin/sh\necho "$@" > {tmp_path / "args"}\necho "{left}|{limit}"\n')
     squeue.chmod(0o755)

@@ -14,9 +14,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.config import Settings
-from gyrocal.errors import SegmentationError
-from gyrocal.pipeline import run, segment_log
+from gyrocal.pipeline.config import Settings
+from gyrocal.io.errors import SegmentationError
+from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.simulate import GyroUnit, simulate_unit
 from gyrocal.simulate.ferraris import FerrarisProtocol
 
@@ -321,7 +321,7 @@ def labelled_session(folder: Path, *, label: bool = True) -> Path:
 
 def imported(tmp_path, source: Path, map_text: str) -> Path:
     """``gyrocal import SOURCE --map MAP`` as a user runs it."""
-    from gyrocal import cli
+    from gyrocal.run import cli
     (tmp_path / "map.yaml").write_text(map_text)
     out = tmp_path / (source.stem + ".parquet")
     assert cli.main(["import", str(source), "--map", str(tmp_path / "map.yaml"), "-o", str(out)]) == 0
@@ -366,7 +366,7 @@ def test_real_session_turns_read_360_after_compensation(tmp_path):
     the only observation of its column of K, so this holds by construction when the chain is
     right: it checks the integration rule (the sum over samples / 102.4 Hz, as imucal's), the
     annotation's rows and apply's path for a log without temp, not the hand."""
-    from gyrocal.apply import apply_calibration
+    from gyrocal.calibration.apply import apply_calibration
     path = real_log(tmp_path, annotated=True)
     cal = run(path, Settings().for_protocol("ferraris"), protocol="ferraris").calibration
     out = tmp_path / "compensated.parquet"
@@ -433,7 +433,7 @@ def test_annotation_is_read_with_timestamps_and_dropped_rows(tmp_path):
 def test_without_temperature_no_term_reads_a_made_up_one(tmp_path):
     """The stand-in temperature of a log without temp gives a temperature term nothing to
     fit: refused by name."""
-    from gyrocal.errors import GyrocalError
+    from gyrocal.io.errors import GyrocalError
     path, _ = ferraris_log(tmp_path, seed=14, temperature=None)
     s = Settings.from_dict({"protocols": {"ferraris": {"model": {
         "terms": ["bias", "scale", "misalignment", "temp_lag"]}}}}).for_protocol("ferraris")
@@ -456,8 +456,8 @@ def test_without_temperature_the_read_still_checks_the_timing(tmp_path):
 def test_a_session_without_temperature_in_the_fleet(tmp_path):
     """Through the workflow's stages (segment, analyse, report) and the fleet: the unit is
     calibrated, its report renders, and its temperature span is null, not the stand-in."""
-    from gyrocal.fleet import fleet_summary, fleet_table
-    from gyrocal.stages import analyse_stage, report_stage, segment_stage
+    from gyrocal.fleet.summary import fleet_summary, fleet_table
+    from gyrocal.run.stages import analyse_stage, report_stage, segment_stage
     path, _ = ferraris_log(tmp_path, seed=18, temperature=None)
     folder = tmp_path / "results" / "H1"
     meta = {"device": "H1", "batch": "B1", "session": "2026-01-01", "protocol": "ferraris"}

@@ -15,9 +15,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.config import Settings
-from gyrocal.errors import GyrocalError
-from gyrocal.pipeline import run
+from gyrocal.pipeline.config import Settings
+from gyrocal.io.errors import GyrocalError
+from gyrocal.pipeline.chain import run
 
 from .ferraris_gen.generate import KINDS, session
 from .test_ferraris import K_stderr

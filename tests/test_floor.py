@@ -13,14 +13,16 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from gyrocal.calibration import dumps
-from gyrocal.config import Settings
+from gyrocal.calibration.file import dumps
+from gyrocal.pipeline.config import Settings
 from gyrocal.diagnose import diagnose
-from gyrocal.floor import FALLBACK, STATIC, floor_terms
-from gyrocal.noise import FLICKER_FACTOR, allan_deviation, barnes_b1, pooled_allan_deviation
-from gyrocal.pipeline import run
-from gyrocal.report import UnitResults, write_unit_report
-from gyrocal.simulate import GyroUnit, ServoProtocol, SweepProtocol, TurntableProtocol, simulate_unit
+from gyrocal.fit.floor import FALLBACK, STATIC, floor_terms
+from gyrocal.fit.noise import FLICKER_FACTOR, allan_deviation, barnes_b1, pooled_allan_deviation
+from gyrocal.pipeline.chain import run
+from gyrocal.protocols import registry
+from gyrocal.report.unit import UnitResults, write_unit_report
+from gyrocal.simulate import (GyroUnit, ServoProtocol, SweepProtocol, TurntableProtocol,
+                              simulate_unit)
 from gyrocal.simulate.noise import GRADES, coloured_noise
 
 from .wander_reference import held_covariances
@@ -189,7 +191,7 @@ def test_without_static_data_the_floor_falls_back_and_the_report_says_so(tmp_pat
     assert noise["source"] == FALLBACK and "static data" in noise["reason"]
     assert "floor_x" not in result.segmentation.observations
     out = tmp_path / "report.html"
-    write_unit_report(UnitResults.from_run(result), out)
+    write_unit_report(UnitResults.from_run(result), out, registry.get("turntable"))
     text = out.read_text()
     assert "falls back to the within-hold scatter" in text and 'id="noise-terms"' not in text
 
@@ -199,7 +201,7 @@ def test_report_shows_the_terms_and_the_allan_figure(tmp_path):
     path = tmp_path / "mid.parquet"
     simulate_unit(path, rig=TurntableProtocol.quick(soak_s=300.0), unit=GyroUnit.random(rng), rng=rng, noise="mid")
     out = tmp_path / "report.html"
-    write_unit_report(UnitResults.from_run(run(path, Settings())), out)
+    write_unit_report(UnitResults.from_run(run(path, Settings())), out, registry.get("turntable"))
     text = out.read_text()
     section = text[text.index('id="noise"'):text.index('id="parameters"')]
     assert "deg/√h" in section and "averaging time" in section and "bias instability" in section

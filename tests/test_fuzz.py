@@ -21,10 +21,10 @@ import pytest
 from hypothesis import event, example, given, reject, settings
 from hypothesis import strategies as st
 
-from gyrocal import cli
-from gyrocal import io as gio
-from gyrocal.errors import CorruptFileError, LogFormatError
-from gyrocal.turntable.segment import LOG_COLUMNS
+from gyrocal.run import cli
+from gyrocal.io import log as gio
+from gyrocal.io.errors import CorruptFileError, LogFormatError
+from gyrocal.protocols.turntable.segment import LOG_COLUMNS
 
 from . import fuzzing as fz
 from .fuzzing import Case
@@ -108,7 +108,7 @@ def test_the_console_entry_point_refuses_bad_logs_in_one_line(base, tmp_path, ca
     """The real process: the log is decoded ahead on a thread, errors come back from it."""
     path = fz.write_case(base.table, case, tmp_path)
     out = tmp_path / "cal.json"
-    run = subprocess.run([sys.executable, "-m", "gyrocal.cli", "calibrate", str(path), "-o",
+    run = subprocess.run([sys.executable, "-m", "gyrocal.run.cli", "calibrate", str(path), "-o",
                           str(out)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 2, run.stderr
     assert run.stderr.startswith(f"gyrocal: error: {path}: ") and run.stderr.count("\n") == 1
@@ -157,7 +157,7 @@ def test_the_properties_flag_internal_errors_and_messages_without_the_file(base,
 
 
 def read_as_pipeline(path):
-    from gyrocal.blocks import BlockSink
+    from gyrocal.io.blocks import BlockSink
     return gio.read_log(path, optional=LOG_COLUMNS, sink=BlockSink(1.0))
 
 

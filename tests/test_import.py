@@ -17,8 +17,9 @@ import pyarrow.csv as pacsv
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal import __version__, cli
-from gyrocal.errors import LogFormatError
+from gyrocal import __version__
+from gyrocal.run import cli
+from gyrocal.io.errors import LogFormatError
 from gyrocal.importer import bags, import_log, sink, tabular
 
 from .conftest import needs
@@ -709,7 +710,7 @@ def test_a_bad_import_through_the_installed_command_is_one_line_and_status_2(tmp
 
 def test_the_bag_libraries_load_only_for_a_bag():
     """calibrate does not pay for rosbags and mcap: a CSV import does not load them either."""
-    probe = ("import sys, gyrocal.cli, gyrocal.importer, gyrocal.importer.tabular; "
+    probe = ("import sys, gyrocal.run.cli, gyrocal.importer, gyrocal.importer.tabular; "
              "print(sorted(m for m in ('rosbags', 'mcap', 'mcap_ros2') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"

@@ -18,8 +18,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.cli import main
-from gyrocal.plausibility import CODES
+from gyrocal.run.cli import main
+from gyrocal.io.plausibility import CODES
 
 from .conftest import make_log
 
@@ -270,8 +270,8 @@ def test_bad_input(kind, good, tmp_path, capsys):
 def test_a_misspelled_config_key_is_refused_by_name(tmp_path, config, message, capsys):
     import yaml
 
-    from gyrocal.errors import ConfigError
-    from gyrocal.fleet import FleetSettings
+    from gyrocal.io.errors import ConfigError
+    from gyrocal.fleet.summary import FleetSettings
     if "spec" in config:   # the fleet stage's settings
         with pytest.raises(ConfigError, match=message):
             FleetSettings.from_dict(config)
@@ -290,14 +290,16 @@ HOSTILE = "<img src=x onerror=alert(1)>"
 def test_reports_escape_every_string_from_data(good, tmp_path):
     """A batch name, an error text and a warning's message from a hostile log reach the unit
     report and the fleet summary as text, never as markup."""
-    from gyrocal.pipeline import run
-    from gyrocal.report import UnitResults, write_fleet_report, write_unit_report
+    from gyrocal.pipeline.chain import run
+    from gyrocal.fleet.summary import write_fleet_report
+    from gyrocal.protocols import registry
+    from gyrocal.report.unit import UnitResults, write_unit_report
     log = tmp_path / "U001.parquet"
     pq.write_table(some_rows(good, good["ref_rate"].to_numpy() >= 0), log)   # a warning too
     result = run(log, batch=HOSTILE, session="2026-01-01")
     result.calibration.extra["warnings"][0]["message"] += HOSTILE
     page = tmp_path / "unit.html"
-    write_unit_report(UnitResults.from_run(result), page)
+    write_unit_report(UnitResults.from_run(result), page, registry.get("turntable"))
     html = page.read_text()
     assert 'id="warnings"' in html and "protocol_unbalanced" in html   # at the top of the report
     assert html.index('id="warnings"') < html.index('id="verdict"')
@@ -332,7 +334,7 @@ def test_reports_escape_every_string_from_data(good, tmp_path):
 def test_the_time_base_against_what_rigs_record(stats, hold, outcome):
     """Errors where the figures are what no rig records and one unit factor explains them
     all, warnings where one figure is odd; the factor is named where it explains it."""
-    from gyrocal.plausibility import time_base
+    from gyrocal.io.plausibility import time_base
     error, warning = time_base({"rows": 1000, **stats}, hold)
     if outcome is None:
         assert error is None and warning is None

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from gyrocal.errors import CorruptFileError, EmptyLogError, GyrocalError, LogFormatError
-from gyrocal.io import MOUNTS, file_digest, file_sha256, read_log
+from gyrocal.io.errors import CorruptFileError, EmptyLogError, GyrocalError, LogFormatError
+from gyrocal.io.log import MOUNTS, file_digest, file_sha256, read_log
 
 
 def table(n=100, **overrides):

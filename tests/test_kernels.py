@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrocal import kernels
+from gyrocal.io import kernels
 
 from .conftest import needs
 
-pytestmark = needs({"the C kernel gyrocal._blockstats": kernels.LIB is not None},
+pytestmark = needs({"the C kernel gyrocal.io._blockstats": kernels.LIB is not None},
                    "pip builds it on install where gcc is found, as make test does")
 
 
@@ -59,7 +59,7 @@ def test_means_skip_non_finite_values_only_when_asked(monkeypatch):
 
 
 def test_segmentation_is_the_same_on_either_path(logs, monkeypatch):
-    from gyrocal.turntable.segment import segment_file
+    from gyrocal.protocols.turntable.segment import segment_file
     _, compiled = segment_file(logs["complete"])
     monkeypatch.setattr(kernels, "LIB", None)
     _, fallback = segment_file(logs["complete"])

@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from gyrocal.calibration import Calibration, save_calibration
-from gyrocal.errors import ConfigError, InputError
-from gyrocal.failure import record
-from gyrocal.lookup import NoCalibrationError, add_lookup_parser, find_calibration
-from gyrocal.model import DEFAULT_TERMS, Model
-from gyrocal.thermal import TemperatureGrid
+from gyrocal.calibration.file import Calibration, save_calibration
+from gyrocal.io.errors import ConfigError, InputError
+from gyrocal.io.failure import record
+from gyrocal.calibration.lookup import NoCalibrationError, add_lookup_parser, find_calibration
+from gyrocal.fit.model import DEFAULT_TERMS, Model
+from gyrocal.fit.thermal import TemperatureGrid
 
 
 def calibration(device, session, batch="B1", bias=0.0):

@@ -8,8 +8,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal.errors import ConfigError, IdentifiabilityError
-from gyrocal.model import Model, fit
+from gyrocal.io.errors import ConfigError, IdentifiabilityError
+from gyrocal.fit.model import Model, fit
 from gyrocal.terms import TERMS, Term, make_term, register_term
 from gyrocal.simulate.unit import SEED000_B25, SEED000_K25
 
@@ -166,7 +166,7 @@ def _spline_holds(t, seed=0, floor=0.002):
     truth = 0.3 * np.exp(-t / 800.0)
     data = {"t_start": t - 10.0, "t_end": t + 10.0, "n": np.full(n, 100.0),
             **{f"rate_{a}": np.zeros(n) for a in "xyz"}}
-    from gyrocal.signals import Series
+    from gyrocal.io.signals import Series
     record = np.arange(0.0, t.max() + 60.0, 1.0)
     data["series"] = Series(record, np.full(record.size, 25.0), 0.0, 60.0, np.ones(record.size))
     for a in "xyz":
@@ -179,7 +179,7 @@ def test_a_light_penalty_leaves_a_well_sampled_spline_as_least_squares_fits_it()
     """Where holds determine every coefficient, the spline's penalty changes the fitted hold
     means by far less than their noise floor; across a stretch without holds it draws a bounded curve
     where least squares alone would have no answer."""
-    from gyrocal.model import fit
+    from gyrocal.fit.model import fit
     spec = 'smooth(input="t", knots=[20.0, 600.0, 1500.0, 3000.0, 5000.0])'
     model = Model.from_spec(["bias", spec])
     data, truth = _spline_holds(np.arange(20.0, 5000.0, 40.0))
@@ -204,7 +204,7 @@ def test_a_light_penalty_leaves_a_well_sampled_spline_as_least_squares_fits_it()
 def test_holds_share_wander_only_with_bias_instability_or_rate_random_walk():
     """Whether the fit whitens the holds jointly, and the diagnosis' verdict gives
     sqrt(χ²/dof) rather than RMS ÷ floor: only when the noise model has flicker or RRW."""
-    from gyrocal.model import shares_wander
+    from gyrocal.fit.model import shares_wander
     white = {f"white_{a}": np.full(4, 1e-3) for a in "xyz"}
     quiet = {**white, **{f"{k}_{a}": np.zeros(4) for k in ("flicker", "rrw") for a in "xyz"}}
     assert not shares_wander({}) and not shares_wander(quiet)

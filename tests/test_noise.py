@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from gyrocal.errors import ConfigError, GyrocalError, InputError
-from gyrocal.noise import (FLICKER_FACTOR, AllanResult, NoiseTerms, allan_deviation, edf_overlapping,
-                           fit_noise_terms)
+from gyrocal.io.errors import ConfigError, GyrocalError, InputError
+from gyrocal.fit.noise import (FLICKER_FACTOR, AllanResult, NoiseTerms, allan_deviation,
+                               edf_overlapping, fit_noise_terms)
 from gyrocal.simulate.noise import GRADES, coloured_noise
 
 from .conftest import needs

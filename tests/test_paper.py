@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import pytest
 
-from gyrocal.errors import InputError
+from gyrocal.io.errors import InputError
 from gyrocal.paper import SEEDS, add_parser, regenerate, seed000
 from gyrocal.paper.render import render
 from gyrocal.paper.table import PaperRow, PaperTable

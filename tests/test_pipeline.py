@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrocal.calibration import save_calibration
-from gyrocal.errors import IdentifiabilityError
-from gyrocal.pipeline import run
+from gyrocal.calibration.file import save_calibration
+from gyrocal.io.errors import IdentifiabilityError
+from gyrocal.pipeline.chain import run
 
 from .conftest import make_log, truth_coefficients
 
@@ -178,17 +178,17 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
     path's, bit for bit."""
     import pandas as pd
 
-    from gyrocal import io
-    from gyrocal.config import Settings
-    from gyrocal.pipeline import segment_log
+    from gyrocal.io import log
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.pipeline.chain import segment_log
     settings = Settings()
     path = logs["complete"]
     kept = segment_log(path, settings)
-    monkeypatch.setattr(io, "READ_BATCH_ROWS", 4999)
+    monkeypatch.setattr(log, "READ_BATCH_ROWS", 4999)
     streamed = segment_log(path, settings, keep_bytes=0)
     pd.testing.assert_frame_equal(streamed.observations, kept.observations, check_exact=True)
     pd.testing.assert_frame_equal(streamed.segments, kept.segments, check_exact=True)
-    from gyrocal.floor import STATIC
+    from gyrocal.fit.floor import STATIC
     assert streamed.info == kept.info and streamed.info["noise"]["source"] == STATIC
     a, b = (s.observations.attrs["series"] for s in (kept, streamed))
     for name in ("t", "temp", "weight"):
@@ -197,7 +197,7 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
 
 def test_history_of_pieces_is_the_history_of_the_whole():
     """Bin sums are made within one piece, so any cut of the record gives the same bits."""
-    from gyrocal.signals import HistoryBins, history
+    from gyrocal.io.signals import HistoryBins, history
     rng = np.random.default_rng(3)
     t = np.cumsum(rng.uniform(0.005, 0.015, 20_000))
     temp = 25 + np.cumsum(rng.normal(0, 0.01, t.size)).astype(np.float32)
@@ -216,16 +216,17 @@ def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
     same bin means of the same kept rows, gathered in a pass that keeps no batch."""
     import pyarrow.parquet as pq
 
-    from gyrocal import apply, io
-    from gyrocal.config import Settings
+    from gyrocal.calibration import apply
+    from gyrocal.io import log
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import extended
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
     path = logs["complete"]
     settings = extended(Settings(), "temp_rate")
     cal = run(path, settings).calibration
     fitted = segment_log(path, settings).observations.attrs["series"]
     assert cal.covariates["temp_rate"]["window_s"] == fitted.temp_rate_window_s
-    monkeypatch.setattr(io, "READ_BATCH_ROWS", 4999)
+    monkeypatch.setattr(log, "READ_BATCH_ROWS", 4999)
     t0, record = apply._record(cal, path, pq.read_schema(path).names, True)
     assert t0 == fitted.t0
     for name in ("t", "temp", "weight"):
@@ -233,16 +234,16 @@ def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
 
 
 def test_a_log_read_ahead_segments_to_the_same_bits(logs):
-    """The command line decodes the log on a thread while it imports (gyrocal.readahead);
+    """The command line decodes the log on a thread while it imports (gyrocal.io.readahead);
     the reader takes those batches instead of reading the file, and nothing changes. A
     read-ahead the reader cannot use (other columns) is dropped and the file read."""
     import pandas as pd
 
-    from gyrocal import io, readahead
-    from gyrocal.config import Settings
-    from gyrocal.pipeline import segment_log
-    from gyrocal.turntable.segment import LOG_COLUMNS
-    assert set(io.REQUIRED + LOG_COLUMNS) <= set(readahead.COLUMNS)
+    from gyrocal.io import log, readahead
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+    assert set(log.REQUIRED + LOG_COLUMNS) <= set(readahead.COLUMNS)
     path = logs["complete"]
     direct = segment_log(path, Settings())
     readahead.start(path)
@@ -254,5 +255,5 @@ def test_a_log_read_ahead_segments_to_the_same_bits(logs):
     pd.testing.assert_frame_equal(ahead.observations, direct.observations, check_exact=True)
     assert ahead.info == direct.info
     readahead.start(path)
-    assert readahead.take(path, ("t", "not_a_column"), io.READ_BATCH_ROWS, io.READ_BUFFER_BYTES) is None
+    assert readahead.take(path, ("t", "not_a_column"), log.READ_BATCH_ROWS, log.READ_BUFFER_BYTES) is None
     assert not readahead._pending

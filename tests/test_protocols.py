@@ -10,18 +10,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal import protocols
-from gyrocal.apply import apply_calibration
-from gyrocal.calibration import load_calibration, save_calibration
-from gyrocal.config import Settings
+from gyrocal.protocols import registry
+from gyrocal.calibration.apply import apply_calibration
+from gyrocal.calibration.file import load_calibration, save_calibration
+from gyrocal.pipeline.config import Settings
 from gyrocal.diagnose import diagnose
-from gyrocal.errors import ConfigError
-from gyrocal.pipeline import run
-from gyrocal.report import UnitResults, write_unit_report
+from gyrocal.io.errors import ConfigError
+from gyrocal.pipeline.chain import run
+from gyrocal.report.unit import UnitResults, write_unit_report
 from gyrocal.simulate import simulate_unit
 from gyrocal.simulate.servo import ServoProtocol, ServoUnit
 from gyrocal.simulate.sweep import SweepProtocol, SweepUnit
-from gyrocal.sweep.protocol import sweep_analysis
+from gyrocal.protocols.sweep.protocol import sweep_analysis
 
 from .test_cli import gyrocal
 
@@ -143,7 +143,7 @@ def test_sweep_report_shows_the_seed_003_tables(sweep_log, tmp_path):
     out = tmp_path / "r.html"
     obs = result.segmentation.observations
     write_unit_report(UnitResults.from_run(result, "", diagnose(settings, obs),
-                                           protocols.analysis("sweep", obs)), out)
+                                           registry.analysis("sweep", obs)), out, registry.get("sweep"))
     html = out.read_text()
     assert "Drift models and bias stability (seed 003)" in html
     assert "verified on sweep 2" in html
@@ -207,7 +207,7 @@ def test_a_single_revolution_per_direction_is_scored_in_sample_without_inventing
 
 
 def test_servo_and_turntable_sessions_of_one_unit_agree_within_their_errors(tmp_path):
-    from gyrocal.fleet import servo_versus_turntable
+    from gyrocal.fleet.summary import servo_versus_turntable
     from gyrocal.simulate import TurntableProtocol
     from gyrocal.simulate.fleet import unit_for
     rows = []

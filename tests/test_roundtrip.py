@@ -17,11 +17,11 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from benchmarks.roundtrip import MODELS, READERS, run_case
-from gyrocal.calibration import (Calibration, covariance_problem, dumps, load_calibration,
-                                 save_calibration)
-from gyrocal.errors import CalibrationFileError, GyrocalError
-from gyrocal.model import Model
-from gyrocal.thermal import ConstantCoefficients, TemperatureGrid
+from gyrocal.calibration.file import (Calibration, covariance_problem, dumps, load_calibration,
+                                      save_calibration)
+from gyrocal.io.errors import CalibrationFileError, GyrocalError
+from gyrocal.fit.model import Model
+from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid
 
 NAMES = tuple(Model.from_spec().names)
 

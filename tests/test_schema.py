@@ -8,11 +8,11 @@ import jsonschema
 import pytest
 import yaml
 
-from gyrocal import schema
-from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
-from gyrocal.errors import ConfigError
-from gyrocal.manifest import read_manifest
-from gyrocal.turntable.segment import SegmentConfig
+from gyrocal.io import schema
+from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
+from gyrocal.io.errors import ConfigError
+from gyrocal.fleet.manifest import read_manifest
+from gyrocal.protocols.turntable.segment import SegmentConfig
 
 from .conftest import FLEET_CONFIG, REPO
 

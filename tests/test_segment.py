@@ -9,9 +9,9 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from gyrocal.errors import GyrocalError, SegmentationError
-from gyrocal.io import read_log
-from gyrocal.turntable.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
+from gyrocal.io.errors import GyrocalError, SegmentationError
+from gyrocal.io.log import read_log
+from gyrocal.protocols.turntable.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
 from gyrocal.simulate import load_truth
 
 from .conftest import TEMPS, make_log
@@ -209,7 +209,7 @@ def test_configured_full_scale_finds_the_same_saturation(tmp_path):
     ({"trim_s": True}, "segmentation.trim_s must be a number"),
 ])
 def test_bad_settings_are_refused_by_name(values, message):
-    from gyrocal.errors import ConfigError
+    from gyrocal.io.errors import ConfigError
     with pytest.raises(ConfigError, match=message):
         SegmentConfig.from_dict(values)
 

@@ -13,13 +13,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyrocal.errors import GyrocalError, SegmentationError
-from gyrocal.io import RigLog, read_log
-from gyrocal.servo import (ServoFitError, find_rotations, fit_iterative, fit_lm, fit_observations,
-                           g_optimal_warnings)
-from gyrocal.servo.fit import PARAMETERS
-from gyrocal.servo.montecarlo import (box_stats, fit_batch, simulate_observations, speed_sweep,
-                                      study)
+from gyrocal.io.errors import GyrocalError, SegmentationError
+from gyrocal.io.log import RigLog, read_log
+from gyrocal.protocols.servo import (ServoFitError, find_rotations, fit_iterative, fit_lm,
+                                     fit_observations, g_optimal_warnings)
+from gyrocal.protocols.servo.fit import PARAMETERS
+from gyrocal.protocols.servo.montecarlo import (box_stats, fit_batch, simulate_observations,
+                                                speed_sweep, study)
 from gyrocal.simulate.servo import DIRECTIONS, ServoProtocol, ServoUnit, render_servo
 
 DEG = 180.0 / math.pi
@@ -332,7 +332,7 @@ def stderr_matrix(fit) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_a_fixture_gives_every_term_from_the_off_axis_outputs(tmp_path):
-    from gyrocal.servo.fit import fit_model
+    from gyrocal.protocols.servo.fit import fit_model
     revs, K, B, _ = zoo_servo(tmp_path, 3, misalign_deg=[0.0, 0.0])
     fit, used, _ = fit_model(revs, "fixture")
     K_se, B_se = stderr_matrix(fit)
@@ -344,7 +344,7 @@ def test_a_fixture_gives_every_term_from_the_off_axis_outputs(tmp_path):
 def test_a_hand_mount_puts_its_tilt_into_the_off_axis_outputs(tmp_path):
     # What the fixture model fits on hand mounts is K U, U the mounts' true rotation axes:
     # the tilt, a property of the session, many standard errors beside the unit's own terms.
-    from gyrocal.servo.fit import fit_model
+    from gyrocal.protocols.servo.fit import fit_model
     revs, K, B, (info,) = zoo_servo(tmp_path, 3)
     fit, _, _ = fit_model(revs, "fixture")
     K_se, _ = stderr_matrix(fit)
@@ -354,7 +354,7 @@ def test_a_hand_mount_puts_its_tilt_into_the_off_axis_outputs(tmp_path):
 
 
 def test_cross_terms_from_magnitudes_need_six_axes(tmp_path):
-    from gyrocal.servo.fit import fit_model
+    from gyrocal.protocols.servo.fit import fit_model
     one, K, B, _ = zoo_servo(tmp_path, 2)
     with pytest.raises(ServoFitError, match="do not determine the symmetric cross terms"):
         fit_model(one, "symmetric")
@@ -373,7 +373,8 @@ def test_cross_terms_from_magnitudes_need_six_axes(tmp_path):
 
 
 def test_symmetric_algorithm1_solves_nine_rotations_exactly():
-    from gyrocal.servo.fit import algorithm1_symmetric, fit_symmetric, symmetric_parameters
+    from gyrocal.protocols.servo.fit import (algorithm1_symmetric, fit_symmetric,
+                                             symmetric_parameters)
     rng = np.random.default_rng(5)
     A = np.eye(3) + 0.02 * rng.standard_normal((3, 3))
     K = (A + A.T) / 2
@@ -394,9 +395,9 @@ def test_symmetric_algorithm1_solves_nine_rotations_exactly():
 
 def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_path):
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
-    from gyrocal.errors import ConfigError
-    from gyrocal.pipeline import run
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.io.errors import ConfigError
+    from gyrocal.pipeline.chain import run
     path = tmp_path / "fixture.parquet"
     write_session(make_unit(effect="none", protocol="servo", seed=4), path, session=0, seed=1,
                   misalign_deg=[0.0, 0.0])
@@ -418,7 +419,7 @@ def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_p
 
 
 def test_cross_axis_study_says_what_the_terms_cost_and_gain():
-    from gyrocal.servo.montecarlo import cross_axis_study, cross_axis_summary
+    from gyrocal.protocols.servo.montecarlo import cross_axis_study, cross_axis_summary
     df = cross_axis_study(n_sets=4, n_runs=40, noise=0.001)
     pd.testing.assert_frame_equal(df, cross_axis_study(n_sets=4, n_runs=40, noise=0.001))
     s = cross_axis_summary(df).set_index(["mounting", "design", "model"])

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pyarrow.parquet as pq
 
-from gyrocal.io import read_log
+from gyrocal.io.log import read_log
 from gyrocal.simulate import GyroUnit, TurntableProtocol, load_truth, simulate
 from gyrocal.simulate.unit import SEED000_B25, SEED000_K25
 

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyrocal import atomic, failure
-from gyrocal.calibration import load_calibration
-from gyrocal.errors import CalibrationFileError
+from gyrocal.io import atomic, failure
+from gyrocal.calibration.file import load_calibration
+from gyrocal.io.errors import CalibrationFileError
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 
 from . import slurm

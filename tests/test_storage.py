@@ -16,9 +16,9 @@ import time
 import numpy as np
 import pytest
 
-from gyrocal.calibration import load_calibration
-from gyrocal.tables import read_table_with_metadata
-from gyrocal.manifest import read_manifest
+from gyrocal.calibration.file import load_calibration
+from gyrocal.io.tables import read_table_with_metadata
+from gyrocal.fleet.manifest import read_manifest
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
 from .conftest import needs, snakemake

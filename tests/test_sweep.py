@@ -11,13 +11,13 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyrocal.errors import (CalibrationFileError, ConfigError, GyrocalError, IdentifiabilityError,
-                            SegmentationError)
-from gyrocal.io import MOUNTS, RigLog, read_log
+from gyrocal.io.errors import (CalibrationFileError, ConfigError, GyrocalError,
+                               IdentifiabilityError, SegmentationError)
+from gyrocal.io.log import MOUNTS, RigLog, read_log
 from gyrocal.simulate.sweep import SweepProtocol, SweepUnit, render_sweep, sweep_log, sweep_samples
-from gyrocal.sweep import (DriftModel, SweepDesign, bias_stability, conduction_time, fit_drift,
-                           improvements, jump_interval, ramp_rate, split_sweeps, stability_table,
-                           sweep_windows)
+from gyrocal.protocols.sweep import (DriftModel, SweepDesign, bias_stability, conduction_time,
+                                     fit_drift, improvements, jump_interval, ramp_rate,
+                                     split_sweeps, stability_table, sweep_windows)
 
 SIGMA = 0.05           # deg/s per sample
 CURVED = SweepUnit(bias=(1.0, -2.0, 0.5), drift_dT=(0.03, -0.02, 0.01), drift_dT2=(2e-4, -1.5e-4, 1e-4),

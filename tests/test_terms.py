@@ -13,15 +13,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal import cli
-from gyrocal.apply import apply_calibration
-from gyrocal.calibration import load_calibration, save_calibration
-from gyrocal.config import DiagnosisSettings, ModelSettings, Settings
+from gyrocal.run import cli
+from gyrocal.calibration.apply import apply_calibration
+from gyrocal.calibration.file import load_calibration, save_calibration
+from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import diagnose, extended
-from gyrocal.errors import ConfigError
-from gyrocal.pipeline import run, segment_log
-from gyrocal.signals import temperature_rate
-from gyrocal.turntable.segment import SegmentConfig
+from gyrocal.io.errors import ConfigError
+from gyrocal.pipeline.chain import run, segment_log
+from gyrocal.io.signals import temperature_rate
+from gyrocal.protocols.turntable.segment import SegmentConfig
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
 from gyrocal.terms import user as user_terms
@@ -175,7 +175,7 @@ def test_an_expression_term_is_tried_fitted_and_kept_in_the_file(tmp_path):
 
 
 def test_expressions_refuse_anything_but_arithmetic():
-    from gyrocal.errors import ConfigError
+    from gyrocal.io.errors import ConfigError
     for formula in ("__import__('os')", "temp.real", "[temp]", "temp if temp else 0", "open('x')",
                     "sin(temp, rate_x)", "abs()", "9" * 5000, "1e400", "True", "std_x * 2",
                     "(" * 300 + "temp" + ")" * 300):
@@ -259,8 +259,8 @@ def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
 
 
 def test_a_term_restricted_to_the_part_a_protocol_sees_round_trips():
-    from gyrocal.config import ModelSettings
-    from gyrocal.errors import ConfigError
+    from gyrocal.pipeline.config import ModelSettings
+    from gyrocal.io.errors import ConfigError
     from gyrocal.terms import Restricted, make_term
 
     part = make_term('g_sensitivity(drop=["x.z", "y.z", "z.z"])')
@@ -279,7 +279,7 @@ def test_a_term_restricted_to_the_part_a_protocol_sees_round_trips():
 
 
 def test_an_empirical_term_is_a_spline_without_its_constant():
-    from gyrocal.errors import ConfigError
+    from gyrocal.io.errors import ConfigError
     from gyrocal.terms import make_term
     from gyrocal.terms.empirical import spline_basis
 
@@ -311,8 +311,8 @@ def test_an_empirical_term_is_a_spline_without_its_constant():
 
 
 def test_an_own_axis_formula_is_the_three_per_axis_formulas():
-    from gyrocal.model import Model
-    from gyrocal.signals import Inputs
+    from gyrocal.fit.model import Model
+    from gyrocal.io.signals import Inputs
 
     rng = np.random.default_rng(0)
     data = Inputs({f"rate_{a}": rng.normal(0, 100, 5) for a in "xyz"} | {"t": np.arange(5.0) * 60})

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
-from gyrocal.errors import ConfigError
-from gyrocal.thermal import (OutOfRangeWarning, TemperatureGrid, interpolation_weights,
-                             lagrange3_weights)
+from gyrocal.io.errors import ConfigError
+from gyrocal.fit.thermal import (OutOfRangeWarning, TemperatureGrid, interpolation_weights,
+                                 lagrange3_weights)
 
 NODES = np.array([-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0])  # Table 1
 

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from hypothesis import given, strategies as st
 
-from gyrocal import kernels, wander
-from gyrocal.model import DEFAULT_TERMS, Model, fit, observation_floor
+from gyrocal.io import kernels
+from gyrocal.fit import wander
+from gyrocal.fit.model import DEFAULT_TERMS, Model, fit, observation_floor
 
 from .conftest import needs
 from .wander_reference import (dense_gls, dense_semiseparable, dense_whiteners, held_covariances,
@@ -198,8 +199,8 @@ def coloured_sweep(tmp_path_factory):
     the independent generator, segmented: observations with the noise model's columns and
     the session's temperature record."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.pipeline.chain import segment_log
     path = tmp_path_factory.mktemp("sweep") / "sweep.parquet"
     write_session(make_unit(effect="none", protocol="sweep", noise="coloured", seed=1), path,
                   session=0, seed=5, rate_hz=5.0, ramp_c_per_h=60.0)
@@ -218,8 +219,8 @@ def same_fit(a, b) -> None:
 def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured_sweep, monkeypatch):
     """Bit for bit what fitting the remaining holds from scratch gives, with the series
     terms' quadrature made once: a hold's columns are its own."""
-    from gyrocal import signals
-    from gyrocal.thermal import fit_continuous
+    from gyrocal.io import signals
+    from gyrocal.fit.thermal import fit_continuous
     obs = coloured_sweep
     model = Model.from_spec(["bias", "bias_temp_poly(degree=1)", "temp_rate"])
     fitted = fit_continuous(model, obs)
@@ -238,9 +239,9 @@ def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured
 def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
     from dataclasses import replace
 
-    from gyrocal.config import ModelSettings, Settings
-    from gyrocal.pipeline import segment_log
-    from gyrocal.thermal import JointGridFit, _fit_joint, fit_model
+    from gyrocal.pipeline.config import ModelSettings, Settings
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.fit.thermal import JointGridFit, _fit_joint, fit_model
     obs = segment_log(logs["complete"], Settings()).observations
     m = replace(Settings(), model=ModelSettings.from_dict(
         {"expressions": {"warmup": {"formula": "exp(-t / 1200)"}}})).model
@@ -255,8 +256,8 @@ def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
 
 
 def test_the_quadrature_nodes_are_made_once_for_the_same_holds(coloured_sweep, monkeypatch):
-    from gyrocal import signals
-    from gyrocal.model import columns_of
+    from gyrocal.io import signals
+    from gyrocal.fit.model import columns_of
     data = columns_of(coloured_sweep)
     model = Model.from_spec(["temp_rate"])
     first = model.design(data)

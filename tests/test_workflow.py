@@ -11,11 +11,11 @@ import zipfile
 import numpy as np
 import pytest
 
-from gyrocal.calibration import load_calibration
-from gyrocal.cli import main
-from gyrocal.config import Settings
-from gyrocal.errors import CalibrationFileError
-from gyrocal.pipeline import run
+from gyrocal.calibration.file import load_calibration
+from gyrocal.run.cli import main
+from gyrocal.pipeline.config import Settings
+from gyrocal.io.errors import CalibrationFileError
+from gyrocal.pipeline.chain import run
 
 from .conftest import REPO, snakemake
 
@@ -246,8 +246,8 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     import re
 
     from gyrocal.diagnose import diagnose
-    from gyrocal.tables import read_table_with_metadata
-    from gyrocal.pages import fmt
+    from gyrocal.io.tables import read_table_with_metadata
+    from gyrocal.report.pages import fmt
     folder = fleet_run / "results" / "B2" / "A2" / "2026-01-02"
     obs = read_table_with_metadata(folder / "observations.parquet")[0]
     settings = Settings.from_dict({"diagnosis": {"ladder": [{"name": "+ nonlinearity",
@@ -302,7 +302,7 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
     """The workflow hands each session of A1 the other's observations, and the diagnosis
     it writes is the library's with both; A2, with one session, is diagnosed alone."""
     from gyrocal.diagnose import diagnose
-    from gyrocal.unit_folder import read_observations
+    from gyrocal.io.unit_folder import read_observations
 
     def folder(key):
         return fleet_run / "results" / key[0] / key[1] / key[2]
@@ -336,8 +336,8 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     validation = json.loads((fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "validation.json").read_text())
     assert a1["excess"] == validation["summary"]["excess"]
     # parameters at the reference temperature in display units, as the unit's file gives them
-    from gyrocal.calibration import load_calibration
-    from gyrocal.parameters import parameters_at
+    from gyrocal.calibration.file import load_calibration
+    from gyrocal.calibration.parameters import parameters_at
     at_ref = parameters_at(load_calibration(fleet_run / "results" / "B1" / "A1" / "2026-01-01"
                                             / "calibration.json")).set_index("parameter")
     for name in ("scale.x", "misalignment.x.y", "bias.z"):

@@ -44,9 +44,9 @@ def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
     not temperature); the mount and the rotating axis, which this protocol cannot tell
     apart, are one row; and a covariate is not credited with another's excess."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     log = tmp_path / "warmup.parquet"
     write_session(make_unit(effect="warmup", protocol="turntable3", noise="white", seed=2), log,
@@ -71,10 +71,10 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     ramp, 1.3 times the floor, is within the held-out error's own uncertainty: no gain to
     name.)"""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import TIME_DRIFT, diagnose, extended
-    from gyrocal.drift import revalidate
-    from gyrocal.pipeline import run, segment_log
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.terms import make_term
 
     unit = make_unit(effect="bias_ramp", protocol="turntable3", noise="white", seed=3)
@@ -106,9 +106,9 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     no term has anything to take away: nothing is named, not even as partial, and the
     verdict says another session would tell wander from an effect."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose, explained_tolerance
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     log = tmp_path / "coloured.parquet"
     write_session(make_unit(effect="none", protocol=protocol, noise="coloured", seed=1), log,
@@ -125,8 +125,8 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
 
 def _next_session_over_floor(logs, settings, fix, protocol="turntable"):
     from gyrocal.diagnose import extended
-    from gyrocal.drift import revalidate
-    from gyrocal.pipeline import run, segment_log
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run, segment_log
     for term in fix:
         settings = extended(settings, term)
     cal = run(logs[0], settings, protocol=protocol).calibration
@@ -142,9 +142,9 @@ def test_three_mounts_offer_the_part_of_a_g_sensitivity_they_see(one_session, tm
     the other two. The diagnosis names g_sensitivity and fits the part the protocol sees;
     calibrated with it, the next session is within 1.2 times the floor."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     unit = make_unit(effect="g_sensitivity", protocol="turntable3", noise="white", seed=1,
                      imu_radius_m=0.0)
@@ -172,9 +172,9 @@ def test_a_die_that_lags_is_found_and_carries_to_another_ramp_rate(tmp_path):
     fitted at 30 °C/h, the calibration holds within 1.2 times the floor at 45 °C/h, and
     the lag found is the generator's within the profile's uncertainty."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     unit = make_unit(effect="die_lag_curved", protocol="sweep", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
@@ -277,9 +277,9 @@ def test_a_warm_up_outside_the_library_gets_a_term_of_its_shape(tmp_path):
     and how it decays, and the next session calibrated with it is within 1.2 times the floor
     (it was 19 times)."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     unit = make_unit(effect="warmup", protocol="turntable3", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
@@ -308,9 +308,9 @@ def test_a_step_in_time_one_session_cannot_validate_is_said_so(tmp_path):
     its shape. Nothing is offered, and the verdict says why and that another session would
     tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     log = tmp_path / "s0.parquet"
     write_session(make_unit(effect="bias_step_time", protocol="turntable3", noise="white", seed=1),
@@ -328,9 +328,9 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     table's angle explains it: not an effect of the sensor, and the verdict says what
     would tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     unit = make_unit(effect="table_angle_bias", protocol="turntable3", noise="white", seed=3)
     logs = [tmp_path / f"s{s}.parquet" for s in range(2)]
@@ -356,9 +356,9 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     out (19 standard errors on this unit, the zoo's weakest). A unit with slow wander and
     nothing missing moves its bias between points, which the test leaves alone: quiet."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import Settings
+    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     noise = "white" if effect != "none" else "coloured"
     log = tmp_path / "s0.parquet"
@@ -388,10 +388,10 @@ def test_three_points_or_a_joint_fit_are_not_judged_between_points(tmp_path):
     from dataclasses import replace
 
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.config import ModelSettings, Settings
+    from gyrocal.pipeline.config import ModelSettings, Settings
     from gyrocal.diagnose import evaluate
     from gyrocal.diagnose.between import between_points
-    from gyrocal.pipeline import segment_log
+    from gyrocal.pipeline.chain import segment_log
 
     log = tmp_path / "s0.parquet"
     write_session(make_unit(effect="misalign_warp_tanh", protocol="turntable3", noise="white", seed=2),

@@ -1,6 +1,6 @@
 """The dense reference of the wander-aware fit: the covariance of hold means built entry by
 entry (O(n^2) memory) and factored by LAPACK (O(n^3)), as gyrocal fitted before its
-semiseparable factorisation (gyrocal.wander); kept here only to check that one against."""
+semiseparable factorisation (gyrocal.fit.wander); kept here only to check that one against."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ POLES_PER_DECADE = 2
 def time_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
     """Covariance (n, n) of observation means per unit flicker level B = 1 deg/s and per
     unit random walk K = 1 deg/s/sqrt(s), for disjoint observations over [t_start, t_end],
-    in the order given (gyrocal.wander.HoldWander states the model)."""
+    in the order given (gyrocal.fit.wander.HoldWander states the model)."""
     a = np.asarray(t_start, float)
     b = np.asarray(t_end, float)
     a, b = a - a.min(), b - a.min()
@@ -41,7 +41,7 @@ def time_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
 
 
 def dense_semiseparable(diag, U, V, alpha, beta) -> np.ndarray:
-    """The matrix gyrocal.kernels.semiseparable_cholesky factors, entry by entry."""
+    """The matrix gyrocal.io.kernels.semiseparable_cholesky factors, entry by entry."""
     n = len(diag)
     C = np.diag(np.asarray(diag, float))
     for m in range(n):
@@ -53,9 +53,9 @@ def dense_semiseparable(diag, U, V, alpha, beta) -> np.ndarray:
 
 
 def held_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
-    """The flicker and walk covariances gyrocal.wander's generators stand for, written out
+    """The flicker and walk covariances gyrocal.fit.wander's generators stand for, written out
     in the rows' own order (what time_covariances gives, from the library's code)."""
-    from gyrocal.wander import hold_wander
+    from gyrocal.fit.wander import hold_wander
     w = hold_wander(t_start, t_end)
     ones = np.ones((len(w.mid), 1))
     flicker = dense_semiseparable(w.flicker_var, w.edge, w.edge, w.gap_decay, w.hold_decay)
@@ -65,7 +65,7 @@ def held_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
 
 
 def dense_whiteners(data: dict, floor: np.ndarray) -> list:
-    """Per output axis, L^-1 of the dense covariance (gyrocal.model's whitening before the
+    """Per output axis, L^-1 of the dense covariance (gyrocal.fit.model's whitening before the
     semiseparable factorisation, without its 3000-hold cap)."""
     flicker, walk = time_covariances(data["t_start"], data["t_end"])
     n = len(floor)
@@ -91,7 +91,7 @@ def dense_gls(X: np.ndarray, y: np.ndarray, whiten) -> tuple[np.ndarray, np.ndar
 
 
 def dense_model_whiteners(data: dict, floor: np.ndarray) -> list:
-    """A stand-in for gyrocal.model._whiteners with the dense factor, and no cap on the
+    """A stand-in for gyrocal.fit.model._whiteners with the dense factor, and no cap on the
     holds (benchmarks/scaling.py --dense times the fit with it)."""
     from scipy.linalg import LinAlgError
 

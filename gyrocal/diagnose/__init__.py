@@ -1,4 +1,5 @@
 """Where the model fails and which physical effect is missing.
+May import: io, terms, fit, pipeline, fleet.
 
 One module per question: :mod:`.where` (where the model fails), :mod:`.effects` (which
 effect is missing), :mod:`.sessions` (how a calibration carries over to another session),
@@ -14,7 +15,7 @@ Three questions, answered from the observations alone:
    each observation's noise floor, should scatter like unit normals: χ² against its
    degrees of freedom, overall and per output axis. When the session's noise model has bias
    instability or rate random walk, χ² and the F-tests below come from the generalised
-   least-squares fits that account for the holds' shared wander (:func:`gyrocal.model.fit`).
+   least-squares fits that account for the holds' shared wander (:func:`gyrocal.fit.model.fit`).
 2. **Where does the excess live?** For every covariate the log offers (temperature, its
    rate, the reference rate, its magnitude and direction, the mount, the accelerometer,
    time, hold length), the share of the excess χ² that the covariate's bins account for,
@@ -36,21 +37,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..config import Settings
-from ..floor import with_upper_floor
-from ..model import columns_of, shares_wander
+from ..fit.floor import with_upper_floor
+from ..fit.model import columns_of, shares_wander
+from ..pipeline.config import Settings
 from ..terms import AXES, make_term
+from .between import between_points, between_reason
 from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
                       practical_gain_next, rank_candidates, second_step, time_drift)
 from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
                          evaluation_of, extended, ladder, pooled)
+from .lab import LAB_ADVICE, lab_fixed, lab_reason
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
+from .shapes import describe, shape_terms
 from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
 from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
-from .between import between_points, between_reason
-from .lab import LAB_ADVICE, lab_fixed, lab_reason
-from .shapes import describe, shape_terms
 from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",

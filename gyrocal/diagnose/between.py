@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..thermal import GridFit
+from ..fit.thermal import GridFit
 from .stats import chi2_sf, p_text
 
 # Points the interpolation reads at once: with one point left out, at least this many must

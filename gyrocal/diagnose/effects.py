@@ -7,9 +7,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import GyrocalError, MissingInputError
-from ..signals import SERIES_INPUTS
-from ..config import Settings
+from ..io.errors import GyrocalError, MissingInputError
+from ..io.signals import SERIES_INPUTS
+from ..pipeline.config import Settings
 from ..terms import AXES, make_term
 from .evaluation import (Evaluation, add_term_option, config_line, effect_size, evaluate, extended,
                          identifiable_part, reason)

@@ -11,13 +11,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..config import Settings
-from ..errors import GyrocalError
-from ..model import columns_of
+from ..fit.model import columns_of
+from ..fit.thermal import fit_model
+from ..fit.validate import CannotLeaveOut, validate
+from ..io.errors import GyrocalError
+from ..pipeline.config import Settings
 from ..terms import AXES, TERMS, make_term
 from ..terms.effects import CANDIDATES
-from ..thermal import fit_model
-from ..validate import CannotLeaveOut, validate
 
 
 @dataclass
@@ -69,7 +69,7 @@ _EVALUATED: list = []
 def in_sample_summary(fitted, obs) -> dict:
     """A validation summary's figures from a fit's own residuals: RMS, floor, and the floor
     as what a correct model would leave (its own fit removes a little more)."""
-    from ..thermal import in_sample
+    from ..fit.thermal import in_sample
     resid, floor, rows = in_sample(fitted, len(obs))
     rms = float(np.sqrt(np.mean(resid[rows] ** 2)))
     floor_rms = float(np.sqrt(np.mean(floor[rows] ** 2)))
@@ -209,10 +209,10 @@ def identifiable_part(settings: Settings, obs: pd.DataFrame, spec: str) -> str |
     the model (:class:`gyrocal.terms.Restricted`): its columns, weighted by the holds'
     floors as the fit weights them, added one by one in the term's order, each kept only
     while the model's design stays as well conditioned as a fit requires (a third of
-    :data:`gyrocal.model.MAX_CONDITION`, for margin). A grid model's point coefficients are
+    :data:`gyrocal.fit.model.MAX_CONDITION`, for margin). A grid model's point coefficients are
     judged at every point, and a coefficient dependent at any is dropped. None when every
     coefficient can be fitted (the term is not the problem) or none can."""
-    from ..model import MAX_CONDITION, axis_of, observation_floor
+    from ..fit.model import MAX_CONDITION, axis_of, observation_floor
     from ..terms import Restricted
     term = make_term(spec)
     base = settings.model.build()

@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..config import Settings
-from ..errors import GyrocalError
+from ..fit.thermal import in_sample
+from ..io.errors import GyrocalError
+from ..pipeline.config import Settings
 from ..terms import AXES
-from ..thermal import in_sample
 from .stats import chi2_sf
 
 SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
@@ -23,10 +23,10 @@ def usable(nxt) -> bool:
 def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> dict:
     """``ev``'s calibration (the fit of ``settings`` extended by the candidate; its
     reference temperature is ``settings``') applied to another session of the unit
-    (:func:`gyrocal.drift.revalidate`) and whether the pattern of its residuals repeats there
+    (:func:`gyrocal.fleet.drift.revalidate`) and whether the pattern of its residuals repeats there
     (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
-    from ..drift import hold_errors, revalidate
-    from ..pipeline import calibrate_observations
+    from ..fleet.drift import hold_errors, revalidate
+    from ..pipeline.chain import calibrate_observations
     cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
     errors, floor1 = hold_errors(cal, other)

@@ -8,8 +8,8 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from ..fit.thermal import in_sample
 from ..terms import AXES
-from ..thermal import in_sample
 from .stats import chi2_sf
 
 COVARIATES = {

@@ -1,4 +1,5 @@
 """``gyrocal import``: what rigs and robots write (CSV, TSV, ROS 2 bags, MCAP) as contract logs.
+May import: io.
 
 A source is read and written a batch at a time, so a file of any size converts in a few
 tens of MB (docs/import.md has the figure). The output holds the contract's columns in the
@@ -13,9 +14,9 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import __version__
-from ..atomic import replacing
-from ..errors import ConfigError, CorruptFileError
-from ..io import file_digest
+from ..io.atomic import replacing
+from ..io.errors import ConfigError, CorruptFileError
+from ..io.log import file_digest
 from .mapping import TIME_UNITS, ImportMap, load_map
 from .sink import METADATA_KEY, LogSink, Summary
 
@@ -28,7 +29,7 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
 
     ``map_path`` is the YAML map; ``fmt``, ``sample_rate`` and ``sections`` are the command
     line's flags, which take precedence over it. Bad input raises an
-    :class:`~gyrocal.errors.InputError` naming the file and the problem.
+    :class:`~gyrocal.io.errors.InputError` naming the file and the problem.
     """
     source, output = Path(source), Path(output)
     if not source.exists():

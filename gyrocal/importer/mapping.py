@@ -14,14 +14,14 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ..errors import ConfigError
-from ..ferraris import LABELS as SECTION_LABELS
-from ..io import UNIT_FACTORS
+from ..io.errors import ConfigError
+from ..io.log import SECTIONS
+from ..io.log import UNIT_FACTORS
 
 FORMATS = ("csv", "tsv", "ros2", "mcap")
 TABULAR = ("csv", "tsv")
 AXES = ("x", "y", "z")
-# Factor to the contract's unit, as a log's declared units convert (gyrocal.io); "counts"
+# Factor to the contract's unit, as a log's declared units convert (gyrocal.io.log); "counts"
 # takes its factor from the sensitivity.
 RATE_UNITS = {**UNIT_FACTORS["gyro"], "counts": None}
 ACCEL_UNITS = {"g": 1.0, "m/s^2": UNIT_FACTORS["accel"]["m/s^2"], "mg": 1e-3, "counts": None}
@@ -453,8 +453,8 @@ def read_sections(path: Path) -> dict[str, tuple[int, int]]:
         raise ConfigError('a section list maps labels to {"start": i, "end": j}', source=path)
     out: dict[str, tuple[int, int]] = {}
     for label, span in entries.items():
-        if label not in SECTION_LABELS:
-            raise ConfigError(f"unknown section {label!r}; expected {', '.join(SECTION_LABELS)}",
+        if label not in SECTIONS:
+            raise ConfigError(f"unknown section {label!r}; expected {', '.join(SECTIONS)}",
                               source=path)
         start, end = (span.get("start"), span.get("end")) if isinstance(span, dict) else (None, None)
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (start, end)):
@@ -469,7 +469,7 @@ def read_sections(path: Path) -> dict[str, tuple[int, int]]:
         if s1 < e0:
             raise ConfigError(f"sections {a} ({s0} to {e0}) and {b} (from {s1}) overlap",
                               source=path)
-    return {label: out[label] for label in SECTION_LABELS if label in out}
+    return {label: out[label] for label in SECTIONS if label in out}
 
 
 def _int_text(cells):

@@ -18,9 +18,9 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ..errors import ConfigError, EmptyLogError, LogFormatError
-from ..ferraris import LABELS
-from ..io import ACCEL, GYRO, MOUNTS
+from ..io.errors import ConfigError, EmptyLogError, LogFormatError
+from ..io.log import SECTIONS
+from ..io.log import ACCEL, GYRO, MOUNTS
 
 ORDER = ("t", *GYRO, "temp", "ref_rate", *ACCEL, "mount", "section")
 METADATA_KEY = b"gyrocal.import"
@@ -29,7 +29,7 @@ METADATA_KEY = b"gyrocal.import"
 ROW_GROUP_ROWS = 1 << 17
 MOUNT_TYPE = pa.dictionary(pa.int8(), pa.string())
 _MOUNTS = pa.array(MOUNTS, pa.string())
-_LABELS = pa.array(LABELS, pa.string())
+_LABELS = pa.array(SECTIONS, pa.string())
 
 
 @dataclass
@@ -126,7 +126,7 @@ class LogSink:
                              f"{self.hint(float(t[i]), before)}", source=self.source)
 
     def _mounts(self, values: pa.Array, rows: np.ndarray) -> pa.Array:
-        """Mount labels as a dictionary in the order of gyrocal.io.MOUNTS (its fast path)."""
+        """Mount labels as a dictionary in the order of gyrocal.io.log.MOUNTS (its fast path)."""
         index = pc.index_in(values, value_set=_MOUNTS)
         unknown = pc.and_(pc.is_null(index), pc.is_valid(values))
         if pc.any(unknown).as_py():
@@ -145,14 +145,14 @@ class LogSink:
         if pc.any(unknown).as_py():
             i = int(np.flatnonzero(unknown.to_numpy(zero_copy_only=False))[0])
             raise LogFormatError(f"{self.locate(int(rows[i]))}: section {values[i].as_py()!r} is "
-                                 f"not one of {' '.join(LABELS)} (or an empty cell)",
+                                 f"not one of {' '.join(SECTIONS)} (or an empty cell)",
                                  source=self.source)
         codes = index.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
         # the runs of one label (or none) in this batch: a loop per run, not per sample
         starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
         ends = np.r_[starts[1:], len(codes)]
         for a, b in zip(starts, ends):
-            label = LABELS[codes[a]] if codes[a] >= 0 else None
+            label = SECTIONS[codes[a]] if codes[a] >= 0 else None
             if label is not None and label != self.open_label and label in self.stretches:
                 first, last = self.stretches[label]
                 raise LogFormatError(

@@ -23,8 +23,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from ..errors import CorruptFileError, LogFormatError
-from ..io import first_line
+from ..io.errors import CorruptFileError, LogFormatError
+from ..io.log import first_line
 from .mapping import TIME_UNITS, ImportMap
 from .sink import ROW_GROUP_ROWS, LogSink
 

@@ -1,4 +1,5 @@
 """The seed papers' tables, regenerated on simulated data beside their published values.
+May import: io, terms, simulate, fit, report, protocols, pipeline.
 
 Each seed has a module ``gyrocal.paper.seed<NNN>`` with ``tables(*, seed, quick)`` (a list
 of :class:`~gyrocal.paper.table.PaperTable`) and ``figures(out_dir, *, seed, quick)`` (a
@@ -16,7 +17,7 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 
 SEEDS = ("000", "001", "003")
 

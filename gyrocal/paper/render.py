@@ -16,9 +16,10 @@ import io
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .. import __version__, atomic
-from ..errors import InputError
-from ..pages import fmt, render_page
+from .. import __version__
+from ..io import atomic
+from ..io.errors import InputError
+from ..report.pages import fmt, render_page
 from .table import PaperTable
 
 OUTPUTS = ("tables.md", "tables.csv", "index.html")

@@ -26,14 +26,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..config import Settings
-from ..pipeline import calibrate_observations, run, segment_log
+from ..fit.thermal import fit_model
+from ..fit.validate import METHODS, validate
+from ..pipeline.chain import calibrate_observations, run, segment_log
+from ..pipeline.config import Settings
 from ..simulate.observations import observations
 from ..simulate.turntable import SEED000_RATES, SEED000_TEMPERATURES, TurntableProtocol, render
 from ..simulate.unit import GyroUnit
 from ..terms import AXES
-from ..thermal import fit_model
-from ..validate import METHODS, validate
 from .table import PaperRow, PaperTable
 
 SEED = "000"
@@ -333,7 +333,7 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
 def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     """Fig. 9's comparison: RMS per rotating and output axis for the three methods at
     25 °C, regenerated (bars) beside the paper's Table 4 (markers)."""
-    from .. import plots
+    from ..report import plots
     r = regeneration(seed, quick)
     t4 = r.test.set_index(["method", "rotating", "output"])
     pairs = list(TABLE4)

@@ -2,10 +2,10 @@
 Figs 2, 4 and 5, and Tables II-III.
 
 Every figure comes from gyrocal's own code: the Monte-Carlo study of
-:mod:`gyrocal.servo.montecarlo` (Section III), Algorithm 1 and its LM reference
-(:mod:`gyrocal.servo.fit`), and for Tables II-III simulated servo logs run through
-:func:`gyrocal.servo.find_rotations` beside a simulated turntable log run through gyrocal's
-seed-000 turntable calibration (:func:`gyrocal.pipeline.run`).
+:mod:`gyrocal.protocols.servo.montecarlo` (Section III), Algorithm 1 and its LM reference
+(:mod:`gyrocal.protocols.servo.fit`), and for Tables II-III simulated servo logs run through
+:func:`gyrocal.protocols.servo.find_rotations` beside a simulated turntable log run through gyrocal's
+seed-000 turntable calibration (:func:`gyrocal.pipeline.chain.run`).
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..io import read_log
-from ..servo.fit import PARAMETERS, fit_observations
-from ..servo.montecarlo import (FIG4_SPEEDS, PAPER_SAMPLES, PAPER_SPEED, box_stats,
-                                convergence_run, plot_error_boxes, plot_speed_sweep, speed_sweep,
-                                study)
-from ..servo.rotations import find_rotations
+from ..io.log import read_log
+from ..protocols.servo.fit import PARAMETERS, fit_observations
+from ..protocols.servo.montecarlo import (FIG4_SPEEDS, PAPER_SAMPLES, PAPER_SPEED, box_stats,
+                                          convergence_run, plot_error_boxes, plot_speed_sweep,
+                                          speed_sweep, study)
+from ..protocols.servo.rotations import find_rotations
 from ..simulate.servo import ServoProtocol, ServoUnit, render_servo
 from .table import PaperRow, PaperTable
 
@@ -201,7 +201,7 @@ def fig4(sweep: pd.DataFrame, *, quick: bool) -> PaperTable:
 
 def _turntable_reference(k, b, noise: float, seed: int, work: Path):
     """k and b (rad/s) of a unit by gyrocal's seed-000 turntable calibration of a simulated log."""
-    from ..pipeline import run
+    from ..pipeline.chain import run
     from ..simulate import GyroUnit, TurntableProtocol, simulate_unit
 
     bias = np.zeros((3, 4))
@@ -246,11 +246,11 @@ def tables_ii_iii(seed: int = 0, noise: float = 0.035) -> list[PaperTable]:
                      "biases, include its unit's repeatability between rigs).",
                      f"Servo: {protocol.speed * 180 / math.pi:g} deg/s, one revolution per rotation, "
                      f"3 s pauses, 200 Hz, σ = {noise:g} rad/s per sample, 5 % ripple, hand-mounting "
-                     "tilt up to 5°, rotations found in the log by gyrocal.servo.find_rotations; "
+                     "tilt up to 5°, rotations found in the log by gyrocal.protocols.servo.find_rotations; "
                      "standard errors of the servo estimates: k "
                      + ", ".join(f"{x:.1e}" for x in se[:3]) + "; b "
                      + ", ".join(f"{x:.1e}" for x in se[3:]) + " rad/s.",
-                     "Turntable: gyrocal's seed-000 calibration (gyrocal.pipeline.run, 12 parameters) "
+                     "Turntable: gyrocal's seed-000 calibration (gyrocal.pipeline.chain.run, 12 parameters) "
                      "of a simulated quick turntable log at 22 °C with the same per-sample noise; "
                      "k = 1/K_jj, b = -B_j.")
             out.append(PaperTable(SEED, name, f"{sensor}: servo method against the turntable method",

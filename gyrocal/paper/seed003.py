@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..protocols.sweep import SweepDesign, fit_drift, ramp_rate, stability_table, sweep_windows
 from ..simulate.sweep import SweepProtocol, SweepUnit, sweep_log, sweep_samples
-from ..sweep import SweepDesign, fit_drift, ramp_rate, stability_table, sweep_windows
 from .table import PaperRow, PaperTable
 
 AXES = ("x", "y", "z")
@@ -239,7 +239,7 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     """Drift against ΔT with both models' fits (I3G4250D, each axis on its training sweep),
     and raw against compensated output over a verification sweep (L3GD20, cf. Fig. 11).
     SVG, byte-identical for the same seed."""
-    from ..plots import figure, to_svg, write_svg
+    from ..report.plots import figure, to_svg, write_svg
 
     study = _study(int(seed), bool(quick))
     out = Path(out_dir)

@@ -1,4 +1,5 @@
 """Simulated rig logs with ground truth, for tests, benchmarks and the demo fleet.
+May import: io.
 
 ``simulate(out_dir, ...)`` writes, per unit, ``{device}.parquet`` (a log per the contract),
 ``{device}.truth.json`` (the parameters and the schedule that made it) and a manifest
@@ -14,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import atomic
-from ..errors import ConfigError
+from ..io import atomic
+from ..io.errors import ConfigError
 from .ferraris import FerrarisProtocol, render_ferraris
 from .noise import add_coloured_noise, noise_levels
 from .servo import ServoProtocol, ServoUnit, render_servo

@@ -19,7 +19,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from ..ferraris import FACES
+from ..io.log import FACES
 from .unit import Electronics, GyroUnit
 
 

@@ -1,6 +1,6 @@
 """Coloured gyro rate noise with the IEEE Std 952 terms, at levels users know as sensor grades.
 
-Every level is given in the units ``gyrocal.noise.NoiseTerms`` reports, so a fitted unit can be
+Every level is given in the units ``gyrocal.fit.noise.NoiseTerms`` reports, so a fitted unit can be
 re-simulated and a simulated one checked: ``arw`` deg/sqrt(h), ``bias_instability`` deg/h,
 ``rrw`` deg/h/sqrt(h), ``quantisation`` arcsec. Components (rate in deg/s, sampling ``rate`` Hz):
 
@@ -22,7 +22,7 @@ import math
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 
 __all__ = ["GRADES", "coloured_noise", "noise_levels", "add_coloured_noise"]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..io import MOUNTS
+from ..io.log import MOUNTS
 from .unit import GyroUnit
 
 

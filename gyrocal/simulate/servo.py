@@ -11,7 +11,7 @@ about one axis share a mount, as when the servo simply reverses, unless
 the revolution and averages out over a whole one (Section II-B).
 
 Error model, as Eq 3 and Algorithm 1 use it (not Eq 1 as printed; see
-:mod:`gyrocal.servo.fit`): the true rate on axis j is ``g_j = k_j (m_j + b_j)``, so the raw
+:mod:`gyrocal.protocols.servo.fit`): the true rate on axis j is ``g_j = k_j (m_j + b_j)``, so the raw
 output is ``m_j = g_j / k_j - b_j`` plus white noise. In the calibration file's convention,
 ``w = K w_true + B`` with ``K = diag(1/k)`` and ``B = -b`` (converted to deg/s).
 """
@@ -26,8 +26,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.signal import lfilter
 
-from ..errors import ConfigError
-from ..io import MOUNTS
+from ..io.errors import ConfigError
+from ..io.log import MOUNTS
 
 DEG = 180.0 / math.pi
 DIRECTIONS = MOUNTS   # the G-optimal design, seed 001 Section II-B

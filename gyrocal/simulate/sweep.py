@@ -28,8 +28,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.signal import lfilter
 
-from ..errors import ConfigError
-from ..io import MOUNTS, RigLog
+from ..io.errors import ConfigError
+from ..io.log import MOUNTS, RigLog
 
 Vec3 = tuple[float, float, float]
 
@@ -303,7 +303,7 @@ def sweep_samples(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Gener
 
 def sweep_log(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator,
               name: str = "<simulated sweep>") -> tuple[RigLog, dict]:
-    """The simulated log in memory, as :func:`gyrocal.io.read_log` would return it."""
+    """The simulated log in memory, as :func:`gyrocal.io.log.read_log` would return it."""
     cols, truth = sweep_samples(protocol, unit, rng)
     batch = {k: (v.astype(np.float64) if k.startswith("gyro") or k == "temp" else v)
              for k, v in cols.items()}

@@ -21,7 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from scipy.signal import lfilter
 
-from ..io import MOUNTS
+from ..io.log import MOUNTS
 from .unit import Electronics, GyroUnit
 
 SEED000_TEMPERATURES = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0)

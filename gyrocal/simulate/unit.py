@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from scipy.signal import lfilter
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 
 AXES = "xyz"
 EFFECTS = {"scale_quadratic": (3,), "scale_cubic": (3,), "scale_asymmetry": (3,),

@@ -1,8 +1,9 @@
 """Physical effects as terms of the gyro error model, and the registry that names them.
+May import: io.
 
 The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
 terms, each linear in its coefficients. A term defines its regressor columns per sample,
-one per coefficient, from the inputs of :mod:`gyrocal.signals` (the true rate in the sensor
+one per coefficient, from the inputs of :mod:`gyrocal.io.signals` (the true rate in the sensor
 frame ``rate_x/y/z``, ``ref_rate``, ``accel_x/y/z``, ``temp``, and the series signals ``t``,
 ``temp_rate`` and ``data.lag(...)``); the library takes hold means for the fit and samples
 for apply, so both see the same effect. Names are ``<term>.<output axis>[.<detail>]``: the
@@ -12,7 +13,7 @@ A term's coefficients are per temperature point (``scope = "point"``: a grid mod
 them at every point and interpolates) or one set for the session (``scope = "global"``:
 fitted jointly over all points); by default (``auto``) a term that reads a series signal is
 global and any other per point. Settings named in ``profile`` (a time constant, a lag) are
-nonlinear parameters: the fit searches them within their bounds (:mod:`gyrocal.profile`).
+nonlinear parameters: the fit searches them within their bounds (:mod:`gyrocal.fit.profile`).
 
 With the base terms the seed-000 model (Eq 12) reads ``w = K w_true + B``, where
 ``K = I + scale + misalignment`` and ``B = bias``; see :mod:`gyrocal.terms.base`.
@@ -32,7 +33,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ..errors import ConfigError, MissingInputError
+from ..io.errors import ConfigError, MissingInputError
 
 AXES = ("x", "y", "z")
 TERMS: dict[str, type[Term]] = {}
@@ -108,7 +109,7 @@ class Term:
         """Whether the term reads ``t``, ``temp_rate`` or a lag: an effect of time or of
         the temperature's history, one per session (each temperature point covers only
         its own block of time)."""
-        from ..signals import SERIES_INPUTS
+        from ..io.signals import SERIES_INPUTS
         return bool(self.inputs() & SERIES_INPUTS)
 
     def inputs(self) -> frozenset[str]:
@@ -116,7 +117,7 @@ class Term:
         probe of every input (so a term that forgot to declare one still gets it in
         ``apply``)."""
         if "_inputs" not in self.__dict__:
-            from ..signals import HOLD_INPUTS, Inputs, Series
+            from ..io.signals import HOLD_INPUTS, Inputs, Series
             probe_t = np.array([0.0, 600.0])
             probe = Inputs({**{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS}, "t": probe_t,
                             "temp_rate": np.array([0.1, 0.2])},
@@ -157,7 +158,7 @@ class Term:
         return None
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
-        from ..signals import SERIES_INPUTS
+        from ..io.signals import SERIES_INPUTS
         series = "series" in data or "t" in data
         missing = sorted(c for c in self.needs if c not in data
                          and not (series and c in SERIES_INPUTS))

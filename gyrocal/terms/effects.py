@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 from . import AXES, Term, register_term
 
 
@@ -175,8 +175,8 @@ class DieTemperature(Term):
     def transform_inputs(self, data):
         """``data`` with ``temp`` at the die: each hold's mean of the lagged record (the
         logged temperature kept as ``temp_logged``). Samples are filtered by ``apply``."""
-        from ..errors import MissingInputError
-        from ..signals import hold_means_of_lag
+        from ..io.errors import MissingInputError
+        from ..io.signals import hold_means_of_lag
         if "t_start" not in data:
             return data
         logged = np.asarray(data.get("temp_logged", data["temp"]), dtype=float)
@@ -194,7 +194,7 @@ class _DieFilter:
     """The die temperature of samples given batch by batch (``t`` in seconds)."""
 
     def __init__(self, tau: float):
-        from ..signals import LagFilter
+        from ..io.signals import LagFilter
         self.lag = LagFilter(tau)
 
     def __call__(self, data):

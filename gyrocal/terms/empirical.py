@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 from . import AXES, Term, register_term
 
 INPUTS = {"t": "s", "temp": "degC", "temp_rate": "degC/min", "ref_rate": "deg/s", "rate_own": "deg/s"}
@@ -128,7 +128,7 @@ class Smooth(Term):
 
     def penalty(self, names: list[str]) -> np.ndarray:
         """Second differences of the coefficients (the basis functions dropped counted as 0),
-        ``Σ (c_k − 2 c_{k+1} + c_{k+2})²``: light (:data:`gyrocal.model.PENALTY_WEIGHT`),
+        ``Σ (c_k − 2 c_{k+1} + c_{k+2})²``: light (:data:`gyrocal.fit.model.PENALTY_WEIGHT`),
         it draws the smoothest curve across a stretch of the input without holds."""
         dropped = 2 - int(self.linear)
         n = self.size + dropped

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import ConfigError
+from ..io.errors import ConfigError
 from . import AXES, TERMS, Term, register_term
 
 _LOADED: dict[str, str] = {}   # resolved path -> sha256
@@ -79,7 +79,7 @@ _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
 # lag(x, tau): the series signal x (temp or temp_rate) through a first-order lag of tau seconds.
 LAGGABLE = ("temp", "temp_rate")
 
-# What a formula may read: the inputs every term has (gyrocal.signals), per sample in apply
+# What a formula may read: the inputs every term has (gyrocal.io.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
 FORMULA_COLUMNS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "ref_rate",
                    "accel_x", "accel_y", "accel_z", "rate_own", "accel_own")
@@ -204,7 +204,7 @@ class Expression(Term):
 
     ``parameters`` gives the formula's named constants their values; ``profile`` gives a
     nonlinear parameter (a time constant, in seconds) its search bounds ``[low, high]``,
-    and the fit finds its value (:mod:`gyrocal.profile`), which the calibration then holds
+    and the fit finds its value (:mod:`gyrocal.fit.profile`), which the calibration then holds
     under ``parameters``. A formula reading ``t``, ``temp_rate`` or a lag describes a
     session-wide effect: its coefficients default to ``scope: global``. [deg/s per unit of
     the formula]"""

@@ -2,7 +2,7 @@
 # that always run together, sharing one fit of the configured model. One job instead of
 # three is a third of the jobs Snakemake plans per unit (docs/cluster.md) and two Python
 # start-ups fewer; each step still writes its own outputs and failure records
-# (gyrocal/stages.py analyse_stage).
+# (gyrocal/run/stages.py analyse_stage).
 #
 # The rules declare the files another job reads: here the calibration, validation and
 # diagnosis, which the report and the fleet summary read. The files only the report

@@ -7,14 +7,14 @@ import shlex
 import sys
 
 from gyrocal import __version__ as GYROCAL_VERSION
-from gyrocal import protocols
-from gyrocal.fleet import drift_devices, other_sessions
-from gyrocal.manifest import (
+from gyrocal.fleet.manifest import (
     BATCH_PATTERN,
     DEVICE_PATTERN,
     SESSION_PATTERN,
     read_manifest,
 )
+from gyrocal.fleet.summary import drift_devices, other_sessions
+from gyrocal.protocols import registry
 
 # Planning builds millions of small objects (jobs, files, wildcards) that live until
 # Snakemake exits, and Python's cyclic collector at its default thresholds scans them
@@ -35,9 +35,9 @@ os.environ["PATH"] = (
     os.path.dirname(sys.executable) + os.pathsep + os.environ.get("PATH", "")
 )
 GYROCAL = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal"
-# A unit's segment, analyse and report jobs run under gyrocal.guard: at a limit of the
+# A unit's segment, analyse and report jobs run under gyrocal.run.guard: at a limit of the
 # config's job_limits it ends the stage and records the unit's failure with the reason.
-GUARD = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal.guard"
+GUARD = f"PYTHONPATH={shlex.quote(workflow.basedir)}${{PYTHONPATH:+:$PYTHONPATH}} python -m gyrocal.run.guard"
 ENV = "../envs/gyrocal.yaml"
 DEMO_LOGS = os.path.normpath(config["demo"]["folder"])
 # Real recordings the demo imports with `gyrocal import` (data/real/<name>/: the recording,
@@ -64,7 +64,7 @@ TERM_FILES = config["model"].get("term_files", []) + [
 
 
 # How many attempts a job has (the profiles retry a job the scheduler ended, once, with
-# doubled resources), for gyrocal.guard: on the last, it records a unit whose stage would
+# doubled resources), for gyrocal.run.guard: on the last, it records a unit whose stage would
 # outrun its SLURM job's time limit, so that the fleet summary still comes. Known when the
 # run starts, in the main process, whose environment its jobs inherit (sbatch
 # --export=ALL); each job's own attempt is its `attempt` resource, in its command.
@@ -161,7 +161,7 @@ PROTOCOL_READS = {
 def protocol_settings(settings, stage, protocol):
     """The settings a ``protocol`` unit's ``stage`` job reads, as JSON (part of a
     parameter: when it changes, the job re-runs)."""
-    if protocols.get(protocol).top_level_settings:
+    if registry.get(protocol).top_level_settings:
         return json.dumps(settings, sort_keys=True)
     reads = PROTOCOL_READS[stage]
     own = {}
@@ -225,7 +225,7 @@ def demo_unit_options(wildcards):
     options = [f"--protocol {protocol}"]
     # The demo's top-level set points and rates, like the config's top-level settings, are
     # the default protocol's (the turntable's).
-    if protocols.get(protocol).top_level_settings:
+    if registry.get(protocol).top_level_settings:
         for key in ("temperatures", "rates"):
             values = ",".join(str(v) for v in config["demo"][key])
             options.append(f"--{key}={values}")

@@ -1,0 +1,316 @@
+"""Which calibration to use: the one of a unit closest to a date (contract section 6).
+
+``gyrocal lookup CALDIR DEVICE [--date D] [--before|--after] [--max-days N]`` searches a
+folder of calibration files: the workflow's ``CALDIR/{batch}/{device}/{session}/
+calibration.json`` and any other ``*.json`` of format ``gyrocal.calibration/1`` below it.
+A file's own ``device`` and ``session`` decide; the layout's folder names stand in only
+when the file leaves them empty. Failure records (``gyrocal.failure/1``) and files that
+cannot be read or parsed are skipped and counted; hidden folders are not searched.
+
+The choice is deterministic, never depending on today's date or on the order files are
+listed: without a date the latest session; with one the nearest session (``before``: on or
+before it, ``after``: on or after it); ties go to the earlier session, then to the path.
+A nearest session more than ``max_days`` away is returned with a warning.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from ..io import formats
+from ..io.errors import ConfigError, GyrocalError, InputError
+
+if TYPE_CHECKING:
+    from .file import Calibration
+
+FORMAT_FAMILY = formats.CALIBRATION.split("/")[0]
+FAILURE_FORMAT = formats.FAILURE
+
+DEFAULT_MAX_DAYS = 30
+DIRECTIONS = (None, "before", "after")
+_DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
+# Bytes every calibration or failure record holds; other JSON (validation, diagnosis) is
+# passed over without parsing it.
+_MARKERS = (b'"' + FORMAT_FAMILY.encode(), b'"' + FAILURE_FORMAT.split("/")[0].encode())
+
+
+class NoCalibrationError(InputError):
+    """No calibration file of the device satisfies the lookup."""
+
+
+@dataclass(frozen=True)
+class LookupResult:
+    """The chosen calibration and how far its session is from the date asked for."""
+
+    path: Path
+    calibration: Calibration
+    session: str
+    days_away: int | None          # session minus the date, days (negative: before); None without a date
+    warning: str | None
+    candidates: int = 0            # the device's readable calibration files
+    skipped: dict = field(default_factory=dict)   # failed_sessions, unreadable: counts
+
+    def record(self, caldir, device: str, date: dt.date | None, direction: str | None,
+               max_days: float) -> dict:
+        """JSON-plain summary (what ``gyrocal lookup --json`` prints)."""
+        meta = self.calibration.meta
+        return {"path": str(self.path), "caldir": str(caldir), "device": device,
+                "batch": meta.get("batch"), "session": self.session,
+                "protocol": meta.get("protocol"),
+                "date": date.isoformat() if date else None, "direction": direction,
+                "days_away": self.days_away, "max_days": max_days, "warning": self.warning,
+                "candidates": self.candidates, "skipped": dict(self.skipped)}
+
+
+@dataclass(frozen=True)
+class _Entry:
+    path: Path
+    rel: str            # path relative to CALDIR, '/'-separated: the deterministic tie-break
+    session: str
+    date: dt.date
+    doc: dict
+
+
+def parse_date(value, what: str = "date") -> dt.date:
+    """A ``YYYY-MM-DD`` string (or a date) as a date; anything else is a ConfigError."""
+    if isinstance(value, dt.datetime):
+        return value.date()
+    if isinstance(value, dt.date):
+        return value
+    if isinstance(value, str) and _DATE.fullmatch(value):
+        try:
+            return dt.date.fromisoformat(value)
+        except ValueError:
+            pass
+    raise ConfigError(f"{what} {value!r} is not a date YYYY-MM-DD")
+
+
+def _session_date(session) -> dt.date | None:
+    try:
+        return parse_date(session)
+    except ConfigError:
+        return None
+
+
+def _json_files(caldir: Path):
+    """``*.json`` below ``caldir`` in a fixed order, hidden folders left out."""
+    for root, dirs, files in os.walk(caldir):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in sorted(files):
+            if name.endswith(".json"):
+                yield Path(root) / name
+
+
+def _layout(path: Path, caldir: Path) -> tuple[str | None, str | None]:
+    """Device and session from the workflow layout ``{batch}/{device}/{session}/calibration.json``."""
+    parts = path.relative_to(caldir).parts
+    if len(parts) == 4 and parts[-1] == "calibration.json":
+        return parts[1], parts[2]
+    return None, None
+
+
+def _scan(caldir: Path, device: str):
+    """The device's calibration entries, how many calibration files there are, and what
+    was skipped. Only files that mention the device (as a JSON string, or by the layout's
+    folder) are parsed: a fleet's folder is searched at the speed of reading it."""
+    entries, failed, unreadable, files = [], set(), [], 0
+    needle = json.dumps(device).encode()
+    for path in _json_files(caldir):
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            unreadable.append(f"{path}: cannot read ({exc.strerror})")
+            continue
+        calibration, failure = (m in raw for m in _MARKERS)
+        if not (calibration or failure):
+            continue
+        files += calibration
+        layout_device, layout_session = _layout(path, caldir)
+        if needle not in raw and layout_device != device:
+            continue
+        try:
+            doc = json.loads(raw)
+        except (ValueError, UnicodeDecodeError):
+            unreadable.append(f"{path}: not valid JSON")
+            continue
+        if not isinstance(doc, dict) or not isinstance(doc.get("format"), str):
+            continue
+        owner = doc.get("device") or layout_device
+        session = doc.get("session") or layout_session
+        if owner != device:
+            continue
+        if doc["format"] == FAILURE_FORMAT:
+            failed.add(str(session))
+            continue
+        if doc["format"].split("/")[0] != FORMAT_FAMILY:
+            continue
+        date = _session_date(session)
+        if date is None:
+            unreadable.append(f"{path}: session {session!r} is not a date YYYY-MM-DD")
+            continue
+        entries.append(_Entry(path, path.relative_to(caldir).as_posix(), str(session), date, doc))
+    return entries, files, sorted(failed), unreadable
+
+
+def _devices(caldir: Path) -> list[str]:
+    """Every device with a calibration file below ``caldir`` (for the message when the one
+    asked for has none: a misspelt name shows)."""
+    found = set()
+    for path in _json_files(caldir):
+        try:
+            raw = path.read_bytes()
+            if _MARKERS[0] not in raw:
+                continue
+            doc = json.loads(raw)
+        except (OSError, ValueError, UnicodeDecodeError):
+            continue
+        if isinstance(doc, dict) and str(doc.get("format", "")).split("/")[0] == FORMAT_FAMILY:
+            found.add(str(doc.get("device") or _layout(path, caldir)[0]))
+    return sorted(found)
+
+
+def _check_max_days(max_days) -> float:
+    if isinstance(max_days, bool) or not isinstance(max_days, (int, float)) or not max_days >= 0:
+        raise ConfigError(f"max_days must be a non-negative number of days, got {max_days!r}")
+    return max_days
+
+
+def find_calibration(caldir, device: str, date=None, direction: str | None = None,
+                     max_days: float = DEFAULT_MAX_DAYS) -> LookupResult:
+    """The calibration of ``device`` below ``caldir`` closest to ``date``.
+
+    ``date``: ``YYYY-MM-DD`` or a date; None picks the latest session. ``direction``:
+    None (either side), ``"before"`` (session on or before the date) or ``"after"`` (on or
+    after). Raises :class:`NoCalibrationError` naming the device and what was searched.
+    """
+    caldir = Path(caldir)
+    if not caldir.is_dir():
+        raise InputError("is not a folder of calibration files", source=caldir)
+    if direction not in DIRECTIONS:
+        raise ConfigError(f"lookup direction must be before or after, got {direction!r}")
+    date = None if date is None else parse_date(date)
+    if direction and date is None:
+        raise ConfigError(f"looking {direction} a date needs the date (--date YYYY-MM-DD)")
+    max_days = _check_max_days(max_days)
+
+    entries, files, failed, unreadable = _scan(caldir, device)
+    readable = []
+    for entry in entries:  # only the device's files are parsed in full
+        try:
+            readable.append((entry, _calibration().from_dict(entry.doc, source=entry.path)))
+        except GyrocalError as exc:
+            unreadable.append(str(exc))
+    skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
+
+    def none_found(problem: str):
+        devices = _devices(caldir)
+        notes = [f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
+                 f"device{'s' * (len(devices) != 1)}{_some(devices)}"]
+        if failed:
+            notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
+        if unreadable:
+            notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
+        raise NoCalibrationError(f"no calibration of device {device} {problem}: {'; '.join(notes)}",
+                                 source=caldir)
+
+    if not readable:
+        none_found("in this folder")
+    if date is None:
+        key = lambda ec: (-ec[0].date.toordinal(), ec[0].rel)  # noqa: E731  latest first
+        pool = readable
+    else:
+        pool = [ec for ec in readable if direction is None
+                or (direction == "before" and ec[0].date <= date)
+                or (direction == "after" and ec[0].date >= date)]
+        if not pool:
+            sessions = sorted(e.date for e, _ in readable)
+            none_found(f"on or {direction} {date.isoformat()} (its {len(readable)} session"
+                       f"{'s are' if len(readable) > 1 else ' is'} from {sessions[0]} to {sessions[-1]})")
+        key = lambda ec: (abs((ec[0].date - date).days), ec[0].date, ec[0].rel)  # noqa: E731
+    entry, cal = min(pool, key=key)
+
+    days = None if date is None else (entry.date - date).days
+    warning = None
+    if days is not None and abs(days) > max_days:
+        side = "before" if days < 0 else "after"
+        warning = (f"the nearest calibration of {device} (session {entry.session}) is "
+                   f"{abs(days)} days {side} {date.isoformat()}, more than {max_days:g}")
+    return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped)
+
+
+def _calibration():
+    from .file import Calibration  # on demand: the CLI registers lookup at start-up
+    return Calibration
+
+
+def _some(names: list[str], shown: int = 5) -> str:
+    if not names:
+        return ""
+    more = f" and {len(names) - shown} more" if len(names) > shown else ""
+    return f" ({', '.join(names[:shown])}{more})"
+
+
+def _days(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of days, got {text!r}") from None
+    if not value >= 0 or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a non-negative number of days, got {text!r}")
+    return int(value) if value.is_integer() else value
+
+
+def summary(result: LookupResult, device: str, date: dt.date | None) -> str:
+    """One line: device, session, how far from the date, protocol, batch."""
+    meta = result.calibration.meta
+    if result.days_away is None:
+        when = f"latest of {result.candidates}"
+    elif result.days_away == 0:
+        when = f"on {date.isoformat()}"
+    else:
+        n = abs(result.days_away)
+        when = f"{n} day{'s' * (n != 1)} {'before' if result.days_away < 0 else 'after'} {date.isoformat()}"
+    labels = {"failed_sessions": "failed session", "unreadable": "unreadable file"}
+    skipped = [f"{v} {labels.get(k, k)}{'s' * (v != 1)}" for k, v in result.skipped.items() if v]
+    return (f"{device} session {result.session} ({when}), protocol {meta.get('protocol')}, "
+            f"batch {meta.get('batch')}" + (f"; skipped {', '.join(skipped)}" if skipped else ""))
+
+
+def cmd_lookup(args) -> int:
+    date = None if args.date is None else parse_date(args.date, "--date")
+    result = find_calibration(args.caldir, args.device, date, args.direction, args.max_days)
+    if result.warning:
+        print(f"gyrocal: warning: {result.warning}", file=sys.stderr)
+    if args.json:
+        record = result.record(args.caldir, args.device, date, args.direction, args.max_days)
+        print(json.dumps(record, indent=2))
+    else:
+        print(result.path)
+        print(f"  {summary(result, args.device, date)}")
+    return 0
+
+
+def add_lookup_parser(subparsers):
+    """Register ``gyrocal lookup`` on the CLI's subparsers."""
+    p = subparsers.add_parser("lookup", help="the calibration of a unit closest to a date")
+    p.add_argument("caldir", help="folder of calibration files (e.g. the workflow's results/)")
+    p.add_argument("device")
+    p.add_argument("--date", help="YYYY-MM-DD (default: the latest session)")
+    side = p.add_mutually_exclusive_group()
+    side.add_argument("--before", dest="direction", action="store_const", const="before",
+                      help="only sessions on or before --date")
+    side.add_argument("--after", dest="direction", action="store_const", const="after",
+                      help="only sessions on or after --date")
+    p.add_argument("--max-days", type=_days, default=DEFAULT_MAX_DAYS,
+                   help=f"warn when the nearest session is further away (default {DEFAULT_MAX_DAYS})")
+    p.add_argument("--json", action="store_true", help="print a JSON record instead")
+    p.set_defaults(func=cmd_lookup, direction=None)
+    return p

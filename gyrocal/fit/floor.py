@@ -1,0 +1,329 @@
+"""The honest noise floor: each observation's noise from the sensor's own static stretches.
+
+A real MEMS gyro is not a white-noise source: bias instability (flicker) and rate random walk
+move a hold's mean by more than (within-hold std)/sqrt(n), and they move the bias between
+temperature points that hours separate. A floor that ignores them makes every real unit look as
+if an effect were missing. So, for every session:
+
+1. the log's static stretches are found from its segmentation (:func:`static_stretches`);
+2. their overlapping Allan deviation is pooled over the session (the model the floors use) and
+   per temperature point (the terms' temperature dependence), and the IEEE Std 952 terms are
+   fitted (:mod:`gyrocal.fit.noise`); bias instability and rate random walk enter the floors only
+   where detected (:func:`floor_terms`);
+3. every observation gets two standard deviations per axis (columns of the observation table):
+
+   * ``floor_*``: its mean about the mean of its temperature point's holds, T = n / rate long:
+     ``NoiseTerms.mean_variance(T, M)`` with M = (span of the point's holds) / T, i.e. each
+     term's Allan variance at T times Barnes' B1(M); plus the hold's own white scatter beyond the
+     static one, (s^2 - s0^2) / n, which table wobble or vibration adds while rotating;
+   * ``wander_*``: its point's mean about a smooth curve across temperature: the flicker and
+     random-walk Allan variance at the time between neighbouring points.
+
+   A fit inside one temperature point sees ``floor``; a fit or comparison across points sees
+   ``floor`` and ``wander`` in quadrature (:func:`gyrocal.fit.model.observation_floor`). The fits
+   themselves use the full covariance of the hold means (``white_*``, ``flicker_*``, ``rrw_*``
+   columns and :mod:`gyrocal.fit.wander`): holds close in time share the wander.
+
+With white noise alone, ``floor`` is the noise density over sqrt(T), what std/sqrt(n) gives,
+and ``wander`` vanishes. When nothing static can be characterised, the columns are left out and
+every consumer falls back to std/sqrt(n); the summary (``Segmentation.info["noise"]``) says so.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+
+from ..io.errors import InputError
+from .noise import MIN_SAMPLES, NoiseTerms, fit_noise_terms, pooled_from_sums, stretch_sums
+
+AXES = "xyz"
+MIN_STATIC_S = 1.0      # a stretch this long adds its short taus to the pooled estimate
+MIN_STATIC_SAMPLES = 64
+MIN_TOTAL_S = 10.0      # less static time in all reaches too few octaves to tell terms apart
+MERGE_GAP_S = 1.0       # stretches closer than this are one stretch (a hold that ends a soak)
+QUIET_BLOCK_S = 1.0     # servo pauses: blocks judged quiet by their scatter
+QUIET_FACTOR = 2.0      # a block scattering more than this × the median block is moving
+FALLBACK = "within-hold scatter"
+STATIC = "noise model of the static stretches"
+
+
+def merge_intervals(start: np.ndarray, end: np.ndarray, gap: float) -> tuple[np.ndarray, np.ndarray]:
+    """Union of intervals, joining those less than ``gap`` apart."""
+    if start.size == 0:
+        return start, end
+    order = np.argsort(start)
+    start, end = start[order], np.maximum.accumulate(end[order])
+    new = np.r_[True, start[1:] - end[:-1] > gap]
+    group = np.cumsum(new) - 1
+    return start[new], np.maximum.reduceat(end, np.flatnonzero(new))[: group[-1] + 1]
+
+
+def intersect_intervals(a0, a1, b0, b1) -> tuple[np.ndarray, np.ndarray]:
+    """Pairwise intersection of two sorted sets of disjoint intervals."""
+    lo = np.maximum(a0[:, None], b0[None, :])
+    hi = np.minimum(a1[:, None], b1[None, :])
+    keep = hi > lo
+    return lo[keep], hi[keep]
+
+
+def quiet_runs(t: np.ndarray, gyro: np.ndarray, still: np.ndarray, rate: float):
+    """Runs of whole blocks where the reference is still and the gyro scatters no more than
+    QUIET_FACTOR × the median still block (a hand moving the unit scatters far more); one block
+    either side of such a block is dropped as settling."""
+    size = max(int(round(QUIET_BLOCK_S * rate)), 2)
+    nb = len(t) // size
+    if nb < 3:
+        return np.array([]), np.array([])
+    g = gyro[: nb * size].reshape(nb, size, 3)
+    block_still = still[: nb * size].reshape(nb, size).all(axis=1)
+    spread = g.std(axis=1).max(axis=1)
+    if not block_still.any():
+        return np.array([]), np.array([])
+    moving = block_still & (spread > QUIET_FACTOR * np.median(spread[block_still]))
+    quiet = block_still & ~moving & ~np.r_[moving[1:], False] & ~np.r_[False, moving[:-1]]
+    edges = np.diff(np.r_[0, quiet.astype(np.int8), 0])
+    first, stop = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+    return t[first * size], t[stop * size - 1]
+
+
+def static_stretches(log, seg, static, *, max_temp_rate: float = 0.1) -> pd.DataFrame:
+    """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature,
+    as the protocol finds them (``static``: its
+    :attr:`gyrocal.protocols.registry.Protocol.static`), at least ``MIN_STATIC_S`` long."""
+    t0, t1 = static(log, seg, max_temp_rate)
+    out = pd.DataFrame({"t_start": np.asarray(t0, float), "t_end": np.asarray(t1, float)})
+    out = out[out["t_end"] - out["t_start"] >= MIN_STATIC_S].sort_values("t_start")
+    return out.reset_index(drop=True)
+
+
+class StretchSampler:
+    """The samples of the static stretches, gathered from a log given batch by batch
+    (``push``: dicts with t, temp and the gyro axes), each stretch reduced to its
+    :func:`gyrocal.fit.noise.stretch_sums` as soon as it is complete, so that no more than one
+    stretch is held at a time. A stretch is the rows with t_start <= t <= t_end; one
+    shorter than the noise model needs is left out. ``result()``: per stretch kept, its
+    sums, its sample count and its mean temperature."""
+
+    NAMES = ("t", "temp", *(f"gyro_{a}" for a in AXES))
+
+    def __init__(self, stretches: pd.DataFrame, rate: float):
+        self.start = stretches["t_start"].to_numpy(float)
+        self.end = stretches["t_end"].to_numpy(float)
+        self.rate = rate
+        self._pieces: dict[int, list[dict[str, np.ndarray]]] = {}
+        self._done: dict[int, tuple] = {}
+        self._pool = ThreadPoolExecutor(2)   # numpy releases the GIL: sums beside the read
+
+    def push(self, batch: dict[str, np.ndarray]) -> None:
+        t = batch["t"]
+        lo = np.searchsorted(t, self.start, side="left")
+        hi = np.searchsorted(t, self.end, side="right")
+        for k in np.flatnonzero(hi > lo):
+            self._pieces.setdefault(int(k), []).append(
+                {c: batch[c][lo[k]:hi[k]] for c in self.NAMES[1:]})
+        for k in [k for k in self._pieces if self.end[k] < t[-1]]:
+            self._close(k)
+
+    def _close(self, k: int) -> None:
+        pieces = self._pieces.pop(k)
+        cols = {c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
+                for c in self.NAMES[1:]}
+        n = len(cols["temp"])
+        if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
+            gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
+            # in float64: a float32 column's own accumulator overflows near its largest value
+            self._done[k] = (self._pool.submit(stretch_sums, gyro, self.rate), n,
+                             float(np.mean(cols["temp"], dtype=np.float64)))
+
+    def result(self) -> list[tuple]:
+        for k in list(self._pieces):
+            self._close(k)
+        self._pool.shutdown()
+        return [(sums.result(), n, temp) for _, (sums, n, temp) in sorted(self._done.items())]
+
+
+def _model(parts: list, rate: float) -> dict | None:
+    """Pooled Allan deviation, fitted terms and within-stretch sample variance of stretches
+    given by their :func:`gyrocal.fit.noise.stretch_sums`, JSON-plain; None when they reach too few
+    octaves for a fit."""
+    try:
+        allan = pooled_from_sums(parts, rate)
+        terms = fit_noise_terms(allan)
+    except InputError:
+        return None
+    variance = sum(p.centred_sumsq for p in parts) / (sum(p.n for p in parts) - len(parts))
+    return {"sample_variance": variance.tolist(),
+            "allan": {"tau_s": allan.tau.tolist(), "adev": allan.adev.tolist(), "lo": allan.lo.tolist(),
+                      "hi": allan.hi.tolist(), "edf": allan.edf.tolist(), "level": allan.level},
+            "terms": terms.to_dict()}
+
+
+def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) -> dict:
+    """Noise of the session, JSON-plain: ``session`` pools every static stretch (the model the
+    floors use: a few short soaks per temperature cannot pin down flicker and random walk, all
+    of them together can), ``points`` the same per temperature point (the terms' temperature
+    dependence; a point without static stretches is listed without them); ``source`` says
+    which floor applies and ``reason`` why the fallback did. Each stretch is read once: the
+    pooled estimates are sums over stretches (:class:`StretchSampler`; ``sampled``, its
+    result when the caller read the log for it, with other consumers; ``static``, the
+    protocol's finder of static stretches, otherwise)."""
+    obs = seg.observations
+    rate = float(seg.info.get("sample_rate") or 0.0)
+    summary = {"source": FALLBACK, "points": [], "static_seconds": 0.0,
+               "reason": f"less than {MIN_TOTAL_S:g} s of static data with a steady temperature "
+                         "in the log"}
+    if obs.empty or rate <= 0:
+        return summary
+    if sampled is None:
+        sampler = StretchSampler(static_stretches(log, seg, static, max_temp_rate=max_temp_rate), rate)
+        for batch in log.scan(StretchSampler.NAMES):
+            sampler.push(batch)
+        sampled = sampler.result()
+    seconds = sum(n for _, n, _ in sampled) / rate
+    if seconds < MIN_TOTAL_S:
+        return summary
+    parts = [sums for sums, _, _ in sampled]
+    session = _model(parts, rate)
+    if session is None:
+        summary["reason"] = "the static stretches are too short for a noise model"
+        return summary
+    points = obs.groupby("point")["point_temp"].first()
+    temps = np.array([temp for _, _, temp in sampled])
+    # each stretch belongs to the temperature point nearest its mean temperature
+    nearest = np.abs(temps[:, None] - points.to_numpy()[None, :]).argmin(axis=1)
+    rows = []
+    for k, (point, point_temp) in enumerate(points.items()):
+        mine = [p for p, j in zip(parts, nearest) if j == k]
+        row = {"point": int(point), "temp": float(point_temp), "stretches": len(mine),
+               "seconds": float(sum(p.n for p in mine) / rate)}
+        row.update((_model(mine, rate) or {}) if mine else {})
+        rows.append(row)
+    longest = max(p.n for p in parts) / rate
+    return {"source": STATIC, "static_seconds": float(seconds), "stretches": len(parts),
+            "longest_static_s": float(longest), "session": session, "points": rows}
+
+
+def terms_of(entry: dict) -> NoiseTerms:
+    """The :class:`NoiseTerms` of one point of a :func:`characterise` summary."""
+    d = entry["terms"]
+    keys = ("arw", "bias_instability", "rrw", "quantisation")
+    kw = {k: np.asarray(d[k], float) for k in keys}
+    kw.update({f"{k}_stderr": np.asarray(d[f"{k}_stderr"], float) for k in keys})
+    return NoiseTerms(**kw, bias_instability_min=np.asarray(d["bias_instability_min"], float),
+                      tau_min=np.asarray(d["tau_min"], float), chi2_reduced=np.asarray(d["chi2_reduced"], float),
+                      tau_range=tuple(d["tau_range_s"]))
+
+
+DETECTION_Z = 3.0  # a coloured term counts when its variance coefficient is this many s.e. above 0
+
+
+def detected(value, error, z: float = DETECTION_Z) -> np.ndarray:
+    """Whether a fitted term (``value``, with the ``error`` :class:`NoiseTerms` reports for it)
+    is detected: its variance coefficient c = value^2 at least ``z`` standard errors s above
+    zero. The reported error is sqrt(c + s) - sqrt(c) (in the term's unit), so
+    s = (value + error)^2 - value^2."""
+    value, error = np.asarray(value, float), np.asarray(error, float)
+    return value ** 2 >= z * ((value + error) ** 2 - value ** 2)
+
+
+def floor_terms(model: dict) -> NoiseTerms:
+    """The session's terms as the floors use them: bias instability and rate random walk only
+    where the static data detect them (:func:`detected`). A few minutes of white noise fit a
+    flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
+    third and hide real effects."""
+    terms = terms_of(model)
+    kw = {}
+    for name in ("bias_instability", "rrw"):
+        value = np.asarray(getattr(terms, name), float)
+        kw[name] = np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
+    return replace(terms, **kw)
+
+
+UPPER_Z = 2.0  # the slow terms' upper bound: their variance coefficient 2 s.e. up
+
+
+def upper_terms(model: dict, z: float = UPPER_Z) -> NoiseTerms:
+    """The session's terms with bias instability and rate random walk at their upper bound
+    (variance coefficient ``z`` standard errors above its estimate, detected or not): the
+    most slow wander the static data cannot rule out. A few minutes of static data leave
+    wander of correlation times beyond them nearly unconstrained."""
+    terms = terms_of(model)
+    kw = {}
+    for name in ("bias_instability", "rrw"):
+        value = np.asarray(getattr(terms, name), float)
+        s = (value + np.asarray(getattr(terms, f"{name}_stderr"), float)) ** 2 - value ** 2
+        kw[name] = np.sqrt(value ** 2 + z * np.clip(s, 0.0, None))
+    return replace(terms, **kw)
+
+
+FLOOR_COLUMNS = ("floor", "wander", "white", "flicker", "rrw")
+
+
+def add_floor_columns(obs: pd.DataFrame, summary: dict, rate: float) -> pd.DataFrame:
+    """``obs`` with ``floor_*`` and ``wander_*`` (deg/s) from the session's noise model, and
+    the same columns with the slow terms at their upper bound (``upper_floor_*``, ...:
+    :func:`upper_terms`); unchanged when the summary has none (the std/sqrt(n) fallback)."""
+    if "session" not in summary or obs.empty or rate <= 0:
+        return obs
+    obs = _floor_columns(obs.copy(), summary, rate, floor_terms(summary["session"]), "")
+    return _floor_columns(obs, summary, rate, upper_terms(summary["session"]), "upper_")
+
+
+def with_upper_floor(obs: pd.DataFrame) -> pd.DataFrame | None:
+    """``obs`` whose floor columns are the upper-bound ones (None when it has none)."""
+    if "upper_floor_x" not in obs:
+        return None
+    out = obs.copy()
+    for k in FLOOR_COLUMNS:
+        for a in AXES:
+            out[f"{k}_{a}"] = obs[f"upper_{k}_{a}"]
+    return out
+
+
+def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTerms,
+                   prefix: str) -> pd.DataFrame:
+    model = summary["session"]
+    duration = obs["n"].to_numpy(float) / rate
+    span = obs.groupby("point").agg(t0=("t_start", "min"), t1=("t_end", "max"))
+    count = (span["t1"] - span["t0"]).reindex(obs["point"]).to_numpy() / duration
+    mids = ((span["t0"] + span["t1"]) / 2).sort_values().to_numpy()
+    between = float(np.median(np.diff(mids))) if mids.size > 1 else 0.0
+    std = obs[[f"std_{a}" for a in AXES]].to_numpy(float)
+    extra = np.clip(std ** 2 - np.asarray(model["sample_variance"])[None, :], 0.0, None)
+    extra /= obs["n"].to_numpy(float)[:, None]
+    white = replace(terms, bias_instability=np.zeros(3), rrw=np.zeros(3))
+    floor2 = terms.mean_variance(duration, count) + extra
+    wander = np.sqrt(terms.coloured_variance(between)) if between > 0 else np.zeros(3)
+    white2 = white.mean_variance(duration) + extra
+    flicker = np.asarray(terms.bias_instability, float) / 3600.0          # deg/h -> deg/s
+    walk = np.asarray(terms.rrw, float) / 3600.0 ** 1.5                    # -> deg/s/sqrt(s)
+    for i, a in enumerate(AXES):
+        obs[f"{prefix}floor_{a}"] = np.sqrt(floor2[:, i])
+        obs[f"{prefix}wander_{a}"] = wander[i]
+        obs[f"{prefix}white_{a}"] = np.sqrt(white2[:, i])
+        obs[f"{prefix}flicker_{a}"] = flicker[i]
+        obs[f"{prefix}rrw_{a}"] = walk[i]
+    summary["between_points_s"] = between
+    return obs
+
+
+def noise_record(summary: dict) -> dict:
+    """What a calibration file keeps of the noise characterisation: the terms (IEEE Std 952
+    units), the session's and per temperature point, and which floor the fit used."""
+    out = {"floor": summary["source"]}
+    if "reason" in summary:
+        out["reason"] = summary["reason"]
+    if "session" not in summary:
+        return out
+    used = floor_terms(summary["session"])
+    out.update(static_seconds=summary["static_seconds"], stretches=summary["stretches"],
+               session=summary["session"]["terms"],
+               floor_terms={"bias_instability": np.asarray(used.bias_instability).tolist(),
+                            "rrw": np.asarray(used.rrw).tolist(), "detection_z": DETECTION_Z},
+               points=[{"temperature": p["temp"], "stretches": p["stretches"], "seconds": p["seconds"],
+                        **({"terms": p["terms"]} if "terms" in p else {})} for p in summary["points"]])
+    return out

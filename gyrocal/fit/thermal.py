@@ -1,0 +1,665 @@
+"""Calibration across temperature: one fit per temperature point, interpolated between.
+
+Every interpolation method here is linear in the grid values, so it is expressed as a
+weight matrix ``W`` (evaluation temperatures x grid points): coefficients at any temperature
+are ``W @ values`` for all coefficients at once, and their uncertainty is
+``sqrt(W² @ stderr²)`` (grid points are fitted independently).
+
+Methods:
+
+* ``lagrange3`` — seed 000 Eq 21-22: for ``T_{i-1} < T <= T_i`` the three-point Lagrange
+  polynomial through ``T_{i-2}, T_{i-1}, T_i``; the first interval, lacking ``T_{i-2}``,
+  uses ``T_0, T_1, T_2``. With two points it is linear, with one constant.
+* ``linear`` — piecewise linear between neighbours.
+* ``spline`` — natural cubic spline through all points.
+* ``poly`` — one least-squares polynomial of the given degree over all points.
+
+Outside the calibrated range every method clamps to the end value: no extrapolation.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import ClassVar
+
+import numpy as np
+import pandas as pd
+
+from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
+from ..terms import Term
+from .model import FitResult, Model, columns_of, fit, subset_design
+
+METHODS = ("lagrange3", "linear", "spline", "poly")
+
+
+class OutOfRangeWarning(UserWarning):
+    """Temperatures outside the calibrated range were clamped to its ends."""
+
+
+def lagrange3_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Weights of seed 000's three-point Lagrange interpolation (Eq 21-22)."""
+    nodes = np.asarray(nodes, dtype=float)
+    P = len(nodes)
+    W = np.zeros((len(x), P))
+    if P < 3:
+        return linear_weights(nodes, x)
+    i = np.clip(np.searchsorted(nodes, x, side="left"), 1, P - 1)  # T_{i-1} < x <= T_i
+    lo = np.maximum(i - 2, 0)
+    idx = lo[:, None] + np.arange(3)
+    t = nodes[idx]                                                  # (n, 3) stencil
+    rows = np.arange(len(x))
+    for j in range(3):
+        others = [k for k in range(3) if k != j]
+        num = (x - t[:, others[0]]) * (x - t[:, others[1]])
+        den = (t[:, j] - t[:, others[0]]) * (t[:, j] - t[:, others[1]])
+        W[rows, idx[:, j]] = num / den
+    return W
+
+
+def linear_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
+    nodes = np.asarray(nodes, dtype=float)
+    W = np.zeros((len(x), len(nodes)))
+    if len(nodes) == 1:
+        W[:, 0] = 1.0
+        return W
+    i = np.clip(np.searchsorted(nodes, x, side="right"), 1, len(nodes) - 1)
+    frac = (x - nodes[i - 1]) / (nodes[i] - nodes[i - 1])
+    rows = np.arange(len(x))
+    W[rows, i - 1] = 1.0 - frac
+    W[rows, i] = frac
+    return W
+
+
+def spline_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
+    if len(nodes) < 3:
+        return linear_weights(nodes, x)
+    from scipy.interpolate import CubicSpline  # half a second to import: only when a spline is used
+    return CubicSpline(nodes, np.eye(len(nodes)), bc_type="natural")(x)
+
+
+def poly_weights(nodes: np.ndarray, x: np.ndarray, degree: int) -> np.ndarray:
+    degree = min(degree, len(nodes) - 1)
+    centre, half = (nodes[0] + nodes[-1]) / 2, max((nodes[-1] - nodes[0]) / 2, 1e-12)
+    V = np.polynomial.legendre.legvander((nodes - centre) / half, degree)
+    Vx = np.polynomial.legendre.legvander((x - centre) / half, degree)
+    return Vx @ np.linalg.pinv(V)
+
+
+def check_method(method, degree=3, *, where: str = "interpolation") -> None:
+    """The one check of an interpolation setting, wherever it comes from."""
+    if method not in METHODS:
+        raise ConfigError(f"{where} method {method!r} is not known; choose one of "
+                          f"{', '.join(METHODS)}")
+    if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
+        raise ConfigError(f"{where} degree must be a non-negative integer, got {degree!r}")
+
+
+def interpolation_weights(method: str, nodes, x, *, degree: int = 3) -> np.ndarray:
+    """Weights (len(x), len(nodes)) of ``method``; ``x`` is clamped to the node range."""
+    nodes = np.asarray(nodes, dtype=float)
+    x = np.clip(np.atleast_1d(np.asarray(x, dtype=float)), nodes[0], nodes[-1])
+    if method == "lagrange3":
+        return lagrange3_weights(nodes, x)
+    if method == "linear":
+        return linear_weights(nodes, x)
+    if method == "spline":
+        return spline_weights(nodes, x)
+    check_method(method, degree)
+    return poly_weights(nodes, x, degree)
+
+
+@dataclass(frozen=True)
+class TemperatureGrid:
+    """Coefficients fitted at temperature points, interpolated between them."""
+
+    temperatures: np.ndarray          # (P,) increasing, °C
+    names: tuple[str, ...]
+    values: np.ndarray                # (P, C)
+    stderr: np.ndarray                # (P, C)
+    method: str = "lagrange3"
+    degree: int = 3
+    covariance: np.ndarray | None = None   # (P, C, C): each point's coefficients
+
+    def __post_init__(self):
+        check_method(self.method, self.degree)
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", canonical_covariance(self.covariance, self.stderr))
+        if len(self.temperatures) == 0:
+            raise ConfigError("a temperature grid needs at least one point")
+        if np.any(np.diff(self.temperatures) <= 0):
+            raise ConfigError("grid temperatures must increase strictly")
+
+    @property
+    def span(self) -> tuple[float, float]:
+        return float(self.temperatures[0]), float(self.temperatures[-1])
+
+    def weights(self, temp) -> np.ndarray:
+        return interpolation_weights(self.method, self.temperatures, temp, degree=self.degree)
+
+    def outside(self, temp) -> np.ndarray:
+        temp = np.asarray(temp, dtype=float)
+        lo, hi = self.span
+        return (temp < lo) | (temp > hi)
+
+    def at(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
+        """Coefficient arrays at ``temp`` (clamped to the grid, with a warning if so)."""
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        if warn:
+            warn_outside(self, temp)
+        V = self.weights(temp) @ self.values
+        return {n: V[:, j] for j, n in enumerate(self.names)}
+
+    def stderr_at(self, temp) -> dict[str, np.ndarray]:
+        S = np.sqrt(self.weights(temp) ** 2 @ self.stderr ** 2)
+        return {n: S[:, j] for j, n in enumerate(self.names)}
+
+    def covariance_at(self, temp) -> np.ndarray:
+        """(n, C, C): the interpolated coefficients' covariance, the points' taken as
+        independent (a joint fit's points share their global coefficients, whose own
+        variance each point's matrix holds); from the standard errors alone, as
+        uncorrelated, when the grid has no covariances."""
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        return np.einsum("np,pcd->ncd", self.weights(temp) ** 2, cov)
+
+    def without(self, index: int) -> TemperatureGrid:
+        keep = np.arange(len(self.temperatures)) != index
+        return TemperatureGrid(self.temperatures[keep], self.names, self.values[keep],
+                               self.stderr[keep], self.method, self.degree,
+                               None if self.covariance is None else self.covariance[keep])
+
+
+DIAGONAL_RTOL = 1e-6   # a covariance's diagonal against the squared standard errors
+
+
+def canonical_covariance(cov, stderr) -> np.ndarray:
+    """A grid's covariance as it is kept and written: exactly symmetric, its diagonal the
+    squares of the standard errors beside it, the rows of a coefficient without uncertainty
+    zero. A fit's matrix products leave the two triangles a few ulps apart, which is
+    rounding; a diagonal that disagrees with the standard errors beyond rounding is a bug
+    upstream, refused rather than hidden."""
+    C = np.array(cov, dtype=float)
+    s = np.asarray(stderr, dtype=float)
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))          # a + b == b + a: exactly symmetric
+    mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s ** 2)
+    if np.any(mismatch > DIAGONAL_RTOL * s ** 2):
+        raise GyrocalError("a covariance's diagonal is not the squared standard errors (off "
+                           f"by up to {float(mismatch.max()):.3g})")
+    C *= (s[..., :, None] != 0) & (s[..., None, :] != 0)
+    idx = np.arange(s.shape[-1])
+    C[..., idx, idx] = s ** 2
+    return C
+
+
+def diagonal(variances: np.ndarray) -> np.ndarray:
+    """(..., C) variances as (..., C, C) diagonal covariances."""
+    out = np.zeros(variances.shape + (variances.shape[-1],))
+    idx = np.arange(variances.shape[-1])
+    out[..., idx, idx] = variances
+    return out
+
+
+@dataclass(frozen=True)
+class ConstantCoefficients:
+    """Coefficients of a temperature-continuous model: one value each, the temperature
+    dependence being in the model's own terms. ``temperatures`` are the calibration's
+    points (where K and B are tabulated for the file); ``span`` is where it was fitted."""
+
+    temperatures: np.ndarray
+    names: tuple[str, ...]
+    values: np.ndarray                # (C,)
+    stderr: np.ndarray                # (C,)
+    method: str = "continuous"
+    degree: int = 0
+    fitted_span: tuple[float, float] | None = None   # the fitted holds' temperatures
+    covariance: np.ndarray | None = None             # (C, C)
+
+    def __post_init__(self):
+        if self.covariance is not None:
+            object.__setattr__(self, "covariance", canonical_covariance(self.covariance, self.stderr))
+
+    def covariance_at(self, temp) -> np.ndarray:
+        """(n, C, C): the coefficients' covariance at each temperature (the same for all)."""
+        n = len(np.atleast_1d(temp))
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        return np.broadcast_to(cov, (n,) + cov.shape)
+
+    @property
+    def span(self) -> tuple[float, float]:
+        """Where the model was fitted: its holds' lowest to highest temperature (a
+        point's mean lies inside its holds' range, so the points' extremes would clamp
+        the ends of a sweep the terms were fitted on); the points' without that record."""
+        if self.fitted_span is not None:
+            return float(self.fitted_span[0]), float(self.fitted_span[1])
+        return float(self.temperatures[0]), float(self.temperatures[-1])
+
+    def outside(self, temp) -> np.ndarray:
+        temp = np.asarray(temp, dtype=float)
+        lo, hi = self.span
+        return (temp < lo) | (temp > hi)
+
+    def at(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
+        temp = np.atleast_1d(np.asarray(temp, dtype=float))
+        if warn:
+            warn_outside(self, temp)
+        return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values)}
+
+
+def warn_outside(coefs, temp: np.ndarray) -> None:
+    """Warn that temperatures outside the calibrated range use the nearest end's."""
+    out = coefs.outside(temp)
+    if out.any():
+        lo, hi = coefs.span
+        warnings.warn(OutOfRangeWarning(
+            f"{int(out.sum())} of {len(temp)} samples at {temp[out].min():.2f} to "
+            f"{temp[out].max():.2f} °C lie outside the calibrated {lo:g} to {hi:g} °C and use "
+            "the calibration at the nearest end"), stacklevel=3)
+
+
+class _OnAGrid:
+    """What a temperature-grid fit reads from its grid and points table."""
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.grid.names
+
+    @property
+    def coefficients(self) -> TemperatureGrid:
+        return self.grid
+
+    def used_points(self) -> list[int]:
+        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+
+    def outside(self, temp) -> np.ndarray:
+        return self.grid.outside(temp)
+
+    def coefficients_at(self, temp) -> np.ndarray:
+        return self.grid.weights(temp) @ self.grid.values
+
+
+@dataclass(frozen=True)
+class GridFit(_OnAGrid):
+    """Per-temperature fits and the grid built from those that succeeded."""
+
+    grid: TemperatureGrid
+    fits: tuple[FitResult, ...]
+    points: pd.DataFrame              # point, temp, holds, used, reason
+    excluded: dict[int, str] = field(default_factory=dict)
+    rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
+    profiled: tuple = ()               # nonlinear settings found by profiling
+    kind: ClassVar[str] = "grid"
+
+    @property
+    def model(self) -> Model:
+        return self.fits[0].model
+
+
+    def covariance_at(self, temp) -> np.ndarray:
+        cov = np.array([f.covariance for f in self.fits])
+        return np.einsum("np,pcd->ncd", self.grid.weights(temp) ** 2, cov)
+
+    def point_fit(self, point: int) -> FitResult:
+        """The calibration at one point: that point's own fit."""
+        return self.fits[self.used_points().index(int(point))]
+
+    def leave_out(self, point: int) -> GridFit | None:
+        """The calibration without ``point``: the other points' fits (each used its own
+        holds only, so this is what calibrating without the point gives)."""
+        used = self.used_points()
+        if point not in used:
+            return self
+        if len(used) < 2:
+            return None
+        k = used.index(point)
+        keep = self.points["point"] != point
+        return GridFit(self.grid.without(k), self.fits[:k] + self.fits[k + 1:],
+                       self.points[keep].reset_index(drop=True), self.excluded,
+                       self.rows[:k] + self.rows[k + 1:])
+
+
+@dataclass(frozen=True)
+class ContinuousFit:
+    """One fit of a temperature-continuous model over every point's holds."""
+
+    model: Model
+    fit: FitResult
+    data: dict                        # the numeric observation columns fitted
+    points: pd.DataFrame
+    excluded: dict[int, str] = field(default_factory=dict)
+    profiled: tuple = ()
+    design: dict | None = field(default=None, repr=False, compare=False)  # the fit's columns
+    kind: ClassVar[str] = "continuous"
+
+    @property
+    def rows(self) -> tuple[np.ndarray, ...]:
+        return (np.arange(len(self.data["temp"])),)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.fit.names
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]:
+        return (self.fit,)
+
+    @property
+    def coefficients(self) -> ConstantCoefficients:
+        temps = np.sort(self.points.loc[self.points["used"], "temp"].to_numpy(dtype=float))
+        held = np.asarray(self.data["temp"], dtype=float)
+        span = (min(float(held.min()), temps[0]), max(float(held.max()), temps[-1]))
+        return ConstantCoefficients(temps, self.names, self.fit.values, self.fit.stderr,
+                                    fitted_span=span, covariance=self.fit.covariance)
+
+    def used_points(self) -> list[int]:
+        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+
+    def outside(self, temp) -> np.ndarray:
+        return self.coefficients.outside(temp)
+
+    def coefficients_at(self, temp) -> np.ndarray:
+        return np.broadcast_to(self.fit.values, (len(np.atleast_1d(temp)), len(self.names)))
+
+    def covariance_at(self, temp) -> np.ndarray:
+        n = len(np.atleast_1d(temp))
+        return np.broadcast_to(self.fit.covariance, (n,) + self.fit.covariance.shape)
+
+    def leave_out(self, point: int) -> ContinuousFit | None:
+        """Refitted without ``point``'s holds (None when nothing would be left to fit)."""
+        keep = self.data["point"].astype(int) != point
+        if keep.all():
+            return self
+        if len(np.unique(self.data["point"][keep])) < 1:
+            return None
+        try:  # the holds that stay keep their columns: only the whitening is new
+            return fit_continuous(self.model, {k: v[keep] for k, v in self.data.items()},
+                                  design=None if self.design is None else subset_design(self.design, keep))
+        except IdentifiabilityError:
+            return None
+
+
+def in_sample(fitted, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Residuals (n, 3) and floors (n, 3) of a fit's own observations in observation
+    order, and which rows were fitted (rows of points left out are NaN)."""
+    resid, floor = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    for result, rows in zip(fitted.fits, fitted.rows):
+        resid[rows], floor[rows] = result.residuals, result.floor
+    return resid, floor, ~np.isnan(resid[:, 0])
+
+
+def fit_continuous(model: Model, obs, *, source=None, design: dict | None = None) -> ContinuousFit:
+    """Fit a temperature-continuous model jointly over every point (seed 003 Eq 16 style:
+    the temperature dependence is in terms such as ``bias_temp_poly``); ``design``: the
+    model's columns on ``obs`` when already made."""
+    data = columns_of(obs)
+    if design is None:
+        model.check_inputs(data, source)
+        design = model.design(data)
+    result = fit(model, data, source=source, label="all temperature points", design=design)
+    point = data["point"].astype(int)
+    rows = [(int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
+            for p in np.unique(point)]
+    points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
+    return ContinuousFit(model, result, data, points, design=design)
+
+
+def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degree: int = 3,
+             source=None, fitter: Callable = fit) -> GridFit:
+    """Fit ``model`` at every temperature point of ``obs`` (column ``point``).
+
+    A point whose holds cannot determine the model (a mount missing there, too few holds)
+    is left out and reported; if no point can be fitted the first refusal is raised.
+    """
+    check_method(method, degree)
+    fits, temps, rows, excluded, first_error, fitted_rows = [], [], [], {}, None, []
+    data = columns_of(obs)
+    point_of = data["point"].astype(int)
+    for point in np.unique(point_of):
+        idx = np.flatnonzero(point_of == point)
+        group = {k: v[idx] for k, v in data.items()}
+        temp = float(group["temp"].mean())
+        try:
+            result = fitter(model, group, source=source, label=f"{temp:.1f} °C")
+        except IdentifiabilityError as exc:
+            first_error = first_error or exc
+            excluded[int(point)] = str(exc).removeprefix(f"{source}: " if source else "")
+            rows.append((int(point), temp, len(idx), False, excluded[int(point)]))
+            continue
+        fits.append(result)
+        temps.append(temp)
+        fitted_rows.append(idx)
+        rows.append((int(point), temp, len(idx), True, ""))
+    if not fits:
+        raise first_error if first_error else GyrocalError("no observations to fit", source=source)
+    names = fits[0].names
+    grid = TemperatureGrid(np.array(temps), names, np.array([f.values for f in fits]),
+                           np.array([f.stderr for f in fits]), method, degree,
+                           np.array([f.covariance for f in fits]))
+    points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
+    return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
+
+
+class _AtPoint(Term):
+    """A point-scope term's coefficients at one temperature point of a joint grid fit:
+    its columns on that point's holds, zero elsewhere (names ``<coefficient>.@<point>``)."""
+
+    def __init__(self, term: Term, point: int):
+        self.term, self.point = term, int(point)
+        self.name = term.name
+
+    @property
+    def needs(self):
+        return self.term.needs
+
+    def spec_string(self) -> str:
+        return self.term.spec_string()
+
+    def coefficients(self) -> list[str]:
+        return [f"{c}.@{self.point}" for c in self.term.coefficients()]
+
+    def columns(self, data):
+        here = np.asarray(data["point"]) == self.point
+        return {f"{k}.@{self.point}": np.where(here, np.asarray(v, float), 0.0)
+                for k, v in self.term.columns(data).items()}
+
+
+def global_terms(model: Model) -> list[Term]:
+    """Terms with session-wide coefficients (one that adds none, a die temperature, is not
+    fitted jointly for that)."""
+    return [t for t in model.terms if t.coefficient_scope == "global" and t.coefficients()]
+
+
+@dataclass(frozen=True)
+class JointGridFit(_OnAGrid):
+    """A grid model with session-wide (scope global) terms: every point's own coefficients
+    and the global ones fitted in one least-squares problem over the points' holds. The
+    grid holds each global coefficient at every point (interpolating a constant gives it
+    back), so files and apply read it as any grid."""
+
+    model: Model
+    fit: FitResult                      # of the joint model (names with ``.@<point>``)
+    data: dict                          # the observation columns of the points fitted
+    grid: TemperatureGrid
+    points: pd.DataFrame
+    excluded: dict[int, str] = field(default_factory=dict)
+    rows: tuple[np.ndarray, ...] = ()   # the observation rows the fit used
+    point_ids: tuple[int, ...] = ()     # grid order
+    profiled: tuple = ()
+    design: dict | None = field(default=None, repr=False, compare=False)  # the joint fit's columns
+    kind: ClassVar[str] = "grid"
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]:
+        return (self.fit,)
+
+
+    def _mapping(self, weights: np.ndarray) -> np.ndarray:
+        """(n, C, J): coefficient values at n temperatures from the joint parameters."""
+        joint = {name: j for j, name in enumerate(self.fit.names)}
+        A = np.zeros((len(weights), len(self.names), len(joint)))
+        for c, name in enumerate(self.names):
+            if name in joint:
+                A[:, c, joint[name]] = 1.0
+            else:
+                for k, p in enumerate(self.point_ids):
+                    A[:, c, joint[f"{name}.@{p}"]] = weights[:, k]
+        return A
+
+    def covariance_at(self, temp) -> np.ndarray:
+        A = self._mapping(self.grid.weights(np.atleast_1d(np.asarray(temp, float))))
+        # Two products, not one three-operand einsum: numpy's einsum would loop over all
+        # five indices at once (n·c²·j², seconds for a diagnosis' candidates).
+        return (A @ self.fit.covariance) @ A.transpose(0, 2, 1)
+
+    def point_fit(self, point: int):
+        """The calibration at one point: its own coefficients and the global ones."""
+        k = self.point_ids.index(int(point))
+        A = self._mapping(np.eye(len(self.point_ids))[k:k + 1])[0]
+        return _PointCalibration(self.grid.values[k], A @ self.fit.covariance @ A.T)
+
+    def leave_out(self, point: int) -> JointGridFit | None:
+        """Refitted without ``point``'s holds (the global coefficients change with it)."""
+        if point not in self.used_points():
+            return self
+        if len(self.used_points()) < 2:
+            return None
+        keep = self.data["point"].astype(int) != point
+        try:  # the holds that stay keep their columns (those of the point left out drop)
+            return _fit_joint(self.model, {k: v[keep] for k, v in self.data.items()},
+                              method=self.grid.method, degree=self.grid.degree,
+                              rows=self.rows[0][keep], excluded=self.excluded,
+                              design=None if self.design is None else subset_design(self.design, keep))
+        except IdentifiabilityError:
+            return None
+
+
+@dataclass(frozen=True)
+class _PointCalibration:
+    values: np.ndarray
+    covariance: np.ndarray
+
+
+def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=None,
+               rows: np.ndarray | None = None, excluded=None, extra_points=(),
+               design: dict | None = None) -> JointGridFit:
+    point = data["point"].astype(int)
+    ids = [int(p) for p in np.unique(point)]
+    temps = np.array([float(data["temp"][point == p].mean()) for p in ids])
+    order = np.argsort(temps, kind="stable")
+    ids, temps = [ids[i] for i in order], temps[order]
+    local = [t for t in model.terms if t.coefficient_scope != "global"]
+    joint = Model(tuple(_AtPoint(t, p) for t in local for p in ids) + tuple(global_terms(model)))
+    if design is None:
+        joint.check_inputs(data, source)
+        design = joint.design(data)
+    result = fit(joint, data, source=source, label="all temperature points", design=design)
+    index = {name: j for j, name in enumerate(result.names)}
+    values = np.empty((len(ids), len(model.names)))
+    stderr = np.empty_like(values)
+    for c, name in enumerate(model.names):
+        if name in index:
+            values[:, c], stderr[:, c] = result.values[index[name]], result.stderr[index[name]]
+        else:
+            for k, p in enumerate(ids):
+                j = index[f"{name}.@{p}"]
+                values[k, c], stderr[k, c] = result.values[j], result.stderr[j]
+    grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
+    joint_fit = JointGridFit(model, result, data, grid, pd.DataFrame(), {}, (), tuple(ids))
+    grid = replace(grid, covariance=np.array([joint_fit.point_fit(p).covariance for p in ids]))
+    table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps)]
+    table += list(extra_points)
+    points = pd.DataFrame(table, columns=["point", "temp", "holds", "used", "reason"]) \
+        .sort_values("point", kind="stable").reset_index(drop=True)
+    rows = np.arange(len(point)) if rows is None else rows
+    return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids),
+                        design=design)
+
+
+# A per-point regressor whose within-point scatter is below this fraction of its whole
+# scatter is, to a per-point fit, a copy of the bias (temperature alone, say).
+MIN_WITHIN_POINT = 0.01
+
+
+def _check_point_terms(model: Model, data: dict, source=None) -> None:
+    """Refuse a point-scope term that does not vary within the temperature points: its
+    per-point coefficients cannot be told from each point's bias."""
+    point = data["point"].astype(int)
+    _, index = np.unique(point, return_inverse=True)
+    counts = np.bincount(index)
+    local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
+    design = local.design(data)
+    for term in local.terms:
+        for name in term.coefficients():
+            col = np.broadcast_to(np.asarray(design[name], float), point.shape)
+            if not np.all(np.isfinite(col)):
+                continue  # the fit refuses it, naming the holds
+            total = float(np.sqrt(np.mean((col - col.mean()) ** 2)))
+            if total <= 1e-12 * max(float(np.max(np.abs(col))), 1e-300):
+                continue  # constant everywhere (the bias): the fit itself judges it
+            means = np.bincount(index, weights=col) / counts
+            within = float(np.sqrt(np.mean((col - means[index]) ** 2)))
+            if within < MIN_WITHIN_POINT * total:
+                # Each point's own bias takes any function of what is constant within the
+                # point, per point or global: only a model without per-point biases fits it.
+                raise ConfigError(
+                    f"term {term.spec_string()} does not vary within a temperature point (its "
+                    f"scatter there is {within / total:.1%} of its scatter overall), so a grid "
+                    "model's per-point biases absorb it: use model kind continuous, with the "
+                    "bias's own temperature dependence as terms (bias_temp_poly, scale_temp_poly, "
+                    "misalignment_temp)", source=source)
+
+
+def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",
+              degree: int = 3, source=None) -> GridFit | ContinuousFit | JointGridFit:
+    """A model fitted as a temperature grid (per point, interpolated, with global terms
+    fitted jointly) or continuously. Nonlinear settings of its terms (``profile``) are
+    found by profiling (:mod:`gyrocal.fit.profile`)."""
+    if kind not in ("grid", "continuous"):
+        raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
+    if any(t.nonlinear() for t in model.terms):
+        from .profile import profiled_fit
+        data = columns_of(obs)  # once, not at each of the profile's few dozen fits
+        # A joint grid's per-point fit of its point-scope terms decides which points take
+        # part; the profiled term is global, so it is the same at every value: made once.
+        point_fits: dict = {}
+        return profiled_fit(model, lambda m: _fit_linear(m, data, kind=kind, method=method,
+                                                          degree=degree, source=source,
+                                                          point_fits=point_fits))
+    return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
+
+
+def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None,
+                point_fits: dict | None = None):
+    data = model.transform_inputs(columns_of(obs))
+    if kind == "continuous":
+        return fit_continuous(model, data, source=source)
+    temperature_only = [t.spec_string() for t in model.terms
+                        if t.varies_with_temperature and t.coefficient_scope != "global"]
+    if temperature_only:
+        raise ConfigError(f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
+                          "on temperature alone and cannot be fitted point by point: use model "
+                          "kind continuous")
+    _check_point_terms(model, data, source)
+    if not global_terms(model):
+        return fit_grid(model, data, method=method, degree=degree, source=source)
+    check_method(method, degree)
+    # Points whose own holds cannot determine their coefficients are left out, as in a
+    # plain grid; the rest are fitted together with the global terms.
+    local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
+    per_point = None
+    if local.terms:
+        # Cached only on the inputs as given: a term that moves them (the die's temperature)
+        # changes every point's fit.
+        cached = point_fits if point_fits is not None and data is obs else {}
+        key = tuple(t.spec_string() for t in local.terms)
+        if key not in cached:
+            cached[key] = fit_grid(local, data, method=method, degree=degree, source=source)
+        per_point = cached[key]
+    used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
+    rows = np.flatnonzero(np.isin(data["point"].astype(int), used))
+    dropped = [] if per_point is None else [
+        tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
+    return _fit_joint(model, {k: v[rows] for k, v in data.items()}, method=method, degree=degree,
+                      source=source, rows=rows, excluded=per_point.excluded if per_point else {},
+                      extra_points=dropped)

@@ -1,0 +1,73 @@
+"""The device manifest (contract section 3), read and checked against its schema
+(``gyrocal/io/schemas/manifest.schema.yaml``, one row).
+
+Kept light (no numpy or pandas): the workflow reads the manifest every time it plans, for
+every unit of a fleet.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+
+from ..io import schema
+from ..io.errors import ConfigError, CorruptFileError
+
+_ROW = schema.load("manifest")
+COLUMNS = tuple(_ROW["required"])
+
+
+def _pattern(column: str) -> str:
+    """A column's pattern without its anchors, as the workflow's wildcards take it."""
+    return _ROW["properties"][column]["pattern"].removeprefix("^").removesuffix("$")
+
+
+DEVICE_PATTERN = _pattern("device")
+BATCH_PATTERN = _pattern("batch")
+SESSION_PATTERN = _pattern("session")
+
+
+def read_manifest(path) -> list[dict[str, str]]:
+    """Rows of a manifest, each with ``log``: the path resolved against the manifest's
+    folder, or a URL (``s3://bucket/key``, anything with ``://``) as written, for the
+    workflow to retrieve through Snakemake's storage plugins (docs/cluster.md). Raises
+    :class:`ConfigError` naming the row and column of the first problem."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise CorruptFileError("no such file", source=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CorruptFileError(f"cannot read ({exc})", source=path) from None
+    reader = csv.DictReader(text.splitlines(), delimiter="\t")
+    header = reader.fieldnames or []
+    missing = [c for c in COLUMNS if c not in header]
+    if missing:
+        raise ConfigError(f"manifest lacks column{'s' if len(missing) > 1 else ''} "
+                          f"{', '.join(missing)} (tab-separated, header {' '.join(COLUMNS)})",
+                          source=path)
+    rows, seen = [], {}
+    valid = {c: set() for c in COLUMNS}   # each value checked once: batches, sessions repeat
+    for line, row in enumerate(reader, start=2):
+        if not any((v or "").strip() for v in row.values()):
+            continue  # blank line
+        row = {c: (row.get(c) or "").strip() for c in COLUMNS}
+        for column, value in row.items():
+            if value not in valid[column]:
+                try:
+                    schema.check(value, "manifest", column)
+                except ConfigError as exc:
+                    raise ConfigError(f"line {line}: {exc}", source=path) from None
+                valid[column].add(value)
+        key = (row["device"], row["session"])
+        if key in seen:
+            raise ConfigError(f"line {line}: device {row['device']} session {row['session']} "
+                              f"is listed twice (first on line {seen[key]})", source=path)
+        seen[key] = line
+        # Normalising would also fold a URL's "//" (s3://b/k -> s3:/b/k).
+        row["log"] = row["path"] if "://" in row["path"] else os.path.normpath(path.parent / row["path"])
+        rows.append(row)
+    if not rows:
+        raise ConfigError("manifest lists no logs", source=path)
+    return rows

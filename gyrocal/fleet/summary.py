@@ -1,0 +1,410 @@
+"""Fleet operations over a manifest's results: end-of-line verdicts and yield, outliers
+against the batch, drift audits of devices calibrated more than once, and the fleet summary
+page (:func:`write_fleet_report`).
+
+The settings come from the workflow config's ``spec``, ``outliers`` and ``drift`` sections
+(:class:`FleetSettings`); the numbers from :mod:`gyrocal.fleet.eol`, :mod:`gyrocal.fleet.outliers` and
+:mod:`gyrocal.fleet.drift`. The output is JSON-plain, written to the fleet's ``eol.json`` for
+production systems and rendered in the fleet summary and one drift page per audited device.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+
+from ..calibration.file import dumps
+from ..io import atomic, failure, schema
+from ..io.errors import ConfigError, GyrocalError
+from ..io.formats import finite_or_none as _finite
+from ..io.formats import json_safe
+from ..protocols import registry
+from ..report import plots
+from ..report.pages import render_page
+from ..terms import AXES
+
+
+
+@dataclass(frozen=True)
+class FleetSettings:
+    spec: dict = field(default_factory=dict)          # protocol -> SpecLimits
+    outlier_threshold: float = schema.defaults("config", "outliers")["threshold"]
+    drift_tolerance: dict = field(default_factory=dict)
+    drift_temperature: float | None = None
+    drift_max_excess: float | None = None
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> FleetSettings:
+        from .limits import SpecLimits
+        values = dict(values or {})
+        spec = values.get("spec") or {}
+        if not isinstance(spec, dict):
+            raise ConfigError("spec must map protocols to limits")
+        limits = {}
+        for protocol, section in spec.items():
+            if protocol not in registry.names():
+                raise ConfigError(f"unknown protocol spec.{protocol}; known: {', '.join(registry.names())}")
+            limits[protocol] = SpecLimits.from_dict(section, key=f"spec.{protocol}")
+        outliers = schema.check(values.get("outliers") or {}, "config", "outliers")
+        drift = schema.check(values.get("drift") or {}, "config", "drift")
+        return cls(limits, float(outliers["threshold"]), dict(drift.get("tolerance", {})),
+                   drift.get("temperature"), drift.get("max_excess"))
+
+
+
+
+def _records(frame: pd.DataFrame) -> list[dict]:
+    return [{k: _finite(v.item() if hasattr(v, "item") else v) for k, v in row.items()}
+            for row in frame.to_dict("records")]
+
+
+def end_of_line(units: list[dict], settings: FleetSettings) -> dict:
+    """Verdict per unit (``unit["row"]`` manifest row, ``unit["folder"]`` results), yield per
+    batch. Units of a protocol without limits are not judged."""
+    from .eol import batch_yield, judge_folder
+    verdicts = {}
+    for unit in units:
+        row = unit["row"]
+        limits = settings.spec.get(row["protocol"])
+        if limits is None:
+            continue
+        verdict = judge_folder(unit["folder"], limits)
+        verdicts[(row["batch"], row["device"], row["session"])] = verdict
+    yields = batch_yield(list(verdicts.values())) if verdicts else pd.DataFrame()
+    return {"verdicts": verdicts, "yield": _records(yields) if len(yields) else []}
+
+
+def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict], list[str], str]:
+    """Units of a protocol with fleet audits (the turntable) against their batch: (flagged
+    rows, notes, distributions figure)."""
+    from .outliers import fleet_outliers
+    from ..calibration.parameters import parameter_table
+    from .outliers import plot_parameter_distributions
+    rows = [u for u in calibrated if registry.get(u["protocol"]).fleet_audits]
+    if not rows:
+        return [], [], ""
+    table = parameter_table([u["calibration"] for u in rows])
+    table["session"] = [u["session"] for u in rows]
+    flagged = fleet_outliers(table, threshold=settings.outlier_threshold)
+    figure = plot_parameter_distributions(table, flagged)
+    return _records(flagged), list(flagged.attrs.get("notes", [])), figure
+
+
+def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings) -> list[dict]:
+    """Devices with two or more sessions of a protocol with fleet audits (the turntable):
+    parameter changes with their significance, and the previous session's calibration
+    re-validated on the newest session's holds."""
+    from .drift import parameter_changes, plot_drift, revalidate
+    by_device: dict[str, list[dict]] = {}
+    for unit in calibrated:
+        if registry.get(unit["protocol"]).fleet_audits:
+            by_device.setdefault(unit["device"], []).append(unit)
+    audits = []
+    for device, sessions in sorted(by_device.items()):
+        if len(sessions) < 2:
+            continue
+        sessions = sorted(sessions, key=lambda u: u["session"])
+        audit = {"device": device, "sessions": [u["session"] for u in sessions],
+                 "batch": sessions[-1]["batch"]}
+        try:
+            changes = parameter_changes([u["calibration"] for u in sessions],
+                                        temperature=settings.drift_temperature,
+                                        tolerance=settings.drift_tolerance)
+            audit["changes"] = _records(changes)
+            audit["flagged"] = _records(changes[changes["flagged"]])
+            audit["figure"] = plot_drift(changes)
+            previous, newest = sessions[-2], sessions[-1]
+            reval = revalidate(previous["calibration"],
+                               folders[(newest["batch"], device, newest["session"])] / "observations.parquet",
+                               max_excess=settings.drift_max_excess)
+            audit["revalidation"] = {**{k: _finite(v) for k, v in reval.items() if k != "table"},
+                                     "table": _records(reval["table"]),
+                                     "calibration_session": previous["session"],
+                                     "log_session": newest["session"]}
+        except GyrocalError as exc:
+            audit["error"] = str(exc)
+        audits.append(audit)
+    return audits
+
+
+def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings) -> dict:
+    folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"])
+               for u in units}
+    eol = end_of_line(units, settings)
+    flagged, notes, figure = outliers(calibrated, settings)
+    return {"eol": eol, "outliers": flagged, "outlier_notes": notes, "outlier_figure": figure,
+            "drift": drift_audits(calibrated, folders, settings)}
+
+
+def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict:
+    """What the fleet page shows, read from every unit's folder (``units``: each with its
+    manifest ``row``, results ``folder`` and ``report`` link): a row per unit session,
+    calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
+    (end of line, outliers, drift; each unit's verdict also in its row) and the servo
+    versus turntable comparisons."""
+    from ..calibration.file import load_calibration
+    from ..io.unit_folder import unit_paths
+    rows = []
+    for unit in units:
+        row = dict(unit["row"])
+        p = unit_paths(unit["folder"])
+        row["report"] = unit["report"]
+        records = (failure.read(p[k]) for k in ("validation", "calibration", "observations"))
+        rec = next((r for r in records if r is not None), None)
+        if rec is not None:
+            row.update(status="failed", stage=rec["stage"], error=rec["error"],
+                       internal=rec.get("internal", False))
+        elif not p["validation"].exists() or not p["calibration"].exists():
+            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
+                       "did not run to the end (see the workflow's logs)", internal=True)
+        else:
+            cal = load_calibration(p["calibration"])
+            summary = json.loads(p["validation"].read_text())["summary"]
+            at_ref = cal.coefficients([cal.reference_temperature], warn=False)
+            row["calibration"] = cal
+            row["warnings"] = cal.extra.get("warnings", [])
+            session_noise = (cal.extra.get("noise") or {}).get("session")
+            row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
+                if session_noise else None
+            # a session that logged no temperature has no span, only its stand-in
+            logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
+            row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
+                       reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
+                       params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
+        rows.append(row)
+    ok = [r for r in rows if r["status"] == "ok"]
+    fleet = None
+    if settings is not None:
+        fleet = audit(units, ok, settings)
+        for row in rows:
+            verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
+            if verdict is not None:
+                row["eol"] = {"passed": verdict.passed, "reasons": list(verdict.reasons)}
+    return {"rows": rows, "ok": ok, "fleet": fleet, "servo_vs_turntable": servo_versus_turntable(ok)}
+
+
+# (coefficient, column heading, factor to the unit shown, significant digits)
+KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm", 1e6, 4),
+                  ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
+                  ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
+                  ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
+
+
+def _missing_effect(path) -> str:
+    """The diagnosis in a few words, for the fleet table."""
+    if not Path(path).exists():
+        return "–"
+    rec = failure.read(path)
+    if rec is not None:
+        return f"diagnosis failed: {rec['error']}"
+    diag = failure.load_json(path)
+    if diag.get("best"):
+        return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
+    found = "nothing" if diag.get("explains_the_data") else "unexplained excess"
+    why = diag.get("unexplained")
+    # A finding no term holds (fixed in the lab, between temperature points) is news even
+    # where the fit explains the data.
+    return f"{found}: {why['reason']}" if why else found
+
+
+def _largest_axis(terms: dict, name: str) -> tuple[float, float]:
+    """(value, standard error) of a noise term on the axis where it is largest."""
+    values = np.atleast_1d(terms[name])
+    i = int(np.argmax(values))
+    return float(values[i]), float(np.atleast_1d(terms[f"{name}_stderr"])[i])
+
+
+def servo_versus_turntable(rows: list[dict]) -> list[dict]:
+    """Units calibrated both on the servo and on the turntable: scale factor (K[a,a] − 1) and
+    bias of each calibration at the servo session's temperature, their difference and its
+    size in combined standard errors (seed 001 Tables II–III compare the two methods so).
+    The turntable session nearest in date stands for the unit; its standard errors count
+    where it is a temperature grid (a continuous model's K and B combine several terms)."""
+    by_device: dict[str, dict[str, list]] = {}
+    for row in rows:
+        by_device.setdefault(row["device"], {}).setdefault(row["protocol"], []).append(row)
+    out = []
+    for device, sessions in sorted(by_device.items()):
+        for servo in sessions.get("servo", []):
+            tables = sessions.get("turntable", [])
+            if not tables:
+                continue
+            table = min(tables, key=lambda r: abs(np.datetime64(r["session"] or "1970-01-01")
+                                                  - np.datetime64(servo["session"] or "1970-01-01")))
+            s_cal, t_cal = servo["calibration"], table["calibration"]
+            temp = np.array([s_cal.grid.temperatures[0]])
+            s_err = s_cal.grid.stderr_at(temp)
+            t_err = t_cal.grid.stderr_at(temp) if t_cal.kind == "temperature_grid" else {}
+            (s_K,), (s_B,) = s_cal.matrices_at(temp)
+            (t_K,), (t_B,) = t_cal.matrices_at(temp)
+            params = []
+            for i, a in enumerate(AXES):
+                for name, label, factor, s_val, t_val in (
+                        (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
+                        (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i])):
+                    diff = float(s_val - t_val)
+                    se = float(np.hypot(s_err[name][0], t_err[name][0])) if name in t_err else None
+                    params.append({"parameter": label, "servo": float(s_val) * factor,
+                                   "servo_se": float(s_err[name][0]) * factor,
+                                   "turntable": float(t_val) * factor,
+                                   "turntable_se": None if se is None else float(t_err[name][0]) * factor,
+                                   "difference": diff * factor,
+                                   "sigmas": diff / se if se else None})
+            params.sort(key=lambda p: not p["parameter"].startswith("scale"))
+            out.append({"device": device, "servo_session": servo["session"],
+                        "turntable_session": table["session"], "temperature": float(temp[0]),
+                        "servo_report": servo["report"], "turntable_report": table["report"],
+                        "rows": params})
+    return out
+
+
+def eol_document(result: dict, settings: FleetSettings) -> dict:
+    """The machine-readable end-of-line record: every judged unit and the batch yields."""
+    verdicts = [{**v.to_dict(), "batch": key[0], "device": key[1], "session": key[2]}
+                for key, v in sorted(result["eol"]["verdicts"].items())]
+    return {"format": "gyrocal.eol/1",
+            "spec": {p: limits.to_dict() for p, limits in sorted(settings.spec.items())},
+            "yield": result["eol"]["yield"], "units": verdicts,
+            "outliers": result["outliers"],
+            "drift": [{k: v for k, v in a.items() if k != "figure"} for a in result["drift"]]}
+
+
+def drift_page_name(device: str) -> str:
+    return f"drift/{device}.html"
+
+
+def drift_devices(rows: list[dict]) -> list[str]:
+    """Devices the manifest lists with two or more sessions of a protocol with fleet audits
+    (the turntable): their drift pages."""
+    counts: dict[str, int] = {}
+    for row in rows:
+        if registry.get(row["protocol"]).fleet_audits:
+            counts[row["device"]] = counts.get(row["device"], 0) + 1
+    return sorted(d for d, n in counts.items() if n >= 2)
+
+
+def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
+    """For each unit session, another session of the same device and protocol whose
+    carry-over judges the diagnosis' candidates (:func:`gyrocal.diagnose.diagnose`): the
+    next in session order, the one before for the last. Sessions of protocols whose
+    observations carry the true rate only (not a servo's hand mount)."""
+    by_device: dict[tuple, list[tuple]] = {}
+    for row in rows:
+        if registry.get(row["protocol"]).known_rate:
+            key = (row["batch"], row["device"], row["session"])
+            by_device.setdefault((row["device"], row["protocol"]), []).append(key)
+    out = {}
+    for keys in by_device.values():
+        keys.sort(key=lambda k: (k[2], k[0]))
+        for i, key in enumerate(keys):
+            if len(keys) > 1:
+                out[key] = keys[i + 1] if i + 1 < len(keys) else keys[i - 1]
+    return out
+
+
+# The fleet table's fixed columns (results/fleet.parquet; docs/fleet-table.md says each one).
+TABLE_COLUMNS = (
+    ("device", pa.string()), ("batch", pa.string()), ("session", pa.string()),
+    ("protocol", pa.string()), ("status", pa.string()), ("failed_stage", pa.string()),
+    ("error", pa.string()), ("reference_temperature", pa.float64()),
+    ("temperature_min", pa.float64()), ("temperature_max", pa.float64()),
+    ("validation_rms", pa.float64()), ("noise_floor", pa.float64()), ("excess", pa.float64()),
+    ("excess_over_expected", pa.float64()), ("missing_effect", pa.string()),
+    ("warnings", pa.list_(pa.string())), ("eol_passed", pa.bool_()),
+    ("eol_reasons", pa.list_(pa.string())), ("input_name", pa.string()),
+    ("input_hash", pa.string()), ("input_hash_algorithm", pa.string()),
+    ("gyrocal_version", pa.string()),
+)
+
+
+def fleet_table(summary: dict) -> pa.Table:
+    """One row per unit session of :func:`fleet_summary`'s result, calibrated or failed: its
+    identity, outcome, validation, warnings, end-of-line verdict and input hash, then every
+    parameter of its calibration at its reference temperature in display units (scale in
+    ppm, misalignment in mrad, bias in deg/s: :func:`gyrocal.calibration.parameters.parameters_at`) with
+    its standard error (``<name>_stderr``). A value a unit does not have is null."""
+    from ..io.log import source_digest
+    from ..calibration.parameters import parameters_at
+    columns: dict[str, list] = {name: [] for name, _ in TABLE_COLUMNS}
+    params: dict[str, dict[int, float]] = {}
+    for i, row in enumerate(summary["rows"]):
+        ok = row["status"] == "ok"
+        cal = row.get("calibration")
+        s = row.get("summary") or {}
+        source = (cal.provenance.get("input") or {}) if cal is not None else {}
+        algorithm, digest = source_digest(source) or (None, None)
+        eol = row.get("eol")
+        values = {
+            "device": row["device"], "batch": row["batch"], "session": row["session"],
+            "protocol": row["protocol"], "status": row["status"],
+            "failed_stage": None if ok else row.get("stage"), "error": None if ok else row.get("error"),
+            "reference_temperature": cal.reference_temperature if ok else None,
+            "temperature_min": row["span"][0] if ok and row["span"] else None,
+            "temperature_max": row["span"][1] if ok and row["span"] else None,
+            **{k: _finite(s.get(k)) for k in ("validation_rms", "noise_floor", "excess",
+                                               "excess_over_expected")},
+            "missing_effect": row.get("missing") if ok else None,
+            "warnings": [w["code"] for w in row.get("warnings", [])] if ok else None,
+            "eol_passed": eol["passed"] if eol else None,
+            "eol_reasons": eol["reasons"] if eol else None,
+            "input_name": source.get("name"), "input_hash": digest, "input_hash_algorithm": algorithm,
+            "gyrocal_version": (cal.provenance.get("versions") or {}).get("gyrocal") if ok else None,
+        }
+        for name, _ in TABLE_COLUMNS:
+            columns[name].append(values[name])
+        if ok:
+            for name, value, stderr in parameters_at(cal)[["parameter", "value", "stderr"]].itertuples(index=False):
+                params.setdefault(name, {})[i] = _finite(value)
+                params.setdefault(f"{name}_stderr", {})[i] = _finite(stderr)
+    n = len(summary["rows"])
+    arrays = {name: pa.array(columns[name], type=kind) for name, kind in TABLE_COLUMNS}
+    for name in sorted(params, key=lambda k: (k.removesuffix("_stderr"), k.endswith("_stderr"))):
+        arrays[name] = pa.array([params[name].get(i) for i in range(n)], type=pa.float64())
+    return pa.table(arrays)
+
+
+def _write_page(path, text: str) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic.write_text(path, text)
+
+
+def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> None:
+    """The fleet summary page from :func:`fleet_summary`: per batch, one row
+    per unit and session; failed units with their error; distributions of the key
+    parameters across the calibrated units. With ``settings``
+    (:class:`FleetSettings`): end-of-line verdicts and yield, outliers
+    against the batch, drift pages of devices with several sessions (beside the summary,
+    ``drift/<device>.html``) and the machine-readable ``eol_json``."""
+    rows, ok, fleet = summary["rows"], summary["ok"], summary["fleet"]
+    batches = {}
+    for row in rows:
+        batches.setdefault(row["batch"], []).append(row)
+    ok = [r for r in rows if r["status"] == "ok"]
+    figures = [(label, plots.histogram(np.array(values), label)) for label, values in [
+        *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
+        ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
+        ("excess over the noise floor", [r["summary"]["excess"] for r in ok]),
+        ("angle random walk, deg/√h (largest axis)", [r["noise"]["arw"][0] if r["noise"] else np.nan
+                                                       for r in ok])]]
+    if fleet is not None:
+        for unit in fleet["drift"]:
+            unit["page"] = drift_page_name(unit["device"])
+            page = render_page("drift_report.html.j2", unit=unit, tolerance=settings.drift_tolerance)
+            _write_page(Path(path).parent / unit["page"], page)
+        if eol_json is not None:
+            _write_page(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
+    html = render_page(
+        "fleet_report.html.j2",
+        batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
+        total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
+        warned=sum(1 for r in ok if r.get("warnings")),
+        servo_vs_turntable=summary["servo_vs_turntable"], fleet=fleet)
+    _write_page(path, html)
+
+

@@ -1,0 +1,198 @@
+"""The whole chain for one log: ingest, segment, fit per temperature, validate, calibrate.
+
+Each stage is also a function of its own (and a CLI command), so the workflow can run and
+cache them separately; this module only strings them together and records provenance.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .. import __version__
+from ..calibration.file import Calibration
+from ..fit.floor import (StretchSampler, add_floor_columns, characterise, noise_record,
+                         static_stretches)
+from ..fit.thermal import ContinuousFit, GridFit, fit_model
+from ..fit.validate import Validation, free_point_fits, validate
+from ..io import plausibility
+from ..io.blocks import BlockSink
+from ..io.errors import SegmentationError
+from ..io.holds import Segmentation
+from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
+from ..io.signals import TEMP_RATE_WINDOW_S, HistoryBins, Series
+from ..protocols import registry
+from ..protocols.turntable.segment import LOG_COLUMNS
+from .config import Settings
+
+@dataclass(frozen=True)
+class Run:
+    calibration: Calibration
+    segmentation: Segmentation
+    fitted: GridFit | ContinuousFit | None     # None for a servo session (seed 001's own fit)
+    validation: Validation
+
+
+def versions() -> dict[str, str]:
+    out = {"gyrocal": __version__}
+    for package in ("numpy", "scipy", "pandas", "pyarrow"):
+        try:
+            out[package] = importlib.metadata.version(package)
+        except importlib.metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+# The decoded columns of a log are kept in memory up to this size; a larger log is reduced
+# to block statistics as it is read and read again, batch by batch, for what needs samples
+# (noise, the temperature record), so that memory does not grow with the log.
+KEEP_BYTES = 384 * 2 ** 20
+
+
+def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
+                keep_bytes: float | None = KEEP_BYTES) -> Segmentation:
+    """Read and segment a log into observations by its protocol's rules; its hash
+    (:data:`gyrocal.io.log.HASH_ALGORITHM`) is computed on a second thread meanwhile. Then one
+    more pass over its samples (from memory, or from the file) gives the noise of its
+    static stretches and its temperature record."""
+    rules = registry.get(protocol)
+    sink = BlockSink(rules.reading_blocks(settings)) if rules.reading_blocks else None
+    with ThreadPoolExecutor(1) as pool:
+        digest = pool.submit(file_digest, path)
+        log = read_log(path, optional=LOG_COLUMNS + rules.without, sink=sink,
+                       required=tuple(c for c in REQUIRED if c not in rules.without),
+                       keep_bytes=keep_bytes if sink is not None else None)
+        filled = [c for c in rules.without if c not in log]
+        log = with_constants(log, {"ref_rate": 0.0, "temp": settings.model.reference_temperature})
+        plausibility.log_errors(log.input_stats, path)
+        try:
+            seg = rules.segment(log, settings)
+        except SegmentationError as exc:
+            raise plausibility.explain_segmentation(exc, log.input_stats, path) from None
+        seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
+                              "rows": log.rows_read, "rows_dropped": log.rows_dropped}
+        if log.input_stats is not None:
+            seg.info["input_stats"] = log.input_stats
+        if filled:
+            seg.info["filled_columns"] = filled
+    # The temperature rate is a slope over a window as long as a typical hold, for the fit
+    # and for apply (the calibration file records the window).
+    obs = seg.observations
+    window = float(np.median(obs["duration"])) if len(obs) else TEMP_RATE_WINDOW_S
+    max_temp_rate = settings.segmentation.max_temp_rate
+    rate = float(seg.info.get("sample_rate") or 0.0)
+    stretches = static_stretches(log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate) \
+        if len(obs) and rate > 0 else None
+    sampler = StretchSampler(stretches, rate) if stretches is not None else None
+    record = HistoryBins(*log.time_span, window_s=window)
+    for batch in log.scan(StretchSampler.NAMES):
+        record.push(batch["t"], batch["temp"])
+        if sampler is not None:
+            sampler.push(batch)
+    seg = with_noise_floor(log, seg, protocol, max_temp_rate=max_temp_rate,
+                           sampled=sampler.result() if sampler is not None else None)
+    if "temp" in filled:   # a constant stand-in: no temperature record for terms to read
+        return seg
+    return with_series(seg, record.result())
+
+
+def with_series(seg: Segmentation, series: Series) -> Segmentation:
+    """``seg`` whose observations carry the session's record (terms read series signals
+    from it: :mod:`gyrocal.io.signals`)."""
+    seg.observations.attrs["series"] = series
+    return seg
+
+
+def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float,
+                     sampled=None) -> Segmentation:
+    """``seg`` with the session's noise characterisation in ``info["noise"]`` and every
+    observation's noise floor from it (:mod:`gyrocal.fit.floor`; ``sampled``: the static
+    stretches' sums, when already gathered)."""
+    summary = characterise(log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate,
+                           sampled=sampled)
+    obs = add_floor_columns(seg.observations, summary, float(seg.info.get("sample_rate") or 0.0))
+    obs.attrs["static_seconds"] = float(summary.get("static_seconds") or 0.0)
+    return replace(seg, observations=obs, info={**seg.info, "noise": summary})
+
+
+def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
+                           source: dict | None = None, label=None, noise: dict | None = None,
+                           fitted: GridFit | ContinuousFit | None = None, info: dict | None = None,
+                           checks: bool = True) -> tuple[Calibration, GridFit | ContinuousFit | None]:
+    """The calibration of one unit's observations: the common model's fit, or the
+    protocol's own (:attr:`gyrocal.protocols.registry.Protocol.calibrate`; a servo session's is seed
+    001's six-parameter fit, and no common-model fit comes back: None). ``noise``,
+    segmentation's noise characterisation, is kept in the file
+    (:func:`gyrocal.fit.floor.noise_record`). ``fitted``, a fit of ``settings.model`` to ``obs``
+    already made, is used rather than fitting again. ``info``, segmentation's, gives the
+    read's statistics to the plausibility checks (:mod:`gyrocal.io.plausibility`), which raise
+    where the log cannot be right and leave their warnings in the file's ``warnings``
+    (``checks=False``: none, for the diagnosis' candidate models)."""
+    provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
+    own = registry.get(meta.get("protocol")).calibrate
+    if own is not None:
+        cal = own(obs, settings, meta, provenance)
+        if noise:
+            cal.extra["noise"] = noise_record(noise)
+        fitted = None
+    else:
+        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted)
+    if checks:
+        cal.extra["warnings"] = plausibility.review(obs, info, cal,
+                                                    protocol=registry.get(meta.get("protocol")),
+                                                    source=label)
+    return cal, fitted
+
+
+def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
+    """The common model's calibration (and fit, unless ``fitted`` is given)."""
+    if fitted is None:
+        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
+                           method=settings.model.interpolation, degree=settings.model.degree,
+                           source=label)
+    points = fitted.points
+    model = fitted.model  # with any profiled setting at its fitted value
+    # Apply derives the temperature rate over the window the fit's record used.
+    series = obs.attrs.get("series")
+    window = series.temp_rate_window_s if series is not None else float(np.median(obs["duration"]))
+    covariates = {"temp_rate": {"unit": "degC/min", "window_s": window}} \
+        if "temp_rate" in model.inputs else {}
+    cal = Calibration(
+        model, fitted.coefficients, settings.model.reference_temperature, meta,
+        provenance=provenance,
+        extra={"points": [
+            {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
+             **({"excluded_because": r.reason} if not r.used else {})}
+            for r in points.itertuples()],
+            **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
+            **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
+    return cal, fitted
+
+
+def run(path, settings: Settings | None = None, *, protocol: str = registry.DEFAULT,
+        device: str | None = None, batch: str | None = None, session: str | None = None) -> Run:
+    """Calibrate one log end to end."""
+    settings = (settings or Settings()).for_protocol(protocol)
+    seg = segment_log(path, settings, protocol)
+    meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
+            "session": session, "protocol": protocol}
+    cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
+                                           source=seg.info["source"], label=path,
+                                           noise=seg.info.get("noise"), info=seg.info)
+    return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings))
+
+
+def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings) -> Validation:
+    """The calibration's validation: the protocol's own (a servo's leave-revolution-out), or
+    the common model's leave-temperature-out from ``fitted``."""
+    own = registry.get(cal.meta.get("protocol")).validate
+    if own is not None:
+        return own(obs, cal)
+    val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature,
+                   every_point=False)
+    return replace(val, free_points=free_point_fits(obs)) if cal.kind == "continuous" else val

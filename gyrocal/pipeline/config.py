@@ -1,0 +1,214 @@
+"""Settings of a calibration run: segmentation knobs and the model, from YAML or dicts.
+
+Every key is checked against the config schema (``gyrocal/io/schemas/config.schema.yaml``, which
+holds the bounds and defaults; :mod:`gyrocal.io.schema`): an unknown key or a bad value is a
+:class:`ConfigError` naming it. The settings hash (``sha256``) goes into each calibration
+file, so a file says which settings made it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import yaml
+
+from ..fit.model import DEFAULT_TERMS, Model
+from ..io import schema
+from ..io.errors import ConfigError, CorruptFileError
+from ..protocols.turntable.segment import SegmentConfig
+from ..terms import make_term
+from ..terms.user import load_term_file
+
+_MODEL = schema.defaults("config", "model")
+_DIAGNOSIS = schema.defaults("config", "diagnosis")
+
+
+@dataclass(frozen=True)
+class ModelSettings:
+    """The error model and how it is carried across temperature (the schema's ``model:``)."""
+
+    terms: tuple = DEFAULT_TERMS
+    kind: str = _MODEL["kind"]
+    interpolation: str = _MODEL["interpolation"]
+    degree: int = _MODEL["degree"]
+    reference_temperature: float = _MODEL["reference_temperature"]
+    term_files: tuple = tuple(_MODEL["term_files"])
+    expressions: tuple = tuple(sorted(_MODEL["expressions"].items()))   # (label, formula) pairs
+
+    @classmethod
+    def from_dict(cls, values: dict | None, *, key: str = "model") -> ModelSettings:
+        values = schema.check(values or {}, "config", "model", key=key)
+        term_files = tuple(str(f) for f in values["term_files"])
+        for path in term_files:
+            load_term_file(path)  # registers its terms before the term list is checked
+        settings = cls(tuple(values.get("terms", DEFAULT_TERMS)), values["kind"],
+                       values["interpolation"], values["degree"],
+                       float(values["reference_temperature"]), term_files,
+                       tuple(sorted((values["expressions"] or {}).items())))
+        settings.build()  # unknown terms, bad parameters, clashes: refused here
+        return settings
+
+    def term_specs(self) -> tuple:
+        return self.terms + tuple(
+            {"name": "expression", "label": label,
+             **({"formula": value} if isinstance(value, str) else value)}
+            for label, value in self.expressions)
+
+    def with_terms(self, extra: tuple) -> ModelSettings:
+        """The model with ``extra`` terms added. A term of the same identity as one already
+        in the model replaces it in place (a new degree, an expression's new formula)."""
+        terms, expressions = list(self.terms), dict(self.expressions)
+        for spec in extra:
+            term = make_term(spec)
+            if term.name == "expression" and term.label in expressions:
+                spec = {k: v for k, v in term.spec().items() if k not in ("name", "label")}
+                expressions[term.label] = spec["formula"] if set(spec) == {"formula"} else spec
+                continue
+            keys = [make_term(t).identity for t in terms]
+            if term.identity in keys:
+                terms[keys.index(term.identity)] = term.spec_string()
+            else:
+                terms.append(term.spec_string())
+        return replace(self, terms=tuple(terms), expressions=tuple(sorted(expressions.items())))
+
+    def build(self) -> Model:
+        for path in self.term_files:
+            load_term_file(path)
+        return Model.from_spec(self.term_specs())
+
+    def to_dict(self) -> dict:
+        return {"terms": [t if isinstance(t, str) else dict(t) for t in self.terms],
+                "kind": self.kind, "interpolation": self.interpolation, "degree": self.degree,
+                "reference_temperature": self.reference_temperature,
+                "term_files": list(self.term_files), "expressions": dict(self.expressions)}
+
+
+@dataclass(frozen=True)
+class DiagnosisSettings:
+    """What the diagnosis tries, how sure it must be, and the models it compares (the
+    schema's ``diagnosis:``)."""
+
+    significance: float = _DIAGNOSIS["significance"]
+    candidates: tuple = tuple(_DIAGNOSIS["candidates"])
+    ladder: tuple = tuple(_DIAGNOSIS["ladder"])     # steps: {name, add: [terms], kind}
+
+    @classmethod
+    def from_dict(cls, values: dict | None, *, key: str = "diagnosis") -> DiagnosisSettings:
+        values = schema.check(values or {}, "config", "diagnosis", key=key)
+        candidates = tuple(values["candidates"])
+        for spec in candidates:
+            make_term(spec)
+        ladder = []
+        for step in values["ladder"]:
+            if isinstance(step, str):
+                step = {"add": [step]}
+            add = tuple(step.get("add", ()))
+            for spec in add:
+                make_term(spec)
+            name = step.get("name") or "+" + " +".join(make_term(a).spec_string() for a in add)
+            ladder.append({"name": str(name), "add": add, "kind": step.get("kind")})
+        return cls(float(values["significance"]), candidates, tuple(ladder))
+
+    def to_dict(self) -> dict:
+        return {"significance": self.significance, "candidates": list(self.candidates),
+                "ladder": [{**step, "add": list(step["add"])} for step in self.ladder]}
+
+
+@dataclass(frozen=True)
+class Settings:
+    segmentation: SegmentConfig = field(default_factory=SegmentConfig)
+    model: ModelSettings = field(default_factory=ModelSettings)
+    diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
+    protocols: tuple = ()       # (name, {options, model, diagnosis}) overrides, checked
+    resolved_for: str | None = None   # the protocol for_protocol() has settled these for
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> Settings:
+        values = dict(values or {})
+        for name in values:
+            if name not in ("segmentation", "model", "diagnosis", "protocols"):
+                raise ConfigError(f"unknown setting {name}; known: diagnosis, model, protocols, "
+                                  "segmentation")
+        model = ModelSettings.from_dict(values.get("model"))  # registers the user's terms first
+        protocols = values.get("protocols") or {}
+        if not isinstance(protocols, dict):
+            raise ConfigError("protocols must map protocol names to settings")
+        checked = []
+        for name, section in sorted(protocols.items()):
+            own = _own_settings()
+            if name not in own:
+                raise ConfigError(f"unknown protocol protocols.{name}; known: {', '.join(sorted(own))}")
+            section = schema.check(section or {}, "config", f"protocols.{name}")  # options too
+            ModelSettings.from_dict(section.get("model"), key=f"protocols.{name}.model")
+            DiagnosisSettings.from_dict(section.get("diagnosis"), key=f"protocols.{name}.diagnosis")
+            checked.append((name, section))
+        return cls(SegmentConfig.from_dict(values.get("segmentation")), model,
+                   DiagnosisSettings.from_dict(values.get("diagnosis")), tuple(checked))
+
+    def for_protocol(self, protocol: str | None) -> Settings:
+        """The settings a log of ``protocol`` is processed with: the turntable's are the
+        top-level ones; servo and sweep take their defaults
+        (:attr:`gyrocal.protocols.registry.Protocol.defaults`), overridden key by key by
+        ``protocols.<name>`` (the significance level is the top-level one unless set)."""
+        if protocol is None or self.resolved_for == protocol or protocol not in _own_settings():
+            return self
+        default = _own_settings()[protocol]
+        override = dict(self.protocols).get(protocol, {})
+        # The user's term files and one-line terms serve every protocol.
+        model = {**default["model"], "term_files": list(self.model.term_files),
+                 "expressions": dict(self.model.expressions), **(override.get("model") or {})}
+        diagnosis = {"significance": self.diagnosis.significance, **default["diagnosis"],
+                     **(override.get("diagnosis") or {})}
+        return replace(self, model=ModelSettings.from_dict(model, key=f"protocols.{protocol}.model"),
+                       diagnosis=DiagnosisSettings.from_dict(diagnosis,
+                                                             key=f"protocols.{protocol}.diagnosis"),
+                       resolved_for=protocol)
+
+    def protocol_options(self, protocol: str) -> dict:
+        default = _own_settings().get(protocol, {}).get("options", {})
+        return {**default, **(dict(self.protocols).get(protocol, {}).get("options") or {})}
+
+    @classmethod
+    def load(cls, path) -> Settings:
+        try:
+            return cls.from_dict(read_yaml(path))
+        except ConfigError as exc:
+            if exc.source is not None:
+                raise
+            raise ConfigError(str(exc), source=path) from None
+
+    def to_dict(self) -> dict:
+        out = {"segmentation": asdict(self.segmentation), "model": self.model.to_dict(),
+               "diagnosis": self.diagnosis.to_dict()}
+        if self.protocols:
+            out["protocols"] = {name: section for name, section in self.protocols}
+        return out
+
+    def sha256(self) -> str:
+        text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(text.encode()).hexdigest()
+
+
+def read_yaml(path) -> dict:
+    path = Path(path)
+    try:
+        values = yaml.load(path.read_text(), Loader=schema.SAFE_LOADER)
+    except FileNotFoundError:
+        raise CorruptFileError("no such file", source=path) from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"not valid YAML ({' '.join(str(exc).split())})", source=path) from None
+    if values is None:
+        return {}
+    if not isinstance(values, dict):
+        raise ConfigError("must hold a mapping of settings", source=path)
+    return values
+
+
+def _own_settings() -> dict[str, dict]:
+    """The default settings of each protocol whose settings are not the top-level ones."""
+    from ..protocols import registry
+    own = {n: registry.settings_defaults(n) for n in registry.names()}
+    return {n: d for n, d in own.items() if d is not None}

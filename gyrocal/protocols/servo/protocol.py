@@ -1,0 +1,285 @@
+"""The servo protocol (seed 001) as a registered :class:`gyrocal.protocols.registry.Protocol`: whole
+revolutions of six hand-mounted rotations as observations; the calibration file holds the
+paper's six-parameter fit (Algorithm 1, Levenberg–Marquardt beside it), validated by
+leaving revolutions out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from ...fit.floor import quiet_runs
+from ...fit.model import observation_floor
+from ...io.holds import AXES, Segmentation, hold_table, timeline
+from ...io.log import RigLog
+from ..registry import Protocol, register
+from .defaults import DEFAULTS
+
+
+def _temperature_slopes(log: RigLog, t_start: np.ndarray, t_end: np.ndarray) -> np.ndarray:
+    """Least-squares temperature slope (°C/min) over each [t_start, t_end] sample range."""
+    t, temp = log.column("t"), log.column("temp")
+    lo = np.searchsorted(t, t_start, side="left")
+    hi = np.searchsorted(t, t_end, side="right")
+    tc = t - t[0]
+    csum = np.vstack([np.zeros(4), np.cumsum(np.c_[tc, temp, tc * tc, tc * temp], axis=0)])
+    s = csum[hi] - csum[lo]
+    n = (hi - lo).astype(float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = s[:, 2] - s[:, 0] ** 2 / n
+        slope = (s[:, 3] - s[:, 0] * s[:, 1] / n) / var
+    return np.where(np.isfinite(slope) & (var > 0), 60.0 * slope, 0.0)
+
+
+def segment_servo(log: RigLog, options: dict) -> Segmentation:
+    """Seed 001 rotations cut into whole revolutions (:func:`gyrocal.protocols.servo.find_rotations`),
+    one observation per revolution (Eq 8). The mount of a revolution is the rotation's
+    direction as the data show it (``+x``: the gyro's x reads the servo speed positive),
+    and its reference rate the servo speed, so the common model sees the rate vector
+    ``±ω`` along that axis. The noise of a revolution mean is the white-noise level
+    (successive differences) over √n: the servo's ripple cancels over a whole revolution
+    and must not inflate the floor."""
+    from . import find_rotations
+    rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
+    rev = rot.revolutions
+    gyro = rev[[f"gyro_{a}" for a in AXES]].to_numpy()
+    noise = rev[[f"gyro_{a}_noise" for a in AXES]].to_numpy()
+    t_start, t_end = rev["t_start"].to_numpy(), rev["t_end"].to_numpy()
+    temp = rev["temp"].to_numpy()
+    obs = hold_table(
+        t_start=t_start, t_end=t_end, n=rev["n"].to_numpy(), mount=rev["direction"].to_numpy(dtype=object),
+        mount_source="data",
+        ref_rate=rev["ref_rate"].to_numpy(), gyro=gyro, std=noise, temp=temp,
+        temp_rate=_temperature_slopes(log, t_start, t_end),
+        point=np.zeros(len(rev), np.int64), point_temp=np.full(len(rev), float(np.mean(temp))))
+    obs["rotation"] = rev["rotation"].to_numpy()
+    obs["revolution"] = rev["revolution"].to_numpy()
+    for i, a in enumerate(AXES):
+        obs[f"gyro_{a}_noise"] = noise[:, i]
+    segments = pd.DataFrame({"kind": "hold", "reason": "", "detail": "revolution",
+                             "t_start": t_start, "t_end": t_end, "ref_rate": obs["ref_rate"],
+                             "hold": obs["hold"]}).astype(
+        {"kind": "string", "reason": "string", "detail": "string"})
+    info = {"protocol": "servo", "path": str(log.path), "rows_read": log.rows_read,
+            "rows_dropped": log.rows_dropped, "rows_used": int(rev["n"].sum()),
+            "sample_rate": float((len(log.column("t")) - 1) / max(np.ptp(log.column("t")), 1e-12)),
+            "typical_hold_s": float(np.median(t_end - t_start)), "holds_accepted": int(len(obs)),
+            "rotations": int(rev["rotation"].nunique()), "directions": list(rot.directions),
+            "warnings": list(rot.warnings)}
+    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
+    return Segmentation(obs, segments, stable, timeline(log), info)
+
+
+SERVO_TERMS = ("bias", "scale")
+CROSS_TERMS = ("bias", "scale", "misalignment")
+# How the report's headline names each model's validated figure, and the parameters a
+# held-out error's leverage counts (the fixture model: a regression of four per output axis).
+MODEL_LABELS = {"seed001": "Seed 001 six-parameter calibration",
+                "symmetric": "Servo calibration with the symmetric cross-axis terms (nine parameters)",
+                "fixture": "Servo calibration with every cross-axis term (twelve parameters, fixture)"}
+LEVERAGE = {"seed001": 6, "symmetric": 9, "fixture": 4}
+
+
+def _servo_input(obs: pd.DataFrame) -> pd.DataFrame:
+    """Revolution means in the form :func:`gyrocal.protocols.servo.fit.fit_observations` reads: the
+    servo speed as |ref_rate|, the white-noise level per axis, the sample count and the
+    rotation's direction."""
+    cols = ["gyro_x", "gyro_y", "gyro_z", "n", *[f"gyro_{a}_noise" for a in AXES]]
+    missing = [c for c in cols if c not in obs]
+    if missing:
+        from ...io.errors import InputError
+        raise InputError(f"servo observations lack {', '.join(missing)}: segment the log with "
+                         "protocol servo")
+    out = obs[cols].copy()
+    out["ref_rate"] = obs["ref_rate"].abs()
+    out["direction"] = obs["mount"].astype(str).to_numpy()
+    return out
+
+
+def servo_model(obs: pd.DataFrame, model: str, seed001=None):
+    """(fit, model used, why) of the configured servo ``model`` (:func:`gyrocal.protocols.servo.fit.fit_model`)."""
+    from .fit import fit_model
+    return fit_model(_servo_input(obs), model, seed001=seed001)
+
+
+def servo_fits(obs: pd.DataFrame):
+    """(Algorithm 1, Levenberg–Marquardt) on every whole revolution (seed 001 Eq 8 per
+    revolution, Eq 4–7, Algorithm 1)."""
+    from .fit import fit_observations
+    data = _servo_input(obs)
+    return fit_observations(data, method="iterative"), fit_observations(data, method="lm")
+
+
+def servo_calibration(obs: pd.DataFrame, *, reference_temperature: float, meta: dict,
+                      provenance: dict, model: str = "auto"):
+    """The calibration file of a servo session at the session's mean temperature, by the
+    servo ``model`` (:data:`gyrocal.protocols.servo.fit.MODELS`): seed 001's ``K = diag(1/k)``,
+    ``B = −b`` of Algorithm 1 (:mod:`gyrocal.protocols.servo.fit` gives the mapping) as the terms bias
+    and scale, or a full K (the symmetric or the fixture model) as bias, scale and
+    misalignment; both seed-001 fits, the convergence trace and the model's choice carried
+    along."""
+    from ...calibration.file import Calibration
+    from ...fit.model import Model
+    from ...fit.thermal import TemperatureGrid
+    iterative, lm = servo_fits(obs)
+    fit, used, why = servo_model(obs, model, iterative)
+    model_terms = Model.from_spec(SERVO_TERMS if used == "seed001" else CROSS_TERMS)
+    values, errors = fit.coefficients(), fit.coefficient_errors()
+    names = tuple(model_terms.names)
+    temp = float(np.mean(obs["temp"]))
+    grid = TemperatureGrid(np.array([temp]), names, np.array([[values[n] for n in names]]),
+                           np.array([[errors[n] for n in names]]))
+    if not (np.isfinite(grid.values).all() and np.isfinite(grid.stderr).all()):
+        from ...io.errors import IdentifiabilityError
+        raise IdentifiabilityError("the servo fit gave non-finite parameters or errors",
+                                   parameters=names)
+    both = np.r_[iterative.k, iterative.b], np.r_[lm.k, lm.b]
+    servo = {"method": "seed 001 Algorithm 1 (iterative least squares); Levenberg–Marquardt beside it",
+             "iterative": iterative.summary(), "lm": lm.summary(),
+             "settled_at": int(iterative.settled_at()),
+             "max_difference_lm": float(np.max(np.abs(both[0] - both[1]))),
+             "revolutions": int(len(obs)), "rotations": int(obs["rotation"].nunique())
+             if "rotation" in obs else None,
+             "model": {"configured": model, "used": used, "why": why,
+                       **({} if used == "seed001" else {"fit": fit.summary()})}}
+    points = [{"temperature": temp, "holds": int(len(obs)), "used": True}]
+    return Calibration(model_terms, grid, reference_temperature, meta, provenance=provenance,
+                       extra={"points": points, "servo": servo})
+
+
+def _used_model(cal) -> str:
+    """The servo model a calibration holds (seed 001's for files written before the choice)."""
+    return ((cal.extra.get("servo") or {}).get("model") or {}).get("used", "seed001")
+
+
+def _refit(data: pd.DataFrame, used: str):
+    """The servo model ``used`` fitted again on a subset (leave-one-out): the same model,
+    not a new choice."""
+    from .fit import (DEG, observation_arrays, fit_fixture, fit_observations, fit_symmetric,
+                      nominal_rates)
+    if used == "seed001":
+        return fit_observations(data, method="iterative")
+    m, omega, m_sem, directions = observation_arrays(data)
+    if used == "fixture":
+        return fit_fixture(m, nominal_rates(directions, omega), m_sem=m_sem)
+    return fit_symmetric(m / DEG, omega / DEG)
+
+
+def servo_validation(obs: pd.DataFrame, cal):
+    """Each revolution compensated by the calibration's model fitted on the other
+    revolutions (when every rotation has two or more; otherwise in-sample, and said so),
+    per rotation direction, beside the uncompensated error and the noise floor of each
+    revolution mean (the white-noise level over √n). Seed 001's and the symmetric model are
+    scored on what they match, the compensated rate's magnitude against the servo speed
+    (Eq 2; the mount's tilt does not enter it), its floor the noise projected on the
+    rotation axis; the fixture model on the length of the compensated rate's difference from
+    the commanded rate vector, its floor the noise of all three axes."""
+    from .fit import nominal_rates
+    from ...fit.validate import Validation
+    used = _used_model(cal)
+    data = _servo_input(obs)
+    m = data[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
+    omega = data["ref_rate"].to_numpy()
+    (K,), (B,) = cal.matrices_at(np.array([float(np.mean(obs["temp"]))]))
+    if used == "seed001":   # K⁻¹ = diag(k), as Eq 1 compensates
+        in_sample = (m - B) * (1.0 / np.diag(K))
+    else:
+        in_sample = np.linalg.solve(K, (m - B).T).T
+    rotation = obs["rotation"].to_numpy() if "rotation" in obs else np.arange(len(obs))
+    # Leaving a revolution out keeps the fit identifiable while its direction has another.
+    held_out = bool(obs["mount"].astype(str).value_counts().min() >= 2)
+    compensated = in_sample.copy()
+    if held_out:
+        for r in range(len(obs)):  # one refit per revolution (a few dozen), not per sample
+            keep = np.arange(len(obs)) != r
+            fit = _refit(data.iloc[keep], used)
+            compensated[r] = fit.compensate(m[r:r + 1])[0]
+    # the session's noise model where segmentation made one; else the white-noise level
+    # over sqrt(n) (segment_servo stores it as the revolutions' std)
+    noise = observation_floor(obs) @ np.abs(np.linalg.inv(K)).T
+    if used == "fixture":
+        rates = nominal_rates(data["direction"], omega)
+        error = lambda rate: np.linalg.norm(rate - rates, axis=1)  # noqa: E731
+        floor = np.sqrt((noise ** 2).sum(axis=1))
+        quantity = "length of the compensated rate's difference from the commanded rate vector"
+    else:
+        error = lambda rate: np.linalg.norm(rate, axis=1) - omega  # noqa: E731
+        direction = compensated / np.linalg.norm(compensated, axis=1)[:, None]
+        floor = np.sqrt(((direction * noise) ** 2).sum(axis=1))
+        quantity = "magnitude of the compensated rate minus the servo speed"
+    errors = {"uncompensated": error(m), "in_sample": error(in_sample), "validated": error(compensated)}
+    holds = pd.DataFrame({"hold": obs["hold"].to_numpy(), "direction": obs["mount"].astype(str).to_numpy(),
+                          "rotation": rotation, "omega": omega, "noise_floor": floor,
+                          **{f"{name}_error": e for name, e in errors.items()}})
+    rows = []
+    for d, part in holds.groupby("direction", sort=False):
+        row = {"direction": d, "revolutions": int(len(part)),
+               "noise_floor": float(np.sqrt(np.mean(part["noise_floor"] ** 2)))}
+        for name in errors:
+            e = part[f"{name}_error"].to_numpy()
+            row[f"{name}_mean"], row[f"{name}_rms"] = float(e.mean()), float(np.sqrt(np.mean(e ** 2)))
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
+    n, p = len(obs), LEVERAGE[used]
+    noise_floor = rms(floor)
+    # A correct model of p parameters leaves the floor ×√(1 + p/n) on held-out revolutions
+    # (leverage p/n on average), ×√(1 − p/n) in-sample; p revolutions leave nothing.
+    expected = noise_floor * np.sqrt(1 + p / n) if held_out else \
+        (noise_floor * np.sqrt(1 - p / n) if n > p else None)
+    validation = rms(errors["validated"])
+    ratio = lambda a, b: a / b if b else None  # noqa: E731 - None, never inf, in the JSON
+    summary = {"validation_rms": validation, "noise_floor": noise_floor,
+               "excess": ratio(validation, noise_floor),
+               "expected_rms": None if expected is None else float(expected),
+               "excess_over_expected": ratio(validation, expected),
+               "uncompensated_rms": rms(errors["uncompensated"]), "single_rms": None,
+               "in_sample_rms": rms(errors["in_sample"]),
+               "reference_temperature": float(np.mean(obs["temp"])),
+               "held_out": "revolution" if held_out else
+               "nothing (one revolution per direction: in-sample)",
+               "scored": "all", "holds_scored": int(n), "temperature_points": 1,
+               "model_kind": "servo", "servo_model": used, "quantity": quantity,
+               "validated_as": f"{MODEL_LABELS[used]}; validated"}
+    by_temperature = pd.DataFrame({"temp": [summary["reference_temperature"]], "holds": [n],
+                                   "validated_rms": [validation], "noise_floor": [noise_floor]})
+    return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
+
+
+def static(log, seg, max_temp_rate: float):
+    """The pauses between rotations (reference rate 0), in quiet blocks only, since the unit
+    is turned by hand between rotations."""
+    t = log.column("t")
+    gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
+    return quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+
+
+def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
+    """Both fits of every whole revolution, for the report."""
+    iterative, lm = servo_fits(obs)
+    return {"protocol": "servo", "iterative": iterative.summary(), "lm": lm.summary(),
+            "settled_at": int(iterative.settled_at()),
+            "max_difference_lm": float(np.max(np.abs(np.r_[iterative.k, iterative.b]
+                                                     - np.r_[lm.k, lm.b])))}, []
+
+
+def _calibrate(obs, settings, meta, provenance):
+    return servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
+                             meta=meta, provenance=provenance,
+                             model=settings.protocol_options("servo").get("calibration", "auto"))
+
+
+def _validation_figure(holds: pd.DataFrame) -> str:
+    from ...report import plots
+    return plots.servo_errors(holds)
+
+
+# The 12-parameter model on whole-revolution means (the hand-mounting tilt of each axis
+# lands in the misalignment), for the diagnosis, beside the paper's own six-parameter fit.
+SERVO = register(Protocol(
+    "servo", "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
+    segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
+    static=static, calibrate=_calibrate, validate=servo_validation, analysis=analysis,
+    validation_figure=_validation_figure, known_rate=False, one_temperature=True,
+    report_sections="protocols/servo_sections.html.j2",
+    validated_as="Seed 001 six-parameter calibration; validated", defaults=DEFAULTS))

@@ -1,0 +1,227 @@
+"""The unit report: one page per unit and session.
+
+Jinja2 with autoescape (every string that came from data is escaped); figures are inline
+SVG from :mod:`gyrocal.report.plots`; no script, stylesheet, font or image is fetched from
+anywhere, so a report opens offline and can be archived as one file.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..calibration.file import Calibration, dumps, load_calibration, standard_coefficients
+from ..fit.validate import METHODS
+from ..io import failure
+from ..io.tables import read_table_with_metadata
+from ..io.unit_folder import unit_paths
+from . import plots
+from .pages import render_page
+
+
+@dataclass
+class UnitResults:
+    """Everything a unit report shows, from a run in memory or a results folder."""
+
+    meta: dict
+    calibration: Calibration
+    seg_info: dict
+    observations: pd.DataFrame
+    segments: pd.DataFrame
+    timeline: pd.DataFrame
+    summary: dict
+    holds: pd.DataFrame
+    table_holds: pd.DataFrame
+    table_samples: pd.DataFrame
+    by_temperature: pd.DataFrame
+    log: str = ""
+    command: str = ""
+    extra: dict = field(default_factory=dict)
+    diagnosis: dict | None = None            # gyrocal.diagnosis/1, or a failure record
+    residuals: pd.DataFrame | None = None    # observations with normalised residuals
+    heatmaps: dict = field(default_factory=dict)
+    protocol: dict | None = None              # the servo's or the sweep's own methods
+    protocol_figures: list = field(default_factory=list)
+    free_points: pd.DataFrame | None = None   # continuous models: free per-point fits
+
+    @classmethod
+    def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
+        """``diagnosis``: a :class:`gyrocal.diagnose.Diagnosis` of the same run, if any;
+        ``analysis``: its protocol's own methods (:func:`gyrocal.protocols.registry.analysis`)."""
+        seg, val = run.segmentation, run.validation
+        extra = {} if diagnosis is None else dict(
+            diagnosis=json.loads(dumps(diagnosis.to_dict())), residuals=diagnosis.residuals,
+            heatmaps=diagnosis.heatmaps)
+        if analysis is not None:
+            extra.update(protocol=analysis[0], protocol_figures=list(analysis[1]))
+        return cls(run.calibration.meta, run.calibration, seg.info, seg.observations,
+                   seg.segments, seg.timeline, val.summary, val.holds, val.table_holds,
+                   val.table_samples, val.by_temperature, seg.info.get("path", ""), command,
+                   free_points=val.free_points, **extra)
+
+    @classmethod
+    def from_folder(cls, folder) -> UnitResults:
+        p = unit_paths(folder)
+        obs, extra = read_table_with_metadata(p["observations"])
+        table = lambda k: read_table_with_metadata(p[k])[0]  # noqa: E731
+        summary = failure.load_json(p["validation"])["summary"]
+        cal = load_calibration(p["calibration"])
+        diagnosis = residuals = None
+        heat = {}
+        if p["diagnosis"].exists():
+            diagnosis = failure.read(p["diagnosis"]) or failure.load_json(p["diagnosis"])
+            if diagnosis.get("format") != "gyrocal.failure/1" and p["residuals"].exists():
+                residuals, meta = read_table_with_metadata(p["residuals"])
+                heat = meta.get("heatmaps", {})
+        own = failure.load_json(p["protocol"])
+        return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
+                   summary, table("holds"), table("table_hold_means"), table("table_samples"),
+                   table("by_temperature"), extra.get("log", ""), diagnosis=diagnosis,
+                   residuals=residuals, heatmaps=heat, protocol=own["results"],
+                   protocol_figures=own["figures"],
+                   free_points=table("free_points") if p["free_points"].exists() else None)
+
+
+def _parameter_figure(cal: Calibration, free_points: pd.DataFrame | None) -> str:
+    """Grid models: the fitted grid and its interpolation. Continuous models: K and B of the
+    calibration against temperature, over free per-point fits of the seed-000 terms
+    (:func:`gyrocal.fit.validate.free_point_fits`; where the two disagree, the model's
+    temperature dependence is wrong)."""
+    g = cal.grid
+    lo, hi = g.span
+    temps = np.linspace(lo, hi, 200) if hi > lo else np.array([lo])
+    if cal.kind != "continuous":
+        curve = g.at(temps, warn=False)
+        return plots.parameters(g.temperatures, {n: g.values[:, j] for j, n in enumerate(g.names)},
+                                {n: g.stderr[:, j] for j, n in enumerate(g.names)}, temps, curve)
+    K, B = cal.matrices_at(temps)
+    curve = standard_coefficients(K, B)
+    if free_points is None or free_points.empty:  # too few points for free fits: the curve alone
+        points, values, stderr = np.array([]), {n: [] for n in curve}, {n: [] for n in curve}
+    else:
+        names = [c for c in free_points.columns if c != "temp" and not c.endswith("_stderr")]
+        points = free_points["temp"].to_numpy()
+        values = {n: free_points[n].to_numpy() for n in names}
+        stderr = {n: free_points[f"{n}_stderr"].to_numpy() for n in names}
+    return plots.parameters(points, values, stderr, temps, curve)
+
+
+# Covariates of the residual plots: (label, residuals column), shown when the log has them.
+RESIDUAL_COVARIATES = (("temperature, °C", "temp"), ("temperature rate, °C/min", "temp_rate"),
+                       ("reference rate, deg/s", "ref_rate"), ("mount", "mount"),
+                       ("accelerometer x, g", "accel_x"), ("accelerometer y, g", "accel_y"),
+                       ("accelerometer z, g", "accel_z"), ("time since start, h", "time_h"),
+                       ("hold duration, s", "duration"))
+
+
+def _diagnosis_context(results: UnitResults) -> dict:
+    diag = results.diagnosis
+    if diag is None:
+        return {"diagnosis": None}
+    if diag.get("format") == "gyrocal.failure/1":
+        return {"diagnosis": None, "diagnosis_error": diag["error"]}
+    context = {"diagnosis": diag, "fig_residuals": "", "fig_heatmaps": "", "fig_ladder": "",
+               "fig_shape": plots.shape_estimate(diag["shape_estimate"]) if diag.get("shape_estimate") else ""}
+    frame = results.residuals
+    if frame is not None and len(frame):
+        frame = frame.assign(time_h=(frame["t_start"] - frame["t_start"].min()) / 3600.0)
+        shown = [(label, c) for label, c in RESIDUAL_COVARIATES
+                 if c in frame and (c == "mount" or np.isfinite(frame[c].to_numpy(float)).any())]
+        context["fig_residuals"] = plots.residuals(frame, shown)
+    maps = [(label, "reference rate, deg/s", results.heatmaps[key])
+            for key, label in (("mount_by_rate", "mount"), ("temperature_by_rate", "temperature, °C"))
+            if results.heatmaps.get(key)]
+    if maps:
+        context["fig_heatmaps"] = plots.heatmaps(maps)
+    if len(diag.get("ladder", [])) > 1:
+        context["fig_ladder"] = plots.ladder(diag["ladder"])
+    return context
+
+
+def _noise_context(noise: dict | None) -> dict:
+    """The sensor-noise section: which floor applies, the terms per temperature point (each
+    axis x / y / z) and the Allan deviation figure."""
+    if not noise:  # observations written before noise characterisation
+        return {"noise": None}
+    from ..fit.floor import floor_terms
+    rows = []
+    entries = ([("all static stretches", noise["session"], noise["stretches"], noise["static_seconds"])]
+               if "session" in noise else [])
+    entries += [(f"{p['temp']:.4g} °C", p, p["stretches"], p["seconds"]) for p in noise["points"]]
+    for label, entry, count, seconds in entries:
+        terms = entry.get("terms")
+        rows.append({"label": label, "stretches": count, "seconds": seconds,
+                     **({k: np.atleast_1d(terms[k]).tolist() for k in
+                         ("arw", "bias_instability", "rrw", "quantisation", "bias_instability_min")}
+                        if terms else {}),
+                     "from_point": entry.get("noise_from_point")})
+    used = None
+    if "session" in noise:
+        t = floor_terms(noise["session"])
+        used = {"bias_instability": np.atleast_1d(t.bias_instability).tolist(),
+                "rrw": np.atleast_1d(t.rrw).tolist()}
+    return {"noise": noise, "noise_rows": rows, "noise_used": used,
+            "fig_allan": plots.allan(noise) if "session" in noise else None}
+
+
+def write_unit_report(results: UnitResults, path, protocol) -> None:
+    """The unit's page; ``protocol``, its :class:`gyrocal.protocols.registry.Protocol`, gives
+    the report's own parts of the protocol (sections, figures, how it names its validation)."""
+    cal, info = results.calibration, results.seg_info
+    counts = pd.crosstab(results.observations["point_temp"].round(2),
+                         results.observations["mount"].astype(str))
+    rejected = results.segments[results.segments["kind"] == "rejected"]
+    own_figure = protocol.validation_figure
+    g = cal.grid
+    if cal.kind == "continuous":
+        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
+        grid_rows = []
+        constants = [(n, float(v), float(e), units.get(n, ""))
+                     for n, v, e in zip(g.names, g.values, g.stderr)]
+    else:
+        grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
+                                           for j, n in enumerate(g.names)}}
+                     for p, t in enumerate(g.temperatures)]
+        # Session-wide (scope global) terms hold one value at every grid point.
+        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
+        session = {c for t in cal.model.terms if t.coefficient_scope == "global" for c in t.coefficients()}
+        constants = [(n, float(g.values[0, j]), float(g.stderr[0, j]), units.get(n, ""))
+                     for j, n in enumerate(g.names) if n in session]
+    html = render_page(
+        "unit_report.html.j2", profiled=cal.extra.get("profiled", []),
+        meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
+        input_warnings=cal.extra.get("warnings", []),
+        interpolation=g.method, reference=cal.reference_temperature,
+        counts_columns=list(counts.columns),
+        counts=[(t, [int(v) for v in r]) for t, r in counts.iterrows()],
+        rejected_counts=rejected["reason"].value_counts().sort_index().to_dict(),
+        rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].to_dict("records"),
+        points=cal.extra.get("points", []), names=list(g.names), grid_rows=grid_rows,
+        constants=constants,
+        table_holds=results.table_holds.to_dict("records"),
+        table_samples=results.table_samples.to_dict("records"),
+        by_temperature=results.by_temperature.to_dict("records"),
+        provenance=cal.provenance, log=results.log, command=results.command, calibration_extra=cal.extra,
+        fig_timeline=plots.timeline(results.timeline, results.segments),
+        **(dict(fig_servo=own_figure(results.holds)) if own_figure is not None
+           else dict(  # a protocol validated its own way: section 2-3 of its own
+            fig_parameters=_parameter_figure(cal, results.free_points),
+            fig_by_temperature=plots.by_temperature(results.by_temperature),
+            fig_before=plots.error_distribution(results.holds, "uncompensated"),
+            fig_after=plots.error_distribution(results.holds, "interpolated"))),
+        kind=cal.kind, protocol=results.protocol, protocol_figures=results.protocol_figures,
+        sections_template=protocol.report_sections, section_template=protocol.report_section,
+        validated_as=protocol.validated_as,
+        **_noise_context(info.get("noise")), **_diagnosis_context(results))
+    _write(path, html)
+
+
+def _write(path, text: str) -> None:
+    from ..io.atomic import write_text
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, text)

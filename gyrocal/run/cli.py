@@ -1,0 +1,617 @@
+"""Command line (contract section 6). Errors: one line on stderr, exit 2 for bad input."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from pathlib import Path
+
+from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
+from .. import __version__
+from ..calibration.export import add_export_parser
+from ..calibration.lookup import add_lookup_parser
+from ..io.errors import ConfigError, GyrocalError
+from ..paper import add_parser as add_paper_parser
+from ..protocols import registry
+
+EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+
+
+def _settings(args):
+    """Settings from --config (YAML) or --settings-json, then --model and --add-term."""
+    from dataclasses import replace
+
+    from ..pipeline.config import ModelSettings, Settings, read_yaml
+    from ..terms.user import load_term_file
+    for path in getattr(args, "terms", None) or ():
+        load_term_file(path)
+    settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
+    if getattr(args, "settings_json", None):
+        values = _json_object(args.settings_json, "--settings-json")
+        base = settings.to_dict()
+        settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
+            k: v for k, v in values.items() if k not in base})
+    # A servo or sweep log is fitted with its protocol's model; --model and --add-term
+    # then change that model. A protocol with a calibration of its own (the servo's, seed
+    # 001's six parameters) ignores the model: there they only change what the diagnosis reads.
+    protocol = getattr(args, "protocol", None)
+    if args.command in ("calibrate", "fit") and registry.get(protocol).calibrate is not None and (
+            getattr(args, "model", None) or getattr(args, "add_term", None)):
+        raise ConfigError(f"a {protocol} calibration is the protocol's own model; --model and "
+                          "--add-term change the model the diagnosis reads: use them with "
+                          "gyrocal diagnose")
+    settings = settings.for_protocol(protocol)
+    if getattr(args, "model", None):
+        values = read_yaml(args.model)
+        values = values.get("model", values)
+        try:
+            model = ModelSettings.from_dict(values)
+        except ConfigError as exc:
+            raise ConfigError(str(exc), source=args.model) from None
+        settings = replace(settings, model=model)
+    if getattr(args, "terms", None):  # --terms FILE: the model's term files, as in a config
+        files = tuple(f for f in args.terms if f not in settings.model.term_files)
+        settings = replace(settings, model=replace(settings.model,
+                                                   term_files=settings.model.term_files + files))
+    if getattr(args, "add_term", None):
+        settings = replace(settings, model=settings.model.with_terms(tuple(args.add_term)))
+        settings.model.build()  # unknown names fail here, before any work
+    return settings
+
+
+def _num(value, spec: str) -> str:
+    return "–" if value is None else format(value, spec)
+
+
+def _json_object(text: str | None, option: str) -> dict:
+    import json
+    if not text:
+        return {}
+    try:
+        values = json.loads(text)
+    except ValueError as exc:
+        raise ConfigError(f"{option} is not valid JSON ({exc})") from None
+    if not isinstance(values, dict):
+        raise ConfigError(f"{option} must be a JSON object")
+    return values
+
+
+def _meta(args) -> dict:
+    return {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
+
+
+def cmd_simulate(args) -> int:
+    from dataclasses import replace
+
+    from ..simulate import published_unit, rig_for, simulate, simulate_unit
+    from ..simulate.fleet import unit_for
+    if (args.out is None) == (args.log is None):
+        raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
+    options = {"temperatures": "--temperatures", "rates": "--rates", "mounts": "--mounts",
+               "sample_rate": "--sample-rate", "soak_s": "--soak-s", "hold_s": "--hold-s",
+               "handling_s": "--handling-s", "accel_columns": "--no-accel",
+               "mount_column": "--no-mount-column"}
+    knobs = {k: getattr(args, k) for k in options if k in vars(args)}
+    knobs.update(accel_columns=False if args.no_accel else None,
+                 mount_column=False if args.no_mount_column else None)
+    rig = rig_for(args.protocol, args.preset, knobs, options)
+    published = published_unit(args.protocol) if args.unit == "seed000" else None
+    effects = _json_object(args.effects, "--effects")
+    noise = None
+    if args.noise is not None:
+        noise = _json_object(args.noise, "--noise") if args.noise.lstrip().startswith("{") else args.noise
+    if args.bias_shift is not None and len(args.bias_shift) != 3:
+        raise ConfigError(f"--bias-shift takes three numbers (deg/s, x,y,z), got {len(args.bias_shift)}")
+
+    import numpy as np
+
+    def shifted(unit):
+        """The unit after its bias moved by --bias-shift (a unit that drifted since)."""
+        if args.bias_shift is None:
+            return unit
+        poly = np.array(unit.bias_poly, dtype=float)
+        poly[:, 0] += np.array(args.bias_shift)
+        return replace(unit, bias_poly=tuple(map(tuple, poly)))
+
+    if args.log is not None:
+        # One log of one unit: the unit follows from its device id, the noise from the
+        # session too, so every session of a device is the same physical unit.
+        device = args.device or "U001"
+        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000",
+                              protocol=args.protocol)
+        if args.bias_shift is not None and not hasattr(unit, "bias_poly"):
+            raise ConfigError(f"--bias-shift applies to units with a bias polynomial, not to a "
+                              f"{args.protocol} unit")
+        unit = shifted(unit)
+        Path(args.log).parent.mkdir(parents=True, exist_ok=True)
+        simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
+                      rng=np.random.default_rng(seed), device=device, batch=args.batch,
+                      session=args.session, seed=seed, effects=effects, noise=noise)
+        print(f"wrote {args.log}")
+        return 0
+    if args.bias_shift is not None:
+        raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
+    manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
+                        rig=rig, unit=published, batch=args.batch, session=args.session,
+                        device_prefix=args.device_prefix, effects=effects, noise=noise)
+    print(f"wrote {args.units} log(s) and manifest {manifest}")
+    return 0
+
+
+def _stage(args, stage: str, outputs, work) -> int:
+    from .stages import run_stage
+    return run_stage(stage, outputs, _meta(args), work, record_failures=args.record_failures)
+
+
+def cmd_segment(args) -> int:
+    from .stages import segment_stage
+    from ..io.unit_folder import UNIT_FILES
+    settings = _settings(args)
+    out = Path(args.out)
+    files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
+    status = _stage(args, "segment", files,
+                    lambda: segment_stage(args.log, out, settings, _meta(args)))
+    print(f"segmentation -> {out}")
+    return status
+
+
+def cmd_noise(args) -> int:
+    """The session's noise: IEEE Std 952 terms of its static stretches, per temperature point
+    and pooled (gyrocal.fit.floor); the whole characterisation as JSON with -o."""
+    from ..calibration.file import dumps
+    from ..pipeline.chain import segment_log
+    settings = _settings(args)
+    noise = segment_log(args.log, settings, args.protocol).info["noise"]
+    if args.output:
+        from ..io.atomic import write_text
+        write_text(args.output, dumps(noise))
+    if "session" not in noise:
+        print(f"{args.log}: {noise['reason']}; no noise model")
+        return 0
+    print(f"{args.log}: {noise['stretches']} static stretches, {noise['static_seconds']:.1f} s "
+          "(terms per axis x / y / z)")
+    print(f"{'static data':>22}  {'ARW deg/sqrt(h)':>24}  {'bias instability deg/h':>24}  "
+          f"{'RRW deg/h/sqrt(h)':>24}")
+    rows = [("all", noise["session"]), *((f"{p['temp']:.4g} C ({p['seconds']:.0f} s)", p)
+                                        for p in noise["points"])]
+    for label, entry in rows:
+        if "terms" not in entry:
+            print(f"{label:>22}  no static stretch to fit")
+            continue
+        t = entry["terms"]
+        print(f"{label:>22}  " + "  ".join(f"{' / '.join(f'{v:.3g}' for v in t[k]):>24}"
+                                            for k in ("arw", "bias_instability", "rrw")))
+    return 0
+
+
+def cmd_fit(args) -> int:
+    from .stages import fit_stage
+    from ..io.unit_folder import UNIT_FILES
+    settings = _settings(args)
+    return _stage(args, "fit", [Path(args.unit) / UNIT_FILES["calibration"]],
+                  lambda: fit_stage(args.unit, settings, _meta(args)))
+
+
+def cmd_validate(args) -> int:
+    from .stages import validate_stage
+    from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES
+    settings = _settings(args)
+    files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
+    return _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
+
+
+def cmd_analyse(args) -> int:
+    from .stages import analyse_stage
+    settings = _settings(args)
+    verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
+                            other=args.other_session)
+    print(f"calibration, validation and diagnosis -> {args.unit}")
+    if verdict is not None:
+        print(f"  {verdict}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from .stages import report_stage
+    settings = _settings(args)
+    return _stage(args, "report", [args.output],
+                  lambda: report_stage(args.unit, args.output, settings))
+
+
+def cmd_fleet(args) -> int:
+    from ..fleet.manifest import read_manifest
+    from .stages import fleet_stage
+    rows = read_manifest(args.manifest)
+    settings = None
+    if args.settings_json is not None:
+        from ..fleet.summary import FleetSettings
+        settings = FleetSettings.from_dict(_json_object(args.settings_json, "--settings-json"))
+    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol,
+                args.table)
+    print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
+    return 0
+
+
+def cmd_calibrate(args) -> int:
+    from ..calibration.file import save_calibration
+    from ..io.tables import write_table
+    from ..pipeline.chain import run
+    settings = _settings(args)
+    result = run(args.log, settings, protocol=args.protocol, device=args.device,
+                 batch=args.batch, session=args.session)
+    save_calibration(result.calibration, args.output)
+    if args.tables:
+        out = Path(args.tables)
+        out.mkdir(parents=True, exist_ok=True)
+        meta = {"summary": result.validation.summary}
+        seg, val = result.segmentation, result.validation
+        for name, frame, extra in (
+                ("observations", seg.observations, {"info": seg.info}),
+                ("segments", seg.segments, {}), ("timeline", seg.timeline, {}),
+                ("validation_holds", val.holds, meta), ("table_hold_means", val.table_holds, meta),
+                ("table_samples", val.table_samples, meta), ("by_temperature", val.by_temperature, meta)):
+            write_table(frame, out / f"{name}.parquet", extra)
+    if args.report:
+        import shlex
+
+        from ..protocols import registry
+        from ..diagnose import diagnose, evaluation_of
+        from ..report.unit import UnitResults, write_unit_report
+        obs = result.segmentation.observations
+        base = None if result.fitted is None else evaluation_of(
+            settings, result.fitted, result.validation.summary, "configured model")
+        diag = diagnose(settings, obs, base=base)
+        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag,
+                                               registry.analysis(args.protocol, obs)), args.report,
+                          registry.get(args.protocol))
+    s = result.validation.summary
+    print(f"calibration -> {args.output}")
+    print(f"  {result.segmentation.info['holds_accepted']} holds, "
+          f"{s['temperature_points']} temperature points "
+          f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)")
+    print(f"  leave-{s['held_out']}-out RMS {s['validation_rms']:.3g} deg/s: noise floor "
+          f"{s['noise_floor']:.3g} ({s['excess']:.2f}x), expected of a correct model "
+          f"{_num(s['expected_rms'], '.3g')} ({_num(s['excess_over_expected'], '.2f')}x); "
+          + (f"single-temperature {s['single_rms']:.3g}, " if s.get("single_rms") is not None else "")
+          + f"uncompensated {s['uncompensated_rms']:.3g}")
+    for p in result.calibration.extra.get("profiled", []):
+        print(f"  {p['term']} {p['parameter']} = {p['value']:.4g}"
+              + (f" ± {p['stderr']:.2g}" if p.get("stderr") is not None else ""))
+        if p["at_bound"]:
+            print(f"gyrocal: warning: {p['term']} {p['parameter']} is at a bound of "
+                  f"{p['bounds'][0]:g} to {p['bounds'][1]:g}: the effect may be absent or "
+                  "another one missing (a continuous model needs temperature terms); check the "
+                  "fit before widening the bounds", file=sys.stderr)
+    for w in result.calibration.extra.get("warnings", []):
+        print(f"gyrocal: warning: {w['code']}: {w['message']}", file=sys.stderr)
+    if args.report:
+        print(f"  report -> {args.report}")
+    return 0
+
+
+def cmd_diagnose(args) -> int:
+    import tempfile
+
+    from .stages import diagnose_stage, run_stage, segment_stage
+    settings = _settings(args)
+    if (args.log is None) == (args.unit is None):
+        raise ConfigError("give the log, or --unit DIR of a segmented unit")
+
+    def diagnose_folder(folder, other=None):
+        verdict = diagnose_stage(folder, settings, _meta(args), output=args.output,
+                                 residuals=args.residuals or False, other=other)
+        print(f"diagnosis -> {args.output}")
+        print(f"  {verdict}")
+        import json
+        offered = json.loads(Path(args.output).read_text()).get("best")
+        if offered:
+            print(f"  to add it: gyrocal calibrate LOG -o CAL.json {offered['option']}")
+
+    def work():
+        with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
+            other = args.other_session
+            if other is not None and not Path(other).is_dir():
+                registry.get(args.protocol)
+                other = Path(scratch) / "other"
+                segment_stage(args.other_session, other, settings, _meta(args))
+            if args.unit is not None:
+                return diagnose_folder(args.unit, other)
+            registry.get(args.protocol)
+            folder = Path(scratch) / "unit"
+            segment_stage(args.log, folder, settings, _meta(args))
+            diagnose_folder(folder, other)
+
+    outputs = [args.output] + ([args.residuals] if args.residuals else [])
+    return run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
+
+
+def cmd_apply(args) -> int:
+    from ..calibration.apply import apply_calibration
+    from ..calibration.file import load_calibration
+    from ..terms.user import load_term_file
+    for path in args.terms or ():
+        load_term_file(path)
+    cal = load_calibration(args.calibration)
+    counts = apply_calibration(cal, args.log, args.output)
+    if counts["clamped"]:
+        lo, hi = cal.grid.span
+        warnings.warn(f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
+                      f"{lo:g} to {hi:g} °C and use the nearest end's calibration", stacklevel=1)
+    if counts["nonfinite"]:
+        warnings.warn(f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
+                      "(or rates too large to compensate) were written as NaN", stacklevel=1)
+    print(f"{counts['rows']} rows compensated -> {args.output}")
+    return 0
+
+
+def cmd_verify(args) -> int:
+    """Whether a log is the one a calibration records as its input, by the hash the file
+    names (BLAKE3 now, SHA-256 in files written before)."""
+    import json
+
+    from ..io.errors import CalibrationFileError
+    from ..io.log import verify_source
+    try:
+        doc = json.loads(Path(args.calibration).read_text())
+        record = doc["provenance"]["input"]
+    except OSError as exc:
+        raise CalibrationFileError(f"cannot read ({exc.strerror})", source=args.calibration) from None
+    except (ValueError, KeyError, TypeError):
+        raise CalibrationFileError("holds no provenance.input record", source=args.calibration) from None
+    if not isinstance(record, dict):
+        raise CalibrationFileError("provenance.input is not a record", source=args.calibration)
+    algorithm = verify_source(record, args.log)
+    print(f"{args.log} is the input of {args.calibration} ({algorithm})")
+    return 0
+
+
+def cmd_import(args) -> int:
+    """A rig's CSV/TSV, a ROS 2 bag or an MCAP file as a contract log (docs/import.md)."""
+    from ..importer import import_log
+    summary = import_log(args.source, args.output, args.map, fmt=args.format,
+                         sample_rate=args.sample_rate, sections=args.sections)
+    start, end = summary.span
+    print(f"{summary.rows} rows -> {args.output}: t {start:.6g} to {end:.6g} s "
+          f"({end - start:.6g} s); {'; '.join(summary.mapped)}")
+    for note in summary.notes:
+        print(f"gyrocal: note: {note}", file=sys.stderr)
+    return 0
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """Usage mistakes are bad input too: one line on stderr, exit status 2."""
+
+    def error(self, message):
+        self.exit(2, f"gyrocal: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = OneLineParser(prog="gyrocal", description="Calibrate MEMS gyroscopes "
+                           "across temperature from rig logs.", epilog=EPILOG)
+    parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                                parser_class=OneLineParser)
+
+    p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
+    p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--out", help="folder for N units' logs, truth JSON and devices.tsv")
+    where.add_argument("--log", help="one log of the unit --device at session --session")
+    p.add_argument("--units", type=int, default=1)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--preset", choices=["seed", "quick"], default="seed",
+                   help="seed: the full seed-000 protocol; quick: a log of minutes")
+    p.add_argument("--unit", choices=["random", "seed000"], default="random",
+                   help="random production units, or the seed paper's unit (turntable: seed 000 "
+                   "Eq 23; sweep: seed 003's L3GD20 sizes)")
+    p.add_argument("--device", help="with --log: the unit (its parameters follow from it)")
+    p.add_argument("--batch", default="B1")
+    p.add_argument("--session", default="2026-01-01")
+    p.add_argument("--device-prefix", default="U")
+    p.add_argument("--temperatures", type=_floats, help="set points, °C, comma-separated")
+    p.add_argument("--rates", type=_floats, help="hold rate magnitudes, deg/s")
+    p.add_argument("--mounts", type=lambda s: tuple(s.split(",")), help="e.g. +x,+y,+z")
+    p.add_argument("--sample-rate", type=float)
+    p.add_argument("--soak-s", type=float)
+    p.add_argument("--hold-s", type=float)
+    p.add_argument("--handling-s", type=float)
+    p.add_argument("--no-mount-column", action="store_true")
+    p.add_argument("--no-accel", action="store_true")
+    p.add_argument("--bias-shift", type=_floats, help="with --log: add this to the unit's bias, "
+                   "deg/s x,y,z (a unit that drifted between sessions)")
+    p.add_argument("--effects", help="errors beyond the seed-000 model as JSON, e.g. "
+                   "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)")
+    p.add_argument("--noise", help="coloured noise beside the white: a grade (low, mid, high) or "
+                   "levels as JSON, e.g. '{\"bias_instability\": 6, \"rrw\": 20}' (deg/h, "
+                   "deg/h/sqrt(h); gyrocal/simulate/noise.py)")
+    p.set_defaults(func=cmd_simulate)
+
+    def common(q, model=True):
+        q.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
+        q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
+        q.add_argument("--terms", action="append", metavar="FILE",
+                       help="a Python file registering your own terms (repeatable); it runs as code")
+        if model:
+            q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
+            q.add_argument("--add-term", action="append", metavar="NAME",
+                           help="add a term to the model (repeatable)")
+
+    def unit(q, failures=True):
+        q.add_argument("--device")
+        q.add_argument("--batch")
+        q.add_argument("--session")
+        q.add_argument("--protocol", default=registry.DEFAULT)
+        if failures:
+            q.add_argument("--record-failures", action="store_true",
+                           help="on failure write failure records and exit 0 (fleet runs)")
+
+    p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", required=True, help="calibration .json")
+    p.add_argument("--report", help="also write an HTML report here")
+    p.add_argument("--tables", help="also write observation and validation tables here")
+    unit(p, failures=False)
+    common(p)
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("diagnose", help="where the model fails and which effect is missing")
+    p.add_argument("log", nargs="?", help="the rig log (or --unit for a segmented unit)")
+    p.add_argument("--unit", help="a unit's results folder (workflow stage)")
+    p.add_argument("-o", "--output", required=True, help="diagnosis .json")
+    p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
+    p.add_argument("--other-session", metavar="LOG_OR_DIR",
+                   help="another session of the same unit (its log, or its results folder): "
+                        "candidates are judged by how they carry over to it")
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_diagnose)
+
+    p = sub.add_parser("apply", help="compensate a log with a calibration")
+    p.add_argument("calibration")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", required=True)
+    p.add_argument("--terms", action="append", metavar="FILE",
+                   help="the term file a calibration's own terms come from (repeatable)")
+    p.set_defaults(func=cmd_apply)
+
+    p = sub.add_parser("verify", help="check that a log is the input a calibration records "
+                       "(its hash)")
+    p.add_argument("calibration")
+    p.add_argument("log")
+    p.set_defaults(func=cmd_verify)
+
+    p = sub.add_parser("noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's "
+                       "static stretches")
+    p.add_argument("log")
+    p.add_argument("-o", "--output", help="the whole characterisation as JSON")
+    p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
+    common(p, model=False)
+    p.set_defaults(func=cmd_noise)
+
+    p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")
+    p.add_argument("log")
+    p.add_argument("--out", required=True, help="the unit's results folder")
+    unit(p)
+    common(p, model=False)
+    p.set_defaults(func=cmd_segment)
+
+    for name, func, text in (("fit", cmd_fit, "stage: fit the unit's calibration"),
+                             ("validate", cmd_validate, "stage: validate the unit's calibration")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("unit", help="the unit's results folder")
+        unit(p)
+        common(p)
+        p.set_defaults(func=func)
+
+    p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
+    p.add_argument("unit", help="the unit's results folder")
+    p.add_argument("--other-session", metavar="DIR",
+                   help="the results folder of another session of the unit, segmented: the "
+                        "diagnosis judges candidates by how they carry over to it")
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_analyse)
+
+    p = sub.add_parser("report", help="stage: the unit's HTML report")
+    p.add_argument("unit", help="the unit's results folder")
+    p.add_argument("-o", "--output", required=True)
+    unit(p)
+    common(p)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
+    p.add_argument("--manifest", required=True)
+    p.add_argument("--results", default="results", help="root of the units' results folders")
+    p.add_argument("--reports", default="reports", help="root of the units' reports")
+    p.add_argument("-o", "--output", required=True, help="fleet summary .html")
+    p.add_argument("--bundle", help="also gather all reports into this folder")
+    p.add_argument("--settings-json", help="end of line, outliers and drift as one JSON object "
+                   "(spec, outliers, drift: see config/config.yaml)")
+    p.add_argument("--eol", help="also write the end-of-line verdicts and yields as JSON")
+    p.add_argument("--table", help="also write the fleet as one Parquet table, a row per unit "
+                   "session (docs/fleet-table.md)")
+    p.set_defaults(func=cmd_fleet)
+    p = sub.add_parser("import", help="convert a CSV/TSV, ROS 2 bag or MCAP file into a rig "
+                       "log (docs/import.md)")
+    p.add_argument("source", help="the CSV/TSV file, rosbag2 directory or .mcap file")
+    p.add_argument("-o", "--output", required=True, help="the log to write, .parquet")
+    p.add_argument("--map", help="the import map, YAML: columns or topics and their units")
+    p.add_argument("--format", choices=("csv", "tsv", "ros2", "mcap"),
+                   help="the source's format (default: from its name)")
+    p.add_argument("--sample-rate", type=float, metavar="HZ",
+                   help="t = sample index / HZ (the map's time.column, else the row number)")
+    p.add_argument("--sections", metavar="FILE",
+                   help="a section list in imucal's format: writes the section column")
+    p.set_defaults(func=cmd_import)
+    add_paper_parser(sub)
+    add_lookup_parser(sub)
+    add_export_parser(sub)
+    return parser
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None):
+    print(f"gyrocal: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
+# A command that reads a log starts decoding it at once, on a thread (gyrocal.io.readahead),
+# and imports meanwhile what it runs; modules it would import only after the read (the
+# noise fit's scipy.optimize and scipy.special, the model fit's scipy.linalg) are imported
+# on another thread from the start. Imports hold the GIL; Arrow's decoding does not.
+WARM_IMPORTS = ("scipy.linalg", "scipy.special", "scipy.optimize")
+READS_A_LOG = {"calibrate", "diagnose", "segment", "noise"}
+
+
+def _read_ahead(args) -> None:
+    log = getattr(args, "log", None)
+    if log is not None:
+        from ..io import readahead
+        readahead.start(log)
+    _warm_imports()
+
+
+def _warm_imports() -> None:
+    def load():
+        import importlib
+        for name in WARM_IMPORTS:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - the command imports it again and says why
+                return
+    import threading
+    threading.Thread(target=load, name="warm-imports", daemon=True).start()
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    warnings.showwarning = _one_line_warning
+    if argv is None and args.command in READS_A_LOG:
+        _read_ahead(args)
+    try:
+        return args.func(args)
+    except GyrocalError as exc:
+        print(f"gyrocal: error: {exc}", file=sys.stderr)
+        return exc.exit_status
+    except KeyboardInterrupt:
+        print("gyrocal: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:  # a bug, not bad input: one line unless asked for more
+        if args.debug:
+            raise
+        text = " ".join(str(exc).split())
+        print(f"gyrocal: internal error: {type(exc).__name__}: {text} (rerun with --debug "
+              "for a traceback)", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,243 @@
+"""The workflow's stages: one function per rule, files in and files out.
+
+Each unit and session has a results folder (:mod:`gyrocal.io.unit_folder` names its files). A stage that
+cannot process its unit writes failure records in place of its outputs (see
+:mod:`gyrocal.io.failure`), so a fleet run always completes and reports every unit.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import shutil
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from ..calibration.file import dumps, load_calibration, save_calibration
+from ..fit.thermal import fit_model
+from ..io import atomic, failure
+from ..io.errors import GyrocalError
+from ..io.tables import write_table
+from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
+                              read_observations, unit_paths)
+from ..pipeline.chain import calibrate_observations, segment_log, validation
+from ..pipeline.config import Settings
+from ..protocols import registry
+from ..report.pages import write_failure
+
+def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
+              record_failures: bool) -> int:
+    """Run ``work``; when it fails and failures are recorded, write the record to every
+    output and return 0 so the rest of the fleet goes on (the error goes to stderr)."""
+    try:
+        work()
+        return 0
+    except Exception as exc:  # noqa: BLE001 - recorded in the outputs, not lost
+        if not record_failures:
+            raise
+        rec = exc.record if isinstance(exc, failure.UpstreamFailure) else failure.record(stage, exc, meta)
+        write_failure(outputs, rec)
+        kind = "passed on" if isinstance(exc, failure.UpstreamFailure) else "recorded"
+        print(f"gyrocal: {stage} failed ({kind}): {rec['error']}", file=sys.stderr)
+        return 0
+
+
+def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
+    seg = segment_log(log, settings, meta.get("protocol"))
+    paths = unit_paths(folder)
+    paths["observations"].parent.mkdir(parents=True, exist_ok=True)
+    extra = {"info": seg.info, "meta": meta, "log": str(log),
+             "segmentation": settings.to_dict()["segmentation"]}
+    series = seg.observations.attrs.get("series")
+    if series is not None:
+        write_table(series.to_frame(), paths["history"], series.metadata())
+    write_table(seg.observations, paths["observations"], extra)
+    write_table(seg.segments, paths["segments"], {"meta": meta})
+    write_table(seg.timeline, paths["timeline"], {"meta": meta})
+
+
+def fit_stage(folder, settings: Settings, meta: dict):
+    """The unit's calibration; returns the common model's fit (None for a protocol with a
+    calibration of its own) for the stages after it in the same job."""
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"])
+    obs, extra = read_observations(paths)
+    cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
+                                         label=paths["observations"], noise=extra["info"].get("noise"),
+                                         info=extra["info"])
+    save_calibration(cal, paths["calibration"])
+    return fitted
+
+
+def validate_stage(folder, settings: Settings, fitted=None):
+    """The calibration's validation tables and summary; returns the validation. ``fitted``,
+    the fit the calibration was made from in the same job, spares fitting again (the
+    leave-temperature-out validation needs the per-point fits, not only the file). A
+    calibration made from another log or other settings than these is refused: staleness is
+    read from the hashes the file records (the log's SHA-256, the settings')."""
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"], paths["calibration"])
+    obs, extra = read_observations(paths)
+    cal = load_calibration(paths["calibration"])
+    if (cal.provenance.get("config_sha256") != settings.sha256()
+            or cal.provenance.get("input") != extra["info"]["source"]):
+        raise GyrocalError("the calibration was not fitted from these observations with these "
+                           "settings: run the fit stage again", source=paths["calibration"])
+    if fitted is None and registry.get(cal.meta.get("protocol")).validate is None:
+        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
+                           method=settings.model.interpolation, degree=settings.model.degree,
+                           source=paths["observations"])
+    val = validation(obs, cal, fitted, settings)
+    results, figures = registry.analysis(cal.meta.get("protocol"), obs)
+    _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
+    if val.free_points is not None:
+        write_table(val.free_points, paths["free_points"], {})
+    write_table(val.holds, paths["holds"], {"summary": val.summary})
+    write_table(val.table_holds, paths["table_hold_means"], {"summary": val.summary})
+    write_table(val.table_samples, paths["table_samples"], {"summary": val.summary})
+    write_table(val.by_temperature, paths["by_temperature"], {"summary": val.summary})
+    _write_json(paths["validation"], {"format": "gyrocal.validation/1", **cal.meta, "summary": val.summary})
+    return val
+
+
+def _write_json(path: Path, document: dict) -> None:
+    atomic.write_text(path, dumps(document))
+
+
+def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
+                   other=None, base=None) -> str:
+    """The diagnosis of the unit's observations (JSON) and its normalised residuals
+    (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
+    folder of another session of the unit, judges the candidates by how they carry over;
+    ``base``, the configured model's fit and validation made in the same job
+    (:func:`gyrocal.diagnose.evaluation_of`), spares making them again."""
+    from ..diagnose import diagnose
+    paths = unit_paths(folder)
+    failure.check_inputs(paths["observations"])
+    obs, _ = read_observations(paths)
+    other_obs, other_note = None, {}
+    if other is not None:
+        # Another session only sharpens the judgement: one whose segmentation failed is
+        # noted in the diagnosis, which goes on without it.
+        try:
+            other_paths = unit_paths(other)
+            failure.check_inputs(other_paths["observations"])
+            other_obs, _ = read_observations(other_paths)
+        except GyrocalError as exc:
+            other_note = {"other_session_error": str(exc)}
+    diag = diagnose(settings, obs, other_obs, base=base)
+    out = Path(output or paths["diagnosis"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _write_json(out, {**diag.to_dict(), **other_note, **meta})
+    if residuals is not False:
+        write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
+    return diag.verdict
+
+
+def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool,
+                  other=None) -> str | None:
+    """Fit, validate and diagnose a segmented unit in one process: the workflow's
+    ``analyse`` rule, one job where several would each start
+    Python and cost Snakemake a job to plan. The configured model is fitted once: the
+    validation and the diagnosis take that fit. Each step runs as its own stage
+    (:func:`run_stage`) with the outputs and failure records that ``gyrocal fit``,
+    ``validate`` and ``diagnose --unit`` write: a failed fit is recorded in the calibration
+    and passed on to the validation, and the diagnosis, which reads only the observations,
+    still runs (fitting for itself). Returns the diagnosis verdict (None when it failed and
+    was recorded)."""
+    from ..diagnose import evaluation_of
+    paths = unit_paths(folder)
+    made: dict = {}
+
+    def fit():
+        made["fitted"] = fit_stage(folder, settings, meta)
+
+    def check():
+        val = validate_stage(folder, settings, made.get("fitted"))
+        if made.get("fitted") is not None:
+            made["base"] = evaluation_of(settings, made["fitted"], val.summary, "configured model")
+
+    def diagnosis():
+        made["verdict"] = diagnose_stage(folder, settings, meta, other=other, base=made.get("base"))
+
+    steps = (("fit", ["calibration"], fit),
+             ("validate", ["validation", *VALIDATION_TABLES], check),
+             ("diagnose", list(DIAGNOSIS_FILES), diagnosis))
+    for stage, outputs, work in steps:
+        run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
+    return made.get("verdict")
+
+
+def report_stage(folder, out_html, settings: Settings | None = None) -> None:
+    from ..report.unit import UnitResults, write_unit_report
+    paths = unit_paths(folder)
+    failure.check_inputs(*(v for k, v in paths.items() if k not in DIAGNOSIS_FILES))
+    # The workflow declares the unit's products, not the tables written beside them
+    # (workflow/rules/analyse.smk): name a table deleted since they were made.
+    missing = [name for key, name in UNIT_FILES.items()
+               if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not paths[key].exists()]
+    if missing:
+        raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
+                           "folder and run the workflow again to rebuild it", source=folder)
+    results = UnitResults.from_folder(folder)
+    if settings is not None:
+        results.command = reproduce_command(results, settings)
+    write_unit_report(results, out_html, registry.get(results.meta.get("protocol")))
+
+
+def reproduce_command(results, settings: Settings) -> str:
+    meta = results.meta
+    words = ["gyrocal", "calibrate", results.log or "LOG.parquet", "--protocol",
+             meta.get("protocol") or registry.DEFAULT]
+    for key in ("device", "batch", "session"):
+        if meta.get(key):
+            words += [f"--{key}", str(meta[key])]
+    words += ["--settings-json", json.dumps(settings.to_dict(), sort_keys=True), "-o",
+              "calibration.json"]
+    return " ".join(shlex.quote(w) for w in words)
+
+
+def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None,
+                settings=None, eol_json=None, table=None) -> None:
+    """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
+    a :class:`gyrocal.fleet.summary.FleetSettings`: end of line, outliers, drift pages and
+    ``eol_json``), the fleet as one table (``table``: Parquet, a row per unit session) and
+    (optionally) a self-contained folder of all unit reports for ``snakemake --report``."""
+    from ..fleet.summary import fleet_summary, fleet_table, write_fleet_report
+    units = []
+    for row in rows:
+        folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
+        units.append({"row": row, "folder": folder,
+                      "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
+    summary = fleet_summary(units, settings)
+    write_fleet_report(summary, out_index, settings, eol_json)
+    if table is not None:
+        import pyarrow.parquet as pq
+        frame = fleet_table(summary)
+        frame = frame.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
+        with atomic.replacing(table) as tmp:
+            pq.write_table(frame, tmp)
+    if bundle is not None:
+        _write_bundle(Path(bundle), units, reports_root, out_index, rows, settings)
+
+
+def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) -> None:
+    """A self-contained folder of every unit report, the fleet summary and the drift
+    pages, put in place whole: a job killed while copying leaves the old folder."""
+    bundle.parent.mkdir(parents=True, exist_ok=True)
+    with atomic.replacing_folder(bundle) as tmp:
+        for unit in units:
+            source = Path(reports_root) / unit["report"]
+            target = tmp / unit["report"]
+            target.parent.mkdir(parents=True, exist_ok=True)
+            if source.exists():
+                shutil.copyfile(source, target)
+        shutil.copyfile(out_index, tmp / "index.html")
+        drift_pages = Path(out_index).parent / "drift"
+        if settings is not None and drift_pages.is_dir():
+            from ..fleet.summary import drift_devices
+            (tmp / "drift").mkdir()
+            for device in drift_devices(rows):
+                if (drift_pages / f"{device}.html").exists():
+                    shutil.copyfile(drift_pages / f"{device}.html", tmp / "drift" / f"{device}.html")

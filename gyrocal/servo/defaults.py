@@ -1,9 +1,0 @@
-"""The servo protocol's settings by default (a config's ``protocols.servo`` overrides them
-key by key); read without importing the protocol's code."""
-
-from ..model import DEFAULT_TERMS
-
-# The servo calibration's model (gyrocal.servo.fit.MODELS): auto takes the symmetric
-# cross-axis terms where the rotations determine and show them, seed 001's bias and scale
-# otherwise (three rotation axes never determine them).
-DEFAULTS = {"options": {"calibration": "auto"}, "model": {"terms": list(DEFAULT_TERMS)}, "diagnosis": {}}
