@@ -23,6 +23,11 @@ Sensor model (per sample, deg/s, T in degC, T_ref = 25 degC):
 
 "die_lag_curved" replaces the polynomials by the die's own curves (a cubic bias, a stronger
 scale TC) and makes every other temperature effect of the unit follow the die too.
+
+The third set (rate_band_bias ... mount_bias_shift) sizes its amplitudes on the unit's own
+20 s hold-mean floor (drawn ARW / sqrt(20 s)); "warmup_selfheat" adds a self-heating rise to
+the sensor temperature.  Turntable sessions take ``rate_order`` and ``temp_order`` to visit
+the holds / set points in another order ("default" is byte-identical to no override).
 """
 from __future__ import annotations
 
@@ -36,7 +41,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 __all__ = ["UnitSpec", "make_unit", "write_session", "simulate_session", "EFFECTS", "SESSION_RESTART",
-           "PROTOCOLS", "NOISES"]
+           "PROTOCOLS", "NOISES", "RATE_ORDERS", "TEMP_ORDERS"]
 
 G0 = 9.80665            # m/s^2 per g
 T_REF = 25.0            # degC, reference of the polynomials
@@ -90,11 +95,34 @@ EFFECTS: dict[str, str] = {
                           "mechanical power (rig rate squared), tau minutes",
     "table_angle_bias": "a lab-fixed horizontal disturbance field seen through the turning table: "
                         "bias periodic in the accumulated table angle",
+    # third set: sharp shapes of the rate and cross-axis shapes
+    "rate_band_bias": "parasitic mode excited near one rotation rate: Lorentzian bias bump in the "
+                      "own-axis rate, h / (1 + ((|w| - r0)/gamma)^2), r0 near 100 or 200 deg/s",
+    "scale_range_switch": "auto-ranging: above |u| > u_th the part switches range and its scale "
+                          "factor (and offset) step, e = [|u| > u_th] (ds u + db)",
+    "cross_axis_quadratic": "anisoinertia / centrifugal loading: the square of the rate about another "
+                            "axis appears on each output, e_a = sum_{b!=a} q_ab w_b^2",
+    "warmup_selfheat": "turn-on bias transient A exp(-t/tau) on a unit that self-heats after power-on "
+                       "(sensor temperature rises dT_self (1 - exp(-t/tau_heat))); no temperature-rate term",
+    # third set: effects with a history
+    "slow_pole": "part of the output passes a slow pole: e = k (lag(u, tau) - u), tau 2-8 s, "
+                 "so the output settles over seconds after every rate change",
+    "rotation_heating": "turning heats the sensor package (bearing friction): bias follows a first-order "
+                        "lag of |w|, tau 0.5-4 min; the logged temperature sensor does not see it",
+    "temp_hysteresis_play": "thermal hysteresis with a remembered direction: e = h s, s = direction of "
+                            "the last motion of a play (backlash) operator of width w on the temperature",
+    "mount_bias_shift": "each mounting on the fixture strains the package: a new random bias vector "
+                        "at every mount stretch, fresh in every session",
 }
 
 # effects whose parameters live in the unit but whose state restarts at every power-on
 SESSION_RESTART = ("warmup", "bias_ramp", "run_to_run_bias", "scale_warmup", "warmup_two_exp",
-                   "warmup_power_law", "bias_step_time", "motor_heating_bias", "table_angle_bias")
+                   "warmup_power_law", "bias_step_time", "motor_heating_bias", "table_angle_bias",
+                   "warmup_selfheat", "slow_pole", "rotation_heating", "mount_bias_shift")
+
+# session overrides that change the order a turntable visits its rates or set points
+RATE_ORDERS = ("default", "reversed", "shuffled", "ascending", "descending")
+TEMP_ORDERS = ("default", "ascending", "descending", "updown", "downup")
 
 PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo")
 NOISES = ("white", "coloured")
@@ -387,7 +415,50 @@ def _draw_effect(seed, name):
                 "ref_speed_dps": 400.0, "exponent": 2.0}
     if name == "table_angle_bias":
         return {"S_dps": _signs(r, 3) * _u(r, 0.02, 0.06, 3)}
+    # third set: sized on the unit's own 20 s hold-mean floor F = ARW/sqrt(20 s) (per axis, from
+    # the drawn ARW), so that every unit lands in the intended detectability band
+    F = _floor20(seed)
+    if name == "rate_band_bias":
+        gamma = float(_u(r, 3.0, 8.0))                              # half width at half maximum
+        level = 100.0 if r.random() < 0.5 else 200.0
+        r0 = level + float(_u(r, -0.5, 0.5)) * gamma
+        m = _u(r, 18.0, 50.0, 3)
+        return {"h_dps": _signs(r, 3) * m * F, "r0_dps": r0, "gamma_dps": gamma,
+                "near_level_dps": level, "peak_over_floor20": m}
+    if name == "scale_range_switch":
+        lo, hi = (100.0, 200.0) if r.random() < 0.5 else (200.0, 400.0)
+        u_th = lo + (hi - lo) * float(_u(r, 0.2, 0.8))
+        m = _u(r, 18.0, 45.0, 3)                                   # scale step x 400 over F
+        return {"u_th_dps": u_th, "ds": _signs(r, 3) * m * F / 400.0,
+                "db_dps": _signs(r, 3) * _u(r, 0.05, 0.2, 3) * m * F, "between_levels_dps": [lo, hi],
+                "scale_step_at_400_over_floor20": m}
+    if name == "cross_axis_quadratic":
+        m = _u(r, 15.0, 48.0, (3, 3))
+        Q = _signs(r, 9).reshape(3, 3) * m * F[:, None] / 400.0 ** 2
+        Q[np.diag_indices(3)] = 0.0
+        m[np.diag_indices(3)] = 0.0
+        return {"q_per_dps": Q, "at_400_over_floor20": m}
+    if name == "warmup_selfheat":
+        tau = float(_u(r, 900.0, 1500.0))
+        return {"A_dps": _signs(r, 3) * _u(r, 0.15, 0.35, 3), "tau_s": tau,
+                "self_heat_c": float(_u(r, 2.0, 5.0)), "tau_heat_s": tau * float(_u(r, 0.8, 1.25))}
+    if name == "slow_pole":
+        return {"k": _u(r, 1e-3, 4e-3, 3), "tau_s": float(_u(r, 2.0, 8.0))}
+    if name == "rotation_heating":
+        return {"H_dps": _signs(r, 3) * _u(r, 35.0, 80.0, 3) * F, "tau_s": float(_u(r, 30.0, 240.0)),
+                "ref_speed_dps": 400.0, "exponent": 1.0, "temp_sensor_fraction": 0.0}
+    if name == "temp_hysteresis_play":
+        m = _u(r, 30.0, 60.0, 3)                                   # 2h over F
+        return {"h_dps": _signs(r, 3) * m * F / 2.0, "width_c": float(_u(r, 2.0, 5.0)),
+                "storage_c": ROOM_T, "two_h_over_floor20": m}
+    if name == "mount_bias_shift":
+        return {"sigma_dps": float(_u(r, 12.0, 35.0)) * _u(r, 0.8, 1.2, 3) * F}
     raise ValueError(f"unknown effect {name!r}; known: {sorted(EFFECTS)}")
+
+
+def _floor20(seed):
+    """Per-axis std of a 20 s mean of the unit's drawn white noise, ARW/sqrt(20 s) (deg/s)."""
+    return np.asarray(_draw_noise(seed, "white")["arw_dps_rthz"], float) / math.sqrt(20.0)
 
 
 def make_unit(effect: str = "none", protocol: str = "turntable3", noise: str = "white",
@@ -551,9 +622,46 @@ def _protocol_defaults(protocol):
     raise ValueError(protocol)
 
 
-def _build_timeline(protocol, pp, rng):
+def _ordered_temps(temps, order):
+    """The order the chamber visits the set points. "default" keeps the list as given."""
+    if not isinstance(order, str):
+        raise ValueError(f"temp_order must be one of {TEMP_ORDERS}")
+    if order == "default":
+        return list(temps)
+    up = sorted(temps)
+    if order == "ascending":
+        return up
+    if order == "descending":
+        return up[::-1]
+    if order == "updown":             # up through every other point, back down through the rest
+        return up[0::2] + up[1::2][::-1]
+    if order == "downup":
+        dn = up[::-1]
+        return dn[0::2] + dn[1::2][::-1]
+    raise ValueError(f"unknown temp_order {order!r}; known: {TEMP_ORDERS}")
+
+
+def _ordered_rates(seq, order, rng):
+    """The order of one mount's holds. "default": 0, +r1, -r1, +r2, -r2, ...; a list is used as
+    given (signed deg/s); "shuffled" draws a new permutation from rng for every call."""
+    if not isinstance(order, str):
+        return [float(x) for x in order]
+    if order == "default":
+        return seq
+    if order == "reversed":
+        return seq[::-1]
+    if order == "shuffled":
+        return [seq[i] for i in rng.permutation(len(seq))]
+    if order == "ascending":
+        return sorted(seq)
+    if order == "descending":
+        return sorted(seq, reverse=True)
+    raise ValueError(f"unknown rate_order {order!r}; known: {RATE_ORDERS} or a list of rates")
+
+
+def _build_timeline(protocol, pp, rng, order_rng=None):
     if protocol in ("turntable3", "turntable6"):
-        temps = [float(x) for x in pp["temps"]]
+        temps = _ordered_temps([float(x) for x in pp["temps"]], pp.get("temp_order", "default"))
         tl = _Timeline(temps[0])
         mis = float(pp["fixture_misalign_deg"])
         mids = {}
@@ -586,7 +694,7 @@ def _build_timeline(protocol, pp, rng):
                     tl.handling(cur_m, m, rng)
                     cur_m = m
                 r_prev = 0.0
-                for r in seq:
+                for r in _ordered_rates(seq, pp.get("rate_order", "default"), order_rng):
                     tl.rate_change(r_prev, r, acc, m, setpoint=T)
                     tl.add("hold", hold, m, r, setpoint=T)
                     r_prev = r
@@ -703,15 +811,18 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                      **overrides) -> tuple[dict, dict]:
     """Simulate one session; returns (columns, info).  See write_session."""
     pp = _protocol_defaults(unit.protocol)
+    # visit-order overrides of the turntables; recorded in protocol_params only when given
+    extra = ("rate_order", "temp_order") if unit.protocol.startswith("turntable") else ()
     for k, v in overrides.items():
-        if k not in pp:
+        if k not in pp and k not in extra:
             raise ValueError(f"unknown override {k!r} for protocol {unit.protocol}; "
-                             f"known: {sorted(pp)}")
+                             f"known: {sorted(pp) + list(extra)}")
         pp[k] = v
     fs = float(rate_hz)
     rs = _rng(unit.seed, "session", session, seed)
     r_tl = _rng(unit.seed, "timeline", session, seed)
-    tl = _build_timeline(unit.protocol, pp, r_tl)
+    r_ord = _rng(unit.seed, "rate_order", session, seed)          # only "shuffled" draws from it
+    tl = _build_timeline(unit.protocol, pp, r_tl, r_ord)
     base = unit.params["base"]
     eff = unit.params["effects"]
 
@@ -789,6 +900,23 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
     tau_d = float(eff["die_lag"]["tau_die_s"]) if "die_lag" in eff else (
         float(eff["die_lag_curved"]["tau_die_s"]) if curved else None)
     Tc, Ts, dTs, Td = _thermal(tl.knots_t, tl.knots_T, float(base["tau_sensor_s"]), tau_d, tr)
+    self_heat = None
+    if "warmup_selfheat" in unit.effects:
+        # the powered board heats the sensor: Ts = (chamber lag) + dT_self (1 - exp(-t/tau_heat)),
+        # and a lagging die (die_lag, die_lag_curved) follows that rise through its own lag
+        ep = eff["warmup_selfheat"]
+        dTh, th = float(ep["self_heat_c"]), float(ep["tau_heat_s"])
+        ex = np.exp(-tr / th)
+        rise = dTh * (1.0 - ex)
+        Ts = Ts + rise
+        dTs = dTs + dTh / th * ex
+        if Td is not None:
+            td = tau_d if abs(tau_d - th) > 1e-6 * th else tau_d * (1 + 1e-6)
+            Td = Td + dTh * (1.0 - (th * ex - td * np.exp(-tr / td)) / (th - td))
+        self_heat = {"model": "Ts = chamber lag (tau_sensor_s) + self_heat_c (1 - exp(-t/tau_heat_s)), "
+                              "t = time since power-on",
+                     "self_heat_c": dTh, "tau_heat_s": th, "rise_at_end_c": float(rise[-1]),
+                     "max_rate_c_per_min": dTh / th * 60.0}
     Tk = Td if Td is not None else Ts
     dT = (Tk - T_REF)[:, None]
     # the temperature (and its rate) that the unit's other temperature effects feel: the die
@@ -909,6 +1037,50 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
             e = np.asarray(ep["S_dps"])[None] * f_body
             truth_eff[name] = {"table_angle_at_power_on_deg": th0,
                                "field_in_rig_frame": "(cos th, -sin th, 0), th = table angle"}
+        elif name == "rate_band_bias":
+            x = (np.abs(omega) - float(ep["r0_dps"])) / float(ep["gamma_dps"])
+            e = np.asarray(ep["h_dps"])[None] / (1.0 + x ** 2)
+        elif name == "scale_range_switch":
+            on = np.abs(u_lin) > float(ep["u_th_dps"])
+            e = on * (np.asarray(ep["ds"])[None] * u_lin + np.asarray(ep["db_dps"])[None])
+        elif name == "cross_axis_quadratic":
+            e = (omega ** 2) @ np.asarray(ep["q_per_dps"]).T
+        elif name == "warmup_selfheat":
+            e = np.asarray(ep["A_dps"])[None] * np.exp(-tr / float(ep["tau_s"]))[:, None]
+            truth_eff[name] = {"bias_model": "A exp(-t/tau) + the base B(Ts), Ts including the "
+                                             "self-heating; no dT/dt term",
+                               "self_heating_rise_at_end_c": self_heat["rise_at_end_c"]}
+        elif name == "slow_pole":
+            tau_p = float(ep["tau_s"])
+            lagged = np.stack([_lag(np.ascontiguousarray(u_lin[:, a]), tau_p, 1.0 / fs)
+                               for a in range(3)], axis=1)
+            e = np.asarray(ep["k"])[None] * (lagged - u_lin)
+        elif name == "rotation_heating":
+            P = (np.linalg.norm(omega, axis=1) / float(ep["ref_speed_dps"])) ** float(ep["exponent"])
+            h = _lag(P, float(ep["tau_s"]), 1.0 / fs)
+            e = np.asarray(ep["H_dps"])[None] * h[:, None]
+            truth_eff[name] = {"heat_state": "tau dh/dt = (|w|/400)^exponent - h, h(0) = 0 at power-on",
+                               "logged_temperature_sees": "none of it"}
+        elif name == "temp_hysteresis_play":
+            s_play, s0, P0 = _play_direction(T_eff, float(ep["width_c"]), float(ep["storage_c"]))
+            e = np.asarray(ep["h_dps"])[None] * s_play[:, None]
+            truth_eff[name] = {"initial_state": s0, "initial_play_position_c": P0,
+                               "n_switches": int(np.sum(s_play[1:] != s_play[:-1]))}
+        elif name == "mount_bias_shift":
+            hand = [(i0, i1) for ph, i0, i1 in zip(tl.phases, starts, ends)
+                    if ph["kind"] == "handling" and i1 > i0]
+            shifts = (_rng(unit.seed, "mount_shift", session, seed).standard_normal((len(hand) + 1, 3))
+                      * np.asarray(ep["sigma_dps"])[None])
+            bounds = [(0, hand[0][0] if hand else N)]
+            bounds += [(hand[k][1], hand[k + 1][0] if k + 1 < len(hand) else N) for k in range(len(hand))]
+            stretches = []
+            for (a0, a1), sh in zip(bounds, shifts):
+                e[a0:a1] = sh                                  # zero while in the hand
+                if a1 > a0:
+                    stretches.append({"t_start": float(tr[a0] + t_offset), "t_end": float(tr[a1 - 1] + t_offset),
+                                      "mount": tl.mounts[mount_idx[a0]]["label"], "shift_dps": sh})
+            truth_eff[name] = {"stretches": stretches,
+                               "rule": "a new shift from the end of each handling phase; 0 during handling"}
         contrib[name] = e
         gyro = gyro + e
     # ---------------- noise ----------------
@@ -981,7 +1153,8 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
         "thermal": {"tau_sensor_s": float(base["tau_sensor_s"]), "tau_die_s": tau_d,
                     "chamber_knots_t": [k + t_offset for k in tl.knots_t],
                     "chamber_knots_c": tl.knots_T,
-                    "temp_noise_c": float(base["temp_noise_c"]), "temp_lsb_c": lsb},
+                    "temp_noise_c": float(base["temp_noise_c"]), "temp_lsb_c": lsb,
+                    **({"self_heating": self_heat} if self_heat is not None else {})},
         "mounts": [{"label": m["label"], "R_body_to_rig": m["R"],
                     **({"misalign_rotvec_rad": m["misalign_rotvec_rad"]}
                        if "misalign_rotvec_rad" in m else {})} for m in tl.mounts],
@@ -1010,6 +1183,32 @@ def _schmitt(T, T_switch, width):
     last = np.maximum.accumulate(idx)
     state = np.where(last >= 0, ev[np.maximum(last, 0)], s0)
     return state, s0
+
+
+def _play_direction(T, width, storage_c):
+    """Direction (+1/-1) of the last motion of a play (backlash) operator of width `width` on T:
+    P = clamp(P_prev, T - width/2, T + width/2); s flips only after T has travelled `width` in
+    the new direction, and keeps its state while T is still.  Power-on state from storage:
+    stored at storage_c after cooling down (s = -1, P = storage_c + width/2), then brought
+    monotonically to T[0] before power-on."""
+    r = width / 2.0
+    P = storage_c + r
+    s = -1.0
+    T0 = float(T[0])
+    if T0 - r > P:
+        P, s = T0 - r, 1.0
+    elif T0 + r < P:
+        P, s = T0 + r, -1.0
+    s0, P0 = s, P
+    out = np.empty(len(T))
+    # only samples that reach outside the current band matter: a plain loop over floats
+    for i, x in enumerate(T.tolist()):
+        if x - r > P:
+            P, s = x - r, 1.0
+        elif x + r < P:
+            P, s = x + r, -1.0
+        out[i] = s
+    return out, s0, P0
 
 
 def _duhem(T, dT_switch, s0):
@@ -1042,7 +1241,9 @@ def write_session(unit: UnitSpec, path, session: int = 0, seed: int = 0, rate_hz
     """Write one session of ``unit`` as a Parquet rig log (per the contract); return its truth.
 
     ``overrides`` are protocol parameters (see ``_protocol_defaults``), e.g.
-    ``ramp_c_per_h=45`` for a sweep, ``temps=[-20, 10, 40]``, ``hold_s=25``."""
+    ``ramp_c_per_h=45`` for a sweep, ``temps=[-20, 10, 40]``, ``hold_s=25``; on turntables also
+    ``rate_order`` (one of RATE_ORDERS or a list of signed rates) and ``temp_order`` (one of
+    TEMP_ORDERS)."""
     cols, info = simulate_session(unit, session=session, seed=seed, rate_hz=rate_hz, **overrides)
     arrays = [pa.array(cols["t"], pa.float64()),
               pa.array(cols["gyro_x"], pa.float64()), pa.array(cols["gyro_y"], pa.float64()),

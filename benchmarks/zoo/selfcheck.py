@@ -9,7 +9,10 @@
 4. detectability: RMS of the hold-mean residual against the true base model over the
    hold-mean noise floor, seed 21 (turntable3 holds; sweep 20 s windows);
 5. coloured noise on turntable6 and sweep: 20 s window means against the floor;
-6. the on-axis IMU (imu_radius_m=0): accelerometer constant per mount, G recovered.
+6. the on-axis IMU (imu_radius_m=0): accelerometer constant per mount, G recovered;
+7. the third set (rate_band_bias ... mount_bias_shift) against the README: shapes and
+   magnitudes over the hold-mean floor, the visit-order overrides, the play operator's memory,
+   the mount shift's renewal, the self-heating's temperature rise (see check_third_set).
 
 Light by design (5 Hz turntables, 1 Hz sweeps): about a minute on one core.
 """
@@ -48,6 +51,26 @@ LEGACY = [
      "+scale_quadratic+bias_ramp", "turntable6", "white", 8, 0, 1, 5.0,
      {"fixture_misalign_deg": 1.0}, "d4978bb9b6c37a45"),
 ]
+
+# recorded before the third set (rate_band_bias ... mount_bias_shift) was added
+LEGACY += [
+    ("warmup", "turntable3", "white", 21, 0, 1, 5.0, {}, "b1c476ee868154f7"),
+    ("hysteresis", "sweep", "white", 21, 0, 1, 2.0, {}, "5313c90396ebf897"),
+    ("g_sensitivity", "turntable3", "coloured", 22, 1, 5, 10.0, {}, "1b2a5dda3a643c42"),
+    ("die_lag_curved+bias_bump_temp+bias_step_temp", "sweep", "white", 21, 0, 1, 1.0, {},
+     "c0da18858296f7bd"),
+    ("motor_heating_bias+table_angle_bias+scale_warmup", "turntable6", "coloured", 24, 1, 2, 5.0,
+     {"fixture_misalign_deg": 1.0}, "e4d6c2538e0c1047"),
+    ("run_to_run_bias+vibration_rectification+scale_low_rate_tanh", "servo", "white", 25, 3, 4, 25.0,
+     {"servo_six_mounts": True}, "6765ef5f44c1a4cb"),
+    ("die_lag+temp_rate+warmup_two_exp", "turntable3", "white", 26, 0, 1, 5.0,
+     {"temps": [55.0, 5.0, 30.0], "rates": [20.0, 300.0]}, "6ed5263356d93174"),
+    ("warmup_power_law+bias_step_time+misalign_warp_tanh+scale_temp_rate", "sweep", "coloured", 27,
+     0, 1, 0.5, {"ramp_c_per_h": 60.0, "mount": "-y"}, "8ad71aabf61e067e"),
+]
+
+NEW3 = ["rate_band_bias", "scale_range_switch", "cross_axis_quadratic", "warmup_selfheat",
+        "slow_pole", "rotation_heating", "temp_hysteresis_play", "mount_bias_shift"]
 
 SEED = 21
 TT_HZ = 5.0
@@ -144,9 +167,9 @@ def check_legacy(tmp):
     assert ok, "a pre-extension case changed"
 
 
-def check_determinism(tmp):
+def check_determinism(tmp, effects=NEW):
     print("\n== new effects: every protocol runs, same seeds -> same bytes ==")
-    for e in NEW:
+    for e in effects:
         for prot, hz, ov in (("turntable3", 2.0, {}), ("turntable6", 1.0, {}),
                              ("sweep", 0.5, {"sweep_rate_dps": 50.0}), ("servo", 10.0, {})):
             u = make_unit(e, prot, "coloured", seed=SEED)
@@ -157,7 +180,7 @@ def check_determinism(tmp):
             assert sha(a) == sha(b), (e, prot)
             assert all(np.all(np.isfinite(c[k])) for k in ("gyro_x", "gyro_y", "gyro_z", "temp"))
             assert np.all(np.diff(c["t"]) > 0)
-    print(f"  {len(NEW)} effects x 4 protocols: identical bytes, finite, t increasing")
+    print(f"  {len(effects)} effects x 4 protocols: identical bytes, finite, t increasing")
 
 
 # ------------------------------------------------------------------ 4: detectability
@@ -193,16 +216,16 @@ def detectability(effect, protocol, hz, **ov):
     return float(np.sqrt(np.mean(np.square(means)))) / info["noise_floor_hint"]
 
 
-def check_detectability():
+def check_detectability(effects=NEW):
     print(f"\n== detectability, seed {SEED}: window-mean residual RMS / floor ==")
     print("   (turntable3 holds at 5 Hz; sweep 30 degC/h with the rig at 100 deg/s, 20 s windows, 1 Hz)")
     out = {}
-    for e in ["none"] + NEW:
+    for e in ["none"] + list(effects):
         a = detectability(e, "turntable3", TT_HZ)
         b = detectability(e, "sweep", SW_HZ, sweep_rate_dps=100.0)
         out[e] = (a, b)
         print(f"  {e:22s} turntable3 {a:7.1f}x   sweep {b:7.1f}x")
-    for soak in (120.0, 60.0):
+    for soak in (120.0, 60.0) if "scale_temp_rate" in effects else ():
         a = detectability("scale_temp_rate", "turntable3", TT_HZ, soak_s=soak)
         print(f"  scale_temp_rate        turntable3 with soak_s={soak:.0f}: {a:.1f}x "
               "(the first holds fall in the settling)")
@@ -524,6 +547,335 @@ def check_on_axis_imu(tmp):
             assert np.max(np.abs(G - Gt)) < tol
 
 
+# ------------------------------------------------------------------ 7: the third set
+def G3(c):
+    return np.stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]], 1)
+
+
+def floor_axes(info):
+    return np.asarray(info["noise_floor_detail"]["hold_mean_std_dps"], float)
+
+
+def hold_table(c, info, y):
+    """Per hold, in time order: (mount, set point, rate, mean of y over the hold)."""
+    t = c["t"]
+    out = []
+    for p in info["phases"]:
+        if p["kind"] == "hold":
+            m = (t >= p["t_start"]) & (t < p["t_end"])
+            out.append((p["mount"], p.get("setpoint_c"), p["ref_rate_start"], y[m].mean(0)))
+    return out
+
+
+def effect_only(effect, protocol, hz, session=0, unit_kw=None, **ov):
+    """The effect alone: the unit with it minus the same unit without it, same session seeds
+    (identical noise, temperature and motion). Not for warmup_selfheat (it changes the temperature)."""
+    cE, info = simulate_session(make_unit(effect, protocol, "white", seed=SEED, **(unit_kw or {})),
+                                session, 1, hz, **ov)
+    cN, _ = simulate_session(make_unit("none", protocol, "white", seed=SEED), session, 1, hz, **ov)
+    return G3(cE) - G3(cN), cE, info
+
+
+def own_axis_levels(rows, F, signed=False):
+    """Mean over the own-axis holds of |hold mean| / floor, per rate level (|rate| unless signed)."""
+    out = {}
+    for mnt, T, r, m in rows:
+        a = "xyz".index(mnt[1])
+        out.setdefault(r if signed else abs(r), []).append(abs(m[a]) / F[a])
+    return {k: float(np.mean(v)) for k, v in sorted(out.items())}
+
+
+def hold_sequences(info):
+    seqs = {}
+    for p in info["phases"]:
+        if p["kind"] == "hold":
+            seqs.setdefault((p["mount"], p["setpoint_c"]), []).append(p["ref_rate_start"])
+    return seqs
+
+
+def setpoint_order(info):
+    out = []
+    for p in info["phases"]:
+        if p["kind"] == "hold" and (not out or out[-1] != p["setpoint_c"]):
+            out.append(p["setpoint_c"])
+    return out
+
+
+def check_orders(tmp):
+    print("\n== visit-order overrides (turntables) ==")
+    u = make_unit("slow_pole", "turntable3", "white", seed=SEED)
+    a, b = os.path.join(tmp, "o_a.parquet"), os.path.join(tmp, "o_b.parquet")
+    write_session(u, a, 0, 1, TT_HZ)
+    write_session(u, b, 0, 1, TT_HZ, rate_order="default", temp_order="default")
+    assert sha(a) == sha(b)
+    print("  rate_order='default', temp_order='default' write the same bytes as no override")
+    base = [0.0, 10.0, -10.0, 50.0, -50.0, 100.0, -100.0, 200.0, -200.0, 400.0, -400.0]
+    _, i0 = simulate_session(u, 0, 1, 1.0)
+    assert all(v == base for v in hold_sequences(i0).values())
+    _, ir = simulate_session(u, 0, 1, 1.0, rate_order="reversed")
+    assert all(v == base[::-1] for v in hold_sequences(ir).values())
+    sh = [hold_sequences(simulate_session(u, s, 1, 1.0, rate_order="shuffled")[1]) for s in (0, 0, 1)]
+    assert sh[0] == sh[1]
+    v0 = list(sh[0].values())
+    assert all(sorted(v) == sorted(base) for v in v0)
+    assert len({tuple(v) for v in v0}) == len(v0) and all(v != base for v in v0)
+    assert all(sh[0][k] != sh[2][k] for k in sh[0])
+    print(f"  default {base}\n  reversed: every mount and set point runs it backwards")
+    print(f"  shuffled: {len(v0)} different permutations (mount x set point), same for the same seeds, "
+          f"new in session 1; e.g. {v0[0]}")
+    for order, want in (("default", [-20.0, 5.0, 30.0, 55.0]), ("descending", [55.0, 30.0, 5.0, -20.0]),
+                        ("updown", [-20.0, 30.0, 55.0, 5.0]), ("downup", [55.0, 5.0, -20.0, 30.0])):
+        _, inf = simulate_session(u, 0, 1, 1.0, temp_order=order)
+        got = setpoint_order(inf)
+        knots = [k for i, k in enumerate(inf["thermal"]["chamber_knots_c"])
+                 if i == 0 or k != inf["thermal"]["chamber_knots_c"][i - 1]]
+        print(f"  temp_order={order:10s}: set points {got}")
+        assert got == want and knots == want
+
+
+def check_rate_band(tmp):
+    print("\n== rate_band_bias: a Lorentzian in the own-axis rate, felt at one level only ==")
+    e, c, info = effect_only("rate_band_bias", "turntable3", TT_HZ)
+    ep = info["effect_params"]["rate_band_bias"]
+    h, r0, g = np.asarray(ep["h_dps"]), ep["r0_dps"], ep["gamma_dps"]
+    for mnt, T, r, m in hold_table(c, info, e):
+        wabs = np.zeros(3)
+        wabs["xyz".index(mnt[1])] = abs(r)
+        assert np.allclose(m, h / (1 + ((wabs - r0) / g) ** 2), rtol=1e-9, atol=1e-10)
+    cw, iw, _ = written(tmp, "rate_band_bias", "turntable3", TT_HZ)
+    res, keep, w, u = base_residual(cw, iw)
+    lv = own_axis_levels(hold_table(cw, iw, res), floor_axes(iw))
+    print(f"  r0 = {r0:.1f} deg/s, gamma = {g:.1f} deg/s; noise-free hold means match the shape")
+    print("  written log, own-axis |hold mean| / floor by |rate|: "
+          + ", ".join(f"{k:.0f}: {v:.1f}" for k, v in lv.items()))
+    near = ep["near_level_dps"]
+    assert 12.0 < lv[near] < 55.0
+    assert all(v < 2.5 for k, v in lv.items() if k != near)
+
+
+def check_range_switch(tmp):
+    print("\n== scale_range_switch: a scale (and offset) step above |u| > u_th only ==")
+    e, c, info = effect_only("scale_range_switch", "turntable3", TT_HZ)
+    ep = info["effect_params"]["scale_range_switch"]
+    uth, ds, db = ep["u_th_dps"], np.asarray(ep["ds"]), np.asarray(ep["db_dps"])
+    for mnt, T, r, m in hold_table(c, info, e):
+        a = "xyz".index(mnt[1])
+        if abs(r) < uth:
+            assert np.all(m == 0.0)
+        else:
+            assert abs((m[a] - db[a]) / ds[a] / r - 1.0) < 0.05       # u = K w, K within a few %
+            assert np.all(np.delete(m, a) == 0.0)
+    cw, iw, _ = written(tmp, "scale_range_switch", "turntable3", TT_HZ)
+    res, keep, w, u = base_residual(cw, iw)
+    lv = own_axis_levels(hold_table(cw, iw, res), floor_axes(iw), signed=True)
+    print(f"  u_th = {uth:.0f} deg/s; ds = {np.array2string(ds * 1e6, precision=0)} ppm; "
+          f"db = {np.array2string(db * 1e3, precision=2)} mdps")
+    print("  written log, own-axis |hold mean| / floor: "
+          + ", ".join(f"{k:+.0f}: {v:.1f}" for k, v in lv.items() if abs(k) >= 100))
+    assert all(12.0 < lv[k] < 55.0 for k in (400.0, -400.0))
+    assert all(v < 2.5 for k, v in lv.items() if abs(k) < uth)
+
+
+def check_cross_quadratic(tmp):
+    print("\n== cross_axis_quadratic: the rotating axis's rate squared on the two other outputs ==")
+    e, c, info = effect_only("cross_axis_quadratic", "turntable3", TT_HZ)
+    Q = np.asarray(info["effect_params"]["cross_axis_quadratic"]["q_per_dps"])
+    for mnt, T, r, m in hold_table(c, info, e):
+        assert np.allclose(m, Q[:, "xyz".index(mnt[1])] * r * r, rtol=1e-9, atol=1e-10)
+    cw, iw, _ = written(tmp, "cross_axis_quadratic", "turntable3", TT_HZ)
+    res, keep, w, u = base_residual(cw, iw)
+    rows = hold_table(cw, iw, res)
+    F = floor_axes(iw)
+    Qfit = np.zeros((3, 3))
+    at400 = []
+    for b in range(3):
+        sel = [(r, m) for mnt, T, r, m in rows if "xyz".index(mnt[1]) == b]
+        X = np.stack([[r * r for r, m in sel], np.ones(len(sel))], 1)
+        for a in range(3):
+            if a != b:
+                Qfit[a, b] = lsq(X, np.array([m[a] for r, m in sel]))[0][0]
+                at400.append(np.mean([abs(m[a]) for r, m in sel if abs(r) == 400.0]) / F[a])
+    off = ~np.eye(3, dtype=bool)
+    report("q from the off-axis hold means of the written log", [("q (off-diag)", Qfit[off], Q[off])])
+    print(f"  |hold mean| / floor at +-400 deg/s on the off axes: {np.array2string(np.array(at400), precision=1)}")
+    assert rel_ok(Qfit[off], Q[off], 0.1)
+    assert all(12.0 < x < 55.0 for x in at400)
+
+
+def check_selfheat(tmp):
+    print("\n== warmup_selfheat: the logged temperature rises, the bias decays in time only ==")
+    c, info, ep = written(tmp, "warmup_selfheat", "turntable3", TT_HZ)
+    cN, iN, _ = written(tmp, "none", "turntable3", TT_HZ)
+    tt = c["t"] - info["power_on_t"]
+    dT, th = ep["self_heat_c"], ep["tau_heat_s"]
+    rise = c["temp"] - cN["temp"]                    # same temperature noise draws
+    err = np.max(np.abs(rise - dT * (1 - np.exp(-tt / th))))
+    lsb = info["thermal"]["temp_lsb_c"]
+    print(f"  logged temperature minus the same unit's without self-heating: rise {rise[-1]:.2f} C at the end "
+          f"(dT_self {dT:.2f} C, tau_heat {th:.0f} s); max misfit to dT(1 - exp(-t/tau_heat)) {err:.3f} C")
+    assert err <= lsb + 1e-9 + 1e-6
+    assert info["thermal"]["self_heating"]["self_heat_c"] == dT
+    res, keep, w, u = base_residual(c, info)         # base model at the logged temperature
+    d = smooth_rate(c["t"], c["temp"], 101.0) * 60.0
+    m = keep & np.isfinite(d)
+    sp0 = [p for p in info["phases"] if p["kind"] == "hold" and p["setpoint_c"] == setpoint_order(info)[0]]
+    # (the 101 s slope window must not reach the chamber ramp that follows the first set point)
+    first = m & (c["t"] >= sp0[0]["t_start"]) & (c["t"] <= sp0[-1]["t_end"] - 60.0)
+    corr = np.corrcoef(np.exp(-tt[first] / ep["tau_s"]), d[first])[0, 1]
+    print(f"  correlation of exp(-t/tau) and the logged dT/dt over the first set point "
+          f"({(sp0[-1]['t_end'] - info['power_on_t']) / 60:.0f} min): {corr:.2f}")
+    assert corr > 0.8
+    A, q, ratio = [], [], []
+    for a in range(3):
+        ex = np.exp(-tt[m] / ep["tau_s"])
+        one = np.ones(m.sum())
+        (bA, bq, _), rss_both = lsq(np.stack([ex, d[m], one], 1), res[m, a])
+        _, rss_q = lsq(np.stack([d[m], one], 1), res[m, a])
+        _, rss_e = lsq(np.stack([ex, one], 1), res[m, a])
+        A.append(bA)
+        q.append(bq)
+        ratio.append(rss_q / rss_e)
+    report("fit A exp(-t/tau) + q dT/dt + c, tau true, dT/dt from the logged temperature",
+           [("A dps", A, ep["A_dps"])])
+    print(f"      q {np.array2string(np.array(q), precision=5)} dps per C/min (temp_rate's q is 0.05-0.2); "
+          f"RSS of q dT/dt alone over exp alone: {np.array2string(np.array(ratio), precision=1)}")
+    assert rel_ok(A, ep["A_dps"], 0.05)
+    assert np.all(np.abs(q) < 0.005) and min(ratio) > 1.5
+
+
+def check_slow_pole(tmp):
+    print("\n== slow_pole: e = k (lag(u, tau) - u), continuous through the session ==")
+    c, info, ep = written(tmp, "slow_pole", "turntable3", TT_HZ)
+    res, keep, w, u = base_residual(c, info)
+    t = c["t"]
+    for ph in info["phases"]:                 # the hand motion is not in ref_rate: skip its tail
+        if ph["kind"] == "handling":
+            keep &= ~((t >= ph["t_start"]) & (t < ph["t_end"] + 60.0))
+    k_fit, taus = [], []
+    for a in range(3):
+        tau, beta, _ = grid_fit(lambda tau: np.stack([(lag(u[:, a], tau, 1 / TT_HZ) - u[:, a])[keep],
+                                                      np.ones(keep.sum())], 1),
+                                res[keep, a], np.arange(1.0, 10.0, 0.1))
+        k_fit.append(beta[0])
+        taus.append(tau)
+    report("fit from the written log (u from ref_rate and the true K)",
+           [("k", k_fit, ep["k"]), ("tau s", taus, ep["tau_s"])])
+    assert rel_ok(k_fit, ep["k"], 0.05) and rel_ok(taus, ep["tau_s"], 0.05)
+    F = floor_axes(info)
+    hm = {}
+    for order in ("default", "reversed", "shuffled"):
+        e, c2, inf = effect_only("slow_pole", "turntable3", TT_HZ, rate_order=order)
+        hm[order] = {(mn, T, r): m for mn, T, r, m in hold_table(c2, inf, e)}
+    key = ("+y", 30.0, 400.0)
+    vals = {o: hm[o][key][1] / F[1] for o in hm}
+    print("  the +400 hold of +y at 30 C over the floor: "
+          + ", ".join(f"{o} {v:.1f}" for o, v in vals.items()))
+    diff = np.array([np.abs(hm["default"][k] - hm["reversed"][k]) / F for k in hm["default"]])
+    print(f"  default vs reversed, own axis |difference| over the floor: median {np.median(diff.max(1)):.1f}, "
+          f"max {np.max(diff):.1f}")
+    assert np.max(diff) > 10.0
+
+
+def check_rotation_heating(tmp):
+    print("\n== rotation_heating: bias = H lag(|w|/400, tau); the logged temperature does not see it ==")
+    c, info, ep = written(tmp, "rotation_heating", "turntable3", TT_HZ)
+    cN, _, _ = written(tmp, "none", "turntable3", TT_HZ)
+    assert np.array_equal(c["temp"], cN["temp"])
+    res, keep, w, u = base_residual(c, info)
+    P = np.abs(c["ref_rate"]) / 400.0
+    feats = lambda tau: np.stack([lag(P, tau, 1 / TT_HZ)[keep], np.ones(keep.sum())], 1)  # noqa: E731
+    coarse = grid_fit(feats, res[keep], np.arange(10.0, 400.0, 10.0))[0]
+    tau, beta, _ = grid_fit(feats, res[keep], np.arange(max(coarse - 10.0, 2.0), coarse + 10.0, 0.5))
+    report("fit from the written log (heat input from the logged ref_rate)",
+           [("H dps", beta[0], ep["H_dps"]), ("tau s", tau, ep["tau_s"])])
+    print("  logged temperature identical to the unit's without the effect")
+    assert rel_ok(beta[0], ep["H_dps"], 0.1) and rel_ok(tau, ep["tau_s"], 0.1)
+
+
+def check_play(tmp):
+    print("\n== temp_hysteresis_play: direction memory of a play operator ==")
+    F = None
+    tabs = {}
+    for order in ("default", "updown", "descending"):
+        e, c, info = effect_only("temp_hysteresis_play", "turntable3", TT_HZ, temp_order=order)
+        tabs[order] = {(mn, T, r): m for mn, T, r, m in hold_table(c, info, e)}
+        ep = info["effect_params"]["temp_hysteresis_play"]
+        F = floor_axes(info)
+        print(f"  {order:10s}: state at power-on {ep['initial_state']:+.0f} (stored at {ep['storage_c']:.0f} C "
+              f"after cooling, brought to {setpoint_order(info)[0]:.0f} C)")
+        assert ep["initial_state"] == (1.0 if order == "descending" else -1.0)
+    h = np.asarray(ep["h_dps"])
+    for k, m in tabs["default"].items():
+        d = m - tabs["updown"][k]
+        # 5 C is approached from below by default and from 55 C (above) by updown
+        assert np.allclose(d, 2 * h if k[1] == 5.0 else 0.0, rtol=1e-9, atol=1e-10)
+        d2 = m - tabs["descending"][k]
+        assert np.allclose(d2, 2 * h if k[1] in (5.0, 30.0) else 0.0, rtol=1e-9, atol=1e-10)
+    print(f"  default vs updown: every hold at 5 C differs by 2h = {np.array2string(2 * np.abs(h) / F, precision=1)}"
+          " x floor, the other set points not at all; descending differs at 5 and 30 C")
+    w = 4.0
+    for temps, at, want in (([5.0, 30.0, 28.0, 55.0], 28.0, 1.0), ([5.0, 30.0, 24.0, 55.0], 24.0, -1.0)):
+        e, c, info = effect_only("temp_hysteresis_play", "turntable3", TT_HZ,
+                                 unit_kw={"temp_hysteresis_play__width_c": w}, temps=temps)
+        s = [m / h for mn, T, r, m in hold_table(c, info, e) if T == at]
+        print(f"  width {w:.0f} C, set points {temps}: state at {at:.0f} C {np.mean(s):+.3f} "
+              f"(a {30 - at:.0f} C reversal)")
+        assert np.allclose(s, want)
+    e, c, info = effect_only("temp_hysteresis_play", "sweep", SW_HZ)
+    ep = info["effect_params"]["temp_hysteresis_play"]
+    s = np.sign(e[:, 0] * h[0])
+    flips = np.nonzero(np.diff(s))[0] + 1
+    Tf = [c["temp"][i] for i in flips]
+    print(f"  sweep -20 -> 60 -> -20 C, width {ep['width_c']:.2f} C: flips at logged {np.round(Tf, 2)} C "
+          f"(expected {-20 + ep['width_c']:.2f} and {60 - ep['width_c']:.2f}); state held through the dwells")
+    assert len(flips) == 2 and abs(Tf[0] - (-20 + ep["width_c"])) < 0.2 and abs(Tf[1] - (60 - ep["width_c"])) < 0.2
+
+
+def check_mount_shift(tmp):
+    print("\n== mount_bias_shift: a new bias at every mount stretch and every session ==")
+    shifts = []
+    for session in (0, 1):
+        c, info, ep = written(tmp, "mount_bias_shift", "turntable3", TT_HZ, session=session)
+        res, keep, w, u = base_residual(c, info)
+        F = floor_axes(info)
+        st = info["effect_params"]["mount_bias_shift"]["stretches"]
+        n_hand = sum(p["kind"] == "handling" for p in info["phases"])
+        assert len(st) == n_hand + 1
+        t = c["t"]
+        worst = 0.0
+        for s in st:
+            m = keep & (t >= s["t_start"]) & (t <= s["t_end"])
+            worst = max(worst, float(np.max(np.abs(res[m].mean(0) - s["shift_dps"]) / F)))
+        sh = np.array([s["shift_dps"] for s in st])
+        shifts.append(sh)
+        assert worst < 1.0 and np.all(np.abs(np.diff(sh, axis=0)) > 0)
+        print(f"  session {session}: {len(st)} stretches ({n_hand} remounts), shift RMS / floor "
+              f"{np.array2string(np.sqrt(np.mean(sh ** 2, 0)) / F, precision=1)}; stretch means of the written "
+              f"log match the truth within {worst:.2f} x floor")
+    assert np.all(shifts[0] != shifts[1])
+    e, c, info = effect_only("mount_bias_shift", "turntable3", TT_HZ)
+    hand = np.zeros(len(c["t"]), bool)
+    for p in info["phases"]:
+        if p["kind"] == "handling":
+            hand |= (c["t"] >= p["t_start"]) & (c["t"] < p["t_end"])
+    assert np.all(e[hand] == 0.0) and np.all(e[~hand] != 0.0)
+    print("  sessions 0 and 1 share no shift; zero while the unit is in the hand")
+
+
+def check_third_set(tmp):
+    check_determinism(tmp, NEW3)
+    check_orders(tmp)
+    check_rate_band(tmp)
+    check_range_switch(tmp)
+    check_cross_quadratic(tmp)
+    check_selfheat(tmp)
+    check_slow_pole(tmp)
+    check_rotation_heating(tmp)
+    check_play(tmp)
+    check_mount_shift(tmp)
+    check_detectability(NEW3)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=None, help="folder for the logs (default: a temporary one)")
@@ -542,6 +894,7 @@ def main():
         check_coloured(tmp)
         check_on_axis_imu(tmp)
         check_detectability()
+        check_third_set(tmp)
     print("\nall checks passed")
 
 
