@@ -294,3 +294,46 @@ def test_no_page_of_a_demo_run_is_wider_than_1400_px(fleet_run, browser, hand_ro
     with Image.open(shot) as image:
         assert image.width == 1400
     context.close()
+
+
+@pytest.fixture(scope="module")
+def zoo_reports(tmp_path_factory):
+    """Unit reports of units from the independent zoo whose diagnoses print the longest
+    terms (a power law of time, profiled; a table of the turning axis's rate on the other
+    outputs), made by the stage commands with the other session, as the workflow makes them."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.run.cli import main
+    d = tmp_path_factory.mktemp("zoo_reports")
+    pages = []
+    for effect in ("warmup_power_law", "cross_axis_quadratic"):
+        unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=1)
+        meta = ["--device", effect, "--batch", "Z", "--protocol", "turntable"]
+        for s in (0, 1):
+            write_session(unit, d / f"{effect}-{s}.parquet", session=s, seed=1000 + s, rate_hz=10.0)
+            assert main(["segment", str(d / f"{effect}-{s}.parquet"), "--out", str(d / f"{effect}-{s}"),
+                         "--session", f"2026-01-0{s + 1}", *meta]) == 0
+        assert main(["analyse", str(d / f"{effect}-0"), "--other-session", str(d / f"{effect}-1"),
+                     "--session", "2026-01-01", *meta]) == 0
+        assert main(["report", str(d / f"{effect}-0"), "-o", str(d / f"{effect}.html"),
+                     "--session", "2026-01-01", *meta]) == 0
+        pages.append(d / f"{effect}.html")
+    return pages
+
+
+def test_reports_with_the_longest_formulas_fit_a_1400_px_window(browser, zoo_reports):
+    """The diagnosis' terms read as formulas, and their config spelling wraps: no zoo unit's
+    report is wider than a 1400 px window, disclosures closed or open (a candidates table
+    with such terms was 2,099 px wide)."""
+    context = browser.new_context(viewport={"width": 1400, "height": 900})
+    context.route("**/*", lambda route: route.continue_() if route.request.url.startswith("file://")
+                  else route.abort())
+    page = context.new_page()
+    for path in zoo_reports:
+        page.goto(path.as_uri(), wait_until="load")
+        assert page.locator("#candidates").count() == 1
+        closed = page.evaluate(WIDTHS)
+        page.evaluate("() => document.querySelectorAll('details').forEach(x => x.open = true)")
+        opened = page.evaluate(WIDTHS)
+        for state, layout in (("closed", closed), ("open", opened)):
+            assert layout["scroll"] <= 1400 and not layout["beyond"], (path, state, layout)
+    context.close()

@@ -22,6 +22,9 @@ NEXT_SESSION_LIMIT = 1.2
 def test_the_smallest_zoo_is_diagnosed_without_a_wrong_name(case, tmp_path):
     row = run_case(case, 1, str(tmp_path))
     expected = case[3]
+    # No story contradicts its own where-it-fails table (issue 37), and no numerical warning.
+    assert row["contradiction"] is None, (row["contradiction"], row["verdict"])
+    assert not row["warnings"], row["warnings"]
     if expected == "none":
         assert row["outcome"] == "quiet", row["verdict"]
         assert row["best"] is None

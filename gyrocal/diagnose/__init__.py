@@ -32,26 +32,30 @@ Three questions, answered from the observations alone:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import pandas as pd
 
 from ..fit.floor import with_upper_floor
 from ..fit.model import columns_of, shares_wander
+from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES, make_term
 from .between import between_points, between_reason
 from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
                       practical_gain_next, rank_candidates, second_step, time_drift)
 from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
-                         evaluation_of, extended, ladder, pooled)
+                         evaluation_of, extended, ladder, model_option, pooled)
 from .lab import LAB_ADVICE, lab_fixed, lab_reason
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
+from .reading import readable
 from .shapes import describe, shape_terms
-from .stats import chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined
-from .verdict import advice, drift_sentence, input_kinds, unexplained, verdict as make_verdict
+from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined,
+                    floor_uncertainty)
+from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
+                      verdict as make_verdict)
 from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
@@ -86,6 +90,7 @@ class Diagnosis:
     lab_fixed: dict | None = None             # the excess against the table's angle
     between_points: dict | None = None        # interpolated against fitted, point by point
     factor: float | None = None               # the verdict's "times their noise floor"
+    negligible: dict | None = None            # an excess within the floor's own uncertainty
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -108,14 +113,20 @@ class Diagnosis:
             "unexplained": self.unexplained,
             "lab_fixed": self.lab_fixed,
             "between_points": self.between_points,
+            "negligible_excess": self.negligible,
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
-            "partial": [{"term": c.term, "validation_rms_with": c.validation_rms_with,
+            "partial": [{"term": c.term, "reads": readable(c.term, c.profiled),
+                         "validation_rms_with": c.validation_rms_with,
                          "expected_rms_with": c.expected_with, "gain_pct": c.gain_pct,
                          "remaining_excess": c.validation_rms_with / c.expected_with
                          if c.expected_with else None, "part_of": c.part_of,
-                         "option": c.option, "config_line": c.config_line} for c in self.partial],
+                         "option": c.option, "config_line": c.config_line,
+                         "excess_taken": c.excess_taken, "offered": c.offered,
+                         "validated": c.validated, "family": c.family,
+                         "leftover": c.leftover, "next_session": c.next_session}
+                        for c in self.partial],
             "candidates": [c.to_dict() for c in self.candidates],
             "covariates": self.covariates,
             "ladder": self.ladder,
@@ -143,6 +154,11 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     data = columns_of(obs)
     quality = fit_quality(base, len(obs))
     explains = quality.excess_p_value >= alpha / 2
+    # An excess within the noise floor's own uncertainty is no effect to name, however many
+    # holds make it significant: the model explains the data; a faint pattern is noted.
+    factor = float(np.sqrt(quality.chi2_red["all"]))
+    faint = not explains and factor - 1.0 <= floor_uncertainty(obs)
+    explains = explains or faint
     judge = Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))
     base_next = judge.carry(base)
     if base_next is not None and "error" in base_next:
@@ -188,10 +204,24 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # it is judged noise: where it lives is what tells wander from an effect.
     covariates, heat = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows,
                                        base.dof, not explains)
+    negligible = None
+    if faint:
+        row = min(covariates, key=lambda r: r["p_value"])
+        p_row = min(1.0, row["p_value"] * len(covariates))   # Bonferroni over the rows
+        negligible = {"factor": factor, "floor_uncertainty": floor_uncertainty(obs),
+                      "covariate": row["covariate"] if p_row < alpha / 2 else None,
+                      "p_value": p_row}
     if usable(base_next):  # what the user will meet: the other session first
         useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
     # Named only when it explains the excess: what is left is what a correct model leaves.
     best = next((c for c in useful if c.explains_excess), None)
+    if best is not None:
+        # Terms of different sizes that each explain the excess with a fit within its noise
+        # (a g-sensitivity and its square where the accelerometer reads about 0 or 1 g):
+        # the data cannot tell them apart either, whatever their figures' last digits say.
+        best.tied_with = list(dict.fromkeys([*best.tied_with, *(
+            c.term for c in useful if c is not best and c.explains_excess
+            and _fits_within_noise(c, alpha) and _fits_within_noise(best, alpha))]))
     if best is not None and drift is not None and drift["explains"] and "time" not in input_kinds(best.term):
         # Within a soak the mounts follow each other in time: a term that is constant per
         # mount (a g-sensitivity) and a bias drifting in time can fit the same steps. When
@@ -206,7 +236,38 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         best = second_step(judge, first, ranked, base.summary["validation_rms"], tolerance)
         if best is not None:
             break
+    of_rate = best is not None and all(input_kinds(t) == {"rate"} for t in (best.term, *best.together))
+    if (best is not None and not best.part_of and resolvable and not explains
+            and (of_rate or not _reaches_floor(best, base_next, bound))):
+        # A library shape of the rate may only approach a sharper one that the protocol's
+        # levels resolve (a range switch read as a cubic scale); library terms that pass the
+        # tests yet leave the calibration beyond the floor where it will be judged (a
+        # temperature rate standing in for a warm-up, the other session 8 times the floor)
+        # may stand in for a shape of another input. Those shapes are tried, and one that
+        # does better there, beyond that figure's own uncertainty, is offered instead.
+        rival, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
+                                  library=ranked, inputs=("rate_own", "rate_cross") if of_rate else None)
+        if rival is not None and (_judged_on(rival, base_next) * bound < _judged_on(best, base_next)
+                                  or (of_rate and _misses_levels(best, tried, alpha))):
+            best, candidates = rival, candidates + tried
     lead = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    if best is not None and best.tied_with:
+        # Terms the data cannot tell apart: the library's order names the likelier effect.
+        group = [best, *(c for c in ranked if c.term in best.tied_with)]
+        first = min(group, key=library_order)
+        if first is not best and first.explains_excess:
+            first.tied_with = list(dict.fromkeys([*first.tied_with, *(
+                c.term for c in group if c is not first)]))
+            best = first
+    if best is not None and not explains and not best.part_of and not any(
+            coherent(t, lead) for t in (best.term, *best.together)):
+        # A term that fits the excess without reading the input that carries it (the
+        # accelerometer, where the centripetal force follows the rate): the shapes of that
+        # input are tried, and one that explains it is offered instead.
+        rival, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
+                                  library=ranked)
+        if rival is not None and coherent(rival.term, lead):
+            best, candidates = rival, candidates + tried
     why, shaped = None, []
     if best is None and seen_in_lab:
         # The angle accounts for the whole excess: what terms or a drift take of it is no
@@ -216,7 +277,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         # Nothing in the library explains it: terms of free shape for the inputs that
         # carry the excess, judged as the library's are.
         best, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
-                                 time_only=blocked)
+                                 time_only=blocked, library=ranked)
         candidates = candidates + tried
         shaped = [c for c in tried if c.status == "ranked" and c.significant and (
             practical_gain(base, c, bound) if c.validated else practical_gain_next(base_next, c, bound))]
@@ -256,11 +317,13 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
             and np.isfinite(held_out)
         why = between_reason(between, held_out if left_out else None)
     estimate = shape_estimate(obs, data, quality, lead) if lead is not None and not explains else None
+    if best is not None and settings.model.kind == "grid":
+        best = continuous_instead(judge, best, base_next, bound) or best
     # Otherwise, terms that take away a real part of it are reported as partial.
     timed = best is None and drift is not None and drift["explains"]
     # A drift in time that explains the excess is the finding: terms that fit a part of it
     # are not reported as partial explanations.
-    partial = [] if best or timed else useful[:3]
+    partial = [] if best or timed else partial_offers(useful + shaped, base, base_next, lead, bound)
     # Where the holds share slow wander, RMS ÷ floor counts each hold as if its noise were its
     # own and can sit below 1 while the whitened χ² says the model misses: the verdict gives
     # sqrt(χ²/dof), the factor its test is made on.
@@ -270,7 +333,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                         partial, within_noise, unrepeated, base_next if usable(base_next) else None,
                         None if timed else tolerance, noise_explains=noise_explains,
                         unseparable=[c for c in candidates if c.status == "not identifiable"],
-                        finding=why["reason"] if why else None)
+                        finding=why["reason"] if why else None, negligible=negligible)
     if timed:
         text += " " + drift_sentence(base, drift)
     if why is not None:
@@ -294,18 +357,160 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.lab_fixed = lab
     diag.between_points = between
     diag.factor = shown["all"]
+    diag.negligible = negligible
     return diag
 
 
+def continuous_instead(judge: Judge, best: Candidate, base_next, bound) -> Candidate | None:
+    """The named terms in the ladder's model continuous in temperature, where they do better.
+
+    A grid fits each temperature point at one temperature and is applied at each hold's own,
+    interpolated between the points. Where the temperature moves within a point (a unit
+    that heats itself after power-on) an effect of time takes up the temperature's part in
+    the fit, and the interpolation adds it again when applied. A continuous model fits what
+    it applies. Offered instead where it does better where the calibration will be judged
+    (the other session, or the holds left out), beyond that figure's own uncertainty."""
+    settings, obs = judge.settings, judge.obs
+    if "point" not in obs or not (obs.groupby("point")["temp"].agg(np.ptp) > MOVING_IN_POINT).any():
+        return None
+    # The ladder's continuous step where the config has one; otherwise polynomials in ΔT as
+    # curved as a point left out still allows (up to a cubic bias and a quadratic scale),
+    # so that it is validated as the grid is, leaving temperature points out.
+    step = next((s for s in settings.diagnosis.ladder if s["kind"] == "continuous"), None)
+    points = int(obs["point"].nunique())
+    if points < 3:
+        return None
+    temperature = step["add"] if step else (f"bias_temp_poly(degree={min(3, points - 2)})",
+                                            f"scale_temp_poly(degree={min(2, points - 2)})",
+                                            "misalignment_temp")
+    cont = replace(settings, model=replace(settings.model, kind="continuous"))
+    for spec in (*temperature, best.term, *best.together):
+        cont = extended(cont, spec)
+    try:
+        ev = evaluate(cont, judge.obs, "the same, continuous in temperature")
+    except GyrocalError:
+        return None
+    nxt = judge.carry(ev) if usable(base_next) else None
+    if usable(base_next) and not usable(nxt):
+        return None
+    if not usable(base_next) and ev.summary["held_out"] != judge_held_out(best):
+        return None   # held out otherwise than the grid's figure: not to be compared
+    figure = nxt["validation_rms"] if usable(nxt) else ev.summary["validation_rms"]
+    if not figure * bound < _judged_on(best, base_next):
+        return None
+    v0 = best.base_rms or ev.summary["validation_rms"]
+    return replace(best, validation_rms_with=ev.summary["validation_rms"], next_session=nxt,
+                   expected_with=ev.summary["expected_rms"], gain_pct=100.0 * (1 - ev.summary[
+                       "validation_rms"] / v0), kind="continuous", config_line=config_line(cont.model),
+                   option=model_option(cont.model), model=cont.model.to_dict(), also=[])
+
+
+def judge_held_out(c: Candidate) -> str:
+    return "temperature" if c.validated else "none"
+
+
+# °C: a point whose temperature moves more than this while its holds are made is not held at
+# one temperature (about thirty times a sensor's noise).
+MOVING_IN_POINT = 0.5
+
+
+def _misses_levels(best: Candidate, tried: list[Candidate], alpha: float) -> bool:
+    """Whether a table over the protocol's levels of the own rate, which holds any function
+    of it there (the library's shapes of the rate among them), leaves the named terms' fit
+    behind beyond chance: a nested F-test of the table against them. A sharper shape than
+    the library's (a range switch read as a cubic scale) fails it; the library's own does not."""
+    table = next((c for c in tried if c.status == "ranked" and c.family == "levels"
+                  and make_term(c.term).name == "levels"), None)
+    if table is None or best.chi2 is None or table.chi2 is None:
+        return False
+    extra = (best.df[1] - table.df[1])   # the table's coefficients beyond the named terms'
+    if extra <= 0:
+        return False
+    f_stat = ((best.chi2 - table.chi2) / extra) / (table.chi2 / table.df[1])
+    return f_sf(f_stat, extra, table.df[1]) < alpha / 2
+
+
+def _fits_within_noise(c: Candidate, alpha: float) -> bool:
+    """The candidate's extended fit passes the χ² test of its residuals."""
+    return c.chi2 is not None and c.df is not None and chi2_sf(c.chi2, c.df[1]) >= alpha / 2
+
+
+def library_order(c: Candidate) -> int:
+    """Where a candidate's term (or the term it is the part of) comes in the library's list."""
+    from ..terms.effects import CANDIDATES
+    names = [make_term(t).name for t in CANDIDATES]
+    name = make_term(c.part_of or c.term).name
+    return names.index(name) if name in names else len(names)
+
+
+def _judged_on(c: Candidate, base_next) -> float:
+    """A candidate's figure where its calibration will be judged: the other session's RMS
+    when there is one, its held-out RMS otherwise."""
+    if usable(base_next):
+        return c.next_session["validation_rms"] if usable(c.next_session) else np.inf
+    return c.validation_rms_with
+
+
+def _reaches_floor(c: Candidate, base_next, bound) -> bool:
+    """Whether a candidate's figure where it will be judged is within that figure's own
+    uncertainty of what a correct model leaves there."""
+    if usable(base_next):
+        nxt = c.next_session
+        return usable(nxt) and nxt["validation_rms"] <= nxt["expected_rms"] * bound
+    return c.validation_rms_with <= (c.expected_with or np.inf) * bound
+
+
+def _held_out_gain(c: Candidate, base: Evaluation, base_next) -> float:
+    """The share of the configured model's excess over what a correct model leaves that a
+    term takes away where it is judged: on the other session when there is one (what the
+    calibration will meet), on the holds left out otherwise (the same holds as the model's),
+    on the other session alone for a term no point could be left out for."""
+    if usable(base_next) and usable(c.next_session):
+        v0, e0, v1 = base_next["validation_rms"], base_next["expected_rms"], c.next_session["validation_rms"]
+    elif c.validated:
+        v0, e0, v1 = base.summary["validation_rms"], base.summary["expected_rms"], c.validation_rms_with
+    else:
+        return 0.0
+    return (v0 - v1) / (v0 - e0) if v0 > e0 else 0.0
+
+
+# A term that takes away more than this share of the excess is offered though it leaves a
+# part: most of what the user's calibration would miss, gone.
+MOST = 0.5
+
+
+def partial_offers(gaining: list[Candidate], base: Evaluation, base_next, lead, bound) -> list[Candidate]:
+    """Terms that take away a practical part of the excess without explaining it, the one
+    that takes most first (at most three); the first is offered when it takes away most and
+    reads the input that carries the excess (``lead``, the leading covariate row)."""
+    ranked = sorted(gaining, key=lambda c: -_held_out_gain(c, base, base_next))
+    if ranked:
+        # The library's term first where it takes about as much (within the figure's own
+        # uncertainty) as a term of free shape, which has more coefficients to take it with.
+        top = _judged_on(ranked[0], base_next)
+        library = next((c for c in ranked if not c.family and _judged_on(c, base_next) <= top * bound), None)
+        if library is not None:
+            ranked.remove(library)
+            ranked.insert(0, library)
+    for c in ranked:
+        c.excess_taken = _held_out_gain(c, base, base_next)
+        c.offered = c is ranked[0] and c.excess_taken > MOST and coherent(c.term, lead)
+    return ranked[:3]
+
+
 def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, tolerance, bound, *,
-               time_only: bool = False):
+               time_only: bool = False, library=(), inputs=None):
     """The best term of free shape (:mod:`.shapes`) that explains the excess, with its shape
     described and the parametric families that explain it as well; and every one tried.
     ``time_only``: where a drift in time explains the excess, only shapes of time (others
-    would fit it as per-mount steps)."""
+    would fit it as per-mount steps). ``library``: the library's candidates as ranked, each
+    a partner a shape may need (the turning axis's rate squared on the other outputs, and
+    on its own the library's quadratic scale). ``inputs``: only shapes of these inputs."""
     settings, obs, data = judge.settings, judge.obs, judge.data
     shapes = {s.spec: s for s in shape_terms(settings, obs, data, covariates, quality.fitted_rows)
-              if not time_only or s.input == "t"}
+              if (not time_only or s.input == "t") and (inputs is None or s.input in inputs)}
+    if not shapes:
+        return None, []
     tried = rank_candidates(judge, base, list(shapes), base_next, tolerance, in_sample=True)
     good, gaining = [], []
     for c in tried:
@@ -330,6 +535,7 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
             partners = [c for c in ranked if not (
                 shapes[c.term].input == own.input and shapes[c.term].by == own.by
                 and "empirical" in (shapes[c.term].kind, own.kind))]
+            partners += [c for c in library if c.significant]
             pair = second_step(judge, first, partners, base.summary["validation_rms"], tolerance,
                                in_sample=True)
             if pair is not None:
@@ -337,12 +543,13 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
                 break
     if not good:
         return None, tried
-    if usable(base_next):
-        good.sort(key=lambda g: g[0].next_session["validation_rms"] if usable(g[0].next_session) else np.inf)
-    else:
-        good.sort(key=lambda g: g[0].validation_rms_with)
-    # The empirical term when it explains, the parametric families that do as well beside it.
-    best, shape = next((g for g in good if g[1].kind == "empirical"), good[0])
+    def figure(g):   # what the user will meet: the other session first
+        return _judged_on(g[0], base_next)
+    good.sort(key=figure)
+    # The empirical term where it does as well as the best within that figure's own
+    # uncertainty (it reads as a table of its input), the families that do as well beside it.
+    best, shape = next((g for g in good if g[1].kind == "empirical"
+                        and figure(g) <= figure(good[0]) * bound), good[0])
     terms = [make_term(t) for t in (best.term, *best.together)]
     values = {n: 0.0 for t in terms for n in t.coefficients()}
     if best.together:   # a pair: its coefficients as fitted together
@@ -352,5 +559,6 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
         values.update({z["coefficient"]: z["value"] for z in best.size})
     x = input_values(obs, data, shape.input)[quality.fitted_rows]
     best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)
-    best.also = [c for c, _ in good if c is not best]
+    # Only what does as well, within the figure's own uncertainty, is said to explain it too.
+    best.also = [c for c, _ in good if c is not best and figure((c,)) <= figure((best,)) * bound]
     return best, tried

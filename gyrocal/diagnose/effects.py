@@ -12,9 +12,9 @@ from ..io.signals import SERIES_INPUTS
 from ..pipeline.config import Settings
 from ..terms import AXES, make_term
 from .evaluation import (Evaluation, add_term_option, config_line, effect_size, evaluate, extended,
-                         identifiable_part, reason)
+                         identifiable_part, in_sample_summary, reason)
 from .sessions import SOAKED_SPREAD, carry_over, slow_noise, usable
-from .stats import chi2_sf, f_sf, fisher_combined
+from .stats import chance_bound, chi2_sf, f_sf, fisher_combined
 from .where import TIME_LIKE, leftover
 
 @dataclass
@@ -48,12 +48,20 @@ class Candidate:
     family: str | None = None                # a term of free shape: smooth, decay, ...
     shape: str = ""                          # named, of free shape: a sentence on its shape
     also: list = field(default_factory=list)  # other terms of free shape that explain it too
+    base_rms: float | None = None            # the configured model's figure on the same holds
+    excess_taken: float | None = None        # partial: share of the excess it takes away
+    kind: str | None = None                  # offered in a model of this kind (continuous)
+    model: dict | None = None                # that model, as the config's model: section
+    offered: bool = False                    # partial: offered, taking away most of it
 
     def to_dict(self) -> dict:
-        out = {"term": self.term, "status": self.status,
+        from .reading import readable
+        out = {"term": self.term, "reads": readable(self.term, self.profiled), "status": self.status,
                "validation_rms_with": self.validation_rms_with, "p_value": self.p_value}
         if self.status == "ranked":
             out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
+                       validated=self.validated, base_rms=self.base_rms,
+                       **({"kind": self.kind, "model": self.model} if self.kind else {}),
                        significant=self.significant, size=self.size, peak_effect=self.peak_effect,
                        expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
                        tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms,
@@ -62,7 +70,8 @@ class Candidate:
                        profiled=self.profiled)
             if self.family:
                 out.update(family=self.family, shape=self.shape,
-                           also=[{"term": c.term, "family": c.family, "option": c.option,
+                           also=[{"term": c.term, "reads": readable(c.term, c.profiled),
+                                  "family": c.family, "option": c.option,
                                   "config_line": c.config_line, "profiled": c.profiled,
                                   "validation_rms_with": c.validation_rms_with} for c in self.also])
         else:
@@ -184,7 +193,9 @@ def extended_all(settings: Settings, best: Candidate) -> Settings:
 def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rms: float,
                 tolerance: float, *, in_sample: bool = False) -> Candidate | None:
     """``first`` with one more term that, added on top, explains the excess (F-test of the
-    second addition, Bonferroni over the pairs tried); None when no pair does."""
+    second addition, Bonferroni over the pairs tried) and lowers the held-out error by more
+    than that figure's own uncertainty (:func:`chance_bound` of the holds scored): a second
+    term earns its place on holds the fit did not see; None when no pair does."""
     settings, obs, alpha = judge.settings, judge.obs, judge.alpha
     try:
         start = evaluate(extended(settings, first.term), obs, first.term, in_sample=in_sample)
@@ -206,8 +217,15 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
         p = float(f_sf(f_stat, df_num, df_den))
         if p >= alpha / 2 / max(len(others), 1):
             continue
-        if ext.summary["validation_rms"] >= first.validation_rms_with:
-            continue  # the second term must help on the holds left out too
+        held = ext.summary["held_out"] != "none"
+        if held and ext.summary["validation_rms"] * chance_bound(ext.summary["holds_scored"], alpha) \
+                >= first.validation_rms_with:
+            continue  # the second term must help on the holds left out, beyond chance
+        if not held:   # nothing left out to judge it on here: the other session must gain
+            there = judge.carry(ext) if usable(start_next) else None
+            if not (usable(there) and there["validation_rms"] * chance_bound(
+                    start_next["holds_scored"], alpha) < start_next["validation_rms"]):
+                continue
         pair = replace(first, together=[c.term])
         if judge.explains(ext, pair, start_next, tolerance):
             found.append((ext.summary["validation_rms"], c.term, ext, pair))
@@ -216,7 +234,13 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
     v, term, ext, pair = min(found, key=lambda f: f[0])
     return replace(pair, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
                    explains_excess=True, alone_rms=first.validation_rms_with,
-                   gain_pct=100.0 * (1 - v / base_rms))
+                   gain_pct=100.0 * (1 - v / base_rms), chi2=ext.chi2,
+                   df=(first.df[0] + pair_df(start, ext), ext.dof))
+
+
+def pair_df(start: Evaluation, ext: Evaluation) -> int:
+    """The coefficients (and profiled settings) a second term adds on top of the first."""
+    return start.dof - ext.dof + _added_nonlinear(start, ext)
 
 
 def practical_gain(base: Evaluation, c: Candidate | float, bound: float) -> bool:
@@ -242,11 +266,16 @@ def practical_gain_next(base_next, c: Candidate, bound: float) -> bool:
 
 
 def mark_ties(tested: list[Candidate]) -> None:
-    """Candidates whose extended fits are the same to a part in 10⁶ (χ²) add the same
-    columns in this protocol's span (a quadratic and an asymmetric scale at one speed)."""
+    """Candidates of as many coefficients whose extended fits the data cannot tell apart:
+    their χ² within one of each other (a likelihood ratio under e^½), as where they add
+    the same columns in this protocol's span (a quadratic and an asymmetric scale at one
+    speed; a g-sensitivity and its square where the accelerometer reads 0 or 1 g)."""
     for c in tested:
         c.tied_with = [o.term for o in tested if o is not c and o.df == c.df
-                       and abs(o.chi2 - c.chi2) <= 1e-6 * max(c.chi2, 1e-300)]
+                       and abs(o.chi2 - c.chi2) <= max(1e-6 * max(c.chi2, 1e-300), TIE_CHI2)]
+
+
+TIE_CHI2 = 1.0
 
 
 def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next, tolerance, *,
@@ -259,6 +288,7 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
     candidates: list[Candidate] = []
     tested = []
     queue = [(spec, None) for spec in names]
+    in_sample_base: list = []   # the configured model's in-sample figure, made when needed
     while queue:
         spec, part_of = queue.pop(0)
         term = make_term(spec)
@@ -301,9 +331,15 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
         p = float(f_sf(f_stat, df_num, df_den))
         size, peak = effect_size(ext, spec, added, data)
         v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
+        if ext.summary["held_out"] == "none":
+            # Scored in sample (no point could be left out): beside the configured model's
+            # in-sample figure, on the same holds, never beside its held-out one.
+            if not in_sample_base:
+                in_sample_base.append(in_sample_summary(base.fitted, obs)["validation_rms"])
+            v0 = in_sample_base[0]
         candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
                               100.0 * (1 - v1 / v0), False, size, peak,
-                              expected_with=ext.summary["expected_rms"])
+                              expected_with=ext.summary["expected_rms"], base_rms=v0)
         candidate.chi2 = ext.chi2
         candidate.validated = ext.summary["held_out"] != "none"
         candidate.part_of = part_of

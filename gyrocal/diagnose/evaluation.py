@@ -188,6 +188,8 @@ def config_line(model) -> str:
         return f"'{t}'" if '"' in t and "'" not in t else json.dumps(t)   # YAML scalars
     terms = [make_term(t).spec_string() for t in model.terms]
     lines = ["terms: [" + ", ".join(quote(t) for t in terms) + "]"]
+    if model.kind != "grid":
+        lines.insert(0, f"kind: {model.kind}")
     if model.expressions:
         lines.append("expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions)
                      + "}")
@@ -196,6 +198,13 @@ def config_line(model) -> str:
 
 def add_term_option(term: str) -> str:
     return "--add-term " + shlex.quote(term)
+
+
+def model_option(model) -> str:
+    """The command-line option that sets the whole model (a ModelSettings): its kind and
+    terms, for a fix that changes more than the terms."""
+    doc = {"kind": model.kind, "terms": [make_term(t).spec_string() for t in model.terms]}
+    return "--settings-json " + shlex.quote(json.dumps({"model": doc}))
 
 
 def reason(exc: BaseException) -> str:

@@ -34,6 +34,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     z0, z1 = (resid / floor0)[rows], errors / floor1
     out = {"validation_rms": r["validation_rms"], "noise_floor": r["noise_floor"],
            "excess": r["excess"], "expected_rms": r["expected_rms"], "holds": r["holds"],
+           "holds_scored": r["holds_scored"],
            "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
            "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
            "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1)}

@@ -25,8 +25,11 @@ LEADING = 2          # inputs of the leading covariate rows given terms of free 
 # a point is read as time since power-on (the term must mean the same in apply), |rate|
 # and the rate's direction as the own rate.
 TERM_INPUT = {"t": "t", "t_point": "t", "temp": "temp", "temp_rate": "temp_rate",
-              "abs_rate": "rate_own", "rate_own": "rate_own"}
-UNITS = {"t": "s", "temp": "°C", "temp_rate": "°C/min", "rate_own": "deg/s"}
+              "abs_rate": "rate_own", "rate_own": "rate_own", "rate_cross": "rate_cross"}
+UNITS = {"t": "s", "temp": "°C", "temp_rate": "°C/min", "rate_own": "deg/s", "rate_cross": "deg/s"}
+# A protocol holds its rates at a few levels when no more than this many distinct ones: a
+# table over them resolves any shape of the rate where its next session will be.
+MAX_RATE_LEVELS = 24
 
 
 @dataclass(frozen=True)
@@ -35,7 +38,7 @@ class Shape:
 
     spec: str
     kind: str            # empirical | parametric
-    family: str          # smooth, decay, power, step, bump, saturation, product
+    family: str          # smooth, levels, decay, power, step, bump, saturation, threshold, ...
     input: str
     by: str | None = None
 
@@ -68,8 +71,36 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
                                                            "w": [0.005 * span, 0.5 * span]})]
     if name == "rate_own":
         top = max(abs(lo), abs(hi))
-        return [("saturation", "tanh({x} / w)", {"w": [0.01 * top, 10.0 * top]})]
+        # Sharp shapes of |rate| (a mode excited near one rate, a range switch): a bump of the
+        # bias and a step of the scale, where and how wide profiled.
+        return [("saturation", "tanh({x} / w)", {"w": [0.01 * top, 10.0 * top]}),
+                ("bump", "exp(-((abs({x}) - m) / w) ** 2)", {"m": [0.01 * top, top],
+                                                               "w": [0.002 * top, 0.5 * top]}),
+                ("threshold", "{x} * (1 + tanh((abs({x}) - m) / w))", {"m": [0.01 * top, top],
+                                                                       "w": [0.002 * top, 0.5 * top]})]
     return []
+
+
+def rate_levels(values: np.ndarray) -> list[float] | None:
+    """The distinct levels of a rate at the holds (signed, 0 included), where the protocol
+    holds a few (3 to :data:`MAX_RATE_LEVELS`); None otherwise."""
+    v = np.asarray(values, dtype=float)
+    distinct = np.unique(np.round(v[np.isfinite(v)], 6))
+    if not 3 <= distinct.size <= MAX_RATE_LEVELS:
+        return None
+    return [float(x) for x in distinct]
+
+
+def _cross_shapes(values: np.ndarray) -> list[Shape]:
+    """Terms of the turning axis's rate seen on the other outputs: its square, its
+    magnitude, and a table over the protocol's levels."""
+    shapes = [Shape(make_term({"name": "cross_rate", "shape": s}).spec_string(), "parametric", s,
+                    "rate_cross") for s in ("square", "abs")]
+    levels = rate_levels(values)
+    if levels is not None and len(levels) >= 3:
+        spec = make_term({"name": "cross_rate", "shape": "levels", "values": levels}).spec_string()
+        shapes.append(Shape(spec, "empirical", "levels", "rate_cross"))
+    return shapes
 
 
 def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
@@ -89,12 +120,27 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
         source = INPUT_OF.get(label)
         name = TERM_INPUT.get(source)
         by = "rate_own" if product else None
-        if name is None or (name, by) in seen or (name == "rate_own" and by):
+        if name is None or (name, by) in seen or (name in ("rate_own", "rate_cross") and by):
             continue
         if name == "temp" and settings.model.kind == "grid":
             continue   # a shape of temperature alone is each grid point's bias (or scale)
         seen.add((name, by))
         values = input_values(obs, data, name)[fitted_rows]
+        if name == "rate_cross":
+            shapes += _cross_shapes(values)
+            if len(seen) >= LEADING:
+                break
+            continue
+        if name == "rate_own":
+            levels = rate_levels(values)
+            if levels is not None:
+                # Signed where it matters: an odd shape (the reference rate's row) is a scale
+                # that changes with the rate, an even one (|rate|) a bias.
+                odd = source == "rate_own"
+                table = make_term({"name": "levels", "values": levels,
+                                   "by": "rate_own" if odd else None})
+                shapes.append(Shape(table.spec_string(), "empirical", "levels", name,
+                                    "rate_own" if odd else None))
         # A rate's shape turns within tens of deg/s of zero (a saturation, a dead band) and is
         # seen at many rates in both directions: two knots more than for time or temperature.
         knots = knots_for(values, SHAPE_KNOTS + 2 if name == "rate_own" else SHAPE_KNOTS)
@@ -136,8 +182,12 @@ def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: 
     by the rate), over [lo, hi]."""
     x = np.linspace(lo, hi, points)
     inner = getattr(term, "term", term)
-    if inner.name == "smooth":
+    if inner.name in ("smooth", "levels"):
         return x, inner.shape(coefficients, x, axis)
+    if inner.name == "cross_rate":
+        # The turning axis's rate on this output: of the two other axes, the larger effect.
+        curves = [cross_shape(inner, coefficients, x, axis, b) for b in AXES if b != axis]
+        return x, max(curves, key=lambda y: float(np.max(np.abs(y - np.median(y)))))
     from ..terms.user import evaluate
     name = next((n for n in ("t", "temp", "temp_rate") if n in inner.needs), "rate_own")
     data = {name: x, "rate_own": x if name == "rate_own" else np.ones_like(x)}
@@ -145,6 +195,20 @@ def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: 
         data["rate_own"] = np.ones_like(x)
     values = np.broadcast_to(evaluate(inner.formula, data, inner.parameters), x.shape)
     return x, coefficients[f"{inner.label}.{axis}"] * values
+
+
+def cross_shape(term, coefficients: dict, x: np.ndarray, axis: str, turning: str) -> np.ndarray:
+    """A cross_rate term's effect on output ``axis`` while axis ``turning`` turns at ``x``."""
+    from ..terms.empirical import level_basis
+    if term.shape == "levels":
+        c = np.array([coefficients[f"{term.label}.{axis}.{turning}.k{k + 1}"]
+                      for k in range(2, len(term.values))])
+        return level_basis(x, term.values, (0, 1)) @ c
+    value = coefficients[f"{term.label}.{axis}.{turning}"]
+    return value * (x ** 2 if term.shape == "square" else np.abs(x))
+
+
+SHAPED = ("smooth", "levels", "cross_rate", "expression")
 
 
 def _quantity(value: float, unit: str) -> str:
@@ -160,17 +224,22 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
     unit_x = UNITS.get(input_name, "")
     unit_y = "×10⁻⁶ of the scale" if by else "deg/s"
     x = np.linspace(lo, hi, 201)
+    # A library term named beside the shape (a quadratic scale) is not part of it.
+    terms = [t for t in terms if getattr(t, "term", t).name in SHAPED]
     peaks, halves = [], []
     for axis in AXES:
         y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms) * (1e6 if by else 1.0)
         rel = y - (y[-1] if input_name == "t" else np.median(y))
-        k = int(np.argmax(np.abs(rel)))
+        # A scale change is told where it matters, where it moves the output most (times
+        # the own rate), not near zero rate, where the holds barely see it.
+        k = int(np.argmax(np.abs(rel) * (np.abs(x) if by and input_name == "rate_own" else 1.0)))
         peaks.append((x[k], rel[k]))
         after = np.flatnonzero(np.abs(rel[k:]) <= 0.5 * abs(rel[k]))
         halves.append(x[k + after[0]] if input_name == "t" and after.size and k < len(x) - 1 else None)
     where = "time since power-on" if input_name == "t" else {
         "temp": "the temperature", "temp_rate": "the temperature's rate",
-        "rate_own": "the axis's own rate"}.get(input_name, input_name)
+        "rate_own": "the axis's own rate",
+        "rate_cross": "the rate of the axis that turns, on the other outputs"}.get(input_name, input_name)
     kind = "a scale change" if by else "a bias"
     reference = "its value at the session's end" if input_name == "t" else "its median"
     sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks))

@@ -36,15 +36,20 @@ def chance_bound(holds: int, alpha: float) -> float:
     return float(np.sqrt(chi2_ppf(1.0 - alpha / 2, n) / n))
 
 
+def floor_uncertainty(obs) -> float:
+    """The noise floor's own relative uncertainty: it comes from the session's static data,
+    T seconds of it, and the Allan deviation at a hold's length τ is then known to about
+    ``sqrt(τ / 2T)`` (0 without static data)."""
+    static = float(getattr(obs, "attrs", {}).get("static_seconds") or 0.0)
+    hold = float(np.median(obs["duration"])) if "duration" in obs else 0.0
+    return float(np.sqrt(hold / (2.0 * static))) if static > 0 and hold > 0 else 0.0
+
+
 def explained_tolerance(obs, holds: int, alpha: float) -> float:
     """How far above what a correct model would leave a validation RMS may lie and still
     count as explained: chance (:func:`chance_bound`) times twice the floor's own relative
-    uncertainty. The floor comes from the session's static data, T seconds of it; the
-    Allan deviation at a hold's length τ is then known to about ``sqrt(τ / 2T)``."""
-    static = float(getattr(obs, "attrs", {}).get("static_seconds") or 0.0)
-    hold = float(np.median(obs["duration"])) if "duration" in obs else 0.0
-    floor_se = float(np.sqrt(hold / (2.0 * static))) if static > 0 and hold > 0 else 0.0
-    return chance_bound(holds, alpha) * (1.0 + 2.0 * min(floor_se, 0.5))
+    uncertainty (:func:`floor_uncertainty`)."""
+    return chance_bound(holds, alpha) * (1.0 + 2.0 * min(floor_uncertainty(obs), 0.5))
 
 
 def p_text(value: float) -> str:

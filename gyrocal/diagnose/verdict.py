@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from ..terms import make_term
+from .reading import readable
 from .sessions import usable
 from .stats import p_text
 
@@ -21,11 +22,11 @@ def drift_sentence(base, drift: dict) -> str:
 def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
             partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
             tolerance=None, *, noise_explains: bool = False, unseparable=(),
-            finding: str | None = None) -> str:
+            finding: str | None = None, negligible: dict | None = None) -> str:
     text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
                            partial, within_noise, unrepeated, base_next, tolerance,
                            noise_explains=noise_explains, unseparable=unseparable,
-                           finding=finding)
+                           finding=finding, negligible=negligible)
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
@@ -51,9 +52,11 @@ def _separation(c) -> str:
 
 def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
                     within_noise, unrepeated, base_next, tolerance=None, *,
-                    noise_explains: bool = False, unseparable=(), finding: str | None = None) -> str:
+                    noise_explains: bool = False, unseparable=(), finding: str | None = None,
+                    negligible: dict | None = None) -> str:
     """The verdict on this session; ``finding``, the reason of a finding no term holds
-    (:mod:`.lab`, :mod:`.between`), which the sentence that follows the verdict states."""
+    (:mod:`.lab`, :mod:`.between`), which the sentence that follows the verdict states;
+    ``negligible``, an excess within the noise floor's own uncertainty."""
     factor = rms_over_floor["all"]
     s = base.summary
     held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
@@ -67,22 +70,28 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
         top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
                f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
         tied = (f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the "
-                "data identically." if best.tied_with else "")
+                "data equally well." if best.tied_with else "")
         carried = ""
         if base_next is not None and usable(best.next_session):
             carried = (f" On the other session the error falls from {base_next['excess']:.3g} to "
                        f"{best.next_session['excess']:.3g} times the floor.")
+        if getattr(best, "kind", None) == "continuous":
+            carried += (" It is offered in a model continuous in temperature: the temperature "
+                        "moves within the points, and a grid fits each point at one temperature "
+                        "but is applied at each hold's own.")
         if getattr(best, "family", None):
             return _free_shape_verdict(base, best, carried)
-        name = (f"{best.part_of}, the part this protocol can see ({best.term})" if best.part_of
-                else best.term)
+        name = (f"{best.part_of}, the part this protocol can see ({name_of(best)})" if best.part_of
+                else name_of(best))
         seen = (f" That is as much of {best.part_of} as this protocol shows, and what its "
                 f"sessions need: {_separation(best)}." if best.part_of else "")
         if best.together:
-            return (f"Missing effects: {name} and {', '.join(best.together)}. Adding both "
+            return (f"Missing effects: {name} and "
+                    f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
                     f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
                     f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-                    f"({best.expected_with:.3g}); {best.term} alone takes it to {best.alone_rms:.3g}."
+                    f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
+                    f"{best.alone_rms:.3g}."
                     + seen + carried)
         return (f"Missing effect: {name}. Adding it lowers the validation RMS from "
                 f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
@@ -109,16 +118,33 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                  f"({100 * lead['share_of_excess']:.0f} % of it)" if lead else "")
         if partial:
             first = partial[0]
-            name = f"{first.part_of}, the part this protocol can see," if first.part_of else first.term
-            outside = (f" The rest may be {first.part_of} beyond what {_separation(first)}, or "
-                       "another effect." if first.part_of else
-                       " The missing effect is likely outside the library: write it as a term "
-                       "(docs/effects.md).")
+            name = (f"{first.part_of}, the part this protocol can see," if first.part_of
+                    else name_of(first))
+            left = first.leftover or {}
+            follows = (f" What it leaves follows {left['covariate']} (p = {left['p_value']:.2g})."
+                       if left.get("p_value", 1.0) < 0.01 else "")
+            rest = (f" The rest may be {first.part_of} beyond what {_separation(first)}, or "
+                    "another effect." if first.part_of else "")
+            if getattr(first, "offered", False):
+                there = ""
+                if base_next is not None and usable(first.next_session):
+                    there = (f"; on the other session the error falls from {base_next['excess']:.3g} "
+                             f"to {first.next_session['excess']:.3g} times the floor")
+                figure = (f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
+                          f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
+                          "what a correct model would leave" if first.validated else
+                          f"in sample {first.base_rms:.3g} → {first.validation_rms_with:.3g} deg/s")
+                return (f"The model does not explain the data: its in-sample residuals are "
+                        f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
+                        f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
+                        f"{there}): add it with {first.option}.{follows}{rest}")
+            outside = rest or (" What remains needs a term of its own shape (docs/effects.md)."
+                               if not follows else "")
             return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
                     f"times their noise floor. No library or listed term explains it; "
                     f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
                     f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
-                    f" times what a correct model would leave){where}.{outside}")
+                    f" times what a correct model would leave){where}.{follows}{outside}")
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
                 "times their noise floor, and no candidate term accounts for it" + where + "." + small)
     if unrepeated:
@@ -127,6 +153,14 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
                 "resolve, not a missing effect.")
     floor_by = "the sensor's noise model" if noise_model else "white noise within the holds"
+    if negligible is not None:
+        faint = (f"; the residuals follow {negligible['covariate']} beyond chance (p = "
+                 f"{negligible['p_value']:.2g}), a pattern too faint to matter"
+                 if negligible["covariate"] else "")
+        return (f"The model explains the data: its in-sample residuals are {negligible['factor']:.2f} "
+                f"times their noise floor, within that floor's own uncertainty (±"
+                f"{100 * negligible['floor_uncertainty']:.0f} % from the static data){faint}; "
+                "nothing is missing.")
     if finding == "between temperature points":
         return (f"The model explains the data at its temperature points: its in-sample residuals "
                 f"are {factor:.2f} times their noise floor, as {floor_by} would leave.")
@@ -134,26 +168,42 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
             f"their noise floor, as {floor_by} would leave; nothing is missing.")
 
 
-def _profiled_text(c) -> str:
-    values = [f"{p['parameter']} = {p['value']:.4g}" + (f" ± {p['stderr']:.2g}" if p.get("stderr") else "")
-              for p in c.profiled if p.get("identified", True)]
-    return f" ({', '.join(values)})" if values else ""
+def name_of(c) -> str:
+    """A candidate as a reader wants it: the library's name with its formula, or the
+    formula of a term of free shape with its parameters."""
+    text = readable(c.term, c.profiled)
+    inner = make_term(c.term)
+    plain = getattr(inner, "term", inner).name
+    return f"{plain} ({text})" if plain not in FREE_SHAPE_TERMS else text
+
+
+# What a term of free shape is, by its family.
+FAMILY_NAMES = {"smooth": "An empirical term", "levels": "A table over the protocol's levels",
+                "square": "A square", "abs": "A magnitude"}
 
 
 def _free_shape_verdict(base, best, carried: str) -> str:
     """A term of free shape named: the shape in words, what it reaches, and the parametric
     forms that explain it as well."""
-    also = "".join(f" As a formula, {c.term}{_profiled_text(c)} explains it as well "
+    also = "".join(f" As a formula, {name_of(c)} explains it as well "
                    f"(validation RMS {c.validation_rms_with:.3g} deg/s)." for c in best.also[:2])
-    what = "An empirical term" if best.family == "smooth" else f"A {best.family} formula"
-    return (f"Missing effect, outside the library: {best.shape} {what}, {best.term}"
-            f"{_profiled_text(best)}, lowers the validation RMS from {base.summary['validation_rms']:.3g} "
+    what = FAMILY_NAMES.get(best.family, f"A {best.family} formula")
+    together = (" with " + ", ".join(name_of(make_candidate(t)) for t in best.together)
+                if best.together else "")
+    return (f"Missing effect, outside the library: {best.shape} {what}, {name_of(best)}{together}, "
+            f"lowers the validation RMS from {base.summary['validation_rms']:.3g} "
             f"to {best.validation_rms_with:.3g} deg/s, what a correct model would leave "
             f"({best.expected_with:.3g}).{also}{carried}")
 
 
+def make_candidate(term: str):
+    """A term named beside another, read as a candidate is."""
+    from types import SimpleNamespace
+    return SimpleNamespace(term=term, profiled=())
+
+
 # Terms the diagnosis makes up for a shape (their failures are said in the verdict instead).
-FREE_SHAPE_TERMS = ("smooth", "expression")
+FREE_SHAPE_TERMS = ("smooth", "expression", "levels", "cross_rate")
 
 # What separates effects of each kind of input, for a protocol that cannot tell them apart.
 SEPARATES = {
@@ -170,18 +220,8 @@ SEPARATES = {
 
 
 def input_kinds(term: str) -> set[str]:
-    t = make_term(term)
-    inputs = set(t.inputs())
-    kinds = set()
-    if any(i.startswith("accel") for i in inputs):
-        kinds.add("accel")
-    if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
-        kinds.add("rate")
-    if inputs & {"temp_rate", "temp_lag"}:
-        kinds.add("thermal")
-    if "t" in inputs:
-        kinds.add("time")
-    return kinds
+    """The kinds of input a term reads beyond the temperature's value (:func:`term_reads`)."""
+    return term_reads(term) - {"temperature"}
 
 
 def advice(best, partial, candidates, covariates, explains: bool, has_other: bool,
@@ -198,7 +238,7 @@ def advice(best, partial, candidates, covariates, explains: bool, has_other: boo
                       f"from {drift['rival_of']}" if drift["rival_of"] else "") + ".")
     if best is not None and best.tied_with:
         kinds = set().union(*(input_kinds(t) for t in (best.term, *best.tied_with)))
-        out.append(f"{best.term} and {', '.join(best.tied_with)} fit this session identically: "
+        out.append(f"{best.term} and {', '.join(best.tied_with)} fit this session equally well: "
                    f"either compensates what this protocol sees (validation RMS "
                    f"{best.validation_rms_with:.3g} deg/s). To tell them apart: "
                    + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES) + ".")
@@ -236,6 +276,51 @@ def advice(best, partial, candidates, covariates, explains: bool, has_other: boo
     return out
 
 
+def term_reads(term: str) -> set[str]:
+    """The kinds of input a term reads: time, temperature (its value), thermal (its rate or
+    lag), rate, accel."""
+    inputs = set(make_term(term).inputs())
+    kinds = set()
+    if any(i.startswith("accel") for i in inputs):
+        kinds.add("accel")
+    if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
+        kinds.add("rate")
+    if inputs & {"temp_rate", "temp_lag"}:
+        kinds.add("thermal")
+    if "temp" in inputs:
+        kinds.add("temperature")
+    if "t" in inputs:
+        kinds.add("time")
+    return kinds
+
+
+def covariate_reads(label: str) -> set[str]:
+    """The kinds of input a term must read to follow a covariate row of where-it-fails
+    (confounded covariates: any of theirs; a product: the rate and its input)."""
+    kinds: set[str] = set()
+    for name in label.split(" = "):
+        base = name.split(" (")[0]
+        if base.startswith("rate × "):
+            kinds |= {"rate"} | covariate_reads(base.removeprefix("rate × "))
+        elif base in ("time", "time within a temperature point", "hold duration"):
+            # time, and what follows it through the temperature's history (a sweep's point
+            # is crossed rising, then falling)
+            kinds |= {"time", "thermal"}
+        elif base in ("temperature", "temperature rate"):
+            kinds |= {"temperature", "thermal"}
+        elif base in ("|rate|", "reference rate", "direction"):
+            kinds.add("rate")
+        elif base in ("mount", "rotating axis") or base.startswith("accel"):
+            kinds |= {"accel", "rate", "mount"}
+    return kinds
+
+
+def coherent(term: str, lead: dict | None) -> bool:
+    """Whether a term reads the input where-it-fails says carries the excess (its leading
+    row); any term is, with no leading row."""
+    return lead is None or bool(term_reads(term) & covariate_reads(lead["covariate"]))
+
+
 # What a protocol would add to tell an effect of each kind of covariate apart.
 WOULD_TELL = {
     "time": "another session of the unit (--other-session), whose warm-up starts again, or "
@@ -262,16 +347,22 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
     lies within one point's stretch of time), terms that gain here but not on the other
     session, terms that take away part of it and leave it following another covariate, or
     none that describes it as a function of one input. None without terms tried."""
-    ranked = [c for c in tried if c.status == "ranked"]
-    if not ranked:
-        return None
-    lead = next((r["covariate"] for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    row = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    lead = row["covariate"] if row else None
     kind = _covariate_kind(lead or "")
+    # A reason cites only shapes of the input that carries the excess.
+    ranked = [c for c in tried if c.status == "ranked" and coherent(c.term, row)]
+    if not ranked:
+        return None if not any(c.status == "ranked" for c in tried) else {
+            "reason": "no shape of one input", "term": None,
+            "text": f"no term of free shape of {lead} takes it away",
+            "would_tell": WOULD_TELL[kind]}
     unvalidated = [c for c in ranked if not c.validated and c.significant]
     if unvalidated and not has_other:
         c = min(unvalidated, key=lambda c: c.validation_rms_with)
         return {"reason": "unvalidated", "term": c.term,
-                "text": f"{c.term} fits it within this session (in-sample RMS {c.validation_rms_with:.3g} "
+                "text": f"{readable(c.term, c.profiled)} fits it within this session (in-sample RMS "
+                        f"{c.validation_rms_with:.3g} "
                         "deg/s), but its shape lies within one temperature point's stretch of time, which "
                         "leaving that point out to validate cannot check",
                 "would_tell": WOULD_TELL["time"]}
@@ -283,7 +374,8 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
     carried = has_other and best.next_session and "validation_rms" in best.next_session
     if carried and (best.explains_excess or not follows):
         return {"reason": "does not carry over", "term": best.term,
-                "text": f"the shape that fits best, {best.term}, does not hold on the other session "
+                "text": f"the shape that fits best, {readable(best.term, best.profiled)}, does not hold "
+                        "on the other session "
                         f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
                         "is not the same function of its input from one session to the next",
                 # Another session is what showed this: what would tell is an input that
@@ -294,7 +386,8 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
                               "every session"}
     if follows:
         return {"reason": "depends on more than one input", "term": best.term,
-                "text": f"the shape that fits best, {best.term}, leaves residuals that still follow "
+                "text": f"the shape that fits best, {readable(best.term, best.profiled)}, leaves residuals "
+                        "that still follow "
                         f"{follows}: the effect depends on more than the one input a term of free shape "
                         "reads",
                 "would_tell": WOULD_TELL[_covariate_kind(follows)]}

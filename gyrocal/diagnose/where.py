@@ -76,6 +76,7 @@ class _Layout(NamedTuple):
     product_bins: dict      # input -> bins for the rate-product rows
     rates: np.ndarray       # (fitted holds, 3) true rates
     heat: dict              # map name -> [(cell key, rows)]
+    own: np.ndarray         # (fitted holds, 3): the output is the hold's turning axis
 
 
 # The diagnosis shares out the residuals of many fits of the same holds (every candidate's
@@ -144,7 +145,8 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
         "temperature_by_rate": [(f"{t}|{r}", g.to_numpy()) for (t, r), g in
                                 idx.groupby([temp_bins, rate_bins])],
     }
-    layout = _Layout(labels, groups, joints, product_bins, rates, heat)
+    own = frame["rotating axis"].to_numpy()[:, None] == np.array(AXES)[None, :]
+    layout = _Layout(labels, groups, joints, product_bins, rates, heat, own)
     _LAYOUTS.insert(0, (obs, data, fitted_rows.copy(), layout))
     del _LAYOUTS[2:]
     return layout
@@ -181,11 +183,43 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
             row["confounded"] = names
             row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
         rows.append(row)
+    rows += _split_rows(layout, zz, excess, excess_significant)
     rows += _product_rows(layout.product_bins, zz, layout.rates, excess, excess_significant)
     rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
     heat = {name: {key: float(np.sqrt(np.mean(zz[cell] ** 2))) for key, cell in cells}
             for name, cells in layout.heat.items()}
     return rows, heat
+
+
+# Rate covariates whose rows are also split by output: the turning axis's own output and the
+# two others (a rate's shape on its own axis, or the turning axis's rate seen on the others).
+SPLIT = ("|rate|", "reference rate")
+SPLIT_AXES = {"own axis": 1, "cross axes": 2}
+
+
+def _split_rows(layout: _Layout, z: np.ndarray, excess: float, excess_significant: bool) -> list[dict]:
+    """The rate rows again, each output's residuals taken apart: on the axis that turns
+    (``own axis``, one residual per hold) and on the two others (``cross axes``, two), each
+    judged within the rotating axis beyond chance as the whole row is."""
+    out = []
+    for names, (joint, base) in zip(layout.groups, layout.joints):
+        covariate = next((n for n in names if n in SPLIT), None)
+        if covariate is None:
+            continue
+        for axes, per_hold in SPLIT_AXES.items():
+            mask = layout.own if axes == "own axis" else ~layout.own
+            zm = np.where(mask, z, 0.0)
+            ss_joint, k_joint = _between(zm, joint)
+            ss_base, k_base = _between(zm, base)
+            df = per_hold * (k_joint - k_base)
+            gain = ss_joint - ss_base
+            p = float(chi2_sf(gain, df)) if df > 0 else 1.0
+            share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
+            out.append({"covariate": f"{covariate} ({axes})", "bins": int(k_joint),
+                        "share_of_excess": share, "p_value": p, "within": "rotating axis",
+                        "chi2_beyond_chance": max(gain - df, 0.0),
+                        "split": {"input": covariate, "axes": axes}})
+    return out
 
 
 # Inputs whose product with the output axis's own rate (a scale changing with them) or the
@@ -267,9 +301,11 @@ def leftover(obs: pd.DataFrame, data: dict, evaluation) -> dict:
 # The input a covariate row stands for, as a term reads it (the shape's x axis).
 INPUT_OF = {"time": "t", "time within a temperature point": "t_point", "temperature": "temp",
             "temperature rate": "temp_rate", "|rate|": "abs_rate", "reference rate": "rate_own",
-            "direction": "rate_own", "hold duration": "duration"}
+            "direction": "rate_own", "hold duration": "duration",
+            "|rate| (own axis)": "abs_rate", "reference rate (own axis)": "rate_own",
+            "|rate| (cross axes)": "rate_cross", "reference rate (cross axes)": "rate_cross"}
 INPUT_UNIT = {"t": "s", "t_point": "s", "temp": "degC", "temp_rate": "degC/min", "abs_rate": "deg/s",
-              "rate_own": "deg/s", "duration": "s"}
+              "rate_own": "deg/s", "rate_cross": "deg/s", "duration": "s"}
 SHAPE_KNOTS = 5
 SHAPE_POINTS = 61
 
@@ -290,6 +326,9 @@ def input_values(obs: pd.DataFrame, data: dict, name: str) -> np.ndarray:
         x = np.abs(np.asarray(data["ref_rate"], dtype=float))
     elif name == "rate_own":
         return np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
+    elif name == "rate_cross":   # the other axes' rate: on a turntable, the turning one's
+        rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
+        return rates.sum(axis=1, keepdims=True) - rates
     else:
         x = np.asarray(data[name], dtype=float)
     return np.repeat(np.asarray(x, dtype=float)[:, None], 3, axis=1) if np.ndim(x) else np.full((n, 3), x)

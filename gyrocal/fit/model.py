@@ -318,6 +318,7 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
 # point left out to validate). Whether the penalised model is determined at all is judged
 # with the penalty at full weight: a direction only the penalty fixes is not a collinearity.
 PENALTY_WEIGHT = 1e-4
+DEAD_COLUMN = 1e-12   # a column norm below this share of the largest counts as zero
 
 
 def _penalty_rows(model: Model, cols: list[str], scale: np.ndarray,
@@ -392,7 +393,9 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
         # last bits steer a profiled fit of a jagged chi-square to another local minimum
         Xw, yw = np.ascontiguousarray(XY[:, :-1]), np.ascontiguousarray(XY[:, -1])
         scale = np.linalg.norm(Xw, axis=0)
-        dead = scale == 0
+        # A column 1e-12 of the largest (a profiled bump whose width misses every hold)
+        # is no more excited than a zero one: its coefficient's variance would overflow.
+        dead = scale <= DEAD_COLUMN * scale.max(initial=0.0)
         scale[dead] = 1.0
         rows = _penalty_rows(model, cols, scale)
         A = np.vstack([Xw / scale, rows]) if rows is not None else Xw / scale

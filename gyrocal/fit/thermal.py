@@ -183,7 +183,8 @@ def canonical_covariance(cov, stderr) -> np.ndarray:
     C = np.array(cov, dtype=float)
     s = np.asarray(stderr, dtype=float)
     C = 0.5 * (C + np.swapaxes(C, -1, -2))          # a + b == b + a: exactly symmetric
-    mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s ** 2)
+    with np.errstate(invalid="ignore"):   # an infinite variance is the writer's to refuse
+        mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s ** 2)
     if np.any(mismatch > DIAGONAL_RTOL * s ** 2):
         raise GyrocalError("a covariance's diagonal is not the squared standard errors (off "
                            f"by up to {float(mismatch.max()):.3g})")

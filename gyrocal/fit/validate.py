@@ -86,10 +86,13 @@ def reference_point(temps: np.ndarray, reference_temperature: float, exclude: in
     return int(next((i for i in order if i != exclude), order[0]))
 
 
-def single_point_model(model: Model) -> Model:
+def single_point_model(model: Model, *, series: bool = True) -> Model:
     """The model's terms a single temperature point can determine: the traditional
-    one-temperature calibration of the same model."""
-    return Model(tuple(t for t in model.terms if not t.varies_with_temperature))
+    one-temperature calibration of the same model. ``series=False`` leaves out terms of
+    time or the temperature's history too, which one point of a continuous model need not
+    excite (a spline of time over the whole session)."""
+    return Model(tuple(t for t in model.terms if not t.varies_with_temperature
+                       and (series or not t.reads_series())))
 
 
 def validate(model: Model, obs: pd.DataFrame, fitted, *,
@@ -193,7 +196,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     temp, point = data["temp"], data["point"].astype(int)
     used = fitted.used_points()
     point_temps = fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float)
-    one_point = single_point_model(model)
+    one_point = single_point_model(model, series=fitted.kind == "grid")
     Cs = len(one_point.names)
     single_fits: dict[int, object] = {}
 

@@ -269,7 +269,27 @@ class GSensitivity(Term):
                 for a in AXES for b in AXES}
 
 
+@register_term("g_squared")
+@dataclass(frozen=True)
+class GSquared(Term):
+    """Anisoelasticity: the bias in the square of the specific force, ``e_a += Σ_b K_ab f_b²``
+    (a proof mass stiffer along one axis than another rectifies acceleration). Even in the
+    force's sign, so mounts facing opposite ways tell it from the g-sensitivity; at rest
+    the squares sum to 1 g², so on a still table one column per output is the bias, and a
+    protocol sees the part ``drop=`` leaves. [deg/s/g²]"""
+
+    unit = "deg/s/g^2"
+    needs = frozenset({"accel_x", "accel_y", "accel_z"})
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES]
+
+    def columns(self, data):
+        return {f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float) ** 2
+                for a in AXES for b in AXES}
+
+
 # Tried by the diagnosis when not in the model, in this order (ties keep it).
-CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "temp_rate",
+CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "g_squared", "temp_rate",
               "temp_lag", "die_temperature", "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)",
               "misalignment_temp")

@@ -143,3 +143,188 @@ class Smooth(Term):
         c = np.array([coefficients[f"{self.label}.{axis}.k{j + 1}"] for j in range(self.size)])
         return basis @ c
 
+
+
+MAX_LEVELS = 24
+
+
+def level_basis(x: np.ndarray, levels, anchors) -> np.ndarray:
+    """(n, L − len(anchors)) straight-line interpolation weights of ``x`` between the
+    ``levels`` (each column the "hat" of one level: 1 there, 0 at the others, clamped
+    outside), without the columns of the ``anchors`` (indices), where the table is 0."""
+    x = np.asarray(x, dtype=float)
+    levels = np.asarray(levels, dtype=float)
+    keep = [k for k in range(levels.size) if k not in anchors]
+    eye = np.eye(levels.size)
+    return np.column_stack([np.interp(x, levels, eye[k]) for k in keep]) if keep \
+        else np.zeros((x.size, 0))
+
+
+def _number(v: float) -> str:
+    """A level as a person writes it, exactly: ``-400``, ``171.887338``."""
+    return f"{v:g}" if float(f"{v:g}") == v else repr(v)
+
+
+def _levels(values, what: str) -> tuple:
+    try:
+        levels = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ConfigError(f"term {what}: values must be a list of numbers, got {values!r}") from None
+    if not 3 <= len(levels) <= MAX_LEVELS or not all(map(math.isfinite, levels)) \
+            or any(b <= a for a, b in zip(levels, levels[1:])):
+        raise ConfigError(f"term {what}: values must be 3 to {MAX_LEVELS} increasing finite "
+                          f"numbers, got {values!r}")
+    return levels
+
+
+@register_term("levels")
+@dataclass(frozen=True)
+class Levels(Term):
+    """An effect of the axis's own rate known at the protocol's levels of it (a turntable's
+    rates): a table of its value at each level, ``e_a += Σ_k c_ak h_k(ω_a)``, with ``h_k``
+    the straight-line interpolation weight of level k (valid at the levels; between them a
+    straight line, outside the end value). ``by="rate_own"`` multiplies it by the rate (a
+    scale that changes with the rate: a range switch). The table is 0 at its anchors, where
+    the model's bias and scale hold it: the two lowest levels, or with ``by`` the level
+    nearest 0 (where the product is 0) and the lowest. One table per session: the shape of
+    the rate is the same at every temperature. [deg/s, or 1 with ``by``]"""
+
+    values: tuple = (0.0, 1.0, 2.0)
+    by: str | None = None
+    label: str = ""
+    scope = "global"
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    def __post_init__(self):
+        if self.by not in BY:
+            raise ConfigError(f"term levels: by must be rate_own or absent, got {self.by!r}")
+        object.__setattr__(self, "values", _levels(self.values, "levels"))
+        label = self.label or ("levels_by_rate" if self.by else "levels_rate")
+        if not label.isidentifier():
+            raise ConfigError(f"term levels: label {label!r} must be a plain name")
+        object.__setattr__(self, "label", label)
+
+    @property
+    def unit(self) -> str:
+        return "1" if self.by else "deg/s"
+
+    @property
+    def identity(self) -> tuple:
+        return (self.name, self.label)
+
+    @property
+    def anchors(self) -> tuple[int, ...]:
+        levels = np.asarray(self.values)
+        if self.by:
+            zero = int(np.argmin(np.abs(levels)))
+            return tuple(sorted({zero, 0 if zero else 1}))
+        return (0, 1)
+
+    def params(self) -> dict:
+        return {"values": list(self.values), "by": self.by, "label": self.label}
+
+    def spec_string(self) -> str:
+        parts = [f"values=[{', '.join(map(_number, self.values))}]"]
+        if self.by:
+            parts.append(f'by="{self.by}"')
+        if self.label != ("levels_by_rate" if self.by else "levels_rate"):
+            parts.append(f'label="{self.label}"')
+        return f"levels({', '.join(parts)})"
+
+    def coefficients(self) -> list[str]:
+        kept = [k for k in range(len(self.values)) if k not in self.anchors]
+        return [f"{self.label}.{a}.k{k + 1}" for a in AXES for k in kept]
+
+    def columns(self, data):
+        out = {}
+        kept = [k for k in range(len(self.values)) if k not in self.anchors]
+        for a in AXES:
+            rate = np.asarray(data[f"rate_{a}"], dtype=float)
+            basis = level_basis(rate, self.values, self.anchors)
+            if self.by:
+                basis = basis * rate[:, None]
+            out.update({f"{self.label}.{a}.k{k + 1}": basis[:, j] for j, k in enumerate(kept)})
+        return out
+
+    def shape(self, coefficients: dict, x: np.ndarray, axis: str) -> np.ndarray:
+        """The table's function of the rate on one output axis (deg/s, or 1 with ``by``)."""
+        kept = [k for k in range(len(self.values)) if k not in self.anchors]
+        c = np.array([coefficients[f"{self.label}.{axis}.k{k + 1}"] for k in kept])
+        return level_basis(x, self.values, self.anchors) @ c
+
+
+CROSS_SHAPES = ("square", "abs", "levels")
+
+
+@register_term("cross_rate")
+@dataclass(frozen=True)
+class CrossRate(Term):
+    """The rate of another axis on each output: ``e_a += Σ_{b≠a} f_ab(ω_b)``, one shape per
+    pair of axes: ``square`` (``q_ab ω_b²``: the turning axis's rate squared, anisoinertia or
+    rectified vibration on the other outputs), ``abs`` (``q_ab |ω_b|``) or ``levels`` (a
+    table of ``ω_b`` at the protocol's levels, as :class:`Levels`, 0 at the two lowest: the
+    bias and the misalignment hold a straight line). [deg/s per (deg/s)², per deg/s, or deg/s]"""
+
+    shape: str = "square"
+    values: tuple = ()
+    label: str = ""
+    scope = "global"
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+
+    def __post_init__(self):
+        if self.shape not in CROSS_SHAPES:
+            raise ConfigError(f"term cross_rate: shape must be one of {', '.join(CROSS_SHAPES)}, "
+                              f"got {self.shape!r}")
+        if self.shape == "levels":
+            object.__setattr__(self, "values", _levels(self.values, "cross_rate"))
+        elif self.values:
+            raise ConfigError("term cross_rate: values belong to shape='levels'")
+        label = self.label or f"cross_rate_{self.shape}"
+        if not label.isidentifier():
+            raise ConfigError(f"term cross_rate: label {label!r} must be a plain name")
+        object.__setattr__(self, "label", label)
+
+    @property
+    def unit(self) -> str:
+        return {"square": "1/(deg/s)", "abs": "1", "levels": "deg/s"}[self.shape]
+
+    @property
+    def identity(self) -> tuple:
+        return (self.name, self.label)
+
+    def params(self) -> dict:
+        out = {"shape": self.shape, "label": self.label}
+        if self.values:
+            out["values"] = list(self.values)
+        return out
+
+    def spec_string(self) -> str:
+        parts = [f'shape="{self.shape}"']
+        if self.values:
+            parts.append(f"values=[{', '.join(map(_number, self.values))}]")
+        if self.label != f"cross_rate_{self.shape}":
+            parts.append(f'label="{self.label}"')
+        return f"cross_rate({', '.join(parts)})"
+
+    def _pairs(self):
+        return [(a, b) for a in AXES for b in AXES if b != a]
+
+    def coefficients(self) -> list[str]:
+        if self.shape != "levels":
+            return [f"{self.label}.{a}.{b}" for a, b in self._pairs()]
+        kept = range(2, len(self.values))
+        return [f"{self.label}.{a}.{b}.k{k + 1}" for a, b in self._pairs() for k in kept]
+
+    def columns(self, data):
+        out = {}
+        for a, b in self._pairs():
+            rate = np.asarray(data[f"rate_{b}"], dtype=float)
+            if self.shape == "square":
+                out[f"{self.label}.{a}.{b}"] = rate ** 2
+            elif self.shape == "abs":
+                out[f"{self.label}.{a}.{b}"] = np.abs(rate)
+            else:
+                basis = level_basis(rate, self.values, (0, 1))
+                out.update({f"{self.label}.{a}.{b}.k{k + 1}": basis[:, j]
+                            for j, k in enumerate(range(2, len(self.values)))})
+        return out
