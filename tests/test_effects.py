@@ -284,7 +284,8 @@ def test_formulas_read_t_and_lags_but_run_nothing_else():
     term = make_term({"name": "expression", "label": "w", "formula": "exp(-t / tau) + lag(temp, 60)",
                       "parameters": {"tau": 100.0}})
     assert term.needs == {"t", "temp", "temp_lag"} and term.coefficient_scope == "global"
-    for bad in ("__import__('os')", "t.__class__", "lag(rate_x, 5)", "open('x')", "tau", "lag(temp)"):
+    for bad in ("__import__('os')", "t.__class__", "lag(ref_rate, 5)", "open('x')", "tau", "lag(temp)",
+                "lag(lag(temp, 5), 5)", "play(temp)", "play(rate_x, t)"):
         with pytest.raises(ConfigError):
             make_term({"name": "expression", "label": "w", "formula": bad})
     with pytest.raises(ConfigError, match="profile"):

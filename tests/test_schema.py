@@ -31,8 +31,9 @@ def test_the_settings_take_their_defaults_from_the_schema():
             ModelSettings().reference_temperature) == (model["kind"], model["interpolation"],
                                                        model["degree"], model["reference_temperature"])
     assert DiagnosisSettings().significance == diagnosis["significance"]
-    # Calibration files record this hash: the defaults' values and types are unchanged.
-    assert Settings().sha256() == "e041b8f90aa1cf2db8734d878adabc266bbb32cfcc1f78d9ee7a1489b8b6c1dd"
+    # Calibration files record this hash: the defaults' values and types are unchanged (it
+    # changed with segmentation: settling, issue 38).
+    assert Settings().sha256() == "dc0e574014884041316bf9817ecf94a3374d46f8c05619f8d62820a354e10f3e"
     assert Settings.from_dict({}) == Settings()
     assert ModelSettings.from_dict({"terms": ("bias", "scale")}).terms == ("bias", "scale")
 

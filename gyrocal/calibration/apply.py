@@ -24,7 +24,8 @@ from ..io import atomic
 from ..io.errors import LogFormatError
 from ..io.log import (GYRO, READ_ERRORS, REQUIRED, check_float, declared_units, open_dataset,
                       read_error, read_log, record_batches, time_seconds, to_internal_units)
-from ..io.signals import SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, Series
+from ..io.signals import (RECORD_COLUMNS, SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, SampleRecord,
+                          Series)
 from .file import Calibration
 
 BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
@@ -73,7 +74,9 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     origin: list = []
     t0, series = None, None
     if needs & SERIES_INPUTS:
-        t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"})
+        t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"},
+                             [c for c in RECORD_COLUMNS if {"gyro": "rate_history", "accel": "accel_history"}[
+                                 c.split("_")[0]] in needs])
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     transforms = cal.model.sample_transforms()   # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
@@ -82,20 +85,21 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     return counts
 
 
-def _record(cal: Calibration, path: Path, names, whole: bool) -> tuple[float, Series | None]:
+def _record(cal: Calibration, path: Path, names, whole: bool, columns=()) -> tuple[float, Series | None]:
     """The first kept row's time (the rule of :func:`gyrocal.io.log.read_log`: finite time,
-    gyro, temperature and, when logged, reference rate) and, when ``whole``, the
-    temperature record as the fit makes it (:class:`gyrocal.io.signals.HistoryBins`), in
-    memory that does not grow with the log."""
+    gyro, temperature and, when logged, reference rate) and, when ``whole`` or ``columns``
+    (the record's further columns a history reads), the record as the fit makes it
+    (:class:`gyrocal.io.signals.HistoryBins`), in memory that does not grow with the log."""
     required = tuple(c for c in REQUIRED if c != "ref_rate" or c in names)
-    log = read_log(path, optional=(), required=required, keep_bytes=0)
+    log = read_log(path, optional=tuple(c for c in columns if c not in REQUIRED),
+                   required=required, keep_bytes=0)
     first, last = log.time_span
-    if not whole:
+    if not whole and not columns:
         return first, None
     window = cal.covariates.get("temp_rate", {}).get("window_s", TEMP_RATE_WINDOW_S)
     record = HistoryBins(first, last, window_s=window)
-    for batch in log.scan(("t", "temp")):
-        record.push(batch["t"], batch["temp"])
+    for batch in log.scan(("t", "temp", *columns)):
+        record.push(batch["t"], batch["temp"], {c: batch[c] for c in columns})
     return first, record.result()
 
 
@@ -157,6 +161,7 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
     with pq.ParquetWriter(tmp, out_schema, **writer_options(out_schema)) as writer, \
             ThreadPoolExecutor(1) as pool:
         writing = None
+        histories: dict = {}   # each history's filter, its state carried from batch to batch
         for batch in _ahead(_read(dataset, path)):
             cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
                                          .astype(np.float64), units) for c in needed}
@@ -167,8 +172,10 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             if t0 is not None:  # the model reads series signals: time since the first row
                 data["t"] = time_seconds(batch.column("t"), path, origin, units) - t0
             if series is not None:
-                data["series"] = series
                 data["temp_rate"] = series.at("temp_rate", data["t"])
+                # Histories run over the samples, from the state the batch before left.
+                data["series"] = SampleRecord(series, {**cols, "t": data["t"], "temp": data["temp"],
+                                                       "temp_rate": data["temp_rate"]}, histories)
             for transform in transforms:   # a die temperature: a filter with state
                 data = transform(data)
             good = np.isfinite(cols[GYRO[0]])

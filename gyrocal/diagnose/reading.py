@@ -70,6 +70,14 @@ def _parameter_units(tree, parameters) -> dict[str, str]:
             for n in ast.walk(node.right):
                 if isinstance(n, ast.Name) and n.id in parameters:
                     units[n.id] = ""
+        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
+                and node.func.id in ("lag", "play") and len(node.args) == 2:
+            # A lag's time constant is in seconds; a play's width in its input's unit.
+            inner = [n.id for n in ast.walk(node.args[0]) if isinstance(n, ast.Name) and n.id in SYMBOLS]
+            unit = "s" if node.func.id == "lag" else (SYMBOLS[inner[0]][1] if inner else "")
+            for n in ast.walk(node.args[1]):
+                if isinstance(n, ast.Name) and n.id in parameters:
+                    units[n.id] = unit
     inputs = [n.id for n in ast.walk(tree) if isinstance(n, ast.Name) and n.id in SYMBOLS]
     unit = SYMBOLS[inputs[0]][1] if inputs and len({SYMBOLS[i][1] for i in inputs}) == 1 else ""
     return {p: units.get(p, unit) for p in parameters}
@@ -105,7 +113,7 @@ def readable(spec, profiled=()) -> str:
     tail = f" (without {', '.join(drop)})" if drop else ""
     if inner.name == "expression":
         tree = ast.parse(inner.formula, mode="eval")
-        text = "A·" + _formula(tree, inner.parameters)
+        text = "A·" + _formula(tree.body, inner.parameters, 2)   # A times the whole formula
         values = _values(inner, profiled)
         return text + (f", {values}" if values else "") + tail
     if inner.name == "smooth":

@@ -31,7 +31,12 @@ import pandas as pd
 
 from .errors import MissingInputError
 
-SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag"})   # computed from the record
+SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag", "rate_history", "accel_history"})
+# The record's further columns (bin means, like the temperature) and the inputs they stand for
+# in a history: a history of the rate is that of the gyro's output, which apply has as the fit
+# does; a constant difference (the bias, a scale's few per cent) is the model's to absorb.
+RECORD_COLUMNS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
+RECORD_SOURCE = {"rate_x": "gyro_x", "rate_y": "gyro_y", "rate_z": "gyro_z"}
 HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point"})  # spans, rate, grid point
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
                          "accel_z", "temp"})
@@ -147,6 +152,69 @@ class LagFilter:
         return out
 
 
+class PlayFilter:
+    """:func:`play_operator` of a record given in consecutive pieces: the last output carries
+    the state. Points where the input is not finite are skipped and read NaN."""
+
+    def __init__(self, width: float):
+        self.width = float(width)
+        self.last: float | None = None
+
+    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.full(len(x), np.nan)
+        good = np.isfinite(x) & np.isfinite(np.asarray(t, dtype=float))
+        if good.any():
+            y = play_operator(x[good], self.width, self.last)
+            self.last = float(y[-1])
+            out[good] = y
+        return out
+
+
+class SampleRecord:
+    """The record as ``apply`` meets it: a batch of the log's own samples. Each history
+    (:meth:`Inputs.history`) runs over them, causally, from the state the previous batch
+    left (``states``, shared from batch to batch), as firmware would run it; the fit's
+    hold means of the same history, from the record's bins, agree to O((Δt/τ)²).
+    Everything else (the temperature rate, a lag of the temperature) reads ``bins``, the
+    record the fit read."""
+
+    def __init__(self, bins: Series | None, samples: dict, states: dict):
+        self.bins, self.samples, self.states = bins, samples, states
+        self.t0 = bins.t0 if bins is not None else 0.0
+        self._done: dict = {}
+
+    def __getitem__(self, rows):
+        return self
+
+    def __deepcopy__(self, memo):
+        return self
+
+    def at(self, name: str, times: np.ndarray, tau: float | None = None,
+           window: float | None = None) -> np.ndarray:
+        if self.bins is None:
+            raise MissingInputError(f"{name} needs the session's record, which is not at hand here")
+        return self.bins.at(name, times, tau, window)
+
+    def column(self, name: str) -> np.ndarray:
+        source = RECORD_SOURCE.get(name, name)
+        if source not in self.samples:
+            raise MissingInputError(f"a history of {name} needs it in the log's samples")
+        return self.samples[source]
+
+    def history(self, key, values, operator: str, size: float, times: np.ndarray) -> np.ndarray:
+        cache = (key, operator, float(size))
+        if cache not in self._done:   # once per batch: the filter's state moves on once
+            make = LagFilter if operator == "lag" else PlayFilter
+            run = self.states.setdefault(cache, make(size))
+            self._done[cache] = run(self.samples["t"], np.asarray(values(), dtype=float))
+        y, t = self._done[cache], self.samples["t"]
+        if len(times) == len(t):
+            return y
+        kept = np.isfinite(t)   # apply's rows with every input finite: a subset of the batch
+        return np.interp(times, t[kept], y[kept])
+
+
 @dataclass(frozen=True, eq=False)
 class Series:
     """A session's time (s since its first sample) and temperature (°C) record, with the
@@ -159,6 +227,9 @@ class Series:
     t0: float = 0.0                   # the first sample's time in the log's own clock
     temp_rate_window_s: float = TEMP_RATE_WINDOW_S
     weight: np.ndarray | None = None  # samples behind each point, when they are bin means
+    # Further signals of the record, bin means as ``temp`` (RECORD_COLUMNS: the gyro's output
+    # in deg/s, the accelerometer in g), for inputs with a history (:meth:`Inputs.history`).
+    record: dict = field(default_factory=dict, repr=False, compare=False)
     _cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __getitem__(self, rows):
@@ -188,29 +259,58 @@ class Series:
         ``window``: the temperature rate's window, when not the session's."""
         return np.interp(times, self.t, self.signal(name, tau, window))
 
+    def column(self, name: str) -> np.ndarray:
+        """A record input at the record's points: ``t``, ``temp``, ``temp_rate``, and the
+        rates (the gyro's output) and specific force where the record holds them."""
+        if name in ("temp", "temp_rate"):
+            return self.signal(name)
+        if name == "t":
+            return self.t
+        source = RECORD_SOURCE.get(name, name)
+        if source not in self.record:
+            what = "rates" if source.startswith("gyro") else "specific force"
+            raise MissingInputError(f"a history of {name} needs the session's record of {what}, "
+                                    "which this record lacks (segment the log again, with the "
+                                    "columns logged)")
+        return self.record[source]
+
+    def history(self, key, values, operator: str, size: float, times: np.ndarray) -> np.ndarray:
+        """``values`` (the record's points, from :meth:`column`), named ``key`` for the
+        cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag of
+        time constant ``size`` s; ``play``, the play (backlash) operator of width ``size``."""
+        cache = ("history", key, operator, float(size))
+        if cache not in self._cache:
+            x = np.asarray(values(), dtype=float)
+            self._cache[cache] = (first_order_lag(self.t, x, size) if operator == "lag"
+                                  else play_operator(x, size))
+        return np.interp(times, self.t, self._cache[cache])
+
     # -- the history file ----------------------------------------------------------------
     def to_frame(self) -> pd.DataFrame:
         weight = np.ones(len(self.t)) if self.weight is None else self.weight
-        return pd.DataFrame({"t": self.t, "temp": self.temp, "n": weight})
+        return pd.DataFrame({"t": self.t, "temp": self.temp, "n": weight,
+                             **{k: self.record[k] for k in RECORD_COLUMNS if k in self.record}})
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame, meta: dict) -> Series:
         return cls(frame["t"].to_numpy(float), frame["temp"].to_numpy(float), float(meta["t0"]),
-                   float(meta["temp_rate_window_s"]), frame["n"].to_numpy(float))
+                   float(meta["temp_rate_window_s"]), frame["n"].to_numpy(float),
+                   {k: frame[k].to_numpy(float) for k in RECORD_COLUMNS if k in frame})
 
     def metadata(self) -> dict:
         return {"t0": self.t0, "temp_rate_window_s": self.temp_rate_window_s}
 
 
 def history(t: np.ndarray, temp: np.ndarray, t0: float | None = None, *,
-            window_s: float = TEMP_RATE_WINDOW_S) -> Series:
+            window_s: float = TEMP_RATE_WINDOW_S, record: dict | None = None) -> Series:
     """A session's record as bin means, in the bins :func:`temperature_rate` uses, times
-    counted from ``t0`` (default: the first sample)."""
+    counted from ``t0`` (default: the first sample); ``record``: further columns
+    (:data:`RECORD_COLUMNS`) binned alike."""
     t = np.asarray(t, dtype=float)
     if not len(t):
         return Series(np.empty(0), np.empty(0), 0.0 if t0 is None else float(t0), window_s, np.empty(0))
     bins = HistoryBins(float(t[0]), float(t[-1]), t0, window_s=window_s)
-    bins.push(t, temp)
+    bins.push(t, temp, record)
     return bins.result()
 
 
@@ -218,7 +318,8 @@ class HistoryBins:
     """:func:`history` of a record given in consecutive pieces (a log read batch by batch):
     each bin's samples are summed in one piece, in order, so the result is the same to the
     bit whatever the pieces. ``t_first`` and ``t_last`` are the record's first and last
-    times (the bin width depends on its duration)."""
+    times (the bin width depends on its duration). Further columns (the gyro's output, the
+    accelerometer) are binned alike when every piece gives them."""
 
     def __init__(self, t_first: float, t_last: float, t0: float | None = None, *,
                  window_s: float = TEMP_RATE_WINDOW_S):
@@ -226,53 +327,82 @@ class HistoryBins:
         self.rel_first = float(t_first) - self.t0
         self.width = bin_width((float(t_last) - self.t0) - self.rel_first, window_s)
         self.window_s = window_s
-        self._carry: tuple[np.ndarray, np.ndarray] | None = None
-        self._out: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-        self._first: tuple[float, float] | None = None   # (t, temp) of the first sample
-        self._last: tuple[float, float] | None = None    # and of the last
+        self._carry: dict | None = None
+        self._out: list[dict] = []
+        self._first: dict | None = None   # every column's first sample
+        self._last: dict | None = None    # and its last
 
-    def push(self, t: np.ndarray, temp: np.ndarray) -> None:
-        rel = np.asarray(t, dtype=float) - self.t0
-        temp = np.asarray(temp, dtype=float)
-        if not len(rel):
+    def push(self, t: np.ndarray, temp: np.ndarray, record: dict | None = None) -> None:
+        columns = {"t": np.asarray(t, dtype=float) - self.t0, "temp": np.asarray(temp, dtype=float),
+                   **{k: np.asarray(v, dtype=float) for k, v in (record or {}).items()}}
+        if not len(columns["t"]):
             return
         if self._first is None:
-            self._first = (rel[0], temp[0])
-        self._last = (rel[-1], temp[-1])
+            self._first = {k: v[0] for k, v in columns.items()}
+        elif set(columns) != set(self._first):
+            raise ValueError("every piece of a record must give the same columns")
+        self._last = {k: v[-1] for k, v in columns.items()}
         if self._carry is not None:
-            rel, temp = np.concatenate((self._carry[0], rel)), np.concatenate((self._carry[1], temp))
-        index = np.floor((rel - self.rel_first) / self.width).astype(np.int64)
+            columns = {k: np.concatenate((self._carry[k], v)) for k, v in columns.items()}
+        index = np.floor((columns["t"] - self.rel_first) / self.width).astype(np.int64)
         split = int(np.searchsorted(index, index[-1], side="left"))  # the last bin may go on
-        self._reduce(index[:split], rel[:split], temp[:split])
-        self._carry = (rel[split:], temp[split:])
+        self._reduce(index[:split], {k: v[:split] for k, v in columns.items()})
+        self._carry = {k: v[split:] for k, v in columns.items()}
 
-    def _reduce(self, index, rel, temp) -> None:
+    def _reduce(self, index, columns) -> None:
         if not len(index):
             return
         index = index - index[0]
         counts = np.bincount(index)
         filled = counts > 0
-        self._out.append((np.bincount(index, weights=rel)[filled] / counts[filled],
-                          np.bincount(index, weights=temp)[filled] / counts[filled],
-                          counts[filled].astype(float)))
+        means = {k: np.bincount(index, weights=v)[filled] / counts[filled] for k, v in columns.items()}
+        means["n"] = counts[filled].astype(float)
+        self._out.append(means)
 
     def result(self) -> Series:
         if self._carry is not None:
-            rel, temp = self._carry
-            self._reduce(np.floor((rel - self.rel_first) / self.width).astype(np.int64), rel, temp)
+            carry = self._carry
+            self._reduce(np.floor((carry["t"] - self.rel_first) / self.width).astype(np.int64), carry)
             self._carry = None
         if not self._out:
             return Series(np.empty(0), np.empty(0), self.t0, self.window_s, np.empty(0))
-        mean_t, mean_temp, weight = (np.concatenate(k) for k in zip(*self._out))
-        (first, temp_first), (last, temp_last) = self._first, self._last
+        out = {k: np.concatenate([part[k] for part in self._out]) for k in self._out[0]}
+        first, last = self._first, self._last
         # The first and last samples themselves bound the record (with no weight of their
         # own: they are in the first and last bins), so that a lag starts from the same
         # state as on the samples and nothing is extrapolated at the ends.
-        if mean_t[0] > first:
-            mean_t, mean_temp, weight = np.r_[first, mean_t], np.r_[temp_first, mean_temp], np.r_[0.0, weight]
-        if mean_t[-1] < last:
-            mean_t, mean_temp, weight = np.r_[mean_t, last], np.r_[mean_temp, temp_last], np.r_[weight, 0.0]
-        return Series(mean_t, mean_temp, self.t0, self.window_s, weight)
+        if out["t"][0] > first["t"]:
+            out = {k: np.r_[0.0 if k == "n" else first[k], v] for k, v in out.items()}
+        if out["t"][-1] < last["t"]:
+            out = {k: np.r_[v, 0.0 if k == "n" else last[k]] for k, v in out.items()}
+        record = {k: out[k] for k in RECORD_COLUMNS if k in out}
+        return Series(out["t"], out["temp"], self.t0, self.window_s, out["n"], record)
+
+
+def play_operator(x: np.ndarray, width: float, initial: float | None = None) -> np.ndarray:
+    """The play (backlash) operator of ``width``: ``y_k = clip(y_{k-1}, x_k − w/2, x_k + w/2)``,
+    ``y_0 = x_0`` (or ``initial``). The output stays where it was until the input has moved
+    half the width away, then follows it at that distance: ``2 (x − y) / w`` is +1 while the
+    input rises, −1 while it falls, and moves between them as it turns back over a width.
+
+    Each step is a clip, and clips compose into clips: ``clip(clip(y, a, b), c, d)`` is
+    ``clip(y, clip(a, c, d), clip(b, c, d))``. The prefix compositions are found by a
+    doubling scan (log2 n vectorised passes), so a record of 50,000 points costs 16 passes."""
+    x = np.asarray(x, dtype=float)
+    if not (np.isfinite(width) and width > 0):
+        raise ValueError(f"a play operator's width must be positive, got {width!r}")
+    if not len(x):
+        return x.copy()
+    lo, hi = x - 0.5 * width, x + 0.5 * width
+    step = 1
+    while step < len(x):
+        # prefix[k] = f_k ∘ … ∘ f_{k−step+1} applied after prefix[k − step]
+        new_lo = np.clip(lo[:-step], lo[step:], hi[step:])
+        new_hi = np.clip(hi[:-step], lo[step:], hi[step:])
+        lo[step:], hi[step:] = new_lo, new_hi
+        step *= 2
+    start = x[0] if initial is None else float(initial)
+    return np.clip(start, lo, hi)
 
 
 class Inputs(dict):
@@ -319,6 +449,26 @@ class Inputs(dict):
         if name not in ("temp", "temp_rate"):
             raise MissingInputError(f"only temp and temp_rate can be lagged, not {name}")
         return self.series.at(name, self.times, tau or None)
+
+
+    def history(self, key, values, operator: str, size: float, reads=frozenset()) -> np.ndarray:
+        """A signal of the record through a first-order lag (``operator="lag"``, time
+        constant ``size`` s) or the play operator (``"play"``, width ``size``), at this
+        evaluation's times: ``values(series)`` gives the signal at the record's points
+        (:meth:`Series.column`), ``key`` names it for the cache, ``reads`` the inputs it
+        rests on (``rate_history``, ``accel_history``)."""
+        self.read.add("temp_lag")
+        self.read.update(reads)
+        if self.series is None or self.times is None:
+            raise MissingInputError("an input with a history needs the session's record, which is "
+                                    "not at hand here (observations segmented before gyrocal kept "
+                                    "it: segment the log again)")
+        size = float(size)
+        if not (np.isfinite(size) and size > 0):
+            raise MissingInputError(f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
+                                    f"must be a positive number, got {size!r}")
+        series = self.series
+        return series.history(key, lambda: values(series), operator, size, self.times)
 
 
 def hold_inputs(data) -> tuple[Inputs, dict]:

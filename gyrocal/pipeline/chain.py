@@ -25,7 +25,7 @@ from ..io.blocks import BlockSink
 from ..io.errors import SegmentationError
 from ..io.holds import Segmentation
 from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
-from ..io.signals import TEMP_RATE_WINDOW_S, HistoryBins, Series
+from ..io.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from ..protocols import registry
 from ..protocols.turntable.segment import LOG_COLUMNS
 from .config import Settings
@@ -90,8 +90,12 @@ def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
         if len(obs) and rate > 0 else None
     sampler = StretchSampler(stretches, rate) if stretches is not None else None
     record = HistoryBins(*log.time_span, window_s=window)
-    for batch in log.scan(StretchSampler.NAMES):
-        record.push(batch["t"], batch["temp"])
+    # The record keeps the gyro's output and the specific force beside the temperature, in
+    # the same bins: inputs with a history (a lag of the rate) read them, in the fit and in
+    # apply alike.
+    kept = [c for c in RECORD_COLUMNS if c in log]
+    for batch in log.scan(tuple(dict.fromkeys((*StretchSampler.NAMES, *kept)))):
+        record.push(batch["t"], batch["temp"], {c: batch[c] for c in kept})
         if sampler is not None:
             sampler.push(batch)
     seg = with_noise_floor(log, seg, protocol, max_temp_rate=max_temp_rate,

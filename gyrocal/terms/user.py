@@ -76,8 +76,14 @@ _FUNCTIONS = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sig
               "tanh": np.tanh, "sin": np.sin, "cos": np.cos}
 _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
               ast.Div: np.divide, ast.Pow: np.power}
-# lag(x, tau): the series signal x (temp or temp_rate) through a first-order lag of tau seconds.
-LAGGABLE = ("temp", "temp_rate")
+# lag(x, tau): x through a first-order lag of tau seconds; play(x, w): x through the play
+# operator of width w. x is an input of the session's record or a formula of them, taken at
+# the record's points (the temperature, its rate, the rates as the gyro output them, the
+# specific force), so fit and apply see the same history.
+HISTORIES = ("lag", "play")
+RECORD_INPUTS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "rate_own",
+                 "accel_x", "accel_y", "accel_z", "accel_own")
+LAGGABLE = ("temp", "temp_rate")   # lags of these alone keep their own, older path
 
 # What a formula may read: the inputs every term has (gyrocal.io.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
@@ -92,12 +98,17 @@ def formula_names(formula: str, parameters=()) -> frozenset[str]:
     """Inputs a formula reads (``temp_lag`` for a lag), its parameters excluded."""
     tree = _parse(formula, parameters)
     names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
-             and n.id not in _FUNCTIONS and n.id != "lag" and n.id not in parameters}
+             and n.id not in _FUNCTIONS and n.id not in HISTORIES and n.id not in parameters}
     for own, kind in OWN_AXIS.items():
         if own in names:
             names = (names - {own}) | {f"{kind}_{a}" for a in AXES}
-    if any(isinstance(n, ast.Call) and n.func.id == "lag" for n in ast.walk(tree)):
-        names.add("temp_lag")
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and n.func.id in HISTORIES):
+        names.add("temp_lag")    # the session's record
+        inside = {n.id for n in ast.walk(call.args[0]) if isinstance(n, ast.Name)}
+        if inside & {"rate_x", "rate_y", "rate_z", "rate_own"}:
+            names.add("rate_history")
+        if inside & {"accel_x", "accel_y", "accel_z", "accel_own"}:
+            names.add("accel_history")
     return frozenset(names)
 
 
@@ -120,27 +131,47 @@ def _parse(formula: str, parameters=()) -> ast.AST:
         if not isinstance(node, allowed):
             raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
                               "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign tanh "
-                              "sin cos, lag)")
+                              "sin cos, lag, play)")
         if isinstance(node, ast.Call):
             if not isinstance(node.func, ast.Name) or node.keywords:
-                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} and lag may be called")
-            if node.func.id == "lag":
-                if len(node.args) != 2 or not isinstance(node.args[0], ast.Name) \
-                        or node.args[0].id not in LAGGABLE:
-                    raise ConfigError(f"formula {formula!r}: write lag(temp, tau) or "
-                                      "lag(temp_rate, tau), tau in seconds (a number or a parameter)")
+                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)}, lag and play "
+                                  "may be called")
+            if node.func.id in HISTORIES:
+                _check_history(formula, node, parameters)
             elif node.func.id not in _FUNCTIONS or len(node.args) != 1:
                 raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
-                                  "each) and lag(temp, tau) may be called")
+                                  "each), lag(x, tau) and play(x, w) may be called")
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) \
                     or not _finite_number(node.value):
                 raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
-        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id != "lag" \
+        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id not in HISTORIES \
                 and node.id not in known:
             raise ConfigError(f"formula {formula!r}: {node.id} is neither an input a formula can "
                               f"read ({', '.join(FORMULA_COLUMNS)}) nor one of its parameters")
     return tree
+
+
+def _check_history(formula: str, node: ast.Call, parameters) -> None:
+    """``lag(x, tau)`` / ``play(x, w)``: two arguments, ``x`` a formula of the record's inputs
+    (no history inside a history), the size a number or a parameter."""
+    what = "tau in seconds" if node.func.id == "lag" else "w its width in the input's unit"
+    usage = (f"formula {formula!r}: write {node.func.id}(x, {what.split()[0]}), x an input of the "
+             f"session's record ({', '.join(RECORD_INPUTS)}) or a formula of them, {what} "
+             "(a number or a parameter)")
+    if len(node.args) != 2:
+        raise ConfigError(usage)
+    inner = list(ast.walk(node.args[0]))
+    if any(isinstance(n, ast.Call) and n.func.id in HISTORIES for n in inner):
+        raise ConfigError(f"formula {formula!r}: a history cannot hold another ({node.func.id} "
+                          "of a lag or a play)")
+    for n in inner:
+        if isinstance(n, ast.Name) and n.id not in _FUNCTIONS and n.id not in RECORD_INPUTS \
+                and n.id not in parameters:
+            raise ConfigError(usage + f"; {n.id} is not in the record")
+    if not all(isinstance(n, (ast.Constant, ast.UnaryOp, ast.USub, ast.UAdd, ast.Load))
+               or (isinstance(n, ast.Name) and n.id in parameters) for n in ast.walk(node.args[1])):
+        raise ConfigError(usage)
 
 
 def _finite_number(value) -> bool:
@@ -154,28 +185,69 @@ def evaluate(formula: str, data, parameters: Mapping[str, float] | None = None) 
     """The formula over ``data`` (a mapping of inputs; ``data.lag`` for lags) with the
     parameters' values."""
     parameters = dict(parameters or {})
-
-    def value(node):
-        if isinstance(node, ast.Constant):
-            return float(node.value)
-        if isinstance(node, ast.Name):
-            if node.id in parameters:
-                return float(parameters[node.id])
-            return np.asarray(data[node.id], dtype=float)
-        if isinstance(node, ast.UnaryOp):
-            v = value(node.operand)
-            return -v if isinstance(node.op, ast.USub) else v
-        if isinstance(node, ast.BinOp):
-            return _OPERATORS[type(node.op)](value(node.left), value(node.right))
-        if node.func.id == "lag":
-            tau = value(node.args[1])
-            if np.ndim(tau) or not lag_time_constant_ok(tau):
-                raise ConfigError(f"formula {formula!r}: a lag's time constant must be a number "
-                                  f"of seconds >= 0, got {tau!r}")
-            return data.lag(node.args[0].id, float(tau))
-        return _FUNCTIONS[node.func.id](*[value(a) for a in node.args])
     with np.errstate(all="ignore"):
-        return value(_parse(formula, tuple(parameters)))
+        return _value(_parse(formula, tuple(parameters)), data, parameters, formula)
+
+
+def _value(node, data, parameters, formula):
+    """One node of a parsed formula over ``data``."""
+    if isinstance(node, ast.Constant):
+        return float(node.value)
+    if isinstance(node, ast.Name):
+        if node.id in parameters:
+            return float(parameters[node.id])
+        return np.asarray(data[node.id], dtype=float)
+    if isinstance(node, ast.UnaryOp):
+        v = _value(node.operand, data, parameters, formula)
+        return -v if isinstance(node.op, ast.USub) else v
+    if isinstance(node, ast.BinOp):
+        return _OPERATORS[type(node.op)](_value(node.left, data, parameters, formula),
+                                         _value(node.right, data, parameters, formula))
+    if node.func.id in HISTORIES:
+        return _history(node, data, parameters, formula)
+    return _FUNCTIONS[node.func.id](*[_value(a, data, parameters, formula) for a in node.args])
+
+
+def _history(node: ast.Call, data, parameters, formula):
+    """``lag(x, tau)`` or ``play(x, w)``: ``x`` over the session's record, through the
+    operator, at ``data``'s times (:meth:`gyrocal.io.signals.Inputs.history`)."""
+    size = _value(node.args[1], data, parameters, formula)
+    arg = node.args[0]
+    if node.func.id == "lag":
+        if np.ndim(size) or not lag_time_constant_ok(size):
+            raise ConfigError(f"formula {formula!r}: a lag's time constant must be a number "
+                              f"of seconds >= 0, got {size!r}")
+        if isinstance(arg, ast.Name) and arg.id in LAGGABLE:
+            return data.lag(arg.id, float(size))
+        if float(size) == 0:   # no lag: the input itself
+            return _value(arg, data, parameters, formula)
+    elif np.ndim(size) or not (np.isfinite(size) and size > 0):
+        raise ConfigError(f"formula {formula!r}: a play operator's width must be a positive "
+                          f"number, got {size!r}")
+    axis = getattr(data, "axis", None)
+    names = {n.id for n in ast.walk(arg) if isinstance(n, ast.Name)}
+    reads = {k for k, group in (("rate_history", "rate"), ("accel_history", "accel"))
+             if any(n.startswith(group) for n in names)}
+    used = {k: float(v) for k, v in parameters.items() if k in names}
+    key = (ast.unparse(arg), axis if names & set(OWN_AXIS) else None, tuple(sorted(used.items())))
+    return data.history(key, lambda series: _value(arg, _Record(series, axis), used, formula),
+                        node.func.id, float(size), reads)
+
+
+class _Record:
+    """The session's record as a formula inside a history reads it (the own axis's input
+    for ``rate_own``, ``accel_own``)."""
+
+    def __init__(self, series, axis):
+        self.series, self.axis = series, axis
+
+    def __getitem__(self, name):
+        kind = OWN_AXIS.get(name)
+        if kind:
+            if self.axis is None:
+                raise ConfigError(f"{name} is read per output axis")
+            name = f"{kind}_{self.axis}"
+        return self.series.column(name)
 
 
 def lag_time_constant_ok(tau) -> bool:
@@ -278,6 +350,9 @@ class _OwnAxis:
 
     def lag(self, name, tau):
         return self.data.lag(name, tau)
+
+    def history(self, *args):
+        return self.data.history(*args)
 
 
 def _own_axis(data, axis: str) -> _OwnAxis:

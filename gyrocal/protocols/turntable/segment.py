@@ -45,6 +45,7 @@ REASONS = {
     "mount_undetermined": "the mount cannot be told from the data or the mount column",
     "gyro_disagrees": "the gyro reading is implausibly far from the reference rate",
     "saturated": "the gyro output is clipped at its full-scale range",
+    "stuck_axis": "an output axis reads one value through the hold (stuck or disconnected)",
     "unstable_temperature": "the temperature changes faster than the stability limit",
 }
 
@@ -71,6 +72,7 @@ class SegmentConfig:
     temp_gap: float = _DEFAULTS["temp_gap"]
     motion_sigma: float = _DEFAULTS["motion_sigma"]
     motion_floor: float = _DEFAULTS["motion_floor"]
+    settling: float = _DEFAULTS["settling"]
     noise_cap: float = _DEFAULTS["noise_cap"]
     mount_min_rate: float = _DEFAULTS["mount_min_rate"]
     agree_scale: float = _DEFAULTS["agree_scale"]
@@ -167,8 +169,20 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     # 2. Motion at constant reference.
     ci = np.flatnonzero(const)
     noise_log = np.maximum(np.sqrt(np.median(var[ci[:: max(1, len(ci) // 50_000)]], axis=0)), 1e-9)
+    # An output that settles after a step of the table's rate (a slow pole, a part of the
+    # output that follows the rate through a lag) is the sensor's, not a hand's: a run
+    # where the table turns allows changes up to ``settling`` times the step into it
+    # (deg/s), block to block in proportion to the block's length over a second (a
+    # settling of time constant ≥ 1 s). Where the table stands still (handling, the static
+    # stretches the noise is measured on) nothing is allowed: a settling output is left out
+    # there as before.
+    run_ref = np.bincount(run[const], weights=r[const], minlength=n_runs) / np.maximum(
+        np.bincount(run[const], minlength=n_runs), 1)
+    step_into = np.abs(np.diff(np.r_[0.0, run_ref]))
+    turning = np.abs(run_ref) > cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(run_ref)
+    allowance = np.r_[cfg.settling * step_into * turning, 0.0]       # per run, dummy run last
     active, level, gain, excursion = _motion(const, run, n_runs, mean, var, r, noise_log,
-                                             size, cfg)
+                                             size, cfg, allowance * min(block_dt, 1.0))
     settle = int(math.ceil(cfg.settle_s / block_dt))
     c_act = np.r_[0, np.cumsum(active)]
     pos = np.arange(nb)
@@ -223,7 +237,7 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
             f"after trimming, the minimum is {max(min_hold, block_dt):.3g} s", source=log.path)
     c0, c1 = c0[long_enough], c1[long_enough]
     h = _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var,
-                         level[run[c0]], gain[run[c0]], cfg)
+                         level[run[c0]], gain[run[c0]], cfg, allowance[run[c0]])
     # The table's angle at each hold's start, from its first sample: the reference rate
     # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
     h["table_angle"] = np.mod(np.r_[0.0, np.cumsum(r * block_dt, dtype=np.float64)][c0], 360.0)
@@ -244,6 +258,11 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
            lambda i: f"halves differ by {h['half_diff'][i]:.3g} deg/s (limit {h['half_limit'][i]:.3g})")
     reject(h["saturated"] > cfg.saturation_fraction, "saturated",
            lambda i: f"{100 * h['saturated'][i]:.3g} % of samples at the output limit")
+    # No sensor's output holds one value to the bit through a hold while the others move:
+    # an axis stuck or disconnected there, whose zero scatter would also zero its floor.
+    stuck = (h["var"] == 0) & (h["n"] > 1)[:, None] & (h["var"] > 0).any(axis=1, keepdims=True)
+    reject(stuck.any(axis=1), "stuck_axis",
+           lambda i: f"{GYRO[int(np.argmax(stuck[i]))]} reads one value through the hold")
     mounts, source = _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject)
     axis = np.where(mounts >= 0, mounts // 2, 0)
     sign = np.where(mounts % 2 == 0, 1.0, -1.0)
@@ -289,7 +308,7 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), _timeline(blk), info)
 
 
-def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
+def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance=None):
     """Mark constant-reference blocks where the gyro moves; see the module docstring.
 
     Returns each block's activity, each run's steady gyro level and its gain on the
@@ -327,6 +346,8 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg):
         scatter = (v_b > 9.0 * sd * sd).any(axis=1) & ~moving[idx]
         threshold = np.maximum(np.float32(cfg.motion_sigma * math.sqrt(2.0 / size)) * sd,
                                np.float32(cfg.motion_floor))
+        if allowance is not None:
+            threshold = threshold + allowance[idx, None].astype(np.float32)
         step = (np.abs(np.diff(resid, axis=0)) > threshold[1:]).any(axis=1)
         adjacent = np.ones(len(idx) - 1, dtype=bool) if blocks is None else np.diff(blocks) == 1
         jump = np.r_[False, step & (idx[1:] == idx[:-1]) & adjacent]
@@ -355,7 +376,8 @@ def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: n
     return sums / np.maximum(count, 1)[:, None]
 
 
-def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg) -> dict:
+def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg,
+                     allowance=None) -> dict:
     """Per-hold sums over the hold's blocks: means, variances, steadiness, temperature rate.
 
     A hold's scatter is its blocks' own scatter plus the blocks' spread about the hold mean;
@@ -387,8 +409,19 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
     d1 = _range_sums(np.where(first_half[:, None], resid, 0.0), first) / np.maximum(lengths // 2, 1)[:, None]
     d2 = _range_sums(np.where(first_half[:, None], 0.0, resid), first) / (lengths - lengths // 2)[:, None]
     half_diff = np.abs(d2 - d1)
-    half_limit = (cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
-                  + cfg.motion_floor)
+    steady_limit = (cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
+                    + cfg.motion_floor)
+    half_limit = steady_limit + (0.0 if allowance is None else allowance[:, None])
+    settling = (half_diff > steady_limit).any(axis=1)
+    if settling.any():
+        # A hold kept though its output settles: its scatter from successive block
+        # differences (von Neumann), which a slow settling does not inflate, so that the
+        # noise floor is made of the noise and not of the effect.
+        succ = np.r_[np.diff(resid, axis=0), np.zeros((1, resid.shape[1]))]
+        last = np.r_[first[1:], len(hb)] - 1
+        succ[last] = 0.0
+        mssd = _range_sums(succ ** 2, first) / 2.0 * size
+        hold_var = np.where(settling[:, None], (within + mssd) / (n - 1)[:, None], hold_var)
     worst = np.argmax(half_diff - half_limit, axis=1)
     rows = np.arange(len(c0))
     rate, rate_sd = _hold_temp_rate(blk, c0, c1)
