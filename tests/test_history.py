@@ -191,3 +191,33 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
     apply_calibration(cal, log, tmp_path / "out.parquet")
     out = pq.read_table(tmp_path / "out.parquet", columns=["gyro_x"]).column(0).to_numpy()
     assert np.isfinite(out).all()
+
+
+def _zoo_unit(tmp_path, effect, seed, sessions=2):
+    from benchmarks.zoo.generator import make_unit, write_session
+    unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=seed)
+    logs = [tmp_path / f"{effect}-{seed}-s{s}.parquet" for s in range(sessions)]
+    for s, log in enumerate(logs):
+        write_session(unit, log, session=s, seed=1000 * seed + s, rate_hz=10.0)
+    return logs
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect, mounting", [("mount_bias_shift", True), ("g_sensitivity", False),
+                                              ("warmup", False), ("none", False)])
+def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effect, mounting):
+    """A bias new at every mounting (the independent zoo's): with one session and with
+    two, no term is named and the verdict names the mounting, not slow noise or a step in
+    time. An orientation effect (a g-sensitivity, the same at every mounting of a mount), a
+    warm-up (the mountings follow each other in time) and a complete unit are not."""
+    from gyrocal.diagnose import diagnose
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+    obs = [segment_log(log, Settings()).observations for log in _zoo_unit(tmp_path, effect, 1)]
+    for other in (None, obs[1]):
+        d = diagnose(Settings(), obs[0], other).to_dict()
+        found = (d["unexplained"] or {}).get("reason") == "the mounting"
+        assert found == mounting, d["verdict"]
+        if mounting:
+            assert d["best"] is None and not d["explains_the_data"] and "mounting" in d["verdict"]
+            assert "slow noise" not in d["verdict"] and d["mounting"]["left_p_value"] > 1e-3 / 2

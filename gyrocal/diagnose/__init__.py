@@ -47,7 +47,7 @@ from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, pra
                       practical_gain_next, rank_candidates, second_step, time_drift)
 from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
                          evaluation_of, extended, ladder, model_option, pooled)
-from .lab import LAB_ADVICE, lab_fixed, lab_reason
+from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fixed, mounting_reason
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
 from .reading import readable
@@ -56,7 +56,7 @@ from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, 
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
                       verdict as make_verdict)
-from .where import COVARIATES, covariate_table, fit_quality, input_values, shape_estimate
+from .where import COVARIATES, covariate_table, fit_quality, history_columns, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -88,6 +88,7 @@ class Diagnosis:
     shape_estimate: dict | None = None        # the residuals against the leading input
     unexplained: dict | None = None           # why no term of free shape was offered
     lab_fixed: dict | None = None             # the excess against the table's angle
+    mounting: dict | None = None              # the excess against an offset per mounting
     between_points: dict | None = None        # interpolated against fitted, point by point
     factor: float | None = None               # the verdict's "times their noise floor"
     negligible: dict | None = None            # an excess within the floor's own uncertainty
@@ -112,6 +113,7 @@ class Diagnosis:
             "shape_estimate": self.shape_estimate,
             "unexplained": self.unexplained,
             "lab_fixed": self.lab_fixed,
+            "mounting": self.mounting,
             "between_points": self.between_points,
             "negligible_excess": self.negligible,
             "best": None if self.best is None else {
@@ -167,8 +169,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # sessions (the table starts elsewhere) and is no effect of the sensor's.
     lab = lab_fixed(obs, quality, base.dof, alpha) if not explains else None
     seen_in_lab = bool(lab and lab["explains"])
+    # Each mounting on the fixture may leave its own offset, fresh every time: no term of the
+    # sensor carries it, and it does not repeat in another session (where it would read as
+    # slow noise or a unit that changed).
+    mounting = (mounting_fixed(obs, quality, base.dof, alpha, history_columns(obs, data)["mounting"])
+                if not explains and not seen_in_lab and "mount" in obs else None)
+    seen_mounting = bool(mounting and mounting["explains"])
     unrepeated = False
-    if not explains and not seen_in_lab and usable(base_next) and base_next["unrepeated_p_value"] is not None:
+    if (not explains and not seen_in_lab and not seen_mounting and usable(base_next)
+            and base_next["unrepeated_p_value"] is not None):
         # An excess that does not come back in the other session, whose residuals differ
         # from this one's by more than the floor, is slow noise, not an effect.
         unrepeated = explains = base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
@@ -273,6 +282,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         # The angle accounts for the whole excess: what terms or a drift take of it is no
         # part of the answer.
         why, useful, drift = lab_reason(lab), [], None
+    elif best is None and seen_mounting:
+        why, useful, drift = mounting_reason(mounting), [], None
     elif best is None and resolvable and not explains:
         # Nothing in the library explains it: terms of free shape for the inputs that
         # carry the excess, judged as the library's are.
@@ -289,7 +300,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # practical part of: nothing in it asks for an effect (slow wander and a one-off
     # effect look alike in one session; another one tells them apart).
     noise_explains = bool(
-        best is None and not explains and not seen_in_lab and within_noise is not None
+        best is None and not explains and not seen_in_lab and not seen_mounting
+        and within_noise is not None
         and within_noise["explains"]
         and (not resolvable or (v0 <= within_noise["expected_rms"] * tolerance and not useful
                                 and not shaped and not (drift and drift["explains"]))))
@@ -350,11 +362,13 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.within_noise = within_noise
     diag.next_session = base_next
     diag.advice = [LAB_ADVICE] if seen_in_lab and best is None else \
+        [MOUNTING_ADVICE] if seen_mounting and best is None else \
         advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
     diag.time_drift = drift
     diag.shape_estimate = estimate
     diag.unexplained = why
     diag.lab_fixed = lab
+    diag.mounting = mounting
     diag.between_points = between
     diag.factor = shown["all"]
     diag.negligible = negligible

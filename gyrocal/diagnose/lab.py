@@ -107,3 +107,77 @@ LAB_ADVICE = ("Compensate an effect fixed in the lab on the rig, not in the sens
               "averages it too), or log the table's angle from its encoder and subtract the "
               "field there; the calibration as it stands holds for the sensor, with this "
               "effect's share of its error left in.")
+
+
+def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray) -> dict | None:
+    """How much of the in-sample excess an offset per mounting accounts for: each output
+    axis' whitened residuals refitted with one offset per stretch of holds on one mount
+    (``stretch``, :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
+    point's bias and rates. The mounting explains the excess when its offsets' gain passes
+    an F-test, what they leave is within chance, and neither of its rivals does as well:
+    one offset per mount for the whole session (an effect of the orientation, which a
+    sensor term holds) and a drift in time within each point (which the mountings follow
+    in order). None where there is nothing to test."""
+    if "mount" not in obs:
+        return None
+    rows = quality.fitted_rows
+    z, floor = quality.z[rows], quality.floor[rows]
+    groups = np.unique(np.asarray(stretch)[rows], return_inverse=True)[1]
+    mounts = np.unique(obs["mount"].astype(str).to_numpy()[rows], return_inverse=True)[1]
+    points = np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1] \
+        if "point" in obs else np.zeros(len(z), dtype=int)
+    if groups.max() + 1 <= mounts.max() + 1:
+        return None    # each mount mounted once: the mounting is the orientation
+    rates = np.column_stack([np.ones(len(z)), obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)])
+    own = np.zeros((len(z), 4 * (points.max() + 1)))
+    for k in range(4):
+        own[np.arange(len(z)), 4 * points + k] = rates[:, k]
+    t = obs.loc[rows, "t_start"].to_numpy(float)
+    drift = np.zeros((len(z), points.max() + 1))
+    drift[np.arange(len(z)), points] = (t - t.min()) / 3600.0
+    rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift)
+    before = float(np.nansum(z ** 2))
+    rss, added = np.zeros(4), np.zeros(3, dtype=int)   # points alone, then with each
+    for i in range(z.shape[1]):
+        ok = np.isfinite(z[:, i])
+        w = 1.0 / floor[ok, i, None]
+        base = own[ok] * w
+        designs = (base, *(np.column_stack([base, r[ok] * w]) for r in rivals))
+        solved = [np.linalg.lstsq(x, z[ok, i], rcond=None) for x in designs]
+        rss += [float(np.sum((z[ok, i] - x @ s[0]) ** 2)) for x, s in zip(designs, solved)]
+        added += [s[2] - solved[0][2] for s in solved[1:]]
+    q, left_dof = int(added[0]), dof - int(added[0])
+    if q <= 0 or left_dof <= 0 or not rss[1] > 0:
+        return None
+    f = ((rss[0] - rss[1]) / q) / (rss[1] / left_dof)
+    p_value = float(f_sf(f, q, left_dof))
+    left_p = float(chi2_sf(rss[1], left_dof))
+    orientation_p = float(chi2_sf(rss[2], dof - int(added[1])))
+    drift_p = float(chi2_sf(rss[3], dof - int(added[2])))
+    excess = max(before - dof, 0.0)
+    return {"p_value": p_value, "parameters": q, "mountings": int(groups.max() + 1),
+            "chi2_after": float(rss[1]), "dof": left_dof,
+            "share_of_excess": min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
+            "left_p_value": left_p, "orientation_p_value": orientation_p, "drift_p_value": drift_p,
+            "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2
+                             and orientation_p < alpha / 2 and drift_p < alpha / 2)}
+
+
+def mounting_reason(found: dict) -> dict:
+    """The verdict's why and what would tell, for an excess an offset per mounting explains."""
+    return {"reason": "the mounting", "term": None, "lead": "No term of the sensor can hold it",
+            "text": (f"the residuals are offsets per mounting ({100 * found['share_of_excess']:.0f} % of "
+                     f"the excess with one offset for each of the {found['mountings']} stretches of "
+                     f"holds on one mount, F-test p {p_text(found['p_value'])}), which neither the "
+                     "mount's orientation nor a drift in time accounts for: each mounting on the "
+                     "fixture leaves its own bias (the fixture's repeatability, a strain of the "
+                     "package), fresh every time, which no term of the sensor carries to the next "
+                     "mounting"),
+            "would_tell": ("the same mount revisited within a point (its offset comes back or it "
+                           "does not), or a fixture that clamps the same way each time")}
+
+
+MOUNTING_ADVICE = ("An offset per mounting is the fixture's, not the sensor's: it sets how well any "
+                   "calibration of this rig can do. Compare the unit's bias over repeated mountings "
+                   "at one temperature; a fixture that clamps the same way each time, or holds "
+                   "averaged over several mountings, bring it down.")

@@ -107,7 +107,7 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
                 f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
                 "noise, and no term takes a practical part of it away. Another session of the unit "
                 "(--other-session) would tell slow wander from an effect.")
-    if finding == "fixed in the lab" and best is None:
+    if finding in ("fixed in the lab", "the mounting") and best is None:
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
         return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
@@ -308,10 +308,14 @@ def covariate_reads(label: str) -> set[str]:
             kinds |= {"time", "thermal"}
         elif base in ("temperature", "temperature rate"):
             kinds |= {"temperature", "thermal"}
-        elif base in ("|rate|", "reference rate", "direction"):
+        elif base in ("|rate|", "reference rate", "direction", "step into the hold",
+                      "previous hold's rate"):
             kinds.add("rate")
-        elif base in ("mount", "rotating axis") or base.startswith("accel"):
-            kinds |= {"accel", "rate", "mount"}
+        elif base == "temperature's direction":
+            kinds |= {"temperature", "thermal"}
+        elif base in ("mount", "rotating axis", "mounting") or base.startswith("accel"):
+            # the mounting's holds follow each other in time too
+            kinds |= {"accel", "rate", "mount"} | ({"time"} if base == "mounting" else set())
     return kinds
 
 
@@ -336,7 +340,7 @@ def _covariate_kind(label: str) -> str:
         return "time"
     if "temperature" in label:
         return "temperature"
-    if "rate" in label or "direction" in label:
+    if "rate" in label or "direction" in label or "step" in label:
         return "rate"
     return "mount"
 

@@ -17,14 +17,25 @@ COVARIATES = {
     "|rate|": "abs_rate", "direction": "direction", "mount": "mount",
     "accel_x": "accel_x", "accel_y": "accel_y", "accel_z": "accel_z",
     "time": "time", "hold duration": "duration",
+    # histories: what came before the hold
+    "step into the hold": "step", "previous hold's rate": "previous_rate",
+    "temperature's direction": "temp_direction", "mounting": "mounting",
 }
 TIME_LIKE = ("time", "time within a temperature point", "hold duration")
+HISTORY_ROWS = ("step into the hold", "previous hold's rate", "temperature's direction", "mounting")
 
 # The grouping each covariate is measured against: rate effects show on the axis that
 # turns, so they are judged within the rotating axis; drift within a temperature point is
-# judged within the point (what changes there is time, not the temperature).
+# judged within the point (what changes there is time, not the temperature); the
+# temperature's direction within the point (one direction per point is the point's own
+# bias), each mounting within its mount (one offset per mount is an effect of orientation).
 BASELINE = {"|rate|": "rotating axis", "direction": "rotating axis",
-            "reference rate": "rotating axis", "time within a temperature point": "point"}
+            "reference rate": "rotating axis", "time within a temperature point": "point",
+            "step into the hold": "rotating axis", "previous hold's rate": "rotating axis",
+            "temperature's direction": "point", "mounting": "mount"}
+# The width (°C) of the play operator that tells the temperature's direction of travel: a
+# few times a sensor's noise, well below a protocol's steps.
+DIRECTION_WIDTH_C = 1.0
 
 
 class FitQuality(NamedTuple):
@@ -95,15 +106,16 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
     frame["abs_rate"] = np.abs(data["ref_rate"])
     frame["direction"] = np.sign(data["ref_rate"])
     frame["time"] = (data["t_start"] - data["t_start"].min()) / 3600.0
+    frame = frame.assign(**history_columns(obs, data))
     frame = frame[fitted_rows].reset_index(drop=True)
     labels: dict[str, np.ndarray] = {}
     for label, column in {**COVARIATES, "rotating axis": "rotating axis"}.items():
         if column not in frame:
             continue
         values = frame[column]
-        if column not in ("mount", "rotating axis") and not np.isfinite(values.to_numpy(dtype=float)).all():
+        if column not in ("mount", "rotating axis", "mounting") and not np.isfinite(values.to_numpy(dtype=float)).all():
             continue
-        if column in ("mount", "rotating axis") or values.nunique() <= 8:
+        if column in ("mount", "rotating axis", "mounting") or values.nunique() <= 8:
             labels[label] = _partition(values.to_numpy())
         else:
             labels[label] = pd.qcut(values.rank(method="first"), 8, labels=False).to_numpy()
@@ -150,6 +162,33 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
     _LAYOUTS.insert(0, (obs, data, fitted_rows.copy(), layout))
     del _LAYOUTS[2:]
     return layout
+
+
+def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
+    """What came before each hold: the step of the reference rate into it and the rate it
+    came from (0 after a remount: the table stood still while the unit was handled), the
+    temperature's direction of travel (a play operator of :data:`DIRECTION_WIDTH_C` over the
+    session's record, +1 rising, −1 falling), and its mounting (the stretch of consecutive
+    holds on one mount)."""
+    n = len(obs)
+    t = np.asarray(data["t_start"], dtype=float)
+    order = np.argsort(t, kind="stable")
+    mount = obs["mount"].astype(str).to_numpy()[order]
+    stretch_start = np.r_[True, mount[1:] != mount[:-1]]
+    stretch = np.empty(n, dtype=np.int64)
+    stretch[order] = np.cumsum(stretch_start) - 1
+    ref = np.asarray(data["ref_rate"], dtype=float)
+    previous = np.empty(n)
+    previous[order] = np.where(stretch_start, 0.0, np.r_[0.0, ref[order][:-1]])
+    out = {"step": ref - previous, "previous_rate": previous, "mounting": stretch}
+    series = data.get("series")
+    if series is not None and hasattr(series, "temp") and len(series.t) > 1:
+        from ..io.signals import play_operator
+        mid = 0.5 * (t + np.asarray(data["t_end"], dtype=float)) - series.t0
+        temp = np.asarray(series.temp, dtype=float)
+        state = 2.0 * (temp - play_operator(temp, DIRECTION_WIDTH_C)) / DIRECTION_WIDTH_C
+        out["temp_direction"] = np.round(np.interp(mid, series.t, state))
+    return out
 
 
 def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
