@@ -29,6 +29,34 @@ def angle_means(obs) -> np.ndarray:
     return np.column_stack([cos_mean, sin_mean])
 
 
+def _point_columns(obs, rows) -> tuple[np.ndarray, np.ndarray]:
+    """Each temperature point's bias and rates as columns, as the base model has them (so
+    that what a point's fit took of an effect is counted back: refitted, not the residuals
+    alone regressed), and each fitted hold's point."""
+    n = int(np.count_nonzero(rows))
+    points = np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1] \
+        if "point" in obs else np.zeros(n, dtype=int)
+    rates = np.column_stack([np.ones(n), obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)])
+    own = np.zeros((n, 4 * (points.max() + 1)))
+    for k in range(4):
+        own[np.arange(n), 4 * points + k] = rates[:, k]
+    return own, points
+
+
+def _refits(z, floor, own, extras):
+    """Per output axis: the residual sum of squares and the rank of the whitened residuals
+    refitted on the points' columns alone, then beside each set of ``extras`` in turn."""
+    for i in range(z.shape[1]):
+        ok = np.isfinite(z[:, i])
+        w = 1.0 / floor[ok, i, None]
+        base = own[ok] * w
+        y = z[ok, i]
+        designs = (base, *(np.column_stack([base, x[ok] * w]) for x in extras))
+        solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]   # coefficients, _, rank, _
+        yield ([float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved)],
+               [r[2] for r in solved])
+
+
 def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     """How much of the in-sample excess the table's angle accounts for: each output axis'
     whitened residuals refitted with the holds' mean cosine and sine of the angle (two
@@ -43,15 +71,7 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     floor = quality.floor[rows]
     angle = angle_means(obs)[rows]
     mounts = np.unique(obs["mount"].astype(str).to_numpy()[rows], return_inverse=True)[1]
-    points = np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1] \
-        if "point" in obs else np.zeros(len(z), dtype=int)
-    # The angle's columns beside each temperature point's bias and rates, as the base model
-    # has them, so that what the point's fit took of the effect is counted back: refitted,
-    # not the residuals alone regressed.
-    rates = np.column_stack([np.ones(len(z)), obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)])
-    own = np.zeros((len(z), 4 * (points.max() + 1)))
-    for k in range(4):
-        own[np.arange(len(z)), 4 * points + k] = rates[:, k]
+    own, _ = _point_columns(obs, rows)
     # An effect constant per mount (one of gravity's direction) is not credited to the
     # angle: an offset per mount in place of the angle's columns must leave more than noise.
     offsets = np.eye(mounts.max() + 1)[mounts]
@@ -61,17 +81,10 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     before = float(np.nansum(z ** 2))
     rss = np.zeros(3)                 # points alone, with the angle, with the offsets
     added = np.zeros(2, dtype=int)    # the angle's and the offsets' columns beyond the points'
-    for i in range(z.shape[1]):
-        ok = np.isfinite(z[:, i])
-        w = 1.0 / floor[ok, i, None]
-        model = own[ok] * w
-        y = z[ok, i]
-        designs = (model, np.column_stack([model, lab[ok] * w]), np.column_stack([model, offsets[ok] * w]))
-        solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]   # coefficients, _, rank, _
-        ranks = [r[2] for r in solved]
+    for axis_rss, ranks in _refits(z, floor, own, (lab, offsets)):
         if ranks[1] <= ranks[0]:
             continue
-        rss += [float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved)]
+        rss += axis_rss
         added += [ranks[1] - ranks[0], ranks[2] - ranks[0]]
     q, left_dof = int(added[0]), dof - int(added[0])
     gain, left = rss[0] - rss[1], rss[1]
@@ -124,28 +137,18 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray) ->
     z, floor = quality.z[rows], quality.floor[rows]
     groups = np.unique(np.asarray(stretch)[rows], return_inverse=True)[1]
     mounts = np.unique(obs["mount"].astype(str).to_numpy()[rows], return_inverse=True)[1]
-    points = np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1] \
-        if "point" in obs else np.zeros(len(z), dtype=int)
     if groups.max() + 1 <= mounts.max() + 1:
         return None    # each mount mounted once: the mounting is the orientation
-    rates = np.column_stack([np.ones(len(z)), obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)])
-    own = np.zeros((len(z), 4 * (points.max() + 1)))
-    for k in range(4):
-        own[np.arange(len(z)), 4 * points + k] = rates[:, k]
+    own, points = _point_columns(obs, rows)
     t = obs.loc[rows, "t_start"].to_numpy(float)
     drift = np.zeros((len(z), points.max() + 1))
     drift[np.arange(len(z)), points] = (t - t.min()) / 3600.0
     rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift)
     before = float(np.nansum(z ** 2))
     rss, added = np.zeros(4), np.zeros(3, dtype=int)   # points alone, then with each
-    for i in range(z.shape[1]):
-        ok = np.isfinite(z[:, i])
-        w = 1.0 / floor[ok, i, None]
-        base = own[ok] * w
-        designs = (base, *(np.column_stack([base, r[ok] * w]) for r in rivals))
-        solved = [np.linalg.lstsq(x, z[ok, i], rcond=None) for x in designs]
-        rss += [float(np.sum((z[ok, i] - x @ s[0]) ** 2)) for x, s in zip(designs, solved)]
-        added += [s[2] - solved[0][2] for s in solved[1:]]
+    for axis_rss, ranks in _refits(z, floor, own, rivals):
+        rss += axis_rss
+        added += [r - ranks[0] for r in ranks[1:]]
     q, left_dof = int(added[0]), dof - int(added[0])
     if q <= 0 or left_dof <= 0 or not rss[1] > 0:
         return None
