@@ -12,7 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gyrocal.io.errors import ConfigError
-from gyrocal.io.signals import HistoryBins, history, play_operator
+from gyrocal.io.signals import DUHEM_BAND, ROOM_C, HistoryBins, duhem_operator, history, play_operator
 from gyrocal.terms import make_term
 
 
@@ -47,6 +47,63 @@ def test_the_direction_of_travel_reads_plus_one_rising_and_minus_one_falling():
     direction = 2 * (temp - play_operator(temp, 2.0)) / 2.0
     assert np.all(direction[15:100] == 1.0) and np.all(direction[-80:] == -1.0)
     assert np.all(np.diff(direction[100:121]) < 0)   # turning back: across one width (20 steps)
+
+
+def _duhem_by_definition(x, width):
+    """The Duhem state sample by sample, as its docstring defines it: travel counted on the
+    play operator of the dead band, the state relaxing toward the last direction by
+    exp(−travel / w), starting as a unit brought from the room (25 °C) to x[0]."""
+    band = DUHEM_BAND * width
+    y = min(max(ROOM_C, x[0] - band / 2), x[0] + band / 2)
+    direction = float(np.sign(x[0] - ROOM_C)) if abs(x[0] - ROOM_C) > band / 2 else 0.0
+    s = direction * (1 - np.exp(-abs(y - ROOM_C) / width))
+    out = []
+    for v in x:
+        new = min(max(y, v - band / 2), v + band / 2)
+        step, y = new - y, new
+        if step:
+            # the target switches at the sample: the ramp-invariant step of a first-order lag
+            target_before, direction = direction, float(np.sign(step))
+            a = np.exp(-abs(step) / width)
+            s = a * s + direction - a * target_before - (direction - target_before) * width / abs(step) * (1 - a)
+        out.append(s)
+    return np.array(out)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**31), n=st.integers(1, 2000), width=st.floats(0.2, 20.0),
+       cut=st.floats(0.0, 1.0), start=st.floats(-40.0, 85.0))
+def test_the_duhem_state_is_its_definition_and_carries_its_state(seed, n, width, cut, start):
+    """The vectorised Duhem operator against its sample-by-sample definition, and a record
+    in two pieces (apply's batches) against the whole."""
+    rng = np.random.default_rng(seed)
+    x = start + np.cumsum(rng.normal(0.0, 0.3, n))
+    whole, _ = duhem_operator(x, width)
+    np.testing.assert_allclose(whole, _duhem_by_definition(x, width), atol=1e-9)
+    k = int(cut * n)
+    if 0 < k < n:
+        head, state = duhem_operator(x[:k], width)
+        tail, _ = duhem_operator(x[k:], width, state)
+        np.testing.assert_allclose(np.r_[head, tail], whole, atol=1e-12)
+    assert np.all(np.abs(whole) <= 1.0 + 1e-12)
+
+
+def test_the_duhem_state_starts_from_the_room_and_ignores_noise_within_its_band():
+    """A unit cooled from the room to −20 °C starts falling (−1); warmed to 60 °C, rising;
+    a temperature that only jitters by less than the band keeps its state; a turn back
+    relaxes it by 1 − e⁻¹ of the way over one width of travel."""
+    rng = np.random.default_rng(5)
+    jitter = rng.uniform(-0.4, 0.4, 500) * DUHEM_BAND * 4.0 / 2
+    cold, _ = duhem_operator(-20.0 + jitter, 4.0)
+    hot, _ = duhem_operator(60.0 + jitter, 4.0)
+    assert np.allclose(cold, cold[0]) and cold[0] < -0.99 and np.allclose(hot, hot[0]) and hot[0] > 0.99
+    ramp = np.r_[np.linspace(60.0, 80.0, 2001), np.linspace(80.0, 60.0, 2001)[1:]]
+    s, _ = duhem_operator(ramp, 4.0)
+    # back by the band (the dead band's travel), then one width: e^-1 of the +1 - (-1) left
+    turned = 2000 + int(round((DUHEM_BAND * 4.0 + 4.0) / 0.01))
+    assert s[2000] > 0.99 and s[turned] == pytest.approx(-1.0 + 2.0 * np.exp(-1.0), abs=0.01)
+    with pytest.raises(ConfigError, match="temperature alone"):
+        make_term({"name": "expression", "label": "d", "formula": "duhem(rate_x, 2.0)"})
 
 
 def test_the_record_keeps_the_rates_and_the_force_and_pieces_give_the_whole():
@@ -221,3 +278,113 @@ def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effe
         if mounting:
             assert d["best"] is None and not d["explains_the_data"] and "mounting" in d["verdict"]
             assert "slow noise" not in d["verdict"] and d["mounting"]["left_p_value"] > 1e-3 / 2
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("effect, family, order", [("slow_pole", "slow pole", "shuffled"),
+                                                   ("rotation_heating", "heating by rotation", "default")])
+def test_histories_of_the_rate_are_offered_and_hold_on_the_next_session(tmp_path, effect, family, order):
+    """Effects with a history from the independent zoo, diagnosed on one log with the
+    default settings as most users run it: the history term is offered (a slow pole of the
+    own rate; heat from turning, a lag of the rate's magnitude), and the calibration with it
+    holds on a session the diagnosis never saw, whose rates come in another order for the
+    slow pole: within 1.2 times the floor there (the issue's figure for a fix), where the
+    default model errs several times it."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.diagnose import diagnose, extended
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.pipeline.config import Settings
+    unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=1)
+    fitted, unseen = tmp_path / "s0.parquet", tmp_path / "s2.parquet"
+    write_session(unit, fitted, session=0, seed=1000, rate_hz=10.0)
+    write_session(unit, unseen, session=2, seed=1002, rate_hz=10.0, rate_order=order)
+    d = diagnose(Settings(), segment_log(fitted, Settings()).observations).to_dict()
+    assert d["best"] is not None and d["best"]["family"] == family, d["verdict"]
+    new = segment_log(unseen, Settings()).observations
+
+    def next_session(settings):
+        r = revalidate(run(fitted, settings).calibration, new)
+        return r["validation_rms"] / r["noise_floor"]
+    before, after = next_session(Settings()), next_session(extended(Settings(), d["best"]["term"]))
+    assert before > 3.0 and after < 1.2, (before, after)
+
+
+@pytest.mark.slow
+def test_a_duhem_hysteresis_fitted_on_the_bins_is_what_apply_runs_on_the_samples(tmp_path):
+    """The independent zoo's thermal hysteresis on a sweep (a state that relaxes toward
+    the direction of travel over a few °C): the calibration with ``duhem(temp, w)``, w
+    profiled, beside the sweep's quadratic bias; the state apply runs over the log's own
+    samples, averaged over each hold, is the fit's from the record's bins to a small part
+    of the hold's floor (the dead band keeps the samples' noise from moving it), and it
+    carries to the unit's next ramp within 1.2 times the floor."""
+    from benchmarks.zoo.generator import make_unit, write_session
+    from gyrocal.calibration.apply import apply_calibration
+    from gyrocal.diagnose import extended
+    from gyrocal.fit.model import Model, columns_of
+    from gyrocal.fleet import drift
+    from gyrocal.io.signals import SampleRecord
+    from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.pipeline.config import Settings
+    unit = make_unit(effect="hysteresis", protocol="sweep", noise="white", seed=1)
+    logs = [tmp_path / f"s{s}.parquet" for s in (0, 2)]
+    for s, log in zip((0, 2), logs):
+        write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=(30.0, 45.0)[s // 2])
+    base = Settings().for_protocol("sweep")
+    settings = extended(extended(base, "bias_temp_poly"),
+                        "expression(label='d', formula='duhem(temp, w)', profile={'w': [0.3, 40.0]})")
+    cal = run(logs[0], settings, protocol="sweep").calibration
+    width = cal.model.terms[-1].parameters["w"]
+    assert 2.0 < width < 5.0          # the generator draws the switching travel in 2-5 °C
+    obs = segment_log(logs[0], settings, "sweep").observations.reset_index(drop=True)
+    data = columns_of(obs)
+    state = Model((make_term(f"expression(label='h', formula='duhem(temp, w)', "
+                             f"parameters={{'w': {width!r}}})"),))
+    at_holds = state.design(data)["h.x"]
+    table = pq.read_table(logs[0], columns=["t", "temp"])
+    samples = {c: table.column(c).to_numpy().astype(float) for c in table.column_names}
+    series = obs.attrs["series"]
+    samples["t"] = samples["t"] - series.t0
+    at_samples = state.design({"t": samples["t"], "temp": samples["temp"],
+                               "series": SampleRecord(series, samples, {}),
+                               **{f"rate_{a}": np.zeros_like(samples["t"]) for a in "xyz"}})["h.x"]
+    lo = np.searchsorted(samples["t"], obs["t_start"].to_numpy() - series.t0, side="left")
+    hi = np.searchsorted(samples["t"], obs["t_end"].to_numpy() - series.t0, side="right")
+    mean = np.array([at_samples[s:e].mean() for s, e in zip(lo, hi)])
+    floor = drift.observation_floor(data)
+    coefficients = cal.coefficients(np.array([25.0]), warn=False)
+    for i, a in enumerate("xyz"):
+        gap = np.abs(coefficients[f"d.{a}"][0] * (mean - at_holds)) / floor[:, i]
+        assert np.sqrt(np.mean(gap ** 2)) < 0.1 and gap.max() < 0.5, (a, gap.max())
+    r = drift.revalidate(cal, segment_log(logs[1], settings, "sweep").observations)
+    assert r["validation_rms"] / r["noise_floor"] < 1.2
+    apply_calibration(cal, logs[0], tmp_path / "out.parquet")
+    out = pq.read_table(tmp_path / "out.parquet", columns=["gyro_x"]).column(0).to_numpy()
+    assert np.isfinite(out).all()
+
+
+def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
+    """The rows of where-it-fails decide which histories are tried: what came before a hold
+    (its step, the previous rate) the rates' (a slow pole, heat from turning); the
+    temperature's rows its direction, only where the record's temperature turns back (a
+    direction that never changes is the bias's own); nothing where the record lacks the
+    gyro's output a history of the rates reads."""
+    import pandas as pd
+    from gyrocal.diagnose.shapes import history_shapes
+    from gyrocal.io.signals import Series
+    t = np.linspace(0.0, 7200.0, 721)
+    up_down = 20.0 + 20.0 * np.sin(np.pi * t / 7200.0)          # warms, then cools back
+    gyro = {f"gyro_{a}": np.zeros_like(t) for a in "xyz"}
+    obs = pd.DataFrame({"duration": np.full(10, 20.0)})
+
+    def families(rows, temp=up_down, record=gyro):
+        covariates = [{"covariate": r, "share_of_excess": 0.3} for r in rows]
+        data = {"series": Series(t, temp, record=dict(record))}
+        return {s.family for s in history_shapes(obs, data, covariates)}
+    rates = {"slow pole", "heating by rotation", "heating by rotation power"}
+    temperature = {"hysteresis", "hysteresis relaxing", "switch with hysteresis"}
+    assert families(["reference rate = step into the hold"]) == rates
+    assert families(["previous hold's rate"], record={}) == set()
+    assert families(["temperature's direction"]) == temperature
+    assert families(["temperature"], temp=np.linspace(20.0, 40.0, t.size)) == set()
+    assert families(["accel_x"]) == set()

@@ -51,7 +51,7 @@ from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fi
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
 from .reading import readable
-from .shapes import describe, shape_terms
+from .shapes import describe, describe_history, shape_terms
 from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined,
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
@@ -255,7 +255,7 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
         # may stand in for a shape of another input. Those shapes are tried, and one that
         # does better there, beyond that figure's own uncertainty, is offered instead.
         rival, tried = free_shape(judge, base, covariates, quality, base_next, tolerance, bound,
-                                  library=ranked, inputs=("rate_own", "rate_cross") if of_rate else None)
+                                  library=ranked, inputs=("rate_own", "rate_cross", "history") if of_rate else None)
         if rival is not None and (_judged_on(rival, base_next) * bound < _judged_on(best, base_next)
                                   or (of_rate and _misses_levels(best, tried, alpha))):
             best, candidates = rival, candidates + tried
@@ -554,7 +554,11 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
                                in_sample=True)
             if pair is not None:
                 good.append((pair, own))
-                break
+        if len(good) > 1 and not usable(base_next):
+            # Pairs alike within the figure's own uncertainty: the one with fewest coefficients.
+            top = min(g[0].validation_rms_with for g in good)
+            good = [min((g for g in good if g[0].validation_rms_with <= top * bound),
+                        key=lambda g: (g[0].df[0], g[0].validation_rms_with))]
     if not good:
         return None, tried
     def figure(g):   # what the user will meet: the other session first
@@ -565,14 +569,29 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
     best, shape = next((g for g in good if g[1].kind == "empirical"
                         and figure(g) <= figure(good[0]) * bound), good[0])
     terms = [make_term(t) for t in (best.term, *best.together)]
+    # The shape as fitted: its profiled parameters, not their start.
+    terms[0] = _profiled(terms[0], best.profiled)
     values = {n: 0.0 for t in terms for n in t.coefficients()}
     if best.together:   # a pair: its coefficients as fitted together
         fitted = evaluate(extended_all(settings, best), obs, best.term, in_sample=True).fitted
         values.update({n: pooled(fitted.fits, n)[0] for n in values})
     else:
         values.update({z["coefficient"]: z["value"] for z in best.size})
-    x = input_values(obs, data, shape.input)[quality.fitted_rows]
-    best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)
+    if shape.input == "history":
+        best.shape = describe_history(terms[0], values, shape.family)
+    else:
+        x = input_values(obs, data, shape.input)[quality.fitted_rows]
+        best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)
     # Only what does as well, within the figure's own uncertainty, is said to explain it too.
     best.also = [c for c, _ in good if c is not best and figure((c,)) <= figure((best,)) * bound]
     return best, tried
+
+
+def _profiled(term, profiled):
+    """``term`` with its formula's parameters at their profiled values."""
+    inner = getattr(term, "term", term)
+    found = {p["parameter"]: p["value"] for p in profiled or () if "value" in p}
+    if not getattr(inner, "parameters", None) or not found:
+        return term
+    fitted = replace(inner, parameters={k: float(found.get(k, v)) for k, v in inner.parameters.items()})
+    return replace(term, term=fitted) if inner is not term else fitted

@@ -71,8 +71,8 @@ def _parameter_units(tree, parameters) -> dict[str, str]:
                 if isinstance(n, ast.Name) and n.id in parameters:
                     units[n.id] = ""
         if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
-                and node.func.id in ("lag", "play") and len(node.args) == 2:
-            # A lag's time constant is in seconds; a play's width in its input's unit.
+                and node.func.id in ("lag", "play", "duhem") and len(node.args) == 2:
+            # A lag's time constant is in seconds; a play's or a duhem's width in its input's unit.
             inner = [n.id for n in ast.walk(node.args[0]) if isinstance(n, ast.Name) and n.id in SYMBOLS]
             unit = "s" if node.func.id == "lag" else (SYMBOLS[inner[0]][1] if inner else "")
             for n in ast.walk(node.args[1]):

@@ -169,7 +169,114 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
             shapes.append(Shape(spec, "parametric", "product", name, by))
         if len(seen) >= LEADING:
             break
+    return shapes + history_shapes(obs, data, covariates)
+
+
+# Effects with a history (issue 38), by the rows that carry their excess: the output through
+# a slow pole of the own rate (it settles over seconds after every step of the table), heat
+# from turning (a first-order lag of the rate's magnitude, shared by the package's three
+# axes), and the temperature's direction of travel (a play operator of width w).
+RATE_ROWS = ("|rate|", "reference rate", "direction", "step into the hold", "previous hold's rate")
+TEMPERATURE_ROWS = ("temperature", "temperature rate", "temperature's direction",
+                    "time within a temperature point")
+SQUARED = "rate_x**2 + rate_y**2 + rate_z**2"
+MAGNITUDE = f"sqrt({SQUARED})"
+
+
+def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict]) -> list[Shape]:
+    """Terms with a history for the rows that carry part of the excess, where the session's
+    record holds what they read (the gyro's output for the rates; a temperature that turns
+    back at least once for its direction)."""
+    series = data.get("series")
+    if series is None or not hasattr(series, "record"):
+        return []
+    carrying = {name.split(" (")[0] for row in covariates if (row.get("share_of_excess") or 0) > 0
+                for name in row["covariate"].split(" = ")}
+    hold = float(np.median(obs["duration"])) if "duration" in obs else 20.0
+    span = float(series.t[-1] - series.t[0]) if len(series.t) > 1 else hold
+    shapes = []
+    if carrying & set(RATE_ROWS) and all(f"gyro_{a}" in series.record for a in AXES):
+        shapes.append(_expression("slow_pole", "lag(rate_own, tau) - rate_own",
+                                  {"tau": [0.2, max(2.0 * hold, 1.0)]}, "slow pole"))
+        # The heat a turn makes: friction torque times speed (the magnitude) or a viscous
+        # drag's power (its square).
+        slow = {"tau": [max(hold / 2, 1.0), max(span, hold)]}
+        shapes.append(_expression("rotation_heat", f"lag({MAGNITUDE}, tau)", slow, "heating by rotation"))
+        shapes.append(_expression("rotation_power", f"lag({SQUARED}, tau)", slow, "heating by rotation power"))
+    if carrying & set(TEMPERATURE_ROWS):
+        from ..io.signals import play_operator
+        temp = np.asarray(series.temp, dtype=float)
+        travel = float(np.ptp(temp)) if temp.size else 0.0
+        narrow = max(0.05 * travel, 0.2)
+        state = 2.0 * (temp - play_operator(temp, narrow)) / narrow
+        # Constant where the temperature never turns back: the point's (or the bias's) own.
+        if travel > 0 and np.min(state) < -0.5 < 0.5 < np.max(state):
+            # The direction as a switch over a width (a play operator, as a backlash), or as a
+            # state relaxing over a width of travel (a Duhem model, as a strained package).
+            widths = {"w": [max(0.01 * travel, 0.3), max(0.5 * travel, 2.0 * narrow)]}
+            shapes.append(_expression("temp_direction", "2 * (temp - play(temp, w)) / w", widths,
+                                      "hysteresis"))
+            shapes.append(_expression("temp_duhem", "duhem(temp, w)", widths, "hysteresis relaxing"))
+            # A switch with hysteresis (a firmware's table that changes at a temperature, back
+            # below it): a step of the play operator's output, where and how wide profiled.
+            lo = float(np.min(temp))
+            origin = float(f"{lo - 0.01 * travel:.4g}")
+            shifted = f"play(temp, w) - {origin!r}" if origin >= 0 else f"play(temp, w) + {-origin!r}"
+            shapes.append(_expression("temp_switch", f"sign({shifted} - m)",
+                                      {"m": [0.005 * travel, 1.01 * travel], **widths},
+                                      "switch with hysteresis"))
     return shapes
+
+
+def _expression(label: str, formula: str, profile: dict, family: str) -> Shape:
+    bounds = _round(profile)
+    start = {k: float(f"{np.sqrt(lo_ * hi_):.3g}") for k, (lo_, hi_) in bounds.items()}
+    spec = make_term({"name": "expression", "label": label, "formula": formula,
+                      "parameters": start, "profile": bounds}).spec_string()
+    return Shape(spec, "parametric", family, "history")
+
+
+def describe_history(term, coefficients: dict, family: str) -> str:
+    """A sentence on a fitted term with a history: its time constant or width, and its size
+    on each output axis in the units a reader checks against the sensor."""
+    inner = getattr(term, "term", term)
+    k = [coefficients.get(f"{inner.label}.{a}", 0.0) for a in AXES]
+    p = inner.parameters
+    if family == "slow pole":
+        sizes = ", ".join(f"{v * 1e3:+.3g} ({a})" for a, v in zip(AXES, k))
+        return (f"part of each output follows its own rate through a slow pole of "
+                f"{_quantity(p['tau'], 's')}: after a step of the rate it settles by "
+                f"{sizes} ×10⁻³ of the step.")
+    if family.startswith("heating by rotation"):
+        power = family.endswith("power")
+        sizes = ", ".join(f"{v * (400.0 ** 2 if power else 400.0):+.3g} ({a})" for a, v in zip(AXES, k))
+        what = "the rate's magnitude squared" if power else "the rate's magnitude"
+        return (f"a bias that follows the heat of turning, {what} through a lag of "
+                f"{_quantity(p['tau'], 's')}: {sizes} deg/s after a long turn at 400 deg/s.")
+    if family == "switch with hysteresis":
+        sizes = ", ".join(f"{2 * v:+.3g} ({a})" for a, v in zip(AXES, k))
+        at = float(eval_origin(inner.formula)) + p["m"]
+        return (f"a bias step at a temperature, with hysteresis: {sizes} deg/s above "
+                f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
+                f"{_quantity(at - p['w'] / 2, '°C')} falling.")
+    sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k))
+    turns = ("it turns over once the temperature has gone back" if family == "hysteresis" else
+             "it turns over by 63 % once the temperature has gone back")
+    return (f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
+            f"deg/s, rising against falling; {turns} {_quantity(p['w'], '°C')}.")
+
+
+def eval_origin(formula: str) -> float:
+    """The temperature a switch's ``m`` is measured from (``play(temp, w) + 20.8 - m``)."""
+    import re
+    found = re.search(r"play\(temp, w\) ([+-]) ([0-9.e+-]+) - m", formula)
+    return 0.0 if not found else (-1.0 if found.group(1) == "+" else 1.0) * float(found.group(2))
+
+
+def _reads_history(term) -> bool:
+    from ..terms.user import HISTORIES
+    formula = getattr(getattr(term, "term", term), "formula", "")
+    return any(f"{h}(" in formula for h in HISTORIES)
 
 
 def _has(settings, term_name: str) -> bool:
@@ -225,7 +332,8 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
     unit_y = "×10⁻⁶ of the scale" if by else "deg/s"
     x = np.linspace(lo, hi, 201)
     # A library term named beside the shape (a quadratic scale) is not part of it.
-    terms = [t for t in terms if getattr(t, "term", t).name in SHAPED]
+    # A history beside it is told apart (describe_history): it is no function of the input.
+    terms = [t for t in terms if getattr(t, "term", t).name in SHAPED and not _reads_history(t)]
     peaks, halves = [], []
     for axis in AXES:
         y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms) * (1e6 if by else 1.0)

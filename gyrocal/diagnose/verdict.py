@@ -179,7 +179,13 @@ def name_of(c) -> str:
 
 # What a term of free shape is, by its family.
 FAMILY_NAMES = {"smooth": "An empirical term", "levels": "A table over the protocol's levels",
-                "square": "A square", "abs": "A magnitude"}
+                "square": "A square", "abs": "A magnitude",
+                "slow pole": "A slow pole of the own rate",
+                "heating by rotation": "A lag of the rate's magnitude",
+                "heating by rotation power": "A lag of the rate's magnitude squared",
+                "hysteresis": "A play operator of the temperature",
+                "hysteresis relaxing": "A Duhem hysteresis of the temperature",
+                "switch with hysteresis": "A switch of the temperature with hysteresis"}
 
 
 def _free_shape_verdict(base, best, carried: str) -> str:
@@ -279,7 +285,13 @@ def advice(best, partial, candidates, covariates, explains: bool, has_other: boo
 def term_reads(term: str) -> set[str]:
     """The kinds of input a term reads: time, temperature (its value), thermal (its rate or
     lag), rate, accel."""
-    inputs = set(make_term(term).inputs())
+    made = make_term(term)
+    inner = getattr(made, "term", made)
+    # A formula reads what it names (its probe reads a rate for the column's length); the
+    # record behind a history of the rates or the accelerometer is no thermal input.
+    inputs = set(inner.needs if hasattr(inner, "formula") else made.inputs())
+    if inputs & {"rate_history", "accel_history"} and not inputs & {"temp", "temp_rate"}:
+        inputs.discard("temp_lag")
     kinds = set()
     if any(i.startswith("accel") for i in inputs):
         kinds.add("accel")

@@ -202,12 +202,17 @@ class SampleRecord:
             raise MissingInputError(f"a history of {name} needs it in the log's samples")
         return self.samples[source]
 
-    def history(self, key, values, operator: str, size: float, times: np.ndarray) -> np.ndarray:
+    def history(self, key, values, operator: str, size: float, times: np.ndarray,
+                per_sample: bool = True) -> np.ndarray:
+        if not per_sample and self.bins is not None:
+            # A history of the temperature alone runs over the record's bin means, as the fit
+            # reads it: a play or Duhem operator narrower than the samples' noise would chatter
+            # on them (a firmware averages its temperature sensor alike).
+            return self.bins.history(key, values, operator, size, times)
         cache = (key, operator, float(size))
         if cache not in self._done:   # once per batch: the filter's state moves on once
-            make = LagFilter if operator == "lag" else PlayFilter
-            run = self.states.setdefault(cache, make(size))
-            self._done[cache] = run(self.samples["t"], np.asarray(values(), dtype=float))
+            run = self.states.setdefault(cache, FILTERS[operator](size))
+            self._done[cache] = run(self.samples["t"], np.asarray(values(self), dtype=float))
         y, t = self._done[cache], self.samples["t"]
         if len(times) == len(t):
             return y
@@ -274,15 +279,18 @@ class Series:
                                     "columns logged)")
         return self.record[source]
 
-    def history(self, key, values, operator: str, size: float, times: np.ndarray) -> np.ndarray:
-        """``values`` (the record's points, from :meth:`column`), named ``key`` for the
-        cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag of
-        time constant ``size`` s; ``play``, the play (backlash) operator of width ``size``."""
+    def history(self, key, values, operator: str, size: float, times: np.ndarray,
+                per_sample: bool = True) -> np.ndarray:
+        """``values(self)`` (the record's points, from :meth:`column`), named ``key`` for
+        the cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag
+        of time constant ``size`` s; ``play``, the play (backlash) operator of width
+        ``size``; ``duhem``, the direction of travel relaxing over ``size`` of travel."""
         cache = ("history", key, operator, float(size))
         if cache not in self._cache:
-            x = np.asarray(values(), dtype=float)
+            x = np.asarray(values(self), dtype=float)
             self._cache[cache] = (first_order_lag(self.t, x, size) if operator == "lag"
-                                  else play_operator(x, size))
+                                  else play_operator(x, size) if operator == "play"
+                                  else duhem_operator(x, size)[0])
         return np.interp(times, self.t, self._cache[cache])
 
     # -- the history file ----------------------------------------------------------------
@@ -405,6 +413,65 @@ def play_operator(x: np.ndarray, width: float, initial: float | None = None) -> 
     return np.clip(start, lo, hi)
 
 
+# The dead band of the Duhem operator, as a part of its width: travel within it (a sensor's
+# noise) moves nothing.
+DUHEM_BAND = 0.05
+# Where a unit's temperature comes from before its record: the room (the datasheets' 25 °C).
+ROOM_C = 25.0
+
+
+def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
+                   ) -> tuple[np.ndarray, tuple[float, float, float]]:
+    """The direction of travel of ``x`` as a Duhem hysteresis: a state in [−1, 1] that
+    relaxes toward +1 while ``x`` rises and −1 while it falls, by ``e`` per ``width`` of
+    travel (``ds/dU = (sign(dx) − s) / w``). Travel is counted on :func:`play_operator` of
+    ``DUHEM_BAND · width``, so noise within that band moves nothing. The record starts from
+    the state of a unit taken from the room (:data:`ROOM_C`, with no direction yet) to the
+    record's first value, or continues ``state`` (the play operator's output, the last
+    direction, the last value: a record given in pieces). Returns the states and the state
+    to continue from."""
+    x = np.asarray(x, dtype=float)
+    if not (np.isfinite(width) and width > 0):
+        raise ValueError(f"a Duhem operator's width must be positive, got {width!r}")
+    if not len(x):
+        return x.copy(), state
+    if state is None:
+        half = 0.5 * DUHEM_BAND * width
+        y_last = float(np.clip(ROOM_C, x[0] - half, x[0] + half))
+        direction = float(np.sign(x[0] - ROOM_C)) if abs(x[0] - ROOM_C) > half else 0.0
+        state = (y_last, direction, direction * -float(np.expm1(-abs(y_last - ROOM_C) / width)))
+    y_last, direction, s_last = state
+    y = play_operator(x, DUHEM_BAND * width, y_last)
+    step = np.diff(np.r_[y_last, y])
+    sign = np.sign(step)
+    moved = np.where(sign != 0, np.arange(len(x)), -1)
+    last = np.maximum.accumulate(moved)
+    target = np.where(last >= 0, sign[np.maximum(last, 0)], direction)
+    travel = np.r_[0.0, np.cumsum(np.abs(step))]
+    s = first_order_lag(travel, np.r_[direction, target], width, initial=s_last)[1:]
+    return s, (float(y[-1]), float(target[-1]), float(s[-1]))
+
+
+class DuhemFilter:
+    """:func:`duhem_operator` of a record given in consecutive pieces. Points where the
+    input is not finite are skipped and read NaN."""
+
+    def __init__(self, width: float):
+        self.width = float(width)
+        self.state: tuple | None = None
+
+    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        out = np.full(len(x), np.nan)
+        good = np.isfinite(x) & np.isfinite(np.asarray(t, dtype=float))
+        if good.any():
+            out[good], self.state = duhem_operator(x[good], self.width, self.state)
+        return out
+
+
+FILTERS = {"lag": LagFilter, "play": PlayFilter, "duhem": DuhemFilter}
+
+
 class Inputs(dict):
     """What a term's ``columns`` reads: input arrays by name (one value per evaluation
     point: a quadrature node of a hold, or a sample), plus :meth:`lag`. Records what was
@@ -468,7 +535,7 @@ class Inputs(dict):
             raise MissingInputError(f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
                                     f"must be a positive number, got {size!r}")
         series = self.series
-        return series.history(key, lambda: values(series), operator, size, self.times)
+        return series.history(key, values, operator, size, self.times, bool(reads))
 
 
 def hold_inputs(data) -> tuple[Inputs, dict]:

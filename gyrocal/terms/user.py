@@ -77,10 +77,10 @@ _FUNCTIONS = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sig
 _OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
               ast.Div: np.divide, ast.Pow: np.power}
 # lag(x, tau): x through a first-order lag of tau seconds; play(x, w): x through the play
-# operator of width w. x is an input of the session's record or a formula of them, taken at
+# operator of width w; duhem(x, w): x's direction of travel relaxing over w of travel. x is an input of the session's record or a formula of them, taken at
 # the record's points (the temperature, its rate, the rates as the gyro output them, the
 # specific force), so fit and apply see the same history.
-HISTORIES = ("lag", "play")
+HISTORIES = ("lag", "play", "duhem")
 RECORD_INPUTS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "rate_own",
                  "accel_x", "accel_y", "accel_z", "accel_own")
 LAGGABLE = ("temp", "temp_rate")   # lags of these alone keep their own, older path
@@ -131,16 +131,16 @@ def _parse(formula: str, parameters=()) -> ast.AST:
         if not isinstance(node, allowed):
             raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
                               "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign tanh "
-                              "sin cos, lag, play)")
+                              "sin cos, lag, play, duhem)")
         if isinstance(node, ast.Call):
             if not isinstance(node.func, ast.Name) or node.keywords:
-                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)}, lag and play "
-                                  "may be called")
+                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)}, lag, play and "
+                                  "duhem may be called")
             if node.func.id in HISTORIES:
                 _check_history(formula, node, parameters)
             elif node.func.id not in _FUNCTIONS or len(node.args) != 1:
                 raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
-                                  "each), lag(x, tau) and play(x, w) may be called")
+                                  "each), lag(x, tau), play(x, w) and duhem(x, w) may be called")
         if isinstance(node, ast.Constant):
             if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) \
                     or not _finite_number(node.value):
@@ -153,7 +153,7 @@ def _parse(formula: str, parameters=()) -> ast.AST:
 
 
 def _check_history(formula: str, node: ast.Call, parameters) -> None:
-    """``lag(x, tau)`` / ``play(x, w)``: two arguments, ``x`` a formula of the record's inputs
+    """``lag(x, tau)`` / ``play(x, w)`` / ``duhem(x, w)``: two arguments, ``x`` a formula of the record's inputs
     (no history inside a history), the size a number or a parameter."""
     what = "tau in seconds" if node.func.id == "lag" else "w its width in the input's unit"
     usage = (f"formula {formula!r}: write {node.func.id}(x, {what.split()[0]}), x an input of the "
@@ -164,11 +164,15 @@ def _check_history(formula: str, node: ast.Call, parameters) -> None:
     inner = list(ast.walk(node.args[0]))
     if any(isinstance(n, ast.Call) and n.func.id in HISTORIES for n in inner):
         raise ConfigError(f"formula {formula!r}: a history cannot hold another ({node.func.id} "
-                          "of a lag or a play)")
+                          "of a lag, a play or a duhem)")
     for n in inner:
         if isinstance(n, ast.Name) and n.id not in _FUNCTIONS and n.id not in RECORD_INPUTS \
                 and n.id not in parameters:
             raise ConfigError(usage + f"; {n.id} is not in the record")
+    if node.func.id == "duhem" and ast.unparse(node.args[0]) != "temp":
+        # Its state before the record is the room's, which only the temperature has.
+        raise ConfigError(f"formula {formula!r}: duhem(temp, w) is the temperature's direction "
+                          "of travel; it reads the temperature alone")
     if not all(isinstance(n, (ast.Constant, ast.UnaryOp, ast.USub, ast.UAdd, ast.Load))
                or (isinstance(n, ast.Name) and n.id in parameters) for n in ast.walk(node.args[1])):
         raise ConfigError(usage)
@@ -209,7 +213,7 @@ def _value(node, data, parameters, formula):
 
 
 def _history(node: ast.Call, data, parameters, formula):
-    """``lag(x, tau)`` or ``play(x, w)``: ``x`` over the session's record, through the
+    """``lag(x, tau)``, ``play(x, w)`` or ``duhem(x, w)``: ``x`` over the session's record, through the
     operator, at ``data``'s times (:meth:`gyrocal.io.signals.Inputs.history`)."""
     size = _value(node.args[1], data, parameters, formula)
     arg = node.args[0]
@@ -222,7 +226,7 @@ def _history(node: ast.Call, data, parameters, formula):
         if float(size) == 0:   # no lag: the input itself
             return _value(arg, data, parameters, formula)
     elif np.ndim(size) or not (np.isfinite(size) and size > 0):
-        raise ConfigError(f"formula {formula!r}: a play operator's width must be a positive "
+        raise ConfigError(f"formula {formula!r}: a {node.func.id} operator's width must be a positive "
                           f"number, got {size!r}")
     axis = getattr(data, "axis", None)
     names = {n.id for n in ast.walk(arg) if isinstance(n, ast.Name)}
