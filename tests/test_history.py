@@ -388,3 +388,24 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
     assert families(["temperature's direction"]) == temperature
     assert families(["temperature"], temp=np.linspace(20.0, 40.0, t.size)) == set()
     assert families(["accel_x"]) == set()
+
+
+@pytest.mark.parametrize("effect, seed", [("slow_pole", 1), ("none", 1), ("none", 2), ("warmup", 1)])
+def test_the_output_settling_within_its_holds_is_tested_against_the_step_into_them(tmp_path, effect, seed):
+    """Where-it-fails' settling row: inside each hold the output's change from its first
+    half to its second against the step of that axis's rate into the hold. On the
+    independent zoo's slow pole (k (lag(u, τ) − u), k > 0) it is beyond any chance, with the
+    change of the pole's sign on every axis; a complete unit and a warm-up (a drift the same
+    in every hold, which the line's intercept holds) are not beyond the diagnosis' α/2."""
+    from gyrocal.diagnose.where import settling_row
+    from gyrocal.fit.model import columns_of
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+    log = _zoo_unit(tmp_path, effect, seed, sessions=1)[0]
+    obs = segment_log(log, Settings()).observations
+    row = settling_row(obs, columns_of(obs))
+    level = Settings().diagnosis.significance / 2
+    if effect == "slow_pole":
+        assert row["p_value"] < 1e-12 and all(v > 0 for v in row["slope"].values()), row
+    else:
+        assert row["p_value"] > level, row

@@ -56,7 +56,7 @@ from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, 
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
                       verdict as make_verdict)
-from .where import COVARIATES, covariate_table, fit_quality, history_columns, input_values, shape_estimate
+from .where import COVARIATES, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -579,6 +579,11 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
         values.update({z["coefficient"]: z["value"] for z in best.size})
     if shape.input == "history":
         best.shape = describe_history(terms[0], values, shape.family)
+        settling = next((r for r in covariates if r["covariate"] == SETTLING_ROW), None)
+        if shape.family == "slow pole" and settling and settling["p_value"] < judge.alpha / 2:
+            parts = ", ".join(f"{v * 1e3:+.2g} ({a})" for a, v in settling["slope"].items())
+            best.shape += (f" Inside each hold the output changes from its first half to its second "
+                           f"by {parts} ×10⁻³ of the step into it (p = {settling['p_value']:.2g}).")
     else:
         x = input_values(obs, data, shape.input)[quality.fitted_rows]
         best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ..terms import AXES, make_term
-from .where import INPUT_OF, SHAPE_KNOTS, input_values, knots_for
+from .where import INPUT_OF, SETTLING_ROW, SHAPE_KNOTS, input_values, knots_for
 
 LEADING = 2          # inputs of the leading covariate rows given terms of free shape
 # The input a term of free shape reads for each input of the covariate table: time within
@@ -169,7 +169,7 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
             shapes.append(Shape(spec, "parametric", "product", name, by))
         if len(seen) >= LEADING:
             break
-    return shapes + history_shapes(obs, data, covariates)
+    return shapes + history_shapes(obs, data, covariates, settings.diagnosis.significance / 2)
 
 
 # Effects with a history (issue 38), by the rows that carry their excess: the output through
@@ -183,7 +183,8 @@ SQUARED = "rate_x**2 + rate_y**2 + rate_z**2"
 MAGNITUDE = f"sqrt({SQUARED})"
 
 
-def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict]) -> list[Shape]:
+def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict], level: float = 0.005
+                   ) -> list[Shape]:
     """Terms with a history for the rows that carry part of the excess, where the session's
     record holds what they read (the gyro's output for the rates; a temperature that turns
     back at least once for its direction)."""
@@ -192,6 +193,10 @@ def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict]) -> lis
         return []
     carrying = {name.split(" (")[0] for row in covariates if (row.get("share_of_excess") or 0) > 0
                 for name in row["covariate"].split(" = ")}
+    # The output settling within its holds in proportion to the step into them, beyond chance
+    # at ``level`` (the diagnosis' α/2) whatever the hold means say.
+    if any(row["covariate"] == SETTLING_ROW and row["p_value"] < level for row in covariates):
+        carrying.add("step into the hold")
     hold = float(np.median(obs["duration"])) if "duration" in obs else 20.0
     span = float(series.t[-1] - series.t[0]) if len(series.t) > 1 else hold
     shapes = []

@@ -191,6 +191,63 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     return out
 
 
+SETTLING_ROW = "settling within the hold"
+
+
+def axis_steps(obs: pd.DataFrame, data: dict) -> np.ndarray:
+    """(n, 3) the step of each axis's rate into each hold (deg/s): the hold's rate less the
+    previous hold's on the same mounting, the whole rate after a remount (the table stood
+    still while the unit was handled)."""
+    t = np.asarray(data["t_start"], dtype=float)
+    order = np.argsort(t, kind="stable")
+    mount = obs["mount"].astype(str).to_numpy()[order] if "mount" in obs else np.zeros(len(t))
+    restart = np.r_[True, mount[1:] != mount[:-1]]
+    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])[order]
+    before = np.where(restart[:, None], 0.0, np.r_[np.zeros((1, 3)), rates[:-1]])
+    steps = np.empty_like(rates)
+    steps[order] = rates - before
+    return steps
+
+
+def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:
+    """Inside each hold, the output's change from its first half to its second (``settle_*``,
+    from segmentation) against the step of that axis's rate into the hold: a slow pole, a
+    part of the output that follows the rate through a lag, leaves a change in proportion to
+    the step. Per output axis a line with an intercept (a drift common to every hold, a
+    warm-up's, is not the step's) by least squares; the slope's F-test uses the scatter about
+    the line, so no noise model is assumed; the axes' p-values combined (Fisher). The slope
+    is in parts of the step. None where segmentation kept no halves or nothing steps."""
+    if not all(f"settle_{a}" in data for a in AXES) or "rate_x" not in data or "t_start" not in data:
+        return None
+    from .stats import f_sf, fisher_combined
+    settle = np.column_stack([np.asarray(data[f"settle_{a}"], dtype=float) for a in AXES])
+    steps = axis_steps(obs, data)
+    slopes, p_values, used = {}, [], 0
+    for i, a in enumerate(AXES):
+        x, y = steps[:, i], settle[:, i]
+        good = np.isfinite(x) & np.isfinite(y)
+        x, y = x[good], y[good]
+        if np.count_nonzero(x) < 3 or len(x) < 5:
+            continue
+        design = np.column_stack([np.ones_like(x), x])
+        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+        ss1 = float(np.sum((y - design @ coef) ** 2))
+        ss0 = float(np.sum((y - y.mean()) ** 2))
+        dof = len(x) - 2
+        if ss1 <= 0 or dof <= 0:
+            continue
+        p_values.append(float(f_sf((ss0 - ss1) / (ss1 / dof), 1, dof)))
+        slopes[a] = float(coef[1])
+        used = max(used, len(x))
+    if not p_values:
+        return None
+    return {"covariate": SETTLING_ROW, "bins": used, "share_of_excess": None,
+            "p_value": float(fisher_combined(*p_values)), "within": "the step into the hold",
+            "chi2_beyond_chance": 0.0, "slope": slopes,
+            "reason": "the output's change within each hold against the step of its rate into "
+                      "it (a separate test: no share of the hold means' excess)"}
+
+
 def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
                     dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
     """Share of the excess χ² each covariate accounts for, ranked; heat maps.
@@ -225,6 +282,9 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
     rows += _split_rows(layout, zz, excess, excess_significant)
     rows += _product_rows(layout.product_bins, zz, layout.rates, excess, excess_significant)
     rows.sort(key=lambda r: -(r["share_of_excess"] or 0.0))
+    settling = settling_row(obs, data)
+    if settling is not None:
+        rows.append(settling)
     heat = {name: {key: float(np.sqrt(np.mean(zz[cell] ** 2))) for key, cell in cells}
             for name, cells in layout.heat.items()}
     return rows, heat

@@ -430,6 +430,9 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
                ref_drift=ref_drift, ref_tol=tol[c0],
                not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
                half_diff=half_diff[rows, worst], half_limit=half_limit[rows, worst],
+               # The output's change from the hold's first half to its second (signed, per
+               # axis): what a slow pole leaves after the step into the hold.
+               settle=np.where((lengths >= 2)[:, None], d2 - d1, np.nan),
                saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log,
                                      cfg.full_scale))
     if "accel" in blk:  # optional: blocks without accelerometer data are left out
@@ -616,6 +619,8 @@ def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -
     if "accel" in h:
         for i, c in enumerate("xyz"):
             obs[f"accel_{c}"] = h["accel"][a, i]
+    for i, c in enumerate("xyz"):
+        obs[f"settle_{c}"] = h["settle"][a, i]
     # Temperature points: holds closer than temp_gap in temperature belong together.
     order = np.argsort(obs["temp"].to_numpy(), kind="stable")
     point = np.empty(len(obs), dtype=np.int64)
