@@ -595,8 +595,9 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
 def _profiled(term, profiled):
     """``term`` with its formula's parameters at their profiled values."""
     inner = getattr(term, "term", term)
-    found = {p["parameter"]: p["value"] for p in profiled or () if "value" in p}
+    # The model's own profiled terms (a library lag's tau) are in the list too: this term's only.
+    found = {p["parameter"]: p["value"] for p in profiled or ()
+             if "value" in p and p.get("term") == getattr(inner, "label", None)}
     if not getattr(inner, "parameters", None) or not found:
         return term
-    fitted = replace(inner, parameters={k: float(found.get(k, v)) for k, v in inner.parameters.items()})
-    return replace(term, term=fitted) if inner is not term else fitted
+    return term.with_settings(**{k: float(v) for k, v in found.items() if k in inner.parameters})

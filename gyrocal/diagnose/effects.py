@@ -234,15 +234,16 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
     # What the user will meet decides: the other session where there is one; otherwise,
     # among the pairs as good as the best within the figure's own uncertainty, the one that
     # adds fewest coefficients (a flexible partner fits the session's own wander too).
-    if usable(start_next) and len(found) > 1:
-        there = [judge.carry(f[2]) for f in found]
-        v_next = [t["validation_rms"] if usable(t) else np.inf for t in there]
+    there = [f[3].next_session if usable(f[3].next_session) else judge.carry(f[2])
+             if usable(start_next) else None for f in found]
+    v_next = [t["validation_rms"] if usable(t) else np.inf for t in there]
+    if np.isfinite(v_next).any():
         v, term, ext, pair = found[int(np.argmin(v_next))]
     else:
         top = min(f[0] for f in found)
         bound = chance_bound(min(f[2].summary["holds_scored"] for f in found), alpha)
         close = [f for f in found if f[0] <= top * bound]
-        v, term, ext, pair = min(close, key=lambda f: (-f[2].dof, f[0]))
+        v, term, ext, pair = min(close, key=lambda f: (pair_df(start, f[2]), f[0]))
     return replace(pair, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
                    explains_excess=True, alone_rms=first.validation_rms_with,
                    gain_pct=100.0 * (1 - v / base_rms), chi2=ext.chi2,

@@ -212,30 +212,32 @@ def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict], level:
         from ..io.signals import play_operator
         temp = np.asarray(series.temp, dtype=float)
         travel = float(np.ptp(temp)) if temp.size else 0.0
-        narrow = max(0.05 * travel, 0.2)
-        state = 2.0 * (temp - play_operator(temp, narrow)) / narrow
-        # Constant where the temperature never turns back: the point's (or the bias's) own.
-        if travel > 0 and np.min(state) < -0.5 < 0.5 < np.max(state):
+        narrowest = max(0.01 * travel, 0.3)
+        state = 2.0 * (temp - play_operator(temp, narrowest)) / narrowest if travel > 0 else temp * 0
+        # Tried only where the temperature travels several of the narrowest widths and turns
+        # back over one at least: a direction that never changes is the bias's own (or each
+        # point's), and ripple within a width moves no operator.
+        if travel >= 4.0 * narrowest and np.min(state) < -0.5 < 0.5 < np.max(state):
             # The direction as a switch over a width (a play operator, as a backlash), or as a
             # state relaxing over a width of travel (a Duhem model, as a strained package).
-            widths = {"w": [max(0.01 * travel, 0.3), max(0.5 * travel, 2.0 * narrow)]}
+            widths = {"w": [narrowest, max(0.5 * travel, 2.0 * narrowest)]}
             shapes.append(_expression("temp_direction", "2 * (temp - play(temp, w)) / w", widths,
                                       "hysteresis"))
             shapes.append(_expression("temp_duhem", "duhem(temp, w)", widths, "hysteresis relaxing"))
             # A switch with hysteresis (a firmware's table that changes at a temperature, back
-            # below it): a step of the play operator's output, where and how wide profiled.
-            lo = float(np.min(temp))
-            origin = float(f"{lo - 0.01 * travel:.4g}")
-            shifted = f"play(temp, w) - {origin!r}" if origin >= 0 else f"play(temp, w) + {-origin!r}"
-            shapes.append(_expression("temp_switch", f"sign({shifted} - m)",
+            # below it): a step of the play operator's output, where and how wide profiled, its
+            # place m measured from just below the coldest temperature (T0, held).
+            origin = float(f"{float(np.min(temp)) - 0.01 * travel:.4g}")
+            shapes.append(_expression("temp_switch", "sign(play(temp, w) - T0 - m)",
                                       {"m": [0.005 * travel, 1.01 * travel], **widths},
-                                      "switch with hysteresis"))
+                                      "switch with hysteresis", fixed={"T0": origin}))
     return shapes
 
 
-def _expression(label: str, formula: str, profile: dict, family: str) -> Shape:
+def _expression(label: str, formula: str, profile: dict, family: str, fixed=None) -> Shape:
     bounds = _round(profile)
     start = {k: float(f"{np.sqrt(lo_ * hi_):.3g}") for k, (lo_, hi_) in bounds.items()}
+    start.update(fixed or {})
     spec = make_term({"name": "expression", "label": label, "formula": formula,
                       "parameters": start, "profile": bounds}).spec_string()
     return Shape(spec, "parametric", family, "history")
@@ -260,7 +262,7 @@ def describe_history(term, coefficients: dict, family: str) -> str:
                 f"{_quantity(p['tau'], 's')}: {sizes} deg/s after a long turn at 400 deg/s.")
     if family == "switch with hysteresis":
         sizes = ", ".join(f"{2 * v:+.3g} ({a})" for a, v in zip(AXES, k))
-        at = float(eval_origin(inner.formula)) + p["m"]
+        at = p.get("T0", 0.0) + p["m"]
         return (f"a bias step at a temperature, with hysteresis: {sizes} deg/s above "
                 f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
                 f"{_quantity(at - p['w'] / 2, '°C')} falling.")
@@ -269,13 +271,6 @@ def describe_history(term, coefficients: dict, family: str) -> str:
              "it turns over by 63 % once the temperature has gone back")
     return (f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
             f"deg/s, rising against falling; {turns} {_quantity(p['w'], '°C')}.")
-
-
-def eval_origin(formula: str) -> float:
-    """The temperature a switch's ``m`` is measured from (``play(temp, w) + 20.8 - m``)."""
-    import re
-    found = re.search(r"play\(temp, w\) ([+-]) ([0-9.e+-]+) - m", formula)
-    return 0.0 if not found else (-1.0 if found.group(1) == "+" else 1.0) * float(found.group(2))
 
 
 def _reads_history(term) -> bool:

@@ -109,21 +109,31 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float, initial: float | N
     ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
     u = np.where(dt > 0, x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a), 0.0)
     y[0] = x[0] if initial is None else float(initial)
+    y[1:] = _decay_scan(lam, a, u, y[0])
+    return y
+
+
+def _decay_scan(lam: np.ndarray, a: np.ndarray, u: np.ndarray, start_value: float) -> np.ndarray:
+    """``y_k = a_k y_{k−1} + u_k`` (``a_k = exp(−lam_k)``) from ``y_0 = start_value``, for
+    k ≥ 1, in closed form by cumulative sums, in chunks of at most 50 decay units so that
+    the running products stay in floating range; a step of more than that starts afresh."""
+    y = np.empty(len(lam) + 1)
+    y[0] = start_value
     cum = np.concatenate([[0.0], np.cumsum(lam)])
     start, state = 1, y[0]
-    while start < len(x):
+    while start < len(y):
         if lam[start - 1] > 50.0:  # a gap of many time constants: the past is forgotten
             y[start] = u[start - 1] + a[start - 1] * state
             state, start = y[start], start + 1
             continue
-        stop = min(max(int(np.searchsorted(cum, cum[start - 1] + 50.0, side="right")), start + 1), len(x))
+        stop = min(max(int(np.searchsorted(cum, cum[start - 1] + 50.0, side="right")), start + 1), len(y))
         big = np.flatnonzero(lam[start:stop - 1] > 50.0)
         if big.size:
             stop = start + 1 + int(big[0])
         p = np.exp(-np.cumsum(lam[start - 1:stop - 1]))       # Π a up to k, >= e^-50
         y[start:stop] = p * (state + np.cumsum(u[start - 1:stop - 1] / p))
         state, start = y[stop - 1], stop
-    return y
+    return y[1:]
 
 
 class LagFilter:
@@ -423,8 +433,8 @@ ROOM_C = 25.0
 def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
                    ) -> tuple[np.ndarray, tuple[float, float, float]]:
     """The direction of travel of ``x`` as a Duhem hysteresis: a state in [−1, 1] that
-    relaxes toward +1 while ``x`` rises and −1 while it falls, by ``e`` per ``width`` of
-    travel (``ds/dU = (sign(dx) − s) / w``). Travel is counted on :func:`play_operator` of
+    relaxes toward +1 while ``x`` rises and −1 while it falls, by a factor ``e`` per
+    ``width`` of travel (``ds/dU = (sign(dx) − s) / w``, solved exactly step by step). Travel is counted on :func:`play_operator` of
     ``DUHEM_BAND · width``, so noise within that band moves nothing. The record starts from
     the state of a unit taken from the room (:data:`ROOM_C`, with no direction yet) to the
     record's first value, or continues ``state`` (the play operator's output, the last
@@ -447,8 +457,12 @@ def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
     moved = np.where(sign != 0, np.arange(len(x)), -1)
     last = np.maximum.accumulate(moved)
     target = np.where(last >= 0, sign[np.maximum(last, 0)], direction)
-    travel = np.r_[0.0, np.cumsum(np.abs(step))]
-    s = first_order_lag(travel, np.r_[direction, target], width, initial=s_last)[1:]
+    # Within a step the input moves one way: the state relaxes toward that step's direction
+    # over its travel exactly, s_k = d_k + (s_{k−1} − d_k) e^{−|Δ_k|/w}, whatever the steps'
+    # sizes (a coarse step and the same travel in fine ones give the same state).
+    lam = np.abs(step) / width
+    a = np.exp(-lam)
+    s = _decay_scan(lam, a, (1.0 - a) * target, s_last)
     return s, (float(y[-1]), float(target[-1]), float(s[-1]))
 
 
