@@ -451,3 +451,71 @@ def test_splines_of_other_inputs_are_refused_by_name():
                                              np.full_like(values, 1e-4)), meta=dict(META))
     with pytest.raises(UnsupportedModelError, match=r"smooth\(input=rate_own\)"):
         export_text(cal, "c-header")
+
+
+HISTORY_TERMS = ["expression(label='pole', formula='lag(rate_own, tau) - rate_own', parameters={'tau': 4.0})",
+                 "expression(label='heat', formula='lag(sqrt(rate_x**2 + rate_y**2 + rate_z**2), tau)', "
+                 "parameters={'tau': 90.0})",
+                 "expression(label='drag', formula='lag(rate_x**2 + rate_y**2 + rate_z**2, tau)', "
+                 "parameters={'tau': 300.0})"]
+
+
+def history_calibration(kind: str):
+    """The seed-000 unit with the histories the diagnosis offers: a slow pole of the own
+    rate (a lag of the raw output less the true rate), heat from turning (a lag of the
+    output's magnitude) and a drag's (of its square), sized well beyond ATOL."""
+    from gyrocal.fit.model import Model
+    cal = grid_calibration((0.0, 10.0, 20.0, 30.0)) if kind == "grid" else \
+        continuous_calibration((0.0, 10.0, 20.0, 30.0))
+    model = Model(cal.model.terms + Model.from_spec(HISTORY_TERMS).terms)
+    new = [n for n in model.names if n not in cal.grid.names]
+    size = {"pole": 3e-3, "heat": 1e-4, "drag": 1e-7}
+    add = np.array([size[n.split(".")[0]] for n in new]) * np.random.default_rng(5).standard_normal(len(new))
+    g = cal.grid
+    if kind == "grid":
+        values = np.column_stack([g.values, np.tile(add, (len(g.temperatures), 1))])
+        grid = TemperatureGrid(g.temperatures, tuple(model.names), values, np.full_like(values, 1e-4),
+                               g.method, g.degree)
+    else:
+        values = np.r_[g.values, add]
+        grid = ConstantCoefficients(g.temperatures, tuple(model.names), values, np.abs(values) + 1e-6)
+    return Calibration(model, grid, meta=dict(META))
+
+
+@needs_gcc
+@pytest.mark.parametrize("kind", ["grid", "continuous"])
+def test_compiled_c_runs_the_histories_as_apply_does(kind, log, tmp_path):
+    """A slow pole, heat from turning and a drag's heat (issue 38): the header runs each as a
+    first-order lag of the raw output with its state, adds it to B (the slow pole's true
+    rate to K's diagonal), and fed the samples in order the compiled code reproduces apply;
+    the JSON names the filter, its input and its time constant."""
+    cal = history_calibration(kind)
+    cal_path, expected = applied(cal, log, tmp_path)
+    header = export_text(load_calibration(cal_path), "c-header", source=cal_path)
+    assert "gyrocal_run_histories" in header and "#define GYROCAL_POLE_TAU (4.0)" in header
+    document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
+    assert [(h["label"], h["tau_s"]) for h in document["histories"]] == [("pole", 4.0), ("heat", 90.0),
+                                                                        ("drag", 300.0)]
+    assert "K's diagonal" in document["histories"][0]["adds_to"]
+    data, result = compiled_samples(header, log, tmp_path)
+    good = np.isfinite(data).all(axis=1)
+    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
+    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
+    # Teeth: the same calibration without its histories differs by far more.
+    from gyrocal.calibration.export import _without_splines
+    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4]},
+                                            warn=False)
+    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+
+
+def test_histories_firmware_cannot_run_are_refused_by_name():
+    """A history of the temperature (apply runs it on the record's bin means) or a lag of
+    another formula is refused, naming the term; the offered forms are not."""
+    from gyrocal.calibration.export import history_form, unsupported_terms
+    assert history_form({"name": "expression", "label": "p", "formula": "lag(rate_own,tau)-rate_own",
+                         "parameters": {"tau": 3.0}}) == ("own", -1.0)
+    refused = unsupported_terms([{"name": "expression", "label": "d", "formula": "duhem(temp, w)",
+                                  "parameters": {"w": 3.0}},
+                                 {"name": "expression", "label": "q", "formula": "lag(rate_x * rate_y, tau)",
+                                  "parameters": {"tau": 3.0}}])
+    assert refused == ["expression", "expression"]

@@ -27,6 +27,9 @@ polynomial, seed 003 Eq 16) of bias, scale, misalignment and their temperature
 polynomials (``bias_temp_poly``, ``scale_temp_poly``, ``misalignment_temp``) has K(T) and
 B(T) polynomial in T: they are exported exactly as ``poly`` over its calibrated span, the
 degree being the lowest that reproduces them (checked on 201 temperatures to 1e-12).
+Histories of the raw output the diagnosis offers (:data:`HISTORY_FORMS`: a slow pole, heat
+from turning) are first-order lags run per output axis over the samples, added to B (a slow
+pole's true rate to K's diagonal): ``histories`` in the JSON, ``gyrocal_run_histories`` in C.
 Other terms (``scale_quadratic``, ``scale_cubic``, ``scale_asymmetry``, ``g_sensitivity``,
 ``temp_rate``, user terms) make the output more than ``K(T) w_true + B(T)``: such models
 are refused, naming the terms; compensate them with ``gyrocal apply``. A temperature grid
@@ -99,6 +102,7 @@ class FirmwareTables:
     poly_B: np.ndarray | None = None       # (d+1, 3)
     die_tau: float | None = None           # s: T is the die's, the logged one lagged
     splines: tuple = ()                    # empirical terms: dicts of input, by, knots, coefficients
+    histories: tuple = ()                  # lags of the raw output: dicts of input, tau, coefficients
 
 
 # Empirical terms firmware evaluates beside K and B: a spline of time since power-on or of
@@ -106,6 +110,40 @@ class FirmwareTables:
 # affine in the true rate.
 SPLINE_TERM = "smooth"
 SPLINE_INPUTS = ("t", "temp")
+
+
+# Histories of the gyro's output firmware runs as filters beside K and B (issue 38): the
+# formulas the diagnosis offers, each a first-order lag of a function of the raw output,
+# added to B, a slow pole's "- rate_own" to K's diagonal (it reads the true rate).
+HISTORY_TERM = "expression"
+_SQUARED = "rate_x ** 2 + rate_y ** 2 + rate_z ** 2"
+HISTORY_FORMS = {   # the formula as ast.unparse writes it -> (input of the lag, K's diagonal)
+    "lag(rate_own, tau) - rate_own": ("own", -1.0),
+    "lag(rate_own, tau)": ("own", 0.0),
+    "lag(abs(rate_own), tau)": ("abs_own", 0.0),
+    f"lag(sqrt({_SQUARED}), tau)": ("magnitude", 0.0),
+    f"lag({_SQUARED}, tau)": ("squared", 0.0),
+}
+HISTORY_INPUTS = {"own": "w[a]", "abs_own": "|w[a]|", "magnitude": "sqrt(w[0]^2 + w[1]^2 + w[2]^2)",
+                  "squared": "w[0]^2 + w[1]^2 + w[2]^2"}
+LAG_FILTER = ("y[k] = e y[k-1] + u[k] - e u[k-1] - (u[k] - u[k-1]) (tau / dt) (1 - e), "
+              "e = exp(-dt / tau), dt = t[k] - t[k-1] (y kept when dt <= 0); y[0] = u[0]; a sample "
+              "whose time or input is not finite leaves the state and gives NaN; one filter per "
+              "output axis, u its input on that axis (w the raw output, deg/s)")
+
+
+def history_form(spec) -> tuple[str, float] | None:
+    """(input, K's diagonal) of an expression term firmware runs as a filter, else None."""
+    import ast
+    if not isinstance(spec, dict) or spec.get("name") != HISTORY_TERM or spec.get("drop"):
+        return None
+    try:
+        formula = ast.unparse(ast.parse(str(spec.get("formula")), mode="eval"))
+    except SyntaxError:
+        return None
+    if set(spec.get("parameters") or {}) | set(spec.get("profile") or {}) != {"tau"}:
+        return None
+    return HISTORY_FORMS.get(formula)
 
 
 def supported_terms(kind: str) -> tuple[str, ...]:
@@ -116,6 +154,8 @@ def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
     """Names of terms (specs as in a calibration file) the firmware rule cannot hold."""
     names = []
     for spec in specs:
+        if history_form(spec) is not None:
+            continue
         name = spec.get("name") if isinstance(spec, dict) else spec
         spline_ok = not isinstance(spec, dict) or (spec.get("input") in SPLINE_INPUTS and not spec.get("drop"))
         if name not in supported_terms(kind) or (name == SPLINE_TERM and not spline_ok):
@@ -176,14 +216,37 @@ def _splines(cal: Calibration) -> tuple:
     return tuple(out)
 
 
+def _histories(cal: Calibration, source) -> tuple:
+    """The calibration's histories as firmware runs them: the lag's input and time constant,
+    the coefficient per output axis and what a slow pole adds to K's diagonal. A history's
+    coefficients are session-wide (its effect belongs to the session's time, not to a
+    temperature point): the same at every grid point."""
+    out = []
+    for term, spec in zip(cal.model.terms, cal.model.spec()):
+        form = history_form(spec)
+        if form is None:
+            continue
+        values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
+        c = np.array([values[f"{term.label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
+        if not np.all(c == c[:, :1]):
+            raise UnsupportedModelError(f"cannot export for firmware: {term.label}'s coefficients "
+                                        "differ between temperature points", source=source)
+        out.append({"label": term.label, "input": form[0], "diagonal": form[1],
+                    "tau": float(term.parameters["tau"]), "coefficients": c[:, 0].copy(),
+                    "formula": term.formula})
+    return tuple(out)
+
+
 def _without_splines(cal: Calibration) -> Calibration:
-    """``cal`` without its empirical terms (firmware adds them to K and B itself)."""
+    """``cal`` without its empirical terms and histories (firmware adds them to K and B itself)."""
     from dataclasses import replace
 
     from ..fit.model import Model
-    if not any(t.name == SPLINE_TERM for t in cal.model.terms):
+    added = [t.name == SPLINE_TERM or history_form(s) is not None
+             for t, s in zip(cal.model.terms, cal.model.spec())]
+    if not any(added):
         return cal
-    model = Model(tuple(t for t in cal.model.terms if t.name != SPLINE_TERM))
+    model = Model(tuple(t for t, drop in zip(cal.model.terms, added) if not drop))
     keep = [j for j, n in enumerate(cal.grid.names) if n in set(model.names)]
     g = cal.grid
     cov = None if g.covariance is None else g.covariance[..., keep, :][..., keep]
@@ -199,6 +262,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
         _refuse(extra, cal.kind, source)
     temps = np.asarray(cal.grid.temperatures, dtype=float)
     splines = _splines(cal)
+    histories = _histories(cal, source)
     cal = _without_splines(cal)
     K, B = cal.matrices()
     P = len(temps)
@@ -209,7 +273,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     die = [t for t in cal.model.terms if t.name == DIE_TERM]
     tables = dict(temperature=temps, K=K, B=B, K_inv=np.linalg.inv(K), method=method,
                   calibration_method=declared, die_tau=float(die[0].tau) if die else None,
-                  splines=splines)
+                  splines=splines, histories=histories)
     Y = np.concatenate([K.reshape(P, 9), B], axis=1)   # every entry, one column each
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
@@ -229,7 +293,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     for name, value in tables.items():
         if isinstance(value, np.ndarray) and not np.all(np.isfinite(value)):
             raise InputError(f"cannot export for firmware: {name} is not finite", source=source)
-    for s in splines:
+    for s in (*splines, *histories):
         if not np.all(np.isfinite(s["coefficients"])):
             raise InputError(f"cannot export for firmware: {s['label']} is not finite", source=source)
     return FirmwareTables(**tables)
@@ -278,6 +342,13 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
                            else "B (B_a += s_a(x))", "outside_knots": "clamp"}
                           for s in tables.splines]
         doc["time"] = "t: seconds since power-on"
+    if tables.histories:
+        doc["histories"] = [{"label": h["label"], "formula": h["formula"], "input": HISTORY_INPUTS[h["input"]],
+                             "tau_s": h["tau"], "filter": LAG_FILTER,
+                             "coefficients": h["coefficients"].tolist(),
+                             "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a"
+                                                                if h["diagonal"] else "")}
+                            for h in tables.histories]
     if tables.die_tau is not None:
         doc["model"] = "w = K(T_die) w_true + B(T_die)"
         doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"
