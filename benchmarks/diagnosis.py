@@ -121,6 +121,11 @@ CASES = [
     ("slow_pole", "turntable3", "white", "outside", {}, {2: {"rate_order": "shuffled"}}),
     ("rotation_heating", "turntable3", "white", "outside"),
     ("temp_hysteresis_play", "turntable3", "white", "outside", {}, {2: {"temp_order": "updown"}}),
+    # The same hysteresis where the diagnosed session revisits a point from the other side
+    # (the second-highest again, from above: within that point the direction changes), its
+    # other session and the unseen one visiting the points in other orders.
+    ("temp_hysteresis_play", "turntable3", "white", "outside", {},
+     {0: {"temp_order": "revisit"}, 1: {"temp_order": "updown"}, 2: {"temp_order": "downup"}}),
     ("mount_bias_shift", "turntable3", "white", "mounting"),
 ]
 SMALLEST = [("none", "turntable3", "white", "none"),

@@ -122,7 +122,7 @@ SESSION_RESTART = ("warmup", "bias_ramp", "run_to_run_bias", "scale_warmup", "wa
 
 # session overrides that change the order a turntable visits its rates or set points
 RATE_ORDERS = ("default", "reversed", "shuffled", "ascending", "descending")
-TEMP_ORDERS = ("default", "ascending", "descending", "updown", "downup")
+TEMP_ORDERS = ("default", "ascending", "descending", "updown", "downup", "revisit")
 
 PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo")
 NOISES = ("white", "coloured")
@@ -638,6 +638,8 @@ def _ordered_temps(temps, order):
     if order == "downup":
         dn = up[::-1]
         return dn[0::2] + dn[1::2][::-1]
+    if order == "revisit":            # up through every point, then the second-highest again,
+        return up + up[-2:-1]         # from above (added later, for a protocol that revisits)
     raise ValueError(f"unknown temp_order {order!r}; known: {TEMP_ORDERS}")
 
 

@@ -624,7 +624,8 @@ def check_orders(tmp):
     print(f"  shuffled: {len(v0)} different permutations (mount x set point), same for the same seeds, "
           f"new in session 1; e.g. {v0[0]}")
     for order, want in (("default", [-20.0, 5.0, 30.0, 55.0]), ("descending", [55.0, 30.0, 5.0, -20.0]),
-                        ("updown", [-20.0, 30.0, 55.0, 5.0]), ("downup", [55.0, 5.0, -20.0, 30.0])):
+                        ("updown", [-20.0, 30.0, 55.0, 5.0]), ("downup", [55.0, 5.0, -20.0, 30.0]),
+                        ("revisit", [-20.0, 5.0, 30.0, 55.0, 30.0])):
         _, inf = simulate_session(u, 0, 1, 1.0, temp_order=order)
         got = setpoint_order(inf)
         knots = [k for i, k in enumerate(inf["thermal"]["chamber_knots_c"])

@@ -56,7 +56,7 @@ from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, 
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
                       verdict as make_verdict)
-from .where import COVARIATES, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
+from .where import COVARIATES, HISTORY_ROWS, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -172,12 +172,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     # Each mounting on the fixture may leave its own offset, fresh every time: no term of the
     # sensor carries it, and it does not repeat in another session (where it would read as
     # slow noise or a unit that changed).
-    mounting = (mounting_fixed(obs, quality, base.dof, alpha, history_columns(obs, data)["mounting"])
+    before_holds = history_columns(obs, data)
+    mounting = (mounting_fixed(obs, quality, base.dof, alpha, before_holds["mounting"],
+                               before_holds.get("temp_direction"))
                 if not explains and not seen_in_lab and "mount" in obs else None)
     seen_mounting = bool(mounting and mounting["explains"])
     unrepeated = False
     if (not explains and not seen_in_lab and not seen_mounting and usable(base_next)
-            and base_next["unrepeated_p_value"] is not None):
+            and base_next["unrepeated_p_value"] is not None
+            and not _history_carries(obs, data, quality, base.dof, alpha)):
         # An excess that does not come back in the other session, whose residuals differ
         # from this one's by more than the floor, is slow noise, not an effect.
         unrepeated = explains = base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
@@ -373,6 +376,19 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.factor = shown["all"]
     diag.negligible = negligible
     return diag
+
+
+def _history_carries(obs, data, quality, dof: int, alpha: float) -> bool:
+    """Whether what came before the holds (the step into them, the rate they came from, the
+    temperature's direction, the output settling within them) carries the excess beyond
+    chance (α/2, Bonferroni over those rows). A history's pattern does not repeat in a
+    session that visits the rates or the temperatures in another order, so such an excess
+    is no proof of slow noise: the candidates are judged on the other session instead."""
+    rows, _ = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows, dof, True)
+    names = (*HISTORY_ROWS[:3], SETTLING_ROW)
+    found = [r for r in rows if any(n in names for n in r["covariate"].split(" = "))
+             and (r["share_of_excess"] is None or r["share_of_excess"] > 0)]
+    return any(r["p_value"] < alpha / 2 / len(names) for r in found)
 
 
 def continuous_instead(judge: Judge, best: Candidate, base_next, bound) -> Candidate | None:

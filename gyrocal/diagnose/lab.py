@@ -122,15 +122,19 @@ LAB_ADVICE = ("Compensate an effect fixed in the lab on the rig, not in the sens
               "effect's share of its error left in.")
 
 
-def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray) -> dict | None:
+def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray,
+                   direction: np.ndarray | None = None) -> dict | None:
     """How much of the in-sample excess an offset per mounting accounts for: each output
     axis' whitened residuals refitted with one offset per stretch of holds on one mount
     (``stretch``, :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
     point's bias and rates. The mounting explains the excess when its offsets' gain passes
     an F-test, what they leave is within chance, and neither of its rivals does as well:
     one offset per mount for the whole session (an effect of the orientation, which a
-    sensor term holds) and a drift in time within each point (which the mountings follow
-    in order). None where there is nothing to test."""
+    sensor term holds), a drift in time within each point (which the mountings follow
+    in order) and, given the temperature's ``direction`` of travel at each hold, an offset
+    per direction within each point (a hysteresis, where a point is visited from both
+    sides: its mountings differ by the way the temperature came). None where there is
+    nothing to test."""
     if "mount" not in obs:
         return None
     rows = quality.fitted_rows
@@ -143,9 +147,12 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray) ->
     t = obs.loc[rows, "t_start"].to_numpy(float)
     drift = np.zeros((len(z), points.max() + 1))
     drift[np.arange(len(z)), points] = (t - t.min()) / 3600.0
-    rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift)
+    way = np.zeros((len(z), points.max() + 1))
+    if direction is not None:
+        way[np.arange(len(z)), points] = np.asarray(direction, dtype=float)[rows] > 0
+    rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift, way)
     before = float(np.nansum(z ** 2))
-    rss, added = np.zeros(4), np.zeros(3, dtype=int)   # points alone, then with each
+    rss, added = np.zeros(5), np.zeros(4, dtype=int)   # points alone, then with each
     for axis_rss, ranks in _refits(z, floor, own, rivals):
         rss += axis_rss
         added += [r - ranks[0] for r in ranks[1:]]
@@ -157,13 +164,16 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray) ->
     left_p = float(chi2_sf(rss[1], left_dof))
     orientation_p = float(chi2_sf(rss[2], dof - int(added[1])))
     drift_p = float(chi2_sf(rss[3], dof - int(added[2])))
+    direction_p = float(chi2_sf(rss[4], dof - int(added[3])))
     excess = max(before - dof, 0.0)
     return {"p_value": p_value, "parameters": q, "mountings": int(groups.max() + 1),
             "chi2_after": float(rss[1]), "dof": left_dof,
             "share_of_excess": min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
             "left_p_value": left_p, "orientation_p_value": orientation_p, "drift_p_value": drift_p,
+            "direction_p_value": direction_p,
             "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2
-                             and orientation_p < alpha / 2 and drift_p < alpha / 2)}
+                             and orientation_p < alpha / 2 and drift_p < alpha / 2
+                             and direction_p < alpha / 2)}
 
 
 def mounting_reason(found: dict) -> dict:
