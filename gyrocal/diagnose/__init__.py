@@ -56,7 +56,7 @@ from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, 
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
                       verdict as make_verdict)
-from .where import COVARIATES, HISTORY_ROWS, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
+from .where import COVARIATES, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -178,13 +178,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
                 if not explains and not seen_in_lab and "mount" in obs else None)
     seen_mounting = bool(mounting and mounting["explains"])
     unrepeated = False
-    if (not explains and not seen_in_lab and not seen_mounting and usable(base_next)
-            and base_next["unrepeated_p_value"] is not None
-            and not _history_carries(obs, data, quality, base.dof, alpha)):
-        # An excess that does not come back in the other session, whose residuals differ
-        # from this one's by more than the floor, is slow noise, not an effect.
-        unrepeated = explains = base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
     tolerance = explained_tolerance(obs, base.summary["holds_scored"], alpha)
+    if (not explains and not seen_in_lab and not seen_mounting and usable(base_next)
+            and base_next["unrepeated_p_value"] is not None):
+        # An excess that does not come back in the other session, whose residuals differ
+        # from this one's by more than the floor, is slow noise, not an effect; unless a
+        # history explains it here and carries to the other session (its pattern changes
+        # with the order a session visits its rates or temperatures).
+        unrepeated = explains = (base_next["repeat_p_value"] >= alpha / 2 and slow_noise(base_next, alpha)
+                                 and not _history_explains(judge, base, quality, base_next, tolerance))
     v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
     # The held-out error misses what a correct model leaves by more than the validation's
     # own uncertainty (chance, over the holds scored): only then is there something for a
@@ -378,17 +380,15 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     return diag
 
 
-def _history_carries(obs, data, quality, dof: int, alpha: float) -> bool:
-    """Whether what came before the holds (the step into them, the rate they came from, the
-    temperature's direction, the output settling within them) carries the excess beyond
-    chance (α/2, Bonferroni over those rows). A history's pattern does not repeat in a
-    session that visits the rates or the temperatures in another order, so such an excess
-    is no proof of slow noise: the candidates are judged on the other session instead."""
-    rows, _ = covariate_table(obs, data, np.nan_to_num(quality.z), quality.fitted_rows, dof, True)
-    names = (*HISTORY_ROWS[:3], SETTLING_ROW)
-    found = [r for r in rows if any(n in names for n in r["covariate"].split(" = "))
-             and (r["share_of_excess"] is None or r["share_of_excess"] > 0)]
-    return any(r["p_value"] < alpha / 2 / len(names) for r in found)
+def _history_explains(judge: Judge, base: Evaluation, quality, base_next, tolerance) -> bool:
+    """Whether a term with a history (:func:`gyrocal.diagnose.shapes.history_shapes`, for the
+    rows that carry the excess) explains it here and carries to the other session, as any
+    named shape must: then the excess that did not come back there is no slow noise."""
+    rows, _ = covariate_table(judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows,
+                              base.dof, True)
+    bound = chance_bound(base.summary["holds_scored"], judge.alpha)
+    found, _ = free_shape(judge, base, rows, quality, base_next, tolerance, bound, inputs=("history",))
+    return found is not None
 
 
 def continuous_instead(judge: Judge, best: Candidate, base_next, bound) -> Candidate | None:
