@@ -293,6 +293,8 @@ def term_reads(term: str) -> set[str]:
     if inputs & {"rate_history", "accel_history"} and not inputs & {"temp", "temp_rate"}:
         inputs.discard("temp_lag")
     kinds = set()
+    if "lag(" in getattr(inner, "formula", ""):
+        kinds.add("time")     # a lag follows its input's past: it changes with time in a hold
     if any(i.startswith("accel") for i in inputs):
         kinds.add("accel")
     if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
