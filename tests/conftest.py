@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import shutil
 from dataclasses import replace
 
 from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
@@ -170,16 +171,26 @@ def leftovers(wd):
 
 
 @pytest.fixture(scope="session")
-def fleet_run(tmp_path_factory):
+def fleet_run(tmp_path_factory, worker_id):
     """A small fleet through the whole workflow: five demo unit sessions (one device
-    twice), one corrupt log and one missing log."""
-    wd = tmp_path_factory.mktemp("fleet")
-    (wd / "logs").mkdir()
-    (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
-    (wd / "devices.tsv").write_text(FLEET_MANIFEST)
-    (wd / "config.yaml").write_text(FLEET_CONFIG)
-    out = snakemake(wd)
-    assert out.returncode == 0, out.stderr[-3000:]
+    twice), one corrupt log and one missing log. Made once for the whole run: the test
+    processes pytest-xdist starts share it (a lock on a file beside their temporary
+    folders), so that the workflow runs once, not once per process that needs it."""
+    import fcntl
+    root = tmp_path_factory.getbasetemp()
+    root = root if worker_id == "master" else root.parent
+    wd = root / "fleet-shared"
+    with open(root / "fleet-shared.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (wd / ".made").exists():
+            shutil.rmtree(wd, ignore_errors=True)
+            (wd / "logs").mkdir(parents=True)
+            (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
+            (wd / "devices.tsv").write_text(FLEET_MANIFEST)
+            (wd / "config.yaml").write_text(FLEET_CONFIG)
+            out = snakemake(wd)
+            assert out.returncode == 0, out.stderr[-3000:]
+            (wd / ".made").write_text("")
     return wd
 
 
