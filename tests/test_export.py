@@ -394,7 +394,6 @@ def spline_calibration(kind: str):
     """The seed-000 unit with empirical terms firmware can evaluate: a spline of time since
     power-on on a grid; a continuous model with a spline of the temperature (a bias) and
     one of time times the own rate (a scale relaxing after power-on)."""
-    from gyrocal.fit.model import Model
     if kind == "grid":
         cal = grid_calibration((0.0, 10.0, 20.0, 30.0), "lagrange3", 2)
         extra = ['smooth(input="t", knots=[0.0, 20.0, 60.0, 120.0])']
@@ -402,11 +401,17 @@ def spline_calibration(kind: str):
         cal = continuous_calibration((0.0, 10.0, 20.0, 30.0))
         extra = ['smooth(input="temp", knots=[-10.0, 5.0, 20.0, 40.0], linear=False)',
                  'smooth(input="t", knots=[0.0, 30.0, 120.0], by="rate_own")']
+    return with_terms(cal, kind, extra, lambda n: 1e-3 if "by_rate" in n else 0.2, seed=4)
+
+
+def with_terms(cal, kind: str, extra, size_of, seed: int):
+    """``cal`` with the terms ``extra``, their coefficients drawn (seeded) at ``size_of(name)``
+    and the same at every grid point (session-wide, as a series term's are)."""
+    from gyrocal.fit.model import Model
     model = Model(cal.model.terms + Model.from_spec(extra).terms)
     new = [n for n in model.names if n not in cal.grid.names]
-    rng = np.random.default_rng(4)
-    size = np.array([1e-3 if "by_rate" in n else 0.2 for n in new])
-    add = size * rng.standard_normal(len(new))
+    size = np.array([size_of(n) for n in new])
+    add = size * np.random.default_rng(seed).standard_normal(len(new))
     g = cal.grid
     if kind == "grid":
         values = np.column_stack([g.values, np.tile(add, (len(g.temperatures), 1))])
@@ -464,22 +469,10 @@ def history_calibration(kind: str):
     """The seed-000 unit with the histories the diagnosis offers: a slow pole of the own
     rate (a lag of the raw output less the true rate), heat from turning (a lag of the
     output's magnitude) and a drag's (of its square), sized well beyond ATOL."""
-    from gyrocal.fit.model import Model
     cal = grid_calibration((0.0, 10.0, 20.0, 30.0)) if kind == "grid" else \
         continuous_calibration((0.0, 10.0, 20.0, 30.0))
-    model = Model(cal.model.terms + Model.from_spec(HISTORY_TERMS).terms)
-    new = [n for n in model.names if n not in cal.grid.names]
     size = {"pole": 3e-3, "heat": 1e-4, "drag": 1e-7}
-    add = np.array([size[n.split(".")[0]] for n in new]) * np.random.default_rng(5).standard_normal(len(new))
-    g = cal.grid
-    if kind == "grid":
-        values = np.column_stack([g.values, np.tile(add, (len(g.temperatures), 1))])
-        grid = TemperatureGrid(g.temperatures, tuple(model.names), values, np.full_like(values, 1e-4),
-                               g.method, g.degree)
-    else:
-        values = np.r_[g.values, add]
-        grid = ConstantCoefficients(g.temperatures, tuple(model.names), values, np.abs(values) + 1e-6)
-    return Calibration(model, grid, meta=dict(META))
+    return with_terms(cal, kind, HISTORY_TERMS, lambda n: size[n.split(".")[0]], seed=5)
 
 
 @needs_gcc

@@ -170,16 +170,10 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     temperature's direction of travel (a play operator of :data:`DIRECTION_WIDTH_C` over the
     session's record, +1 rising, −1 falling), and its mounting (the stretch of consecutive
     holds on one mount)."""
-    n = len(obs)
     t = np.asarray(data["t_start"], dtype=float)
-    order = np.argsort(t, kind="stable")
-    mount = obs["mount"].astype(str).to_numpy()[order]
-    stretch_start = np.r_[True, mount[1:] != mount[:-1]]
-    stretch = np.empty(n, dtype=np.int64)
-    stretch[order] = np.cumsum(stretch_start) - 1
     ref = np.asarray(data["ref_rate"], dtype=float)
-    previous = np.empty(n)
-    previous[order] = np.where(stretch_start, 0.0, np.r_[0.0, ref[order][:-1]])
+    before, stretch = _before_each_hold(obs, data, ref[:, None])
+    previous = before[:, 0]
     out = {"step": ref - previous, "previous_rate": previous, "mounting": stretch}
     series = data.get("series")
     if series is not None and hasattr(series, "temp") and len(series.t) > 1:
@@ -198,15 +192,24 @@ def axis_steps(obs: pd.DataFrame, data: dict) -> np.ndarray:
     """(n, 3) the step of each axis's rate into each hold (deg/s): the hold's rate less the
     previous hold's on the same mounting, the whole rate after a remount (the table stood
     still while the unit was handled)."""
-    t = np.asarray(data["t_start"], dtype=float)
-    order = np.argsort(t, kind="stable")
-    mount = obs["mount"].astype(str).to_numpy()[order] if "mount" in obs else np.zeros(len(t))
-    restart = np.r_[True, mount[1:] != mount[:-1]]
-    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])[order]
-    before = np.where(restart[:, None], 0.0, np.r_[np.zeros((1, 3)), rates[:-1]])
-    steps = np.empty_like(rates)
-    steps[order] = rates - before
-    return steps
+    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
+    return rates - _before_each_hold(obs, data, rates)[0]
+
+
+def _before_each_hold(obs: pd.DataFrame, data: dict, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``values`` (n, k) of the hold before each one in time on the same mounting (0 for the
+    first after a remount: the table stood still while the unit was handled), and each
+    hold's mounting (the stretch of consecutive holds on one mount, numbered in time)."""
+    n = len(values)
+    order = np.argsort(np.asarray(data["t_start"], dtype=float), kind="stable")
+    mount = obs["mount"].astype(str).to_numpy()[order] if "mount" in obs else np.zeros(n)
+    stretch_start = np.r_[True, mount[1:] != mount[:-1]]
+    stretch = np.empty(n, dtype=np.int64)
+    stretch[order] = np.cumsum(stretch_start) - 1
+    ordered = values[order]
+    before = np.empty_like(values)
+    before[order] = np.where(stretch_start[:, None], 0.0, np.r_[np.zeros((1, values.shape[1])), ordered[:-1]])
+    return before, stretch
 
 
 def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:

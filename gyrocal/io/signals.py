@@ -162,23 +162,27 @@ class LagFilter:
         return out
 
 
-class PlayFilter:
-    """:func:`play_operator` of a record given in consecutive pieces: the last output carries
-    the state. Points where the input is not finite are skipped and read NaN."""
+class CarriedFilter:
+    """An operator ``op(x, size, state) -> (y, state)`` over a record given in consecutive
+    pieces, the state carried from piece to piece. Points where time or input is not
+    finite are skipped and read NaN."""
 
-    def __init__(self, width: float):
-        self.width = float(width)
-        self.last: float | None = None
+    def __init__(self, op, size: float):
+        self.op, self.size, self.state = op, float(size), None
 
     def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         x = np.asarray(x, dtype=float)
         out = np.full(len(x), np.nan)
         good = np.isfinite(x) & np.isfinite(np.asarray(t, dtype=float))
         if good.any():
-            y = play_operator(x[good], self.width, self.last)
-            self.last = float(y[-1])
-            out[good] = y
+            out[good], self.state = self.op(x[good], self.size, self.state)
         return out
+
+
+def _play_carried(x, width, last):
+    """:func:`play_operator` whose state is its last output."""
+    y = play_operator(x, width, last)
+    return y, float(y[-1])
 
 
 class SampleRecord:
@@ -466,24 +470,9 @@ def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
     return s, (float(y[-1]), float(target[-1]), float(s[-1]))
 
 
-class DuhemFilter:
-    """:func:`duhem_operator` of a record given in consecutive pieces. Points where the
-    input is not finite are skipped and read NaN."""
-
-    def __init__(self, width: float):
-        self.width = float(width)
-        self.state: tuple | None = None
-
-    def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, dtype=float)
-        out = np.full(len(x), np.nan)
-        good = np.isfinite(x) & np.isfinite(np.asarray(t, dtype=float))
-        if good.any():
-            out[good], self.state = duhem_operator(x[good], self.width, self.state)
-        return out
-
-
-FILTERS = {"lag": LagFilter, "play": PlayFilter, "duhem": DuhemFilter}
+# The filter apply runs for each history, by operator.
+FILTERS = {"lag": LagFilter, "play": lambda w: CarriedFilter(_play_carried, w),
+           "duhem": lambda w: CarriedFilter(duhem_operator, w)}
 
 
 class Inputs(dict):
