@@ -54,9 +54,10 @@ from .reading import readable
 from .shapes import describe, describe_history, shape_terms
 from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined,
                     floor_uncertainty)
-from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained,
+from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained, unseen_hysteresis,
                       verdict as make_verdict)
-from .where import COVARIATES, SETTLING_ROW, covariate_table, fit_quality, history_columns, input_values, shape_estimate
+from .where import (COVARIATES, SETTLING_ROW, covariate_table, fit_quality, history_columns,
+                    input_values, one_way_points, shape_estimate)
 
 __all__ = ["COVARIATES", "TIME_DRIFT", "Candidate", "Diagnosis", "Evaluation", "add_term_option",
            "candidate_terms", "carry_over", "chance_bound", "chi2_ppf", "chi2_sf", "config_line",
@@ -92,6 +93,7 @@ class Diagnosis:
     between_points: dict | None = None        # interpolated against fitted, point by point
     factor: float | None = None               # the verdict's "times their noise floor"
     negligible: dict | None = None            # an excess within the floor's own uncertainty
+    one_way: dict | None = None               # point (°C) -> the one direction it was reached in
 
     def to_dict(self) -> dict:
         s = self.base.summary
@@ -116,6 +118,8 @@ class Diagnosis:
             "mounting": self.mounting,
             "between_points": self.between_points,
             "negligible_excess": self.negligible,
+            "one_way_points": None if self.one_way is None else
+            [{"temp": t, "direction": d} for t, d in self.one_way.items()],
             "best": None if self.best is None else {
                 **self.best.to_dict(), "config_line": self.config_line,
                 "option": " ".join(add_term_option(t) for t in (self.best.term, *self.best.together))},
@@ -369,6 +373,10 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.advice = [LAB_ADVICE] if seen_in_lab and best is None else \
         [MOUNTING_ADVICE] if seen_mounting and best is None else \
         advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
+    diag.one_way = _one_way(obs, data, before_holds, judge.other)
+    blind = unseen_hysteresis(diag.one_way, judge.other is not None)
+    if blind:
+        diag.advice = [*diag.advice, blind]
     diag.time_drift = drift
     diag.shape_estimate = estimate
     diag.unexplained = why
@@ -378,6 +386,24 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.factor = shown["all"]
     diag.negligible = negligible
     return diag
+
+
+def _one_way(obs, data, before, other) -> dict | None:
+    """:func:`one_way_points` of this session, where the other session (if any) reached each
+    point it shares with this one (within 2 °C) the same way too: only then is a hysteresis
+    of the temperature out of the data's sight."""
+    here = one_way_points(obs, data, before)
+    if here is None or other is None:
+        return here
+    there = one_way_points(other, columns_of(other))
+    if there is None:
+        return None
+    temps = np.array(list(here))
+    for temp, way in there.items():
+        near = np.abs(temps - temp) <= 2.0
+        if near.any() and any(here[float(t)] != way for t in temps[near]):
+            return None
+    return here
 
 
 def _history_explains(judge: Judge, base: Evaluation, quality, base_next, tolerance) -> bool:

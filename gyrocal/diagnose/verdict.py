@@ -230,6 +230,22 @@ def input_kinds(term: str) -> set[str]:
     return term_reads(term) - {"temperature"}
 
 
+def unseen_hysteresis(one_way: dict | None, two_sessions: bool) -> str | None:
+    """The advice where every temperature point saw the temperature travel one way
+    (:func:`gyrocal.diagnose.where.one_way_points`): a hysteresis of the temperature hides
+    in the points' biases, and only a session that reaches a point from the other side tells."""
+    if not one_way:
+        return None
+    ways = set(one_way.values())
+    how = ("rising" if ways == {1} else "falling" if ways == {-1} else "one way within each point")
+    where = "in both sessions, each point the same way" if two_sessions else "and it did not turn back within any"
+    return (f"Every temperature point was reached with the temperature {how}, {where}: a bias "
+            "that depends on the direction the temperature came from (thermal hysteresis) sits "
+            "in each point's bias here, so this protocol cannot see it, and a session reaching a "
+            "point from the other side would meet it in full. Visiting a point from both sides "
+            "(down after up, or back to a point passed) would show it.")
+
+
 def advice(best, partial, candidates, covariates, explains: bool, has_other: bool,
            drift: dict | None = None) -> list[str]:
     """What to do next, in sentences: what would separate effects this protocol confounds

@@ -185,6 +185,29 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     return out
 
 
+def one_way_points(obs: pd.DataFrame, data: dict, before: dict | None = None) -> dict | None:
+    """The temperature's direction of travel at each temperature point (+1 rising, −1
+    falling; the session as one point where it has none), where every point saw one
+    direction only; None where some point saw both, or the record cannot tell.
+
+    A bias that depends on the direction the temperature came from (thermal hysteresis) is
+    then constant within each point: each point's bias holds it, and no row or term of this
+    session can see it. ``before``: :func:`history_columns`, when already computed."""
+    way = (before if before is not None else history_columns(obs, data)).get("temp_direction")
+    if way is None or not len(way):
+        return None
+    temps = np.asarray(data["temp"], dtype=float)
+    points = (np.asarray(obs["point"]) if "point" in obs else np.zeros(len(way), dtype=int))
+    out = {}
+    for p in np.unique(points):
+        seen = set(np.unique(way[(points == p) & (way != 0)]).tolist())
+        if len(seen) > 1:
+            return None
+        if seen:
+            out[float(np.round(np.median(temps[points == p]), 1))] = int(seen.pop())
+    return out or None
+
+
 SETTLING_ROW = "settling within the hold"
 
 

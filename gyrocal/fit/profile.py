@@ -3,10 +3,11 @@
 A term's ``profile`` names settings the model is not linear in, each with bounds. For a
 given value the model is linear, so its least-squares fit gives the weighted residual sum
 χ²(θ); the profile minimises it over θ: a log-spaced scan of the bounds (which guards
-against local minima), then a bounded 1-D search around the best scan point. The standard
+against local minima), then finer scans around the best point (:func:`_zoom`). The standard
 error comes from the profile's curvature, ``σ² = 2 s² / (d²χ²/dθ²)`` with ``s²`` the
 reduced χ² (the coefficient covariances are scaled the same way), taken on log θ and
-carried to θ. Several nonlinear parameters are profiled one after another, twice round.
+carried to θ. Several nonlinear parameters are profiled one after another, then moved
+jointly (:func:`_polish`).
 Every value is judged on the temperature points the fit at the start values kept: a value
 that loses a point would win on a smaller χ² for that alone, so it is refused.
 """
@@ -22,6 +23,11 @@ from ..io.errors import GyrocalError
 from .model import Model
 
 SCAN_POINTS = 13
+ZOOM_POINTS = 5        # per bracket: each round halves it, at two new values
+ZOOM_TOLERANCE = 1e-3  # of log θ: 0.1 % of the value
+POLISH_STEP = 0.02     # the joint search's first steps, in log θ
+POLISH_EVALUATIONS = 100
+POLISH_CHI2 = 0.05     # a change of χ² that decides nothing
 
 
 def total_chi2(fitted) -> tuple[float, int]:
@@ -35,11 +41,63 @@ def _with(model: Model, index: int, name: str, value: float) -> Model:
     return Model(tuple(terms))
 
 
+def _zoom(chi2_at, grid, values, k) -> float:
+    """The minimum of χ²(log θ) near the scan's best point: the bracket of its neighbours is
+    scanned on a finer grid, again and again around the best point, until it is narrower
+    than :data:`ZOOM_TOLERANCE`. A grid, not a parabola: a switch's or a play operator's
+    position makes χ² steep and kinked (each hold straddling it adds a kink), where an
+    interpolating search stops in a side valley."""
+    best, best_value = grid[k], values[k]
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
+    with np.errstate(invalid="ignore"):   # a refused value's χ² is inf, on purpose
+        while b - a > ZOOM_TOLERANCE:
+            xs = np.linspace(a, b, ZOOM_POINTS)
+            vs = [chi2_at(x) for x in xs]
+            j = int(np.argmin(vs))
+            if vs[j] < best_value:
+                best, best_value = xs[j], vs[j]
+            centre = int(np.argmin(np.abs(xs - best)))
+            a, b = xs[max(centre - 1, 0)], xs[min(centre + 1, len(xs) - 1)]
+    return float(best)
+
+
+def _polish(model: Model, free, evaluate) -> Model:
+    """The profile's values moved jointly (a simplex over log θ): one parameter at a time
+    stops where a valley runs diagonally and has a kink (a switch's place and width: moving
+    either alone loses a hold the other would win back). Within the bounds; kept only where
+    χ² falls."""
+    from scipy.optimize import minimize
+
+    def value(m, i, n):
+        term = m.terms[i]
+        return float(term.parameters[n] if hasattr(term, "parameters") else getattr(term, n))
+
+    def at(x):
+        m = model
+        for (i, n, (lo, hi)), v in zip(free, x):
+            if not lo <= math.exp(v) <= hi:
+                return None
+            m = _with(m, i, n, math.exp(v))
+        return m
+
+    def chi2_of(x):
+        m = at(x)
+        return math.inf if m is None else evaluate(m)[0]
+
+    x0 = np.array([math.log(value(model, i, n)) for i, n, _ in free])
+    start = chi2_of(x0)
+    simplex = np.vstack([x0, x0 + POLISH_STEP * np.eye(len(x0))])
+    with np.errstate(invalid="ignore"):
+        found = minimize(chi2_of, x0, method="Nelder-Mead",
+                         options={"initial_simplex": simplex, "xatol": ZOOM_TOLERANCE,
+                                  "fatol": POLISH_CHI2, "maxfev": POLISH_EVALUATIONS})
+    better = at(found.x) if np.isfinite(found.fun) and found.fun < start else None
+    return better if better is not None else model
+
+
 def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
     """The fit of ``model`` with its nonlinear settings at their best values; the fitted
     object's ``profiled`` lists each (term, parameter, value, stderr, bounds, at_bound)."""
-    from scipy.optimize import minimize_scalar
-
     targets = [(i, name, bounds) for i, term in enumerate(model.terms)
                for name, bounds in term.nonlinear().items()]
     cache: dict = {}
@@ -63,28 +121,26 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
     current = model
     evaluate(model)  # fixes the points every value is judged on
     flat: set = set()
-    for _ in range(2 if len(targets) > 1 else 1):
-        for index, name, (lo, hi) in targets:
-            def chi2_at(log_value, base=current, index=index, name=name):
-                return evaluate(_with(base, index, name, math.exp(log_value)))[0]
-            grid = np.linspace(math.log(lo), math.log(hi), SCAN_POINTS)
-            values = [chi2_at(g) for g in grid]
-            k = int(np.argmin(values))
-            if not np.isfinite(values[k]):
-                failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
-                raise failure if isinstance(failure, GyrocalError) else GyrocalError(
-                    f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
-            finite = [v for v in values if np.isfinite(v)]
-            if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
-                flat.add((index, name))  # the data do not depend on it: keep the setting
-                continue
-            a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-            with np.errstate(invalid="ignore"):   # a refused value's χ² is inf, on purpose
-                found = minimize_scalar(chi2_at, bounds=(a, b), method="bounded",
-                                        options={"xatol": 1e-3})
-            best = found.x if found.fun <= values[k] else grid[k]
-            current = _with(current, index, name, math.exp(best))
+    for index, name, (lo, hi) in targets:
+        def chi2_at(log_value, base=current, index=index, name=name):
+            return evaluate(_with(base, index, name, math.exp(log_value)))[0]
+        grid = np.linspace(math.log(lo), math.log(hi), SCAN_POINTS)
+        values = [chi2_at(g) for g in grid]
+        k = int(np.argmin(values))
+        if not np.isfinite(values[k]):
+            failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
+            raise failure if isinstance(failure, GyrocalError) else GyrocalError(
+                f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
+        finite = [v for v in values if np.isfinite(v)]
+        if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
+            flat.add((index, name))  # the data do not depend on it: keep the setting
+            continue
+        best = _zoom(chi2_at, grid, values, k)
+        current = _with(current, index, name, math.exp(best))
 
+    free = [(i, n, b) for i, n, b in targets if (i, n) not in flat]
+    if len(free) > 1:
+        current = _polish(current, free, evaluate)
     chi2, fitted = evaluate(current)
     if not np.isfinite(chi2):
         raise fitted if isinstance(fitted, GyrocalError) else GyrocalError(
