@@ -488,3 +488,24 @@ def test_a_switch_with_hysteresis_is_placed_within_a_hold_of_the_truth(tmp_path)
     assert abs(down - (truth["T_switch_c"] - truth["hysteresis_c"] / 2)) < travel, p
     r = revalidate(cal, segment_log(logs[1], settings, "sweep").observations)
     assert r["validation_rms"] / r["noise_floor"] < 1.2
+
+
+@pytest.mark.parametrize("start, direction", [(-20.0, -1.0), (60.0, 1.0), (25.0, 0.0)])
+def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(start, direction):
+    """``play(temp, w)`` starts as a unit brought from a 25 °C room to the record's first
+    temperature (as ``duhem`` does): cold, its direction is falling from the first sample,
+    hot rising, at the room none. The fit's record and apply's pieces agree to the bit; a
+    play of any other input starts at its first value."""
+    from gyrocal.io.signals import FILTERS, Series
+    t = np.arange(200.0)
+    temp = start + 0.5 * np.sin(t / 30.0)          # within a width of its start
+    width = 4.0
+    series = Series(t, temp)
+    whole = series.history(("temp", None, ()), lambda s: s.temp, "temperature_play", width, t)
+    # the ripple moves the direction by at most twice its travel over the width
+    assert np.allclose(2.0 * (temp - whole) / width, direction, atol=2.0 * np.ptp(temp) / width)
+    run = FILTERS["temperature_play"](width)
+    pieces = np.concatenate([run(t[a:b], temp[a:b]) for a, b in ((0, 37), (37, 120), (120, 200))])
+    assert np.array_equal(pieces, whole)
+    other = series.history(("x", None, ()), lambda s: s.temp, "play", width, t)
+    assert other[0] == temp[0]

@@ -185,6 +185,24 @@ def _play_carried(x, width, last):
     return y, float(y[-1])
 
 
+def _temperature_play_carried(x, width, last):
+    """:func:`temperature_play` whose state is its last output."""
+    y = temperature_play(x, width, last)
+    return y, float(y[-1])
+
+
+def temperature_play(x: np.ndarray, width: float, initial: float | None = None) -> np.ndarray:
+    """:func:`play_operator` of the temperature, started as a unit brought from the room
+    (:data:`ROOM_C`) to the record's first value, as :func:`duhem_operator` is: a record
+    that starts cold begins falling, one that starts hot rising. Started at its first value
+    instead, the direction at the first temperature point would be nobody's, and a session
+    that starts elsewhere would meet a different one there."""
+    x = np.asarray(x, dtype=float)
+    if initial is None and len(x):
+        initial = float(np.clip(ROOM_C, x[0] - 0.5 * width, x[0] + 0.5 * width))
+    return play_operator(x, width, initial)
+
+
 class SampleRecord:
     """The record as ``apply`` meets it: a batch of the log's own samples. Each history
     (:meth:`Inputs.history`) runs over them, causally, from the state the previous batch
@@ -298,12 +316,14 @@ class Series:
         """``values(self)`` (the record's points, from :meth:`column`), named ``key`` for
         the cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag
         of time constant ``size`` s; ``play``, the play (backlash) operator of width
-        ``size``; ``duhem``, the direction of travel relaxing over ``size`` of travel."""
+        ``size`` (``temperature_play``: started from the room); ``duhem``, the direction of
+        travel relaxing over ``size`` of travel."""
         cache = ("history", key, operator, float(size))
         if cache not in self._cache:
             x = np.asarray(values(self), dtype=float)
             self._cache[cache] = (first_order_lag(self.t, x, size) if operator == "lag"
                                   else play_operator(x, size) if operator == "play"
+                                  else temperature_play(x, size) if operator == "temperature_play"
                                   else duhem_operator(x, size)[0])
         return np.interp(times, self.t, self._cache[cache])
 
@@ -472,6 +492,7 @@ def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
 
 # The filter apply runs for each history, by operator.
 FILTERS = {"lag": LagFilter, "play": lambda w: CarriedFilter(_play_carried, w),
+           "temperature_play": lambda w: CarriedFilter(_temperature_play_carried, w),
            "duhem": lambda w: CarriedFilter(duhem_operator, w)}
 
 

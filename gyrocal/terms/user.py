@@ -234,8 +234,10 @@ def _history(node: ast.Call, data, parameters, formula):
              if any(n.startswith(group) for n in names)}
     used = {k: float(v) for k, v in parameters.items() if k in names}
     key = (ast.unparse(arg), axis if names & set(OWN_AXIS) else None, tuple(sorted(used.items())))
+    # The temperature's play starts from the room, as its Duhem state does.
+    operator = "temperature_play" if node.func.id == "play" and key[0] == "temp" else node.func.id
     return data.history(key, lambda series: _value(arg, _Record(series, axis), used, formula),
-                        node.func.id, float(size), reads)
+                        operator, float(size), reads)
 
 
 class _Record:
