@@ -502,13 +502,57 @@ def test_compiled_c_runs_the_histories_as_apply_does(kind, log, tmp_path):
 
 
 def test_histories_firmware_cannot_run_are_refused_by_name():
-    """A history of the temperature (apply runs it on the record's bin means) or a lag of
-    another formula is refused, naming the term; the offered forms are not."""
-    from gyrocal.calibration.export import history_form, unsupported_terms
+    """A history of another form (a play operator's bare output, a Duhem state scaled, a lag
+    of another formula) is refused, naming the term; the offered forms are not."""
+    from gyrocal.calibration.export import history_form, temperature_history_form, unsupported_terms
     assert history_form({"name": "expression", "label": "p", "formula": "lag(rate_own,tau)-rate_own",
                          "parameters": {"tau": 3.0}}) == ("own", -1.0)
-    refused = unsupported_terms([{"name": "expression", "label": "d", "formula": "duhem(temp, w)",
+    assert temperature_history_form({"name": "expression", "label": "d", "formula": "duhem(temp,w)",
+                                     "parameters": {"w": 3.0}}) == "duhem"
+    refused = unsupported_terms([{"name": "expression", "label": "d", "formula": "play(temp, w)",
+                                  "parameters": {"w": 3.0}},
+                                 {"name": "expression", "label": "s", "formula": "2 * duhem(temp, w)",
                                   "parameters": {"w": 3.0}},
                                  {"name": "expression", "label": "q", "formula": "lag(rate_x * rate_y, tau)",
                                   "parameters": {"tau": 3.0}}])
-    assert refused == ["expression", "expression"]
+    assert refused == ["expression", "expression", "expression"]
+
+
+TEMPERATURE_HISTORY_TERMS = [
+    "expression(label='way', formula='2 * (temp - play(temp, w)) / w', parameters={'w': 3.0})",
+    "expression(label='strain', formula='duhem(temp, w)', parameters={'w': 6.0})",
+    "expression(label='table', formula='sign(play(temp, w) - T0 - m)', parameters={'T0': -12.0, 'm': 20.0, 'w': 2.5})"]
+
+
+@needs_gcc
+@pytest.mark.parametrize("kind", ["grid", "continuous"])
+def test_compiled_c_runs_the_temperatures_histories_as_apply_does(kind, log, tmp_path):
+    """The temperature's direction through a play operator, a Duhem state and a switch with
+    hysteresis (issue 38), on a log that starts below the room (falling from it), rises
+    through the switch and jumps about at its end: the header runs each on the logged
+    temperature through the lag apply reads it by, from a unit brought from the room, adds
+    it to B, and fed the samples in order the compiled code reproduces apply; the JSON
+    names the operator, its width and the lag."""
+    cal = with_terms(grid_calibration((0.0, 10.0, 20.0, 30.0)) if kind == "grid" else
+                     continuous_calibration((0.0, 10.0, 20.0, 30.0)), kind, TEMPERATURE_HISTORY_TERMS,
+                     lambda n: 0.05, seed=7)
+    cal_path, expected = applied(cal, log, tmp_path)
+    header = export_text(load_calibration(cal_path), "c-header", source=cal_path)
+    assert "gyrocal_temperature_history" in header and "#define GYROCAL_TABLE_M (20.0)" in header
+    document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
+    assert [(h["label"], h["operator"], h["w"]) for h in document["temperature_histories"]] == [
+        ("way", "direction", 3.0), ("strain", "duhem", 6.0), ("table", "switch", 2.5)]
+    assert all(h["lag_tau_s"] == 5.0 for h in document["temperature_histories"])
+    data, result = compiled_samples(header, log, tmp_path)
+    good = np.isfinite(data).all(axis=1)
+    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
+    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
+    # Teeth: without its histories the compensation differs by far more, and the switch
+    # turned within the log (its sign took both values).
+    from gyrocal.calibration.export import _without_splines
+    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4]},
+                                            warn=False)
+    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+    from gyrocal.io.signals import TEMPERATURE_SMOOTHING_S, first_order_lag, temperature_play
+    lagged = first_order_lag(data[good, 0], data[good, 4], TEMPERATURE_SMOOTHING_S)
+    assert set(np.unique(np.sign(temperature_play(lagged, 2.5) + 12.0 - 20.0))) == {-1.0, 1.0}

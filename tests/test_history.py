@@ -317,11 +317,11 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     """The independent zoo's thermal hysteresis on a sweep (a state that relaxes toward the
     direction of travel over a few °C): calibrated with ``duhem(temp, w)``, w profiled,
     beside the sweep's quadratic bias, then applied to the log it was fitted on. Apply runs
-    the temperature's history over the record's bin means as the fit does (on the samples,
-    whose noise is 0.034 °C, a dead band of w/20 would chatter): the compensated output's
-    hold means leave what the fit left, about the floor in RMS, where the same model without
-    the history leaves several times it; and the calibration carries to the unit's next
-    ramp within 1.2 times the floor."""
+    the operator over the samples, causally, on the temperature through the 5-s lag the fit
+    reads it by (on the raw samples, whose noise is 0.034 °C, a dead band of w/20 would
+    chatter): the compensated output's hold means leave what the fit left, about the floor
+    in RMS, where the same model without the history leaves several times it; and the
+    calibration carries to the unit's next ramp within 1.2 times the floor."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.calibration.apply import apply_calibration
     from gyrocal.diagnose import extended
@@ -356,6 +356,7 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     cal, with_history = applied_error(settings)
     assert 2.0 < cal.model.terms[-1].parameters["w"] < 5.0   # the generator's 2-5 °C
     _, without = applied_error(quadratic)
+    print(f"applied: {with_history:.3g} with the history, {without:.3g} without")
     assert with_history < 1.3 and without > 3.0, (with_history, without)
     r = drift.revalidate(cal, segment_log(logs[1], settings, "sweep").observations)
     assert r["validation_rms"] / r["noise_floor"] < 1.2

@@ -30,6 +30,10 @@ degree being the lowest that reproduces them (checked on 201 temperatures to 1e-
 Histories of the raw output the diagnosis offers (:data:`HISTORY_FORMS`: a slow pole, heat
 from turning) are first-order lags run per output axis over the samples, added to B (a slow
 pole's true rate to K's diagonal): ``histories`` in the JSON, ``gyrocal_run_histories`` in C.
+Histories of the temperature (:data:`TEMPERATURE_HISTORY_FORMS`: its direction through a
+play operator, a Duhem state, a switch with hysteresis) run on the logged temperature through
+the lag apply reads it by, from a unit brought from the room, added to B:
+``temperature_histories`` in the JSON, ``gyrocal_temperature_history`` in C.
 Other terms (``scale_quadratic``, ``scale_cubic``, ``scale_asymmetry``, ``g_sensitivity``,
 ``temp_rate``, user terms) make the output more than ``K(T) w_true + B(T)``: such models
 are refused, naming the terms; compensate them with ``gyrocal apply``. A temperature grid
@@ -103,6 +107,7 @@ class FirmwareTables:
     die_tau: float | None = None           # s: T is the die's, the logged one lagged
     splines: tuple = ()                    # empirical terms: dicts of input, by, knots, coefficients
     histories: tuple = ()                  # lags of the raw output: dicts of input, tau, coefficients
+    temperature_histories: tuple = ()      # play or Duhem operators of the temperature
 
 
 # Empirical terms firmware evaluates beside K and B: a spline of time since power-on or of
@@ -132,6 +137,40 @@ LAG_FILTER = ("y[k] = e y[k-1] + u[k] - e u[k-1] - (u[k] - u[k-1]) (tau / dt) (1
               "output axis, u its input on that axis (w the raw output, deg/s)")
 
 
+# Histories of the temperature firmware runs as filters (issue 38): a play or Duhem operator
+# of the logged temperature through the lag apply reads it by, its value times a coefficient
+# per output axis added to B. The formula as ast.unparse writes it -> (operator, parameters).
+TEMPERATURE_HISTORY_FORMS = {
+    "2 * (temp - play(temp, w)) / w": ("direction", {"w"}),
+    "duhem(temp, w)": ("duhem", {"w"}),
+    "sign(play(temp, w) - T0 - m)": ("switch", {"w", "T0", "m"}),
+}
+TEMPERATURE_HISTORY_VALUES = {
+    "direction": "2 (T - y) / w, T the temperature as clamped to the calibration's range, y the play operator of width w: y[k] = clamp(y[k-1], x[k] - w/2, x[k] + w/2)",
+    "switch": "sign(y - T0 - m), y the play operator of width w: y[k] = clamp(y[k-1], x[k] - w/2, x[k] + w/2)",
+    "duhem": ("s, y the play operator of width w/20 (its dead band) and s[k] = d + (s[k-1] - d) "
+              "exp(-|y[k] - y[k-1]| / w), d = sign(y[k] - y[k-1]), s kept while y stands"),
+}
+TEMPERATURE_HISTORY_START = ("a unit brought from a {room:g} degC room: y[0] = clamp({room:g}, x[0] - h, "
+                             "x[0] + h), h the play's half width; for duhem s[0] = d0 (1 - exp(-|y[0] - "
+                             "{room:g}| / w)), d0 = sign(x[0] - {room:g}) where |x[0] - {room:g}| > h, else 0")
+
+
+def temperature_history_form(spec) -> str | None:
+    """The operator (``direction``, ``duhem``, ``switch``) of an expression term firmware
+    runs as a filter of the temperature, else None."""
+    import ast
+    if not isinstance(spec, dict) or spec.get("name") != HISTORY_TERM or spec.get("drop"):
+        return None
+    try:
+        formula = ast.unparse(ast.parse(str(spec.get("formula")), mode="eval"))
+    except SyntaxError:
+        return None
+    operator, names = TEMPERATURE_HISTORY_FORMS.get(formula, (None, set()))
+    given = set(spec.get("parameters") or {}) | set(spec.get("profile") or {})
+    return operator if operator and given == names else None
+
+
 def history_form(spec) -> tuple[str, float] | None:
     """(input, K's diagonal) of an expression term firmware runs as a filter, else None."""
     import ast
@@ -154,7 +193,7 @@ def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
     """Names of terms (specs as in a calibration file) the firmware rule cannot hold."""
     names = []
     for spec in specs:
-        if history_form(spec) is not None:
+        if history_form(spec) is not None or temperature_history_form(spec) is not None:
             continue
         name = spec.get("name") if isinstance(spec, dict) else spec
         spline_ok = not isinstance(spec, dict) or (spec.get("input") in SPLINE_INPUTS and not spec.get("drop"))
@@ -237,12 +276,32 @@ def _histories(cal: Calibration, source) -> tuple:
     return tuple(out)
 
 
+def _temperature_histories(cal: Calibration, source) -> tuple:
+    """The calibration's histories of the temperature as firmware runs them: the operator,
+    its parameters and the coefficient per output axis (session-wide, as a rate history's)."""
+    out = []
+    for term, spec in zip(cal.model.terms, cal.model.spec()):
+        operator = temperature_history_form(spec)
+        if operator is None:
+            continue
+        values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
+        c = np.array([values[f"{term.label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
+        if not np.all(c == c[:, :1]):
+            raise UnsupportedModelError(f"cannot export for firmware: {term.label}'s coefficients "
+                                        "differ between temperature points", source=source)
+        p = term.parameters
+        out.append({"label": term.label, "operator": operator, "formula": term.formula,
+                    "w": float(p["w"]), "T0": float(p.get("T0", 0.0)), "m": float(p.get("m", 0.0)),
+                    "coefficients": c[:, 0].copy()})
+    return tuple(out)
+
+
 def _without_splines(cal: Calibration) -> Calibration:
     """``cal`` without its empirical terms and histories (firmware adds them to K and B itself)."""
     from dataclasses import replace
 
     from ..fit.model import Model
-    added = [t.name == SPLINE_TERM or history_form(s) is not None
+    added = [t.name == SPLINE_TERM or history_form(s) is not None or temperature_history_form(s) is not None
              for t, s in zip(cal.model.terms, cal.model.spec())]
     if not any(added):
         return cal
@@ -263,6 +322,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     temps = np.asarray(cal.grid.temperatures, dtype=float)
     splines = _splines(cal)
     histories = _histories(cal, source)
+    temperature_histories = _temperature_histories(cal, source)
     cal = _without_splines(cal)
     K, B = cal.matrices()
     P = len(temps)
@@ -273,7 +333,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     die = [t for t in cal.model.terms if t.name == DIE_TERM]
     tables = dict(temperature=temps, K=K, B=B, K_inv=np.linalg.inv(K), method=method,
                   calibration_method=declared, die_tau=float(die[0].tau) if die else None,
-                  splines=splines, histories=histories)
+                  splines=splines, histories=histories, temperature_histories=temperature_histories)
     Y = np.concatenate([K.reshape(P, 9), B], axis=1)   # every entry, one column each
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
@@ -293,7 +353,7 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     for name, value in tables.items():
         if isinstance(value, np.ndarray) and not np.all(np.isfinite(value)):
             raise InputError(f"cannot export for firmware: {name} is not finite", source=source)
-    for s in (*splines, *histories):
+    for s in (*splines, *histories, *temperature_histories):
         if not np.all(np.isfinite(s["coefficients"])):
             raise InputError(f"cannot export for firmware: {s['label']} is not finite", source=source)
     return FirmwareTables(**tables)
@@ -349,6 +409,19 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
                              "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a"
                                                                 if h["diagonal"] else "")}
                             for h in tables.histories]
+    if tables.temperature_histories:
+        from ..io.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
+        doc["temperature_histories"] = [
+            {"label": h["label"], "formula": h["formula"], "operator": h["operator"],
+             "input": f"x: the logged temperature through a first-order lag of {TEMPERATURE_SMOOTHING_S:g} s "
+                      "(the filter of 'histories', u the temperature, one filter per term)",
+             "lag_tau_s": TEMPERATURE_SMOOTHING_S, "w": h["w"],
+             **({"T0": h["T0"], "m": h["m"]} if h["operator"] == "switch" else {}),
+             "value": TEMPERATURE_HISTORY_VALUES[h["operator"]],
+             "start": TEMPERATURE_HISTORY_START.format(room=ROOM_C),
+             "filter": LAG_FILTER.split("; one filter")[0],
+             "coefficients": h["coefficients"].tolist(), "adds_to": "B (B_a += c_a value)"}
+            for h in tables.temperature_histories]
     if tables.die_tau is not None:
         doc["model"] = "w = K(T_die) w_true + B(T_die)"
         doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"
@@ -412,10 +485,11 @@ def _c_environment():
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:
+    from ..io.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
     return _c_environment().get_template("compensation.h.j2").render(
         t=tables, meta={k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
         source=_source_info(source), version=__version__, format=FORMAT,
-        n=len(tables.temperature))
+        n=len(tables.temperature), room=ROOM_C, smoothing=TEMPERATURE_SMOOTHING_S, band=DUHEM_BAND)
 
 
 def _render(cal: Calibration, tables: FirmwareTables, fmt: str, source) -> str:

@@ -41,6 +41,11 @@ HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point"})  # spans, 
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
                          "accel_z", "temp"})
 MAX_BINS = 50_000
+# The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in
+# apply and in firmware alike: a sensor's noise of 0.03 °C per sample at 25 Hz falls to
+# 0.002 °C, under the narrowest dead band (w/20 of 0.75 °C), and the temperature is late by
+# 5 s of its travel (0.04 °C at 30 °C/h), which the fitted widths and places take in.
+TEMPERATURE_SMOOTHING_S = 5.0
 TEMP_RATE_WINDOW_S = 60.0
 
 
@@ -207,7 +212,8 @@ class SampleRecord:
     """The record as ``apply`` meets it: a batch of the log's own samples. Each history
     (:meth:`Inputs.history`) runs over them, causally, from the state the previous batch
     left (``states``, shared from batch to batch), as firmware would run it; the fit's
-    hold means of the same history, from the record's bins, agree to O((Δt/τ)²).
+    hold means of the same history, from the record's bins, agree to O((Δt/τ)²) (for a
+    play or Duhem operator of the temperature, τ the lag it reads the temperature by).
     Everything else (the temperature rate, a lag of the temperature) reads ``bins``, the
     record the fit read."""
 
@@ -235,16 +241,15 @@ class SampleRecord:
         return self.samples[source]
 
     def history(self, key, values, operator: str, size: float, times: np.ndarray,
-                per_sample: bool = True) -> np.ndarray:
-        if not per_sample and self.bins is not None:
-            # A history of the temperature alone runs over the record's bin means, as the fit
-            # reads it: a play or Duhem operator narrower than the samples' noise would chatter
-            # on them (a firmware averages its temperature sensor alike).
-            return self.bins.history(key, values, operator, size, times)
+                smooth: bool = False) -> np.ndarray:
         cache = (key, operator, float(size))
         if cache not in self._done:   # once per batch: the filter's state moves on once
             run = self.states.setdefault(cache, FILTERS[operator](size))
-            self._done[cache] = run(self.samples["t"], np.asarray(values(self), dtype=float))
+            x = np.asarray(values(self), dtype=float)
+            if smooth:   # the temperature, through the lag its operators read it by
+                x = self.states.setdefault(("smooth", *cache), LagFilter(TEMPERATURE_SMOOTHING_S))(
+                    self.samples["t"], x)
+            self._done[cache] = run(self.samples["t"], x)
         y, t = self._done[cache], self.samples["t"]
         if len(times) == len(t):
             return y
@@ -312,15 +317,18 @@ class Series:
         return self.record[source]
 
     def history(self, key, values, operator: str, size: float, times: np.ndarray,
-                per_sample: bool = True) -> np.ndarray:
+                smooth: bool = False) -> np.ndarray:
         """``values(self)`` (the record's points, from :meth:`column`), named ``key`` for
         the cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag
         of time constant ``size`` s; ``play``, the play (backlash) operator of width
         ``size`` (``temperature_play``: started from the room); ``duhem``, the direction of
-        travel relaxing over ``size`` of travel."""
+        travel relaxing over ``size`` of travel. ``smooth``: the input through a lag of
+        :data:`TEMPERATURE_SMOOTHING_S` first (a play or Duhem operator of the temperature)."""
         cache = ("history", key, operator, float(size))
         if cache not in self._cache:
             x = np.asarray(values(self), dtype=float)
+            if smooth:
+                x = first_order_lag(self.t, x, TEMPERATURE_SMOOTHING_S)
             self._cache[cache] = (first_order_lag(self.t, x, size) if operator == "lag"
                                   else play_operator(x, size) if operator == "play"
                                   else temperature_play(x, size) if operator == "temperature_play"
@@ -558,8 +566,10 @@ class Inputs(dict):
         if not (np.isfinite(size) and size > 0):
             raise MissingInputError(f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
                                     f"must be a positive number, got {size!r}")
-        series = self.series
-        return series.history(key, values, operator, size, self.times, bool(reads))
+        # A play or Duhem operator of the temperature reads it through a short lag: on the
+        # samples' noise an operator narrower than it would chatter.
+        smooth = operator != "lag" and not reads
+        return self.series.history(key, values, operator, size, self.times, smooth)
 
 
 def hold_inputs(data) -> tuple[Inputs, dict]:
