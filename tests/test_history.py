@@ -410,13 +410,14 @@ def test_the_output_settling_within_its_holds_is_tested_against_the_step_into_th
         assert row["p_value"] > level, row
 
 
-@pytest.mark.parametrize("order, directions", [("default", {1}), ("updown", {1, -1}), ("revisit", None)])
-def test_points_reached_one_way_are_found_from_the_record(tmp_path, order, directions):
+@pytest.mark.parametrize("order, one_way", [("default", True), ("updown", True), ("revisit", False)])
+def test_points_reached_one_way_are_found_from_the_record(tmp_path, order, one_way):
     """The independent zoo's turntable, its temperature points visited in three orders: in
-    its default order each point is reached rising and stays put; up through every other
-    point and down through the rest, each point is still reached one way (some falling): a
-    hysteresis of the temperature hides in the points' biases either way. Back to a point
-    passed, that point is reached from both sides."""
+    its default order the first point is reached falling from the room and the others
+    rising, and none turns back; up through every other point and down through the rest,
+    each point is still reached one way: a hysteresis of the temperature hides in the
+    points' biases either way. Back to a point passed, that point is reached from both
+    sides."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.diagnose.where import one_way_points
     from gyrocal.fit.model import columns_of
@@ -426,11 +427,17 @@ def test_points_reached_one_way_are_found_from_the_record(tmp_path, order, direc
     write_session(unit, tmp_path / "s.parquet", session=0, seed=1000, rate_hz=10.0, temp_order=order)
     obs = segment_log(tmp_path / "s.parquet", Settings()).observations
     found = one_way_points(obs, columns_of(obs))
-    if directions is None:
+    if not one_way:
         assert found is None, found
+        return
+    assert len(found) == obs["point"].nunique(), found
+    order_of_visit = obs.sort_values("t_start").groupby("point", sort=False)["temp"].median()
+    first, rest = order_of_visit.iloc[0], order_of_visit.iloc[1:]
+    assert found[float(np.round(first, 1))] == np.sign(first - 25.0), found
+    if order == "default":
+        assert all(found[float(np.round(T, 1))] == 1 for T in rest), found
     else:
-        # The first point has no direction yet: the record starts there.
-        assert set(found.values()) == directions and len(found) == obs["point"].nunique() - 1, found
+        assert {found[float(np.round(T, 1))] for T in rest} == {1, -1}, found
 
 
 @pytest.mark.slow
@@ -454,7 +461,7 @@ def test_a_hysteresis_no_session_can_see_is_said_to_be_out_of_sight(tmp_path):
         d = diagnose(Settings(), obs[0], other).to_dict()
         assert d["best"] is None, d["verdict"]
         assert any("thermal hysteresis" in line for line in d["advice"]), d["advice"]
-        assert d["one_way_points"] and {p["direction"] for p in d["one_way_points"]} == {1}
+        assert d["one_way_points"] and len(d["one_way_points"]) == obs[0]["point"].nunique()
     d = diagnose(Settings(), obs[0], obs[2]).to_dict()
     assert d["one_way_points"] is None and not any("thermal hysteresis" in a for a in d["advice"])
 
@@ -493,10 +500,11 @@ def test_a_switch_with_hysteresis_is_placed_within_a_hold_of_the_truth(tmp_path)
 
 @pytest.mark.parametrize("start, direction", [(-20.0, -1.0), (60.0, 1.0), (25.0, 0.0)])
 def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(start, direction):
-    """``play(temp, w)`` starts as a unit brought from a 25 °C room to the record's first
-    temperature (as ``duhem`` does): cold, its direction is falling from the first sample,
-    hot rising, at the room none. The fit's record and apply's pieces agree to the bit; a
-    play of any other input starts at its first value."""
+    """The operator behind ``play(temp, w)`` starts as a unit brought from a 25 °C room to
+    the record's first temperature (as ``duhem`` does): cold, its direction is falling from
+    the first sample, hot rising, at the room none. On a record's points (the fit's) and
+    on the same record in pieces (apply's batches, the state carried) it agrees to the bit;
+    a play of any other input starts at its first value."""
     from gyrocal.io.signals import FILTERS, Series
     t = np.arange(200.0)
     temp = start + 0.5 * np.sin(t / 30.0)          # within a width of its start
@@ -510,3 +518,40 @@ def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(star
     assert np.array_equal(pieces, whole)
     other = series.history(("x", None, ()), lambda s: s.temp, "play", width, t)
     assert other[0] == temp[0]
+
+
+def test_a_dropout_of_the_gyro_over_whole_batches_leaves_the_temperatures_histories_running(
+        tmp_path, monkeypatch):
+    """Apply compensates batch by batch. Where the gyro drops out over whole batches while
+    the temperature is still logged (and moving), the temperature's histories still run
+    over those samples, as firmware's filters do: the output after the gap is the same
+    whether the log is applied in small batches or in one."""
+    import pyarrow as pa
+    from gyrocal.calibration import apply as applying
+    from gyrocal.calibration.apply import apply_calibration
+    from .conftest import make_log
+    from .test_export import grid_calibration, with_terms
+    log = make_log(tmp_path, temperatures=(0.0, 30.0), rates=(10.0, 400.0))
+    table = pq.read_table(log)
+    temp = table.column("temp").to_numpy()
+    # the gap: 4,000 rows where the temperature moves fastest, gyro NaN, temperature kept
+    centre = int(np.argmax(np.abs(np.convolve(np.diff(temp), np.ones(501), "same"))))
+    gap = slice(max(centre - 2000, 0), centre + 2000)
+    for c in ("gyro_x", "gyro_y", "gyro_z"):
+        values = table.column(c).to_numpy().copy()
+        values[gap] = np.nan
+        table = table.set_column(table.schema.get_field_index(c), c, pa.array(values))
+    pq.write_table(table, tmp_path / "gap.parquet")
+    cal = with_terms(grid_calibration((0.0, 10.0, 20.0, 30.0)), "grid",
+                     ["expression(label='strain', formula='duhem(temp, w)', parameters={'w': 0.3})",
+                      "expression(label='way', formula='2 * (temp - play(temp, w)) / w', parameters={'w': 0.4})"],
+                     lambda n: 0.05, seed=3)
+    outputs = []
+    for rows in (1000, 1 << 20):
+        monkeypatch.setattr(applying, "BATCH_ROWS", rows)
+        apply_calibration(cal, tmp_path / "gap.parquet", tmp_path / f"out{rows}.parquet")
+        outputs.append(pq.read_table(tmp_path / f"out{rows}.parquet", columns=["gyro_x"]).column(0).to_numpy())
+    assert np.isnan(outputs[0][gap]).all()
+    after = slice(gap.stop, None)
+    np.testing.assert_allclose(outputs[0][after], outputs[1][after], rtol=0, atol=1e-9)
+    assert np.ptp(temp[gap]) > 0.4   # the temperature travelled beyond the widths in the gap

@@ -195,6 +195,11 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
                 else:
                     result[good] = found
                 counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
+            elif "series" in data:
+                # No row to compensate (the gyro dropped out, the temperature still logged):
+                # the histories' filters still move on over the batch, as firmware's do.
+                with np.errstate(over="ignore", invalid="ignore"):
+                    cal.compensate(gyro, data, warn=False)
             # A finite output too large to compensate (its terms overflow) is written as
             # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
             for i in range(3):

@@ -373,8 +373,8 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag.advice = [LAB_ADVICE] if seen_in_lab and best is None else \
         [MOUNTING_ADVICE] if seen_mounting and best is None else \
         advice(best, partial, candidates, covariates, explains, usable(base_next), drift)
-    diag.one_way = _one_way(obs, data, before_holds, judge.other)
-    blind = unseen_hysteresis(diag.one_way, judge.other is not None)
+    diag.one_way, compared = _one_way(obs, data, before_holds, judge.other)
+    blind = unseen_hysteresis(diag.one_way, compared)
     if blind:
         diag.advice = [*diag.advice, blind]
     diag.time_drift = drift
@@ -388,22 +388,25 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     return diag
 
 
-def _one_way(obs, data, before, other) -> dict | None:
+def _one_way(obs, data, before, other) -> tuple[dict | None, bool]:
     """:func:`one_way_points` of this session, where the other session (if any) reached each
     point it shares with this one (within 2 °C) the same way too: only then is a hysteresis
-    of the temperature out of the data's sight."""
+    of the temperature out of the data's sight. With whether the other session was compared
+    (it shares a point)."""
     here = one_way_points(obs, data, before)
     if here is None or other is None:
-        return here
+        return here, False
     there = one_way_points(other, columns_of(other))
     if there is None:
-        return None
+        return None, True
     temps = np.array(list(here))
+    shared = False
     for temp, way in there.items():
         near = np.abs(temps - temp) <= 2.0
+        shared = shared or bool(near.any())
         if near.any() and any(here[float(t)] != way for t in temps[near]):
-            return None
-    return here
+            return None, True
+    return here, shared
 
 
 def _history_explains(judge: Judge, base: Evaluation, quality, base_next, tolerance) -> bool:

@@ -177,18 +177,20 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     out = {"step": ref - previous, "previous_rate": previous, "mounting": stretch}
     series = data.get("series")
     if series is not None and hasattr(series, "temp") and len(series.t) > 1:
-        from ..io.signals import play_operator
+        from ..io.signals import temperature_play
         mid = 0.5 * (t + np.asarray(data["t_end"], dtype=float)) - series.t0
         temp = np.asarray(series.temp, dtype=float)
-        state = 2.0 * (temp - play_operator(temp, DIRECTION_WIDTH_C)) / DIRECTION_WIDTH_C
+        # from a unit brought from the room, as the fit's play of the temperature starts
+        state = 2.0 * (temp - temperature_play(temp, DIRECTION_WIDTH_C)) / DIRECTION_WIDTH_C
         out["temp_direction"] = np.round(np.interp(mid, series.t, state))
     return out
 
 
 def one_way_points(obs: pd.DataFrame, data: dict, before: dict | None = None) -> dict | None:
     """The temperature's direction of travel at each temperature point (+1 rising, −1
-    falling; the session as one point where it has none), where every point saw one
-    direction only; None where some point saw both, or the record cannot tell.
+    falling, the first from the room; the session as one point where it has none), where
+    every point saw one direction only; None where some point saw both, or the record
+    cannot tell.
 
     A bias that depends on the direction the temperature came from (thermal hysteresis) is
     then constant within each point: each point's bias holds it, and no row or term of this

@@ -6,8 +6,8 @@ given value the model is linear, so its least-squares fit gives the weighted res
 against local minima), then finer scans around the best point (:func:`_zoom`). The standard
 error comes from the profile's curvature, ``σ² = 2 s² / (d²χ²/dθ²)`` with ``s²`` the
 reduced χ² (the coefficient covariances are scaled the same way), taken on log θ and
-carried to θ. Several nonlinear parameters are profiled one after another, then moved
-jointly (:func:`_polish`).
+carried to θ (with several, from the inverse of their joint Hessian). Several nonlinear
+parameters are profiled one after another, then moved jointly (:func:`_polish`).
 Every value is judged on the temperature points the fit at the start values kept: a value
 that loses a point would win on a smaller χ² for that alone, so it is refused.
 """
@@ -61,38 +61,92 @@ def _zoom(chi2_at, grid, values, k) -> float:
     return float(best)
 
 
-def _polish(model: Model, free, evaluate) -> Model:
-    """The profile's values moved jointly (a simplex over log θ): one parameter at a time
-    stops where a valley runs diagonally and has a kink (a switch's place and width: moving
-    either alone loses a hold the other would win back). Within the bounds; kept only where
-    χ² falls."""
-    from scipy.optimize import minimize
+def _value(model: Model, index: int, name: str) -> float:
+    term = model.terms[index]
+    return float(term.parameters[name] if hasattr(term, "parameters") else getattr(term, name))
 
-    def value(m, i, n):
-        term = m.terms[i]
-        return float(term.parameters[n] if hasattr(term, "parameters") else getattr(term, n))
+
+def _polish(model: Model, free, evaluate) -> Model:
+    """The profile's values moved jointly (a simplex over log θ, clipped to the bounds): one
+    parameter at a time stops where a valley runs diagonally and has a kink (a switch's
+    place and width: moving either alone loses a hold the other would win back). Kept only
+    where χ² falls."""
+    from scipy.optimize import minimize
+    lows = np.array([math.log(lo) for _, _, (lo, _) in free])
+    highs = np.array([math.log(hi) for _, _, (_, hi) in free])
 
     def at(x):
         m = model
-        for (i, n, (lo, hi)), v in zip(free, x):
-            if not lo <= math.exp(v) <= hi:
-                return None
+        for (i, n, _), v in zip(free, np.clip(x, lows, highs)):
             m = _with(m, i, n, math.exp(v))
         return m
 
-    def chi2_of(x):
-        m = at(x)
-        return math.inf if m is None else evaluate(m)[0]
-
-    x0 = np.array([math.log(value(model, i, n)) for i, n, _ in free])
-    start = chi2_of(x0)
-    simplex = np.vstack([x0, x0 + POLISH_STEP * np.eye(len(x0))])
+    start = evaluate(model)[0]
+    x0 = np.clip([math.log(_value(model, i, n)) for i, n, _ in free], lows, highs)
+    # first steps inward from a bound, so that every vertex is a value of its own
+    steps = np.where(x0 + POLISH_STEP > highs, -POLISH_STEP, POLISH_STEP)
+    simplex = np.vstack([x0, x0 + np.diag(steps)])
     with np.errstate(invalid="ignore"):
-        found = minimize(chi2_of, x0, method="Nelder-Mead",
+        found = minimize(lambda x: evaluate(at(x))[0], x0, method="Nelder-Mead",
                          options={"initial_simplex": simplex, "xatol": ZOOM_TOLERANCE,
                                   "fatol": POLISH_CHI2, "maxfev": POLISH_EVALUATIONS})
-    better = at(found.x) if np.isfinite(found.fun) and found.fun < start else None
-    return better if better is not None else model
+    return at(found.x) if np.isfinite(found.fun) and found.fun < start else model
+
+
+def _scan(current: Model, index: int, name: str, bounds, evaluate) -> tuple[Model, bool]:
+    """``current`` with ``name`` of term ``index`` at its best value (a log-spaced scan of the
+    bounds, then :func:`_zoom`), and whether χ² does not depend on it (kept as it is)."""
+    lo, hi = bounds
+
+    def chi2_at(log_value):
+        return evaluate(_with(current, index, name, math.exp(log_value)))[0]
+    grid = np.linspace(math.log(lo), math.log(hi), SCAN_POINTS)
+    values = [chi2_at(g) for g in grid]
+    k = int(np.argmin(values))
+    if not np.isfinite(values[k]):
+        failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
+        raise failure if isinstance(failure, GyrocalError) else GyrocalError(
+            f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
+    finite = [v for v in values if np.isfinite(v)]
+    if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
+        return current, True
+    return _with(current, index, name, math.exp(_zoom(chi2_at, grid, values, k))), False
+
+
+def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
+    """σ of log θ for each free parameter, from the profile's curvature: the inverse of the
+    Hessian of χ² over all of them where it is positive definite (parameters that share a
+    valley, a switch's place and width, widen each other's errors), else each one's own
+    curvature; inf where χ² does not curve upward."""
+    h = 0.02
+    x0 = [math.log(_value(current, i, n)) for i, n, _ in free]
+
+    def at(steps):
+        m = current
+        for (i, n, _), x, d in zip(free, x0, steps):
+            if d:
+                m = _with(m, i, n, math.exp(x + d))
+        return evaluate(m)[0]
+    k = len(free)
+    H = np.zeros((k, k))
+    for a in range(k):
+        e = np.zeros(k)
+        e[a] = h
+        H[a, a] = (at(-e) - 2 * chi2 + at(e)) / h ** 2
+        for b in range(a):
+            f = np.zeros(k)
+            f[b] = h
+            H[a, b] = H[b, a] = (at(e + f) - at(e - f) - at(f - e) + at(-e - f)) / (4 * h ** 2)
+    own = {free[a][:2]: (math.sqrt(2 * s2 / H[a, a]) if H[a, a] > 0 and np.isfinite(H[a, a]) else math.inf)
+           for a in range(k)}
+    if k > 1 and np.all(np.isfinite(H)):
+        try:
+            np.linalg.cholesky(H)
+        except np.linalg.LinAlgError:
+            return own
+        cov = 2 * s2 * np.linalg.inv(H)
+        return {free[a][:2]: math.sqrt(cov[a, a]) for a in range(k)}
+    return own
 
 
 def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
@@ -121,23 +175,17 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
     current = model
     evaluate(model)  # fixes the points every value is judged on
     flat: set = set()
-    for index, name, (lo, hi) in targets:
-        def chi2_at(log_value, base=current, index=index, name=name):
-            return evaluate(_with(base, index, name, math.exp(log_value)))[0]
-        grid = np.linspace(math.log(lo), math.log(hi), SCAN_POINTS)
-        values = [chi2_at(g) for g in grid]
-        k = int(np.argmin(values))
-        if not np.isfinite(values[k]):
-            failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
-            raise failure if isinstance(failure, GyrocalError) else GyrocalError(
-                f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
-        finite = [v for v in values if np.isfinite(v)]
-        if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
-            flat.add((index, name))  # the data do not depend on it: keep the setting
-            continue
-        best = _zoom(chi2_at, grid, values, k)
-        current = _with(current, index, name, math.exp(best))
-
+    for index, name, bounds in targets:
+        current, unchanged = _scan(current, index, name, bounds, evaluate)
+        if unchanged:
+            flat.add((index, name))
+    if flat and len(flat) < len(targets):
+        # flat at the others' start values (a width while the place is off the data): again,
+        # now that they have moved
+        for index, name, bounds in [t for t in targets if t[:2] in flat]:
+            current, unchanged = _scan(current, index, name, bounds, evaluate)
+            if not unchanged:
+                flat.discard((index, name))
     free = [(i, n, b) for i, n, b in targets if (i, n) not in flat]
     if len(free) > 1:
         current = _polish(current, free, evaluate)
@@ -147,21 +195,17 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
             "the profiled fit leaves out temperature points the start values kept")
     dof = total_chi2(fitted)[1]
     s2 = chi2 / max(dof, 1)
+    sigma = _log_errors(current, free, chi2, s2, evaluate) if free else {}
     report = []
     for index, name, (lo, hi) in targets:
-        value = float(getattr(current.terms[index], name, None)
-                      if not hasattr(current.terms[index], "parameters")
-                      else current.terms[index].parameters[name])
+        value = _value(current, index, name)
         term = current.terms[index]
         if (index, name) in flat:  # e.g. a temperature-rate window without the record
             report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
                            "value": value, "stderr": None, "bounds": [float(lo), float(hi)],
                            "at_bound": False, "identified": False})
             continue
-        x0, h = math.log(value), 0.02
-        near = [evaluate(_with(current, index, name, math.exp(x0 + d)))[0] for d in (-h, h)]
-        curvature = (near[0] - 2 * chi2 + near[1]) / h ** 2
-        sigma_log = math.sqrt(2 * s2 / curvature) if curvature > 0 and np.isfinite(curvature) else math.inf
+        sigma_log = sigma[(index, name)]
         at_bound = value <= lo * 1.0001 or value >= hi / 1.0001
         report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
                        "value": value, "stderr": value * sigma_log if np.isfinite(sigma_log) else None,

@@ -242,7 +242,7 @@ class SampleRecord:
 
     def history(self, key, values, operator: str, size: float, times: np.ndarray,
                 smooth: bool = False) -> np.ndarray:
-        cache = (key, operator, float(size))
+        cache = (key, operator, float(size), bool(smooth))
         if cache not in self._done:   # once per batch: the filter's state moves on once
             run = self.states.setdefault(cache, FILTERS[operator](size))
             x = np.asarray(values(self), dtype=float)
@@ -324,7 +324,7 @@ class Series:
         ``size`` (``temperature_play``: started from the room); ``duhem``, the direction of
         travel relaxing over ``size`` of travel. ``smooth``: the input through a lag of
         :data:`TEMPERATURE_SMOOTHING_S` first (a play or Duhem operator of the temperature)."""
-        cache = ("history", key, operator, float(size))
+        cache = ("history", key, operator, float(size), bool(smooth))
         if cache not in self._cache:
             x = np.asarray(values(self), dtype=float)
             if smooth:
@@ -550,12 +550,15 @@ class Inputs(dict):
         return self.series.at(name, self.times, tau or None)
 
 
-    def history(self, key, values, operator: str, size: float, reads=frozenset()) -> np.ndarray:
-        """A signal of the record through a first-order lag (``operator="lag"``, time
-        constant ``size`` s) or the play operator (``"play"``, width ``size``), at this
-        evaluation's times: ``values(series)`` gives the signal at the record's points
-        (:meth:`Series.column`), ``key`` names it for the cache, ``reads`` the inputs it
-        rests on (``rate_history``, ``accel_history``)."""
+    def history(self, key, values, operator: str, size: float, reads=frozenset(),
+                smooth: bool = False) -> np.ndarray:
+        """A signal of the record through an operator of ``size`` (:data:`FILTERS`: a
+        first-order lag of time constant ``size`` s, a play operator of width ``size``, the
+        temperature's play from the room, a Duhem state), at this evaluation's times:
+        ``values(series)`` gives the signal at the record's points (:meth:`Series.column`),
+        ``key`` names it for the cache, ``reads`` the inputs it rests on (``rate_history``,
+        ``accel_history``); ``smooth``: through a lag of :data:`TEMPERATURE_SMOOTHING_S`
+        first (the temperature's play and Duhem state)."""
         self.read.add("temp_lag")
         self.read.update(reads)
         if self.series is None or self.times is None:
@@ -566,9 +569,6 @@ class Inputs(dict):
         if not (np.isfinite(size) and size > 0):
             raise MissingInputError(f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
                                     f"must be a positive number, got {size!r}")
-        # A play or Duhem operator of the temperature reads it through a short lag: on the
-        # samples' noise an operator narrower than it would chatter.
-        smooth = operator != "lag" and not reads
         return self.series.history(key, values, operator, size, self.times, smooth)
 
 

@@ -234,10 +234,12 @@ def _history(node: ast.Call, data, parameters, formula):
              if any(n.startswith(group) for n in names)}
     used = {k: float(v) for k, v in parameters.items() if k in names}
     key = (ast.unparse(arg), axis if names & set(OWN_AXIS) else None, tuple(sorted(used.items())))
-    # The temperature's play starts from the room, as its Duhem state does.
-    operator = "temperature_play" if node.func.id == "play" and key[0] == "temp" else node.func.id
+    # The temperature's play starts from the room, as its Duhem state does; both read it
+    # through a short lag (on the samples' noise an operator narrower than it would chatter).
+    temperature = node.func.id in ("play", "duhem") and key[0] == "temp"
+    operator = "temperature_play" if temperature and node.func.id == "play" else node.func.id
     return data.history(key, lambda series: _value(arg, _Record(series, axis), used, formula),
-                        operator, float(size), reads)
+                        operator, float(size), reads, smooth=temperature)
 
 
 class _Record:
@@ -357,8 +359,8 @@ class _OwnAxis:
     def lag(self, name, tau):
         return self.data.lag(name, tau)
 
-    def history(self, *args):
-        return self.data.history(*args)
+    def history(self, *args, **kwargs):
+        return self.data.history(*args, **kwargs)
 
 
 def _own_axis(data, axis: str) -> _OwnAxis:
