@@ -542,7 +542,7 @@ def test_compiled_c_runs_the_temperatures_histories_as_apply_does(kind, log, tmp
     document = json.loads(export_text(load_calibration(cal_path), "json", source=cal_path))
     assert [(h["label"], h["operator"], h["w"]) for h in document["temperature_histories"]] == [
         ("way", "direction", 3.0), ("strain", "duhem", 6.0), ("table", "switch", 2.5)]
-    assert all(h["lag_tau_s"] == 5.0 for h in document["temperature_histories"])
+    assert all(h["lag_tau_s"] == 2.0 for h in document["temperature_histories"])
     data, result = compiled_samples(header, log, tmp_path)
     good = np.isfinite(data).all(axis=1)
     np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)

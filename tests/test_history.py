@@ -317,7 +317,7 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     """The independent zoo's thermal hysteresis on a sweep (a state that relaxes toward the
     direction of travel over a few °C): calibrated with ``duhem(temp, w)``, w profiled,
     beside the sweep's quadratic bias, then applied to the log it was fitted on. Apply runs
-    the operator over the samples, causally, on the temperature through the 5-s lag the fit
+    the operator over the samples, causally, on the temperature through the 2-s lag the fit
     reads it by (on the raw samples, whose noise is 0.034 °C, a dead band of w/20 would
     chatter): the compensated output's hold means leave what the fit left, about the floor
     in RMS, where the same model without the history leaves several times it; and the

@@ -42,10 +42,12 @@ HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "a
                          "accel_z", "temp"})
 MAX_BINS = 50_000
 # The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in
-# apply and in firmware alike: a sensor's noise of 0.03 °C per sample at 25 Hz falls to
-# 0.002 °C, under the narrowest dead band (w/20 of 0.75 °C), and the temperature is late by
-# 5 s of its travel (0.04 °C at 30 °C/h), which the fitted widths and places take in.
-TEMPERATURE_SMOOTHING_S = 5.0
+# apply and in firmware alike: a sensor's noise of 0.034 °C per sample falls to 0.003 °C at
+# 25 Hz and 0.008 °C at 5 Hz, under the narrowest dead band (w/20 of 0.75 °C), for 2 s of
+# the temperature's travel (0.017 °C at 30 °C/h). Longer costs a fit: on the zoo's sweep
+# hysteresis a 5-s lag's delay at each turn left 3 times the floor on the next ramp, where
+# the effect follows the temperature itself; 1 s and 2 s left 0.99 and 1.00.
+TEMPERATURE_SMOOTHING_S = 2.0
 TEMP_RATE_WINDOW_S = 60.0
 
 
