@@ -140,6 +140,51 @@ def test_a_tsv_of_counts_with_a_sample_rate_and_an_imucal_csv_section_list(tmp_p
     assert set(got["section"][:10]) == {None}
 
 
+def test_a_static_chamber_log_with_temperature_in_counts_and_no_reference(tmp_path, capsys):
+    """A static chamber test as recorded (issue 39): time in ms, the gyro in rad/s, the
+    temperature in the sensor's counts (the MPU-6050's datasheet: °C = counts / 340 + 36.53,
+    i.e. sensitivity 340 LSB/°C, offset -12420.2 counts) and no reference column: the map
+    converts the counts and says the rig held 0 deg/s throughout."""
+    n = 500
+    celsius = np.linspace(22.0, 10.0, n)
+    counts = np.round((celsius - 36.53) * 340.0)
+    rng = np.random.default_rng(5)
+    gyro = rng.normal(0.0, 1e-3, (n, 3))
+    src = tmp_path / "tvac.csv"
+    write_csv(src, {"ms": 1_000_000 + 20 * np.arange(n), "wx": gyro[:, 0], "wy": gyro[:, 1],
+                    "wz": gyro[:, 2], "tc": counts})
+    (tmp_path / "map.yaml").write_text(
+        "time: {column: ms, unit: ms}\n"
+        "gyro: {x: wx, y: wy, z: wz, unit: rad/s}\n"
+        "temp: {column: tc, unit: counts, sensitivity: 340, offset: -12420.2}\n"
+        "ref_rate: {value: 0}\n")
+    out = tmp_path / "log.parquet"
+    status, stdout, _ = run(capsys, "import", src, "-o", out, "--map", tmp_path / "map.yaml")
+    assert status == 0, stdout
+    assert "ref_rate 0 deg/s throughout (a static log)" in stdout and "temp from tc (counts)" in stdout
+    got = columns(out)
+    # within half a count of the datasheet's formula (the counts were rounded)
+    np.testing.assert_allclose(got["temp"], counts / 340.0 + 36.53, atol=1e-9)
+    assert np.max(np.abs(got["temp"] - celsius)) <= 0.5 / 340.0 + 1e-9
+    np.testing.assert_array_equal(got["ref_rate"], np.zeros(n))
+    np.testing.assert_allclose(got["gyro_z"], np.degrees(gyro[:, 2]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("temp, message", [
+    ("{column: tc, unit: counts}", "temp: unit counts needs sensitivity (LSB per degC)"),
+    ("{column: tc, unit: degC, offset: 3}", "temp.sensitivity and temp.offset apply to unit counts only"),
+])
+def test_a_temperature_map_in_counts_says_what_it_lacks(tmp_path, capsys, temp, message):
+    src = tmp_path / "t.csv"
+    write_csv(src, {"t": np.arange(3.0), "gx": np.zeros(3), "gy": np.zeros(3), "gz": np.zeros(3),
+                    "tc": np.zeros(3)})
+    (tmp_path / "map.yaml").write_text("time: {column: t, unit: s}\n"
+                                       "gyro: {x: gx, y: gy, z: gz, unit: deg/s}\n"
+                                       f"temp: {temp}\n")
+    status, _, err = run(capsys, "import", src, "-o", tmp_path / "o.parquet", "--map", tmp_path / "map.yaml")
+    assert status == 2 and message in err and len(err.strip().splitlines()) == 1, err
+
+
 def test_without_a_map_a_csv_in_contract_names_is_taken_as_it_is(tmp_path, capsys):
     n = 50
     src = tmp_path / "plain.csv"

@@ -114,6 +114,8 @@ def _mapped(spec: ImportMap) -> list[str]:
     for name, scale in (("temp", spec.temp_scale), ("ref_rate", spec.ref_scale)):
         if getattr(spec, name):
             out.append(f"{name} from {getattr(spec, name)} ({scale.unit})")
+    if getattr(spec, "ref_value", None) is not None:
+        out.append(f"ref_rate {spec.ref_value:g} deg/s throughout (a static log)")
     if spec.mount:
         out.append(f"mount from {spec.mount}")
     return out

@@ -27,6 +27,10 @@ RATE_UNITS = {**UNIT_FACTORS["gyro"], "counts": None}
 ACCEL_UNITS = {"g": 1.0, "m/s^2": UNIT_FACTORS["accel"]["m/s^2"], "mg": 1e-3, "counts": None}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 TEMP_UNITS = ("degC", "K", "degF")
+# A temperature in counts, as IMUs report it: (counts - offset) / sensitivity, the
+# sensitivity in LSB per degC and the offset in counts (the datasheet's "T = counts / 340
+# + 36.53" is sensitivity 340, offset -12420.2).
+TEMP_SCALES = {**{u: 1.0 for u in TEMP_UNITS}, "counts": None}
 TIME_SOURCES = ("header", "log")
 
 # Keys allowed at each level (strict: an unknown key is most often a typo).
@@ -107,6 +111,7 @@ class ImportMap:
     temp_scale: Scaled | None = None
     ref_rate: str | None = None
     ref_scale: Scaled | None = None
+    ref_value: float | None = None          # a constant reference (deg/s): a static log
     mount: str | None = None
     imu_topic: str | None = None
     temperature: Held | None = None
@@ -125,6 +130,8 @@ class ImportMap:
         """The map without the optional quantities ``names`` (accel, temp, ref_rate, mount)."""
         scales = {"accel": "accel_scale", "temp": "temp_scale", "ref_rate": "ref_scale"}
         drop = {n: None for n in names} | {scales[n]: None for n in names if n in scales}
+        if "ref_rate" in names:
+            drop["ref_value"] = None
         return replace(self, **drop, raw={k: v for k, v in self.raw.items() if k not in names})
 
     def columns(self) -> dict[str, str]:
@@ -282,7 +289,8 @@ class _Checker:
         return float(value)
 
     def scale(self, spec: dict, units: dict, key: str, default: str | None = None) -> Scaled:
-        """The unit, sensitivity and offset of a rate or acceleration."""
+        """The unit, sensitivity and offset of a rate, an acceleration or a temperature in
+        counts."""
         unit = spec.get("unit", default)
         if unit is None:
             self.fail(f"{key}.unit is missing; expected one of {', '.join(units)}")
@@ -290,7 +298,7 @@ class _Checker:
         sensitivity = spec.get("sensitivity")
         if unit == "counts":
             if sensitivity is None:
-                per = "g" if units is ACCEL_UNITS else "deg/s"
+                per = "g" if units is ACCEL_UNITS else "degC" if units is TEMP_SCALES else "deg/s"
                 self.fail(f"{key}: unit counts needs sensitivity (LSB per {per})")
             factor = 1.0 / self.number(sensitivity, f"{key}.sensitivity", positive=True)
         else:
@@ -367,16 +375,30 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
         spec["accel"], spec["accel_scale"] = check.triad(values["accel"], "accel", ACCEL_UNITS)
     if values.get("temp") is not None:
         temp = values["temp"]
-        check.keys(temp, ("column", "unit"), "temp")
+        check.keys(temp, ("column", "unit", "sensitivity", "offset"), "temp")
         spec["temp"] = check.name(temp.get("column"), "temp.column")
         unit = temp.get("unit", "degC")
-        check.choice(unit, TEMP_UNITS, "temp.unit")
-        spec["temp_scale"] = Scaled(unit)
+        check.choice(unit, TEMP_SCALES, "temp.unit")
+        if unit == "counts":
+            spec["temp_scale"] = check.scale(temp, TEMP_SCALES, "temp")
+            if len(spec["temp_scale"].offset) > 1:
+                check.fail("temp.offset takes one number (counts)")
+        else:
+            if "sensitivity" in temp or "offset" in temp:
+                check.fail(f"temp.sensitivity and temp.offset apply to unit counts only, not {unit}")
+            spec["temp_scale"] = Scaled(unit)
     if values.get("ref_rate") is not None:
         ref = values["ref_rate"]
-        check.keys(ref, ("column", "unit", "sensitivity", "offset"), "ref_rate")
-        spec["ref_rate"] = check.name(ref.get("column"), "ref_rate.column")
-        spec["ref_scale"] = check.scale(ref, RATE_UNITS, "ref_rate")
+        if not isinstance(ref, dict):
+            check.fail("ref_rate takes {column: NAME, unit: ...} or, for a static log, {value: 0}")
+        if "value" in ref:
+            # A static log's reference: the rate the rig held throughout, in deg/s.
+            check.keys(ref, ("value",), "ref_rate")
+            spec["ref_value"] = check.number(ref["value"], "ref_rate.value")
+        else:
+            check.keys(ref, ("column", "unit", "sensitivity", "offset"), "ref_rate")
+            spec["ref_rate"] = check.name(ref.get("column"), "ref_rate.column")
+            spec["ref_scale"] = check.scale(ref, RATE_UNITS, "ref_rate")
     if values.get("mount") is not None:
         check.keys(values["mount"], ("column",), "mount")
         spec["mount"] = check.name(values["mount"].get("column"), "mount.column")

@@ -310,6 +310,8 @@ def _columns(batch: pa.RecordBatch, spec: ImportMap, rows: np.ndarray) -> dict:
         out["temp"] = spec.temp_scale.apply(values(spec.temp))
     if spec.ref_rate:
         out["ref_rate"] = spec.ref_scale.apply(values(spec.ref_rate))
+    elif spec.ref_value is not None:
+        out["ref_rate"] = np.full(len(out["t"]), spec.ref_value)
     for axis, column in enumerate(spec.accel or ()):
         out[f"accel_{'xyz'[axis]}"] = spec.accel_scale.apply(values(column), axis)
     if spec.mount:
