@@ -475,6 +475,21 @@ def history_calibration(kind: str):
     return with_terms(cal, kind, HISTORY_TERMS, lambda n: size[n.split(".")[0]], seed=5)
 
 
+def compiled_runs_histories_as_apply(cal, header, expected, log, tmp_path):
+    """The compiled header, fed the log's samples in order, gives apply's output (NaN where
+    apply's is), and the calibration without its histories differs from it by far more.
+    Returns the samples and which are finite."""
+    data, result = compiled_samples(header, log, tmp_path)
+    good = np.isfinite(data).all(axis=1)
+    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
+    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
+    from gyrocal.calibration.export import _without_splines
+    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4]},
+                                            warn=False)
+    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+    return data, good
+
+
 @needs_gcc
 @pytest.mark.parametrize("kind", ["grid", "continuous"])
 def test_compiled_c_runs_the_histories_as_apply_does(kind, log, tmp_path):
@@ -490,15 +505,8 @@ def test_compiled_c_runs_the_histories_as_apply_does(kind, log, tmp_path):
     assert [(h["label"], h["tau_s"]) for h in document["histories"]] == [("pole", 4.0), ("heat", 90.0),
                                                                         ("drag", 300.0)]
     assert "K's diagonal" in document["histories"][0]["adds_to"]
-    data, result = compiled_samples(header, log, tmp_path)
-    good = np.isfinite(data).all(axis=1)
-    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
-    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
     # Teeth: the same calibration without its histories differs by far more.
-    from gyrocal.calibration.export import _without_splines
-    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4]},
-                                            warn=False)
-    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+    compiled_runs_histories_as_apply(cal, header, expected, log, tmp_path)
 
 
 def test_histories_firmware_cannot_run_are_refused_by_name():
@@ -543,16 +551,9 @@ def test_compiled_c_runs_the_temperatures_histories_as_apply_does(kind, log, tmp
     assert [(h["label"], h["operator"], h["w"]) for h in document["temperature_histories"]] == [
         ("way", "direction", 3.0), ("strain", "duhem", 6.0), ("table", "switch", 2.5)]
     assert all(h["lag_tau_s"] == 2.0 for h in document["temperature_histories"])
-    data, result = compiled_samples(header, log, tmp_path)
-    good = np.isfinite(data).all(axis=1)
-    np.testing.assert_allclose(result[good, :3], expected[good], rtol=0, atol=ATOL)
-    assert np.isnan(result[~good, :3]).all() and np.isnan(expected[~good]).all()
     # Teeth: without its histories the compensation differs by far more, and the switch
     # turned within the log (its sign took both values).
-    from gyrocal.calibration.export import _without_splines
-    bare = _without_splines(cal).compensate(data[good, 1:4], {"t": data[good, 0], "temp": data[good, 4]},
-                                            warn=False)
-    assert np.max(np.abs(result[good, :3] - bare)) > 1e-2
+    data, good = compiled_runs_histories_as_apply(cal, header, expected, log, tmp_path)
     from gyrocal.io.signals import TEMPERATURE_SMOOTHING_S, first_order_lag, temperature_play
     lagged = first_order_lag(data[good, 0], data[good, 4], TEMPERATURE_SMOOTHING_S)
     assert set(np.unique(np.sign(temperature_play(lagged, 2.5) + 12.0 - 20.0))) == {-1.0, 1.0}

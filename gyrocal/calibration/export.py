@@ -156,16 +156,22 @@ TEMPERATURE_HISTORY_START = ("a unit brought from a {room:g} degC room: y[0] = c
                              "{room:g}| / w)), d0 = sign(x[0] - {room:g}) where |x[0] - {room:g}| > h, else 0")
 
 
-def temperature_history_form(spec) -> str | None:
-    """The operator (``direction``, ``duhem``, ``switch``) of an expression term firmware
-    runs as a filter of the temperature, else None."""
+def _history_formula(spec) -> str | None:
+    """An expression term's formula as ``ast.unparse`` writes it (the forms' spelling), else
+    None."""
     import ast
     if not isinstance(spec, dict) or spec.get("name") != HISTORY_TERM or spec.get("drop"):
         return None
     try:
-        formula = ast.unparse(ast.parse(str(spec.get("formula")), mode="eval"))
+        return ast.unparse(ast.parse(str(spec.get("formula")), mode="eval"))
     except SyntaxError:
         return None
+
+
+def temperature_history_form(spec) -> str | None:
+    """The operator (``direction``, ``duhem``, ``switch``) of an expression term firmware
+    runs as a filter of the temperature, else None."""
+    formula = _history_formula(spec)
     operator, names = TEMPERATURE_HISTORY_FORMS.get(formula, (None, set()))
     given = set(spec.get("parameters") or {}) | set(spec.get("profile") or {})
     return operator if operator and given == names else None
@@ -173,12 +179,8 @@ def temperature_history_form(spec) -> str | None:
 
 def history_form(spec) -> tuple[str, float] | None:
     """(input, K's diagonal) of an expression term firmware runs as a filter, else None."""
-    import ast
-    if not isinstance(spec, dict) or spec.get("name") != HISTORY_TERM or spec.get("drop"):
-        return None
-    try:
-        formula = ast.unparse(ast.parse(str(spec.get("formula")), mode="eval"))
-    except SyntaxError:
+    formula = _history_formula(spec)
+    if formula is None:
         return None
     if set(spec.get("parameters") or {}) | set(spec.get("profile") or {}) != {"tau"}:
         return None
@@ -255,44 +257,42 @@ def _splines(cal: Calibration) -> tuple:
     return tuple(out)
 
 
+def _session_wide(cal: Calibration, label: str, source) -> np.ndarray:
+    """A history's coefficient per output axis. Its effect belongs to the session's time,
+    not to a temperature point: the same at every grid point, or the export is refused."""
+    values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
+    c = np.array([values[f"{label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
+    if not np.all(c == c[:, :1]):
+        raise UnsupportedModelError(f"cannot export for firmware: {label}'s coefficients "
+                                    "differ between temperature points", source=source)
+    return c[:, 0].copy()
+
+
 def _histories(cal: Calibration, source) -> tuple:
-    """The calibration's histories as firmware runs them: the lag's input and time constant,
-    the coefficient per output axis and what a slow pole adds to K's diagonal. A history's
-    coefficients are session-wide (its effect belongs to the session's time, not to a
-    temperature point): the same at every grid point."""
+    """The calibration's histories of the raw output as firmware runs them: the lag's input
+    and time constant, the coefficient per output axis and what a slow pole adds to K's
+    diagonal."""
     out = []
     for term, spec in zip(cal.model.terms, cal.model.spec()):
         form = history_form(spec)
-        if form is None:
-            continue
-        values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
-        c = np.array([values[f"{term.label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
-        if not np.all(c == c[:, :1]):
-            raise UnsupportedModelError(f"cannot export for firmware: {term.label}'s coefficients "
-                                        "differ between temperature points", source=source)
-        out.append({"label": term.label, "input": form[0], "diagonal": form[1],
-                    "tau": float(term.parameters["tau"]), "coefficients": c[:, 0].copy(),
-                    "formula": term.formula})
+        if form is not None:
+            out.append({"label": term.label, "input": form[0], "diagonal": form[1],
+                        "tau": float(term.parameters["tau"]), "formula": term.formula,
+                        "coefficients": _session_wide(cal, term.label, source)})
     return tuple(out)
 
 
 def _temperature_histories(cal: Calibration, source) -> tuple:
     """The calibration's histories of the temperature as firmware runs them: the operator,
-    its parameters and the coefficient per output axis (session-wide, as a rate history's)."""
+    its parameters and the coefficient per output axis."""
     out = []
     for term, spec in zip(cal.model.terms, cal.model.spec()):
         operator = temperature_history_form(spec)
-        if operator is None:
-            continue
-        values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
-        c = np.array([values[f"{term.label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
-        if not np.all(c == c[:, :1]):
-            raise UnsupportedModelError(f"cannot export for firmware: {term.label}'s coefficients "
-                                        "differ between temperature points", source=source)
-        p = term.parameters
-        out.append({"label": term.label, "operator": operator, "formula": term.formula,
-                    "w": float(p["w"]), "T0": float(p.get("T0", 0.0)), "m": float(p.get("m", 0.0)),
-                    "coefficients": c[:, 0].copy()})
+        if operator is not None:
+            p = term.parameters
+            out.append({"label": term.label, "operator": operator, "formula": term.formula,
+                        "w": float(p["w"]), "T0": float(p.get("T0", 0.0)), "m": float(p.get("m", 0.0)),
+                        "coefficients": _session_wide(cal, term.label, source)})
     return tuple(out)
 
 

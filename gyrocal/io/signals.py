@@ -186,16 +186,13 @@ class CarriedFilter:
         return out
 
 
-def _play_carried(x, width, last):
-    """:func:`play_operator` whose state is its last output."""
-    y = play_operator(x, width, last)
-    return y, float(y[-1])
-
-
-def _temperature_play_carried(x, width, last):
-    """:func:`temperature_play` whose state is its last output."""
-    y = temperature_play(x, width, last)
-    return y, float(y[-1])
+def _carrying_last(play):
+    """A play operator ``play(x, width, initial)`` as :class:`CarriedFilter` runs it: its
+    state is its last output."""
+    def run(x, width, last):
+        y = play(x, width, last)
+        return y, float(y[-1])
+    return run
 
 
 def temperature_play(x: np.ndarray, width: float, initial: float | None = None) -> np.ndarray:
@@ -501,8 +498,8 @@ def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
 
 
 # The filter apply runs for each history, by operator.
-FILTERS = {"lag": LagFilter, "play": lambda w: CarriedFilter(_play_carried, w),
-           "temperature_play": lambda w: CarriedFilter(_temperature_play_carried, w),
+FILTERS = {"lag": LagFilter, "play": lambda w: CarriedFilter(_carrying_last(play_operator), w),
+           "temperature_play": lambda w: CarriedFilter(_carrying_last(temperature_play), w),
            "duhem": lambda w: CarriedFilter(duhem_operator, w)}
 
 
