@@ -290,7 +290,8 @@ def story_contradiction(d: dict) -> str | None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=3)
-    parser.add_argument("--cases", choices=("all", "smallest", "history"), default="all")
+    parser.add_argument("--cases", choices=("all", "smallest", "history", "sweep"), default="all",
+                        help="sweep: every case on the sweep protocol (the floor's benchmark, issue 39)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", help="write the rows as JSON here")
     parser.add_argument("--one-session", action="store_true",
@@ -298,7 +299,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     from host import cores, cpu_name
 
-    cases = {"all": CASES, "smallest": SMALLEST, "history": HISTORY}[args.cases]
+    cases = {"all": CASES, "smallest": SMALLEST, "history": HISTORY,
+             "sweep": [c for c in CASES + [h for h in HISTORY if h not in CASES] if c[1] == "sweep"]}[args.cases]
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as folder, ProcessPoolExecutor(args.jobs) as pool:
         jobs = [pool.submit(run_case, case, seed, folder, not args.one_session) for case in cases

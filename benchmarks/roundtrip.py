@@ -47,7 +47,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo", "ferraris")
+PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo", "ferraris", "static")
 READERS = ("apply", "export", "lookup", "validate", "report", "revalidate", "drift")
 # Effects of the zoo that every protocol's log carries (the rest need a protocol of theirs).
 EFFECTS = ("none", "none", "g_sensitivity", "scale_quadratic", "scale_cubic", "warmup",
@@ -121,8 +121,15 @@ FERRARIS_MODELS = [
     ("default", {}),
     ("g_sensitivity", {"terms": ["g_sensitivity"]}),
 ]
+# A unit lying still (tests/chamber's host-stamped IMU): the bias, or a drift in time too.
+STATIC_MODELS = [
+    ("default", {}),
+    ("formula profiled", {"terms": [
+        "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 60.0}, "
+        "profile={'tau': [10.0, 600.0]})"]}),
+]
 MODELS = {"turntable": TURNTABLE_MODELS, "sweep": SWEEP_MODELS, "servo": [("default", {})],
-          "ferraris": FERRARIS_MODELS}
+          "ferraris": FERRARIS_MODELS, "static": STATIC_MODELS}
 
 
 def draw_case(index: int, seed: int = 0) -> dict:
@@ -136,6 +143,9 @@ def draw_case(index: int, seed: int = 0) -> dict:
         protocol = f"turntable{model['mounts']}"
     case = {"index": index, "protocol": protocol, "family": family, "model_label": label,
             "model": model, "unit_seed": int(rng.integers(1, 10_000))}
+    if family == "static":
+        case["noise_scale"] = float(10 ** rng.uniform(-1.0, 1.0))
+        return case
     if family == "ferraris":
         kinds = [k for k in FERRARIS_KINDS if not (label == "g_sensitivity" and k == "sections_only")]
         case["kind"] = kinds[int(rng.integers(len(kinds)))]   # g_sensitivity reads the accelerometer
@@ -164,6 +174,13 @@ def write_logs(case: dict, folder: Path, *, small: bool = False) -> list[Path]:
         from tests.ferraris_gen.generate import session
         for s, path in enumerate(logs):
             session(case["kind"], case["unit_seed"] * 10 + s, path)
+        return logs
+    if case["family"] == "static":   # arrival-stamped, stalls and bunches: tests/chamber
+        from tests.chamber.generator import NoiseModel, host_stamped_log, write_contract
+        noise = NoiseModel(arw_deg_rt_h=0.3 * case["noise_scale"])
+        for s, path in enumerate(logs):
+            write_contract(host_stamped_log(case["unit_seed"] * 10 + s, duration_s=60.0 if small else 300.0,
+                                            noise=noise), path)
         return logs
     from benchmarks.zoo.generator import make_unit, write_session
     unit = make_unit(effect=case["effect"], protocol=case["protocol"], noise=case["noise"],

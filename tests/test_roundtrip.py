@@ -158,7 +158,7 @@ def test_json_numbers_are_the_floats_shortest_repr(complete_run, tmp_path):
 # ---------------------------------------------------------------------------------------
 # Files written by `gyrocal calibrate` for units of every protocol and model kind, given to
 # every reader. Units come from the independent generators (benchmarks/zoo,
-# tests/ferraris_gen); the protocol is shortened (`small`) to keep each example to seconds.
+# tests/ferraris_gen, tests/chamber); the protocol is shortened (`small`) to keep each example to seconds.
 
 def _case(protocol, model_index, effect, noise, coefficient_scale, noise_scale, unit_seed, kind):
     family = "turntable" if protocol.startswith("turntable") else protocol
@@ -170,6 +170,8 @@ def _case(protocol, model_index, effect, noise, coefficient_scale, noise_scale, 
             "model": model, "unit_seed": unit_seed}
     if family == "ferraris":
         return {**case, "kind": kind}
+    if family == "static":
+        return {**case, "noise_scale": noise_scale}
     return {**case, "noise": noise, "effect": effect if family != "servo" else "none",
             "coefficient_scale": coefficient_scale, "noise_scale": noise_scale}
 
@@ -184,7 +186,7 @@ def cases(protocol):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("protocol", ["turntable3", "turntable6", "sweep", "servo", "ferraris"])
+@pytest.mark.parametrize("protocol", ["turntable3", "turntable6", "sweep", "servo", "ferraris", "static"])
 @settings(max_examples=2, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_every_reader_reads_every_file_calibrate_writes(protocol, data, tmp_path_factory):

@@ -88,7 +88,7 @@ HEADER = "device\tbatch\tsession\tprotocol\tpath\n"
     ("U1\tB/1\t2026-01-01\tturntable\tx.parquet", "batch 'B/1' must be a name without slashes or tabs, not . or .."),
     ("U1\tB1\t2026-02-30\tturntable\tx.parquet", "session '2026-02-30' is not an ISO date YYYY-MM-DD"),
     ("U1\tB1\t26-2-3\tturntable\tx.parquet", "session '26-2-3' is not an ISO date YYYY-MM-DD"),
-    ("U1\tB1\t2026-01-01\tgimbal\tx.parquet", "protocol 'gimbal' is not known; choose one of turntable, servo, sweep, ferraris"),
+    ("U1\tB1\t2026-01-01\tgimbal\tx.parquet", "protocol 'gimbal' is not known; choose one of turntable, servo, sweep, ferraris, static"),
     ("U1\tB1\t2026-01-01\tservo\t", "path '' is empty"),
     # Hostile rows: ids name output folders (results/{batch}/{device}/{session}).
     ("U1\t..\t2026-01-01\tturntable\tu1.parquet", "batch '..' must be a name without slashes or tabs, not . or .."),
@@ -96,7 +96,7 @@ HEADER = "device\tbatch\tsession\tprotocol\tpath\n"
     ("../U1\tB1\t2026-01-01\tturntable\tu1.parquet", "device '../U1' does not match ^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"),
     ("<script>\tB1\t2026-01-01\tturntable\tu1.parquet", "device '<script>' does not match ^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$"),
     ("U1\tB1\t2026-01-01; rm -rf /\tturntable\tu1.parquet", "session '2026-01-01; rm -rf /' is not an ISO date YYYY-MM-DD"),
-    ("U1\tB1\t2026-01-01\tturntable; rm\tu1.parquet", "protocol 'turntable; rm' is not known; choose one of turntable, servo, sweep, ferraris"),
+    ("U1\tB1\t2026-01-01\tturntable; rm\tu1.parquet", "protocol 'turntable; rm' is not known; choose one of turntable, servo, sweep, ferraris, static"),
     ("U0\tB1\t2026-01-01\tturntable\tother.parquet", "device U0 session 2026-01-01 is listed twice (first on line 2)"),
 ])
 def test_a_bad_manifest_row_is_named_by_line_and_column(tmp_path, row, message):

@@ -204,7 +204,19 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
         rows.append(row)
     longest = max(p.n for p in parts) / rate
     return {"source": STATIC, "static_seconds": float(seconds), "stretches": len(parts),
-            "longest_static_s": float(longest), "session": session, "points": rows}
+            "longest_static_s": float(longest), "session": session, "points": rows,
+            "resolves": resolution(longest, float(session["allan"]["tau_s"][-1]))}
+
+
+def resolution(longest_s: float, tau_max_s: float) -> dict:
+    """What the static stretches can and cannot tell, JSON-plain: they measure the Allan
+    deviation up to ``tau_max_s``; wander over longer times (a chamber's bursts are seconds
+    long, its temperature points minutes apart) is beyond them."""
+    return {"tau_max_s": tau_max_s, "longest_static_s": longest_s,
+            "text": (f"the static stretches, {longest_s:.3g} s at the longest, measure the noise up to "
+                     f"τ = {tau_max_s:.3g} s; bias instability and rate random walk over longer times "
+                     "are not measured by them: the floors count them only where detected, and the "
+                     "diagnosis weighs an excess against the most of them the data cannot rule out")}
 
 
 def terms_of(entry: dict) -> NoiseTerms:
@@ -213,6 +225,8 @@ def terms_of(entry: dict) -> NoiseTerms:
     keys = ("arw", "bias_instability", "rrw", "quantisation")
     kw = {k: np.asarray(d[k], float) for k in keys}
     kw.update({f"{k}_stderr": np.asarray(d[f"{k}_stderr"], float) for k in keys})
+    if "ramp" in d:   # files written before the ramp was fitted have none
+        kw.update(ramp=np.asarray(d["ramp"], float), ramp_stderr=np.asarray(d["ramp_stderr"], float))
     return NoiseTerms(**kw, bias_instability_min=np.asarray(d["bias_instability_min"], float),
                       tau_min=np.asarray(d["tau_min"], float), chi2_reduced=np.asarray(d["chi2_reduced"], float),
                       tau_range=tuple(d["tau_range_s"]))
@@ -234,7 +248,7 @@ def floor_terms(model: dict) -> NoiseTerms:
     """The session's terms as the floors use them: bias instability and rate random walk only
     where the static data detect them (:func:`detected`). A few minutes of white noise fit a
     flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
-    third and hide real effects."""
+    third and hide real effects. The ramp, a drift, counts in no floor."""
     terms = terms_of(model)
     kw = {}
     for name in ("bias_instability", "rrw"):
@@ -289,7 +303,12 @@ def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTe
     model = summary["session"]
     duration = obs["n"].to_numpy(float) / rate
     span = obs.groupby("point").agg(t0=("t_start", "min"), t1=("t_end", "max"))
-    count = (span["t1"] - span["t0"]).reindex(obs["point"]).to_numpy() / duration
+    # A hold scatters about its visit's mean: a sweep passes each temperature going up and
+    # coming down hours later, and the wander of those hours is no hold's noise.
+    visit = _visits(obs)
+    visit_span = (obs.groupby(visit)["t_end"].transform("max")
+                  - obs.groupby(visit)["t_start"].transform("min")).to_numpy(float)
+    count = np.maximum(visit_span / duration, 1.0)
     mids = ((span["t0"] + span["t1"]) / 2).sort_values().to_numpy()
     between = float(np.median(np.diff(mids))) if mids.size > 1 else 0.0
     std = obs[[f"std_{a}" for a in AXES]].to_numpy(float)
@@ -311,6 +330,17 @@ def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTe
     return obs
 
 
+def _visits(obs: pd.DataFrame) -> np.ndarray:
+    """Per observation, a label of its point's visit: a run of the point's holds in time
+    order that no other point's hold interrupts."""
+    order = np.argsort(obs["t_start"].to_numpy(float), kind="stable")
+    point = obs["point"].to_numpy()[order]
+    run = np.cumsum(np.r_[True, point[1:] != point[:-1]])
+    out = np.empty(len(order), np.int64)
+    out[order] = run
+    return out
+
+
 def noise_record(summary: dict) -> dict:
     """What a calibration file keeps of the noise characterisation: the terms (IEEE Std 952
     units), the session's and per temperature point, and which floor the fit used."""
@@ -320,6 +350,8 @@ def noise_record(summary: dict) -> dict:
     if "session" not in summary:
         return out
     used = floor_terms(summary["session"])
+    if "resolves" in summary:
+        out["resolves"] = summary["resolves"]
     out.update(static_seconds=summary["static_seconds"], stretches=summary["stretches"],
                session=summary["session"]["terms"],
                floor_terms={"bias_instability": np.asarray(used.bias_instability).tolist(),

@@ -11,12 +11,15 @@ Removing the mean before the cumulative sum leaves every second difference uncha
 angle small, so a long soak with a large bias loses no precision. The sum takes one read of the
 angle per tau (``gyrocal/io/_blockstats.c``; cache-sized numpy blocks where it is not built).
 
-Noise model fitted to sigma^2 (IEEE Std 952, eq. C.41 without the drift-ramp term)
+Noise model fitted to sigma^2 (IEEE Std 952, eq. C.41)
 
-    sigma^2(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3
+    sigma^2(tau) = 3 Q^2 / tau^2 + N^2 / tau + (2 ln 2 / pi) B^2 + K^2 tau / 3 + R^2 tau^2 / 2
 
 Q quantisation (angle), N angle random walk, B bias instability (flicker; sqrt(2 ln 2/pi) = 0.664),
-K rate random walk. Reported in IEEE units: N deg/sqrt(h), B deg/h, K deg/h/sqrt(h), Q arcsec.
+K rate random walk, R rate ramp. Reported in IEEE units: N deg/sqrt(h), B deg/h, K deg/h/sqrt(h),
+Q arcsec, R deg/h/h. The ramp is fitted so that a drift in the static data (a die still settling
+after a temperature ramp, a warm-up) rises as tau, not as the random walk's sqrt(tau): it is an
+effect for the model to carry, not noise, and no floor counts it.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ _TO_ARW = 60.0  # deg/sqrt(s) -> deg/sqrt(h)
 _TO_BI = 3600.0  # deg/s -> deg/h
 _TO_RRW = 3600.0 ** 1.5  # deg/s/sqrt(s) -> deg/h/sqrt(h)
 _TO_Q = 3600.0  # deg -> arcsec
+_TO_R = 3600.0 ** 2  # deg/s^2 -> deg/h/h
 
 
 def _plain(a):
@@ -253,17 +257,18 @@ def barnes_b1(count, mu: int) -> np.ndarray:
     return M * (1.0 - M ** mu) / (2.0 * (M - 1.0) * (1.0 - 2.0 ** mu))
 
 
-_TERMS = ("quantisation", "arw", "bias_instability", "rrw")
+_TERMS = ("quantisation", "arw", "bias_instability", "rrw", "ramp")
+_NOISE = 4   # the first four are noise; the ramp is a drift
 
 
 def _design(tau: np.ndarray) -> np.ndarray:
-    """Columns multiplying (Q^2, N^2, B^2, K^2) in SI units (deg, s)."""
+    """Columns multiplying (Q^2, N^2, B^2, K^2, R^2) in SI units (deg, s)."""
     tau = np.asarray(tau, dtype=float)
-    return np.stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0],
-                    axis=-1)
+    return np.stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0,
+                     tau**2 / 2.0], axis=-1)
 
 
-_SCALE = np.array([_TO_Q, _TO_ARW, _TO_BI, _TO_RRW])
+_SCALE = np.array([_TO_Q, _TO_ARW, _TO_BI, _TO_RRW, _TO_R])
 
 
 @dataclass(frozen=True)
@@ -292,16 +297,24 @@ class NoiseTerms:
     tau_min: np.ndarray | float
     chi2_reduced: np.ndarray | float
     tau_range: tuple[float, float] = field(default=(0.0, 0.0))
+    ramp: np.ndarray | float = 0.0
+    ramp_stderr: np.ndarray | float = 0.0
 
     def _coefficients(self) -> np.ndarray:
-        """(axes, 4) variance coefficients (Q^2, N^2, B^2, K^2) in SI units."""
-        vals = np.stack([np.atleast_1d(np.asarray(getattr(self, k), dtype=float)) for k in _TERMS], -1)
+        """(axes, 5) variance coefficients (Q^2, N^2, B^2, K^2, R^2) in SI units."""
+        # broadcast: terms read from a file written before the ramp was fitted have a zero ramp
+        vals = np.stack(np.broadcast_arrays(*[np.atleast_1d(np.asarray(getattr(self, k), dtype=float))
+                                              for k in _TERMS]), -1)
         return (vals / _SCALE) ** 2
 
-    def avar(self, tau) -> np.ndarray:
-        """Model Allan variance (deg/s)^2 at ``tau`` (s); shape tau.shape (+ (axes,))."""
+    def avar(self, tau, *, drift: bool = True) -> np.ndarray:
+        """Model Allan variance (deg/s)^2 at ``tau`` (s); shape tau.shape (+ (axes,));
+        ``drift=False``: the noise alone, without the rate ramp."""
         tau = np.asarray(tau, dtype=float)
-        out = _design(tau) @ self._coefficients().T
+        coefficients = self._coefficients()
+        if not drift:
+            coefficients[:, _NOISE:] = 0.0
+        out = _design(tau) @ coefficients.T
         return out[..., 0] if np.ndim(self.arw) == 0 else out
 
     def adev(self, tau) -> np.ndarray:
@@ -321,10 +334,10 @@ class NoiseTerms:
         t = np.asarray(duration_s, dtype=float)
         if not np.all(np.isfinite(t)) or np.any(t <= 0):
             raise InputError(f"NoiseTerms.floor: durations must be positive and finite, found {t}")
-        return self.adev(t)
+        return np.sqrt(self.avar(t, drift=False))
 
     def _parts(self, tau) -> np.ndarray:
-        """(..., axes, 4) Allan variance of each term (Q, N, B, K) at ``tau``."""
+        """(..., axes, 5) Allan variance of each term (Q, N, B, K, R) at ``tau``."""
         return _design(np.asarray(tau, dtype=float))[..., None, :] * self._coefficients()
 
     def _per_axis(self, out):
@@ -343,7 +356,7 @@ class NoiseTerms:
         parts[..., 0] *= barnes_b1(count, -2)
         parts[..., 2] *= barnes_b1(count, 0)
         parts[..., 3] *= barnes_b1(count, 1)
-        return self._per_axis(parts.sum(axis=-1))
+        return self._per_axis(parts[..., :_NOISE].sum(axis=-1))
 
     def coloured_variance(self, tau) -> np.ndarray:
         """Flicker plus random-walk Allan variance ((deg/s)^2) at ``tau`` (s): how far apart the
@@ -353,7 +366,7 @@ class NoiseTerms:
 
     def to_dict(self) -> dict:
         units = {"arw": "deg/sqrt(h)", "bias_instability": "deg/h", "rrw": "deg/h/sqrt(h)",
-                 "quantisation": "arcsec", "bias_instability_min": "deg/h", "tau_min": "s"}
+                 "quantisation": "arcsec", "ramp": "deg/h/h", "bias_instability_min": "deg/h", "tau_min": "s"}
         out = {"units": units, "standard": "IEEE Std 952-1997",
                "tau_range_s": [float(self.tau_range[0]), float(self.tau_range[1])]}
         for k in (*_TERMS, "bias_instability_min", "tau_min", "chi2_reduced"):
@@ -363,14 +376,34 @@ class NoiseTerms:
         return out
 
 
+RAMP_P = 0.05   # the ramp stays only where the F-test for it passes at this level
+
+
 def _fit_axis(tau, avar, edf, iterations: int = 6):
-    """Non-negative weighted least squares of avar on the four-term model.
+    """Non-negative weighted least squares of avar on the five-term model, or on the four
+    noise terms where the ramp fails the F-test of the fall in χ² it brings (against the
+    five-term fit's χ² per degree of freedom: the edf's errors are conservative, so their
+    scale is the fit's to tell) at :data:`RAMP_P`. A ramp the data do not ask for would
+    only blur the random walk it resembles over a few octaves (a turntable's 100-s soaks);
+    the two are told apart by the fit, not by the ramp's own standard error, which their
+    likeness inflates.
 
     Var(avar_hat) ~ 2 avar^2 / edf; weights use the model's avar (iteratively reweighted) so a
     point that happens to fall low does not pull the fit down with an inflated weight.
     """
-    from scipy.optimize import nnls  # on use: scipy.optimize takes half a second to import
+    from scipy.stats import f as f_dist
     A = _design(tau)
+    coef, se, chi2r, chi2 = _fit_columns(tau, avar, edf, A, iterations)
+    coef4, se4, chi2r4, chi24 = _fit_columns(tau, avar, edf, A[:, :_NOISE], iterations)
+    dof = len(tau) - A.shape[1]
+    if coef[_NOISE] > 0 and dof >= 1 and chi2 > 0 and \
+            f_dist.sf((chi24 - chi2) / (chi2 / dof), 1, dof) < RAMP_P:
+        return coef, se, chi2r
+    return np.r_[coef4, 0.0], np.r_[se4, 0.0], chi2r4
+
+
+def _fit_columns(tau, avar, edf, A, iterations):
+    from scipy.optimize import nnls  # on use: scipy.optimize takes half a second to import
     sigma2 = avar.copy()
     for _ in range(iterations):
         w = np.sqrt(edf / 2.0) / sigma2
@@ -387,7 +420,7 @@ def _fit_axis(tau, avar, edf, iterations: int = 6):
     chi2r = float(resid @ resid / dof)
     cov = np.linalg.pinv((Aw / norm).T @ (Aw / norm)) / np.outer(norm, norm)
     se = np.sqrt(np.clip(np.diag(cov), 0.0, None) * max(chi2r, 1.0))  # inflate on a poor fit
-    return coef, se, chi2r
+    return coef, se, chi2r, float(resid @ resid)
 
 
 def fit_noise_terms(result: AllanResult) -> NoiseTerms:

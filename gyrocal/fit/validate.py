@@ -81,9 +81,15 @@ def _compensate(plan: _Plan, w, rate, sd, data) -> tuple[np.ndarray, np.ndarray,
     return w_true - rate, np.einsum("nij,nj->ni", A2, sd ** 2), np.einsum("nij,nj->ni", A2, cal)
 
 
-def reference_point(temps: np.ndarray, reference_temperature: float, exclude: int | None = None) -> int:
+def reference_point(temps: np.ndarray, reference_temperature: float, exclude: int | None = None,
+                    eligible: np.ndarray | None = None) -> int:
+    """The point nearest the reference temperature, other than ``exclude``, among the
+    ``eligible`` ones (those with holds enough for a one-point calibration) where any is."""
     order = np.argsort(np.abs(temps - reference_temperature), kind="stable")
-    return int(next((i for i in order if i != exclude), order[0]))
+    ok = [i for i in order if i != exclude]
+    if eligible is not None and any(eligible[i] for i in ok):
+        ok = [i for i in ok if eligible[i]]
+    return int(ok[0] if ok else order[0])
 
 
 def single_point_model(model: Model, *, series: bool = True) -> Model:
@@ -165,6 +171,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     floor_all = _pooled_rms(floor[use])
     expected = float(np.sqrt(np.mean(floor[use] ** 2 + errors["interpolated"][2][use])))
     point_temps = fitted.points.loc[fitted.points["used"], "temp"].to_numpy(dtype=float)
+    one_point_fits = _one_point_fits(fitted, len(single_point_model(model, series=fitted.kind == "grid").names))
     summary = {
         "validation_rms": overall["interpolated"],
         "noise_floor": floor_all,
@@ -173,7 +180,8 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         "excess_over_expected": overall["interpolated"] / expected if expected > 0 else float("inf"),
         "uncompensated_rms": overall["uncompensated"],
         "single_rms": overall["single"],
-        "reference_temperature": float(point_temps[reference_point(point_temps, reference_temperature)]),
+        "reference_temperature": float(point_temps[reference_point(point_temps, reference_temperature,
+                                                                   eligible=one_point_fits)]),
         "held_out": held_out,
         "scored": "interior" if interior.any() else ("left-out" if in_sample_rows.any() else "all"),
         "holds_scored": int(use.sum()),
@@ -184,6 +192,13 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         summary["points_not_left_out"] = int(np.unique(data["point"][in_sample_rows]).size)
     return Validation(holds, _table(scored, samples=False), _table(scored, samples=True),
                       _by_temperature(holds), summary)
+
+
+def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
+    """Per used point, whether its holds can fit a one-point calibration of ``coefficients``
+    per axis with a residual left (a burst log's sparse end may hold one window)."""
+    points = fitted.points.set_index("point").loc[fitted.used_points()]
+    return points["holds"].to_numpy() > coefficients
 
 
 def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float, *,
@@ -199,6 +214,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
     one_point = single_point_model(model, series=fitted.kind == "grid")
     Cs = len(one_point.names)
     single_fits: dict[int, object] = {}
+    eligible = _one_point_fits(fitted, Cs)
 
     def single_fit(p):
         if p not in single_fits:
@@ -230,7 +246,7 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         interp.temp[rows] = np.clip(temp[rows], lo, hi)
         clamped[rows] = True if loo is None else loo.outside(temp[rows])
         k = reference_point(point_temps, reference_temperature,
-                            exclude=used.index(int(p)) if int(p) in used else None)
+                            exclude=used.index(int(p)) if int(p) in used else None, eligible=eligible)
         ref = single_fit(used[k])
         single.values[rows], single.cov[rows] = ref.values, ref.covariance
         ref_temp[rows] = point_temps[k]

@@ -814,6 +814,9 @@ def review(obs, info: dict | None, cal, *, protocol, source=None) -> list[dict]:
     if error is not None:
         raise ImplausibleInputError(error, source=source)
     found = log_findings(info.get("input_stats"), source) + ([warning] if warning else [])
+    if info.get("stamps"):   # the windows' reading of bursty stamps says more than a median
+        found = [f for f in found if f["code"] not in ("sample_jitter", "dropped_samples")]
+        found.append(finding("sample_jitter", info["stamps"], rate_hz=info.get("sample_rate")))
     Ks = cal.matrices()[0]
     names = set(cal.model.names)
     identified = tuple(f"scale.{a}" in names for a in AXES)

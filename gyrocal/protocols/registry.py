@@ -23,7 +23,7 @@ from ..io.errors import ConfigError
 
 DEFAULT = "turntable"
 BUILTIN = {name: f"gyrocal.protocols.{name}.protocol"
-           for name in ("turntable", "servo", "sweep", "ferraris")}
+           for name in ("turntable", "servo", "sweep", "ferraris", "static")}
 _REGISTRY: dict[str, Protocol] = {}
 
 

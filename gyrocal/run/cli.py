@@ -163,13 +163,34 @@ def cmd_segment(args) -> int:
     return status
 
 
+def _noise_protocol(path) -> str:
+    """The protocol to read a log's noise by, when none is given: a log whose reference
+    rate is 0 throughout and that names no mounts lies still (a noise recording, a chamber
+    test): its steady windows are its static stretches, whatever its temperature does."""
+    import pyarrow.compute as pc
+    import pyarrow.dataset as ds
+    from ..protocols import registry
+    try:   # a file, or a folder of files read as one (the contract)
+        source = ds.dataset(path, format="parquet")
+        names = set(source.schema.names)
+    except (OSError, ValueError):
+        return registry.DEFAULT   # reading the log says what is wrong with it
+    if "mount" in names or "ref_rate" not in names:
+        return registry.DEFAULT
+    for batch in source.to_batches(columns=["ref_rate"]):
+        if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
+            return registry.DEFAULT
+    return "static"
+
+
 def cmd_noise(args) -> int:
     """The session's noise: IEEE Std 952 terms of its static stretches, per temperature point
     and pooled (gyrocal.fit.floor); the whole characterisation as JSON with -o."""
     from ..calibration.file import dumps
     from ..pipeline.chain import segment_log
     settings = _settings(args)
-    noise = segment_log(args.log, settings, args.protocol).info["noise"]
+    protocol = args.protocol or _noise_protocol(args.log)
+    noise = segment_log(args.log, settings, protocol).info["noise"]
     if args.output:
         from ..io.atomic import write_text
         write_text(args.output, dumps(noise))
@@ -189,6 +210,8 @@ def cmd_noise(args) -> int:
         t = entry["terms"]
         print(f"{label:>22}  " + "  ".join(f"{' / '.join(f'{v:.3g}' for v in t[k]):>24}"
                                             for k in ("arw", "bias_instability", "rrw")))
+    if "resolves" in noise:
+        print(f"  {noise['resolves']['text']}")
     return 0
 
 
@@ -493,7 +516,9 @@ def build_parser() -> argparse.ArgumentParser:
                        "static stretches")
     p.add_argument("log")
     p.add_argument("-o", "--output", help="the whole characterisation as JSON")
-    p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
+    p.add_argument("--protocol", choices=registry.names(),
+                   help="how to find the static stretches (default: static where the reference "
+                        "rate is 0 throughout and no mount is named, else turntable)")
     common(p, model=False)
     p.set_defaults(func=cmd_noise)
 

@@ -15,14 +15,27 @@ from ..registry import Protocol, register
 from .defaults import DEFAULTS
 
 
-def segment_sweep(log: RigLog, options: dict) -> Segmentation:
+POINT_SPANS = (10.0, 5.0, 2.0, 1.0, 0.5)   # °C: the widest that gives POINTS_WANTED points
+POINTS_WANTED = 8
+
+
+def auto_point_span(temps) -> float:
+    """The temperature points' width for a sweep whose span is unknown in advance: 10 °C
+    over a wide sweep (−40…85 °C: 13 points), narrower over a chamber test's few degrees,
+    so that leaving points out still leaves several to interpolate from."""
+    span = float(np.ptp(temps)) if len(temps) else 0.0
+    return next((w for w in POINT_SPANS if span / w >= POINTS_WANTED), POINT_SPANS[-1])
+
+
+def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segmentation:
     """Seed 003 windows (:func:`gyrocal.protocols.sweep.sweep_windows`) as observations; each window's
-    temperature point is its ``point_span`` °C bin, so leaving a point out leaves out a
+    temperature point is its ``point_span`` °C bin (``"auto"``: :func:`auto_point_span`), so leaving a point out leaves out a
     stretch of the sweep (leave-temperature-out on a continuous ramp)."""
     from . import sweep_windows
     opts = dict(options)
-    span = float(opts.pop("point_span", 10.0))
+    span = opts.pop("point_span", "auto")
     win = sweep_windows(log, **opts)
+    span = auto_point_span(win["temp"].to_numpy()) if span == "auto" else float(span)
     point, point_temp = temperature_points(win["temp"].to_numpy(), span)
     mount = win["mount"].to_numpy(dtype=object)
     if not all(isinstance(m, str) and m in MOUNTS for m in mount):
@@ -42,13 +55,16 @@ def segment_sweep(log: RigLog, options: dict) -> Segmentation:
                          "ref_rate": obs["ref_rate"], "hold": obs["hold"]})
     segments = kept.astype({"kind": "string", "reason": "string", "detail": "string"})
     dropped = {k: int(v) for k, v in win.attrs["dropped"].items()}
-    info = {"protocol": "sweep", "path": str(log.path), "rows_read": log.rows_read,
+    info = {"protocol": name, "path": str(log.path), "rows_read": log.rows_read,
             "rows_dropped": log.rows_dropped, "rows_used": int(win["n"].sum()),
             "sample_rate": float(win.attrs["sample_rate"]), "typical_hold_s": window_s,
             "holds_accepted": int(len(obs)), "windows_total": int(win.attrs["windows_total"]),
             "windows_dropped": dropped, "t_ref": float(win.attrs["t_ref"]),
             "rig_rate": float(win.attrs["rig_rate"]), "mount": win.attrs.get("mount", ""),
-            "point_span": span, "window_s": window_s}
+            "point_span": span, "window_s": window_s, "runs": int(win.attrs["runs"]),
+            "bursts": int(win.attrs["bursts"]), "longest_stall_s": float(win.attrs["longest_stall_s"])}
+    if win.attrs.get("stamps"):
+        info["stamps"] = win.attrs["stamps"]
     stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
     return Segmentation(obs, segments, stable, timeline(log), info)
 
@@ -121,12 +137,14 @@ def sweep_analysis(obs: pd.DataFrame, fitted=None) -> dict:
 
 def static(log, seg, max_temp_rate: float):
     """Runs of adjacent windows whose temperature rate is under ``max_temp_rate`` °C/min:
-    the soak before the first ramp, the dwells at the targets."""
+    the soak before the first ramp, the dwells at the targets. Windows either side of a
+    stall of arrival-stamped samples join too: the stall held no missing sample."""
     obs = seg.observations
     steady = np.abs(obs["temp_rate"].to_numpy(float)) <= max_temp_rate
     rate = float(seg.info.get("sample_rate", 1.0))
     return merge_intervals(obs.loc[steady, "t_start"].to_numpy(float),
-                           obs.loc[steady, "t_end"].to_numpy(float), 2.0 / rate)
+                           obs.loc[steady, "t_end"].to_numpy(float),
+                           2.0 / rate + float(seg.info.get("longest_stall_s") or 0.0))
 
 
 def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:

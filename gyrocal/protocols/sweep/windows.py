@@ -10,6 +10,11 @@ paper's temperature-jump period t_p = 20 s (Eq 25), one 0.1 Â°C step of its 18 Â
 minus the reference temperature T0, the stable temperature the sweep starts from (its first
 kept window unless ``t_ref`` is given).
 
+Windows restart after each of the logger's real gaps (:mod:`gyrocal.io.stamps`), and a run
+of samples shorter than a window (a chamber's 5-s burst every 5 minutes) is one window of its
+own; the sample rate is samples over time within those runs, so that host stamps that arrive
+in bunches do not shorten a window.
+
 Windows are dropped, and counted by reason, when they are incomplete (a logging gap or the
 log's end), when the reference rate is not the sweep's constant rate, when the mount column
 changes, or when the gyro scatter inside them shows motion the reference does not (a person
@@ -26,6 +31,7 @@ import pandas as pd
 
 from ...io.errors import ConfigError, SegmentationError
 from ...io.log import GYRO, MOUNTS, RigLog
+from ...io.stamps import sampling
 
 REASONS = {
     "incomplete": "fewer samples than a full window (a logging gap or the log's end)",
@@ -34,6 +40,8 @@ REASONS = {
     "motion": "the gyro scatters well beyond the noise, or next to such a window",
 }
 AXES = ("x", "y", "z")
+MIN_WINDOW_SAMPLES = 8   # a burst this short gives a mean but no scatter worth the name
+OPTIONS = "the config's protocols: sweep: options:, or static: options:"
 
 
 def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
@@ -72,20 +80,32 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     n_rows = len(t)
     if n_rows < 3:
         raise SegmentationError(f"not a sweep: {n_rows} rows, expected a long log", source=log.path)
-    dt = float(np.median(np.diff(t[: 200_001])))
-    if not dt > 0:
+    stamps = sampling(t)
+    if not stamps.rate > 0:
         raise SegmentationError("cannot determine the sample interval", source=log.path)
+    dt = 1.0 / stamps.rate
     per_window = window_s / dt
     if per_window < 2:
         raise SegmentationError(f"window of {window_s:g} s holds {per_window:.2g} samples at "
                                 f"{1 / dt:.3g} Hz; expected at least 2", source=log.path)
 
-    # Window of each sample; t increases strictly, so windows are runs.
-    wid = np.floor((t - t[0]) / window_s).astype(np.int64)
+    # Windows restart at each run between the logger's real gaps, so that a chamber's bursts
+    # are not cut by a grid laid from the log's start; a run shorter than a window (a
+    # burst) is one window of its own length. t increases strictly, so windows are runs.
+    run_starts, run_stops = stamps.run_starts, stamps.run_stops
+    run_rows = run_stops - run_starts
+    run_of = np.repeat(np.arange(len(run_starts)), run_rows)
+    run_t0 = t[run_starts]
+    run_span = t[run_stops - 1] - run_t0 + dt
+    local = np.floor((t - run_t0[run_of]) / window_s).astype(np.int64)
+    run_windows = np.floor((t[run_stops - 1] - run_t0) / window_s).astype(np.int64) + 1
+    wid = np.r_[0, np.cumsum(run_windows)[:-1]][run_of] + local
     starts = np.flatnonzero(np.r_[True, wid[1:] != wid[:-1]])
     counts = np.diff(np.r_[starts, n_rows])
     k = len(starts)
     owner = np.repeat(np.arange(k), counts)
+    # the samples a complete window holds: a whole window's, or a whole burst's
+    expected = np.minimum(window_s, run_span[run_of[starts]]) * stamps.rate
 
     def sums(x):
         return np.add.reduceat(x, starts, axis=0)
@@ -120,12 +140,13 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
 
     # Reasons, first one wins.
     reason = np.full(k, "", dtype=object)
-    incomplete = (counts < fill * per_window) | (inner_gap > max(3.0 * dt, (1 - fill) * window_s))
+    incomplete = (counts < fill * expected) | (counts < MIN_WINDOW_SAMPLES) \
+        | (inner_gap > np.maximum(3.0 * dt, (1 - fill) * expected * dt))
     reason[incomplete] = "incomplete"
     ok = reason == ""
     if not ok.any():
-        raise SegmentationError(f"not a sweep: no complete {window_s:g}-s window in {n_rows} rows",
-                                source=log.path)
+        raise SegmentationError(f"not a sweep: no complete {window_s:g}-s window in {n_rows} rows; "
+                                f"a shorter window_s fits shorter stretches ({OPTIONS})", source=log.path)
     rig_rate = float(np.median(ref_mean[ok]))
     tol = 0.005 + 1e-3 * abs(rig_rate)
     reason[ok & ((ref_span > tol) | (np.abs(ref_mean - rig_rate) > tol))] = "reference"
@@ -178,7 +199,8 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     if n_keep < min_windows:
         counts_by = pd.Series(reason[~keep]).value_counts().to_dict()
         raise SegmentationError(f"not a sweep: {n_keep} usable {window_s:g}-s windows, expected at least "
-                                f"{min_windows} (dropped: {counts_by or 'none'})", source=log.path)
+                                f"{min_windows} (dropped: {counts_by or 'none'}); window_s and min_windows "
+                                f"set them ({OPTIONS})", source=log.path)
     temps = temp_mean[keep]
     span = float(temps.max() - temps.min())
     if span < min_span:
@@ -198,7 +220,9 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     dropped = {r: int(np.count_nonzero(reason == r)) for r in REASONS}
     grid_windows = int(wid[-1]) + 1                # windows a gap left without any sample
     dropped["incomplete"] += grid_windows - k
-    out.attrs.update(t_ref=t0, window_s=window_s, sample_rate=1.0 / dt, rig_rate=rig_rate,
+    out.attrs.update(t_ref=t0, window_s=window_s, sample_rate=stamps.rate, runs=len(run_starts),
+                     bursts=int(np.count_nonzero(run_span < window_s)), stamps=stamps.warning(),
+                     longest_stall_s=stamps.longest_stall_s, rig_rate=rig_rate,
                      mount=MOUNTS[mount_code] if mount_code >= 0 else "", mount_source=mount_source,
                      dropped=dropped, windows_total=grid_windows, rows=int(n_rows), path=log.path)
     return out

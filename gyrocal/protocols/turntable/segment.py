@@ -292,8 +292,12 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
         segments.append(("hold", "", "", c0[i], c1[i]))
     if not accepted.any():
         counts = pd.Series(reason).value_counts()
+        still = not np.any(h["ref"])
         raise SegmentationError("no hold passed the checks (" + ", ".join(
-            f"{k}: {v}" for k, v in counts.items()) + ")", source=log.path)
+            f"{k}: {v}" for k, v in counts.items()) + ")" + (
+            "; the reference rate is 0 throughout: a static log, not a turntable's (--protocol "
+            "sweep for a temperature sweep, --protocol static for a unit lying still; gyrocal "
+            "noise reads either)" if still else ""), source=log.path)
 
     obs = _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg)
     seg = _segment_table(segments, t_first, t_last, r, obs)
