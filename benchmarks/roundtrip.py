@@ -358,7 +358,7 @@ def main(argv=None) -> int:
     with ProcessPoolExecutor(a.jobs) as pool:
         rows = list(pool.map(_one, [(c, a.small) for c in cases]))
     for r in rows:
-        what = r.get("effect") or r.get("kind")
+        what = r.get("effect") or r.get("kind") or "still, host-stamped"
         line = " ".join(f"{s}={r[s][0]}" for s in ("calibrate", *READERS) if s in r)
         print(f"{r['index']:4d} {r['protocol']:<11} {what:<20} {r['model_label']:<30} {line}")
         for s in ("calibrate", *READERS):

@@ -138,6 +138,15 @@ def test_a_turntable_calibration_of_a_still_log_names_the_protocols_that_read_it
     assert len(err.strip().splitlines()) == 1
 
 
+def test_points_too_thin_to_calibrate_alone_name_the_setting_that_widens_them(chamber, capsys, tmp_path):
+    _, folder, log = chamber
+    settings = json.dumps({"protocols": {"sweep": {"options": {"point_span": 0.001}}}})
+    status, _, err = run(capsys, "calibrate", log, "--protocol", "sweep", "-o", tmp_path / "c.json",
+                         "--settings-json", settings)
+    assert status != 0 and len(err.strip().splitlines()) == 1
+    assert str(log) in err and "point_span" in err and "Traceback" not in err
+
+
 def test_bursts_let_the_diagnosis_judge_a_lag_and_say_when_wander_hides_the_rest(tmp_path, capsys):
     """With a quiet sensor, a die lagging the sensor 900 s is named, its time constant within
     its standard error's reach; without an effect, nothing is. With the datasheet's wander

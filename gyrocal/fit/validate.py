@@ -222,7 +222,16 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
                 single_fits[p] = fitted.point_fit(p)
             else:
                 keep = point == p
-                single_fits[p] = fit(one_point, {k: v[keep] for k, v in data.items()})
+                try:
+                    single_fits[p] = fit(one_point, {k: v[keep] for k, v in data.items()})
+                except IdentifiabilityError as exc:
+                    # every point too thin for a one-point calibration (a sweep's narrow points)
+                    raise IdentifiabilityError(
+                        f"no temperature point holds observations enough for the one-point "
+                        f"calibration the validation compares with (the one at "
+                        f"{temp[keep].mean():.1f} °C: {exc}); wider points gather more "
+                        "(point_span in the protocol's options: of the config)",
+                        parameters=exc.parameters) from None
         return single_fits[p]
 
     interp = _Plan(model, fitted.names, np.empty((n, C)), np.empty((n, C, C)), temp.copy())

@@ -22,7 +22,7 @@ from ..fit.thermal import ContinuousFit, GridFit, fit_model
 from ..fit.validate import Validation, free_point_fits, validate
 from ..io import plausibility
 from ..io.blocks import BlockSink
-from ..io.errors import SegmentationError
+from ..io.errors import IdentifiabilityError, SegmentationError
 from ..io.holds import Segmentation
 from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
 from ..io.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
@@ -188,15 +188,21 @@ def run(path, settings: Settings | None = None, *, protocol: str = registry.DEFA
     cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
                                            source=seg.info["source"], label=path,
                                            noise=seg.info.get("noise"), info=seg.info)
-    return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings))
+    return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings, source=path))
 
 
-def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings) -> Validation:
+def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings, *,
+               source=None) -> Validation:
     """The calibration's validation: the protocol's own (a servo's leave-revolution-out), or
     the common model's leave-temperature-out from ``fitted``."""
     own = registry.get(cal.meta.get("protocol")).validate
     if own is not None:
         return own(obs, cal)
-    val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature,
-                   every_point=False)
+    try:
+        val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature,
+                       every_point=False)
+    except IdentifiabilityError as exc:   # named after the input it came from
+        if exc.source is not None or source is None:
+            raise
+        raise IdentifiabilityError(str(exc), parameters=exc.parameters, source=source) from None
     return replace(val, free_points=free_point_fits(obs)) if cal.kind == "continuous" else val

@@ -88,7 +88,7 @@ def validate_stage(folder, settings: Settings, fitted=None):
         fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
                            method=settings.model.interpolation, degree=settings.model.degree,
                            source=paths["observations"])
-    val = validation(obs, cal, fitted, settings)
+    val = validation(obs, cal, fitted, settings, source=paths["observations"])
     results, figures = registry.analysis(cal.meta.get("protocol"), obs)
     _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
     if val.free_points is not None:
