@@ -65,6 +65,38 @@ def test_stalls_made_up_by_bunches_are_no_gaps_and_a_pause_is_one():
     assert p.rate == pytest.approx(rate, rel=1e-9) and p.warning() is None
 
 
+@pytest.mark.parametrize("rate_hz", [100.0, 200.0])
+def test_a_faster_host_and_packets_are_one_run_at_the_sensors_rate(rate_hz):
+    """Arrivals in bunches make the median interval the bunch's spacing (1 ms); the rate is
+    read over spans of samples, so neither a 200-Hz host nor packets of two split the log."""
+    t = host_stamped_log(2, duration_s=300.0, rate_hz=rate_hz).raw["t"].to_numpy(float)
+    s = sampling(t - t[0])
+    assert len(s.run_starts) == 1 and s.rate == pytest.approx(rate_hz, rel=1e-3)
+    k = np.arange(60_000)
+    packets = (k // 2) * 0.02 + (k % 2) * 1e-3
+    p = sampling(packets)
+    assert len(p.run_starts) == 1 and p.rate == pytest.approx(100.0, rel=1e-3)
+
+
+def test_slow_sweeps_and_pauses_keep_their_windows_and_their_count():
+    from gyrocal.io.log import RigLog
+    from gyrocal.protocols.sweep.windows import sweep_windows
+
+    def log(t):
+        n = len(t)
+        rng = np.random.default_rng(1)
+        batch = {"t": t, "temp": -10 + 0.01 * t, "ref_rate": np.zeros(n),
+                 **{f"gyro_{a}": rng.normal(0, 0.02, n) for a in "xyz"}}
+        return RigLog("x", (batch,), n, 0)
+    slow = sweep_windows(log(np.arange(3600.0)), window_s=5.0, min_span=0.5)   # 1 Hz: 5 a window
+    assert len(slow) == 720
+    t = np.arange(0, 3600, 0.1)
+    paused = sweep_windows(log(t[(t < 1200) | (t >= 3000)]), min_span=0.5)
+    # the 30-min pause lost 90 windows, and they count as such (the fleet's hold share)
+    assert len(paused) == 90 and paused.attrs["windows_total"] == 180
+    assert paused.attrs["dropped"]["incomplete"] == 90
+
+
 def test_bursts_are_runs_with_the_rate_of_their_samples():
     t = (np.arange(25)[:, None] * 300.0 + np.arange(250)[None, :] / 50.0).ravel()
     s = sampling(t)
@@ -196,6 +228,10 @@ def test_a_host_stamped_static_log_gets_its_noise_with_the_defaults_as_allantool
     terms = noise["session"]["terms"]
     arw_true = rec.truth["noise"]["model"]["arw_deg_rt_h"]
     assert np.all(np.abs(np.asarray(terms["arw"]) - arw_true) < 3 * np.asarray(terms["arw_stderr"]) + 0.02 * arw_true)
+    # without a reference column it is read as still too
+    table.drop(columns=["ref_rate"]).to_parquet(tmp_path / "noref.parquet")
+    status, out, err = run(capsys, "noise", tmp_path / "noref.parquet")
+    assert status == 0 and "1 static stretches" in out, err
     # calibrated as a still unit, the bursty stamps are said
     status, _, err = run(capsys, "calibrate", log, "--protocol", "static", "-o", tmp_path / "cal.json")
     assert status == 0, err

@@ -196,9 +196,10 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
 
 def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
     """Per used point, whether its holds can fit a one-point calibration of ``coefficients``
-    per axis with a residual left (a burst log's sparse end may hold one window)."""
+    (over the three axes, each fitted on its own) with a residual left (a burst log's sparse
+    end may hold one window)."""
     points = fitted.points.set_index("point").loc[fitted.used_points()]
-    return points["holds"].to_numpy() > coefficients
+    return points["holds"].to_numpy() > -(-coefficients // len(AXES))
 
 
 def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float, *,

@@ -25,6 +25,8 @@ import numpy as np
 GAP_CANDIDATE = 10.0   # an interval this many times the median may be a gap or a stall
 CAUGHT_UP = 0.75       # share of the expected samples that marks a stall made up by a bunch
 BURSTY_CV = 0.5        # intervals scattering more than this (std/mean) are bursty stamps
+SPAN = 32              # samples over which the nominal interval is read
+REACH = 128            # samples: the shortest stretch a stall's catching up is judged over
 
 
 @dataclass(frozen=True)
@@ -65,15 +67,19 @@ def sampling(t: np.ndarray) -> Sampling:
     if n < 2:
         return Sampling(0.0, np.array([0]), np.array([n]), 0, 0.0, 0.0)
     dt = np.diff(t)
-    candidate = np.flatnonzero(dt > GAP_CANDIDATE * float(np.median(dt)))
-    # the rate outside every candidate: a first estimate that stalls and gaps do not dilute
-    inside = float(t[-1] - t[0] - dt[candidate].sum())
-    first_rate = (n - 1 - len(candidate)) / inside if inside > 0 else 0.0
+    # The nominal interval from spans of SPAN samples: arrivals in packets or bunches make
+    # the median of single intervals the bunch's spacing, not the sensor's.
+    span = min(SPAN, n - 1)
+    nominal = float(np.median((t[span:] - t[:-span]) / span))
+    candidate = np.flatnonzero(dt > GAP_CANDIDATE * nominal)
     gap = np.zeros(len(candidate), bool)
-    if len(candidate) and first_rate > 0:
-        length = dt[candidate]
-        held = np.searchsorted(t, t[candidate] + 2.0 * length, side="right") - (candidate + 1)
-        gap = held < CAUGHT_UP * 2.0 * length * first_rate
+    if len(candidate) and nominal > 0:
+        # after a stall, what fell due in it arrives: the stretch from its start, twice its
+        # length (and no shorter than REACH samples, the time a host's queue takes to drain),
+        # holds about the samples the rate gives; a dropout of a few samples is no gap either
+        reach = np.maximum(2.0 * dt[candidate], REACH * nominal)
+        held = np.searchsorted(t, t[candidate] + reach, side="right") - (candidate + 1)
+        gap = held < CAUGHT_UP * reach / nominal
     cuts = candidate[gap] + 1
     starts, stops = np.r_[0, cuts], np.r_[cuts, n]
     span = float(np.sum(t[stops - 1] - t[starts]))

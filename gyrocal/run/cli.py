@@ -167,19 +167,23 @@ def _noise_protocol(path) -> str:
     """The protocol to read a log's noise by, when none is given: a log whose reference
     rate is 0 throughout and that names no mounts lies still (a noise recording, a chamber
     test): its steady windows are its static stretches, whatever its temperature does."""
+    import pyarrow as pa
     import pyarrow.compute as pc
-    import pyarrow.dataset as ds
+    from ..io.errors import GyrocalError
+    from ..io.log import open_dataset
     from ..protocols import registry
     try:   # a file, or a folder of files read as one (the contract)
-        source = ds.dataset(path, format="parquet")
+        source = open_dataset(Path(path))
         names = set(source.schema.names)
-    except (OSError, ValueError):
-        return registry.DEFAULT   # reading the log says what is wrong with it
-    if "mount" in names or "ref_rate" not in names:
-        return registry.DEFAULT
-    for batch in source.to_batches(columns=["ref_rate"]):
-        if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
+        if "mount" in names:
             return registry.DEFAULT
+        if "ref_rate" not in names:   # an import without a reference: still, as static reads it
+            return "static"
+        for batch in source.to_batches(columns=["ref_rate"]):
+            if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
+                return registry.DEFAULT
+    except (GyrocalError, OSError, ValueError, pa.ArrowException):
+        return registry.DEFAULT   # reading the log says what is wrong with it
     return "static"
 
 

@@ -140,7 +140,8 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
 
     # Reasons, first one wins.
     reason = np.full(k, "", dtype=object)
-    incomplete = (counts < fill * expected) | (counts < MIN_WINDOW_SAMPLES) \
+    burst = run_span[run_of[starts]] < window_s
+    incomplete = (counts < fill * expected) | (burst & (counts < MIN_WINDOW_SAMPLES)) \
         | (inner_gap > np.maximum(3.0 * dt, (1 - fill) * expected * dt))
     reason[incomplete] = "incomplete"
     ok = reason == ""
@@ -218,7 +219,12 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
         "mount": MOUNTS[mount_code] if mount_code >= 0 else "",
     })
     dropped = {r: int(np.count_nonzero(reason == r)) for r in REASONS}
-    grid_windows = int(wid[-1]) + 1                # windows a gap left without any sample
+    # windows a pause of a continuous log left without samples (a burst logger's pauses are
+    # its design, not lost windows)
+    pause = t[run_starts[1:]] - t[run_stops[:-1] - 1]
+    continuous = (run_span[:-1] >= window_s) & (run_span[1:] >= window_s)
+    lost = int(np.sum(np.floor(pause[continuous] / window_s)))
+    grid_windows = int(wid[-1]) + 1 + lost
     dropped["incomplete"] += grid_windows - k
     out.attrs.update(t_ref=t0, window_s=window_s, sample_rate=stamps.rate, runs=len(run_starts),
                      bursts=int(np.count_nonzero(run_span < window_s)), stamps=stamps.warning(),
