@@ -11,9 +11,22 @@ from __future__ import annotations
 import jinja2
 import numpy as np
 
+
+
+def _bytecode_cache():
+    """Compiled templates kept between processes (a per-user folder in the temporary
+    directory, keyed by each template's source): compiling the unit report's template
+    costs a report process a tenth of a second. None where that folder is unsafe."""
+    try:
+        return jinja2.FileSystemBytecodeCache()
+    except (OSError, RuntimeError):
+        return None
+
+
 ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal.report", "templates"),
                          autoescape=jinja2.select_autoescape(["html", "j2"]),
-                         undefined=jinja2.StrictUndefined, keep_trailing_newline=True)
+                         undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
+                         bytecode_cache=_bytecode_cache())
 
 
 def fmt(value, digits: int = 4) -> str:

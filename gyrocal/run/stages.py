@@ -13,18 +13,20 @@ import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ..calibration.file import dumps, load_calibration, save_calibration
-from ..fit.thermal import fit_model
 from ..io import atomic, failure
 from ..io.errors import GyrocalError
 from ..io.tables import write_table
 from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
                               read_observations, unit_paths)
-from ..pipeline.chain import calibrate_observations, segment_log, validation
-from ..pipeline.config import Settings
 from ..protocols import registry
 from ..report.pages import write_failure
+
+if TYPE_CHECKING:
+    from ..pipeline.config import Settings
+
 
 def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
               record_failures: bool) -> int:
@@ -44,6 +46,7 @@ def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
 
 
 def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
+    from ..pipeline.chain import segment_log   # the chain on use: a report needs none of it
     seg = segment_log(log, settings, meta.get("protocol"))
     paths = unit_paths(folder)
     paths["observations"].parent.mkdir(parents=True, exist_ok=True)
@@ -58,6 +61,7 @@ def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
 
 
 def fit_stage(folder, settings: Settings, meta: dict):
+    from ..pipeline.chain import calibrate_observations
     """The unit's calibration; returns the common model's fit (None for a protocol with a
     calibration of its own) for the stages after it in the same job."""
     paths = unit_paths(folder)
@@ -71,6 +75,8 @@ def fit_stage(folder, settings: Settings, meta: dict):
 
 
 def validate_stage(folder, settings: Settings, fitted=None):
+    from ..fit.thermal import fit_model
+    from ..pipeline.chain import validation
     """The calibration's validation tables and summary; returns the validation. ``fitted``,
     the fit the calibration was made from in the same job, spares fitting again (the
     leave-temperature-out validation needs the per-point fits, not only the file). A
