@@ -25,7 +25,6 @@ include: "workflow/rules/common.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/segment.smk"
 include: "workflow/rules/analyse.smk"
-include: "workflow/rules/report.smk"
 include: "workflow/rules/fleet.smk"
 include: "workflow/rules/paper.smk"
 

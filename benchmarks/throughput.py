@@ -3,7 +3,7 @@
 Simulates turntable logs, demo-sized (the quick preset: a log of minutes, as ``make demo``
 makes) and full-protocol (the seed-000 protocol at 100 Hz: 8.3 M rows, 175 MB), into a
 fleet shaped as a production line's (the logs exist, outside the demo folder: per unit a
-segment, an analyse and a report job, then the fleet summary), and runs the workflow on
+segment and an analyse job, which reports too, then the fleet summary), and runs the workflow on
 each fleet in a fresh process:
 
 * ``local -c1`` - ``snakemake --cores 1``: one job at a time, so that what the run adds to
@@ -16,7 +16,7 @@ each fleet in a fresh process:
   after 20 s). Each job asks for the node's two CPUs, so the node runs one at a time.
 
 Per run it prints Snakemake's jobs and the scheduler's submissions per unit, the run's
-wall time per unit, the unit's own processes (its segment, analyse and report stages, as
+wall time per unit, the unit's own processes (its segment and analyse stages, as
 gyrocal.run.guard measures them in the job log: wall and CPU seconds), and what the workflow
 adds per unit: the run's wall time beyond its stages and the fleet job. On SLURM it splits
 that into the time inside the jobs (SLURM's elapsed time beyond the stages: Snakemake
@@ -44,7 +44,7 @@ from host import cores, cpu_name
 REPO = Path(__file__).resolve().parents[1]
 CACHE = Path(__file__).resolve().parent / ".cache" / "throughput"
 CONFIG = "devices: devices.tsv\nmodel: {terms: [bias, scale, misalignment]}\n"
-STAGES = ("segment", "analyse", "report")
+STAGES = ("segment", "analyse")   # the analyse job writes the report too
 SESSION = "2026-01-01"
 
 

@@ -27,7 +27,7 @@ UNITS = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
 MANIFEST = "device\tbatch\tsession\tprotocol\tpath\n" + "".join(
     f"{d}\t{b}\t{s}\tturntable\tdemo/logs/{b}/{d}/{s}.parquet\n" for b, d, s in UNITS)
 CONFIG = FLEET_CONFIG  # the workflow test's fleet settings
-UNIT_RULES = {"simulate", "segment", "analyse", "report"}
+UNIT_RULES = {"simulate", "segment", "analyse"}   # analyse writes the report too
 
 # The profile's submit.sh, status.sh and cancel.sh are bash scripts.
 needs_plugin = needs({"snakemake-executor-plugin-cluster-generic":
@@ -115,9 +115,9 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
         assert set(re.findall(r"^\s*(?:local)?rule (\w+):$", log, flags=re.M)) == UNIT_RULES
         assert (cluster / "logs" / "cluster" / f"{job_id}.rc").read_text().strip() == "0"
         # One unit's jobs run one after another: the widest sets threads and memory
-        # (segment: 2 threads, 2000 MB), and the four steps of 5 minutes add up.
+        # (segment: 2 threads, 2000 MB), and the three steps of 5 minutes add up.
         assert props["threads"] == 2
-        assert props["resources"]["mem_mb"] == 2000 and props["resources"]["runtime"] == 20
+        assert props["resources"]["mem_mb"] == 2000 and props["resources"]["runtime"] == 15
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 
@@ -126,13 +126,13 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
 def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
     """The SLURM profile parses with its plugin and groups the units (a dry run;
     tests/test_slurm.py runs it on a SLURM cluster). Two units, five to a job: one group
-    job of their 4 jobs each, the fleet summary and `all`."""
+    job of their 3 jobs each, the fleet summary and `all`."""
     folder = fleet_folder(tmp_path / "slurm")
     out = snakemake(folder, "--profile", str(PROFILES / "slurm"), "--dry-run")
     assert out.returncode == 0, out.stderr[-3000:]
     text = out.stdout + out.stderr
     assert text.count("Group job unit") == 1
-    assert re.search(r"^total\s+10$", text, flags=re.M)
+    assert re.search(r"^total\s+8$", text, flags=re.M)
 
 
 META = ["--device", "A1", "--batch", "B1", "--session", "2026-01-01", "--protocol", "turntable"]

@@ -135,10 +135,9 @@ def cluster():
 # A unit held in its segmentation for ten minutes, on a cluster of its own so that its
 # minutes of waiting for the scheduler's time limit overlap the other tests. Its whole
 # job asks for `attempt` minutes (SLURM's smallest limit, one minute; two on the retry):
-# segment's runtime, analyse and report none of their own. Its memory doubles by the rules.
+# segment's runtime, analyse (which reports too) none of its own. Its memory doubles by the rules.
 SLOW = Path("results", "B1", "T1", "2026-01-01")
-SLOW_RESOURCES = ["--set-resources", "segment:runtime=attempt", "analyse:runtime=0",
-                  "report:runtime=0"]
+SLOW_RESOURCES = ["--set-resources", "segment:runtime=attempt", "analyse:runtime=0"]
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -213,10 +212,10 @@ def test_jobs_were_submitted_with_sbatch_and_grouped_as_the_profile_says(runs, c
     assert len(group) == 1 and len(fleet) == 1
     assert devices_in(logs[group[0]]) == {"A1", "A2", "BAD"}
     assert set(re.findall(r"^\s*rule (\w+):$", logs[group[0]].read_text(), flags=re.M)) == {
-        "simulate", "segment", "analyse", "report"}
+        "simulate", "segment", "analyse"}
     job = jobs[group[0]]
     assert job["cpus"] == "2" and slurm.memory_mb(job["memory"]) >= 2000
-    assert slurm.seconds(job["time_limit"]) >= 20 * 60  # one unit's four steps of 5 minutes
+    assert slurm.seconds(job["time_limit"]) >= 15 * 60  # one unit's three steps of 5 minutes
 
 
 FAULT_UNITS = [GOOD[0], BAD]

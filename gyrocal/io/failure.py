@@ -47,21 +47,22 @@ def record(stage: str, error: BaseException | str, meta: dict | None = None) -> 
             "stage": stage, "error": text, "internal": internal}
 
 
-def read(path) -> dict | None:
-    """The failure record stored at ``path``, or None if it holds a real result."""
+def read(path, data: bytes | None = None) -> dict | None:
+    """The failure record stored at ``path`` (or in ``data``, the bytes of a file of that
+    name), or None if it holds a real result."""
     path = Path(path)
-    if not path.exists():
+    if data is None and not path.exists():
         return None
     if path.suffix == ".parquet":
         try:
-            meta = pq.read_schema(path).metadata or {}
+            meta = pq.read_schema(path if data is None else pa.BufferReader(data)).metadata or {}
         except (pa.ArrowInvalid, OSError):
             return None
         raw = meta.get(META_KEY)
         return json.loads(raw) if raw else None
     if path.suffix == ".json":
         try:
-            doc = json.loads(path.read_text())
+            doc = json.loads(path.read_text() if data is None else data)
         except (ValueError, OSError):
             return None
         return doc if isinstance(doc, dict) and doc.get("format") == FORMAT else None
@@ -91,11 +92,14 @@ def write(outputs, rec: dict) -> None:
             atomic.write_text(out, json.dumps(rec, indent=2) + "\n")
 
 
-def load_json(path) -> dict:
-    """A JSON result file, refusing failure records with their own message."""
+def load_json(path, data: bytes | None = None) -> dict:
+    """A JSON result file (or ``data``, the bytes of one that ``path`` names), refusing
+    failure records with their own message."""
     path = Path(path)
     try:
-        doc = json.loads(path.read_text())
+        if data is None:
+            data = path.read_bytes()
+        doc = json.loads(data)
     except FileNotFoundError:
         raise CorruptFileError("no such file", source=path) from None
     except ValueError as exc:

@@ -30,11 +30,12 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
         pq.write_table(table, tmp)
 
 
-def read_table_with_metadata(path):
-    """(pandas table, metadata dict) of a file written by :func:`write_table`."""
+def read_table_with_metadata(path, data: bytes | None = None):
+    """(pandas table, metadata dict) of a file written by :func:`write_table`; ``data``, its
+    bytes where they come from elsewhere (a part of an archive, which ``path`` names)."""
     path = Path(path)
     try:
-        table = pq.read_table(path)
+        table = pq.read_table(path if data is None else pa.BufferReader(data))
     except FileNotFoundError:
         raise CorruptFileError("no such file", source=path) from None
     except (pa.ArrowInvalid, OSError) as exc:

@@ -3,8 +3,11 @@ reads."""
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
+from . import atomic
+from .errors import CorruptFileError
 from .signals import Series
 from .tables import read_table_with_metadata
 
@@ -48,3 +51,113 @@ def read_observations(paths):
         frame, meta = read_table_with_metadata(history)
         obs.attrs["series"] = Series.from_frame(frame, meta)
     return obs, extra
+
+
+# A unit session's files: the products another job or a user reads stay files of their own
+# (the observations, the calibration); the tables and records each job writes beside them
+# for the report and the fleet summary are parts of one file per job, a ZIP archive of the
+# same files (stored, not compressed: Parquet is compressed already). A line of 100,000
+# units a day keeps seven files per unit session instead of twenty (issue 40). The stages
+# write the parts as files, as before, and pack them when they are done (:func:`pack`);
+# every reader reads a part where it is, packed or loose (:func:`part_source`).
+CONTAINERS = {
+    "segmentation.zip": ("history", "segments", "timeline"),
+    "analysis.zip": ("validation", "holds", "table_hold_means", "table_samples", "by_temperature",
+                     "protocol", "free_points", "diagnosis", "residuals"),
+}
+CONTAINER_OF = {key: name for name, keys in CONTAINERS.items() for key in keys}
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)   # the archive's members carry no date: same bytes every run
+
+
+def part_label(folder, key: str) -> Path:
+    """How messages name a part: ``folder/analysis.zip/validation.json`` once packed."""
+    folder = Path(folder)
+    loose = folder / UNIT_FILES[key]
+    if key in CONTAINER_OF and not loose.exists():
+        return folder / CONTAINER_OF[key] / UNIT_FILES[key]
+    return loose
+
+
+def part_bytes(folder, key: str) -> bytes | None:
+    """The bytes of one part of a unit's results, loose or packed; None where it has none."""
+    folder = Path(folder)
+    loose = folder / UNIT_FILES[key]
+    if loose.exists():
+        return loose.read_bytes()
+    container = folder / CONTAINER_OF.get(key, "")
+    if key not in CONTAINER_OF or not container.is_file():
+        return None
+    try:
+        with zipfile.ZipFile(container) as archive:
+            return archive.read(UNIT_FILES[key])
+    except KeyError:
+        return None
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise CorruptFileError(f"not a readable archive ({exc})", source=container) from None
+
+
+def part_exists(folder, key: str) -> bool:
+    folder = Path(folder)
+    if (folder / UNIT_FILES[key]).exists():
+        return True
+    container = folder / CONTAINER_OF.get(key, "")
+    if key not in CONTAINER_OF or not container.is_file():
+        return False
+    try:
+        with zipfile.ZipFile(container) as archive:
+            return UNIT_FILES[key] in archive.namelist()
+    except (zipfile.BadZipFile, OSError):
+        return True   # there, but unreadable: its reader says so
+
+
+def read_part_table(folder, key: str):
+    """(pandas table, metadata) of a table part (:func:`gyrocal.io.tables.write_table`)."""
+    data = part_bytes(folder, key)
+    label = part_label(folder, key)
+    if data is None:
+        raise CorruptFileError("no such file", source=label)
+    return read_table_with_metadata(label, data=data)
+
+
+def read_part_json(folder, key: str) -> dict:
+    """A JSON part; a failure record raises :class:`gyrocal.io.failure.UpstreamFailure`."""
+    from . import failure
+    data = part_bytes(folder, key)
+    return failure.load_json(part_label(folder, key), data=data)
+
+
+def part_failure(folder, key: str) -> dict | None:
+    """The failure record a part holds, None where it holds a result or is missing."""
+    from . import failure
+    data = part_bytes(folder, key)
+    return None if data is None else failure.read(UNIT_FILES[key], data=data)
+
+
+def pack(folder, owned=()) -> None:
+    """Move the loose parts in ``folder`` into their archives. The keys in ``owned`` are
+    the parts the stage just wrote: one of them it did not write this time (a model with no
+    free points) leaves its archive rather than stay from an earlier run."""
+    folder = Path(folder)
+    for name, keys in CONTAINERS.items():
+        loose = {k: folder / UNIT_FILES[k] for k in keys if (folder / UNIT_FILES[k]).exists()}
+        container = folder / name
+        dropped = {UNIT_FILES[k] for k in owned if k in keys and k not in loose}
+        if not loose and not (dropped and container.exists()):
+            continue
+        members: dict[str, bytes] = {}
+        if container.is_file():
+            try:
+                with zipfile.ZipFile(container) as archive:
+                    members = {n: archive.read(n) for n in archive.namelist()}
+            except (zipfile.BadZipFile, OSError):
+                members = {}   # a broken archive is rebuilt from what this run wrote
+        for n in dropped:
+            members.pop(n, None)
+        members.update({UNIT_FILES[k]: p.read_bytes() for k, p in loose.items()})
+        with atomic.replacing(container) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
+            for n in sorted(members):
+                info = zipfile.ZipInfo(n, date_time=_ZIP_DATE)
+                info.external_attr = 0o644 << 16
+                archive.writestr(info, members[n])
+        for p in loose.values():
+            p.unlink()

@@ -236,13 +236,18 @@ def cmd_validate(args) -> int:
 
 
 def cmd_analyse(args) -> int:
-    from .stages import analyse_stage
+    from .stages import analyse_stage, report_stage
     settings = _settings(args)
     verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
                             other=args.other_session)
     print(f"calibration, validation and diagnosis -> {args.unit}")
     if verdict is not None:
         print(f"  {verdict}")
+    if args.report:   # the workflow's report, in the same process: no second start-up
+        status = _stage(args, "report", [args.report],
+                        lambda: report_stage(args.unit, args.report, settings))
+        print(f"report -> {args.report}")
+        return status
     return 0
 
 
@@ -546,6 +551,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--other-session", metavar="DIR",
                    help="the results folder of another session of the unit, segmented: the "
                         "diagnosis judges candidates by how they carry over to it")
+    p.add_argument("--report", metavar="HTML",
+                   help="then write the unit's report here, as `gyrocal report` would")
     unit(p)
     common(p)
     p.set_defaults(func=cmd_analyse)

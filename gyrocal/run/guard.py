@@ -64,7 +64,8 @@ def stage_outputs(args) -> list[Path]:
     else:
         folder, keys = Path(args.unit), ("calibration", "validation", *VALIDATION_TABLES,
                                          *DIAGNOSIS_FILES)
-    return [folder / UNIT_FILES[k] for k in keys]
+    report = [Path(args.report)] if getattr(args, "report", None) else []   # analyse --report
+    return [folder / UNIT_FILES[k] for k in keys] + report
 
 
 def _rss_mb(pid: int) -> float | None:

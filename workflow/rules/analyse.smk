@@ -1,18 +1,18 @@
-# Fit, validate and diagnose a unit in one job (`gyrocal analyse`): three steps of seconds
-# that always run together, sharing one fit of the configured model. One job instead of
-# three is a third of the jobs Snakemake plans per unit (docs/cluster.md) and two Python
-# start-ups fewer; each step still writes its own outputs and failure records
-# (gyrocal/run/stages.py analyse_stage).
+# Fit, validate, diagnose and report a unit in one job (`gyrocal analyse --report`): four
+# steps of seconds that always run together, sharing one fit of the configured model and
+# one Python start-up. One job instead of four is fewer jobs for Snakemake to plan per unit
+# (docs/cluster.md), and one job log and one benchmark record per unit session fewer; each
+# step still writes its own outputs and failure records (gyrocal/run/stages.py
+# analyse_stage; a failed step's record reaches the report, which says what failed).
 #
-# The rules declare the files another job reads: here the calibration, validation and
-# diagnosis, which the report and the fleet summary read. The files only the report
-# reads (validation_holds, table_hold_means, table_samples, by_temperature, residuals,
+# The rules declare the files another job reads: here the calibration, validation,
+# diagnosis and report, which the fleet summary reads. The files only the report reads
+# (validation_holds, table_hold_means, table_samples, by_temperature, residuals,
 # protocol.json; the segmentation's segments and timeline) are written beside them by the
 # same job, every time, and are not declared: each declared file costs Snakemake work per
 # unit as it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
 # either (Snakemake leaves a missing intermediate file alone while what was made from it
-# is up to date). A report rendered after one was deleted names it (the residuals: it
-# leaves out their section, as for a diagnosis written without them).
+# is up to date). `gyrocal report` rendered after one was deleted names it.
 
 
 rule analyse:
@@ -24,6 +24,7 @@ rule analyse:
         cal="results/{batch}/{device}/{session}/calibration.json",
         validation="results/{batch}/{device}/{session}/validation.json",
         diagnosis="results/{batch}/{device}/{session}/diagnosis.json",
+        report="reports/{batch}/{device}/{session}.html",
     log:
         "logs/analyse/{batch}/{device}/{session}.log",
     benchmark:
@@ -40,9 +41,12 @@ rule analyse:
     params:
         guard=GUARD,
         limits=job_limits,
-        args=stage_args(ANALYSIS, "analyse"),
+        # the report's reproduce command names the segmentation's settings too
+        args=stage_args(
+            {k: config[k] for k in ("segmentation", "model", "diagnosis")}, "report"
+        ),
         other=other_session_option,
         version=GYROCAL_VERSION,
     shell:
         "{params.guard} --attempt {resources.attempt} {params.limits} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
-        "--record-failures > {log:q} 2>&1"
+        "--report {output.report:q} --record-failures > {log:q} 2>&1"

@@ -54,7 +54,6 @@ OTHER_SESSION = other_sessions(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.
 # A servo or sweep unit also gets its protocol's section (config `protocols:`).
 SEGMENTATION = {"segmentation": config["segmentation"]}
-ANALYSIS = {"model": config["model"], "diagnosis": config["diagnosis"]}
 # The user's own term files are inputs: editing one re-runs what fits with it.
 TERM_FILES = config["model"].get("term_files", []) + [
     path
@@ -153,8 +152,7 @@ def storage_log(url):
 # analysis, only its diagnosis reads the model.)
 PROTOCOL_READS = {
     "segment": ("options",),
-    "analyse": ("model", "diagnosis"),
-    "report": ("options", "model", "diagnosis"),
+    "report": ("options", "model", "diagnosis"),  # the analyse job, which reports too
 }
 
 
