@@ -18,7 +18,7 @@ from gyrocal.calibration.file import load_calibration
 from gyrocal.run.cli import main
 from gyrocal.io.errors import CorruptFileError
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
-from gyrocal.io.unit_folder import UNIT_FILES
+from gyrocal.io.unit_folder import UNIT_FILES, pack_stage, part_exists, part_failure
 
 from .conftest import FLEET_CONFIG, REPO, needs, snakemake
 
@@ -165,9 +165,10 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
             rec = failure.record("segment", CorruptFileError("not a readable Parquet file", source="x"),
                                  {"device": "A1", "batch": "B1", "session": "2026-01-01"})
             failure.write([folder / UNIT_FILES[k] for k in SEGMENT_FILES], rec)
+            pack_stage(folder, "segment")
         else:
-            for k in SEGMENT_FILES:
-                shutil.copyfile(segmented / UNIT_FILES[k], folder / UNIT_FILES[k])
+            for name in ("observations.parquet", "segmentation.zip"):
+                shutil.copyfile(segmented / name, folder / name)
     args = [*META, "--settings-json", json.dumps(SETTINGS[case]), "--record-failures"]
     three = folders["three"]
     assert main(["fit", str(three), *args]) == 0
@@ -176,14 +177,17 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
                  "--residuals", str(three / "residuals.parquet"), *args]) == 0
     assert main(["analyse", str(folders["one"]), *args]) == 0
 
+    # a unit session's four files: the observations, the calibration and two archives
     names = sorted(p.name for p in three.iterdir())
-    # every file of a unit folder but free_points (a continuous model's, not this grid's)
-    assert names == sorted(v for k, v in UNIT_FILES.items() if k != "free_points")
+    assert names == ["analysis.zip", "calibration.json", "observations.parquet", "segmentation.zip"]
     assert sorted(p.name for p in folders["one"].iterdir()) == names
     for name in names:
         assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name
-    stage = {name: (failure.read(folders["one"] / name) or {}).get("stage") for name in names}
-    analysed = [v for k, v in UNIT_FILES.items() if k not in SEGMENT_FILES and v in names]
+    # every part of a unit folder but free_points (a continuous model's, not this grid's)
+    parts = [k for k in UNIT_FILES if part_exists(three, k)]
+    assert sorted(parts) == sorted(k for k in UNIT_FILES if k != "free_points")
+    stage = {UNIT_FILES[k]: (part_failure(folders["one"], k) or {}).get("stage") for k in parts}
+    analysed = [UNIT_FILES[k] for k in parts if k not in SEGMENT_FILES]
     if case == "calibrated":
         assert not any(stage.values())
         assert load_calibration(folders["one"] / "calibration.json").meta["device"] == "A1"
@@ -193,17 +197,18 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
         assert {name: stage[name] for name in analysed} == {
             name: "diagnose" if name in ("diagnosis.json", "residuals.parquet") else "fit"
             for name in analysed}
-        assert "bias_temp_poly" in failure.read(folders["one"] / "calibration.json")["error"]
+        assert "bias_temp_poly" in part_failure(folders["one"], "calibration")["error"]
     else:
         assert {stage[name] for name in analysed} == {"segment"}
 
 
 def test_analyse_without_recording_failures_stops_at_the_failed_step(segmented, tmp_path, capsys):
     """Like `gyrocal fit`: one line, exit 2, and nothing written after the failure."""
-    for k in SEGMENT_FILES:
-        shutil.copyfile(segmented / UNIT_FILES[k], tmp_path / UNIT_FILES[k])
+    segment_files = ["observations.parquet", "segmentation.zip"]
+    for name in segment_files:
+        shutil.copyfile(segmented / name, tmp_path / name)
     code = main(["analyse", str(tmp_path), *META, "--settings-json",
                  json.dumps(SETTINGS["fit fails"])])
     assert code == 2
     assert capsys.readouterr().err.count("\n") == 1
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(UNIT_FILES[k] for k in SEGMENT_FILES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == segment_files

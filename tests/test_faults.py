@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
+from gyrocal.io.unit_folder import part_failure, read_part_json
 from gyrocal.io import atomic, failure
 from gyrocal.calibration.file import load_calibration
 from gyrocal.simulate import TurntableProtocol, simulate_unit
@@ -109,7 +110,7 @@ def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill
     assert not leftovers(wd)
     cal = load_calibration(unit(wd, "K1") / "calibration.json")
     assert cal.meta["device"] == "K1"
-    assert json.loads(target.read_text())["summary"]["validation_rms"] > 0
+    assert read_part_json(unit(wd, "K1"), "validation")["summary"]["validation_rms"] > 0
     units = "2 unit sessions: 2 calibrated" if kill == "the job" else "1 unit session: 1 calibrated"
     assert units in (wd / "reports" / "index.html").read_text()
 
@@ -131,7 +132,7 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     obs = pq.read_schema(unit(wd, "K3") / "observations.parquet").metadata
     record = json.loads(obs[b"gyrocal.failure"])
     assert (record["stage"], record["error"], record["device"]) == ("segment", time_out, "K3")
-    assert memory in json.loads((unit(wd, "K2") / "validation.json").read_text())["error"]
+    assert memory in part_failure(unit(wd, "K2"), "validation")["error"]
     assert load_calibration(unit(wd, "K1") / "calibration.json").meta["device"] == "K1"
 
     index = (wd / "reports" / "index.html").read_text()

@@ -26,7 +26,7 @@ from .conftest import needs, snakemake
 UNIT = ("B1", "A1", "2026-01-01")
 FOLDER = "results/{}/{}/{}".format(*UNIT)
 # The unit's calibration and what is made with it (segment, then fit, validate, diagnose).
-TARGETS = [f"{FOLDER}/{name}" for name in ("calibration.json", "validation.json", "diagnosis.json")]
+TARGETS = [f"{FOLDER}/{name}" for name in ("calibration.json", "analysis.zip")]
 CONFIG = "devices: devices.tsv\nmodel: {terms: [bias, scale, misalignment]}\n"
 
 needs_storage = needs({"snakemake-storage-plugin-fs": importlib.util.find_spec("snakemake_storage_plugin_fs") is not None,

@@ -13,6 +13,7 @@ import pytest
 
 from gyrocal.calibration.file import load_calibration
 from gyrocal.run.cli import main
+from gyrocal.io.unit_folder import read_part_json, read_part_table
 from gyrocal.pipeline.config import Settings
 from gyrocal.io.errors import CalibrationFileError
 from gyrocal.pipeline.chain import run
@@ -40,7 +41,7 @@ def test_the_tables_hold_the_numbers_the_library_computes(fleet_run):
         folder = fleet_run / "results" / batch / device / session
         log = fleet_run / "demo" / "logs" / batch / device / f"{session}.parquet"
         direct = run(log, Settings())
-        summary = json.loads((folder / "validation.json").read_text())["summary"]
+        summary = read_part_json(folder, "validation")["summary"]
         assert summary.keys() == direct.validation.summary.keys()
         for key, value in direct.validation.summary.items():
             assert summary[key] == (pytest.approx(value, rel=1e-12) if isinstance(value, float) else value)
@@ -48,7 +49,7 @@ def test_the_tables_hold_the_numbers_the_library_computes(fleet_run):
         np.testing.assert_array_equal(grid.values, direct.calibration.grid.values)
         np.testing.assert_array_equal(grid.stderr, direct.calibration.grid.stderr)
         import pandas as pd
-        table = pd.read_parquet(folder / "table_hold_means.parquet")
+        table = read_part_table(folder, "table_hold_means")[0]
         pd.testing.assert_frame_equal(table, direct.validation.table_holds, check_exact=False,
                                       rtol=1e-12)
 
@@ -64,10 +65,10 @@ def test_servo_and_sweep_units_run_through_the_workflow_as_the_library_runs_them
     cal = load_calibration(folder / "calibration.json")
     assert cal.meta["protocol"] == protocol
     np.testing.assert_array_equal(cal.grid.values, direct.calibration.grid.values)
-    summary = json.loads((folder / "validation.json").read_text())["summary"]
+    summary = read_part_json(folder, "validation")["summary"]
     assert summary["validation_rms"] == pytest.approx(direct.validation.summary["validation_rms"],
                                                       rel=1e-12)
-    diagnosis = json.loads((folder / "diagnosis.json").read_text())
+    diagnosis = read_part_json(folder, "diagnosis")
     html = (fleet_run / "reports" / batch / device / f"{session}.html").read_text()
     assert diagnosis["verdict"].split(":")[0] in html
     if protocol == "servo":
@@ -107,11 +108,17 @@ def test_nothing_to_do_the_second_time_and_a_model_change_reruns_only_its_jobs(f
 @pytest.mark.slow
 @pytest.mark.parametrize("table", ["timeline.parquet", "validation_holds.parquet"])
 def test_a_report_over_a_missing_table_names_it(fleet_run, tmp_path, table):
-    """The tables only the report reads are written beside the products, not declared:
+    """The tables only the report reads are parts of the jobs' archives, not declared:
     a report rendered after one was deleted says which, and how to rebuild it."""
     unit = tmp_path / "unit"
     shutil.copytree(fleet_run / "results" / "B1" / "A1" / "2026-01-01", unit)
-    (unit / table).unlink()
+    archive = next(unit / name for name in ("segmentation.zip", "analysis.zip")
+                   if table in zipfile.ZipFile(unit / name).namelist())
+    with zipfile.ZipFile(archive) as old:
+        kept = {n: old.read(n) for n in old.namelist() if n != table}
+    with zipfile.ZipFile(archive, "w") as new:
+        for name, data in kept.items():
+            new.writestr(name, data)
     html = tmp_path / "report.html"
     assert main(["report", str(unit), "-o", str(html), "--device", "A1", "--batch", "B1",
                  "--session", "2026-01-01", "--protocol", "turntable", "--record-failures"]) == 0
@@ -131,13 +138,13 @@ def job_counts(out) -> dict[str, int]:
 def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(fleet_run, tmp_path):
     """The loop of the README: read the diagnosis, add the term, re-run, see the error fall."""
     folder = ("results", "B2", "A2", "2026-01-02")
-    diagnosis = json.loads(fleet_run.joinpath(*folder, "diagnosis.json").read_text())
+    diagnosis = read_part_json(fleet_run.joinpath(*folder), "diagnosis")
     assert diagnosis["best"]["term"] == "scale_quadratic"
     page = (fleet_run / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
     line = "terms: [bias, scale, misalignment, scale_quadratic]"
     assert diagnosis["best"]["config_line"] == line and f'<pre id="config-line">{line}</pre>' in page
     for batch, device, session in GOOD[:2]:  # the units without the effect: nothing missing
-        other = json.loads((fleet_run / "results" / batch / device / session / "diagnosis.json").read_text())
+        other = read_part_json(fleet_run / "results" / batch / device / session, "diagnosis")
         assert other["best"] is None and other["explains_the_data"], other["verdict"]
 
     again = tmp_path / "again"
@@ -149,7 +156,7 @@ def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(flee
     assert out.returncode == 0, out.stderr[-2000:]
     ran = job_counts(out)
     assert "segment" not in ran and "simulate" not in ran and ran["analyse"] == 5
-    after = json.loads(again.joinpath(*folder, "diagnosis.json").read_text())
+    after = read_part_json(again.joinpath(*folder), "diagnosis")
     # Three temperature points leave the interpolation error of the cubic bias at 20 °C,
     # the same for every unit; what the term removes is the rest.
     assert after["validation_rms"] < 0.2 * diagnosis["validation_rms"]
@@ -163,15 +170,15 @@ def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     figures included), made again from nothing: the same bytes."""
     before = {p.relative_to(fleet_run): p.read_bytes() for p in
               [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("demo/logs/*/*/*.parquet"),
-               *fleet_run.glob("results/*/*/*/diagnosis.json"), *fleet_run.glob("results/*/*/*/residuals.parquet"),
+               *fleet_run.glob("results/*/*/*/analysis.zip"),   # the validation, diagnosis and tables
                fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html"]}
-    assert len(before) == 7 + 5 + 7 + 7 + 1
+    assert len(before) == 7 + 5 + 7 + 1
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):
         shutil.copy(fleet_run / name, again / name)
     shutil.copytree(fleet_run / "logs", again / "logs")
-    # The logs and the residuals come with the jobs that make these.
+    # The logs come with the jobs that make these.
     targets = sorted({str(path) for path in before if path.suffix != ".parquet"})
     out = snakemake(again, *targets)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -225,7 +232,7 @@ def test_the_catalogue_test_case_runs_as_the_catalogue_runs_it(tmp_path):
     cal = load_calibration(folder / "calibration.json")
     assert (cal.meta["device"], cal.meta["batch"], cal.meta["session"]) == ("T1", "B1", "2026-01-01")
     assert (tmp_path / "demo" / "logs" / "B1" / "T1" / "2026-01-01.parquet").exists()
-    assert json.loads((folder / "diagnosis.json").read_text())["explains_the_data"]
+    assert read_part_json(folder, "diagnosis")["explains_the_data"]
     assert (tmp_path / "reports" / "B1" / "T1" / "2026-01-01.html").exists()
     assert "1 unit session: 1 calibrated" in (tmp_path / "reports" / "index.html").read_text()
 
@@ -308,14 +315,14 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
         return fleet_run / "results" / key[0] / key[1] / key[2]
 
     for this, other in ((GOOD[0], GOOD[1]), (GOOD[1], GOOD[0])):
-        written = json.loads((folder(this) / "diagnosis.json").read_text())
+        written = read_part_json(folder(this), "diagnosis")
         direct = diagnose(Settings(), read_observations(folder(this) / "observations.parquet")[0],
                           read_observations(folder(other) / "observations.parquet")[0])
         assert written["next_session"] is not None
         for key in ("validation_rms", "excess", "repeat_p_value"):
             assert written["next_session"][key] == pytest.approx(direct.next_session[key], rel=1e-12)
         assert written["verdict"] == direct.verdict
-    alone = json.loads((folder(GOOD[2]) / "diagnosis.json").read_text())
+    alone = read_part_json(folder(GOOD[2]), "diagnosis")
     assert alone["next_session"] is None
 
 
@@ -333,7 +340,7 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     cal = json.loads((fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "calibration.json").read_text())
     assert a1["status"] == "ok" and a1["eol_passed"] is True and a1["warnings"] == []
     assert a1["input_hash"] == cal["provenance"]["input"][a1["input_hash_algorithm"]]
-    validation = json.loads((fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "validation.json").read_text())
+    validation = read_part_json(fleet_run / "results" / "B1" / "A1" / "2026-01-01", "validation")
     assert a1["excess"] == validation["summary"]["excess"]
     # parameters at the reference temperature in display units, as the unit's file gives them
     from gyrocal.calibration.file import load_calibration

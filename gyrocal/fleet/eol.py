@@ -231,13 +231,13 @@ def unit_inputs(folder) -> tuple:
     (``results/{batch}/{device}/{session}``), for :func:`judge`."""
     from ..io import failure
     from ..io.tables import OBS_META_KEY
+    from ..io.unit_folder import part_exists, part_failure, read_part_json
     folder = Path(folder)
-    cal_path, val_path, obs_path = (folder / n for n in ("calibration.json", "validation.json",
-                                                         "observations.parquet"))
+    cal_path, obs_path = folder / "calibration.json", folder / "observations.parquet"
     cal = failure.read(cal_path) or load_calibration(cal_path)
     summary = None
-    if val_path.exists():
-        summary = failure.read(val_path) or json.loads(val_path.read_text()).get("summary")
+    if part_exists(folder, "validation"):
+        summary = part_failure(folder, "validation") or read_part_json(folder, "validation").get("summary")
     info = None
     if obs_path.exists():
         info = failure.read(obs_path)

@@ -148,23 +148,24 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
     (end of line, outliers, drift; each unit's verdict also in its row) and the servo
     versus turntable comparisons."""
     from ..calibration.file import load_calibration
-    from ..io.unit_folder import unit_paths
+    from ..io.unit_folder import part_exists, part_failure, read_part_json, unit_paths
     rows = []
     for unit in units:
         row = dict(unit["row"])
-        p = unit_paths(unit["folder"])
+        folder = unit["folder"]
+        p = unit_paths(folder)
         row["report"] = unit["report"]
-        records = (failure.read(p[k]) for k in ("validation", "calibration", "observations"))
+        records = (part_failure(folder, k) for k in ("validation", "calibration", "observations"))
         rec = next((r for r in records if r is not None), None)
         if rec is not None:
             row.update(status="failed", stage=rec["stage"], error=rec["error"],
                        internal=rec.get("internal", False))
-        elif not p["validation"].exists() or not p["calibration"].exists():
+        elif not part_exists(folder, "validation") or not p["calibration"].exists():
             row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
                        "did not run to the end (see the workflow's logs)", internal=True)
         else:
             cal = load_calibration(p["calibration"])
-            summary = json.loads(p["validation"].read_text())["summary"]
+            summary = read_part_json(folder, "validation")["summary"]
             at_ref = cal.coefficients([cal.reference_temperature], warn=False)
             row["calibration"] = cal
             row["warnings"] = cal.extra.get("warnings", [])
@@ -174,7 +175,7 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
             # a session that logged no temperature has no span, only its stand-in
             logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
             row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
-                       reference=cal.reference_temperature, missing=_missing_effect(p["diagnosis"]),
+                       reference=cal.reference_temperature, missing=_missing_effect(folder),
                        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
         rows.append(row)
     ok = [r for r in rows if r["status"] == "ok"]
@@ -195,14 +196,15 @@ KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm
                   ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
 
 
-def _missing_effect(path) -> str:
+def _missing_effect(folder) -> str:
     """The diagnosis in a few words, for the fleet table."""
-    if not Path(path).exists():
+    from ..io.unit_folder import part_exists, part_failure, read_part_json
+    if not part_exists(folder, "diagnosis"):
         return "–"
-    rec = failure.read(path)
+    rec = part_failure(folder, "diagnosis")
     if rec is not None:
         return f"diagnosis failed: {rec['error']}"
-    diag = failure.load_json(path)
+    diag = read_part_json(folder, "diagnosis")
     if diag.get("best"):
         return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
     found = "nothing" if diag.get("explains_the_data") else "unexplained excess"

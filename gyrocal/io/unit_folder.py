@@ -1,5 +1,6 @@
 """The files of a unit session's results folder, which the stages write and the report
-reads."""
+reads: the observations and the calibration as files of their own, the rest as parts of one
+archive per job (:data:`CONTAINERS`)."""
 
 from __future__ import annotations
 
@@ -41,14 +42,13 @@ def unit_paths(folder) -> dict[str, Path]:
 def read_observations(paths):
     """A unit's observation table and its metadata (``paths``: the unit's paths, or the
     observations file), the table carrying the session's record when segmentation wrote
-    one beside it (``history.parquet``)."""
+    one beside it (``history.parquet``, loose or in ``segmentation.zip``)."""
     observations = Path(paths["observations"] if isinstance(paths, dict) else paths)
     obs, extra = read_table_with_metadata(observations)
     if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
         obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
-    history = observations.with_name(UNIT_FILES["history"])
-    if history.exists():
-        frame, meta = read_table_with_metadata(history)
+    if part_exists(observations.parent, "history"):
+        frame, meta = read_part_table(observations.parent, "history")
         obs.attrs["series"] = Series.from_frame(frame, meta)
     return obs, extra
 
@@ -129,6 +129,9 @@ def read_part_json(folder, key: str) -> dict:
 def part_failure(folder, key: str) -> dict | None:
     """The failure record a part holds, None where it holds a result or is missing."""
     from . import failure
+    loose = Path(folder) / UNIT_FILES[key]
+    if loose.exists():   # a file's record is in its footer or its first lines: no need to read it all
+        return failure.read(loose)
     data = part_bytes(folder, key)
     return None if data is None else failure.read(UNIT_FILES[key], data=data)
 
@@ -161,3 +164,17 @@ def pack(folder, owned=()) -> None:
                 archive.writestr(info, members[n])
         for p in loose.values():
             p.unlink()
+
+
+# The parts each stage writes, which it owns in its archive (:func:`pack`).
+STAGE_PARTS = {
+    "segment": CONTAINERS["segmentation.zip"],
+    "validate": ("validation", *VALIDATION_TABLES, "free_points"),
+    "diagnose": DIAGNOSIS_FILES,
+    "analyse": CONTAINERS["analysis.zip"],
+}
+
+
+def pack_stage(folder, stage: str) -> None:
+    """:func:`pack` after ``stage`` ran (or was recorded as failed) in ``folder``."""
+    pack(folder, STAGE_PARTS.get(stage, ()))

@@ -16,9 +16,8 @@ import pandas as pd
 
 from ..calibration.file import Calibration, dumps, load_calibration, standard_coefficients
 from ..fit.validate import METHODS
-from ..io import failure
 from ..io.tables import read_table_with_metadata
-from ..io.unit_folder import unit_paths
+from ..io.unit_folder import part_exists, part_failure, read_part_json, read_part_table, unit_paths
 from . import plots
 from .pages import render_page
 
@@ -67,23 +66,23 @@ class UnitResults:
     def from_folder(cls, folder) -> UnitResults:
         p = unit_paths(folder)
         obs, extra = read_table_with_metadata(p["observations"])
-        table = lambda k: read_table_with_metadata(p[k])[0]  # noqa: E731
-        summary = failure.load_json(p["validation"])["summary"]
+        table = lambda k: read_part_table(folder, k)[0]  # noqa: E731
+        summary = read_part_json(folder, "validation")["summary"]
         cal = load_calibration(p["calibration"])
         diagnosis = residuals = None
         heat = {}
-        if p["diagnosis"].exists():
-            diagnosis = failure.read(p["diagnosis"]) or failure.load_json(p["diagnosis"])
-            if diagnosis.get("format") != "gyrocal.failure/1" and p["residuals"].exists():
-                residuals, meta = read_table_with_metadata(p["residuals"])
+        if part_exists(folder, "diagnosis"):
+            diagnosis = part_failure(folder, "diagnosis") or read_part_json(folder, "diagnosis")
+            if diagnosis.get("format") != "gyrocal.failure/1" and part_exists(folder, "residuals"):
+                residuals, meta = read_part_table(folder, "residuals")
                 heat = meta.get("heatmaps", {})
-        own = failure.load_json(p["protocol"])
+        own = read_part_json(folder, "protocol")
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
                    summary, table("holds"), table("table_hold_means"), table("table_samples"),
                    table("by_temperature"), extra.get("log", ""), diagnosis=diagnosis,
                    residuals=residuals, heatmaps=heat, protocol=own["results"],
                    protocol_figures=own["figures"],
-                   free_points=table("free_points") if p["free_points"].exists() else None)
+                   free_points=table("free_points") if part_exists(folder, "free_points") else None)
 
 
 def _parameter_figure(cal: Calibration, free_points: pd.DataFrame | None) -> str:

@@ -152,13 +152,14 @@ def _stage(args, stage: str, outputs, work) -> int:
 
 
 def cmd_segment(args) -> int:
+    from ..io.unit_folder import UNIT_FILES, pack_stage
     from .stages import segment_stage
-    from ..io.unit_folder import UNIT_FILES
     settings = _settings(args)
     out = Path(args.out)
     files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
     status = _stage(args, "segment", files,
                     lambda: segment_stage(args.log, out, settings, _meta(args)))
+    pack_stage(out, "segment")
     print(f"segmentation -> {out}")
     return status
 
@@ -228,14 +229,17 @@ def cmd_fit(args) -> int:
 
 
 def cmd_validate(args) -> int:
+    from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES, pack_stage
     from .stages import validate_stage
-    from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES
     settings = _settings(args)
     files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
-    return _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
+    status = _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
+    pack_stage(args.unit, "validate")
+    return status
 
 
 def cmd_analyse(args) -> int:
+    from ..io.unit_folder import pack_stage
     from .stages import analyse_stage, report_stage
     settings = _settings(args)
     verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
@@ -243,12 +247,13 @@ def cmd_analyse(args) -> int:
     print(f"calibration, validation and diagnosis -> {args.unit}")
     if verdict is not None:
         print(f"  {verdict}")
+    status = 0
     if args.report:   # the workflow's report, in the same process: no second start-up
         status = _stage(args, "report", [args.report],
                         lambda: report_stage(args.unit, args.report, settings))
         print(f"report -> {args.report}")
-        return status
-    return 0
+    pack_stage(args.unit, "analyse")
+    return status
 
 
 def cmd_report(args) -> int:
@@ -362,7 +367,11 @@ def cmd_diagnose(args) -> int:
             diagnose_folder(folder, other)
 
     outputs = [args.output] + ([args.residuals] if args.residuals else [])
-    return run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
+    status = run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
+    if args.unit is not None:   # a diagnosis written into the unit's folder joins its archive
+        from ..io.unit_folder import pack
+        pack(args.unit)
+    return status
 
 
 def cmd_apply(args) -> int:

@@ -68,6 +68,15 @@ def stage_outputs(args) -> list[Path]:
     return [folder / UNIT_FILES[k] for k in keys] + report
 
 
+def stage_archives(args) -> list[Path]:
+    """The archives the stage packs its parts into (their temporary files are leftovers too)."""
+    from ..io.unit_folder import CONTAINER_OF, STAGE_PARTS
+    if args.command not in ("segment", "analyse"):
+        return []
+    folder = Path(args.out if args.command == "segment" else args.unit)
+    return [folder / name for name in sorted({CONTAINER_OF[k] for k in STAGE_PARTS[args.command]})]
+
+
 def _rss_mb(pid: int) -> float | None:
     """The process's resident memory, MiB (None where /proc cannot tell)."""
     try:
@@ -213,7 +222,7 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
     if args is None:
         return _exit_status(status)
     outputs = stage_outputs(args)
-    _remove_leftovers(outputs)  # this run's, and those of a run killed before it
+    _remove_leftovers(outputs + stage_archives(args))  # this run's, and those of a run killed before it
     if reason is None:
         return _exit_status(status)
     if not args.record_failures:  # the stage's own failures stop the run: so does this
@@ -223,6 +232,9 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
     from ..report.pages import write_failure
     meta = {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
     write_failure(outputs, failure.record(args.command, reason, meta))
+    if args.command in ("segment", "analyse"):   # the records join the unit's archive
+        from ..io.unit_folder import pack_stage
+        pack_stage(args.out if args.command == "segment" else args.unit, args.command)
     print(f"gyrocal: {args.command} failed (recorded): {reason}", file=sys.stderr)
     return 0
 

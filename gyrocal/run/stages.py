@@ -8,6 +8,7 @@ cannot process its unit writes failure records in place of its outputs (see
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import shutil
 import sys
@@ -20,7 +21,7 @@ from ..io import atomic, failure
 from ..io.errors import GyrocalError
 from ..io.tables import write_table
 from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
-                              read_observations, unit_paths)
+                              part_exists, part_failure, read_observations, unit_paths)
 from ..protocols import registry
 from ..report.pages import write_failure
 
@@ -177,12 +178,15 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
 
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     from ..report.unit import UnitResults, write_unit_report
-    paths = unit_paths(folder)
-    failure.check_inputs(*(v for k, v in paths.items() if k not in DIAGNOSIS_FILES))
+    for key in UNIT_FILES:
+        if key not in DIAGNOSIS_FILES:
+            found = part_failure(folder, key)
+            if found is not None:
+                raise failure.UpstreamFailure(found)
     # The workflow declares the unit's products, not the tables written beside them
     # (workflow/rules/analyse.smk): name a table deleted since they were made.
     missing = [name for key, name in UNIT_FILES.items()
-               if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not paths[key].exists()]
+               if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not part_exists(folder, key)]
     if missing:
         raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
                            "folder and run the workflow again to rebuild it", source=folder)
@@ -228,9 +232,19 @@ def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=
         _write_bundle(Path(bundle), units, reports_root, out_index, rows, settings)
 
 
+def _link_or_copy(source: Path, target: Path) -> None:
+    """``target`` as a second name of ``source`` (no bytes and no file more on disk; a
+    report rewritten later is a new file, so the bundle keeps the one it was made with), or
+    a copy where the file system has no hard links."""
+    try:
+        os.link(source, target)
+    except OSError:
+        shutil.copyfile(source, target)
+
+
 def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) -> None:
-    """A self-contained folder of every unit report, the fleet summary and the drift
-    pages, put in place whole: a job killed while copying leaves the old folder."""
+    """A self-contained folder of every unit report (hard links to them), the fleet summary
+    and the drift pages, put in place whole: a job killed while linking leaves the old folder."""
     bundle.parent.mkdir(parents=True, exist_ok=True)
     with atomic.replacing_folder(bundle) as tmp:
         for unit in units:
@@ -238,7 +252,7 @@ def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) 
             target = tmp / unit["report"]
             target.parent.mkdir(parents=True, exist_ok=True)
             if source.exists():
-                shutil.copyfile(source, target)
+                _link_or_copy(source, target)
         shutil.copyfile(out_index, tmp / "index.html")
         drift_pages = Path(out_index).parent / "drift"
         if settings is not None and drift_pages.is_dir():

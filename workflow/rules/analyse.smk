@@ -1,18 +1,16 @@
 # Fit, validate, diagnose and report a unit in one job (`gyrocal analyse --report`): four
 # steps of seconds that always run together, sharing one fit of the configured model and
 # one Python start-up. One job instead of four is fewer jobs for Snakemake to plan per unit
-# (docs/cluster.md), and one job log and one benchmark record per unit session fewer; each
-# step still writes its own outputs and failure records (gyrocal/run/stages.py
-# analyse_stage; a failed step's record reaches the report, which says what failed).
+# (docs/cluster.md), and one job log per unit session instead of four; each step still
+# writes its own outputs and failure records (gyrocal/run/stages.py analyse_stage; a failed
+# step's record reaches the report, which says what failed).
 #
-# The rules declare the files another job reads: here the calibration, validation,
-# diagnosis and report, which the fleet summary reads. The files only the report reads
-# (validation_holds, table_hold_means, table_samples, by_temperature, residuals,
-# protocol.json; the segmentation's segments and timeline) are written beside them by the
-# same job, every time, and are not declared: each declared file costs Snakemake work per
-# unit as it plans (docs/cluster.md), and declaring them would not rebuild one deleted by hand
-# either (Snakemake leaves a missing intermediate file alone while what was made from it
-# is up to date). `gyrocal report` rendered after one was deleted names it.
+# A unit session leaves seven files (docs/cluster.md): the observations and the
+# segmentation's archive (segment job), the calibration, the analysis' archive (validation,
+# diagnosis and the report's tables, gyrocal/io/unit_folder.py) and the report (this job),
+# and the two job logs, whose last line is what the job cost (gyrocal/run/guard.py; no
+# benchmark file beside them). The fleet summary reads the calibration and the analysis'
+# archive. `gyrocal report` rendered after a part was deleted names it.
 
 
 rule analyse:
@@ -22,13 +20,10 @@ rule analyse:
         terms=TERM_FILES,
     output:
         cal="results/{batch}/{device}/{session}/calibration.json",
-        validation="results/{batch}/{device}/{session}/validation.json",
-        diagnosis="results/{batch}/{device}/{session}/diagnosis.json",
+        analysis="results/{batch}/{device}/{session}/analysis.zip",
         report="reports/{batch}/{device}/{session}.html",
     log:
         "logs/analyse/{batch}/{device}/{session}.log",
-    benchmark:
-        "results/benchmark/analyse/{batch}/{device}/{session}.tsv"
     group:
         "unit"
     conda:

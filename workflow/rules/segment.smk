@@ -5,8 +5,6 @@ rule segment:
         obs="results/{batch}/{device}/{session}/observations.parquet",
     log:
         "logs/segment/{batch}/{device}/{session}.log",
-    benchmark:
-        "results/benchmark/segment/{batch}/{device}/{session}.tsv"
     group:
         "unit"
     conda:
