@@ -133,7 +133,7 @@ def report(mode: str, preset: str, n: int, wall: float, stages: tuple[float, flo
     """One run's line. What the workflow adds is its wall time beyond the stages and the
     fleet job, meaningful where jobs run one at a time (not with two local cores)."""
     added = (wall - stages[0] - fleet_s) / n
-    line = (f"{mode:<10} {preset:<6} {n:>3} {3:>4} "
+    line = (f"{mode:<10} {preset:<6} {n:>3} {len(STAGES):>4} "
             f"{'-' if submissions is None else f'{submissions / n:.2f}':>6} {wall:>7.1f} "
             f"{wall / n:>6.1f} {stages[0] / n:>6.1f} {stages[1] / n:>6.1f} "
             f"{'-' if mode == 'local -c2' else f'{added:.1f}':>6}")

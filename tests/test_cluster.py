@@ -68,7 +68,7 @@ def runs(tmp_path_factory):
 
 def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     """Snakemake's own plan of every rule (`all` runs nothing): mem_mb and runtime as the
-    rules declare them, segment on two threads."""
+    rules declare them, every unit rule on one thread (benchmarks/requests.py)."""
     folder = fleet_folder(tmp_path / "plan")
     out = snakemake(folder, "--dry-run", "--forceall", "all", "paper")
     assert out.returncode == 0, out.stderr[-3000:]
@@ -82,7 +82,7 @@ def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     for name, (resources, _) in planned.items():
         if name != "all":
             assert re.search(r"\bmem_mb=\d+", resources) and re.search(r"\bruntime=\d+", resources), name
-    assert planned["segment"][1] == 2 and planned["analyse"][1] == 1
+    assert planned["segment"][1] == 1 and planned["analyse"][1] == 1
 
 
 @pytest.mark.slow
@@ -115,9 +115,9 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
         assert set(re.findall(r"^\s*(?:local)?rule (\w+):$", log, flags=re.M)) == UNIT_RULES
         assert (cluster / "logs" / "cluster" / f"{job_id}.rc").read_text().strip() == "0"
         # One unit's jobs run one after another: the widest sets threads and memory
-        # (segment: 2 threads, 2000 MB), and the three steps of 5 minutes add up.
-        assert props["threads"] == 2
-        assert props["resources"]["mem_mb"] == 2000 and props["resources"]["runtime"] == 15
+        # (one thread; simulate's 1500 MB), and the steps' minutes add up (5 + 2 + 2).
+        assert props["threads"] == 1
+        assert props["resources"]["mem_mb"] == 1500 and props["resources"]["runtime"] == 9
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 

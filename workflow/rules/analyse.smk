@@ -28,10 +28,11 @@ rule analyse:
         "unit"
     conda:
         ENV
+    # benchmarks/requests.py: 275 MiB and 6 s at most (full protocol, report included)
     threads: 1
     resources:
-        mem_mb=lambda wildcards, attempt: 1000 * attempt,
-        runtime=lambda wildcards, attempt: 5 * attempt,
+        mem_mb=lambda wildcards, attempt: 500 * attempt,
+        runtime=lambda wildcards, attempt: 2 * attempt,
         attempt=lambda wildcards, attempt: attempt,
     params:
         guard=GUARD,

@@ -9,10 +9,13 @@ rule segment:
         "unit"
     conda:
         ENV
-    threads: 2
+    # From the jobs' own records (benchmarks/requests.py, docs/cluster.md): a full-protocol
+    # log keeps 1.35 cores busy at 793 MiB for 5 s; a second core would sit idle most of
+    # the job. A retry doubles memory and time.
+    threads: 1
     resources:
-        mem_mb=lambda wildcards, attempt: 2000 * attempt,
-        runtime=lambda wildcards, attempt: 5 * attempt,
+        mem_mb=lambda wildcards, attempt: 1200 * attempt,
+        runtime=lambda wildcards, attempt: 2 * attempt,
         attempt=lambda wildcards, attempt: attempt,
     params:
         guard=GUARD,
