@@ -10,7 +10,10 @@ production systems and rendered in the fleet summary and one drift page per audi
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -401,12 +404,53 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
             _write_page(Path(path).parent / unit["page"], page)
         if eol_json is not None:
             _write_page(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
+    batches = sorted(batches.items())
+    pages = _batch_pages(batches, path) if len(rows) > PAGE_UNITS else None
+    if pages is None:
+        shutil.rmtree(Path(path).parent / "batches", ignore_errors=True)   # an earlier, larger fleet's
     html = render_page(
         "fleet_report.html.j2",
-        batches=sorted(batches.items()), key_parameters=KEY_PARAMETERS, figures=figures,
+        batches=batches, key_parameters=KEY_PARAMETERS, figures=figures,
         total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
-        warned=sum(1 for r in ok if r.get("warnings")),
+        warned=sum(1 for r in ok if r.get("warnings")), batch_pages=pages, page_units=PAGE_UNITS,
         servo_vs_turntable=summary["servo_vs_turntable"], fleet=fleet)
     _write_page(path, html)
+
+
+# Unit rows one page holds. A larger fleet's summary lists its batches, each batch's rows on
+# pages of their own beside it (``batches/``): 100,000 rows are some 400 MB of HTML.
+PAGE_UNITS = 1000
+
+
+def batch_page_name(batch: str, page: int) -> str:
+    """A batch page's path beside the summary: the batch's name made safe for a file name,
+    a short hash of the name (names that differ only in unsafe characters stay apart), the page."""
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", batch)[:40].strip("._") or "batch"
+    digest = hashlib.sha256(batch.encode()).hexdigest()[:8]
+    return f"batches/{safe}-{digest}-{page}.html"
+
+
+def _batch_pages(batches: list, path) -> list[dict]:
+    """Every batch's rows on pages of at most :data:`PAGE_UNITS`, written into ``batches/``
+    beside the summary, put in place whole (no page of an earlier fleet stays); the
+    summary's table of them."""
+    index = []
+    with atomic.replacing_folder(Path(path).parent / "batches") as folder:
+        for batch, rows in batches:
+            chunks = [rows[i:i + PAGE_UNITS] for i in range(0, len(rows), PAGE_UNITS)]
+            names = [batch_page_name(batch, k + 1) for k in range(len(chunks))]
+            for k, chunk in enumerate(chunks):
+                html = render_page(
+                    "fleet_batch.html.j2", batch=batch, rows=chunk, total=len(rows),
+                    part=f"page {k + 1} of {len(chunks)}" if len(chunks) > 1 else "",
+                    key_parameters=KEY_PARAMETERS,
+                    previous=Path(names[k - 1]).name if k else None,
+                    next=Path(names[k + 1]).name if k + 1 < len(chunks) else None)
+                (folder / Path(names[k]).name).write_text(html, encoding="utf-8")
+            ok = [r for r in rows if r["status"] == "ok"]
+            index.append({"batch": batch, "units": len(rows), "calibrated": len(ok),
+                          "failed": len(rows) - len(ok), "warned": sum(1 for r in ok if r.get("warnings")),
+                          "pages": names})
+    return index
 
 

@@ -1,0 +1,85 @@
+"""A fleet summary that opens at any size: past PAGE_UNITS unit sessions the summary lists its
+batches, each batch's rows on pages of their own; every unit is on exactly one page."""
+
+from __future__ import annotations
+
+import re
+from html import unescape
+
+import pytest
+
+from gyrocal.fleet import summary as fleet
+
+
+def rows(batches: dict[str, int]) -> list[dict]:
+    out = []
+    for batch, n in batches.items():
+        for i in range(n):
+            device = f"U{i:05d}"
+            row = {"batch": batch, "device": device, "session": "2026-03-02", "protocol": "turntable",
+                   "report": f"{batch}/{device}/2026-03-02.html"}
+            if i % 97 == 5:
+                row.update(status="failed", stage="segment", error="not a readable Parquet file",
+                           internal=False)
+            else:
+                row.update(status="ok", summary={"validation_rms": 0.01 + 1e-6 * i, "excess": 1.0,
+                                                 "excess_over_expected": 1.0},
+                           warnings=[], missing="nothing", span=(-40.0, 80.0), noise=None,
+                           params={"scale.x": 100.0 + i})
+            out.append(row)
+    return out
+
+
+def write(tmp_path, table):
+    ok = [r for r in table if r["status"] == "ok"]
+    path = tmp_path / "reports" / "index.html"
+    fleet.write_fleet_report({"rows": table, "ok": ok, "fleet": None, "servo_vs_turntable": []}, path)
+    return path
+
+
+def unit_links(html: str) -> list[str]:
+    return [unescape(link) for link in re.findall(r'<a class="clip" href="([^"]+/2026-03-02\.html)"', html)]
+
+
+def test_a_small_fleet_is_one_page(tmp_path):
+    table = rows({"B1": 20, "B2": 7})
+    path = write(tmp_path, table)
+    html = path.read_text()
+    assert sorted(unit_links(html)) == sorted(r["report"] for r in table)
+    assert not (path.parent / "batches").exists()
+
+
+def test_a_large_fleet_lists_its_batches_and_pages_every_unit_once(tmp_path):
+    size = {"lot 7/α <night>": fleet.PAGE_UNITS * 2 + 300, "B2": 40}
+    table = rows(size)
+    path = write(tmp_path, table)
+    index = path.read_text()
+    assert unit_links(index) == []                                   # no unit rows in the index
+    assert "&lt;night&gt;" in index and "<night>" not in index        # the batch name escaped
+    pages = sorted((path.parent / "batches").iterdir())
+    assert len(pages) == 3 + 1
+    linked = re.findall(r'href="(batches/[^"]+\.html)"', index)
+    assert sorted(set(linked)) == sorted(f"batches/{p.name}" for p in pages)
+    seen = []
+    for page in pages:
+        html = page.read_text()
+        links = unit_links(html)
+        assert len(links) <= fleet.PAGE_UNITS
+        assert all(link.startswith("../") for link in links)          # from batches/ to the report
+        assert '<a href="../index.html">Fleet summary</a>' in html
+        seen += [link[3:] for link in links]
+    assert sorted(seen) == sorted(r["report"] for r in table)
+    # the index stays small whatever the fleet: a row per batch
+    assert len(index.encode()) < 200_000
+
+    # the same fleet smaller again: the pages of the larger one do not stay
+    write(tmp_path, rows({"B2": 40}))
+    assert not (path.parent / "batches").exists()
+
+
+@pytest.mark.parametrize("name", ["a/b", "a\\b", "..", "", "x" * 300])
+def test_batch_page_names_are_safe_and_apart(name):
+    page = fleet.batch_page_name(name, 1)
+    assert page.startswith("batches/") and page.count("/") == 1 and ".." not in page[8:].split("-")[0]
+    assert len(page) < 80
+    assert fleet.batch_page_name(name + "!", 1) != page
