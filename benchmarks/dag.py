@@ -5,10 +5,10 @@ config into a temporary folder and times a dry run of the repository's workflow 
 in a fresh process, on the cores of this machine. No log needs any content:
 
 * ``demo`` (default) — the paths lie under the demo folder, so each unit also gets the
-  ``simulate`` job that would make its log: 4 jobs per unit (simulate, segment, analyse,
-  report);
+  ``simulate`` job that would make its log: 3 jobs per unit (simulate, segment, analyse,
+  which reports too);
 * ``fleet`` — the paths lie elsewhere, in empty files (planning looks only at a log's
-  existence and time stamp): 3 jobs per unit (segment, analyse, report), the shape of a
+  existence and time stamp): 2 jobs per unit (segment, analyse), the shape of a
   production fleet whose logs exist.
 
 The dry run is ``snakemake -n --quiet``: the plan alone. Without ``--quiet`` Snakemake also
@@ -117,8 +117,8 @@ def main() -> None:
     args = parser.parse_args()
 
     print(machine())
-    # Per unit: segment, analyse, report (+ simulate); then fleet and all.
-    per_unit = 4 if args.layout == "demo" else 3
+    # Per unit: segment, analyse (+ simulate); then fleet and all.
+    per_unit = 3 if args.layout == "demo" else 2
     print(f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
           f"{'ms/unit':>8}  load (1, 5, 15 min)")
     with tempfile.TemporaryDirectory() as tmp:

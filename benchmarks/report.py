@@ -4,9 +4,14 @@ For a demo-sized turntable unit (the quick preset) and a full-protocol one (the 
 protocol at 100 Hz, 8.3 M rows), simulated once into ``benchmarks/.cache/report``, the unit
 is segmented and analysed once; then ``gyrocal report UNIT -o R.html`` runs ``--repeat``
 times in fresh processes (imports included), beside one ``gyrocal calibrate`` of the same
-log for scale. Printed per unit: the report's wall and CPU seconds (median, min), its peak
-resident memory, its bytes and those of its figures, and the calibrate process's wall and
-CPU seconds.
+log for scale; then ``gyrocal analyse UNIT`` with and without ``--report`` (as the workflow's
+analyse job writes the report, in the process that analysed the unit), in turn: the median
+difference is what the report costs a workflow run. Printed per unit: the report's wall and
+CPU seconds (median, min), its peak resident memory, its bytes and those of its figures, the
+calibrate process's wall and CPU seconds, and the report's CPU seconds inside the analyse job.
+
+Run it with the package's bytecode written (``PYTHONDONTWRITEBYTECODE`` unset), as an
+installed package has it: compiling gyrocal's modules on every start adds about 0.3 s.
 
     python benchmarks/report.py [--repeat 5]
 """
@@ -65,7 +70,7 @@ def main() -> None:
           f"load {' '.join(Path('/proc/loadavg').read_text().split()[:3])}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     print(f"{'log':<6} {'report wall s':>16} {'CPU s':>12} {'peak MiB':>9} {'bytes':>9} {'figures':>9}"
-          f"   {'calibrate wall s, CPU s':>24}")
+          f"   {'calibrate wall s, CPU s':>24}   {'in the analyse job, CPU s':>26}")
     for preset in ("quick", "seed"):
         log, results = unit(preset)
         html = CACHE / preset / "U001.html"
@@ -74,9 +79,14 @@ def main() -> None:
         text = html.read_text()
         figures = sum(len(s) for s in re.findall(r"<svg.*?</svg>", text, flags=re.S))
         cal_wall, cal_cpu, _ = timed([*GYROCAL, "calibrate", str(log), "-o", str(CACHE / preset / "cal.json")])
+        extra = []
+        for _ in range(args.repeat):
+            with_report = timed([*GYROCAL, "analyse", str(results), "--report", str(html)])[1]
+            extra.append(with_report - timed([*GYROCAL, "analyse", str(results)])[1])
         print(f"{preset:<6} {statistics.median(walls):>7.2f} ({min(walls):.2f}) "
               f"{statistics.median(cpus):>6.2f} ({min(cpus):.2f}) {max(peaks):>9.0f} "
-              f"{len(text.encode()):>9,} {figures:>9,}   {cal_wall:>12.2f}, {cal_cpu:.2f}")
+              f"{len(text.encode()):>9,} {figures:>9,}   {cal_wall:>12.2f}, {cal_cpu:.2f}"
+              f"   {statistics.median(extra):>26.2f}")
 
 
 if __name__ == "__main__":

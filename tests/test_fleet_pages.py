@@ -83,3 +83,31 @@ def test_batch_page_names_are_safe_and_apart(name):
     assert page.startswith("batches/") and page.count("/") == 1 and ".." not in page[8:].split("-")[0]
     assert len(page) < 80
     assert fleet.batch_page_name(name + "!", 1) != page
+
+
+def test_a_days_manifest_splits_into_shards_that_keep_batches_and_devices_whole(tmp_path):
+    from gyrocal.fleet.manifest import read_manifest
+    from gyrocal.run.cli import main
+    (tmp_path / "logs").mkdir()
+    lines = ["device\tbatch\tsession\tprotocol\tpath"]
+    for batch, devices in (("B1", 3), ("B2", 7), ("B3", 2)):
+        for d in range(devices):
+            for session in ("2026-03-02", "2026-03-03"):
+                lines.append(f"{batch}D{d}\t{batch}\t{session}\tturntable\tlogs/{batch}D{d}-{session}.parquet")
+    (tmp_path / "day.tsv").write_text("\n".join(lines) + "\n")
+    assert main(["shard", "--manifest", str(tmp_path / "day.tsv"), "--size", "8",
+                 "-o", str(tmp_path / "shards")]) == 0
+    day = read_manifest(tmp_path / "day.tsv")
+    shards = [read_manifest(p) for p in sorted((tmp_path / "shards").glob("shard-*.tsv"))]
+    # every row once, in order, with its log where the manifest put it
+    key = ("device", "batch", "session", "protocol", "log")
+    assert [tuple(r[c] for c in key) for s in shards for r in s] == [tuple(r[c] for c in key) for r in day]
+    assert all(len(s) <= 8 for s in shards)
+    # B1 (6 rows) and B3 (4) whole; B2 (14 rows > 8) split between devices, never within one
+    where = {}
+    for k, s in enumerate(shards):
+        for r in s:
+            where.setdefault(r["batch"], set()).add(k)
+            where.setdefault(r["device"], set()).add(k)
+    assert len(where["B1"]) == len(where["B3"]) == 1 and len(where["B2"]) == 2
+    assert all(len(where[f"B2D{d}"]) == 1 for d in range(7))

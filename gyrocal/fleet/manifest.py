@@ -71,3 +71,46 @@ def read_manifest(path) -> list[dict[str, str]]:
     if not rows:
         raise ConfigError("manifest lists no logs", source=path)
     return rows
+
+
+def shard(rows: list[dict[str, str]], size: int) -> list[list[dict[str, str]]]:
+    """The rows of a manifest in shards of at most ``size`` rows, each a workflow run of its
+    own (docs/cluster.md: planning grows with the manifest). A batch stays whole where it
+    fits (the batch's audits see all of it) and a device's sessions within a batch stay
+    together (the diagnosis judges one session on the other, the drift page compares
+    them); a batch larger than a shard is split between devices. Manifest order is kept."""
+    if size < 1:
+        raise ConfigError(f"a shard holds at least one row, not {size}")
+    batches: dict[str, dict[str, list]] = {}
+    for row in rows:
+        batches.setdefault(row["batch"], {}).setdefault(row["device"], []).append(row)
+    shards, current = [], []
+    for devices in batches.values():
+        if current and len(current) + sum(map(len, devices.values())) > size:
+            shards.append(current)
+            current = []
+        for sessions in devices.values():
+            if current and len(current) + len(sessions) > size:
+                shards.append(current)
+                current = []
+            current.extend(sessions)
+    if current:
+        shards.append(current)
+    return shards
+
+
+def write_shards(rows: list[dict[str, str]], size: int, out) -> list[Path]:
+    """:func:`shard` written as manifests ``shard-0001.tsv``, ... into ``out``, each log's
+    path resolved (a shard's folder is not the manifest's), replacing earlier shards."""
+    from ..io import atomic
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in out.glob("shard-*.tsv"):
+        old.unlink()
+    paths = []
+    for k, rows_k in enumerate(shard(rows, size), start=1):
+        lines = ["\t".join(COLUMNS)] + ["\t".join([*(r[c] for c in COLUMNS[:-1]), r["log"]]) for r in rows_k]
+        path = out / f"shard-{k:04d}.tsv"
+        atomic.write_text(path, "\n".join(lines) + "\n")
+        paths.append(path)
+    return paths

@@ -263,6 +263,14 @@ def cmd_report(args) -> int:
                   lambda: report_stage(args.unit, args.output, settings))
 
 
+def cmd_shard(args) -> int:
+    from ..fleet.manifest import read_manifest, write_shards
+    rows = read_manifest(args.manifest)
+    paths = write_shards(rows, args.size, args.out)
+    print(f"{len(rows)} unit sessions in {len(paths)} shard{'s' if len(paths) != 1 else ''} -> {args.out}")
+    return 0
+
+
 def cmd_fleet(args) -> int:
     from ..fleet.manifest import read_manifest
     from .stages import fleet_stage
@@ -572,6 +580,14 @@ def build_parser() -> argparse.ArgumentParser:
     unit(p)
     common(p)
     p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("shard", help="split a day's manifest into shards, a workflow run each "
+                                     "(docs/cluster.md)")
+    p.add_argument("--manifest", required=True)
+    p.add_argument("--size", type=int, default=10000,
+                   help="rows per shard at most (default 10000: under a minute to plan)")
+    p.add_argument("-o", "--out", required=True, help="folder for shard-0001.tsv, ...")
+    p.set_defaults(func=cmd_shard)
 
     p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
     p.add_argument("--manifest", required=True)
