@@ -20,7 +20,7 @@ def gyrocal(*args):
 
 
 COMMANDS = {"simulate", "calibrate", "diagnose", "apply", "noise", "segment", "fit", "validate",
-            "analyse", "report", "fleet", "paper", "lookup", "export", "verify", "import"}
+            "analyse", "report", "fleet", "shard", "paper", "lookup", "export", "verify", "import"}
 
 
 def test_help_lists_the_commands():

@@ -205,3 +205,28 @@ def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_lim
     assert guard.scheduler_limit("segment", 1)[1] == f"would outrun its SLURM job's time limit ({limit})"
     monkeypatch.delenv("SLURM_JOB_ID")
     assert guard.scheduler_limit("segment", 2) is None
+
+
+@pytest.mark.slow
+def test_an_analyse_stopped_in_its_report_keeps_the_steps_it_finished(tiny_logs, tmp_path):
+    """The report is the analyse job's last step: stopped there (its write held past the
+    limit), the job keeps its calibration, validation and diagnosis, and the report says
+    what stopped it."""
+    from gyrocal.io.unit_folder import part_exists
+    unit = tmp_path / "K1"
+    log = tiny_logs / "K1.parquet"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    subprocess.run([sys.executable, "-m", "gyrocal", "segment", str(log), "--out", str(unit)],
+                   check=True, env=env, capture_output=True)
+    report = tmp_path / "K1.html"
+    out = subprocess.run(
+        [sys.executable, "-m", "gyrocal.run.guard", "--timeout-s", "40", "analyse", str(unit),
+         "--report", str(report), "--device", "K1", "--record-failures"],
+        env={**env, atomic.PAUSE_ENV: "K1.html:600"}, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "timed out after 40 s" in report.read_text()
+    assert load_calibration(unit / "calibration.json").meta["device"] == "K1"
+    for part in ("validation", "diagnosis", "holds", "residuals"):
+        assert part_exists(unit, part) and part_failure(unit, part) is None, part
+    assert read_part_json(unit, "validation")["summary"]["validation_rms"] > 0
+    assert not leftovers(tmp_path)

@@ -46,46 +46,50 @@ def test_a_small_fleet_is_one_page(tmp_path):
     path = write(tmp_path, table)
     html = path.read_text()
     assert sorted(unit_links(html)) == sorted(r["report"] for r in table)
-    assert not (path.parent / "batches").exists()
+    assert fleet.batch_pages_of(path) == []
 
 
 def test_a_large_fleet_lists_its_batches_and_pages_every_unit_once(tmp_path):
     size = {"lot 7/α <night>": fleet.PAGE_UNITS * 2 + 300, "B2": 40}
     table = rows(size)
+    # a batch whose reports lie where pages could go: named like the pages' old folder
+    reports = tmp_path / "reports" / "batches" / "U1"
+    reports.mkdir(parents=True)
+    (reports / "2026-03-02.html").write_text("a unit's report")
     path = write(tmp_path, table)
     index = path.read_text()
     assert unit_links(index) == []                                   # no unit rows in the index
     assert "&lt;night&gt;" in index and "<night>" not in index        # the batch name escaped
-    pages = sorted((path.parent / "batches").iterdir())
+    pages = fleet.batch_pages_of(path)
     assert len(pages) == 3 + 1
-    linked = re.findall(r'href="(batches/[^"]+\.html)"', index)
-    assert sorted(set(linked)) == sorted(f"batches/{p.name}" for p in pages)
+    linked = re.findall(r'href="(index-batch-[^"]+\.html)"', index)
+    assert sorted(set(linked)) == sorted(p.name for p in pages)
     seen = []
     for page in pages:
         html = page.read_text()
         links = unit_links(html)
         assert len(links) <= fleet.PAGE_UNITS
-        assert all(link.startswith("../") for link in links)          # from batches/ to the report
-        assert '<a href="../index.html">Fleet summary</a>' in html
-        seen += [link[3:] for link in links]
+        assert '<a href="index.html">Fleet summary</a>' in html
+        seen += links
     assert sorted(seen) == sorted(r["report"] for r in table)
     # the index stays small whatever the fleet: a row per batch
     assert len(index.encode()) < 200_000
 
-    # the same fleet smaller again: the pages of the larger one do not stay
+    # the same fleet smaller again: the pages of the larger one do not stay; reports do
     write(tmp_path, rows({"B2": 40}))
-    assert not (path.parent / "batches").exists()
+    assert fleet.batch_pages_of(path) == []
+    assert (reports / "2026-03-02.html").read_text() == "a unit's report"
 
 
 @pytest.mark.parametrize("name", ["a/b", "a\\b", "..", "", "x" * 300])
 def test_batch_page_names_are_safe_and_apart(name):
     page = fleet.batch_page_name(name, 1)
-    assert page.startswith("batches/") and page.count("/") == 1 and ".." not in page[8:].split("-")[0]
+    assert "/" not in page and "\\" not in page and page.startswith("index-batch-") and page.endswith("-1.html")
     assert len(page) < 80
     assert fleet.batch_page_name(name + "!", 1) != page
 
 
-def test_a_days_manifest_splits_into_shards_that_keep_batches_and_devices_whole(tmp_path):
+def test_a_days_manifest_splits_into_shards_that_keep_batches_and_devices_whole(tmp_path, monkeypatch):
     from gyrocal.fleet.manifest import read_manifest
     from gyrocal.run.cli import main
     (tmp_path / "logs").mkdir()
@@ -95,8 +99,8 @@ def test_a_days_manifest_splits_into_shards_that_keep_batches_and_devices_whole(
             for session in ("2026-03-02", "2026-03-03"):
                 lines.append(f"{batch}D{d}\t{batch}\t{session}\tturntable\tlogs/{batch}D{d}-{session}.parquet")
     (tmp_path / "day.tsv").write_text("\n".join(lines) + "\n")
-    assert main(["shard", "--manifest", str(tmp_path / "day.tsv"), "--size", "8",
-                 "-o", str(tmp_path / "shards")]) == 0
+    monkeypatch.chdir(tmp_path)   # the manifest named relative to where the command runs
+    assert main(["shard", "--manifest", "day.tsv", "--size", "8", "-o", "shards"]) == 0
     day = read_manifest(tmp_path / "day.tsv")
     shards = [read_manifest(p) for p in sorted((tmp_path / "shards").glob("shard-*.tsv"))]
     # every row once, in order, with its log where the manifest put it

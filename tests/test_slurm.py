@@ -226,7 +226,7 @@ FAULT_UNITS = [GOOD[0], BAD]
 @pytest.fixture(scope="module")
 def faults(cluster, runs, tmp_path_factory):
     """A good unit and the corrupt one again, each its own SLURM job (``--group-components
-    unit=1``), both asking for the node's two CPUs, so that one waits in the queue while
+    unit=1``), both made to ask for the node's two CPUs, so that one waits in the queue while
     the other runs. When the running one holds its validation.json (a result or a failure
     record) between the temporary file and the rename, slurmd is restarted, the other job
     still queued, then the running job is cancelled with scancel. The logs are the local
@@ -240,7 +240,9 @@ def faults(cluster, runs, tmp_path_factory):
         shutil.copy2(local / path, wd / path)
     env = {**cluster.env, atomic.PAUSE_ENV: "validation.json:5"}
     reports = [f"reports/{b}/{d}/{s}.html" for b, d, s in FAULT_UNITS]
-    proc, log = start(wd, env, *reports, *SLURM, "--group-components", "unit=1")
+    # each job on both CPUs (the rules ask for one), so that the second waits in the queue
+    proc, log = start(wd, env, *reports, *SLURM, "--group-components", "unit=1",
+                      "--set-threads", "segment=2", "analyse=2")
     seen = {}
     try:
         held = wait_for(lambda: sorted(wd.glob("results/*/*/*/.validation.json.*.tmp")),

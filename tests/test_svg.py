@@ -128,3 +128,32 @@ def test_log_axes_tick_decades_or_one_two_five():
 def _ticks(lo, hi):
     panel = svg.Panel(0, 0, 100, 100)
     return panel._ticks((lo, hi), True)
+
+
+def test_an_envelope_stays_inside_its_panel_and_keeps_its_gaps():
+    x = np.linspace(0, 2, 20_000)
+    y = np.sin(x * 7)
+    y[5000:6000] = np.nan                       # a gap in the record
+    fig = svg.Figure(400, 300)
+    (panel,) = fig.grid(1, 1)
+    panel.line(x, y)
+    panel.band(x, y - 0.1, y + 0.1)
+    panel.xlim = (0.0, 1.0)                      # half the record lies beyond the panel
+    text = str(fig)
+    paths = re.findall(r'<path d="([^"]+)"[^>]*fill="#333"', text)
+    outlines = [line for d in paths for line in polylines(d)]
+    assert len(outlines) == 4                    # line and band, each broken at the gap
+    right = panel.left + panel.w
+    assert all(line[:, 0].max() <= right + 0.6 and line[:, 0].min() >= panel.left - 0.6 for line in outlines)
+
+
+def test_residuals_by_a_category_with_missing_values_leave_those_out():
+    import pandas as pd
+
+    from gyrocal.report import plots
+    frame = pd.DataFrame({"mount": ["+x", None, "+z", "+x"], "z_x": [0.1, 0.2, 0.3, 0.4],
+                          "z_y": [0.0, 1.0, 2.0, 3.0], "z_z": [1.0, 1.0, 1.0, 1.0]})
+    text = plots.residuals(frame, [("mount", "mount")])
+    labels = re.findall(r">([^<]+)</text>", text)
+    assert "+x" in labels and "+z" in labels and "nan" not in labels and "None" not in labels
+    assert plots.residuals(frame.assign(mount=[None] * 4), [("mount", "mount")]).startswith("<svg")

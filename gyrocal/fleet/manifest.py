@@ -78,7 +78,9 @@ def shard(rows: list[dict[str, str]], size: int) -> list[list[dict[str, str]]]:
     own (docs/cluster.md: planning grows with the manifest). A batch stays whole where it
     fits (the batch's audits see all of it) and a device's sessions within a batch stay
     together (the diagnosis judges one session on the other, the drift page compares
-    them); a batch larger than a shard is split between devices. Manifest order is kept."""
+    them); a batch larger than a shard is split between devices. Batches come in the order
+    of their first row, a batch's devices likewise. A device calibrated in two batches may
+    land in two shards, where the workflow does not pair its sessions (docs/cluster.md)."""
     if size < 1:
         raise ConfigError(f"a shard holds at least one row, not {size}")
     batches: dict[str, dict[str, list]] = {}
@@ -109,7 +111,10 @@ def write_shards(rows: list[dict[str, str]], size: int, out) -> list[Path]:
         old.unlink()
     paths = []
     for k, rows_k in enumerate(shard(rows, size), start=1):
-        lines = ["\t".join(COLUMNS)] + ["\t".join([*(r[c] for c in COLUMNS[:-1]), r["log"]]) for r in rows_k]
+        # a shard lies in another folder than the manifest: each log by its absolute path
+        lines = ["\t".join(COLUMNS)] + [
+            "\t".join([*(r[c] for c in COLUMNS[:-1]),
+                       r["log"] if "://" in r["log"] else os.path.abspath(r["log"])]) for r in rows_k]
         path = out / f"shard-{k:04d}.tsv"
         atomic.write_text(path, "\n".join(lines) + "\n")
         paths.append(path)

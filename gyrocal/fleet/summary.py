@@ -13,7 +13,6 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -405,9 +404,9 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
         if eol_json is not None:
             _write_page(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
     batches = sorted(batches.items())
+    for stale in batch_pages_of(path):   # an earlier fleet's pages: this one writes its own
+        stale.unlink()
     pages = _batch_pages(batches, path) if len(rows) > PAGE_UNITS else None
-    if pages is None:
-        shutil.rmtree(Path(path).parent / "batches", ignore_errors=True)   # an earlier, larger fleet's
     html = render_page(
         "fleet_report.html.j2",
         batches=batches, key_parameters=KEY_PARAMETERS, figures=figures,
@@ -418,39 +417,48 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
 
 
 # Unit rows one page holds. A larger fleet's summary lists its batches, each batch's rows on
-# pages of their own beside it (``batches/``): 100,000 rows are some 400 MB of HTML.
+# pages of their own beside it: 100,000 rows are some 400 MB of HTML.
 PAGE_UNITS = 1000
 
 
-def batch_page_name(batch: str, page: int) -> str:
-    """A batch page's path beside the summary: the batch's name made safe for a file name,
-    a short hash of the name (names that differ only in unsafe characters stay apart), the page."""
+def batch_page_name(batch: str, page: int, index: str = "index") -> str:
+    """A batch page's file name beside the summary ``index``.html: the batch's name made safe
+    for a file name, a short hash of the name (names that differ only in unsafe characters
+    stay apart), the page. Files, not a folder: a folder of pages could be a batch's folder
+    of reports, since a batch may have any name."""
     safe = re.sub(r"[^A-Za-z0-9._-]+", "_", batch)[:40].strip("._") or "batch"
     digest = hashlib.sha256(batch.encode()).hexdigest()[:8]
-    return f"batches/{safe}-{digest}-{page}.html"
+    return f"{index}-batch-{safe}-{digest}-{page}.html"
+
+
+def batch_pages_of(path) -> list[Path]:
+    """The batch pages beside the summary at ``path`` (files named by :func:`batch_page_name`)."""
+    path = Path(path)
+    pattern = re.compile(rf"{re.escape(path.stem)}-batch-.*-[0-9a-f]{{8}}-[0-9]+\.html")
+    return sorted(p for p in path.parent.glob(f"{path.stem}-batch-*.html")
+                  if pattern.fullmatch(p.name) and p.is_file())
 
 
 def _batch_pages(batches: list, path) -> list[dict]:
-    """Every batch's rows on pages of at most :data:`PAGE_UNITS`, written into ``batches/``
-    beside the summary, put in place whole (no page of an earlier fleet stays); the
-    summary's table of them."""
+    """Every batch's rows on pages of at most :data:`PAGE_UNITS`, written beside the summary;
+    the summary's table of them."""
+    path = Path(path)
     index = []
-    with atomic.replacing_folder(Path(path).parent / "batches") as folder:
-        for batch, rows in batches:
-            chunks = [rows[i:i + PAGE_UNITS] for i in range(0, len(rows), PAGE_UNITS)]
-            names = [batch_page_name(batch, k + 1) for k in range(len(chunks))]
-            for k, chunk in enumerate(chunks):
-                html = render_page(
-                    "fleet_batch.html.j2", batch=batch, rows=chunk, total=len(rows),
-                    part=f"page {k + 1} of {len(chunks)}" if len(chunks) > 1 else "",
-                    key_parameters=KEY_PARAMETERS,
-                    previous=Path(names[k - 1]).name if k else None,
-                    next=Path(names[k + 1]).name if k + 1 < len(chunks) else None)
-                (folder / Path(names[k]).name).write_text(html, encoding="utf-8")
-            ok = [r for r in rows if r["status"] == "ok"]
-            index.append({"batch": batch, "units": len(rows), "calibrated": len(ok),
-                          "failed": len(rows) - len(ok), "warned": sum(1 for r in ok if r.get("warnings")),
-                          "pages": names})
+    for batch, rows in batches:
+        chunks = [rows[i:i + PAGE_UNITS] for i in range(0, len(rows), PAGE_UNITS)]
+        names = [batch_page_name(batch, k + 1, path.stem) for k in range(len(chunks))]
+        for k, chunk in enumerate(chunks):
+            html = render_page(
+                "fleet_batch.html.j2", batch=batch, rows=chunk, total=len(rows),
+                part=f"page {k + 1} of {len(chunks)}" if len(chunks) > 1 else "",
+                key_parameters=KEY_PARAMETERS, summary=path.name,
+                previous=names[k - 1] if k else None,
+                next=names[k + 1] if k + 1 < len(chunks) else None)
+            _write_page(path.parent / names[k], html)
+        ok = [r for r in rows if r["status"] == "ok"]
+        index.append({"batch": batch, "units": len(rows), "calibrated": len(ok),
+                      "failed": len(rows) - len(ok), "warned": sum(1 for r in ok if r.get("warnings")),
+                      "pages": names})
     return index
 
 

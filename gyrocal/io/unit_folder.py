@@ -175,6 +175,14 @@ STAGE_PARTS = {
 }
 
 
-def pack_stage(folder, stage: str) -> None:
-    """:func:`pack` after ``stage`` ran (or was recorded as failed) in ``folder``."""
-    pack(folder, STAGE_PARTS.get(stage, ()))
+def pack_stage(folder, stage: str, owned=None) -> None:
+    """:func:`pack` after ``stage`` ran (or was recorded as failed) in ``folder``; ``owned``,
+    the parts it wrote where not all of :data:`STAGE_PARTS` (a diagnosis written elsewhere)."""
+    pack(folder, STAGE_PARTS.get(stage, ()) if owned is None else owned)
+
+
+def clear_stage(folder, stage: str, owned=None) -> None:
+    """Before ``stage`` runs in ``folder``: its own parts left loose by an earlier run that
+    was stopped before packing go, so that :func:`pack` takes only what this run wrote."""
+    for key in (STAGE_PARTS.get(stage, ()) if owned is None else owned):
+        (Path(folder) / UNIT_FILES[key]).unlink(missing_ok=True)

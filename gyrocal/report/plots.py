@@ -222,9 +222,10 @@ def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
     for k, (panel, (label, column)) in enumerate(zip(grid, covariates)):
         x = frame[column]
         ticks = None
-        if not pd.api.types.is_numeric_dtype(x):   # categories side by side
-            ticks = sorted(c for c in pd.unique(x.astype(str)) if c != "nan")
-            x = x.astype(str).map({c: i for i, c in enumerate(ticks)}).astype(float)
+        if not pd.api.types.is_numeric_dtype(x):   # categories side by side; a missing one not drawn
+            present = x.notna()
+            ticks = sorted(pd.unique(x[present].astype(str)))
+            x = x[present].astype(str).map({c: i for i, c in enumerate(ticks)}).reindex(x.index).astype(float)
             panel.xticks = (np.arange(len(ticks), dtype=float), ticks)
             panel.xlim = (-0.6, len(ticks) - 0.4)
         panel.hspan(-2, 2, "#2ca02c", 0.1)

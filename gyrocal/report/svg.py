@@ -346,18 +346,30 @@ class Panel:
         starts = np.flatnonzero(np.r_[True, col[1:] != col[:-1]])
         return (self.left + col[starts] + 0.5, np.fmin.reduceat(lo, starts), np.fmax.reduceat(hi, starts))
 
+    def _inside_x(self, px) -> np.ndarray:
+        return (px >= self.left - 0.5) & (px <= self.left + self.w + 0.5)
+
+    @staticmethod
+    def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+        """(start, stop) of each run of True in ``mask``."""
+        edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
+        return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+
     def _draw_line(self, x, y, colour, width, dash, opacity):
         px, py = self.sx(x), self.sy(y)
         ok = np.isfinite(px) & np.isfinite(py)
         style = (f' stroke-dasharray="{dash}"' if dash else "") + (f' opacity="{opacity}"' if opacity < 1 else "")
         if ok.sum() > self.w and np.all(np.diff(px[ok]) >= 0):
-            # more points than pixel columns: the envelope, drawn as a thin band
-            cx, lo, hi = self._envelope(px[ok], py[ok], py[ok])
-            return self._polygon(cx, np.maximum(hi, lo + 0.01), np.minimum(lo, hi), colour, 1.0, width, style)
+            # more points than pixel columns: the envelope of each stretch without a gap,
+            # drawn as a thin band, within the panel's x range
+            keep = ok & self._inside_x(px)
+            return "".join(self._polygon(cx, np.maximum(hi, lo + 0.01), np.minimum(lo, hi), colour, 1.0, width, style)
+                           for cx, lo, hi in (self._envelope(px[a:b], py[a:b], py[a:b])
+                                              for a, b in self._runs(keep)))
         # a line leaving the panel breaks off there rather than run along its edge
-        outside = (py < self.top - 0.5) | (py > self.top + self.h + 0.5)
+        outside = (py < self.top - 0.5) | (py > self.top + self.h + 0.5) | ~self._inside_x(px)
         py = np.where(outside, np.nan, py)
-        return (f'<path d="{self._path(self._clampx(px), py)}" stroke="{colour}" '
+        return (f'<path d="{self._path(px, py)}" stroke="{colour}" '
                 f'stroke-width="{width}" fill="none" stroke-linejoin="round"{style}/>')
 
     def _polygon(self, cx, top, bottom, colour, opacity, stroke=0.0, style=""):
@@ -370,13 +382,18 @@ class Panel:
         px = self.sx(x)
         plo, phi = self._clampy(self.sy(lo)), self._clampy(self.sy(hi))
         ok = np.isfinite(px) & np.isfinite(plo) & np.isfinite(phi)
+        if ok.sum() > self.w and np.all(np.diff(px[ok]) >= 0):
+            # the envelope per pixel column of each stretch without a gap, within the panel
+            keep = ok & self._inside_x(px)
+            out = []
+            for a, b in self._runs(keep):
+                cx, top, bottom = self._envelope(px[a:b], np.fmin(plo[a:b], phi[a:b]), np.fmax(plo[a:b], phi[a:b]))
+                out.append(self._polygon(cx, top, bottom, colour, opacity))
+            return "".join(out)
         px, plo, phi = px[ok], plo[ok], phi[ok]
         if px.size == 0:
             return ""
-        if px.size > self.w and np.all(np.diff(px) >= 0):
-            px, a, b = self._envelope(px, np.fmin(plo, phi), np.fmax(plo, phi))
-            plo, phi = b, a
-        elif step and px.size > 1:
+        if step and px.size > 1:
             mid = (px[1:] + px[:-1]) / 2
             edges = np.r_[px[0] - (mid[0] - px[0]), mid, px[-1] + (px[-1] - mid[-1])]
             px = np.repeat(edges, 2)[1:-1]

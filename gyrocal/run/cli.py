@@ -152,11 +152,12 @@ def _stage(args, stage: str, outputs, work) -> int:
 
 
 def cmd_segment(args) -> int:
-    from ..io.unit_folder import UNIT_FILES, pack_stage
+    from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
     from .stages import segment_stage
     settings = _settings(args)
     out = Path(args.out)
     files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
+    clear_stage(out, "segment")
     status = _stage(args, "segment", files,
                     lambda: segment_stage(args.log, out, settings, _meta(args)))
     pack_stage(out, "segment")
@@ -229,19 +230,21 @@ def cmd_fit(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES, pack_stage
+    from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES, clear_stage, pack_stage
     from .stages import validate_stage
     settings = _settings(args)
     files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
+    clear_stage(args.unit, "validate")
     status = _stage(args, "validate", files, lambda: validate_stage(args.unit, settings))
     pack_stage(args.unit, "validate")
     return status
 
 
 def cmd_analyse(args) -> int:
-    from ..io.unit_folder import pack_stage
+    from ..io.unit_folder import clear_stage, pack_stage
     from .stages import analyse_stage, report_stage
     settings = _settings(args)
+    clear_stage(args.unit, "analyse")
     verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
                             other=args.other_session)
     print(f"calibration, validation and diagnosis -> {args.unit}")
@@ -375,10 +378,18 @@ def cmd_diagnose(args) -> int:
             diagnose_folder(folder, other)
 
     outputs = [args.output] + ([args.residuals] if args.residuals else [])
+    # A diagnosis written as the unit's own part joins its archive, and replaces the
+    # residuals there (written again or left out).
+    owned = ()
+    if args.unit is not None:
+        from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
+        unit_diagnosis = (Path(args.unit) / UNIT_FILES["diagnosis"]).resolve()
+        if Path(args.output).resolve() == unit_diagnosis:
+            owned = ("diagnosis", "residuals")
+            clear_stage(args.unit, "diagnose", owned)
     status = run_stage("diagnose", outputs, _meta(args), work, record_failures=args.record_failures)
-    if args.unit is not None:   # a diagnosis written into the unit's folder joins its archive
-        from ..io.unit_folder import pack
-        pack(args.unit)
+    if owned:
+        pack_stage(args.unit, "diagnose", owned)
     return status
 
 

@@ -68,6 +68,23 @@ def stage_outputs(args) -> list[Path]:
     return [folder / UNIT_FILES[k] for k in keys] + report
 
 
+def kept_outputs(args, outputs: list[Path], since_ns: int) -> list[Path]:
+    """The outputs a stopped ``analyse`` keeps: those its steps finished in this run (each
+    written whole, atomically, after the job started: a calibration, a validation, their
+    failure records) stay; the rest (the step it was stopped in, the ones after, the
+    report) get the record. A stopped segmentation keeps nothing: its files go together."""
+    if args.command != "analyse":
+        return []
+    kept = []
+    for out in outputs:
+        try:
+            if out.suffix != ".html" and out.stat().st_mtime_ns >= since_ns:
+                kept.append(out)
+        except FileNotFoundError:
+            pass
+    return kept
+
+
 def stage_archives(args) -> list[Path]:
     """The archives the stage packs its parts into (their temporary files are leftovers too)."""
     from ..io.unit_folder import CONTAINER_OF, STAGE_PARTS
@@ -198,6 +215,7 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
     if not command or command[0] not in STAGES:
         raise SystemExit(f"gyrocal.run.guard: give one of {', '.join(STAGES)} and its arguments")
     started = time.monotonic()
+    started_ns = time.time_ns()   # outputs written after this are this run's (kept_outputs)
     child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
                              preexec_fn=_die_with(os.getpid()))
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
@@ -231,7 +249,8 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
     from ..io import failure
     from ..report.pages import write_failure
     meta = {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
-    write_failure(outputs, failure.record(args.command, reason, meta))
+    kept = kept_outputs(args, outputs, started_ns)
+    write_failure([o for o in outputs if o not in kept], failure.record(args.command, reason, meta))
     if args.command in ("segment", "analyse"):   # the records join the unit's archive
         from ..io.unit_folder import pack_stage
         pack_stage(args.out if args.command == "segment" else args.unit, args.command)

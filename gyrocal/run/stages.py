@@ -254,11 +254,9 @@ def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) 
             if source.exists():
                 _link_or_copy(source, target)
         shutil.copyfile(out_index, tmp / "index.html")
-        batch_pages = Path(out_index).parent / "batches"   # a large fleet's pages of its batches
-        if batch_pages.is_dir():
-            (tmp / "batches").mkdir()
-            for page in sorted(batch_pages.iterdir()):
-                _link_or_copy(page, tmp / "batches" / page.name)
+        from ..fleet.summary import batch_pages_of
+        for page in batch_pages_of(out_index):   # a large fleet's pages of its batches
+            _link_or_copy(page, tmp / page.name)
         drift_pages = Path(out_index).parent / "drift"
         if settings is not None and drift_pages.is_dir():
             from ..fleet.summary import drift_devices
