@@ -347,14 +347,11 @@ def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
             panel.markers(verify["temp"], verify[f"err_{a}"], colour="#2ca02c", size=2.5,
                           label="verification sweep" if i == 0 else None)
         for (name, predicted), dash in zip(predictions.items(), ("5 3", None, "1 2", "6 2 1 2")):
-            panel.line(curve["temp"], predicted[:, i], colour=INK_MODEL, dash=dash,
+            panel.line(curve["temp"], predicted[:, i], colour=svg.INK, dash=dash,
                        label=name if i == 0 else None)
         panel.title, panel.xlabel = f"gyro {a}", "temperature, °C"
     grid[0].ylabel, grid[0].legend_at = "drift error, deg/s", "upper left"
     return str(fig)
-
-
-INK_MODEL = "#333"
 
 
 def servo_errors(holds: pd.DataFrame) -> str:

@@ -207,21 +207,22 @@ class Panel:
         self.X = settle(self._xs, self.xlog, self.xlim)
         self.Y = settle(self._ys, self.ylog, self.ylim)
 
-    def sx(self, x):
-        x = np.asarray(x, float)
-        lo, hi = self.X
-        if self.xlog:
+    @staticmethod
+    def _fraction(v, lim, log: bool):
+        """Where values lie between the limits, 0 at the first and 1 at the second (NaN for
+        a non-positive value on a log scale)."""
+        v = np.asarray(v, float)
+        lo, hi = lim
+        if log:
             with np.errstate(divide="ignore", invalid="ignore"):
-                x, lo, hi = np.log10(np.where(x > 0, x, np.nan)), math.log10(lo), math.log10(hi)
-        return self.left + (x - lo) / (hi - lo) * self.w
+                v, lo, hi = np.log10(np.where(v > 0, v, np.nan)), math.log10(lo), math.log10(hi)
+        return (v - lo) / (hi - lo)
+
+    def sx(self, x):
+        return self.left + self._fraction(x, self.X, self.xlog) * self.w
 
     def sy(self, y):
-        y = np.asarray(y, float)
-        lo, hi = self.Y
-        if self.ylog:
-            with np.errstate(divide="ignore", invalid="ignore"):
-                y, lo, hi = np.log10(np.where(y > 0, y, np.nan)), math.log10(lo), math.log10(hi)
-        return self.top + self.h - (y - lo) / (hi - lo) * self.h
+        return self.top + self.h - self._fraction(y, self.Y, self.ylog) * self.h
 
     def _clampx(self, px):
         return np.clip(px, self.left, self.left + self.w)
@@ -487,11 +488,9 @@ class Panel:
     def _draw_raw(self, x, y):
         return y
 
-    def legend_entries(self) -> list:
-        return [(label, kind, style) for kind, _, _, style, label in self.items if label]
-
     def _legend(self) -> str:
-        return legend(self.legend_entries(), self, self.legend_at)
+        entries = [(label, kind, style) for kind, _, _, style, label in self.items if label]
+        return legend(entries, self, self.legend_at)
 
 
 def _swatch(kind: str, style: dict, x: float, y: float) -> str:
@@ -557,10 +556,6 @@ class Figure:
         n = rows * cols if count is None else count
         return [self.panel(left + (k % cols) * (w + hgap), top + (k // cols) * (h + vgap), w, h)
                 for k in range(n)]
-
-    def text(self, x, y, text, *, anchor="start", size=FONT + 1):
-        self.extra.append(f'<text x="{_f(x)}" y="{_f(y)}" text-anchor="{anchor}" font-size="{size}">'
-                          f'{_esc(text)}</text>')
 
     def colourbar(self, left, top, w, h, colours: list[str], lo, hi, label: str, log: bool = False) -> Panel:
         """A vertical scale of ``colours`` (bottom to top) from lo to hi, labelled on its right."""
