@@ -1,8 +1,10 @@
 """The resource requests of the unit jobs, read from what a run's jobs used.
 
-Every unit job's log ends with the guard's record of its stage (gyrocal/run/guard.py):
-``gyrocal.run.guard: STAGE took W s, C s CPU, M MiB peak``. This script gathers those lines
-from one or more workflow runs (their working directories) and prints, per stage, what the
+Every unit job prints the guard's record of its stage on its stderr (gyrocal/run/guard.py):
+``gyrocal.run.guard: STAGE of FOLDER took W s, C s CPU, M MiB peak``, which lands in
+Snakemake's output on a local run and in the job's log on SLURM (kept with
+``--slurm-keep-successful-logs``). This script gathers those lines from the files given
+(saved Snakemake outputs, SLURM job logs, folders of them) and prints, per stage, what the
 jobs used (wall time, CPU time and the cores that makes, peak resident memory: median,
 95th percentile, largest) and the requests that follow:
 
@@ -12,31 +14,34 @@ jobs used (wall time, CPU time and the cores that makes, peak resident memory: m
 
 These are the figures the rules in workflow/rules ask for (docs/cluster.md, Resources).
 
-    python benchmarks/requests.py RUN_DIR [RUN_DIR ...]
+    snakemake ... 2> run.txt; python benchmarks/requests.py run.txt [logs/slurm ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
-LINE = re.compile(r"^gyrocal\.run\.guard: (\w+) took ([\d.]+) s, ([\d.]+) s CPU, (\d+) MiB peak$", re.M)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from gyrocal.run.guard import costs  # noqa: E402
 
 
-def records(runs: list[Path]) -> dict[str, np.ndarray]:
-    """Per stage, one row (wall s, CPU s, peak MiB) per job log."""
+def records(sources: list[Path]) -> dict[str, np.ndarray]:
+    """Per stage, one row (wall s, CPU s, peak MiB) per job: the last line of each unit
+    folder's stage (a retried job's last attempt)."""
+    files = [f for source in sources
+             for f in (sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source])]
+    last = {}
+    for path in files:
+        for stage, where, wall, cpu, peak in costs(path.read_text(errors="replace")):
+            last[(stage, where)] = (wall, cpu, peak)
     found: dict[str, list] = {}
-    for run in runs:
-        for log in sorted((run / "logs").glob("*/*/*/*.log")):
-            lines = LINE.findall(log.read_text(errors="replace"))
-            if lines:
-                stage, wall, cpu, peak = lines[-1]
-                found.setdefault(stage, []).append((float(wall), float(cpu), float(peak)))
+    for (stage, _), row in sorted(last.items()):
+        found.setdefault(stage, []).append(row)
     return {stage: np.array(rows) for stage, rows in sorted(found.items())}
 
 
@@ -50,11 +55,13 @@ def requests(rows: np.ndarray) -> dict[str, int]:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("runs", nargs="+", type=Path, help="workflow working directories")
+    parser.add_argument("sources", nargs="+", type=Path,
+                        help="a run's saved output, SLURM job logs, or folders of them")
     args = parser.parse_args(argv)
-    found = records(args.runs)
+    found = records(args.sources)
     if not found:
-        print("no job log with the guard's line under RUN/logs/*/", file=sys.stderr)
+        print("no line of the guard's (gyrocal.run.guard: STAGE of FOLDER took ...) in "
+              + ", ".join(map(str, args.sources)), file=sys.stderr)
         return 1
     print(f"{'stage':<8} {'jobs':>5}  {'wall s (median, 95 %, max)':<28} {'cores used (median)':>19}  "
           f"{'peak MiB (median, 95 %, max)':<30} requests")

@@ -17,7 +17,7 @@ each fleet in a fresh process:
 
 Per run it prints Snakemake's jobs and the scheduler's submissions per unit, the run's
 wall time per unit, the unit's own processes (its segment and analyse stages, as
-gyrocal.run.guard measures them in the job log: wall and CPU seconds), and what the workflow
+gyrocal.run.guard measures them on the job's stderr: wall and CPU seconds), and what the workflow
 adds per unit: the run's wall time beyond its stages and the fleet job. On SLURM it splits
 that into the time inside the jobs (SLURM's elapsed time beyond the stages: Snakemake
 starting in the job, twice, and srun) and outside (submission, queueing, status checks),
@@ -88,15 +88,22 @@ def workflow(folder: Path, args: list[str], env: dict | None = None) -> tuple[fl
     return wall, out.stdout + out.stderr
 
 
-def stage_seconds(folder: Path, devices: list[str]) -> tuple[float, float]:
-    """The units' stages, summed: wall and CPU seconds, from the guard's line in each log."""
+def stage_seconds(text: str, devices: list[str]) -> tuple[float, float]:
+    """The units' stages, summed: wall and CPU seconds, from the guard's line of each job
+    (in the run's output; on SLURM, in the jobs' logs)."""
+    from gyrocal.run.guard import costs
+    last = {(stage, where): (w, c) for stage, where, w, c, _ in costs(text)}   # a retry's last
     wall = cpu = 0.0
     for device in devices:
         for stage in STAGES:
-            text = (folder / "logs" / stage / "B1" / device / f"{SESSION}.log").read_text()
-            took = re.findall(rf"gyrocal.run.guard: {stage} took ([\d.]+) s, ([\d.]+) s CPU", text)
-            wall, cpu = wall + float(took[-1][0]), cpu + float(took[-1][1])
+            w, c = last[(stage, f"results/B1/{device}/{SESSION}")]
+            wall, cpu = wall + w, cpu + c
     return wall, cpu
+
+
+def slurm_logs(folder: Path) -> str:
+    """The SLURM jobs' logs of a run (the profile's slurm-logdir, kept for this)."""
+    return "".join(p.read_text(errors="replace") for p in sorted((folder / "logs" / "slurm").rglob("*.log")))
 
 
 def fleet_seconds(folder: Path) -> float:
@@ -108,9 +115,10 @@ def fleet_seconds(folder: Path) -> float:
 def leaves(folder: Path, devices: list[str]) -> dict[str, tuple[float, float]]:
     """Files and bytes per unit, by where they lie."""
     groups = {
-        "results": [p for d in devices for p in (folder / "results" / "B1" / d / SESSION).iterdir()],
+        "results": [p for d in devices for p in (folder / "results" / "B1" / d / SESSION).iterdir() if p.suffix != ".log"],
         "report": [folder / "reports" / "B1" / d / f"{SESSION}.html" for d in devices],
-        "job logs": [p for d in devices for p in (folder / "logs").glob(f"*/B1/{d}/{SESSION}.log")],
+        # a job's log is a part of its archive; one left loose is a job that ended badly
+        "job logs": [p for d in devices for p in (folder / "results" / "B1" / d / SESSION).glob("*.log")],
         "benchmark files": [p for d in devices
                             for p in (folder / "results" / "benchmark").glob(f"*/B1/{d}/{SESSION}.tsv")],
         # Snakemake's record of each output it made (one file per output; the fleet's too)
@@ -182,8 +190,8 @@ def main() -> None:
                 for mode, extra in (("local -c1", ["--cores", "1"]),
                                     ("local -c2", ["--cores", "2"])):
                     folder = fleet(base / f"{preset}-{mode.replace(' ', '')}", logs)
-                    wall, _ = workflow(folder, extra)
-                    report(mode, preset, n, wall, stage_seconds(folder, devices),
+                    wall, text = workflow(folder, extra)
+                    report(mode, preset, n, wall, stage_seconds(text, devices),
                            fleet_seconds(folder))
                 left[preset] = leaves(folder, devices)
                 if cluster is None:
@@ -193,10 +201,11 @@ def main() -> None:
                     folder = fleet(base / f"{preset}-{mode.replace(' ', '').replace('=', '')}", logs)
                     wall, text = workflow(folder, [
                         "--profile", str(REPO / "profiles" / "slurm"), "--cores", "2",
-                        "--slurm-status-command", "squeue", *extra], env=cluster.env)
+                        "--slurm-status-command", "squeue", "--slurm-keep-successful-logs",
+                        *extra], env=cluster.env)
                     name = re.search(r"SLURM run ID: (\S+)", text).group(1)
                     jobs = [j for j in cluster.jobs() if j["name"] == name]
-                    stages, fleet_s = stage_seconds(folder, devices), fleet_seconds(folder)
+                    stages, fleet_s = stage_seconds(slurm_logs(folder), devices), fleet_seconds(folder)
                     elapsed = sum(seconds(j["elapsed"]) for j in jobs)
                     core_s = sum(seconds(j["elapsed"]) * int(j["cpus"]) for j in jobs)
                     units = sorted(j["submitted"] for j in jobs if j["comment"] != "rule_fleet")

@@ -11,6 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from gyrocal.run import cli
+from gyrocal.io.unit_folder import read_part_table
 
 
 def gyrocal(*args):
@@ -61,7 +62,8 @@ def test_simulate_calibrate_apply(tmp_path, capsys):
     assert pq.read_metadata(applied).num_rows == pq.read_metadata(logs / "U001.parquet").num_rows
     unit = tmp_path / "unit"
     assert main("segment", logs / "U001.parquet", "--out", unit) == 0
-    assert pq.read_table(unit / "observations.parquet").num_rows == 4 * 3 * 5
+    assert sorted(p.name for p in unit.iterdir()) == ["segmentation.zip"]
+    assert read_part_table(unit, "observations")[0].shape[0] == 4 * 3 * 5
     assert main("fit", unit) == 0 and main("validate", unit) == 0
     assert main("report", unit, "-o", tmp_path / "unit.html") == 0
     staged = json.loads((unit / "calibration.json").read_text())

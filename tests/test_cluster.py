@@ -167,8 +167,7 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
             failure.write([folder / UNIT_FILES[k] for k in SEGMENT_FILES], rec)
             pack_stage(folder, "segment")
         else:
-            for name in ("observations.parquet", "segmentation.zip"):
-                shutil.copyfile(segmented / name, folder / name)
+            shutil.copyfile(segmented / "segmentation.zip", folder / "segmentation.zip")
     args = [*META, "--settings-json", json.dumps(SETTINGS[case]), "--record-failures"]
     three = folders["three"]
     assert main(["fit", str(three), *args]) == 0
@@ -177,9 +176,9 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
                  "--residuals", str(three / "residuals.parquet"), *args]) == 0
     assert main(["analyse", str(folders["one"]), *args]) == 0
 
-    # a unit session's four files: the observations, the calibration and two archives
+    # a unit session's three files: the calibration and two archives
     names = sorted(p.name for p in three.iterdir())
-    assert names == ["analysis.zip", "calibration.json", "observations.parquet", "segmentation.zip"]
+    assert names == ["analysis.zip", "calibration.json", "segmentation.zip"]
     assert sorted(p.name for p in folders["one"].iterdir()) == names
     for name in names:
         assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name
@@ -204,7 +203,7 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
 
 def test_analyse_without_recording_failures_stops_at_the_failed_step(segmented, tmp_path, capsys):
     """Like `gyrocal fit`: one line, exit 2, and nothing written after the failure."""
-    segment_files = ["observations.parquet", "segmentation.zip"]
+    segment_files = ["segmentation.zip"]
     for name in segment_files:
         shutil.copyfile(segmented / name, tmp_path / name)
     code = main(["analyse", str(tmp_path), *META, "--settings-json",

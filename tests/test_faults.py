@@ -13,14 +13,14 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.io.unit_folder import part_failure, read_part_json
+from gyrocal.io.unit_folder import job_log, part_failure, read_part_json
 from gyrocal.io import atomic, failure
 from gyrocal.calibration.file import load_calibration
 from gyrocal.simulate import TurntableProtocol, simulate_unit
@@ -129,8 +129,7 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     assert out.returncode == 0, out.stderr[-3000:]
     memory, time_out = "ran out of memory (limit 50 MiB)", "timed out after 5 s"
 
-    obs = pq.read_schema(unit(wd, "K3") / "observations.parquet").metadata
-    record = json.loads(obs[b"gyrocal.failure"])
+    record = part_failure(unit(wd, "K3"), "observations")
     assert (record["stage"], record["error"], record["device"]) == ("segment", time_out, "K3")
     assert memory in part_failure(unit(wd, "K2"), "validation")["error"]
     assert load_calibration(unit(wd, "K1") / "calibration.json").meta["device"] == "K1"
@@ -145,11 +144,18 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     assert time_out in (wd / "reports" / "B1" / "K3" / f"{SESSION}.html").read_text()
     assert_every_file_whole(wd)
     assert not leftovers(wd)
-    # Each job's log ends with what its stage cost (benchmarks/throughput.py reads it).
-    for stage in ("segment", "analyse"):   # analyse writes the report too
-        log = (wd / "logs" / stage / "B1" / "K1" / f"{SESSION}.log").read_text()
-        assert re.search(rf"^gyrocal.run.guard: {stage} took [\d.]+ s, [\d.]+ s CPU, \d+ MiB peak$",
-                         log, flags=re.M), log
+    # Each job's log is a part of its archive: what the stage printed, and the guard's
+    # record of a failure it caught. What the job cost is on the job's stderr, in
+    # Snakemake's output (benchmarks/requests.py and throughput.py read it there).
+    for device in ("K1", "K2", "K3"):
+        for stage in ("segment", "analyse"):   # analyse writes the report too
+            assert not (unit(wd, device) / f"{stage}.log").exists()
+            folder = f"results/B1/{device}/{SESSION}"
+            assert re.search(rf"^gyrocal.run.guard: {stage} of {folder} took [\d.]+ s, [\d.]+ s CPU, "
+                             r"\d+ MiB peak$", out.stderr, flags=re.M), out.stderr[-3000:]
+    assert job_log(unit(wd, "K1"), "segment").startswith(f"segmentation -> results/B1/K1/{SESSION}")
+    assert job_log(unit(wd, "K2"), "analyse").endswith(f"gyrocal: analyse failed (recorded): {memory}\n")
+    assert job_log(unit(wd, "K3"), "segment").endswith(f"gyrocal: segment failed (recorded): {time_out}\n")
 
 
 def test_a_memory_error_is_recorded_as_such():
@@ -205,6 +211,37 @@ def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_lim
     assert guard.scheduler_limit("segment", 1)[1] == f"would outrun its SLURM job's time limit ({limit})"
     monkeypatch.delenv("SLURM_JOB_ID")
     assert guard.scheduler_limit("segment", 2) is None
+
+
+def test_on_its_jobs_last_attempt_the_guard_keeps_a_stage_within_its_slurm_jobs_memory(
+        tiny_logs, tmp_path, monkeypatch):
+    """A SLURM job killed for memory on its last attempt would leave its unit with no
+    record and hold back the fleet summary: there the guard's limit is 80 % of the job's
+    request where that is lower, and the unit is recorded as out of memory, with the log
+    of the job packed beside the record. Before the last attempt, and outside SLURM, the
+    configured limit alone holds (the scheduler's kill is retried with more memory)."""
+    from gyrocal.run import guard
+    monkeypatch.setenv("SLURM_JOB_ID", "29")
+    monkeypatch.setenv(guard.ATTEMPTS_ENV, "2")
+    share = "limit 381 MiB: its SLURM job's memory (500 MB, attempt 2 of 2)"
+    assert guard.scheduler_memory(None, 500, 2) == (381, share)
+    assert guard.scheduler_memory(4096, 500, 2) == (381, share)
+    assert guard.scheduler_memory(300, 500, 2) == (300, "limit 300 MiB")   # the lower holds
+    assert guard.scheduler_memory(4096, 500, 1) == (4096, "limit 4096 MiB")
+    assert guard.scheduler_memory(None, 500, 1) == (None, "")
+    monkeypatch.delenv("SLURM_JOB_ID")
+    assert guard.scheduler_memory(4096, 500, 2) == (4096, "limit 4096 MiB")
+
+    monkeypatch.setenv("SLURM_JOB_ID", "29")
+    monkeypatch.setenv("PATH", str(Path(sys.executable).parent))   # no squeue: no time limit
+    unit = tmp_path / "K1"
+    assert guard.main(["--attempt", "2", "--job-memory-mb", "50", "--log", str(unit / "segment.log"),
+                       "segment", str(tiny_logs / "K1.parquet"), "--out", str(unit), "--device", "K1",
+                       "--record-failures"]) == 0
+    assert sorted(p.name for p in unit.iterdir()) == ["segmentation.zip"]
+    reason = "ran out of memory (limit 38 MiB: its SLURM job's memory (50 MB, attempt 2 of 2))"
+    assert part_failure(unit, "observations")["error"] == reason
+    assert job_log(unit, "segment").endswith(f"gyrocal: segment failed (recorded): {reason}\n")
 
 
 @pytest.mark.slow

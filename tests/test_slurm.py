@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from gyrocal.io import atomic, failure
+from gyrocal.io.unit_folder import part_failure
 from gyrocal.calibration.file import load_calibration
 from gyrocal.io.errors import CalibrationFileError
 from gyrocal.simulate import TurntableProtocol, simulate_unit
@@ -308,7 +309,7 @@ def test_a_unit_past_its_time_is_retried_with_doubled_resources_then_recorded(sl
     assert [r["state"] for r in jobs if r["comment"] == "rule_fleet"] == ["COMPLETED"]
     folder = wd / SLOW
     reason = "would outrun its SLURM job's time limit (2:00, attempt 2 of 2)"
-    record = failure.read(folder / "observations.parquet")
+    record = part_failure(folder, "observations")
     assert record["stage"] == "segment" and record["error"] == reason
     with pytest.raises(CalibrationFileError, match="the segment stage failed"):
         load_calibration(folder / "calibration.json")

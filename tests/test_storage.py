@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from gyrocal.calibration.file import load_calibration
-from gyrocal.io.tables import read_table_with_metadata
+from gyrocal.io.unit_folder import read_part_table
 from gyrocal.fleet.manifest import read_manifest
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
@@ -81,7 +81,7 @@ def test_a_log_in_storage_is_retrieved_and_calibrated_as_from_its_path(runs):
     assert "Retrieving from storage" not in outputs["plain"]
     # gyrocal read Snakemake's local copy, not the storage folder (which, for the fs
     # provider alone, it could also have read directly)
-    _, extra = read_table_with_metadata(remote / FOLDER / "observations.parquet")
+    _, extra = read_part_table(remote / FOLDER, "observations")
     assert extra["log"].startswith(os.path.join(".snakemake", "storage", "fs", ""))
     assert extra["log"].endswith(str(log))
     for target in TARGETS:
@@ -156,7 +156,7 @@ def test_a_log_in_s3_is_retrieved_and_calibrated_as_from_its_path(runs, s3_serve
     out = snakemake(remote, *TARGETS, *options)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Retrieving from storage: s3://rig-logs/line3/A1-2026-01-01.parquet" in out.stdout + out.stderr
-    _, extra = read_table_with_metadata(remote / FOLDER / "observations.parquet")
+    _, extra = read_part_table(remote / FOLDER, "observations")
     assert extra["log"] == os.path.join(".snakemake", "storage", "s3", "rig-logs", "line3",
                                         "A1-2026-01-01.parquet")
     for target in TARGETS:

@@ -12,8 +12,9 @@ import pytest
 from gyrocal.io import failure
 from gyrocal.io.errors import CorruptFileError
 from gyrocal.io.tables import write_table
-from gyrocal.io.unit_folder import (CONTAINERS, UNIT_FILES, pack, pack_stage, part_exists, part_failure,
-                                    read_part_json, read_part_table)
+from gyrocal.io.unit_folder import (CONTAINERS, UNIT_FILES, job_log, pack, pack_log, pack_stage,
+                                    part_exists, part_failure, read_observations, read_part_json,
+                                    read_part_table)
 
 
 def _validation(folder, rms: float, free_points: bool = True) -> None:
@@ -78,4 +79,37 @@ def test_a_missing_or_broken_part_names_the_archive_and_the_part(tmp_path):
 def test_every_part_belongs_to_one_archive():
     parts = [k for keys in CONTAINERS.values() for k in keys]
     assert len(parts) == len(set(parts))
-    assert set(UNIT_FILES) - set(parts) == {"observations", "calibration"}
+    assert set(UNIT_FILES) - set(parts) == {"calibration"}   # the calibration stays a file
+
+
+def test_a_job_log_joins_its_archive_and_the_other_parts_stay_as_they_were(tmp_path):
+    _validation(tmp_path, 0.5)
+    pack_stage(tmp_path, "validate")
+    before = {n: read_part_table(tmp_path, "holds")[0] for n in ("holds",)}
+    log = tmp_path / "analyse.log"
+    log.write_text("fit -> calibration.json\n")
+    assert pack_log(tmp_path, "analyse", log)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["analysis.zip"]
+    assert job_log(tmp_path, "analyse") == "fit -> calibration.json\n"
+    pd.testing.assert_frame_equal(read_part_table(tmp_path, "holds")[0], before["holds"])
+    # no archive to join (the job ended before it wrote one): the log stays, readable
+    seg = tmp_path / "segment.log"
+    seg.write_text("segment failed\n")
+    assert not pack_log(tmp_path, "segment", seg)
+    assert seg.exists() and job_log(tmp_path, "segment") == "segment failed\n"
+
+
+def test_observations_are_read_packed_and_a_failure_record_there_is_passed_on(tmp_path):
+    obs = pd.DataFrame({"temp": [20.0, 40.0], "gyro_x": [0.1, 0.2]})
+    write_table(obs, tmp_path / "observations.parquet", {"info": {"noise": {"static_seconds": 12.5}}})
+    pack_stage(tmp_path, "segment")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["segmentation.zip"]
+    for where in (tmp_path, tmp_path / "observations.parquet"):   # the folder, or the part's path
+        read, extra = read_observations(where)
+        pd.testing.assert_frame_equal(read, obs)
+        assert read.attrs["static_seconds"] == 12.5
+    rec = failure.record("segment", "no hold passed the checks", {"device": "U1"})
+    failure.write([tmp_path / "observations.parquet"], rec)
+    pack_stage(tmp_path, "segment")
+    with pytest.raises(failure.UpstreamFailure, match="segment failed: no hold passed the checks"):
+        read_observations(tmp_path)

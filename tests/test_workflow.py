@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -237,12 +238,22 @@ def test_the_catalogue_test_case_runs_as_the_catalogue_runs_it(tmp_path):
     assert "1 unit session: 1 calibrated" in (tmp_path / "reports" / "index.html").read_text()
 
 
+# The unit jobs' logs are written by the guard (--log) and packed into the job's archive:
+# a `log:` directive would leave an empty file in each unit folder (workflow/rules/segment.smk).
+ACCEPTED_LINTS = {("segment", "No log directive defined"), ("analyse", "No log directive defined")}
+
+
 def test_lint_clean_and_formatted():
     # Snakemake 9 exits 1 on lints and on a workflow it cannot parse, 0 when clean.
     out = subprocess.run([sys.executable, "-m", "snakemake", "--lint", "--snakefile",
                           str(REPO / "Snakefile"), "--directory", str(REPO)],
                          capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, (out.stdout + out.stderr)[-3000:]
+    text = out.stdout + out.stderr
+    lints = {(rule, title) for rule, body in re.findall(r"^Lints for rule (\w+) .*?:\n((?:    .*\n|\n)*)",
+                                                        text, flags=re.M)
+             for title in re.findall(r"^    \* (.+):$", body, flags=re.M)}
+    assert out.returncode == 0 or (lints and lints <= ACCEPTED_LINTS), text[-3000:]
+    assert "Lints for" not in text or lints, text[-3000:]   # every lint parsed
     fmt = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow"],
                          cwd=REPO, capture_output=True, text=True, timeout=300)
     assert fmt.returncode == 0, fmt.stderr[-2000:]
@@ -253,10 +264,9 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     import re
 
     from gyrocal.diagnose import diagnose
-    from gyrocal.io.tables import read_table_with_metadata
     from gyrocal.report.pages import fmt
     folder = fleet_run / "results" / "B2" / "A2" / "2026-01-02"
-    obs = read_table_with_metadata(folder / "observations.parquet")[0]
+    obs = read_part_table(folder, "observations")[0]
     settings = Settings.from_dict({"diagnosis": {"ladder": [{"name": "+ nonlinearity",
                                                              "add": ["scale_quadratic"]}]}})
     ladder = diagnose(settings, obs).ladder
@@ -316,8 +326,8 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
 
     for this, other in ((GOOD[0], GOOD[1]), (GOOD[1], GOOD[0])):
         written = read_part_json(folder(this), "diagnosis")
-        direct = diagnose(Settings(), read_observations(folder(this) / "observations.parquet")[0],
-                          read_observations(folder(other) / "observations.parquet")[0])
+        direct = diagnose(Settings(), read_observations(folder(this))[0],
+                          read_observations(folder(other))[0])
         assert written["next_session"] is not None
         for key in ("validation_rms", "excess", "repeat_p_value"):
             assert written["next_session"][key] == pytest.approx(direct.next_session[key], rel=1e-12)

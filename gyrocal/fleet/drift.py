@@ -159,8 +159,8 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
                alpha: float = 1e-3, span_margin: float = 1.0) -> dict:
     """Does the previous session's calibration still hold on the new session's holds?
 
-    ``observations`` is the new session's observation table or the path of its
-    ``observations.parquet`` (a failure record there raises ``UpstreamFailure``): hold
+    ``observations`` is the new session's observation table or its results folder (a
+    failure record there raises ``UpstreamFailure``): hold
     means ``gyro_*``, true rates ``rate_*``, ``std_*``, ``n``, ``temp``, ``axis`` ...
     Each hold is compensated with the old calibration's model exactly as the validation
     stage compensates (:func:`gyrocal.fit.validate._compensate`): at the hold's temperature
@@ -182,9 +182,7 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     """
     cal = _load(previous_cal)
     if not isinstance(observations, pd.DataFrame):
-        from ..io.failure import check_inputs
         from ..io.unit_folder import read_observations
-        check_inputs(observations)
         observations, _ = read_observations(observations)
     from ..protocols import registry
     if not registry.get(cal.meta.get("protocol")).known_rate or "revolution" in observations.columns:

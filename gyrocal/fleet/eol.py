@@ -231,19 +231,21 @@ def unit_inputs(folder) -> tuple:
     (``results/{batch}/{device}/{session}``), for :func:`judge`."""
     from ..io import failure
     from ..io.tables import OBS_META_KEY
-    from ..io.unit_folder import part_exists, part_failure, read_part_json
+    from ..io.unit_folder import part_bytes, part_exists, part_failure, read_part_json
     folder = Path(folder)
-    cal_path, obs_path = folder / "calibration.json", folder / "observations.parquet"
+    cal_path = folder / "calibration.json"
     cal = failure.read(cal_path) or load_calibration(cal_path)
     summary = None
     if part_exists(folder, "validation"):
         summary = part_failure(folder, "validation") or read_part_json(folder, "validation").get("summary")
     info = None
-    if obs_path.exists():
-        info = failure.read(obs_path)
+    data = part_bytes(folder, "observations")
+    if data is not None:
+        info = failure.read("observations.parquet", data=data)
         if info is None:
+            import pyarrow as pa
             import pyarrow.parquet as pq
-            raw = (pq.read_schema(obs_path).metadata or {}).get(OBS_META_KEY)
+            raw = (pq.read_schema(pa.BufferReader(data)).metadata or {}).get(OBS_META_KEY)
             info = json.loads(raw).get("info") if raw else None
     return cal, summary, info
 

@@ -122,7 +122,7 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
             audit["figure"] = plot_drift(changes)
             previous, newest = sessions[-2], sessions[-1]
             reval = revalidate(previous["calibration"],
-                               folders[(newest["batch"], device, newest["session"])] / "observations.parquet",
+                               folders[(newest["batch"], device, newest["session"])],
                                max_excess=settings.drift_max_excess)
             audit["revalidation"] = {**{k: _finite(v) for k, v in reval.items() if k != "table"},
                                      "table": _records(reval["table"]),

@@ -1,6 +1,6 @@
 """The files of a unit session's results folder, which the stages write and the report
-reads: the observations and the calibration as files of their own, the rest as parts of one
-archive per job (:data:`CONTAINERS`)."""
+reads: the calibration as a file of its own, the rest as parts of one archive per job
+(:data:`CONTAINERS`), the job's log among them."""
 
 from __future__ import annotations
 
@@ -39,29 +39,40 @@ def unit_paths(folder) -> dict[str, Path]:
     return {k: Path(folder) / v for k, v in UNIT_FILES.items()}
 
 
-def read_observations(paths):
-    """A unit's observation table and its metadata (``paths``: the unit's paths, or the
-    observations file), the table carrying the session's record when segmentation wrote
-    one beside it (``history.parquet``, loose or in ``segmentation.zip``)."""
-    observations = Path(paths["observations"] if isinstance(paths, dict) else paths)
-    obs, extra = read_table_with_metadata(observations)
+def _folder_of(where) -> Path:
+    """A unit's results folder from the folder, its paths (:func:`unit_paths`) or the path
+    of its observations (``FOLDER/observations.parquet``, loose or packed)."""
+    if isinstance(where, dict):
+        return Path(where["observations"]).parent
+    where = Path(where)
+    return where.parent if where.name in (UNIT_FILES["observations"], "segmentation.zip") else where
+
+
+def read_observations(where):
+    """A unit's observation table and its metadata (``where``: the unit's folder, its paths
+    or its observations), the table carrying the session's record when segmentation wrote
+    one (``history.parquet``). A failure record there raises
+    :class:`gyrocal.io.failure.UpstreamFailure`."""
+    folder = _folder_of(where)
+    check_parts(folder, "observations")
+    obs, extra = read_part_table(folder, "observations")
     if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
         obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
-    if part_exists(observations.parent, "history"):
-        frame, meta = read_part_table(observations.parent, "history")
+    if part_exists(folder, "history"):
+        frame, meta = read_part_table(folder, "history")
         obs.attrs["series"] = Series.from_frame(frame, meta)
     return obs, extra
 
 
-# A unit session's files: the products another job or a user reads stay files of their own
-# (the observations, the calibration); the tables and records each job writes beside them
-# for the report and the fleet summary are parts of one file per job, a ZIP archive of the
-# same files (stored, not compressed: Parquet is compressed already). A line of 100,000
-# units a day keeps seven files per unit session instead of twenty (issue 40). The stages
-# write the parts as files, as before, and pack them when they are done (:func:`pack`);
-# every reader reads a part where it is, packed or loose (:func:`part_source`).
+# A unit session's files: the calibration, the product `apply` and the user read, stays a
+# file of its own, and so does the report; the tables and records each job writes are parts
+# of one file per job, a ZIP archive of the same files (stored, not compressed: Parquet is
+# compressed already), and so is the job's log (:func:`pack_log`). With Snakemake's record
+# of each declared file, a line of 100,000 units a day keeps eight files per unit session
+# instead of 25 (issue 40). The stages write the parts as files, as before, and pack them
+# when they are done (:func:`pack`); every reader reads a part where it is, packed or loose.
 CONTAINERS = {
-    "segmentation.zip": ("history", "segments", "timeline"),
+    "segmentation.zip": ("observations", "history", "segments", "timeline"),
     "analysis.zip": ("validation", "holds", "table_hold_means", "table_samples", "by_temperature",
                      "protocol", "free_points", "diagnosis", "residuals"),
 }
@@ -119,6 +130,16 @@ def read_part_table(folder, key: str):
     return read_table_with_metadata(label, data=data)
 
 
+def check_parts(folder, *keys: str) -> None:
+    """Raise :class:`gyrocal.io.failure.UpstreamFailure` where one of the parts is a
+    failure record."""
+    from . import failure
+    for key in keys:
+        found = part_failure(folder, key)
+        if found is not None:
+            raise failure.UpstreamFailure(found)
+
+
 def read_part_json(folder, key: str) -> dict:
     """A JSON part; a failure record raises :class:`gyrocal.io.failure.UpstreamFailure`."""
     from . import failure
@@ -147,23 +168,63 @@ def pack(folder, owned=()) -> None:
         dropped = {UNIT_FILES[k] for k in owned if k in keys and k not in loose}
         if not loose and not (dropped and container.exists()):
             continue
-        members: dict[str, bytes] = {}
-        if container.is_file():
-            try:
-                with zipfile.ZipFile(container) as archive:
-                    members = {n: archive.read(n) for n in archive.namelist()}
-            except (zipfile.BadZipFile, OSError):
-                members = {}   # a broken archive is rebuilt from what this run wrote
+        members = _members(container) if container.is_file() else {}
         for n in dropped:
             members.pop(n, None)
         members.update({UNIT_FILES[k]: p.read_bytes() for k, p in loose.items()})
-        with atomic.replacing(container) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
-            for n in sorted(members):
-                info = zipfile.ZipInfo(n, date_time=_ZIP_DATE)
-                info.external_attr = 0o644 << 16
-                archive.writestr(info, members[n])
+        _write_archive(container, members)
         for p in loose.values():
             p.unlink()
+
+
+def _members(container: Path) -> dict[str, bytes]:
+    try:
+        with zipfile.ZipFile(container) as archive:
+            return {n: archive.read(n) for n in archive.namelist()}
+    except (zipfile.BadZipFile, OSError):
+        return {}   # a broken or missing archive is rebuilt from what this run wrote
+
+
+def _write_archive(container: Path, members: dict[str, bytes]) -> None:
+    with atomic.replacing(container) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED) as archive:
+        for n in sorted(members):
+            info = zipfile.ZipInfo(n, date_time=_ZIP_DATE)
+            info.external_attr = 0o644 << 16
+            archive.writestr(info, members[n])
+
+
+# A workflow job's log (what the stage printed and the guard's line of what the job cost,
+# gyrocal/run/guard.py) is written as a file while the job runs and joins the job's
+# archive when it is done.
+LOG_PARTS = {"segment": ("segmentation.zip", "segment.log"),
+             "analyse": ("analysis.zip", "analyse.log")}
+
+
+def pack_log(folder, stage: str, log: Path) -> bool:
+    """Move the job log ``log`` of ``stage`` into the stage's archive in ``folder``; False
+    (the log left where it is) where the archive is not there to take it."""
+    container, name = LOG_PARTS[stage]
+    container = Path(folder) / container
+    if not container.is_file():
+        return False
+    members = _members(container)
+    members[name] = Path(log).read_bytes()
+    _write_archive(container, members)
+    Path(log).unlink()
+    return True
+
+
+def job_log(folder, stage: str) -> str | None:
+    """The text of ``stage``'s job log in ``folder``: packed, or loose as the job left it."""
+    container, name = LOG_PARTS[stage]
+    loose = Path(folder) / name
+    if loose.exists():
+        return loose.read_text(errors="replace")
+    try:
+        with zipfile.ZipFile(Path(folder) / container) as archive:
+            return archive.read(name).decode(errors="replace")
+    except (KeyError, zipfile.BadZipFile, OSError):
+        return None
 
 
 # The parts each stage writes, which it owns in its archive (:func:`pack`).

@@ -16,7 +16,6 @@ import pandas as pd
 
 from ..calibration.file import Calibration, dumps, load_calibration, standard_coefficients
 from ..fit.validate import METHODS
-from ..io.tables import read_table_with_metadata
 from ..io.unit_folder import part_exists, part_failure, read_part_json, read_part_table, unit_paths
 from . import plots
 from .pages import render_page
@@ -65,7 +64,7 @@ class UnitResults:
     @classmethod
     def from_folder(cls, folder) -> UnitResults:
         p = unit_paths(folder)
-        obs, extra = read_table_with_metadata(p["observations"])
+        obs, extra = read_part_table(folder, "observations")
         table = lambda k: read_part_table(folder, k)[0]  # noqa: E731
         summary = read_part_json(folder, "validation")["summary"]
         cal = load_calibration(p["calibration"])

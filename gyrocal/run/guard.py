@@ -1,6 +1,6 @@
 """A unit's workflow job under limits of memory and time (config ``job_limits``).
 
-``python -m gyrocal.run.guard [--memory-mb N] [--timeout-s S] STAGE ARGS...``
+``python -m gyrocal.run.guard [--memory-mb N] [--timeout-s S] [--log FILE] STAGE ARGS...``
 runs ``python -m gyrocal STAGE ARGS...`` (``segment``, ``analyse`` or ``report``) and
 watches it. When the stage's resident memory passes the limit, or it runs past its time,
 the guard kills it and writes the stage's failure records in place of every output it
@@ -18,9 +18,12 @@ attempt the scheduler ends a stage that runs too long and the retry gets more ti
 the last, nothing would follow, and a unit the scheduler ended would have no record and
 hold back the fleet summary. There the guard stops its stage when the job has only
 :data:`KEEP_S` seconds left (time for the unit's steps after it to pass the record on)
-and records "would outrun its SLURM job's time limit (...)". The workflow gives the job's
-attempt (``--attempt``) and the number of attempts (``GYROCAL_ATTEMPTS`` in the
-environment: workflow/rules/common.smk); without them an attempt is the last.
+and records "would outrun its SLURM job's time limit (...)". Memory likewise: on the last
+attempt the stage may hold :data:`MEMORY_SHARE` of what its job asked for
+(``--job-memory-mb``, the rule's mem_mb), where that is below the configured limit. The
+workflow gives the job's attempt (``--attempt``) and the number of attempts
+(``GYROCAL_ATTEMPTS`` in the environment: workflow/rules/common.smk); without them an
+attempt is the last.
 
 A stage killed by anyone else (the scheduler, the user, a SIGKILL) gets no record: the
 guard exits with the stage's status, Snakemake removes the job's outputs, and a rerun
@@ -33,6 +36,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import math
 import os
 import re
 import shutil
@@ -51,6 +55,21 @@ POLL_S = 0.05  # how often the stage's memory and time are checked
 # a few seconds (a process start, a small read and write), Snakemake's job ends after.
 KEEP_S = {"segment": 30.0, "analyse": 20.0, "report": 10.0}
 ATTEMPTS_ENV = "GYROCAL_ATTEMPTS"
+# The share of a SLURM job's memory a stage may hold on the job's last attempt: the job's
+# cgroup also holds the guard, and file pages the kernel may not reclaim in time.
+MEMORY_SHARE = 0.8
+
+
+# The guard's record of what a stage cost, one line on the job's stderr (:func:`_run`).
+COST_LINE = re.compile(r"^gyrocal\.run\.guard: (\w+) of (\S+) took ([\d.]+) s, ([\d.]+) s CPU, "
+                       r"(\d+) MiB peak$", re.M)
+
+
+def costs(text: str) -> list[tuple[str, str, float, float, float]]:
+    """(stage, unit folder, wall s, CPU s, peak MiB) of each cost line in ``text`` (a
+    workflow run's output, a SLURM job's log)."""
+    return [(stage, where, float(wall), float(cpu), float(peak))
+            for stage, where, wall, cpu, peak in COST_LINE.findall(text)]
 
 
 def stage_outputs(args) -> list[Path]:
@@ -168,12 +187,31 @@ def scheduler_limit(stage: str, attempt: int | None) -> tuple[float, str] | None
             f"would outrun its SLURM job's time limit ({where})")
 
 
+def scheduler_memory(memory_mb, job_memory_mb, attempt) -> tuple[float | None, str]:
+    """(The memory limit, MiB, and what it is) for a stage whose SLURM job asked for
+    ``job_memory_mb`` MB: on the job's last attempt, :data:`MEMORY_SHARE` of that where it is
+    below ``memory_mb`` (config job_limits), so that the guard records the unit as out of
+    memory before the scheduler kills the job with no record; otherwise ``memory_mb``."""
+    own = None if memory_mb is None else (memory_mb, f"limit {memory_mb:g} MiB")
+    last, which = last_attempt(attempt)
+    if not (last and job_memory_mb and os.environ.get("SLURM_JOB_ID")):
+        return own or (None, "")
+    share = math.floor(MEMORY_SHARE * job_memory_mb * 1e6 / 2**20)
+    if own is not None and own[0] <= share:
+        return own
+    where = ", ".join(filter(None, [f"{job_memory_mb:g} MB", which]))
+    return share, f"limit {share:g} MiB: its SLURM job's memory ({where})"
+
+
 def watch(child: subprocess.Popen, memory_mb, timeout_s,
-          deadline: tuple[float, str] | None = None) -> tuple[int, str | None]:
+          deadline: tuple[float, str] | None = None, memory_note: str | None = None,
+          ) -> tuple[int, str | None]:
     """Wait for ``child``; kill it at a limit, or at ``deadline`` (seconds from now, reason).
     Returns (its wait status, the reason it was killed or None, its resource usage)."""
     start = time.monotonic()
     reason = None
+    out_of_memory = (None if memory_mb is None else
+                     f"ran out of memory ({memory_note or f'limit {memory_mb:g} MiB'})")
     while True:
         pid, status, usage = os.wait4(child.pid, os.WNOHANG)
         if pid:
@@ -183,7 +221,7 @@ def watch(child: subprocess.Popen, memory_mb, timeout_s,
             # MemoryError outside any stage).
             if (reason is None and child.returncode != 0 and memory_mb is not None
                     and usage.ru_maxrss / 1024 > memory_mb):
-                reason = f"ran out of memory (limit {memory_mb:g} MiB)"
+                reason = out_of_memory
             return child.returncode, reason, usage
         if reason is None:
             if timeout_s is not None and time.monotonic() - start > timeout_s:
@@ -191,7 +229,7 @@ def watch(child: subprocess.Popen, memory_mb, timeout_s,
             elif deadline is not None and time.monotonic() - start > deadline[0]:
                 reason = deadline[1]
             elif memory_mb is not None and (_rss_mb(child.pid) or 0) > memory_mb:
-                reason = f"ran out of memory (limit {memory_mb:g} MiB)"
+                reason = out_of_memory
             if reason is not None:
                 child.kill()
         time.sleep(POLL_S)
@@ -211,13 +249,34 @@ def _exit_status(status: int) -> int:
     return status if status >= 0 else 128 - status
 
 
-def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int:
+def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=None,
+        job_memory_mb=None) -> int:
+    """Run the stage; with ``log``, what it and the guard print goes to that file, which
+    joins the stage's archive when the job ends well (:func:`gyrocal.io.unit_folder.pack_log`)
+    and stays where it is, its end echoed to stderr, when it does not."""
     if not command or command[0] not in STAGES:
         raise SystemExit(f"gyrocal.run.guard: give one of {', '.join(STAGES)} and its arguments")
+    memory = scheduler_memory(memory_mb, job_memory_mb, attempt)
+    if log is None:
+        return _run(command, memory, timeout_s, attempt, sys.stderr)[0]
+    log = Path(log)
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "w") as out:
+        status, args = _run(command, memory, timeout_s, attempt, out)
+    from ..io.unit_folder import LOG_PARTS, pack_log
+    if status == 0 and args is not None and args.command in LOG_PARTS:
+        pack_log(args.out if args.command == "segment" else args.unit, args.command, log)
+    elif status != 0:
+        tail = log.read_text(errors="replace").splitlines()[-20:]
+        print("\n".join([f"gyrocal.run.guard: the end of {log}:", *tail]), file=sys.stderr)
+    return status
+
+
+def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namespace | None]:
     started = time.monotonic()
     started_ns = time.time_ns()   # outputs written after this are this run's (kept_outputs)
     child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
-                             preexec_fn=_die_with(os.getpid()))
+                             stdout=out, stderr=out, preexec_fn=_die_with(os.getpid()))
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
     # A signal meant for the job (Snakemake's, a Ctrl-C) ends the stage too; no record.
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
@@ -230,22 +289,25 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
             args = build_parser().parse_args(command)
     except SystemExit:
         args = None
-    status, reason, usage = watch(child, memory_mb, timeout_s,
-                                  scheduler_limit(command[0], attempt))
-    # The stage's own cost, in the job's log: what sizes the rules' resources, and what a
-    # workflow run adds to its units' processes (benchmarks/throughput.py).
-    print(f"gyrocal.run.guard: {command[0]} took {time.monotonic() - started:.2f} s, "
-          f"{usage.ru_utime + usage.ru_stime:.2f} s CPU, {usage.ru_maxrss / 1024:.0f} MiB peak",
-          file=sys.stderr)
+    status, reason, usage = watch(child, memory[0], timeout_s,
+                                  scheduler_limit(command[0], attempt), memory[1])
+    # The stage's own cost: what sizes the rules' resources, and what a workflow run adds
+    # to its units' processes (benchmarks/requests.py, throughput.py). On the job's stderr
+    # (Snakemake's output; a SLURM job's log), not in its log, which is a part of the unit's
+    # archive and the same on every run.
+    where = getattr(args, "out", None) or getattr(args, "unit", None) or getattr(args, "output", None)
+    print(f"gyrocal.run.guard: {command[0]}{f' of {where}' if where else ''} took "
+          f"{time.monotonic() - started:.2f} s, {usage.ru_utime + usage.ru_stime:.2f} s CPU, "
+          f"{usage.ru_maxrss / 1024:.0f} MiB peak", file=sys.stderr, flush=True)
     if args is None:
-        return _exit_status(status)
+        return _exit_status(status), None
     outputs = stage_outputs(args)
     _remove_leftovers(outputs + stage_archives(args))  # this run's, and those of a run killed before it
     if reason is None:
-        return _exit_status(status)
+        return _exit_status(status), args
     if not args.record_failures:  # the stage's own failures stop the run: so does this
-        print(f"gyrocal: error: {args.command} {reason}", file=sys.stderr)
-        return 1
+        print(f"gyrocal: error: {args.command} {reason}", file=out, flush=True)
+        return 1, args
     from ..io import failure
     from ..report.pages import write_failure
     meta = {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
@@ -254,8 +316,8 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None) -> int
     if args.command in ("segment", "analyse"):   # the records join the unit's archive
         from ..io.unit_folder import pack_stage
         pack_stage(args.out if args.command == "segment" else args.unit, args.command)
-    print(f"gyrocal: {args.command} failed (recorded): {reason}", file=sys.stderr)
-    return 0
+    print(f"gyrocal: {args.command} failed (recorded): {reason}", file=out, flush=True)
+    return 0, args
 
 
 def main(argv=None) -> int:
@@ -266,9 +328,14 @@ def main(argv=None) -> int:
     parser.add_argument("--timeout-s", type=float, help="wall time, s")
     parser.add_argument("--attempt", type=int,
                         help="the job's attempt, of the GYROCAL_ATTEMPTS in the environment")
+    parser.add_argument("--job-memory-mb", type=float,
+                        help="the memory the job asked of its scheduler, MB (its mem_mb)")
+    parser.add_argument("--log", help="the job's log: written while it runs, then packed "
+                                      "into the stage's archive (gyrocal/io/unit_folder.py)")
     parser.add_argument("command", nargs=argparse.REMAINDER, help="STAGE ARGS... of gyrocal")
     args = parser.parse_args(argv)
-    return run(args.command, args.memory_mb, args.timeout_s, args.attempt)
+    return run(args.command, args.memory_mb, args.timeout_s, args.attempt, args.log,
+               args.job_memory_mb)
 
 
 if __name__ == "__main__":

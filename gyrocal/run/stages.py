@@ -21,7 +21,8 @@ from ..io import atomic, failure
 from ..io.errors import GyrocalError
 from ..io.tables import write_table
 from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
-                              part_exists, part_failure, read_observations, unit_paths)
+                              part_exists, part_failure, part_label,
+                              read_observations, unit_paths)
 from ..protocols import registry
 from ..report.pages import write_failure
 
@@ -66,10 +67,10 @@ def fit_stage(folder, settings: Settings, meta: dict):
     """The unit's calibration; returns the common model's fit (None for a protocol with a
     calibration of its own) for the stages after it in the same job."""
     paths = unit_paths(folder)
-    failure.check_inputs(paths["observations"])
-    obs, extra = read_observations(paths)
+    obs, extra = read_observations(folder)
     cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
-                                         label=paths["observations"], noise=extra["info"].get("noise"),
+                                         label=part_label(folder, "observations"),
+                                         noise=extra["info"].get("noise"),
                                          info=extra["info"])
     save_calibration(cal, paths["calibration"])
     return fitted
@@ -84,8 +85,9 @@ def validate_stage(folder, settings: Settings, fitted=None):
     calibration made from another log or other settings than these is refused: staleness is
     read from the hashes the file records (the log's SHA-256, the settings')."""
     paths = unit_paths(folder)
-    failure.check_inputs(paths["observations"], paths["calibration"])
-    obs, extra = read_observations(paths)
+    source = part_label(folder, "observations")
+    obs, extra = read_observations(folder)
+    failure.check_inputs(paths["calibration"])
     cal = load_calibration(paths["calibration"])
     if (cal.provenance.get("config_sha256") != settings.sha256()
             or cal.provenance.get("input") != extra["info"]["source"]):
@@ -94,8 +96,8 @@ def validate_stage(folder, settings: Settings, fitted=None):
     if fitted is None and registry.get(cal.meta.get("protocol")).validate is None:
         fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
                            method=settings.model.interpolation, degree=settings.model.degree,
-                           source=paths["observations"])
-    val = validation(obs, cal, fitted, settings, source=paths["observations"])
+                           source=source)
+    val = validation(obs, cal, fitted, settings, source=source)
     results, figures = registry.analysis(cal.meta.get("protocol"), obs)
     _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
     if val.free_points is not None:
@@ -121,16 +123,13 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     (:func:`gyrocal.diagnose.evaluation_of`), spares making them again."""
     from ..diagnose import diagnose
     paths = unit_paths(folder)
-    failure.check_inputs(paths["observations"])
-    obs, _ = read_observations(paths)
+    obs, _ = read_observations(folder)
     other_obs, other_note = None, {}
     if other is not None:
         # Another session only sharpens the judgement: one whose segmentation failed is
         # noted in the diagnosis, which goes on without it.
         try:
-            other_paths = unit_paths(other)
-            failure.check_inputs(other_paths["observations"])
-            other_obs, _ = read_observations(other_paths)
+            other_obs, _ = read_observations(other)
         except GyrocalError as exc:
             other_note = {"other_session_error": str(exc)}
     diag = diagnose(settings, obs, other_obs, base=base)

@@ -5,25 +5,23 @@
 # writes its own outputs and failure records (gyrocal/run/stages.py analyse_stage; a failed
 # step's record reaches the report, which says what failed).
 #
-# A unit session leaves seven files (docs/cluster.md): the observations and the
+# A unit session leaves four files (docs/cluster.md), and Snakemake's record of each: the
 # segmentation's archive (segment job), the calibration, the analysis' archive (validation,
-# diagnosis and the report's tables, gyrocal/io/unit_folder.py) and the report (this job),
-# and the two job logs, whose last line is what the job cost (gyrocal/run/guard.py; no
-# benchmark file beside them). The fleet summary reads the calibration and the analysis'
-# archive. `gyrocal report` rendered after a part was deleted names it.
+# diagnosis, the report's tables, gyrocal/io/unit_folder.py) and the report (this job).
+# Each job's log is a part of its archive; its last line is what the job cost
+# (gyrocal/run/guard.py; no benchmark file). The fleet summary reads the calibration and
+# the archives. `gyrocal report` rendered after a part was deleted names it.
 
 
 rule analyse:
     input:
-        obs="results/{batch}/{device}/{session}/observations.parquet",
-        other=other_observations,
+        seg="results/{batch}/{device}/{session}/segmentation.zip",
+        other=other_segmentation,
         terms=TERM_FILES,
     output:
         cal="results/{batch}/{device}/{session}/calibration.json",
         analysis="results/{batch}/{device}/{session}/analysis.zip",
         report="reports/{batch}/{device}/{session}.html",
-    log:
-        "logs/analyse/{batch}/{device}/{session}.log",
     group:
         "unit"
     conda:
@@ -44,5 +42,7 @@ rule analyse:
         other=other_session_option,
         version=GYROCAL_VERSION,
     shell:
-        "{params.guard} --attempt {resources.attempt} {params.limits} analyse $(dirname {input.obs:q}) {params.args} {params.other} "
-        "--report {output.report:q} --record-failures > {log:q} 2>&1"
+        "{params.guard} --attempt {resources.attempt} --job-memory-mb {resources.mem_mb} "
+        '{params.limits} --log "$(dirname {input.seg:q})/analyse.log" '
+        "analyse $(dirname {input.seg:q}) {params.args} {params.other} "
+        "--report {output.report:q} --record-failures"

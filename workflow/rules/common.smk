@@ -102,12 +102,12 @@ def job_limits(wildcards):
     return DEVICE_LIMITS.get(wildcards.device, LIMITS)
 
 
-def other_observations(wildcards):
+def other_segmentation(wildcards):
     other = OTHER_SESSION.get((wildcards.batch, wildcards.device, wildcards.session))
     return (
         []
         if other is None
-        else [f"results/{other[0]}/{other[1]}/{other[2]}/observations.parquet"]
+        else [f"results/{other[0]}/{other[1]}/{other[2]}/segmentation.zip"]
     )
 
 
