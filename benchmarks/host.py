@@ -1,8 +1,9 @@
-"""What the benchmarks print about the machine they ran on (recorded beside the figures)."""
+"""What the benchmarks share: the machine they ran on (recorded beside the figures), the job logs they read."""
 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 
@@ -19,3 +20,13 @@ def cpu_name() -> str:
 
 def cores() -> str:
     return f"{os.cpu_count()} cores"
+
+
+def job_files(source: Path) -> list[Path]:
+    """A file, or a folder's files in the order their jobs ran: SLURM names a job's log by
+    its id, so numbers sort as numbers (a retry's log after its first attempt's)."""
+    if not source.is_dir():
+        return [source]
+    key = lambda p: [(0, int(t), "") if t.isdigit() else (1, 0, t)  # noqa: E731
+                     for t in re.split(r"(\d+)", str(p))]
+    return sorted((p for p in source.rglob("*") if p.is_file()), key=key)

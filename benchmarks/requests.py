@@ -28,19 +28,19 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from gyrocal.run.guard import costs  # noqa: E402
+from host import job_files  # noqa: E402
 
 
 def records(sources: list[Path]) -> dict[str, np.ndarray]:
-    """Per stage, one row (wall s, CPU s, peak MiB) per job: the last line of each unit
-    folder's stage (a retried job's last attempt)."""
-    files = [f for source in sources
-             for f in (sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source])]
+    """Per stage, one row (wall s, CPU s, peak MiB) per job: within each source (one run),
+    the last line of each unit folder's stage (a retried job's last attempt)."""
     last = {}
-    for path in files:
-        for stage, where, wall, cpu, peak in costs(path.read_text(errors="replace")):
-            last[(stage, where)] = (wall, cpu, peak)
+    for source in sources:
+        for path in job_files(source):
+            for stage, where, wall, cpu, peak in costs(path.read_text(errors="replace")):
+                last[(str(source), stage, where)] = (wall, cpu, peak)
     found: dict[str, list] = {}
-    for (stage, _), row in sorted(last.items()):
+    for (_, stage, _), row in sorted(last.items()):
         found.setdefault(stage, []).append(row)
     return {stage: np.array(rows) for stage, rows in sorted(found.items())}
 

@@ -39,7 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from host import cores, cpu_name
+from host import cores, cpu_name, job_files
 
 REPO = Path(__file__).resolve().parents[1]
 CACHE = Path(__file__).resolve().parent / ".cache" / "throughput"
@@ -77,12 +77,14 @@ def fleet(folder: Path, logs: list[Path]) -> Path:
 
 
 def workflow(folder: Path, args: list[str], env: dict | None = None) -> tuple[float, str]:
-    """One workflow run in a fresh process: its wall time and output."""
+    """One workflow run in a fresh process: its wall time and output (kept beside the run as
+    snakemake.txt, where benchmarks/requests.py reads the jobs' costs)."""
     command = [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
                "--directory", str(folder), "--configfile", str(folder / "config.yaml"), *args]
     t0 = time.perf_counter()
     out = subprocess.run(command, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
+    (folder / "snakemake.txt").write_text(out.stdout + out.stderr)
     if out.returncode != 0:
         sys.exit(f"the run in {folder} failed:\n{(out.stdout + out.stderr)[-3000:]}")
     return wall, out.stdout + out.stderr
@@ -103,7 +105,7 @@ def stage_seconds(text: str, devices: list[str]) -> tuple[float, float]:
 
 def slurm_logs(folder: Path) -> str:
     """The SLURM jobs' logs of a run (the profile's slurm-logdir, kept for this)."""
-    return "".join(p.read_text(errors="replace") for p in sorted((folder / "logs" / "slurm").rglob("*.log")))
+    return "".join(p.read_text(errors="replace") for p in job_files(folder / "logs" / "slurm"))
 
 
 def fleet_seconds(folder: Path) -> float:

@@ -218,30 +218,60 @@ def test_on_its_jobs_last_attempt_the_guard_keeps_a_stage_within_its_slurm_jobs_
     """A SLURM job killed for memory on its last attempt would leave its unit with no
     record and hold back the fleet summary: there the guard's limit is 80 % of the job's
     request where that is lower, and the unit is recorded as out of memory, with the log
-    of the job packed beside the record. Before the last attempt, and outside SLURM, the
-    configured limit alone holds (the scheduler's kill is retried with more memory)."""
+    of the job packed beside the record. Before the last attempt, and outside the SLURM
+    executor, the configured limit alone holds (the scheduler's kill is retried with more
+    memory; a local run inside an allocation has no such kill)."""
     from gyrocal.run import guard
-    monkeypatch.setenv("SLURM_JOB_ID", "29")
+    monkeypatch.setenv(guard.SLURM_MEMORY_ENV, "1")
     monkeypatch.setenv(guard.ATTEMPTS_ENV, "2")
-    share = "limit 381 MiB: its SLURM job's memory (500 MB, attempt 2 of 2)"
-    assert guard.scheduler_memory(None, 500, 2) == (381, share)
-    assert guard.scheduler_memory(4096, 500, 2) == (381, share)
-    assert guard.scheduler_memory(300, 500, 2) == (300, "limit 300 MiB")   # the lower holds
-    assert guard.scheduler_memory(4096, 500, 1) == (4096, "limit 4096 MiB")
-    assert guard.scheduler_memory(None, 500, 1) == (None, "")
-    monkeypatch.delenv("SLURM_JOB_ID")
-    assert guard.scheduler_memory(4096, 500, 2) == (4096, "limit 4096 MiB")
+    share = (400, "ran out of memory (limit 400 MiB: its SLURM job's memory, 500 MiB, attempt 2 of 2)")
+    assert guard.scheduler_memory(None, 500, 2) == share
+    assert guard.scheduler_memory(4096, 500, 2) == share
+    assert guard.scheduler_memory(300, 500, 2) == (300, "ran out of memory (limit 300 MiB)")
+    assert guard.scheduler_memory(4096, 500, 1) == (4096, "ran out of memory (limit 4096 MiB)")
+    assert guard.scheduler_memory(None, 500, 1) == (None, None)
+    monkeypatch.delenv(guard.SLURM_MEMORY_ENV)
+    assert guard.scheduler_memory(4096, 500, 2) == (4096, "ran out of memory (limit 4096 MiB)")
 
-    monkeypatch.setenv("SLURM_JOB_ID", "29")
-    monkeypatch.setenv("PATH", str(Path(sys.executable).parent))   # no squeue: no time limit
     unit = tmp_path / "K1"
-    assert guard.main(["--attempt", "2", "--job-memory-mb", "50", "--log", str(unit / "segment.log"),
-                       "segment", str(tiny_logs / "K1.parquet"), "--out", str(unit), "--device", "K1",
-                       "--record-failures"]) == 0
+    env = {**os.environ, guard.SLURM_MEMORY_ENV: "1", guard.ATTEMPTS_ENV: "2", "PYTHONPATH": str(REPO)}
+    env.pop("SLURM_JOB_ID", None)   # no time left to ask squeue for
+    out = subprocess.run(
+        [sys.executable, "-m", "gyrocal.run.guard", "--attempt", "2", "--job-memory-mb", "50",
+         "--job-log", str(unit / "segment.log"), "segment", str(tiny_logs / "K1.parquet"), "--out", str(unit),
+         "--device", "K1", "--record-failures"], env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
     assert sorted(p.name for p in unit.iterdir()) == ["segmentation.zip"]
-    reason = "ran out of memory (limit 38 MiB: its SLURM job's memory (50 MB, attempt 2 of 2))"
+    reason = "ran out of memory (limit 40 MiB: its SLURM job's memory, 50 MiB, attempt 2 of 2)"
     assert part_failure(unit, "observations")["error"] == reason
     assert job_log(unit, "segment").endswith(f"gyrocal: segment failed (recorded): {reason}\n")
+    assert re.search(rf"^gyrocal.run.guard: segment of {unit} took ", out.stderr, flags=re.M)
+
+
+def test_a_job_log_an_earlier_attempt_left_opens_the_next_and_a_failed_job_leaves_its_log(tmp_path):
+    """The scheduler's kill leaves the attempt's log beside the unit's archive (Snakemake
+    removes the archive): the retry's log begins with it. A job that fails leaves its log
+    where it was and prints its end."""
+    unit = tmp_path / "K1"
+    unit.mkdir()
+    (unit / "segment.log").write_text("killed here\n")
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    out = subprocess.run(
+        [sys.executable, "-m", "gyrocal.run.guard", "--job-log", str(unit / "segment.log"), "segment",
+         str(tmp_path / "absent.parquet"), "--out", str(unit), "--device", "K1", "--record-failures"],
+        env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    log = job_log(unit, "segment")
+    assert log.startswith("gyrocal.run.guard: an earlier attempt's log:\nkilled here\n"
+                          "gyrocal.run.guard: this attempt's:\n")
+    assert "absent.parquet" in log and not (unit / "segment.log").exists()
+    out = subprocess.run(   # not recording failures: the job fails, its log stays
+        [sys.executable, "-m", "gyrocal.run.guard", "--job-log", str(unit / "segment.log"), "segment",
+         str(tmp_path / "absent.parquet"), "--out", str(unit), "--device", "K1"],
+        env=env, capture_output=True, text=True, timeout=300)
+    assert out.returncode != 0
+    assert (unit / "segment.log").exists() and "absent.parquet" in job_log(unit, "segment")
+    assert f"gyrocal.run.guard: the end of {unit / 'segment.log'}:" in out.stderr
 
 
 @pytest.mark.slow

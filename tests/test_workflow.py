@@ -172,8 +172,9 @@ def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     before = {p.relative_to(fleet_run): p.read_bytes() for p in
               [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("demo/logs/*/*/*.parquet"),
                *fleet_run.glob("results/*/*/*/analysis.zip"),   # the validation, diagnosis and tables
+               *fleet_run.glob("results/*/*/*/segmentation.zip"),   # the observations and tables
                fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html"]}
-    assert len(before) == 7 + 5 + 7 + 1
+    assert len(before) == 7 + 5 + 7 + 7 + 1   # the job logs inside the archives too
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):

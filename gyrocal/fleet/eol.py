@@ -231,7 +231,7 @@ def unit_inputs(folder) -> tuple:
     (``results/{batch}/{device}/{session}``), for :func:`judge`."""
     from ..io import failure
     from ..io.tables import OBS_META_KEY
-    from ..io.unit_folder import part_bytes, part_exists, part_failure, read_part_json
+    from ..io.unit_folder import part_exists, part_failure, part_metadata, read_part_json
     folder = Path(folder)
     cal_path = folder / "calibration.json"
     cal = failure.read(cal_path) or load_calibration(cal_path)
@@ -239,14 +239,11 @@ def unit_inputs(folder) -> tuple:
     if part_exists(folder, "validation"):
         summary = part_failure(folder, "validation") or read_part_json(folder, "validation").get("summary")
     info = None
-    data = part_bytes(folder, "observations")
-    if data is not None:
-        info = failure.read("observations.parquet", data=data)
-        if info is None:
-            import pyarrow as pa
-            import pyarrow.parquet as pq
-            raw = (pq.read_schema(pa.BufferReader(data)).metadata or {}).get(OBS_META_KEY)
-            info = json.loads(raw).get("info") if raw else None
+    meta = part_metadata(folder, "observations")   # the footer alone
+    if meta is not None and meta.get(failure.META_KEY):
+        info = json.loads(meta[failure.META_KEY])   # the segmentation's failure record
+    elif meta is not None and meta.get(OBS_META_KEY):
+        info = json.loads(meta[OBS_META_KEY]).get("info")
     return cal, summary, info
 
 

@@ -47,20 +47,24 @@ def record(stage: str, error: BaseException | str, meta: dict | None = None) -> 
             "stage": stage, "error": text, "internal": internal}
 
 
-def read(path, data: bytes | None = None) -> dict | None:
+def read(path, data=None) -> dict | None:
     """The failure record stored at ``path`` (or in ``data``, the bytes of a file of that
-    name), or None if it holds a real result."""
+    name or a seekable binary file of them: a Parquet file's footer alone is read), or None
+    if it holds a real result."""
     path = Path(path)
     if data is None and not path.exists():
         return None
     if path.suffix == ".parquet":
+        source = path if data is None else data if hasattr(data, "read") else pa.BufferReader(data)
         try:
-            meta = pq.read_schema(path if data is None else pa.BufferReader(data)).metadata or {}
+            meta = pq.read_schema(source).metadata or {}
         except (pa.ArrowInvalid, OSError):
             return None
         raw = meta.get(META_KEY)
         return json.loads(raw) if raw else None
     if path.suffix == ".json":
+        if hasattr(data, "read"):
+            data = data.read()
         try:
             doc = json.loads(path.read_text() if data is None else data)
         except (ValueError, OSError):

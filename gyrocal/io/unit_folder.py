@@ -4,6 +4,7 @@ reads: the calibration as a file of its own, the rest as parts of one archive pe
 
 from __future__ import annotations
 
+import contextlib
 import zipfile
 from pathlib import Path
 
@@ -39,23 +40,22 @@ def unit_paths(folder) -> dict[str, Path]:
     return {k: Path(folder) / v for k, v in UNIT_FILES.items()}
 
 
-def _folder_of(where) -> Path:
-    """A unit's results folder from the folder, its paths (:func:`unit_paths`) or the path
-    of its observations (``FOLDER/observations.parquet``, loose or packed)."""
-    if isinstance(where, dict):
-        return Path(where["observations"]).parent
-    where = Path(where)
-    return where.parent if where.name in (UNIT_FILES["observations"], "segmentation.zip") else where
-
-
-def read_observations(where):
-    """A unit's observation table and its metadata (``where``: the unit's folder, its paths
-    or its observations), the table carrying the session's record when segmentation wrote
-    one (``history.parquet``). A failure record there raises
+def read_observations(folder):
+    """A unit's observation table and its metadata (``folder``: the unit's results folder,
+    or its observations' path there), the table carrying the session's record when
+    segmentation wrote one (``history.parquet``). A failure record there raises
     :class:`gyrocal.io.failure.UpstreamFailure`."""
-    folder = _folder_of(where)
-    check_parts(folder, "observations")
-    obs, extra = read_part_table(folder, "observations")
+    from . import failure
+    folder = Path(folder)
+    if folder.name == UNIT_FILES["observations"]:
+        folder = folder.parent
+    data, label = part_bytes(folder, "observations"), part_label(folder, "observations")
+    if data is None:
+        raise CorruptFileError("no such file", source=label)
+    found = failure.read(label, data=data)
+    if found is not None:
+        raise failure.UpstreamFailure(found)
+    obs, extra = read_table_with_metadata(label, data=data)
     if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
         obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
     if part_exists(folder, "history"):
@@ -130,16 +130,6 @@ def read_part_table(folder, key: str):
     return read_table_with_metadata(label, data=data)
 
 
-def check_parts(folder, *keys: str) -> None:
-    """Raise :class:`gyrocal.io.failure.UpstreamFailure` where one of the parts is a
-    failure record."""
-    from . import failure
-    for key in keys:
-        found = part_failure(folder, key)
-        if found is not None:
-            raise failure.UpstreamFailure(found)
-
-
 def read_part_json(folder, key: str) -> dict:
     """A JSON part; a failure record raises :class:`gyrocal.io.failure.UpstreamFailure`."""
     from . import failure
@@ -148,28 +138,65 @@ def read_part_json(folder, key: str) -> dict:
 
 
 def part_failure(folder, key: str) -> dict | None:
-    """The failure record a part holds, None where it holds a result or is missing."""
+    """The failure record a part holds, None where it holds a result or is missing. A
+    Parquet part's record is in its footer: only that is read, loose or packed."""
     from . import failure
     loose = Path(folder) / UNIT_FILES[key]
-    if loose.exists():   # a file's record is in its footer or its first lines: no need to read it all
+    if loose.exists():
         return failure.read(loose)
-    data = part_bytes(folder, key)
-    return None if data is None else failure.read(UNIT_FILES[key], data=data)
+    with _member(folder, key) as member:
+        return None if member is None else failure.read(UNIT_FILES[key], data=member)
+
+
+def part_metadata(folder, key: str) -> dict | None:
+    """The schema metadata of a Parquet part (its footer alone read), None where it is
+    missing."""
+    import pyarrow.parquet as pq
+    loose = Path(folder) / UNIT_FILES[key]
+    if loose.exists():
+        return pq.read_schema(loose).metadata or {}
+    with _member(folder, key) as member:
+        return None if member is None else pq.read_schema(member).metadata or {}
+
+
+@contextlib.contextmanager
+def _member(folder, key: str):
+    """A packed part as a seekable file (a stored member reads in place), or None."""
+    container = Path(folder) / CONTAINER_OF.get(key, "")
+    if key not in CONTAINER_OF or not container.is_file():
+        yield None
+        return
+    try:
+        archive = zipfile.ZipFile(container)
+    except (zipfile.BadZipFile, OSError) as exc:
+        raise CorruptFileError(f"not a readable archive ({exc})", source=container) from None
+    with archive:
+        try:
+            member = archive.open(UNIT_FILES[key])
+        except KeyError:
+            yield None
+            return
+        with member:
+            yield member
 
 
 def pack(folder, owned=()) -> None:
-    """Move the loose parts in ``folder`` into their archives. The keys in ``owned`` are
-    the parts the stage just wrote: one of them it did not write this time (a model with no
-    free points) leaves its archive rather than stay from an earlier run."""
+    """Move the loose parts in ``folder`` into their archives: those of the parts in
+    ``owned``, the parts the stage just wrote (all archives without it). One of them it did
+    not write this time (a model with no free points) leaves its archive rather than stay
+    from an earlier run, and so does the archive's job log, which tells of that run (the
+    guard adds this job's, :func:`pack_log`)."""
     folder = Path(folder)
     for name, keys in CONTAINERS.items():
+        if owned and not set(owned) & set(keys):
+            continue   # another job's archive: not this stage's to rewrite
         loose = {k: folder / UNIT_FILES[k] for k in keys if (folder / UNIT_FILES[k]).exists()}
         container = folder / name
         dropped = {UNIT_FILES[k] for k in owned if k in keys and k not in loose}
         if not loose and not (dropped and container.exists()):
             continue
-        members = _members(container) if container.is_file() else {}
-        for n in dropped:
+        members = (_members(container) or {}) if container.is_file() else {}
+        for n in dropped | {LOG_OF[name]}:
             members.pop(n, None)
         members.update({UNIT_FILES[k]: p.read_bytes() for k, p in loose.items()})
         _write_archive(container, members)
@@ -177,12 +204,13 @@ def pack(folder, owned=()) -> None:
             p.unlink()
 
 
-def _members(container: Path) -> dict[str, bytes]:
+def _members(container: Path) -> dict[str, bytes] | None:
+    """An archive's members; None where it is not a readable archive."""
     try:
         with zipfile.ZipFile(container) as archive:
             return {n: archive.read(n) for n in archive.namelist()}
     except (zipfile.BadZipFile, OSError):
-        return {}   # a broken or missing archive is rebuilt from what this run wrote
+        return None   # a broken archive is rebuilt from what this run wrote (pack)
 
 
 def _write_archive(container: Path, members: dict[str, bytes]) -> None:
@@ -193,21 +221,22 @@ def _write_archive(container: Path, members: dict[str, bytes]) -> None:
             archive.writestr(info, members[n])
 
 
-# A workflow job's log (what the stage printed and the guard's line of what the job cost,
-# gyrocal/run/guard.py) is written as a file while the job runs and joins the job's
-# archive when it is done.
+# A workflow job's log (what the stage printed, and the guard's record of a failure it
+# caught: gyrocal/run/guard.py) is written as a file while the job runs and joins the
+# job's archive when the job ends well.
 LOG_PARTS = {"segment": ("segmentation.zip", "segment.log"),
              "analyse": ("analysis.zip", "analyse.log")}
+LOG_OF = {container: name for container, name in LOG_PARTS.values()}
 
 
 def pack_log(folder, stage: str, log: Path) -> bool:
     """Move the job log ``log`` of ``stage`` into the stage's archive in ``folder``; False
-    (the log left where it is) where the archive is not there to take it."""
+    (the log left where it is) where there is no readable archive to take it."""
     container, name = LOG_PARTS[stage]
     container = Path(folder) / container
-    if not container.is_file():
+    members = _members(container) if container.is_file() else None
+    if members is None:
         return False
-    members = _members(container)
     members[name] = Path(log).read_bytes()
     _write_archive(container, members)
     Path(log).unlink()
@@ -215,13 +244,15 @@ def pack_log(folder, stage: str, log: Path) -> bool:
 
 
 def job_log(folder, stage: str) -> str | None:
-    """The text of ``stage``'s job log in ``folder``: packed, or loose as the job left it."""
+    """The text of ``stage``'s job log in ``folder``: the one a job that ended badly left
+    beside the archive where that is the newer, else the packed one."""
     container, name = LOG_PARTS[stage]
-    loose = Path(folder) / name
-    if loose.exists():
+    loose, container = Path(folder) / name, Path(folder) / container
+    if loose.exists() and (not container.exists()
+                           or loose.stat().st_mtime_ns >= container.stat().st_mtime_ns):
         return loose.read_text(errors="replace")
     try:
-        with zipfile.ZipFile(Path(folder) / container) as archive:
+        with zipfile.ZipFile(container) as archive:
             return archive.read(name).decode(errors="replace")
     except (KeyError, zipfile.BadZipFile, OSError):
         return None

@@ -1,6 +1,6 @@
 """A unit's workflow job under limits of memory and time (config ``job_limits``).
 
-``python -m gyrocal.run.guard [--memory-mb N] [--timeout-s S] [--log FILE] STAGE ARGS...``
+``python -m gyrocal.run.guard [--memory-mb N] [--timeout-s S] [--job-memory-mb M] [--job-log FILE] STAGE ARGS...``
 runs ``python -m gyrocal STAGE ARGS...`` (``segment``, ``analyse`` or ``report``) and
 watches it. When the stage's resident memory passes the limit, or it runs past its time,
 the guard kills it and writes the stage's failure records in place of every output it
@@ -55,6 +55,9 @@ POLL_S = 0.05  # how often the stage's memory and time are checked
 # a few seconds (a process start, a small read and write), Snakemake's job ends after.
 KEEP_S = {"segment": 30.0, "analyse": 20.0, "report": 10.0}
 ATTEMPTS_ENV = "GYROCAL_ATTEMPTS"
+# Set by the workflow when its jobs run through the SLURM executor (workflow/rules/common.smk),
+# whose --mem the scheduler enforces: not by a local run inside an allocation.
+SLURM_MEMORY_ENV = "GYROCAL_SLURM_MEMORY"
 # The share of a SLURM job's memory a stage may hold on the job's last attempt: the job's
 # cgroup also holds the guard, and file pages the kernel may not reclaim in time.
 MEMORY_SHARE = 0.8
@@ -109,7 +112,7 @@ def stage_archives(args) -> list[Path]:
     from ..io.unit_folder import CONTAINER_OF, STAGE_PARTS
     if args.command not in ("segment", "analyse"):
         return []
-    folder = Path(args.out if args.command == "segment" else args.unit)
+    folder = Path(unit_folder(args))
     return [folder / name for name in sorted({CONTAINER_OF[k] for k in STAGE_PARTS[args.command]})]
 
 
@@ -187,31 +190,32 @@ def scheduler_limit(stage: str, attempt: int | None) -> tuple[float, str] | None
             f"would outrun its SLURM job's time limit ({where})")
 
 
-def scheduler_memory(memory_mb, job_memory_mb, attempt) -> tuple[float | None, str]:
-    """(The memory limit, MiB, and what it is) for a stage whose SLURM job asked for
-    ``job_memory_mb`` MB: on the job's last attempt, :data:`MEMORY_SHARE` of that where it is
-    below ``memory_mb`` (config job_limits), so that the guard records the unit as out of
-    memory before the scheduler kills the job with no record; otherwise ``memory_mb``."""
-    own = None if memory_mb is None else (memory_mb, f"limit {memory_mb:g} MiB")
+def scheduler_memory(memory_mb, job_memory_mb, attempt) -> tuple[float | None, str | None]:
+    """(The stage's memory limit, MiB, and the failure it records there) for a stage whose
+    SLURM job asked for ``job_memory_mb`` (the rule's mem_mb, which the SLURM executor
+    passes as ``--mem``, MiB to SLURM): on the job's last attempt under the workflow's SLURM
+    executor (:data:`SLURM_MEMORY_ENV`), :data:`MEMORY_SHARE` of it where that is below
+    ``memory_mb`` (config job_limits), so that the unit is recorded as out of memory where
+    the scheduler would kill the job with no record; otherwise ``memory_mb``."""
+    own = (None, None) if memory_mb is None else (memory_mb, f"ran out of memory (limit {memory_mb:g} MiB)")
     last, which = last_attempt(attempt)
-    if not (last and job_memory_mb and os.environ.get("SLURM_JOB_ID")):
-        return own or (None, "")
-    share = math.floor(MEMORY_SHARE * job_memory_mb * 1e6 / 2**20)
-    if own is not None and own[0] <= share:
+    if not (last and job_memory_mb and os.environ.get(SLURM_MEMORY_ENV)):
         return own
-    where = ", ".join(filter(None, [f"{job_memory_mb:g} MB", which]))
-    return share, f"limit {share:g} MiB: its SLURM job's memory ({where})"
+    share = math.floor(MEMORY_SHARE * job_memory_mb)
+    if memory_mb is not None and memory_mb <= share:
+        return own
+    where = ", ".join(filter(None, [f"{job_memory_mb:g} MiB", which]))
+    return share, f"ran out of memory (limit {share:g} MiB: its SLURM job's memory, {where})"
 
 
-def watch(child: subprocess.Popen, memory_mb, timeout_s,
-          deadline: tuple[float, str] | None = None, memory_note: str | None = None,
-          ) -> tuple[int, str | None]:
-    """Wait for ``child``; kill it at a limit, or at ``deadline`` (seconds from now, reason).
-    Returns (its wait status, the reason it was killed or None, its resource usage)."""
+def watch(child: subprocess.Popen, memory: tuple[float | None, str | None], timeout_s,
+          deadline: tuple[float, str] | None = None) -> tuple[int, str | None]:
+    """Wait for ``child``; kill it at a limit (``memory``: MiB and the reason,
+    :func:`scheduler_memory`), or at ``deadline`` (seconds from now, reason). Returns (its
+    wait status, the reason it was killed or None, its resource usage)."""
     start = time.monotonic()
     reason = None
-    out_of_memory = (None if memory_mb is None else
-                     f"ran out of memory ({memory_note or f'limit {memory_mb:g} MiB'})")
+    memory_mb, out_of_memory = memory
     while True:
         pid, status, usage = os.wait4(child.pid, os.WNOHANG)
         if pid:
@@ -258,18 +262,30 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=No
         raise SystemExit(f"gyrocal.run.guard: give one of {', '.join(STAGES)} and its arguments")
     memory = scheduler_memory(memory_mb, job_memory_mb, attempt)
     if log is None:
-        return _run(command, memory, timeout_s, attempt, sys.stderr)[0]
+        return _run(command, memory, timeout_s, attempt, None)[0]
     log = Path(log)
     log.parent.mkdir(parents=True, exist_ok=True)
+    # A log left here is an earlier attempt's that ended badly (the scheduler killed it):
+    # it opens this one's, which is otherwise what the stage prints, the same every run.
+    earlier = log.read_text(errors="replace") if log.exists() else ""
     with open(log, "w") as out:
+        if earlier:
+            out.write(f"gyrocal.run.guard: an earlier attempt's log:\n{earlier.rstrip()}\n"
+                      "gyrocal.run.guard: this attempt's:\n")
+            out.flush()
         status, args = _run(command, memory, timeout_s, attempt, out)
     from ..io.unit_folder import LOG_PARTS, pack_log
-    if status == 0 and args is not None and args.command in LOG_PARTS:
-        pack_log(args.out if args.command == "segment" else args.unit, args.command, log)
-    elif status != 0:
+    if args is not None and args.command not in LOG_PARTS:
+        return status   # a report's log stays the file it was asked to be
+    if status != 0 or args is None or not pack_log(unit_folder(args), args.command, log):
         tail = log.read_text(errors="replace").splitlines()[-20:]
         print("\n".join([f"gyrocal.run.guard: the end of {log}:", *tail]), file=sys.stderr)
     return status
+
+
+def unit_folder(args) -> str:
+    """The results folder of a segment or analyse stage's arguments."""
+    return args.out if args.command == "segment" else args.unit
 
 
 def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namespace | None]:
@@ -278,6 +294,7 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
     child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
                              stdout=out, stderr=out, preexec_fn=_die_with(os.getpid()))
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
+    out = out or sys.stderr   # the guard's own lines: where the stage's go
     # A signal meant for the job (Snakemake's, a Ctrl-C) ends the stage too; no record.
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda signum, _: child.send_signal(signum))
@@ -289,13 +306,12 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
             args = build_parser().parse_args(command)
     except SystemExit:
         args = None
-    status, reason, usage = watch(child, memory[0], timeout_s,
-                                  scheduler_limit(command[0], attempt), memory[1])
+    status, reason, usage = watch(child, memory, timeout_s, scheduler_limit(command[0], attempt))
     # The stage's own cost: what sizes the rules' resources, and what a workflow run adds
     # to its units' processes (benchmarks/requests.py, throughput.py). On the job's stderr
     # (Snakemake's output; a SLURM job's log), not in its log, which is a part of the unit's
     # archive and the same on every run.
-    where = getattr(args, "out", None) or getattr(args, "unit", None) or getattr(args, "output", None)
+    where = None if args is None else unit_folder(args) if args.command != "report" else args.output
     print(f"gyrocal.run.guard: {command[0]}{f' of {where}' if where else ''} took "
           f"{time.monotonic() - started:.2f} s, {usage.ru_utime + usage.ru_stime:.2f} s CPU, "
           f"{usage.ru_maxrss / 1024:.0f} MiB peak", file=sys.stderr, flush=True)
@@ -315,7 +331,7 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
     write_failure([o for o in outputs if o not in kept], failure.record(args.command, reason, meta))
     if args.command in ("segment", "analyse"):   # the records join the unit's archive
         from ..io.unit_folder import pack_stage
-        pack_stage(args.out if args.command == "segment" else args.unit, args.command)
+        pack_stage(unit_folder(args), args.command)
     print(f"gyrocal: {args.command} failed (recorded): {reason}", file=out, flush=True)
     return 0, args
 
@@ -329,12 +345,12 @@ def main(argv=None) -> int:
     parser.add_argument("--attempt", type=int,
                         help="the job's attempt, of the GYROCAL_ATTEMPTS in the environment")
     parser.add_argument("--job-memory-mb", type=float,
-                        help="the memory the job asked of its scheduler, MB (its mem_mb)")
-    parser.add_argument("--log", help="the job's log: written while it runs, then packed "
-                                      "into the stage's archive (gyrocal/io/unit_folder.py)")
+                        help="the memory the job asked of SLURM, MiB (the rule's mem_mb)")
+    parser.add_argument("--job-log", help="the job's log: written while it runs, then packed "
+                                          "into the stage's archive (gyrocal/io/unit_folder.py)")
     parser.add_argument("command", nargs=argparse.REMAINDER, help="STAGE ARGS... of gyrocal")
     args = parser.parse_args(argv)
-    return run(args.command, args.memory_mb, args.timeout_s, args.attempt, args.log,
+    return run(args.command, args.memory_mb, args.timeout_s, args.attempt, args.job_log,
                args.job_memory_mb)
 
 

@@ -8,9 +8,9 @@
 # A unit session leaves four files (docs/cluster.md), and Snakemake's record of each: the
 # segmentation's archive (segment job), the calibration, the analysis' archive (validation,
 # diagnosis, the report's tables, gyrocal/io/unit_folder.py) and the report (this job).
-# Each job's log is a part of its archive; its last line is what the job cost
-# (gyrocal/run/guard.py; no benchmark file). The fleet summary reads the calibration and
-# the archives. `gyrocal report` rendered after a part was deleted names it.
+# Each job's log is a part of its archive; what the job cost is the guard's line on its
+# stderr (gyrocal/run/guard.py; no benchmark file). The fleet summary reads the calibration
+# and the archives. `gyrocal report` rendered after a part was deleted names it.
 
 
 rule analyse:
@@ -43,6 +43,6 @@ rule analyse:
         version=GYROCAL_VERSION,
     shell:
         "{params.guard} --attempt {resources.attempt} --job-memory-mb {resources.mem_mb} "
-        '{params.limits} --log "$(dirname {input.seg:q})/analyse.log" '
+        '{params.limits} --job-log "$(dirname {input.seg:q})/analyse.log" '
         "analyse $(dirname {input.seg:q}) {params.args} {params.other} "
         "--report {output.report:q} --record-failures"

@@ -64,11 +64,15 @@ TERM_FILES = config["model"].get("term_files", []) + [
 
 # How many attempts a job has (the profiles retry a job the scheduler ended, once, with
 # doubled resources), for gyrocal.run.guard: on the last, it records a unit whose stage would
-# outrun its SLURM job's time limit, so that the fleet summary still comes. Known when the
-# run starts, in the main process, whose environment its jobs inherit (sbatch
-# --export=ALL); each job's own attempt is its `attempt` resource, in its command.
+# outrun its SLURM job's time or memory, so that the fleet summary still comes. Known when
+# the run starts, in the main process, whose environment its jobs inherit (sbatch
+# --export=ALL); each job's own attempt is its `attempt` resource, in its command. The
+# memory is the job's only when the SLURM executor runs it (not a local run inside an
+# allocation, where nothing enforces the rule's mem_mb).
 onstart:
     os.environ.update(GYROCAL_ATTEMPTS=str(workflow.execution_settings.retries + 1))
+    if getattr(workflow.executor_plugin, "name", None) == "slurm":
+        os.environ.update(GYROCAL_SLURM_MEMORY="1")
 
 
 wildcard_constraints:

@@ -1,6 +1,6 @@
 # Segment a unit session's log into one archive (gyrocal/io/unit_folder.py): the
 # observations the analyse job reads, the session's record, segments and timeline, and the
-# job's log. The log is written beside it while the job runs (gyrocal/run/guard.py --log)
+# job's log. The log is written beside it while the job runs (gyrocal/run/guard.py --job-log)
 # and joins the archive when the job ends well; a job that ends badly leaves it there and
 # the guard prints its end. No `log:` directive, which the linter asks for: Snakemake
 # makes an empty file of a declared log that is not there when the job ends.
@@ -30,5 +30,5 @@ rule segment:
         version=GYROCAL_VERSION,
     shell:
         "{params.guard} --attempt {resources.attempt} --job-memory-mb {resources.mem_mb} "
-        '{params.limits} --log "$(dirname {output.seg:q})/segment.log" '
+        '{params.limits} --job-log "$(dirname {output.seg:q})/segment.log" '
         "segment {params.args} --out $(dirname {output.seg:q}) --record-failures"
