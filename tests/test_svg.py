@@ -157,3 +157,17 @@ def test_residuals_by_a_category_with_missing_values_leave_those_out():
     labels = re.findall(r">([^<]+)</text>", text)
     assert "+x" in labels and "+z" in labels and "nan" not in labels and "None" not in labels
     assert plots.residuals(frame.assign(mount=[None] * 4), [("mount", "mount")]).startswith("<svg")
+
+
+@pytest.mark.parametrize("values", [[1.0, 1 + 1e-12, 1 + 2e-12, 1 + 2e-12], [2.0, 2.0, 2.0], [1e-3] * 4])
+def test_a_histogram_of_equal_values_draws_a_bar_a_bin_wide(values):
+    """A fleet whose units agree to within rounding: one bar as wide as the others would be
+    (the axis spans a tenth of the value each side), not one as narrow as the rounding."""
+    from gyrocal.report import plots
+    page = plots.histogram(np.array(values), "scale")
+    band = re.findall(r'<path[^>]*d="(M[\d.]+ [\d.]+l[^"]*Z)"', page)[0]
+    steps = [float(v) for v in re.findall(r"-?[\d.]+", band[band.index("l"):])]
+    widths = [abs(dx) for dx, dy in zip(steps[::2], steps[1::2]) if dx and not dy]
+    assert min(widths) > 40   # pixels: a bin of a 244-px panel, not a hair
+    lo, hi = (float(t.replace("−", "-")) for t in re.findall(r"<text[^>]*>([^<]*)</text>", page)[:5:4])
+    assert lo == pytest.approx(0.9 * values[0], rel=1e-6) and hi == pytest.approx(1.1 * values[0], rel=1e-6)

@@ -203,7 +203,12 @@ def histogram(values: np.ndarray, label: str) -> str:
     (panel,) = fig.grid(1, 1, left=46, right=10, top=24, bottom=30)
     panel.title, panel.ylabel = label, "units"
     if values.size:
-        counts, edges = np.histogram(values, bins=min(20, max(3, values.size)))
+        centre, span = float(np.median(values)), float(np.ptp(values))
+        # One value, or several equal to within rounding: bars around it a tenth of it wide
+        # each side, not bins as narrow as the rounding.
+        half = 0.1 * abs(centre) or 0.5
+        spread = None if span > 1e-9 * max(1.0, abs(centre)) else (centre - half, centre + half)
+        counts, edges = np.histogram(values, bins=min(20, max(3, values.size)), range=spread)
         panel.band(np.repeat(edges, 2)[1:-1], np.zeros(2 * len(counts)), np.repeat(counts, 2),
                    colour="#1f77b4", opacity=1.0)
     return str(fig)

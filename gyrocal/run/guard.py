@@ -266,21 +266,23 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=No
     log = Path(log)
     log.parent.mkdir(parents=True, exist_ok=True)
     # A log left here is an earlier attempt's that ended badly (the scheduler killed it):
-    # it opens this one's, which is otherwise what the stage prints, the same every run.
-    earlier = log.read_text(errors="replace") if log.exists() else ""
+    # its end goes to this job's stderr, and this attempt's log starts afresh, so that a
+    # retried unit's archive is the same bytes as one run once.
+    if log.exists() and log.stat().st_size:
+        _echo_end(log, "an earlier attempt's log")
     with open(log, "w") as out:
-        if earlier:
-            out.write(f"gyrocal.run.guard: an earlier attempt's log:\n{earlier.rstrip()}\n"
-                      "gyrocal.run.guard: this attempt's:\n")
-            out.flush()
         status, args = _run(command, memory, timeout_s, attempt, out)
     from ..io.unit_folder import LOG_PARTS, pack_log
     if args is not None and args.command not in LOG_PARTS:
         return status   # a report's log stays the file it was asked to be
     if status != 0 or args is None or not pack_log(unit_folder(args), args.command, log):
-        tail = log.read_text(errors="replace").splitlines()[-20:]
-        print("\n".join([f"gyrocal.run.guard: the end of {log}:", *tail]), file=sys.stderr)
+        _echo_end(log, str(log))
     return status
+
+
+def _echo_end(log: Path, what: str) -> None:
+    tail = log.read_text(errors="replace").splitlines()[-20:]
+    print("\n".join([f"gyrocal.run.guard: the end of {what}:", *tail]), file=sys.stderr)
 
 
 def unit_folder(args) -> str:
