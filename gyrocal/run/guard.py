@@ -255,9 +255,10 @@ def _exit_status(status: int) -> int:
 
 def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=None,
         job_memory_mb=None) -> int:
-    """Run the stage; with ``log``, what it and the guard print goes to that file, which
-    joins the stage's archive when the job ends well (:func:`gyrocal.io.unit_folder.pack_log`)
-    and stays where it is, its end echoed to stderr, when it does not."""
+    """Run the stage; with ``log``, what the stage prints and the guard's record of a failure
+    go to that file, which joins the stage's archive when the job ends well
+    (:func:`gyrocal.io.unit_folder.pack_log`) and stays where it is, its end echoed to
+    stderr, when it does not. The guard's cost line goes to stderr either way."""
     if not command or command[0] not in STAGES:
         raise SystemExit(f"gyrocal.run.guard: give one of {', '.join(STAGES)} and its arguments")
     memory = scheduler_memory(memory_mb, job_memory_mb, attempt)
