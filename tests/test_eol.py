@@ -326,3 +326,45 @@ def test_end_of_line_can_fail_a_unit_on_its_plausibility_warnings():
     assert SpecLimits.from_dict(other.to_dict()) == other
     with pytest.raises(ConfigError, match="'accel_unit' is no warning code"):
         SpecLimits.from_dict({"fail_on_warnings": ["accel_unit"]})
+
+
+def test_the_fleet_summary_reads_each_unit_once_and_a_broken_unit_fails_alone(tmp_path):
+    """A calibrated unit (its parts packed), a unit whose fit failed, one whose validation
+    is not JSON and one whose diagnosis is not: the summary lists all four, the unreadable
+    validation as that unit's failure naming the part, the unreadable diagnosis as its
+    calibrated unit's note."""
+    from gyrocal.fleet.summary import fleet_summary
+    from gyrocal.io.unit_folder import pack_stage
+
+    def unit(name, validation=None, diagnosis=None, cal=None):
+        folder = tmp_path / name
+        folder.mkdir()
+        save_calibration(cal or grid_calibration(GOOD, device=name), folder / "calibration.json")
+        (folder / "validation.json").write_text(
+            validation or json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY}))
+        if diagnosis is not None:
+            (folder / "diagnosis.json").write_text(diagnosis)
+        write_table(pd.DataFrame({"hold": [0]}), folder / "observations.parquet", {"info": GOOD_INFO})
+        pack_stage(folder, "segment")
+        pack_stage(folder, "analyse")
+        return {"row": {"batch": "B1", "device": name, "session": "2026-01-01", "protocol": "turntable"},
+                "folder": folder, "report": f"{name}.html"}
+
+    units = [unit("OK", diagnosis=json.dumps({"format": "gyrocal.diagnosis/1", "best": None,
+                                              "explains_the_data": True})),
+             unit("BADVAL", validation="{not json"), unit("BADDIAG", diagnosis="[1, 2")]
+    lost = tmp_path / "LOST"
+    rec = failure.record("fit", InputError("scale.y not excited"), {"device": "LOST"})
+    failure.write([lost / "calibration.json", lost / "validation.json", lost / "observations.parquet"], rec)
+    pack_stage(lost, "segment")
+    pack_stage(lost, "analyse")
+    units.append({"row": {"batch": "B1", "device": "LOST", "session": "2026-01-01", "protocol": "turntable"},
+                  "folder": lost, "report": "LOST.html"})
+    rows = {r["device"]: r for r in fleet_summary(units)["rows"]}
+    assert rows["OK"]["status"] == "ok" and rows["OK"]["missing"] == "nothing"
+    assert rows["OK"]["summary"] == GOOD_SUMMARY
+    assert (rows["LOST"]["status"], rows["LOST"]["stage"]) == ("failed", "fit")
+    assert rows["BADVAL"]["status"] == "failed" and "analysis.zip/validation.json" in rows["BADVAL"]["error"]
+    assert "not valid JSON" in rows["BADVAL"]["error"]
+    assert rows["BADDIAG"]["status"] == "ok"
+    assert rows["BADDIAG"]["missing"].startswith("diagnosis unreadable:")

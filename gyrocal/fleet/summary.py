@@ -149,37 +149,7 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
     calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
     (end of line, outliers, drift; each unit's verdict also in its row) and the servo
     versus turntable comparisons."""
-    from ..calibration.file import load_calibration
-    from ..io.unit_folder import part_exists, part_failure, read_part_json, unit_paths
-    rows = []
-    for unit in units:
-        row = dict(unit["row"])
-        folder = unit["folder"]
-        p = unit_paths(folder)
-        row["report"] = unit["report"]
-        records = (part_failure(folder, k) for k in ("validation", "calibration", "observations"))
-        rec = next((r for r in records if r is not None), None)
-        if rec is not None:
-            row.update(status="failed", stage=rec["stage"], error=rec["error"],
-                       internal=rec.get("internal", False))
-        elif not part_exists(folder, "validation") or not p["calibration"].exists():
-            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
-                       "did not run to the end (see the workflow's logs)", internal=True)
-        else:
-            cal = load_calibration(p["calibration"])
-            summary = read_part_json(folder, "validation")["summary"]
-            at_ref = cal.coefficients([cal.reference_temperature], warn=False)
-            row["calibration"] = cal
-            row["warnings"] = cal.extra.get("warnings", [])
-            session_noise = (cal.extra.get("noise") or {}).get("session")
-            row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
-                if session_noise else None
-            # a session that logged no temperature has no span, only its stand-in
-            logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
-            row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
-                       reference=cal.reference_temperature, missing=_missing_effect(folder),
-                       params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
-        rows.append(row)
+    rows = [_unit_row(unit) for unit in units]
     ok = [r for r in rows if r["status"] == "ok"]
     fleet = None
     if settings is not None:
@@ -198,15 +168,56 @@ KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm
                   ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
 
 
+def _unit_row(unit: dict) -> dict:
+    """A unit session's row of the fleet table, each of its files read once (a fleet job
+    reads thousands): calibrated, or failed with the first failure record its parts hold
+    (validation, calibration, observations), or with what made a part unreadable."""
+    from ..calibration.file import Calibration
+    from ..io.unit_folder import part_failure, read_part_doc
+    row = dict(unit["row"])
+    folder = unit["folder"]
+    row["report"] = unit["report"]
+    try:
+        validation, cal = read_part_doc(folder, "validation"), read_part_doc(folder, "calibration")
+        records = [d for d in (validation, cal) if d is not None and d.get("format") == failure.FORMAT]
+        rec = records[0] if records else part_failure(folder, "observations")
+        if rec is None and (validation is None or cal is None):
+            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
+                       "did not run to the end (see the workflow's logs)", internal=True)
+            return row
+        if rec is None:
+            cal = Calibration.from_dict(cal, source=Path(folder) / "calibration.json")
+    except GyrocalError as exc:   # a part that cannot be read: this unit's failure alone
+        rec = {"stage": "fleet", "error": str(exc), "internal": False}
+    if rec is not None:
+        row.update(status="failed", stage=rec["stage"], error=rec["error"],
+                   internal=rec.get("internal", False))
+        return row
+    at_ref = cal.coefficients([cal.reference_temperature], warn=False)
+    row["calibration"] = cal
+    row["warnings"] = cal.extra.get("warnings", [])
+    session_noise = (cal.extra.get("noise") or {}).get("session")
+    row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
+        if session_noise else None
+    # a session that logged no temperature has no span, only its stand-in
+    logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
+    row.update(status="ok", span=cal.grid.span if logged else None, summary=validation["summary"],
+               reference=cal.reference_temperature, missing=_missing_effect(folder),
+               params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
+    return row
+
+
 def _missing_effect(folder) -> str:
     """The diagnosis in a few words, for the fleet table."""
-    from ..io.unit_folder import part_exists, part_failure, read_part_json
-    if not part_exists(folder, "diagnosis"):
+    from ..io.unit_folder import read_part_doc
+    try:
+        diag = read_part_doc(folder, "diagnosis")
+    except GyrocalError as exc:   # the calibration stands; its diagnosis cannot be read
+        return f"diagnosis unreadable: {exc}"
+    if diag is None:
         return "–"
-    rec = part_failure(folder, "diagnosis")
-    if rec is not None:
-        return f"diagnosis failed: {rec['error']}"
-    diag = read_part_json(folder, "diagnosis")
+    if diag.get("format") == failure.FORMAT:
+        return f"diagnosis failed: {diag['error']}"
     if diag.get("best"):
         return f"{diag['best']['term']} ({diag['best']['gain_pct']:.0f} % less error)"
     found = "nothing" if diag.get("explains_the_data") else "unexplained excess"

@@ -5,6 +5,7 @@ reads: the calibration as a file of its own, the rest as parts of one archive pe
 from __future__ import annotations
 
 import contextlib
+import json
 import zipfile
 from pathlib import Path
 
@@ -128,6 +129,21 @@ def read_part_table(folder, key: str):
     if data is None:
         raise CorruptFileError("no such file", source=label)
     return read_table_with_metadata(label, data=data)
+
+
+def read_part_doc(folder, key: str) -> dict | None:
+    """A JSON part as it is, a failure record or a result (read and parsed once), None
+    where it is missing."""
+    data = part_bytes(folder, key)
+    if data is None:
+        return None
+    try:
+        doc = json.loads(data)
+    except ValueError as exc:
+        raise CorruptFileError(f"not valid JSON ({exc})", source=part_label(folder, key)) from None
+    if not isinstance(doc, dict):
+        raise CorruptFileError("not a JSON object", source=part_label(folder, key))
+    return doc
 
 
 def read_part_json(folder, key: str) -> dict:
