@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..calibration.file import Calibration, load_calibration
+from ..calibration.file import Calibration
 from ..calibration.parameters import parameters_at, temperature_coefficients
 from ..io.errors import GyrocalError
 from .limits import NOISE_LIMITS, SpecLimits, match_pattern
@@ -225,25 +225,35 @@ def hold_share(info: Mapping) -> tuple[float | None, str]:
     return (float(accepted) / total if total else None), "no candidate holds"
 
 
-def unit_inputs(folder) -> tuple:
-    """(calibration or failure record, validation summary or failure record or None,
-    segmentation info or failure record or None) from a unit's results folder
-    (``results/{batch}/{device}/{session}``), for :func:`judge`."""
+def read_unit(folder) -> tuple:
+    """(calibration, validation summary, segmentation info) from a unit's results folder
+    (``results/{batch}/{device}/{session}``), each part read once (the observations' footer
+    alone): each a result, a failure record, or None where the part is missing. What the
+    fleet summary's row and :func:`judge` both take."""
     from ..io import failure
     from ..io.tables import OBS_META_KEY
-    from ..io.unit_folder import part_exists, part_failure, part_metadata, read_part_json
-    folder = Path(folder)
-    cal_path = folder / "calibration.json"
-    cal = failure.read(cal_path) or load_calibration(cal_path)
-    summary = None
-    if part_exists(folder, "validation"):
-        summary = part_failure(folder, "validation") or read_part_json(folder, "validation").get("summary")
+    from ..io.unit_folder import part_metadata, read_part_doc
+    cal = read_part_doc(folder, "calibration")
+    if cal is not None and cal.get("format") != failure.FORMAT:
+        cal = Calibration.from_dict(cal, source=Path(folder) / "calibration.json")
+    summary = read_part_doc(folder, "validation")
+    if summary is not None and summary.get("format") != failure.FORMAT:
+        summary = summary.get("summary")
     info = None
     meta = part_metadata(folder, "observations")   # the footer alone
     if meta is not None and meta.get(failure.META_KEY):
         info = json.loads(meta[failure.META_KEY])   # the segmentation's failure record
     elif meta is not None and meta.get(OBS_META_KEY):
         info = json.loads(meta[OBS_META_KEY]).get("info")
+    return cal, summary, info
+
+
+def unit_inputs(folder) -> tuple:
+    """:func:`read_unit` for :func:`judge`: a missing calibration is an error naming it."""
+    from ..io.errors import CorruptFileError
+    cal, summary, info = read_unit(folder)
+    if cal is None:
+        raise CorruptFileError("no such file", source=Path(folder) / "calibration.json")
     return cal, summary, info
 
 

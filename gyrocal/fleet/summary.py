@@ -65,18 +65,19 @@ def _records(frame: pd.DataFrame) -> list[dict]:
             for row in frame.to_dict("records")]
 
 
-def end_of_line(units: list[dict], settings: FleetSettings) -> dict:
-    """Verdict per unit (``unit["row"]`` manifest row, ``unit["folder"]`` results), yield per
-    batch. Units of a protocol without limits are not judged."""
-    from .eol import batch_yield, judge_folder
+def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dict:
+    """Verdict per unit (``unit["row"]`` manifest row; ``inputs``, what :func:`_unit_row`
+    read of its folder, by (batch, device, session)), yield per batch. Units of a protocol
+    without limits are not judged."""
+    from .eol import batch_yield, judge
     verdicts = {}
     for unit in units:
         row = unit["row"]
         limits = settings.spec.get(row["protocol"])
         if limits is None:
             continue
-        verdict = judge_folder(unit["folder"], limits)
-        verdicts[(row["batch"], row["device"], row["session"])] = verdict
+        key = (row["batch"], row["device"], row["session"])
+        verdicts[key] = judge(*inputs[key], limits)
     yields = batch_yield(list(verdicts.values())) if verdicts else pd.DataFrame()
     return {"verdicts": verdicts, "yield": _records(yields) if len(yields) else []}
 
@@ -134,10 +135,10 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
     return audits
 
 
-def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings) -> dict:
+def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, inputs: dict) -> dict:
     folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"])
                for u in units}
-    eol = end_of_line(units, settings)
+    eol = end_of_line(units, settings, inputs)
     flagged, notes, figure = outliers(calibrated, settings)
     return {"eol": eol, "outliers": flagged, "outlier_notes": notes, "outlier_figure": figure,
             "drift": drift_audits(calibrated, folders, settings)}
@@ -149,11 +150,13 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
     calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
     (end of line, outliers, drift; each unit's verdict also in its row) and the servo
     versus turntable comparisons."""
-    rows = [_unit_row(unit) for unit in units]
+    read = [_unit_row(unit) for unit in units]
+    rows = [row for row, _ in read]
     ok = [r for r in rows if r["status"] == "ok"]
     fleet = None
     if settings is not None:
-        fleet = audit(units, ok, settings)
+        inputs = {(r["batch"], r["device"], r["session"]): i for r, i in read}
+        fleet = audit(units, ok, settings, inputs)
         for row in rows:
             verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
             if verdict is not None:
@@ -168,31 +171,33 @@ KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm
                   ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
 
 
-def _unit_row(unit: dict) -> dict:
-    """A unit session's row of the fleet table, each of its files read once (a fleet job
+def _unit_row(unit: dict) -> tuple[dict, tuple]:
+    """A unit session's row of the fleet table, and what :func:`gyrocal.fleet.eol.judge`
+    takes, from one read of its folder (:func:`gyrocal.fleet.eol.read_unit`; a fleet job
     reads thousands): calibrated, or failed with the first failure record its parts hold
     (validation, calibration, observations), or with what made a part unreadable."""
-    from ..calibration.file import Calibration
-    from ..io.unit_folder import part_failure, read_part_doc
+    from ..io.errors import CorruptFileError
+    from .eol import read_unit
     row = dict(unit["row"])
     folder = unit["folder"]
     row["report"] = unit["report"]
     try:
-        validation, cal = read_part_doc(folder, "validation"), read_part_doc(folder, "calibration")
-        records = [d for d in (validation, cal) if d is not None and d.get("format") == failure.FORMAT]
-        rec = records[0] if records else part_failure(folder, "observations")
-        if rec is None and (validation is None or cal is None):
-            row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
-                       "did not run to the end (see the workflow's logs)", internal=True)
-            return row
-        if rec is None:
-            cal = Calibration.from_dict(cal, source=Path(folder) / "calibration.json")
+        cal, summary, info = read_unit(folder)
     except GyrocalError as exc:   # a part that cannot be read: this unit's failure alone
-        rec = {"stage": "fleet", "error": str(exc), "internal": False}
+        row.update(status="failed", stage="fleet", error=str(exc), internal=False)
+        return row, (exc, None, None)
+    inputs = (cal if cal is not None else
+              CorruptFileError("no such file", source=Path(folder) / "calibration.json"), summary, info)
+    rec = next((d for d in (summary, cal, info)
+                if isinstance(d, dict) and d.get("format") == failure.FORMAT), None)
     if rec is not None:
         row.update(status="failed", stage=rec["stage"], error=rec["error"],
                    internal=rec.get("internal", False))
-        return row
+        return row, inputs
+    if summary is None or cal is None:
+        row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
+                   "did not run to the end (see the workflow's logs)", internal=True)
+        return row, inputs
     at_ref = cal.coefficients([cal.reference_temperature], warn=False)
     row["calibration"] = cal
     row["warnings"] = cal.extra.get("warnings", [])
@@ -201,10 +206,10 @@ def _unit_row(unit: dict) -> dict:
         if session_noise else None
     # a session that logged no temperature has no span, only its stand-in
     logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
-    row.update(status="ok", span=cal.grid.span if logged else None, summary=validation["summary"],
+    row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
                reference=cal.reference_temperature, missing=_missing_effect(folder),
                params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
-    return row
+    return row, inputs
 
 
 def _missing_effect(folder) -> str:

@@ -96,9 +96,9 @@ def write(outputs, rec: dict) -> None:
             atomic.write_text(out, json.dumps(rec, indent=2) + "\n")
 
 
-def load_json(path, data: bytes | None = None) -> dict:
+def load_json(path, data: bytes | None = None, refuse_records: bool = True) -> dict:
     """A JSON result file (or ``data``, the bytes of one that ``path`` names), refusing
-    failure records with their own message."""
+    failure records with their own message (``refuse_records``; else returned as read)."""
     path = Path(path)
     try:
         if data is None:
@@ -108,6 +108,6 @@ def load_json(path, data: bytes | None = None) -> dict:
         raise CorruptFileError("no such file", source=path) from None
     except ValueError as exc:
         raise CorruptFileError(f"not valid JSON ({exc})", source=path) from None
-    if isinstance(doc, dict) and doc.get("format") == FORMAT:
+    if refuse_records and isinstance(doc, dict) and doc.get("format") == FORMAT:
         raise UpstreamFailure(doc)
     return doc

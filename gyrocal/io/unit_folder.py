@@ -5,7 +5,6 @@ reads: the calibration as a file of its own, the rest as parts of one archive pe
 from __future__ import annotations
 
 import contextlib
-import json
 import zipfile
 from pathlib import Path
 
@@ -50,9 +49,7 @@ def read_observations(folder):
     folder = Path(folder)
     if folder.name == UNIT_FILES["observations"]:
         folder = folder.parent
-    data, label = part_bytes(folder, "observations"), part_label(folder, "observations")
-    if data is None:
-        raise CorruptFileError("no such file", source=label)
+    data, label = _required_bytes(folder, "observations")
     found = failure.read(label, data=data)
     if found is not None:
         raise failure.UpstreamFailure(found)
@@ -92,20 +89,23 @@ def part_label(folder, key: str) -> Path:
 
 def part_bytes(folder, key: str) -> bytes | None:
     """The bytes of one part of a unit's results, loose or packed; None where it has none."""
-    folder = Path(folder)
-    loose = folder / UNIT_FILES[key]
+    loose = Path(folder) / UNIT_FILES[key]
     if loose.exists():
         return loose.read_bytes()
-    container = folder / CONTAINER_OF.get(key, "")
-    if key not in CONTAINER_OF or not container.is_file():
-        return None
-    try:
-        with zipfile.ZipFile(container) as archive:
-            return archive.read(UNIT_FILES[key])
-    except KeyError:
-        return None
-    except (zipfile.BadZipFile, OSError) as exc:
-        raise CorruptFileError(f"not a readable archive ({exc})", source=container) from None
+    with _member(folder, key) as member:
+        try:
+            return None if member is None else member.read()
+        except (zipfile.BadZipFile, OSError) as exc:
+            raise CorruptFileError(f"not a readable archive ({exc})",
+                                   source=Path(folder) / CONTAINER_OF[key]) from None
+
+
+def _required_bytes(folder, key: str) -> tuple[bytes, Path]:
+    """(The bytes of a part that must be there, how messages name it)."""
+    data, label = part_bytes(folder, key), part_label(folder, key)
+    if data is None:
+        raise CorruptFileError("no such file", source=label)
+    return data, label
 
 
 def part_exists(folder, key: str) -> bool:
@@ -124,23 +124,18 @@ def part_exists(folder, key: str) -> bool:
 
 def read_part_table(folder, key: str):
     """(pandas table, metadata) of a table part (:func:`gyrocal.io.tables.write_table`)."""
-    data = part_bytes(folder, key)
-    label = part_label(folder, key)
-    if data is None:
-        raise CorruptFileError("no such file", source=label)
+    data, label = _required_bytes(folder, key)
     return read_table_with_metadata(label, data=data)
 
 
 def read_part_doc(folder, key: str) -> dict | None:
     """A JSON part as it is, a failure record or a result (read and parsed once), None
     where it is missing."""
+    from . import failure
     data = part_bytes(folder, key)
     if data is None:
         return None
-    try:
-        doc = json.loads(data)
-    except ValueError as exc:
-        raise CorruptFileError(f"not valid JSON ({exc})", source=part_label(folder, key)) from None
+    doc = failure.load_json(part_label(folder, key), data=data, refuse_records=False)
     if not isinstance(doc, dict):
         raise CorruptFileError("not a JSON object", source=part_label(folder, key))
     return doc
@@ -167,12 +162,16 @@ def part_failure(folder, key: str) -> dict | None:
 def part_metadata(folder, key: str) -> dict | None:
     """The schema metadata of a Parquet part (its footer alone read), None where it is
     missing."""
+    import pyarrow as pa
     import pyarrow.parquet as pq
     loose = Path(folder) / UNIT_FILES[key]
-    if loose.exists():
-        return pq.read_schema(loose).metadata or {}
-    with _member(folder, key) as member:
-        return None if member is None else pq.read_schema(member).metadata or {}
+    try:
+        if loose.exists():
+            return pq.read_schema(loose).metadata or {}
+        with _member(folder, key) as member:
+            return None if member is None else pq.read_schema(member).metadata or {}
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise CorruptFileError(f"not a readable Parquet file ({exc})", source=part_label(folder, key)) from None
 
 
 @contextlib.contextmanager

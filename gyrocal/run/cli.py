@@ -152,11 +152,11 @@ def _stage(args, stage: str, outputs, work) -> int:
 
 
 def cmd_segment(args) -> int:
-    from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
+    from ..io.unit_folder import STAGE_PARTS, UNIT_FILES, clear_stage, pack_stage
     from .stages import segment_stage
     settings = _settings(args)
     out = Path(args.out)
-    files = [out / UNIT_FILES[k] for k in ("observations", "history", "segments", "timeline")]
+    files = [out / UNIT_FILES[k] for k in STAGE_PARTS["segment"]]
     clear_stage(out, "segment")
     status = _stage(args, "segment", files,
                     lambda: segment_stage(args.log, out, settings, _meta(args)))

@@ -78,11 +78,11 @@ def costs(text: str) -> list[tuple[str, str, float, float, float]]:
 def stage_outputs(args) -> list[Path]:
     """Every file the stage's failure records go to: those ``gyrocal STAGE
     --record-failures`` writes when it fails (gyrocal/run/cli.py, gyrocal/run/stages.py)."""
-    from ..io.unit_folder import DIAGNOSIS_FILES, VALIDATION_TABLES, UNIT_FILES
+    from ..io.unit_folder import DIAGNOSIS_FILES, STAGE_PARTS, VALIDATION_TABLES, UNIT_FILES
     if args.command == "report":
         return [Path(args.output)]
     if args.command == "segment":
-        folder, keys = Path(args.out), ("observations", "history", "segments", "timeline")
+        folder, keys = Path(args.out), STAGE_PARTS["segment"]
     else:
         folder, keys = Path(args.unit), ("calibration", "validation", *VALIDATION_TABLES,
                                          *DIAGNOSIS_FILES)
