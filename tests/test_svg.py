@@ -151,12 +151,18 @@ def test_residuals_by_a_category_with_missing_values_leave_those_out():
     import pandas as pd
 
     from gyrocal.report import plots
-    frame = pd.DataFrame({"mount": ["+x", None, "+z", "+x"], "z_x": [0.1, 0.2, 0.3, 0.4],
-                          "z_y": [0.0, 1.0, 2.0, 3.0], "z_z": [1.0, 1.0, 1.0, 1.0]})
+    from gyrocal.io.columns import Columns
+    frame = Columns.from_frame(pd.DataFrame({
+        "mount": ["+x", None, "+z", "+x"], "z_x": [0.1, 0.2, 0.3, 0.4], "z_y": [0.0, 1.0, 2.0, 3.0],
+        "z_z": [1.0, 1.0, 1.0, 1.0]}))
     text = plots.residuals(frame, [("mount", "mount")])
     labels = re.findall(r">([^<]+)</text>", text)
     assert "+x" in labels and "+z" in labels and "nan" not in labels and "None" not in labels
-    assert plots.residuals(frame.assign(mount=[None] * 4), [("mount", "mount")]).startswith("<svg")
+    assert plots.residuals(frame.assign(mount=np.array([None] * 4, object)),
+                           [("mount", "mount")]).startswith("<svg")
+    with_nan = plots.residuals(frame.assign(mount=np.array(["+x", np.nan, "+z", "+x"], object)),
+                               [("mount", "mount")])
+    assert "nan" not in re.findall(r">([^<]+)</text>", with_nan)
 
 
 @pytest.mark.parametrize("values", [[1.0, 1 + 1e-12, 1 + 2e-12, 1 + 2e-12], [2.0, 2.0, 2.0], [1e-3] * 4])

@@ -33,12 +33,15 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from ..io.errors import InputError
 from .noise import MIN_SAMPLES, NoiseTerms, fit_noise_terms, pooled_from_sums, stretch_sums
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 AXES = "xyz"
 MIN_STATIC_S = 1.0      # a stretch this long adds its short taus to the pooled estimate
@@ -94,6 +97,7 @@ def static_stretches(log, seg, static, *, max_temp_rate: float = 0.1) -> pd.Data
     """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature,
     as the protocol finds them (``static``: its
     :attr:`gyrocal.protocols.registry.Protocol.static`), at least ``MIN_STATIC_S`` long."""
+    import pandas as pd   # here, not with the module: a report reads the noise terms without it
     t0, t1 = static(log, seg, max_temp_rate)
     out = pd.DataFrame({"t_start": np.asarray(t0, float), "t_end": np.asarray(t1, float)})
     out = out[out["t_end"] - out["t_start"] >= MIN_STATIC_S].sort_values("t_start")

@@ -13,11 +13,11 @@ Compensation inverts ``w = w_true + e(w_true, covariates)``: the model is affine
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import pandas as pd
 
 from ..io.errors import ConfigError, IdentifiabilityError, MissingInputError
 from ..io.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
@@ -231,7 +231,8 @@ def columns_of(obs) -> dict[str, np.ndarray]:
     """Numeric observation columns as float arrays (what terms read), with the session's
     record (``series``, :mod:`gyrocal.io.signals`) when the table carries one in its attrs; a
     mapping passes through."""
-    if not isinstance(obs, pd.DataFrame):
+    pd = sys.modules.get("pandas")   # not imported here: a report reads a calibration without it
+    if pd is None or not isinstance(obs, pd.DataFrame):
         return obs
     data = {c: obs[c].to_numpy(dtype=float) for c in obs.columns
             if c not in NON_NUMERIC and pd.api.types.is_numeric_dtype(obs[c])}

@@ -22,14 +22,16 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import ClassVar
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
-import pandas as pd
 
 from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
 from ..terms import Term
 from .model import FitResult, Model, columns_of, fit, subset_design
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 METHODS = ("lagrange3", "linear", "spline", "poly")
 
@@ -401,8 +403,15 @@ def fit_continuous(model: Model, obs, *, source=None, design: dict | None = None
     point = data["point"].astype(int)
     rows = [(int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
             for p in np.unique(point)]
-    points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
+    points = _points_table(rows)
     return ContinuousFit(model, result, data, points, design=design)
+
+
+def _points_table(rows: list) -> pd.DataFrame:
+    """The fit's table of temperature points. pandas is imported here, by the fits, and not
+    with the module: a report reads a calibration's grid without it."""
+    import pandas as pd
+    return pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
 
 
 def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degree: int = 3,
@@ -437,7 +446,7 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     grid = TemperatureGrid(np.array(temps), names, np.array([f.values for f in fits]),
                            np.array([f.stderr for f in fits]), method, degree,
                            np.array([f.covariance for f in fits]))
-    points = pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
+    points = _points_table(rows)
     return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
 
 
@@ -566,12 +575,11 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
                 j = index[f"{name}.@{p}"]
                 values[k, c], stderr[k, c] = result.values[j], result.stderr[j]
     grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
-    joint_fit = JointGridFit(model, result, data, grid, pd.DataFrame(), {}, (), tuple(ids))
+    joint_fit = JointGridFit(model, result, data, grid, _points_table([]), {}, (), tuple(ids))
     grid = replace(grid, covariance=np.array([joint_fit.point_fit(p).covariance for p in ids]))
     table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps)]
     table += list(extra_points)
-    points = pd.DataFrame(table, columns=["point", "temp", "holds", "used", "reason"]) \
-        .sort_values("point", kind="stable").reset_index(drop=True)
+    points = _points_table(table).sort_values("point", kind="stable").reset_index(drop=True)
     rows = np.arange(len(point)) if rows is None else rows
     return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids),
                         design=design)

@@ -38,9 +38,8 @@ import pandas as pd
 
 from ..io.errors import GyrocalError, IdentifiabilityError
 from ..terms import AXES
+from . import METHODS
 from .model import Model, columns_of, fit, observation_floor, subset_design
-
-METHODS = ("uncompensated", "single", "interpolated")
 
 
 @dataclass(frozen=True)

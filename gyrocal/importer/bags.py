@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io.errors import ConfigError, CorruptFileError, EmptyLogError, LogFormatError
-from ..io.log import first_line
+from ..io.errors import ConfigError, CorruptFileError, EmptyLogError, LogFormatError, first_line
 from .mapping import ACCEL_UNITS, RATE_UNITS, Held, ImportMap, Scaled
 from .sink import LogSink
 

@@ -23,8 +23,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.csv as pacsv
 
-from ..io.errors import CorruptFileError, LogFormatError
-from ..io.log import first_line
+from ..io.errors import CorruptFileError, LogFormatError, first_line
 from .mapping import TIME_UNITS, ImportMap
 from .sink import ROW_GROUP_ROWS, LogSink
 

@@ -63,3 +63,14 @@ class IdentifiabilityError(InputError):
 
 class MissingInputError(InputError):
     """A model term needs a log column or covariate that is absent."""
+
+
+def first_line(exc: BaseException) -> str:
+    """An exception's first line, for a one-line error (Arrow's messages run to many, and
+    its dataset errors wrap the reader's reason, which comes last, in sentences that repeat
+    the file's path: the reason alone is kept)."""
+    text = str(exc).strip().splitlines()
+    line = text[0] if text else type(exc).__name__
+    if line.startswith("Error creating dataset") and ": " in line:
+        line = line.rsplit(": ", 1)[1].rstrip(".")
+    return line

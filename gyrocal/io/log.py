@@ -22,7 +22,7 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from . import readahead
-from .errors import CorruptFileError, EmptyLogError, LogFormatError
+from .errors import CorruptFileError, EmptyLogError, LogFormatError, first_line
 
 GYRO = ("gyro_x", "gyro_y", "gyro_z")
 ACCEL = ("accel_x", "accel_y", "accel_z")
@@ -183,17 +183,6 @@ def _first_time(fragment) -> float | None:
     except (KeyError, TypeError, ValueError, OverflowError, pa.ArrowException):
         # OverflowError: a timestamp statistic beyond Python's datetime range (year 9999)
         return None
-
-
-def first_line(exc: BaseException) -> str:
-    """An exception's first line, for a one-line error (Arrow's messages run to many, and
-    its dataset errors wrap the reader's reason, which comes last, in sentences that repeat
-    the file's path: the reason alone is kept)."""
-    text = str(exc).strip().splitlines()
-    line = text[0] if text else type(exc).__name__
-    if line.startswith("Error creating dataset") and ": " in line:
-        line = line.rsplit(": ", 1)[1].rstrip(".")
-    return line
 
 
 # What Arrow raises on data it cannot read: damaged pages (ArrowInvalid, OSError) and a

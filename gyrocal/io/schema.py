@@ -12,25 +12,20 @@ import copy
 import math
 from functools import cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import jsonschema
 import yaml
 
 from .errors import ConfigError
 
+if TYPE_CHECKING:
+    import jsonschema
+
 FOLDER = Path(__file__).with_name("schemas")
 
-# A number is finite and not a boolean, a whole number an int: YAML reads .inf, .nan,
-# true and 3.0 as numbers, and none of them is a setting. A list may be a tuple: the
-# library's callers pass either.
-_TYPES = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine_many({
-    "number": lambda _, v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
-    "integer": lambda _, v: isinstance(v, int) and not isinstance(v, bool),
-    "array": lambda _, v: isinstance(v, (list, tuple))})
 # libyaml's safe loader where PyYAML was built with it: the pure-Python one takes a fifth
 # of a second over the config schema, at every start of a command.
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-_Validator = jsonschema.validators.extend(jsonschema.Draft202012Validator, type_checker=_TYPES)
 _TYPE_NAMES = {"number": "a number", "integer": "a whole number", "string": "a string",
                "array": "a list", "object": "a mapping", "boolean": "true or false", "null": "null"}
 _BOUNDS = {"minimum": "at least", "exclusiveMinimum": "more than", "maximum": "at most",
@@ -52,9 +47,25 @@ def section(name: str, path: str = "") -> dict:
 
 
 @cache
+def _validator_class():
+    """The validator, made on the first check: jsonschema's import is a tenth of a second
+    that reading the defaults (a report, the workflow's planning) does not need."""
+    import jsonschema
+    # A number is finite and not a boolean, a whole number an int: YAML reads .inf, .nan,
+    # true and 3.0 as numbers, and none of them is a setting. A list may be a tuple: the
+    # library's callers pass either.
+    types = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine_many({
+        "number": lambda _, v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
+        "integer": lambda _, v: isinstance(v, int) and not isinstance(v, bool),
+        "array": lambda _, v: isinstance(v, (list, tuple))})
+    return jsonschema.validators.extend(jsonschema.Draft202012Validator, type_checker=types)
+
+
+@cache
 def _validator(name: str, path: str):
     # The section is checked with the whole schema as its root, for its $refs to resolve.
-    root = _Validator(load(name), format_checker=_Validator.FORMAT_CHECKER)
+    validator = _validator_class()
+    root = validator(load(name), format_checker=validator.FORMAT_CHECKER)
     return root.evolve(schema=section(name, path)) if path else root
 
 
@@ -72,6 +83,7 @@ def check(values, name: str = "config", path: str = "", *, key: str | None = Non
 
     Defaults fill the sections written out under ``properties``; a ``$ref`` (a protocol's
     override of the model) is left as given, what it leaves out being the protocol's."""
+    import jsonschema
     error = jsonschema.exceptions.best_match(_validator(name, path).iter_errors(values))
     if error is not None:
         raise ConfigError(_message(error, path if key is None else key), source=source)

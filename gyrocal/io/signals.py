@@ -25,11 +25,14 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from .errors import MissingInputError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag", "rate_history", "accel_history"})
 # The record's further columns (bin means, like the temperature) and the inputs they stand for
@@ -336,6 +339,7 @@ class Series:
 
     # -- the history file ----------------------------------------------------------------
     def to_frame(self) -> pd.DataFrame:
+        import pandas as pd   # a report reads a calibration without pandas
         weight = np.ones(len(self.t)) if self.weight is None else self.weight
         return pd.DataFrame({"t": self.t, "temp": self.temp, "n": weight,
                              **{k: self.record[k] for k in RECORD_COLUMNS if k in self.record}})

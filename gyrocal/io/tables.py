@@ -11,8 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from . import atomic
-from .errors import CorruptFileError, LogFormatError
-from .log import first_line
+from .errors import CorruptFileError, LogFormatError, first_line
 
 OBS_META_KEY = b"gyrocal.observations"
 
@@ -33,9 +32,25 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
 def read_table_with_metadata(path, data: bytes | None = None):
     """(pandas table, metadata dict) of a file written by :func:`write_table`; ``data``, its
     bytes where they come from elsewhere (a part of an archive, which ``path`` names)."""
+    table, metadata = _read_arrow(path, data)
+    return table.to_pandas(), metadata
+
+
+def read_columns_with_metadata(path, data: bytes | None = None):
+    """(:class:`gyrocal.io.columns.Columns`, metadata dict) of the same file, without pandas:
+    what a report reads."""
+    from .columns import Columns
+    table, metadata = _read_arrow(path, data, whole_file=True)
+    return Columns.from_arrow(table), metadata
+
+
+def _read_arrow(path, data: bytes | None, whole_file: bool = False):
+    """``whole_file``: one file read by ``ParquetFile``, which (unlike ``read_table`` and
+    its dataset layer) imports neither pandas nor pyarrow.compute."""
     path = Path(path)
+    source = path if data is None else pa.BufferReader(data)
     try:
-        table = pq.read_table(path if data is None else pa.BufferReader(data))
+        table = pq.ParquetFile(source).read() if whole_file else pq.read_table(source)
     except FileNotFoundError:
         raise CorruptFileError("no such file", source=path) from None
     except (pa.ArrowInvalid, OSError) as exc:
@@ -43,4 +58,4 @@ def read_table_with_metadata(path, data: bytes | None = None):
     raw = (table.schema.metadata or {}).get(OBS_META_KEY)
     if raw is None:
         raise LogFormatError("is not a table written by gyrocal", source=path)
-    return table.to_pandas(), json.loads(raw)
+    return table, json.loads(raw)

@@ -11,7 +11,7 @@ from pathlib import Path
 from . import atomic
 from .errors import CorruptFileError
 from .signals import Series
-from .tables import read_table_with_metadata
+from .tables import read_columns_with_metadata, read_table_with_metadata
 
 UNIT_FILES = {
     "observations": "observations.parquet",
@@ -126,6 +126,12 @@ def read_part_table(folder, key: str):
     """(pandas table, metadata) of a table part (:func:`gyrocal.io.tables.write_table`)."""
     data, label = _required_bytes(folder, key)
     return read_table_with_metadata(label, data=data)
+
+
+def read_part_columns(folder, key: str):
+    """(:class:`gyrocal.io.columns.Columns`, metadata) of a table part, without pandas."""
+    data, label = _required_bytes(folder, key)
+    return read_columns_with_metadata(label, data=data)
 
 
 def read_part_doc(folder, key: str) -> dict | None:

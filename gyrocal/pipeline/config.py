@@ -18,7 +18,7 @@ import yaml
 from ..fit.model import DEFAULT_TERMS, Model
 from ..io import schema
 from ..io.errors import ConfigError, CorruptFileError
-from ..protocols.turntable.segment import SegmentConfig
+from ..protocols.turntable.config import SegmentConfig
 from ..terms import make_term
 from ..terms.user import load_term_file
 

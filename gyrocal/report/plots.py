@@ -14,13 +14,16 @@ import math
 from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from ..io import atomic
+from ..io.columns import present
 from . import svg
 
 if TYPE_CHECKING:
+    import pandas as pd
     from matplotlib.figure import Figure
+
+    from ..io.columns import Columns
 
 AXES = ("x", "y", "z")
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
@@ -91,16 +94,16 @@ def _legend_above(fig: svg.Figure, entries: list, y: float, columns: int = 4) ->
     fig.extra.append(svg.legend(entries, None, "", x=max((fig.width - width) / 2, 4), y=y, columns=columns))
 
 
-def timeline(timeline: pd.DataFrame, segments: pd.DataFrame) -> str:
+def timeline(timeline: Columns, segments: Columns) -> str:
     """Temperature, reference rate and gyro over the session; accepted holds shaded,
     rejected segments marked by reason (seed 000 Section 3.2's protocol, as found)."""
     rejected = segments[segments["kind"] == "rejected"]
-    reasons = sorted(rejected["reason"].astype(str).unique())
+    reasons = sorted(set(rejected["reason"].astype(str).tolist()))
     legend_rows = math.ceil((len(reasons) + 1) / 4)
     top = 30 + 15 * legend_rows
     fig = svg.Figure(WIDTH, top + 3 * 150 + 2 * 14 + 44)
     temp, ref, gyro = fig.grid(3, 1, top=top, vgap=14)
-    start = float(timeline["t_start"].iloc[0]) if len(timeline) else 0.0
+    start = float(timeline["t_start"][0]) if len(timeline) else 0.0
     hours = lambda t: (np.asarray(t, float) - start) / 3600.0  # noqa: E731
     t = hours((timeline["t_start"] + timeline["t_end"]) / 2)
     temp.line(t, timeline["temp"], colour="#444", width=1.0)
@@ -151,7 +154,7 @@ def parameters(grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: 
     return str(fig)
 
 
-def by_temperature(table: pd.DataFrame) -> str:
+def by_temperature(table: Columns) -> str:
     """Leave-temperature-out RMS per held-out point and method, with the noise floor."""
     fig = svg.Figure(640, 300)
     (panel,) = fig.grid(1, 1, left=78)
@@ -160,7 +163,7 @@ def by_temperature(table: pd.DataFrame) -> str:
         panel.line(table["temp"], table[f"{method}_rms"], colour=colour, width=1.3)
         panel.markers(table["temp"], table[f"{method}_rms"], colour=colour, shape=marker, size=6, label=method)
     panel.line(table["temp"], table["noise_floor"], colour="#000", dash="5 3", label="noise floor")
-    clamped = table[table["clamped"]]
+    clamped = table[np.asarray(table["clamped"], bool)]
     panel.markers(clamped["temp"], clamped["interpolated_rms"], colour="#000", shape="x", size=9,
                   label="outside the remaining range")
     panel.xlabel, panel.ylabel = "held-out temperature, °C", "RMS error of hold means, deg/s"
@@ -168,21 +171,21 @@ def by_temperature(table: pd.DataFrame) -> str:
     return str(fig)
 
 
-def error_distribution(holds: pd.DataFrame, method: str) -> str:
+def error_distribution(holds: Columns, method: str) -> str:
     """Error of each hold mean against the reference rate, one panel per rotating axis
     (rows) and output axis (columns), coloured by temperature (seed 000 Figs. 7-8)."""
     rows = holds[holds["method"] == method]
-    lo, hi = (float(holds["temp"].min()), float(holds["temp"].max())) if len(holds) else (0.0, 1.0)
+    lo, hi = (float(np.min(holds["temp"])), float(np.max(holds["temp"]))) if len(holds) else (0.0, 1.0)
     fig = svg.Figure(WIDTH, 640)
     grid = fig.grid(3, 3, right=110, hgap=60, vgap=52)
     for i, rot in enumerate(AXES):
         g = rows[rows["axis"] == rot]
-        inside = ~g["clamped"].to_numpy(bool)
+        inside = ~np.asarray(g["clamped"], bool)
         colours = np.array(svg.COOLWARM, dtype=object)[
-            svg.palette_index(g["temp"].to_numpy(float), lo, hi, len(svg.COOLWARM))]
+            svg.palette_index(np.asarray(g["temp"], float), lo, hi, len(svg.COOLWARM))]
         for j, out in enumerate(AXES):
             panel = grid[3 * i + j]
-            x, y = g["ref_rate"].to_numpy(float), g[f"err_{out}"].to_numpy(float)
+            x, y = np.asarray(g["ref_rate"], float), np.asarray(g[f"err_{out}"], float)
             panel.markers(x[inside], y[inside], colour=colours[inside], size=4)
             if method != "uncompensated" and (~inside).any():   # clamped: hollow
                 panel.markers(x[~inside], y[~inside], colour="#888", size=5, hollow=True)
@@ -214,23 +217,25 @@ def histogram(values: np.ndarray, label: str) -> str:
     return str(fig)
 
 
-def residuals(frame: pd.DataFrame, covariates: list[tuple[str, str]]) -> str:
+def residuals(frame: Columns, covariates: list[tuple[str, str]]) -> str:
     """Normalised residuals (residual ÷ noise floor) of every observation and output axis
     against each covariate; a model that explains the data leaves a band of about ±2."""
     n = len(covariates)
     rows = -(-n // 3)
     fig = svg.Figure(WIDTH, 44 + rows * 200)
     grid = fig.grid(rows, 3, count=n, top=12, vgap=56)
-    z = {a: frame[f"z_{a}"].to_numpy(float) for a in AXES}
+    z = {a: np.asarray(frame[f"z_{a}"], float) for a in AXES}
     finite = np.concatenate([v[np.isfinite(v)] for v in z.values()] + [np.array([-3.0, 3.0])])
     ylim = (float(finite.min()) * 1.04, float(finite.max()) * 1.04)
     for k, (panel, (label, column)) in enumerate(zip(grid, covariates)):
         x = frame[column]
         ticks = None
-        if not pd.api.types.is_numeric_dtype(x):   # categories side by side; a missing one not drawn
-            present = x.notna()
-            ticks = sorted(pd.unique(x[present].astype(str)))
-            x = x[present].astype(str).map({c: i for i, c in enumerate(ticks)}).reindex(x.index).astype(float)
+        if x.dtype.kind not in "biuf":   # categories side by side; a missing one not drawn
+            labels = x.astype(str)
+            there = present(x)
+            ticks = np.unique(labels[there]).tolist()
+            x = np.full(len(labels), np.nan)
+            x[there] = np.searchsorted(np.array(ticks), labels[there])
             panel.xticks = (np.arange(len(ticks), dtype=float), ticks)
             panel.xlim = (-0.6, len(ticks) - 0.4)
         panel.hspan(-2, 2, "#2ca02c", 0.1)
@@ -359,7 +364,7 @@ def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
     return str(fig)
 
 
-def servo_errors(holds: pd.DataFrame) -> str:
+def servo_errors(holds: Columns) -> str:
     """Seed 001: per revolution, the error of the rate's magnitude against the servo speed,
     before calibration and validated after it, with the revolution's noise floor."""
     fig = svg.Figure(WIDTH, 280)
@@ -369,7 +374,7 @@ def servo_errors(holds: pd.DataFrame) -> str:
     for panel, column, title in ((grid[0], "uncompensated_error", "uncompensated"),
                                  (grid[1], "validated_error", "validated (leave-one-revolution-out)")):
         if column == "validated_error":
-            floor = holds["noise_floor"].to_numpy(float)
+            floor = np.asarray(holds["noise_floor"], float)
             panel.band(x, -2 * floor, 2 * floor, colour="#2ca02c", opacity=0.15, label="±2 noise floor")
             panel.legend_at = "upper right"
         panel.hline(0.0, colour="#000", width=0.6)

@@ -405,15 +405,24 @@ class Panel:
         px, py = self.sx(x), self.sy(y)
         colours = np.broadcast_to(np.asarray(colour, dtype=object), px.shape)
         ok = np.isfinite(px) & np.isfinite(py)
+        # One marker per pixel and colour (the rest would be drawn over it), inside the panel:
+        # whole points sorted by colour, then x, then y, and the repeats dropped, at once.
+        kx, ky = (np.round(np.clip(p[ok], -1e6, 1e6)).astype(np.int64) for p in (px, py))
+        inside = ((kx >= self.left - 1) & (kx <= self.left + self.w + 1)
+                  & (ky >= self.top - 1) & (ky <= self.top + self.h + 1))
+        if not inside.any():
+            return ""
+        names, code = np.unique(colours[ok][inside], return_inverse=True)
+        kx, ky, code = kx[inside], ky[inside], code.ravel()
+        order = np.lexsort((ky, kx, code))
+        kx, ky, code = kx[order], ky[order], code[order]
+        new = np.r_[True, (np.diff(code) != 0) | (np.diff(kx) != 0) | (np.diff(ky) != 0)]
+        kx, ky, code = kx[new], ky[new], code[new]
+        starts = np.flatnonzero(np.r_[True, np.diff(code) != 0])
         out = []
-        for c in sorted(set(colours[ok])):
-            mine = ok & (colours == c)
-            # one marker per pixel and colour: the rest would be drawn over it
-            key = np.unique(np.column_stack([np.round(px[mine]), np.round(py[mine])]), axis=0)
-            key = key[(key[:, 0] >= self.left - 1) & (key[:, 0] <= self.left + self.w + 1)
-                      & (key[:, 1] >= self.top - 1) & (key[:, 1] <= self.top + self.h + 1)]
-            if not key.size:
-                continue
+        for first, last in zip(starts, np.r_[starts[1:], len(code)]):
+            c = names[code[first]]
+            key = np.column_stack([kx[first:last], ky[first:last]]).astype(float)
             alpha = f' opacity="{opacity}"' if opacity < 1 else ""
             r = size / 2
             if shape in ("o", "s") and not hollow:

@@ -12,39 +12,41 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from ..calibration.file import Calibration, dumps, load_calibration, standard_coefficients
-from ..fit.validate import METHODS
-from ..io.unit_folder import part_exists, part_failure, read_part_json, read_part_table, unit_paths
+from ..fit import METHODS
+from ..io.columns import Columns, present
+from ..io.unit_folder import part_exists, part_failure, read_part_columns, read_part_json, unit_paths
 from . import plots
 from .pages import render_page
 
 
 @dataclass
 class UnitResults:
-    """Everything a unit report shows, from a run in memory or a results folder."""
+    """Everything a unit report shows, from a run in memory or a results folder: its
+    tables as :class:`gyrocal.io.columns.Columns`, so drawing a folder's report does not
+    import pandas."""
 
     meta: dict
     calibration: Calibration
     seg_info: dict
-    observations: pd.DataFrame
-    segments: pd.DataFrame
-    timeline: pd.DataFrame
+    observations: Columns
+    segments: Columns
+    timeline: Columns
     summary: dict
-    holds: pd.DataFrame
-    table_holds: pd.DataFrame
-    table_samples: pd.DataFrame
-    by_temperature: pd.DataFrame
+    holds: Columns
+    table_holds: Columns
+    table_samples: Columns
+    by_temperature: Columns
     log: str = ""
     command: str = ""
     extra: dict = field(default_factory=dict)
     diagnosis: dict | None = None            # gyrocal.diagnosis/1, or a failure record
-    residuals: pd.DataFrame | None = None    # observations with normalised residuals
+    residuals: Columns | None = None    # observations with normalised residuals
     heatmaps: dict = field(default_factory=dict)
     protocol: dict | None = None              # the servo's or the sweep's own methods
     protocol_figures: list = field(default_factory=list)
-    free_points: pd.DataFrame | None = None   # continuous models: free per-point fits
+    free_points: Columns | None = None   # continuous models: free per-point fits
 
     @classmethod
     def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
@@ -52,20 +54,21 @@ class UnitResults:
         ``analysis``: its protocol's own methods (:func:`gyrocal.protocols.registry.analysis`)."""
         seg, val = run.segmentation, run.validation
         extra = {} if diagnosis is None else dict(
-            diagnosis=json.loads(dumps(diagnosis.to_dict())), residuals=diagnosis.residuals,
-            heatmaps=diagnosis.heatmaps)
+            diagnosis=json.loads(dumps(diagnosis.to_dict())),
+            residuals=Columns.from_frame(diagnosis.residuals), heatmaps=diagnosis.heatmaps)
         if analysis is not None:
             extra.update(protocol=analysis[0], protocol_figures=list(analysis[1]))
-        return cls(run.calibration.meta, run.calibration, seg.info, seg.observations,
-                   seg.segments, seg.timeline, val.summary, val.holds, val.table_holds,
-                   val.table_samples, val.by_temperature, seg.info.get("path", ""), command,
-                   free_points=val.free_points, **extra)
+        table = Columns.from_frame
+        return cls(run.calibration.meta, run.calibration, seg.info, table(seg.observations),
+                   table(seg.segments), table(seg.timeline), val.summary, table(val.holds),
+                   table(val.table_holds), table(val.table_samples), table(val.by_temperature),
+                   seg.info.get("path", ""), command, free_points=table(val.free_points), **extra)
 
     @classmethod
     def from_folder(cls, folder) -> UnitResults:
         p = unit_paths(folder)
-        obs, extra = read_part_table(folder, "observations")
-        table = lambda k: read_part_table(folder, k)[0]  # noqa: E731
+        obs, extra = read_part_columns(folder, "observations")
+        table = lambda k: read_part_columns(folder, k)[0]  # noqa: E731
         summary = read_part_json(folder, "validation")["summary"]
         cal = load_calibration(p["calibration"])
         diagnosis = residuals = None
@@ -73,7 +76,7 @@ class UnitResults:
         if part_exists(folder, "diagnosis"):
             diagnosis = part_failure(folder, "diagnosis") or read_part_json(folder, "diagnosis")
             if diagnosis.get("format") != "gyrocal.failure/1" and part_exists(folder, "residuals"):
-                residuals, meta = read_part_table(folder, "residuals")
+                residuals, meta = read_part_columns(folder, "residuals")
                 heat = meta.get("heatmaps", {})
         own = read_part_json(folder, "protocol")
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
@@ -84,7 +87,7 @@ class UnitResults:
                    free_points=table("free_points") if part_exists(folder, "free_points") else None)
 
 
-def _parameter_figure(cal: Calibration, free_points: pd.DataFrame | None) -> str:
+def _parameter_figure(cal: Calibration, free_points: Columns | None) -> str:
     """Grid models: the fitted grid and its interpolation. Continuous models: K and B of the
     calibration against temperature, over free per-point fits of the seed-000 terms
     (:func:`gyrocal.fit.validate.free_point_fits`; where the two disagree, the model's
@@ -102,9 +105,9 @@ def _parameter_figure(cal: Calibration, free_points: pd.DataFrame | None) -> str
         points, values, stderr = np.array([]), {n: [] for n in curve}, {n: [] for n in curve}
     else:
         names = [c for c in free_points.columns if c != "temp" and not c.endswith("_stderr")]
-        points = free_points["temp"].to_numpy()
-        values = {n: free_points[n].to_numpy() for n in names}
-        stderr = {n: free_points[f"{n}_stderr"].to_numpy() for n in names}
+        points = free_points["temp"]
+        values = {n: free_points[n] for n in names}
+        stderr = {n: free_points[f"{n}_stderr"] for n in names}
     return plots.parameters(points, values, stderr, temps, curve)
 
 
@@ -126,9 +129,10 @@ def _diagnosis_context(results: UnitResults) -> dict:
                "fig_shape": plots.shape_estimate(diag["shape_estimate"]) if diag.get("shape_estimate") else ""}
     frame = results.residuals
     if frame is not None and len(frame):
-        frame = frame.assign(time_h=(frame["t_start"] - frame["t_start"].min()) / 3600.0)
+        start = np.asarray(frame["t_start"], float)
+        frame = frame.assign(time_h=(start - start.min()) / 3600.0)
         shown = [(label, c) for label, c in RESIDUAL_COVARIATES
-                 if c in frame and (c == "mount" or np.isfinite(frame[c].to_numpy(float)).any())]
+                 if c in frame and (c == "mount" or np.isfinite(np.asarray(frame[c], float)).any())]
         context["fig_residuals"] = plots.residuals(frame, shown)
     maps = [(label, "reference rate, deg/s", results.heatmaps[key])
             for key, label in (("mount_by_rate", "mount"), ("temperature_by_rate", "temperature, °C"))
@@ -170,9 +174,14 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
     """The unit's page; ``protocol``, its :class:`gyrocal.protocols.registry.Protocol`, gives
     the report's own parts of the protocol (sections, figures, how it names its validation)."""
     cal, info = results.calibration, results.seg_info
-    counts = pd.crosstab(results.observations["point_temp"].round(2),
-                         results.observations["mount"].astype(str))
+    obs = results.observations
+    temps, temp_of = np.unique(np.round(np.asarray(obs["point_temp"], float), 2), return_inverse=True)
+    mounts, mount_of = np.unique(obs["mount"].astype(str), return_inverse=True)
+    counts = np.zeros((len(temps), len(mounts)), np.int64)
+    np.add.at(counts, (temp_of, mount_of), 1)
     rejected = results.segments[results.segments["kind"] == "rejected"]
+    reasons, per_reason = np.unique(rejected["reason"][present(rejected["reason"])].astype(str),
+                                    return_counts=True)
     own_figure = protocol.validation_figure
     g = cal.grid
     if cal.kind == "continuous":
@@ -194,15 +203,15 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
         input_warnings=cal.extra.get("warnings", []),
         interpolation=g.method, reference=cal.reference_temperature,
-        counts_columns=list(counts.columns),
-        counts=[(t, [int(v) for v in r]) for t, r in counts.iterrows()],
-        rejected_counts=rejected["reason"].value_counts().sort_index().to_dict(),
-        rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].to_dict("records"),
+        counts_columns=mounts.tolist(),
+        counts=list(zip(temps.tolist(), counts.tolist())),
+        rejected_counts=dict(zip(reasons.tolist(), per_reason.tolist())),
+        rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].records(),
         points=cal.extra.get("points", []), names=list(g.names), grid_rows=grid_rows,
         constants=constants,
-        table_holds=results.table_holds.to_dict("records"),
-        table_samples=results.table_samples.to_dict("records"),
-        by_temperature=results.by_temperature.to_dict("records"),
+        table_holds=results.table_holds.records(),
+        table_samples=results.table_samples.records(),
+        by_temperature=results.by_temperature.records(),
         provenance=cal.provenance, log=results.log, command=results.command, calibration_extra=cal.extra,
         fig_timeline=plots.timeline(results.timeline, results.segments),
         **(dict(fig_servo=own_figure(results.holds)) if own_figure is not None

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from ...fit.floor import MERGE_GAP_S, intersect_intervals, merge_intervals
 from ..registry import Protocol, register
-from .segment import segment
 
 
 def _segment(log, settings):
+    from .segment import segment   # on use: a report reads the protocol without segmentation
     return segment(log, settings.segmentation)
 
 
