@@ -268,10 +268,27 @@ def cmd_report(args) -> int:
 
 def cmd_shard(args) -> int:
     from ..fleet.manifest import read_manifest, write_shards
+    extra = args.snakemake_args[1:] if args.snakemake_args[:1] == ["--"] else args.snakemake_args
+    if extra and not args.run:
+        raise ConfigError(f"{' '.join(extra)}: options for each shard's workflow need --run")
+    if args.at_once < 1:
+        raise ConfigError(f"--at-once {args.at_once}: at least 1 shard at a time")
     rows = read_manifest(args.manifest)
     paths = write_shards(rows, args.size, args.out)
     print(f"{len(rows)} unit sessions in {len(paths)} shard{'s' if len(paths) != 1 else ''} -> {args.out}")
-    return 0
+    if not args.run:
+        return 0
+    from .shards import day_view, run_shards
+    configfile = Path(args.configfile or "config/config.yaml").resolve()
+    runs = run_shards(paths, Path(args.out), extra or ["--cores", "all"], at_once=args.at_once,
+                      snakefile=Path(args.snakefile),
+                      configfile=configfile if args.configfile or configfile.is_file() else None)
+    totals = day_view(runs, Path(args.out))
+    stopped = [r.name for r in runs if r.status != 0]
+    print(f"{totals['units']} unit sessions: {totals['ok']} calibrated, {totals['failed']} failed "
+          f"-> {Path(args.out) / 'index.html'}"
+          + (f"; the workflow stopped on {', '.join(stopped)}" if stopped else ""))
+    return 1 if stopped else 0
 
 
 def cmd_fleet(args) -> int:
@@ -598,6 +615,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--size", type=int, default=10000,
                    help="rows per shard at most (default 10000: under a minute to plan)")
     p.add_argument("-o", "--out", required=True, help="folder for shard-0001.tsv, ...")
+    p.add_argument("--run", action="store_true",
+                   help="then run the workflow on each shard in OUT/shard-0001/, ..., and write "
+                        "the day's view: OUT/index.html and OUT/fleet.parquet")
+    p.add_argument("--at-once", type=int, default=1, metavar="N",
+                   help="with --run: shards whose workflows run side by side (default 1; on a "
+                        "cluster, as many as its scheduler takes)")
+    p.add_argument("--snakefile", default="Snakefile",
+                   help="with --run: the workflow (default ./Snakefile: run from the repository)")
+    p.add_argument("--configfile", help="with --run: the workflow's settings (default "
+                                        "config/config.yaml where it exists)")
+    p.add_argument("snakemake_args", nargs=argparse.REMAINDER,
+                   help="with --run, after --: options for each shard's snakemake, such as "
+                        "--profile profiles/slurm (default --cores all)")
     p.set_defaults(func=cmd_shard)
 
     p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")

@@ -1,0 +1,118 @@
+"""A day's manifest run as shards: each shard a workflow run of its own, the day's view their
+union.
+
+Snakemake plans a workflow in about 3 ms a unit session (docs/cluster.md), so a day of
+100,000 would wait five minutes for its plan and hold one lock over all of it. ``gyrocal
+shard --run`` splits the manifest (:func:`gyrocal.fleet.manifest.write_shards`), runs the
+workflow on each shard in a working directory of its own (``OUT/shard-0001/``; runs do
+not share ``.snakemake`` or lock each other), a few at a time, and then writes the day's
+view beside them: ``OUT/fleet.parquet``, the shards' fleet tables as one with a ``shard``
+column, and ``OUT/index.html``, a row per shard linking to its fleet summary.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..io import atomic
+from ..io.errors import ConfigError
+
+POLL_S = 0.5   # s between looks at the running shards: a shard's run takes minutes to hours
+
+
+@dataclass
+class ShardRun:
+    """One shard's workflow run: its manifest, working directory, exit status (None while
+    it runs) and wall time."""
+
+    manifest: Path
+    folder: Path
+    status: int | None = None
+    seconds: float = 0.0
+
+    @property
+    def name(self) -> str:
+        return self.manifest.stem
+
+    @property
+    def log(self) -> Path:
+        return self.folder / "snakemake.log"
+
+
+def workflow_command(shard: ShardRun, snakefile: Path, configfile: Path | None,
+                     snakemake_args: list[str]) -> list[str]:
+    """The Snakemake command of one shard: the repository's workflow in the shard's folder,
+    its manifest as ``devices`` (given last, so that it is the one that counts)."""
+    command = [sys.executable, "-m", "snakemake", "--snakefile", str(snakefile),
+               "--directory", str(shard.folder)]
+    if configfile is not None and "--configfile" not in snakemake_args:
+        command += ["--configfile", str(configfile)]
+    return [*command, *snakemake_args, "--config", f"devices={shard.manifest}"]
+
+
+def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, at_once: int = 1,
+               snakefile: Path, configfile: Path | None, command=workflow_command,
+               echo=print) -> list[ShardRun]:
+    """Run the workflow on every shard, ``at_once`` at a time, each one's output in its
+    ``snakemake.log``; ``echo`` says when each starts and ends."""
+    if not Path(snakefile).is_file():
+        raise ConfigError("no workflow here: run gyrocal shard --run from the repository's "
+                          "folder, or give --snakefile", source=snakefile)
+    runs = [ShardRun(Path(m).resolve(), Path(out).resolve() / Path(m).stem) for m in manifests]
+    waiting, running = list(runs), []
+    while waiting or running:
+        while waiting and len(running) < max(at_once, 1):
+            shard = waiting.pop(0)
+            shard.folder.mkdir(parents=True, exist_ok=True)
+            with open(shard.log, "w") as log:
+                process = subprocess.Popen(command(shard, Path(snakefile).resolve(), configfile,
+                                                   snakemake_args),
+                                           stdout=log, stderr=subprocess.STDOUT,
+                                           stdin=subprocess.DEVNULL)
+            running.append((shard, process, time.monotonic()))
+            echo(f"{shard.name}: started ({shard.folder})")
+        time.sleep(POLL_S)
+        for item in [r for r in running if r[1].poll() is not None]:
+            running.remove(item)
+            shard, process, started = item
+            shard.status, shard.seconds = process.returncode, time.monotonic() - started
+            echo(f"{shard.name}: " + ("done" if shard.status == 0 else
+                                      f"failed (exit status {shard.status}; see {shard.log})")
+                 + f" in {shard.seconds:.0f} s")
+    return runs
+
+
+def day_view(runs: list[ShardRun], out: Path) -> dict:
+    """``OUT/fleet.parquet`` (every shard's fleet table, ``shard`` first; a column one
+    shard's models lack is null there) and ``OUT/index.html``; returns the day's counts."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from ..report.pages import render_page
+    tables, rows = [], []
+    for shard in runs:
+        path = shard.folder / "results" / "fleet.parquet"
+        row = {"name": shard.name, "status": shard.status,
+               "summary": f"{shard.name}/reports/index.html", "log": f"{shard.name}/snakemake.log",
+               "units": None, "ok": None, "failed": None, "eol_passed": None, "eol_failed": None}
+        if path.is_file():
+            table = pq.read_table(path)
+            status = table.column("status").to_pylist()
+            verdicts = table.column("eol_passed").to_pylist() if "eol_passed" in table.column_names else []
+            row.update(units=table.num_rows, ok=status.count("ok"), failed=status.count("failed"),
+                       eol_passed=verdicts.count(True), eol_failed=verdicts.count(False))
+            tables.append(table.add_column(0, "shard", pa.array([shard.name] * table.num_rows,
+                                                                pa.string())))
+        rows.append(row)
+    if tables:
+        day = pa.concat_tables(tables, promote_options="permissive")
+        day = day.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
+        with atomic.replacing(out / "fleet.parquet") as tmp:
+            pq.write_table(day, tmp)
+    totals = {key: sum(r[key] or 0 for r in rows) for key in ("units", "ok", "failed", "eol_passed", "eol_failed")}
+    atomic.write_text(out / "index.html", render_page("day_index.html.j2", shards=rows, totals=totals))
+    return totals

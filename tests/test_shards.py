@@ -1,0 +1,122 @@
+"""A day's manifest run as shards (gyrocal shard --run, gyrocal.run.shards): each shard a
+workflow of its own, a few at a time, and the day's view their union."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pyarrow.parquet as pq
+import pytest
+
+from gyrocal.run.shards import ShardRun, day_view, run_shards, workflow_command
+
+from .conftest import FLEET_CONFIG, REPO
+
+# Stands in for a shard's workflow: writes a fleet table of its manifest's rows (a
+# parameter column only some shards have), records when it ran, and fails where told to.
+FAKE_WORKFLOW = r"""
+import json, sys, time, pathlib
+import pyarrow as pa, pyarrow.parquet as pq
+folder, manifest = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+start = time.time()
+rows = [line.split("\t") for line in manifest.read_text().splitlines()[1:]]
+time.sleep(0.6)
+if any(r[0] == "STOP" for r in rows):
+    print("the workflow stopped <here>"); sys.exit(3)
+(folder / "results").mkdir(parents=True, exist_ok=True)
+columns = {"device": [r[0] for r in rows], "batch": [r[1] for r in rows],
+           "status": ["failed" if r[0].startswith("F") else "ok" for r in rows],
+           "eol_passed": [None if r[0].startswith("F") else r[0] != "E1" for r in rows]}
+if rows[0][1] == "B2":
+    columns["bias.x"] = [0.01] * len(rows)
+pq.write_table(pa.table(columns), folder / "results" / "fleet.parquet")
+(folder / "ran.json").write_text(json.dumps([start, time.time()]))
+"""
+
+
+def fake(shard, snakefile, configfile, args):
+    return [sys.executable, "-c", FAKE_WORKFLOW, str(shard.folder), str(shard.manifest)]
+
+
+def manifests(tmp_path, batches: dict[str, list[str]]):
+    paths = []
+    for k, (batch, devices) in enumerate(batches.items(), start=1):
+        path = tmp_path / f"shard-{k:04d}.tsv"
+        path.write_text("device\tbatch\tsession\tprotocol\tpath\n" + "".join(
+            f"{d}\t{batch}\t2026-03-02\tturntable\t/logs/{d}.parquet\n" for d in devices))
+        paths.append(path)
+    return paths
+
+
+def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
+    paths = manifests(tmp_path, {"B1": ["A1", "E1", "F1"], "B2": ["A2"], "B<3>": ["STOP"],
+                                 "B4": ["A4", "A5"]})
+    said = []
+    runs = run_shards(paths, tmp_path, [], at_once=2, snakefile=REPO / "Snakefile", configfile=None,
+                      command=fake, echo=said.append)
+    assert [r.status for r in runs] == [0, 0, 3, 0]
+    assert any("shard-0003: failed (exit status 3" in line for line in said)
+    # never more than two at once: of the three that ran to the end, the third started
+    # after one of the first two had ended
+    spans = sorted(json.loads((r.folder / "ran.json").read_text()) for r in runs if r.status == 0)
+    assert spans[2][0] >= min(spans[0][1], spans[1][1]) - 0.05
+    totals = day_view(runs, tmp_path)
+    assert totals == {"units": 6, "ok": 5, "failed": 1, "eol_passed": 4, "eol_failed": 1}
+    day = pq.read_table(tmp_path / "fleet.parquet")
+    assert day.column_names[0] == "shard" and day.num_rows == 6
+    assert day.column("shard").to_pylist() == ["shard-0001"] * 3 + ["shard-0002"] + ["shard-0004"] * 2
+    assert day.column("bias.x").to_pylist() == [None, None, None, 0.01, None, None]
+    assert day.schema.metadata[b"gyrocal.format"] == b"gyrocal.fleet/1"
+    page = (tmp_path / "index.html").read_text()
+    assert 'href="shard-0001/reports/index.html"' in page and 'href="shard-0003/snakemake.log"' in page
+    assert "stopped (exit status 3)" in page and "6 unit sessions: 5 calibrated, 1 failed" in page
+    assert "<here>" not in page and "the workflow stopped" in (tmp_path / "shard-0003" / "snakemake.log").read_text()
+
+
+def test_the_shards_manifest_is_the_one_that_counts(tmp_path):
+    shard = ShardRun(tmp_path / "shard-0001.tsv", tmp_path / "shard-0001")
+    command = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml",
+                               ["--profile", "profiles/slurm", "--config", "devices=other.tsv"])
+    assert command[-2:] == ["--config", f"devices={shard.manifest}"]
+    assert command[command.index("--configfile") + 1] == str(tmp_path / "c.yaml")
+    own = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml", ["--configfile", "mine.yaml"])
+    assert own.count("--configfile") == 1 and "mine.yaml" in own
+
+
+def test_workflow_options_without_run_and_no_workflow_are_refused(tmp_path, monkeypatch, capsys):
+    from gyrocal.run.cli import main
+    (tmp_path / "day.tsv").write_text("device\tbatch\tsession\tprotocol\tpath\nA1\tB1\t2026-03-02\tturntable\tA1.parquet\n")
+    monkeypatch.chdir(tmp_path)
+    assert main(["shard", "--manifest", "day.tsv", "-o", "runs", "--", "--cores", "2"]) == 2
+    assert "need --run" in capsys.readouterr().err
+    assert main(["shard", "--manifest", "day.tsv", "-o", "runs", "--run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Snakefile: no workflow here" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypatch):
+    """Two shards through the real workflow side by side: a batch each, a missing log in
+    one; each shard's summary and the day's table and page."""
+    from gyrocal.run.cli import main
+    logs = fleet_run / "demo" / "logs"
+    (tmp_path / "day.tsv").write_text(
+        "device\tbatch\tsession\tprotocol\tpath\n"
+        f"A1\tB1\t2026-01-01\tturntable\t{logs}/B1/A1/2026-01-01.parquet\n"
+        f"A1\tB1\t2026-03-01\tturntable\t{logs}/B1/A1/2026-03-01.parquet\n"
+        f"A2\tB2\t2026-01-02\tturntable\t{logs}/B2/A2/2026-01-02.parquet\n"
+        "GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet\n")
+    (tmp_path / "config.yaml").write_text(FLEET_CONFIG)
+    monkeypatch.chdir(REPO)
+    status = main(["shard", "--manifest", str(tmp_path / "day.tsv"), "--size", "2", "-o", str(tmp_path / "runs"),
+                   "--run", "--at-once", "2", "--configfile", str(tmp_path / "config.yaml"), "--", "--cores", "1"])
+    runs = tmp_path / "runs"
+    assert status == 0, [(p, p.read_text()[-2000:]) for p in runs.glob("*/snakemake.log")]
+    for shard in ("shard-0001", "shard-0002"):
+        assert (runs / shard / "reports" / "index.html").is_file()
+    day = pq.read_table(runs / "fleet.parquet").to_pylist()
+    assert [(r["shard"], r["device"], r["status"]) for r in day] == [
+        ("shard-0001", "A1", "ok"), ("shard-0001", "A1", "ok"),
+        ("shard-0002", "A2", "ok"), ("shard-0002", "GONE", "failed")]
+    assert "4 unit sessions: 3 calibrated, 1 failed" in (runs / "index.html").read_text()
