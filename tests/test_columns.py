@@ -33,7 +33,18 @@ def frame() -> pd.DataFrame:
         "c": pd.Categorical(["hold", "soak", None, "hold", "rejected"]),
         "o": pd.array([True, None, False, True, None], dtype=object),
         "n": pd.array([1, None, 3, None, 5], dtype="Int64"),
+        "z": [None] * 5,                       # a column that held nothing: Arrow's null type
     })
+
+
+def as_pandas_reads(series) -> list:
+    """A column's values as pandas reads them, a missing one as NaN in a numeric column
+    (whose values are then floats) and None in any other."""
+    numeric = series.dtype.kind in "iuf"
+    missing = series.isna().to_numpy()
+    values = series.astype(object).tolist()
+    return [(float("nan") if numeric else None) if gap else (float(v) if numeric and missing.any() else v)
+            for v, gap in zip(values, missing)]
 
 
 def test_a_table_reads_as_pandas_reads_it(tmp_path):
@@ -43,12 +54,13 @@ def test_a_table_reads_as_pandas_reads_it(tmp_path):
     pandas_frame, pandas_meta = read_table_with_metadata(path)
     assert meta == pandas_meta == {"k": 1}
     assert columns.columns == list(pandas_frame.columns) and len(columns) == len(pandas_frame)
-    expected = Columns.from_frame(pandas_frame)
     for name in columns.columns:
-        assert same(columns[name].tolist(), expected[name].tolist()), name
-        assert (columns[name].dtype.kind in "biuf") == (expected[name].dtype.kind in "biuf"), name
+        assert same(columns[name].tolist(), as_pandas_reads(pandas_frame[name])), name
+        assert same(Columns.from_frame(pandas_frame)[name].tolist(), columns[name].tolist()), name
     assert columns["n"].dtype == np.float64 and np.isnan(columns["n"][1])   # integers with gaps
+    assert columns["i"].dtype == np.int64 and columns["b"].dtype == bool
     assert columns["s"][1] is None and columns["c"][2] is None and columns["o"][1] is None
+    assert columns["z"].tolist() == [None] * 5
     assert same([r["f"] for r in columns.records()], [1.5, float("nan"), -2.0, 0.0, 3.25])
 
 
@@ -106,3 +118,17 @@ def test_a_unit_report_draws_from_columns_alone(logs, tmp_path):
     write_unit_report(folder, tmp_path / "folder.html", protocol)
     write_unit_report(memory, tmp_path / "memory.html", protocol)
     assert (tmp_path / "folder.html").read_bytes() == (tmp_path / "memory.html").read_bytes()
+
+
+def test_what_a_report_of_any_protocol_imports():
+    """The modules a unit report loads, whatever the unit's protocol (its sections and
+    figure are read from the protocol's module), leave pandas and the fit's libraries out."""
+    from gyrocal.protocols import registry
+    script = ("import sys, json\nfrom gyrocal.protocols import registry\n"
+              "import gyrocal.run.cli, gyrocal.run.stages, gyrocal.report.unit\n"
+              f"for name in {list(registry.BUILTIN)!r}:\n    registry.get(name)\n"
+              "print(json.dumps(sorted(m for m in ('pandas', 'pyarrow.compute', 'pyarrow.dataset',"
+              " 'jsonschema', 'scipy', 'matplotlib') if m in sys.modules)))")
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout.splitlines()[-1]) == []
+    assert {"turntable", "servo", "sweep", "ferraris", "static"} <= set(registry.BUILTIN)

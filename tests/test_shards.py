@@ -4,12 +4,17 @@ workflow of its own, a few at a time, and the day's view their union."""
 from __future__ import annotations
 
 import json
+import os
+import signal
 import sys
+import time
 
+import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.run.shards import ShardRun, day_view, run_shards, workflow_command
+from gyrocal.fleet.manifest import read_manifest, write_shards
+from gyrocal.run.shards import ShardRun, _terminate_as_interrupt, day_view, run_shards, workflow_command
 
 from .conftest import FLEET_CONFIG, REPO
 
@@ -31,6 +36,8 @@ columns = {"device": [r[0] for r in rows], "batch": [r[1] for r in rows],
 if rows[0][1] == "B2":
     columns["bias.x"] = [0.01] * len(rows)
 pq.write_table(pa.table(columns), folder / "results" / "fleet.parquet")
+(folder / "reports").mkdir(exist_ok=True)
+(folder / "reports" / "index.html").write_text("<html></html>")
 (folder / "ran.json").write_text(json.dumps([start, time.time()]))
 """
 
@@ -50,8 +57,12 @@ def manifests(tmp_path, batches: dict[str, list[str]]):
 
 
 def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
-    paths = manifests(tmp_path, {"B1": ["A1", "E1", "F1"], "B2": ["A2"], "B<3>": ["STOP"],
+    paths = manifests(tmp_path, {"B1": ["A1", "E1", "F1"], "B2": ["A2"], "B3": ["STOP"],
                                  "B4": ["A4", "A5"]})
+    # what an earlier run of the shard left: not counted when this run stops
+    (tmp_path / "shard-0003" / "results").mkdir(parents=True)
+    pq.write_table(pa.table({"device": ["OLD"], "batch": ["B0"], "status": ["ok"]}),
+                   tmp_path / "shard-0003" / "results" / "fleet.parquet")
     said = []
     runs = run_shards(paths, tmp_path, [], at_once=2, snakefile=REPO / "Snakefile", configfile=None,
                       command=fake, echo=said.append)
@@ -70,18 +81,81 @@ def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
     assert day.schema.metadata[b"gyrocal.format"] == b"gyrocal.fleet/1"
     page = (tmp_path / "index.html").read_text()
     assert 'href="shard-0001/reports/index.html"' in page and 'href="shard-0003/snakemake.log"' in page
+    assert 'href="shard-0003/reports' not in page                 # it made no summary
     assert "stopped (exit status 3)" in page and "6 unit sessions: 5 calibrated, 1 failed" in page
-    assert "<here>" not in page and "the workflow stopped" in (tmp_path / "shard-0003" / "snakemake.log").read_text()
+    assert "the workflow stopped <here>" in (tmp_path / "shard-0003" / "snakemake.log").read_text()
 
 
-def test_the_shards_manifest_is_the_one_that_counts(tmp_path):
+def test_the_users_config_items_go_with_the_shards_manifest(tmp_path, monkeypatch):
+    """Snakemake keeps the last --config it is given: the user's items and the shard's
+    manifest go in one, the manifest last."""
+    monkeypatch.delenv("SNAKEMAKE_PROFILE", raising=False)
     shard = ShardRun(tmp_path / "shard-0001.tsv", tmp_path / "shard-0001")
     command = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml",
-                               ["--profile", "profiles/slurm", "--config", "devices=other.tsv"])
-    assert command[-2:] == ["--config", f"devices={shard.manifest}"]
+                               ["--profile", "profiles/slurm", "--config", "spec={}", "devices=other.tsv",
+                                "--keep-going", "-C", "drift={}", "--config=model={}"])
+    at = command.index("--config")
+    assert command[at:] == ["--config", "spec={}", "drift={}", "model={}", f"devices={shard.manifest}"]
+    assert command.count("--config") == 1 and "-C" not in command and "--keep-going" in command
     assert command[command.index("--configfile") + 1] == str(tmp_path / "c.yaml")
+    assert "--cores" not in command                                 # the profile says
     own = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml", ["--configfile", "mine.yaml"])
     assert own.count("--configfile") == 1 and "mine.yaml" in own
+    assert own[own.index("--cores") + 1] == "all"                   # nothing said how many
+
+
+def test_shards_rewritten_only_where_their_rows_changed(tmp_path):
+    rows = read_manifest_rows(tmp_path, {"B1": ["A1", "A2"], "B2": ["A3"], "B3": ["A4"]})
+    first = write_shards(rows, 2, tmp_path / "runs")
+    stamps = {p.name: p.stat().st_mtime_ns for p in first}
+    time.sleep(0.02)
+    again = write_shards(rows, 2, tmp_path / "runs")
+    assert {p.name: p.stat().st_mtime_ns for p in again} == stamps   # a rerun has nothing new to do
+    fewer = write_shards(rows[:2], 2, tmp_path / "runs")
+    assert [p.name for p in fewer] == ["shard-0001.tsv"] and fewer[0].stat().st_mtime_ns == stamps["shard-0001.tsv"]
+    assert sorted(p.name for p in (tmp_path / "runs").glob("shard-*.tsv")) == ["shard-0001.tsv"]
+
+
+def _runs(pid: str, marker: str) -> bool:
+    """Whether process ``pid`` is running with ``marker`` on its command line."""
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return marker.encode() in f.read()
+    except OSError:
+        return False
+
+
+def read_manifest_rows(tmp_path, batches):
+    return [row for path in manifests(tmp_path, batches) for row in read_manifest(path)]
+
+
+def test_shards_still_running_are_stopped_with_the_run(tmp_path):
+    """An interrupted run (Ctrl-C, or SIGTERM, which it takes as Ctrl-C) stops the shards'
+    workflows it started, rather than leaving them running with their locks held."""
+    paths = manifests(tmp_path, {"B1": ["A1"], "B2": ["A2"]})
+    script = "import pathlib, sys, time; pathlib.Path(sys.argv[1]).write_text('x'); time.sleep(120)"
+    started = []
+
+    def interrupt(line):
+        started.append(line)
+        if len(started) == 2:
+            raise KeyboardInterrupt
+
+    children = []
+
+    def command(shard, snakefile, configfile, args):
+        children.append(shard.folder / "alive")
+        return [sys.executable, "-c", script, str(shard.folder / "alive")]
+    t0 = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        run_shards(paths, tmp_path, [], at_once=2, snakefile=REPO / "Snakefile", configfile=None,
+                   command=command, echo=interrupt)
+    assert time.monotonic() - t0 < 30 and len(children) == 2        # stopped, not waited for
+    assert not [pid for pid in os.listdir("/proc") if pid.isdigit() and _runs(pid, str(tmp_path))]
+    with pytest.raises(KeyboardInterrupt), _terminate_as_interrupt():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)
+    assert signal.getsignal(signal.SIGTERM) is not _terminate_as_interrupt._raise
 
 
 def test_workflow_options_without_run_and_no_workflow_are_refused(tmp_path, monkeypatch, capsys):

@@ -103,19 +103,22 @@ def shard(rows: list[dict[str, str]], size: int) -> list[list[dict[str, str]]]:
 
 def write_shards(rows: list[dict[str, str]], size: int, out) -> list[Path]:
     """:func:`shard` written as manifests ``shard-0001.tsv``, ... into ``out``, each log's
-    path resolved (a shard's folder is not the manifest's), replacing earlier shards."""
+    path resolved (a shard's folder is not the manifest's), replacing earlier shards. A
+    shard whose rows are unchanged keeps its file as it was: the workflow that reads it
+    sees nothing new to do."""
     from ..io import atomic
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    for old in out.glob("shard-*.tsv"):
-        old.unlink()
     paths = []
     for k, rows_k in enumerate(shard(rows, size), start=1):
         # a shard lies in another folder than the manifest: each log by its absolute path
         lines = ["\t".join(COLUMNS)] + [
             "\t".join([*(r[c] for c in COLUMNS[:-1]),
                        r["log"] if "://" in r["log"] else os.path.abspath(r["log"])]) for r in rows_k]
-        path = out / f"shard-{k:04d}.tsv"
-        atomic.write_text(path, "\n".join(lines) + "\n")
+        path, text = out / f"shard-{k:04d}.tsv", "\n".join(lines) + "\n"
+        if not path.is_file() or path.read_text() != text:
+            atomic.write_text(path, text)
         paths.append(path)
+    for old in set(out.glob("shard-*.tsv")) - set(paths):
+        old.unlink()
     return paths

@@ -3,8 +3,11 @@
 The unit report reads a dozen small tables and draws them; importing pandas (and the
 pyarrow.compute it loads) took 0.4 s of a standalone report's 1.2 s. pyarrow's own
 ``to_numpy`` imports pandas too, so the Arrow buffers are read here directly: the types
-gyrocal's tables hold (numbers, booleans, strings, dictionary-encoded strings), with
-missing values as pandas reads them (NaN in a numeric column, None elsewhere).
+gyrocal's tables hold (numbers, booleans, strings, dictionary-encoded strings, and the null
+type of a column that held nothing). A missing value is NaN in a float column and in an
+integer column with gaps (a float column then), None in any other; pandas' own readings of
+missing strings (NaN) and of nullable integers (its Int64) are brought to the same by
+:meth:`Columns.from_frame`, so a table in memory and the same table read back agree.
 """
 
 from __future__ import annotations
@@ -89,11 +92,11 @@ def present(values: np.ndarray) -> np.ndarray:
 
 
 def _from_series(series) -> np.ndarray:
-    if series.dtype.kind in "biufc":
+    if series.dtype.kind in "biufc" and not series.hasnans:
         return series.to_numpy()
-    values = series.to_numpy(dtype=object)
-    return np.array([None if v is None or (isinstance(v, float) and v != v) else v for v in values],
-                    dtype=object)
+    if series.dtype.kind in "iuf":   # nullable integers with gaps: floats, NaN where missing
+        return series.to_numpy(dtype=np.float64, na_value=np.nan)
+    return series.to_numpy(dtype=object, na_value=None)
 
 
 def _from_chunked(column) -> np.ndarray:
@@ -118,6 +121,8 @@ def _valid(array) -> np.ndarray | None:
 def _from_array(array) -> np.ndarray:
     kind = str(array.type)
     n, offset = len(array), array.offset
+    if kind == "null":   # no buffers at all
+        return np.full(n, None, object)
     valid = _valid(array)
     if kind in _NUMERIC:
         values = np.frombuffer(array.buffers()[1], _NUMERIC[kind], count=offset + n)[offset:]

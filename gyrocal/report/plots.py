@@ -175,7 +175,7 @@ def error_distribution(holds: Columns, method: str) -> str:
     """Error of each hold mean against the reference rate, one panel per rotating axis
     (rows) and output axis (columns), coloured by temperature (seed 000 Figs. 7-8)."""
     rows = holds[holds["method"] == method]
-    lo, hi = (float(np.min(holds["temp"])), float(np.max(holds["temp"]))) if len(holds) else (0.0, 1.0)
+    lo, hi = data_span(holds["temp"]) if len(holds) else (0.0, 1.0)
     fig = svg.Figure(WIDTH, 640)
     grid = fig.grid(3, 3, right=110, hgap=60, vgap=52)
     for i, rot in enumerate(AXES):
@@ -196,6 +196,13 @@ def error_distribution(holds: Columns, method: str) -> str:
                 panel.ylabel = "error, deg/s"
     fig.colourbar(WIDTH - 86, 120, 14, 400, svg.COOLWARM, lo, hi if hi > lo else lo + 1, "temperature, °C")
     return str(fig)
+
+
+def data_span(values) -> tuple[float, float]:
+    """Least and greatest value, a missing one (NaN) skipped; NaN where none is there."""
+    values = np.asarray(values, float)
+    values = values[~np.isnan(values)]
+    return (float(values.min()), float(values.max())) if values.size else (math.nan, math.nan)
 
 
 def histogram(values: np.ndarray, label: str) -> str:

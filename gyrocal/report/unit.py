@@ -130,7 +130,7 @@ def _diagnosis_context(results: UnitResults) -> dict:
     frame = results.residuals
     if frame is not None and len(frame):
         start = np.asarray(frame["t_start"], float)
-        frame = frame.assign(time_h=(start - start.min()) / 3600.0)
+        frame = frame.assign(time_h=(start - plots.data_span(start)[0]) / 3600.0)
         shown = [(label, c) for label, c in RESIDUAL_COVARIATES
                  if c in frame and (c == "mount" or np.isfinite(np.asarray(frame[c], float)).any())]
         context["fig_residuals"] = plots.residuals(frame, shown)

@@ -278,11 +278,13 @@ def cmd_shard(args) -> int:
     print(f"{len(rows)} unit sessions in {len(paths)} shard{'s' if len(paths) != 1 else ''} -> {args.out}")
     if not args.run:
         return 0
+    import functools
+
     from .shards import day_view, run_shards
     configfile = Path(args.configfile or "config/config.yaml").resolve()
-    runs = run_shards(paths, Path(args.out), extra or ["--cores", "all"], at_once=args.at_once,
-                      snakefile=Path(args.snakefile),
-                      configfile=configfile if args.configfile or configfile.is_file() else None)
+    runs = run_shards(paths, Path(args.out), extra, at_once=args.at_once, snakefile=Path(args.snakefile),
+                      configfile=configfile if args.configfile or configfile.is_file() else None,
+                      echo=functools.partial(print, flush=True))
     totals = day_view(runs, Path(args.out))
     stopped = [r.name for r in runs if r.status != 0]
     print(f"{totals['units']} unit sessions: {totals['ok']} calibrated, {totals['failed']} failed "
@@ -627,7 +629,7 @@ def build_parser() -> argparse.ArgumentParser:
                                         "config/config.yaml where it exists)")
     p.add_argument("snakemake_args", nargs=argparse.REMAINDER,
                    help="with --run, after --: options for each shard's snakemake, such as "
-                        "--profile profiles/slurm (default --cores all)")
+                        "--profile profiles/slurm (--cores all where none says how many jobs run)")
     p.set_defaults(func=cmd_shard)
 
     p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")

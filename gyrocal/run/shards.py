@@ -12,6 +12,8 @@ column, and ``OUT/index.html``, a row per shard linking to its fleet summary.
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -22,6 +24,10 @@ from ..io import atomic
 from ..io.errors import ConfigError
 
 POLL_S = 0.5   # s between looks at the running shards: a shard's run takes minutes to hours
+STOP_S = 60    # s a stopped shard's Snakemake has to cancel its jobs and release its lock
+CONFIG_FLAGS = ("--config", "-C")
+# Options that say how many jobs run (or a profile that may): without any, --cores all.
+CORES_FLAGS = ("--cores", "-c", "--jobs", "-j", "--profile", "--workflow-profile")
 
 
 @dataclass
@@ -46,12 +52,39 @@ class ShardRun:
 def workflow_command(shard: ShardRun, snakefile: Path, configfile: Path | None,
                      snakemake_args: list[str]) -> list[str]:
     """The Snakemake command of one shard: the repository's workflow in the shard's folder,
-    its manifest as ``devices`` (given last, so that it is the one that counts)."""
+    the user's options, and one ``--config`` with the user's items and the shard's manifest
+    as ``devices`` (Snakemake keeps only the last ``--config`` it is given)."""
+    rest, items = _config_items(snakemake_args)
     command = [sys.executable, "-m", "snakemake", "--snakefile", str(snakefile),
                "--directory", str(shard.folder)]
-    if configfile is not None and "--configfile" not in snakemake_args:
+    if configfile is not None and not _given(rest, ("--configfile", "--configfiles")):
         command += ["--configfile", str(configfile)]
-    return [*command, *snakemake_args, "--config", f"devices={shard.manifest}"]
+    if not _given(rest, CORES_FLAGS) and not os.environ.get("SNAKEMAKE_PROFILE"):
+        command += ["--cores", "all"]
+    items = [item for item in items if not item.startswith("devices=")]
+    return [*command, *rest, "--config", *items, f"devices={shard.manifest}"]
+
+
+def _given(args: list[str], flags: tuple[str, ...]) -> bool:
+    return any(a in flags or a.split("=", 1)[0] in flags for a in args)
+
+
+def _config_items(args: list[str]) -> tuple[list[str], list[str]]:
+    """(the options without their ``--config``, the ``KEY=VALUE`` items of every one)."""
+    rest, items, i = [], [], 0
+    while i < len(args):
+        if args[i] in CONFIG_FLAGS:
+            i += 1
+            while i < len(args) and not args[i].startswith("-"):
+                items.append(args[i])
+                i += 1
+            continue
+        if args[i].startswith("--config="):
+            items.append(args[i].split("=", 1)[1])
+        else:
+            rest.append(args[i])
+        i += 1
+    return rest, items
 
 
 def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, at_once: int = 1,
@@ -64,31 +97,71 @@ def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, a
                           "folder, or give --snakefile", source=snakefile)
     runs = [ShardRun(Path(m).resolve(), Path(out).resolve() / Path(m).stem) for m in manifests]
     waiting, running = list(runs), []
-    while waiting or running:
-        while waiting and len(running) < max(at_once, 1):
-            shard = waiting.pop(0)
-            shard.folder.mkdir(parents=True, exist_ok=True)
-            with open(shard.log, "w") as log:
-                process = subprocess.Popen(command(shard, Path(snakefile).resolve(), configfile,
-                                                   snakemake_args),
-                                           stdout=log, stderr=subprocess.STDOUT,
-                                           stdin=subprocess.DEVNULL)
-            running.append((shard, process, time.monotonic()))
-            echo(f"{shard.name}: started ({shard.folder})")
-        time.sleep(POLL_S)
-        for item in [r for r in running if r[1].poll() is not None]:
-            running.remove(item)
-            shard, process, started = item
-            shard.status, shard.seconds = process.returncode, time.monotonic() - started
-            echo(f"{shard.name}: " + ("done" if shard.status == 0 else
-                                      f"failed (exit status {shard.status}; see {shard.log})")
-                 + f" in {shard.seconds:.0f} s")
+    with _terminate_as_interrupt():
+        try:
+            while waiting or running:
+                while waiting and len(running) < max(at_once, 1):
+                    shard = waiting.pop(0)
+                    shard.folder.mkdir(parents=True, exist_ok=True)
+                    with open(shard.log, "w") as log:
+                        process = subprocess.Popen(
+                            command(shard, Path(snakefile).resolve(), configfile, snakemake_args),
+                            stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+                    running.append((shard, process, time.monotonic()))
+                    echo(f"{shard.name}: started ({shard.folder})")
+                time.sleep(POLL_S)
+                for item in [r for r in running if r[1].poll() is not None]:
+                    running.remove(item)
+                    shard, process, started = item
+                    shard.status, shard.seconds = process.returncode, time.monotonic() - started
+                    echo(f"{shard.name}: " + ("done" if shard.status == 0 else
+                                              f"failed (exit status {shard.status}; see {shard.log})")
+                         + f" in {shard.seconds:.0f} s")
+        finally:
+            _stop([process for _, process, _ in running])
     return runs
 
 
+def _stop(processes: list[subprocess.Popen]) -> None:
+    """Stop the shards still running as Ctrl-C would (Snakemake cancels its jobs and
+    releases its lock), killed if they have not ended within ``STOP_S``."""
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + STOP_S
+    for process in processes:
+        try:
+            process.wait(max(deadline - time.monotonic(), 0.1))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+class _terminate_as_interrupt:
+    """While the shards run, SIGTERM (a scheduler's or a user's kill) stops them as Ctrl-C
+    does, so that none is left running with its lock held."""
+
+    def __enter__(self):
+        self.before = None
+        try:
+            self.before = signal.signal(signal.SIGTERM, self._raise)
+        except ValueError:   # not the main thread: signals are not this function's to take
+            pass
+        return self
+
+    def __exit__(self, *exc):
+        if self.before is not None:
+            signal.signal(signal.SIGTERM, self.before)
+
+    @staticmethod
+    def _raise(signum, frame):
+        raise KeyboardInterrupt
+
+
 def day_view(runs: list[ShardRun], out: Path) -> dict:
-    """``OUT/fleet.parquet`` (every shard's fleet table, ``shard`` first; a column one
-    shard's models lack is null there) and ``OUT/index.html``; returns the day's counts."""
+    """``OUT/fleet.parquet`` (the fleet table of every shard whose workflow finished,
+    ``shard`` first; a column one shard's models lack is null there) and ``OUT/index.html``;
+    returns the day's counts."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -96,10 +169,11 @@ def day_view(runs: list[ShardRun], out: Path) -> dict:
     tables, rows = [], []
     for shard in runs:
         path = shard.folder / "results" / "fleet.parquet"
-        row = {"name": shard.name, "status": shard.status,
-               "summary": f"{shard.name}/reports/index.html", "log": f"{shard.name}/snakemake.log",
+        summary = shard.folder / "reports" / "index.html"
+        row = {"name": shard.name, "status": shard.status, "log": f"{shard.name}/snakemake.log",
+               "summary": f"{shard.name}/reports/index.html" if summary.is_file() else None,
                "units": None, "ok": None, "failed": None, "eol_passed": None, "eol_failed": None}
-        if path.is_file():
+        if shard.status == 0 and path.is_file():   # a stopped run's table may be an earlier run's
             table = pq.read_table(path)
             status = table.column("status").to_pylist()
             verdicts = table.column("eol_passed").to_pylist() if "eol_passed" in table.column_names else []

@@ -12,14 +12,18 @@ The report also shows Ferraris' own closed-form equations on the same observatio
 
 from __future__ import annotations
 
-import numpy as np
-import pandas as pd
+from typing import TYPE_CHECKING
 
-from ...io.holds import AXES
-from ...io.log import FACES, TURNS
+import numpy as np
+
+from ...io.plausibility import AXES
 from ..registry import Protocol, register
 from .defaults import DEFAULTS
-from .segment import segment_ferraris
+
+# The report reads this module for its sections and figure: what segmentation, the fits
+# and their tables import (pandas, the log reader) is imported where they run.
+if TYPE_CHECKING:
+    import pandas as pd
 
 
 def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
@@ -30,6 +34,7 @@ def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
     of ``K`` (scale and cross-axis, ``w = K w_true + B``): the turn's integral of the
     output, less the bias and the sensitivity times its mean specific force, over the
     known angle. Returns K (3×3), B (3), K_ga (3×3 or None), in deg/s and deg/s/g."""
+    from ...io.log import FACES, TURNS
     face = {r.section: r for r in obs[obs["phase"] == "face"].itertuples()}
     turn = {r.section: r for r in obs[obs["phase"] == "turn"].itertuples()}
     mean = lambda r: np.array([r.gyro_x, r.gyro_y, r.gyro_z])  # noqa: E731
@@ -50,6 +55,7 @@ def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
 def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> pd.DataFrame:
     """Each turn's angle about its axis as the raw output integrates it and as compensated
     (``K⁻¹ (w − B − K_ga f)`` integrated over the turn), against the known angle."""
+    import pandas as pd
     turns = obs[obs["phase"] == "turn"]
     rows = []
     Kinv = np.linalg.inv(K)
@@ -81,6 +87,11 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
             .to_dict(orient="records")}, []
 
 
+def _segment(log, options: dict):
+    from .segment import segment_ferraris
+    return segment_ferraris(log, options)
+
+
 def static(log, seg, max_temp_rate: float):
     """The static faces: where the unit lay still."""
     faces = seg.observations[seg.observations["phase"] == "face"]
@@ -89,7 +100,7 @@ def static(log, seg, max_temp_rate: float):
 
 FERRARIS = register(Protocol(
     "ferraris", "hand rotations: six static faces and a full turn about each axis (Ferraris)",
-    segment=lambda log, settings: segment_ferraris(log, settings.protocol_options("ferraris")),
+    segment=lambda log, settings: _segment(log, settings.protocol_options("ferraris")),
     static=static, analysis=analysis, defaults=DEFAULTS,
     report_section="protocols/ferraris_section.html.j2",
     without=("temp", "ref_rate"), one_temperature=True))

@@ -5,15 +5,23 @@ leaving revolutions out."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from ...fit.floor import quiet_runs
 from ...fit.model import observation_floor
-from ...io.holds import AXES, Segmentation, hold_table, timeline
-from ...io.log import RigLog
+from ...io.plausibility import AXES
 from ..registry import Protocol, register
 from .defaults import DEFAULTS
+
+# The report reads this module for its sections and figure: what segmentation, the fits
+# and their tables import (pandas, the log reader) is imported where they run.
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from ...io.holds import Segmentation
+    from ...io.log import RigLog
 
 
 def _temperature_slopes(log: RigLog, t_start: np.ndarray, t_end: np.ndarray) -> np.ndarray:
@@ -39,6 +47,9 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     ``±ω`` along that axis. The noise of a revolution mean is the white-noise level
     (successive differences) over √n: the servo's ripple cancels over a whole revolution
     and must not inflate the floor."""
+    import pandas as pd
+
+    from ...io.holds import Segmentation, hold_table, timeline
     from . import find_rotations
     rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
     rev = rot.revolutions
@@ -174,6 +185,8 @@ def servo_validation(obs: pd.DataFrame, cal):
     (Eq 2; the mount's tilt does not enter it), its floor the noise projected on the
     rotation axis; the fixture model on the length of the compensated rate's difference from
     the commanded rate vector, its floor the noise of all three axes."""
+    import pandas as pd
+
     from .fit import nominal_rates
     from ...fit.validate import Validation
     used = _used_model(cal)

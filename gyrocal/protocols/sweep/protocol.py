@@ -5,14 +5,22 @@ RBF, ΔT and ΔT², Eq 16) with bias stability (Eq 30–32) as the report's own 
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from ...fit.floor import merge_intervals
-from ...io.holds import AXES, Segmentation, hold_table, temperature_points, timeline
-from ...io.log import MOUNTS, RigLog
+from ...io.plausibility import AXES
 from ..registry import Protocol, register
 from .defaults import DEFAULTS
+
+# The report reads this module for its sections and figure: what segmentation, the fits
+# and their tables import (pandas, the log reader) is imported where they run.
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from ...io.holds import Segmentation
+    from ...io.log import RigLog
 
 
 POINT_SPANS = (10.0, 5.0, 2.0, 1.0, 0.5)   # °C: the widest that gives POINTS_WANTED points
@@ -31,6 +39,10 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     """Seed 003 windows (:func:`gyrocal.protocols.sweep.sweep_windows`) as observations; each window's
     temperature point is its ``point_span`` °C bin (``"auto"``: :func:`auto_point_span`), so leaving a point out leaves out a
     stretch of the sweep (leave-temperature-out on a continuous ramp)."""
+    import pandas as pd
+
+    from ...io.holds import Segmentation, hold_table, temperature_points, timeline
+    from ...io.log import MOUNTS
     from . import sweep_windows
     opts = dict(options)
     span = opts.pop("point_span", "auto")
@@ -73,6 +85,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
 def windows_from_observations(obs: pd.DataFrame) -> pd.DataFrame:
     """Sweep observations back to :func:`gyrocal.protocols.sweep.sweep_windows` columns; the error of a
     window is its mean output minus the rig rate along the mount axis."""
+    import pandas as pd
     t_ref = float(obs.attrs.get("t_ref", obs["temp"].iloc[0]))
     out = pd.DataFrame({
         "window": obs["window"] if "window" in obs else obs["hold"],
