@@ -102,6 +102,8 @@ def test_the_users_config_items_go_with_the_shards_manifest(tmp_path, monkeypatc
     own = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml", ["--configfile", "mine.yaml"])
     assert own.count("--configfile") == 1 and "mine.yaml" in own
     assert own[own.index("--cores") + 1] == "all"                   # nothing said how many
+    for given in (["-j4"], ["--cores=3"], ["-c", "2"], ["--jobs", "8"]):
+        assert "all" not in workflow_command(shard, REPO / "Snakefile", None, given), given
 
 
 def test_shards_rewritten_only_where_their_rows_changed(tmp_path):

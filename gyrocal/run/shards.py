@@ -66,7 +66,10 @@ def workflow_command(shard: ShardRun, snakefile: Path, configfile: Path | None,
 
 
 def _given(args: list[str], flags: tuple[str, ...]) -> bool:
-    return any(a in flags or a.split("=", 1)[0] in flags for a in args)
+    """Whether one of ``flags`` is among ``args``: ``--flag V``, ``--flag=V`` or ``-cV``."""
+    short = tuple(f for f in flags if len(f) == 2)
+    return any(a in flags or a.split("=", 1)[0] in flags
+               or (a.startswith(short) and not a.startswith("--")) for a in args)
 
 
 def _config_items(args: list[str]) -> tuple[list[str], list[str]]:
