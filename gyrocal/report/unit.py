@@ -16,7 +16,8 @@ import numpy as np
 from ..calibration.file import Calibration, dumps, load_calibration, standard_coefficients
 from ..fit import METHODS
 from ..io.columns import Columns, present
-from ..io.unit_folder import part_exists, part_failure, read_part_columns, read_part_json, unit_paths
+from ..io.formats import FAILURE
+from ..io.unit_folder import part_exists, read_part_columns, read_part_doc, read_part_json, unit_paths
 from . import plots
 from .pages import render_page
 
@@ -71,13 +72,10 @@ class UnitResults:
         table = lambda k: read_part_columns(folder, k)[0]  # noqa: E731
         summary = read_part_json(folder, "validation")["summary"]
         cal = load_calibration(p["calibration"])
-        diagnosis = residuals = None
-        heat = {}
-        if part_exists(folder, "diagnosis"):
-            diagnosis = part_failure(folder, "diagnosis") or read_part_json(folder, "diagnosis")
-            if diagnosis.get("format") != "gyrocal.failure/1" and part_exists(folder, "residuals"):
-                residuals, meta = read_part_columns(folder, "residuals")
-                heat = meta.get("heatmaps", {})
+        diagnosis, residuals, heat = read_part_doc(folder, "diagnosis"), None, {}
+        if diagnosis is not None and diagnosis.get("format") != FAILURE and part_exists(folder, "residuals"):
+            residuals, meta = read_part_columns(folder, "residuals")
+            heat = meta.get("heatmaps", {})
         own = read_part_json(folder, "protocol")
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
                    summary, table("holds"), table("table_hold_means"), table("table_samples"),
