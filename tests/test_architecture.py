@@ -192,7 +192,7 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
     fits only its candidates), and what they write is what separate stages write."""
     import numpy as np
 
-    from gyrocal.pipeline import chain
+    from gyrocal.pipeline import chain, identify
     from gyrocal.run import stages
     from gyrocal.fit import thermal
     from gyrocal.diagnose import evaluation
@@ -214,8 +214,9 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
             fits.append(1)
         return original(model, *args, **kwargs)
 
-    # the stages import the fit where they use it; the chain and the evaluation hold their own name
-    for module in (chain, thermal, evaluation):
+    # the stages import the fit where they use it; the chain, the identification and the
+    # evaluation hold their own name
+    for module in (chain, identify, thermal, evaluation):
         monkeypatch.setattr(module, "fit_model", counting)
     stages.analyse_stage(folder, settings, meta, record_failures=False)
     assert len(fits) == 1

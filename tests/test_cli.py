@@ -21,7 +21,8 @@ def gyrocal(*args):
 
 
 COMMANDS = {"simulate", "calibrate", "diagnose", "apply", "noise", "segment", "fit", "validate",
-            "analyse", "report", "fleet", "shard", "paper", "lookup", "export", "verify", "import"}
+            "analyse", "report", "fleet", "shard", "paper", "lookup", "export", "verify", "import",
+            "revalidate"}
 
 
 def test_help_lists_the_commands():

@@ -176,9 +176,11 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
                  "--residuals", str(three / "residuals.parquet"), *args]) == 0
     assert main(["analyse", str(folders["one"]), *args]) == 0
 
-    # a unit session's three files: the calibration and two archives
+    # a unit session's files: the calibration, two archives and, once it is calibrated, the
+    # record of its runs
     names = sorted(p.name for p in three.iterdir())
-    assert names == ["analysis.zip", "calibration.json", "segmentation.zip"]
+    assert names == ["analysis.zip", "calibration.json",
+                     *(["runs.json"] if case == "calibrated" else []), "segmentation.zip"]
     assert sorted(p.name for p in folders["one"].iterdir()) == names
     for name in names:
         assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name

@@ -181,7 +181,7 @@ def test_every_printed_candidate_name_and_config_line_is_accepted_back():
     settings = replace(Settings(), model=model, diagnosis=DiagnosisSettings.from_dict(
         {"candidates": ["bias_temp_poly(degree=3)", expression]}))
     names = candidate_terms(settings)
-    assert {"bias_temp_poly(degree=3)", "expression(label='door', formula='temp_rate * abs(rate_z)')"} <= set(names)
+    assert {"bias_temp_poly(degree=3)", 'expression(label="door", formula="temp_rate * abs(rate_z)")'} <= set(names)
     for name in names:
         assert make_term(name).spec_string() == name
         added = extended(settings, name).model
@@ -191,15 +191,20 @@ def test_every_printed_candidate_name_and_config_line_is_accepted_back():
         assert pasted.build().names == added.build().names
         assert name in [make_term(t).spec_string() for t in pasted.term_specs()]
     assert config_line(ModelSettings.from_dict({"terms": ["bias", "scale_temp_poly(degree=2, t_ref=20.0)"]})) \
-        == 'terms: [bias, "scale_temp_poly(degree=2, t_ref=20.0)"]'
+        == "terms: [bias, 'scale_temp_poly(degree=2, t_ref=20.0)']"
 
 
 def test_the_ladder_steps_add_terms_and_fall_toward_the_floor(effect_logs):
     obs = segment_log(effect_logs["scale_quadratic"], Settings()).observations
     settings = replace(Settings(), diagnosis=DiagnosisSettings.from_dict({"ladder": [
         {"name": "+ nonlinearity", "add": ["scale_quadratic"]}, "g_sensitivity"]}))
-    ladder = diagnose(settings, obs).ladder
-    assert [row["name"] for row in ladder] == ["configured model", "+ nonlinearity", "+g_sensitivity"]
+    diag = diagnose(settings, obs)
+    ladder = diag.ladder
+    # the fix the diagnosis names closes the ladder, with the figures it was named for
+    assert [row["name"] for row in ladder] == ["configured model", "+ nonlinearity", "+g_sensitivity",
+                                               "+ the fix named below"]
+    assert ladder[-1]["fix"] and ladder[-1]["validation_rms"] == diag.best.validation_rms_with
+    assert ladder[-1]["terms"] == [*ladder[0]["terms"], diag.best.term]
     assert ladder[1]["validation_rms"] < 0.2 * ladder[0]["validation_rms"]
     assert [p["coefficient"] for p in ladder[1]["parameters"]] == [
         "scale_quadratic.x", "scale_quadratic.y", "scale_quadratic.z"]

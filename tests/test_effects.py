@@ -305,17 +305,20 @@ def test_scope_round_trips_through_the_spec():
 
 UNDECLARED = textwrap.dedent('''
     from dataclasses import dataclass
+    import numpy as np
     from gyrocal.terms import AXES, Term, register_term
 
     @register_term("undeclared_test")
     @dataclass(frozen=True)
     class Undeclared(Term):
-        """Reads the reference rate, the temperature rate and a lag, declaring none."""
+        """The unit's warm-up, reading also the reference rate, the temperature rate and a
+        lag (at no weight, so the data identify it), declaring none."""
         unit = "deg/s"
         def coefficients(self):
             return [f"undeclared_test.{a}" for a in AXES]
         def columns(self, data):
-            v = data["ref_rate"] * data["temp_rate"] + data.lag("temp", 600.0) - data["temp"]
+            unread = data["ref_rate"] * data["temp_rate"] + data.lag("temp", 600.0) - data["temp"]
+            v = np.exp(-data["t"] / 1200.0) + 0.0 * unread
             return {f"undeclared_test.{a}": v for a in AXES}
     ''')
 
@@ -327,6 +330,7 @@ def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmu
     cal = tmp_path / "cal.json"
     assert main(["calibrate", str(s0), "--terms", str(term_file), "--add-term", "undeclared_test",
                  "-o", str(cal)]) == 0
+    assert [a["kept"] for a in json.loads(cal.read_text())["added_terms"]] == [True]
     out = tmp_path / "out.parquet"
     assert main(["apply", str(cal), str(s1), "--terms", str(term_file), "-o", str(out)]) == 0
     assert np.isfinite(pq.read_table(out, columns=["gyro_z"]).column("gyro_z").to_numpy()).all()

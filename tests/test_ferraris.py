@@ -432,13 +432,15 @@ def test_annotation_is_read_with_timestamps_and_dropped_rows(tmp_path):
 
 def test_without_temperature_no_term_reads_a_made_up_one(tmp_path):
     """The stand-in temperature of a log without temp gives a temperature term nothing to
-    fit: refused by name."""
-    from gyrocal.io.errors import GyrocalError
+    fit: the term is left out of this unit's calibration, by name, with a warning."""
     path, _ = ferraris_log(tmp_path, seed=14, temperature=None)
     s = Settings.from_dict({"protocols": {"ferraris": {"model": {
         "terms": ["bias", "scale", "misalignment", "temp_lag"]}}}}).for_protocol("ferraris")
-    with pytest.raises(GyrocalError, match="temp_lag"):
-        run(path, s, protocol="ferraris")
+    cal = run(path, s, protocol="ferraris").calibration
+    assert [t.name for t in cal.model.terms] == ["bias", "scale", "misalignment"]
+    (dropped,) = cal.extra["added_terms"]
+    assert not dropped["kept"] and "the log lacks what it reads" in dropped["reason"]
+    assert any(w["code"] == "term_dropped" and "temp_lag" in w["message"] for w in cal.extra["warnings"])
 
 
 def test_without_temperature_the_read_still_checks_the_timing(tmp_path):

@@ -113,3 +113,94 @@ def test_a_good_manifest_reads_every_row(tmp_path):
                     "U1\tB1\t2026-01-01\tsweep\ts3://bucket/u1.parquet\n")
     rows = read_manifest(path)
     assert [r["log"] for r in rows] == [str(tmp_path / "logs" / "u0.parquet"), "s3://bucket/u1.parquet"]
+
+
+MODELS = {"U7": {"add": ["scale_cubic"]}, "B2": {"kind": "continuous"}, "U1*": {"add": ["g_squared"]},
+          "U*": {"add": ["scale_asymmetry"]}, "line-3 warm": {"add": ["temp_lag"]}}
+
+
+@pytest.mark.parametrize("device, batch, column, entry", [
+    ("U7", "B2", "", "U7"),                    # its device's before its batch's
+    ("U8", "B2", "", "B2"),                    # its batch's before a pattern's
+    ("U12", "B1", "", "U1*"),                  # the first pattern that matches, in written order
+    ("U22", "B1", "", "U*"),
+    ("X1", "B1", "", None),                    # the fleet's model
+    ("U7", "B2", "line-3 warm", "line-3 warm"),  # the manifest's column before all of them
+])
+def test_a_unit_takes_the_models_entry_its_row_device_batch_or_pattern_names(device, batch, column, entry):
+    from gyrocal.fleet.manifest import model_entry
+    row = {"device": device, "batch": batch, "session": "2026-01-01", "model": column}
+    assert model_entry(row, MODELS) == entry
+
+
+def test_the_manifests_model_column_is_read_written_to_shards_and_must_name_an_entry(tmp_path):
+    from gyrocal.fleet.manifest import model_entry, write_shards
+    path = tmp_path / "devices.tsv"
+    path.write_text("device\tbatch\tsession\tprotocol\tpath\tmodel\n"
+                    "U0\tB1\t2026-01-01\tturntable\tu0.parquet\twarm\n"
+                    "U1\tB1\t2026-01-01\tturntable\tu1.parquet\t\n")
+    rows = read_manifest(path)
+    assert [r["model"] for r in rows] == ["warm", ""]
+    with pytest.raises(ConfigError, match="device U0 session 2026-01-01: the manifest's model column "
+                                          "names 'warm', which the config's models: does not have"):
+        model_entry(rows[0], {"cold": {"add": ["temp_lag"]}})
+    (shard,) = write_shards(rows, 10, tmp_path / "shards")
+    assert [r["model"] for r in read_manifest(shard)] == ["warm", ""]
+    bad = tmp_path / "bad.tsv"
+    bad.write_text("device\tbatch\tsession\tprotocol\tpath\tmodel\nU0\tB1\t2026-01-01\tturntable\tu0.parquet\ta/b\n")
+    with pytest.raises(ConfigError, match="line 2: model 'a/b' must name an entry"):
+        read_manifest(bad)
+
+
+def test_a_models_entry_changes_the_unit_model_key_by_key_and_adds_terms():
+    from gyrocal.pipeline.config import Settings
+    fleet = {"model": {"terms": ["bias", "scale", "misalignment", "scale_quadratic"], "interpolation": "linear"}}
+    unit = Settings.from_dict({**fleet, "unit": {"entry": "U7", "model": {"add": ["scale_cubic", "scale_quadratic"]}}})
+    assert unit.model.terms == ("bias", "scale", "misalignment", "scale_quadratic", "scale_cubic")
+    assert unit.model.interpolation == "linear" and unit.model_entry == "U7"
+    # key by key: terms replaced, kind changed, the rest the fleet's
+    other = Settings.from_dict({**fleet, "unit": {"entry": "B2", "model": {"terms": ["bias", "scale"],
+                                                                          "kind": "continuous"}}})
+    assert other.model.terms == ("bias", "scale") and other.model.kind == "continuous"
+    assert Settings.from_dict(other.to_dict()) == other   # what a job is handed reads back
+    assert other.sha256() != Settings.from_dict(fleet).sha256()
+    # a sweep unit's entry goes on top of its protocol's own model
+    sweep = unit.for_protocol("sweep")
+    assert sweep.model.kind == "continuous" and "scale_cubic" in sweep.model.terms
+    with pytest.raises(ConfigError, match="models.U7.add must hold at least 1 item"):
+        Settings.from_dict({"unit": {"entry": "U7", "model": {"add": []}}})
+    with pytest.raises(ConfigError, match="unknown model term 'scale_cubi'"):
+        Settings.from_dict({"unit": {"entry": "U7", "model": {"add": ["scale_cubi"]}}})
+
+
+def test_a_fix_line_for_a_unit_that_takes_a_batch_entry_keeps_that_entry_and_adds_the_fix():
+    """The device's own entry comes before its batch's: the line printed for it carries the
+    batch's settings and the whole list of terms, so pasting it changes that unit by the fix
+    alone."""
+    import yaml
+    from gyrocal.diagnose.evaluation import unit_config_line
+    from gyrocal.fleet.manifest import model_entry
+    from gyrocal.pipeline.config import Settings
+    batch = {"interpolation": "linear", "reference_temperature": 30.0, "add": ["scale_cubic"]}
+    unit = Settings.from_dict({"unit": {"entry": "B2", "model": batch}})
+    line = unit_config_line("yes", unit, {"term": "scale_quadratic"})   # a device YAML reads as true
+    models = yaml.safe_load(line)["models"]
+    assert list(models) == ["yes"] and model_entry({"device": "yes", "batch": "B2", "model": ""},
+                                                   {"B2": batch, **models}) == "yes"
+    pasted = Settings.from_dict({"unit": {"entry": "yes", "model": models["yes"]}})
+    assert pasted.model == unit.model.with_terms(("scale_quadratic",))
+    # the whole fleet's line is the fleet's model with the fix, not this unit's
+    from gyrocal.diagnose.evaluation import with_unit_lines
+    doc = with_unit_lines({"best": {"term": "scale_quadratic", "config_line": "x"}}, "yes", unit)
+    assert doc["best"]["config_line"] == "terms: [bias, scale, misalignment, scale_quadratic]"
+
+
+def test_a_key_given_twice_in_a_config_file_is_refused_naming_both_lines(tmp_path):
+    from gyrocal.pipeline.config import read_yaml
+    path = tmp_path / "config.yaml"
+    path.write_text("model: {terms: [bias]}\nmodels:\n  U1: {add: [x]}\nmodels:\n  U2: {add: [y]}\n")
+    with pytest.raises(ConfigError, match="line 4: models is given twice \\(first on line 2\\)"):
+        read_yaml(path)
+    from gyrocal.fleet.manifest import model_entry
+    with pytest.raises(ConfigError, match="the key 1234 is read as a number, not a name: quote it"):
+        model_entry({"device": "1234", "batch": "B", "model": ""}, {1234: {"add": ["x"]}})

@@ -165,7 +165,7 @@ def test_an_expression_term_is_tried_fitted_and_kept_in_the_file(tmp_path):
     expression = {"name": "expression", "label": "dTdt2", "formula": "temp_rate ** 2"}
     settings = replace(Settings(), diagnosis=DiagnosisSettings.from_dict({"candidates": [expression]}))
     diag = diagnose(settings, obs)
-    assert diag.best is not None and diag.best.term == "expression(label='dTdt2', formula='temp_rate ** 2')"
+    assert diag.best is not None and diag.best.term == 'expression(label="dTdt2", formula="temp_rate ** 2")'
     model = ModelSettings.from_dict({"expressions": {"dTdt2": "temp_rate ** 2"}})
     fixed = diagnose(replace(settings, model=model), obs)
     assert fixed.explains and fixed.best is None

@@ -274,8 +274,9 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     page = (fleet_run / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
     table = page[page.index('<table id="ladder-table">'):]
     table = table[:table.index("</table>")]
-    rows = [re.findall(r"<td[^>]*>(.*?)</td>", row, re.S) for row in table.split("<tr>")[2:]]
-    assert len(rows) == len(ladder) == 2
+    rows = [re.findall(r"<td[^>]*>(.*?)</td>", row, re.S) for row in re.split(r"<tr[^>]*>", table)[2:]]
+    # the configured model, the ladder's step, and the fix the diagnosis names last
+    assert len(rows) == len(ladder) == 3 and ladder[-1]["fix"]
     for cells, step in zip(rows, ladder):
         assert cells[1].startswith(step["name"])
         assert cells[3:7] == [fmt(step["validation_rms"]), fmt(step["excess"], 3),
@@ -366,3 +367,45 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     frame = table.to_pandas()
     drift = frame[frame.status == "ok"].groupby("device")["bias.x"].agg(["count", "max", "min"])
     assert drift.loc["A1", "count"] == 2
+
+
+@pytest.mark.slow
+def test_a_fix_for_one_unit_reaches_that_unit_alone_and_its_report_shows_the_fall(fleet_run, tmp_path):
+    """The README's loop with a unit's own model: the diagnosis' lines for A2 appended to the
+    config; the workflow analyses A2 alone again, every other unit's calibration stays byte
+    for byte, and A2's report, the fleet page and its table show the error before and after."""
+    import pyarrow.parquet as pq
+    a2 = ("results", "B2", "A2", "2026-01-02")
+    before = read_part_json(fleet_run.joinpath(*a2), "diagnosis")
+    lines = before["best"]["unit_config_line"]
+    assert lines == "models:\n  A2: {add: [scale_quadratic]}"
+    again = tmp_path / "again"
+    shutil.copytree(fleet_run, again, symlinks=True)
+    (again / "config.yaml").write_text((again / "config.yaml").read_text() + lines + "\n")
+    assert job_counts(snakemake(again, "--dry-run")) == {"analyse": 1, "fleet": 1, "all": 1, "total": 3}
+    out = snakemake(again)
+    assert out.returncode == 0, out.stderr[-2000:]
+    for path in (fleet_run / "results").glob("*/*/*/calibration.json"):
+        if path.parent.name != a2[-1] or path.parent.parent.name != "A2":
+            assert (again / path.relative_to(fleet_run)).read_bytes() == path.read_bytes(), path
+
+    cal = json.loads(again.joinpath(*a2, "calibration.json").read_text())
+    assert {"name": "scale_quadratic"} in cal["model"]["terms"] and cal["model_entry"] == "A2"
+    (added,) = cal["added_terms"]
+    assert added["kept"] and added["with"]["excess"] < added["without"]["excess"]
+    after = read_part_json(again.joinpath(*a2), "validation")["summary"]
+    runs = json.loads(again.joinpath(*a2, "runs.json").read_text())["runs"]
+    assert [r["model"]["terms"] for r in runs] == [["bias", "scale", "misalignment"],
+                                                  ["bias", "scale", "misalignment", "scale_quadratic"]]
+    assert runs[0]["fix"]["term"] == "scale_quadratic" and runs[0]["excess"] == before["excess"]
+    page = (again / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
+    from gyrocal.report.pages import fmt
+    fell = f"from <b>{fmt(before['excess'], 3)}</b> to <b>{fmt(after['excess'], 3)}</b> times the noise floor"
+    assert 'id="since-last"' in page and fell in page
+    assert page.count('class="last-run"') == 2        # the last run's model and the fix it named
+    rows = {r["device"]: r for r in pq.read_table(again / "results" / "fleet.parquet").to_pylist()
+            if r["status"] == "ok" and r["session"] in ("2026-01-01", "2026-01-02")}
+    assert rows["A2"]["model_entry"] == "A2" and rows["A2"]["previous_excess"] == before["excess"]
+    assert rows["A1"]["model_entry"] is None and rows["A1"]["previous_excess"] is None
+    index = (again / "reports" / "index.html").read_text()
+    assert f"{fmt(before['excess'], 3)} → {fmt(after['excess'], 3)}" in index

@@ -91,7 +91,7 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     assert drift["explains"] and drift["rival_of"] == "g_sensitivity"
     if diag.best is None:
         assert "drifting linearly in time" in diag.verdict
-        assert any("expression(formula='t')" in a for a in diag.advice)
+        assert any('expression(formula="t")' in a for a in diag.advice)
         fix = TIME_DRIFT
     else:   # a term of free shape, of time alone (the drift blocks the others)
         assert diag.best.family and make_term(diag.best.term).needs == {"t"}, diag.verdict

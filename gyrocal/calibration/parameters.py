@@ -16,6 +16,7 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
+from ..terms import AXES
 from .file import Calibration, load_calibration, standard_coefficients
 
 # term name -> (display unit, factor from the coefficient's own unit)
@@ -45,13 +46,31 @@ def _linearise(cal: Calibration, coefs: dict, temps: np.ndarray):
 
 
 def parameter_curves(cal: Calibration, temps) -> dict[str, np.ndarray]:
-    """Every parameter at ``temps`` (clamped to the calibrated span), in display units."""
+    """Every parameter at ``temps`` (clamped to the calibrated span), in display units; the
+    bias as the session measured it where the file holds that form (``bias_in_session``:
+    terms kept though the data cannot tell them from the bias make the fitted one an
+    extrapolation)."""
     temps = np.atleast_1d(np.asarray(temps, dtype=float))
     values = cal.coefficients(temps, warn=False)
     if cal.kind == "continuous":
         K, B = cal.matrices_at(temps)
         values = {**values, **_standard_from_KB(K, B, values)}
+    session = _in_session(cal, temps)
+    if session is not None:
+        values = {**values, **session[0]}
     return {n: np.asarray(values[n], dtype=float) * f for n, (_, f) in _display(cal).items()}
+
+
+def _in_session(cal: Calibration, temps) -> tuple[dict, dict] | None:
+    """The bias in the session's form at ``temps`` and its standard error, interpolated as
+    the grid interpolates (points taken as independent); None where the file has no such form."""
+    found = cal.extra.get("bias_in_session")
+    if not found or cal.kind == "continuous":
+        return None
+    w = cal.grid.weights(np.clip(temps, *cal.grid.span))
+    bias, se = np.asarray(found["bias"], dtype=float), np.asarray(found["stderr"], dtype=float)
+    return ({f"bias.{a}": w @ bias[:, i] for i, a in enumerate(AXES)},
+            {f"bias.{a}": np.sqrt((w ** 2) @ se[:, i] ** 2) for i, a in enumerate(AXES)})
 
 
 def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.DataFrame:
@@ -81,6 +100,9 @@ def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.Data
             se[n] = float(np.sqrt(np.sum((v[1:] - v[0]) ** 2)))
     else:
         se = {n: float(v[0]) for n, v in cal.grid.stderr_at([T]).items()}
+        session = _in_session(cal, np.array([T]))
+        if session is not None:
+            se.update({n: float(v[0]) for n, v in session[1].items()})
     return pd.DataFrame({
         "parameter": names,
         "value": [float(values[n]) for n in names],

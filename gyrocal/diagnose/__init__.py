@@ -46,12 +46,12 @@ from .between import between_points, between_reason
 from .effects import (TIME_DRIFT, Candidate, Judge, extended_all, mark_ties, practical_gain,
                       practical_gain_next, rank_candidates, second_step, time_drift)
 from .evaluation import (Evaluation, add_term_option, candidate_terms, config_line, evaluate,
-                         evaluation_of, extended, ladder, model_option, pooled)
+                         evaluation_of, extended, fix_row, ladder, model_option, pooled)
 from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fixed, mounting_reason
 from .sessions import (carry_over, repeat_p_value, shared_fraction, slow_noise, unrepeated_p_value,
                        usable)
 from .reading import readable
-from .shapes import describe, describe_history, shape_terms
+from .shapes import at_bound, describe, describe_history, for_the_unit, shape_terms
 from .stats import (chance_bound, chi2_ppf, chi2_sf, explained_tolerance, f_sf, fisher_combined,
                     floor_uncertainty)
 from .verdict import (advice, coherent, drift_sentence, input_kinds, unexplained, unseen_hysteresis,
@@ -367,7 +367,9 @@ def diagnose(settings: Settings, obs: pd.DataFrame, other: pd.DataFrame | None =
     diag = Diagnosis(base, alpha, quality.chi2_red, quality.rms_over_floor, quality.excess_p_value,
                      explains, covariates, candidates, best, partial, text, heat, residuals,
                      config_line=config_line(extended_all(settings, best).model) if best else "")
-    diag.ladder = ladder(settings, obs, base)
+    diag.ladder = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
+    if best is not None:
+        diag.ladder.append(fix_row(best, base))
     diag.within_noise = within_noise
     diag.next_session = base_next
     diag.advice = [LAB_ADVICE] if seen_in_lab and best is None else \
@@ -609,10 +611,17 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
     def figure(g):   # what the user will meet: the other session first
         return _judged_on(g[0], base_next)
     good.sort(key=figure)
+    # Never a formula whose parameter ended at a bound of its search: the data do not fix it.
+    good = [g for g in good if not at_bound(g[0].profiled)] or good
     # The empirical term where it does as well as the best within that figure's own
-    # uncertainty (it reads as a table of its input), the families that do as well beside it.
+    # uncertainty (it reads as a table of its input), the families that do as well beside it;
+    # but a formula where it does as well as that term within the noise floor's own
+    # uncertainty: a unit keeps a decay and its time constant better than a session's spline.
     best, shape = next((g for g in good if g[1].kind == "empirical"
                         and figure(g) <= figure(good[0]) * bound), good[0])
+    close = figure((best,)) * (1.0 + floor_uncertainty(obs))
+    best, shape = next((g for g in good if g[1].kind == "parametric" and figure(g) <= close),
+                       (best, shape))
     terms = [make_term(t) for t in (best.term, *best.together)]
     # The shape as fitted: its profiled parameters, not their start.
     terms[0] = _profiled(terms[0], best.profiled)
@@ -633,7 +642,11 @@ def free_shape(judge: Judge, base: Evaluation, covariates, quality, base_next, t
         x = input_values(obs, data, shape.input)[quality.fitted_rows]
         best.shape = describe(terms, values, float(np.min(x)), float(np.max(x)), shape.input, shape.by)
     # Only what does as well, within the figure's own uncertainty, is said to explain it too.
-    best.also = [c for c, _ in good if c is not best and figure((c,)) <= figure((best,)) * bound]
+    best.also = [c for c, _ in good if c is not best and not at_bound(c.profiled)
+                 and figure((c,)) <= figure((best,)) * bound]
+    for c in (best, *best.also):   # written for the unit, not for this session's log
+        c.term = for_the_unit(c.term, c.profiled)
+        c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
     return best, tried
 
 

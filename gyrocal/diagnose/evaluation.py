@@ -4,6 +4,7 @@ validated leaving temperature points out, and the config that writes them."""
 from __future__ import annotations
 
 import json
+import re
 import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -147,9 +148,11 @@ def effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: d
     return size, peak
 
 
-def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict]:
-    """The base model, then each configured step added to the one before."""
-    rows = [_ladder_row(base, [])]
+def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) -> list[dict]:
+    """The base model, then each configured step added to the one before; ``carry``
+    (:meth:`gyrocal.diagnose.effects.Judge.carry`, with another session) gives each the
+    figure of its calibration there."""
+    rows = [_ladder_row(base, [], carry)]
     current = settings
     for step in settings.diagnosis.ladder:
         for spec in step["add"]:
@@ -165,27 +168,51 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation) -> list[dict
             rows.append({"name": step["name"], "error": f"{type(exc).__name__}: {exc}"})
             continue
         added = [c for c in ev.fitted.names if c not in base.fitted.names]
-        rows.append(_ladder_row(ev, added))
+        rows.append(_ladder_row(ev, added, carry))
     return rows
 
 
-def _ladder_row(ev: Evaluation, added: list[str]) -> dict:
+def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> dict:
     params = [dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name))))
               for name in added]
     s = ev.summary
+    nxt = carry(ev) if carry is not None else None
     return {"name": ev.name, "kind": ev.kind, "terms": ev.terms,
             "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
             "expected_rms": s["expected_rms"], "excess": s["excess"],
-            "chi2_red": ev.chi2 / ev.dof, "parameters": params}
+            "chi2_red": ev.chi2 / ev.dof, "parameters": params,
+            **({"next_excess": nxt["excess"]} if nxt and "excess" in nxt else {})}
+
+
+def fix_row(best, base: Evaluation) -> dict:
+    """The ladder's step of the fix the diagnosis names: the configured model with it, as
+    the diagnosis fitted and judged it."""
+    floor = base.summary["noise_floor"]
+    terms = [*base.terms, best.term, *best.together] if not best.model else best.model["terms"]
+    nxt = best.next_session if best.next_session and "excess" in best.next_session else None
+    return {"name": "+ the fix named below", "kind": best.kind or base.kind, "terms": terms,
+            "validation_rms": best.validation_rms_with, "noise_floor": floor,
+            "expected_rms": best.expected_with, "excess": best.validation_rms_with / floor,
+            "chi2_red": best.chi2 / best.df[1] if best.chi2 is not None and best.df else None,
+            "parameters": [{k: z[k] for k in ("coefficient", "value", "stderr")} for z in best.size],
+            "fix": True, "in_sample": not best.validated,
+            **({"next_excess": nxt["excess"]} if nxt else {})}
+
+
+def yaml_scalar(text: str) -> str:
+    """``text`` as one YAML scalar, pasted as printed: plain where YAML reads it back as that
+    string (a name; not ``yes``, ``null`` or a number), in single quotes otherwise (a spec
+    string's own strings are in double quotes)."""
+    import yaml
+    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text) and yaml.safe_load(text) == text:
+        return text
+    return f"'{text}'" if "'" not in text else json.dumps(text)
 
 
 def config_line(model) -> str:
     """The ``model:`` lines of the config for ``model`` (a ModelSettings): ``terms: [...]``
     and, when it has any, ``expressions: {...}``. Specs other than plain names are quoted."""
-    def quote(t):
-        if t.isidentifier():
-            return t
-        return f"'{t}'" if '"' in t and "'" not in t else json.dumps(t)   # YAML scalars
+    quote = yaml_scalar
     terms = [make_term(t).spec_string() for t in model.terms]
     lines = ["terms: [" + ", ".join(quote(t) for t in terms) + "]"]
     if model.kind != "grid":
@@ -194,6 +221,51 @@ def config_line(model) -> str:
         lines.append("expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions)
                      + "}")
     return "\n".join(lines)
+
+
+def unit_config_line(device: str, settings: Settings, fix: dict) -> str:
+    """The lines of the config that give one unit the fix ``fix`` (an offered term as the
+    diagnosis writes it: ``term``, ``together``, or a whole ``model``), under ``models:``:
+    the terms it adds where the unit has the fleet's model; where it takes an entry already
+    (a batch's, a pattern's: a device's own comes first), that entry's settings with the
+    whole list of terms."""
+    terms = [fix["term"], *(fix.get("together") or ())]
+    entry = dict(settings.unit_model[1]) if settings.unit_model else {}
+    entry.pop("add", None)
+    if fix.get("model"):
+        entry.update(kind=fix["model"]["kind"], terms=list(fix["model"]["terms"]), expressions=None)
+    elif settings.unit_model is None:
+        return f"models:\n  {yaml_scalar(device)}: {{add: [{', '.join(map(yaml_scalar, terms))}]}}"
+    else:
+        changed = settings.model.with_terms(tuple(terms))
+        entry.update(terms=[make_term(t).spec_string() for t in changed.term_specs()], expressions=None)
+    return f"models:\n  {yaml_scalar(device)}: {_flow(entry)}"
+
+
+def _flow(value) -> str:
+    """A YAML flow collection of plain settings, each string a pasteable scalar."""
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{yaml_scalar(str(k))}: {_flow(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_flow(v) for v in value) + "]"
+    if isinstance(value, str):
+        return yaml_scalar(value)
+    return "null" if value is None else json.dumps(value)
+
+
+def with_unit_lines(doc: dict, device: str | None, settings: Settings) -> dict:
+    """A diagnosis' JSON with each offered fix's ``unit_config_line`` for ``device``, and its
+    ``config_line`` (the whole fleet's ``model:``) made from the fleet's model rather than
+    this unit's (:attr:`gyrocal.pipeline.config.Settings.fleet`)."""
+    offers = [doc.get("best"), *((doc.get("best") or {}).get("also") or ()),
+              *(p for p in doc.get("partial") or () if p.get("offered"))]
+    for offer in filter(None, offers):
+        if not offer.get("model"):
+            fleet = settings.fleet.with_terms((offer["term"], *(offer.get("together") or ())))
+            offer["config_line"] = config_line(fleet)
+        if device:
+            offer["unit_config_line"] = unit_config_line(device, settings, offer)
+    return doc
 
 
 def add_term_option(term: str) -> str:

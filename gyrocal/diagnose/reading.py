@@ -96,7 +96,12 @@ def _values(term, profiled) -> str:
         v = entry["value"] if entry else value
         se = entry.get("stderr") if entry else None
         unit = f" {units[name]}" if units.get(name) else ""
-        parts.append(f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit)
+        bound = ""
+        if entry and entry.get("at_bound"):
+            lo, hi = entry["bounds"]
+            bound = f" (at the {'upper' if v >= (lo * hi) ** 0.5 else 'lower'} bound of its search)"
+        parts.append(f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit
+                     + bound)
     return ", ".join(parts)
 
 

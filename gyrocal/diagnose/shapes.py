@@ -81,6 +81,43 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
     return []
 
 
+# Seconds: a time constant since power-on as a unit has one, from a die warming itself
+# (tens of seconds) to a package settling in a chamber (hours). An offered term of time
+# searches these, whatever the session that found it, so its next session finds its own.
+TIME_CONSTANT_S = (10.0, 14400.0)
+TIME_CONSTANTS = ("tau", "t0")
+
+
+def at_bound(profiled) -> bool:
+    """Whether a fitted term's profiled parameter ended at a bound of its search: the data do
+    not fix it, and a fix resting on it is no fix."""
+    return any(p.get("at_bound") for p in profiled or ())
+
+
+def for_the_unit(spec: str, profiled=()) -> str:
+    """An offered term of free shape written for the unit rather than the session it was
+    found in: a formula of time since power-on with its fitted values as the start and its
+    time constants searched over :data:`TIME_CONSTANT_S`; a spline of it on knots rounded
+    to two significant figures. Other terms as they are."""
+    term = make_term(spec)
+    inner = getattr(term, "term", term)
+    if inner is not term:   # a restricted term: its part stays as the diagnosis fitted it
+        return spec
+    if inner.name == "smooth" and inner.input == "t":
+        knots = sorted({float(f"{k:.2g}") for k in inner.knots})
+        return term.with_settings(knots=knots).spec_string() if len(knots) == len(inner.knots) else spec
+    if inner.name != "expression" or "t" not in inner.needs or not inner.profile:
+        return spec
+    fitted = {p["parameter"]: p["value"] for p in profiled or ()
+              if p.get("term") == inner.label and "value" in p}
+    parameters = {k: float(f"{fitted.get(k, v):.3g}") for k, v in inner.parameters.items()}
+    bounds = {k: (list(TIME_CONSTANT_S) if k in TIME_CONSTANTS else list(b))
+              for k, b in inner.profile.items()}
+    if any(not lo <= parameters[k] <= hi for k, (lo, hi) in bounds.items() if k in parameters):
+        return spec
+    return make_term({**inner.spec(), "parameters": parameters, "profile": bounds}).spec_string()
+
+
 def rate_levels(values: np.ndarray) -> list[float] | None:
     """The distinct levels of a rate at the holds (signed, 0 included), where the protocol
     holds a few (3 to :data:`MAX_RATE_LEVELS`); None otherwise."""

@@ -27,6 +27,9 @@ def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool 
                            partial, within_noise, unrepeated, base_next, tolerance,
                            noise_explains=noise_explains, unseparable=unseparable,
                            finding=finding, negligible=negligible)
+    if base_next is not None and base_next["holds"] and best is None and explains:
+        return text + (f" On the other session its calibration leaves {base_next['excess']:.3g} "
+                       "times the floor: it carries over.")
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
@@ -36,8 +39,8 @@ def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool 
     if explains:
         return text + (f" On the other session the calibration's errors are {base_next['excess']:.3g} "
                        "times the floor: it does not carry over, the unit changed between sessions "
-                       "(run-to-run bias, drift; gyrocal revalidate and gyrocal drift say which "
-                       "parameters).")
+                       "(run-to-run bias, drift; gyrocal revalidate says by how much, the fleet "
+                       "summary's drift page which parameters).")
     return text + f" On the other session the errors are {base_next['excess']:.3g} times the floor."
 
 
@@ -191,8 +194,9 @@ FAMILY_NAMES = {"smooth": "An empirical term", "levels": "A table over the proto
 def _free_shape_verdict(base, best, carried: str) -> str:
     """A term of free shape named: the shape in words, what it reaches, and the parametric
     forms that explain it as well."""
-    also = "".join(f" As a formula, {name_of(c)} explains it as well "
-                   f"(validation RMS {c.validation_rms_with:.3g} deg/s)." for c in best.also[:2])
+    also = "".join(f" {'As a formula' if c.family not in ('smooth', 'levels') else 'Empirically'}, "
+                   f"{name_of(c)} explains it as well (validation RMS {c.validation_rms_with:.3g} deg/s)."
+                   for c in best.also[:2])
     what = FAMILY_NAMES.get(best.family, f"A {best.family} formula")
     together = (" with " + ", ".join(name_of(make_candidate(t)) for t in best.together)
                 if best.together else "")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import os
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 from ..io import schema
@@ -16,6 +17,7 @@ from ..io.errors import ConfigError, CorruptFileError
 
 _ROW = schema.load("manifest")
 COLUMNS = tuple(_ROW["required"])
+OPTIONAL = tuple(c for c in _ROW["properties"] if c not in COLUMNS)   # the model column
 
 
 def _pattern(column: str) -> str:
@@ -48,11 +50,12 @@ def read_manifest(path) -> list[dict[str, str]]:
                           f"{', '.join(missing)} (tab-separated, header {' '.join(COLUMNS)})",
                           source=path)
     rows, seen = [], {}
-    valid = {c: set() for c in COLUMNS}   # each value checked once: batches, sessions repeat
+    present = COLUMNS + tuple(c for c in OPTIONAL if c in header)
+    valid = {c: set() for c in present}   # each value checked once: batches, sessions repeat
     for line, row in enumerate(reader, start=2):
         if not any((v or "").strip() for v in row.values()):
             continue  # blank line
-        row = {c: (row.get(c) or "").strip() for c in COLUMNS}
+        row = {c: (row.get(c) or "").strip() for c in present}
         for column, value in row.items():
             if value not in valid[column]:
                 try:
@@ -67,10 +70,37 @@ def read_manifest(path) -> list[dict[str, str]]:
         seen[key] = line
         # Normalising would also fold a URL's "//" (s3://b/k -> s3:/b/k).
         row["log"] = row["path"] if "://" in row["path"] else os.path.normpath(path.parent / row["path"])
+        row.setdefault("model", "")
         rows.append(row)
     if not rows:
         raise ConfigError("manifest lists no logs", source=path)
     return rows
+
+
+PATTERN_CHARACTERS = "*?["
+
+
+def model_entry(row: dict[str, str], models: dict) -> str | None:
+    """The key of the config's ``models:`` entry a manifest row's unit takes: the one its
+    ``model`` column names, else its device's, its batch's, the first pattern of devices
+    (shell-style) that matches it; None for the fleet-wide model."""
+    unread = [k for k in models if not isinstance(k, str)]
+    if unread:
+        what = "true or false" if isinstance(unread[0], bool) else "null" if unread[0] is None else "a number"
+        raise ConfigError(f"models: the key {unread[0]!r} is read as {what}, not a name: quote it "
+                          f"('{unread[0]}')")
+    named = row.get("model")
+    if named:
+        if named not in models:
+            raise ConfigError(f"device {row['device']} session {row['session']}: the manifest's model "
+                              f"column names {named!r}, which the config's models: does not have"
+                              f"{'; it has ' + ', '.join(map(str, models)) if models else ''}")
+        return named
+    for key in (row["device"], row["batch"]):
+        if key in models:
+            return key
+    return next((key for key in models if any(c in key for c in PATTERN_CHARACTERS)
+                 and fnmatchcase(row["device"], key)), None)
 
 
 def shard(rows: list[dict[str, str]], size: int) -> list[list[dict[str, str]]]:
@@ -110,11 +140,14 @@ def write_shards(rows: list[dict[str, str]], size: int, out) -> list[Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
+    named = any(r.get("model") for r in rows)   # the model column, where a row names one
+    header = COLUMNS + (("model",) if named else ())
     for k, rows_k in enumerate(shard(rows, size), start=1):
         # a shard lies in another folder than the manifest: each log by its absolute path
-        lines = ["\t".join(COLUMNS)] + [
+        lines = ["\t".join(header)] + [
             "\t".join([*(r[c] for c in COLUMNS[:-1]),
-                       r["log"] if "://" in r["log"] else os.path.abspath(r["log"])]) for r in rows_k]
+                       r["log"] if "://" in r["log"] else os.path.abspath(r["log"]),
+                       *((r.get("model") or "",) if named else ())]) for r in rows_k]
         path, text = out / f"shard-{k:04d}.tsv", "\n".join(lines) + "\n"
         if not path.is_file() or path.read_text() != text:
             atomic.write_text(path, text)

@@ -208,8 +208,30 @@ def _unit_row(unit: dict) -> tuple[dict, tuple]:
     logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
     row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
                reference=cal.reference_temperature, missing=_missing_effect(folder),
-               params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref})
+               params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref},
+               **_model_columns(cal, folder))
     return row, inputs
+
+
+def _model_columns(cal, folder) -> dict:
+    """The unit's model for the fleet table: its terms, the config's ``models:`` entry it
+    takes, each term beyond its protocol's model (kept or dropped, with the held-out error
+    without and with it), and the run of the model before this one (:mod:`gyrocal.io.runs`)."""
+    from ..io.runs import last_two, read_runs
+    added = [{"term": a["term"], "kept": a["kept"], "reason": a.get("reason"),
+              "without": (a.get("without") or {}).get("excess"), "with": (a.get("with") or {}).get("excess")}
+             for a in cal.extra.get("added_terms", ())]
+    current, previous = last_two(read_runs(folder), cal.provenance.get("config_sha256"))
+    since = None
+    if previous is not None:
+        since = {"model": ", ".join(previous["model"]["terms"]), "before": previous["excess"],
+                 "after": current["excess"],
+                 "next_before": (previous.get("next_session") or {}).get("excess"),
+                 "next_after": (current.get("next_session") or {}).get("excess"),
+                 "next_session": (current.get("next_session") or {}).get("session")}
+    return {"model": ", ".join(t.spec_string() for t in cal.model.terms) + (
+                " (continuous)" if cal.kind == "continuous" else ""),
+            "model_entry": cal.extra.get("model_entry"), "added_terms": added, "since_last": since}
 
 
 def _missing_effect(folder) -> str:
@@ -335,6 +357,8 @@ TABLE_COLUMNS = (
     ("temperature_min", pa.float64()), ("temperature_max", pa.float64()),
     ("validation_rms", pa.float64()), ("noise_floor", pa.float64()), ("excess", pa.float64()),
     ("excess_over_expected", pa.float64()), ("missing_effect", pa.string()),
+    ("model", pa.string()), ("model_entry", pa.string()), ("terms_dropped", pa.list_(pa.string())),
+    ("previous_model", pa.string()), ("previous_excess", pa.float64()),
     ("warnings", pa.list_(pa.string())), ("eol_passed", pa.bool_()),
     ("eol_reasons", pa.list_(pa.string())), ("input_name", pa.string()),
     ("input_hash", pa.string()), ("input_hash_algorithm", pa.string()),
@@ -369,6 +393,11 @@ def fleet_table(summary: dict) -> pa.Table:
             **{k: _finite(s.get(k)) for k in ("validation_rms", "noise_floor", "excess",
                                                "excess_over_expected")},
             "missing_effect": row.get("missing") if ok else None,
+            "model": row.get("model") if ok else None,
+            "model_entry": row.get("model_entry") if ok else None,
+            "terms_dropped": [a["term"] for a in row["added_terms"] if not a["kept"]] if ok else None,
+            "previous_model": (row.get("since_last") or {}).get("model") if ok else None,
+            "previous_excess": _finite((row.get("since_last") or {}).get("before")) if ok else None,
             "warnings": [w["code"] for w in row.get("warnings", [])] if ok else None,
             "eol_passed": eol["passed"] if eol else None,
             "eol_reasons": eol["reasons"] if eol else None,

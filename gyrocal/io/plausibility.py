@@ -51,6 +51,8 @@ CODES = {
     "point_excluded": "a temperature point left out of the calibration",
     "holds_disagree_with_reference": "holds off by over 20 noise floors where their rate is not at other points",
     "protocol_unbalanced": "a rotation direction or a mount missing on some axis",
+    "term_dropped": "a term beyond the protocol's model left out: this unit's data cannot tell it from the model's own",
+    "term_not_identified": "a term beyond the protocol's model kept for its gain, though the data cannot tell it from the model's own",
 }
 
 # Scale-factor and cross-axis bounds (see the module docstring).

@@ -32,6 +32,31 @@ _BOUNDS = {"minimum": "at least", "exclusiveMinimum": "more than", "maximum": "a
            "exclusiveMaximum": "less than"}
 
 
+def refuse_duplicate_keys(text: str, source=None) -> None:
+    """Raise :class:`ConfigError` where a YAML mapping names a key twice: YAML keeps the last
+    and drops the first without a word (a second ``models:`` pasted below a first would
+    take every unit's own model away)."""
+    try:
+        root = yaml.compose(text, Loader=SAFE_LOADER)
+    except yaml.YAMLError:
+        return   # the load that follows says what is wrong
+    stack = [root] if root is not None else []
+    while stack:
+        node = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            seen: dict = {}
+            for key, value in node.value:
+                name = getattr(key, "value", None)
+                if isinstance(name, str) and name in seen:
+                    raise ConfigError(f"line {key.start_mark.line + 1}: {name} is given twice (first on "
+                                      f"line {seen[name]}); YAML would keep only the second: merge them",
+                                      source=source)
+                seen[name] = key.start_mark.line + 1
+                stack.append(value)
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend(node.value)
+
+
 @cache
 def load(name: str) -> dict:
     """The schema ``name`` (``config`` or ``manifest``)."""

@@ -146,19 +146,32 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
         fitted = None
     else:
         cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted)
+    if settings.model_entry:
+        cal.extra["model_entry"] = settings.model_entry
     if checks:
         cal.extra["warnings"] = plausibility.review(obs, info, cal,
                                                     protocol=registry.get(meta.get("protocol")),
-                                                    source=label)
+                                                    source=label) + [
+            plausibility.finding("term_dropped", f"{a['term']} left out: {a['reason']}", term=a["term"])
+            for a in cal.extra.get("added_terms", ()) if not a["kept"]] + [
+            plausibility.finding("term_not_identified", f"{a['term']} kept for the held-out error it takes "
+                                 f"away, though {a['not_identified']}: the bias is judged as the "
+                                 "session measured it (bias_in_session), not as the fit extrapolates "
+                                 "it", term=a["term"])
+            for a in cal.extra.get("added_terms", ()) if a.get("not_identified")]
     return cal, fitted
 
 
 def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
-    """The common model's calibration (and fit, unless ``fitted`` is given)."""
+    """The common model's calibration (and fit, unless ``fitted`` is given). Terms beyond
+    the protocol's own model are kept only where this unit's data identify them
+    (:func:`gyrocal.pipeline.identify.identify`; the file's ``added_terms`` says which and
+    why, with the held-out figures with and without each)."""
+    added = ()
     if fitted is None:
-        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
-                           method=settings.model.interpolation, degree=settings.model.degree,
-                           source=label)
+        from .identify import identify
+        found = identify(settings, obs, meta.get("protocol"), source=label)
+        fitted, added = found.fitted, found.added
     points = fitted.points
     model = fitted.model  # with any profiled setting at its fitted value
     # Apply derives the temperature rate over the window the fit's record used.
@@ -174,8 +187,23 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
              **({"excluded_because": r.reason} if not r.used else {})}
             for r in points.itertuples()],
             **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
+            **({"added_terms": [a.to_dict() for a in added]} if added else {}),
+            **({"bias_in_session": session} if (session := _bias_in_session(fitted, added)) else {}),
             **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
     return cal, fitted
+
+
+def _bias_in_session(fitted, added) -> dict | None:
+    from .identify import bias_in_session
+    return bias_in_session(fitted, [a.term for a in added if a.kept and a.weakly])
+
+
+def settings_used(settings: Settings, cal: Calibration) -> Settings:
+    """The settings a calibration was made with: ``settings`` without the terms its unit's
+    data could not identify (the file's ``added_terms``)."""
+    from .identify import without
+    dropped = [a["term"] for a in cal.extra.get("added_terms", ()) if not a["kept"]]
+    return without(settings, dropped) if dropped else settings
 
 
 def run(path, settings: Settings | None = None, *, protocol: str = registry.DEFAULT,

@@ -74,6 +74,12 @@ class ModelSettings:
                 terms.append(term.spec_string())
         return replace(self, terms=tuple(terms), expressions=tuple(sorted(expressions.items())))
 
+    def changed(self, entry: dict, *, key: str = "models") -> ModelSettings:
+        """The model as a ``models:`` entry changes it for some units: each of the entry's keys
+        replaces this model's, and ``add`` puts terms on its list."""
+        values = {**self.to_dict(), **{k: v for k, v in entry.items() if k != "add"}}
+        return ModelSettings.from_dict(values, key=key).with_terms(tuple(entry.get("add", ())))
+
     def build(self) -> Model:
         for path in self.term_files:
             load_term_file(path)
@@ -124,15 +130,20 @@ class Settings:
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
     protocols: tuple = ()       # (name, {options, model, diagnosis}) overrides, checked
     resolved_for: str | None = None   # the protocol for_protocol() has settled these for
+    unit_model: tuple | None = None   # (key, entry): the config's models: entry this unit takes
+    fleet_model: ModelSettings | None = None   # the model before the unit's entry, or before drops
 
     @classmethod
     def from_dict(cls, values: dict | None) -> Settings:
         values = dict(values or {})
         for name in values:
-            if name not in ("segmentation", "model", "diagnosis", "protocols"):
+            if name not in ("segmentation", "model", "diagnosis", "protocols", "unit"):
                 raise ConfigError(f"unknown setting {name}; known: diagnosis, model, protocols, "
                                   "segmentation")
         model = ModelSettings.from_dict(values.get("model"))  # registers the user's terms first
+        unit_model, fleet_model = _unit_model(values.get("unit")), None
+        if unit_model is not None:
+            fleet_model, model = model, model.changed(unit_model[1], key=f"models.{unit_model[0]}")
         protocols = values.get("protocols") or {}
         if not isinstance(protocols, dict):
             raise ConfigError("protocols must map protocol names to settings")
@@ -146,7 +157,8 @@ class Settings:
             DiagnosisSettings.from_dict(section.get("diagnosis"), key=f"protocols.{name}.diagnosis")
             checked.append((name, section))
         return cls(SegmentConfig.from_dict(values.get("segmentation")), model,
-                   DiagnosisSettings.from_dict(values.get("diagnosis")), tuple(checked))
+                   DiagnosisSettings.from_dict(values.get("diagnosis")), tuple(checked),
+                   unit_model=unit_model, fleet_model=fleet_model)
 
     def for_protocol(self, protocol: str | None) -> Settings:
         """The settings a log of ``protocol`` is processed with: the turntable's are the
@@ -162,7 +174,10 @@ class Settings:
                  "expressions": dict(self.model.expressions), **(override.get("model") or {})}
         diagnosis = {"significance": self.diagnosis.significance, **default["diagnosis"],
                      **(override.get("diagnosis") or {})}
-        return replace(self, model=ModelSettings.from_dict(model, key=f"protocols.{protocol}.model"),
+        model = fleet = ModelSettings.from_dict(model, key=f"protocols.{protocol}.model")
+        if self.unit_model is not None:
+            model = model.changed(self.unit_model[1], key=f"models.{self.unit_model[0]}")
+        return replace(self, model=model, fleet_model=fleet if self.unit_model is not None else None,
                        diagnosis=DiagnosisSettings.from_dict(diagnosis,
                                                              key=f"protocols.{protocol}.diagnosis"),
                        resolved_for=protocol)
@@ -180,22 +195,51 @@ class Settings:
                 raise
             raise ConfigError(str(exc), source=path) from None
 
+    @property
+    def fleet(self) -> ModelSettings:
+        """The fleet's model for this unit: before its ``models:`` entry and before the terms
+        its data could not identify were dropped."""
+        return self.fleet_model or self.model
+
     def to_dict(self) -> dict:
-        out = {"segmentation": asdict(self.segmentation), "model": self.model.to_dict(),
+        # the fleet's model and the unit's entry, as the workflow hands them to a job
+        model = self.fleet if self.unit_model is not None else self.model
+        out = {"segmentation": asdict(self.segmentation), "model": model.to_dict(),
                "diagnosis": self.diagnosis.to_dict()}
         if self.protocols:
             out["protocols"] = {name: section for name, section in self.protocols}
+        if self.unit_model is not None:
+            out["unit"] = {"entry": self.unit_model[0], "model": self.unit_model[1]}
         return out
+
+    @property
+    def model_entry(self) -> str | None:
+        """The key of the config's ``models:`` entry these settings take (None: the fleet's)."""
+        return None if self.unit_model is None else self.unit_model[0]
 
     def sha256(self) -> str:
         text = json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(text.encode()).hexdigest()
 
 
+def _unit_model(values) -> tuple | None:
+    """``unit: {entry, model}`` of a unit's settings (the workflow's: the config's ``models:``
+    entry the unit takes, :func:`gyrocal.fleet.manifest.model_entry`), checked."""
+    if values is None:
+        return None
+    if not isinstance(values, dict) or set(values) != {"entry", "model"}:
+        raise ConfigError("unit must map entry (the models: key) and model (its changes)")
+    key = str(values["entry"])
+    entry = schema.check({key: values["model"]}, "config", "models")[key]
+    return key, entry
+
+
 def read_yaml(path) -> dict:
     path = Path(path)
     try:
-        values = yaml.load(path.read_text(), Loader=schema.SAFE_LOADER)
+        text = path.read_text()
+        schema.refuse_duplicate_keys(text, source=path)
+        values = yaml.load(text, Loader=schema.SAFE_LOADER)
     except FileNotFoundError:
         raise CorruptFileError("no such file", source=path) from None
     except yaml.YAMLError as exc:

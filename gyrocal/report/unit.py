@@ -17,6 +17,7 @@ from ..calibration.file import Calibration, dumps, load_calibration, standard_co
 from ..fit import METHODS
 from ..io.columns import Columns, present
 from ..io.formats import FAILURE
+from ..io.runs import last_two, read_runs
 from ..io.unit_folder import part_exists, read_part_columns, read_part_doc, read_part_json, unit_paths
 from . import plots
 from .pages import render_page
@@ -48,6 +49,7 @@ class UnitResults:
     protocol: dict | None = None              # the servo's or the sweep's own methods
     protocol_figures: list = field(default_factory=list)
     free_points: Columns | None = None   # continuous models: free per-point fits
+    runs: tuple = (None, None)           # this run and the last of another model (gyrocal.io.runs)
 
     @classmethod
     def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
@@ -77,12 +79,14 @@ class UnitResults:
             residuals, meta = read_part_columns(folder, "residuals")
             heat = meta.get("heatmaps", {})
         own = read_part_json(folder, "protocol")
+        runs = last_two(read_runs(folder), cal.provenance.get("config_sha256"))
         return cls(cal.meta, cal, extra["info"], obs, table("segments"), table("timeline"),
                    summary, table("holds"), table("table_hold_means"), table("table_samples"),
                    table("by_temperature"), extra.get("log", ""), diagnosis=diagnosis,
                    residuals=residuals, heatmaps=heat, protocol=own["results"],
                    protocol_figures=own["figures"],
-                   free_points=table("free_points") if part_exists(folder, "free_points") else None)
+                   free_points=table("free_points") if part_exists(folder, "free_points") else None,
+                   runs=runs)
 
 
 def _parameter_figure(cal: Calibration, free_points: Columns | None) -> str:
@@ -139,6 +143,9 @@ def _diagnosis_context(results: UnitResults) -> dict:
         context["fig_heatmaps"] = plots.heatmaps(maps)
     if len(diag.get("ladder", [])) > 1:
         context["fig_ladder"] = plots.ladder(diag["ladder"])
+    current, previous = results.runs
+    if previous is not None:
+        context["since_last"] = {"previous": previous, "current": current}
     return context
 
 
@@ -198,6 +205,7 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
                      for j, n in enumerate(g.names) if n in session]
     html = render_page(
         "unit_report.html.j2", profiled=cal.extra.get("profiled", []),
+        added_terms=cal.extra.get("added_terms", []), model_entry=cal.extra.get("model_entry"),
         meta=cal.meta, span=g.span, summary=results.summary, methods=METHODS, info=info,
         input_warnings=cal.extra.get("warnings", []),
         interpolation=g.method, reference=cal.reference_temperature,

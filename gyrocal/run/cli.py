@@ -332,10 +332,12 @@ def cmd_calibrate(args) -> int:
         from ..protocols import registry
         from ..diagnose import diagnose, evaluation_of
         from ..report.unit import UnitResults, write_unit_report
+        from ..pipeline.chain import settings_used
         obs = result.segmentation.observations
+        used = settings_used(settings.for_protocol(args.protocol), result.calibration)
         base = None if result.fitted is None else evaluation_of(
-            settings, result.fitted, result.validation.summary, "configured model")
-        diag = diagnose(settings, obs, base=base)
+            used, result.fitted, result.validation.summary, "configured model")
+        diag = diagnose(used, obs, base=base)
         write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag,
                                                registry.analysis(args.protocol, obs)), args.report,
                           registry.get(args.protocol))
@@ -378,16 +380,25 @@ def cmd_diagnose(args) -> int:
         print(f"diagnosis -> {args.output}")
         print(f"  {verdict}")
         import json
-        offered = json.loads(Path(args.output).read_text()).get("best")
+        doc = json.loads(Path(args.output).read_text())
+        offered, nxt = doc.get("best"), doc.get("next_session") or {}
+        if nxt.get("excess") is not None:   # what the calibration meets: said, not only in the JSON
+            fixed = ((offered or {}).get("next_session") or {}).get("excess")
+            print(f"  on the other session ({doc.get('other_session', 'given')}): "
+                  f"{nxt['excess']:.3g} times the floor with this model"
+                  + (f", {fixed:.3g} with the fix" if fixed is not None else ""))
         if offered:
             print(f"  to add it: gyrocal calibrate LOG -o CAL.json {offered['option']}")
+            if offered.get("unit_config_line"):
+                lines = offered["unit_config_line"].replace("\n", "\n    ")
+                print(f"  or for this unit alone, in the workflow's config:\n    {lines}")
 
     def work():
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
             other = args.other_session
             if other is not None and not Path(other).is_dir():
                 registry.get(args.protocol)
-                other = Path(scratch) / "other"
+                other = Path(scratch) / "other" / Path(args.other_session).name.removesuffix(".parquet")
                 segment_stage(args.other_session, other, settings, _meta(args))
             if args.unit is not None:
                 return diagnose_folder(args.unit, other)
@@ -449,6 +460,55 @@ def cmd_verify(args) -> int:
         raise CalibrationFileError("provenance.input is not a record", source=args.calibration)
     algorithm = verify_source(record, args.log)
     print(f"{args.log} is the input of {args.calibration} ({algorithm})")
+    return 0
+
+
+def cmd_revalidate(args) -> int:
+    """A calibration judged on another session of its unit: that session's holds compensated
+    as the validation stage compensates, their RMS against the noise floor and against what a
+    correct calibration leaves (gyrocal.fleet.drift.revalidate); the figures as JSON with -o."""
+    from ..calibration.file import dumps, load_calibration
+    from ..fleet.drift import revalidate
+    from ..io.errors import InputError
+    from ..io.formats import json_safe
+    from ..pipeline.chain import segment_log
+    from ..terms.user import load_term_file
+    for path in args.terms or ():   # before the calibration: its own terms come from them
+        load_term_file(path)
+    cal = load_calibration(args.calibration)
+    made_by = cal.meta.get("protocol") or registry.DEFAULT
+    if not registry.get(made_by).known_rate:   # refused before the log is read
+        raise InputError(f"a {made_by} calibration cannot be revalidated: {made_by} holds carry "
+                         "no known true rate to score it against", source=args.calibration)
+    args.protocol = args.protocol or made_by
+    try:
+        r = revalidate(cal, segment_log(args.log, _settings(args), args.protocol).observations)
+    except InputError as exc:   # the new session's holds do not serve
+        if exc.source is not None:
+            raise
+        raise InputError(str(exc), source=args.log) from None
+    limit = r["expected_rms"] * r["limit_over_expected"] / r["noise_floor"]
+    verdict = ("the calibration carries over to this session" if r["holds"] else
+               f"it misses this session by {r['excess']:.3g} times the floor (noise and its own "
+               f"uncertainty explain up to {limit:.3g} times)")
+    if args.output:
+        from ..io.atomic import write_text
+        write_text(args.output, dumps(json_safe({
+            "format": "gyrocal.revalidation/1",
+            **{k: cal.meta.get(k) for k in ("device", "batch", "session")},
+            "calibration": Path(args.calibration).name, "log": Path(args.log).name,
+            **{k: v for k, v in r.items() if k not in ("device", "calibration_session", "table")},
+            "verdict": verdict, "table": r["table"].to_dict("records")})))
+    print(f"revalidation of {args.calibration} ({cal.meta.get('device')}, session "
+          f"{cal.meta.get('session')}) on {args.log}" + (f" -> {args.output}" if args.output else ""))
+    print(f"  {r['holds_scored']} holds scored"
+          + (f", {r['holds_left_out']} beyond the calibrated {cal.grid.span[0]:.1f} to "
+             f"{cal.grid.span[1]:.1f} °C left out" if r["holds_left_out"] else ""))
+    print(f"  hold-mean RMS {r['validation_rms']:.3g} deg/s: noise floor {r['noise_floor']:.3g} "
+          f"({r['excess']:.2f}x), expected of a correct calibration {r['expected_rms']:.3g} "
+          f"({r['excess_over_expected']:.2f}x); single-temperature {r['single_rms']:.3g}, "
+          f"uncompensated {r['uncompensated_rms']:.3g}")
+    print(f"  {verdict}")
     return 0
 
 
@@ -568,6 +628,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("log")
     p.set_defaults(func=cmd_verify)
 
+    p = sub.add_parser("revalidate", help="judge a calibration on another session of its unit "
+                       "(its RMS against the noise floor)")
+    p.add_argument("calibration")
+    p.add_argument("log", help="another session's rig log of the same unit")
+    p.add_argument("-o", "--output", help="the figures as JSON")
+    p.add_argument("--protocol", choices=registry.names(),
+                   help="how to segment the log (default: the calibration's protocol)")
+    common(p, model=False)
+    p.set_defaults(func=cmd_revalidate)
+
     p = sub.add_parser("noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's "
                        "static stretches")
     p.add_argument("log")
@@ -671,7 +741,7 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 # noise fit's scipy.optimize and scipy.special, the model fit's scipy.linalg) are imported
 # on another thread from the start. Imports hold the GIL; Arrow's decoding does not.
 WARM_IMPORTS = ("scipy.linalg", "scipy.special", "scipy.optimize")
-READS_A_LOG = {"calibrate", "diagnose", "segment", "noise"}
+READS_A_LOG = {"calibrate", "diagnose", "segment", "noise", "revalidate"}
 
 
 def _read_ahead(args) -> None:

@@ -22,7 +22,7 @@ from ..io.errors import GyrocalError
 from ..io.tables import write_table
 from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
                               part_exists, part_failure, part_label,
-                              read_observations, unit_paths)
+                              read_observations, read_part_json, unit_paths)
 from ..protocols import registry
 from ..report.pages import write_failure
 
@@ -65,7 +65,7 @@ def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
 def fit_stage(folder, settings: Settings, meta: dict):
     from ..pipeline.chain import calibrate_observations
     """The unit's calibration; returns the common model's fit (None for a protocol with a
-    calibration of its own) for the stages after it in the same job."""
+    calibration of its own) and the calibration, for the stages after it in the same job."""
     paths = unit_paths(folder)
     obs, extra = read_observations(folder)
     cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
@@ -73,12 +73,12 @@ def fit_stage(folder, settings: Settings, meta: dict):
                                          noise=extra["info"].get("noise"),
                                          info=extra["info"])
     save_calibration(cal, paths["calibration"])
-    return fitted
+    return fitted, cal
 
 
 def validate_stage(folder, settings: Settings, fitted=None):
     from ..fit.thermal import fit_model
-    from ..pipeline.chain import validation
+    from ..pipeline.chain import settings_used, validation
     """The calibration's validation tables and summary; returns the validation. ``fitted``,
     the fit the calibration was made from in the same job, spares fitting again (the
     leave-temperature-out validation needs the per-point fits, not only the file). A
@@ -94,9 +94,9 @@ def validate_stage(folder, settings: Settings, fitted=None):
         raise GyrocalError("the calibration was not fitted from these observations with these "
                            "settings: run the fit stage again", source=paths["calibration"])
     if fitted is None and registry.get(cal.meta.get("protocol")).validate is None:
-        fitted = fit_model(settings.model.build(), obs, kind=settings.model.kind,
-                           method=settings.model.interpolation, degree=settings.model.degree,
-                           source=source)
+        model = settings_used(settings, cal).model
+        fitted = fit_model(model.build(), obs, kind=model.kind, method=model.interpolation,
+                           degree=model.degree, source=source)
     val = validation(obs, cal, fitted, settings, source=source)
     results, figures = registry.analysis(cal.meta.get("protocol"), obs)
     _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
@@ -115,13 +115,17 @@ def _write_json(path: Path, document: dict) -> None:
 
 
 def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
-                   other=None, base=None) -> str:
+                   other=None, base=None, requested: Settings | None = None) -> str:
     """The diagnosis of the unit's observations (JSON) and its normalised residuals
     (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
     folder of another session of the unit, judges the candidates by how they carry over;
     ``base``, the configured model's fit and validation made in the same job
-    (:func:`gyrocal.diagnose.evaluation_of`), spares making them again."""
+    (:func:`gyrocal.diagnose.evaluation_of`), spares making them again. A diagnosis written as
+    the unit's own is added to its record of runs when the unit's calibration was made with
+    the settings asked for (``requested``, before the terms its data could not identify
+    were dropped; ``settings`` themselves otherwise)."""
     from ..diagnose import diagnose
+    from ..diagnose.evaluation import with_unit_lines
     paths = unit_paths(folder)
     obs, _ = read_observations(folder)
     other_obs, other_note = None, {}
@@ -132,13 +136,37 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
             other_obs, _ = read_observations(other)
         except GyrocalError as exc:
             other_note = {"other_session_error": str(exc)}
+    requested = requested or settings
+    if base is None:
+        from ..pipeline.identify import added_terms, identify
+        if added_terms(settings, meta.get("protocol")):   # the model the unit would run with
+            settings = identify(settings, obs, meta.get("protocol"), held_out=False).settings
     diag = diagnose(settings, obs, other_obs, base=base)
     out = Path(output or paths["diagnosis"])
     out.parent.mkdir(parents=True, exist_ok=True)
-    _write_json(out, {**diag.to_dict(), **other_note, **meta})
+    doc = with_unit_lines(diag.to_dict(), meta.get("device"), settings)
+    if other is not None:
+        other_note["other_session"] = Path(other).name
+    _write_json(out, {**doc, **other_note, **meta})
     if residuals is not False:
         write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
+    if out.resolve() == paths["diagnosis"].resolve():   # the unit's own: its record of runs
+        _record_run(folder, settings, requested, doc, None if other is None else Path(other).name)
     return diag.verdict
+
+
+def _record_run(folder, settings: Settings, requested: Settings, diagnosis: dict,
+                other: str | None) -> None:
+    """This run in the unit session's record (:mod:`gyrocal.io.runs`), where the folder
+    holds its calibration and validation, made with the ``requested`` settings."""
+    from ..io.runs import record_run
+    paths = unit_paths(folder)
+    if not paths["calibration"].is_file() or failure.read(paths["calibration"]) is not None:
+        return
+    cal = load_calibration(paths["calibration"])
+    validation = read_part_json(folder, "validation")
+    if "summary" in validation and cal.provenance.get("config_sha256") == requested.sha256():
+        record_run(folder, run_entry(settings, cal, validation, diagnosis, other))
 
 
 def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool,
@@ -153,19 +181,24 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     still runs (fitting for itself). Returns the diagnosis verdict (None when it failed and
     was recorded)."""
     from ..diagnose import evaluation_of
+    from ..pipeline.chain import settings_used
     paths = unit_paths(folder)
     made: dict = {}
 
     def fit():
-        made["fitted"] = fit_stage(folder, settings, meta)
+        made["fitted"], made["cal"] = fit_stage(folder, settings, meta)
 
     def check():
         val = validate_stage(folder, settings, made.get("fitted"))
         if made.get("fitted") is not None:
-            made["base"] = evaluation_of(settings, made["fitted"], val.summary, "configured model")
+            made["base"] = evaluation_of(settings_used(settings, made["cal"]), made["fitted"],
+                                         val.summary, "configured model")
 
     def diagnosis():
-        made["verdict"] = diagnose_stage(folder, settings, meta, other=other, base=made.get("base"))
+        # the model this unit runs with: without the terms its data could not identify
+        used = settings_used(settings, made["cal"]) if "cal" in made else settings
+        made["verdict"] = diagnose_stage(folder, used, meta, other=other, base=made.get("base"),
+                                         requested=settings)
 
     steps = (("fit", ["calibration"], fit),
              ("validate", ["validation", *VALIDATION_TABLES], check),
@@ -173,6 +206,35 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     for stage, outputs, work in steps:
         run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
     return made.get("verdict")
+
+
+def run_entry(settings: Settings, cal, validation: dict, diagnosis: dict, other: str | None) -> dict:
+    """What a unit session's record of runs keeps of this one (:mod:`gyrocal.io.runs`): the
+    model as configured (its key) and as fitted, its figures in the session and on the other
+    session (named ``other``), and the fix the diagnosis named with its figures."""
+    import hashlib
+    model = settings.model.to_dict()
+    key = hashlib.sha256(json.dumps(model, sort_keys=True).encode()).hexdigest()[:16]
+    s = validation["summary"]
+    floor = s["noise_floor"]
+    nxt = diagnosis.get("next_session") or {}
+    best = diagnosis.get("best")
+    fix = None
+    if best:
+        fix_next = (best.get("next_session") or {}).get("excess")
+        fix = {"term": best["term"], "together": best.get("together") or [], "reads": best.get("reads"),
+               "excess": best["validation_rms_with"] / floor, "next_excess": fix_next,
+               "option": best.get("option"), "config_line": best.get("config_line")}
+    return {"key": key, "config_sha256": cal.provenance.get("config_sha256"),
+            "entry": settings.model_entry,
+            "model": {"kind": "continuous" if cal.kind == "continuous" else "grid",
+                      "terms": [t.spec_string() for t in cal.model.terms]},
+            "dropped": [a["term"] for a in cal.extra.get("added_terms", ()) if not a["kept"]],
+            "validation_rms": s["validation_rms"], "noise_floor": floor, "excess": s["excess"],
+            "held_out": s.get("held_out"),
+            "next_session": ({"session": other, "excess": nxt["excess"]}
+                             if other and nxt.get("excess") is not None else None),
+            "fix": fix}
 
 
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:

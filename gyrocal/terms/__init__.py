@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import json
 from collections.abc import Mapping
 from pathlib import Path
 from typing import ClassVar
@@ -37,6 +38,21 @@ from ..io.errors import ConfigError, MissingInputError
 
 AXES = ("x", "y", "z")
 TERMS: dict[str, type[Term]] = {}
+
+
+def literal(value) -> str:
+    """A setting as a Python literal whose strings are in double quotes: a spec string is then
+    one shell word inside single quotes and one YAML scalar inside single quotes, pasted as
+    printed."""
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{literal(k)}: {literal(v)}" for k, v in value.items()) + "}"
+    if isinstance(value, list):
+        return "[" + ", ".join(map(literal, value)) + "]"
+    if isinstance(value, tuple):
+        return "(" + ", ".join(map(literal, value)) + ("," if len(value) == 1 else "") + ")"
+    return repr(value)
 
 
 class Term:
@@ -83,7 +99,7 @@ class Term:
         changed = {k: v for k, v in self.params().items() if defaults.get(k, dataclasses.MISSING) != v}
         if self.coefficient_scope != self.default_scope():
             changed["scope"] = self.coefficient_scope
-        return self.name + ("(" + ", ".join(f"{k}={v!r}" for k, v in changed.items()) + ")"
+        return self.name + ("(" + ", ".join(f"{k}={literal(v)}" for k, v in changed.items()) + ")"
                             if changed else "")
 
     @property

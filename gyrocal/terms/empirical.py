@@ -104,7 +104,7 @@ class Smooth(Term):
 
     def spec_string(self) -> str:
         # Double quotes, so that the option is one shell word in single quotes.
-        parts = [f'input="{self.input}"', f"knots=[{', '.join(repr(k) for k in self.knots)}]"]
+        parts = [f'input="{self.input}"', f"knots=[{', '.join(map(_number, self.knots))}]"]
         if self.by:
             parts.append(f'by="{self.by}"')
         if not self.linear:

@@ -11,6 +11,7 @@ from gyrocal.fleet.manifest import (
     BATCH_PATTERN,
     DEVICE_PATTERN,
     SESSION_PATTERN,
+    model_entry,
     read_manifest,
 )
 from gyrocal.fleet.summary import drift_devices, other_sessions
@@ -47,6 +48,10 @@ UNITS = {
     (row["batch"], row["device"], row["session"]): row
     for row in read_manifest(config["devices"])
 }
+# Models of their own (config models:): the entry each unit takes, None for the fleet's.
+# Only a unit whose entry changes gets new settings, so only its analysis re-runs.
+MODELS = config.get("models") or {}
+MODEL_ENTRY = {key: model_entry(row, MODELS) for key, row in UNITS.items()}
 # Devices with two or more turntable sessions get a drift page.
 DRIFT_DEVICES = drift_devices(UNITS.values())
 # The diagnosis judges a unit's candidates on another session of the same device.
@@ -160,9 +165,12 @@ PROTOCOL_READS = {
 }
 
 
-def protocol_settings(settings, stage, protocol):
+def protocol_settings(settings, stage, protocol, entry=None):
     """The settings a ``protocol`` unit's ``stage`` job reads, as JSON (part of a
-    parameter: when it changes, the job re-runs)."""
+    parameter: when it changes, the job re-runs); ``entry``, the key of the config's
+    ``models:`` entry the unit takes, goes with its analysis."""
+    if entry is not None and "model" in PROTOCOL_READS[stage]:
+        settings = {**settings, "unit": {"entry": entry, "model": MODELS[entry]}}
     if registry.get(protocol).top_level_settings:
         return json.dumps(settings, sort_keys=True)
     reads = PROTOCOL_READS[stage]
@@ -180,6 +188,8 @@ def protocol_settings(settings, stage, protocol):
     section = {k: v for k, v in section.items() if k in reads}
     if section:
         own["protocols"] = {protocol: section}
+    if "unit" in settings:
+        own["unit"] = settings["unit"]
     return json.dumps(own, sort_keys=True)
 
 
@@ -188,21 +198,25 @@ def stage_args(settings, stage):
     who the unit is and the settings its protocol reads. One parameter, not one per
     argument: Snakemake inspects every callable parameter of every job as it plans, which
     with seven per unit was a sixth of the time to plan 10,000 units (docs/cluster.md).
-    The settings are the same for every unit of a protocol, so each is written once."""
+    The settings are the same for every unit of a protocol and model entry, so each is
+    written once."""
     quoted = {}
 
     def args(wildcards):
         row = unit(wildcards)
         protocol = row["protocol"]
-        if protocol not in quoted:
-            quoted[protocol] = shlex.quote(protocol_settings(settings, stage, protocol))
+        entry = MODEL_ENTRY[(wildcards.batch, wildcards.device, wildcards.session)]
+        if (protocol, entry) not in quoted:
+            quoted[protocol, entry] = shlex.quote(
+                protocol_settings(settings, stage, protocol, entry)
+            )
         return (
             " ".join(
                 f"--{key} {shlex.quote(row[key])}"
                 for key in ("device", "batch", "session", "protocol")
             )
             + " --settings-json "
-            + quoted[protocol]
+            + quoted[protocol, entry]
         )
 
     return args
