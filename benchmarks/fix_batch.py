@@ -126,15 +126,18 @@ def batch_limits(units: list):
     from gyrocal.calibration.parameters import parameters_at, temperature_coefficients
     from gyrocal.fleet.limits import SpecLimits
     params, slopes = {}, {}
+    judged = ("bias.", "scale.", "misalignment.")   # what a line's spec limits, as the demo's
     for figures in units:
         cal = figures.get("cal")
         if cal is None:
             continue
         for name, value in parameters_at(cal)[["parameter", "value"]].itertuples(index=False):
-            params[name] = max(params.get(name, 0.0), abs(float(value)))
+            if name.startswith(judged):
+                params[name] = max(params.get(name, 0.0), abs(float(value)))
         tc = temperature_coefficients(cal)
         for name, value in ([] if tc is None else tc[["parameter", "value"]].itertuples(index=False)):
-            slopes[name] = max(slopes.get(name, 0.0), abs(float(value)))
+            if name.startswith(judged):
+                slopes[name] = max(slopes.get(name, 0.0), abs(float(value)))
     nice = lambda v: float(f"{MARGIN * v:.2g}") or 1e-12  # noqa: E731
     return SpecLimits.from_dict({"parameters": {n: nice(v) for n, v in params.items()},
                                  "temperature_coefficients": {n: nice(v) for n, v in slopes.items()},

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import html
 import json
 import re
 import shutil
@@ -82,7 +83,7 @@ def main(argv=None) -> int:
           f"on {now['next_session']['session']}: {last['next_session']['excess']:.3g} -> "
           f"{now['next_session']['excess']:.3g}; the fix was expected to reach {last['fix']['excess']:.3g} "
           f"and {last['fix']['next_excess']:.3g}")
-    print("report: " + " ".join(re.sub(r"<[^>]+>", "", since.group(1)).split()) if since else
+    print("report: " + " ".join(html.unescape(re.sub(r"<[^>]+>", "", since.group(1))).split()) if since else
           "report: no 'since the last model' paragraph")
     others = [c for c in changed if f"/{UNIT[1]}/" not in c]
     if not args.keep:

@@ -129,3 +129,22 @@ def test_a_continuous_models_terms_of_temperature_are_its_own_not_added(units):
         "bias", "scale", "misalignment", "bias_temp_poly(degree=2)", "scale_temp_poly", "misalignment_temp",
         "scale_quadratic"]}})
     assert added_terms(settings, "turntable") == ["scale_quadratic"]
+
+
+def test_a_term_that_leaves_the_calibration_unvalidated_is_dropped(tmp_path):
+    """A step of the bias in temperature, fitted to a sweep without one: the fit takes it,
+    but then no one-point calibration can be compared with the sweep's (the point holds too
+    little of the step to fit it), so the calibration would reach end of line unvalidated."""
+    from gyrocal.diagnose import extended as extend
+    log = tmp_path / "sweep.parquet"
+    write_session(make_unit(effect="none", protocol="sweep", noise="white", seed=101), log,
+                  session=0, seed=101000, rate_hz=5.0, ramp_c_per_h=30.0)
+    settings = extend(Settings().for_protocol("sweep"), "bias_temp_poly")
+    seg = segment_log(log, settings, "sweep")
+    step = ('expression(label="step_temp", formula="tanh((temp + 20.81 - m) / w)", parameters={"m": 5.69, '
+            '"w": 4.0}, profile={"m": [0.4, 80.8], "w": [0.4, 40.0]})')
+    cal, _ = calibrate_observations(seg.observations, extend(settings, step), noise=seg.info.get("noise"),
+                                    meta={"device": "S", "protocol": "sweep"}, checks=False)
+    (record,) = cal.extra["added_terms"]
+    assert not record["kept"] and "no temperature point can be left out" in record["reason"], record
+    assert record["with"] is None and record["without"]["excess"] is not None

@@ -142,7 +142,8 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
     protocol's own model that the data cannot identify (a profiled parameter at a bound of
     its search, a standard error of the protocol's own coefficients grown beyond
     :data:`MAX_INFLATION` times by it, parameters the fit refuses as not excited, inputs the
-    log lacks) unless it lowers the held-out error beyond chance; such a term is kept and
+    log lacks, a calibration no longer validated by leaving temperature points out) unless it
+    lowers the held-out error beyond chance; such a term is kept and
     said to be not identified. Dropping one term can free another, so the check runs again
     until nothing more is dropped. ``held_out``: each added term's leave-temperature-out
     figures with and without it."""
@@ -182,6 +183,9 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
             if why is None and inflation > MAX_INFLATION:
                 why = (f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
                        f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms")
+            if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
+                why = ("with it no temperature point can be left out to validate the calibration, "
+                       "as it can without it")
             if why is not None and not _helps(current, spec, fit, alpha):
                 found[spec] = (why + ", and it does not lower the held-out error beyond chance",
                                inflation, name)
