@@ -80,7 +80,7 @@ def read_manifest(path) -> list[dict[str, str]]:
 PATTERN_CHARACTERS = "*?["
 
 
-def model_entry(row: dict[str, str], models: dict) -> str | None:
+def model_entry(row: dict[str, str], models: dict, *, source=None) -> str | None:
     """The key of the config's ``models:`` entry a manifest row's unit takes: the one its
     ``model`` column names, else its device's, its batch's, the first pattern of devices
     (shell-style) that matches it; None for the fleet-wide model."""
@@ -88,13 +88,14 @@ def model_entry(row: dict[str, str], models: dict) -> str | None:
     if unread:
         what = "true or false" if isinstance(unread[0], bool) else "null" if unread[0] is None else "a number"
         raise ConfigError(f"models: the key {unread[0]!r} is read as {what}, not a name: quote it "
-                          f"('{unread[0]}')")
+                          f"('{unread[0]}')", source=source)
     named = row.get("model")
     if named:
         if named not in models:
             raise ConfigError(f"device {row['device']} session {row['session']}: the manifest's model "
                               f"column names {named!r}, which the config's models: does not have"
-                              f"{'; it has ' + ', '.join(map(str, models)) if models else ''}")
+                              f"{'; it has ' + ', '.join(map(str, models)) if models else ''}",
+                              source=source)
         return named
     for key in (row["device"], row["batch"]):
         if key in models:

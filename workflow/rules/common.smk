@@ -51,7 +51,10 @@ UNITS = {
 # Models of their own (config models:): the entry each unit takes, None for the fleet's.
 # Only a unit whose entry changes gets new settings, so only its analysis re-runs.
 MODELS = config.get("models") or {}
-MODEL_ENTRY = {key: model_entry(row, MODELS) for key, row in UNITS.items()}
+MODEL_ENTRY = {
+    key: model_entry(row, MODELS, source=config["devices"])
+    for key, row in UNITS.items()
+}
 # Devices with two or more turntable sessions get a drift page.
 DRIFT_DEVICES = drift_devices(UNITS.values())
 # The diagnosis judges a unit's candidates on another session of the same device.
