@@ -148,3 +148,21 @@ def test_a_term_that_leaves_the_calibration_unvalidated_is_dropped(tmp_path):
     (record,) = cal.extra["added_terms"]
     assert not record["kept"] and "no temperature point can be left out" in record["reason"], record
     assert record["with"] is None and record["without"]["excess"] is not None
+
+
+def test_a_term_that_raises_a_units_held_out_error_is_dropped_though_identified(tmp_path):
+    """The demo's U004 (a warm-up) given the quadratic scale another unit needs: the fit
+    determines it well, but the interpolation between temperature points pays for it, and
+    the held-out error rises beyond chance: the term is dropped for this unit."""
+    from gyrocal.run.cli import main
+    log = tmp_path / "u004.parquet"
+    assert main(["simulate", "--log", str(log), "--device", "U004", "--batch", "B1", "--session", "2026-01-07",
+                 "--preset", "quick", "--protocol", "turntable",
+                 "--temperatures=-40,-30,-20,-10,0,10,20,30,40,50", "--rates=0.1,1,10,50,100,150,200,250,300,400",
+                 "--effects", '{"warmup": [0.3, -0.25, 0.2]}']) == 0
+    seg = segment_log(log, Settings())
+    plain, added = calibrations(seg, "scale_quadratic")
+    (record,) = added.extra["added_terms"]
+    assert not record["kept"] and "raises the held-out error" in record["reason"]
+    assert record["with"]["excess"] > record["without"]["excess"]
+    assert added.grid.values.tolist() == plain.grid.values.tolist()

@@ -1,5 +1,5 @@
 """Terms beyond a protocol's own model, kept for a unit only where its data can tell them
-apart from that model.
+apart from that model and they do not make its held-out error worse.
 
 A term added fleet-wide (or for a batch) meets units without its effect. There, a profiled
 parameter runs to a bound (a warm-up's time constant four times the session: the decay is
@@ -9,7 +9,10 @@ The fit is no worse, but the parameters end of line judges and drift audits comp
 longer mean what they say. Such a term is dropped for that unit, with the reason recorded
 (``added_terms`` and a ``term_dropped`` warning in the calibration file); every added term,
 kept or dropped, also gets the held-out figure of the model with and without it, so that a
-fleet-wide term shows, unit by unit, whether it helped.
+fleet-wide term shows, unit by unit, whether it helped. A term the data do identify may
+still cost a unit held-out error (a nonlinearity, fitted to a unit that warms up, bends its
+interpolation between temperature points): where the error with it exceeds the one without
+it beyond chance, it is dropped too.
 """
 
 from __future__ import annotations
@@ -143,9 +146,10 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
     its search, a standard error of the protocol's own coefficients grown beyond
     :data:`MAX_INFLATION` times by it, parameters the fit refuses as not excited, inputs the
     log lacks, a calibration no longer validated by leaving temperature points out) unless it
-    lowers the held-out error beyond chance; such a term is kept and
-    said to be not identified. Dropping one term can free another, so the check runs again
-    until nothing more is dropped. ``held_out``: each added term's leave-temperature-out
+    lowers the held-out error beyond chance (then it is kept, said to be not identified),
+    and each that raises this unit's held-out error beyond chance, identified or not.
+    Dropping one term can free another, so the check runs again until nothing more is
+    dropped. ``held_out``: each added term's leave-temperature-out
     figures with and without it."""
     extra = added_terms(settings, protocol)
     fit = _Fits(obs, source)
@@ -186,7 +190,10 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
             if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
                 why = ("with it no temperature point can be left out to validate the calibration, "
                        "as it can without it")
-            if why is not None and not _helps(current, spec, fit, alpha):
+            worse = _hurts(current, spec, fit, alpha)
+            if worse is not None:
+                found[spec] = (worse, inflation, name)
+            elif why is not None and not _helps(current, spec, fit, alpha):
                 found[spec] = (why + ", and it does not lower the held-out error beyond chance",
                                inflation, name)
             elif why is not None:
@@ -254,18 +261,38 @@ def _culprits(kept: list[str], exc: Exception) -> list[str]:
             or (not named and make_term(s).spec_string() in str(exc))]
 
 
+def _chance_bound(held: dict, alpha: float) -> float:
+    """How far a held-out RMS over ``held``'s holds may differ from another's by chance:
+    ``sqrt(χ²_N(1 − α/2) / N)``, N the errors scored (three a hold), as the diagnosis
+    judges a gain."""
+    from scipy.stats import chi2
+    n = 3 * int(held["holds_scored"])
+    return math.sqrt(chi2.ppf(1.0 - alpha / 2, n) / n)
+
+
+def _hurts(settings: Settings, spec: str, fit: _Fits, alpha: float) -> str | None:
+    """Why ``spec`` is dropped whatever the data say of it: with it, the held-out error of
+    this unit is larger than without it beyond that figure's own uncertainty (a term for
+    another unit's effect that this one's interpolation between temperature points pays
+    for). None where it is not."""
+    with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
+    if not with_term or not without_term or not without_term.get("holds_scored"):
+        return None
+    if with_term["validation_rms"] <= without_term["validation_rms"] * _chance_bound(without_term, alpha):
+        return None
+    return (f"it raises the held-out error from {without_term['excess']:.3g} to "
+            f"{with_term['excess']:.3g} times the floor, beyond chance")
+
+
 def _helps(settings: Settings, spec: str, fit: _Fits, alpha: float) -> bool:
     """Whether the model with ``spec`` leaves a held-out error below the one without it by
     more than that figure's own uncertainty over the holds scored (``sqrt(χ²_N(1 − α/2) /
     N)``, N the errors scored, as the diagnosis judges a gain): a drift the data cannot tell
     from the bias may still be what a unit's compensation needs."""
-    from scipy.stats import chi2
     with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
     if not with_term or not without_term or not with_term.get("holds_scored"):
         return False
-    n = 3 * int(with_term["holds_scored"])
-    bound = math.sqrt(chi2.ppf(1.0 - alpha / 2, n) / n)
-    return with_term["validation_rms"] * bound < without_term["validation_rms"]
+    return with_term["validation_rms"] * _chance_bound(with_term, alpha) < without_term["validation_rms"]
 
 
 def _message(exc: BaseException) -> str:
