@@ -193,7 +193,7 @@ def test_fleet_summary_fits_a_1400_px_screen(fleet_run, browser, tmp_path):
     summary.click()                                                       # open it: the whole error
     assert bad.locator("div").is_visible() and LONG_ERROR in bad.locator("div").inner_text()
     warned = page.locator("table.units tbody tr").first
-    assert warned.locator("td").nth(7).inner_text() == "4"
+    assert warned.locator("td").nth(8).inner_text() == "4"   # after "since the last model"
     warned.locator("summary").click()
     text = warned.locator("details > div").inner_text()
     assert "4 warnings: protocol_unbalanced, temperature_stuck, sample_jitter, holds_rejected" in text
