@@ -35,7 +35,6 @@ DIE_LAG = ("die_lag", "die_lag_curved")
 
 def one(case) -> dict:
     effect, noise, seed, ramp = case
-    import numpy as np
 
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.io.errors import GyrocalError

@@ -113,7 +113,7 @@ def main() -> None:
     for mode, rs in results.items():
         walls = [r["wall"] for r in rs]
         # each run against the bare read just before it: drift of the machine cancels
-        ratios = sorted(w / b for w, b in zip(walls, bare))
+        ratios = sorted(w / b for w, b in zip(walls, bare, strict=False))
         q1, _, q3 = statistics.quantiles(ratios, n=4) if len(ratios) > 1 else ratios * 3
         cpu = statistics.median(r["cpu"] for r in rs)
         peak = max(r["peak_mb"] for r in rs)

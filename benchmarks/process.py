@@ -133,14 +133,14 @@ def main() -> None:
                     results[name].append(run(argv[name]))
         for name, values in results.items():
             q1, q2, q3 = quartiles([w for w, _ in values])
-            r1, r2, r3 = quartiles([w / r[0] for (w, _), r in zip(values, results["read"])])
+            r1, r2, r3 = quartiles([w / r[0] for (w, _), r in zip(values, results["read"], strict=False)])
             peak = max(m for _, m in values)
             print(f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
                   f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
                   flush=True)
         for num, den in (("diagnose", "calibrate"), ("apply", "readwrite")):
             if num in results and den in results:
-                d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results[num], results[den])])
+                d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results[num], results[den], strict=False)])
                 print(f"{rate:>6g} {'':>12} {num} ÷ {den}, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})",
                       flush=True)
 

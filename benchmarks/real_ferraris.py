@@ -62,8 +62,8 @@ def settings(hand: bool, terms=None) -> Settings:
 
 
 def terms_of(cal):
-    values = dict(zip(cal.grid.names, cal.grid.values[0]))
-    stderr = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    values = dict(zip(cal.grid.names, cal.grid.values[0], strict=False))
+    stderr = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     return values, stderr
 
 

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import os
 import re
-import resource
 import statistics
 import subprocess
 import sys
@@ -92,7 +91,7 @@ def main() -> None:
         log, results = unit(preset)
         html = CACHE / preset / "U001.html"
         runs = [timed([*GYROCAL, "report", str(results), "-o", str(html)]) for _ in range(args.repeat)]
-        walls, cpus, peaks = zip(*runs)
+        walls, cpus, peaks = zip(*runs, strict=False)
         text = html.read_text()
         figures = sum(len(s) for s in re.findall(r"<svg.*?</svg>", text, flags=re.S))
         cal_wall, cal_cpu, _ = timed([*GYROCAL, "calibrate", str(log), "-o", str(CACHE / preset / "cal.json")])

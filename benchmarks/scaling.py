@@ -157,7 +157,7 @@ def measure_dense(name: str, case: dict, timeout: float) -> bool:
 
 
 def paired(a: list[float], b: list[float]) -> str:
-    q1, q2, q3 = quartiles([x / y for x, y in zip(a, b)])
+    q1, q2, q3 = quartiles([x / y for x, y in zip(a, b, strict=False)])
     return f"{q2:.2f}× ({q1:.2f}–{q3:.2f})"
 
 

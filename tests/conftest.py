@@ -18,7 +18,7 @@ settings.register_profile("default", derandomize=True, deadline=None, max_exampl
 settings.register_profile("explore", max_examples=2000, deadline=None)
 settings.load_profile("default")
 
-from gyrocal.simulate import GyroUnit, TurntableProtocol, load_truth, simulate_unit
+from gyrocal.simulate import GyroUnit, TurntableProtocol, load_truth, simulate_unit  # noqa: E402 (after the profile)
 
 # CI (.ci/run) sets GYROCAL_REQUIRE_DEPS=1: there a test whose dependency is missing fails
 # instead of being skipped, so a green CI has run every test. `make test` installs all of

@@ -96,14 +96,14 @@ class Cluster:
         self.env: dict[str, str] = {}
         self.version = ""
 
-    def __enter__(self) -> "Cluster":
+    def __enter__(self) -> Cluster:
         return self.start()
 
     def __exit__(self, *exc) -> None:
         self.stop()
 
     # -- the daemons ---------------------------------------------------------------
-    def start(self) -> "Cluster":
+    def start(self) -> Cluster:
         # munged refuses a socket in a folder that not everyone can search, and so every
         # folder above it: a folder of its own under the system's temporary folder, not
         # pytest's (0700). The key stays in a folder only its owner reads.
@@ -196,8 +196,7 @@ PartitionName=test Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
         self.start_slurmd()
 
     def _spawn(self, name: str, command: list[str]) -> None:
-        log = open(self.root / "log" / f"{name}.out", "ab")
-        with log:
+        with open(self.root / "log" / f"{name}.out", "ab") as log:
             self.procs[name] = subprocess.Popen(command, env=self.env, stdout=log,
                                                 stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
 
@@ -231,7 +230,7 @@ PartitionName=test Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
                   "submitted": "%V", "started": "%S", "ended": "%e"}
         out = self.client("squeue", "--states=all", "--noheader",
                           "--format=" + "|".join(fields.values()))
-        rows = [dict(zip(fields, line.split("|"))) for line in out.stdout.splitlines()]
+        rows = [dict(zip(fields, line.split("|"), strict=False)) for line in out.stdout.splitlines()]
         return sorted(rows, key=lambda row: int(row["id"]))
 
     def logs(self, tail: int = 4000) -> str:

@@ -35,7 +35,7 @@ def test_the_good_log_calibrates_to_its_own_truth(good, tmp_path, capsys):
     truth = sensor_params(0)
     stderr = cal["grid"]["stderr"]
     axes = "xyz"
-    for k, (temp, K, B) in enumerate(zip(cal["grid"]["temperature"], cal["grid"]["K"], cal["grid"]["B"])):
+    for k, (temp, K, B) in enumerate(zip(cal["grid"]["temperature"], cal["grid"]["K"], cal["grid"]["B"], strict=False)):
         # Each term within five of its reported standard errors of the generator's truth.
         dT = temp - 25.0
         true_K = K_at(truth, temp)

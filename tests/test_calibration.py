@@ -50,7 +50,7 @@ def test_K_and_B_in_the_file_are_the_units_true_K_and_B(complete_run, truth):
     cal = complete_run.calibration
     unit = truth["complete"]["unit"]
     K, B = cal.matrices()
-    se = dict(zip(cal.grid.names, cal.grid.stderr.T))
+    se = dict(zip(cal.grid.names, cal.grid.stderr.T, strict=False))
     for p, T in enumerate(cal.grid.temperatures):
         for i, a in enumerate("xyz"):
             assert abs(B[p, i] - unit.B(T)[i]) < 4 * se[f"bias.{a}"][p]

@@ -74,7 +74,7 @@ def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     assert out.returncode == 0, out.stderr[-3000:]
     blocks = re.split(r"^\s*(?:local)?rule (\w+):$", out.stdout + out.stderr, flags=re.M)[1:]
     planned = {}
-    for name, body in zip(blocks[::2], blocks[1::2]):
+    for name, body in zip(blocks[::2], blocks[1::2], strict=False):
         resources = re.search(r"resources: (.*)", body).group(1)
         threads = re.search(r"threads: (\d+)", body)
         planned[name] = (resources, int(threads.group(1)) if threads else 1)

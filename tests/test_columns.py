@@ -11,7 +11,6 @@ import sys
 import numpy as np
 import pandas as pd
 import pyarrow as pa
-import pyarrow.parquet as pq
 import pytest
 
 from gyrocal.io.columns import Columns
@@ -21,7 +20,7 @@ from gyrocal.io.tables import read_columns_with_metadata, read_table_with_metada
 def same(a: list, b: list) -> bool:
     """Equal lists of plain values, NaN equal to NaN."""
     return len(a) == len(b) and all(
-        x == y or (isinstance(x, float) and isinstance(y, float) and x != x and y != y) for x, y in zip(a, b))
+        x == y or (isinstance(x, float) and isinstance(y, float) and x != x and y != y) for x, y in zip(a, b, strict=False))
 
 
 def frame() -> pd.DataFrame:
@@ -44,7 +43,7 @@ def as_pandas_reads(series) -> list:
     missing = series.isna().to_numpy()
     values = series.astype(object).tolist()
     return [(float("nan") if numeric else None) if gap else (float(v) if numeric and missing.any() else v)
-            for v, gap in zip(values, missing)]
+            for v, gap in zip(values, missing, strict=False)]
 
 
 def test_a_table_reads_as_pandas_reads_it(tmp_path):

@@ -7,6 +7,7 @@ calibration is judged on the next session of the same unit, as its user meets it
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import textwrap
@@ -109,7 +110,7 @@ def hold_means_of_samples(log, obs, term) -> dict[str, np.ndarray]:
     lo = np.searchsorted(t, obs["t_start"].to_numpy(), side="left")
     hi = np.searchsorted(t, obs["t_end"].to_numpy(), side="right")
     out = {c: np.empty(len(obs)) for c in term.coefficients()}
-    for i, (a, b) in enumerate(zip(lo, hi)):
+    for i, (a, b) in enumerate(zip(lo, hi, strict=False)):
         data = {"t": t[a:b] - t0, "temp": temp[a:b], "temp_rate": series.at("temp_rate", t[a:b] - t0),
                 **{f"accel_{x}": table.column(f"accel_{x}").to_numpy()[a:b].astype(float) for x in "xyz"},
                 **{f"rate_{x}": np.full(b - a, obs[f"rate_{x}"].iloc[i]) for x in "xyz"},
@@ -251,10 +252,8 @@ def test_a_point_term_that_does_not_vary_within_a_point_is_refused_with_what_to_
     # Said global, it is no longer refused for this: the joint fit judges it by its own
     # conditioning (here it is nearly the bias's temperature curve, so it may be refused).
     m = with_model(expressions={"T2": {"formula": "temp ** 2", "scope": "global"}}).model
-    try:
+    with contextlib.suppress(IdentifiabilityError):
         fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
-    except IdentifiabilityError:
-        pass
 
 
 def test_a_term_reading_what_it_cannot_have_is_one_line(warmup_sessions, tmp_path, capsys):

@@ -244,7 +244,7 @@ def reference_z(table: pd.DataFrame) -> pd.DataFrame:
             x = part[p].to_numpy()
             med = np.median(x)
             mad = np.median(np.abs(x - med))
-            for device, xi in zip(part["device"], x):
+            for device, xi in zip(part["device"], x, strict=False):
                 rows.append((batch, device, p, MAD_Z * (xi - med) / mad, len(x)))
     return pd.DataFrame(rows, columns=["batch", "device", "parameter", "z", "count"])
 

@@ -13,7 +13,6 @@ import signal
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -73,7 +72,7 @@ def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill
     wd = fleet(tmp_path, tiny_logs, ("K1", "K2") if kill == "the job" else ("K1",))
     target = unit(wd, "K1") / "validation.json"
     env = {**os.environ, atomic.PAUSE_ENV: f"K1/{SESSION}/validation.json:600"}
-    log = open(tmp_path / "snakemake.log", "w")
+    log = open(tmp_path / "snakemake.log", "w")   # noqa: SIM115 - the workflow's, closed when it ends
     run = subprocess.Popen(
         [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
          "--directory", str(wd), "--configfile", str(wd / "config.yaml"), "--cores", "2"],

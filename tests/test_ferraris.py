@@ -40,7 +40,7 @@ def settings_with(**options) -> Settings:
 
 def K_stderr(cal) -> np.ndarray:
     """The standard errors of K's entries, laid out as K."""
-    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     return np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
                      [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
                      [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
@@ -65,7 +65,7 @@ def test_recovers_what_the_turns_show_within_the_noise(tmp_path, seed, rig):
                  protocol="ferraris")
     cal = result.calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
-    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     unit = GyroUnit.from_dict(truth["unit"])
     want = expected_K(truth)
     K_se = K_stderr(cal)
@@ -89,7 +89,7 @@ def test_hand_errors_are_inside_the_stated_uncertainty(tmp_path, seed):
     cal = run(path, Settings().for_protocol("ferraris"), protocol="ferraris").calibration
     K = cal.matrices()[0][0]
     unit = GyroUnit.from_dict(truth["unit"])
-    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     scale_se = np.array([se[f"scale.{a}"] for a in "xyz"])
     assert np.all(np.abs(np.diag(K) - np.diag(unit.K(25.0))) < 3 * scale_se)
 
@@ -197,7 +197,7 @@ def test_real_session_agrees_with_imucal(tmp_path):
     cal = run(path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
               protocol="ferraris").calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
-    se = dict(zip(cal.grid.names, cal.grid.stderr[0]))
+    se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     K_se = K_stderr(cal)
     B_se = np.array([se[f"bias.{a}"] for a in "xyz"])
     ref = imucal_calibration()
@@ -238,7 +238,7 @@ def z_against_imucal(cal, ref) -> dict[str, float]:
     """Every term's difference from imucal's, in the calibration's standard errors."""
     want = imucal_terms(ref)
     return {name: (value - want[name]) / se for name, value, se
-            in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0])}
+            in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0], strict=False)}
 
 
 def cut_to_sections(path: Path, *, rows_as_time: bool) -> Path:

@@ -42,7 +42,7 @@ def test_good_sessions_recover_the_truth(sessions, kind, seed):
     assert truth["expect"] == "calibrate"
     cal = run(path, NOISE_ONLY, protocol="ferraris").calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
-    B_se = np.array([dict(zip(cal.grid.names, cal.grid.stderr[0]))[f"bias.{a}"] for a in "xyz"])
+    B_se = np.array([dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))[f"bias.{a}"] for a in "xyz"])
     z_K = (K - np.asarray(truth["K_nominal"])) / K_stderr(cal)
     z_B = (B - np.asarray(truth["b_expected"])) / B_se
     assert np.abs(z_K).max() < 4, z_K

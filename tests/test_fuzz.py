@@ -210,7 +210,7 @@ def test_a_column_name_that_is_not_utf8_is_a_corrupt_file(base, tmp_path):
     assert data.count(b"zqzqzq") == 2   # the footer's schema and column chunk (ARROW:schema is base64)
     path.write_bytes(data.replace(b"zqzqzq", b"\xffqzqzq"))
     with pytest.raises(UnicodeDecodeError):
-        ds.dataset(path).schema.names   # what gyrocal met
+        _ = ds.dataset(path).schema.names   # what gyrocal met
     with pytest.raises(CorruptFileError, match="not UTF-8") as info:
         read_as_pipeline(path)
     one_line_naming(info, path)

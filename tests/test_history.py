@@ -116,7 +116,7 @@ def test_the_record_keeps_the_rates_and_the_force_and_pieces_give_the_whole():
     whole = history(t, temp, window_s=30.0, record=record)
     bins = HistoryBins(t[0], t[-1], window_s=30.0)
     cuts = np.sort(rng.choice(np.arange(1, t.size), 30, replace=False))
-    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, t.size]):
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, t.size], strict=False):
         bins.push(t[lo:hi], temp[lo:hi], {k: v[lo:hi] for k, v in record.items()})
     pieces = bins.result()
     assert set(pieces.record) == set(record)
@@ -240,7 +240,7 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
     floor = drift.observation_floor(data)
     for i, a in enumerate("xyz"):
         column = at_samples[f"h.{a}"]
-        mean = np.array([column[s:e].mean() for s, e in zip(lo, hi)])
+        mean = np.array([column[s:e].mean() for s, e in zip(lo, hi, strict=False)])
         coefficient = cal.coefficients(np.array([25.0]), warn=False)[f"pole.{a}"][0]
         gap = np.abs(coefficient * (mean - at_holds[f"h.{a}"])) / floor[:, i]
         # The bins' O((Δt/τ)²) against the samples is largest on the hold just after the
@@ -331,7 +331,7 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     from gyrocal.pipeline.config import Settings
     unit = make_unit(effect="hysteresis", protocol="sweep", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in (0, 2)]
-    for s, log in zip((0, 2), logs):
+    for s, log in zip((0, 2), logs, strict=False):
         write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=(30.0, 45.0)[s // 2])
     quadratic = extended(Settings().for_protocol("sweep"), "bias_temp_poly")
     settings = extended(quadratic, "expression(label='d', formula='duhem(temp, w)', profile={'w': [0.3, 40.0]})")
@@ -482,7 +482,7 @@ def test_a_switch_with_hysteresis_is_placed_within_a_hold_of_the_truth(tmp_path)
     unit = make_unit(effect="bias_step_temp", protocol="sweep", noise="white", seed=1)
     truth = unit.params["effects"]["bias_step_temp"]
     logs = [tmp_path / f"s{s}.parquet" for s in (0, 2)]
-    for s, log, ramp in zip((0, 2), logs, (30.0, 45.0)):
+    for s, log, ramp in zip((0, 2), logs, (30.0, 45.0), strict=False):
         write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=ramp)
     settings = extended(extended(Settings().for_protocol("sweep"), "bias_temp_poly"),
                         "expression(label='s', formula='sign(play(temp, w) - T0 - m)', "

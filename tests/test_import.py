@@ -209,7 +209,7 @@ def test_the_real_imucal_session_imports_with_its_sections(tmp_path, capsys):
     assert got["t"][-1] == pytest.approx(101.3, abs=0.1)
     spans = json.loads((REAL / "sections.json").read_text())
     labels, counts = np.unique(got["section"][got["section"] != None], return_counts=True)  # noqa: E711
-    assert dict(zip(labels, counts)) == {k: v["end"] - v["start"] for k, v in spans.items()}
+    assert dict(zip(labels, counts, strict=False)) == {k: v["end"] - v["start"] for k, v in spans.items()}
     assert len(labels) == 9
     raw = pacsv.read_csv(REAL / "session.csv")
     np.testing.assert_array_equal(got["gyro_y"], raw["gyr_y"].to_numpy())
@@ -398,11 +398,11 @@ def test_a_ros2_bag_gives_deg_s_g_and_held_temperature_and_rate(tmp_path, capsys
     s = signals()
     store = _typestore()
     events = [(int(ns) + 1_000_000, IMU_TOPIC, "sensor_msgs/msg/Imu", imu_msg(store, ns, g, a))
-              for ns, g, a in zip(s["stamps"], s["gyro"], s["accel"])]
+              for ns, g, a in zip(s["stamps"], s["gyro"], s["accel"], strict=False)]
     events += [(int(ns) + 200_000_000, TEMP_TOPIC, "sensor_msgs/msg/Temperature", temp_msg(store, ns, v))
-               for ns, v in zip(s["temp_stamps"], s["temps"])]
+               for ns, v in zip(s["temp_stamps"], s["temps"], strict=False)]
     events += [(int(ns) + 500_000, RATE_TOPIC, "geometry_msgs/msg/Vector3Stamped", rate_msg(store, ns, v))
-               for ns, v in zip(s["rate_stamps"], s["rates"])]
+               for ns, v in zip(s["rate_stamps"], s["rates"], strict=False)]
     bag = tmp_path / "session_bag"
     write_bag(bag, events, storage, extra_topics={("/imu/other", "sensor_msgs/msg/Imu")})
     (tmp_path / "map.yaml").write_text(
@@ -479,7 +479,7 @@ def test_a_plain_mcap_file_read_with_mcap_ros2(tmp_path, capsys):
                 msg = {"header": {"stamp": {"sec": ns // 10**9, "nanosec": ns % 10**9}, "frame_id": "imu"},
                        "orientation": {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0},
                        "orientation_covariance": [0.0] * 9,
-                       "angular_velocity": dict(zip("xyz", map(float, s["gyro"][i]))),
+                       "angular_velocity": dict(zip("xyz", map(float, s["gyro"][i]), strict=False)),
                        "angular_velocity_covariance": [0.0] * 9,
                        "linear_acceleration": {"x": 0.0, "y": 0.0, "z": 0.0},
                        "linear_acceleration_covariance": [-1.0] + [0.0] * 8}

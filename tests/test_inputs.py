@@ -29,7 +29,8 @@ def good(tmp_path_factory):
     return pq.read_table(make_log(tmp_path_factory.mktemp("good")))
 
 
-def column(table: pa.Table, name: str, values, type_=pa.float64()) -> pa.Table:
+def column(table: pa.Table, name: str, values, type_=None) -> pa.Table:
+    type_ = pa.float64() if type_ is None else type_
     i = table.schema.get_field_index(name)
     return table.set_column(i, pa.field(name, type_), pa.array(values, type=type_))
 
@@ -83,7 +84,7 @@ def point_with_few_holds(table, every=4):
     temp = table["temp"].to_numpy()
     start, stop = runs(np.abs(table["ref_rate"].to_numpy()) > 0.05, 100)
     drop = np.zeros(table.num_rows, bool)
-    for i, (a, b) in enumerate(zip(start, stop)):
+    for i, (a, b) in enumerate(zip(start, stop, strict=False)):
         if temp[a] > 35 and i % every:
             drop[a:b] = True
     return some_rows(table, ~drop)

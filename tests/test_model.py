@@ -115,7 +115,7 @@ def test_too_few_observations_leave_no_uncertainty_and_are_refused():
 def test_compensation_inverts_the_model():
     rng = np.random.default_rng(5)
     model = Model.from_spec()
-    coefs = dict(zip(model.names, truth_vector(model, SEED000_K25, SEED000_B25)))
+    coefs = dict(zip(model.names, truth_vector(model, SEED000_K25, SEED000_B25), strict=False))
     w_true = rng.uniform(-400, 400, (1000, 3))
     w = w_true @ SEED000_K25.T + SEED000_B25
     back, J = model.compensate(coefs, w, {"temp": np.zeros(1000)})

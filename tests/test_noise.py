@@ -58,7 +58,7 @@ def test_matches_allantools(overlapping):
 def test_edf_is_the_smallest_of_the_howe_allan_barnes_formulas():
     N, ms = 10001, [1, 2, 16, 512, 4096]
     got = edf_overlapping(N, np.array(ms))
-    for m, e in zip(ms, got):
+    for m, e in zip(ms, got, strict=False):
         ref = [allantools.edf_simple(N, m, a) for a in (0, -2)]
         if m >= 2:  # allantools' m = 1 flicker formula lacks the square of SP 1065 table 5
             ref.append(allantools.edf_simple(N, m, -1))

@@ -42,7 +42,7 @@ def test_interpolated_leave_temperature_out_reaches_the_noise_floor(complete_run
 
 def test_mean_rms_tables_have_the_seed_shape_and_consistent_gains(complete_run):
     for table in (complete_run.validation.table_holds, complete_run.validation.table_samples):
-        assert list(zip(table.rotating, table.output)) == [(r, o) for r in "xyz" for o in "xyz"]
+        assert list(zip(table.rotating, table.output, strict=False)) == [(r, o) for r in "xyz" for o in "xyz"]
         np.testing.assert_allclose(
             table.gain_vs_uncompensated_pct,
             100 * (1 - table.interpolated_rms / table.uncompensated_rms), rtol=1e-12)
@@ -204,7 +204,7 @@ def test_history_of_pieces_is_the_history_of_the_whole():
     whole = history(t, temp, window_s=30.0)
     cuts = np.sort(rng.choice(np.arange(1, t.size), 40, replace=False))
     bins = HistoryBins(t[0], t[-1], window_s=30.0)
-    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, t.size]):
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, t.size], strict=False):
         bins.push(t[lo:hi], temp[lo:hi])
     pieces = bins.result()
     for name in ("t", "temp", "weight"):

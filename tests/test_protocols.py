@@ -116,7 +116,7 @@ def test_sweep_diagnosis_finds_the_square_of_the_temperature_change(sweep_log):
     assert diag.best.term == "bias_temp_poly"
     # the fitted ΔT² coefficients match the simulated ones within 5 standard errors
     size = {z["coefficient"]: z for z in diag.best.size}
-    for axis, true in zip("xyz", truth["unit"]["drift_dT2"]):
+    for axis, true in zip("xyz", truth["unit"]["drift_dT2"], strict=False):
         z = size[f"bias_temp_poly.{axis}.c2"]
         assert abs(z["value"] - true) < 5 * z["stderr"]
     fixed = run(path, replace(settings, model=settings.model.with_terms(("bias_temp_poly",))),

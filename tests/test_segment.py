@@ -34,7 +34,7 @@ def test_every_hold_found_with_the_right_mount_and_rate(logs, name):
     found = match(obs, truth["holds"])
     assert all(len(f) == 1 for f in found), "each planned hold is exactly one observation"
     assert len(obs) == len(truth["holds"]), "and no observation is extra"
-    for planned, f in zip(truth["holds"], found):
+    for planned, f in zip(truth["holds"], found, strict=False):
         row = f.iloc[0]
         assert row["mount"] == planned["mount"]
         assert row["ref_rate"] == pytest.approx(planned["rate"], abs=1e-3)
@@ -245,7 +245,7 @@ def test_too_short_log_is_refused(tmp_path):
 def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jitter, seed,
                                            gap_at, mount):
     rng = np.random.default_rng(seed)
-    ref = np.concatenate([np.full(n, v) for v, n in zip(levels, lengths)])
+    ref = np.concatenate([np.full(n, v) for v, n in zip(levels, lengths, strict=False)])
     n = len(ref)
     t = np.arange(n) * 0.01
     if 0 <= gap_at < n:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyrocal.io import atomic, failure
+from gyrocal.io import atomic
 from gyrocal.io.unit_folder import part_failure
 from gyrocal.calibration.file import load_calibration
 from gyrocal.io.errors import CalibrationFileError

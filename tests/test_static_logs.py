@@ -8,7 +8,6 @@ from gaps, the temperature points of a short sweep."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq

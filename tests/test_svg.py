@@ -121,8 +121,8 @@ def test_ticks_are_round_cover_the_range_and_read_apart(lo, hi):
 
 
 def test_log_axes_tick_decades_or_one_two_five():
-    assert [lab for _, lab in zip(*_ticks(1e-4, 1e-1))] == ["10⁻⁴", "10⁻³", "10⁻²", "10⁻¹"]
-    assert [lab for _, lab in zip(*_ticks(0.5, 6.0))] == ["0.5", "1", "2", "5"]
+    assert [lab for _, lab in zip(*_ticks(1e-4, 1e-1), strict=False)] == ["10⁻⁴", "10⁻³", "10⁻²", "10⁻¹"]
+    assert [lab for _, lab in zip(*_ticks(0.5, 6.0), strict=False)] == ["0.5", "1", "2", "5"]
 
 
 def _ticks(lo, hi):
@@ -173,7 +173,7 @@ def test_a_histogram_of_equal_values_draws_a_bar_a_bin_wide(values):
     page = plots.histogram(np.array(values), "scale")
     band = re.findall(r'<path[^>]*d="(M[\d.]+ [\d.]+l[^"]*Z)"', page)[0]
     steps = [float(v) for v in re.findall(r"-?[\d.]+", band[band.index("l"):])]
-    widths = [abs(dx) for dx, dy in zip(steps[::2], steps[1::2]) if dx and not dy]
+    widths = [abs(dx) for dx, dy in zip(steps[::2], steps[1::2], strict=False) if dx and not dy]
     assert min(widths) > 40   # pixels: a bin of a 244-px panel, not a hair
     lo, hi = (float(t.replace("−", "-")) for t in re.findall(r"<text[^>]*>([^<]*)</text>", page)[:5:4])
     assert lo == pytest.approx(0.9 * values[0], rel=1e-6) and hi == pytest.approx(1.1 * values[0], rel=1e-6)

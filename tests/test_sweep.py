@@ -339,7 +339,7 @@ def test_a_log_without_a_sweep_is_refused():
                           st.sampled_from([0.0, 0.0, 1.0])), min_size=0, max_size=60))
 def test_windows_give_a_table_or_a_gyrocal_error(rows):
     if rows:
-        dt, temp, g, ref = (np.asarray(c, dtype=float) for c in zip(*rows))
+        dt, temp, g, ref = (np.asarray(c, dtype=float) for c in zip(*rows, strict=False))
     else:
         dt = temp = g = ref = np.zeros(0)
     batch = {"t": np.cumsum(dt), "gyro_x": g, "gyro_y": -g, "gyro_z": g * 0.5, "temp": temp, "ref_rate": ref}

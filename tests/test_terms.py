@@ -83,7 +83,7 @@ def hold_errors(applied, truth_log, obs) -> np.ndarray:
     w = true_rates(pq.read_table(truth_log))
     gyro = np.column_stack([out.column(f"gyro_{a}").to_numpy() for a in "xyz"])
     errors = []
-    for start, end in zip(obs["t_start"], obs["t_end"]):
+    for start, end in zip(obs["t_start"], obs["t_end"], strict=False):
         inside = (t >= start) & (t <= end)
         errors.append((gyro[inside] - w[inside]).mean(axis=0))
     return np.array(errors)
@@ -205,7 +205,7 @@ def test_a_continuous_model_is_validated_written_and_applied_like_a_grid(tmp_pat
     temps = (-5.0, 15.0, 40.0)
     K, B = again.matrices_at(temps)
     unit = GyroUnit.seed000()
-    se = dict(zip(cal.grid.names, cal.grid.stderr))
+    se = dict(zip(cal.grid.names, cal.grid.stderr, strict=False))
     for k, temp in enumerate(temps):
         dT = temp - 25.0
         for i, a in enumerate("xyz"):

@@ -210,7 +210,7 @@ def coloured_sweep(tmp_path_factory):
 
 
 def same_fit(a, b) -> None:
-    for x, y in zip(a.fits, b.fits):
+    for x, y in zip(a.fits, b.fits, strict=False):
         np.testing.assert_array_equal(x.values, y.values)
         np.testing.assert_array_equal(x.stderr, y.stderr)
         assert x.chi2 == y.chi2
@@ -231,7 +231,7 @@ def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured
     refits = [fitted.leave_out(int(p)) for p in points]
     assert calls == []
     monkeypatch.undo()
-    for p, refit in zip(points, refits):
+    for p, refit in zip(points, refits, strict=False):
         keep = obs["point"].to_numpy() != p
         same_fit(refit, fit_continuous(model, obs[keep]))
 

@@ -277,7 +277,7 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     rows = [re.findall(r"<td[^>]*>(.*?)</td>", row, re.S) for row in re.split(r"<tr[^>]*>", table)[2:]]
     # the configured model, the ladder's step, and the fix the diagnosis names last
     assert len(rows) == len(ladder) == 3 and ladder[-1]["fix"]
-    for cells, step in zip(rows, ladder):
+    for cells, step in zip(rows, ladder, strict=False):
         assert cells[1].startswith(step["name"])
         assert cells[3:7] == [fmt(step["validation_rms"]), fmt(step["excess"], 3),
                               fmt(step["expected_rms"]), fmt(step["chi2_red"], 3)]

@@ -181,7 +181,7 @@ def test_a_die_that_lags_is_found_and_carries_to_another_ramp_rate(tmp_path):
 
     unit = make_unit(effect="die_lag_curved", protocol="sweep", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
-    for s, (log, ramp) in enumerate(zip(logs, (30.0, 60.0, 45.0))):
+    for s, (log, ramp) in enumerate(zip(logs, (30.0, 60.0, 45.0), strict=False)):
         info = write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=ramp)
     tau = info["effect_params"]["die_lag_curved"]["tau_die_s"]
     settings = Settings().for_protocol("sweep")

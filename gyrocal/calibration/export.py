@@ -273,7 +273,7 @@ def _histories(cal: Calibration, source) -> tuple:
     and time constant, the coefficient per output axis and what a slow pole adds to K's
     diagonal."""
     out = []
-    for term, spec in zip(cal.model.terms, cal.model.spec()):
+    for term, spec in zip(cal.model.terms, cal.model.spec(), strict=False):
         form = history_form(spec)
         if form is not None:
             out.append({"label": term.label, "input": form[0], "diagonal": form[1],
@@ -286,7 +286,7 @@ def _temperature_histories(cal: Calibration, source) -> tuple:
     """The calibration's histories of the temperature as firmware runs them: the operator,
     its parameters and the coefficient per output axis."""
     out = []
-    for term, spec in zip(cal.model.terms, cal.model.spec()):
+    for term, spec in zip(cal.model.terms, cal.model.spec(), strict=False):
         operator = temperature_history_form(spec)
         if operator is not None:
             p = term.parameters
@@ -302,10 +302,10 @@ def _without_splines(cal: Calibration) -> Calibration:
 
     from ..fit.model import Model
     added = [t.name == SPLINE_TERM or history_form(s) is not None or temperature_history_form(s) is not None
-             for t, s in zip(cal.model.terms, cal.model.spec())]
+             for t, s in zip(cal.model.terms, cal.model.spec(), strict=False)]
     if not any(added):
         return cal
-    model = Model(tuple(t for t, drop in zip(cal.model.terms, added) if not drop))
+    model = Model(tuple(t for t, drop in zip(cal.model.terms, added, strict=False) if not drop))
     keep = [j for j, n in enumerate(cal.grid.names) if n in set(model.names)]
     g = cal.grid
     cov = None if g.covariance is None else g.covariance[..., keep, :][..., keep]

@@ -169,7 +169,7 @@ class Calibration:
         w_true = np.einsum("nij,nj->ni", Ad[:, :9].reshape(-1, 3, 3), gyro) + Ad[:, 9:]
         names = list(coefs)
         spread = np.take(np.stack([coefs[k] for k in names]), index, axis=1)
-        w_true, _ = self.model.compensate(dict(zip(names, spread)), gyro, covariates,
+        w_true, _ = self.model.compensate(dict(zip(names, spread, strict=False)), gyro, covariates,
                                           start=(w_true, None))
         return w_true
 
@@ -179,8 +179,8 @@ class Calibration:
         g = self.grid
         extra_grid = {}
         if self.kind == "continuous":
-            coefficients = {n: float(v) for n, v in zip(g.names, g.values)}
-            stderr = {n: float(v) for n, v in zip(g.names, g.stderr)}
+            coefficients = {n: float(v) for n, v in zip(g.names, g.values, strict=False)}
+            stderr = {n: float(v) for n, v in zip(g.names, g.stderr, strict=False)}
             interpolation = {"method": "none", "outside_range": "clamp"}
             if g.fitted_span is not None:
                 extra_grid["span"] = [float(v) for v in g.fitted_span]
@@ -449,7 +449,7 @@ def save_calibration(cal: Calibration, path) -> None:
                                source=path) from None
         if again != text:
             old, new = text.splitlines(), again.splitlines()
-            line = next((i for i, (a, b) in enumerate(zip(old, new)) if a != b), min(len(old), len(new)))
+            line = next((i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b), min(len(old), len(new)))
             raise GyrocalError(f"the calibration written reads back as another one (line {line + 1} "
                                "differs); nothing written", source=path)
 

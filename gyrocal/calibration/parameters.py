@@ -88,7 +88,7 @@ def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.Data
     names = list(units)
     values = {n: v[0] for n, v in parameter_curves(cal, [T]).items()}
     if cal.kind == "continuous":
-        se = dict(zip(cal.grid.names, np.asarray(cal.grid.stderr, dtype=float)))
+        se = dict(zip(cal.grid.names, np.asarray(cal.grid.stderr, dtype=float), strict=False))
         # Row 0: the coefficients; row j + 1: coefficient j raised by its standard error.
         C = len(cal.grid.names)
         temps = np.full(C + 1, min(max(T, lo), hi))
@@ -137,6 +137,6 @@ def parameter_table(calibrations: Iterable, *, temperature: float | None = None)
         cal = cal if isinstance(cal, Calibration) else load_calibration(cal)
         p = parameters_at(cal, temperature)
         rows.append({**{k: cal.meta.get(k) for k in ("device", "batch", "session")},
-                     **dict(zip(p["parameter"], p["value"]))})
+                     **dict(zip(p["parameter"], p["value"], strict=False))})
     return pd.DataFrame(rows)
 

@@ -47,7 +47,7 @@ def between_points(fitted, alpha: float) -> dict | None:
         return None
     temps = fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float)
     points = []
-    for p, temp in zip(used[1:-1], temps[1:-1]):
+    for p, temp in zip(used[1:-1], temps[1:-1], strict=False):
         loo = fitted.leave_out(int(p))
         at = np.array([temp])
         if loo is None or loo.outside(at).any():

@@ -134,11 +134,11 @@ def effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: d
     added term to any observation (deg/s)."""
     fits = evaluation.fitted.fits
     unit = make_term(spec).unit
-    size = [dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit)))
+    size = [dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit), strict=False))
             for name in added]
     model = fits[0].model
     peak = 0.0
-    for result, rows in zip(fits, evaluation.fitted.rows):
+    for result, rows in zip(fits, evaluation.fitted.rows, strict=False):
         design = model.design({k: v[rows] for k, v in obs_data.items()})
         for a in AXES:
             contribution = sum(result.coef(n) * np.asarray(design[n]) for n in result.names
@@ -173,7 +173,7 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) 
 
 
 def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> dict:
-    params = [dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name))))
+    params = [dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name)), strict=False))
               for name in added]
     s = ev.summary
     nxt = carry(ev) if carry is not None else None

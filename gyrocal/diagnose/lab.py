@@ -53,7 +53,7 @@ def _refits(z, floor, own, extras):
         y = z[ok, i]
         designs = (base, *(np.column_stack([base, x[ok] * w]) for x in extras))
         solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]   # coefficients, _, rank, _
-        yield ([float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved)],
+        yield ([float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved, strict=False)],
                [r[2] for r in solved])
 
 

@@ -287,23 +287,23 @@ def describe_history(term, coefficients: dict, family: str) -> str:
     k = [coefficients.get(f"{inner.label}.{a}", 0.0) for a in AXES]
     p = inner.parameters
     if family == "slow pole":
-        sizes = ", ".join(f"{v * 1e3:+.3g} ({a})" for a, v in zip(AXES, k))
+        sizes = ", ".join(f"{v * 1e3:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
         return (f"part of each output follows its own rate through a slow pole of "
                 f"{_quantity(p['tau'], 's')}: after a step of the rate it settles by "
                 f"{sizes} ×10⁻³ of the step.")
     if family.startswith("heating by rotation"):
         power = family.endswith("power")
-        sizes = ", ".join(f"{v * (400.0 ** 2 if power else 400.0):+.3g} ({a})" for a, v in zip(AXES, k))
+        sizes = ", ".join(f"{v * (400.0 ** 2 if power else 400.0):+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
         what = "the rate's magnitude squared" if power else "the rate's magnitude"
         return (f"a bias that follows the heat of turning, {what} through a lag of "
                 f"{_quantity(p['tau'], 's')}: {sizes} deg/s after a long turn at 400 deg/s.")
     if family == "switch with hysteresis":
-        sizes = ", ".join(f"{2 * v:+.3g} ({a})" for a, v in zip(AXES, k))
+        sizes = ", ".join(f"{2 * v:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
         at = p.get("T0", 0.0) + p["m"]
         return (f"a bias step at a temperature, with hysteresis: {sizes} deg/s above "
                 f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
                 f"{_quantity(at - p['w'] / 2, '°C')} falling.")
-    sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k))
+    sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k, strict=False))
     turns = ("it turns over once the temperature has gone back" if family == "hysteresis" else
              "it turns over by 63 % once the temperature has gone back")
     return (f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
@@ -387,10 +387,10 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
         "rate_cross": "the rate of the axis that turns, on the other outputs"}.get(input_name, input_name)
     kind = "a scale change" if by else "a bias"
     reference = "its value at the session's end" if input_name == "t" else "its median"
-    sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks))
+    sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks, strict=False))
     places = {_quantity(p, unit_x) for p, _ in peaks}
     at = (f"at {places.pop()}" if len(places) == 1 else
-          "at " + ", ".join(f"{_quantity(p, unit_x)} ({a})" for a, (p, _) in zip(AXES, peaks)))
+          "at " + ", ".join(f"{_quantity(p, unit_x)} ({a})" for a, (p, _) in zip(AXES, peaks, strict=False)))
     text = f"{kind} that follows {where}: {sizes} {unit_y} {at}, against {reference}"
     known = [h for h in halves if h is not None]
     if known:

@@ -292,7 +292,7 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
     total = float(np.sum(zz ** 2))
     excess = max(total - dof, 1e-9)
     rows = []
-    for names, (joint, base) in zip(layout.groups, layout.joints):
+    for names, (joint, base) in zip(layout.groups, layout.joints, strict=False):
         lead = names[0]
         ss_joint, k_joint = _between(zz, joint)
         ss_base, k_base = _between(zz, base)
@@ -329,7 +329,7 @@ def _split_rows(layout: _Layout, z: np.ndarray, excess: float, excess_significan
     (``own axis``, one residual per hold) and on the two others (``cross axes``, two), each
     judged within the rotating axis beyond chance as the whole row is."""
     out = []
-    for names, (joint, base) in zip(layout.groups, layout.joints):
+    for names, (joint, base) in zip(layout.groups, layout.joints, strict=False):
         covariate = next((n for n in names if n in SPLIT), None)
         if covariate is None:
             continue
@@ -392,9 +392,9 @@ def _binned_slopes(bins: np.ndarray, z: np.ndarray, rates: np.ndarray, *, own: b
             gain += float(np.sum(zw[used] ** 2 / ww[used]))
             df += int(used.sum())
             continue
-        j, l = [b for b in range(3) if b != i]
-        a, b, c = sums(rates[:, j] ** 2), sums(rates[:, j] * rates[:, l]), sums(rates[:, l] ** 2)
-        u, v = sums(z[:, i] * rates[:, j]), sums(z[:, i] * rates[:, l])
+        j, k = [b for b in range(3) if b != i]
+        a, b, c = sums(rates[:, j] ** 2), sums(rates[:, j] * rates[:, k]), sums(rates[:, k] ** 2)
+        u, v = sums(z[:, i] * rates[:, j]), sums(z[:, i] * rates[:, k])
         det = a * c - b * b
         full = det > 1e-9 * np.maximum(a * c, 1e-300)
         # Two regressors where they are not collinear in the bin, else the one that is there.

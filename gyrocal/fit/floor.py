@@ -201,7 +201,7 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     nearest = np.abs(temps[:, None] - points.to_numpy()[None, :]).argmin(axis=1)
     rows = []
     for k, (point, point_temp) in enumerate(points.items()):
-        mine = [p for p, j in zip(parts, nearest) if j == k]
+        mine = [p for p, j in zip(parts, nearest, strict=False) if j == k]
         row = {"point": int(point), "temp": float(point_temp), "stretches": len(mine),
                "seconds": float(sum(p.n for p in mine) / rate)}
         row.update((_model(mine, rate) or {}) if mine else {})

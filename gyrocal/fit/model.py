@@ -208,7 +208,7 @@ class FitResult:
         return float(self.values[self.names.index(name)])
 
     def coefs(self) -> dict[str, float]:
-        return {n: float(v) for n, v in zip(self.names, self.values)}
+        return {n: float(v) for n, v in zip(self.names, self.values, strict=False)}
 
     def chi2_red(self, axis: str) -> float:
         return self.chi2[axis] / self.dof[axis]
@@ -217,7 +217,7 @@ class FitResult:
         return {
             "terms": self.model.spec(),
             "coefficients": self.coefs(),
-            "stderr": {n: float(s) for n, s in zip(self.names, self.stderr)},
+            "stderr": {n: float(s) for n, s in zip(self.names, self.stderr, strict=False)},
             "chi2_red": {a: self.chi2_red(a) for a in AXES},
             "dof": dict(self.dof), "condition": dict(self.condition), "n_obs": self.n_obs,
             **self.info,

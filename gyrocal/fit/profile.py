@@ -77,7 +77,7 @@ def _polish(model: Model, free, evaluate) -> Model:
 
     def at(x):
         m = model
-        for (i, n, _), v in zip(free, np.clip(x, lows, highs)):
+        for (i, n, _), v in zip(free, np.clip(x, lows, highs), strict=False):
             m = _with(m, i, n, math.exp(v))
         return m
 
@@ -123,7 +123,7 @@ def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
 
     def at(steps):
         m = current
-        for (i, n, _), x, d in zip(free, x0, steps):
+        for (i, n, _), x, d in zip(free, x0, steps, strict=False):
             if d:
                 m = _with(m, i, n, math.exp(x + d))
         return evaluate(m)[0]

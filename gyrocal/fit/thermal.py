@@ -247,7 +247,7 @@ class ConstantCoefficients:
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
         if warn:
             warn_outside(self, temp)
-        return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values)}
+        return {n: np.full(len(temp), v) for n, v in zip(self.names, self.values, strict=False)}
 
 
 def warn_outside(coefs, temp: np.ndarray) -> None:
@@ -386,7 +386,7 @@ def in_sample(fitted, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Residuals (n, 3) and floors (n, 3) of a fit's own observations in observation
     order, and which rows were fitted (rows of points left out are NaN)."""
     resid, floor = np.full((n, 3), np.nan), np.full((n, 3), np.nan)
-    for result, rows in zip(fitted.fits, fitted.rows):
+    for result, rows in zip(fitted.fits, fitted.rows, strict=False):
         resid[rows], floor[rows] = result.residuals, result.floor
     return resid, floor, ~np.isnan(resid[:, 0])
 
@@ -577,7 +577,7 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
     grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
     joint_fit = JointGridFit(model, result, data, grid, _points_table([]), {}, (), tuple(ids))
     grid = replace(grid, covariance=np.array([joint_fit.point_fit(p).covariance for p in ids]))
-    table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps)]
+    table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps, strict=False)]
     table += list(extra_points)
     points = _points_table(table).sort_values("point", kind="stable").reset_index(drop=True)
     rows = np.arange(len(point)) if rows is None else rows

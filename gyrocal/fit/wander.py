@@ -174,9 +174,9 @@ def whiteners(t_start, t_end, white, flicker, rrw) -> list[Whitener | None] | No
     if gen is None:
         return None
     out = []
-    for w, f, k in zip(white, flicker, rrw):
+    for w, f, k in zip(white, flicker, rrw, strict=False):
         w, f, k = np.asarray(w, float), float(f), float(k)
-        out.append(_cached(b"f" + times + _digest(w, [f, k]), lambda: _factor(gen, w, f, k)))
+        out.append(_cached(b"f" + times + _digest(w, [f, k]), lambda w=w, f=f, k=k: _factor(gen, w, f, k)))
     return out
 
 

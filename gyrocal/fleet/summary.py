@@ -11,7 +11,6 @@ production systems and rendered in the fleet summary and one drift page per audi
 from __future__ import annotations
 
 import hashlib
-import json
 import re
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -16,7 +16,7 @@ from __future__ import annotations
 import operator
 import struct
 from collections.abc import Iterator
-from datetime import datetime, timezone
+from datetime import datetime, UTC
 from pathlib import Path
 
 import numpy as np
@@ -109,7 +109,7 @@ class _Mcap:
         self.errors = (McapError, struct.error, EOFError)
         self.path = path
         try:
-            self.file = open(path, "rb")
+            self.file = open(path, "rb")   # noqa: SIM115 - held by the reader, closed by close()
         except OSError as exc:
             raise CorruptFileError(f"cannot read ({exc.strerror})", source=path) from None
         try:
@@ -349,5 +349,5 @@ def _iso(ns: int | None) -> str | None:
     if ns is None:
         return None
     seconds, rest = divmod(ns, 1_000_000_000)
-    return (datetime.fromtimestamp(seconds, tz=timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    return (datetime.fromtimestamp(seconds, tz=UTC).strftime("%Y-%m-%dT%H:%M:%S")
             + f".{rest:09d}Z")

@@ -140,7 +140,7 @@ class ImportMap:
         if self.time_column:
             out[self.time_column] = "time.column"
         for name, cols in (("gyro", self.gyro), ("accel", self.accel)):
-            for axis, col in zip(AXES, cols or ()):
+            for axis, col in zip(AXES, cols or (), strict=False):
                 out.setdefault(col, f"{name}.{axis}")
         for name in ("temp", "ref_rate", "mount"):
             if getattr(self, name):
@@ -487,7 +487,7 @@ def read_sections(path: Path) -> dict[str, tuple[int, int]]:
                               "0 <= start < end (end exclusive)", source=path)
         out[label] = (start, end)
     spans = sorted((s, e, label) for label, (s, e) in out.items())
-    for (s0, e0, a), (s1, _, b) in zip(spans, spans[1:]):
+    for (s0, e0, a), (s1, _, b) in zip(spans, spans[1:], strict=False):
         if s1 < e0:
             raise ConfigError(f"sections {a} ({s0} to {e0}) and {b} (from {s1}) overlap",
                               source=path)

@@ -151,7 +151,7 @@ class LogSink:
         # the runs of one label (or none) in this batch: a loop per run, not per sample
         starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
         ends = np.r_[starts[1:], len(codes)]
-        for a, b in zip(starts, ends):
+        for a, b in zip(starts, ends, strict=False):
             label = SECTIONS[codes[a]] if codes[a] >= 0 else None
             if label is not None and label != self.open_label and label in self.stretches:
                 first, last = self.stretches[label]

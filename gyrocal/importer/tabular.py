@@ -210,7 +210,7 @@ def _check_units(table: Table, spec: ImportMap, map_name: str) -> None:
                                                    if f == spec.time_factor))
     for name, cols, scale in (("gyro", spec.gyro, spec.gyro_scale),
                               ("accel", spec.accel, spec.accel_scale)):
-        for axis, col in zip("xyz", cols or ()):
+        for axis, col in zip("xyz", cols or (), strict=False):
             declared.setdefault(col, (f"{name}.{axis}", scale.unit))
     for name, scale in (("temp", spec.temp_scale), ("ref_rate", spec.ref_scale)):
         if getattr(spec, name):
@@ -274,7 +274,8 @@ def _convert_sorted(table: Table, reader, numeric: list[str], sink: LogSink) -> 
     return whole.num_rows
 
 
-def _open(table: Table, numeric, text, types=pa.float64(), record: CommentLines | None = None):
+def _open(table: Table, numeric, text, types=None, record: CommentLines | None = None):
+    types = pa.float64() if types is None else types
     spec = table.spec
     convert = pacsv.ConvertOptions(
         include_columns=numeric + text, strings_can_be_null=True, decimal_point=spec.decimal,

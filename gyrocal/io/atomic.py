@@ -81,9 +81,8 @@ def replacing(path) -> Iterator[Path]:
 
 
 def write_text(path, text: str, *, encoding: str = "utf-8", newline: str | None = None) -> None:
-    with replacing(path) as tmp:
-        with open(tmp, "w", encoding=encoding, newline=newline) as fh:
-            fh.write(text)
+    with replacing(path) as tmp, open(tmp, "w", encoding=encoding, newline=newline) as fh:
+        fh.write(text)
 
 
 @contextmanager

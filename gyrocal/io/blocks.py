@@ -175,7 +175,7 @@ def block_statistics(log: RigLog, block_s: float, *, workers: int | None = None
     if workers is None:
         workers = min(2, os.cpu_count() or 1) if LIB is not None and n_blocks >= 20_000 else 1
     bounds = [round(i * n_blocks / workers) * size for i in range(workers + 1)]
-    parts = [_rows(log.batches, lo, hi) for lo, hi in zip(bounds, bounds[1:]) if hi > lo]
+    parts = [_rows(log.batches, lo, hi) for lo, hi in zip(bounds, bounds[1:], strict=False) if hi > lo]
 
     def reduce(batches):
         acc = BlockAccumulator(size, log.names, sum(len(b["t"]) for b in batches) // size)

@@ -78,7 +78,7 @@ class Columns:
         """A dict of plain Python values per row (as pandas' ``to_dict("records")``)."""
         names = list(self._data)
         lists = [self._data[n].tolist() for n in names]
-        return [dict(zip(names, row)) for row in zip(*lists)] if names else []
+        return [dict(zip(names, row, strict=False)) for row in zip(*lists, strict=False)] if names else []
 
 
 def present(values: np.ndarray) -> np.ndarray:

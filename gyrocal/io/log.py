@@ -161,7 +161,7 @@ def open_dataset(path: Path) -> ds.Dataset:
         dataset = ds.dataset(files, format="parquet")
         starts = [_first_time(fragment) for fragment in dataset.get_fragments()]
         if all(s is not None for s in starts):
-            files = [f for _, f in sorted(zip(starts, files))]
+            files = [f for _, f in sorted(zip(starts, files, strict=False))]
             dataset = ds.dataset(files, format="parquet")
         dataset.schema.names  # noqa: B018
         return dataset
@@ -461,7 +461,7 @@ class _batches:
 def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path,
                    origin: list) -> dict:
     batch = {}
-    for name, col in zip(record_batch.schema.names, record_batch.columns):
+    for name, col in zip(record_batch.schema.names, record_batch.columns, strict=False):
         if name == "t":
             batch[name] = _reading(time_seconds(col, path, origin, units), TIME_LIMIT)
         elif name == "mount":

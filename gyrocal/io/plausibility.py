@@ -706,7 +706,7 @@ def _mounts_against_gravity(obs) -> list[dict]:
     wrong = clear & (labels != seen.astype(str))
     if wrong.sum() <= 0.1 * clear.sum():
         return []
-    pairs = sorted({f"{lab}→{s}" for lab, s in zip(labels[wrong], seen[wrong])})
+    pairs = sorted({f"{lab}→{s}" for lab, s in zip(labels[wrong], seen[wrong], strict=False)})
     return [finding("mount_contradicts_gravity",
                     f"{int(wrong.sum())} of {int(clear.sum())} holds carry a mount label that gravity "
                     f"on the accelerometer contradicts ({', '.join(pairs)}: label → the axis that "

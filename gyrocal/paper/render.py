@@ -146,6 +146,6 @@ def render(tables: Sequence[PaperTable], out_dir, *, figures: Mapping[str, Seque
     paths = [out / name for name in OUTPUTS]
     texts = (markdown(tables, figures, skipped, about, out), long_csv(tables),
              page(tables, figures, skipped, about))
-    for path, text in zip(paths, texts):
+    for path, text in zip(paths, texts, strict=False):
         _write(path, text)
     return paths

@@ -186,7 +186,7 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
     out = [_design_table()]
 
     t2_rows = []
-    for e, ((bs1, bs2), pub) in enumerate(zip(study["table2"], TABLE2)):
+    for e, ((bs1, bs2), pub) in enumerate(zip(study["table2"], TABLE2, strict=False)):
         label = f"{ORDINAL[e + 1]} experiment"
         t2_rows += [PaperRow(f"{label} / BS1 (primary data)", bs1, pub[0], "(deg/s)²"),
                     PaperRow(f"{label} / BS2 (after compensation)", bs2, pub[1], "(deg/s)²"),

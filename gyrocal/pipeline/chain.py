@@ -6,6 +6,7 @@ cache them separately; this module only strings them together and records proven
 
 from __future__ import annotations
 
+import contextlib
 import importlib.metadata
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
@@ -18,7 +19,7 @@ from .. import __version__
 from ..calibration.file import Calibration
 from ..fit.floor import (StretchSampler, add_floor_columns, characterise, noise_record,
                          static_stretches)
-from ..fit.thermal import ContinuousFit, GridFit, fit_model
+from ..fit.thermal import ContinuousFit, GridFit
 from ..fit.validate import Validation, free_point_fits, validate
 from ..io import plausibility
 from ..io.blocks import BlockSink
@@ -41,10 +42,8 @@ class Run:
 def versions() -> dict[str, str]:
     out = {"gyrocal": __version__}
     for package in ("numpy", "scipy", "pandas", "pyarrow"):
-        try:
+        with contextlib.suppress(importlib.metadata.PackageNotFoundError):
             out[package] = importlib.metadata.version(package)
-        except importlib.metadata.PackageNotFoundError:
-            pass
     return out
 
 

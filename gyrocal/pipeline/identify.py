@@ -326,7 +326,7 @@ def _errors(fitted, names) -> dict:
     per_point = len(fits) > 1 and len(fits) == len(used)   # a grid's fits, one per point
     out = {}
     for k, f in enumerate(fits):
-        for name, se in zip(f.names, f.stderr):
+        for name, se in zip(f.names, f.stderr, strict=False):
             base, _, at = name.partition(".@")
             if base in names:
                 out[(base, int(at) if at else (used[k] if per_point else None))] = float(se)

@@ -86,7 +86,7 @@ def panels(names: list, row_height: float):
     flat = list(axes.ravel())
     for axis in flat[len(names):]:
         axis.set_visible(False)
-    return fig, list(zip(flat, names))
+    return fig, list(zip(flat, names, strict=False))
 
 
 def _legend_above(fig: svg.Figure, entries: list, y: float, columns: int = 4) -> None:
@@ -141,7 +141,7 @@ def parameters(grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: 
                                                   if a != b], 1e3),
               ("bias, deg/s", [f"bias.{a}" for a in AXES], 1.0)]
     fig = svg.Figure(WIDTH, 300)
-    for panel, (label, names, scale) in zip(fig.grid(1, 3, hgap=70), groups):
+    for panel, (label, names, scale) in zip(fig.grid(1, 3, hgap=70), groups, strict=False):
         for k, name in enumerate(n for n in names if n in values):
             colour = REASON_COLOURS[(k + 3) % len(REASON_COLOURS)] if len(names) > 3 \
                 else AXIS_COLOURS[name.split(".")[1]]
@@ -234,7 +234,7 @@ def residuals(frame: Columns, covariates: list[tuple[str, str]]) -> str:
     z = {a: np.asarray(frame[f"z_{a}"], float) for a in AXES}
     finite = np.concatenate([v[np.isfinite(v)] for v in z.values()] + [np.array([-3.0, 3.0])])
     ylim = (float(finite.min()) * 1.04, float(finite.max()) * 1.04)
-    for k, (panel, (label, column)) in enumerate(zip(grid, covariates)):
+    for k, (panel, (label, column)) in enumerate(zip(grid, covariates, strict=False)):
         x = frame[column]
         ticks = None
         if x.dtype.kind not in "biuf":   # categories side by side; a missing one not drawn
@@ -273,7 +273,7 @@ def shape_estimate(estimate: dict) -> str:
     fig = svg.Figure(WIDTH, 250)
     grid = fig.grid(1, 3, left=78, hgap=40)
     lows, highs = [], []
-    for panel, a in zip(grid, AXES):
+    for panel, a in zip(grid, AXES, strict=False):
         curve = estimate["axes"].get(a)
         panel.hline(0.0, colour="#000", width=0.6)
         if curve is not None:
@@ -298,12 +298,12 @@ def heatmaps(maps: list[tuple[str, str, dict]]) -> str:
     map; keys are ``"row|column"`` with numeric columns (reference rate)."""
     fig = svg.Figure(WIDTH, 40 + 270 * len(maps))
     grid = fig.grid(len(maps), 1, left=110, right=120, top=14, vgap=90, bottom=76)
-    for panel, (row_label, col_label, cells) in zip(grid, maps):
+    for panel, (row_label, col_label, cells) in zip(grid, maps, strict=False):
         keys = [k.split("|") for k in cells]
         row_keys = sorted({r for r, _ in keys}, key=_sort_key)
         col_keys = sorted({c for _, c in keys}, key=float)
         values = np.full((len(row_keys), len(col_keys)), np.nan)
-        for (r, c), v in zip(keys, cells.values()):
+        for (r, c), v in zip(keys, cells.values(), strict=False):
             values[row_keys.index(r), col_keys.index(c)] = v
         top = max(float(np.nanmax(values)) if np.isfinite(values).any() else 5.0, 5.0)
         index = svg.palette_index(np.nan_to_num(values, nan=1.0), 0.5, top, len(svg.HEAT), log=True)
@@ -357,13 +357,13 @@ def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
     order = np.argsort(train["temp"].to_numpy(), kind="stable")
     curve = train.iloc[order]
     predictions = {name: model.predict(curve) for name, model in models.items()}
-    for i, (panel, a) in enumerate(zip(grid, AXES)):
+    for i, (panel, a) in enumerate(zip(grid, AXES, strict=False)):
         panel.markers(train["temp"], train[f"err_{a}"], colour="#999999", size=2.5,
                       label="training sweep" if i == 0 else None)
         if verify is not train:
             panel.markers(verify["temp"], verify[f"err_{a}"], colour="#2ca02c", size=2.5,
                           label="verification sweep" if i == 0 else None)
-        for (name, predicted), dash in zip(predictions.items(), ("5 3", None, "1 2", "6 2 1 2")):
+        for (name, predicted), dash in zip(predictions.items(), ("5 3", None, "1 2", "6 2 1 2"), strict=False):
             panel.line(curve["temp"], predicted[:, i], colour=svg.INK, dash=dash,
                        label=name if i == 0 else None)
         panel.title, panel.xlabel = f"gyro {a}", "temperature, °C"
@@ -412,7 +412,7 @@ def allan(noise: dict) -> str:
     fig = svg.Figure(WIDTH, 300)
     grid = fig.grid(1, 3, left=78, hgap=40)
     everything = [adev, lo, hi, model]
-    for i, (panel, a) in enumerate(zip(grid, AXES)):
+    for i, (panel, a) in enumerate(zip(grid, AXES, strict=False)):
         panel.xlog = panel.ylog = True
         for point in noise.get("points", []):
             if "allan" in point:

@@ -46,7 +46,7 @@ def _tenths(t: int) -> str:
     return ("-" if t < 0 else "") + (text or "0")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _token(t: int) -> tuple[str, bool, bool, bool]:
     """``_tenths(t)``; whether it starts with a sign, starts with a point, has a point."""
     text = _tenths(t)
@@ -286,7 +286,7 @@ class Panel:
         xv, xl = self.xticks or self._ticks(self.X, self.xlog)
         yv, yl = self.yticks or self._ticks(self.Y, self.ylog)
         ticks, labels = [], []
-        for v, lab, px in zip(xv, xl, self.sx(xv)):
+        for _, lab, px in zip(xv, xl, self.sx(xv), strict=False):
             if not (L - 0.5 <= px <= L + W + 0.5):
                 continue
             ticks.append(f"M{_f(px)} {_f(T + H)}v4")
@@ -296,7 +296,7 @@ class Panel:
                                   f'text-anchor="end" dominant-baseline="middle">{_esc(lab)}</text>')
                 else:
                     labels.append(f'<text x="{_f(px)}" y="{_f(T + H + 15)}" text-anchor="middle">{_esc(lab)}</text>')
-        for v, lab, py in zip(yv, yl, self.sy(yv)):
+        for _, lab, py in zip(yv, yl, self.sy(yv), strict=False):
             if not (T - 0.5 <= py <= T + H + 0.5):
                 continue
             if self.ticks_right:
@@ -333,7 +333,7 @@ class Panel:
         starts = np.flatnonzero(ok & ~np.r_[False, ok[:-1]])
         stops = np.flatnonzero(ok & ~np.r_[ok[1:], False]) + 1
         out = []
-        for a, b in zip(starts, stops):
+        for a, b in zip(starts, stops, strict=False):
             tx, ty = np.round(px[a:b] * 10).astype(np.int64), np.round(py[a:b] * 10).astype(np.int64)
             out.append(f"M{_tenths(tx[0])} {_tenths(ty[0])}")
             if b - a > 1:
@@ -354,7 +354,7 @@ class Panel:
     def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
         """(start, stop) of each run of True in ``mask``."""
         edges = np.diff(np.r_[0, mask.astype(np.int8), 0])
-        return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)))
+        return list(zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=False))
 
     def _draw_line(self, x, y, colour, width, dash, opacity):
         px, py = self.sx(x), self.sy(y)
@@ -420,7 +420,7 @@ class Panel:
         kx, ky, code = kx[new], ky[new], code[new]
         starts = np.flatnonzero(np.r_[True, np.diff(code) != 0])
         out = []
-        for first, last in zip(starts, np.r_[starts[1:], len(code)]):
+        for first, last in zip(starts, np.r_[starts[1:], len(code)], strict=False):
             c = names[code[first]]
             key = np.column_stack([kx[first:last], ky[first:last]]).astype(float)
             alpha = f' opacity="{opacity}"' if opacity < 1 else ""
@@ -447,7 +447,7 @@ class Panel:
         px, plo, phi = self.sx(x), self._clampy(self.sy(lo)), self._clampy(self.sy(hi))
         ok = np.isfinite(px) & np.isfinite(plo) & np.isfinite(phi)
         d = "".join(f"M{_f(a)} {_f(b)}V{_f(c)}M{_f(a - cap)} {_f(b)}h{_f(2 * cap)}M{_f(a - cap)} {_f(c)}h{_f(2 * cap)}"
-                    for a, b, c in zip(px[ok], plo[ok], phi[ok]))
+                    for a, b, c in zip(px[ok], plo[ok], phi[ok], strict=False))
         return f'<path d="{d}" stroke="{colour}" stroke-width="{width}" fill="none"/>' if d else ""
 
     def _draw_vspan(self, x0, x1, colour, opacity):
@@ -462,7 +462,7 @@ class Panel:
         """Stripes closer than half a pixel drawn as one."""
         order = np.argsort(a, kind="stable")
         out: list[list[float]] = []
-        for p, q in zip(a[order], b[order]):
+        for p, q in zip(a[order], b[order], strict=False):
             if out and p <= out[-1][1] + 0.5:
                 out[-1][1] = max(out[-1][1], q)
             else:

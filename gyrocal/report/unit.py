@@ -193,7 +193,7 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
         units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
         grid_rows = []
         constants = [(n, float(v), float(e), units.get(n, ""))
-                     for n, v, e in zip(g.names, g.values, g.stderr)]
+                     for n, v, e in zip(g.names, g.values, g.stderr, strict=False)]
     else:
         grid_rows = [{"temp": float(t), **{n: (float(g.values[p, j]), float(g.stderr[p, j]))
                                            for j, n in enumerate(g.names)}}
@@ -210,8 +210,8 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
         input_warnings=cal.extra.get("warnings", []),
         interpolation=g.method, reference=cal.reference_temperature,
         counts_columns=mounts.tolist(),
-        counts=list(zip(temps.tolist(), counts.tolist())),
-        rejected_counts=dict(zip(reasons.tolist(), per_reason.tolist())),
+        counts=list(zip(temps.tolist(), counts.tolist(), strict=False)),
+        rejected_counts=dict(zip(reasons.tolist(), per_reason.tolist(), strict=False)),
         rejected=rejected[["reason", "detail", "t_start", "t_end", "ref_rate"]].records(),
         points=cal.extra.get("points", []), names=list(g.names), grid_rows=grid_rows,
         constants=constants,

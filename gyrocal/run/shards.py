@@ -12,6 +12,7 @@ column, and ``OUT/index.html``, a row per shard linking to its fleet summary.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -146,10 +147,9 @@ class _terminate_as_interrupt:
 
     def __enter__(self):
         self.before = None
-        try:
+        # not the main thread: signals are not this function's to take
+        with contextlib.suppress(ValueError):
             self.before = signal.signal(signal.SIGTERM, self._raise)
-        except ValueError:   # not the main thread: signals are not this function's to take
-            pass
         return self
 
     def __exit__(self, *exc):

@@ -146,7 +146,7 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
     # One chunk per set point: the phases from one "chamber"/"soak" start to the next.
     chunk_starts = [i for i, p in enumerate(phases) if p["kind"] in ("chamber", "soak")
                     and (i == 0 or phases[i - 1]["kind"] != "chamber")]
-    chunk_bounds = list(zip(chunk_starts, chunk_starts[1:] + [len(phases)]))
+    chunk_bounds = list(zip(chunk_starts, chunk_starts[1:] + [len(phases)], strict=False))
     try:
         for lo, hi in chunk_bounds:
             chunk = phases[lo:hi]

@@ -68,7 +68,7 @@ class Smooth(Term):
         except (TypeError, ValueError):
             raise ConfigError(f"term smooth: knots must be a list of numbers, got {self.knots!r}") from None
         if not 2 <= len(knots) <= MAX_KNOTS or not all(map(math.isfinite, knots)) \
-                or any(b <= a for a, b in zip(knots, knots[1:])):
+                or any(b <= a for a, b in zip(knots, knots[1:], strict=False)):
             raise ConfigError(f"term smooth: knots must be 2 to {MAX_KNOTS} increasing finite numbers, "
                               f"got {self.knots!r}")
         if not self.linear and len(knots) < 3:
@@ -171,7 +171,7 @@ def _levels(values, what: str) -> tuple:
     except (TypeError, ValueError):
         raise ConfigError(f"term {what}: values must be a list of numbers, got {values!r}") from None
     if not 3 <= len(levels) <= MAX_LEVELS or not all(map(math.isfinite, levels)) \
-            or any(b <= a for a, b in zip(levels, levels[1:])):
+            or any(b <= a for a, b in zip(levels, levels[1:], strict=False)):
         raise ConfigError(f"term {what}: values must be 3 to {MAX_LEVELS} increasing finite "
                           f"numbers, got {values!r}")
     return levels

@@ -141,9 +141,9 @@ def _parse(formula: str, parameters=()) -> ast.AST:
             elif node.func.id not in _FUNCTIONS or len(node.args) != 1:
                 raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
                                   "each), lag(x, tau), play(x, w) and duhem(x, w) may be called")
-        if isinstance(node, ast.Constant):
-            if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) \
-                    or not _finite_number(node.value):
+        if isinstance(node, ast.Constant) and (
+                isinstance(node.value, bool) or not isinstance(node.value, (int, float))
+                or not _finite_number(node.value)):
                 raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
         if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id not in HISTORIES \
                 and node.id not in known:

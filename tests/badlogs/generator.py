@@ -275,7 +275,7 @@ def _units(tbl, text: str):
     return tbl.replace_schema_metadata(meta)
 
 
-KINDS: "OrderedDict[str, tuple]" = OrderedDict()
+KINDS: OrderedDict[str, tuple] = OrderedDict()
 EXPECT: dict[str, tuple[str, str]] = {}
 
 

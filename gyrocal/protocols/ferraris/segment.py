@@ -140,7 +140,7 @@ def find_cuts(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray, opts: dict, *,
         about_1g = (np.abs(nb - 1.0) < 0.4) & (np.abs(na - 1.0) < 0.4)
         lo, hi = true_runs((unexplained > opts["cut_angle_deg"]) & about_1g)
         # one cut per run of flagged boundaries: where the jump is largest
-        cuts.append(np.array([k[a + int(np.argmax(unexplained[a:b]))] for a, b in zip(lo, hi)],
+        cuts.append(np.array([k[a + int(np.argmax(unexplained[a:b]))] for a, b in zip(lo, hi, strict=False)],
                              dtype=np.int64))
     cuts = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, np.int64)
     return cuts[(cuts > 0) & (cuts < n)]
@@ -167,7 +167,7 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
     cuts = find_cuts(t, gyro, accel, opts, dt=dt, spans=spans)
     bounds = np.r_[0, cuts, n]
     # whole blocks inside each piece (a piece's last partial block is left out)
-    starts = np.concatenate([np.arange(a, b - block + 1, block) for a, b in zip(bounds[:-1], bounds[1:])])
+    starts = np.concatenate([np.arange(a, b - block + 1, block) for a, b in zip(bounds[:-1], bounds[1:], strict=False)])
     nb = len(starts)
     if nb < 3:
         raise SegmentationError(f"the log has {n} samples: too short for a ferraris session",
@@ -182,9 +182,9 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
                        & (block_piece[1:] == block_piece[:-1])]
     lo, hi = true_runs(still_block)
     runs = []
-    for a, b in zip(lo, hi):
+    for a, b in zip(lo, hi, strict=False):
         breaks = [int(x) for x in np.flatnonzero(~contiguous[a + 1:b]) + a + 1]
-        runs += list(zip([a] + breaks, breaks + [b]))
+        runs += list(zip([a] + breaks, breaks + [b], strict=False))
     min_samples = max(1, int(np.ceil(opts["min_still_s"] / (block * dt)))) * block
     edge = int(round(opts["edge_s"] / dt))
     rests = [(int(starts[a]) + edge, int(starts[b - 1]) + block - edge) for a, b in runs
@@ -198,14 +198,14 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
     # still and no rest lies (a section that begins or ends within a block or two of the
     # motion). (first row, end row, face, piece)
     rest_piece = np.searchsorted(cuts, [a for a, _ in rests], side="right")
-    anchors = [(a, b, f, int(p)) for (a, b), f, p in zip(rests, faces, rest_piece)]
+    anchors = [(a, b, f, int(p)) for (a, b), f, p in zip(rests, faces, rest_piece, strict=False)]
     near = 2 * block + edge
     m = edge_samples(dt)
     deviation = np.abs(gyro - rest_level).max(axis=1)
-    for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:])):
+    for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=False)):
         if b - a < 2 * m:
             continue
-        mine = [r for r, q in zip(rests, rest_piece) if q == p]
+        mine = [r for r, q in zip(rests, rest_piece, strict=False) if q == p]
         if deviation[a:a + m].min() < limit and not any(ra <= a + near for ra, _ in mine):
             anchors.append((a, a, _face_of(accel[a:a + m].mean(axis=0), opts["min_gravity_share"]), p))
         if deviation[b - m:b].min() < limit and not any(rb >= b - near for _, rb in mine):
@@ -266,10 +266,10 @@ def find_phases(t: np.ndarray, gyro: np.ndarray, accel: np.ndarray | None, opts:
     for label in FACES:
         mount = face_mount(label)
         mine = []
-        for (a, b), f in zip(rests, faces):
+        for (a, b), f in zip(rests, faces, strict=False):
             if f == mount:
                 lo, hi = true_runs(~turning[a:b])
-                mine += [(int(h - l), a + int(l), a + int(h)) for l, h in zip(lo, hi)]
+                mine += [(int(h - s), a + int(s), a + int(h)) for s, h in zip(lo, hi, strict=False)]
         mine = [m for m in mine if m[0] >= 2]
         if mine:
             _, a, b = max(mine)

@@ -452,7 +452,7 @@ def nominal_rates(directions, omega) -> np.ndarray:
     """The commanded rate vectors (n, 3): the servo speed along each rotation's direction
     label (``+x`` ... ``-z``)."""
     out = np.zeros((len(omega), 3))
-    for i, (d, w) in enumerate(zip(directions, np.abs(np.asarray(omega, dtype=float)))):
+    for i, (d, w) in enumerate(zip(directions, np.abs(np.asarray(omega, dtype=float)), strict=False)):
         d = str(d)
         if len(d) != 2 or d[0] not in "+-" or d[1] not in "xyz":
             raise ServoFitError(f"rotation {i}: direction {d!r} is not one of ±x, ±y, ±z")
@@ -606,7 +606,7 @@ def cross_chi2(K: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 def _stderr(cov: np.ndarray) -> dict:
-    return dict(zip(COEFFICIENTS, (float(x) for x in np.sqrt(np.clip(np.diag(cov), 0.0, None)))))
+    return dict(zip(COEFFICIENTS, (float(x) for x in np.sqrt(np.clip(np.diag(cov), 0.0, None))), strict=False))
 
 
 def symmetric_identified(m, omega, m_sem, start: ServoFit) -> tuple[bool, float]:

@@ -78,7 +78,7 @@ def simulate_observations(k: np.ndarray, b: np.ndarray, n_runs: int, rng: np.ran
     k = np.asarray(k, dtype=float)[:, None, None, :]
     b = np.asarray(b, dtype=float)[:, None, None, :]
     S, n_obs = k.shape[0], len(directions)
-    axis, sign = (np.array(x) for x in zip(*(direction_axis(d) for d in directions)))
+    axis, sign = (np.array(x) for x in zip(*(direction_axis(d) for d in directions), strict=False))
     tilt = np.arcsin(rng.uniform(0.0, misalignment, (S, n_runs, n_obs)))
     azimuth = rng.uniform(0.0, 2 * math.pi, (S, n_runs, n_obs))
     z_noise = rng.standard_normal((S, n_runs, n_obs, 3))
@@ -232,7 +232,7 @@ def speed_sweep(speeds=FIG4_SPEEDS, *, n_sets: int = 30, n_runs: int = 500, nois
             mse = np.mean(err ** 2, axis=0)
             row = {"speed": float(w), "noise": sigma, "samples": n, "runs": int(ok.size),
                    "failed": int((~ok).sum())}
-            row.update({f"mse_{p}": float(v) for p, v in zip(PARAMETERS, mse)})
+            row.update({f"mse_{p}": float(v) for p, v in zip(PARAMETERS, mse, strict=False)})
             row["mse_k"], row["mse_b"] = float(mse[:3].mean()), float(mse[3:].mean())
             rows.append(row)
     return pd.DataFrame(rows)
@@ -277,7 +277,7 @@ def plot_speed_sweep(sweep: pd.DataFrame, path) -> Path:
     with plots.figure_style(_STYLE):
         fig = Figure(figsize=(4.5 * len(levels), 3.4), layout="constrained")
         axes = fig.subplots(1, len(levels), squeeze=False)[0]
-        for ax, sigma in zip(axes, levels):
+        for ax, sigma in zip(axes, levels, strict=False):
             sub = sweep[sweep["noise"] == sigma].sort_values("speed")
             for p in PARAMETERS:
                 ax.plot(sub["speed"], sub[f"mse_{p}"], marker="o", ms=2.5, lw=1,
@@ -404,7 +404,7 @@ def cross_axis_study(n_sets: int = 30, n_runs: int = 200, noise=(0.035,), *, cro
                 g1f, m1f = g1.reshape(-1, *g1.shape[2:]), m1.reshape(-1, *m1.shape[2:])
                 commanded = speed * nominal
 
-                def scores(w):
+                def scores(w, commanded=commanded, g1f=g1f):   # this iteration's
                     return (np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
                             np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
                             np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)))

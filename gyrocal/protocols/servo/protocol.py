@@ -194,10 +194,8 @@ def servo_validation(obs: pd.DataFrame, cal):
     m = data[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
     omega = data["ref_rate"].to_numpy()
     (K,), (B,) = cal.matrices_at(np.array([float(np.mean(obs["temp"]))]))
-    if used == "seed001":   # K⁻¹ = diag(k), as Eq 1 compensates
-        in_sample = (m - B) * (1.0 / np.diag(K))
-    else:
-        in_sample = np.linalg.solve(K, (m - B).T).T
+    # K⁻¹ = diag(k) for seed 001's model, as Eq 1 compensates
+    in_sample = (m - B) * (1.0 / np.diag(K)) if used == "seed001" else np.linalg.solve(K, (m - B).T).T
     rotation = obs["rotation"].to_numpy() if "rotation" in obs else np.arange(len(obs))
     # Leaving a revolution out keeps the fit identifiable while its direction has another.
     held_out = bool(obs["mount"].astype(str).value_counts().min() >= 2)

@@ -95,7 +95,7 @@ def g_optimal_warnings(directions, means, *, speeds=None, max_tilt_deg: float = 
     unknown = sorted(set(directions) - set(DIRECTIONS))
     if unknown:
         out.append(f"unknown direction label(s) {', '.join(unknown)}")
-    for i, (d, m) in enumerate(zip(directions, means)):
+    for i, (d, m) in enumerate(zip(directions, means, strict=False)):
         norm = float(np.linalg.norm(m))
         if d not in DIRECTIONS or norm == 0.0:
             continue
@@ -233,7 +233,7 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     rot_mean = np.add.reduceat(g, rot_bounds, axis=0) / np.diff(np.r_[rot_bounds, len(sel)])[:, None]
     dominant = np.argmax(np.abs(rot_mean), axis=1)
     sign = np.sign(rot_mean[np.arange(n_rot), dominant])
-    from_data = [("+" if s >= 0 else "-") + AXES[a] for a, s in zip(dominant, sign)]
+    from_data = [("+" if s >= 0 else "-") + AXES[a] for a, s in zip(dominant, sign, strict=False)]
     directions = list(from_data)
     if mount is not None:
         lo = np.minimum.reduceat(mount[sel], rot_bounds)

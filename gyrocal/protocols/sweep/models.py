@@ -153,9 +153,9 @@ class DriftModel:
         out = dict(kind=self.kind, inputs=self.inputs, t_ref=self.t_ref, n_train=self.n_train,
                    dT_range=list(self.dT_range),
                    parameters={n: dict(value=float(v), stderr=None if e is None else float(e))
-                               for n, v, e in zip(names, values, errors)},
-                   residual_rms=dict(zip(AXES, map(float, self.residual_rms))),
-                   noise=dict(zip(AXES, map(float, self.noise))),
+                               for n, v, e in zip(names, values, errors, strict=False)},
+                   residual_rms=dict(zip(AXES, map(float, self.residual_rms), strict=False)),
+                   noise=dict(zip(AXES, map(float, self.noise), strict=False)),
                    units=dict(parameters="deg/s per °C^k" if self.kind == "poly" else "deg/s",
                               residual_rms="deg/s", t_ref="°C"))
         if self.kind == "rbf":

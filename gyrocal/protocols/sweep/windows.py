@@ -272,7 +272,7 @@ def split_sweeps(windows: pd.DataFrame, *, min_rate: float = 0.05, smooth_s: flo
         filled[:first] = direction[first]
     edges = np.flatnonzero(np.r_[True, filled[1:] != filled[:-1], True])
     out = []
-    for a, b in zip(edges[:-1], edges[1:]):  # one iteration per ramp
+    for a, b in zip(edges[:-1], edges[1:], strict=False):  # one iteration per ramp
         part = windows.iloc[a:b].copy()
         span = float(part["temp"].max() - part["temp"].min())
         if span < min_span or filled[a] == 0:

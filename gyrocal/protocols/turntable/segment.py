@@ -176,15 +176,15 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     long_enough = (c1 - c0) * block_dt >= max(min_hold, block_dt)
 
     segments: list[tuple] = []  # (kind, reason, detail, first block, stop block)
-    for b0, b1 in zip(*true_runs(~const & ~in_gap)):
+    for b0, b1 in zip(*true_runs(~const & ~in_gap), strict=False):
         segments.append(("ramp", "", "", b0, b1))
-    for b0, b1 in zip(*true_runs(in_gap)):
+    for b0, b1 in zip(*true_runs(in_gap), strict=False):
         segments.append(("gap", "", "", b0, b1))
-    for b0, b1 in zip(*true_runs(active)):
+    for b0, b1 in zip(*true_runs(active), strict=False):
         segments.append(("rejected", "handling_motion",
                          f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
                          f"at reference {r[b0]:.4g} deg/s", b0, b1))
-    for b0, b1 in zip(*true_runs(near_motion & const & ~active)):
+    for b0, b1 in zip(*true_runs(near_motion & const & ~active), strict=False):
         segments.append(("transient", "", "settling after motion", b0, b1))
     for i in np.flatnonzero(is_soak):
         segments.append(("soak", "", "", starts[i], h_start[i]))
@@ -466,7 +466,7 @@ def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
     near = ((mean + reach >= hi) | (mean - reach <= lo)).any(axis=1)
     near = np.flatnonzero(near)
     samples = log.row_ranges(GYRO, [(c0[i] * size, c1[i] * size) for i in near]) if near.size else []
-    for i, x in zip(near, samples):
+    for i, x in zip(near, samples, strict=False):
         worst = max(_piled(x[name], hi[a], lo[a], bool(full_scale)) for a, name in enumerate(GYRO))
         share[i] = worst / n[i] if (worst >= 2 or full_scale) else 0.0
     return share
@@ -600,7 +600,7 @@ def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -
 
 
 def _segment_table(segments, t_first, t_last, r, obs) -> pd.DataFrame:
-    kinds, reasons, details, b0, b1 = (list(x) for x in zip(*segments))
+    kinds, reasons, details, b0, b1 = (list(x) for x in zip(*segments, strict=False))
     b0, b1 = np.asarray(b0, dtype=int), np.asarray(b1, dtype=int)
     keep = b1 > b0
     b0, b1 = b0[keep], b1[keep]
