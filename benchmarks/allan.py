@@ -49,21 +49,29 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
 
-    print(f"machine: {cpu_name()}, {cores()}, Python {platform.python_version()}, "
-          f"numpy {np.__version__}, {platform.platform()}")
+    print(
+        f"machine: {cpu_name()}, {cores()}, Python {platform.python_version()}, "
+        f"numpy {np.__version__}, {platform.platform()}"
+    )
     x3 = coloured_noise(np.random.default_rng(0), args.samples, RATE, **GRADES["low"])
     x1 = np.ascontiguousarray(x3[:, 0])
-    print(f"samples: {args.samples} at {RATE:g} Hz ({args.samples / RATE / 3600:.1f} h), "
-          f"input {x3.nbytes / 2**20:.0f} MB (3 axes)")
+    print(
+        f"samples: {args.samples} at {RATE:g} Hz ({args.samples / RATE / 3600:.1f} h), "
+        f"input {x3.nbytes / 2**20:.0f} MB (3 axes)"
+    )
     for label, x in (("3 axes", x3), ("1 axis", x1)):
         med, best, k = _time(x, args.repeat)
-        print(f"allan_deviation {label}: median {med:.3f} s, min {best:.3f} s over {args.repeat} runs, "
-              f"{k} taus; peak allocated {_peak_mb(x):.0f} MB")
+        print(
+            f"allan_deviation {label}: median {med:.3f} s, min {best:.3f} s over {args.repeat} runs, "
+            f"{k} taus; peak allocated {_peak_mb(x):.0f} MB"
+        )
     t0 = time.perf_counter()
     fit = fit_noise_terms(allan_deviation(x3, RATE))
-    print(f"allan_deviation + fit_noise_terms, 3 axes: {time.perf_counter() - t0:.3f} s; "
-          f"ARW {np.round(fit.arw, 3)} deg/sqrt(h), B {np.round(fit.bias_instability, 2)} deg/h, "
-          f"RRW {np.round(fit.rrw, 1)} deg/h/sqrt(h) (simulated {GRADES['low']})")
+    print(
+        f"allan_deviation + fit_noise_terms, 3 axes: {time.perf_counter() - t0:.3f} s; "
+        f"ARW {np.round(fit.arw, 3)} deg/sqrt(h), B {np.round(fit.bias_instability, 2)} deg/h, "
+        f"RRW {np.round(fit.rrw, 1)} deg/h/sqrt(h) (simulated {GRADES['low']})"
+    )
 
 
 if __name__ == "__main__":

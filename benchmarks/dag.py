@@ -65,15 +65,27 @@ def write_fleet(folder: Path, n: int, layout: str) -> None:
     (folder / "config.yaml").write_text(CONFIG)
 
 
-def dry_run(folder: Path, cprofile: Path | None = None, listing: bool = False,
-            targets: tuple[str, ...] = ()) -> dict:
+def dry_run(
+    folder: Path, cprofile: Path | None = None, listing: bool = False, targets: tuple[str, ...] = ()
+) -> dict:
     """One ``snakemake -n`` in a fresh process: wall and CPU seconds, peak RSS. The usage
     is that one child's (``wait4``): the high-water mark of all children
     (``RUSAGE_CHILDREN``) would carry a larger earlier run's over."""
     prefix = [sys.executable] + (["-m", "cProfile", "-o", str(cprofile)] if cprofile else [])
-    command = prefix + ["-m", "snakemake", "--dry-run", "--snakefile", str(REPO / "Snakefile"),
-                        "--directory", str(folder), "--configfile", str(folder / "config.yaml"),
-                        "--cores", str(os.cpu_count() or 1), *targets]
+    command = prefix + [
+        "-m",
+        "snakemake",
+        "--dry-run",
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(folder),
+        "--configfile",
+        str(folder / "config.yaml"),
+        "--cores",
+        str(os.cpu_count() or 1),
+        *targets,
+    ]
     command += [] if listing else ["--quiet"]  # last: it takes an optional value
     with tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
@@ -93,12 +105,13 @@ def load() -> str:
 
 def machine() -> str:
     import snakemake
-    return (f"{cpu_name()}, {cores()}, Python {platform.python_version()}, "
-            f"Snakemake {snakemake.__version__}")
+
+    return f"{cpu_name()}, {cores()}, Python {platform.python_version()}, Snakemake {snakemake.__version__}"
 
 
 def print_profile(path: Path, limit: int = 25) -> None:
     import pstats
+
     stats = pstats.Stats(str(path))
     stats.sort_stats("cumulative").print_stats(r"snakemake/(dag|jobs|rules|workflow)\.py|common\.smk", limit)
 
@@ -111,31 +124,42 @@ def main() -> None:
     parser.add_argument("--listing", action="store_true", help="also time -n without --quiet")
     parser.add_argument("--cprofile", type=Path, help="profile the largest N into this file")
     parser.add_argument("--keep", type=Path, help="write the fleets here instead of a temporary folder")
-    parser.add_argument("--one", action="store_true",
-                        help="also time planning one unit's report in each fleet: what every "
-                             "cluster job pays as it starts (it parses the whole manifest)")
+    parser.add_argument(
+        "--one",
+        action="store_true",
+        help="also time planning one unit's report in each fleet: what every "
+        "cluster job pays as it starts (it parses the whole manifest)",
+    )
     args = parser.parse_args()
 
     print(machine())
     # Per unit: segment, analyse (+ simulate); then fleet and all.
     per_unit = 3 if args.layout == "demo" else 2
-    print(f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
-          f"{'ms/unit':>8}  load (1, 5, 15 min)")
+    print(
+        f"{'units':>7} {'jobs':>7} {'output':>8} {'wall s':>8} {'CPU s':>8} {'peak MiB':>9} "
+        f"{'ms/unit':>8}  load (1, 5, 15 min)"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         base = args.keep or Path(tmp)
         for n in args.units:
             folder = base / f"{args.layout}{n}"
             write_fleet(folder, n, args.layout)
             for _ in range(args.repeat):
-                for listing in ([False, True] if args.listing else [False]):
+                for listing in [False, True] if args.listing else [False]:
                     r = dry_run(folder, listing=listing)
-                    print(f"{n:>7} {per_unit * n + 2:>7} {'listing' if listing else 'quiet':>8} "
-                          f"{r['wall']:>8.1f} {r['cpu']:>8.1f} {r['peak_mib']:>9.0f} "
-                          f"{1000 * r['wall'] / n:>8.1f}  {load()}", flush=True)
+                    print(
+                        f"{n:>7} {per_unit * n + 2:>7} {'listing' if listing else 'quiet':>8} "
+                        f"{r['wall']:>8.1f} {r['cpu']:>8.1f} {r['peak_mib']:>9.0f} "
+                        f"{1000 * r['wall'] / n:>8.1f}  {load()}",
+                        flush=True,
+                    )
                 if args.one:
                     r = dry_run(folder, targets=("reports/B0000/U00000/2026-01-01.html",))
-                    print(f"{n:>7} {per_unit:>7} {'one unit':>8} {r['wall']:>8.1f} "
-                          f"{r['cpu']:>8.1f} {r['peak_mib']:>9.0f} {'':>8}  {load()}", flush=True)
+                    print(
+                        f"{n:>7} {per_unit:>7} {'one unit':>8} {r['wall']:>8.1f} "
+                        f"{r['cpu']:>8.1f} {r['peak_mib']:>9.0f} {'':>8}  {load()}",
+                        flush=True,
+                    )
         if args.cprofile:
             n = max(args.units)
             dry_run(base / f"{args.layout}{n}", cprofile=args.cprofile)

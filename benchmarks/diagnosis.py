@@ -124,20 +124,40 @@ CASES = [
     # The same hysteresis where the diagnosed session revisits a point from the other side
     # (the second-highest again, from above: within that point the direction changes), its
     # other session and the unseen one visiting the points in other orders.
-    ("temp_hysteresis_play", "turntable3", "white", "outside", {},
-     {0: {"temp_order": "revisit"}, 1: {"temp_order": "updown"}, 2: {"temp_order": "downup"}}),
+    (
+        "temp_hysteresis_play",
+        "turntable3",
+        "white",
+        "outside",
+        {},
+        {0: {"temp_order": "revisit"}, 1: {"temp_order": "updown"}, 2: {"temp_order": "downup"}},
+    ),
     ("mount_bias_shift", "turntable3", "white", "mounting"),
 ]
-SMALLEST = [("none", "turntable3", "white", "none"),
-            ("none", "turntable3", "coloured", "none"),
-            ("scale_quadratic", "turntable3", "white", "scale_quadratic"),
-            ("warmup", "turntable3", "white", "outside"),
-            ("bias_ramp", "turntable3", "white", "outside"),
-            ("g_sensitivity", "turntable6", "white", "g_sensitivity")]
+SMALLEST = [
+    ("none", "turntable3", "white", "none"),
+    ("none", "turntable3", "coloured", "none"),
+    ("scale_quadratic", "turntable3", "white", "scale_quadratic"),
+    ("warmup", "turntable3", "white", "outside"),
+    ("bias_ramp", "turntable3", "white", "outside"),
+    ("g_sensitivity", "turntable6", "white", "g_sensitivity"),
+]
 # Issue 38's effects with a history, with the complete units whose quiet they must keep.
-HISTORY = [c for c in CASES if c[3] == "none" or c[0] in (
-    "slow_pole", "rotation_heating", "temp_hysteresis_play", "mount_bias_shift", "hysteresis",
-    "bias_step_temp", "motor_heating_bias")]
+HISTORY = [
+    c
+    for c in CASES
+    if c[3] == "none"
+    or c[0]
+    in (
+        "slow_pole",
+        "rotation_heating",
+        "temp_hysteresis_play",
+        "mount_bias_shift",
+        "hysteresis",
+        "bias_step_temp",
+        "motor_heating_bias",
+    )
+]
 RATE_HZ = {"sweep": 5.0}
 
 
@@ -146,17 +166,20 @@ def label(case) -> str:
     sessions = case[5] if len(case) > 5 else {}
     by_session = bool(sessions) and all(isinstance(k, int) for k in sessions)
     overrides = {**(case[4] if len(case) > 4 else {}), **({} if by_session else sessions)}
-    return case[1] + "".join(f" {k}={v:g}" for k, v in overrides.items()) + "".join(
-        f" s{s}:{k}={v}" for s, o in (sessions.items() if by_session else ()) for k, v in o.items())
+    return (
+        case[1]
+        + "".join(f" {k}={v:g}" for k, v in overrides.items())
+        + "".join(f" s{s}:{k}={v}" for s, o in (sessions.items() if by_session else ()) for k, v in o.items())
+    )
 
 
 def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.pipeline.config import Settings
 
     effect, protocol, noise, expected = case[:4]
     overrides = case[4] if len(case) > 4 else {}
@@ -172,15 +195,22 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     for s in (0, 1, 2):
         path = Path(folder) / f"{effect}-{protocol}{tag}-{noise}-{unit_seed}-s{s}.parquet"
         ramp = {"ramp_c_per_h": (30.0, 60.0, 45.0)[s]} if protocol == "sweep" else {}
-        info = write_session(unit, path, session=s, seed=1000 * unit_seed + s,
-                             rate_hz=RATE_HZ.get(protocol, 25.0), **ramp, **per_session[s])
+        info = write_session(
+            unit,
+            path,
+            session=s,
+            seed=1000 * unit_seed + s,
+            rate_hz=RATE_HZ.get(protocol, 25.0),
+            **ramp,
+            **per_session[s],
+        )
         logs.append(path)
-    true_floor = float(info["noise_floor_hint"])   # session 2's, by the generator
+    true_floor = float(info["noise_floor_hint"])  # session 2's, by the generator
     settings = Settings().for_protocol(gyrocal_protocol)
-    row = {"effect": effect, "protocol": label(case), "noise": noise, "unit": unit_seed,
-           "expected": expected}
+    row = {"effect": effect, "protocol": label(case), "noise": noise, "unit": unit_seed, "expected": expected}
     started = time.perf_counter()
     import warnings
+
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", RuntimeWarning)
@@ -190,8 +220,13 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     except GyrocalError as exc:
         row.update(outcome="error", detail=str(exc))
         return row
-    row["warnings"] = sorted({f"{w.filename.rsplit('/', 1)[-1]}:{w.lineno} {w.message}" for w in caught
-                              if issubclass(w.category, RuntimeWarning)})
+    row["warnings"] = sorted(
+        {
+            f"{w.filename.rsplit('/', 1)[-1]}:{w.lineno} {w.message}"
+            for w in caught
+            if issubclass(w.category, RuntimeWarning)
+        }
+    )
     row["seconds"] = round(time.perf_counter() - started, 1)
     d = diag.to_dict()
     row["contradiction"] = story_contradiction(d)
@@ -201,9 +236,16 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     best = offer["term"] if offer else None
     tied = [t.split("(")[0] for t in (offer or {}).get("tied_with", [])]
     together = (offer or {}).get("together", [])
-    row.update(best=best, tied=tied, together=together, explains=d["explains_the_data"], verdict=d["verdict"],
-               partial=[p["term"] for p in partial] if partial else [],
-               validation_excess=d["excess"], offered_partial=bool(offer and not d["best"]))
+    row.update(
+        best=best,
+        tied=tied,
+        together=together,
+        explains=d["explains_the_data"],
+        verdict=d["verdict"],
+        partial=[p["term"] for p in partial] if partial else [],
+        validation_excess=d["excess"],
+        offered_partial=bool(offer and not d["best"]),
+    )
     named = best.split("(")[0] if best else None
     row["family"] = (offer or {}).get("family")
     row["unexplained"] = d.get("unexplained")
@@ -216,20 +258,28 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
         found = (row["unexplained"] or {}).get("reason") == "the mounting"
         outcome = "named right" if found and not best else "named wrong" if best else "missed"
     elif expected == "outside" and (row["family"] or row["offered_partial"]):
-        outcome = "offered"            # a term of free shape, or one offered that leaves a
-                                       # part: judged on the unseen session
+        outcome = "offered"  # a term of free shape, or one offered that leaves a
+        # part: judged on the unseen session
     elif named is not None:
         also = [t.split("(")[0] for t in together]
         outcome = "named right" if expected in (named, *tied, *also) else "named wrong"
     elif expected == "outside" and row["unexplained"]:
-        outcome = "said why"           # no term of free shape, and why (a partial one or not)
-    elif (expected == "outside" and d["explains_the_data"] and not with_other
-          and (d["within_noise_uncertainty"] or {}).get("explains")):
+        outcome = "said why"  # no term of free shape, and why (a partial one or not)
+    elif (
+        expected == "outside"
+        and d["explains_the_data"]
+        and not with_other
+        and (d["within_noise_uncertainty"] or {}).get("explains")
+    ):
         # One session whose excess the slow noise it cannot rule out accounts for: the
         # verdict says so, and that another session would tell.
         outcome = "said why"
-    elif (effect == "temp_hysteresis_play" and not best and d.get("one_way_points")
-          and any("thermal hysteresis" in line for line in d["advice"])):
+    elif (
+        effect == "temp_hysteresis_play"
+        and not best
+        and d.get("one_way_points")
+        and any("thermal hysteresis" in line for line in d["advice"])
+    ):
         # Each point reached one way: the hysteresis is in the points' biases, out of every
         # session's sight; the advice says so and what visit would show it.
         outcome = "out of sight"
@@ -252,14 +302,17 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
             return r["validation_rms"] / r["noise_floor"]
         except GyrocalError as exc:
             return f"error: {exc}"
+
     if gyrocal_protocol != "servo":
         row["next_before"] = next_session(settings)
         fixed = settings
-        for term in ([best, *together] if best else []):
+        for term in [best, *together] if best else []:
             fixed = extended(fixed, term)
-        if offer and offer.get("model"):   # a fix in a model of another kind: that model
+        if offer and offer.get("model"):  # a fix in a model of another kind: that model
             from dataclasses import replace as _replace
+
             from gyrocal.pipeline.config import ModelSettings
+
             fixed = _replace(settings, model=ModelSettings.from_dict(offer["model"]))
         row["next_after"] = next_session(fixed) if best else row["next_before"]
     return row
@@ -271,6 +324,7 @@ def story_contradiction(d: dict) -> str | None:
     covariate row that carries most of the excess. None where it does, where the data are
     explained, or where the finding is one no term holds (fixed in the lab, between points)."""
     from gyrocal.diagnose.verdict import coherent
+
     if d["explains_the_data"]:
         return None
     lead = next((r for r in d["covariates"] if (r.get("share_of_excess") or 0) > 0), None)
@@ -290,30 +344,50 @@ def story_contradiction(d: dict) -> str | None:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, default=3)
-    parser.add_argument("--cases", choices=("all", "smallest", "history", "sweep"), default="all",
-                        help="sweep: every case on the sweep protocol (the floor's benchmark, issue 39)")
+    parser.add_argument(
+        "--cases",
+        choices=("all", "smallest", "history", "sweep"),
+        default="all",
+        help="sweep: every case on the sweep protocol (the floor's benchmark, issue 39)",
+    )
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", help="write the rows as JSON here")
-    parser.add_argument("--one-session", action="store_true",
-                        help="diagnose session 0 alone (no other session to judge by)")
+    parser.add_argument(
+        "--one-session", action="store_true", help="diagnose session 0 alone (no other session to judge by)"
+    )
     args = parser.parse_args(argv)
     from host import cores, cpu_name
 
-    cases = {"all": CASES, "smallest": SMALLEST, "history": HISTORY,
-             "sweep": [c for c in CASES + [h for h in HISTORY if h not in CASES] if c[1] == "sweep"]}[args.cases]
+    cases = {
+        "all": CASES,
+        "smallest": SMALLEST,
+        "history": HISTORY,
+        "sweep": [c for c in CASES + [h for h in HISTORY if h not in CASES] if c[1] == "sweep"],
+    }[args.cases]
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as folder, ProcessPoolExecutor(args.jobs) as pool:
-        jobs = [pool.submit(run_case, case, seed, folder, not args.one_session) for case in cases
-                for seed in range(1, args.units + 1)]
+        jobs = [
+            pool.submit(run_case, case, seed, folder, not args.one_session)
+            for case in cases
+            for seed in range(1, args.units + 1)
+        ]
         rows = [j.result() for j in jobs]
-    print(f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, {len(rows)} units, "
-          f"{time.perf_counter() - started:.0f} s")
+    print(
+        f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, {len(rows)} units, "
+        f"{time.perf_counter() - started:.0f} s"
+    )
     for r in rows:
         after = r.get("next_after")
-        print(f"{r['effect']:>24} {r['protocol']:>10} {r['noise']:>8} u{r['unit']}  "
-              f"{r.get('outcome', '?'):>11}  best={r.get('best')}  "
-              f"excess={r.get('validation_excess', float('nan')):.3g}  "
-              + (f"next {r['next_before']:.3g} -> {after:.3g}" if isinstance(after, float) else str(after or "")))
+        print(
+            f"{r['effect']:>24} {r['protocol']:>10} {r['noise']:>8} u{r['unit']}  "
+            f"{r.get('outcome', '?'):>11}  best={r.get('best')}  "
+            f"excess={r.get('validation_excess', float('nan')):.3g}  "
+            + (
+                f"next {r['next_before']:.3g} -> {after:.3g}"
+                if isinstance(after, float)
+                else str(after or "")
+            )
+        )
     table = Counter(r.get("outcome") for r in rows)
     print("\nconfusion:", dict(sorted(table.items())))
     complete = [r for r in rows if r["expected"] == "none"]
@@ -322,38 +396,57 @@ def main(argv=None) -> int:
     wrong = sum(r.get("outcome") == "named wrong" for r in rows)
     print(f"named wrong: {wrong}")
     stories = [r for r in rows if r.get("contradiction")]
-    print(f"verdicts whose story contradicts their where-it-fails table: {len(stories)}"
-          + "".join(f"\n  {r['effect']} {r['protocol']} u{r['unit']}: {r['contradiction']}" for r in stories))
+    print(
+        f"verdicts whose story contradicts their where-it-fails table: {len(stories)}"
+        + "".join(f"\n  {r['effect']} {r['protocol']} u{r['unit']}: {r['contradiction']}" for r in stories)
+    )
     warned = [r for r in rows if r.get("warnings")]
-    print(f"units with a RuntimeWarning: {len(warned)}"
-          + "".join(f"\n  {r['effect']} {r['protocol']} u{r['unit']}: {'; '.join(r['warnings'])}" for r in warned))
+    print(
+        f"units with a RuntimeWarning: {len(warned)}"
+        + "".join(
+            f"\n  {r['effect']} {r['protocol']} u{r['unit']}: {'; '.join(r['warnings'])}" for r in warned
+        )
+    )
     # Under coloured noise the floor from static data leaves the wander out: the fix is
     # judged against what the complete model leaves on the same unit (effect "none").
-    complete_next = {(r["protocol"], r["noise"], r["unit"]): r.get("next_before") for r in rows
-                     if r["effect"] == "none"}
+    complete_next = {
+        (r["protocol"], r["noise"], r["unit"]): r.get("next_before") for r in rows if r["effect"] == "none"
+    }
     fixed = []
     for r in rows:
-        if r.get("outcome") != "named right" or not isinstance(r.get("next_after"), float) \
-                or r["expected"] == "mounting":   # a finding, with no fix to judge
+        if (
+            r.get("outcome") != "named right"
+            or not isinstance(r.get("next_after"), float)
+            or r["expected"] == "mounting"
+        ):  # a finding, with no fix to judge
             continue
         ref = complete_next.get((r["protocol"], r["noise"], r["unit"])) if r["noise"] != "white" else None
         fixed.append(r["next_after"] / ref if isinstance(ref, float) else r["next_after"])
     if fixed:
-        print(f"next session after the named fix (named right; coloured noise ÷ the complete "
-              f"unit's): max {max(fixed):.3g}x, {sum(f <= 1.2 for f in fixed)} of {len(fixed)} "
-              "within 1.2x")
+        print(
+            f"next session after the named fix (named right; coloured noise ÷ the complete "
+            f"unit's): max {max(fixed):.3g}x, {sum(f <= 1.2 for f in fixed)} of {len(fixed)} "
+            "within 1.2x"
+        )
     outside = [r for r in rows if r["expected"] == "outside"]
     offered = [r for r in outside if r.get("outcome") == "offered"]
     held = sum(isinstance(r.get("next_after"), float) and r["next_after"] <= 1.2 for r in offered)
     why = sum(r.get("outcome") == "said why" for r in outside)
     # An effect the configured model's calibration already carries to the unseen session
     # within 1.2x the floor leaves nothing for a term to fix: "nothing missing" is right.
-    unseen = [r for r in outside if r.get("outcome") in ("missed", "outside")
-              and isinstance(r.get("next_before"), float) and r["next_before"] <= 1.2]
-    print(f"outside the library: {len(outside)} units; a term of free shape offered {len(offered)} "
-          f"({held} within 1.2x on the unseen session); no offer and said why {why}; nothing "
-          f"offered and the unseen session within 1.2x without it {len(unseen)}; none of these "
-          f"{len(outside) - held - why - len(unseen)}")
+    unseen = [
+        r
+        for r in outside
+        if r.get("outcome") in ("missed", "outside")
+        and isinstance(r.get("next_before"), float)
+        and r["next_before"] <= 1.2
+    ]
+    print(
+        f"outside the library: {len(outside)} units; a term of free shape offered {len(offered)} "
+        f"({held} within 1.2x on the unseen session); no offer and said why {why}; nothing "
+        f"offered and the unseen session within 1.2x without it {len(unseen)}; none of these "
+        f"{len(outside) - held - why - len(unseen)}"
+    )
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1, default=str))
     print()
@@ -364,8 +457,10 @@ def main(argv=None) -> int:
 def markdown_table(rows) -> str:
     """The rows as docs/benchmarks.md tables them: a line per case, its units' outcomes and
     the unseen session's error ÷ floor before → after the offered fix."""
-    out = ["| effect | protocol | noise | expected | outcomes | next session ÷ floor, before → after the offered fix |",
-           "|---|---|---|---|---|---|"]
+    out = [
+        "| effect | protocol | noise | expected | outcomes | next session ÷ floor, before → after the offered fix |",
+        "|---|---|---|---|---|---|",
+    ]
     cases: dict = {}
     for r in rows:
         cases.setdefault((r["effect"], r["protocol"], r["noise"], r["expected"]), []).append(r)
@@ -374,8 +469,13 @@ def markdown_table(rows) -> str:
         outcomes = ", ".join(f"{n} {o}" for o, n in counts.items())
         named = sorted({u["best"] for u in units if u.get("best")})
         # Why nothing was offered, in the diagnosis' own words.
-        reasons = sorted({u["unexplained"]["reason"] for u in units
-                          if u.get("outcome") == "said why" and u.get("unexplained")})
+        reasons = sorted(
+            {
+                u["unexplained"]["reason"]
+                for u in units
+                if u.get("outcome") == "said why" and u.get("unexplained")
+            }
+        )
         if named or reasons:
             outcomes += " (" + ", ".join(named + [f"why: {r}" for r in reasons]) + ")"
 
@@ -386,8 +486,12 @@ def markdown_table(rows) -> str:
             if not u.get("best"):
                 return f"{before:.3g}"
             return f"{before:.3g} → " + (f"{after:.3g}" if isinstance(after, float) else "error")
-        out.append(f"| {effect} | {protocol} | {noise} | {expected} | {outcomes} | "
-                   + ", ".join(figure(u) for u in units) + " |")
+
+        out.append(
+            f"| {effect} | {protocol} | {noise} | {expected} | {outcomes} | "
+            + ", ".join(figure(u) for u in units)
+            + " |"
+        )
     return "\n".join(out)
 
 

@@ -26,28 +26,35 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-ALPHA = 0.01   # the diagnosis' default significance
+ALPHA = 0.01  # the diagnosis' default significance
 
 
 def run_unit(case, unit_seed: int) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import evaluate
     from gyrocal.diagnose.between import between_points
     from gyrocal.diagnose.lab import lab_fixed
     from gyrocal.diagnose.where import fit_quality
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     effect, protocol, noise = case[:3]
-    unit = make_unit(effect=effect, protocol=protocol, noise=noise, seed=unit_seed,
-                     **(case[4] if len(case) > 4 else {}))
+    unit = make_unit(
+        effect=effect, protocol=protocol, noise=noise, seed=unit_seed, **(case[4] if len(case) > 4 else {})
+    )
     settings = Settings().for_protocol("turntable")
-    out = {"lab": [0, 0], "between": [0, 0]}   # [flagged, made]
+    out = {"lab": [0, 0], "between": [0, 0]}  # [flagged, made]
     with tempfile.TemporaryDirectory() as folder:
         for session in (0, 1):
             log = Path(folder) / f"s{session}.parquet"
-            write_session(unit, log, session=session, seed=1000 * unit_seed + session, rate_hz=25.0,
-                          **(case[5] if len(case) > 5 else {}))
+            write_session(
+                unit,
+                log,
+                session=session,
+                seed=1000 * unit_seed + session,
+                rate_hz=25.0,
+                **(case[5] if len(case) > 5 else {}),
+            )
             obs = segment_log(log, settings, "turntable").observations
             base = evaluate(settings, obs, "configured model")
             quality = fit_quality(base, len(obs))
@@ -74,13 +81,19 @@ def main() -> None:
     cases = [c for c in CASES if c[1].startswith("turntable")]
     started = time.perf_counter()
     with ProcessPoolExecutor(args.jobs) as pool:
-        jobs = {(label(c), c[0], c[2], c[3]): [pool.submit(run_unit, c, s) for s in range(1, args.units + 1)]
-                for c in cases}
+        jobs = {
+            (label(c), c[0], c[2], c[3]): [pool.submit(run_unit, c, s) for s in range(1, args.units + 1)]
+            for c in cases
+        }
         results = {k: [j.result() for j in v] for k, v in jobs.items()}
-    print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {cpu_name()}, {cores()}, "
-          f"{args.units} units x 2 sessions per case, {time.perf_counter() - started:.0f} s")
-    print("| effect | protocol | noise | expected | fixed in the lab (flagged / made) | "
-          "between points (flagged / made) |")
+    print(
+        f"# {time.strftime('%Y-%m-%d %H:%M')}, {cpu_name()}, {cores()}, "
+        f"{args.units} units x 2 sessions per case, {time.perf_counter() - started:.0f} s"
+    )
+    print(
+        "| effect | protocol | noise | expected | fixed in the lab (flagged / made) | "
+        "between points (flagged / made) |"
+    )
     print("|---|---|---|---|---|---|")
     for (protocol, effect, noise, expected), units in results.items():
         cells = []

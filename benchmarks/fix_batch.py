@@ -69,7 +69,7 @@ from diagnosis import CASES, RATE_HZ, SMALLEST, label  # noqa: E402
 
 FIRST_OTHER_SEED = 101
 SIGMAS = (1, 2, 3)
-TINY = 1e-6   # the Hausman denominator's floor, as a share of σ_with²
+TINY = 1e-6  # the Hausman denominator's floor, as a share of σ_with²
 
 # Per worker process: the others' figures with the default settings, by batch key.
 _BATCHES: dict = {}
@@ -88,6 +88,7 @@ def judged(case) -> bool:
 def batch_settings(gyrocal_protocol: str):
     from gyrocal.diagnose import extended
     from gyrocal.pipeline.config import Settings
+
     settings = Settings().for_protocol(gyrocal_protocol)
     for term in BATCH_TERMS.get(gyrocal_protocol, ()):
         settings = extended(settings, term)
@@ -125,8 +126,9 @@ def batch_limits(units: list):
     fix (``units``: their figures, each with its ``cal``)."""
     from gyrocal.calibration.parameters import parameters_at, temperature_coefficients
     from gyrocal.fleet.limits import SpecLimits
+
     params, slopes = {}, {}
-    judged = ("bias.", "scale.", "misalignment.")   # what a line's spec limits, as the demo's
+    judged = ("bias.", "scale.", "misalignment.")  # what a line's spec limits, as the demo's
     for figures in units:
         cal = figures.get("cal")
         if cal is None:
@@ -135,31 +137,41 @@ def batch_limits(units: list):
             if name.startswith(judged):
                 params[name] = max(params.get(name, 0.0), abs(float(value)))
         tc = temperature_coefficients(cal)
-        for name, value in ([] if tc is None else tc[["parameter", "value"]].itertuples(index=False)):
+        for name, value in [] if tc is None else tc[["parameter", "value"]].itertuples(index=False):
             if name.startswith(judged):
                 slopes[name] = max(slopes.get(name, 0.0), abs(float(value)))
     nice = lambda v: float(f"{MARGIN * v:.2g}") or 1e-12  # noqa: E731
-    return SpecLimits.from_dict({"parameters": {n: nice(v) for n, v in params.items()},
-                                 "temperature_coefficients": {n: nice(v) for n, v in slopes.items()},
-                                 "excess": EXCESS_LIMIT})
+    return SpecLimits.from_dict(
+        {
+            "parameters": {n: nice(v) for n, v in params.items()},
+            "temperature_coefficients": {n: nice(v) for n, v in slopes.items()},
+            "excess": EXCESS_LIMIT,
+        }
+    )
 
 
 def _verdict(figures: dict, limits) -> dict:
     """End of line for one unit's calibration (or its failure) against ``limits``."""
     from gyrocal.fleet.eol import judge
+
     if "cal" not in figures:
         v = judge(RuntimeError(figures.get("failed", "calibration failed")), None, None, limits)
         return {"passed": v.passed, "failed_checks": ["calibration"], "reasons": list(v.reasons)}
     v = judge(figures["cal"], figures.get("summary"), figures.get("info"), limits)
-    return {"passed": v.passed, "reasons": list(v.reasons),
-            "failed_checks": sorted(k for k, c in v.checked.items() if not c["passed"])}
+    return {
+        "passed": v.passed,
+        "reasons": list(v.reasons),
+        "failed_checks": sorted(k for k, c in v.checked.items() if not c["passed"]),
+    }
 
 
 def _fixed_settings(settings, offer):
     from dataclasses import replace
+
     from gyrocal.diagnose import extended
     from gyrocal.pipeline.config import ModelSettings
-    if offer.get("model"):   # a whole model of another kind (continuous_instead)
+
+    if offer.get("model"):  # a whole model of another kind (continuous_instead)
         return replace(settings, model=ModelSettings.from_dict(offer["model"]))
     for term in (offer["term"], *offer.get("together", [])):
         settings = extended(settings, term)
@@ -180,22 +192,36 @@ def _unit_figures(seg, settings, gyrocal_protocol: str, device: str) -> dict:
     from gyrocal.calibration.parameters import parameters_at
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import calibrate_observations, validation
+
     obs = seg.observations
     try:
-        cal, fitted = calibrate_observations(obs, settings, meta={"device": device, "protocol": gyrocal_protocol},
-                                             noise=seg.info.get("noise"), checks=False)
+        cal, fitted = calibrate_observations(
+            obs,
+            settings,
+            meta={"device": device, "protocol": gyrocal_protocol},
+            noise=seg.info.get("noise"),
+            checks=False,
+        )
     except GyrocalError as exc:
         return {"failed": "calibration: " + " ".join(str(exc).split())}
     p = parameters_at(cal)
-    out = {"params": {r.parameter: (float(r.value), float(r.stderr)) for r in p.itertuples()},
-           "terms": [t.spec_string() for t in cal.model.terms],
-           "added_terms": cal.extra.get("added_terms"), "warnings": cal.extra.get("warnings"),
-           "cal": cal, "info": seg.info}
+    out = {
+        "params": {r.parameter: (float(r.value), float(r.stderr)) for r in p.itertuples()},
+        "terms": [t.spec_string() for t in cal.model.terms],
+        "added_terms": cal.extra.get("added_terms"),
+        "warnings": cal.extra.get("warnings"),
+        "cal": cal,
+        "info": seg.info,
+    }
     try:
         summary = validation(obs, cal, fitted, settings).summary
-        out.update(validation_rms=float(summary["validation_rms"]), noise_floor=float(summary["noise_floor"]),
-                   excess=float(summary["validation_rms"]) / float(summary["noise_floor"]), summary=summary)
-    except GyrocalError as exc:   # calibrated, but its validation cannot be made: judged without
+        out.update(
+            validation_rms=float(summary["validation_rms"]),
+            noise_floor=float(summary["noise_floor"]),
+            excess=float(summary["validation_rms"]) / float(summary["noise_floor"]),
+            summary=summary,
+        )
+    except GyrocalError as exc:  # calibrated, but its validation cannot be made: judged without
         out["failed"] = "validation: " + " ".join(str(exc).split())
         out["summary"] = exc
     return out
@@ -225,13 +251,29 @@ def _compare(without: dict, with_: dict, limits=None) -> dict:
         z1 = d / s1 if s1 > 0 else math.inf if d else 0.0
         floored = s1 * s1 - s0 * s0 <= TINY * s1 * s1
         zh = d / math.sqrt(max(s1 * s1 - s0 * s0, TINY * s1 * s1)) if s1 > 0 else math.inf if d else 0.0
-        params.append({"parameter": name, "delta": d, "stderr_without": s0, "stderr_with": s1,
-                       "z_without": z0, "z_with": z1, "z_hausman": zh, "hausman_floored": floored})
+        params.append(
+            {
+                "parameter": name,
+                "delta": d,
+                "stderr_without": s0,
+                "stderr_with": s1,
+                "z_without": z0,
+                "z_with": z1,
+                "z_hausman": zh,
+                "hausman_floored": floored,
+            }
+        )
     out["params"] = params
-    top = max(params, key=lambda r: r["stderr_with"] / r["stderr_without"] if r["stderr_without"] > 0 else 0,
-              default=None)
-    out["max_inflation"] = (top["stderr_with"] / top["stderr_without"], top["parameter"]) \
-        if top and top["stderr_without"] > 0 else (None, None)
+    top = max(
+        params,
+        key=lambda r: r["stderr_with"] / r["stderr_without"] if r["stderr_without"] > 0 else 0,
+        default=None,
+    )
+    out["max_inflation"] = (
+        (top["stderr_with"] / top["stderr_without"], top["parameter"])
+        if top and top["stderr_without"] > 0
+        else (None, None)
+    )
     for kind in ("z_without", "z_with", "z_hausman"):
         top = max(params, key=lambda r: abs(r[kind]), default=None)
         out[f"max_{kind}"] = (abs(top[kind]), top["parameter"]) if top else (0.0, None)
@@ -250,14 +292,27 @@ def _compare(without: dict, with_: dict, limits=None) -> dict:
     return out
 
 
-def _write_and_segment(protocol, effect, noise, seed, unit_overrides, session, session_overrides,
-                       session_seed, settings, gyrocal_protocol, folder):
+def _write_and_segment(
+    protocol,
+    effect,
+    noise,
+    seed,
+    unit_overrides,
+    session,
+    session_overrides,
+    session_seed,
+    settings,
+    gyrocal_protocol,
+    folder,
+):
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.pipeline.chain import segment_log
+
     unit = make_unit(effect=effect, protocol=protocol, noise=noise, seed=seed, **unit_overrides)
     path = Path(folder) / f"{os.getpid()}-{effect}-{protocol}-{noise}-{seed}-s{session}.parquet"
-    write_session(unit, path, session=session, seed=session_seed,
-                  **_session_args(protocol, session, session_overrides))
+    write_session(
+        unit, path, session=session, seed=session_seed, **_session_args(protocol, session, session_overrides)
+    )
     try:
         return segment_log(path, settings, gyrocal_protocol)
     finally:
@@ -268,12 +323,28 @@ def _batch(case, n_others: int, settings, gyrocal_protocol: str, folder) -> list
     """The others of ``case``'s batch: (seed, segmentation, figures with default settings),
     made once per worker for each protocol and its overrides."""
     unit_overrides, per_session = _overrides(case)
-    key = (case[1], json.dumps(unit_overrides, sort_keys=True), json.dumps(per_session[0], sort_keys=True), n_others)
+    key = (
+        case[1],
+        json.dumps(unit_overrides, sort_keys=True),
+        json.dumps(per_session[0], sort_keys=True),
+        n_others,
+    )
     if key not in _BATCHES:
         units = []
         for seed in range(FIRST_OTHER_SEED, FIRST_OTHER_SEED + n_others):
-            seg = _write_and_segment(case[1], "none", "white", seed, unit_overrides, 0, per_session[0],
-                                     1000 * seed, settings, gyrocal_protocol, folder)
+            seg = _write_and_segment(
+                case[1],
+                "none",
+                "white",
+                seed,
+                unit_overrides,
+                0,
+                per_session[0],
+                1000 * seed,
+                settings,
+                gyrocal_protocol,
+                folder,
+            )
             units.append((seed, seg, _unit_figures(seg, settings, gyrocal_protocol, f"other-{seed}")))
         _BATCHES[key] = units
     return _BATCHES[key]
@@ -287,19 +358,36 @@ def run_case(case, n_others: int, folder: str) -> dict:
     started = time.perf_counter()
     effect, protocol, noise = case[:3]
     gyrocal_protocol = _gyrocal_protocol(protocol)
-    settings = Settings().for_protocol(gyrocal_protocol)   # what the diagnosis starts from
+    settings = Settings().for_protocol(gyrocal_protocol)  # what the diagnosis starts from
     batch = batch_settings(gyrocal_protocol)
     unit_overrides, per_session = _overrides(case)
     row = {"effect": effect, "protocol": label(case), "noise": noise, "expected": case[3]}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RuntimeWarning)
         try:
-            segs = [_write_and_segment(protocol, effect, noise, 0, unit_overrides, s, per_session[s], s,
-                                       settings, gyrocal_protocol, folder) for s in (0, 1)]
+            segs = [
+                _write_and_segment(
+                    protocol,
+                    effect,
+                    noise,
+                    0,
+                    unit_overrides,
+                    s,
+                    per_session[s],
+                    s,
+                    settings,
+                    gyrocal_protocol,
+                    folder,
+                )
+                for s in (0, 1)
+            ]
             d = diagnose(settings, segs[0].observations, segs[1].observations).to_dict()
         except GyrocalError as exc:
-            row.update(status="diagnosis failed", detail=" ".join(str(exc).split()),
-                       seconds=round(time.perf_counter() - started, 1))
+            row.update(
+                status="diagnosis failed",
+                detail=" ".join(str(exc).split()),
+                seconds=round(time.perf_counter() - started, 1),
+            )
             return row
         row["diagnosis_seconds"] = round(time.perf_counter() - started, 1)
         partial = d.get("partial") or []
@@ -309,9 +397,14 @@ def run_case(case, n_others: int, folder: str) -> dict:
             row.update(status="no fix offered", seconds=round(time.perf_counter() - started, 1))
             return row
         fixed = _fixed_settings(batch, offer)
-        row.update(status="fix offered", fix=fix_text(offer), offer_kind="best" if d["best"] else "partial",
-                   fix_model=offer.get("model"), fixed_terms=list(fixed.model.term_specs()),
-                   fixed_kind=fixed.model.kind)
+        row.update(
+            status="fix offered",
+            fix=fix_text(offer),
+            offer_kind="best" if d["best"] else "partial",
+            fix_model=offer.get("model"),
+            fixed_terms=list(fixed.model.term_specs()),
+            fixed_kind=fixed.model.kind,
+        )
         carrier = [_unit_figures(segs[0], s, gyrocal_protocol, "carrier") for s in (batch, fixed)]
         row["carrier"] = _compare(*carrier)
         row["carrier"]["terms_with"] = carrier[1].get("terms")
@@ -334,20 +427,31 @@ def run_case_safe(case, n_others: int, folder: str) -> dict:
     try:
         return run_case(case, n_others, folder)
     except Exception as exc:  # noqa: BLE001 - one case's bug is that case's row
-        return {"effect": case[0], "protocol": label(case), "noise": case[2], "expected": case[3],
-                "status": "error", "detail": f"{type(exc).__name__}: {exc}",
-                "seconds": round(time.perf_counter() - started, 1)}
+        return {
+            "effect": case[0],
+            "protocol": label(case),
+            "noise": case[2],
+            "expected": case[3],
+            "status": "error",
+            "detail": f"{type(exc).__name__}: {exc}",
+            "seconds": round(time.perf_counter() - started, 1),
+        }
 
 
 def _summarise(units: list, eol: bool) -> dict:
     ok = [u for u in units if "params" in u]
-    out = {"units": len(units), "failed_with": sum(u["failed_with"] is not None for u in units),
-           "failed_without": sum(u["failed_without"] is not None for u in units),
-           **{f"{stage}_failed_with": sum((u["failed_with"] or "").startswith(stage) for u in units)
-              for stage in ("calibration", "validation")},
-           "eol_changed": sum(bool(u.get("eol_changed")) for u in units) if eol else None,
-           "eol_pass_without": sum(bool(u.get("eol_without")) for u in units) if eol else None,
-           "eol_pass_with": sum(bool(u.get("eol_with")) for u in units) if eol else None}
+    out = {
+        "units": len(units),
+        "failed_with": sum(u["failed_with"] is not None for u in units),
+        "failed_without": sum(u["failed_without"] is not None for u in units),
+        **{
+            f"{stage}_failed_with": sum((u["failed_with"] or "").startswith(stage) for u in units)
+            for stage in ("calibration", "validation")
+        },
+        "eol_changed": sum(bool(u.get("eol_changed")) for u in units) if eol else None,
+        "eol_pass_without": sum(bool(u.get("eol_without")) for u in units) if eol else None,
+        "eol_pass_with": sum(bool(u.get("eol_with")) for u in units) if eol else None,
+    }
     for kind in ("z_without", "z_with", "z_hausman", "z_hausman_grew"):
         top = max(ok, key=lambda u: u[f"max_{kind}"][0], default=None)
         out[f"max_{kind}"] = (top[f"max_{kind}"][0], top[f"max_{kind}"][1], top["seed"]) if top else None
@@ -360,7 +464,11 @@ def _summarise(units: list, eol: bool) -> dict:
     out["excess_grew_20pct"] = sum(u["excess_with"] > 1.2 * u["excess_without"] for u in valid)
     inflation = sorted(u["max_inflation"][0] for u in ok if u["max_inflation"][0] is not None)
     out["inflation_median"] = inflation[len(inflation) // 2] if inflation else None
-    top = max((u for u in ok if u["max_inflation"][0] is not None), key=lambda u: u["max_inflation"][0], default=None)
+    top = max(
+        (u for u in ok if u["max_inflation"][0] is not None),
+        key=lambda u: u["max_inflation"][0],
+        default=None,
+    )
     out["inflation_max"] = (*top["max_inflation"], top["seed"]) if top else None
     out["checks_flipped_units"] = sum(bool(u.get("eol_checks_differ")) for u in units) if eol else None
     records = [u["kept"] for u in ok if u.get("kept") is not None]
@@ -377,7 +485,7 @@ def _failures(s: dict) -> str:
 
 def _short(text: str, n: int = 60) -> str:
     text = text.replace("|", "/")
-    return text if len(text) <= n else text[:n - 1] + "…"
+    return text if len(text) <= n else text[: n - 1] + "…"
 
 
 def _z(entry) -> str:
@@ -385,47 +493,70 @@ def _z(entry) -> str:
 
 
 def markdown(rows: list, n_others: int) -> str:
-    out = ["| effect | protocol | fix | carrier excess before → after | others: EOL verdicts changed "
-           f"(of {n_others}) | others: max \\|Δ\\|/σ_with (parameter) | others beyond 1σ/2σ/3σ "
-           "| fix kept on others | seconds |",
-           "|---|---|---|---|---|---|---|---|---|"]
+    out = [
+        "| effect | protocol | fix | carrier excess before → after | others: EOL verdicts changed "
+        f"(of {n_others}) | others: max \\|Δ\\|/σ_with (parameter) | others beyond 1σ/2σ/3σ "
+        "| fix kept on others | seconds |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         if r["status"] != "fix offered":
             why = r["status"] + (f": {_short(r['detail'], 80)}" if r.get("detail") else "")
-            out.append(f"| {r['effect']} | {r['protocol']} | *{why}* | — | — | — | — | — | {r['seconds']:.0f} |")
+            out.append(
+                f"| {r['effect']} | {r['protocol']} | *{why}* | — | — | — | — | — | {r['seconds']:.0f} |"
+            )
             continue
         s, c = r["summary"], r["carrier"]
-        carrier = (f"{c['excess_without']:.3g} → {c['excess_with']:.3g}" if "excess_with" in c
-                   else f"failed: {_short(c.get('failed_with') or c.get('failed_without') or '?', 40)}")
+        carrier = (
+            f"{c['excess_without']:.3g} → {c['excess_with']:.3g}"
+            if "excess_with" in c
+            else f"failed: {_short(c.get('failed_with') or c.get('failed_without') or '?', 40)}"
+        )
         if c.get("kept") is not None:
             carrier += " (kept)" if c["kept"] else " (dropped)"
-        eol = "— (no spec)" if s["eol_changed"] is None else \
-            f"{s['eol_changed']} ({s['eol_pass_without']} → {s['eol_pass_with']} pass)"
+        eol = (
+            "— (no spec)"
+            if s["eol_changed"] is None
+            else f"{s['eol_changed']} ({s['eol_pass_without']} → {s['eol_pass_with']} pass)"
+        )
         if s["checks_flipped_units"]:
             eol += f"; a check flipped on {s['checks_flipped_units']}: {', '.join(s['checks_differ'])}"
         if s["failed_with"]:
             eol += f"; failed with the fix: {_failures(s)}"
         kept = "—" if s["kept"] is None else f"{s['kept']} kept, {s['dropped']} dropped"
-        out.append(f"| {r['effect']} | {r['protocol']} | {_short(r['fix'])} | {carrier} | {eol} | "
-                   f"{_z(s['max_z_with'])} | {s['beyond_1']}/{s['beyond_2']}/{s['beyond_3']} | {kept} | "
-                   f"{r['seconds']:.0f} |")
+        out.append(
+            f"| {r['effect']} | {r['protocol']} | {_short(r['fix'])} | {carrier} | {eol} | "
+            f"{_z(s['max_z_with'])} | {s['beyond_1']}/{s['beyond_2']}/{s['beyond_3']} | {kept} | "
+            f"{r['seconds']:.0f} |"
+        )
     return "\n".join(out)
 
 
 def details(rows: list) -> str:
-    out = ["| effect | protocol | max \\|Δ\\|/σ_without | max Hausman z | max Hausman z where σ grew "
-           "| σ_with/σ_without, units' largest: median (max) | others' excess without → with (max; max ratio) "
-           "| others whose excess grew > 1.2× |",
-           "|---|---|---|---|---|---|---|---|"]
+    out = [
+        "| effect | protocol | max \\|Δ\\|/σ_without | max Hausman z | max Hausman z where σ grew "
+        "| σ_with/σ_without, units' largest: median (max) | others' excess without → with (max; max ratio) "
+        "| others whose excess grew > 1.2× |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
         if r["status"] != "fix offered":
             continue
         s = r["summary"]
-        excess = "—" if s["excess_with_max"] is None else \
-            f"{s['excess_without_max']:.3g} → {s['excess_with_max']:.3g}; ×{s['excess_ratio_max']:.3g}"
-        infl = "—" if s["inflation_median"] is None else f"{s['inflation_median']:.3g}; max {_z(s['inflation_max'])}"
-        out.append(f"| {r['effect']} | {r['protocol']} | {_z(s['max_z_without'])} | {_z(s['max_z_hausman'])} | "
-                   f"{_z(s['max_z_hausman_grew'])} | {infl} | {excess} | {s['excess_grew_20pct']} |")
+        excess = (
+            "—"
+            if s["excess_with_max"] is None
+            else f"{s['excess_without_max']:.3g} → {s['excess_with_max']:.3g}; ×{s['excess_ratio_max']:.3g}"
+        )
+        infl = (
+            "—"
+            if s["inflation_median"] is None
+            else f"{s['inflation_median']:.3g}; max {_z(s['inflation_max'])}"
+        )
+        out.append(
+            f"| {r['effect']} | {r['protocol']} | {_z(s['max_z_without'])} | {_z(s['max_z_hausman'])} | "
+            f"{_z(s['max_z_hausman_grew'])} | {infl} | {excess} | {s['excess_grew_20pct']} |"
+        )
     return "\n".join(out)
 
 
@@ -434,31 +565,48 @@ def totals(rows: list, n_others: int) -> str:
     none = [r for r in rows if r["status"] == "no fix offered"]
     failed = [r for r in rows if r["status"] in ("diagnosis failed", "error")]
     units = sum(r["summary"]["units"] for r in offered)
-    lines = [f"cases: {len(rows)}; a fix offered {len(offered)}, no fix offered {len(none)}"
-             + (f" ({', '.join(r['effect'] + ' ' + r['protocol'] for r in none)})" if none else "")
-             + (f", diagnosis failed or error {len(failed)}" if failed else ""),
-             f"other units judged: {units} ({len(offered)} fixes × {n_others} units)"]
+    lines = [
+        f"cases: {len(rows)}; a fix offered {len(offered)}, no fix offered {len(none)}"
+        + (f" ({', '.join(r['effect'] + ' ' + r['protocol'] for r in none)})" if none else "")
+        + (f", diagnosis failed or error {len(failed)}" if failed else ""),
+        f"other units judged: {units} ({len(offered)} fixes × {n_others} units)",
+    ]
     if offered:
         judged_eol = [r for r in offered if r["summary"]["eol_changed"] is not None]
-        lines.append(f"EOL verdicts changed by the fix: {sum(r['summary']['eol_changed'] for r in judged_eol)} "
-                     f"of {sum(r['summary']['units'] for r in judged_eol)} (in "
-                     f"{sum(r['summary']['eol_changed'] > 0 for r in judged_eol)} of {len(judged_eol)} cases)")
-        lines.append(f"units with an EOL check flipped by the fix: "
-                     f"{sum(r['summary']['checks_flipped_units'] for r in judged_eol)} of "
-                     f"{sum(r['summary']['units'] for r in judged_eol)}")
-        lines.append(f"units whose held-out excess grew > 1.2× with the fix: "
-                     f"{sum(r['summary']['excess_grew_20pct'] for r in offered)} of {units}")
-        lines.append("failed with the fix (of the others): " + ", ".join(
-            f"{stage} {sum(r['summary'][f'{stage}_failed_with'] for r in offered)}"
-            for stage in ("calibration", "validation")))
+        lines.append(
+            f"EOL verdicts changed by the fix: {sum(r['summary']['eol_changed'] for r in judged_eol)} "
+            f"of {sum(r['summary']['units'] for r in judged_eol)} (in "
+            f"{sum(r['summary']['eol_changed'] > 0 for r in judged_eol)} of {len(judged_eol)} cases)"
+        )
+        lines.append(
+            f"units with an EOL check flipped by the fix: "
+            f"{sum(r['summary']['checks_flipped_units'] for r in judged_eol)} of "
+            f"{sum(r['summary']['units'] for r in judged_eol)}"
+        )
+        lines.append(
+            f"units whose held-out excess grew > 1.2× with the fix: "
+            f"{sum(r['summary']['excess_grew_20pct'] for r in offered)} of {units}"
+        )
+        lines.append(
+            "failed with the fix (of the others): "
+            + ", ".join(
+                f"{stage} {sum(r['summary'][f'{stage}_failed_with'] for r in offered)}"
+                for stage in ("calibration", "validation")
+            )
+        )
         for k in SIGMAS:
             n = sum(r["summary"][f"beyond_{k}"] for r in offered)
             cases = sum(r["summary"][f"beyond_{k}"] > 0 for r in offered)
             lines.append(f"units with a parameter moved beyond {k} σ_with: {n} of {units} (in {cases} cases)")
         records = [r for r in offered if r["summary"]["kept"] is not None]
-        lines.append("the fix kept / dropped on the others: " + (
-            f"{sum(r['summary']['kept'] for r in records)} / {sum(r['summary']['dropped'] for r in records)}"
-            if records else "— (the calibration files record no added_terms)"))
+        lines.append(
+            "the fix kept / dropped on the others: "
+            + (
+                f"{sum(r['summary']['kept'] for r in records)} / {sum(r['summary']['dropped'] for r in records)}"
+                if records
+                else "— (the calibration files record no added_terms)"
+            )
+        )
     return "\n".join(f"- {line}" for line in lines)
 
 
@@ -481,8 +629,10 @@ def main(argv=None) -> int:
         jobs = [pool.submit(run_case_safe, case, args.others, folder) for case in cases]
         rows = [j.result() for j in jobs]
     elapsed = time.perf_counter() - started
-    print(f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, {len(cases)} cases, "
-          f"{args.others} others each, {args.jobs} jobs, {elapsed:.0f} s\n")
+    print(
+        f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, {len(cases)} cases, "
+        f"{args.others} others each, {args.jobs} jobs, {elapsed:.0f} s\n"
+    )
     print(markdown(rows, args.others))
     print()
     print(totals(rows, args.others))
@@ -490,11 +640,16 @@ def main(argv=None) -> int:
     print(details(rows))
     warned = [r for r in rows if r.get("warnings")]
     if warned:
-        print("\nRuntimeWarnings:" + "".join(f"\n- {r['effect']} {r['protocol']}: {'; '.join(r['warnings'])}"
-                                             for r in warned))
+        print(
+            "\nRuntimeWarnings:"
+            + "".join(f"\n- {r['effect']} {r['protocol']}: {'; '.join(r['warnings'])}" for r in warned)
+        )
     if args.out:
-        Path(args.out).write_text(json.dumps({"others": args.others, "seconds": round(elapsed, 1),
-                                              "rows": rows}, indent=1, default=str))
+        Path(args.out).write_text(
+            json.dumps(
+                {"others": args.others, "seconds": round(elapsed, 1), "rows": rows}, indent=1, default=str
+            )
+        )
     return 0
 
 

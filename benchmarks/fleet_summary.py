@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT))
 def main() -> None:
     from gyrocal.fleet import summary as fleet
     from tests.test_fleet_pages import rows
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, nargs="+", default=[1000, 10000, 100000])
     args = parser.parse_args()
@@ -38,7 +39,9 @@ def main() -> None:
             took = time.perf_counter() - t0
             pages = list((path.parent / "batches").glob("*.html"))
             largest = max((p.stat().st_size for p in pages), default=0)
-            print(f"{n:>8} {took:>9.1f} {path.stat().st_size / 1024:>10.0f} {len(pages):>12} {largest / 1024:>17.0f}")
+            print(
+                f"{n:>8} {took:>9.1f} {path.stat().st_size / 1024:>10.0f} {len(pages):>12} {largest / 1024:>17.0f}"
+            )
 
 
 if __name__ == "__main__":

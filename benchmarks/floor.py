@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 
 EFFECTS = ("none", "die_lag", "die_lag_curved", "warmup", "bias_ramp", "bias_quadratic_temp")
 NOISES = ("white", "coloured")
-RAMPS = (30.0, 60.0)      # °C/h: the zoo's session 0 and a faster ramp that lags more
+RAMPS = (30.0, 60.0)  # °C/h: the zoo's session 0 and a faster ramp that lags more
 DIE_LAG = ("die_lag", "die_lag_curved")
 
 
@@ -40,6 +40,7 @@ def one(case) -> dict:
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run
     from gyrocal.pipeline.config import Settings
+
     row = {"effect": effect, "noise": noise, "seed": seed, "ramp_c_per_h": ramp}
     unit = make_unit(effect=effect, protocol="sweep", noise=noise, seed=seed)
     with tempfile.TemporaryDirectory() as tmp:
@@ -72,25 +73,35 @@ def main(argv=None) -> int:
     cases = [(e, n, s, r) for e in EFFECTS for n in NOISES for s in range(1, args.seeds + 1) for r in RAMPS]
     # More die-lag units, white noise, three ramps: the sweeps whose dwells the die
     # still settles through (seeds beyond the first three hold its worst cases).
-    cases += [(e, "white", s, r) for e in DIE_LAG for s in range(args.seeds + 1, args.seeds + 11)
-              for r in (30.0, 45.0, 60.0)]
+    cases += [
+        (e, "white", s, r)
+        for e in DIE_LAG
+        for s in range(args.seeds + 1, args.seeds + 11)
+        for r in (30.0, 45.0, 60.0)
+    ]
     with ProcessPoolExecutor(args.jobs) as pool:
         rows = list(pool.map(one, cases))
     print(f"{'effect':22s} {'noise':8s} seed ramp  true floor  gyrocal  ratio  static s  RRW (deg/h/rt-h)")
     for r in rows:
         if "error" in r:
-            print(f"{r['effect']:22s} {r['noise']:8s} {r['seed']:4d} {r['ramp_c_per_h']:4.0f}  error: {r['error']}")
+            print(
+                f"{r['effect']:22s} {r['noise']:8s} {r['seed']:4d} {r['ramp_c_per_h']:4.0f}  error: {r['error']}"
+            )
             continue
-        print(f"{r['effect']:22s} {r['noise']:8s} {r['seed']:4d} {r['ramp_c_per_h']:4.0f}  {r['true_floor']:.4g}"
-              f"    {r['floor']:.4g}  {r['ratio']:5.2f}  {r['static_s']:8.0f}  {r['rrw']}")
+        print(
+            f"{r['effect']:22s} {r['noise']:8s} {r['seed']:4d} {r['ramp_c_per_h']:4.0f}  {r['true_floor']:.4g}"
+            f"    {r['floor']:.4g}  {r['ratio']:5.2f}  {r['static_s']:8.0f}  {r['rrw']}"
+        )
     ok = [r for r in rows if "ratio" in r]
     print(f"\n{len(ok)} of {len(rows)} sweeps calibrated")
     for noise in NOISES:
         mine = [r for r in ok if r["noise"] == noise]
         worst = max(mine, key=lambda r: max(r["ratio"], 1 / r["ratio"]))
-        print(f"{noise}: ratio {min(r['ratio'] for r in mine):.2f} to {max(r['ratio'] for r in mine):.2f} "
-              f"(worst: {worst['effect']} seed {worst['seed']} at {worst['ramp_c_per_h']:g} °C/h); "
-              f"within 1.3 either way: {sum(1 / 1.3 <= r['ratio'] <= 1.3 for r in mine)} of {len(mine)}")
+        print(
+            f"{noise}: ratio {min(r['ratio'] for r in mine):.2f} to {max(r['ratio'] for r in mine):.2f} "
+            f"(worst: {worst['effect']} seed {worst['seed']} at {worst['ramp_c_per_h']:g} °C/h); "
+            f"within 1.3 either way: {sum(1 / 1.3 <= r['ratio'] <= 1.3 for r in mine)} of {len(mine)}"
+        )
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1))
     return 0

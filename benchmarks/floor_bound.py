@@ -57,13 +57,14 @@ def fisher(p, f, blocks, known_rrw):
 
 def truth_variance(arw, s, tau):
     x = WINDOW_S / tau
-    return arw ** 2 / WINDOW_S + s ** 2 * 2 / x ** 2 * (x - 1 + np.exp(-x))
+    return arw**2 / WINDOW_S + s**2 * 2 / x**2 * (x - 1 + np.exp(-x))
 
 
 def relative_error(noise, source, ramp_s, known_rrw):
     """Cramér–Rao relative standard error of the RMS-over-axes truth."""
-    arw, s, tau, q = (np.asarray(noise[k], float) for k in
-                      ("arw_dps_rthz", "gm_sigma_dps", "gm_tau_s", "rrw_dps_rts"))
+    arw, s, tau, q = (
+        np.asarray(noise[k], float) for k in ("arw_dps_rthz", "gm_sigma_dps", "gm_tau_s", "rrw_dps_rts")
+    )
     # (rate Hz, record length s, records, first Fourier index kept)
     records = {"dwells": [(5.0, 1200.0, 3, 1)], "ramps": [(1 / WINDOW_S, ramp_s, 2, 2)]}
     records["both"] = records["dwells"] + records["ramps"]
@@ -72,24 +73,34 @@ def relative_error(noise, source, ramp_s, known_rrw):
         # white as a density: a 5-Hz sample's variance arw^2 * 5, a 20-s mean's arw^2 / 20
         white = arw[a] ** 2
         p = [s[a] ** 2, tau[a], white, max(q[a], 1e-7) ** 2]
-        cov = np.linalg.inv(sum(fisher(p, np.arange(first, int(length * rate / 2)) / length, blocks, known_rrw)
-                                for rate, length, blocks, first in records[source]))
+        cov = np.linalg.inv(
+            sum(
+                fisher(p, np.arange(first, int(length * rate / 2)) / length, blocks, known_rrw)
+                for rate, length, blocks, first in records[source]
+            )
+        )
         v = truth_variance(arw[a], s[a], tau[a])
         x, dt = WINDOW_S / tau[a], 1e-3 * tau[a]
-        grad = np.array([2 / x ** 2 * (x - 1 + np.exp(-x)),                  # d v / d s^2
-                         (truth_variance(arw[a], s[a], tau[a] + dt) - v) / dt,  # d v / d tau
-                         1 / WINDOW_S])                                      # d v / d white
+        grad = np.array(
+            [
+                2 / x**2 * (x - 1 + np.exp(-x)),  # d v / d s^2
+                (truth_variance(arw[a], s[a], tau[a] + dt) - v) / dt,  # d v / d tau
+                1 / WINDOW_S,
+            ]
+        )  # d v / d white
         var.append(v)
         dvar.append(grad @ cov[:3, :3] @ grad)
     truth = np.sqrt(np.mean(var))
-    return float(np.sqrt(np.sum(dvar)) / 3 / (2 * truth ** 2))
+    return float(np.sqrt(np.sum(dvar)) / 3 / (2 * truth**2))
 
 
 def main() -> int:
     from benchmarks.zoo.generator import make_unit
 
-    noises = {seed: make_unit(effect="none", protocol="sweep", noise="coloured", seed=seed).params["noise"]
-              for seed in (1, 2, 3)}
+    noises = {
+        seed: make_unit(effect="none", protocol="sweep", noise="coloured", seed=seed).params["noise"]
+        for seed in (1, 2, 3)
+    }
     print("data    random walk  seed  ramp °C/h  relative s.e.  P(within 1.3)")
     for source in ("dwells", "ramps", "both"):
         for known in (False, True):
@@ -99,9 +110,13 @@ def main() -> int:
                     rel = relative_error(noise, source, ramp_s, known)
                     p = float(2 * norm.cdf(np.log(BAND) / rel) - 1)
                     p_all *= p
-                    print(f"{source:7s} {'known' if known else 'fitted':11s} {seed:4d}  {ramp:9.0f}  {rel:13.2f}  {p:13.2f}")
-            print(f"{source}, random walk {'known' if known else 'fitted'}: P(all six sessions within "
-                  f"{BAND}) = {p_all:.2g}\n")
+                    print(
+                        f"{source:7s} {'known' if known else 'fitted':11s} {seed:4d}  {ramp:9.0f}  {rel:13.2f}  {p:13.2f}"
+                    )
+            print(
+                f"{source}, random walk {'known' if known else 'fitted'}: P(all six sessions within "
+                f"{BAND}) = {p_all:.2g}\n"
+            )
     return 0
 
 

@@ -31,15 +31,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from gyrocal.run import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
-
 import hypothesis  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
+from host import cores, cpu_name  # noqa: E402
 from hypothesis import HealthCheck, Phase, given, reject, settings  # noqa: E402
 from hypothesis import seed as hypothesis_seed  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from host import cores, cpu_name  # noqa: E402
+from gyrocal.run import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
 from tests import fuzzing as fz  # noqa: E402
 
 COMMANDS = ("calibrate", "calibrate", "apply")
@@ -67,21 +66,27 @@ def ingest_example(base, scratch):
     def run(case, keep):
         path = _write(base, case, fz.fresh(scratch / "ingest"))
         return fz.check_ingest(path, keep, case.read_batch_rows)
+
     return strategy, run
 
 
 def cli_example(base, scratch, calibration):
-    strategy = dict(case=st.one_of(fz.cases(soft=True), fz.cases()),
-                    command=st.sampled_from(COMMANDS), protocol=st.sampled_from(PROTOCOLS),
-                    ahead=st.booleans())
+    strategy = dict(
+        case=st.one_of(fz.cases(soft=True), fz.cases()),
+        command=st.sampled_from(COMMANDS),
+        protocol=st.sampled_from(PROTOCOLS),
+        ahead=st.booleans(),
+    )
 
     def run(case, command, protocol, ahead):
         folder = fz.fresh(scratch / "cli")
         path = _write(base, case, folder / "in")
         out = fz.fresh(folder / "out")
-        outcome, _ = fz.check_cli(command, path, out, calibration=calibration,
-                                  protocol=protocol, as_process_start=ahead)
+        outcome, _ = fz.check_cli(
+            command, path, out, calibration=calibration, protocol=protocol, as_process_start=ahead
+        )
         return f"{command}: {outcome}"
+
     return strategy, run
 
 
@@ -100,8 +105,14 @@ def campaign(name, examples, seed, make):
     count = [0]
 
     @hypothesis_seed(seed)
-    @settings(max_examples=examples, deadline=None, database=None, derandomize=False,
-              phases=(Phase.generate,), suppress_health_check=list(HealthCheck))
+    @settings(
+        max_examples=examples,
+        deadline=None,
+        database=None,
+        derandomize=False,
+        phases=(Phase.generate,),
+        suppress_health_check=list(HealthCheck),
+    )
     @given(**strategy)
     def explore(**kw):
         count[0] += 1
@@ -134,9 +145,15 @@ def shrink(strategy, run, key, examples, seed):
     last = {}
 
     @hypothesis_seed(seed)
-    @settings(max_examples=examples, deadline=None, database=None, derandomize=False,
-              phases=(Phase.generate, Phase.shrink), suppress_health_check=list(HealthCheck),
-              report_multiple_bugs=False)
+    @settings(
+        max_examples=examples,
+        deadline=None,
+        database=None,
+        derandomize=False,
+        phases=(Phase.generate, Phase.shrink),
+        suppress_health_check=list(HealthCheck),
+        report_multiple_bugs=False,
+    )
     @given(**strategy)
     def replay(**kw):
         try:
@@ -156,8 +173,7 @@ def shrink(strategy, run, key, examples, seed):
 
 
 def report(name, examples, tally, count, elapsed, minimal):
-    print(f"\n## {name}: {count} examples in {elapsed:.0f} s "
-          f"({1000 * elapsed / max(count, 1):.0f} ms each)")
+    print(f"\n## {name}: {count} examples in {elapsed:.0f} s ({1000 * elapsed / max(count, 1):.0f} ms each)")
     for outcome, n in sorted(tally.outcomes.items(), key=lambda kv: -kv[1]):
         print(f"  {n:6d}  {outcome}")
     if not tally.violations:
@@ -178,8 +194,12 @@ def report(name, examples, tally, count, elapsed, minimal):
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--examples", type=int, default=3000, help="ingest examples")
-    parser.add_argument("--cli-examples", type=int, default=None,
-                        help="command-line examples (default: a tenth of --examples)")
+    parser.add_argument(
+        "--cli-examples",
+        type=int,
+        default=None,
+        help="command-line examples (default: a tenth of --examples)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     # A RuntimeWarning (arithmetic on NaN or inf, an overflow) is an error, as in
@@ -188,8 +208,10 @@ def main(argv=None) -> int:
     warnings.filterwarnings("error", category=RuntimeWarning)
     cli_examples = args.examples // 10 if args.cli_examples is None else args.cli_examples
     started = time.perf_counter()
-    print(f"# gyrocal fuzzing campaign, {dt.date.today()}, {cpu_name()}, {cores()}, "
-          f"Python {platform.python_version()}, hypothesis {hypothesis.__version__}")
+    print(
+        f"# gyrocal fuzzing campaign, {dt.date.today()}, {cpu_name()}, {cores()}, "
+        f"Python {platform.python_version()}, hypothesis {hypothesis.__version__}"
+    )
     print(f"# python benchmarks/fuzz.py {shlex.join(map(str, argv if argv is not None else sys.argv[1:]))}")
     failures = 0
     with tempfile.TemporaryDirectory(prefix="gyrocal-fuzz-") as tmp:
@@ -201,15 +223,14 @@ def main(argv=None) -> int:
         if status != 0:
             raise SystemExit(f"the base log does not calibrate: {stderr}")
         if args.examples:
-            results = campaign("ingest", args.examples, args.seed,
-                               lambda: ingest_example(base, scratch))
+            results = campaign("ingest", args.examples, args.seed, lambda: ingest_example(base, scratch))
             failures += report("ingest (read_log as the pipeline reads)", args.examples, *results)
         if cli_examples:
-            results = campaign("cli", cli_examples, args.seed,
-                               lambda: cli_example(base, scratch, calibration))
+            results = campaign(
+                "cli", cli_examples, args.seed, lambda: cli_example(base, scratch, calibration)
+            )
             failures += report("command line (calibrate, apply)", cli_examples, *results)
-    print(f"\nwall time {time.perf_counter() - started:.0f} s; "
-          f"{failures} distinct property violation(s)")
+    print(f"\nwall time {time.perf_counter() - started:.0f} s; {failures} distinct property violation(s)")
     return 1 if failures else 0
 
 

@@ -27,6 +27,8 @@ def job_files(source: Path) -> list[Path]:
     its id, so numbers sort as numbers (a retry's log after its first attempt's)."""
     if not source.is_dir():
         return [source]
-    key = lambda p: [(0, int(t), "") if t.isdigit() else (1, 0, t)  # noqa: E731
-                     for t in re.split(r"(\d+)", str(p))]
+
+    def key(p):
+        return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", str(p))]
+
     return sorted((p for p in source.rglob("*") if p.is_file()), key=key)

@@ -25,7 +25,6 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.csv as pacsv
-
 from host import cores, cpu_name
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -50,8 +49,7 @@ def make_csv(rows: int) -> Path:
         n = min(CHUNK, rows - start)
         data = {"n": np.arange(start, start + n)}
         data.update({f"w{a}": np.round(rng.normal(0, 0.5, n), 5) for a in "xyz"})
-        data.update({f"a{a}": np.round(rng.normal(0, 0.3, n) + (9.81 if a == "z" else 0), 4)
-                     for a in "xyz"})
+        data.update({f"a{a}": np.round(rng.normal(0, 0.3, n) + (9.81 if a == "z" else 0), 4) for a in "xyz"})
         data["temp"] = np.round(25 + np.arange(start, start + n) * 1e-6, 3)
         table = pa.table(data)
         if writer is None:
@@ -65,6 +63,7 @@ def make_csv(rows: int) -> Path:
 def make_bag(messages: int) -> Path:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
+
     path = CACHE / f"import_bag_{messages}"
     if path.exists():
         return path
@@ -79,13 +78,17 @@ def make_bag(messages: int) -> Path:
             ns = 1_700_000_000 * 10**9 + i * 10**6
             w = rng.normal(0, 0.5, 3)
             msg = T["sensor_msgs/msg/Imu"](
-                header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
-                    sec=ns // 10**9, nanosec=ns % 10**9), frame_id="imu"),
+                header=T["std_msgs/msg/Header"](
+                    stamp=T["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9),
+                    frame_id="imu",
+                ),
                 orientation=T["geometry_msgs/msg/Quaternion"](0.0, 0.0, 0.0, 1.0),
-                orientation_covariance=cov, angular_velocity=T["geometry_msgs/msg/Vector3"](*w),
+                orientation_covariance=cov,
+                angular_velocity=T["geometry_msgs/msg/Vector3"](*w),
                 angular_velocity_covariance=cov,
                 linear_acceleration=T["geometry_msgs/msg/Vector3"](0.0, 0.0, 9.81),
-                linear_acceleration_covariance=cov)
+                linear_acceleration_covariance=cov,
+            )
             writer.write(conn, ns, store.serialize_cdr(msg, "sensor_msgs/msg/Imu"))
     tmp.rename(path)
     return path
@@ -124,10 +127,12 @@ def main() -> None:
             extra = [] if source.is_dir() else ["--map", str(map_path)]
             wall, peak = measure(["-m", "gyrocal", "import", str(source), "-o", str(out), *extra])
             mib = size_of(source) / 2**20
-            print(f"  {source.name}: {rows / 1e6:g} M rows, {mib:.0f} MiB in, "
-                  f"{out.stat().st_size / 2**20:.0f} MiB out: {wall:.1f} s "
-                  f"({rows / wall / 1e6:.2f} M rows/s), peak RSS {peak:.0f} MiB "
-                  f"({peak - floor:+.0f} MiB over the floor)")
+            print(
+                f"  {source.name}: {rows / 1e6:g} M rows, {mib:.0f} MiB in, "
+                f"{out.stat().st_size / 2**20:.0f} MiB out: {wall:.1f} s "
+                f"({rows / wall / 1e6:.2f} M rows/s), peak RSS {peak:.0f} MiB "
+                f"({peak - floor:+.0f} MiB over the floor)"
+            )
 
 
 if __name__ == "__main__":

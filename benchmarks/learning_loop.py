@@ -29,8 +29,9 @@ UNIT = ("B1", "U004", "2026-01-07")
 
 
 def copy_repository(target: Path) -> None:
-    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
-                           check=True).stdout.split()
+    files = subprocess.run(
+        ["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True
+    ).stdout.split()
     for name in files:
         (target / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, target / name)
@@ -38,16 +39,22 @@ def copy_repository(target: Path) -> None:
 
 def workflow(folder: Path, cores: int) -> tuple[float, str]:
     started = time.perf_counter()
-    out = subprocess.run([str(Path(sys.executable).parent / "snakemake"), "--cores", str(cores)],
-                         cwd=folder, capture_output=True, text=True)
+    out = subprocess.run(
+        [str(Path(sys.executable).parent / "snakemake"), "--cores", str(cores)],
+        cwd=folder,
+        capture_output=True,
+        text=True,
+    )
     if out.returncode:
         sys.exit(f"the workflow failed:\n{out.stderr[-3000:]}")
     return time.perf_counter() - started, out.stderr
 
 
 def digests(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted((folder / "results").glob("*/*/*/calibration.json"))}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted((folder / "results").glob("*/*/*/calibration.json"))
+    }
 
 
 def main(argv=None) -> int:
@@ -69,7 +76,7 @@ def main(argv=None) -> int:
     config = folder / "config" / "config.yaml"
     config.write_text(config.read_text() + "\n" + lines + "\n")
     second, log = workflow(folder, args.cores)
-    jobs = dict(re.findall(r"^(\w+)\s+(\d+)$", log[log.index("Job stats"):].split("\n\n")[0], re.M))
+    jobs = dict(re.findall(r"^(\w+)\s+(\d+)$", log[log.index("Job stats") :].split("\n\n")[0], re.M))
     changed = [name for name, digest in digests(folder).items() if hashes.get(name) != digest]
     runs = json.loads((unit / "runs.json").read_text())["runs"]
     last, now = runs[-2], runs[-1]
@@ -79,12 +86,17 @@ def main(argv=None) -> int:
     print(f"first run {first:.0f} s; the fix for {UNIT[1]} appended:\n{lines}")
     print(f"second run {second:.0f} s, jobs: {jobs}")
     print(f"calibration files changed: {len(changed)} of {len(hashes)}: {', '.join(changed)}")
-    print(f"{UNIT[1]} {UNIT[2]}: {last['excess']:.3g} -> {now['excess']:.3g} times the floor in session; "
-          f"on {now['next_session']['session']}: {last['next_session']['excess']:.3g} -> "
-          f"{now['next_session']['excess']:.3g}; the fix was expected to reach {last['fix']['excess']:.3g} "
-          f"and {last['fix']['next_excess']:.3g}")
-    print("report: " + " ".join(html.unescape(re.sub(r"<[^>]+>", "", since.group(1))).split()) if since else
-          "report: no 'since the last model' paragraph")
+    print(
+        f"{UNIT[1]} {UNIT[2]}: {last['excess']:.3g} -> {now['excess']:.3g} times the floor in session; "
+        f"on {now['next_session']['session']}: {last['next_session']['excess']:.3g} -> "
+        f"{now['next_session']['excess']:.3g}; the fix was expected to reach {last['fix']['excess']:.3g} "
+        f"and {last['fix']['next_excess']:.3g}"
+    )
+    print(
+        "report: " + " ".join(html.unescape(re.sub(r"<[^>]+>", "", since.group(1))).split())
+        if since
+        else "report: no 'since the last model' paragraph"
+    )
     others = [c for c in changed if f"/{UNIT[1]}/" not in c]
     if not args.keep:
         shutil.rmtree(folder)

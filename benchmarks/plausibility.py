@@ -32,9 +32,9 @@ from host import cores, cpu_name  # noqa: E402
 
 def run_case(case, unit_seed: int, folder: str) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run
+    from gyrocal.pipeline.config import Settings
 
     effect, protocol, noise, _ = case
     gyrocal_protocol = "turntable" if protocol.startswith("turntable") else protocol
@@ -65,17 +65,21 @@ def main(argv=None) -> int:
             row = f.result()
             rows.append(row)
             said = f"error: {row['error']}" if "error" in row else (", ".join(row["warnings"]) or "-")
-            print(f"{row['effect']:<24} {row['protocol']:<11} {row['noise']:<9} {row['unit']:>2}  {said}",
-                  flush=True)
+            print(
+                f"{row['effect']:<24} {row['protocol']:<11} {row['noise']:<9} {row['unit']:>2}  {said}",
+                flush=True,
+            )
     errors = sum("error" in r for r in rows)
     warned = [r for r in rows if r.get("warnings")]
     codes: dict[str, int] = {}
     for r in warned:
         for c in r["warnings"]:
             codes[c] = codes.get(c, 0) + 1
-    print(f"\n{len(rows)} units: {errors} refused, {len(warned)} with warnings "
-          f"({', '.join(f'{c} {n}' for c, n in sorted(codes.items())) or 'none'}), "
-          f"{len(rows) - errors - len(warned)} without; {time.perf_counter() - started:.0f} s")
+    print(
+        f"\n{len(rows)} units: {errors} refused, {len(warned)} with warnings "
+        f"({', '.join(f'{c} {n}' for c, n in sorted(codes.items())) or 'none'}), "
+        f"{len(rows) - errors - len(warned)} without; {time.perf_counter() - started:.0f} s"
+    )
     return 0
 
 

@@ -61,6 +61,7 @@ def log_at(rate: float) -> Path:
     if not path.exists():
         sys.path.insert(0, str(ROOT))
         from gyrocal.simulate import rig_for, simulate
+
         rig = replace(rig_for("turntable", "seed", {}), sample_rate=float(rate))
         print(f"# simulating {path} (once)", flush=True)
         simulate(path.parent, units=1, seed=7, rig=rig)
@@ -88,20 +89,32 @@ def quartiles(values: list[float]) -> tuple[float, float, float]:
 
 def commands(log: Path, scratch: Path) -> dict[str, list[str]]:
     import pyarrow.parquet as pq
+
     sys.path.insert(0, str(ROOT))
     from gyrocal.io.log import REQUIRED
     from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+
     names = pq.read_schema(log).names
     columns = list(REQUIRED) + [c for c in LOG_COLUMNS if c in names]
     gyrocal = [sys.executable, "-m", "gyrocal"]
     return {
-        "read": [sys.executable, "-c", "import sys, pyarrow.parquet as pq; "
-                 f"pq.read_table(sys.argv[1], columns={columns!r})", str(log)],
+        "read": [
+            sys.executable,
+            "-c",
+            f"import sys, pyarrow.parquet as pq; pq.read_table(sys.argv[1], columns={columns!r})",
+            str(log),
+        ],
         "readwrite": [sys.executable, "-c", READ_WRITE, str(log), str(scratch / "rewritten.parquet")],
         "calibrate": [*gyrocal, "calibrate", str(log), "-o", str(scratch / "cal.json")],
         "diagnose": [*gyrocal, "diagnose", str(log), "-o", str(scratch / "diag.json")],
-        "apply": [*gyrocal, "apply", str(scratch / "cal.json"), str(log), "-o",
-                  str(scratch / "applied.parquet")],
+        "apply": [
+            *gyrocal,
+            "apply",
+            str(scratch / "cal.json"),
+            str(log),
+            "-o",
+            str(scratch / "applied.parquet"),
+        ],
     }
 
 
@@ -109,24 +122,30 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rates", default="25,100,1000", help="sample rates, Hz")
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--only", default=",".join(PROCESSES[2:]),
-                        help="gyrocal processes to time beside the read-only one")
+    parser.add_argument(
+        "--only", default=",".join(PROCESSES[2:]), help="gyrocal processes to time beside the read-only one"
+    )
     args = parser.parse_args()
     import pyarrow.parquet as pq
+
     only = args.only.split(",")
     wanted = ["read"] + [p for p in PROCESSES[1:] if p in only or (p == "readwrite" and "apply" in only)]
     load = os.getloadavg()
-    print(f"# {dt.datetime.now():%Y-%m-%d %H:%M}, {cpu_name()}, {cores()}, Python "
-          f"{sys.version.split()[0]}; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; "
-          f"{args.repeat} interleaved runs per process")
-    print(f"{'rate':>6} {'rows':>12} {'process':<10} {'wall s: median':>15} {'(quartiles)':>14} "
-          f"{'÷ read':>7} {'(quartiles)':>14} {'peak MiB':>9} {'MiB/Mrow':>9}")
+    print(
+        f"# {dt.datetime.now():%Y-%m-%d %H:%M}, {cpu_name()}, {cores()}, Python "
+        f"{sys.version.split()[0]}; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; "
+        f"{args.repeat} interleaved runs per process"
+    )
+    print(
+        f"{'rate':>6} {'rows':>12} {'process':<10} {'wall s: median':>15} {'(quartiles)':>14} "
+        f"{'÷ read':>7} {'(quartiles)':>14} {'peak MiB':>9} {'MiB/Mrow':>9}"
+    )
     for rate in (float(r) for r in args.rates.split(",")):
         log = log_at(rate)
         rows = pq.read_metadata(log).num_rows
         with tempfile.TemporaryDirectory() as scratch:
             argv = commands(log, Path(scratch))
-            run(argv["calibrate"])   # apply reads the calibration; also warms the page cache
+            run(argv["calibrate"])  # apply reads the calibration; also warms the page cache
             results = {name: [] for name in wanted}
             for _ in range(args.repeat):
                 for name in wanted:
@@ -135,14 +154,17 @@ def main() -> None:
             q1, q2, q3 = quartiles([w for w, _ in values])
             r1, r2, r3 = quartiles([w / r[0] for (w, _), r in zip(values, results["read"], strict=False)])
             peak = max(m for _, m in values)
-            print(f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
-                  f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
-                  flush=True)
+            print(
+                f"{rate:>6g} {rows:>12,} {name:<10} {q2:>15.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
+                f"{r2:>6.2f}× {f'({r1:.2f}–{r3:.2f})':>14} {peak:>9.0f} {peak / rows * 1e6:>9.1f}",
+                flush=True,
+            )
         for num, den in (("diagnose", "calibrate"), ("apply", "readwrite")):
             if num in results and den in results:
-                d1, d2, d3 = quartiles([d / c for (d, _), (c, _) in zip(results[num], results[den], strict=False)])
-                print(f"{rate:>6g} {'':>12} {num} ÷ {den}, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})",
-                      flush=True)
+                d1, d2, d3 = quartiles(
+                    [d / c for (d, _), (c, _) in zip(results[num], results[den], strict=False)]
+                )
+                print(f"{rate:>6g} {'':>12} {num} ÷ {den}, paired: {d2:.2f}× ({d1:.2f}–{d3:.2f})", flush=True)
 
 
 if __name__ == "__main__":

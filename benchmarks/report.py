@@ -58,8 +58,9 @@ print(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
 
 def in_job(results: Path, html: Path) -> float:
     """CPU s of the report stage in a process that already holds the analyse stage's imports."""
-    out = subprocess.run([sys.executable, "-c", IN_JOB, str(results), str(html)], check=True,
-                         capture_output=True, text=True)
+    out = subprocess.run(
+        [sys.executable, "-c", IN_JOB, str(results), str(html)], check=True, capture_output=True, text=True
+    )
     return float(out.stdout.split()[-1])
 
 
@@ -69,11 +70,15 @@ def unit(preset: str) -> tuple[Path, Path]:
     log, results = folder / "U001.parquet", folder / "U001"
     folder.mkdir(parents=True, exist_ok=True)
     if not log.exists():
-        subprocess.run([*GYROCAL, "simulate", "--log", str(log), "--device", "U001", "--seed", "7",
-                        "--preset", preset], check=True, stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [*GYROCAL, "simulate", "--log", str(log), "--device", "U001", "--seed", "7", "--preset", preset],
+            check=True,
+            stdout=subprocess.DEVNULL,
+        )
     if not (results / "analysis.zip").exists():
-        subprocess.run([*GYROCAL, "segment", str(log), "--out", str(results)], check=True,
-                       stdout=subprocess.DEVNULL)
+        subprocess.run(
+            [*GYROCAL, "segment", str(log), "--out", str(results)], check=True, stdout=subprocess.DEVNULL
+        )
         subprocess.run([*GYROCAL, "analyse", str(results)], check=True, stdout=subprocess.DEVNULL)
     return log, results
 
@@ -82,11 +87,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    print(f"{cpu_name()}, {cores()}, Python {sys.version.split()[0]}, "
-          f"load {' '.join(Path('/proc/loadavg').read_text().split()[:3])}, "
-          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
-    print(f"{'log':<6} {'report wall s':>16} {'CPU s':>12} {'peak MiB':>9} {'bytes':>9} {'figures':>9}"
-          f"   {'calibrate wall s, CPU s':>24}   {'in the analyse job, CPU s':>26}")
+    print(
+        f"{cpu_name()}, {cores()}, Python {sys.version.split()[0]}, "
+        f"load {' '.join(Path('/proc/loadavg').read_text().split()[:3])}, "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}"
+    )
+    print(
+        f"{'log':<6} {'report wall s':>16} {'CPU s':>12} {'peak MiB':>9} {'bytes':>9} {'figures':>9}"
+        f"   {'calibrate wall s, CPU s':>24}   {'in the analyse job, CPU s':>26}"
+    )
     for preset in ("quick", "seed"):
         log, results = unit(preset)
         html = CACHE / preset / "U001.html"
@@ -94,12 +103,16 @@ def main() -> None:
         walls, cpus, peaks = zip(*runs, strict=False)
         text = html.read_text()
         figures = sum(len(s) for s in re.findall(r"<svg.*?</svg>", text, flags=re.S))
-        cal_wall, cal_cpu, _ = timed([*GYROCAL, "calibrate", str(log), "-o", str(CACHE / preset / "cal.json")])
+        cal_wall, cal_cpu, _ = timed(
+            [*GYROCAL, "calibrate", str(log), "-o", str(CACHE / preset / "cal.json")]
+        )
         extra = [in_job(results, html) for _ in range(args.repeat)]
-        print(f"{preset:<6} {statistics.median(walls):>7.2f} ({min(walls):.2f}) "
-              f"{statistics.median(cpus):>6.2f} ({min(cpus):.2f}) {max(peaks):>9.0f} "
-              f"{len(text.encode()):>9,} {figures:>9,}   {cal_wall:>12.2f}, {cal_cpu:.2f}"
-              f"   {statistics.median(extra):>26.2f}")
+        print(
+            f"{preset:<6} {statistics.median(walls):>7.2f} ({min(walls):.2f}) "
+            f"{statistics.median(cpus):>6.2f} ({min(cpus):.2f}) {max(peaks):>9.0f} "
+            f"{len(text.encode()):>9,} {figures:>9,}   {cal_wall:>12.2f}, {cal_cpu:.2f}"
+            f"   {statistics.median(extra):>26.2f}"
+        )
 
 
 if __name__ == "__main__":

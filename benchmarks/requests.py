@@ -27,8 +27,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from gyrocal.run.guard import costs  # noqa: E402
 from host import job_files  # noqa: E402
+
+from gyrocal.run.guard import costs  # noqa: E402
 
 
 def records(sources: list[Path]) -> dict[str, np.ndarray]:
@@ -48,29 +49,39 @@ def records(sources: list[Path]) -> dict[str, np.ndarray]:
 def requests(rows: np.ndarray) -> dict[str, int]:
     wall, cpu, peak = rows.T
     cores = np.median(cpu / np.maximum(wall, 1e-3))
-    return {"threads": 2 if cores > 1.5 else 1,
-            "mem_mb": max(500, int(math.ceil(peak.max() * 1.5 / 100.0)) * 100),
-            "runtime": max(1, int(math.ceil(wall.max() * 3 / 60.0)))}
+    return {
+        "threads": 2 if cores > 1.5 else 1,
+        "mem_mb": max(500, int(math.ceil(peak.max() * 1.5 / 100.0)) * 100),
+        "runtime": max(1, int(math.ceil(wall.max() * 3 / 60.0))),
+    }
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("sources", nargs="+", type=Path,
-                        help="a run's saved output, SLURM job logs, or folders of them")
+    parser.add_argument(
+        "sources", nargs="+", type=Path, help="a run's saved output, SLURM job logs, or folders of them"
+    )
     args = parser.parse_args(argv)
     found = records(args.sources)
     if not found:
-        print("no line of the guard's (gyrocal.run.guard: STAGE of FOLDER took ...) in "
-              + ", ".join(map(str, args.sources)), file=sys.stderr)
+        print(
+            "no line of the guard's (gyrocal.run.guard: STAGE of FOLDER took ...) in "
+            + ", ".join(map(str, args.sources)),
+            file=sys.stderr,
+        )
         return 1
-    print(f"{'stage':<8} {'jobs':>5}  {'wall s (median, 95 %, max)':<28} {'cores used (median)':>19}  "
-          f"{'peak MiB (median, 95 %, max)':<30} requests")
+    print(
+        f"{'stage':<8} {'jobs':>5}  {'wall s (median, 95 %, max)':<28} {'cores used (median)':>19}  "
+        f"{'peak MiB (median, 95 %, max)':<30} requests"
+    )
     for stage, rows in found.items():
         wall, cpu, peak = rows.T
         q = lambda v: f"{np.median(v):.1f}, {np.percentile(v, 95):.1f}, {v.max():.1f}"  # noqa: E731
         r = requests(rows)
-        print(f"{stage:<8} {len(rows):>5}  {q(wall):<28} {np.median(cpu / np.maximum(wall, 1e-3)):>19.2f}  "
-              f"{q(peak):<30} threads {r['threads']}, mem_mb {r['mem_mb']}, runtime {r['runtime']} min")
+        print(
+            f"{stage:<8} {len(rows):>5}  {q(wall):<28} {np.median(cpu / np.maximum(wall, 1e-3)):>19.2f}  "
+            f"{q(peak):<30} threads {r['threads']}, mem_mb {r['mem_mb']}, runtime {r['runtime']} min"
+        )
     return 0
 
 

@@ -50,10 +50,20 @@ sys.path.insert(0, str(ROOT))
 PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo", "ferraris", "static")
 READERS = ("apply", "export", "lookup", "validate", "report", "revalidate", "drift")
 # Effects of the zoo that every protocol's log carries (the rest need a protocol of theirs).
-EFFECTS = ("none", "none", "g_sensitivity", "scale_quadratic", "scale_cubic", "warmup",
-           "die_lag", "temp_rate", "bias_quadratic_temp", "run_to_run_bias", "hysteresis")
-FERRARIS_KINDS = ("clean", "annotated", "steps", "temperature", "gsens", "fast", "shuffled",
-                  "sections_only")
+EFFECTS = (
+    "none",
+    "none",
+    "g_sensitivity",
+    "scale_quadratic",
+    "scale_cubic",
+    "warmup",
+    "die_lag",
+    "temp_rate",
+    "bias_quadratic_temp",
+    "run_to_run_bias",
+    "hysteresis",
+)
+FERRARIS_KINDS = ("clean", "annotated", "steps", "temperature", "gsens", "fast", "shuffled", "sections_only")
 
 # A term file, as a user writes one (docs/effects.md): the model may name its term.
 USER_TERMS = '''
@@ -91,30 +101,72 @@ TURNTABLE_MODELS = [
     ("die_temperature", {"terms": ["die_temperature"]}),
     # Knots at quantiles of the session's time, as the diagnosis offers them ({knots_t}).
     ("smooth(t)", {"terms": ['smooth(input="t", knots={knots_t})']}),
-    ("smooth(rate_own)", {"terms": ['smooth(input="rate_own", knots=[-400, -100, 0, 100, 400], '
-                                    'by="rate_own")']}),
-    ("formula exp(-t/tau) profiled", {"terms": [
-        "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 900.0}, "
-        "profile={'tau': [100.0, 9000.0]})"]}),
+    (
+        "smooth(rate_own)",
+        {"terms": ['smooth(input="rate_own", knots=[-400, -100, 0, 100, 400], by="rate_own")']},
+    ),
+    (
+        "formula exp(-t/tau) profiled",
+        {
+            "terms": [
+                "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 900.0}, "
+                "profile={'tau': [100.0, 9000.0]})"
+            ]
+        },
+    ),
     ("formula fixed", {"terms": ["expression(label='rate_cube', formula='rate_own ** 3')"]}),
     ("user term file", {"terms": ["user_rate_abs"], "term_file": True}),
-    ("continuous", {"model": {"kind": "continuous", "terms": [
-        "bias", "scale", "misalignment", "bias_temp_poly(degree=3)", "scale_temp_poly",
-        "misalignment_temp"]}}),
-    ("continuous + die_temperature", {"model": {"kind": "continuous", "terms": [
-        "bias", "scale", "misalignment", "bias_temp_poly(degree=2)", "scale_temp_poly",
-        "die_temperature"]}}),
+    (
+        "continuous",
+        {
+            "model": {
+                "kind": "continuous",
+                "terms": [
+                    "bias",
+                    "scale",
+                    "misalignment",
+                    "bias_temp_poly(degree=3)",
+                    "scale_temp_poly",
+                    "misalignment_temp",
+                ],
+            }
+        },
+    ),
+    (
+        "continuous + die_temperature",
+        {
+            "model": {
+                "kind": "continuous",
+                "terms": [
+                    "bias",
+                    "scale",
+                    "misalignment",
+                    "bias_temp_poly(degree=2)",
+                    "scale_temp_poly",
+                    "die_temperature",
+                ],
+            }
+        },
+    ),
 ]
 SWEEP_MODELS = [
     ("default", {}),
-    ("bias_temp_poly(degree=2)", {"model": {"kind": "continuous", "terms": [
-        "bias", "bias_temp_poly(degree=2)"]}}),
+    (
+        "bias_temp_poly(degree=2)",
+        {"model": {"kind": "continuous", "terms": ["bias", "bias_temp_poly(degree=2)"]}},
+    ),
     ("die_temperature", {"terms": ["die_temperature"]}),
     ("temp_rate (profiled)", {"terms": ["temp_rate"]}),
     ("smooth(temp)", {"terms": ['smooth(input="temp", knots=[-20, 0, 20, 40, 60])']}),
-    ("formula profiled", {"terms": [
-        "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 900.0}, "
-        "profile={'tau': [100.0, 9000.0]})"]}),
+    (
+        "formula profiled",
+        {
+            "terms": [
+                "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 900.0}, "
+                "profile={'tau': [100.0, 9000.0]})"
+            ]
+        },
+    ),
     ("grid", {"model": {"kind": "grid", "terms": ["bias"], "interpolation": "linear"}}),
 ]
 FERRARIS_MODELS = [
@@ -124,35 +176,55 @@ FERRARIS_MODELS = [
 # A unit lying still (tests/chamber's host-stamped IMU): the bias, or a drift in time too.
 STATIC_MODELS = [
     ("default", {}),
-    ("formula profiled", {"terms": [
-        "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 60.0}, "
-        "profile={'tau': [10.0, 600.0]})"]}),
+    (
+        "formula profiled",
+        {
+            "terms": [
+                "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 60.0}, "
+                "profile={'tau': [10.0, 600.0]})"
+            ]
+        },
+    ),
 ]
-MODELS = {"turntable": TURNTABLE_MODELS, "sweep": SWEEP_MODELS, "servo": [("default", {})],
-          "ferraris": FERRARIS_MODELS, "static": STATIC_MODELS}
+MODELS = {
+    "turntable": TURNTABLE_MODELS,
+    "sweep": SWEEP_MODELS,
+    "servo": [("default", {})],
+    "ferraris": FERRARIS_MODELS,
+    "static": STATIC_MODELS,
+}
 
 
 def draw_case(index: int, seed: int = 0) -> dict:
     """The unit ``index`` of a benchmark run: everything drawn from (seed, index)."""
     rng = np.random.default_rng([seed, index, 35])
-    protocol = PROTOCOLS[index % len(PROTOCOLS)]          # every protocol equally often
+    protocol = PROTOCOLS[index % len(PROTOCOLS)]  # every protocol equally often
     family = protocol.rstrip("36") if protocol.startswith("turntable") else protocol
     models = MODELS[family]
     label, model = models[int(rng.integers(len(models)))]
     if protocol.startswith("turntable") and model.get("mounts"):
         protocol = f"turntable{model['mounts']}"
-    case = {"index": index, "protocol": protocol, "family": family, "model_label": label,
-            "model": model, "unit_seed": int(rng.integers(1, 10_000))}
+    case = {
+        "index": index,
+        "protocol": protocol,
+        "family": family,
+        "model_label": label,
+        "model": model,
+        "unit_seed": int(rng.integers(1, 10_000)),
+    }
     if family == "static":
         case["noise_scale"] = float(10 ** rng.uniform(-1.0, 1.0))
         return case
     if family == "ferraris":
         kinds = [k for k in FERRARIS_KINDS if not (label == "g_sensitivity" and k == "sections_only")]
-        case["kind"] = kinds[int(rng.integers(len(kinds)))]   # g_sensitivity reads the accelerometer
+        case["kind"] = kinds[int(rng.integers(len(kinds)))]  # g_sensitivity reads the accelerometer
         return case
     case["noise"] = "coloured" if rng.random() < 0.3 else "white"
-    case["effect"] = EFFECTS[int(rng.integers(len(EFFECTS)))] if family != "servo" else \
-        ("none", "g_sensitivity", "scale_quadratic")[int(rng.integers(3))]
+    case["effect"] = (
+        EFFECTS[int(rng.integers(len(EFFECTS)))]
+        if family != "servo"
+        else ("none", "g_sensitivity", "scale_quadratic")[int(rng.integers(3))]
+    )
     # The unit's sizes across their range: a decade below to a decade above the drawn ones.
     case["coefficient_scale"] = float(10 ** rng.uniform(-1.5, 1.0))
     case["noise_scale"] = float(10 ** rng.uniform(-1.0, 1.0))
@@ -161,10 +233,17 @@ def draw_case(index: int, seed: int = 0) -> dict:
 
 def _unit_overrides(unit_seed: int, case: dict) -> dict:
     from benchmarks.zoo.generator import _draw_base, _draw_noise
+
     base, noise = _draw_base(unit_seed), _draw_noise(unit_seed, case["noise"])
     k = case["coefficient_scale"]
-    return {"s0": base["s0"] * k, "s1": base["s1"] * k, "M": base["M"] * k, "b0": base["b0"] * k,
-            "b1": base["b1"] * k, "arw_dps_rthz": noise["arw_dps_rthz"] * case["noise_scale"]}
+    return {
+        "s0": base["s0"] * k,
+        "s1": base["s1"] * k,
+        "M": base["M"] * k,
+        "b0": base["b0"] * k,
+        "b1": base["b1"] * k,
+        "arw_dps_rthz": noise["arw_dps_rthz"] * case["noise_scale"],
+    }
 
 
 def write_logs(case: dict, folder: Path, *, small: bool = False) -> list[Path]:
@@ -172,35 +251,51 @@ def write_logs(case: dict, folder: Path, *, small: bool = False) -> list[Path]:
     logs = [folder / f"s{s}.parquet" for s in (0, 1)]
     if case["family"] == "ferraris":
         from tests.ferraris_gen.generate import session
+
         for s, path in enumerate(logs):
             session(case["kind"], case["unit_seed"] * 10 + s, path)
         return logs
-    if case["family"] == "static":   # arrival-stamped, stalls and bunches: tests/chamber
+    if case["family"] == "static":  # arrival-stamped, stalls and bunches: tests/chamber
         from tests.chamber.generator import NoiseModel, host_stamped_log, write_contract
+
         noise = NoiseModel(arw_deg_rt_h=0.3 * case["noise_scale"])
         for s, path in enumerate(logs):
-            write_contract(host_stamped_log(case["unit_seed"] * 10 + s, duration_s=60.0 if small else 300.0,
-                                            noise=noise), path)
+            write_contract(
+                host_stamped_log(
+                    case["unit_seed"] * 10 + s, duration_s=60.0 if small else 300.0, noise=noise
+                ),
+                path,
+            )
         return logs
     from benchmarks.zoo.generator import make_unit, write_session
-    unit = make_unit(effect=case["effect"], protocol=case["protocol"], noise=case["noise"],
-                     seed=case["unit_seed"], **_unit_overrides(case["unit_seed"], case))
+
+    unit = make_unit(
+        effect=case["effect"],
+        protocol=case["protocol"],
+        noise=case["noise"],
+        seed=case["unit_seed"],
+        **_unit_overrides(case["unit_seed"], case),
+    )
     options = {}
     if case["family"] == "sweep":
         options = {"ramp_c_per_h": 60.0 if small else 45.0}
     elif case["family"] == "turntable" and small:
-        options = {"temps": [-10.0, 10.0, 30.0, 50.0], "rates": [0.0, 50.0, -50.0, 200.0, -200.0],
-                   "hold_s": 8.0, "soak_s": 120.0}
+        options = {
+            "temps": [-10.0, 10.0, 30.0, 50.0],
+            "rates": [0.0, 50.0, -50.0, 200.0, -200.0],
+            "hold_s": 8.0,
+            "soak_s": 120.0,
+        }
     rate = 2.0 if case["family"] == "sweep" else (10.0 if small or case["family"] != "servo" else 25.0)
     for s, path in enumerate(logs):
-        write_session(unit, path, session=s, seed=1000 * case["unit_seed"] + s, rate_hz=rate,
-                      **options)
+        write_session(unit, path, session=s, seed=1000 * case["unit_seed"] + s, rate_hz=rate, **options)
     return logs
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:
     """gyrocal's command line in this process: its exit status and what it wrote to stderr."""
     from gyrocal.run.cli import main
+
     err = io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
         status = main(argv)
@@ -208,8 +303,11 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 
 def _outcome(status: int, err: str) -> tuple[str, str]:
-    errors = [line for line in err.splitlines() if line.startswith("gyrocal: ")
-              and "warning" not in line.split(":")[1]]
+    errors = [
+        line
+        for line in err.splitlines()
+        if line.startswith("gyrocal: ") and "warning" not in line.split(":")[1]
+    ]
     message = errors[-1] if errors else err.splitlines()[-1] if err else ""
     if status == 0:
         return "read", ""
@@ -223,6 +321,7 @@ def _outcome(status: int, err: str) -> tuple[str, str]:
 def _settings_args(case: dict, folder: Path, log: Path) -> list[str]:
     model = case["model"]
     import pyarrow.parquet as pq
+
     t = pq.read_table(log, columns=["t"])["t"].to_numpy()
     knots_t = [round(float(q)) for q in np.quantile(t - t[0], [0.02, 0.25, 0.5, 0.75, 0.98])]
     args = ["--protocol", "turntable" if case["family"] == "turntable" else case["family"]]
@@ -232,6 +331,7 @@ def _settings_args(case: dict, folder: Path, log: Path) -> list[str]:
         args += ["--terms", str(path)]
     if "model" in model:
         import yaml
+
         path = folder / "model.yaml"
         path.write_text(yaml.safe_dump({"model": model["model"]}))
         args += ["--model", str(path)]
@@ -242,8 +342,8 @@ def _settings_args(case: dict, folder: Path, log: Path) -> list[str]:
 
 def run_case(case: dict, folder: str | Path, *, small: bool = False) -> dict:
     """Calibrate both sessions, then hand the first session's file to every reader."""
-    from gyrocal.fleet import drift
     from gyrocal.calibration.file import load_calibration
+    from gyrocal.fleet import drift
     from gyrocal.io.errors import GyrocalError
 
     folder = Path(folder)
@@ -258,8 +358,19 @@ def run_case(case: dict, folder: str | Path, *, small: bool = False) -> dict:
     cals = []
     for s, log in enumerate(logs):
         cal = caldir / f"2026-0{s + 1}-01.json"
-        status, err = _cli(["calibrate", str(log), "-o", str(cal), "--device", device,
-                            "--session", f"2026-0{s + 1}-01", *settings])
+        status, err = _cli(
+            [
+                "calibrate",
+                str(log),
+                "-o",
+                str(cal),
+                "--device",
+                device,
+                "--session",
+                f"2026-0{s + 1}-01",
+                *settings,
+            ]
+        )
         if status != 0:
             row["calibrate"] = ("failed" if "internal error" in err else "not calibrated", err)
             row["seconds"] = round(time.perf_counter() - started, 1)
@@ -269,11 +380,13 @@ def run_case(case: dict, folder: str | Path, *, small: bool = False) -> dict:
     terms = [a for a in settings if a.endswith(".py")]
     term_args = ["--terms", terms[0]] if terms else []
     out = {}
-    out["apply"] = _outcome(*_cli(["apply", str(cals[0]), str(logs[1]),
-                                   "-o", str(folder / "applied.parquet"), *term_args]))
+    out["apply"] = _outcome(
+        *_cli(["apply", str(cals[0]), str(logs[1]), "-o", str(folder / "applied.parquet"), *term_args])
+    )
     out["export"] = _outcome(*_cli(["export", str(cals[0]), "-o", str(folder / "cal.h")]))
-    out["lookup"] = _outcome(*_cli(["lookup", str(folder / "calibrations"), device,
-                                    "--date", "2026-01-15", "--json"]))
+    out["lookup"] = _outcome(
+        *_cli(["lookup", str(folder / "calibrations"), device, "--date", "2026-01-15", "--json"])
+    )
     # The workflow's stages: the file in a segmented unit's folder, as `fit` leaves it.
     unit = folder / "unit"
     status, err = _cli(["segment", str(logs[0]), "--out", str(unit), *settings_without_model(settings)])
@@ -282,11 +395,16 @@ def run_case(case: dict, folder: str | Path, *, small: bool = False) -> dict:
     else:
         shutil.copy(cals[0], unit / "calibration.json")
         out["validate"] = _outcome(*_cli(["validate", str(unit), *settings]))
-        out["report"] = _outcome(*_cli(["report", str(unit), "-o", str(folder / "report.html"),
-                                        *settings_without_model(settings)]))
-    for name, work in (("revalidate", lambda: drift.revalidate(load_calibration(cals[0]),
-                                                               _observations(logs[1], case, settings))),
-                       ("drift", lambda: drift.parameter_changes([load_calibration(c) for c in cals]))):
+        out["report"] = _outcome(
+            *_cli(["report", str(unit), "-o", str(folder / "report.html"), *settings_without_model(settings)])
+        )
+    for name, work in (
+        (
+            "revalidate",
+            lambda: drift.revalidate(load_calibration(cals[0]), _observations(logs[1], case, settings)),
+        ),
+        ("drift", lambda: drift.parameter_changes([load_calibration(c) for c in cals])),
+    ):
         try:
             work()
             out[name] = ("read", "")
@@ -315,9 +433,11 @@ def settings_without_model(settings: list[str]) -> list[str]:
 
 def _observations(log, case, settings_args):
     from gyrocal.pipeline.chain import segment_log
-    from gyrocal.run.cli import build_parser, _settings
-    args = build_parser().parse_args(["segment", str(log), "--out", "unused",
-                                      *settings_without_model(settings_args)])
+    from gyrocal.run.cli import _settings, build_parser
+
+    args = build_parser().parse_args(
+        ["segment", str(log), "--out", "unused", *settings_without_model(settings_args)]
+    )
     return segment_log(log, _settings(args), args.protocol).observations
 
 

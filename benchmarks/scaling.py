@@ -44,10 +44,12 @@ from host import cores, cpu_name
 from process import CACHE, ROOT, log_at, quartiles
 
 PROCESSES = ("calibrate", "diagnose")
-DENSE = ("import sys; sys.path[:0] = [sys.argv.pop(1)]; import gyrocal.run.blas_threads; "
-         "import gyrocal.fit.model, tests.wander_reference as r; "
-         "gyrocal.fit.model._whiteners = r.dense_model_whiteners; "
-         "from gyrocal.run.cli import main; sys.argv[0] = 'gyrocal'; sys.exit(main())")
+DENSE = (
+    "import sys; sys.path[:0] = [sys.argv.pop(1)]; import gyrocal.run.blas_threads; "
+    "import gyrocal.fit.model, tests.wander_reference as r; "
+    "gyrocal.fit.model._whiteners = r.dense_model_whiteners; "
+    "from gyrocal.run.cli import main; sys.argv[0] = 'gyrocal'; sys.exit(main())"
+)
 
 
 def zoo_log(path: Path, protocol: str, **session) -> Path:
@@ -56,6 +58,7 @@ def zoo_log(path: Path, protocol: str, **session) -> Path:
     if not path.exists():
         sys.path.insert(0, str(ROOT))
         from benchmarks.zoo.generator import make_unit, write_session
+
         path.parent.mkdir(parents=True, exist_ok=True)
         print(f"# simulating {path} (once)", flush=True)
         unit = make_unit(effect="none", protocol=protocol, noise="coloured", seed=1)
@@ -66,8 +69,9 @@ def zoo_log(path: Path, protocol: str, **session) -> Path:
 def sweep_log(hours: float) -> Path:
     """A zoo sweep ``hours`` long: -20 → 60 → -20 °C with three 20-minute dwells, so its
     ramps take hours - 1 h."""
-    return zoo_log(CACHE / "zoo_sweep" / f"sweep_{hours:g}h.parquet", "sweep",
-                   ramp_c_per_h=160.0 / (hours - 1.0))
+    return zoo_log(
+        CACHE / "zoo_sweep" / f"sweep_{hours:g}h.parquet", "sweep", ramp_c_per_h=160.0 / (hours - 1.0)
+    )
 
 
 def turntable_log(points: int) -> Path:
@@ -103,8 +107,10 @@ def run(argv: list[str], timeout: float | None = None) -> tuple[float, float, st
 def commands(log: Path, scratch: Path, protocol: str, dense: bool) -> dict[str, list[str]]:
     head = [sys.executable, "-c", DENSE, str(ROOT)] if dense else [sys.executable, "-m", "gyrocal"]
     options = ["--protocol", protocol] if protocol != "turntable" else []
-    return {"calibrate": [*head, "calibrate", str(log), *options, "-o", str(scratch / "cal.json")],
-            "diagnose": [*head, "diagnose", str(log), *options, "-o", str(scratch / "diag.json")]}
+    return {
+        "calibrate": [*head, "calibrate", str(log), *options, "-o", str(scratch / "cal.json")],
+        "diagnose": [*head, "diagnose", str(log), *options, "-o", str(scratch / "diag.json")],
+    }
 
 
 def holds_of(stdout: str) -> int:
@@ -114,6 +120,7 @@ def holds_of(stdout: str) -> int:
 
 def measure(name: str, log: Path, protocol: str, repeat: int) -> dict:
     import pyarrow.parquet as pq
+
     rows = pq.read_metadata(log).num_rows
     with tempfile.TemporaryDirectory() as scratch:
         argv = commands(log, Path(scratch), protocol, dense=False)
@@ -125,13 +132,20 @@ def measure(name: str, log: Path, protocol: str, repeat: int) -> dict:
     for p in PROCESSES:
         q1, q2, q3 = quartiles([w for w, _, _ in runs[p]])
         peak = max(m for _, m, _ in runs[p])
-        print(f"{name:<22} {rows:>10,} {holds:>6} {p:<10} {q2:>8.2f} {f'({q1:.2f}–{q3:.2f})':>14} "
-              f"{peak:>9.0f}", flush=True)
-    return {"rows": rows, "holds": holds, **{p: [w for w, _, _ in runs[p]] for p in PROCESSES},
-            "log": log, "protocol": protocol}
+        print(
+            f"{name:<22} {rows:>10,} {holds:>6} {p:<10} {q2:>8.2f} {f'({q1:.2f}–{q3:.2f})':>14} {peak:>9.0f}",
+            flush=True,
+        )
+    return {
+        "rows": rows,
+        "holds": holds,
+        **{p: [w for w, _, _ in runs[p]] for p in PROCESSES},
+        "log": log,
+        "protocol": protocol,
+    }
 
 
-DENSE_BYTES = 4 << 30   # the dense covariance's arrays (six of n x n doubles) at most
+DENSE_BYTES = 4 << 30  # the dense covariance's arrays (six of n x n doubles) at most
 
 
 def measure_dense(name: str, case: dict, timeout: float) -> bool:
@@ -139,20 +153,29 @@ def measure_dense(name: str, case: dict, timeout: float) -> bool:
     would not fit DENSE_BYTES (a shared machine)."""
     need = 6 * 8 * case["holds"] ** 2
     if need > DENSE_BYTES:
-        print(f"{name:<22} {case['rows']:>10,} {case['holds']:>6} dense: not run (its covariance "
-              f"arrays alone take {need / 2 ** 30:.1f} GiB)", flush=True)
+        print(
+            f"{name:<22} {case['rows']:>10,} {case['holds']:>6} dense: not run (its covariance "
+            f"arrays alone take {need / 2**30:.1f} GiB)",
+            flush=True,
+        )
         return False
     with tempfile.TemporaryDirectory() as scratch:
         argv = commands(case["log"], Path(scratch), case["protocol"], dense=True)
         for p in PROCESSES:
             result = run(argv[p], timeout)
             if result is None:
-                print(f"{name:<22} {case['rows']:>10,} {case['holds']:>6} {p:<10} dense: not "
-                      f"finished in {timeout:g} s", flush=True)
+                print(
+                    f"{name:<22} {case['rows']:>10,} {case['holds']:>6} {p:<10} dense: not "
+                    f"finished in {timeout:g} s",
+                    flush=True,
+                )
                 return False
             wall, peak, _ = result
-            print(f"{name:<22} {case['rows']:>10,} {case['holds']:>6} {p:<10} {wall:>8.2f} "
-                  f"{'(dense, once)':>14} {peak:>9.0f}", flush=True)
+            print(
+                f"{name:<22} {case['rows']:>10,} {case['holds']:>6} {p:<10} {wall:>8.2f} "
+                f"{'(dense, once)':>14} {peak:>9.0f}",
+                flush=True,
+            )
     return True
 
 
@@ -171,15 +194,20 @@ def main() -> None:
     parser.add_argument("--dense-timeout", type=float, default=900.0)
     args = parser.parse_args()
     load = os.getloadavg()
-    print(f"# {dt.datetime.now():%Y-%m-%d %H:%M}, {cpu_name()}, {cores()}, Python "
-          f"{sys.version.split()[0]}; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; "
-          f"{args.repeat} interleaved runs per process")
-    print(f"{'log':<22} {'rows':>10} {'holds':>6} {'process':<10} {'wall s':>8} {'(quartiles)':>14} "
-          f"{'peak MiB':>9}")
+    print(
+        f"# {dt.datetime.now():%Y-%m-%d %H:%M}, {cpu_name()}, {cores()}, Python "
+        f"{sys.version.split()[0]}; load average {load[0]:.2f}, {load[1]:.2f}, {load[2]:.2f}; "
+        f"{args.repeat} interleaved runs per process"
+    )
+    print(
+        f"{'log':<22} {'rows':>10} {'holds':>6} {'process':<10} {'wall s':>8} {'(quartiles)':>14} "
+        f"{'peak MiB':>9}"
+    )
     cases: dict[str, dict] = {}
     if not args.no_issue:
-        cases["turntable 100 Hz, seed"] = measure("turntable 100 Hz, seed", log_at(100.0), "turntable",
-                                                  args.repeat)
+        cases["turntable 100 Hz, seed"] = measure(
+            "turntable 100 Hz, seed", log_at(100.0), "turntable", args.repeat
+        )
         cases["issue sweep 15.4 h"] = measure("issue sweep 15.4 h", sweep_log(15.4), "sweep", args.repeat)
     for hours in (float(h) for h in args.hours.split(",") if h):
         cases[f"sweep {hours:g} h"] = measure(f"sweep {hours:g} h", sweep_log(hours), "sweep", args.repeat)
@@ -190,14 +218,20 @@ def main() -> None:
     print()
     if "issue sweep 15.4 h" in cases:
         sweep, table = cases["issue sweep 15.4 h"], cases["turntable 100 Hz, seed"]
-        print(f"issue sweep calibrate ÷ turntable 100 Hz calibrate, paired: "
-              f"{paired(sweep['calibrate'], table['calibrate'])}")
-        print(f"issue sweep diagnose ÷ its calibrate, paired: {paired(sweep['diagnose'], sweep['calibrate'])}")
+        print(
+            f"issue sweep calibrate ÷ turntable 100 Hz calibrate, paired: "
+            f"{paired(sweep['calibrate'], table['calibrate'])}"
+        )
+        print(
+            f"issue sweep diagnose ÷ its calibrate, paired: {paired(sweep['diagnose'], sweep['calibrate'])}"
+        )
     for small, big in (("sweep 16 h", "sweep 64 h"), ("turntable6 4 pt", "turntable6 16 pt")):
         if small in cases and big in cases:
             for p in PROCESSES:
-                print(f"{big} ÷ {small}, {p}, paired: {paired(cases[big][p], cases[small][p])} "
-                      f"for {cases[big]['holds'] / cases[small]['holds']:.2f}× the holds")
+                print(
+                    f"{big} ÷ {small}, {p}, paired: {paired(cases[big][p], cases[small][p])} "
+                    f"for {cases[big]['holds'] / cases[small]['holds']:.2f}× the holds"
+                )
     if args.dense:
         print()
         for kind in ("sweep", "turntable6"):

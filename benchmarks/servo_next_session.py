@@ -59,6 +59,7 @@ FIXTURE_DEG = [0.0, 0.05]
 
 def _settings(model: str):
     from gyrocal.pipeline.config import Settings
+
     return Settings.from_dict({"protocols": {"servo": {"options": {"calibration": model}}}})
 
 
@@ -66,6 +67,7 @@ def _revolutions(path):
     from gyrocal.io.log import read_log
     from gyrocal.protocols.servo import find_rotations
     from gyrocal.protocols.servo.fit import nominal_rates
+
     r = find_rotations(read_log(path)).revolutions
     m = r[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
     omega = r["ref_rate"].to_numpy()
@@ -78,8 +80,10 @@ def _judge(K, B, path) -> dict:
     w = np.linalg.solve(K, (m - B).T).T
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
     out = {}
-    for judge, error in (("magnitude", lambda x: np.linalg.norm(x, axis=1) - omega),
-                         ("nominal", lambda x: np.linalg.norm(x - commanded, axis=1))):
+    for judge, error in (
+        ("magnitude", lambda x: np.linalg.norm(x, axis=1) - omega),
+        ("nominal", lambda x: np.linalg.norm(x - commanded, axis=1)),
+    ):
         out[judge] = rms(error(m)) / rms(error(w))
         out[f"{judge}_rms"] = rms(error(w))
     return out
@@ -90,6 +94,7 @@ def _concatenate(paths, out):
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
+
     tables, offset = [], 0.0
     for p in paths:
         t = pq.read_table(p)
@@ -104,11 +109,16 @@ def servo_unit(seed: int, folder: Path) -> list[dict]:
     from benchmarks.zoo.generator import B_of_T, K_of_T, make_unit, write_session
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run
+
     unit = make_unit(effect="none", protocol="servo", seed=seed)
     truth = K_of_T(unit, 25.0), B_of_T(unit, 25.0)
     rows = []
-    for case, overrides, sessions in (("hand", {}, 2), ("six mounts", {"servo_six_mounts": True}, 2),
-                                      ("fixture", {"misalign_deg": FIXTURE_DEG}, 2), ("six axes", {}, 3)):
+    for case, overrides, sessions in (
+        ("hand", {}, 2),
+        ("six mounts", {"servo_six_mounts": True}, 2),
+        ("fixture", {"misalign_deg": FIXTURE_DEG}, 2),
+        ("six axes", {}, 3),
+    ):
         logs = []
         for s in range(sessions):
             path = folder / f"servo-{seed}-{case.replace(' ', '')}-s{s}.parquet"
@@ -126,17 +136,20 @@ def servo_unit(seed: int, folder: Path) -> list[dict]:
                 row[model] = {"error": str(exc).splitlines()[0]}
                 continue
             (K,), (B,) = result.calibration.matrices_at(np.array([25.0]))
-            row[model] = {**_judge(K, B, judge_log),
-                          "used": result.calibration.extra["servo"]["model"]["used"]}
+            row[model] = {
+                **_judge(K, B, judge_log),
+                "used": result.calibration.extra["servo"]["model"]["used"],
+            }
         rows.append(row)
     return rows
 
 
 def turntable_unit(seed: int, folder: Path) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect="none", protocol="turntable3", seed=seed)
     logs = []
     for s in (0, 1):
@@ -146,8 +159,13 @@ def turntable_unit(seed: int, folder: Path) -> dict:
     settings = Settings()
     cal = run(logs[0], settings).calibration
     check = revalidate(cal, segment_log(logs[1], settings, "turntable").observations)
-    return {"unit": seed, "case": "turntable", "ratio": check["uncompensated_rms"] / check["validation_rms"],
-            "validation_rms": check["validation_rms"], "excess": check["excess"]}
+    return {
+        "unit": seed,
+        "case": "turntable",
+        "ratio": check["uncompensated_rms"] / check["validation_rms"],
+        "validation_rms": check["validation_rms"],
+        "excess": check["excess"],
+    }
 
 
 def _spread(values) -> str:
@@ -163,21 +181,26 @@ def main(argv=None) -> int:
     parser.add_argument("--turntable-units", type=int, default=6, help="zoo turntable3 units (seeds 1..N)")
     parser.add_argument("--out", help="also write every row as JSON")
     args = parser.parse_args(argv)
-    from host import cores, cpu_name
     import pandas as pd
+    from host import cores, cpu_name
 
     from gyrocal.protocols.servo.montecarlo import cross_axis_study, cross_axis_summary
+
     started = time.perf_counter()
     study = cross_axis_summary(cross_axis_study(noise=(0.001, 0.035, 0.2)))
     study_s = time.perf_counter() - started
     with tempfile.TemporaryDirectory() as tmp:
         rows = [r for seed in range(1, args.units + 1) for r in servo_unit(seed, Path(tmp))]
         turn = [turntable_unit(seed, Path(tmp)) for seed in range(1, args.turntable_units + 1)]
-    print(f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, Python {platform.python_version()}, "
-          f"load {os.getloadavg()[0]:.1f}; {args.units} servo units, {args.turntable_units} turntable units, "
-          f"{time.perf_counter() - started:.0f} s")
-    print(f"\nMonte-Carlo study of the cross-axis terms ({study_s:.1f} s): next session ÷ floor, "
-          "improvement raw ÷ compensated (medians over 6000 runs)")
+    print(
+        f"# {time.strftime('%Y-%m-%d')}, {cpu_name()}, {cores()}, Python {platform.python_version()}, "
+        f"load {os.getloadavg()[0]:.1f}; {args.units} servo units, {args.turntable_units} turntable units, "
+        f"{time.perf_counter() - started:.0f} s"
+    )
+    print(
+        f"\nMonte-Carlo study of the cross-axis terms ({study_s:.1f} s): next session ÷ floor, "
+        "improvement raw ÷ compensated (medians over 6000 runs)"
+    )
     with pd.option_context("display.width", 250, "display.max_columns", 20, "display.max_rows", 200):
         print(study.to_string(index=False, float_format=lambda x: f"{x:.3g}"))
     print("\nper unit: raw ÷ compensated on the next session, magnitude / nominal judge (model used)")
@@ -185,10 +208,14 @@ def main(argv=None) -> int:
         cells = []
         for model in MODELS:
             x = r[model]
-            cells.append(f"{model} " + ("refused" if "error" in x else
-                                        f"{x['magnitude']:.3g}/{x['nominal']:.3g} ({x['used']})"))
-        print(f"unit {r['unit']:2d} {r['case']:10s} truth {r['truth']['magnitude']:.3g}/{r['truth']['nominal']:.3g}; "
-              + "; ".join(cells))
+            cells.append(
+                f"{model} "
+                + ("refused" if "error" in x else f"{x['magnitude']:.3g}/{x['nominal']:.3g} ({x['used']})")
+            )
+        print(
+            f"unit {r['unit']:2d} {r['case']:10s} truth {r['truth']['magnitude']:.3g}/{r['truth']['nominal']:.3g}; "
+            + "; ".join(cells)
+        )
     print("\nsummary: how many times the next session's error falls (raw ÷ compensated)")
     for case in ("hand", "six mounts", "fixture", "six axes"):
         part = [r for r in rows if r["case"] == case]
@@ -198,11 +225,15 @@ def main(argv=None) -> int:
                 done = [r[model] for r in part if "error" not in r[model]]
                 refused = len(part) - len(done)
                 used = sorted({x["used"] for x in done})
-                print(f"{'':20s} {model:9s} {_spread(x[judge] for x in done)}"
-                      + (f"; used {', '.join(used)}" if model == "auto" else "")
-                      + (f"; refused on {refused} of {len(part)}" if refused else ""))
-    print(f"turntable hold means, known rate vector: {_spread(t['ratio'] for t in turn)}; "
-          f"next-session RMS ÷ floor {_spread(t['excess'] for t in turn)}")
+                print(
+                    f"{'':20s} {model:9s} {_spread(x[judge] for x in done)}"
+                    + (f"; used {', '.join(used)}" if model == "auto" else "")
+                    + (f"; refused on {refused} of {len(part)}" if refused else "")
+                )
+    print(
+        f"turntable hold means, known rate vector: {_spread(t['ratio'] for t in turn)}; "
+        f"next-session RMS ÷ floor {_spread(t['excess'] for t in turn)}"
+    )
     if args.out:
         Path(args.out).write_text(json.dumps({"servo": rows, "turntable": turn}, indent=1))
     return 0

@@ -44,7 +44,7 @@ from host import cores, cpu_name, job_files
 REPO = Path(__file__).resolve().parents[1]
 CACHE = Path(__file__).resolve().parent / ".cache" / "throughput"
 CONFIG = "devices: devices.tsv\nmodel: {terms: [bias, scale, misalignment]}\n"
-STAGES = ("segment", "analyse")   # the analyse job writes the report too
+STAGES = ("segment", "analyse")  # the analyse job writes the report too
 SESSION = "2026-01-01"
 
 
@@ -60,9 +60,26 @@ def simulate(preset: str, n: int) -> list[Path]:
     for i in range(1, n + 1):
         log = folder / f"U{i:03d}.parquet"
         if not log.exists():
-            subprocess.run([sys.executable, "-m", "gyrocal", "simulate", "--log", str(log),
-                            "--device", log.stem, "--batch", "B1", "--session", SESSION,
-                            "--preset", preset], check=True, stdout=subprocess.DEVNULL)
+            subprocess.run(
+                [
+                    sys.executable,
+                    "-m",
+                    "gyrocal",
+                    "simulate",
+                    "--log",
+                    str(log),
+                    "--device",
+                    log.stem,
+                    "--batch",
+                    "B1",
+                    "--session",
+                    SESSION,
+                    "--preset",
+                    preset,
+                ],
+                check=True,
+                stdout=subprocess.DEVNULL,
+            )
         logs.append(log)
     return logs
 
@@ -70,8 +87,7 @@ def simulate(preset: str, n: int) -> list[Path]:
 def fleet(folder: Path, logs: list[Path]) -> Path:
     folder.mkdir(parents=True)
     rows = [f"{log.stem}\tB1\t{SESSION}\tturntable\t{log}" for log in logs]
-    (folder / "devices.tsv").write_text("device\tbatch\tsession\tprotocol\tpath\n"
-                                        + "\n".join(rows) + "\n")
+    (folder / "devices.tsv").write_text("device\tbatch\tsession\tprotocol\tpath\n" + "\n".join(rows) + "\n")
     (folder / "config.yaml").write_text(CONFIG)
     return folder
 
@@ -79,8 +95,18 @@ def fleet(folder: Path, logs: list[Path]) -> Path:
 def workflow(folder: Path, args: list[str], env: dict | None = None) -> tuple[float, str]:
     """One workflow run in a fresh process: its wall time and output (kept beside the run as
     snakemake.txt, where benchmarks/requests.py reads the jobs' costs)."""
-    command = [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-               "--directory", str(folder), "--configfile", str(folder / "config.yaml"), *args]
+    command = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(folder),
+        "--configfile",
+        str(folder / "config.yaml"),
+        *args,
+    ]
     t0 = time.perf_counter()
     out = subprocess.run(command, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
@@ -94,7 +120,8 @@ def stage_seconds(text: str, devices: list[str]) -> tuple[float, float]:
     """The units' stages, summed: wall and CPU seconds, from the guard's line of each job
     (in the run's output; on SLURM, in the jobs' logs)."""
     from gyrocal.run.guard import costs
-    last = {(stage, where): (w, c) for stage, where, w, c, _ in costs(text)}   # a retry's last
+
+    last = {(stage, where): (w, c) for stage, where, w, c, _ in costs(text)}  # a retry's last
     wall = cpu = 0.0
     for device in devices:
         for stage in STAGES:
@@ -117,17 +144,24 @@ def fleet_seconds(folder: Path) -> float:
 def leaves(folder: Path, devices: list[str]) -> dict[str, tuple[float, float]]:
     """Files and bytes per unit, by where they lie."""
     groups = {
-        "results": [p for d in devices for p in (folder / "results" / "B1" / d / SESSION).iterdir() if p.suffix != ".log"],
+        "results": [
+            p
+            for d in devices
+            for p in (folder / "results" / "B1" / d / SESSION).iterdir()
+            if p.suffix != ".log"
+        ],
         "report": [folder / "reports" / "B1" / d / f"{SESSION}.html" for d in devices],
         # a job's log is a part of its archive; one left loose is a job that ended badly
         "job logs": [p for d in devices for p in (folder / "results" / "B1" / d / SESSION).glob("*.log")],
-        "benchmark files": [p for d in devices
-                            for p in (folder / "results" / "benchmark").glob(f"*/B1/{d}/{SESSION}.tsv")],
+        "benchmark files": [
+            p for d in devices for p in (folder / "results" / "benchmark").glob(f"*/B1/{d}/{SESSION}.tsv")
+        ],
         # Snakemake's record of each output it made (one file per output; the fleet's too)
         ".snakemake/metadata": list((folder / ".snakemake" / "metadata").iterdir()),
     }
-    return {k: (len(v) / len(devices), sum(p.stat().st_size for p in v) / len(devices))
-            for k, v in groups.items()}
+    return {
+        k: (len(v) / len(devices), sum(p.stat().st_size for p in v) / len(devices)) for k, v in groups.items()
+    }
 
 
 def seconds(text: str) -> int:
@@ -137,16 +171,26 @@ def seconds(text: str) -> int:
     return ((int(days or 0) * 24 + parts[0]) * 60 + parts[1]) * 60 + parts[2]
 
 
-def report(mode: str, preset: str, n: int, wall: float, stages: tuple[float, float],
-           fleet_s: float, submissions: int | None = None, inside: float | None = None,
-           core_s: float | None = None) -> None:
+def report(
+    mode: str,
+    preset: str,
+    n: int,
+    wall: float,
+    stages: tuple[float, float],
+    fleet_s: float,
+    submissions: int | None = None,
+    inside: float | None = None,
+    core_s: float | None = None,
+) -> None:
     """One run's line. What the workflow adds is its wall time beyond the stages and the
     fleet job, meaningful where jobs run one at a time (not with two local cores)."""
     added = (wall - stages[0] - fleet_s) / n
-    line = (f"{mode:<10} {preset:<6} {n:>3} {len(STAGES):>4} "
-            f"{'-' if submissions is None else f'{submissions / n:.2f}':>6} {wall:>7.1f} "
-            f"{wall / n:>6.1f} {stages[0] / n:>6.1f} {stages[1] / n:>6.1f} "
-            f"{'-' if mode == 'local -c2' else f'{added:.1f}':>6}")
+    line = (
+        f"{mode:<10} {preset:<6} {n:>3} {len(STAGES):>4} "
+        f"{'-' if submissions is None else f'{submissions / n:.2f}':>6} {wall:>7.1f} "
+        f"{wall / n:>6.1f} {stages[0] / n:>6.1f} {stages[1] / n:>6.1f} "
+        f"{'-' if mode == 'local -c2' else f'{added:.1f}':>6}"
+    )
     if inside is not None:
         line += f" {inside / n:>6.1f} {added - inside / n:>7.1f} {core_s / n:>7.1f}"
     print(f"{line}   [{load()}]", flush=True)
@@ -161,25 +205,29 @@ def main() -> None:
     args = parser.parse_args()
 
     import snakemake
-    print(f"{cpu_name()}, {cores()}, Python {sys.version.split()[0]}, "
-          f"Snakemake {snakemake.__version__}")
+
+    print(f"{cpu_name()}, {cores()}, Python {sys.version.split()[0]}, Snakemake {snakemake.__version__}")
     cluster = None
     if not args.no_slurm:
         sys.path.insert(0, str(REPO))
         from tests import slurm
+
         missing = [name for name, ok in slurm.found().items() if not ok]
         if missing:
             print(f"no SLURM runs: missing {', '.join(missing)}")
         else:
             cluster = slurm.Cluster().start()
             print(f"SLURM: {cluster.version}, one node of {os.cpu_count()} CPUs")
-    print("per unit: Snakemake jobs (+ fleet and all per run), sbatch submissions, wall s, "
-          "the unit's stages (wall s, CPU s), the workflow's own wall s"
-          + ("; on SLURM: of those, inside the jobs and outside, and core-s allocated"
-             if cluster else ""))
-    print(f"{'mode':<10} {'log':<6} {'n':>3} {'jobs':>4} {'sbatch':>6} {'wall s':>7} "
-          f"{'s/unit':>6} {'stage':>6} {'CPU':>6} {'added':>6}"
-          + (f" {'inside':>6} {'outside':>6} {'core-s':>7}" if cluster else ""))
+    print(
+        "per unit: Snakemake jobs (+ fleet and all per run), sbatch submissions, wall s, "
+        "the unit's stages (wall s, CPU s), the workflow's own wall s"
+        + ("; on SLURM: of those, inside the jobs and outside, and core-s allocated" if cluster else "")
+    )
+    print(
+        f"{'mode':<10} {'log':<6} {'n':>3} {'jobs':>4} {'sbatch':>6} {'wall s':>7} "
+        f"{'s/unit':>6} {'stage':>6} {'CPU':>6} {'added':>6}"
+        + (f" {'inside':>6} {'outside':>6} {'core-s':>7}" if cluster else "")
+    )
     left = {}
     try:
         with tempfile.TemporaryDirectory() as tmp:
@@ -189,32 +237,50 @@ def main() -> None:
                     continue
                 logs = simulate(preset, n)
                 devices = [log.stem for log in logs]
-                for mode, extra in (("local -c1", ["--cores", "1"]),
-                                    ("local -c2", ["--cores", "2"])):
+                for mode, extra in (("local -c1", ["--cores", "1"]), ("local -c2", ["--cores", "2"])):
                     folder = fleet(base / f"{preset}-{mode.replace(' ', '')}", logs)
                     wall, text = workflow(folder, extra)
-                    report(mode, preset, n, wall, stage_seconds(text, devices),
-                           fleet_seconds(folder))
+                    report(mode, preset, n, wall, stage_seconds(text, devices), fleet_seconds(folder))
                 left[preset] = leaves(folder, devices)
                 if cluster is None:
                     continue
-                for mode, extra in (("slurm u=1", ["--group-components", "unit=1"]),
-                                    ("slurm u=5", [])):
+                for mode, extra in (("slurm u=1", ["--group-components", "unit=1"]), ("slurm u=5", [])):
                     folder = fleet(base / f"{preset}-{mode.replace(' ', '').replace('=', '')}", logs)
-                    wall, text = workflow(folder, [
-                        "--profile", str(REPO / "profiles" / "slurm"), "--cores", "2",
-                        "--slurm-status-command", "squeue", "--slurm-keep-successful-logs",
-                        *extra], env=cluster.env)
+                    wall, text = workflow(
+                        folder,
+                        [
+                            "--profile",
+                            str(REPO / "profiles" / "slurm"),
+                            "--cores",
+                            "2",
+                            "--slurm-status-command",
+                            "squeue",
+                            "--slurm-keep-successful-logs",
+                            *extra,
+                        ],
+                        env=cluster.env,
+                    )
                     name = re.search(r"SLURM run ID: (\S+)", text).group(1)
                     jobs = [j for j in cluster.jobs() if j["name"] == name]
                     stages, fleet_s = stage_seconds(slurm_logs(folder), devices), fleet_seconds(folder)
                     elapsed = sum(seconds(j["elapsed"]) for j in jobs)
                     core_s = sum(seconds(j["elapsed"]) * int(j["cpus"]) for j in jobs)
                     units = sorted(j["submitted"] for j in jobs if j["comment"] != "rule_fleet")
-                    report(mode, preset, n, wall, stages, fleet_s, len(jobs),
-                           elapsed - stages[0] - fleet_s, core_s)
-                    print(f"{'':<10} the {len(units)} unit jobs were submitted from {units[0][11:]} "
-                          f"to {units[-1][11:]} (squeue's submit times, to the second)")
+                    report(
+                        mode,
+                        preset,
+                        n,
+                        wall,
+                        stages,
+                        fleet_s,
+                        len(jobs),
+                        elapsed - stages[0] - fleet_s,
+                        core_s,
+                    )
+                    print(
+                        f"{'':<10} the {len(units)} unit jobs were submitted from {units[0][11:]} "
+                        f"to {units[-1][11:]} (squeue's submit times, to the second)"
+                    )
     finally:
         if cluster is not None:
             cluster.stop()
@@ -222,8 +288,10 @@ def main() -> None:
         print(f"\nwhat one unit leaves, {preset} log (files, bytes; the log itself aside):")
         for where, (files, size) in per_unit.items():
             print(f"  {where:<22} {files:>5.1f} {size / 1024:>8.1f} KiB")
-        print(f"  {'total':<22} {sum(f for f, _ in per_unit.values()):>5.1f} "
-              f"{sum(b for _, b in per_unit.values()) / 1024:>8.1f} KiB")
+        print(
+            f"  {'total':<22} {sum(f for f, _ in per_unit.values()):>5.1f} "
+            f"{sum(b for _, b in per_unit.values()) / 1024:>8.1f} KiB"
+        )
 
 
 if __name__ == "__main__":

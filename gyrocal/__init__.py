@@ -1,2 +1,3 @@
 """gyrocal: temperature calibration of tri-axial MEMS gyroscopes from rig logs."""
+
 __version__ = "0.1.0"

@@ -6,11 +6,11 @@ import os
 import shutil
 from dataclasses import replace
 
-from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
-
 import numpy as np
 import pytest
 from hypothesis import settings
+
+from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
 
 # CI runs the same examples every time (every commit green); `pytest --hypothesis-profile
 # explore` searches afresh with many more, to hunt for new failures.
@@ -50,8 +50,14 @@ TEMPS = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
 def make_log(directory, name="U001", *, seed=1, unit=None, **rig):
     path = directory / f"{name}.parquet"
     protocol = TurntableProtocol.quick(**{"temperatures": TEMPS, **rig})
-    simulate_unit(path, rig=protocol, unit=unit or GyroUnit.seed000(),
-                  rng=np.random.default_rng(seed), device=name, seed=seed)
+    simulate_unit(
+        path,
+        rig=protocol,
+        unit=unit or GyroUnit.seed000(),
+        rng=np.random.default_rng(seed),
+        device=name,
+        seed=seed,
+    )
     return path
 
 
@@ -62,15 +68,20 @@ def logs(tmp_path_factory):
     return {
         "complete": make_log(d, "complete"),
         "no_mount": make_log(d, "no_mount", seed=2, mount_column=False),
-        "random_unit": make_log(d, "random_unit", seed=3,
-                                unit=GyroUnit.random(np.random.default_rng(30)),
-                                temperatures=(0.0, 20.0, 40.0)),
+        "random_unit": make_log(
+            d,
+            "random_unit",
+            seed=3,
+            unit=GyroUnit.random(np.random.default_rng(30)),
+            temperatures=(0.0, 20.0, 40.0),
+        ),
     }
 
 
 @pytest.fixture(scope="session")
 def complete_run(logs):
     from gyrocal.pipeline.chain import run
+
     return run(logs["complete"])
 
 
@@ -95,8 +106,8 @@ def truth_coefficients(unit: GyroUnit, temp: float) -> dict[str, float]:
 @pytest.fixture
 def registry():
     """Terms registered by a test's term files are forgotten afterwards."""
-    from gyrocal.terms import TERMS
-    from gyrocal.terms import user
+    from gyrocal.terms import TERMS, user
+
     terms, loaded = dict(TERMS), dict(user._LOADED)
     yield
     TERMS.clear()
@@ -136,24 +147,44 @@ drift: {tolerance: {"bias.*": 0.005}}
 def snakemake_command(workdir, *args) -> list[str]:
     """The command that runs the repository's workflow in ``workdir`` with its config.yaml."""
     import sys
-    return [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-            "--directory", str(workdir), "--configfile", str(workdir / "config.yaml"),
-            "--cores", "2", *map(str, args)]
+
+    return [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--snakefile",
+        str(REPO / "Snakefile"),
+        "--directory",
+        str(workdir),
+        "--configfile",
+        str(workdir / "config.yaml"),
+        "--cores",
+        "2",
+        *map(str, args),
+    ]
 
 
 def snakemake(workdir, *args, timeout=900, env=None):
     """Run the repository's workflow in ``workdir`` with its config.yaml."""
     import subprocess
-    return subprocess.run(snakemake_command(workdir, *args), capture_output=True, text=True,
-                          timeout=timeout, env=env)
+
+    return subprocess.run(
+        snakemake_command(workdir, *args), capture_output=True, text=True, timeout=timeout, env=env
+    )
 
 
 def assert_every_file_whole(wd):
     """Every result, report and summary that exists reads as what its name says."""
     import json
+
     import pyarrow.parquet as pq
-    files = [p for root in ("results", "reports") for p in (wd / root).rglob("*")
-             if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts]
+
+    files = [
+        p
+        for root in ("results", "reports")
+        for p in (wd / root).rglob("*")
+        if p.is_file() and not p.name.startswith(".") and "benchmark" not in p.parts
+    ]
     assert files
     for path in files:
         if path.suffix == ".parquet":
@@ -166,8 +197,12 @@ def assert_every_file_whole(wd):
 
 def leftovers(wd):
     """Temporary files and folders (pathlib's * matches hidden names too)."""
-    return [p for root in ("results", "reports") for pattern in ("*.tmp", "*.old")
-            for p in (wd / root).rglob(pattern)]
+    return [
+        p
+        for root in ("results", "reports")
+        for pattern in ("*.tmp", "*.old")
+        for p in (wd / root).rglob(pattern)
+    ]
 
 
 @pytest.fixture(scope="session")
@@ -177,6 +212,7 @@ def fleet_run(tmp_path_factory, worker_id):
     processes pytest-xdist starts share it (a lock on a file beside their temporary
     folders), so that the workflow runs once, not once per process that needs it."""
     import fcntl
+
     root = tmp_path_factory.getbasetemp()
     root = root if worker_id == "master" else root.parent
     wd = root / "fleet-shared"
@@ -197,4 +233,5 @@ def fleet_run(tmp_path_factory, worker_id):
 def pytest_report_header(config):
     """The SLURM the scheduler tests run on (tests/test_slurm.py), named in every run."""
     from .slurm import installed_version
+
     return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"

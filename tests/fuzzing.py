@@ -27,25 +27,38 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from hypothesis import strategies as st
 
-from gyrocal.run import cli
-from gyrocal.io import readahead
 from gyrocal.io import log as gio
+from gyrocal.io import readahead
 from gyrocal.io.errors import GyrocalError, InputError
+from gyrocal.run import cli
 
 REQUIRED = gio.REQUIRED
 COLUMNS = (*REQUIRED, "mount", *gio.ACCEL)
 
 # The base log: three temperature points, two rates, 20 Hz; about 4000 rows that calibrate
 # in a tenth of a second, so that most of an example's time is the mutated part.
-BASE_RIG = dict(temperatures=(0.0, 20.0, 40.0), rates=(10.0, 100.0), sample_rate=20.0,
-                soak_s=10.0, hold_s=3.0, handling_s=2.0)
+BASE_RIG = dict(
+    temperatures=(0.0, 20.0, 40.0),
+    rates=(10.0, 100.0),
+    sample_rate=20.0,
+    soak_s=10.0,
+    hold_s=3.0,
+    handling_s=2.0,
+)
 
 
 def make_base_log(directory: Path) -> Path:
     from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
+
     path = Path(directory) / "base.parquet"
-    simulate_unit(path, rig=TurntableProtocol.quick(**BASE_RIG), unit=GyroUnit.seed000(),
-                  rng=np.random.default_rng(1), device="F001", seed=1)
+    simulate_unit(
+        path,
+        rig=TurntableProtocol.quick(**BASE_RIG),
+        unit=GyroUnit.seed000(),
+        rng=np.random.default_rng(1),
+        device="F001",
+        seed=1,
+    )
     return path
 
 
@@ -53,22 +66,74 @@ def make_base_log(directory: Path) -> Path:
 # Mutations: ("op", *arguments). Row positions are fractions of the current length so that
 # a mutation means the same thing after others changed the length.
 
-VALUES = (math.nan, math.inf, -math.inf, 0.0, -0.0, 1e308, -1e308, 3.4028235e38, 1e38,
-          1e-310, 5e-324, 1e20, -1e20, 2.0 ** 63, 1e6, -1.0)
-TYPES = ("float16", "float32", "float64", "int8", "int32", "int64", "uint64", "bool",
-         "string", "large_string", "binary", "timestamp[s]", "timestamp[ms]", "timestamp[us]",
-         "timestamp[ns]", "timestamp[ns, UTC]", "date32", "duration[s]", "decimal",
-         "dictionary", "null", "list", "struct")
+VALUES = (
+    math.nan,
+    math.inf,
+    -math.inf,
+    0.0,
+    -0.0,
+    1e308,
+    -1e308,
+    3.4028235e38,
+    1e38,
+    1e-310,
+    5e-324,
+    1e20,
+    -1e20,
+    2.0**63,
+    1e6,
+    -1.0,
+)
+TYPES = (
+    "float16",
+    "float32",
+    "float64",
+    "int8",
+    "int32",
+    "int64",
+    "uint64",
+    "bool",
+    "string",
+    "large_string",
+    "binary",
+    "timestamp[s]",
+    "timestamp[ms]",
+    "timestamp[us]",
+    "timestamp[ns]",
+    "timestamp[ns, UTC]",
+    "date32",
+    "duration[s]",
+    "decimal",
+    "dictionary",
+    "null",
+    "list",
+    "struct",
+)
 NAMES = (*COLUMNS, "T", "Gyro_x", "gyro_x ", "", "extra", "__index_level_0__")
 LABELS = ("+x", "-z", "", "x", "+X", " +x", "+x ", "±x", "\x00", "+x" * 40, "None", "nan")
-UNIT_STRINGS = ("deg/s", "rad/s", "dps", "g", "m/s^2", "m/s2", "K", "degC", "°C", "C", "F", "",
-                "RAD/S")
-UNITS_PAYLOADS = (b"", b"{", b"null", b"[]", b"42", b"\"rad/s\"", b"\xff\xfe", b"NaN",
-                  b'{"gyro": "rad/s", "ref_rate": "rad/s"}', b'{"gyro": 5}',
-                  b'{"gyro": ["rad/s"]}', b'{"gyro": {"unit": "rad/s"}}', b'{"gyro": null}',
-                  b'{"temp": "K"}', b'{"accel": "m/s^2"}', b'{"gyro": "dps"}',
-                  b'{"other": "thing"}', b'{"gyro": "rad/s", "gyro": "deg/s"}',
-                  b'{"temp": ["K"]}', b'{"ref_rate": true}')
+UNIT_STRINGS = ("deg/s", "rad/s", "dps", "g", "m/s^2", "m/s2", "K", "degC", "°C", "C", "F", "", "RAD/S")
+UNITS_PAYLOADS = (
+    b"",
+    b"{",
+    b"null",
+    b"[]",
+    b"42",
+    b'"rad/s"',
+    b"\xff\xfe",
+    b"NaN",
+    b'{"gyro": "rad/s", "ref_rate": "rad/s"}',
+    b'{"gyro": 5}',
+    b'{"gyro": ["rad/s"]}',
+    b'{"gyro": {"unit": "rad/s"}}',
+    b'{"gyro": null}',
+    b'{"temp": "K"}',
+    b'{"accel": "m/s^2"}',
+    b'{"gyro": "dps"}',
+    b'{"other": "thing"}',
+    b'{"gyro": "rad/s", "gyro": "deg/s"}',
+    b'{"temp": ["K"]}',
+    b'{"ref_rate": true}',
+)
 METADATA_KEYS = (gio.UNITS_KEY, b"ARROW:schema", b"pandas", b"other")
 
 fraction = st.floats(0.0, 1.0)
@@ -76,19 +141,31 @@ small_count = st.integers(0, 50)
 
 
 def _json_values():
-    scalars = st.none() | st.booleans() | st.floats() | st.integers() | \
-        st.sampled_from(UNIT_STRINGS) | st.text(max_size=6)
-    return st.recursive(scalars, lambda c: st.lists(c, max_size=3) |
-                        st.dictionaries(st.text(max_size=6), c, max_size=3), max_leaves=6)
+    scalars = (
+        st.none()
+        | st.booleans()
+        | st.floats()
+        | st.integers()
+        | st.sampled_from(UNIT_STRINGS)
+        | st.text(max_size=6)
+    )
+    return st.recursive(
+        scalars,
+        lambda c: st.lists(c, max_size=3) | st.dictionaries(st.text(max_size=6), c, max_size=3),
+        max_leaves=6,
+    )
 
 
 units_payload = st.one_of(
     st.sampled_from(UNITS_PAYLOADS),
-    st.dictionaries(st.sampled_from(("gyro", "ref_rate", "temp", "accel", "t", "mount")),
-                    st.sampled_from(UNIT_STRINGS) | _json_values(), max_size=4)
-    .map(lambda d: json.dumps(d).encode()),
+    st.dictionaries(
+        st.sampled_from(("gyro", "ref_rate", "temp", "accel", "t", "mount")),
+        st.sampled_from(UNIT_STRINGS) | _json_values(),
+        max_size=4,
+    ).map(lambda d: json.dumps(d).encode()),
     _json_values().map(lambda v: json.dumps(v).encode()),
-    st.binary(max_size=12))
+    st.binary(max_size=12),
+)
 
 column = st.sampled_from(COLUMNS)
 mutation = st.one_of(
@@ -102,15 +179,20 @@ mutation = st.one_of(
     st.tuples(st.just("set_all"), column, st.sampled_from(VALUES)),
     st.tuples(st.just("scale"), column, st.sampled_from((0.0, -1.0, 1e-3, 1e3, 1e30, 1e300))),
     st.tuples(st.just("offset"), column, st.sampled_from((-1e6, 1e9, 1e15, 1e300))),
-    st.tuples(st.just("rows"), st.sampled_from(("reverse", "duplicate", "delete", "shuffle")),
-              fraction, small_count),
+    st.tuples(
+        st.just("rows"), st.sampled_from(("reverse", "duplicate", "delete", "shuffle")), fraction, small_count
+    ),
     st.tuples(st.just("sort"), column),
     st.tuples(st.just("head"), st.sampled_from((0, 1, 2, 3, 5, 17, 100))),
     st.tuples(st.just("tail"), st.sampled_from((1, 2, 7, 100))),
     st.tuples(st.just("units"), units_payload),
     st.tuples(st.just("meta"), st.sampled_from(METADATA_KEYS), st.binary(max_size=16)),
-    st.tuples(st.just("mount_label"), fraction, small_count,
-              st.sampled_from(LABELS) | st.text(max_size=4) | st.none()),
+    st.tuples(
+        st.just("mount_label"),
+        fraction,
+        small_count,
+        st.sampled_from(LABELS) | st.text(max_size=4) | st.none(),
+    ),
 )
 # Mutations a log can take and still calibrate: they send examples past ingest, deeper
 # into segmentation and the fit.
@@ -118,16 +200,42 @@ soft_mutation = st.one_of(
     st.tuples(st.just("set"), column, fraction, small_count, st.sampled_from(VALUES)),
     st.tuples(st.just("nulls"), column, fraction, small_count),
     st.tuples(st.just("drop"), st.sampled_from(("mount", *gio.ACCEL))),
-    st.tuples(st.just("cast"), st.sampled_from(COLUMNS), st.sampled_from(
-        ("float32", "float64", "float16", "string", "large_string", "dictionary",
-         "timestamp[ns]", "timestamp[ms]", "timestamp[ns, UTC]"))),
-    st.tuples(st.just("units"), st.sampled_from(
-        (b'{"gyro": "rad/s", "ref_rate": "rad/s"}', b'{"temp": "K"}', b'{"accel": "m/s^2"}',
-         b'{"gyro": "rad/s"}', b'{"other": 1}'))),
+    st.tuples(
+        st.just("cast"),
+        st.sampled_from(COLUMNS),
+        st.sampled_from(
+            (
+                "float32",
+                "float64",
+                "float16",
+                "string",
+                "large_string",
+                "dictionary",
+                "timestamp[ns]",
+                "timestamp[ms]",
+                "timestamp[ns, UTC]",
+            )
+        ),
+    ),
+    st.tuples(
+        st.just("units"),
+        st.sampled_from(
+            (
+                b'{"gyro": "rad/s", "ref_rate": "rad/s"}',
+                b'{"temp": "K"}',
+                b'{"accel": "m/s^2"}',
+                b'{"gyro": "rad/s"}',
+                b'{"other": 1}',
+            )
+        ),
+    ),
     st.tuples(st.just("mount_label"), fraction, small_count, st.sampled_from(("+x", "-z", None))),
     st.tuples(st.just("rows"), st.just("delete"), fraction, small_count),
-    st.tuples(st.just("scale"), st.sampled_from(("gyro_x", "gyro_y", "gyro_z", "temp", "accel_x")),
-              st.sampled_from((0.0, -1.0, 1e3, 1e30))),
+    st.tuples(
+        st.just("scale"),
+        st.sampled_from(("gyro_x", "gyro_y", "gyro_z", "temp", "accel_x")),
+        st.sampled_from((0.0, -1.0, 1e3, 1e30)),
+    ),
 )
 damage = st.one_of(
     st.tuples(st.just("truncate"), fraction),
@@ -145,11 +253,11 @@ class Case:
 
     mutations: tuple = ()
     row_group_rows: int | None = None
-    parts: int = 0                   # 0: one file; k: a directory of k files
-    part_mutations: tuple = ()       # (part, mutation): one file of a directory differs
-    damage: tuple = ()               # byte-level, to the file (or a directory's first part)
+    parts: int = 0  # 0: one file; k: a directory of k files
+    part_mutations: tuple = ()  # (part, mutation): one file of a directory differs
+    damage: tuple = ()  # byte-level, to the file (or a directory's first part)
     name: str = "log.parquet"
-    read_batch_rows: int | None = None   # ingest's batch size (None: gyrocal's own)
+    read_batch_rows: int | None = None  # ingest's batch size (None: gyrocal's own)
 
 
 NAME_CHOICES = ("log.parquet", "a log ü.parquet", "log", "log.PARQUET")
@@ -157,17 +265,16 @@ NAME_CHOICES = ("log.parquet", "a log ü.parquet", "log", "log.PARQUET")
 
 @st.composite
 def cases(draw, soft: bool = False):
-    ops = st.lists(soft_mutation if soft else st.one_of(mutation, mutation, soft_mutation),
-                   max_size=4)
+    ops = st.lists(soft_mutation if soft else st.one_of(mutation, mutation, soft_mutation), max_size=4)
     parts = draw(st.sampled_from((0, 0, 0, 1, 2, 3)))
     return Case(
         mutations=tuple(draw(ops)),
         row_group_rows=draw(st.sampled_from((None, None, 1000, 97))),
         parts=parts,
         part_mutations=tuple(draw(st.lists(st.tuples(st.integers(0, 2), mutation), max_size=1)))
-        if parts > 1 and not soft else (),
-        damage=tuple(draw(st.lists(damage, max_size=2))) if not soft and draw(st.booleans())
+        if parts > 1 and not soft
         else (),
+        damage=tuple(draw(st.lists(damage, max_size=2))) if not soft and draw(st.booleans()) else (),
         name=draw(st.sampled_from(NAME_CHOICES)) if not soft else "log.parquet",
         read_batch_rows=draw(st.sampled_from((None, None, 61, 1000))),
     )
@@ -211,27 +318,26 @@ def convert(values: np.ndarray, kind: str, source: pa.Array | None = None) -> pa
         if kind == "bool":
             return pa.array(safe != 0, mask=mask)
         if kind in ("string", "large_string", "binary"):
-            if source is not None and (pa.types.is_dictionary(source.type) or
-                                       pa.types.is_string(source.type)):
+            if source is not None and (
+                pa.types.is_dictionary(source.type) or pa.types.is_string(source.type)
+            ):
                 text = source.cast(pa.string()) if pa.types.is_dictionary(source.type) else source
-                return text.cast({"string": pa.string(), "large_string": pa.large_string(),
-                                  "binary": pa.binary()}[kind])
+                return text.cast(
+                    {"string": pa.string(), "large_string": pa.large_string(), "binary": pa.binary()}[kind]
+                )
             texts = [repr(float(v)) for v in values]
             typ = {"string": pa.string(), "large_string": pa.large_string(), "binary": pa.binary()}[kind]
             return pa.array(texts, type=typ)
         if kind.startswith("timestamp"):
-            unit = kind[kind.index("[") + 1:].split(",")[0].rstrip("]")
-            per = {"s": 1, "ms": 10 ** 3, "us": 10 ** 6, "ns": 10 ** 9}[unit]
+            unit = kind[kind.index("[") + 1 :].split(",")[0].rstrip("]")
+            per = {"s": 1, "ms": 10**3, "us": 10**6, "ns": 10**9}[unit]
             limit = 9e18 / per - EPOCH_S
             ticks = (np.clip(safe, -limit, limit) * per).astype(np.int64) + EPOCH_S * per
-            return pa.array(ticks, type=pa.timestamp(unit, tz="UTC" if "UTC" in kind else None),
-                            mask=mask)
+            return pa.array(ticks, type=pa.timestamp(unit, tz="UTC" if "UTC" in kind else None), mask=mask)
         if kind == "date32":
-            return pa.array(np.clip(safe / 86400, -1e6, 1e6).astype(np.int32), type=pa.date32(),
-                            mask=mask)
+            return pa.array(np.clip(safe / 86400, -1e6, 1e6).astype(np.int32), type=pa.date32(), mask=mask)
         if kind == "duration[s]":
-            return pa.array(np.clip(safe, -9e18, 9e18).astype(np.int64), type=pa.duration("s"),
-                            mask=mask)
+            return pa.array(np.clip(safe, -9e18, 9e18).astype(np.int64), type=pa.duration("s"), mask=mask)
         if kind == "decimal":
             clipped = np.clip(safe, -1e8, 1e8)
             return pa.array(clipped, mask=mask).cast(pa.decimal128(12, 3), safe=False)
@@ -273,8 +379,7 @@ def mutate(table: pa.Table, op: tuple) -> pa.Table:
     """``table`` after one mutation (a mutation of a column the table lacks does nothing)."""
     kind, args = op[0], op[1:]
     n = table.num_rows
-    if kind in ("drop", "rename", "duplicate", "cast", "nulls", "set", "set_all", "scale",
-                "offset", "sort"):
+    if kind in ("drop", "rename", "duplicate", "cast", "nulls", "set", "set_all", "scale", "offset", "sort"):
         i = _index(table, args[0])
         if i is None:
             return table
@@ -295,10 +400,9 @@ def mutate(table: pa.Table, op: tuple) -> pa.Table:
             lo, hi = _span(n, args[1], args[2])
             keep = np.ones(n, bool)
             keep[lo:hi] = False
-            return _replace(table, i, pc.if_else(pa.array(keep), col,
-                                                         pa.nulls(n, col.type)))
+            return _replace(table, i, pc.if_else(pa.array(keep), col, pa.nulls(n, col.type)))
         if pa.types.is_dictionary(col.type) or pa.types.is_string(col.type):
-            return table    # value mutations are for numbers; labels have their own
+            return table  # value mutations are for numbers; labels have their own
         values = _values(col).copy()
         with np.errstate(all="ignore"):
             if kind == "set":
@@ -337,8 +441,7 @@ def mutate(table: pa.Table, op: tuple) -> pa.Table:
     if kind == "tail":
         return table.slice(max(n - args[0], 0))
     if kind == "units":
-        return table.replace_schema_metadata({**(table.schema.metadata or {}),
-                                              gio.UNITS_KEY: args[0]})
+        return table.replace_schema_metadata({**(table.schema.metadata or {}), gio.UNITS_KEY: args[0]})
     if kind == "meta":
         return table.replace_schema_metadata({**(table.schema.metadata or {}), args[0]: args[1]})
     if kind == "mount_label":
@@ -346,15 +449,17 @@ def mutate(table: pa.Table, op: tuple) -> pa.Table:
         if i is None:
             return table
         col = _column(table, i)
-        if not (pa.types.is_dictionary(col.type) or pa.types.is_string(col.type)
-                or pa.types.is_large_string(col.type)):
+        if not (
+            pa.types.is_dictionary(col.type)
+            or pa.types.is_string(col.type)
+            or pa.types.is_large_string(col.type)
+        ):
             return table
         labels = (col.cast(pa.string()) if pa.types.is_dictionary(col.type) else col).to_pylist()
         lo, hi = _span(n, args[0], args[1])
         labels[lo:hi] = [args[2]] * (hi - lo)
         array = pa.array(labels, type=pa.string())
-        return _replace(table, i, array.dictionary_encode() if pa.types.is_dictionary(col.type)
-                        else array)
+        return _replace(table, i, array.dictionary_encode() if pa.types.is_dictionary(col.type) else array)
     raise ValueError(f"unknown mutation {op!r}")
 
 
@@ -365,13 +470,13 @@ def corrupt(data: bytes, op: tuple) -> bytes:
         return data[: int(args[0] * n)]
     if kind == "flip" and n:
         i = min(int(args[0] * n), n - 1)
-        return data[:i] + bytes([data[i] ^ args[1]]) + data[i + 1:]
+        return data[:i] + bytes([data[i] ^ args[1]]) + data[i + 1 :]
     if kind == "flip_tail" and n:
         i = max(n - args[0], 0)
-        return data[:i] + bytes([data[i] ^ args[1]]) + data[i + 1:]
+        return data[:i] + bytes([data[i] ^ args[1]]) + data[i + 1 :]
     if kind == "zero" and n:
         i = min(int(args[0] * n), n)
-        return data[:i] + bytes(min(args[1], n - i)) + data[i + args[1]:]
+        return data[:i] + bytes(min(args[1], n - i)) + data[i + args[1] :]
     if kind == "append":
         return data + args[0]
     if kind == "empty":
@@ -440,8 +545,12 @@ def signature(exc: BaseException) -> str:
     """Where an unexpected exception comes from (its type and innermost gyrocal frame): one
     bug, however many examples hit it."""
     import traceback
-    frames = [f for f in traceback.extract_tb(exc.__traceback__) if "gyrocal" in f.filename
-              and "/tests/" not in f.filename]
+
+    frames = [
+        f
+        for f in traceback.extract_tb(exc.__traceback__)
+        if "gyrocal" in f.filename and "/tests/" not in f.filename
+    ]
     where = f"{Path(frames[-1].filename).name}:{frames[-1].lineno}" if frames else "?"
     return f"{type(exc).__name__} at {where}"
 
@@ -450,8 +559,7 @@ def check_error_message(exc: GyrocalError, path: Path) -> str:
     """A refused log: bad input (exit status 2), one line, naming the file first."""
     text = str(exc)
     if not isinstance(exc, InputError):
-        raise Violation("not bad input", f"{type(exc).__name__} (exit status "
-                        f"{exc.exit_status}): {text}")
+        raise Violation("not bad input", f"{type(exc).__name__} (exit status {exc.exit_status}): {text}")
     if "\n" in text or "\r" in text:
         raise Violation("message not one line", repr(text))
     if not text.startswith(f"{path}: ") or len(text) <= len(f"{path}: "):
@@ -472,7 +580,7 @@ def batch_rows(rows: int | None):
         gio.READ_BATCH_ROWS = saved
 
 
-PIPELINE_KEEP = (None, 384 * 2 ** 20, 0)   # in memory; gyrocal.pipeline.chain's budget; re-read
+PIPELINE_KEEP = (None, 384 * 2**20, 0)  # in memory; gyrocal.pipeline.chain's budget; re-read
 
 
 def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | None = None) -> str:
@@ -482,6 +590,7 @@ def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | N
     statistics free of NaN. Failure: a gyrocal input error naming the file in one line."""
     from gyrocal.io.blocks import BlockSink
     from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+
     sink = BlockSink(1.0)
     try:
         with batch_rows(read_rows):
@@ -490,12 +599,14 @@ def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | N
     except GyrocalError as exc:
         return check_error_message(exc, path)
     except Exception as exc:  # noqa: BLE001 - any other exception is what we look for
-        raise Violation("exception", f"{signature(exc)}: {type(exc).__name__}: "
-                        f"{' '.join(str(exc).split())[:300]}") from exc
+        raise Violation(
+            "exception", f"{signature(exc)}: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
+        ) from exc
     kept = sum(len(b["t"]) for b in batches)
     if kept < 1 or kept != len(log) or log.rows_read != kept + log.rows_dropped:
-        raise Violation("row count", f"read {log.rows_read}, kept {len(log)} (scan {kept}), "
-                        f"dropped {log.rows_dropped}")
+        raise Violation(
+            "row count", f"read {log.rows_read}, kept {len(log)} (scan {kept}), dropped {log.rows_dropped}"
+        )
     previous = -math.inf
     for b in batches:
         for name in REQUIRED:
@@ -505,8 +616,9 @@ def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | N
         if t[0] <= previous or np.any(np.diff(t) <= 0):
             raise Violation("t not increasing", f"after {previous}: {t[:5]}")
         previous = t[-1]
-        if "mount" in b and (b["mount"].dtype != np.int8 or b["mount"].min() < -1
-                             or b["mount"].max() >= len(gio.MOUNTS)):
+        if "mount" in b and (
+            b["mount"].dtype != np.int8 or b["mount"].min() < -1 or b["mount"].max() >= len(gio.MOUNTS)
+        ):
             raise Violation("mount code", repr(np.unique(b["mount"])))
     stats, _, _ = sink.result()
     for key in ("t_first", "t_last", "ref", "temp", "gyro"):
@@ -518,6 +630,7 @@ def check_ingest(path: Path, keep_bytes: float | None = None, read_rows: int | N
 def _strict_json(text: str):
     def refuse(constant):
         raise Violation("NaN written", f"the output holds {constant}")
+
     return json.loads(text, parse_constant=refuse)
 
 
@@ -531,6 +644,7 @@ def recording_errors():
     def init(self, *args, **kwargs):
         original(self, *args, **kwargs)
         made.append(self)
+
     GyrocalError.__init__ = init
     try:
         yield made
@@ -548,14 +662,18 @@ def run_cli(argv: list[str], *, as_process_start: bool = False) -> tuple[int, st
     try:
         # catch_warnings: a warning shown by an earlier example is shown again (a fresh
         # process), and the command's one-line warning printer is undone afterwards.
-        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), \
-                recording_errors() as made, warnings.catch_warnings():
+        with (
+            contextlib.redirect_stdout(out),
+            contextlib.redirect_stderr(err),
+            recording_errors() as made,
+            warnings.catch_warnings(),
+        ):
             if as_process_start:
                 sys.argv = ["gyrocal", *argv]
                 status = cli.main()
             else:
                 status = cli.main(argv)
-    except SystemExit as exc:   # argparse's own exit
+    except SystemExit as exc:  # argparse's own exit
         status = exc.code if isinstance(exc.code, int) else 2
     finally:
         sys.argv = saved_argv
@@ -587,8 +705,15 @@ def check_stderr(status: int, stderr: str, path: Path) -> None:
             raise Violation("message does not name the file", errors[0])
 
 
-def check_cli(command: str, path: Path, scratch: Path, *, calibration: Path | None = None,
-              protocol: str = "turntable", as_process_start: bool = False) -> tuple[str, str]:
+def check_cli(
+    command: str,
+    path: Path,
+    scratch: Path,
+    *,
+    calibration: Path | None = None,
+    protocol: str = "turntable",
+    as_process_start: bool = False,
+) -> tuple[str, str]:
     """Run ``gyrocal COMMAND`` on the log at ``path``: exit status 0 or 2 (never 1, an
     internal error), stderr gyrocal's one-line messages (exactly one error line naming the
     file on failure), no output left on failure, and no NaN in what is written
@@ -627,6 +752,7 @@ def check_cli(command: str, path: Path, scratch: Path, *, calibration: Path | No
 def _check_applied(out: Path, stderr: str) -> None:
     """Every non-finite rate written is a NaN the command counted in its warning."""
     import re
+
     table = pq.read_table(out)
     gyro = np.column_stack([table.column(c).to_numpy(zero_copy_only=False) for c in gio.GYRO])
     if np.isinf(gyro).any():
@@ -634,8 +760,9 @@ def _check_applied(out: Path, stderr: str) -> None:
     nan_rows = int(np.isnan(gyro).any(axis=1).sum())
     said = re.search(r"(\d+) rows with a non-finite gyro .* were written as NaN", stderr)
     if nan_rows != (int(said.group(1)) if said else 0):
-        raise Violation("NaN written", f"{nan_rows} rows of NaN, the command said "
-                        f"{said.group(1) if said else 0}")
+        raise Violation(
+            "NaN written", f"{nan_rows} rows of NaN, the command said {said.group(1) if said else 0}"
+        )
 
 
 def fresh(folder: Path) -> Path:

@@ -35,8 +35,10 @@ def which(tool: str) -> str | None:
 
 def found() -> dict[str, bool]:
     """What the cluster needs, for ``conftest.needs``."""
-    return {**{tool: which(tool) is not None for tool in DAEMONS + CLIENTS},
-            "root (slurmd starts jobs as their user)": os.geteuid() == 0}
+    return {
+        **{tool: which(tool) is not None for tool in DAEMONS + CLIENTS},
+        "root (slurmd starts jobs as their user)": os.geteuid() == 0,
+    }
 
 
 INSTALL = "Debian's slurm-wlm and munge, which make test installs as root"
@@ -65,7 +67,7 @@ def seconds(text: str) -> int:
 
 def memory_mb(text: str) -> float:
     """squeue's memory (``2000M``, ``4G``) in MB."""
-    scale = {"K": 1 / 1024, "M": 1, "G": 1024, "T": 1024 ** 2}
+    scale = {"K": 1 / 1024, "M": 1, "G": 1024, "T": 1024**2}
     return float(text[:-1]) * scale[text[-1]] if text[-1] in scale else float(text)
 
 
@@ -117,14 +119,24 @@ class Cluster:
         self.socket = self.root / "run" / "munge.socket"
         self.conf = self.root / "slurm.conf"
         self.conf.write_text(self.config(node_line()))
-        self.env = {**os.environ, "SLURM_CONF": str(self.conf),
-                    "PATH": f"{self.shims()}{os.pathsep}{os.environ.get('PATH', '')}"}
+        self.env = {
+            **os.environ,
+            "SLURM_CONF": str(self.conf),
+            "PATH": f"{self.shims()}{os.pathsep}{os.environ.get('PATH', '')}",
+        }
         try:
-            self._spawn("munged", [which("munged"), "--foreground", f"--key-file={key}",
-                                   f"--socket={self.socket}",
-                                   f"--pid-file={self.root / 'run' / 'munged.pid'}",
-                                   f"--log-file={self.root / 'log' / 'munged.log'}",
-                                   f"--seed-file={self.root / 'key' / 'munged.seed'}"])
+            self._spawn(
+                "munged",
+                [
+                    which("munged"),
+                    "--foreground",
+                    f"--key-file={key}",
+                    f"--socket={self.socket}",
+                    f"--pid-file={self.root / 'run' / 'munged.pid'}",
+                    f"--log-file={self.root / 'log' / 'munged.log'}",
+                    f"--seed-file={self.root / 'key' / 'munged.seed'}",
+                ],
+            )
             self._wait(lambda: self.socket.exists(), "munged's socket", 20)
             self._spawn("slurmctld", [which("slurmctld"), "-D"])
             self.start_slurmd()
@@ -147,12 +159,12 @@ SlurmUser=root
 AuthType=auth/munge
 CredType=cred/munge
 AuthInfo=socket={self.socket}
-StateSaveLocation={root / 'state'}
-SlurmdSpoolDir={root / 'spool'}
-SlurmctldPidFile={root / 'run' / 'slurmctld.pid'}
-SlurmdPidFile={root / 'run' / 'slurmd.pid'}
-SlurmctldLogFile={root / 'log' / 'slurmctld.log'}
-SlurmdLogFile={root / 'log' / 'slurmd.log'}
+StateSaveLocation={root / "state"}
+SlurmdSpoolDir={root / "spool"}
+SlurmctldPidFile={root / "run" / "slurmctld.pid"}
+SlurmdPidFile={root / "run" / "slurmd.pid"}
+SlurmctldLogFile={root / "log" / "slurmctld.log"}
+SlurmdLogFile={root / "log" / "slurmd.log"}
 MailProg=/bin/true
 MpiDefault=none
 ProctrackType=proctrack/linuxproc
@@ -182,8 +194,9 @@ PartitionName=test Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
         folder = self.root / "bin"
         folder.mkdir(exist_ok=True)
         shim = folder / "srun"
-        shim.write_text(f"#!/bin/sh\nexport SLURM_CONF=\"${{SLURM_CONF:-{self.conf}}}\"\n"
-                        f"exec {which('srun')} \"$@\"\n")
+        shim.write_text(
+            f'#!/bin/sh\nexport SLURM_CONF="${{SLURM_CONF:-{self.conf}}}"\nexec {which("srun")} "$@"\n'
+        )
         shim.chmod(0o755)
         return folder
 
@@ -197,39 +210,54 @@ PartitionName=test Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
 
     def _spawn(self, name: str, command: list[str]) -> None:
         with open(self.root / "log" / f"{name}.out", "ab") as log:
-            self.procs[name] = subprocess.Popen(command, env=self.env, stdout=log,
-                                                stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            self.procs[name] = subprocess.Popen(
+                command, env=self.env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+            )
 
     def _wait(self, ready, what: str, timeout: float) -> None:
         deadline = time.monotonic() + timeout
         while not ready():
             dead = [name for name, p in self.procs.items() if p.poll() is not None]
             if dead or time.monotonic() > deadline:
-                raise RuntimeError(f"the test cluster's {what} did not come up "
-                                   f"({', '.join(dead) or 'timed out'}):\n{self.logs()}")
+                raise RuntimeError(
+                    f"the test cluster's {what} did not come up "
+                    f"({', '.join(dead) or 'timed out'}):\n{self.logs()}"
+                )
             time.sleep(0.1)
 
     def wait_idle(self, timeout: float = 60) -> None:
         """Until the node takes jobs."""
+
         def idle():
             out = self.client("sinfo", "--noheader", "--format=%T", check=False)
             return out.returncode == 0 and out.stdout.strip() in ("idle", "mixed", "allocated")
+
         self._wait(idle, "node", timeout)
 
     # -- clients -------------------------------------------------------------------
     def client(self, tool: str, *args: str, check: bool = True) -> subprocess.CompletedProcess:
-        return subprocess.run([which(tool), *args], env=self.env, capture_output=True,
-                              text=True, check=check, timeout=60)
+        return subprocess.run(
+            [which(tool), *args], env=self.env, capture_output=True, text=True, check=check, timeout=60
+        )
 
     def jobs(self) -> list[dict[str, str]]:
         """Every job the controller knows (finished ones for MinJobAge): id, name, state,
         time limit, memory, CPUs, comment (the plugin's rule or group), time used, and
         when it was submitted, started and ended."""
-        fields = {"id": "%i", "name": "%j", "state": "%T", "time_limit": "%l",
-                  "memory": "%m", "cpus": "%C", "comment": "%k", "elapsed": "%M",
-                  "submitted": "%V", "started": "%S", "ended": "%e"}
-        out = self.client("squeue", "--states=all", "--noheader",
-                          "--format=" + "|".join(fields.values()))
+        fields = {
+            "id": "%i",
+            "name": "%j",
+            "state": "%T",
+            "time_limit": "%l",
+            "memory": "%m",
+            "cpus": "%C",
+            "comment": "%k",
+            "elapsed": "%M",
+            "submitted": "%V",
+            "started": "%S",
+            "ended": "%e",
+        }
+        out = self.client("squeue", "--states=all", "--noheader", "--format=" + "|".join(fields.values()))
         rows = [dict(zip(fields, line.split("|"), strict=False)) for line in out.stdout.splitlines()]
         return sorted(rows, key=lambda row: int(row["id"]))
 
@@ -249,7 +277,8 @@ PartitionName=test Nodes={self.node} Default=YES MaxTime=INFINITE State=UP
             self.client("scancel", "--full", "--partition=test", check=False)
             deadline = time.monotonic() + 15
             while time.monotonic() < deadline and any(
-                    row["state"] in ("PENDING", "RUNNING", "COMPLETING") for row in self._jobs_quiet()):
+                row["state"] in ("PENDING", "RUNNING", "COMPLETING") for row in self._jobs_quiet()
+            ):
                 time.sleep(0.2)
         for name in reversed(DAEMONS):
             if name in self.procs:

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.protocols import registry
 from gyrocal.io.errors import ConfigError
+from gyrocal.protocols import registry
 
 PACKAGE = Path(__file__).resolve().parents[1] / "gyrocal"
 
@@ -34,8 +34,9 @@ def _imports(name: str, path: Path, modules: dict) -> set[str]:
                 module = ".".join(base + ([node.module] if node.module else []))
             else:
                 module = node.module or ""
-            targets = [f"{module}.{a.name}" if f"{module}.{a.name}" in modules else module
-                       for a in node.names]
+            targets = [
+                f"{module}.{a.name}" if f"{module}.{a.name}" in modules else module for a in node.names
+            ]
         elif isinstance(node, ast.Import):
             targets = [a.name for a in node.names]
         else:
@@ -56,7 +57,7 @@ def test_no_import_cycle_in_the_package():
 
     def visit(m):
         if m in path:
-            raise AssertionError("import cycle: " + " -> ".join(path[path.index(m):] + [m]))
+            raise AssertionError("import cycle: " + " -> ".join(path[path.index(m) :] + [m]))
         if m in done:
             return
         path.append(m)
@@ -71,8 +72,21 @@ def test_no_import_cycle_in_the_package():
 
 # The folders from the ground up (docs/architecture.md): a folder imports only from folders
 # before it, and only those its __init__ names.
-LAYERS = ("io", "terms", "importer", "simulate", "fit", "calibration", "report", "protocols",
-          "pipeline", "fleet", "diagnose", "paper", "run")
+LAYERS = (
+    "io",
+    "terms",
+    "importer",
+    "simulate",
+    "fit",
+    "calibration",
+    "report",
+    "protocols",
+    "pipeline",
+    "fleet",
+    "diagnose",
+    "paper",
+    "run",
+)
 VAGUE = {"utils", "util", "common", "misc", "helpers", "stuff", "lib", "core", "base_utils"}
 
 
@@ -85,8 +99,9 @@ def _declared(folder: str) -> set[str]:
     """What a folder's __init__ says it may import: its docstring's second line."""
     doc = ast.get_docstring(ast.parse((PACKAGE / folder / "__init__.py").read_text()))
     lines = doc.splitlines()
-    assert len(lines) >= 2 and lines[1].startswith("May import: ") and len(lines[0]) > 20, \
+    assert len(lines) >= 2 and lines[1].startswith("May import: ") and len(lines[0]) > 20, (
         f"gyrocal/{folder}/__init__.py: line 1 says what lives there, line 2 'May import: ...'"
+    )
     said = lines[1].removeprefix("May import: ").rstrip(".")
     if said == "no other folder of gyrocal":
         return set()
@@ -96,8 +111,9 @@ def _declared(folder: str) -> set[str]:
 
 
 def test_the_top_level_is_a_few_folders_each_a_layer():
-    entries = sorted(p.name for p in PACKAGE.iterdir() if p.name != "__pycache__"
-                     and not p.name.endswith(".so"))
+    entries = sorted(
+        p.name for p in PACKAGE.iterdir() if p.name != "__pycache__" and not p.name.endswith(".so")
+    )
     assert len(entries) <= 15, entries
     assert {e for e in entries if (PACKAGE / e).is_dir()} == set(LAYERS)
     assert {e for e in entries if not (PACKAGE / e).is_dir()} == {"__init__.py", "__main__.py"}
@@ -113,9 +129,10 @@ def test_every_folder_imports_only_what_its_init_says_and_only_downwards():
     wrong = []
     for folder in LAYERS:
         allowed = _declared(folder)
-        below = set(LAYERS[:LAYERS.index(folder)])
-        assert allowed <= below or allowed == set(LAYERS) - {folder} and folder == LAYERS[-1], \
+        below = set(LAYERS[: LAYERS.index(folder)])
+        assert allowed <= below or allowed == set(LAYERS) - {folder} and folder == LAYERS[-1], (
             f"gyrocal/{folder} says it may import {sorted(allowed - below)}, which are not below it"
+        )
         for name, path in modules.items():
             if _folder(name) != folder:
                 continue
@@ -162,16 +179,21 @@ def test_the_registry_knows_the_built_in_protocols_and_refuses_others():
 
 def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
     """Adding a protocol is one registration: a log of it is segmented by its segmenter."""
-    from gyrocal.pipeline.config import Settings
-    from gyrocal.pipeline.chain import segment_log
-    from gyrocal.simulate import TurntableProtocol, simulate_unit
-    from gyrocal.protocols.turntable import protocol as turntable
-    import numpy as np
     from dataclasses import replace
 
+    import numpy as np
+
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.protocols.turntable import protocol as turntable
+    from gyrocal.simulate import TurntableProtocol, simulate_unit
+
     log = tmp_path / "u.parquet"
-    simulate_unit(log, rig=TurntableProtocol.quick(temperatures=(20.0,), rates=(10.0, 100.0)),
-                  rng=np.random.default_rng(3))
+    simulate_unit(
+        log,
+        rig=TurntableProtocol.quick(temperatures=(20.0,), rates=(10.0, 100.0)),
+        rng=np.random.default_rng(3),
+    )
     seen = []
 
     def segment(log, settings):
@@ -192,11 +214,11 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
     fits only its candidates), and what they write is what separate stages write."""
     import numpy as np
 
-    from gyrocal.pipeline import chain, identify
-    from gyrocal.run import stages
-    from gyrocal.fit import thermal
     from gyrocal.diagnose import evaluation
+    from gyrocal.fit import thermal
+    from gyrocal.pipeline import chain, identify
     from gyrocal.pipeline.config import Settings
+    from gyrocal.run import stages
     from gyrocal.simulate import TurntableProtocol, simulate_unit
 
     log = tmp_path / "u.parquet"
@@ -235,9 +257,9 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
 def test_a_calibration_from_other_settings_is_refused_without_refitting(tmp_path):
     import numpy as np
 
-    from gyrocal.run import stages
-    from gyrocal.pipeline.config import Settings
     from gyrocal.io.errors import GyrocalError
+    from gyrocal.pipeline.config import Settings
+    from gyrocal.run import stages
     from gyrocal.simulate import TurntableProtocol, simulate_unit
 
     log = tmp_path / "u.parquet"

@@ -35,11 +35,13 @@ def test_the_good_log_calibrates_to_its_own_truth(good, tmp_path, capsys):
     truth = sensor_params(0)
     stderr = cal["grid"]["stderr"]
     axes = "xyz"
-    for k, (temp, K, B) in enumerate(zip(cal["grid"]["temperature"], cal["grid"]["K"], cal["grid"]["B"], strict=False)):
+    for k, (temp, K, B) in enumerate(
+        zip(cal["grid"]["temperature"], cal["grid"]["K"], cal["grid"]["B"], strict=False)
+    ):
         # Each term within five of its reported standard errors of the generator's truth.
         dT = temp - 25.0
         true_K = K_at(truth, temp)
-        true_B = truth["b0"] + truth["b1"] * dT + truth["b2"] * dT ** 2
+        true_B = truth["b0"] + truth["b1"] * dT + truth["b2"] * dT**2
         for i, a in enumerate(axes):
             assert abs(B[i] - true_B[i]) <= 5 * stderr[f"bias.{a}"][k], (temp, a, B[i], true_B[i])
             for j, b in enumerate(axes):
@@ -57,19 +59,21 @@ def test_an_independently_made_bad_log(kind, good, tmp_path, capsys):
     assert "Traceback" not in err and "internal error" not in err, err
     if verdict == "refuse":
         lines = err.strip().splitlines()
-        assert status == 2 and len(lines) == 1 and lines[0].startswith(f"gyrocal: error: {log}: "), \
+        assert status == 2 and len(lines) == 1 and lines[0].startswith(f"gyrocal: error: {log}: "), (
             f"{kind}: expected a refusal ({expected}); got {err!r}"
+        )
         assert not out.exists()
         return
     assert status == 0, f"{kind}: expected a calibration ({expected}); got {err!r}"
 
     def refuse(name):
         raise AssertionError(f"{name} in the calibration file")
+
     cal = json.loads(out.read_text(), parse_constant=refuse)
     codes = [w["code"] for w in cal["warnings"]]
     diag = np.diagonal(np.array(cal["grid"]["K"]), axis1=1, axis2=2)
     assert np.all(np.abs(diag - 1) < 0.1) or "scale_far_from_one" in codes
     if verdict == "warn":
         assert codes, f"{kind}: expected a warning ({expected}); none recorded"
-    elif category == "contract":   # what the contract allows is calibrated without a word
+    elif category == "contract":  # what the contract allows is calibrated without a word
         assert codes == [], f"{kind}: {codes}"

@@ -10,19 +10,37 @@ import sys
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.run import cli
 from gyrocal.io.unit_folder import read_part_table
+from gyrocal.run import cli
 
 
 def gyrocal(*args):
     """Run the installed console entry point in a subprocess (what rigs and scripts do)."""
-    return subprocess.run([sys.executable, "-m", "gyrocal.run.cli", *map(str, args)],
-                          capture_output=True, text=True)
+    return subprocess.run(
+        [sys.executable, "-m", "gyrocal.run.cli", *map(str, args)], capture_output=True, text=True
+    )
 
 
-COMMANDS = {"simulate", "calibrate", "diagnose", "apply", "noise", "segment", "fit", "validate",
-            "analyse", "report", "fleet", "shard", "paper", "lookup", "export", "verify", "import",
-            "revalidate"}
+COMMANDS = {
+    "simulate",
+    "calibrate",
+    "diagnose",
+    "apply",
+    "noise",
+    "segment",
+    "fit",
+    "validate",
+    "analyse",
+    "report",
+    "fleet",
+    "shard",
+    "paper",
+    "lookup",
+    "export",
+    "verify",
+    "import",
+    "revalidate",
+}
 
 
 def test_help_lists_the_commands():
@@ -35,7 +53,7 @@ def test_help_lists_the_commands():
     listed = {line.split()[0] for line in section.splitlines() if re.match(r" {4}\S", line)}
     assert listed == COMMANDS
     subparsers = next(a for a in cli.build_parser()._actions if a.dest == "command")
-    assert set(subparsers.choices) == listed   # none accepted but left out of the help
+    assert set(subparsers.choices) == listed  # none accepted but left out of the help
 
 
 def main(*args):
@@ -45,13 +63,44 @@ def main(*args):
 @pytest.mark.slow
 def test_simulate_calibrate_apply(tmp_path, capsys):
     logs = tmp_path / "logs"
-    assert main("simulate", "--out", logs, "--preset", "quick", "--units", "1", "--seed", "4",
-                "--temperatures=0,10,20,30", "--rates", "10,100") == 0
+    assert (
+        main(
+            "simulate",
+            "--out",
+            logs,
+            "--preset",
+            "quick",
+            "--units",
+            "1",
+            "--seed",
+            "4",
+            "--temperatures=0,10,20,30",
+            "--rates",
+            "10,100",
+        )
+        == 0
+    )
     cal = tmp_path / "cal.json"
     report = tmp_path / "r.html"
-    assert main("calibrate", logs / "U001.parquet", "-o", cal, "--report", report,
-                "--device", "U001", "--batch", "B1", "--session", "2026-01-01",
-                "--tables", tmp_path / "tables") == 0
+    assert (
+        main(
+            "calibrate",
+            logs / "U001.parquet",
+            "-o",
+            cal,
+            "--report",
+            report,
+            "--device",
+            "U001",
+            "--batch",
+            "B1",
+            "--session",
+            "2026-01-01",
+            "--tables",
+            tmp_path / "tables",
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert f"calibration -> {cal}" in out and "noise floor" in out
     doc = json.loads(cal.read_text())
@@ -78,12 +127,20 @@ def test_verify_accepts_an_old_sha256_record_and_refuses_another_log(tmp_path, c
     """Files written before BLAKE3 record the input's SHA-256: they still verify; a log
     that is not the input is refused in one line, naming it."""
     import hashlib
+
     log, other = tmp_path / "a.parquet", tmp_path / "b.parquet"
     log.write_bytes(b"PAR1 one log")
     other.write_bytes(b"PAR1 another")
     cal = tmp_path / "old.json"
-    cal.write_text(json.dumps({"provenance": {"input": {
-        "name": "a.parquet", "sha256": hashlib.sha256(log.read_bytes()).hexdigest()}}}))
+    cal.write_text(
+        json.dumps(
+            {
+                "provenance": {
+                    "input": {"name": "a.parquet", "sha256": hashlib.sha256(log.read_bytes()).hexdigest()}
+                }
+            }
+        )
+    )
     assert main("verify", cal, log) == 0
     assert "(sha256)" in capsys.readouterr().out
     assert main("verify", cal, other) == 2
@@ -94,25 +151,52 @@ def test_verify_accepts_an_old_sha256_record_and_refuses_another_log(tmp_path, c
     assert "names no input hash" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("make, args, expected", [
-    (lambda d: d.joinpath("x.parquet").write_bytes(b"garbage"), ["calibrate", "{d}/x.parquet", "-o", "{d}/c.json"],
-     "not a readable Parquet file"),
-    (lambda d: None, ["calibrate", "{d}/absent.parquet", "-o", "{d}/c.json"], "no such file"),
-    (lambda d: d.joinpath("c.json").write_text("{}"), ["apply", "{d}/c.json", "{d}/l.parquet", "-o", "{d}/o"],
-     "format is None"),
-    (lambda d: None, ["calibrate", "{d}/l.parquet", "--protocol", "gimbal", "-o", "{d}/c.json"],
-     "protocol 'gimbal' is not supported"),
-    (lambda d: None, ["calibrate", "{d}/l.parquet", "--add-term", "nope", "-o", "{d}/c.json"],
-     "unknown model term 'nope'"),
-    (lambda d: d.joinpath("m.yaml").write_text("terms: [bias]\ninterpolation: cosine\n"),
-     ["calibrate", "{d}/l.parquet", "--model", "{d}/m.yaml", "-o", "{d}/c.json"], "interpolation method 'cosine' is not known"),
-    (lambda d: None, ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"warp": [1, 2, 3]}}'],
-     "unknown simulated effect 'warp'"),
-    (lambda d: None, ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"scale_cubic": [1]}}'],
-     "scale_cubic must be 3 finite numbers"),
-    (lambda d: None, ["diagnose", "{d}/l.parquet", "--add-term", "bias_temp_poly(degree=9)", "-o", "{d}/d.json"],
-     "degree must be an integer from 1 to 5"),
-])
+@pytest.mark.parametrize(
+    "make, args, expected",
+    [
+        (
+            lambda d: d.joinpath("x.parquet").write_bytes(b"garbage"),
+            ["calibrate", "{d}/x.parquet", "-o", "{d}/c.json"],
+            "not a readable Parquet file",
+        ),
+        (lambda d: None, ["calibrate", "{d}/absent.parquet", "-o", "{d}/c.json"], "no such file"),
+        (
+            lambda d: d.joinpath("c.json").write_text("{}"),
+            ["apply", "{d}/c.json", "{d}/l.parquet", "-o", "{d}/o"],
+            "format is None",
+        ),
+        (
+            lambda d: None,
+            ["calibrate", "{d}/l.parquet", "--protocol", "gimbal", "-o", "{d}/c.json"],
+            "protocol 'gimbal' is not supported",
+        ),
+        (
+            lambda d: None,
+            ["calibrate", "{d}/l.parquet", "--add-term", "nope", "-o", "{d}/c.json"],
+            "unknown model term 'nope'",
+        ),
+        (
+            lambda d: d.joinpath("m.yaml").write_text("terms: [bias]\ninterpolation: cosine\n"),
+            ["calibrate", "{d}/l.parquet", "--model", "{d}/m.yaml", "-o", "{d}/c.json"],
+            "interpolation method 'cosine' is not known",
+        ),
+        (
+            lambda d: None,
+            ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"warp": [1, 2, 3]}}'],
+            "unknown simulated effect 'warp'",
+        ),
+        (
+            lambda d: None,
+            ["simulate", "--log", "{d}/l.parquet", "--effects", '{{"scale_cubic": [1]}}'],
+            "scale_cubic must be 3 finite numbers",
+        ),
+        (
+            lambda d: None,
+            ["diagnose", "{d}/l.parquet", "--add-term", "bias_temp_poly(degree=9)", "-o", "{d}/d.json"],
+            "degree must be an integer from 1 to 5",
+        ),
+    ],
+)
 def test_bad_input_is_one_line_and_exit_2(tmp_path, make, args, expected):
     make(tmp_path)
     out = gyrocal(*[a.format(d=tmp_path) for a in args])
@@ -123,7 +207,9 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path, make, args, expected):
     assert "Traceback" not in out.stderr
 
 
-@pytest.mark.parametrize("args", [["nope"], ["calibrate"], ["apply", "a", "-o"], ["simulate", "--units", "x"]])
+@pytest.mark.parametrize(
+    "args", [["nope"], ["calibrate"], ["apply", "a", "-o"], ["simulate", "--units", "x"]]
+)
 def test_usage_mistakes_are_one_line_and_exit_2(args):
     out = gyrocal(*args)
     assert out.returncode == 2
@@ -136,22 +222,48 @@ def test_an_internal_error_is_one_line_and_exit_1(monkeypatch, capsys):
 
     def broken(path):
         raise RuntimeError("something\nunexpected")
+
     monkeypatch.setattr(gyrocal.calibration.file, "load_calibration", broken)
     assert main("apply", "a.json", "b.parquet", "-o", "c.parquet") == 1
     err = capsys.readouterr().err.strip()
-    assert err == ("gyrocal: internal error: RuntimeError: something unexpected "
-                   "(rerun with --debug for a traceback)")
+    assert err == (
+        "gyrocal: internal error: RuntimeError: something unexpected (rerun with --debug for a traceback)"
+    )
 
 
 def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term(tmp_path, capsys):
     log = tmp_path / "u.parquet"
-    assert main("simulate", "--log", log, "--preset", "quick", "--temperatures=0,10,20,30",
-                "--effects", '{"scale_asymmetry": [3e-4, -2e-4, 2.5e-4]}') == 0
+    assert (
+        main(
+            "simulate",
+            "--log",
+            log,
+            "--preset",
+            "quick",
+            "--temperatures=0,10,20,30",
+            "--effects",
+            '{"scale_asymmetry": [3e-4, -2e-4, 2.5e-4]}',
+        )
+        == 0
+    )
     model = tmp_path / "model.yaml"
     model.write_text("model:\n  terms: [bias, scale, misalignment]\n")
     out = tmp_path / "d.json"
-    assert main("diagnose", log, "--protocol", "turntable", "-o", out, "--model", model,
-                "--residuals", tmp_path / "r.parquet") == 0
+    assert (
+        main(
+            "diagnose",
+            log,
+            "--protocol",
+            "turntable",
+            "-o",
+            out,
+            "--model",
+            model,
+            "--residuals",
+            tmp_path / "r.parquet",
+        )
+        == 0
+    )
     assert "Missing effect: scale_asymmetry" in capsys.readouterr().out
     doc = json.loads(out.read_text())
     assert doc["excess"] == pytest.approx(doc["validation_rms"] / doc["noise_floor"], rel=1e-12)
@@ -165,7 +277,9 @@ def test_diagnose_writes_the_contract_fields_and_its_names_go_back_into_add_term
     residuals = pq.read_table(tmp_path / "r.parquet")
     assert {"z_x", "resid_y", "floor_z", "temp", "ref_rate", "mount"} <= set(residuals.column_names)
     for candidate in doc["candidates"]:  # every printed name is accepted back
-        args = cli.build_parser().parse_args(["diagnose", str(log), "-o", "x", "--add-term", candidate["term"]])
+        args = cli.build_parser().parse_args(
+            ["diagnose", str(log), "-o", "x", "--add-term", candidate["term"]]
+        )
         assert candidate["term"] in cli._settings(args).model.terms
     again = tmp_path / "d2.json"
     assert main("diagnose", log, "-o", again, "--add-term", doc["best"]["term"]) == 0
@@ -176,13 +290,22 @@ def test_the_command_line_sets_one_blas_thread_before_numpy_loads():
     """The BLAS thread count is read when numpy loads: gyrocal.run.blas_threads must come first,
     and a count the user set is kept."""
     import os
-    probe = ("import os, sys, gyrocal.run.cli; order = list(sys.modules); "
-             "print(order.index('gyrocal.run.blas_threads') < order.index('numpy'), "
-             "os.environ['OPENBLAS_NUM_THREADS'])")
+
+    probe = (
+        "import os, sys, gyrocal.run.cli; order = list(sys.modules); "
+        "print(order.index('gyrocal.run.blas_threads') < order.index('numpy'), "
+        "os.environ['OPENBLAS_NUM_THREADS'])"
+    )
     env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
-    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
-                         check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True
+    ).stdout.split()
     assert out == ["True", "1"]
-    out = subprocess.run([sys.executable, "-c", probe], env={**env, "OPENBLAS_NUM_THREADS": "3"},
-                         capture_output=True, text=True, check=True).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", probe],
+        env={**env, "OPENBLAS_NUM_THREADS": "3"},
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
     assert out == ["True", "3"]

@@ -13,26 +13,34 @@ import shutil
 import numpy as np
 import pytest
 
-from gyrocal.io import failure
 from gyrocal.calibration.file import load_calibration
-from gyrocal.run.cli import main
+from gyrocal.io import failure
 from gyrocal.io.errors import CorruptFileError
-from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 from gyrocal.io.unit_folder import UNIT_FILES, pack_stage, part_exists, part_failure
+from gyrocal.run.cli import main
+from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
 from .conftest import FLEET_CONFIG, REPO, needs, snakemake
 
 PROFILES = REPO / "profiles"
 UNITS = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
 MANIFEST = "device\tbatch\tsession\tprotocol\tpath\n" + "".join(
-    f"{d}\t{b}\t{s}\tturntable\tdemo/logs/{b}/{d}/{s}.parquet\n" for b, d, s in UNITS)
+    f"{d}\t{b}\t{s}\tturntable\tdemo/logs/{b}/{d}/{s}.parquet\n" for b, d, s in UNITS
+)
 CONFIG = FLEET_CONFIG  # the workflow test's fleet settings
-UNIT_RULES = {"simulate", "segment", "analyse"}   # analyse writes the report too
+UNIT_RULES = {"simulate", "segment", "analyse"}  # analyse writes the report too
 
 # The profile's submit.sh, status.sh and cancel.sh are bash scripts.
-needs_plugin = needs({"snakemake-executor-plugin-cluster-generic":
-                      importlib.util.find_spec("snakemake_executor_plugin_cluster_generic") is not None,
-                      "bash": shutil.which("bash") is not None}, "a test extra; bash: Debian's")
+needs_plugin = needs(
+    {
+        "snakemake-executor-plugin-cluster-generic": importlib.util.find_spec(
+            "snakemake_executor_plugin_cluster_generic"
+        )
+        is not None,
+        "bash": shutil.which("bash") is not None,
+    },
+    "a test extra; bash: Debian's",
+)
 
 
 def fleet_folder(path):
@@ -60,8 +68,15 @@ def runs(tmp_path_factory):
     out = snakemake(local)
     assert out.returncode == 0, out.stderr[-3000:]
     # Jobs of seconds here: status asked every second instead of every ten.
-    out = snakemake(cluster, "--profile", str(PROFILES / "cluster-generic"), "--jobs", "2",
-                    "--seconds-between-status-checks", "1")
+    out = snakemake(
+        cluster,
+        "--profile",
+        str(PROFILES / "cluster-generic"),
+        "--jobs",
+        "2",
+        "--seconds-between-status-checks",
+        "1",
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     return local, cluster
 
@@ -121,8 +136,13 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 
-@needs({"snakemake-executor-plugin-slurm": importlib.util.find_spec("snakemake_executor_plugin_slurm") is not None},
-       "a test extra")
+@needs(
+    {
+        "snakemake-executor-plugin-slurm": importlib.util.find_spec("snakemake_executor_plugin_slurm")
+        is not None
+    },
+    "a test extra",
+)
 def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
     """The SLURM profile parses with its plugin and groups the units (a dry run;
     tests/test_slurm.py runs it on a SLURM cluster). Two units, five to a job: one group
@@ -138,9 +158,11 @@ def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
 META = ["--device", "A1", "--batch", "B1", "--session", "2026-01-01", "--protocol", "turntable"]
 SEGMENT_FILES = ("observations", "history", "segments", "timeline")
 # A temperature-only term cannot be fitted point by point: the fit fails on its own.
-SETTINGS = {"calibrated": {"model": {"terms": ["bias", "scale", "misalignment"]}},
-            "fit fails": {"model": {"terms": ["bias", "scale", "misalignment", "bias_temp_poly"]}},
-            "segment failed": {"model": {"terms": ["bias", "scale", "misalignment"]}}}
+SETTINGS = {
+    "calibrated": {"model": {"terms": ["bias", "scale", "misalignment"]}},
+    "fit fails": {"model": {"terms": ["bias", "scale", "misalignment", "bias_temp_poly"]}},
+    "segment failed": {"model": {"terms": ["bias", "scale", "misalignment"]}},
+}
 
 
 @pytest.fixture(scope="module")
@@ -148,8 +170,14 @@ def segmented(tmp_path_factory):
     """A quick simulated log's segmentation (the segment stage's three files)."""
     base = tmp_path_factory.mktemp("analyse")
     log = base / "A1.parquet"
-    simulate_unit(log, rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0)),
-                  unit=GyroUnit.seed000(), rng=np.random.default_rng(11), device="A1", seed=11)
+    simulate_unit(
+        log,
+        rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0)),
+        unit=GyroUnit.seed000(),
+        rng=np.random.default_rng(11),
+        device="A1",
+        seed=11,
+    )
     assert main(["segment", str(log), "--out", str(base / "unit"), *META]) == 0
     return base / "unit"
 
@@ -162,8 +190,11 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
     for folder in folders.values():
         folder.mkdir()
         if case == "segment failed":
-            rec = failure.record("segment", CorruptFileError("not a readable Parquet file", source="x"),
-                                 {"device": "A1", "batch": "B1", "session": "2026-01-01"})
+            rec = failure.record(
+                "segment",
+                CorruptFileError("not a readable Parquet file", source="x"),
+                {"device": "A1", "batch": "B1", "session": "2026-01-01"},
+            )
             failure.write([folder / UNIT_FILES[k] for k in SEGMENT_FILES], rec)
             pack_stage(folder, "segment")
         else:
@@ -172,15 +203,32 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
     three = folders["three"]
     assert main(["fit", str(three), *args]) == 0
     assert main(["validate", str(three), *args]) == 0
-    assert main(["diagnose", "--unit", str(three), "-o", str(three / "diagnosis.json"),
-                 "--residuals", str(three / "residuals.parquet"), *args]) == 0
+    assert (
+        main(
+            [
+                "diagnose",
+                "--unit",
+                str(three),
+                "-o",
+                str(three / "diagnosis.json"),
+                "--residuals",
+                str(three / "residuals.parquet"),
+                *args,
+            ]
+        )
+        == 0
+    )
     assert main(["analyse", str(folders["one"]), *args]) == 0
 
     # a unit session's files: the calibration, two archives and, once it is calibrated, the
     # record of its runs
     names = sorted(p.name for p in three.iterdir())
-    assert names == ["analysis.zip", "calibration.json",
-                     *(["runs.json"] if case == "calibrated" else []), "segmentation.zip"]
+    assert names == [
+        "analysis.zip",
+        "calibration.json",
+        *(["runs.json"] if case == "calibrated" else []),
+        "segmentation.zip",
+    ]
     assert sorted(p.name for p in folders["one"].iterdir()) == names
     for name in names:
         assert (folders["one"] / name).read_bytes() == (three / name).read_bytes(), name
@@ -197,7 +245,8 @@ def test_analyse_writes_what_fit_validate_and_diagnose_write(segmented, tmp_path
         # its own failure on the same model
         assert {name: stage[name] for name in analysed} == {
             name: "diagnose" if name in ("diagnosis.json", "residuals.parquet") else "fit"
-            for name in analysed}
+            for name in analysed
+        }
         assert "bias_temp_poly" in part_failure(folders["one"], "calibration")["error"]
     else:
         assert {stage[name] for name in analysed} == {"segment"}
@@ -208,8 +257,7 @@ def test_analyse_without_recording_failures_stops_at_the_failed_step(segmented, 
     segment_files = ["segmentation.zip"]
     for name in segment_files:
         shutil.copyfile(segmented / name, tmp_path / name)
-    code = main(["analyse", str(tmp_path), *META, "--settings-json",
-                 json.dumps(SETTINGS["fit fails"])])
+    code = main(["analyse", str(tmp_path), *META, "--settings-json", json.dumps(SETTINGS["fit fails"])])
     assert code == 2
     assert capsys.readouterr().err.count("\n") == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == segment_files

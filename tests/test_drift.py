@@ -9,25 +9,31 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from gyrocal.io import failure
-from gyrocal.pipeline.config import Settings
 from gyrocal.fleet.drift import parameter_changes, plot_drift, revalidate
+from gyrocal.io import failure
 from gyrocal.io.errors import ConfigError, InputError
 from gyrocal.io.tables import write_table
 from gyrocal.pipeline.chain import calibrate_observations, segment_log
+from gyrocal.pipeline.config import Settings
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
 TEMPS = (0.0, 20.0, 40.0)
-SHIFT = np.array([0.01, 0.0, -0.02])     # deg/s added to the bias at every temperature
-TOLERANCE = {"bias.*": 0.005, "scale.*": 30.0, "misalignment.*": 0.03}   # deg/s, ppm, mrad
-STABLE_SEEDS = tuple(range(11, 19))   # 8 units, 96 changes: the χ² check below tells a √2 error in se
+SHIFT = np.array([0.01, 0.0, -0.02])  # deg/s added to the bias at every temperature
+TOLERANCE = {"bias.*": 0.005, "scale.*": 30.0, "misalignment.*": 0.03}  # deg/s, ppm, mrad
+STABLE_SEEDS = tuple(range(11, 19))  # 8 units, 96 changes: the χ² check below tells a √2 error in se
 
 
 def session(directory, unit: GyroUnit, seed: int, date: str, device="D1"):
     """(calibration, observations) of one simulated session."""
     path = directory / f"{device}_{date}_{seed}.parquet"
-    simulate_unit(path, rig=TurntableProtocol.quick(temperatures=TEMPS), unit=unit,
-                  rng=np.random.default_rng(seed), device=device, session=date)
+    simulate_unit(
+        path,
+        rig=TurntableProtocol.quick(temperatures=TEMPS),
+        unit=unit,
+        rng=np.random.default_rng(seed),
+        device=device,
+        session=date,
+    )
     settings = Settings()
     seg = segment_log(path, settings)
     meta = {"device": device, "batch": "B1", "session": date, "protocol": "turntable"}
@@ -49,13 +55,16 @@ def sessions(tmp_path_factory):
         "first": session(d, unit, 1, "2026-01-10"),
         "second": session(d, unit, 2, "2026-03-10"),
         "shifted": session(d, shifted(unit), 3, "2026-06-10"),
-        "stable": [(session(d, u, 2 * s, "2026-01-01", f"S{s}"), session(d, u, 2 * s + 1, "2026-02-01", f"S{s}"))
-                   for s in STABLE_SEEDS for u in [GyroUnit.random(np.random.default_rng(s))]],
+        "stable": [
+            (session(d, u, 2 * s, "2026-01-01", f"S{s}"), session(d, u, 2 * s + 1, "2026-02-01", f"S{s}"))
+            for s in STABLE_SEEDS
+            for u in [GyroUnit.random(np.random.default_rng(s))]
+        ],
     }
 
 
 def test_bias_shift_is_flagged_with_its_size(sessions):
-    cals = [sessions[k][0] for k in ("shifted", "first", "second")]   # out of order on purpose
+    cals = [sessions[k][0] for k in ("shifted", "first", "second")]  # out of order on purpose
     ch = parameter_changes(cals, tolerance=TOLERANCE)
     assert list(dict.fromkeys(ch["session"])) == ["2026-01-10", "2026-03-10", "2026-06-10"]
     last = ch[ch["session"] == "2026-06-10"].set_index("parameter")
@@ -66,9 +75,14 @@ def test_bias_shift_is_flagged_with_its_size(sessions):
         # The simulated shift, recovered within three of its standard errors, both ways.
         assert abs(row["change_prev"] - SHIFT[i]) < 3 * row["se_prev"]
         assert abs(row["change_first"] - SHIFT[i]) < 3 * row["se_first"]
-        np.testing.assert_allclose(row["se_prev"], np.hypot(row["stderr"],
-                                   ch.set_index(["session", "parameter"]).loc[("2026-03-10", f"bias.{a}"), "stderr"]),
-                                   rtol=1e-12)
+        np.testing.assert_allclose(
+            row["se_prev"],
+            np.hypot(
+                row["stderr"],
+                ch.set_index(["session", "parameter"]).loc[("2026-03-10", f"bias.{a}"), "stderr"],
+            ),
+            rtol=1e-12,
+        )
     assert last.loc["bias.x", "z_prev"] > 10 and last.loc["bias.z", "z_prev"] < -10
     assert (last["unit"].loc[["bias.x", "scale.x", "misalignment.x.y"]] == ["deg/s", "ppm", "mrad"]).all()
     first = ch[ch["baseline"]]
@@ -90,13 +104,15 @@ def test_stable_units_are_not_flagged_and_z_is_unit_normal(sessions):
     z = []
     for (a, _), (b, _) in sessions["stable"]:
         ch = parameter_changes([a, b], tolerance=TOLERANCE)
-        assert not ch["flagged"].any(), ch.loc[ch["flagged"], ["device", "parameter", "change_prev", "z_prev"]]
+        assert not ch["flagged"].any(), ch.loc[
+            ch["flagged"], ["device", "parameter", "change_prev", "z_prev"]
+        ]
         z.append(ch.loc[~ch["baseline"], "z_prev"].to_numpy())
     z = np.concatenate(z)
     # If the standard errors are right, Σz² is χ² with one degree per change (99 % bounds;
     # errors of one session instead of both would double it, far beyond the upper bound).
     lo, hi = chi2.ppf([5e-3, 1 - 5e-3], len(z))
-    assert lo < np.sum(z ** 2) < hi
+    assert lo < np.sum(z**2) < hi
 
 
 def test_revalidation_holds_for_the_same_unit_and_not_after_a_shift(sessions):
@@ -112,10 +128,11 @@ def test_revalidation_holds_for_the_same_unit_and_not_after_a_shift(sessions):
     moved = revalidate(old, sessions["shifted"][1])
     assert not moved["holds"] and moved["verdict"].startswith("the old calibration no longer holds (")
     # The error is the shift on top of the expected: sqrt(expected² + mean(shift²)).
-    np.testing.assert_allclose(moved["validation_rms"],
-                               np.sqrt(moved["expected_rms"] ** 2 + np.mean(SHIFT ** 2)), rtol=0.1)
+    np.testing.assert_allclose(
+        moved["validation_rms"], np.sqrt(moved["expected_rms"] ** 2 + np.mean(SHIFT**2)), rtol=0.1
+    )
     table = moved["table"].groupby("output")["interpolated_mean"].mean()
-    np.testing.assert_allclose(table[["x", "y", "z"]], SHIFT, atol=1.5e-3)   # ~4σ of a mean of ~60 holds
+    np.testing.assert_allclose(table[["x", "y", "z"]], SHIFT, atol=1.5e-3)  # ~4σ of a mean of ~60 holds
     assert revalidate(old, sessions["shifted"][1], max_excess=10.0)["holds"]
 
 
@@ -148,7 +165,7 @@ def test_changes_refuse_mixed_devices_and_bad_tolerances(sessions):
 
 def test_drift_plot_is_deterministic(sessions, tmp_path):
     ch = parameter_changes([sessions[k][0] for k in ("first", "second", "shifted")], tolerance=TOLERANCE)
-    ch = ch[ch["parameter"].isin(["bias.x", "bias.z", "misalignment.z.y"])]   # four panels: quick
+    ch = ch[ch["parameter"].isin(["bias.x", "bias.z", "misalignment.z.y"])]  # four panels: quick
     path = tmp_path / "drift.svg"
     svg = plot_drift(ch, path)
     assert svg.startswith("<svg") and path.read_text() == svg

@@ -16,19 +16,21 @@ from dataclasses import replace
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from hypothesis import HealthCheck, given, settings as hsettings, strategies as st
+from hypothesis import HealthCheck, given
+from hypothesis import settings as hsettings
+from hypothesis import strategies as st
 
 from benchmarks.zoo.generator import make_unit, write_session
-from gyrocal.run.cli import main
-from gyrocal.pipeline.config import ModelSettings, Settings
+from gyrocal.fit.model import Model, columns_of
+from gyrocal.fit.thermal import fit_model
 from gyrocal.fleet.drift import revalidate
 from gyrocal.io.errors import ConfigError, IdentifiabilityError
-from gyrocal.fit.model import Model, columns_of
-from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.io.signals import Inputs, Series, first_order_lag, history
+from gyrocal.pipeline.chain import run, segment_log
+from gyrocal.pipeline.config import ModelSettings, Settings
+from gyrocal.run.cli import main
 from gyrocal.terms import TERMS, make_term
 from gyrocal.terms.user import load_term_file
-from gyrocal.fit.thermal import fit_model
 
 WARMUP_FORMULA = {"formula": "exp(-t / tau)", "profile": {"tau": [60, 14400]}}
 WARMUP_FILE = textwrap.dedent('''
@@ -61,8 +63,7 @@ def warmup_sessions(tmp_path_factory):
     """Two sessions of one turntable unit with a turn-on transient (independent generator)."""
     d = tmp_path_factory.mktemp("warmup")
     unit = make_unit(effect="warmup", protocol="turntable3", noise="white", seed=7)
-    infos = [write_session(unit, d / f"s{s}.parquet", session=s, seed=100 + s, rate_hz=25.0)
-             for s in (0, 1)]
+    infos = [write_session(unit, d / f"s{s}.parquet", session=s, seed=100 + s, rate_hz=25.0) for s in (0, 1)]
     return [d / "s0.parquet", d / "s1.parquet"], infos
 
 
@@ -78,12 +79,13 @@ def with_model(**model) -> Settings:
 
 # -- the signals ------------------------------------------------------------------------
 
+
 def test_first_order_lag_follows_a_ramp_and_agrees_across_sampling():
-    tau, rate = 300.0, 0.01                      # s, °C/s
-    t = np.arange(0.0, 20000.0, 0.05)            # 66 time constants: two chunks
+    tau, rate = 300.0, 0.01  # s, °C/s
+    t = np.arange(0.0, 20000.0, 0.05)  # 66 time constants: two chunks
     x = 20.0 + rate * t
     y = first_order_lag(t, x, tau)
-    settled = t > 40 * tau                       # the start transient, rate·τ·e^-40, is gone
+    settled = t > 40 * tau  # the start transient, rate·τ·e^-40, is gone
     # to 1e-6 °C (rounding of the running sums), far below any sensor's resolution
     np.testing.assert_allclose(y[settled], x[settled] - rate * tau, rtol=0, atol=1e-6)
     # Bin means of the record (what the fit sees) give the samples' lag (what apply sees).
@@ -111,10 +113,14 @@ def hold_means_of_samples(log, obs, term) -> dict[str, np.ndarray]:
     hi = np.searchsorted(t, obs["t_end"].to_numpy(), side="right")
     out = {c: np.empty(len(obs)) for c in term.coefficients()}
     for i, (a, b) in enumerate(zip(lo, hi, strict=False)):
-        data = {"t": t[a:b] - t0, "temp": temp[a:b], "temp_rate": series.at("temp_rate", t[a:b] - t0),
-                **{f"accel_{x}": table.column(f"accel_{x}").to_numpy()[a:b].astype(float) for x in "xyz"},
-                **{f"rate_{x}": np.full(b - a, obs[f"rate_{x}"].iloc[i]) for x in "xyz"},
-                "ref_rate": np.full(b - a, obs["ref_rate"].iloc[i])}
+        data = {
+            "t": t[a:b] - t0,
+            "temp": temp[a:b],
+            "temp_rate": series.at("temp_rate", t[a:b] - t0),
+            **{f"accel_{x}": table.column(f"accel_{x}").to_numpy()[a:b].astype(float) for x in "xyz"},
+            **{f"rate_{x}": np.full(b - a, obs[f"rate_{x}"].iloc[i]) for x in "xyz"},
+            "ref_rate": np.full(b - a, obs["ref_rate"].iloc[i]),
+        }
         columns = term.columns(Inputs(data, series, data["t"]))
         for c in out:
             out[c][i] = np.mean(np.broadcast_to(columns[c], (b - a,)))
@@ -125,12 +131,19 @@ LIBRARY = sorted(n for n in TERMS if n != "expression")
 # A spline's knots are the user's: its default pair (0, 1) is not a shape of a session's
 # time. These are the spacing the diagnosis offers (holds apart), over a session's time
 # and over rates, alone and times the own rate.
-SPLINES = ['smooth(input="t", knots=[0, 600, 1800, 3600, 5400])',
-           'smooth(input="rate_own", knots=[-400, -100, 0, 100, 400], linear=False)',
-           'smooth(input="t", knots=[0, 900, 2700, 5400], by="rate_own")']
+SPLINES = [
+    'smooth(input="t", knots=[0, 600, 1800, 3600, 5400])',
+    'smooth(input="rate_own", knots=[-400, -100, 0, 100, 400], linear=False)',
+    'smooth(input="t", knots=[0, 900, 2700, 5400], by="rate_own")',
+]
 LIBRARY = [n for n in LIBRARY if n != "smooth"] + SPLINES
-USER_FORMULAS = ["exp(-t / 1000)", "t / 3600 * rate_x", "lag(temp, 900) - temp",
-                 "temp_rate * abs(rate_z)", "accel_z * sin(t / 500)"]
+USER_FORMULAS = [
+    "exp(-t / 1000)",
+    "t / 3600 * rate_x",
+    "lag(temp, 900) - temp",
+    "temp_rate * abs(rate_z)",
+    "accel_z * sin(t / 500)",
+]
 
 
 @pytest.fixture(scope="module")
@@ -160,12 +173,22 @@ def test_fit_and_apply_see_the_same_library_effect(observed, spec):
 
 
 @hsettings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-@given(spec=st.one_of(st.builds(lambda f: {"name": "expression", "label": "user", "formula": f},
-                                st.sampled_from(USER_FORMULAS)),
-                      st.builds(lambda tau: {"name": "expression", "label": "user",
-                                             "formula": f"exp(-t / {tau!r}) * (1 + rate_y / 400)"},
-                                st.floats(60.0, 20000.0)),
-                      st.builds(lambda tau: f"temp_lag(tau={tau!r})", st.floats(60.0, 14400.0))))
+@given(
+    spec=st.one_of(
+        st.builds(
+            lambda f: {"name": "expression", "label": "user", "formula": f}, st.sampled_from(USER_FORMULAS)
+        ),
+        st.builds(
+            lambda tau: {
+                "name": "expression",
+                "label": "user",
+                "formula": f"exp(-t / {tau!r}) * (1 + rate_y / 400)",
+            },
+            st.floats(60.0, 20000.0),
+        ),
+        st.builds(lambda tau: f"temp_lag(tau={tau!r})", st.floats(60.0, 14400.0)),
+    )
+)
 def test_fit_and_apply_see_the_same_user_effect(observed, spec):
     """The same for user terms of time, lags, temperature rate and orientation."""
     check_fit_and_apply_agree(observed, spec)
@@ -177,6 +200,7 @@ def test_each_library_term_is_checked():
 
 
 # -- the warm-up case end to end -----------------------------------------------------------
+
 
 def test_a_warmup_formula_in_the_default_grid_model_carries_to_the_next_session(warmup_sessions):
     (s0, s1), infos = warmup_sessions
@@ -207,9 +231,18 @@ def test_a_warmup_formula_in_the_default_grid_model_carries_to_the_next_session(
 
 def test_a_warmup_formula_in_a_continuous_model_carries_to_the_next_session(warmup_sessions):
     (s0, s1), _ = warmup_sessions
-    settings = with_model(kind="continuous", expressions={"warmup": WARMUP_FORMULA},
-                          terms=["bias", "scale", "misalignment", "bias_temp_poly(degree=2)",
-                                 "scale_temp_poly(degree=2)", "misalignment_temp"])
+    settings = with_model(
+        kind="continuous",
+        expressions={"warmup": WARMUP_FORMULA},
+        terms=[
+            "bias",
+            "scale",
+            "misalignment",
+            "bias_temp_poly(degree=2)",
+            "scale_temp_poly(degree=2)",
+            "misalignment_temp",
+        ],
+    )
     cal = run(s0, settings).calibration
     assert next_session_excess(cal, s1) < NEXT_SESSION_LIMIT
 
@@ -220,8 +253,23 @@ def test_a_warmup_term_file_with_no_inputs_declared_calibrates_and_applies(warmu
     term_file = tmp_path / "warmup_terms.py"
     term_file.write_text(WARMUP_FILE)
     cal_path, report = tmp_path / "cal.json", tmp_path / "report.html"
-    assert main(["calibrate", str(s0), "--terms", str(term_file), "--add-term", "warmup_test",
-                 "-o", str(cal_path), "--report", str(report)]) == 0
+    assert (
+        main(
+            [
+                "calibrate",
+                str(s0),
+                "--terms",
+                str(term_file),
+                "--add-term",
+                "warmup_test",
+                "-o",
+                str(cal_path),
+                "--report",
+                str(report),
+            ]
+        )
+        == 0
+    )
     body = json.loads(cal_path.read_text())
     (profiled,) = body["profiled"]
     assert body["model"]["terms"][-1]["tau"] == profiled["value"]
@@ -235,18 +283,31 @@ def test_a_warmup_term_file_with_no_inputs_declared_calibrates_and_applies(warmu
     gyro = pq.read_table(out, columns=["gyro_x"]).column("gyro_x").to_numpy()
     assert np.isfinite(gyro).all()
     # The same term in a continuous model.
-    settings = with_model(kind="continuous", term_files=[str(term_file)],
-                          terms=["bias", "scale", "misalignment", "bias_temp_poly(degree=2)",
-                                 "scale_temp_poly(degree=2)", "misalignment_temp", "warmup_test"])
+    settings = with_model(
+        kind="continuous",
+        term_files=[str(term_file)],
+        terms=[
+            "bias",
+            "scale",
+            "misalignment",
+            "bias_temp_poly(degree=2)",
+            "scale_temp_poly(degree=2)",
+            "misalignment_temp",
+            "warmup_test",
+        ],
+    )
     assert next_session_excess(run(s0, settings).calibration, s1) < NEXT_SESSION_LIMIT
 
 
 # -- refusals -----------------------------------------------------------------------------
 
+
 def test_a_point_term_that_does_not_vary_within_a_point_is_refused_with_what_to_do(observed):
     _, obs = observed
     settings = with_model(expressions={"T2": "temp ** 2"})
-    with pytest.raises(ConfigError, match=r"does not vary within a temperature point.*use model kind continuous"):
+    with pytest.raises(
+        ConfigError, match=r"does not vary within a temperature point.*use model kind continuous"
+    ):
         m = settings.model
         fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
     # Said global, it is no longer refused for this: the joint fit judges it by its own
@@ -259,7 +320,8 @@ def test_a_point_term_that_does_not_vary_within_a_point_is_refused_with_what_to_
 def test_a_term_reading_what_it_cannot_have_is_one_line(warmup_sessions, tmp_path, capsys):
     (s0, _), _ = warmup_sessions
     term_file = tmp_path / "odd_terms.py"
-    term_file.write_text(textwrap.dedent('''
+    term_file.write_text(
+        textwrap.dedent("""
         from dataclasses import dataclass
         from gyrocal.terms import AXES, Term, register_term
 
@@ -271,20 +333,46 @@ def test_a_term_reading_what_it_cannot_have_is_one_line(warmup_sessions, tmp_pat
                 return [f"odd_test.{a}" for a in AXES]
             def columns(self, data):
                 return {f"odd_test.{a}": data["humidity"] for a in AXES}
-        '''))
-    status = main(["calibrate", str(s0), "--terms", str(term_file), "--add-term", "odd_test",
-                   "-o", str(tmp_path / "cal.json")])
+        """)
+    )
+    status = main(
+        [
+            "calibrate",
+            str(s0),
+            "--terms",
+            str(term_file),
+            "--add-term",
+            "odd_test",
+            "-o",
+            str(tmp_path / "cal.json"),
+        ]
+    )
     err = capsys.readouterr().err.strip()
     assert status == 2 and "\n" not in err
     assert "odd_test" in err and "humidity" in err and "Traceback" not in err
 
 
 def test_formulas_read_t_and_lags_but_run_nothing_else():
-    term = make_term({"name": "expression", "label": "w", "formula": "exp(-t / tau) + lag(temp, 60)",
-                      "parameters": {"tau": 100.0}})
+    term = make_term(
+        {
+            "name": "expression",
+            "label": "w",
+            "formula": "exp(-t / tau) + lag(temp, 60)",
+            "parameters": {"tau": 100.0},
+        }
+    )
     assert term.needs == {"t", "temp", "temp_lag"} and term.coefficient_scope == "global"
-    for bad in ("__import__('os')", "t.__class__", "lag(ref_rate, 5)", "open('x')", "tau", "lag(temp)",
-                "lag(lag(temp, 5), 5)", "play(temp)", "play(rate_x, t)"):
+    for bad in (
+        "__import__('os')",
+        "t.__class__",
+        "lag(ref_rate, 5)",
+        "open('x')",
+        "tau",
+        "lag(temp)",
+        "lag(lag(temp, 5), 5)",
+        "play(temp)",
+        "play(rate_x, t)",
+    ):
         with pytest.raises(ConfigError):
             make_term({"name": "expression", "label": "w", "formula": bad})
     with pytest.raises(ConfigError, match="profile"):
@@ -296,7 +384,10 @@ def test_scope_round_trips_through_the_spec():
     assert term.coefficient_scope == "global"
     assert make_term(term.spec()).coefficient_scope == "global"
     assert make_term(term.spec_string()).spec() == term.spec()
-    assert make_term("temp_lag").coefficient_scope == "global" and make_term("scale").coefficient_scope == "point"
+    assert (
+        make_term("temp_lag").coefficient_scope == "global"
+        and make_term("scale").coefficient_scope == "point"
+    )
     with pytest.raises(ConfigError, match="scope"):
         make_term("scale(scope='everywhere')")
     assert math.isclose(make_term("temp_lag").with_settings(tau=5.0).tau, 5.0)
@@ -327,8 +418,12 @@ def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmu
     term_file = tmp_path / "undeclared.py"
     term_file.write_text(UNDECLARED)
     cal = tmp_path / "cal.json"
-    assert main(["calibrate", str(s0), "--terms", str(term_file), "--add-term", "undeclared_test",
-                 "-o", str(cal)]) == 0
+    assert (
+        main(
+            ["calibrate", str(s0), "--terms", str(term_file), "--add-term", "undeclared_test", "-o", str(cal)]
+        )
+        == 0
+    )
     assert [a["kept"] for a in json.loads(cal.read_text())["added_terms"]] == [True]
     out = tmp_path / "out.parquet"
     assert main(["apply", str(cal), str(s1), "--terms", str(term_file), "-o", str(out)]) == 0
@@ -337,16 +432,20 @@ def test_a_term_file_that_declares_no_inputs_is_applied_with_what_it_reads(warmu
     table = pq.read_table(s1)
     bare = tmp_path / "bare.parquet"
     pq.write_table(table.drop_columns(["ref_rate"]), bare)
-    assert main(["apply", str(cal), str(bare), "--terms", str(term_file), "-o", str(tmp_path / "x.parquet")]) == 2
+    assert (
+        main(["apply", str(cal), str(bare), "--terms", str(term_file), "-o", str(tmp_path / "x.parquet")])
+        == 2
+    )
     assert not list(tmp_path.glob("*.tmp"))
 
 
 def test_a_joint_grid_that_cannot_leave_a_point_out_says_so(observed, monkeypatch):
     """A global term only one point determines: validation cannot leave that point out and
     says so, in one line, rather than failing inside."""
-    from gyrocal.io.errors import GyrocalError
     from gyrocal.fit.thermal import JointGridFit
     from gyrocal.fit.validate import validate
+    from gyrocal.io.errors import GyrocalError
+
     _, obs = observed
     m = with_model(expressions={"warmup": {"formula": "exp(-t / 1200)"}}).model
     fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
@@ -374,13 +473,16 @@ def test_apply_counts_time_from_the_first_row_the_fit_kept(warmup_sessions, tmp_
     (s0, _), _ = warmup_sessions
     table = pq.read_table(s0)
     temp = table.column("temp").to_numpy().copy()
-    temp[:250] = np.nan                                       # the first 10 s at 25 Hz
+    temp[:250] = np.nan  # the first 10 s at 25 Hz
     broken = tmp_path / "late_temp.parquet"
-    pq.write_table(table.set_column(table.schema.get_field_index("temp"), "temp",
-                                    __import__("pyarrow").array(temp)), broken)
+    pq.write_table(
+        table.set_column(table.schema.get_field_index("temp"), "temp", __import__("pyarrow").array(temp)),
+        broken,
+    )
     result = run(broken, with_model(expressions={"warmup": WARMUP_FORMULA}))
     out = tmp_path / "out.parquet"
     from gyrocal.calibration.apply import apply_calibration
+
     counts = apply_calibration(result.calibration, broken, out)
     assert counts["nonfinite"] == 250
     plain = run(broken).calibration

@@ -9,37 +9,46 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal.io import failure
 from gyrocal.calibration.file import Calibration, save_calibration
-from gyrocal.io.errors import ConfigError, InputError
+from gyrocal.calibration.parameters import parameter_table, parameters_at
+from gyrocal.fit.model import Model
+from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid
 from gyrocal.fleet.eol import Verdict, batch_yield, judge, judge_folder
 from gyrocal.fleet.limits import SpecLimits
-from gyrocal.fleet.outliers import MAD_Z, fleet_outliers
-from gyrocal.calibration.parameters import parameter_table, parameters_at
-from gyrocal.fleet.outliers import plot_parameter_distributions
+from gyrocal.fleet.outliers import MAD_Z, fleet_outliers, plot_parameter_distributions
+from gyrocal.io import failure
+from gyrocal.io.errors import ConfigError, InputError
 from gyrocal.io.tables import write_table
-from gyrocal.fit.model import Model
 from gyrocal.simulate import GyroUnit
-from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid
 
 from .conftest import truth_coefficients
 
 BIAS_SE, RATIO_SE = 3e-4, 3e-6  # deg/s; 1: typical of a quick turntable session
 
-GOOD = GyroUnit(scale=(1.001, 0.999, 1.0005), scale_tc=(1e-5, -1e-5, 2e-5),
-                misalignment=((0.0, 2e-3, -1e-3), (1.5e-3, 0.0, 5e-4), (-2e-3, 1e-3, 0.0)),
-                bias_poly=((0.01, 1e-4, 2e-6, 0.0), (-0.02, -2e-4, -1e-6, 0.0), (0.005, 3e-4, 3e-6, 0.0)))
+GOOD = GyroUnit(
+    scale=(1.001, 0.999, 1.0005),
+    scale_tc=(1e-5, -1e-5, 2e-5),
+    misalignment=((0.0, 2e-3, -1e-3), (1.5e-3, 0.0, 5e-4), (-2e-3, 1e-3, 0.0)),
+    bias_poly=((0.01, 1e-4, 2e-6, 0.0), (-0.02, -2e-4, -1e-6, 0.0), (0.005, 3e-4, 3e-6, 0.0)),
+)
 
 LIMITS = {
     "parameters": {"scale.*": 5000, "bias.*": 0.05, "misalignment.*": 5},
     "temperature_coefficients": {"scale.*": 50, "bias.*": 0.001},
-    "validation_rms": 0.005, "excess": 1.5,
-    "temperature_span": [0, 40], "temperature_span_tolerance": 1.0,
-    "min_holds": 100, "min_hold_share": 0.9, "min_temperature_points": 3,
+    "validation_rms": 0.005,
+    "excess": 1.5,
+    "temperature_span": [0, 40],
+    "temperature_span_tolerance": 1.0,
+    "min_holds": 100,
+    "min_hold_share": 0.9,
+    "min_temperature_points": 3,
 }
 GOOD_SUMMARY = {"validation_rms": 0.0024, "excess": 1.05}
-GOOD_INFO = {"holds_accepted": 189, "rejected_by_reason": {"handling_motion": 6, "not_steady": 3},
-             "temperature_points": 3}
+GOOD_INFO = {
+    "holds_accepted": 189,
+    "rejected_by_reason": {"handling_motion": 6, "not_steady": 3},
+    "temperature_points": 3,
+}
 
 
 def grid_calibration(unit: GyroUnit, temps=(0.0, 20.0, 40.0), **meta) -> Calibration:
@@ -55,9 +64,9 @@ def grid_calibration(unit: GyroUnit, temps=(0.0, 20.0, 40.0), **meta) -> Calibra
 
 def test_parameters_in_engineering_units():
     p = parameters_at(grid_calibration(GOOD)).set_index("parameter")
-    np.testing.assert_allclose(p.loc["scale.x", "value"], 1000.0, rtol=1e-9)        # ppm
+    np.testing.assert_allclose(p.loc["scale.x", "value"], 1000.0, rtol=1e-9)  # ppm
     np.testing.assert_allclose(p.loc["misalignment.x.y", "value"], 1.001 * 2.0, rtol=1e-9)  # K_xy, mrad
-    np.testing.assert_allclose(p.loc["bias.y", "value"], -0.02, rtol=1e-12)          # deg/s
+    np.testing.assert_allclose(p.loc["bias.y", "value"], -0.02, rtol=1e-12)  # deg/s
     np.testing.assert_allclose(p.loc["scale.x", "stderr"], RATIO_SE * 1e6, rtol=0.2)  # interpolated
 
 
@@ -68,8 +77,12 @@ def test_continuous_model_reads_K_and_B_with_propagated_errors():
     names = tuple(model.names)
     values = {n: 0.0 for n in names} | {"bias.x": 0.02, "bias_temp_poly.x.c1": 3e-4, "scale.x": 1e-3}
     stderr = {n: 1e-6 for n in names} | {"bias.x": 2e-4, "bias_temp_poly.x.c1": 1e-5}
-    grid = ConstantCoefficients(np.array([0.0, 40.0]), names, np.array([values[n] for n in names]),
-                                np.array([stderr[n] for n in names]))
+    grid = ConstantCoefficients(
+        np.array([0.0, 40.0]),
+        names,
+        np.array([values[n] for n in names]),
+        np.array([stderr[n] for n in names]),
+    )
     cal = Calibration(model, grid, 25.0, {"device": "C1"})
     p = parameters_at(cal, 35.0).set_index("parameter")
     np.testing.assert_allclose(p.loc["bias.x", "value"], 0.02 + 3e-4 * 10, rtol=1e-12)
@@ -88,8 +101,9 @@ def test_unit_inside_spec_passes_with_every_limit_checked():
     assert len(v.checked) == 12 + 6 + 6
     # The bias curve is quadratic: its largest slope over 0-40 °C is at an end.
     dT = np.array([-25.0, 15.0])
-    np.testing.assert_allclose(v.checked["d(bias.z)/dT"]["value"], np.max(np.abs(3e-4 + 2 * 3e-6 * dT)),
-                               rtol=1e-9)
+    np.testing.assert_allclose(
+        v.checked["d(bias.z)/dT"]["value"], np.max(np.abs(3e-4 + 2 * 3e-6 * dT)), rtol=1e-9
+    )
     assert v.checked["min_hold_share"]["value"] == pytest.approx(189 / 192, rel=1e-12)  # not handling
     json.dumps(v.to_dict(), allow_nan=False)
 
@@ -97,11 +111,16 @@ def test_unit_inside_spec_passes_with_every_limit_checked():
 def test_unit_outside_spec_fails_with_every_reason():
     bias = np.array(GOOD.bias_poly)
     bias[1, 0] = 0.08
-    bad = replace(GOOD, scale=(1.00521, 0.999, 1.0005), scale_tc=(1e-5, -1e-5, 8e-5),
-                  bias_poly=tuple(map(tuple, bias)))
+    bad = replace(
+        GOOD, scale=(1.00521, 0.999, 1.0005), scale_tc=(1e-5, -1e-5, 8e-5), bias_poly=tuple(map(tuple, bias))
+    )
     cal = grid_calibration(bad, temps=(5.0, 20.0, 40.0))
-    v = judge(cal, {"validation_rms": 0.0123, "excess": 1.2}, {**GOOD_INFO, "holds_accepted": 80},
-              SpecLimits.from_dict(LIMITS))
+    v = judge(
+        cal,
+        {"validation_rms": 0.0123, "excess": 1.2},
+        {**GOOD_INFO, "holds_accepted": 80},
+        SpecLimits.from_dict(LIMITS),
+    )
     assert not v.passed
     assert v.reasons == (
         "bias.y = 0.08 deg/s exceeds ±0.05 deg/s at 25 °C",
@@ -117,21 +136,29 @@ def test_unit_outside_spec_fails_with_every_reason():
 
 def test_range_limits_and_most_specific_pattern():
     """``scale.x`` has its own range, so ``scale.*``'s ±800 ppm does not apply to it."""
-    limits = SpecLimits.from_dict({"parameters": {"scale.*": 800, "scale.x": [900, 1100],
-                                                  "bias.y": [-0.01, 0.0]}})
+    limits = SpecLimits.from_dict(
+        {"parameters": {"scale.*": 800, "scale.x": [900, 1100], "bias.y": [-0.01, 0.0]}}
+    )
     v = judge(grid_calibration(GOOD), None, None, limits)
-    assert v.checked["scale.x"] == {"value": pytest.approx(1000.0, rel=1e-9), "limit": [900.0, 1100.0],
-                                    "unit": "ppm", "passed": True}
-    assert v.reasons == ("bias.y = -0.02 deg/s outside [-0.01, 0] deg/s at 25 °C",
-                         "scale.y = -1000 ppm exceeds ±800 ppm at 25 °C")
+    assert v.checked["scale.x"] == {
+        "value": pytest.approx(1000.0, rel=1e-9),
+        "limit": [900.0, 1100.0],
+        "unit": "ppm",
+        "passed": True,
+    }
+    assert v.reasons == (
+        "bias.y = -0.02 deg/s outside [-0.01, 0] deg/s at 25 °C",
+        "scale.y = -1000 ppm exceeds ±800 ppm at 25 °C",
+    )
 
 
 def test_limits_that_cannot_be_checked_fail():
     """A single-temperature calibration has no temperature coefficient, a unit without a
     validation summary no RMS, a servo session no rejection counts: each fails, saying so."""
     cal = grid_calibration(GOOD, temps=(22.0,), protocol="servo")
-    limits = SpecLimits.from_dict({"temperature_coefficients": {"bias.*": 0.001}, "validation_rms": 0.01,
-                                   "min_hold_share": 0.5})
+    limits = SpecLimits.from_dict(
+        {"temperature_coefficients": {"bias.*": 0.001}, "validation_rms": 0.01, "min_hold_share": 0.5}
+    )
     v = judge(cal, None, {"holds_accepted": 6}, limits)
     assert v.reasons == (
         "d(bias.*)/dT not available: calibrated at a single temperature (22.0 °C)",
@@ -142,20 +169,39 @@ def test_limits_that_cannot_be_checked_fail():
 
 def test_failed_calibration_fails_and_yield_per_batch():
     limits = SpecLimits.from_dict(LIMITS)
-    ok = lambda device, batch: judge(grid_calibration(GOOD, device=device, batch=batch),  # noqa: E731
-                                     GOOD_SUMMARY, GOOD_INFO, limits)
-    record = failure.record("segment", InputError("no hold passed the checks"),
-                            {"device": "X9", "batch": "B2", "session": "2026-01-02"})
+
+    def ok(device, batch):
+        return judge(
+            grid_calibration(GOOD, device=device, batch=batch),
+            GOOD_SUMMARY,
+            GOOD_INFO,
+            limits,
+        )
+
+    record = failure.record(
+        "segment",
+        InputError("no hold passed the checks"),
+        {"device": "X9", "batch": "B2", "session": "2026-01-02"},
+    )
     lost = judge(record, None, None, limits)
     assert not lost.passed and not lost.calibrated
     assert lost.reasons == ("calibration failed: the segment stage failed: no hold passed the checks",)
-    bad = judge(grid_calibration(GOOD, device="U4"), {"validation_rms": 0.02, "excess": 1.0}, GOOD_INFO, limits)
-    verdicts = {"U1": ok("U1", "B1"), "U2": ok("U2", "B1"), "U3": ok("U3", "B1"), "U4": bad,
-                "U5": ok("U5", "B2"), "X9": lost}
+    bad = judge(
+        grid_calibration(GOOD, device="U4"), {"validation_rms": 0.02, "excess": 1.0}, GOOD_INFO, limits
+    )
+    verdicts = {
+        "U1": ok("U1", "B1"),
+        "U2": ok("U2", "B1"),
+        "U3": ok("U3", "B1"),
+        "U4": bad,
+        "U5": ok("U5", "B2"),
+        "X9": lost,
+    }
     y = batch_yield(verdicts)
     assert y.to_dict("records") == [
         {"batch": "B1", "units": 4, "passed": 3, "failed": 1, "no_calibration": 0, "yield_pct": 75.0},
-        {"batch": "B2", "units": 2, "passed": 1, "failed": 1, "no_calibration": 1, "yield_pct": 50.0}]
+        {"batch": "B2", "units": 2, "passed": 1, "failed": 1, "no_calibration": 1, "yield_pct": 50.0},
+    ]
 
 
 def test_judge_folder_reads_results_and_failure_records(tmp_path):
@@ -164,7 +210,9 @@ def test_judge_folder_reads_results_and_failure_records(tmp_path):
     good.mkdir()
     cal = grid_calibration(GOOD)
     save_calibration(cal, good / "calibration.json")
-    (good / "validation.json").write_text(json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY}))
+    (good / "validation.json").write_text(
+        json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY})
+    )
     write_table(pd.DataFrame({"hold": [0]}), good / "observations.parquet", {"info": GOOD_INFO})
     assert judge_folder(good, limits).passed
     lost = tmp_path / "lost"
@@ -177,21 +225,24 @@ def test_judge_folder_reads_results_and_failure_records(tmp_path):
     assert not v.passed and "no such file" in v.reasons[0]
 
 
-@pytest.mark.parametrize("spec, message", [
-    ({"validation_rsm": 0.01}, "unknown setting spec.validation_rsm"),
-    ({"parameters": {"sclae.*": 10}}, "'sclae.*' names no known term"),
-    ({"parameters": {"scale x": 10}}, "is not a parameter name"),
-    ({"parameters": {"scale.*": -1}}, "spec.parameters.scale.* must be positive"),
-    ({"parameters": {"bias.x": [0.1, -0.1]}}, "low 0.1 exceeds high -0.1"),
-    ({"temperature_coefficients": {"bias.*": [0, 1]}}, "must be a finite number"),
-    ({"min_hold_share": 1.5}, "is a share"),
-    ({"min_holds": 10.5}, "must be a whole number"),
-    ({"temperature_span": [40]}, "must be [low, high]"),
-    ({"excess": float("nan")}, "spec.excess must be a finite number"),
-    ({"noise": {"white": 1.0}}, "spec.noise must map noise terms"),
-    ({"noise": {"arw": -1.0}}, "spec.noise.arw must be positive"),
-    (["validation_rms"], "spec must be a mapping"),
-])
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ({"validation_rsm": 0.01}, "unknown setting spec.validation_rsm"),
+        ({"parameters": {"sclae.*": 10}}, "'sclae.*' names no known term"),
+        ({"parameters": {"scale x": 10}}, "is not a parameter name"),
+        ({"parameters": {"scale.*": -1}}, "spec.parameters.scale.* must be positive"),
+        ({"parameters": {"bias.x": [0.1, -0.1]}}, "low 0.1 exceeds high -0.1"),
+        ({"temperature_coefficients": {"bias.*": [0, 1]}}, "must be a finite number"),
+        ({"min_hold_share": 1.5}, "is a share"),
+        ({"min_holds": 10.5}, "must be a whole number"),
+        ({"temperature_span": [40]}, "must be [low, high]"),
+        ({"excess": float("nan")}, "spec.excess must be a finite number"),
+        ({"noise": {"white": 1.0}}, "spec.noise must map noise terms"),
+        ({"noise": {"arw": -1.0}}, "spec.noise.arw must be positive"),
+        (["validation_rms"], "spec must be a mapping"),
+    ],
+)
 def test_spec_limits_refuse_bad_settings(spec, message):
     with pytest.raises(ConfigError, match=None) as err:
         SpecLimits.from_dict(spec)
@@ -204,10 +255,15 @@ def test_noise_limits_judge_the_largest_axis_and_fail_without_a_noise_model():
     cal = grid_calibration(GOOD)
     cal.extra["noise"] = {"floor": "noise model of the static stretches", "session": terms}
     v = judge(cal, None, None, limits)
-    assert not v.passed and v.reasons == ("angle random walk = 0.45 deg/√h exceeds 0.4 deg/√h "
-                                          "(largest axis)",)
-    assert v.checked["noise.bias_instability"] == {"value": 7.0, "limit": 10.0, "unit": "deg/h",
-                                                   "passed": True}
+    assert not v.passed and v.reasons == (
+        "angle random walk = 0.45 deg/√h exceeds 0.4 deg/√h (largest axis)",
+    )
+    assert v.checked["noise.bias_instability"] == {
+        "value": 7.0,
+        "limit": 10.0,
+        "unit": "deg/h",
+        "passed": True,
+    }
     bare = judge(grid_calibration(GOOD), None, None, limits)
     assert not bare.passed and len(bare.reasons) == 2
     assert "no noise characterisation" in bare.reasons[0]
@@ -217,8 +273,9 @@ def test_spec_limits_round_trip():
     limits = SpecLimits.from_dict({**LIMITS, "noise": {"arw": 0.5}})
     assert SpecLimits.from_dict(limits.to_dict()) == limits
     assert SpecLimits.from_dict(None) == SpecLimits()
-    assert judge(grid_calibration(GOOD), None, None, SpecLimits()) == \
-        Verdict(True, (), {}, {"device": "U1", "batch": "B1", "session": "2026-01-01", "protocol": "turntable"})
+    assert judge(grid_calibration(GOOD), None, None, SpecLimits()) == Verdict(
+        True, (), {}, {"device": "U1", "batch": "B1", "session": "2026-01-01", "protocol": "turntable"}
+    )
 
 
 # -- outliers -------------------------------------------------------------------------------
@@ -227,12 +284,19 @@ def fleet_table(seed=5) -> pd.DataFrame:
     rows = []
     for batch, n in (("B1", 8), ("B2", 8), ("B3", 4)):
         for i in range(n):
-            rows.append({"device": f"{batch}-{i}", "batch": batch, "session": "2026-01-01",
-                         "scale.x": rng.normal(500, 30), "scale.y": rng.normal(-200, 30),
-                         "bias.x": rng.normal(0.0, 0.01)})
+            rows.append(
+                {
+                    "device": f"{batch}-{i}",
+                    "batch": batch,
+                    "session": "2026-01-01",
+                    "scale.x": rng.normal(500, 30),
+                    "scale.y": rng.normal(-200, 30),
+                    "bias.x": rng.normal(0.0, 0.01),
+                }
+            )
     table = pd.DataFrame(rows)
-    table.loc[table["device"] == "B1-5", "scale.y"] += 400      # > 10 σ from its batch
-    table.loc[table["device"] == "B3-1", "bias.x"] = 1.0        # a small batch is not judged
+    table.loc[table["device"] == "B1-5", "scale.y"] += 400  # > 10 σ from its batch
+    table.loc[table["device"] == "B3-1", "bias.x"] = 1.0  # a small batch is not judged
     return table
 
 
@@ -259,10 +323,20 @@ def test_outlier_in_a_batch_of_eight_is_flagged_with_its_parameter():
     np.testing.assert_allclose(flagged["z"], expected["z"], rtol=1e-12)
     row = flagged.iloc[0]
     b1 = table.loc[table["batch"] == "B1", "scale.y"]
-    np.testing.assert_allclose([row["median"], row["mad"]],
-                               [b1.median(), (b1 - b1.median()).abs().median()], rtol=1e-12)
-    assert list(flagged.columns) == ["device", "batch", "session", "parameter", "value", "median", "mad",
-                                     "z", "note"]
+    np.testing.assert_allclose(
+        [row["median"], row["mad"]], [b1.median(), (b1 - b1.median()).abs().median()], rtol=1e-12
+    )
+    assert list(flagged.columns) == [
+        "device",
+        "batch",
+        "session",
+        "parameter",
+        "value",
+        "median",
+        "mad",
+        "z",
+        "note",
+    ]
     # The far larger bias of B3-1 is not flagged: its batch has four units, and says so.
     assert flagged.attrs["small_batches"] == {"B3": 4}
     assert flagged.attrs["notes"] == ["batch B3: 4 units, fewer than 5: no outlier flags"]
@@ -271,19 +345,25 @@ def test_outlier_in_a_batch_of_eight_is_flagged_with_its_parameter():
 
 def test_outliers_when_mad_is_zero():
     n = 7
-    table = pd.DataFrame({"device": [f"U{i}" for i in range(n)], "batch": "B1",
-                          "misalignment.x.y": [0.0] * (n - 1) + [0.4],            # one differs
-                          "fixed": [2.5] * n,                                    # all identical
-                          "rounding": [1.0] * (n - 1) + [1.0 * (1 + 1e-13)]})    # a rounding step
+    table = pd.DataFrame(
+        {
+            "device": [f"U{i}" for i in range(n)],
+            "batch": "B1",
+            "misalignment.x.y": [0.0] * (n - 1) + [0.4],  # one differs
+            "fixed": [2.5] * n,  # all identical
+            "rounding": [1.0] * (n - 1) + [1.0 * (1 + 1e-13)],
+        }
+    )  # a rounding step
     flagged = fleet_outliers(table)
     assert flagged[["device", "parameter", "note"]].values.tolist() == [
-        ["U6", "misalignment.x.y", "differs from identical others"]]
+        ["U6", "misalignment.x.y", "differs from identical others"]
+    ]
     assert flagged["z"].iloc[0] == np.inf and flagged["mad"].iloc[0] == 0.0
 
 
 def test_outliers_skip_missing_values_and_need_the_batch_column():
     table = fleet_table()
-    table.loc[table["batch"] == "B2", "bias.x"] = np.nan        # e.g. a model without the term
+    table.loc[table["batch"] == "B2", "bias.x"] = np.nan  # e.g. a model without the term
     table.loc[table["device"] == "B2-0", "bias.x"] = 5.0
     flagged = fleet_outliers(table)
     assert flagged["device"].tolist() == ["B1-5"]
@@ -300,27 +380,39 @@ def test_parameter_table_and_distribution_plot(tmp_path):
     flagged = fleet_outliers(table)
     # K = diag(s)(I + M): a scale factor carries its row's cross-axis terms along.
     assert flagged[["device", "parameter"]].values.tolist() == [
-        ["U5", "scale.x"], ["U5", "misalignment.x.y"], ["U5", "misalignment.x.z"]]
+        ["U5", "scale.x"],
+        ["U5", "misalignment.x.y"],
+        ["U5", "misalignment.x.z"],
+    ]
     assert set(flagged["note"]) == {"differs from identical others"}
     path = tmp_path / "dist.svg"
     table = table[["device", "batch", "session", "bias.x", "scale.x", "misalignment.x.y", "misalignment.x.z"]]
     svg = plot_parameter_distributions(table, flagged, path)
     assert svg.startswith("<svg") and path.read_text() == svg
-    assert plot_parameter_distributions(table, flagged, None) == svg   # deterministic
-    assert svg.count(">U5<") == 3            # labelled in each panel that flags it, and only it
+    assert plot_parameter_distributions(table, flagged, None) == svg  # deterministic
+    assert svg.count(">U5<") == 3  # labelled in each panel that flags it, and only it
 
 
 def test_end_of_line_can_fail_a_unit_on_its_plausibility_warnings():
     cal = grid_calibration(GOOD)
-    warning = {"code": "temperature_dropout", "message": "temp is missing in 17% of the rows",
-               "evidence": {"share": 0.17}}
+    warning = {
+        "code": "temperature_dropout",
+        "message": "temp is missing in 17% of the rows",
+        "evidence": {"share": 0.17},
+    }
     cal.extra["warnings"] = [warning]
-    assert judge(cal, GOOD_SUMMARY, GOOD_INFO, SpecLimits()).passed   # not asked: not judged
+    assert judge(cal, GOOD_SUMMARY, GOOD_INFO, SpecLimits()).passed  # not asked: not judged
     verdict = judge(cal, GOOD_SUMMARY, GOOD_INFO, SpecLimits.from_dict({"fail_on_warnings": True}))
     assert not verdict.passed
-    assert verdict.reasons == ("plausibility warning temperature_dropout: temp is missing in 17% of the rows",)
-    assert verdict.checked["warnings"] == {"value": ["temperature_dropout"], "limit": True, "unit": None,
-                                           "passed": False}
+    assert verdict.reasons == (
+        "plausibility warning temperature_dropout: temp is missing in 17% of the rows",
+    )
+    assert verdict.checked["warnings"] == {
+        "value": ["temperature_dropout"],
+        "limit": True,
+        "unit": None,
+        "passed": False,
+    }
     other = SpecLimits.from_dict({"fail_on_warnings": ["accel_units", "sample_jitter"]})
     assert judge(cal, GOOD_SUMMARY, GOOD_INFO, other).passed
     assert SpecLimits.from_dict(other.to_dict()) == other
@@ -341,25 +433,39 @@ def test_the_fleet_summary_reads_each_unit_once_and_a_broken_unit_fails_alone(tm
         folder.mkdir()
         save_calibration(cal or grid_calibration(GOOD, device=name), folder / "calibration.json")
         (folder / "validation.json").write_text(
-            validation or json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY}))
+            validation or json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY})
+        )
         if diagnosis is not None:
             (folder / "diagnosis.json").write_text(diagnosis)
         write_table(pd.DataFrame({"hold": [0]}), folder / "observations.parquet", {"info": GOOD_INFO})
         pack_stage(folder, "segment")
         pack_stage(folder, "analyse")
-        return {"row": {"batch": "B1", "device": name, "session": "2026-01-01", "protocol": "turntable"},
-                "folder": folder, "report": f"{name}.html"}
+        return {
+            "row": {"batch": "B1", "device": name, "session": "2026-01-01", "protocol": "turntable"},
+            "folder": folder,
+            "report": f"{name}.html",
+        }
 
-    units = [unit("OK", diagnosis=json.dumps({"format": "gyrocal.diagnosis/1", "best": None,
-                                              "explains_the_data": True})),
-             unit("BADVAL", validation="{not json"), unit("BADDIAG", diagnosis="[1, 2")]
+    units = [
+        unit(
+            "OK",
+            diagnosis=json.dumps({"format": "gyrocal.diagnosis/1", "best": None, "explains_the_data": True}),
+        ),
+        unit("BADVAL", validation="{not json"),
+        unit("BADDIAG", diagnosis="[1, 2"),
+    ]
     lost = tmp_path / "LOST"
     rec = failure.record("fit", InputError("scale.y not excited"), {"device": "LOST"})
     failure.write([lost / "calibration.json", lost / "validation.json", lost / "observations.parquet"], rec)
     pack_stage(lost, "segment")
     pack_stage(lost, "analyse")
-    units.append({"row": {"batch": "B1", "device": "LOST", "session": "2026-01-01", "protocol": "turntable"},
-                  "folder": lost, "report": "LOST.html"})
+    units.append(
+        {
+            "row": {"batch": "B1", "device": "LOST", "session": "2026-01-01", "protocol": "turntable"},
+            "folder": lost,
+            "report": "LOST.html",
+        }
+    )
     rows = {r["device"]: r for r in fleet_summary(units)["rows"]}
     assert rows["OK"]["status"] == "ok" and rows["OK"]["missing"] == "nothing"
     assert rows["OK"]["summary"] == GOOD_SUMMARY

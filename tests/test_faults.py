@@ -19,11 +19,11 @@ import pandas as pd
 import pyarrow as pa
 import pytest
 
-from gyrocal.io.unit_folder import job_log, part_failure, read_part_json
-from gyrocal.io import atomic, failure
 from gyrocal.calibration.file import load_calibration
-from gyrocal.simulate import TurntableProtocol, simulate_unit
+from gyrocal.io import atomic, failure
 from gyrocal.io.tables import write_table
+from gyrocal.io.unit_folder import job_log, part_failure, read_part_json
+from gyrocal.simulate import TurntableProtocol, simulate_unit
 
 from .conftest import REPO, assert_every_file_whole, leftovers, snakemake
 
@@ -41,8 +41,13 @@ def tiny_logs(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fault-logs")
     rig = TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0), rates=(10.0, 100.0, 400.0))
     for i, device in enumerate(("K1", "K2", "K3")):
-        simulate_unit(folder / f"{device}.parquet", rig=rig, rng=np.random.default_rng(70 + i),
-                      device=device, seed=70 + i)
+        simulate_unit(
+            folder / f"{device}.parquet",
+            rig=rig,
+            rng=np.random.default_rng(70 + i),
+            device=device,
+            seed=70 + i,
+        )
     return folder
 
 
@@ -72,11 +77,26 @@ def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill
     wd = fleet(tmp_path, tiny_logs, ("K1", "K2") if kill == "the job" else ("K1",))
     target = unit(wd, "K1") / "validation.json"
     env = {**os.environ, atomic.PAUSE_ENV: f"K1/{SESSION}/validation.json:600"}
-    log = open(tmp_path / "snakemake.log", "w")   # noqa: SIM115 - the workflow's, closed when it ends
+    log = open(tmp_path / "snakemake.log", "w")  # noqa: SIM115 - the workflow's, closed when it ends
     run = subprocess.Popen(
-        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-         "--directory", str(wd), "--configfile", str(wd / "config.yaml"), "--cores", "2"],
-        env=env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "--snakefile",
+            str(REPO / "Snakefile"),
+            "--directory",
+            str(wd),
+            "--configfile",
+            str(wd / "config.yaml"),
+            "--cores",
+            "2",
+        ],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        start_new_session=True,
+    )
     try:
         deadline = time.monotonic() + 120
         while not (held := list(target.parent.glob(".validation.json.*.tmp"))):
@@ -100,8 +120,9 @@ def test_a_job_killed_mid_write_is_redone_by_the_rerun(tiny_logs, tmp_path, kill
     else:
         assert snakemake(wd, "--unlock").returncode == 0
     plan = snakemake(wd, "--dry-run")
-    assert re.search(r"rule analyse:\n(?:\s+\w+: .*\n)*?\s+wildcards: batch=B1, device=K1,",
-                     plan.stdout), plan.stdout[-3000:]
+    assert re.search(r"rule analyse:\n(?:\s+\w+: .*\n)*?\s+wildcards: batch=B1, device=K1,", plan.stdout), (
+        plan.stdout[-3000:]
+    )
 
     out = snakemake(wd)
     assert out.returncode == 0, out.stderr[-3000:]
@@ -122,9 +143,24 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     wd = fleet(tmp_path, tiny_logs, ("K1", "K2", "K3"), config)
     env = {atomic.PAUSE_ENV: f"K3/{SESSION}/observations.parquet:120"}
     out = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-         "--directory", str(wd), "--configfile", str(wd / "config.yaml"), "--cores", "2"],
-        env={**os.environ, **env}, capture_output=True, text=True, timeout=600)
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "--snakefile",
+            str(REPO / "Snakefile"),
+            "--directory",
+            str(wd),
+            "--configfile",
+            str(wd / "config.yaml"),
+            "--cores",
+            "2",
+        ],
+        env={**os.environ, **env},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     memory, time_out = "ran out of memory (limit 50 MiB)", "timed out after 5 s"
 
@@ -147,11 +183,15 @@ def test_a_job_past_its_memory_or_time_limit_fails_its_unit_with_the_reason(tiny
     # record of a failure it caught. What the job cost is on the job's stderr, in
     # Snakemake's output (benchmarks/requests.py and throughput.py read it there).
     for device in ("K1", "K2", "K3"):
-        for stage in ("segment", "analyse"):   # analyse writes the report too
+        for stage in ("segment", "analyse"):  # analyse writes the report too
             assert not (unit(wd, device) / f"{stage}.log").exists()
             folder = f"results/B1/{device}/{SESSION}"
-            assert re.search(rf"^gyrocal.run.guard: {stage} of {folder} took [\d.]+ s, [\d.]+ s CPU, "
-                             r"\d+ MiB peak$", out.stderr, flags=re.M), out.stderr[-3000:]
+            assert re.search(
+                rf"^gyrocal.run.guard: {stage} of {folder} took [\d.]+ s, [\d.]+ s CPU, "
+                r"\d+ MiB peak$",
+                out.stderr,
+                flags=re.M,
+            ), out.stderr[-3000:]
     assert job_log(unit(wd, "K1"), "segment").startswith(f"segmentation -> results/B1/K1/{SESSION}")
     assert job_log(unit(wd, "K2"), "analyse").endswith(f"gyrocal: analyse failed (recorded): {memory}\n")
     assert job_log(unit(wd, "K3"), "segment").endswith(f"gyrocal: segment failed (recorded): {time_out}\n")
@@ -187,15 +227,19 @@ def test_a_write_that_fails_leaves_the_file_it_replaces(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bundle", "table.parquet"]
 
 
-@pytest.mark.parametrize("left, limit, keep", [("1:40", "2:00", 70.0), ("1-02:03:04", "2-00:00:00", 93754.0),
-                                               ("0:20", "1:00", 0.0)])
+@pytest.mark.parametrize(
+    "left, limit, keep",
+    [("1:40", "2:00", 70.0), ("1-02:03:04", "2-00:00:00", 93754.0), ("0:20", "1:00", 0.0)],
+)
 def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_limit(
-        tmp_path, monkeypatch, left, limit, keep):
+    tmp_path, monkeypatch, left, limit, keep
+):
     """Inside a SLURM job, on the last of the workflow's attempts, the guard asks squeue
     for the job's time left and keeps 30 s of it for the steps after segmentation (none
     left: stopped at once). Before the last attempt, and outside SLURM, it does not: the
     scheduler ends the job and Snakemake retries it with more time."""
     from gyrocal.run import guard
+
     squeue = tmp_path / "squeue"
     squeue.write_text(f'#!/bin/sh\necho "$@" > {tmp_path / "args"}\necho "{left}|{limit}"\n')
     squeue.chmod(0o755)
@@ -213,7 +257,8 @@ def test_on_its_jobs_last_attempt_the_guard_stops_a_stage_before_slurms_time_lim
 
 
 def test_on_its_jobs_last_attempt_the_guard_keeps_a_stage_within_its_slurm_jobs_memory(
-        tiny_logs, tmp_path, monkeypatch):
+    tiny_logs, tmp_path, monkeypatch
+):
     """A SLURM job killed for memory on its last attempt would leave its unit with no
     record and hold back the fleet summary: there the guard's limit is 80 % of the job's
     request where that is lower, and the unit is recorded as out of memory, with the log
@@ -221,6 +266,7 @@ def test_on_its_jobs_last_attempt_the_guard_keeps_a_stage_within_its_slurm_jobs_
     executor, the configured limit alone holds (the scheduler's kill is retried with more
     memory; a local run inside an allocation has no such kill)."""
     from gyrocal.run import guard
+
     monkeypatch.setenv(guard.SLURM_MEMORY_ENV, "1")
     monkeypatch.setenv(guard.ATTEMPTS_ENV, "2")
     share = (400, "ran out of memory (limit 400 MiB: its SLURM job's memory, 500 MiB, attempt 2 of 2)")
@@ -234,11 +280,31 @@ def test_on_its_jobs_last_attempt_the_guard_keeps_a_stage_within_its_slurm_jobs_
 
     unit = tmp_path / "K1"
     env = {**os.environ, guard.SLURM_MEMORY_ENV: "1", guard.ATTEMPTS_ENV: "2", "PYTHONPATH": str(REPO)}
-    env.pop("SLURM_JOB_ID", None)   # no time left to ask squeue for
+    env.pop("SLURM_JOB_ID", None)  # no time left to ask squeue for
     out = subprocess.run(
-        [sys.executable, "-m", "gyrocal.run.guard", "--attempt", "2", "--job-memory-mb", "50",
-         "--job-log", str(unit / "segment.log"), "segment", str(tiny_logs / "K1.parquet"), "--out", str(unit),
-         "--device", "K1", "--record-failures"], env=env, capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "gyrocal.run.guard",
+            "--attempt",
+            "2",
+            "--job-memory-mb",
+            "50",
+            "--job-log",
+            str(unit / "segment.log"),
+            "segment",
+            str(tiny_logs / "K1.parquet"),
+            "--out",
+            str(unit),
+            "--device",
+            "K1",
+            "--record-failures",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert sorted(p.name for p in unit.iterdir()) == ["segmentation.zip"]
     reason = "ran out of memory (limit 40 MiB: its SLURM job's memory, 50 MiB, attempt 2 of 2)"
@@ -257,18 +323,49 @@ def test_a_job_log_an_earlier_attempt_left_is_shown_and_a_failed_job_leaves_its_
     (unit / "segment.log").write_text("killed here\n")
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     out = subprocess.run(
-        [sys.executable, "-m", "gyrocal.run.guard", "--job-log", str(unit / "segment.log"), "segment",
-         str(tmp_path / "absent.parquet"), "--out", str(unit), "--device", "K1", "--record-failures"],
-        env=env, capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "gyrocal.run.guard",
+            "--job-log",
+            str(unit / "segment.log"),
+            "segment",
+            str(tmp_path / "absent.parquet"),
+            "--out",
+            str(unit),
+            "--device",
+            "K1",
+            "--record-failures",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "gyrocal.run.guard: the end of an earlier attempt's log:\nkilled here\n" in out.stderr
     log = job_log(unit, "segment")
     assert "killed here" not in log and "absent.parquet" in log
     assert not (unit / "segment.log").exists()
-    out = subprocess.run(   # not recording failures: the job fails, its log stays
-        [sys.executable, "-m", "gyrocal.run.guard", "--job-log", str(unit / "segment.log"), "segment",
-         str(tmp_path / "absent.parquet"), "--out", str(unit), "--device", "K1"],
-        env=env, capture_output=True, text=True, timeout=300)
+    out = subprocess.run(  # not recording failures: the job fails, its log stays
+        [
+            sys.executable,
+            "-m",
+            "gyrocal.run.guard",
+            "--job-log",
+            str(unit / "segment.log"),
+            "segment",
+            str(tmp_path / "absent.parquet"),
+            "--out",
+            str(unit),
+            "--device",
+            "K1",
+        ],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode != 0
     assert (unit / "segment.log").exists() and "absent.parquet" in job_log(unit, "segment")
     assert f"gyrocal.run.guard: the end of {unit / 'segment.log'}:" in out.stderr
@@ -280,16 +377,37 @@ def test_an_analyse_stopped_in_its_report_keeps_the_steps_it_finished(tiny_logs,
     limit), the job keeps its calibration, validation and diagnosis, and the report says
     what stopped it."""
     from gyrocal.io.unit_folder import part_exists
+
     unit = tmp_path / "K1"
     log = tiny_logs / "K1.parquet"
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    subprocess.run([sys.executable, "-m", "gyrocal", "segment", str(log), "--out", str(unit)],
-                   check=True, env=env, capture_output=True)
+    subprocess.run(
+        [sys.executable, "-m", "gyrocal", "segment", str(log), "--out", str(unit)],
+        check=True,
+        env=env,
+        capture_output=True,
+    )
     report = tmp_path / "K1.html"
     out = subprocess.run(
-        [sys.executable, "-m", "gyrocal.run.guard", "--timeout-s", "40", "analyse", str(unit),
-         "--report", str(report), "--device", "K1", "--record-failures"],
-        env={**env, atomic.PAUSE_ENV: "K1.html:600"}, capture_output=True, text=True, timeout=300)
+        [
+            sys.executable,
+            "-m",
+            "gyrocal.run.guard",
+            "--timeout-s",
+            "40",
+            "analyse",
+            str(unit),
+            "--report",
+            str(report),
+            "--device",
+            "K1",
+            "--record-failures",
+        ],
+        env={**env, atomic.PAUSE_ENV: "K1.html:600"},
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert out.returncode == 0, out.stderr[-2000:]
     assert "timed out after 40 s" in report.read_text()
     assert load_calibration(unit / "calibration.json").meta["device"] == "K1"

@@ -14,23 +14,29 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.pipeline.config import Settings
 from gyrocal.io.errors import SegmentationError
 from gyrocal.pipeline.chain import run, segment_log
+from gyrocal.pipeline.config import Settings
 from gyrocal.simulate import GyroUnit, simulate_unit
 from gyrocal.simulate.ferraris import FerrarisProtocol
 
 from .conftest import needs
 
 REAL = Path(__file__).resolve().parents[1] / "data" / "real" / "imucal-ferraris"
-RATE = 102.4   # the real session's sample rate (its README)
+RATE = 102.4  # the real session's sample rate (its README)
 
 
 def ferraris_log(tmp_path, *, seed=1, name="F001", unit=None, **rig):
     path = tmp_path / f"{name}.parquet"
-    truth = simulate_unit(path, protocol="ferraris", rig=FerrarisProtocol(**rig),
-                          unit=unit or GyroUnit.random(np.random.default_rng(seed + 100)),
-                          rng=np.random.default_rng(seed), device=name, seed=seed)
+    truth = simulate_unit(
+        path,
+        protocol="ferraris",
+        rig=FerrarisProtocol(**rig),
+        unit=unit or GyroUnit.random(np.random.default_rng(seed + 100)),
+        rng=np.random.default_rng(seed),
+        device=name,
+        seed=seed,
+    )
     return path, truth
 
 
@@ -41,9 +47,13 @@ def settings_with(**options) -> Settings:
 def K_stderr(cal) -> np.ndarray:
     """The standard errors of K's entries, laid out as K."""
     se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
-    return np.array([[se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
-                     [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
-                     [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]]])
+    return np.array(
+        [
+            [se["scale.x"], se["misalignment.x.y"], se["misalignment.x.z"]],
+            [se["misalignment.y.x"], se["scale.y"], se["misalignment.y.z"]],
+            [se["misalignment.z.x"], se["misalignment.z.y"], se["scale.z"]],
+        ]
+    )
 
 
 def expected_K(truth) -> np.ndarray:
@@ -55,14 +65,17 @@ def expected_K(truth) -> np.ndarray:
     return np.column_stack(cols)
 
 
-@pytest.mark.parametrize("seed,rig", [(1, {}), (2, {"steps": 4}), (3, {"sections": True}),
-                                      (4, {"temperature": None, "sample_rate": 200.0})])
+@pytest.mark.parametrize(
+    "seed,rig",
+    [(1, {}), (2, {"steps": 4}), (3, {"sections": True}), (4, {"temperature": None, "sample_rate": 200.0})],
+)
 def test_recovers_what_the_turns_show_within_the_noise(tmp_path, seed, rig):
     """With the hand's assumed errors set to zero the standard errors are the noise's alone:
     K and B must then match what the simulated turns and faces show within 4 of them."""
     path, truth = ferraris_log(tmp_path, seed=seed, **rig)
-    result = run(path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
-                 protocol="ferraris")
+    result = run(
+        path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0), protocol="ferraris"
+    )
     cal = result.calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
     se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
@@ -73,8 +86,9 @@ def test_recovers_what_the_turns_show_within_the_noise(tmp_path, seed, rig):
     B_se = np.array([se[f"bias.{a}"] for a in "xyz"])
     assert np.all(np.abs(B - unit.B(25.0)) < 4 * B_se), (B - unit.B(25.0)) / B_se
     obs = result.segmentation.observations
-    assert sorted(obs["section"]) == sorted(["x_p", "x_a", "y_p", "y_a", "z_p", "z_a",
-                                             "x_rot", "y_rot", "z_rot"])
+    assert sorted(obs["section"]) == sorted(
+        ["x_p", "x_a", "y_p", "y_a", "z_p", "z_a", "x_rot", "y_rot", "z_rot"]
+    )
     assert result.segmentation.info["phases_from"] == ("annotation" if rig.get("sections") else "data")
     codes = [w["code"] for w in cal.extra["warnings"]]
     assert ("temperature_not_logged" in codes) == (rig.get("temperature", 25.0) is None)
@@ -156,9 +170,11 @@ def test_unknown_section_label_is_refused(tmp_path):
 
 # -- the real session -------------------------------------------------------------------
 
+
 def real_log(tmp_path, *, annotated: bool) -> Path:
     """The real session as a contract log (what ``gyrocal import`` with its map writes)."""
     from gyrocal.importer import import_log
+
     out = tmp_path / ("annotated.parquet" if annotated else "plain.parquet")
     mapping = yaml_map(tmp_path, annotated)
     import_log(REAL / "session.csv", out, mapping)
@@ -176,11 +192,13 @@ def yaml_map(tmp_path, annotated: bool) -> Path:
 
 def imucal_calibration():
     from imucal import FerrarisCalibration, ferraris_regions_from_section_list
+
     data = pd.read_csv(REAL / "session.csv").set_index("n_samples")
     sections = pd.DataFrame(json.loads((REAL / "sections.json").read_text())).T
     regions = ferraris_regions_from_section_list(data, sections)
-    return FerrarisCalibration().compute(regions, sampling_rate_hz=RATE, from_acc_unit="m/s^2",
-                                         from_gyr_unit="deg/s")
+    return FerrarisCalibration().compute(
+        regions, sampling_rate_hz=RATE, from_acc_unit="m/s^2", from_gyr_unit="deg/s"
+    )
 
 
 HAS_IMUCAL = importlib.util.find_spec("imucal") is not None
@@ -194,8 +212,9 @@ def test_real_session_agrees_with_imucal(tmp_path):
     sensitivity). The bound is the noise alone, the standard errors with the hand's
     assumed errors at zero: the methods must agree within 3 of them on every term."""
     path = real_log(tmp_path, annotated=True)
-    cal = run(path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
-              protocol="ferraris").calibration
+    cal = run(
+        path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0), protocol="ferraris"
+    ).calibration
     K, B = cal.matrices()[0][0], cal.matrices()[1][0]
     se = dict(zip(cal.grid.names, cal.grid.stderr[0], strict=False))
     K_se = K_stderr(cal)
@@ -220,7 +239,7 @@ def test_real_session_phases_from_the_data_match_the_annotation(tmp_path):
     se = np.hypot(a.grid.stderr[0], b.grid.stderr[0])
     assert np.all(np.abs(a.grid.values[0] - b.grid.values[0]) < 3 * se)
     turns = found.segmentation.observations.set_index("section")
-    assert (turns.loc[["x_rot", "y_rot", "z_rot"], "angle"] == -360.0).all()   # clockwise, as imucal's
+    assert (turns.loc[["x_rot", "y_rot", "z_rot"], "angle"] == -360.0).all()  # clockwise, as imucal's
 
 
 def imucal_terms(ref) -> dict[str, float]:
@@ -237,8 +256,10 @@ def imucal_terms(ref) -> dict[str, float]:
 def z_against_imucal(cal, ref) -> dict[str, float]:
     """Every term's difference from imucal's, in the calibration's standard errors."""
     want = imucal_terms(ref)
-    return {name: (value - want[name]) / se for name, value, se
-            in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0], strict=False)}
+    return {
+        name: (value - want[name]) / se
+        for name, value, se in zip(cal.grid.names, cal.grid.values[0], cal.grid.stderr[0], strict=False)
+    }
 
 
 def cut_to_sections(path: Path, *, rows_as_time: bool) -> Path:
@@ -250,7 +271,7 @@ def cut_to_sections(path: Path, *, rows_as_time: bool) -> Path:
     table = pq.read_table(path)
     keep = np.zeros(table.num_rows, bool)
     for span in sections.values():
-        keep[span["start"]:span["end"]] = True
+        keep[span["start"] : span["end"]] = True
     table = table.filter(pa.array(keep))
     if rows_as_time:
         table = table.set_column(0, "t", pa.array(np.arange(table.num_rows) / RATE))
@@ -267,13 +288,12 @@ def test_real_session_cut_to_its_sections_segments_from_the_data(tmp_path, rows_
     Found from the data alone, the sections are the person's (each turn to the sample) and
     the calibration agrees with imucal's within 3 noise-only standard errors on every term."""
     cut = cut_to_sections(real_log(tmp_path, annotated=False), rows_as_time=rows_as_time)
-    result = run(cut, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
-                 protocol="ferraris")
+    result = run(cut, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0), protocol="ferraris")
     info = result.segmentation.info
     assert info["phases_from"] == "data" and info["cuts"] == 8
     obs = result.segmentation.observations.set_index("section")
     sections = json.loads((REAL / "sections.json").read_text())
-    start = {}   # each section's first row in the cut log
+    start = {}  # each section's first row in the cut log
     at = 0
     for label, span in sorted(sections.items(), key=lambda kv: kv[1]["start"]):
         start[label], at = at, at + span["end"] - span["start"]
@@ -309,8 +329,10 @@ def labelled_session(folder: Path, *, label: bool = True) -> Path:
     label column."""
     data = pd.read_csv(REAL / "session.csv").rename(columns={"n_samples": "samples"})
     sections = json.loads((REAL / "sections.json").read_text())
-    parts = [data.iloc[span["start"]:span["end"]].assign(part=label_)
-             for label_, span in sorted(sections.items())]
+    parts = [
+        data.iloc[span["start"] : span["end"]].assign(part=label_)
+        for label_, span in sorted(sections.items())
+    ]
     table = pd.concat(parts)[["part", "samples", "acc_x", "acc_y", "acc_z", "gyr_x", "gyr_y", "gyr_z"]]
     if not label:
         table = table.drop(columns="part")
@@ -322,6 +344,7 @@ def labelled_session(folder: Path, *, label: bool = True) -> Path:
 def imported(tmp_path, source: Path, map_text: str) -> Path:
     """``gyrocal import SOURCE --map MAP`` as a user runs it."""
     from gyrocal.run import cli
+
     (tmp_path / "map.yaml").write_text(map_text)
     out = tmp_path / (source.stem + ".parquet")
     assert cli.main(["import", str(source), "--map", str(tmp_path / "map.yaml"), "-o", str(out)]) == 0
@@ -336,18 +359,23 @@ def test_imucal_labelled_session_imports_with_its_map_and_calibrates_as_imucal(t
     of the same file (read by imucal's own ferraris_regions_from_df); the same file
     without its label column, segmented from the data alone, within 3."""
     from imucal import FerrarisCalibration, ferraris_regions_from_df
+
     source = labelled_session(tmp_path)
     frame = pd.read_csv(source).set_index("part")
-    ref = FerrarisCalibration().compute(ferraris_regions_from_df(frame), sampling_rate_hz=RATE,
-                                        from_acc_unit="m/s^2", from_gyr_unit="deg/s")
+    ref = FerrarisCalibration().compute(
+        ferraris_regions_from_df(frame), sampling_rate_hz=RATE, from_acc_unit="m/s^2", from_gyr_unit="deg/s"
+    )
     noise_only = settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0)
     marked = run(imported(tmp_path, source, LABELLED_MAP), noise_only, protocol="ferraris")
     assert marked.segmentation.info["phases_from"] == "annotation"
     z = z_against_imucal(marked.calibration, ref)
     assert max(abs(v) for v in z.values()) < 1, z
     plain_map = "\n".join(line for line in LABELLED_MAP.splitlines() if "part" not in line)
-    found = run(imported(tmp_path, labelled_session(tmp_path, label=False), plain_map), noise_only,
-                protocol="ferraris")
+    found = run(
+        imported(tmp_path, labelled_session(tmp_path, label=False), plain_map),
+        noise_only,
+        protocol="ferraris",
+    )
     assert found.segmentation.info["phases_from"] == "data"
     z = z_against_imucal(found.calibration, ref)
     assert max(abs(v) for v in z.values()) < 3, z
@@ -355,8 +383,7 @@ def test_imucal_labelled_session_imports_with_its_map_and_calibrates_as_imucal(t
 
 def test_real_session_uncut_finds_no_cut(tmp_path):
     """The whole recording, handling moves and all, is one piece: no cut is taken for a move."""
-    seg = segment_log(real_log(tmp_path, annotated=False), Settings().for_protocol("ferraris"),
-                      "ferraris")
+    seg = segment_log(real_log(tmp_path, annotated=False), Settings().for_protocol("ferraris"), "ferraris")
     assert seg.info["cuts"] == 0
 
 
@@ -367,6 +394,7 @@ def test_real_session_turns_read_360_after_compensation(tmp_path):
     right: it checks the integration rule (the sum over samples / 102.4 Hz, as imucal's), the
     annotation's rows and apply's path for a log without temp, not the hand."""
     from gyrocal.calibration.apply import apply_calibration
+
     path = real_log(tmp_path, annotated=True)
     cal = run(path, Settings().for_protocol("ferraris"), protocol="ferraris").calibration
     out = tmp_path / "compensated.parquet"
@@ -386,6 +414,7 @@ def test_real_session_turns_read_360_after_compensation(tmp_path):
 
 # -- what a review found: annotations, gaps, timestamps, a log without temperature --------
 
+
 def _annotated(tmp_path, seed=11):
     path, truth = ferraris_log(tmp_path, seed=seed, sections=True)
     return path, truth, pq.read_table(path)
@@ -396,9 +425,10 @@ def test_an_annotated_half_turn_is_refused(tmp_path):
     path, _, table = _annotated(tmp_path)
     labels = np.array(table.column("section").to_pylist(), dtype=object)
     rows = np.flatnonzero(labels == "x_rot")
-    labels[rows[len(rows) // 2:]] = None
-    table = table.set_column(table.schema.get_field_index("section"), "section",
-                             pa.array(list(labels), pa.string()))
+    labels[rows[len(rows) // 2 :]] = None
+    table = table.set_column(
+        table.schema.get_field_index("section"), "section", pa.array(list(labels), pa.string())
+    )
     pq.write_table(table, path)
     with pytest.raises(SegmentationError, match=r"the x_rot section turns -?1\d\d°"):
         run(path, Settings().for_protocol("ferraris"), protocol="ferraris")
@@ -417,15 +447,15 @@ def test_annotation_is_read_with_timestamps_and_dropped_rows(tmp_path):
     """Time as a timestamp and a row dropped for a NaN: the labels still land on their rows."""
     path, _, table = _annotated(tmp_path, seed=13)
     seconds = table.column("t").to_numpy()
-    stamps = pa.array((1_700_000_000 * 10**9 + np.round(seconds * 1e9)).astype(np.int64),
-                      pa.timestamp("ns"))
+    stamps = pa.array((1_700_000_000 * 10**9 + np.round(seconds * 1e9)).astype(np.int64), pa.timestamp("ns"))
     table = table.set_column(0, "t", stamps)
     gyro = table.column("gyro_x").to_numpy().astype(float)
     gyro[500] = np.nan
     table = table.set_column(table.schema.get_field_index("gyro_x"), "gyro_x", pa.array(gyro))
     pq.write_table(table, path)
-    result = run(path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0),
-                 protocol="ferraris")
+    result = run(
+        path, settings_with(angle_uncertainty_deg=0.0, tilt_uncertainty_deg=0.0), protocol="ferraris"
+    )
     assert result.segmentation.info["phases_from"] == "annotation"
     assert result.segmentation.info["rows_dropped"] == 1
 
@@ -434,8 +464,9 @@ def test_without_temperature_no_term_reads_a_made_up_one(tmp_path):
     """The stand-in temperature of a log without temp gives a temperature term nothing to
     fit: the term is left out of this unit's calibration, by name, with a warning."""
     path, _ = ferraris_log(tmp_path, seed=14, temperature=None)
-    s = Settings.from_dict({"protocols": {"ferraris": {"model": {
-        "terms": ["bias", "scale", "misalignment", "temp_lag"]}}}}).for_protocol("ferraris")
+    s = Settings.from_dict(
+        {"protocols": {"ferraris": {"model": {"terms": ["bias", "scale", "misalignment", "temp_lag"]}}}}
+    ).for_protocol("ferraris")
     cal = run(path, s, protocol="ferraris").calibration
     assert [t.name for t in cal.model.terms] == ["bias", "scale", "misalignment"]
     (dropped,) = cal.extra["added_terms"]
@@ -460,6 +491,7 @@ def test_a_session_without_temperature_in_the_fleet(tmp_path):
     calibrated, its report renders, and its temperature span is null, not the stand-in."""
     from gyrocal.fleet.summary import fleet_summary, fleet_table
     from gyrocal.run.stages import analyse_stage, report_stage, segment_stage
+
     path, _ = ferraris_log(tmp_path, seed=18, temperature=None)
     folder = tmp_path / "results" / "H1"
     meta = {"device": "H1", "batch": "B1", "session": "2026-01-01", "protocol": "ferraris"}
@@ -468,8 +500,7 @@ def test_a_session_without_temperature_in_the_fleet(tmp_path):
     analyse_stage(folder, settings, meta, record_failures=False)
     report_stage(folder, tmp_path / "H1.html", settings)
     assert "temperature_not_logged" in (tmp_path / "H1.html").read_text()
-    summary = fleet_summary([{"row": {**meta, "path": str(path)}, "folder": folder,
-                              "report": "H1.html"}])
+    summary = fleet_summary([{"row": {**meta, "path": str(path)}, "folder": folder, "report": "H1.html"}])
     row = summary["rows"][0]
     assert row["status"] == "ok", row.get("error")
     assert row["span"] is None

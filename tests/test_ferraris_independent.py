@@ -15,24 +15,30 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.pipeline.config import Settings
 from gyrocal.io.errors import GyrocalError
 from gyrocal.pipeline.chain import run
+from gyrocal.pipeline.config import Settings
 
 from .ferraris_gen.generate import KINDS, session
 from .test_ferraris import K_stderr
 
-NOISE_ONLY = Settings.from_dict({"protocols": {"ferraris": {"options": {
-    "angle_uncertainty_deg": 0.0, "tilt_uncertainty_deg": 0.0}}}}).for_protocol("ferraris")
+NOISE_ONLY = Settings.from_dict(
+    {"protocols": {"ferraris": {"options": {"angle_uncertainty_deg": 0.0, "tilt_uncertainty_deg": 0.0}}}}
+).for_protocol("ferraris")
 SEEDS = (0, 1)
 
 
 @pytest.fixture(scope="module")
 def sessions(tmp_path_factory):
     folder = tmp_path_factory.mktemp("ferraris_gen")
-    return {(kind, seed): (folder / f"{kind}_{seed}.parquet",
-                           session(kind, seed, folder / f"{kind}_{seed}.parquet"))
-            for kind in KINDS for seed in SEEDS}
+    return {
+        (kind, seed): (
+            folder / f"{kind}_{seed}.parquet",
+            session(kind, seed, folder / f"{kind}_{seed}.parquet"),
+        )
+        for kind in KINDS
+        for seed in SEEDS
+    }
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -69,9 +75,16 @@ def test_bad_sessions_are_refused_or_warned_as_their_author_expects(sessions, se
 # -- recordings cut to their sections ------------------------------------------------------
 
 CUT_KINDS = [k for k, v in KINDS.items() if v.expect == "calibrate" and v.accel]
-WITH_G = Settings.from_dict({"protocols": {"ferraris": {
-    "options": {"angle_uncertainty_deg": 0.0, "tilt_uncertainty_deg": 0.0},
-    "model": {"terms": ["bias", "scale", "misalignment", "g_sensitivity"]}}}}).for_protocol("ferraris")
+WITH_G = Settings.from_dict(
+    {
+        "protocols": {
+            "ferraris": {
+                "options": {"angle_uncertainty_deg": 0.0, "tilt_uncertainty_deg": 0.0},
+                "model": {"terms": ["bias", "scale", "misalignment", "g_sensitivity"]},
+            }
+        }
+    }
+).for_protocol("ferraris")
 
 
 def cut_to_sections(path, truth, margin: float, rows_as_time: bool):
@@ -102,8 +115,7 @@ def cut_to_sections(path, truth, margin: float, rows_as_time: bool):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("margin,rows_as_time", [(0.0, False), (0.3, True)])
 @pytest.mark.parametrize("kind", CUT_KINDS)
-def test_a_recording_cut_to_its_sections_segments_from_the_data(sessions, kind, seed, margin,
-                                                                 rows_as_time):
+def test_a_recording_cut_to_its_sections_segments_from_the_data(sessions, kind, seed, margin, rows_as_time):
     """No move between one section and the next: the faces are found where gravity turns
     from one to the next, each turn between the edges of its section. Every face must lie
     in its still interval, every turn must span its motion and stay in its section, and the
@@ -115,7 +127,7 @@ def test_a_recording_cut_to_its_sections_segments_from_the_data(sessions, kind, 
     result = run(cut, WITH_G if kind == "gsens" else NOISE_ONLY, protocol="ferraris")
     seg = result.segmentation
     assert seg.info["phases_from"] == "data"
-    assert seg.info["cuts"] == 8 or rows_as_time   # a time gap at every cut
+    assert seg.info["cuts"] == 8 or rows_as_time  # a time gap at every cut
     log = pq.read_table(cut).to_pandas()
     t_cut = log["t"].to_numpy()
     obs = seg.observations.set_index("section")
@@ -136,7 +148,7 @@ def test_a_recording_cut_to_its_sections_segments_from_the_data(sessions, kind, 
         section = (t_orig >= lo - margin - dt / 2) & (t_orig <= hi + margin + dt / 2)
         left = section & ((t_cut < obs.loc[label, "t_start"]) | (t_cut > obs.loc[label, "t_end"]))
         resting = np.asarray(truth["b_expected"])
-        if truth["G"] is not None and left.any():   # the g-sensitivity at those samples' gravity
+        if truth["G"] is not None and left.any():  # the g-sensitivity at those samples' gravity
             accel = log.loc[left, ["accel_x", "accel_y", "accel_z"]].to_numpy().mean(axis=0)
             resting = resting + np.asarray(truth["G"]) @ accel
         angle_left = float(np.sum(log.loc[left, f"gyro_{label[0]}"] - resting[axis]) * dt)
@@ -146,6 +158,6 @@ def test_a_recording_cut_to_its_sections_segments_from_the_data(sessions, kind, 
     tolerance = truth["suggested_tolerance"]
     off_K = np.abs(K - np.asarray(truth["K_nominal"])) / np.asarray(tolerance["K_vs_K_nominal"])
     assert off_K.max() < 1, off_K
-    if kind != "gsens":   # there B is at zero specific force; b_expected holds G f of the faces
+    if kind != "gsens":  # there B is at zero specific force; b_expected holds G f of the faces
         off_B = np.abs(B - np.asarray(truth["b_expected"])) / np.asarray(tolerance["b_vs_b_expected"])
         assert off_B.max() < 1, off_B

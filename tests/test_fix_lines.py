@@ -21,9 +21,13 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 # (effect, zoo protocol, unit overrides): each offers a fix of another kind.
-CASES = [("warmup", "turntable3", {}), ("g_sensitivity", "turntable3", {"imu_radius_m": 0.0}),
-         ("rate_dependent_bias_sat", "turntable3", {}), ("rate_band_bias", "turntable3", {}),
-         ("slow_pole", "turntable3", {})]
+CASES = [
+    ("warmup", "turntable3", {}),
+    ("g_sensitivity", "turntable3", {"imu_radius_m": 0.0}),
+    ("rate_dependent_bias_sat", "turntable3", {}),
+    ("rate_band_bias", "turntable3", {}),
+    ("slow_pole", "turntable3", {}),
+]
 DEVICE = "Z-1"
 RMS = re.compile(r"leave-temperature-out RMS ([0-9.e+-]+) deg/s")
 
@@ -32,8 +36,13 @@ pytestmark = pytest.mark.slow
 
 def gyrocal(command: str, cwd: Path) -> subprocess.CompletedProcess:
     """A command line as a person pastes it: one string, read by the shell."""
-    return subprocess.run(["bash", "-c", f"{sys.executable} -m gyrocal {command}"], cwd=cwd,
-                          capture_output=True, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    return subprocess.run(
+        ["bash", "-c", f"{sys.executable} -m gyrocal {command}"],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+    )
 
 
 @pytest.fixture(scope="module", params=CASES, ids=lambda c: c[0])
@@ -41,6 +50,7 @@ def offered(request, tmp_path_factory):
     """A zoo unit's two sessions and the diagnosis of the first, judged on the second, as the
     command line writes it."""
     from benchmarks.zoo.generator import make_unit, write_session
+
     effect, protocol, overrides = request.param
     folder = tmp_path_factory.mktemp(effect)
     unit = make_unit(effect=effect, protocol=protocol, noise="white", seed=0, **overrides)
@@ -64,7 +74,7 @@ def fixes(best: dict) -> list[dict]:
 def test_each_option_pasted_into_a_shell_calibrates_with_the_fix(offered):
     folder, doc, best = offered
     for k, fix in enumerate(fixes(best)):
-        assert "'\"'\"'" not in fix["option"]   # nothing escaped for the shell but its outer quotes
+        assert "'\"'\"'" not in fix["option"]  # nothing escaped for the shell but its outer quotes
         done = gyrocal(f"calibrate s0.parquet -o cal{k}.json {fix['option']}", folder)
         assert done.returncode == 0, done.stderr
         cal = json.loads((folder / f"cal{k}.json").read_text())
@@ -75,6 +85,7 @@ def test_each_option_pasted_into_a_shell_calibrates_with_the_fix(offered):
             # what the diagnosis promised, within that figure's own uncertainty over the holds
             # (the offered term is written for the unit: its start and bounds, not the session's)
             from gyrocal.diagnose import chance_bound
+
             got = float(RMS.search(done.stdout).group(1))
             holds = sum(p["holds"] for p in cal["points"] if p["used"])
             assert got <= fix["validation_rms_with"] * chance_bound(holds, 0.01), done.stdout
@@ -96,6 +107,7 @@ def test_each_unit_line_pasted_into_the_config_gives_that_unit_alone_the_fix(off
     from gyrocal.fleet.manifest import model_entry
     from gyrocal.io.schema import check
     from gyrocal.pipeline.config import Settings
+
     folder, doc, best = offered
     for fix in fixes(best):
         text = (ROOT / "config" / "config.yaml").read_text() + "\n" + fix["unit_config_line"] + "\n"
@@ -104,8 +116,10 @@ def test_each_unit_line_pasted_into_the_config_gives_that_unit_alone_the_fix(off
         entry = model_entry(row, config["models"])
         assert entry == DEVICE
         assert model_entry({**row, "device": "Z-2"}, config["models"]) is None
-        settings = Settings.from_dict({k: config[k] for k in ("segmentation", "model", "diagnosis")}
-                                      | {"unit": {"entry": entry, "model": config["models"][entry]}})
+        settings = Settings.from_dict(
+            {k: config[k] for k in ("segmentation", "model", "diagnosis")}
+            | {"unit": {"entry": entry, "model": config["models"][entry]}}
+        )
         fleet = Settings.from_dict({k: config[k] for k in ("segmentation", "model", "diagnosis")})
         added = [t for t in settings.model.term_specs() if t not in fleet.model.term_specs()]
         assert added, fix["unit_config_line"]

@@ -16,16 +16,27 @@ def rows(batches: dict[str, int]) -> list[dict]:
     for batch, n in batches.items():
         for i in range(n):
             device = f"U{i:05d}"
-            row = {"batch": batch, "device": device, "session": "2026-03-02", "protocol": "turntable",
-                   "report": f"{batch}/{device}/2026-03-02.html"}
+            row = {
+                "batch": batch,
+                "device": device,
+                "session": "2026-03-02",
+                "protocol": "turntable",
+                "report": f"{batch}/{device}/2026-03-02.html",
+            }
             if i % 97 == 5:
-                row.update(status="failed", stage="segment", error="not a readable Parquet file",
-                           internal=False)
+                row.update(
+                    status="failed", stage="segment", error="not a readable Parquet file", internal=False
+                )
             else:
-                row.update(status="ok", summary={"validation_rms": 0.01 + 1e-6 * i, "excess": 1.0,
-                                                 "excess_over_expected": 1.0},
-                           warnings=[], missing="nothing", span=(-40.0, 80.0), noise=None,
-                           params={"scale.x": 100.0 + i})
+                row.update(
+                    status="ok",
+                    summary={"validation_rms": 0.01 + 1e-6 * i, "excess": 1.0, "excess_over_expected": 1.0},
+                    warnings=[],
+                    missing="nothing",
+                    span=(-40.0, 80.0),
+                    noise=None,
+                    params={"scale.x": 100.0 + i},
+                )
             out.append(row)
     return out
 
@@ -58,8 +69,8 @@ def test_a_large_fleet_lists_its_batches_and_pages_every_unit_once(tmp_path):
     (reports / "2026-03-02.html").write_text("a unit's report")
     path = write(tmp_path, table)
     index = path.read_text()
-    assert unit_links(index) == []                                   # no unit rows in the index
-    assert "&lt;night&gt;" in index and "<night>" not in index        # the batch name escaped
+    assert unit_links(index) == []  # no unit rows in the index
+    assert "&lt;night&gt;" in index and "<night>" not in index  # the batch name escaped
     pages = fleet.batch_pages_of(path)
     assert len(pages) == 3 + 1
     linked = re.findall(r'href="(index-batch-[^"]+\.html)"', index)
@@ -84,7 +95,9 @@ def test_a_large_fleet_lists_its_batches_and_pages_every_unit_once(tmp_path):
 @pytest.mark.parametrize("name", ["a/b", "a\\b", "..", "", "x" * 300])
 def test_batch_page_names_are_safe_and_apart(name):
     page = fleet.batch_page_name(name, 1)
-    assert "/" not in page and "\\" not in page and page.startswith("index-batch-") and page.endswith("-1.html")
+    assert (
+        "/" not in page and "\\" not in page and page.startswith("index-batch-") and page.endswith("-1.html")
+    )
     assert len(page) < 80
     assert fleet.batch_page_name(name + "!", 1) != page
 
@@ -92,14 +105,17 @@ def test_batch_page_names_are_safe_and_apart(name):
 def test_a_days_manifest_splits_into_shards_that_keep_batches_and_devices_whole(tmp_path, monkeypatch):
     from gyrocal.fleet.manifest import read_manifest
     from gyrocal.run.cli import main
+
     (tmp_path / "logs").mkdir()
     lines = ["device\tbatch\tsession\tprotocol\tpath"]
     for batch, devices in (("B1", 3), ("B2", 7), ("B3", 2)):
         for d in range(devices):
             for session in ("2026-03-02", "2026-03-03"):
-                lines.append(f"{batch}D{d}\t{batch}\t{session}\tturntable\tlogs/{batch}D{d}-{session}.parquet")
+                lines.append(
+                    f"{batch}D{d}\t{batch}\t{session}\tturntable\tlogs/{batch}D{d}-{session}.parquet"
+                )
     (tmp_path / "day.tsv").write_text("\n".join(lines) + "\n")
-    monkeypatch.chdir(tmp_path)   # the manifest named relative to where the command runs
+    monkeypatch.chdir(tmp_path)  # the manifest named relative to where the command runs
     assert main(["shard", "--manifest", "day.tsv", "--size", "8", "-o", "shards"]) == 0
     day = read_manifest(tmp_path / "day.tsv")
     shards = [read_manifest(p) for p in sorted((tmp_path / "shards").glob("shard-*.tsv"))]

@@ -22,10 +22,10 @@ import pytest
 from hypothesis import event, example, given, reject, settings
 from hypothesis import strategies as st
 
-from gyrocal.run import cli
 from gyrocal.io import log as gio
 from gyrocal.io.errors import CorruptFileError, LogFormatError
 from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+from gyrocal.run import cli
 
 from . import fuzzing as fz
 from .fuzzing import Case
@@ -43,8 +43,7 @@ def base(tmp_path_factory):
     calibration = folder / "base-cal.json"
     status, _, stderr, _ = fz.run_cli(["calibrate", str(path), "-o", str(calibration)])
     assert status == 0, stderr
-    return SimpleNamespace(path=path, table=pq.read_table(path), calibration=calibration,
-                           scratch=folder)
+    return SimpleNamespace(path=path, table=pq.read_table(path), calibration=calibration, scratch=folder)
 
 
 def written(base, case, name):
@@ -57,11 +56,11 @@ def written(base, case, name):
 # Reproducers the fuzzing found (each also has a plain regression test below).
 DIRECTORY_WITH_EMPTY_PART = Case(parts=2, damage=(("empty",),))
 UNITS_AS_A_LIST = Case(mutations=(("units", b'{"gyro": ["rad/s"]}'),))
-TIMESTAMPS_BEYOND_YEAR_9999 = Case(mutations=(("cast", "t", "timestamp[ms]"),
-                                              ("cast", "t", "timestamp[s]")), parts=1)
+TIMESTAMPS_BEYOND_YEAR_9999 = Case(
+    mutations=(("cast", "t", "timestamp[ms]"), ("cast", "t", "timestamp[s]")), parts=1
+)
 PARTS_DISAGREE_ON_T = Case(parts=2, part_mutations=((0, ("cast", "t", "timestamp[s]")),))
-HUGE_TEMPERATURES = Case(mutations=(("cast", "temp", "float64"),
-                                    ("set", "temp", 0.3, 20, 1e308)))
+HUGE_TEMPERATURES = Case(mutations=(("cast", "temp", "float64"), ("set", "temp", 0.3, 20, 1e308)))
 HUGE_REFERENCE = Case(mutations=(("set", "ref_rate", 0.0, 20, 1e308),))
 HALF_THE_LOG_STUCK = Case(parts=2, part_mutations=((0, ("scale", "gyro_x", 0.0)),))
 TIME_BEFORE_THE_BIG_BANG = Case(mutations=(("set", "t", 0.0, 1, -1e308),))
@@ -80,37 +79,57 @@ def test_ingest_gives_clean_columns_or_one_line_naming_the_file(base, case, keep
 
 
 @settings(max_examples=15, deadline=None, derandomize=True, database=None)
-@given(case=st.one_of(fz.cases(soft=True), fz.cases()),
-       command=st.sampled_from(("calibrate", "calibrate", "apply")),
-       protocol=st.sampled_from(("turntable", "turntable", "turntable", "servo", "sweep")),
-       ahead=st.booleans())
+@given(
+    case=st.one_of(fz.cases(soft=True), fz.cases()),
+    command=st.sampled_from(("calibrate", "calibrate", "apply")),
+    protocol=st.sampled_from(("turntable", "turntable", "turntable", "servo", "sweep")),
+    ahead=st.booleans(),
+)
 @example(case=HUGE_TEMPERATURES, command="calibrate", protocol="turntable", ahead=False)
-@example(case=Case(mutations=(("set", "gyro_x", 0.0, 1, 3.4028235e38),)), command="apply",
-         protocol="turntable", ahead=False)
+@example(
+    case=Case(mutations=(("set", "gyro_x", 0.0, 1, 3.4028235e38),)),
+    command="apply",
+    protocol="turntable",
+    ahead=False,
+)
 @example(case=DIRECTORY_WITH_EMPTY_PART, command="apply", protocol="turntable", ahead=False)
 @example(case=HALF_THE_LOG_STUCK, command="calibrate", protocol="turntable", ahead=False)
 def test_command_line_exits_0_or_2_with_gyrocal_messages_and_writes_no_nan(
-        base, case, command, protocol, ahead):
+    base, case, command, protocol, ahead
+):
     folder = fz.fresh(base.scratch / "cli")
     path = written(base, case, "cli/in")
-    outcome, _ = fz.check_cli(command, path, fz.fresh(folder / "out"),
-                              calibration=base.calibration, protocol=protocol,
-                              as_process_start=ahead)
+    outcome, _ = fz.check_cli(
+        command,
+        path,
+        fz.fresh(folder / "out"),
+        calibration=base.calibration,
+        protocol=protocol,
+        as_process_start=ahead,
+    )
     event(f"{command}: {outcome}")
 
 
-@pytest.mark.parametrize("case", [
-    Case(damage=(("flip_tail", 40, 0x55),)),            # footer damaged
-    Case(damage=(("truncate", 0.6),)),                   # data pages cut short
-    Case(mutations=(("duplicate", "gyro_y"),)),
-    Case(mutations=(("cast", "temp", "string"),)),
-], ids=["footer", "truncated", "duplicate-column", "string-temp"])
+@pytest.mark.parametrize(
+    "case",
+    [
+        Case(damage=(("flip_tail", 40, 0x55),)),  # footer damaged
+        Case(damage=(("truncate", 0.6),)),  # data pages cut short
+        Case(mutations=(("duplicate", "gyro_y"),)),
+        Case(mutations=(("cast", "temp", "string"),)),
+    ],
+    ids=["footer", "truncated", "duplicate-column", "string-temp"],
+)
 def test_the_console_entry_point_refuses_bad_logs_in_one_line(base, tmp_path, case):
     """The real process: the log is decoded ahead on a thread, errors come back from it."""
     path = fz.write_case(base.table, case, tmp_path)
     out = tmp_path / "cal.json"
-    run = subprocess.run([sys.executable, "-m", "gyrocal.run.cli", "calibrate", str(path), "-o",
-                          str(out)], capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [sys.executable, "-m", "gyrocal.run.cli", "calibrate", str(path), "-o", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 2, run.stderr
     assert run.stderr.startswith(f"gyrocal: error: {path}: ") and run.stderr.count("\n") == 1
     assert not out.exists()
@@ -122,23 +141,25 @@ def test_the_console_entry_point_refuses_bad_logs_in_one_line(base, tmp_path, ca
 
 def test_the_valid_log_passes_both_properties(base, tmp_path):
     assert fz.check_ingest(base.path) == "success"
-    assert fz.check_ingest(base.path, 0, 61) == "success"   # re-read, small batches
+    assert fz.check_ingest(base.path, 0, 61) == "success"  # re-read, small batches
     for command in ("calibrate", "apply"):
-        outcome, _ = fz.check_cli(command, base.path, fz.fresh(tmp_path / command),
-                                  calibration=base.calibration)
+        outcome, _ = fz.check_cli(
+            command, base.path, fz.fresh(tmp_path / command), calibration=base.calibration
+        )
         assert outcome == "success"
 
 
-def test_the_properties_flag_internal_errors_and_messages_without_the_file(base, monkeypatch,
-                                                                            tmp_path):
+def test_the_properties_flag_internal_errors_and_messages_without_the_file(base, monkeypatch, tmp_path):
     def crash(*args, **kwargs):
         raise ValueError("bug")
+
     monkeypatch.setattr(gio, "read_log", crash)
     with pytest.raises(fz.Violation, match="ValueError"):
         fz.check_ingest(base.path)
 
     def refuse(*args, **kwargs):
-        raise LogFormatError("something is wrong")   # no source: names no file
+        raise LogFormatError("something is wrong")  # no source: names no file
+
     monkeypatch.setattr(gio, "read_log", refuse)
     with pytest.raises(fz.Violation, match="does not name the file"):
         fz.check_ingest(base.path)
@@ -159,6 +180,7 @@ def test_the_properties_flag_internal_errors_and_messages_without_the_file(base,
 
 def read_as_pipeline(path):
     from gyrocal.io.blocks import BlockSink
+
     return gio.read_log(path, optional=LOG_COLUMNS, sink=BlockSink(1.0))
 
 
@@ -179,8 +201,7 @@ def test_a_directory_with_an_unreadable_part_is_a_corrupt_file(base, tmp_path):
 def test_units_that_are_not_strings_are_refused(base, tmp_path):
     """Was: TypeError (unhashable type: 'list') looking the unit up."""
     for payload in (b'{"gyro": ["rad/s"]}', b'{"temp": {"unit": "K"}}'):
-        path = fz.write_case(base.table, Case(mutations=(("units", payload),)),
-                             fz.fresh(tmp_path / "u"))
+        path = fz.write_case(base.table, Case(mutations=(("units", payload),)), fz.fresh(tmp_path / "u"))
         with pytest.raises(LogFormatError, match="metadata gyrocal.units gives"):
             read_as_pipeline(path)
 
@@ -207,21 +228,24 @@ def test_a_column_name_that_is_not_utf8_is_a_corrupt_file(base, tmp_path):
     table = base.table.append_column("zqzqzq", pa.array(np.zeros(base.table.num_rows)))
     pq.write_table(table, path)
     data = path.read_bytes()
-    assert data.count(b"zqzqzq") == 2   # the footer's schema and column chunk (ARROW:schema is base64)
+    assert data.count(b"zqzqzq") == 2  # the footer's schema and column chunk (ARROW:schema is base64)
     path.write_bytes(data.replace(b"zqzqzq", b"\xffqzqzq"))
     with pytest.raises(UnicodeDecodeError):
-        _ = ds.dataset(path).schema.names   # what gyrocal met
+        _ = ds.dataset(path).schema.names  # what gyrocal met
     with pytest.raises(CorruptFileError, match="not UTF-8") as info:
         read_as_pipeline(path)
     one_line_naming(info, path)
 
 
-@pytest.mark.parametrize("mutations", [
-    (("cast", "temp", "float64"), ("set", "temp", 0.3, 20, 1e308)),   # was: exit 1, NaN point
-    (("set", "ref_rate", 0.0, 20, 1e308),),                          # was: overflow in blocks
-    (("cast", "gyro_y", "float64"), ("set", "gyro_y", 0.5, 20, -1e160)),
-    (("units", b'{"gyro": "rad/s", "ref_rate": "rad/s"}'), ("set", "gyro_x", 0.5, 3, 3e38)),
-])
+@pytest.mark.parametrize(
+    "mutations",
+    [
+        (("cast", "temp", "float64"), ("set", "temp", 0.3, 20, 1e308)),  # was: exit 1, NaN point
+        (("set", "ref_rate", 0.0, 20, 1e308),),  # was: overflow in blocks
+        (("cast", "gyro_y", "float64"), ("set", "gyro_y", 0.5, 20, -1e160)),
+        (("units", b'{"gyro": "rad/s", "ref_rate": "rad/s"}'), ("set", "gyro_x", 0.5, 3, 3e38)),
+    ],
+)
 def test_readings_beyond_float32_range_count_as_non_finite(base, tmp_path, mutations):
     """A float64 reading beyond ±3.4e38 (float32's range, which the contract allows for
     every reading) is dropped and counted like inf: was a NaN temperature point (exit 1,
@@ -245,7 +269,7 @@ def test_a_time_beyond_what_a_timestamp_can_hold_counts_as_non_finite(base, tmp_
     the first row: finite and increasing, but no difference of times survives it)."""
     path = fz.write_case(base.table, TIME_BEFORE_THE_BIG_BANG, tmp_path)
     with warnings.catch_warnings():
-        warnings.simplefilter("error", RuntimeWarning)   # numpy's own too
+        warnings.simplefilter("error", RuntimeWarning)  # numpy's own too
         log = read_as_pipeline(path)
         assert log.rows_dropped == 1 and log.time_span[0] == base.table["t"][1].as_py()
         status, _, stderr, _ = fz.run_cli(["calibrate", str(path), "-o", str(tmp_path / "c.json")])
@@ -256,13 +280,12 @@ def test_a_float32_temperature_at_its_largest_does_not_overflow_a_stretch_mean(b
     """Was: overflow (numpy's RuntimeWarning, an inf intermediate) in a static stretch's
     mean temperature, accumulated in float32 like the column (3.4e38 °C is kept: float32
     holds it)."""
-    path = fz.write_case(base.table, Case(mutations=(("set_all", "temp", 3.4028235e38),)),
-                         tmp_path)
+    path = fz.write_case(base.table, Case(mutations=(("set_all", "temp", 3.4028235e38),)), tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)
         status, _, stderr, _ = fz.run_cli(["calibrate", str(path), "-o", str(tmp_path / "c.json")])
     assert status == 0 and "encountered" not in stderr, stderr
-    assert "temperature_out_of_range" in stderr   # what the log deserves instead
+    assert "temperature_out_of_range" in stderr  # what the log deserves instead
 
 
 @pytest.mark.parametrize("terms", [(), ("scale_quadratic",)])
@@ -276,10 +299,11 @@ def test_apply_compensates_huge_rates_without_a_singular_matrix(base, tmp_path, 
         calibration = tmp_path / "cal-nonlinear.json"
         add = [a for t in terms for a in ("--add-term", t)]
         assert fz.run_cli(["calibrate", str(base.path), "-o", str(calibration), *add])[0] == 0
-    path = fz.write_case(base.table, Case(mutations=(("set", "gyro_x", 0.0, 1, value),)),
-                         fz.fresh(tmp_path / "in"))
+    path = fz.write_case(
+        base.table, Case(mutations=(("set", "gyro_x", 0.0, 1, value),)), fz.fresh(tmp_path / "in")
+    )
     outcome, _ = fz.check_cli("apply", path, fz.fresh(tmp_path / "out"), calibration=calibration)
-    assert outcome == "success"   # and check_cli found no NaN the command did not count
+    assert outcome == "success"  # and check_cli found no NaN the command did not count
 
 
 def test_apply_refuses_damaged_data_pages_in_one_line(base, tmp_path):
@@ -291,11 +315,10 @@ def test_apply_refuses_damaged_data_pages_in_one_line(base, tmp_path):
     single = tmp_path / "log.parquet"
     pq.write_table(base.table, single, compression="snappy")
     data = bytearray(single.read_bytes())
-    middle = len(data) // 8   # inside the first column's data pages
-    data[middle:middle + 32] = bytes(b ^ 0xA5 for b in data[middle:middle + 32])
+    middle = len(data) // 8  # inside the first column's data pages
+    data[middle : middle + 32] = bytes(b ^ 0xA5 for b in data[middle : middle + 32])
     single.write_bytes(bytes(data))
-    outcome, line = fz.check_cli("apply", single, fz.fresh(tmp_path / "out2"),
-                                 calibration=base.calibration)
+    outcome, line = fz.check_cli("apply", single, fz.fresh(tmp_path / "out2"), calibration=base.calibration)
     assert outcome in ("CorruptFileError", "LogFormatError") and str(single) in line
 
 

@@ -26,8 +26,9 @@ def _play_by_definition(x, width, start):
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 2**31), n=st.integers(1, 3000), width=st.floats(1e-3, 50.0),
-       cut=st.floats(0.0, 1.0))
+@given(
+    seed=st.integers(0, 2**31), n=st.integers(1, 3000), width=st.floats(1e-3, 50.0), cut=st.floats(0.0, 1.0)
+)
 def test_the_play_operator_is_its_recursion_and_carries_its_state(seed, n, width, cut):
     """The doubling scan gives the step-by-step recursion to the bit (it only takes
     clips of the same numbers), and a record cut in two with the state carried over gives
@@ -46,7 +47,7 @@ def test_the_direction_of_travel_reads_plus_one_rising_and_minus_one_falling():
     temp = np.r_[np.linspace(20, 30, 101), np.linspace(30, 20, 101)[1:]]
     direction = 2 * (temp - play_operator(temp, 2.0)) / 2.0
     assert np.all(direction[15:100] == 1.0) and np.all(direction[-80:] == -1.0)
-    assert np.all(np.diff(direction[100:121]) < 0)   # turning back: across one width (20 steps)
+    assert np.all(np.diff(direction[100:121]) < 0)  # turning back: across one width (20 steps)
 
 
 def _duhem_by_definition(x, width):
@@ -70,8 +71,13 @@ def _duhem_by_definition(x, width):
 
 
 @settings(max_examples=40, deadline=None)
-@given(seed=st.integers(0, 2**31), n=st.integers(1, 2000), width=st.floats(0.2, 20.0),
-       cut=st.floats(0.0, 1.0), start=st.floats(-40.0, 85.0))
+@given(
+    seed=st.integers(0, 2**31),
+    n=st.integers(1, 2000),
+    width=st.floats(0.2, 20.0),
+    cut=st.floats(0.0, 1.0),
+    start=st.floats(-40.0, 85.0),
+)
 def test_the_duhem_state_is_its_definition_and_carries_its_state(seed, n, width, cut, start):
     """The vectorised Duhem operator against its sample-by-sample definition, the same
     travel in steps ten times finer (the state may not depend on how the record is
@@ -130,14 +136,16 @@ def test_the_record_keeps_the_rates_and_the_force_and_pieces_give_the_whole():
 
 
 def test_formulas_take_histories_of_the_record():
-    pole = make_term("expression(label='pole', formula='lag(rate_own, tau) - rate_own', "
-                     "profile={'tau': [0.5, 60.0]})")
+    pole = make_term(
+        "expression(label='pole', formula='lag(rate_own, tau) - rate_own', profile={'tau': [0.5, 60.0]})"
+    )
     assert {"rate_history", "temp_lag", "rate_x"} <= pole.needs
     assert pole.coefficient_scope == "global"
     heat = make_term("expression(label='heat', formula='lag(abs(rate_own), tau)', parameters={'tau': 90.0})")
     assert "rate_history" in heat.needs
-    hysteresis = make_term("expression(label='dir', formula='2 * (temp - play(temp, w)) / w', "
-                           "profile={'w': [0.5, 10.0]})")
+    hysteresis = make_term(
+        "expression(label='dir', formula='2 * (temp - play(temp, w)) / w', profile={'w': [0.5, 10.0]})"
+    )
     assert "rate_history" not in hysteresis.needs and "temp_lag" in hysteresis.needs
     assert "accel_history" in make_term("expression(label='g', formula='lag(accel_own, 30)')").needs
     with pytest.raises(ConfigError, match="not in the record"):
@@ -146,9 +154,12 @@ def test_formulas_take_histories_of_the_record():
 
 def test_histories_read_as_formulas_with_their_units():
     from gyrocal.diagnose.reading import readable
+
     pole = "expression(label='pole', formula='lag(rate_own, tau) - rate_own', parameters={'tau': 7.42})"
-    assert readable(pole, [{"parameter": "tau", "value": 7.42, "stderr": 0.21}]) == \
-        "A·(lag(ω, τ) − ω), τ = 7.42 ± 0.21 s"
+    assert (
+        readable(pole, [{"parameter": "tau", "value": 7.42, "stderr": 0.21}])
+        == "A·(lag(ω, τ) − ω), τ = 7.42 ± 0.21 s"
+    )
     play = "expression(label='dir', formula='2 * (temp - play(temp, w)) / w', parameters={'w': 3.1})"
     assert readable(play) == "A·2·(T − play(T, w))/w, w = 3.1 °C"
 
@@ -157,14 +168,25 @@ def _turntable_log(path, tau=4.0, k=0.01):
     """A table stepping through rates on one axis, 50 Hz, with the x output passing a slow
     pole: out = u + k (lag(u) − u), written without gyrocal's simulator."""
     from gyrocal.io.signals import first_order_lag
+
     fs, rates = 50.0, [0.0, 100.0, -100.0, 300.0, -300.0, 0.0, 50.0, -200.0]
     u = np.concatenate([np.full(int(20 * fs), r) for r in rates])
     t = np.arange(u.size) / fs
     out = u + k * (first_order_lag(t, u, tau) - u)
     noise = np.random.default_rng(1).normal(0, 0.01, (u.size, 3))
-    pq.write_table(pa.table({"t": t, "gyro_x": out + noise[:, 0], "gyro_y": noise[:, 1],
-                             "gyro_z": noise[:, 2], "temp": np.full(u.size, 25.0),
-                             "ref_rate": u}), path)
+    pq.write_table(
+        pa.table(
+            {
+                "t": t,
+                "gyro_x": out + noise[:, 0],
+                "gyro_y": noise[:, 1],
+                "gyro_z": noise[:, 2],
+                "temp": np.full(u.size, 25.0),
+                "ref_rate": u,
+            }
+        ),
+        path,
+    )
     return t, u, out
 
 
@@ -176,25 +198,34 @@ def test_apply_reads_the_history_the_fit_reads(tmp_path):
     from gyrocal.calibration.file import Calibration
     from gyrocal.fit.model import Model
     from gyrocal.fit.thermal import ConstantCoefficients
+
     t, u, _ = _turntable_log(tmp_path / "log.parquet")
 
     def calibration(specs, pole):
         model = Model.from_spec(specs)
         values = np.array([pole if n == "pole.x" else 0.0 for n in model.names])
-        grid = ConstantCoefficients(np.array([20.0, 30.0]), tuple(model.names), values,
-                                    np.full(len(values), 1e-6), fitted_span=(20.0, 30.0))
-        return Calibration(model, grid, meta={"device": "D", "batch": "B", "session": "s",
-                                              "protocol": "turntable"})
+        grid = ConstantCoefficients(
+            np.array([20.0, 30.0]),
+            tuple(model.names),
+            values,
+            np.full(len(values), 1e-6),
+            fitted_span=(20.0, 30.0),
+        )
+        return Calibration(
+            model, grid, meta={"device": "D", "batch": "B", "session": "s", "protocol": "turntable"}
+        )
 
     pole = "expression(label='pole', formula='lag(rate_own, tau) - rate_own', parameters={'tau': 4.0})"
-    apply_calibration(calibration(["bias", "scale", pole], 0.01), tmp_path / "log.parquet",
-                      tmp_path / "out.parquet")
+    apply_calibration(
+        calibration(["bias", "scale", pole], 0.01), tmp_path / "log.parquet", tmp_path / "out.parquet"
+    )
     error = pq.read_table(tmp_path / "out.parquet").column("gyro_x").to_numpy() - u
     # The noise is 0.01 deg/s per sample; the pole's transient up to k × 400 = 4 deg/s. What
     # is left is the noise and the record's bins (0.1 s here) against the samples.
-    assert np.sqrt(np.mean(error ** 2)) < 0.015
-    apply_calibration(calibration(["bias", "scale"], 0.0), tmp_path / "log.parquet",
-                      tmp_path / "plain.parquet")
+    assert np.sqrt(np.mean(error**2)) < 0.015
+    apply_calibration(
+        calibration(["bias", "scale"], 0.0), tmp_path / "log.parquet", tmp_path / "plain.parquet"
+    )
     without = pq.read_table(tmp_path / "plain.parquet").column("gyro_x").to_numpy() - u
     assert np.max(np.abs(without)) > 1.0
 
@@ -208,33 +239,52 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.calibration.apply import apply_calibration
     from gyrocal.diagnose import extended
-    from gyrocal.fit.model import columns_of
+    from gyrocal.fit.model import Model, columns_of
     from gyrocal.fleet import drift
-    from gyrocal.fit.model import Model
     from gyrocal.io.signals import SampleRecord
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
+
     log = tmp_path / "pole.parquet"
-    write_session(make_unit(effect="slow_pole", protocol="turntable3", noise="white", seed=1), log,
-                  session=0, seed=1000, rate_hz=10.0)
-    settings = extended(Settings(), "expression(label='pole', formula='lag(rate_own, tau) - rate_own', "
-                                    "profile={'tau': [0.5, 60.0]})")
+    write_session(
+        make_unit(effect="slow_pole", protocol="turntable3", noise="white", seed=1),
+        log,
+        session=0,
+        seed=1000,
+        rate_hz=10.0,
+    )
+    settings = extended(
+        Settings(),
+        "expression(label='pole', formula='lag(rate_own, tau) - rate_own', profile={'tau': [0.5, 60.0]})",
+    )
     cal = run(log, settings).calibration
     term = cal.model.terms[-1]
-    assert 6.0 < term.parameters["tau"] < 9.5      # the unit's 7.7 s
+    assert 6.0 < term.parameters["tau"] < 9.5  # the unit's 7.7 s
     obs = segment_log(log, settings).observations.reset_index(drop=True)
     data = columns_of(obs)
     # The history alone (the rest of the term is the hold's rate, the same in both).
-    lagged = Model((make_term(f"expression(label='h', formula='lag(rate_own, tau)', "
-                              f"parameters={{'tau': {term.parameters['tau']!r}}})"),))
-    at_holds = lagged.design(data)                       # quadrature over the record's bins
+    lagged = Model(
+        (
+            make_term(
+                f"expression(label='h', formula='lag(rate_own, tau)', "
+                f"parameters={{'tau': {term.parameters['tau']!r}}})"
+            ),
+        )
+    )
+    at_holds = lagged.design(data)  # quadrature over the record's bins
     table = pq.read_table(log, columns=["t", "gyro_x", "gyro_y", "gyro_z", "temp"])
     samples = {c: table.column(c).to_numpy().astype(float) for c in table.column_names}
     series = obs.attrs["series"]
     samples["t"] = samples["t"] - series.t0
     record = SampleRecord(series, samples, {})
-    at_samples = lagged.design({"t": samples["t"], "temp": samples["temp"], "series": record,
-                                **{f"rate_{a}": samples[f"gyro_{a}"] for a in "xyz"}})
+    at_samples = lagged.design(
+        {
+            "t": samples["t"],
+            "temp": samples["temp"],
+            "series": record,
+            **{f"rate_{a}": samples[f"gyro_{a}"] for a in "xyz"},
+        }
+    )
     lo = np.searchsorted(samples["t"], obs["t_start"].to_numpy() - series.t0, side="left")
     hi = np.searchsorted(samples["t"], obs["t_end"].to_numpy() - series.t0, side="right")
     floor = drift.observation_floor(data)
@@ -246,7 +296,7 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
         # The bins' O((Δt/τ)²) against the samples is largest on the hold just after the
         # largest step (800 deg/s here): under half a floor there, and over the holds a tenth
         # of the floor in RMS, which adds half a per cent to a residual's RMS in quadrature.
-        assert gap.max() < 0.5 and np.sqrt(np.mean(gap ** 2)) < 0.1, (a, gap.max())
+        assert gap.max() < 0.5 and np.sqrt(np.mean(gap**2)) < 0.1, (a, gap.max())
     apply_calibration(cal, log, tmp_path / "out.parquet")
     out = pq.read_table(tmp_path / "out.parquet", columns=["gyro_x"]).column(0).to_numpy()
     assert np.isfinite(out).all()
@@ -254,6 +304,7 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
 
 def _zoo_unit(tmp_path, effect, seed, sessions=2):
     from benchmarks.zoo.generator import make_unit, write_session
+
     unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=seed)
     logs = [tmp_path / f"{effect}-{seed}-s{s}.parquet" for s in range(sessions)]
     for s, log in enumerate(logs):
@@ -262,8 +313,10 @@ def _zoo_unit(tmp_path, effect, seed, sessions=2):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect, mounting", [("mount_bias_shift", True), ("g_sensitivity", False),
-                                              ("warmup", False), ("none", False)])
+@pytest.mark.parametrize(
+    "effect, mounting",
+    [("mount_bias_shift", True), ("g_sensitivity", False), ("warmup", False), ("none", False)],
+)
 def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effect, mounting):
     """A bias new at every mounting (the independent zoo's): with one session and with
     two, no term is named and the verdict names the mounting, not slow noise or a step in
@@ -272,6 +325,7 @@ def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effe
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
+
     obs = [segment_log(log, Settings()).observations for log in _zoo_unit(tmp_path, effect, 1)]
     for other in (None, obs[1]):
         d = diagnose(Settings(), obs[0], other).to_dict()
@@ -283,8 +337,10 @@ def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effe
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect, family, order", [("slow_pole", "slow pole", "shuffled"),
-                                                   ("rotation_heating", "heating by rotation", "default")])
+@pytest.mark.parametrize(
+    "effect, family, order",
+    [("slow_pole", "slow pole", "shuffled"), ("rotation_heating", "heating by rotation", "default")],
+)
 def test_histories_of_the_rate_are_offered_and_hold_on_the_next_session(tmp_path, effect, family, order):
     """Effects with a history from the independent zoo, diagnosed on one log with the
     default settings as most users run it: the history term is offered (a slow pole of the
@@ -297,6 +353,7 @@ def test_histories_of_the_rate_are_offered_and_hold_on_the_next_session(tmp_path
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=1)
     fitted, unseen = tmp_path / "s0.parquet", tmp_path / "s2.parquet"
     write_session(unit, fitted, session=0, seed=1000, rate_hz=10.0)
@@ -308,6 +365,7 @@ def test_histories_of_the_rate_are_offered_and_hold_on_the_next_session(tmp_path
     def next_session(settings):
         r = revalidate(run(fitted, settings).calibration, new)
         return r["validation_rms"] / r["noise_floor"]
+
     before, after = next_session(Settings()), next_session(extended(Settings(), d["best"]["term"]))
     assert before > 3.0 and after < 1.2, (before, after)
 
@@ -329,12 +387,15 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     from gyrocal.fleet import drift
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect="hysteresis", protocol="sweep", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in (0, 2)]
     for s, log in zip((0, 2), logs, strict=False):
         write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=(30.0, 45.0)[s // 2])
     quadratic = extended(Settings().for_protocol("sweep"), "bias_temp_poly")
-    settings = extended(quadratic, "expression(label='d', formula='duhem(temp, w)', profile={'w': [0.3, 40.0]})")
+    settings = extended(
+        quadratic, "expression(label='d', formula='duhem(temp, w)', profile={'w': [0.3, 40.0]})"
+    )
     obs = segment_log(logs[0], settings, "sweep").observations.reset_index(drop=True)
     series = obs.attrs["series"]
     floor = drift.observation_floor(columns_of(obs))
@@ -353,8 +414,9 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
             mean = (sums[hi] - sums[lo]) / (hi - lo)
             ratios.append((mean - obs[f"rate_{a}"].to_numpy()) / floor[:, i])
         return cal, float(np.sqrt(np.mean(np.square(ratios))))
+
     cal, with_history = applied_error(settings)
-    assert 2.0 < cal.model.terms[-1].parameters["w"] < 5.0   # the generator's 2-5 °C
+    assert 2.0 < cal.model.terms[-1].parameters["w"] < 5.0  # the generator's 2-5 °C
     _, without = applied_error(quadratic)
     print(f"applied: {with_history:.3g} with the history, {without:.3g} without")
     assert with_history < 1.3 and without > 3.0, (with_history, without)
@@ -369,10 +431,12 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
     direction that never changes is the bias's own); nothing where the record lacks the
     gyro's output a history of the rates reads."""
     import pandas as pd
+
     from gyrocal.diagnose.shapes import history_shapes
     from gyrocal.io.signals import Series
+
     t = np.linspace(0.0, 7200.0, 721)
-    up_down = 20.0 + 20.0 * np.sin(np.pi * t / 7200.0)          # warms, then cools back
+    up_down = 20.0 + 20.0 * np.sin(np.pi * t / 7200.0)  # warms, then cools back
     gyro = {f"gyro_{a}": np.zeros_like(t) for a in "xyz"}
     obs = pd.DataFrame({"duration": np.full(10, 20.0)})
 
@@ -380,6 +444,7 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
         covariates = [{"covariate": r, "share_of_excess": 0.3} for r in rows]
         data = {"series": Series(t, temp, record=dict(record))}
         return {s.family for s in history_shapes(obs, data, covariates)}
+
     rates = {"slow pole", "heating by rotation", "heating by rotation power"}
     temperature = {"hysteresis", "hysteresis relaxing", "switch with hysteresis"}
     assert families(["reference rate = step into the hold"]) == rates
@@ -400,6 +465,7 @@ def test_the_output_settling_within_its_holds_is_tested_against_the_step_into_th
     from gyrocal.fit.model import columns_of
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
+
     log = _zoo_unit(tmp_path, effect, seed, sessions=1)[0]
     obs = segment_log(log, Settings()).observations
     row = settling_row(obs, columns_of(obs))
@@ -423,6 +489,7 @@ def test_points_reached_one_way_are_found_from_the_record(tmp_path, order, one_w
     from gyrocal.fit.model import columns_of
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect="none", protocol="turntable3", noise="white", seed=1)
     write_session(unit, tmp_path / "s.parquet", session=0, seed=1000, rate_hz=10.0, temp_order=order)
     obs = segment_log(tmp_path / "s.parquet", Settings()).observations
@@ -451,11 +518,13 @@ def test_a_hysteresis_no_session_can_see_is_said_to_be_out_of_sight(tmp_path):
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect="temp_hysteresis_play", protocol="turntable3", noise="white", seed=1)
     obs = {}
     for s, order in ((0, "default"), (1, "default"), (2, "updown")):
-        write_session(unit, tmp_path / f"s{s}.parquet", session=s, seed=1000 + s, rate_hz=10.0,
-                      temp_order=order)
+        write_session(
+            unit, tmp_path / f"s{s}.parquet", session=s, seed=1000 + s, rate_hz=10.0, temp_order=order
+        )
         obs[s] = segment_log(tmp_path / f"s{s}.parquet", Settings()).observations
     for other in (None, obs[1]):
         d = diagnose(Settings(), obs[0], other).to_dict()
@@ -479,15 +548,18 @@ def test_a_switch_with_hysteresis_is_placed_within_a_hold_of_the_truth(tmp_path)
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
+
     unit = make_unit(effect="bias_step_temp", protocol="sweep", noise="white", seed=1)
     truth = unit.params["effects"]["bias_step_temp"]
     logs = [tmp_path / f"s{s}.parquet" for s in (0, 2)]
     for s, log, ramp in zip((0, 2), logs, (30.0, 45.0), strict=False):
         write_session(unit, log, session=s, seed=1000 + s, rate_hz=5.0, ramp_c_per_h=ramp)
-    settings = extended(extended(Settings().for_protocol("sweep"), "bias_temp_poly"),
-                        "expression(label='s', formula='sign(play(temp, w) - T0 - m)', "
-                        "parameters={'T0': -20.85, 'm': 5.7, 'w': 5.67}, "
-                        "profile={'m': [0.4, 80.9], 'w': [0.8, 40.1]})")
+    settings = extended(
+        extended(Settings().for_protocol("sweep"), "bias_temp_poly"),
+        "expression(label='s', formula='sign(play(temp, w) - T0 - m)', "
+        "parameters={'T0': -20.85, 'm': 5.7, 'w': 5.67}, "
+        "profile={'m': [0.4, 80.9], 'w': [0.8, 40.1]})",
+    )
     cal = run(logs[0], settings, protocol="sweep").calibration
     p = cal.model.terms[-1].parameters
     travel = 20.0 * 30.0 / 3600.0
@@ -506,8 +578,9 @@ def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(star
     on the same record in pieces (apply's batches, the state carried) it agrees to the bit;
     a play of any other input starts at its first value."""
     from gyrocal.io.signals import FILTERS, Series
+
     t = np.arange(200.0)
-    temp = start + 0.5 * np.sin(t / 30.0)          # within a width of its start
+    temp = start + 0.5 * np.sin(t / 30.0)  # within a width of its start
     width = 4.0
     series = Series(t, temp)
     whole = series.history(("temp", None, ()), lambda s: s.temp, "temperature_play", width, t)
@@ -521,16 +594,20 @@ def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(star
 
 
 def test_a_dropout_of_the_gyro_over_whole_batches_leaves_the_temperatures_histories_running(
-        tmp_path, monkeypatch):
+    tmp_path, monkeypatch
+):
     """Apply compensates batch by batch. Where the gyro drops out over whole batches while
     the temperature is still logged (and moving), the temperature's histories still run
     over those samples, as firmware's filters do: the output after the gap is the same
     whether the log is applied in small batches or in one."""
     import pyarrow as pa
+
     from gyrocal.calibration import apply as applying
     from gyrocal.calibration.apply import apply_calibration
+
     from .conftest import make_log
     from .test_export import grid_calibration, with_terms
+
     log = make_log(tmp_path, temperatures=(0.0, 30.0), rates=(10.0, 400.0))
     table = pq.read_table(log)
     temp = table.column("temp").to_numpy()
@@ -542,16 +619,24 @@ def test_a_dropout_of_the_gyro_over_whole_batches_leaves_the_temperatures_histor
         values[gap] = np.nan
         table = table.set_column(table.schema.get_field_index(c), c, pa.array(values))
     pq.write_table(table, tmp_path / "gap.parquet")
-    cal = with_terms(grid_calibration((0.0, 10.0, 20.0, 30.0)), "grid",
-                     ["expression(label='strain', formula='duhem(temp, w)', parameters={'w': 0.3})",
-                      "expression(label='way', formula='2 * (temp - play(temp, w)) / w', parameters={'w': 0.4})"],
-                     lambda n: 0.05, seed=3)
+    cal = with_terms(
+        grid_calibration((0.0, 10.0, 20.0, 30.0)),
+        "grid",
+        [
+            "expression(label='strain', formula='duhem(temp, w)', parameters={'w': 0.3})",
+            "expression(label='way', formula='2 * (temp - play(temp, w)) / w', parameters={'w': 0.4})",
+        ],
+        lambda n: 0.05,
+        seed=3,
+    )
     outputs = []
     for rows in (1000, 1 << 20):
         monkeypatch.setattr(applying, "BATCH_ROWS", rows)
         apply_calibration(cal, tmp_path / "gap.parquet", tmp_path / f"out{rows}.parquet")
-        outputs.append(pq.read_table(tmp_path / f"out{rows}.parquet", columns=["gyro_x"]).column(0).to_numpy())
+        outputs.append(
+            pq.read_table(tmp_path / f"out{rows}.parquet", columns=["gyro_x"]).column(0).to_numpy()
+        )
     assert np.isnan(outputs[0][gap]).all()
     after = slice(gap.stop, None)
     np.testing.assert_allclose(outputs[0][after], outputs[1][after], rtol=0, atol=1e-9)
-    assert np.ptp(temp[gap]) > 0.4   # the temperature travelled beyond the widths in the gap
+    assert np.ptp(temp[gap]) > 0.4  # the temperature travelled beyond the widths in the gap

@@ -31,8 +31,13 @@ def units(tmp_path_factory):
     out = {}
     for effect in ("none", "warmup", "bias_ramp"):
         log = folder / f"{effect}.parquet"
-        write_session(make_unit(effect=effect, protocol="turntable3", noise="white", seed=3), log,
-                      session=0, seed=30, rate_hz=25.0)
+        write_session(
+            make_unit(effect=effect, protocol="turntable3", noise="white", seed=3),
+            log,
+            session=0,
+            seed=30,
+            rate_hz=25.0,
+        )
         out[effect] = segment_log(log, Settings())
     return out
 
@@ -53,7 +58,7 @@ def test_a_warmup_on_a_unit_without_one_is_dropped_and_its_calibration_is_the_tw
     assert "bound of its search" in record["reason"] or record["inflation"] > MAX_INFLATION
     assert "does not lower the held-out error" in record["reason"]
     assert [t.name for t in added.model.terms] == ["bias", "scale", "misalignment"]
-    assert added.grid.values.tolist() == plain.grid.values.tolist()   # the parameters end of line judges
+    assert added.grid.values.tolist() == plain.grid.values.tolist()  # the parameters end of line judges
     (warning,) = [w for w in added.extra["warnings"] if w["code"] == "term_dropped"]
     assert "decay_t" in warning["message"]
     # the held-out figure with the term is no better than without it beyond its own spread
@@ -106,6 +111,7 @@ def test_two_terms_that_share_one_collinearity_do_not_hide_each_other(units):
     """A decay and a ramp of time added together to a unit with neither: each alone is
     dropped, and neither may stay because the other carries the blame."""
     from gyrocal.pipeline.identify import identify
+
     ramp = 'expression(label="ramp_t", formula="t / 3600")'
     settings = extended(extended(Settings(), DECAY), ramp)
     found = identify(settings, units["none"].observations, "turntable")
@@ -117,17 +123,36 @@ def test_a_term_whose_input_the_log_lacks_is_dropped_for_that_unit_alone(units):
     obs = units["none"].observations
     bare = obs.drop(columns=[c for c in obs.columns if c.startswith("accel_")])
     bare.attrs.update(obs.attrs)
-    cal, _ = calibrate_observations(bare, extended(Settings(), "g_sensitivity"), meta=META,
-                                    noise=units["none"].info.get("noise"), checks=False)
+    cal, _ = calibrate_observations(
+        bare,
+        extended(Settings(), "g_sensitivity"),
+        meta=META,
+        noise=units["none"].info.get("noise"),
+        checks=False,
+    )
     (record,) = cal.extra["added_terms"]
     assert not record["kept"] and "the log lacks what it reads" in record["reason"]
 
 
 def test_a_continuous_models_terms_of_temperature_are_its_own_not_added(units):
     from gyrocal.pipeline.identify import added_terms
-    settings = Settings.from_dict({"model": {"kind": "continuous", "terms": [
-        "bias", "scale", "misalignment", "bias_temp_poly(degree=2)", "scale_temp_poly", "misalignment_temp",
-        "scale_quadratic"]}})
+
+    settings = Settings.from_dict(
+        {
+            "model": {
+                "kind": "continuous",
+                "terms": [
+                    "bias",
+                    "scale",
+                    "misalignment",
+                    "bias_temp_poly(degree=2)",
+                    "scale_temp_poly",
+                    "misalignment_temp",
+                    "scale_quadratic",
+                ],
+            }
+        }
+    )
     assert added_terms(settings, "turntable") == ["scale_quadratic"]
 
 
@@ -136,15 +161,29 @@ def test_a_term_that_leaves_the_calibration_unvalidated_is_dropped(tmp_path):
     but then no one-point calibration can be compared with the sweep's (the point holds too
     little of the step to fit it), so the calibration would reach end of line unvalidated."""
     from gyrocal.diagnose import extended as extend
+
     log = tmp_path / "sweep.parquet"
-    write_session(make_unit(effect="none", protocol="sweep", noise="white", seed=101), log,
-                  session=0, seed=101000, rate_hz=5.0, ramp_c_per_h=30.0)
+    write_session(
+        make_unit(effect="none", protocol="sweep", noise="white", seed=101),
+        log,
+        session=0,
+        seed=101000,
+        rate_hz=5.0,
+        ramp_c_per_h=30.0,
+    )
     settings = extend(Settings().for_protocol("sweep"), "bias_temp_poly")
     seg = segment_log(log, settings, "sweep")
-    step = ('expression(label="step_temp", formula="tanh((temp + 20.81 - m) / w)", parameters={"m": 5.69, '
-            '"w": 4.0}, profile={"m": [0.4, 80.8], "w": [0.4, 40.0]})')
-    cal, _ = calibrate_observations(seg.observations, extend(settings, step), noise=seg.info.get("noise"),
-                                    meta={"device": "S", "protocol": "sweep"}, checks=False)
+    step = (
+        'expression(label="step_temp", formula="tanh((temp + 20.81 - m) / w)", parameters={"m": 5.69, '
+        '"w": 4.0}, profile={"m": [0.4, 80.8], "w": [0.4, 40.0]})'
+    )
+    cal, _ = calibrate_observations(
+        seg.observations,
+        extend(settings, step),
+        noise=seg.info.get("noise"),
+        meta={"device": "S", "protocol": "sweep"},
+        checks=False,
+    )
     (record,) = cal.extra["added_terms"]
     assert not record["kept"] and "no temperature point can be left out" in record["reason"], record
     assert record["with"] is None and record["without"]["excess"] is not None
@@ -155,11 +194,32 @@ def test_a_term_that_raises_a_units_held_out_error_is_dropped_though_identified(
     determines it well, but the interpolation between temperature points pays for it, and
     the held-out error rises beyond chance: the term is dropped for this unit."""
     from gyrocal.run.cli import main
+
     log = tmp_path / "u004.parquet"
-    assert main(["simulate", "--log", str(log), "--device", "U004", "--batch", "B1", "--session", "2026-01-07",
-                 "--preset", "quick", "--protocol", "turntable",
-                 "--temperatures=-40,-30,-20,-10,0,10,20,30,40,50", "--rates=0.1,1,10,50,100,150,200,250,300,400",
-                 "--effects", '{"warmup": [0.3, -0.25, 0.2]}']) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                "--log",
+                str(log),
+                "--device",
+                "U004",
+                "--batch",
+                "B1",
+                "--session",
+                "2026-01-07",
+                "--preset",
+                "quick",
+                "--protocol",
+                "turntable",
+                "--temperatures=-40,-30,-20,-10,0,10,20,30,40,50",
+                "--rates=0.1,1,10,50,100,150,200,250,300,400",
+                "--effects",
+                '{"warmup": [0.3, -0.25, 0.2]}',
+            ]
+        )
+        == 0
+    )
     seg = segment_log(log, Settings())
     plain, added = calibrations(seg, "scale_quadratic")
     (record,) = added.extra["added_terms"]

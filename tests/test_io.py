@@ -18,9 +18,14 @@ from gyrocal.io.log import MOUNTS, file_digest, file_sha256, read_log
 
 def table(n=100, **overrides):
     t = np.arange(n) * 0.01
-    cols = {"t": t, "gyro_x": np.full(n, 1.0, np.float32), "gyro_y": np.zeros(n, np.float32),
-            "gyro_z": np.zeros(n, np.float32), "temp": np.full(n, 20.0, np.float32),
-            "ref_rate": np.ones(n)}
+    cols = {
+        "t": t,
+        "gyro_x": np.full(n, 1.0, np.float32),
+        "gyro_y": np.zeros(n, np.float32),
+        "gyro_z": np.zeros(n, np.float32),
+        "temp": np.full(n, 20.0, np.float32),
+        "ref_rate": np.ones(n),
+    }
     cols.update(overrides)
     return pa.table({k: v for k, v in cols.items() if v is not None})
 
@@ -57,8 +62,7 @@ def test_rad_per_second_metadata_converts_to_degrees(tmp_path):
 
 
 def test_timestamp_time_column_becomes_seconds(tmp_path):
-    stamps = pa.array(np.arange(100) * 10_000_000 + 1_700_000_000_000_000_000,
-                      type=pa.timestamp("ns"))
+    stamps = pa.array(np.arange(100) * 10_000_000 + 1_700_000_000_000_000_000, type=pa.timestamp("ns"))
     path = write(tmp_path, table(t=stamps))
     t = read_log(path).column("t")
     np.testing.assert_allclose(np.diff(t), 0.01, rtol=1e-9)
@@ -93,8 +97,9 @@ def test_mount_labels_become_codes_and_nulls_continue_the_last_label(tmp_path):
     x, z = MOUNTS.index("+x"), MOUNTS.index("-z")
     assert list(codes[:6]) == [-1, x, x, z, z, x]  # a leading null stays unknown
     dict_labels = labels.dictionary_encode()
-    np.testing.assert_array_equal(read_log(write(tmp_path, table(mount=dict_labels), "d.parquet"))
-                                  .column("mount"), codes)
+    np.testing.assert_array_equal(
+        read_log(write(tmp_path, table(mount=dict_labels), "d.parquet")).column("mount"), codes
+    )
 
 
 def test_a_missing_optional_value_does_not_drop_the_row(tmp_path):
@@ -106,17 +111,20 @@ def test_a_missing_optional_value_does_not_drop_the_row(tmp_path):
     assert np.isnan(log.column("accel_x")).sum() == 50
 
 
-@pytest.mark.parametrize("case, expected", [
-    ("missing", "missing required column ref_rate"),
-    ("int_gyro", "column gyro_y has type int32, expected float32 or float64"),
-    ("backwards", "column t is not strictly increasing"),
-    ("duplicate", "column t is not strictly increasing"),
-    ("empty", "the log has no rows"),
-    ("all_nan", "all 100 rows hold a non-finite value"),
-    ("bad_mount", "column mount holds 'x+'"),
-    ("bad_units", "gives gyro in 'dps'"),
-    ("string_t", "column t has type string"),
-])
+@pytest.mark.parametrize(
+    "case, expected",
+    [
+        ("missing", "missing required column ref_rate"),
+        ("int_gyro", "column gyro_y has type int32, expected float32 or float64"),
+        ("backwards", "column t is not strictly increasing"),
+        ("duplicate", "column t is not strictly increasing"),
+        ("empty", "the log has no rows"),
+        ("all_nan", "all 100 rows hold a non-finite value"),
+        ("bad_mount", "column mount holds 'x+'"),
+        ("bad_units", "gives gyro in 'dps'"),
+        ("string_t", "column t has type string"),
+    ],
+)
 def test_bad_logs_get_one_line_errors_naming_the_file(tmp_path, case, expected):
     t = np.arange(100) * 0.01
     metadata = None
@@ -173,19 +181,26 @@ column_types = st.sampled_from([pa.float32(), pa.float64(), pa.int32(), pa.strin
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data(), n=st.integers(0, 40))
 def test_any_table_gives_a_log_or_a_gyrocal_error(tmp_path, data, n):
-    names = data.draw(st.lists(st.sampled_from(["t", "gyro_x", "gyro_y", "gyro_z", "temp",
-                                                "ref_rate", "mount", "other"]),
-                               unique=True, min_size=1, max_size=8))
+    names = data.draw(
+        st.lists(
+            st.sampled_from(["t", "gyro_x", "gyro_y", "gyro_z", "temp", "ref_rate", "mount", "other"]),
+            unique=True,
+            min_size=1,
+            max_size=8,
+        )
+    )
     cols = {}
     for name in names:
         typ = data.draw(column_types)
-        values = data.draw(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32),
-                                    min_size=n, max_size=n))
+        values = data.draw(
+            st.lists(st.floats(allow_nan=True, allow_infinity=True, width=32), min_size=n, max_size=n)
+        )
         if pa.types.is_string(typ):
             cols[name] = pa.array([data.draw(st.sampled_from(MOUNTS + ("?",))) for _ in values])
         elif pa.types.is_integer(typ):
-            cols[name] = pa.array([int(v) if math.isfinite(v) and abs(v) < 2**31 else 0
-                                   for v in values], type=typ)
+            cols[name] = pa.array(
+                [int(v) if math.isfinite(v) and abs(v) < 2**31 else 0 for v in values], type=typ
+            )
         else:
             cols[name] = pa.array(values, type=typ)
     path = write(tmp_path, pa.table(cols), "h.parquet")
@@ -202,6 +217,7 @@ def test_hashes_are_of_the_bytes(tmp_path):
     import hashlib
 
     import blake3
+
     path = write(tmp_path, table())
     assert file_sha256(path) == hashlib.sha256(path.read_bytes()).hexdigest()
     assert file_digest(path) == blake3.blake3(path.read_bytes()).hexdigest()

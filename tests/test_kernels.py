@@ -9,8 +9,10 @@ from gyrocal.io import kernels
 
 from .conftest import needs
 
-pytestmark = needs({"the C kernel gyrocal.io._blockstats": kernels.LIB is not None},
-                   "pip builds it on install where gcc is found, as make test does")
+pytestmark = needs(
+    {"the C kernel gyrocal.io._blockstats": kernels.LIB is not None},
+    "pip builds it on install where gcc is found, as make test does",
+)
 
 
 @pytest.fixture
@@ -30,7 +32,7 @@ def run_moments(v):
 def test_moments_match_the_numpy_path_and_a_float64_reference(dtype, size, monkeypatch):
     rng = np.random.default_rng(size)
     x = (400.0 + rng.normal(0, 0.05, 200 * size)).astype(dtype)  # large offset, small noise
-    x[3 * size: 4 * size] = -12.5  # a constant block: zero variance
+    x[3 * size : 4 * size] = -12.5  # a constant block: zero variance
     v = x.reshape(-1, size)
     ref = v.astype(np.float64)
     compiled = run_moments(v)
@@ -60,6 +62,7 @@ def test_means_skip_non_finite_values_only_when_asked(monkeypatch):
 
 def test_segmentation_is_the_same_on_either_path(logs, monkeypatch):
     from gyrocal.protocols.turntable.segment import segment_file
+
     _, compiled = segment_file(logs["complete"])
     monkeypatch.setattr(kernels, "LIB", None)
     _, fallback = segment_file(logs["complete"])
@@ -75,7 +78,7 @@ def test_second_difference_sums_match_numpy_and_a_direct_sum(monkeypatch):
     rng = np.random.default_rng(9)
     theta = np.cumsum(rng.normal(0, 0.01, 40_003))  # odd length: the lanes' tail is exercised
     m = np.array([1, 2, 3, 64, 1024, 20_001, 20_002])
-    direct = [float(np.sum((theta[2 * k:] - 2 * theta[k:-k] + theta[:-2 * k]) ** 2)) for k in m]
+    direct = [float(np.sum((theta[2 * k :] - 2 * theta[k:-k] + theta[: -2 * k]) ** 2)) for k in m]
     compiled = kernels.second_diff_sumsq(theta, m)
     monkeypatch.setattr(kernels, "LIB", None)
     fallback = kernels.second_diff_sumsq(theta, m)

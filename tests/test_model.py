@@ -8,10 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal.io.errors import ConfigError, IdentifiabilityError
 from gyrocal.fit.model import Model, fit
-from gyrocal.terms import TERMS, Term, make_term, register_term
+from gyrocal.io.errors import ConfigError, IdentifiabilityError
 from gyrocal.simulate.unit import SEED000_B25, SEED000_K25
+from gyrocal.terms import TERMS, Term, make_term, register_term
 
 RATES = [0.0] + [s * r for r in (0.1, 1, 10, 50, 100, 150, 200, 250, 300, 400) for s in (1, -1)]
 
@@ -26,10 +26,17 @@ def synthetic_obs(K, B, *, rng, mounts=("+x", "+y", "+z"), sigma=0.05, n=6000):
             w_true[axis] = sign * rate
             std = sigma * rng.uniform(0.8, 1.2, 3)
             w = K @ w_true + B + rng.normal(0, std / np.sqrt(n))
-            rows.append(dict(mount=mount, ref_rate=rate, n=n, temp=25.0,
-                             **{f"rate_{a}": w_true[i] for i, a in enumerate("xyz")},
-                             **{f"gyro_{a}": w[i] for i, a in enumerate("xyz")},
-                             **{f"std_{a}": std[i] for i, a in enumerate("xyz")}))
+            rows.append(
+                dict(
+                    mount=mount,
+                    ref_rate=rate,
+                    n=n,
+                    temp=25.0,
+                    **{f"rate_{a}": w_true[i] for i, a in enumerate("xyz")},
+                    **{f"gyro_{a}": w[i] for i, a in enumerate("xyz")},
+                    **{f"std_{a}": std[i] for i, a in enumerate("xyz")},
+                )
+            )
     return pd.DataFrame(rows)
 
 
@@ -74,7 +81,7 @@ def test_reported_standard_errors_are_honest_over_many_experiments():
     values, errors = np.array(values), np.array(errors)
     N = len(values)
     # The sample sd of N normal draws has relative sd 1/sqrt(2N) = 3.5 %: 4 of them is 14 %.
-    ratio = values.std(axis=0, ddof=1) / np.sqrt(np.mean(errors ** 2, axis=0))
+    ratio = values.std(axis=0, ddof=1) / np.sqrt(np.mean(errors**2, axis=0))
     np.testing.assert_allclose(ratio, 1.0, atol=4 / np.sqrt(2 * N))
     # No bias: each mean within 4 standard errors of the mean.
     bias = np.abs(values.mean(axis=0) - truth) / (values.std(axis=0, ddof=1) / np.sqrt(N))
@@ -82,7 +89,7 @@ def test_reported_standard_errors_are_honest_over_many_experiments():
     z = (values - truth) / errors
     # E[t²] = 65/63 for t with 65 dof; the four coefficients of an axis share one scatter
     # estimate, so their z² move together; 0.15 is 4 sd even for fully shared clusters.
-    assert np.mean(z ** 2) == pytest.approx(65 / 63, abs=0.15)
+    assert np.mean(z**2) == pytest.approx(65 / 63, abs=0.15)
     # P(|t65| > 3) = 0.38 %: 18 of 4800 expected; in clusters of up to 4 the 99.9 % bound
     # is 4 x 13 (Poisson(18/4) quantile).
     assert np.sum(np.abs(z) > 3) <= 52
@@ -137,6 +144,7 @@ def test_a_registered_term_takes_part_like_the_library_ones():
     @dataclass(frozen=True)
     class RateSquared(Term):
         """Scale nonlinearity: error proportional to the signed square of the rate."""
+
         unit = "1/(deg/s)"
         needs = frozenset({"rate_x", "rate_y", "rate_z"})
 
@@ -144,8 +152,8 @@ def test_a_registered_term_takes_part_like_the_library_ones():
             return [f"test_rate_squared.{a}" for a in "xyz"]
 
         def columns(self, data):
-            return {f"test_rate_squared.{a}": data[f"rate_{a}"] * np.abs(data[f"rate_{a}"])
-                    for a in "xyz"}
+            return {f"test_rate_squared.{a}": data[f"rate_{a}"] * np.abs(data[f"rate_{a}"]) for a in "xyz"}
+
     try:
         rng = np.random.default_rng(6)
         obs = synthetic_obs(SEED000_K25, SEED000_B25, rng=rng)
@@ -164,9 +172,14 @@ def _spline_holds(t, seed=0, floor=0.002):
     rng = np.random.default_rng(seed)
     n = len(t)
     truth = 0.3 * np.exp(-t / 800.0)
-    data = {"t_start": t - 10.0, "t_end": t + 10.0, "n": np.full(n, 100.0),
-            **{f"rate_{a}": np.zeros(n) for a in "xyz"}}
+    data = {
+        "t_start": t - 10.0,
+        "t_end": t + 10.0,
+        "n": np.full(n, 100.0),
+        **{f"rate_{a}": np.zeros(n) for a in "xyz"},
+    }
     from gyrocal.io.signals import Series
+
     record = np.arange(0.0, t.max() + 60.0, 1.0)
     data["series"] = Series(record, np.full(record.size, 25.0), 0.0, 60.0, np.ones(record.size))
     for a in "xyz":
@@ -180,6 +193,7 @@ def test_a_light_penalty_leaves_a_well_sampled_spline_as_least_squares_fits_it()
     means by far less than their noise floor; across a stretch without holds it draws a bounded curve
     where least squares alone would have no answer."""
     from gyrocal.fit.model import fit
+
     spec = 'smooth(input="t", knots=[20.0, 600.0, 1500.0, 3000.0, 5000.0])'
     model = Model.from_spec(["bias", spec])
     data, truth = _spline_holds(np.arange(20.0, 5000.0, 40.0))
@@ -205,6 +219,7 @@ def test_holds_share_wander_only_with_bias_instability_or_rate_random_walk():
     """Whether the fit whitens the holds jointly, and the diagnosis' verdict gives
     sqrt(χ²/dof) rather than RMS ÷ floor: only when the noise model has flicker or RRW."""
     from gyrocal.fit.model import shares_wander
+
     white = {f"white_{a}": np.full(4, 1e-3) for a in "xyz"}
     quiet = {**white, **{f"{k}_{a}": np.zeros(4) for k in ("flicker", "rrw") for a in "xyz"}}
     assert not shares_wander({}) and not shares_wander(quiet)

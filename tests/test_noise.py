@@ -8,9 +8,15 @@ import math
 import numpy as np
 import pytest
 
+from gyrocal.fit.noise import (
+    FLICKER_FACTOR,
+    AllanResult,
+    NoiseTerms,
+    allan_deviation,
+    edf_overlapping,
+    fit_noise_terms,
+)
 from gyrocal.io.errors import ConfigError, GyrocalError, InputError
-from gyrocal.fit.noise import (FLICKER_FACTOR, AllanResult, NoiseTerms, allan_deviation,
-                               edf_overlapping, fit_noise_terms)
 from gyrocal.simulate.noise import GRADES, coloured_noise
 
 from .conftest import needs
@@ -20,16 +26,22 @@ try:
 except ImportError:  # test-only reference implementation
     allantools = None
 
-needs_allantools = needs({"allantools": allantools is not None},
-                         "a test extra: the reference Allan deviation")
+needs_allantools = needs(
+    {"allantools": allantools is not None}, "a test extra: the reference Allan deviation"
+)
 
 TERMS = ("arw", "bias_instability", "rrw", "quantisation")
 
 
 def _truth(**levels) -> NoiseTerms:
     zero = {k: 0.0 for k in TERMS}
-    return NoiseTerms(**{**zero, **levels}, **{f"{k}_stderr": 0.0 for k in TERMS},
-                      bias_instability_min=0.0, tau_min=0.0, chi2_reduced=0.0)
+    return NoiseTerms(
+        **{**zero, **levels},
+        **{f"{k}_stderr": 0.0 for k in TERMS},
+        bias_instability_min=0.0,
+        tau_min=0.0,
+        chi2_reduced=0.0,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -98,8 +110,17 @@ def test_fit_recovers_exact_model_in_ieee_units():
     truth = _truth(arw=0.3, bias_instability=8.0, rrw=25.0, quantisation=2.0)
     tau = 0.01 * 2.0 ** np.arange(20)
     adev = truth.adev(tau)
-    res = AllanResult(tau=tau, m=np.arange(20), adev=adev, n_terms=np.full(20, 10**6),
-                      edf=np.full(20, 1e6), lo=adev, hi=adev, rate=100.0, n_samples=10**7)
+    res = AllanResult(
+        tau=tau,
+        m=np.arange(20),
+        adev=adev,
+        n_terms=np.full(20, 10**6),
+        edf=np.full(20, 1e6),
+        lo=adev,
+        hi=adev,
+        rate=100.0,
+        n_samples=10**7,
+    )
     fit = fit_noise_terms(res)
     for k in TERMS:
         assert getattr(fit, k) == pytest.approx(getattr(truth, k), rel=1e-6), k
@@ -116,8 +137,9 @@ def test_white_noise_arw_within_its_interval():
     rate, arw = 100.0, 0.4
     hits, rel_err = [], []
     for seed in range(40):
-        x = coloured_noise(np.random.default_rng(seed), 20000, rate, arw=arw, bias_instability=0.0, rrw=0.0,
-                           axes=1)[:, 0]
+        x = coloured_noise(
+            np.random.default_rng(seed), 20000, rate, arw=arw, bias_instability=0.0, rrw=0.0, axes=1
+        )[:, 0]
         fit = fit_noise_terms(allan_deviation(x, rate))
         hits.append(abs(fit.arw - arw) <= fit.arw_stderr)
         rel_err.append(fit.arw_stderr / arw)
@@ -170,14 +192,17 @@ def test_deterministic_and_json_plain(low_grade):
     assert json.loads(text)["units"]["arw"] == "deg/sqrt(h)"
 
 
-@pytest.mark.parametrize("x, rate, kwargs, needle", [
-    (np.r_[np.zeros(100), np.nan], 10.0, {}, "non-finite"),
-    (np.zeros(5), 10.0, {}, "at least"),
-    (np.zeros(100), 0.0, {}, "rate"),
-    (np.zeros(100), 10.0, {"taus": "weekly"}, "taus"),
-    (np.zeros(100), 10.0, {"taus": [100.0]}, "taus"),
-    (np.zeros((10, 3, 2)), 10.0, {}, "shape"),
-])
+@pytest.mark.parametrize(
+    "x, rate, kwargs, needle",
+    [
+        (np.r_[np.zeros(100), np.nan], 10.0, {}, "non-finite"),
+        (np.zeros(5), 10.0, {}, "at least"),
+        (np.zeros(100), 0.0, {}, "rate"),
+        (np.zeros(100), 10.0, {"taus": "weekly"}, "taus"),
+        (np.zeros(100), 10.0, {"taus": [100.0]}, "taus"),
+        (np.zeros((10, 3, 2)), 10.0, {}, "shape"),
+    ],
+)
 def test_bad_input_is_one_line_error(x, rate, kwargs, needle):
     with pytest.raises(InputError) as err:
         allan_deviation(x, rate, **kwargs)

@@ -34,13 +34,37 @@ def test_every_figure_the_paper_prints_stands_beside_its_regeneration(tables):
     assert set(tables) == {"Table 3", "Table 4", "Eq. 23"}
     t3, t4, eq23 = (by_label(tables[n]) for n in ("Table 3", "Table 4", "Eq. 23"))
     printed = {
-        "Table 3": [f"{r} rotates / {o} axis / {s}, {m}" for r, o in PAIRS for s in ("Mean", "RMS")
-                    for m in ("uncompensated", "proposed")],
-        "Table 4": [f"{r} rotates / {o} axis / {s}" for r, o in PAIRS for s in (
-            "RMS, uncompensated", "RMS, traditional", "RMS, proposed",
-            "reduction vs uncompensated", "reduction vs traditional")],
-        "Eq. 23": ["K_xx", "K_yy", "K_zz", "K_yx", "K_zx", "K_xy", "K_zy", "K_xz", "K_yz",
-                   "B_x", "B_y", "B_z"],
+        "Table 3": [
+            f"{r} rotates / {o} axis / {s}, {m}"
+            for r, o in PAIRS
+            for s in ("Mean", "RMS")
+            for m in ("uncompensated", "proposed")
+        ],
+        "Table 4": [
+            f"{r} rotates / {o} axis / {s}"
+            for r, o in PAIRS
+            for s in (
+                "RMS, uncompensated",
+                "RMS, traditional",
+                "RMS, proposed",
+                "reduction vs uncompensated",
+                "reduction vs traditional",
+            )
+        ],
+        "Eq. 23": [
+            "K_xx",
+            "K_yy",
+            "K_zz",
+            "K_yx",
+            "K_zx",
+            "K_xy",
+            "K_zy",
+            "K_xz",
+            "K_yz",
+            "B_x",
+            "B_y",
+            "B_z",
+        ],
     }
     for name, labels in printed.items():
         rows = by_label(tables[name])
@@ -73,11 +97,17 @@ def test_the_proposed_method_leaves_the_noise(tables):
         where = f"{r} rotates / {o} axis"
         # Hold means: 168 leave-temperature-out holds per pair, so the RMS of pure noise
         # scatters by 1/sqrt(2 * 168) = 5.5 %; the calibration's own uncertainty adds a few %.
-        np.testing.assert_allclose(t3[f"{where} / RMS, proposed"].regenerated,
-                                   t3[f"{where} / noise floor of hold means"].regenerated, rtol=0.25)
+        np.testing.assert_allclose(
+            t3[f"{where} / RMS, proposed"].regenerated,
+            t3[f"{where} / noise floor of hold means"].regenerated,
+            rtol=0.25,
+        )
         # Samples: the hold-mean error (~6e-4 deg/s) is negligible beside 0.05 deg/s of noise.
-        np.testing.assert_allclose(t4[f"{where} / RMS, proposed"].regenerated,
-                                   t4[f"{where} / per-sample noise"].regenerated, rtol=0.01)
+        np.testing.assert_allclose(
+            t4[f"{where} / RMS, proposed"].regenerated,
+            t4[f"{where} / per-sample noise"].regenerated,
+            rtol=0.01,
+        )
 
 
 def test_the_traditional_calibration_misses_the_scale_change_since_its_temperature(tables):
@@ -92,7 +122,7 @@ def test_the_traditional_calibration_misses_the_scale_change_since_its_temperatu
     for i, a in enumerate(AXES):
         where = f"{a} rotates / {a} axis"
         noise = t4[f"{where} / per-sample noise"].regenerated
-        expected = np.sqrt(noise ** 2 + dK[i, i] ** 2 * mean_rate2 + dB[i] ** 2)
+        expected = np.sqrt(noise**2 + dK[i, i] ** 2 * mean_rate2 + dB[i] ** 2)
         # The 20 °C point's own fit is known to about 1 ppm in scale: far below the step.
         np.testing.assert_allclose(t4[f"{where} / RMS, traditional"].regenerated, expected, rtol=0.01)
         assert t4[f"{where} / reduction vs traditional"].regenerated > 5.0
@@ -129,7 +159,7 @@ def run_cli(*argv):
 
 def test_the_command_writes_the_three_files_byte_identically_on_rerun(tmp_path, capsys):
     for name in ("a", "b"):
-        seed000.regeneration.cache_clear()   # each run simulates afresh
+        seed000.regeneration.cache_clear()  # each run simulates afresh
         assert run_cli("paper", "--out", tmp_path / name, "--only", "000", "--quick") == 0
     out = capsys.readouterr().out
     assert "seed 000: 3 tables, 1 figures" in out
@@ -137,16 +167,17 @@ def test_the_command_writes_the_three_files_byte_identically_on_rerun(tmp_path, 
     for f in files:
         a, b = ((tmp_path / n / f).read_bytes() for n in ("a", "b"))
         assert a == b, f
-        assert str(tmp_path).encode() not in a, f   # no absolute paths
+        assert str(tmp_path).encode() not in a, f  # no absolute paths
     html = (tmp_path / "a" / "index.html").read_text()
     assert html.count("<svg") == 1 and 'id="000-table-4"' in html
-    assert "<link" not in html and "<script" not in html and 'src="http' not in html   # self-contained
+    assert "<link" not in html and "<script" not in html and 'src="http' not in html  # self-contained
     md = (tmp_path / "a" / "tables.md").read_text()
     assert "| X rotates / Y axis / RMS, uncompensated | 4.0177 |" in md
     rows = list(csv.DictReader(io.StringIO((tmp_path / "a" / "tables.csv").read_text())))
     assert len(rows) == 45 + 54 + 12
-    row = next(r for r in rows if r["label"] == "X rotates / X axis / RMS, proposed"
-               and r["table"] == "Table 4")
+    row = next(
+        r for r in rows if r["label"] == "X rotates / X axis / RMS, proposed" and r["table"] == "Table 4"
+    )
     assert row["seed"] == "000" and row["published"] == "0.0931" and row["unit"] == "deg/s"
     np.testing.assert_allclose(float(row["ratio"]), float(row["regenerated"]) / 0.0931, rtol=1e-5)
 
@@ -159,7 +190,7 @@ def test_unknown_seeds_are_refused():
 
 
 def test_a_seed_without_its_module_is_skipped_with_a_line(tmp_path, monkeypatch):
-    monkeypatch.setitem(sys.modules, "gyrocal.paper.seed001", None)   # import fails: not there
+    monkeypatch.setitem(sys.modules, "gyrocal.paper.seed001", None)  # import fails: not there
     lines = []
     paths = regenerate(tmp_path, only=("001",), quick=True, say=lines.append)
     assert [p.name for p in paths] == ["tables.md", "tables.csv", "index.html"]
@@ -169,9 +200,13 @@ def test_a_seed_without_its_module_is_skipped_with_a_line(tmp_path, monkeypatch)
 
 
 def test_every_string_is_escaped(tmp_path):
-    table = PaperTable("000", "Table <X>", "a <i>title</i>",
-                       (PaperRow("a <b>label</b> | pipe", 1.5, 3.0, "<u>"),),
-                       ("set-up <script>alert(1)</script> & more",))
+    table = PaperTable(
+        "000",
+        "Table <X>",
+        "a <i>title</i>",
+        (PaperRow("a <b>label</b> | pipe", 1.5, 3.0, "<u>"),),
+        ("set-up <script>alert(1)</script> & more",),
+    )
     render([table], tmp_path)
     html = (tmp_path / "index.html").read_text()
     assert "<script>" not in html and "&lt;script&gt;alert(1)&lt;/script&gt;" in html

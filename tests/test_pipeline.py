@@ -45,7 +45,9 @@ def test_mean_rms_tables_have_the_seed_shape_and_consistent_gains(complete_run):
         assert list(zip(table.rotating, table.output, strict=False)) == [(r, o) for r in "xyz" for o in "xyz"]
         np.testing.assert_allclose(
             table.gain_vs_uncompensated_pct,
-            100 * (1 - table.interpolated_rms / table.uncompensated_rms), rtol=1e-12)
+            100 * (1 - table.interpolated_rms / table.uncompensated_rms),
+            rtol=1e-12,
+        )
         assert (table.holds == 4 * 21).all()
     # on samples the floor is the per-sample noise: the error cannot go below it
     samples = complete_run.validation.table_samples
@@ -110,7 +112,9 @@ def test_a_protocol_that_never_rotates_about_y_is_refused(tmp_path):
 def test_a_point_missing_a_mount_is_left_out_and_reported(tmp_path, logs):
     import pyarrow as pa
     import pyarrow.parquet as pq
+
     from gyrocal.simulate import load_truth
+
     truth = load_truth(logs["complete"])
     doomed = [h for h in truth["holds"] if h["point"] == 2 and h["mount"] == "+y"]
     table = pq.read_table(logs["complete"])
@@ -136,19 +140,22 @@ def test_the_same_log_written_other_ways_gives_the_same_calibration(logs, tmp_pa
     import pyarrow as pa
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
+
     table = pq.read_table(logs["complete"])
     reference = run(logs["complete"]).calibration.grid
     variants = {}
     t = table.column("t").to_numpy()
-    stamps = pa.array((t * 1e9).round().astype(np.int64) + 1_767_225_600_000_000_000,
-                      type=pa.timestamp("ns", tz="UTC"))
+    stamps = pa.array(
+        (t * 1e9).round().astype(np.int64) + 1_767_225_600_000_000_000, type=pa.timestamp("ns", tz="UTC")
+    )
     variants["timestamp"] = table.set_column(0, "t", stamps)
     rad = table
     for c in ("gyro_x", "gyro_y", "gyro_z", "ref_rate"):
         i = rad.schema.get_field_index(c)
         rad = rad.set_column(i, c, pc.multiply(rad.column(c).cast(pa.float64()), np.pi / 180))
     variants["rad_s"] = rad.replace_schema_metadata(
-        {b"gyrocal.units": json.dumps({"gyro": "rad/s", "ref_rate": "rad/s"}).encode()})
+        {b"gyrocal.units": json.dumps({"gyro": "rad/s", "ref_rate": "rad/s"}).encode()}
+    )
     f64 = table
     for c in ("gyro_x", "gyro_y", "gyro_z", "temp"):
         f64 = f64.set_column(f64.schema.get_field_index(c), c, f64.column(c).cast(pa.float64()))
@@ -179,8 +186,9 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
     import pandas as pd
 
     from gyrocal.io import log
-    from gyrocal.pipeline.config import Settings
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+
     settings = Settings()
     path = logs["complete"]
     kept = segment_log(path, settings)
@@ -189,6 +197,7 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
     pd.testing.assert_frame_equal(streamed.observations, kept.observations, check_exact=True)
     pd.testing.assert_frame_equal(streamed.segments, kept.segments, check_exact=True)
     from gyrocal.fit.floor import STATIC
+
     assert streamed.info == kept.info and streamed.info["noise"]["source"] == STATIC
     a, b = (s.observations.attrs["series"] for s in (kept, streamed))
     for name in ("t", "temp", "weight"):
@@ -198,6 +207,7 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
 def test_history_of_pieces_is_the_history_of_the_whole():
     """Bin sums are made within one piece, so any cut of the record gives the same bits."""
     from gyrocal.io.signals import HistoryBins, history
+
     rng = np.random.default_rng(3)
     t = np.cumsum(rng.uniform(0.005, 0.015, 20_000))
     temp = 25 + np.cumsum(rng.normal(0, 0.01, t.size)).astype(np.float32)
@@ -217,10 +227,11 @@ def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
     import pyarrow.parquet as pq
 
     from gyrocal.calibration import apply
-    from gyrocal.io import log
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import extended
+    from gyrocal.io import log
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+
     path = logs["complete"]
     settings = extended(Settings(), "temp_rate")
     cal = run(path, settings).calibration
@@ -240,9 +251,10 @@ def test_a_log_read_ahead_segments_to_the_same_bits(logs):
     import pandas as pd
 
     from gyrocal.io import log, readahead
-    from gyrocal.pipeline.config import Settings
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
     from gyrocal.protocols.turntable.segment import LOG_COLUMNS
+
     assert set(log.REQUIRED + LOG_COLUMNS) <= set(readahead.COLUMNS)
     path = logs["complete"]
     direct = segment_log(path, Settings())

@@ -10,18 +10,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal.protocols import registry
 from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
-from gyrocal.pipeline.config import Settings
 from gyrocal.diagnose import diagnose
 from gyrocal.io.errors import ConfigError
 from gyrocal.pipeline.chain import run
+from gyrocal.pipeline.config import Settings
+from gyrocal.protocols import registry
+from gyrocal.protocols.sweep.protocol import sweep_analysis
 from gyrocal.report.unit import UnitResults, write_unit_report
 from gyrocal.simulate import simulate_unit
 from gyrocal.simulate.servo import ServoProtocol, ServoUnit
 from gyrocal.simulate.sweep import SweepProtocol, SweepUnit
-from gyrocal.protocols.sweep.protocol import sweep_analysis
 
 from .test_cli import gyrocal
 
@@ -30,8 +30,14 @@ from .test_cli import gyrocal
 def servo_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("servo") / "S1.parquet"
     unit = ServoUnit.random(np.random.default_rng(11))
-    truth = simulate_unit(path, protocol="servo", rig=ServoProtocol(revolutions=3), unit=unit,
-                          rng=np.random.default_rng(12), device="S1")
+    truth = simulate_unit(
+        path,
+        protocol="servo",
+        rig=ServoProtocol(revolutions=3),
+        unit=unit,
+        rng=np.random.default_rng(12),
+        device="S1",
+    )
     return path, truth
 
 
@@ -39,8 +45,14 @@ def servo_log(tmp_path_factory):
 def sweep_log(tmp_path_factory):
     path = tmp_path_factory.mktemp("sweep") / "W1.parquet"
     unit = SweepUnit.random(np.random.default_rng(21), drift_dT2=(1.5e-4, -1.0e-4, 8.0e-5))
-    truth = simulate_unit(path, protocol="sweep", rig=SweepProtocol.demo(), unit=unit,
-                          rng=np.random.default_rng(22), device="W1")
+    truth = simulate_unit(
+        path,
+        protocol="sweep",
+        rig=SweepProtocol.demo(),
+        unit=unit,
+        rng=np.random.default_rng(22),
+        device="W1",
+    )
     return path, truth
 
 
@@ -51,7 +63,7 @@ def test_servo_calibration_is_algorithm_1_and_recovers_the_unit(servo_log):
     servo = cal.extra["servo"]
     k, b = np.array(servo["iterative"]["k"]), np.array(servo["iterative"]["b"])
     k_se, b_se = np.array(servo["iterative"]["k_se"]), np.array(servo["iterative"]["b_se"])
-    unit = truth["unit"]                       # as simulated (paper convention, rad/s)
+    unit = truth["unit"]  # as simulated (paper convention, rad/s)
     # within 4 of the fit's own standard errors (seed 001's error ranges are wider)
     np.testing.assert_allclose(k, unit["k"], atol=4 * k_se.max())
     np.testing.assert_allclose(b, unit["b"], atol=4 * b_se.max())
@@ -119,8 +131,9 @@ def test_sweep_diagnosis_finds_the_square_of_the_temperature_change(sweep_log):
     for axis, true in zip("xyz", truth["unit"]["drift_dT2"], strict=False):
         z = size[f"bias_temp_poly.{axis}.c2"]
         assert abs(z["value"] - true) < 5 * z["stderr"]
-    fixed = run(path, replace(settings, model=settings.model.with_terms(("bias_temp_poly",))),
-                protocol="sweep").validation.summary
+    fixed = run(
+        path, replace(settings, model=settings.model.with_terms(("bias_temp_poly",))), protocol="sweep"
+    ).validation.summary
     assert fixed["excess"] <= 1.2
 
 
@@ -142,8 +155,11 @@ def test_sweep_report_shows_the_seed_003_tables(sweep_log, tmp_path):
     result = run(path, settings, protocol="sweep")
     out = tmp_path / "r.html"
     obs = result.segmentation.observations
-    write_unit_report(UnitResults.from_run(result, "", diagnose(settings, obs),
-                                           registry.analysis("sweep", obs)), out, registry.get("sweep"))
+    write_unit_report(
+        UnitResults.from_run(result, "", diagnose(settings, obs), registry.analysis("sweep", obs)),
+        out,
+        registry.get("sweep"),
+    )
     html = out.read_text()
     assert "Drift models and bias stability (seed 003)" in html
     assert "verified on sweep 2" in html
@@ -158,7 +174,7 @@ def test_protocol_settings_are_checked_and_resolved_once():
     sweep = s.for_protocol("sweep")
     assert sweep.model.kind == "continuous" and s.protocol_options("sweep")["window_s"] == 30
     added = replace(sweep, model=sweep.model.with_terms(("temp_rate",)))
-    assert added.for_protocol("sweep") is added            # resolved once: --add-term survives
+    assert added.for_protocol("sweep") is added  # resolved once: --add-term survives
     assert s.for_protocol("turntable") is s
 
 
@@ -169,40 +185,72 @@ def test_cli_diagnose_and_add_term_on_a_sweep(sweep_log, tmp_path):
     assert out.returncode == 0, out.stderr
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["candidates"][0]["term"] == "bias_temp_poly" and d["excess"] > 2
-    out = gyrocal("calibrate", str(path), "--protocol", "sweep", "-o", str(tmp_path / "c.json"),
-               "--add-term", d["candidates"][0]["term"])
+    out = gyrocal(
+        "calibrate",
+        str(path),
+        "--protocol",
+        "sweep",
+        "-o",
+        str(tmp_path / "c.json"),
+        "--add-term",
+        d["candidates"][0]["term"],
+    )
     assert out.returncode == 0, out.stderr
     cal = json.loads((tmp_path / "c.json").read_text())
     poly = [t for t in cal["model"]["terms"] if t["name"] == "bias_temp_poly"]
-    assert [t.get("degree", 2) for t in poly] == [2]        # degree 1 replaced, not kept
+    assert [t.get("degree", 2) for t in poly] == [2]  # degree 1 replaced, not kept
     assert "bias_temp_poly.x.c2" in cal["grid"]["coefficients"]
-    out = gyrocal("calibrate", str(path), "--protocol", "servo", "-o", str(tmp_path / "s.json"),
-                  "--add-term", "scale_quadratic")
+    out = gyrocal(
+        "calibrate",
+        str(path),
+        "--protocol",
+        "servo",
+        "-o",
+        str(tmp_path / "s.json"),
+        "--add-term",
+        "scale_quadratic",
+    )
     assert out.returncode == 2 and "use them with gyrocal diagnose" in out.stderr
 
 
 def test_simulate_cli_writes_servo_sweep_and_ferraris_logs_and_refuses_turntable_knobs(tmp_path):
-    out = gyrocal("simulate", "--protocol", "servo", "--log", str(tmp_path / "s.parquet"),
-               "--preset", "quick")
+    out = gyrocal(
+        "simulate", "--protocol", "servo", "--log", str(tmp_path / "s.parquet"), "--preset", "quick"
+    )
     assert out.returncode == 0, out.stderr
-    out = gyrocal("simulate", "--protocol", "sweep", "--log", str(tmp_path / "w.parquet"),
-               "--preset", "quick", "--rates", "1,2")
+    out = gyrocal(
+        "simulate",
+        "--protocol",
+        "sweep",
+        "--log",
+        str(tmp_path / "w.parquet"),
+        "--preset",
+        "quick",
+        "--rates",
+        "1,2",
+    )
     assert out.returncode == 2 and "--rates do not apply to the sweep rig" in out.stderr
     # one hand-rotation log of a device (its unit as in its turntable sessions)
     out = gyrocal("simulate", "--protocol", "ferraris", "--log", str(tmp_path / "f.parquet"))
     assert out.returncode == 0, out.stderr
-    out = gyrocal("calibrate", str(tmp_path / "f.parquet"), "--protocol", "ferraris", "-o",
-                  str(tmp_path / "f.json"))
+    out = gyrocal(
+        "calibrate", str(tmp_path / "f.parquet"), "--protocol", "ferraris", "-o", str(tmp_path / "f.json")
+    )
     assert out.returncode == 0, out.stderr
 
 
 def test_a_single_revolution_per_direction_is_scored_in_sample_without_inventing_a_ratio(tmp_path):
     path = tmp_path / "one.parquet"
-    simulate_unit(path, protocol="servo", rig=ServoProtocol(revolutions=1),
-                  unit=ServoUnit.random(np.random.default_rng(5)), rng=np.random.default_rng(6))
+    simulate_unit(
+        path,
+        protocol="servo",
+        rig=ServoProtocol(revolutions=1),
+        unit=ServoUnit.random(np.random.default_rng(5)),
+        rng=np.random.default_rng(6),
+    )
     s = run(path, protocol="servo").validation.summary
     assert s["held_out"].startswith("nothing") and s["holds_scored"] == 6
-    assert s["expected_rms"] is None and s["excess_over_expected"] is None   # no residual dof
+    assert s["expected_rms"] is None and s["excess_over_expected"] is None  # no residual dof
     json.dumps(s, allow_nan=False)
 
 
@@ -210,15 +258,19 @@ def test_servo_and_turntable_sessions_of_one_unit_agree_within_their_errors(tmp_
     from gyrocal.fleet.summary import servo_versus_turntable
     from gyrocal.simulate import TurntableProtocol
     from gyrocal.simulate.fleet import unit_for
+
     rows = []
-    for protocol, session, rig in (("turntable", "2026-01-01", TurntableProtocol.quick(
-            temperatures=(10.0, 20.0, 30.0))), ("servo", "2026-01-02", ServoProtocol(revolutions=3))):
+    for protocol, session, rig in (
+        ("turntable", "2026-01-01", TurntableProtocol.quick(temperatures=(10.0, 20.0, 30.0))),
+        ("servo", "2026-01-02", ServoProtocol(revolutions=3)),
+    ):
         unit, seed = unit_for("U9", session, protocol=protocol)
         path = tmp_path / f"{protocol}.parquet"
         simulate_unit(path, protocol=protocol, rig=rig, unit=unit, rng=np.random.default_rng(seed))
         cal = run(path, protocol=protocol).calibration
-        rows.append({"device": "U9", "protocol": protocol, "session": session, "report": "r.html",
-                     "calibration": cal})
+        rows.append(
+            {"device": "U9", "protocol": protocol, "session": session, "report": "r.html", "calibration": cal}
+        )
     (unit,) = servo_versus_turntable(rows)
     servo_cal, table_cal = rows[1]["calibration"], rows[0]["calibration"]
     (K,), (B,) = table_cal.matrices_at([unit["temperature"]])

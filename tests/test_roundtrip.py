@@ -17,11 +17,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from benchmarks.roundtrip import MODELS, READERS, run_case
-from gyrocal.calibration.file import (Calibration, covariance_problem, dumps, load_calibration,
-                                      save_calibration)
-from gyrocal.io.errors import CalibrationFileError, GyrocalError
+from gyrocal.calibration.file import (
+    Calibration,
+    covariance_problem,
+    dumps,
+    load_calibration,
+    save_calibration,
+)
 from gyrocal.fit.model import Model
 from gyrocal.fit.thermal import ConstantCoefficients, TemperatureGrid
+from gyrocal.io.errors import CalibrationFileError, GyrocalError
 
 NAMES = tuple(Model.from_spec().names)
 
@@ -39,7 +44,7 @@ def fitted_like_covariance(rng, points: int, scales: np.ndarray) -> np.ndarray:
         R = S / np.outer(d, d)
         M = R * np.outer(scales, scales)
         # (L / s²) @ Lᵀ evaluated in another order on each side: the rounding of a product
-        M = M * (1 + rng.choice([-1, 0, 1], size=(C, C)) * 2.0 ** -52)
+        M = M * (1 + rng.choice([-1, 0, 1], size=(C, C)) * 2.0**-52)
         out[p] = M
     return out
 
@@ -52,8 +57,11 @@ def grid_with(cov: np.ndarray, temps=None) -> Calibration:
     return Calibration(Model.from_spec(), grid, meta={"device": "X"})
 
 
-@given(seed=st.integers(0, 2**32 - 1), points=st.integers(1, 8),
-       decades=st.lists(st.floats(-13.0, 1.0), min_size=len(NAMES), max_size=len(NAMES)))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    points=st.integers(1, 8),
+    decades=st.lists(st.floats(-13.0, 1.0), min_size=len(NAMES), max_size=len(NAMES)),
+)
 def test_the_covariance_is_written_exactly_and_read_at_its_own_scale(seed, points, decades):
     """Before, the writer wrote the fit's matrix as it came (|C_ij − C_ji| ≈ 5e-23 beside
     entries of 1e-14) and the reader compared element by element: such files were refused."""
@@ -62,9 +70,9 @@ def test_the_covariance_is_written_exactly_and_read_at_its_own_scale(seed, point
     doc = grid_with(cov).to_dict()
     written = np.array(doc["grid"]["covariance"])
     stderr = np.array([doc["grid"]["stderr"][n] for n in NAMES]).T
-    np.testing.assert_array_equal(written, np.swapaxes(written, -1, -2))     # to the bit
-    np.testing.assert_array_equal(np.diagonal(written, axis1=-2, axis2=-1), stderr ** 2)
-    np.testing.assert_allclose(written, cov, rtol=1e-15, atol=0)             # only rounding moved
+    np.testing.assert_array_equal(written, np.swapaxes(written, -1, -2))  # to the bit
+    np.testing.assert_array_equal(np.diagonal(written, axis1=-2, axis2=-1), stderr**2)
+    np.testing.assert_allclose(written, cov, rtol=1e-15, atol=0)  # only rounding moved
     again = Calibration.from_dict(json.loads(dumps(doc)))
     np.testing.assert_array_equal(again.grid.covariance, written)
     # The reader takes the fit's own matrix, rounding and all, as it takes the exact one.
@@ -72,15 +80,19 @@ def test_the_covariance_is_written_exactly_and_read_at_its_own_scale(seed, point
     Calibration.from_dict(json.loads(json.dumps(raw)))
 
 
-@given(seed=st.integers(0, 2**32 - 1), size=st.floats(-12.0, 0.0),
-       pair=st.tuples(st.integers(0, len(NAMES) - 1), st.integers(0, len(NAMES) - 1)).filter(
-           lambda p: p[0] != p[1]))
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    size=st.floats(-12.0, 0.0),
+    pair=st.tuples(st.integers(0, len(NAMES) - 1), st.integers(0, len(NAMES) - 1)).filter(
+        lambda p: p[0] != p[1]
+    ),
+)
 def test_an_asymmetry_beyond_rounding_is_named_with_its_point_pair_and_size(seed, size, pair):
     """A tiny coefficient's covariance moved by 1e-6 of its own scale is found, however
     small it is beside the others, and the error names where."""
     rng = np.random.default_rng(seed)
     scales = np.ones(len(NAMES))
-    scales[list(pair)] = 10.0 ** size
+    scales[list(pair)] = 10.0**size
     cov = fitted_like_covariance(rng, 3, scales)
     stderr = np.sqrt(np.diagonal(cov, axis1=-2, axis2=-1))
     i, j = pair
@@ -113,14 +125,16 @@ def test_a_continuous_calibration_s_covariance_is_checked_too():
     rng = np.random.default_rng(0)
     cov = fitted_like_covariance(rng, 1, 10.0 ** rng.uniform(-10, -1, len(NAMES)))[0]
     stderr = np.sqrt(np.diag(cov))
-    grid = ConstantCoefficients(np.array([0.0, 40.0]), NAMES, np.zeros(len(NAMES)), stderr,
-                                covariance=cov)
+    grid = ConstantCoefficients(np.array([0.0, 40.0]), NAMES, np.zeros(len(NAMES)), stderr, covariance=cov)
     doc = Calibration(Model.from_spec(), grid).to_dict()
     written = np.array(doc["grid"]["covariance"])
     np.testing.assert_array_equal(written, written.T)
     doc["grid"]["covariance"][2][5] += 1e-6 * stderr[2] * stderr[5]
-    with pytest.raises(CalibrationFileError, match=r"grid.covariance is not symmetric: "
-                       r"\|C\[bias.z,scale.z\] − C\[scale.z,bias.z\]\|"):
+    with pytest.raises(
+        CalibrationFileError,
+        match=r"grid.covariance is not symmetric: "
+        r"\|C\[bias.z,scale.z\] − C\[scale.z,bias.z\]\|",
+    ):
         Calibration.from_dict(json.loads(json.dumps(doc)))
 
 
@@ -134,6 +148,7 @@ def test_a_file_that_would_not_read_back_is_never_written(complete_run, tmp_path
         doc = real(self)
         doc["grid"]["stderr"]["bias.x"] = [-1.0] * len(doc["grid"]["temperature"])
         return doc
+
     monkeypatch.setattr(Calibration, "to_dict", broken)
     target = tmp_path / "cal.json"
     with pytest.raises(GyrocalError, match="the calibration written does not read back") as info:
@@ -160,29 +175,48 @@ def test_json_numbers_are_the_floats_shortest_repr(complete_run, tmp_path):
 # every reader. Units come from the independent generators (benchmarks/zoo,
 # tests/ferraris_gen, tests/chamber); the protocol is shortened (`small`) to keep each example to seconds.
 
+
 def _case(protocol, model_index, effect, noise, coefficient_scale, noise_scale, unit_seed, kind):
     family = "turntable" if protocol.startswith("turntable") else protocol
     models = MODELS[family]
     label, model = models[model_index % len(models)]
     if model.get("mounts"):
         protocol = f"turntable{model['mounts']}"
-    case = {"index": 0, "protocol": protocol, "family": family, "model_label": label,
-            "model": model, "unit_seed": unit_seed}
+    case = {
+        "index": 0,
+        "protocol": protocol,
+        "family": family,
+        "model_label": label,
+        "model": model,
+        "unit_seed": unit_seed,
+    }
     if family == "ferraris":
         return {**case, "kind": kind}
     if family == "static":
         return {**case, "noise_scale": noise_scale}
-    return {**case, "noise": noise, "effect": effect if family != "servo" else "none",
-            "coefficient_scale": coefficient_scale, "noise_scale": noise_scale}
+    return {
+        **case,
+        "noise": noise,
+        "effect": effect if family != "servo" else "none",
+        "coefficient_scale": coefficient_scale,
+        "noise_scale": noise_scale,
+    }
 
 
 def cases(protocol):
     return st.builds(
-        _case, st.just(protocol), st.integers(0, 100),
-        st.sampled_from(["none", "g_sensitivity", "scale_quadratic", "warmup", "die_lag",
-                         "temp_rate", "hysteresis"]),
-        st.sampled_from(["white", "coloured"]), st.floats(0.03, 10.0), st.floats(0.1, 10.0),
-        st.integers(1, 9999), st.sampled_from(["clean", "annotated", "temperature", "gsens"]))
+        _case,
+        st.just(protocol),
+        st.integers(0, 100),
+        st.sampled_from(
+            ["none", "g_sensitivity", "scale_quadratic", "warmup", "die_lag", "temp_rate", "hysteresis"]
+        ),
+        st.sampled_from(["white", "coloured"]),
+        st.floats(0.03, 10.0),
+        st.floats(0.1, 10.0),
+        st.integers(1, 9999),
+        st.sampled_from(["clean", "annotated", "temperature", "gsens"]),
+    )
 
 
 @pytest.mark.slow
@@ -193,11 +227,11 @@ def test_every_reader_reads_every_file_calibrate_writes(protocol, data, tmp_path
     case = data.draw(cases(protocol))
     row = run_case(case, tmp_path_factory.mktemp("unit"), small=True)
     assert row["calibrate"][0] in ("read", "not calibrated"), row["calibrate"]
-    if row["calibrate"][0] == "not calibrated":   # the log cannot excite the model: said so
+    if row["calibrate"][0] == "not calibrated":  # the log cannot excite the model: said so
         assert "do not excite" in row["calibrate"][1] or "cannot fit" in row["calibrate"][1], row
         return
     for reader in READERS:
         outcome, message = row[reader]
         assert outcome in ("read", "not for it"), f"{reader}: {message}"
-        if outcome == "not for it":   # by design, and said in one line
+        if outcome == "not for it":  # by design, and said in one line
             assert reader in ("export", "revalidate") and "\n" not in message, message

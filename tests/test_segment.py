@@ -93,8 +93,9 @@ def test_a_short_logging_pause_inside_a_hold_does_not_interrupt_it(logs, tmp_pat
     truth = load_truth(logs["complete"])
     h = truth["holds"][40]
     mid = (h["t_start"] + h["t_end"]) / 2
-    path = drop_rows(logs["complete"], tmp_path / "pause.parquet",
-                     lambda t: (t > mid - 0.3) & (t < mid + 0.3))
+    path = drop_rows(
+        logs["complete"], tmp_path / "pause.parquet", lambda t: (t > mid - 0.3) & (t < mid + 0.3)
+    )
     _, seg = segment_file(path)
     found = match(seg.observations, truth["holds"])
     assert all(len(f) == 1 for f in found)
@@ -106,8 +107,11 @@ def test_a_short_logging_pause_inside_a_hold_does_not_interrupt_it(logs, tmp_pat
 def test_a_long_logging_gap_is_reported_and_costs_only_its_hold(logs, tmp_path):
     truth = load_truth(logs["complete"])
     h = truth["holds"][40]
-    path = drop_rows(logs["complete"], tmp_path / "gap.parquet",
-                     lambda t: (t > h["t_start"] + 1.0) & (t < h["t_start"] + 4.0))
+    path = drop_rows(
+        logs["complete"],
+        tmp_path / "gap.parquet",
+        lambda t: (t > h["t_start"] + 1.0) & (t < h["t_start"] + 4.0),
+    )
     _, seg = segment_file(path)
     gaps = seg.segments[seg.segments["kind"] == "gap"]
     assert len(gaps) == 1
@@ -120,8 +124,11 @@ def test_a_long_logging_gap_is_reported_and_costs_only_its_hold(logs, tmp_path):
 def test_missing_hold_is_just_absent(logs, tmp_path):
     truth = load_truth(logs["complete"])
     gone = truth["holds"][30]
-    path = drop_rows(logs["complete"], tmp_path / "miss.parquet",
-                     lambda t: (t >= gone["t_start"] - 1) & (t <= gone["t_end"] + 1))
+    path = drop_rows(
+        logs["complete"],
+        tmp_path / "miss.parquet",
+        lambda t: (t >= gone["t_start"] - 1) & (t <= gone["t_end"] + 1),
+    )
     _, seg = segment_file(path)
     found = match(seg.observations, truth["holds"])
     assert len(found[30]) == 0
@@ -182,8 +189,14 @@ def test_unstable_temperature_is_rejected(tmp_path):
 
 def test_saturated_holds_are_rejected(tmp_path):
     from gyrocal.simulate import GyroUnit
-    path = make_log(tmp_path, "clip", unit=GyroUnit.seed000(full_scale=300.0),
-                    temperatures=(20.0,), rates=(10.0, 100.0, 400.0))
+
+    path = make_log(
+        tmp_path,
+        "clip",
+        unit=GyroUnit.seed000(full_scale=300.0),
+        temperatures=(20.0,),
+        rates=(10.0, 100.0, 400.0),
+    )
     _, seg = segment_file(path)
     rejected = seg.rejected()
     saturated = rejected[rejected["reason"] == "saturated"]
@@ -193,23 +206,33 @@ def test_saturated_holds_are_rejected(tmp_path):
 
 def test_configured_full_scale_finds_the_same_saturation(tmp_path):
     from gyrocal.simulate import GyroUnit
-    path = make_log(tmp_path, "clip", unit=GyroUnit.seed000(full_scale=300.0),
-                    temperatures=(20.0,), rates=(10.0, 100.0, 400.0))
+
+    path = make_log(
+        tmp_path,
+        "clip",
+        unit=GyroUnit.seed000(full_scale=300.0),
+        temperatures=(20.0,),
+        rates=(10.0, 100.0, 400.0),
+    )
     _, seg = segment_file(path, SegmentConfig(full_scale=300.0))
     assert (seg.rejected()["reason"] == "saturated").sum() == 6
     _, seg = segment_file(path, SegmentConfig(full_scale=2000.0))  # a wider range: nothing clips
     assert "saturated" not in set(seg.rejected()["reason"])
 
 
-@pytest.mark.parametrize("values, message", [
-    ({"block_s": None}, "segmentation.block_s must be a number"),
-    ({"noise_cap": 0}, "segmentation.noise_cap must be at least 1"),
-    ({"block_s": 0}, "segmentation.block_s must be more than 0"),
-    ({"bogus": 1}, "unknown setting segmentation.bogus"),
-    ({"trim_s": True}, "segmentation.trim_s must be a number"),
-])
+@pytest.mark.parametrize(
+    "values, message",
+    [
+        ({"block_s": None}, "segmentation.block_s must be a number"),
+        ({"noise_cap": 0}, "segmentation.noise_cap must be at least 1"),
+        ({"block_s": 0}, "segmentation.block_s must be more than 0"),
+        ({"bogus": 1}, "unknown setting segmentation.bogus"),
+        ({"trim_s": True}, "segmentation.trim_s must be a number"),
+    ],
+)
 def test_bad_settings_are_refused_by_name(values, message):
     from gyrocal.io.errors import ConfigError
+
     with pytest.raises(ConfigError, match=message):
         SegmentConfig.from_dict(values)
 
@@ -228,22 +251,32 @@ def test_too_short_log_is_refused(tmp_path):
     t = np.arange(20) * 0.01
     z = np.zeros(20, np.float32)
     path = tmp_path / "short.parquet"
-    pq.write_table(pa.table({"t": t, "gyro_x": z, "gyro_y": z, "gyro_z": z, "temp": z,
-                             "ref_rate": t}), path)
+    pq.write_table(pa.table({"t": t, "gyro_x": z, "gyro_y": z, "gyro_z": z, "temp": z, "ref_rate": t}), path)
     with pytest.raises(SegmentationError) as info:
         segment_file(path)
     assert str(path) in str(info.value)
 
 
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture])
-@example(levels=[0.0, 0.0, 0.0, 0.0, 1.0, 0.0], lengths=[1, 1, 1, 98, 150, 149, 1, 1],
-         noise=0.0, jitter=0.0, seed=0, gap_at=0, mount=False)  # once crashed: no hold long enough
-@given(levels=st.lists(st.floats(-500, 500, allow_nan=False), min_size=1, max_size=8),
-       lengths=st.lists(st.integers(1, 400), min_size=8, max_size=8),
-       noise=st.floats(0.0, 5.0), jitter=st.floats(0.0, 1.0), seed=st.integers(0, 2**16),
-       gap_at=st.integers(-1, 2000), mount=st.booleans())
-def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jitter, seed,
-                                           gap_at, mount):
+@example(
+    levels=[0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+    lengths=[1, 1, 1, 98, 150, 149, 1, 1],
+    noise=0.0,
+    jitter=0.0,
+    seed=0,
+    gap_at=0,
+    mount=False,
+)  # once crashed: no hold long enough
+@given(
+    levels=st.lists(st.floats(-500, 500, allow_nan=False), min_size=1, max_size=8),
+    lengths=st.lists(st.integers(1, 400), min_size=8, max_size=8),
+    noise=st.floats(0.0, 5.0),
+    jitter=st.floats(0.0, 1.0),
+    seed=st.integers(0, 2**16),
+    gap_at=st.integers(-1, 2000),
+    mount=st.booleans(),
+)
+def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jitter, seed, gap_at, mount):
     rng = np.random.default_rng(seed)
     ref = np.concatenate([np.full(n, v) for v, n in zip(levels, lengths, strict=False)])
     n = len(ref)
@@ -251,8 +284,11 @@ def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jit
     if 0 <= gap_at < n:
         t[gap_at:] += 5.0
     axis = rng.integers(0, 3)
-    cols = {"t": t, "temp": (20 + rng.normal(0, jitter, n)).astype(np.float32),
-            "ref_rate": ref + rng.normal(0, jitter * 1e-3, n)}
+    cols = {
+        "t": t,
+        "temp": (20 + rng.normal(0, jitter, n)).astype(np.float32),
+        "ref_rate": ref + rng.normal(0, jitter * 1e-3, n),
+    }
     for i, c in enumerate("xyz"):
         cols[f"gyro_{c}"] = ((ref if i == axis else 0) + rng.normal(0, noise, n)).astype(np.float32)
     if mount:

@@ -15,11 +15,16 @@ from hypothesis import strategies as st
 
 from gyrocal.io.errors import GyrocalError, SegmentationError
 from gyrocal.io.log import RigLog, read_log
-from gyrocal.protocols.servo import (ServoFitError, find_rotations, fit_iterative, fit_lm,
-                                     fit_observations, g_optimal_warnings)
+from gyrocal.protocols.servo import (
+    ServoFitError,
+    find_rotations,
+    fit_iterative,
+    fit_lm,
+    fit_observations,
+    g_optimal_warnings,
+)
 from gyrocal.protocols.servo.fit import PARAMETERS
-from gyrocal.protocols.servo.montecarlo import (box_stats, fit_batch, simulate_observations,
-                                                speed_sweep, study)
+from gyrocal.protocols.servo.montecarlo import box_stats, fit_batch, simulate_observations, speed_sweep, study
 from gyrocal.simulate.servo import DIRECTIONS, ServoProtocol, ServoUnit, render_servo
 
 DEG = 180.0 / math.pi
@@ -37,12 +42,14 @@ def servo_log(tmp_path, *, seed=1, unit=None, name="servo", **protocol):
 
 # --- the simulated calibration, end to end --------------------------------------------------
 
+
 @pytest.mark.parametrize("noise", [0.035, 0.2])
 @pytest.mark.parametrize("seed,mount_column", [(11, False), (12, True), (13, False)])
 def test_rotations_found_and_unit_recovered(tmp_path, noise, seed, mount_column):
     # Hand mounting up to 6° off, 5 % ripple, handling motion between mounts (ref_rate 0).
-    path, unit, truth = servo_log(tmp_path, seed=seed, noise=noise, mount_column=mount_column,
-                                  mount_error_deg=6.0, ripple=0.05)
+    path, unit, truth = servo_log(
+        tmp_path, seed=seed, noise=noise, mount_column=mount_column, mount_error_deg=6.0, ripple=0.05
+    )
     assert max(r["tilt_deg"] for r in truth["rotations"]) > 2.0 and truth["handling"]
     rot = find_rotations(read_log(path))
     obs = rot.observations()
@@ -78,8 +85,9 @@ def test_rotations_found_and_unit_recovered(tmp_path, noise, seed, mount_column)
 
 def test_two_revolutions_give_per_revolution_rows(tmp_path):
     order = ("+z", "-z", "+x", "-x", "+y", "-y")
-    path, unit, truth = servo_log(tmp_path, seed=21, revolutions=2, order=order,
-                                  remount_every_rotation=True, mount_error_deg=8.0)
+    path, unit, truth = servo_log(
+        tmp_path, seed=21, revolutions=2, order=order, remount_every_rotation=True, mount_error_deg=8.0
+    )
     assert len(truth["handling"]) == 5 and len({r["tilt_deg"] for r in truth["rotations"]}) == 6
     rot = find_rotations(read_log(path))
     assert len(rot.revolutions) == 12 and rot.directions == order
@@ -105,6 +113,7 @@ def test_ripple_cancels_over_whole_revolutions(tmp_path):
 
 # --- conventions: paper (k, b) and the calibration file's (K, B) -----------------------------
 
+
 def test_file_convention_compensates_to_the_true_rate(tmp_path):
     path, unit, truth = servo_log(tmp_path, seed=8, noise=0.035, ripple=0.0)
     log = read_log(path)
@@ -114,7 +123,7 @@ def test_file_convention_compensates_to_the_true_rate(tmp_path):
     np.testing.assert_allclose(unit.K, np.diag(1 / np.asarray(unit.k)), rtol=1e-15)
     np.testing.assert_allclose(unit.B, -np.asarray(unit.b) * DEG, rtol=1e-15)
     w_true = np.linalg.solve(unit.K, (w - unit.B).T).T
-    sigma = 0.035 * DEG * np.asarray(unit.k)          # noise of the compensated rate, deg/s
+    sigma = 0.035 * DEG * np.asarray(unit.k)  # noise of the compensated rate, deg/s
     for r in truth["rotations"]:
         inside = (t >= r["t_start"]) & (t <= r["t_end"])
         err = w_true[inside] - np.asarray(r["axis"]) * r["speed_rad_s"] * DEG
@@ -140,6 +149,7 @@ def test_file_convention_compensates_to_the_true_rate(tmp_path):
 
 # --- the G-optimal design and refusing what cannot be calibrated ------------------------------
 
+
 def test_g_optimal_warnings():
     assert g_optimal_warnings(DIRECTIONS, IDEAL * 60.0 + 0.5, speeds=[60.0] * 6) == []
     missing = g_optimal_warnings(("+x", "-x", "+y", "+z", "-z"), np.delete(IDEAL, 3, axis=0))
@@ -147,7 +157,7 @@ def test_g_optimal_warnings():
     no_axis = g_optimal_warnings(("+x", "-x", "+y", "-y", "+x", "-x"), IDEAL[[0, 1, 2, 3, 0, 1]])
     assert any("sensor z axis" in w for w in no_axis) and any("+x appears 2 times" in w for w in no_axis)
     tilted = IDEAL.copy()
-    tilted[2] = [0.5, 0.8, 0.0]                               # 32° off +y
+    tilted[2] = [0.5, 0.8, 0.0]  # 32° off +y
     assert any("rotation 2 (+y)" in w for w in g_optimal_warnings(DIRECTIONS, tilted))
     assert any("speeds differ" in w for w in g_optimal_warnings(DIRECTIONS, IDEAL, speeds=[60] * 5 + [50]))
 
@@ -163,26 +173,48 @@ def test_five_rotations_refused_with_one_line(tmp_path):
 
 def test_no_whole_revolution_refused(tmp_path):
     t = np.arange(0, 8.0, 0.005)
-    ref = np.where((t > 1) & (t < 3.5), 60.0, 0.0)            # 150° of rotation
+    ref = np.where((t > 1) & (t < 3.5), 60.0, 0.0)  # 150° of rotation
     gyro = (ref + np.random.default_rng(0).normal(0, 1, t.size)).astype(np.float32)
     path = tmp_path / "short.parquet"
-    pq.write_table(pa.table({"t": t, "gyro_x": gyro, "gyro_y": gyro * 0, "gyro_z": gyro * 0,
-                             "temp": np.full(t.size, 22.0), "ref_rate": ref}), path)
+    pq.write_table(
+        pa.table(
+            {
+                "t": t,
+                "gyro_x": gyro,
+                "gyro_y": gyro * 0,
+                "gyro_z": gyro * 0,
+                "temp": np.full(t.size, 22.0),
+                "ref_rate": ref,
+            }
+        ),
+        path,
+    )
     with pytest.raises(SegmentationError, match="covers a whole revolution"):
         find_rotations(read_log(path))
 
 
-@given(st.lists(st.tuples(st.integers(1, 400), st.sampled_from([0.0, 0.0, 30.0, 180.0, 360.0, -360.0, 1e-3])),
-                min_size=1, max_size=20),
-       st.integers(0, 2**32 - 1))
+@given(
+    st.lists(
+        st.tuples(st.integers(1, 400), st.sampled_from([0.0, 0.0, 30.0, 180.0, 360.0, -360.0, 1e-3])),
+        min_size=1,
+        max_size=20,
+    ),
+    st.integers(0, 2**32 - 1),
+)
 def test_any_log_gives_rotations_or_a_gyrocal_error(segments, seed):
     # Piecewise-constant servo speeds at 100 Hz with random gyro output, in memory.
     ref = np.concatenate([np.full(n, rate) for n, rate in segments])
     rng = np.random.default_rng(seed)
-    t = np.cumsum(rng.choice([0.01, 0.2], ref.size, p=[0.998, 0.002]))   # rare logging gaps
+    t = np.cumsum(rng.choice([0.01, 0.2], ref.size, p=[0.998, 0.002]))  # rare logging gaps
     gyro = rng.normal(0, 50, (ref.size, 3))
-    batch = {"t": t, "gyro_x": gyro[:, 0], "gyro_y": gyro[:, 1], "gyro_z": gyro[:, 2],
-             "temp": np.full(ref.size, 22.0), "ref_rate": ref}
+    batch = {
+        "t": t,
+        "gyro_x": gyro[:, 0],
+        "gyro_y": gyro[:, 1],
+        "gyro_z": gyro[:, 2],
+        "temp": np.full(ref.size, 22.0),
+        "ref_rate": ref,
+    }
     try:
         rot = find_rotations(RigLog("mem.parquet", (batch,), ref.size, 0))
     except GyrocalError as exc:
@@ -190,26 +222,26 @@ def test_any_log_gives_rotations_or_a_gyrocal_error(segments, seed):
         return
     obs = rot.observations()
     assert len(obs) >= 6 and np.isfinite(obs.select_dtypes("number").to_numpy()).all()
-    assert (rot.revolutions["ref_rate"] * (rot.revolutions["t_end"] - rot.revolutions["t_start"])
-            <= 360.0 + 1e-6).all()
+    assert (
+        rot.revolutions["ref_rate"] * (rot.revolutions["t_end"] - rot.revolutions["t_start"]) <= 360.0 + 1e-6
+    ).all()
 
 
 def test_fit_refuses_instead_of_nan():
     k, b = np.array([2.0, 2.0, 2.0]), np.array([0.2, 0.2, 0.2])
-    with pytest.raises(ServoFitError, match="did not converge"):      # β0/ω² ≈ 0.5: too slow
+    with pytest.raises(ServoFitError, match="did not converge"):  # β0/ω² ≈ 0.5: too slow
         fit_iterative(IDEAL / k - b, np.ones(6))
     loose = fit_iterative(IDEAL / k - b, np.ones(6), strict=False)
     assert not loose.converged and np.isfinite(loose.k).all()
-    with pytest.raises(ServoFitError, match="β1..β3 <= 0"):           # diverges to k² < 0
+    with pytest.raises(ServoFitError, match="β1..β3 <= 0"):  # diverges to k² < 0
         fit_iterative(0.3 * IDEAL / k - b, np.full(6, 0.3))
-    with pytest.raises(ServoFitError, match="do not determine"):      # no rotation about z
+    with pytest.raises(ServoFitError, match="do not determine"):  # no rotation about z
         fit_iterative(IDEAL[[0, 1, 2, 3, 0, 1]], np.ones(6))
     with pytest.raises(ServoFitError, match="at least 6"):
         fit_lm(IDEAL[:5], np.ones(5))
 
 
-@given(st.lists(st.floats(-5, 5, allow_nan=False), min_size=18, max_size=18),
-       st.floats(0.05, 5.0))
+@given(st.lists(st.floats(-5, 5, allow_nan=False), min_size=18, max_size=18), st.floats(0.05, 5.0))
 def test_any_observations_give_a_finite_fit_or_a_gyrocal_error(values, omega):
     m = np.asarray(values).reshape(6, 3)
     for fit in (fit_iterative, fit_lm):
@@ -218,12 +250,15 @@ def test_any_observations_give_a_finite_fit_or_a_gyrocal_error(values, omega):
         except GyrocalError:
             continue
         summary = result.summary()
-        assert all(np.isfinite(np.asarray(summary[key], dtype=float)).all()
-                   for key in ("k", "b", "K", "B_deg_s", "beta", "residuals"))
+        assert all(
+            np.isfinite(np.asarray(summary[key], dtype=float)).all()
+            for key in ("k", "b", "K", "B_deg_s", "beta", "residuals")
+        )
         assert np.all(result.k > 0)
 
 
 # --- the Monte-Carlo study --------------------------------------------------------------------
+
 
 def test_batched_algorithm_equals_per_run_calls():
     rng = np.random.default_rng(4)
@@ -245,7 +280,7 @@ def test_study_is_deterministic_and_methods_agree():
     assert not a.equals(study(n_sets=2, n_runs=6, seed=8))
     assert len(a) == 2 * 2 * 2 * 6 * 2 and a["converged"].all()
     it, lm = a[a["method"] == "iterative"].reset_index(), a[a["method"] == "lm"].reset_index()
-    for p in PARAMETERS:    # identical up to Algorithm 1's stopping rule (paper Section III-A)
+    for p in PARAMETERS:  # identical up to Algorithm 1's stopping rule (paper Section III-A)
         np.testing.assert_allclose(it[f"{p}_err"], lm[f"{p}_err"], atol=1e-8)
 
 
@@ -258,7 +293,7 @@ def test_study_spread_matches_the_noise_model():
         row = stats.loc[(sigma, "b")]
         np.testing.assert_allclose((row["q3"] - row["q1"]) / 1.349, sd, rtol=0.1)
         np.testing.assert_allclose(0.5 * (row["whisker_hi"] - row["whisker_lo"]), 2.698 * sd, rtol=0.15)
-        assert abs(row["median"]) <= 4 * 1.2533 * sd / math.sqrt(row["count"])   # unbiased
+        assert abs(row["median"]) <= 4 * 1.2533 * sd / math.sqrt(row["count"])  # unbiased
 
 
 def test_speed_sweep_shape():
@@ -277,17 +312,26 @@ def test_render_is_deterministic(tmp_path):
     assert a.read_bytes() == b.read_bytes() != c.read_bytes()
     _, _, truth = servo_log(tmp_path, seed=9, name="d")
     assert json.loads(json.dumps(truth)) == truth
-    assert ServoUnit.from_dict(ServoUnit((1.1, 0.9, 1.0), (0.01, -0.02, 0.03)).to_dict()) == \
-        ServoUnit((1.1, 0.9, 1.0), (0.01, -0.02, 0.03))
+    assert ServoUnit.from_dict(ServoUnit((1.1, 0.9, 1.0), (0.01, -0.02, 0.03)).to_dict()) == ServoUnit(
+        (1.1, 0.9, 1.0), (0.01, -0.02, 0.03)
+    )
 
 
 # --- the paper's tables and figures -----------------------------------------------------------
 
+
 def test_paper_tables_and_figures(tmp_path):
     from gyrocal.paper import seed001
+
     tables = {t.name: t for t in seed001.tables(quick=True)}
-    assert set(tables) == {"Table I", "Fig. 2 statistics", "Fig. 4 statistics", "Fig. 5 statistics",
-                           "Table II", "Table III"}
+    assert set(tables) == {
+        "Table I",
+        "Fig. 2 statistics",
+        "Fig. 4 statistics",
+        "Fig. 5 statistics",
+        "Table II",
+        "Table III",
+    }
     for table in tables.values():
         assert table.seed == "001" and table.rows and table.notes
         assert all(math.isfinite(r.regenerated) for r in table.rows)
@@ -312,10 +356,12 @@ def test_paper_tables_and_figures(tmp_path):
 # The independent generator (benchmarks/zoo) turns its unit about three mounts, each both
 # ways; a hand mount is 2-6° off the axis in a random direction, new every session.
 
+
 def zoo_servo(tmp_path, seed, sessions=(0,), **overrides):
     """Revolutions of zoo servo sessions of unit ``seed`` (one table, the sessions in turn),
     the unit's true K and B at 25 °C and the sessions' truth records."""
     from benchmarks.zoo.generator import B_of_T, K_of_T, make_unit, write_session
+
     unit = make_unit(effect="none", protocol="servo", seed=seed)
     tables, infos = [], []
     for s in sessions:
@@ -333,28 +379,31 @@ def stderr_matrix(fit) -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_fixture_gives_every_term_from_the_off_axis_outputs(tmp_path):
     from gyrocal.protocols.servo.fit import fit_model
+
     revs, K, B, _ = zoo_servo(tmp_path, 3, misalign_deg=[0.0, 0.0])
     fit, used, _ = fit_model(revs, "fixture")
     K_se, B_se = stderr_matrix(fit)
     assert used == "fixture" and np.all(K_se < 2e-4) and np.all(B_se < 1e-2)
     assert np.all(np.abs(fit.K - K) <= 4 * K_se) and np.all(np.abs(fit.B - B) <= 4 * B_se)
-    assert np.abs(K - np.diag(np.diag(K))).max() > 20 * K_se.max()   # the terms were there to find
+    assert np.abs(K - np.diag(np.diag(K))).max() > 20 * K_se.max()  # the terms were there to find
 
 
 def test_a_hand_mount_puts_its_tilt_into_the_off_axis_outputs(tmp_path):
     # What the fixture model fits on hand mounts is K U, U the mounts' true rotation axes:
     # the tilt, a property of the session, many standard errors beside the unit's own terms.
     from gyrocal.protocols.servo.fit import fit_model
+
     revs, K, B, (info,) = zoo_servo(tmp_path, 3)
     fit, _, _ = fit_model(revs, "fixture")
     K_se, _ = stderr_matrix(fit)
-    U = np.column_stack([np.asarray(m["R_body_to_rig"])[2] for m in info["mounts"]])   # +x, +y, +z
+    U = np.column_stack([np.asarray(m["R_body_to_rig"])[2] for m in info["mounts"]])  # +x, +y, +z
     assert np.all(np.abs(fit.K - K @ U) <= 4 * K_se)
     assert np.abs(fit.K - K).max() > 100 * K_se.max()
 
 
 def test_cross_terms_from_magnitudes_need_six_axes(tmp_path):
     from gyrocal.protocols.servo.fit import fit_model
+
     one, K, B, _ = zoo_servo(tmp_path, 2)
     with pytest.raises(ServoFitError, match="do not determine the symmetric cross terms"):
         fit_model(one, "symmetric")
@@ -373,8 +422,8 @@ def test_cross_terms_from_magnitudes_need_six_axes(tmp_path):
 
 
 def test_symmetric_algorithm1_solves_nine_rotations_exactly():
-    from gyrocal.protocols.servo.fit import (algorithm1_symmetric, fit_symmetric,
-                                             symmetric_parameters)
+    from gyrocal.protocols.servo.fit import algorithm1_symmetric, fit_symmetric, symmetric_parameters
+
     rng = np.random.default_rng(5)
     A = np.eye(3) + 0.02 * rng.standard_normal((3, 3))
     K = (A + A.T) / 2
@@ -395,14 +444,19 @@ def test_symmetric_algorithm1_solves_nine_rotations_exactly():
 
 def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_path):
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.io.errors import ConfigError
     from gyrocal.pipeline.chain import run
+    from gyrocal.pipeline.config import Settings
+
     path = tmp_path / "fixture.parquet"
-    write_session(make_unit(effect="none", protocol="servo", seed=4), path, session=0, seed=1,
-                  misalign_deg=[0.0, 0.0])
-    result = run(path, Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "fixture"}}}}),
-                 protocol="servo")
+    write_session(
+        make_unit(effect="none", protocol="servo", seed=4), path, session=0, seed=1, misalign_deg=[0.0, 0.0]
+    )
+    result = run(
+        path,
+        Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "fixture"}}}}),
+        protocol="servo",
+    )
     cal, summary = result.calibration, result.validation.summary
     assert cal.extra["servo"]["model"]["used"] == "fixture"
     assert {"misalignment.x.y", "misalignment.z.x"} <= set(cal.grid.names)
@@ -412,7 +466,10 @@ def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_p
     assert summary["uncompensated_rms"] > 100 * summary["validation_rms"]
     default = run(path, protocol="servo")
     assert default.calibration.extra["servo"]["model"] == {
-        "configured": "auto", "used": "seed001", "why": default.calibration.extra["servo"]["model"]["why"]}
+        "configured": "auto",
+        "used": "seed001",
+        "why": default.calibration.extra["servo"]["model"]["why"],
+    }
     assert set(default.calibration.grid.names) == {f"{t}.{a}" for t in ("bias", "scale") for a in "xyz"}
     with pytest.raises(ConfigError, match="calibration"):
         Settings.from_dict({"protocols": {"servo": {"options": {"calibration": "full"}}}})
@@ -420,6 +477,7 @@ def test_the_servo_calibration_setting_reaches_the_file_and_the_validation(tmp_p
 
 def test_cross_axis_study_says_what_the_terms_cost_and_gain():
     from gyrocal.protocols.servo.montecarlo import cross_axis_study, cross_axis_summary
+
     df = cross_axis_study(n_sets=4, n_runs=40, noise=0.001)
     pd.testing.assert_frame_equal(df, cross_axis_study(n_sets=4, n_runs=40, noise=0.001))
     s = cross_axis_summary(df).set_index(["mounting", "design", "model"])
@@ -431,8 +489,10 @@ def test_cross_axis_study_says_what_the_terms_cost_and_gain():
     assert s.loc[("hand", "six axes", "seed001"), "magnitude_floor"] > 20
     assert s.loc[("hand", "six axes", "auto"), "magnitude_floor"] < 1.5
     # On hand mounts the fixture model takes the tilt for cross terms: worse than none.
-    assert s.loc[("hand", "three axes", "fixture"), "magnitude_floor"] > \
-        5 * s.loc[("hand", "three axes", "seed001"), "magnitude_floor"]
+    assert (
+        s.loc[("hand", "three axes", "fixture"), "magnitude_floor"]
+        > 5 * s.loc[("hand", "three axes", "seed001"), "magnitude_floor"]
+    )
     # With a fixture every term comes from the off-axis outputs: the vector to its floor
     # (√3 for the three axes' noise), seed 001's model left with the cross terms.
     assert s.loc[("fixture", "three axes", "fixture"), "nominal_floor"] < 2.5

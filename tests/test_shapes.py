@@ -16,13 +16,13 @@ import pytest
 from benchmarks.diagnosis import story_contradiction
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.diagnose.reading import readable
-from gyrocal.pipeline.config import ModelSettings, Settings
 from gyrocal.pipeline.chain import segment_log
+from gyrocal.pipeline.config import ModelSettings, Settings
 from gyrocal.terms import make_term
 
 from .conftest import make_log
 
-NEXT_SESSION_LIMIT = 1.2   # the issue's target for a fix on the unseen session
+NEXT_SESSION_LIMIT = 1.2  # the issue's target for a fix on the unseen session
 LEVELS = [-400.0, -200.0, -100.0, -50.0, -10.0, 0.0, 10.0, 50.0, 100.0, 200.0, 400.0]
 
 
@@ -35,13 +35,13 @@ def test_a_table_over_the_levels_is_its_value_there_and_straight_between():
     data = {"rate_x": rate, "rate_y": np.zeros(5), "rate_z": np.zeros(5)}
     cols = term.columns(data)
     at = {LEVELS[int(k.rsplit("k", 1)[1]) - 1]: v for k, v in cols.items() if k.startswith("levels_rate.x.")}
-    assert set(at) == set(LEVELS[2:])                    # anchored at -400 and -200
+    assert set(at) == set(LEVELS[2:])  # anchored at -400 and -200
     np.testing.assert_array_equal(at[100.0], [1.0, 0.5, 0.0, 0.0, 0.0])
     np.testing.assert_array_equal(at[50.0], [0.0, 0.5, 0.0, 0.0, 0.0])
-    np.testing.assert_array_equal(at[400.0], [0.0, 0.0, 0.0, 1.0, 0.0])   # clamped outside
+    np.testing.assert_array_equal(at[400.0], [0.0, 0.0, 0.0, 1.0, 0.0])  # clamped outside
     np.testing.assert_array_equal(at[0.0], [0.0, 0.0, 1.0, 0.0, 0.0])
     scale = make_term({"name": "levels", "values": LEVELS, "by": "rate_own"})
-    assert scale.anchors == (0, 5)                        # the lowest, and 0 where ω·h is 0
+    assert scale.anchors == (0, 5)  # the lowest, and 0 where ω·h is 0
     spec = make_term(scale.spec_string())
     assert spec == scale and spec.spec_string() == scale.spec_string()
     assert len(scale.coefficients()) == 3 * (len(LEVELS) - 2)
@@ -63,35 +63,47 @@ def test_the_turning_axis_rate_on_the_other_outputs():
 
 
 def test_terms_read_as_formulas_with_their_parameters():
-    decay = ("expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 3370.0}, "
-             "profile={'tau': [600.0, 18900.0]})")
-    assert readable(decay, [{"parameter": "tau", "value": 906.9, "stderr": 9.6}]) == \
-        "A·exp(−t/τ), τ = 906.9 ± 9.6 s"
+    decay = (
+        "expression(label='decay_t', formula='exp(-t / tau)', parameters={'tau': 3370.0}, "
+        "profile={'tau': [600.0, 18900.0]})"
+    )
+    assert (
+        readable(decay, [{"parameter": "tau", "value": 906.9, "stderr": 9.6}])
+        == "A·exp(−t/τ), τ = 906.9 ± 9.6 s"
+    )
     power = "expression(label='power_t', formula='(1 + t / t0) ** (-p)', parameters={'p': 0.447, 't0': 71.0})"
-    assert readable(power) == "A·(1 + t/t0)^−p, p = 0.447, t0 = 71 s"        # an exponent: no unit
+    assert readable(power) == "A·(1 + t/t0)^−p, p = 0.447, t0 = 71 s"  # an exponent: no unit
     assert readable("scale_quadratic") == "k ω²"
     assert readable('g_sensitivity(drop=["x.z", "y.z", "z.z"])') == "Σ_b G_ab f_b (without x.z, y.z, z.z)"
     assert readable(make_term({"name": "levels", "values": LEVELS}).spec_string()).startswith(
-        "a table of ω over its 11 levels -400 to 400 deg/s")
+        "a table of ω over its 11 levels -400 to 400 deg/s"
+    )
 
 
 def test_a_level_table_round_trips_through_the_calibration_file(tmp_path):
     """Written, read back and applied as any term: the compensation of the file read back is
     the in-memory calibration's, bit for bit."""
-    from gyrocal.calibration.file import load_calibration, save_calibration
     import pyarrow.parquet as pq
 
+    from gyrocal.calibration.file import load_calibration, save_calibration
     from gyrocal.pipeline.chain import run
+
     log = make_log(tmp_path, "levels", seed=5)
-    settings = extended(Settings(), make_term({"name": "levels", "values": [
-        -400.0, -100.0, -10.0, 0.0, 10.0, 100.0, 400.0]}).spec_string())
+    settings = extended(
+        Settings(),
+        make_term(
+            {"name": "levels", "values": [-400.0, -100.0, -10.0, 0.0, 10.0, 100.0, 400.0]}
+        ).spec_string(),
+    )
     cal = run(log, settings).calibration
     save_calibration(cal, tmp_path / "cal.json")
     again = load_calibration(tmp_path / "cal.json")
     table = pq.read_table(log, columns=["gyro_x", "gyro_y", "gyro_z", "temp"]).slice(0, 5000)
     gyro = np.column_stack([table[f"gyro_{a}"].to_numpy() for a in "xyz"]).astype(float)
     data = {"temp": table["temp"].to_numpy().astype(float)}
-    np.testing.assert_array_equal(again.compensate(gyro, data, warn=False), cal.compensate(gyro, data, warn=False))
+    np.testing.assert_array_equal(
+        again.compensate(gyro, data, warn=False), cal.compensate(gyro, data, warn=False)
+    )
 
 
 def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
@@ -99,6 +111,7 @@ def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
     within what the session's little static data know the floor to (11 % here): the model
     explains the data and the verdict says the pattern is too faint to matter."""
     from gyrocal.diagnose.stats import floor_uncertainty
+
     obs = segment_log(logs["complete"], Settings()).observations
     low = obs.copy()
     low.attrs = dict(obs.attrs)
@@ -106,7 +119,7 @@ def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
         low[f"floor_{a}"] = obs[f"floor_{a}"] * 0.9
     assert floor_uncertainty(low) > 0.1, "the premise: the floor known to 10 % or worse"
     diag = diagnose(Settings(), low)
-    assert diag.excess_p_value < diag.significance / 2          # the test alone would fail
+    assert diag.excess_p_value < diag.significance / 2  # the test alone would fail
     assert diag.explains and diag.best is None and not diag.partial, diag.verdict
     assert "within that floor's own uncertainty" in diag.verdict and "nothing is missing" in diag.verdict
     assert diag.to_dict()["negligible_excess"]["factor"] < 1 + floor_uncertainty(low)
@@ -114,6 +127,7 @@ def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
 
 def _zoo_sessions(tmp_path, effect, seed, rate_hz=10.0):
     from benchmarks.zoo.generator import make_unit, write_session
+
     unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=seed)
     logs = [tmp_path / f"{effect}-s{s}.parquet" for s in range(3)]
     for s, log in enumerate(logs):
@@ -126,6 +140,7 @@ def _next_session(logs, settings, offer: dict | None) -> float:
 
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run
+
     if offer is not None:
         for term in (offer["term"], *offer.get("together", [])):
             settings = extended(settings, term)
@@ -137,20 +152,26 @@ def _next_session(logs, settings, offer: dict | None) -> float:
 
 
 # (effect, unit, sessions the diagnosis sees, the input the fix must read)
-NEW_EFFECTS = [("rate_band_bias", 1, 1, "rate"), ("scale_range_switch", 3, 2, "rate"),
-               ("cross_axis_quadratic", 2, 1, "rate"), ("warmup_selfheat", 1, 2, "time")]
+NEW_EFFECTS = [
+    ("rate_band_bias", 1, 1, "rate"),
+    ("scale_range_switch", 3, 2, "rate"),
+    ("cross_axis_quadratic", 2, 1, "rate"),
+    ("warmup_selfheat", 1, 2, "time"),
+]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("effect, unit, sessions, reads", NEW_EFFECTS, ids=[e[0] for e in NEW_EFFECTS])
 def test_a_sharp_or_cross_axis_shape_is_offered_and_holds_on_the_unseen_session(
-        effect, unit, sessions, reads, tmp_path):
+    effect, unit, sessions, reads, tmp_path
+):
     """Outside the library: a term of free shape is offered (a table over the protocol's
     levels, a shape of the other axes' rate, a decay in time, in a model continuous in
     temperature where the temperature moves within the points), it reads the input that
     where-it-fails says carries the excess, and calibrated with it the session the diagnosis
     never saw is within 1.2 times the floor, from over twice that without it."""
     from gyrocal.diagnose.verdict import term_reads
+
     logs = _zoo_sessions(tmp_path, effect, unit)
     settings = Settings()
     obs = [segment_log(log, settings).observations for log in logs[:2]]
@@ -186,6 +207,7 @@ def test_a_candidate_scored_in_sample_is_compared_on_the_same_holds(tmp_path):
     out: its figure is in sample, and its gain is against the configured model's in-sample
     figure on the same holds, never against the model's held-out one."""
     from gyrocal.diagnose.evaluation import in_sample_summary
+
     logs = _zoo_sessions(tmp_path, "bias_step_time", 1)
     settings = Settings()
     obs = segment_log(logs[0], settings).observations
@@ -205,6 +227,7 @@ def test_a_term_that_takes_most_of_the_excess_is_offered_with_what_it_leaves(tmp
     keeps it from explaining all of it. It is offered all the same, with its option, the
     share it takes and what the remainder follows; no verdict sends the user to write a term."""
     from benchmarks.zoo.generator import make_unit, write_session
+
     unit = make_unit(effect="scale_quadratic", protocol="turntable3", noise="coloured", seed=1)
     log = tmp_path / "s0.parquet"
     write_session(unit, log, session=0, seed=1000, rate_hz=10.0)

@@ -50,22 +50,33 @@ def manifests(tmp_path, batches: dict[str, list[str]]):
     paths = []
     for k, (batch, devices) in enumerate(batches.items(), start=1):
         path = tmp_path / f"shard-{k:04d}.tsv"
-        path.write_text("device\tbatch\tsession\tprotocol\tpath\n" + "".join(
-            f"{d}\t{batch}\t2026-03-02\tturntable\t/logs/{d}.parquet\n" for d in devices))
+        path.write_text(
+            "device\tbatch\tsession\tprotocol\tpath\n"
+            + "".join(f"{d}\t{batch}\t2026-03-02\tturntable\t/logs/{d}.parquet\n" for d in devices)
+        )
         paths.append(path)
     return paths
 
 
 def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
-    paths = manifests(tmp_path, {"B1": ["A1", "E1", "F1"], "B2": ["A2"], "B3": ["STOP"],
-                                 "B4": ["A4", "A5"]})
+    paths = manifests(tmp_path, {"B1": ["A1", "E1", "F1"], "B2": ["A2"], "B3": ["STOP"], "B4": ["A4", "A5"]})
     # what an earlier run of the shard left: not counted when this run stops
     (tmp_path / "shard-0003" / "results").mkdir(parents=True)
-    pq.write_table(pa.table({"device": ["OLD"], "batch": ["B0"], "status": ["ok"]}),
-                   tmp_path / "shard-0003" / "results" / "fleet.parquet")
+    pq.write_table(
+        pa.table({"device": ["OLD"], "batch": ["B0"], "status": ["ok"]}),
+        tmp_path / "shard-0003" / "results" / "fleet.parquet",
+    )
     said = []
-    runs = run_shards(paths, tmp_path, [], at_once=2, snakefile=REPO / "Snakefile", configfile=None,
-                      command=fake, echo=said.append)
+    runs = run_shards(
+        paths,
+        tmp_path,
+        [],
+        at_once=2,
+        snakefile=REPO / "Snakefile",
+        configfile=None,
+        command=fake,
+        echo=said.append,
+    )
     assert [r.status for r in runs] == [0, 0, 3, 0]
     assert any("shard-0003: failed (exit status 3" in line for line in said)
     # never more than two at once: of the three that ran to the end, the third started
@@ -81,7 +92,7 @@ def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
     assert day.schema.metadata[b"gyrocal.format"] == b"gyrocal.fleet/1"
     page = (tmp_path / "index.html").read_text()
     assert 'href="shard-0001/reports/index.html"' in page and 'href="shard-0003/snakemake.log"' in page
-    assert 'href="shard-0003/reports' not in page                 # it made no summary
+    assert 'href="shard-0003/reports' not in page  # it made no summary
     assert "stopped (exit status 3)" in page and "6 unit sessions: 5 calibrated, 1 failed" in page
     assert "the workflow stopped <here>" in (tmp_path / "shard-0003" / "snakemake.log").read_text()
 
@@ -91,17 +102,30 @@ def test_the_users_config_items_go_with_the_shards_manifest(tmp_path, monkeypatc
     manifest go in one, the manifest last."""
     monkeypatch.delenv("SNAKEMAKE_PROFILE", raising=False)
     shard = ShardRun(tmp_path / "shard-0001.tsv", tmp_path / "shard-0001")
-    command = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml",
-                               ["--profile", "profiles/slurm", "--config", "spec={}", "devices=other.tsv",
-                                "--keep-going", "-C", "drift={}", "--config=model={}"])
+    command = workflow_command(
+        shard,
+        REPO / "Snakefile",
+        tmp_path / "c.yaml",
+        [
+            "--profile",
+            "profiles/slurm",
+            "--config",
+            "spec={}",
+            "devices=other.tsv",
+            "--keep-going",
+            "-C",
+            "drift={}",
+            "--config=model={}",
+        ],
+    )
     at = command.index("--config")
     assert command[at:] == ["--config", "spec={}", "drift={}", "model={}", f"devices={shard.manifest}"]
     assert command.count("--config") == 1 and "-C" not in command and "--keep-going" in command
     assert command[command.index("--configfile") + 1] == str(tmp_path / "c.yaml")
-    assert "--cores" not in command                                 # the profile says
+    assert "--cores" not in command  # the profile says
     own = workflow_command(shard, REPO / "Snakefile", tmp_path / "c.yaml", ["--configfile", "mine.yaml"])
     assert own.count("--configfile") == 1 and "mine.yaml" in own
-    assert own[own.index("--cores") + 1] == "all"                   # nothing said how many
+    assert own[own.index("--cores") + 1] == "all"  # nothing said how many
     for given in (["-j4"], ["--cores=3"], ["-c", "2"], ["--jobs", "8"]):
         assert "all" not in workflow_command(shard, REPO / "Snakefile", None, given), given
 
@@ -112,9 +136,11 @@ def test_shards_rewritten_only_where_their_rows_changed(tmp_path):
     stamps = {p.name: p.stat().st_mtime_ns for p in first}
     time.sleep(0.02)
     again = write_shards(rows, 2, tmp_path / "runs")
-    assert {p.name: p.stat().st_mtime_ns for p in again} == stamps   # a rerun has nothing new to do
+    assert {p.name: p.stat().st_mtime_ns for p in again} == stamps  # a rerun has nothing new to do
     fewer = write_shards(rows[:2], 2, tmp_path / "runs")
-    assert [p.name for p in fewer] == ["shard-0001.tsv"] and fewer[0].stat().st_mtime_ns == stamps["shard-0001.tsv"]
+    assert [p.name for p in fewer] == ["shard-0001.tsv"] and fewer[0].stat().st_mtime_ns == stamps[
+        "shard-0001.tsv"
+    ]
     assert sorted(p.name for p in (tmp_path / "runs").glob("shard-*.tsv")) == ["shard-0001.tsv"]
 
 
@@ -148,11 +174,20 @@ def test_shards_still_running_are_stopped_with_the_run(tmp_path):
     def command(shard, snakefile, configfile, args):
         children.append(shard.folder / "alive")
         return [sys.executable, "-c", script, str(shard.folder / "alive")]
+
     t0 = time.monotonic()
     with pytest.raises(KeyboardInterrupt):
-        run_shards(paths, tmp_path, [], at_once=2, snakefile=REPO / "Snakefile", configfile=None,
-                   command=command, echo=interrupt)
-    assert time.monotonic() - t0 < 30 and len(children) == 2        # stopped, not waited for
+        run_shards(
+            paths,
+            tmp_path,
+            [],
+            at_once=2,
+            snakefile=REPO / "Snakefile",
+            configfile=None,
+            command=command,
+            echo=interrupt,
+        )
+    assert time.monotonic() - t0 < 30 and len(children) == 2  # stopped, not waited for
     assert not [pid for pid in os.listdir("/proc") if pid.isdigit() and _runs(pid, str(tmp_path))]
     with pytest.raises(KeyboardInterrupt), _terminate_as_interrupt():
         os.kill(os.getpid(), signal.SIGTERM)
@@ -162,7 +197,10 @@ def test_shards_still_running_are_stopped_with_the_run(tmp_path):
 
 def test_workflow_options_without_run_and_no_workflow_are_refused(tmp_path, monkeypatch, capsys):
     from gyrocal.run.cli import main
-    (tmp_path / "day.tsv").write_text("device\tbatch\tsession\tprotocol\tpath\nA1\tB1\t2026-03-02\tturntable\tA1.parquet\n")
+
+    (tmp_path / "day.tsv").write_text(
+        "device\tbatch\tsession\tprotocol\tpath\nA1\tB1\t2026-03-02\tturntable\tA1.parquet\n"
+    )
     monkeypatch.chdir(tmp_path)
     assert main(["shard", "--manifest", "day.tsv", "-o", "runs", "--", "--cores", "2"]) == 2
     assert "need --run" in capsys.readouterr().err
@@ -176,23 +214,45 @@ def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypa
     """Two shards through the real workflow side by side: a batch each, a missing log in
     one; each shard's summary and the day's table and page."""
     from gyrocal.run.cli import main
+
     logs = fleet_run / "demo" / "logs"
     (tmp_path / "day.tsv").write_text(
         "device\tbatch\tsession\tprotocol\tpath\n"
         f"A1\tB1\t2026-01-01\tturntable\t{logs}/B1/A1/2026-01-01.parquet\n"
         f"A1\tB1\t2026-03-01\tturntable\t{logs}/B1/A1/2026-03-01.parquet\n"
         f"A2\tB2\t2026-01-02\tturntable\t{logs}/B2/A2/2026-01-02.parquet\n"
-        "GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet\n")
+        "GONE\tB2\t2026-01-03\tturntable\tlogs/absent.parquet\n"
+    )
     (tmp_path / "config.yaml").write_text(FLEET_CONFIG)
     monkeypatch.chdir(REPO)
-    status = main(["shard", "--manifest", str(tmp_path / "day.tsv"), "--size", "2", "-o", str(tmp_path / "runs"),
-                   "--run", "--at-once", "2", "--configfile", str(tmp_path / "config.yaml"), "--", "--cores", "1"])
+    status = main(
+        [
+            "shard",
+            "--manifest",
+            str(tmp_path / "day.tsv"),
+            "--size",
+            "2",
+            "-o",
+            str(tmp_path / "runs"),
+            "--run",
+            "--at-once",
+            "2",
+            "--configfile",
+            str(tmp_path / "config.yaml"),
+            "--",
+            "--cores",
+            "1",
+        ]
+    )
     runs = tmp_path / "runs"
     assert status == 0, [(p, p.read_text()[-2000:]) for p in runs.glob("*/snakemake.log")]
     for shard in ("shard-0001", "shard-0002"):
         assert (runs / shard / "reports" / "index.html").is_file()
     day = pq.read_table(runs / "fleet.parquet").to_pylist()
     assert [(r["shard"], r["device"], r["status"]) for r in day] == [
-        ("shard-0001", "A1", "ok"), ("shard-0001", "A1", "ok"),
-        ("shard-0002", "A2", "ok"), ("shard-0002", "GONE", "failed")]
+        ("shard-0001", "A1", "ok"),
+        ("shard-0001", "A1", "ok"),
+        ("shard-0002", "A2", "ok"),
+        ("shard-0002", "GONE", "failed"),
+    ]
     assert "4 unit sessions: 3 calibrated, 1 failed" in (runs / "index.html").read_text()

@@ -19,20 +19,26 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gyrocal.io import atomic
-from gyrocal.io.unit_folder import part_failure
 from gyrocal.calibration.file import load_calibration
+from gyrocal.io import atomic
 from gyrocal.io.errors import CalibrationFileError
+from gyrocal.io.unit_folder import part_failure
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 
 from . import slurm
-from .conftest import (REPO, assert_every_file_whole, leftovers, needs, snakemake,
-                       snakemake_command)
+from .conftest import REPO, assert_every_file_whole, leftovers, needs, snakemake, snakemake_command
 
-pytestmark = [pytest.mark.slow,
-              needs({**slurm.found(), "snakemake-executor-plugin-slurm":
-                     importlib.util.find_spec("snakemake_executor_plugin_slurm") is not None},
-                    f"{slurm.INSTALL}; the plugin is a test extra")]
+pytestmark = [
+    pytest.mark.slow,
+    needs(
+        {
+            **slurm.found(),
+            "snakemake-executor-plugin-slurm": importlib.util.find_spec("snakemake_executor_plugin_slurm")
+            is not None,
+        },
+        f"{slurm.INSTALL}; the plugin is a test extra",
+    ),
+]
 
 GOOD = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
 BAD = ("B2", "BAD", "2026-01-02")
@@ -49,8 +55,15 @@ diagnosis: {ladder: []}
 # the command's --cores 2 caps a job's threads at the node's two CPUs); the first status
 # check after a second rather than the profile's 20 (jobs of seconds here), and the SLURM
 # log of every job kept, to read which units it ran.
-SLURM = ["--profile", REPO / "profiles" / "slurm", "--slurm-status-command", "squeue",
-         "--slurm-init-seconds-before-status-checks", "1", "--slurm-keep-successful-logs"]
+SLURM = [
+    "--profile",
+    REPO / "profiles" / "slurm",
+    "--slurm-status-command",
+    "squeue",
+    "--slurm-init-seconds-before-status-checks",
+    "1",
+    "--slurm-keep-successful-logs",
+]
 
 
 def fleet_folder(path: Path, rows: str) -> Path:
@@ -74,8 +87,11 @@ def outputs(root: Path, units) -> dict[str, bytes]:
 
 def fleet_outputs(root: Path) -> dict[str, bytes]:
     """The fleet summary, its table and the end-of-line verdicts."""
-    files = [root / "reports" / "index.html", root / "results" / "fleet.parquet",
-             root / "results" / "eol.json"]
+    files = [
+        root / "reports" / "index.html",
+        root / "results" / "fleet.parquet",
+        root / "results" / "eol.json",
+    ]
     return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
@@ -86,8 +102,10 @@ def run_id(text: str) -> str:
 
 def submitted(text: str) -> dict[str, Path]:
     """SLURM job id -> its log, for every job Snakemake submitted with sbatch."""
-    return {m.group(2): Path(m.group(3)) for m in re.finditer(
-        r"Job (\S+) has been submitted with SLURM jobid (\d+) \(log: (.*?)\)\.", text)}
+    return {
+        m.group(2): Path(m.group(3))
+        for m in re.finditer(r"Job (\S+) has been submitted with SLURM jobid (\d+) \(log: (.*?)\)\.", text)
+    }
 
 
 def devices_in(log: Path) -> set[str]:
@@ -107,8 +125,13 @@ def wait_for(found, what: str, proc: subprocess.Popen, log: Path, timeout: float
 def start(wd: Path, env: dict, *args) -> tuple[subprocess.Popen, Path]:
     log = wd.parent / f"{wd.name}.log"
     with open(log, "w") as out:
-        proc = subprocess.Popen(snakemake_command(wd, *args), env=env, stdout=out,
-                                stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen(
+            snakemake_command(wd, *args),
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     return proc, log
 
 
@@ -147,9 +170,13 @@ def slow_unit(tmp_path_factory):
     base = tmp_path_factory.mktemp("slurm-time")
     wd = base / "fleet"
     (wd / "logs").mkdir(parents=True)
-    simulate_unit(wd / "logs" / "T1.parquet", rig=TurntableProtocol.quick(
-        temperatures=(0.0, 20.0, 40.0), rates=(10.0, 100.0, 400.0)),
-        rng=np.random.default_rng(29), device="T1", seed=29)
+    simulate_unit(
+        wd / "logs" / "T1.parquet",
+        rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0), rates=(10.0, 100.0, 400.0)),
+        rng=np.random.default_rng(29),
+        device="T1",
+        seed=29,
+    )
     (wd / "devices.tsv").write_text(HEADER + "T1\tB1\t2026-01-01\tturntable\tlogs/T1.parquet\n")
     (wd / "config.yaml").write_text(CONFIG)
     with slurm.Cluster() as running:
@@ -213,7 +240,10 @@ def test_jobs_were_submitted_with_sbatch_and_grouped_as_the_profile_says(runs, c
     assert len(group) == 1 and len(fleet) == 1
     assert devices_in(logs[group[0]]) == {"A1", "A2", "BAD"}
     assert set(re.findall(r"^\s*rule (\w+):$", logs[group[0]].read_text(), flags=re.M)) == {
-        "simulate", "segment", "analyse"}
+        "simulate",
+        "segment",
+        "analyse",
+    }
     job = jobs[group[0]]
     # three units' one-thread chains side by side, capped at the node's two CPUs; at least
     # one chain's memory (simulate's 1500 MB); a chain's minutes (simulate 5, segment 2, analyse 2)
@@ -234,20 +264,24 @@ def faults(cluster, runs, tmp_path_factory):
     run's, at the same paths (no simulate job); the units' reports are the targets (no
     fleet job)."""
     local, _, _ = runs
-    wd = fleet_folder(tmp_path_factory.mktemp("slurm-faults") / "fleet",
-                      ROW.format(*GOOD[0]) + BAD_ROW)
+    wd = fleet_folder(tmp_path_factory.mktemp("slurm-faults") / "fleet", ROW.format(*GOOD[0]) + BAD_ROW)
     for path in (Path("demo", "logs", *GOOD[0][:2], f"{GOOD[0][2]}.parquet"), CORRUPT):
         (wd / path).parent.mkdir(parents=True)
         shutil.copy2(local / path, wd / path)
     env = {**cluster.env, atomic.PAUSE_ENV: "validation.json:5"}
     reports = [f"reports/{b}/{d}/{s}.html" for b, d, s in FAULT_UNITS]
     # each job on both CPUs (the rules ask for one), so that the second waits in the queue
-    proc, log = start(wd, env, *reports, *SLURM, "--group-components", "unit=1",
-                      "--set-threads", "segment=2", "analyse=2")
+    proc, log = start(
+        wd, env, *reports, *SLURM, "--group-components", "unit=1", "--set-threads", "segment=2", "analyse=2"
+    )
     seen = {}
     try:
-        held = wait_for(lambda: sorted(wd.glob("results/*/*/*/.validation.json.*.tmp")),
-                        "a job holding its validation.json", proc, log)[0]
+        held = wait_for(
+            lambda: sorted(wd.glob("results/*/*/*/.validation.json.*.tmp")),
+            "a job holding its validation.json",
+            proc,
+            log,
+        )[0]
         seen["job"] = environ(int(held.name.split(".")[3]))["SLURM_JOB_ID"]  # .NAME.PID.X.tmp
         seen["queued"] = [r["id"] for r in cluster.jobs() if r["state"] == "PENDING"]
         cluster.restart_slurmd()
@@ -303,8 +337,7 @@ def test_a_unit_past_its_time_is_retried_with_doubled_resources_then_recorded(sl
     assert proc.returncode == 0, text[-4000:] + running.logs()
     jobs = [r for r in running.jobs() if r["name"] == run_id(text)]
     units = [r for r in jobs if r["comment"].startswith("rule_unit_")]
-    assert [(r["state"], r["time_limit"]) for r in units] == [("TIMEOUT", "1:00"),
-                                                              ("COMPLETED", "2:00")]
+    assert [(r["state"], r["time_limit"]) for r in units] == [("TIMEOUT", "1:00"), ("COMPLETED", "2:00")]
     assert slurm.memory_mb(units[1]["memory"]) == 2 * slurm.memory_mb(units[0]["memory"])
     assert [r["state"] for r in jobs if r["comment"] == "rule_fleet"] == ["COMPLETED"]
     folder = wd / SLOW

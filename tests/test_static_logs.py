@@ -44,6 +44,7 @@ def run(capsys, *args) -> tuple[int, str, str]:
 
 # --- time stamps ------------------------------------------------------------------------------
 
+
 def test_stalls_made_up_by_bunches_are_no_gaps_and_a_pause_is_one():
     rate = 100.0
     sample = np.arange(60_000) / rate
@@ -84,10 +85,15 @@ def test_slow_sweeps_and_pauses_keep_their_windows_and_their_count():
     def log(t):
         n = len(t)
         rng = np.random.default_rng(1)
-        batch = {"t": t, "temp": -10 + 0.01 * t, "ref_rate": np.zeros(n),
-                 **{f"gyro_{a}": rng.normal(0, 0.02, n) for a in "xyz"}}
+        batch = {
+            "t": t,
+            "temp": -10 + 0.01 * t,
+            "ref_rate": np.zeros(n),
+            **{f"gyro_{a}": rng.normal(0, 0.02, n) for a in "xyz"},
+        }
         return RigLog("x", (batch,), n, 0)
-    slow = sweep_windows(log(np.arange(3600.0)), window_s=5.0, min_span=0.5)   # 1 Hz: 5 a window
+
+    slow = sweep_windows(log(np.arange(3600.0)), window_s=5.0, min_span=0.5)  # 1 Hz: 5 a window
     assert len(slow) == 720
     t = np.arange(0, 3600, 0.1)
     paused = sweep_windows(log(t[(t < 1200) | (t >= 3000)]), min_span=0.5)
@@ -110,6 +116,7 @@ def test_a_short_sweep_gets_narrow_temperature_points():
 
 
 # --- a chamber's burst log ----------------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def chamber(tmp_path_factory):
@@ -154,8 +161,10 @@ def test_a_chamber_burst_log_imports_with_a_map_and_calibrates_one_window_per_bu
     design = np.column_stack([np.ones_like(temps), temps])
     line = design @ np.linalg.lstsq(design, expected, rcond=None)[0]
     allan = truth["allan"]
-    sigma = np.hypot(np.asarray(allan["components_deg_h"]["white"])[0] / 3600 / np.sqrt(5.0),
-                     np.sqrt(2.0) * np.asarray(allan["adev_deg_s"])[2])
+    sigma = np.hypot(
+        np.asarray(allan["components_deg_h"]["white"])[0] / 3600 / np.sqrt(5.0),
+        np.sqrt(2.0) * np.asarray(allan["adev_deg_s"])[2],
+    )
     np.testing.assert_array_less(np.abs(burst_mean - (expected - line)), 5 * sigma)
     # without the map's conversions the bias would be off by the driver's factor of two
     assert np.abs(expected - line).max() < 0.1 * np.abs(np.diff(expected[[0, -1]], axis=0)).max()
@@ -172,8 +181,17 @@ def test_a_turntable_calibration_of_a_still_log_names_the_protocols_that_read_it
 def test_points_too_thin_to_calibrate_alone_name_the_setting_that_widens_them(chamber, capsys, tmp_path):
     _, folder, log = chamber
     settings = json.dumps({"protocols": {"sweep": {"options": {"point_span": 0.001}}}})
-    status, _, err = run(capsys, "calibrate", log, "--protocol", "sweep", "-o", tmp_path / "c.json",
-                         "--settings-json", settings)
+    status, _, err = run(
+        capsys,
+        "calibrate",
+        log,
+        "--protocol",
+        "sweep",
+        "-o",
+        tmp_path / "c.json",
+        "--settings-json",
+        settings,
+    )
     assert status != 0 and len(err.strip().splitlines()) == 1
     assert str(log) in err and "point_span" in err and "Traceback" not in err
 
@@ -184,9 +202,11 @@ def test_bursts_let_the_diagnosis_judge_a_lag_and_say_when_wander_hides_the_rest
     (bias instability 10 deg/h, random walk 30 deg/h/sqrt(h)) the bursts cannot rule out that
     the wander makes the scatter: said, not a name."""
     quiet = NoiseModel(bi_deg_h=2.0, rrw_deg_h_rt_h=2.0)
-    cases = {"lag": dict(die_lag_s=900.0, b2=(0.0, 0.0, 0.0), noise=quiet),
-             "none": dict(b2=(0.0, 0.0, 0.0), noise=quiet),
-             "wander": dict(b2=(0.0, 0.0, 0.0))}
+    cases = {
+        "lag": dict(die_lag_s=900.0, b2=(0.0, 0.0, 0.0), noise=quiet),
+        "none": dict(b2=(0.0, 0.0, 0.0), noise=quiet),
+        "wander": dict(b2=(0.0, 0.0, 0.0)),
+    }
     verdicts = {}
     for name, kw in cases.items():
         log = write_contract(chamber_burst_log(2, **kw), tmp_path / f"{name}.parquet")
@@ -205,6 +225,7 @@ def test_bursts_let_the_diagnosis_judge_a_lag_and_say_when_wander_hides_the_rest
 
 # --- a host-stamped static log ------------------------------------------------------------------
 
+
 @needs({"allantools": allantools is not None}, "pip install allantools")
 def test_a_host_stamped_static_log_gets_its_noise_with_the_defaults_as_allantools_does(tmp_path, capsys):
     rec = host_stamped_log(2)
@@ -218,15 +239,18 @@ def test_a_host_stamped_static_log_gets_its_noise_with_the_defaults_as_allantool
     allan = noise["session"]["allan"]
     tau, adev = np.asarray(allan["tau_s"]), np.asarray(allan["adev"])
     table = pq.read_table(log).to_pandas()
-    rate = (len(t) - 1) / (t[-1] - t[0])                # samples over time, as allantools is given
+    rate = (len(t) - 1) / (t[-1] - t[0])  # samples over time, as allantools is given
     for k, axis in enumerate("xyz"):
-        taus, ref, _, _ = allantools.oadev(table[f"gyro_{axis}"].to_numpy(), rate=rate, data_type="freq",
-                                           taus=tau)
-        np.testing.assert_allclose(adev[:len(ref), k], ref, rtol=0.10)
+        taus, ref, _, _ = allantools.oadev(
+            table[f"gyro_{axis}"].to_numpy(), rate=rate, data_type="freq", taus=tau
+        )
+        np.testing.assert_allclose(adev[: len(ref), k], ref, rtol=0.10)
     # the angle random walk within three of its standard errors of the generator's
     terms = noise["session"]["terms"]
     arw_true = rec.truth["noise"]["model"]["arw_deg_rt_h"]
-    assert np.all(np.abs(np.asarray(terms["arw"]) - arw_true) < 3 * np.asarray(terms["arw_stderr"]) + 0.02 * arw_true)
+    assert np.all(
+        np.abs(np.asarray(terms["arw"]) - arw_true) < 3 * np.asarray(terms["arw_stderr"]) + 0.02 * arw_true
+    )
     # without a reference column it is read as still too
     table.drop(columns=["ref_rate"]).to_parquet(tmp_path / "noref.parquet")
     status, out, err = run(capsys, "noise", tmp_path / "noref.parquet")

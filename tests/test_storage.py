@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 
 from gyrocal.calibration.file import load_calibration
-from gyrocal.io.unit_folder import read_part_table
 from gyrocal.fleet.manifest import read_manifest
+from gyrocal.io.unit_folder import read_part_table
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
 from .conftest import needs, snakemake
@@ -29,16 +29,20 @@ FOLDER = "results/{}/{}/{}".format(*UNIT)
 TARGETS = [f"{FOLDER}/{name}" for name in ("calibration.json", "analysis.zip")]
 CONFIG = "devices: devices.tsv\nmodel: {terms: [bias, scale, misalignment]}\n"
 
-needs_storage = needs({"snakemake-storage-plugin-fs": importlib.util.find_spec("snakemake_storage_plugin_fs") is not None,
-                       "rsync": shutil.which("rsync") is not None},
-                      "the fs storage provider needs both: a test extra; Debian's rsync, which "
-                      "make test installs where it can")
+needs_storage = needs(
+    {
+        "snakemake-storage-plugin-fs": importlib.util.find_spec("snakemake_storage_plugin_fs") is not None,
+        "rsync": shutil.which("rsync") is not None,
+    },
+    "the fs storage provider needs both: a test extra; Debian's rsync, which make test installs where it can",
+)
 
 
 def fleet(folder, path):
     folder.mkdir()
-    (folder / "devices.tsv").write_text("device\tbatch\tsession\tprotocol\tpath\n"
-                                        f"{UNIT[1]}\t{UNIT[0]}\t{UNIT[2]}\tturntable\t{path}\n")
+    (folder / "devices.tsv").write_text(
+        f"device\tbatch\tsession\tprotocol\tpath\n{UNIT[1]}\t{UNIT[0]}\t{UNIT[2]}\tturntable\t{path}\n"
+    )
     (folder / "config.yaml").write_text(CONFIG)
     return folder
 
@@ -46,13 +50,18 @@ def fleet(folder, path):
 def test_a_url_in_the_manifest_is_kept_as_written_and_a_path_is_resolved(tmp_path):
     (tmp_path / "line3").mkdir()
     manifest = tmp_path / "line3" / "devices.tsv"
-    manifest.write_text("device\tbatch\tsession\tprotocol\tpath\n"
-                        "A1\tB1\t2026-01-01\tturntable\ts3://rig-logs/line3//A1.parquet\n"
-                        "A2\tB1\t2026-01-01\tturntable\tfs:///store/line3/A2.parquet\n"
-                        "A3\tB1\t2026-01-01\tturntable\t../rig/./A3.parquet\n")
+    manifest.write_text(
+        "device\tbatch\tsession\tprotocol\tpath\n"
+        "A1\tB1\t2026-01-01\tturntable\ts3://rig-logs/line3//A1.parquet\n"
+        "A2\tB1\t2026-01-01\tturntable\tfs:///store/line3/A2.parquet\n"
+        "A3\tB1\t2026-01-01\tturntable\t../rig/./A3.parquet\n"
+    )
     logs = [row["log"] for row in read_manifest(manifest)]
-    assert logs == ["s3://rig-logs/line3//A1.parquet", "fs:///store/line3/A2.parquet",
-                    str(tmp_path / "rig" / "A3.parquet")]
+    assert logs == [
+        "s3://rig-logs/line3//A1.parquet",
+        "fs:///store/line3/A2.parquet",
+        str(tmp_path / "rig" / "A3.parquet"),
+    ]
 
 
 @pytest.fixture(scope="module")
@@ -62,8 +71,14 @@ def runs(tmp_path_factory):
     base = tmp_path_factory.mktemp("storage")
     log = base / "store" / "line3" / "A1-2026-01-01.parquet"
     log.parent.mkdir(parents=True)
-    simulate_unit(log, rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0)),
-                  unit=GyroUnit.seed000(), rng=np.random.default_rng(5), device=UNIT[1], seed=5)
+    simulate_unit(
+        log,
+        rig=TurntableProtocol.quick(temperatures=(0.0, 20.0, 40.0)),
+        unit=GyroUnit.seed000(),
+        rng=np.random.default_rng(5),
+        device=UNIT[1],
+        seed=5,
+    )
     plain, remote = fleet(base / "plain", log), fleet(base / "remote", f"fs://{log}")
     outputs = {}
     for folder in (plain, remote):
@@ -112,20 +127,33 @@ def test_a_missing_object_stops_the_plan_naming_it(tmp_path):
     assert f"{tmp_path / 'store' / 'absent.parquet'} (in storage)" in text
 
 
-needs_s3 = needs({name: importlib.util.find_spec(module) is not None for name, module in (
-    ("snakemake-storage-plugin-s3", "snakemake_storage_plugin_s3"), ("moto", "moto"),
-    ("flask", "flask"), ("flask-cors", "flask_cors"))}, "test extras")
+needs_s3 = needs(
+    {
+        name: importlib.util.find_spec(module) is not None
+        for name, module in (
+            ("snakemake-storage-plugin-s3", "snakemake_storage_plugin_s3"),
+            ("moto", "moto"),
+            ("flask", "flask"),
+            ("flask-cors", "flask_cors"),
+        )
+    },
+    "test extras",
+)
 
 
 @pytest.fixture(scope="module")
 def s3_server():
     """moto's S3-compatible server on a free local port, with the bucket ``rig-logs``."""
     import boto3
+
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
-    server = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    server = subprocess.Popen(
+        [sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p", str(port)],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     try:
         for _ in range(200):
             try:
@@ -134,8 +162,13 @@ def s3_server():
             except OSError:
                 time.sleep(0.1)
         url = f"http://127.0.0.1:{port}"
-        client = boto3.client("s3", endpoint_url=url, aws_access_key_id="line3", aws_secret_access_key="secret",
-                              region_name="us-east-1")
+        client = boto3.client(
+            "s3",
+            endpoint_url=url,
+            aws_access_key_id="line3",
+            aws_secret_access_key="secret",
+            region_name="us-east-1",
+        )
         client.create_bucket(Bucket="rig-logs")
         yield url, client
     finally:
@@ -151,14 +184,21 @@ def test_a_log_in_s3_is_retrieved_and_calibrated_as_from_its_path(runs, s3_serve
     url, client = s3_server
     client.upload_file(str(log), "rig-logs", "line3/A1-2026-01-01.parquet")
     remote = fleet(tmp_path / "s3", "s3://rig-logs/line3/A1-2026-01-01.parquet")
-    options = ["--storage-s3-endpoint-url", url, "--storage-s3-access-key", "line3",
-               "--storage-s3-secret-key", "secret"]
+    options = [
+        "--storage-s3-endpoint-url",
+        url,
+        "--storage-s3-access-key",
+        "line3",
+        "--storage-s3-secret-key",
+        "secret",
+    ]
     out = snakemake(remote, *TARGETS, *options)
     assert out.returncode == 0, out.stderr[-3000:]
     assert "Retrieving from storage: s3://rig-logs/line3/A1-2026-01-01.parquet" in out.stdout + out.stderr
     _, extra = read_part_table(remote / FOLDER, "observations")
-    assert extra["log"] == os.path.join(".snakemake", "storage", "s3", "rig-logs", "line3",
-                                        "A1-2026-01-01.parquet")
+    assert extra["log"] == os.path.join(
+        ".snakemake", "storage", "s3", "rig-logs", "line3", "A1-2026-01-01.parquet"
+    )
     for target in TARGETS:
         assert (remote / target).read_bytes() == (plain / target).read_bytes(), target
     again = snakemake(remote, "--dry-run", *TARGETS, *options)

@@ -24,7 +24,7 @@ def polylines(d: str) -> list[np.ndarray]:
         if tok in "MmLlHhVvZz":
             command = tok
             k += 1
-            if tok in "Hh":      # the dots' zero-length strokes
+            if tok in "Hh":  # the dots' zero-length strokes
                 assert tokens[k] == "0"
                 k += 1
             continue
@@ -79,7 +79,7 @@ def test_a_series_longer_than_its_panel_is_wide_becomes_its_envelope():
     y = np.sin(20 * x) + rng.normal(0, 0.1, x.size)
     text = _rendered(lambda p: p.line(x, y))
     width = 400 - 64 - 14
-    assert len(text) < 40 * width            # a few bytes per pixel column, not per sample
+    assert len(text) < 40 * width  # a few bytes per pixel column, not per sample
     (path,) = [m for m in re.findall(r'<path d="([^"]+)"[^>]*fill="#333"', text)]
     (outline,) = polylines(path)
     assert len(outline) <= 2 * (width + 1)
@@ -101,16 +101,18 @@ def test_markers_on_the_same_pixel_are_drawn_once():
 def test_text_from_data_is_escaped_and_the_figure_is_the_same_twice():
     def build(panel):
         panel.markers([0, 1, 2], [1, 2, 3], label="<b>&")
-        panel.xticks = (np.arange(3.0), ["<script>", "a\"b", "ok"])
+        panel.xticks = (np.arange(3.0), ["<script>", 'a"b', "ok"])
         panel.legend_at = "upper right"
+
     first, second = _rendered(build), _rendered(build)
     assert first == second
     assert "<script>" not in first and "&lt;script&gt;" in first and "&lt;b&gt;&amp;" in first
     assert "a&quot;b" in first
 
 
-@pytest.mark.parametrize("lo,hi", [(0.0, 1.0), (-0.013, 0.052), (-400.0, 400.0), (57.0, 59.0),
-                                   (1e-6, 3e-6), (12345.0, 98765.0)])
+@pytest.mark.parametrize(
+    "lo,hi", [(0.0, 1.0), (-0.013, 0.052), (-400.0, 400.0), (57.0, 59.0), (1e-6, 3e-6), (12345.0, 98765.0)]
+)
 def test_ticks_are_round_cover_the_range_and_read_apart(lo, hi):
     ticks = svg.nice_ticks(lo, hi)
     assert 3 <= len(ticks) <= 11
@@ -133,16 +135,16 @@ def _ticks(lo, hi):
 def test_an_envelope_stays_inside_its_panel_and_keeps_its_gaps():
     x = np.linspace(0, 2, 20_000)
     y = np.sin(x * 7)
-    y[5000:6000] = np.nan                       # a gap in the record
+    y[5000:6000] = np.nan  # a gap in the record
     fig = svg.Figure(400, 300)
     (panel,) = fig.grid(1, 1)
     panel.line(x, y)
     panel.band(x, y - 0.1, y + 0.1)
-    panel.xlim = (0.0, 1.0)                      # half the record lies beyond the panel
+    panel.xlim = (0.0, 1.0)  # half the record lies beyond the panel
     text = str(fig)
     paths = re.findall(r'<path d="([^"]+)"[^>]*fill="#333"', text)
     outlines = [line for d in paths for line in polylines(d)]
-    assert len(outlines) == 4                    # line and band, each broken at the gap
+    assert len(outlines) == 4  # line and band, each broken at the gap
     right = panel.left + panel.w
     assert all(line[:, 0].max() <= right + 0.6 and line[:, 0].min() >= panel.left - 0.6 for line in outlines)
 
@@ -150,18 +152,28 @@ def test_an_envelope_stays_inside_its_panel_and_keeps_its_gaps():
 def test_residuals_by_a_category_with_missing_values_leave_those_out():
     import pandas as pd
 
-    from gyrocal.report import plots
     from gyrocal.io.columns import Columns
-    frame = Columns.from_frame(pd.DataFrame({
-        "mount": ["+x", None, "+z", "+x"], "z_x": [0.1, 0.2, 0.3, 0.4], "z_y": [0.0, 1.0, 2.0, 3.0],
-        "z_z": [1.0, 1.0, 1.0, 1.0]}))
+    from gyrocal.report import plots
+
+    frame = Columns.from_frame(
+        pd.DataFrame(
+            {
+                "mount": ["+x", None, "+z", "+x"],
+                "z_x": [0.1, 0.2, 0.3, 0.4],
+                "z_y": [0.0, 1.0, 2.0, 3.0],
+                "z_z": [1.0, 1.0, 1.0, 1.0],
+            }
+        )
+    )
     text = plots.residuals(frame, [("mount", "mount")])
     labels = re.findall(r">([^<]+)</text>", text)
     assert "+x" in labels and "+z" in labels and "nan" not in labels and "None" not in labels
-    assert plots.residuals(frame.assign(mount=np.array([None] * 4, object)),
-                           [("mount", "mount")]).startswith("<svg")
-    with_nan = plots.residuals(frame.assign(mount=np.array(["+x", np.nan, "+z", "+x"], object)),
-                               [("mount", "mount")])
+    assert plots.residuals(frame.assign(mount=np.array([None] * 4, object)), [("mount", "mount")]).startswith(
+        "<svg"
+    )
+    with_nan = plots.residuals(
+        frame.assign(mount=np.array(["+x", np.nan, "+z", "+x"], object)), [("mount", "mount")]
+    )
     assert "nan" not in re.findall(r">([^<]+)</text>", with_nan)
 
 
@@ -170,10 +182,11 @@ def test_a_histogram_of_equal_values_draws_a_bar_a_bin_wide(values):
     """A fleet whose units agree to within rounding: one bar as wide as the others would be
     (the axis spans a tenth of the value each side), not one as narrow as the rounding."""
     from gyrocal.report import plots
+
     page = plots.histogram(np.array(values), "scale")
     band = re.findall(r'<path[^>]*d="(M[\d.]+ [\d.]+l[^"]*Z)"', page)[0]
-    steps = [float(v) for v in re.findall(r"-?[\d.]+", band[band.index("l"):])]
+    steps = [float(v) for v in re.findall(r"-?[\d.]+", band[band.index("l") :])]
     widths = [abs(dx) for dx, dy in zip(steps[::2], steps[1::2], strict=False) if dx and not dy]
-    assert min(widths) > 40   # pixels: a bin of a 244-px panel, not a hair
+    assert min(widths) > 40  # pixels: a bin of a 244-px panel, not a hair
     lo, hi = (float(t.replace("−", "-")) for t in re.findall(r"<text[^>]*>([^<]*)</text>", page)[:5:4])
     assert lo == pytest.approx(0.9 * values[0], rel=1e-6) and hi == pytest.approx(1.1 * values[0], rel=1e-6)

@@ -11,17 +11,37 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyrocal.io.errors import (CalibrationFileError, ConfigError, GyrocalError,
-                               IdentifiabilityError, SegmentationError)
+from gyrocal.io.errors import (
+    CalibrationFileError,
+    ConfigError,
+    GyrocalError,
+    IdentifiabilityError,
+    SegmentationError,
+)
 from gyrocal.io.log import MOUNTS, RigLog, read_log
+from gyrocal.protocols.sweep import (
+    DriftModel,
+    SweepDesign,
+    bias_stability,
+    conduction_time,
+    fit_drift,
+    improvements,
+    jump_interval,
+    ramp_rate,
+    split_sweeps,
+    stability_table,
+    sweep_windows,
+)
 from gyrocal.simulate.sweep import SweepProtocol, SweepUnit, render_sweep, sweep_log, sweep_samples
-from gyrocal.protocols.sweep import (DriftModel, SweepDesign, bias_stability, conduction_time,
-                                     fit_drift, improvements, jump_interval, ramp_rate,
-                                     split_sweeps, stability_table, sweep_windows)
 
-SIGMA = 0.05           # deg/s per sample
-CURVED = SweepUnit(bias=(1.0, -2.0, 0.5), drift_dT=(0.03, -0.02, 0.01), drift_dT2=(2e-4, -1.5e-4, 1e-4),
-                   noise=(SIGMA,) * 3, temp_noise=0.02)
+SIGMA = 0.05  # deg/s per sample
+CURVED = SweepUnit(
+    bias=(1.0, -2.0, 0.5),
+    drift_dT=(0.03, -0.02, 0.01),
+    drift_dT2=(2e-4, -1.5e-4, 1e-4),
+    noise=(SIGMA,) * 3,
+    temp_noise=0.02,
+)
 FLAT = SweepUnit(bias=(1.0, -2.0, 0.5), drift_dT=(0.03, -0.02, 0.01), noise=(SIGMA,) * 3, temp_noise=0.02)
 QUICK = SweepProtocol.quick()
 WINDOW = 10.0
@@ -55,12 +75,13 @@ def line_misfit(protocol, unit):
     cols, _ = sweep_samples(protocol, SweepUnit(noise=(0.0,) * 3, temp_noise=0.0), np.random.default_rng(0))
     dT = cols["temp"].astype(float) - unit.t_ref
     X = np.column_stack([np.ones_like(dT), dT])
-    q = np.outer(dT ** 2, unit.drift_dT2)
+    q = np.outer(dT**2, unit.drift_dT2)
     r = q - X @ np.linalg.lstsq(X, q, rcond=None)[0]
     return np.mean(r * r, axis=0)
 
 
 # -- the modified model against the conventional one -----------------------------------------
+
 
 @pytest.mark.parametrize("modified_kind", ["poly", "rbf"])
 def test_modified_model_removes_the_dT2_drift_the_conventional_one_leaves(curved, modified_kind):
@@ -69,26 +90,27 @@ def test_modified_model_removes_the_dT2_drift_the_conventional_one_leaves(curved
     mod = fit_drift(train, kind=modified_kind, inputs="dT,dT2")
     table = stability_table(verify_log, (conv, mod))
     N = len(verify_log)
-    s2 = SIGMA ** 2
+    s2 = SIGMA**2
     misfit = line_misfit(QUICK, CURVED)
     # BS over N samples of noise σ: sd of BS3 is σ² √(2/N); a fit from m training windows
     # adds about p σ²/N_train on average. BS2 adds the misfit and its cross term with the noise.
     p = len(mod.coef[0])
     bs3_sd = s2 * math.sqrt(2 / N) + p * s2 / len(train_log)
-    bs2_sd = np.sqrt(2 * s2 ** 2 / N + 4 * s2 * misfit / N) + 2 * s2 / N
+    bs2_sd = np.sqrt(2 * s2**2 / N + 4 * s2 * misfit / N) + 2 * s2 / N
     np.testing.assert_allclose(table["BS3"], s2, rtol=0, atol=5 * bs3_sd)
     within(table["BS2"], s2 + misfit, atol=5 * bs2_sd)
     # The paper's P3 (≈ 10 % there); here the simulated sizes put it near 3-10 %.
     expected_p3 = s2 / (s2 + misfit)
     assert (table["P3"] < 0.2).all()
-    within(table["P3"], expected_p3,
-           atol=5 * bs3_sd / (s2 + misfit) + 5 * expected_p3 * bs2_sd / (s2 + misfit))
+    within(
+        table["P3"], expected_p3, atol=5 * bs3_sd / (s2 + misfit) + 5 * expected_p3 * bs2_sd / (s2 + misfit)
+    )
 
 
 def test_without_dT2_the_two_models_agree_within_noise(flat):
     (train_log, verify_log), (train, _) = flat
     conv = fit_drift(train, kind="poly", inputs="dT")
-    s2 = SIGMA ** 2
+    s2 = SIGMA**2
     N, N_train = len(verify_log), len(train_log)
     for kind in ("poly", "rbf"):
         mod = fit_drift(train, kind=kind, inputs="dT,dT2")
@@ -111,10 +133,13 @@ def test_poly_fit_recovers_the_drift_coefficients_within_their_standard_errors(c
     # The unit's ΔT counts from −40 °C; the windows' from the first window's temperature.
     shift = model.t_ref - CURVED.t_ref
     c = np.asarray(model.coef)
-    truth = np.column_stack([
-        CURVED.drift(model.t_ref),
-        np.asarray(CURVED.drift_dT) + 2 * np.asarray(CURVED.drift_dT2) * shift,
-        CURVED.drift_dT2])
+    truth = np.column_stack(
+        [
+            CURVED.drift(model.t_ref),
+            np.asarray(CURVED.drift_dT) + 2 * np.asarray(CURVED.drift_dT2) * shift,
+            CURVED.drift_dT2,
+        ]
+    )
     se = np.asarray(model.stderr)
     assert (np.abs(c - truth) < 5 * se).all(), (c - truth) / se
     # Independent reference: numpy least squares on the same weighted rows.
@@ -137,6 +162,7 @@ def test_models_refuse_data_without_a_temperature_change(curved):
 
 
 # -- train / verify ----------------------------------------------------------------------------
+
 
 def test_verification_windows_never_enter_the_fit():
     protocol = SweepProtocol.quick(segments=((85.0, 250.0, 300.0), (-40.0, 250.0, 300.0)))
@@ -164,8 +190,8 @@ def test_split_finds_the_up_and_the_down_ramp_each_with_its_own_reference():
     windows = sweep_windows(log_of(FLAT, 8, protocol), window_s=WINDOW)
     sweeps = split_sweeps(windows)
     assert [s.attrs["direction"] for s in sweeps] == [1, -1]
-    assert sweeps[0].attrs["t_ref"] == pytest.approx(-40.0, abs=0.05)   # the stable start
-    assert sweeps[1].attrs["t_ref"] > 80.0                              # the top of the ramp
+    assert sweeps[0].attrs["t_ref"] == pytest.approx(-40.0, abs=0.05)  # the stable start
+    assert sweeps[1].attrs["t_ref"] > 80.0  # the top of the ramp
     assert sum(len(s) for s in sweeps) == len(windows)
     for s in sweeps:
         np.testing.assert_allclose(s["dT"], s["temp"] - s.attrs["t_ref"], rtol=0, atol=1e-12)
@@ -173,13 +199,14 @@ def test_split_finds_the_up_and_the_down_ramp_each_with_its_own_reference():
     model = fit_drift(sweeps[0], kind="poly", inputs="dT,dT2")
     table = stability_table(sweeps[1], model)
     m = len(sweeps[1])
-    s2_window = SIGMA ** 2 / sweeps[1]["n"].mean()
+    s2_window = SIGMA**2 / sweeps[1]["n"].mean()
     # Window means carry σ²/n; m of them scatter by √(2/m) relative; the fit adds p/m_train.
     bound = s2_window * (1 + 5 * math.sqrt(2 / m) + 3 / len(sweeps[0]))
     assert (table["BS2"] < bound).all(), (table["BS2"].to_numpy(), bound)
 
 
 # -- RBF -----------------------------------------------------------------------------------
+
 
 def test_rbf_is_deterministic_and_fits_the_drift_to_the_noise_level(curved):
     _, (train, _) = curved
@@ -196,7 +223,7 @@ def test_rbf_is_deterministic_and_fits_the_drift_to_the_noise_level(curved):
         # of p parameters to m windows leaves (√(p/m) of the window noise), with margin.
         true = CURVED.drift(train["temp"].to_numpy())
         err = a.predict(train) - true
-        assert (np.sqrt(np.mean(err ** 2, axis=0)) < 3 * np.asarray(a.noise) * math.sqrt(p / m)).all()
+        assert (np.sqrt(np.mean(err**2, axis=0)) < 3 * np.asarray(a.noise) * math.sqrt(p / m)).all()
 
 
 def test_rbf_layout_follows_the_documented_rule(curved):
@@ -210,10 +237,11 @@ def test_rbf_layout_follows_the_documented_rule(curved):
     dT = train["dT"].to_numpy()
     g = np.linspace(dT.min(), dT.max(), 4)
     np.testing.assert_allclose(U[:, 0], (g - dT.min()) / np.ptp(dT), rtol=0, atol=1e-12)
-    np.testing.assert_allclose(U[:, 1], (g ** 2 - (dT ** 2).min()) / np.ptp(dT ** 2), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(U[:, 1], (g**2 - (dT**2).min()) / np.ptp(dT**2), rtol=0, atol=1e-12)
 
 
 # -- storage -------------------------------------------------------------------------------
+
 
 def test_drift_model_round_trips_exactly_through_json(curved):
     _, (train, _) = curved
@@ -248,20 +276,27 @@ def test_sweep_unit_and_protocol_round_trip():
 
 # -- windows ---------------------------------------------------------------------------------
 
+
 def tiny_log() -> RigLog:
     """60 s at 2 Hz, rig at 5 deg/s about −y; a gap in window 3, motion in window 5."""
     t = np.arange(120) / 2.0
-    keep = ~((t >= 31.0) & (t < 34.0))              # 3-s gap inside window 3 (30-40 s)
+    keep = ~((t >= 31.0) & (t < 34.0))  # 3-s gap inside window 3 (30-40 s)
     t = t[keep]
     rng = np.random.default_rng(11)
     n = len(t)
     temp = -10.0 + 0.05 * t + rng.normal(0, 0.01, n)
     gyro = np.column_stack([0.2 + 0.01 * (temp + 10), -5.0 + 0.3 + 0.02 * (temp + 10), -0.1 + 0 * t])
     gyro += rng.normal(0, 0.02, (n, 3))
-    gyro[(t >= 50) & (t < 53), 0] += 40.0           # a knock in window 5
-    batch = {"t": t, "gyro_x": gyro[:, 0].astype(np.float32), "gyro_y": gyro[:, 1].astype(np.float32),
-             "gyro_z": gyro[:, 2].astype(np.float32), "temp": temp.astype(np.float32),
-             "ref_rate": np.full(n, 5.0), "mount": np.full(n, MOUNTS.index("-y"), dtype=np.int8)}
+    gyro[(t >= 50) & (t < 53), 0] += 40.0  # a knock in window 5
+    batch = {
+        "t": t,
+        "gyro_x": gyro[:, 0].astype(np.float32),
+        "gyro_y": gyro[:, 1].astype(np.float32),
+        "gyro_z": gyro[:, 2].astype(np.float32),
+        "temp": temp.astype(np.float32),
+        "ref_rate": np.full(n, 5.0),
+        "mount": np.full(n, MOUNTS.index("-y"), dtype=np.int8),
+    }
     return RigLog("tiny", (batch,), n, 0)
 
 
@@ -278,30 +313,34 @@ def test_windows_match_a_hand_computation_on_a_tiny_log():
         T = log.column("temp")[sel].astype(float)
         assert row["n"] == sel.sum() == 20
         assert row["t_start"] == t[sel][0] and row["t_end"] == t[sel][-1]
-        np.testing.assert_allclose(row[["gyro_x", "gyro_y", "gyro_z"]].to_numpy(float), g.mean(axis=0),
-                                   rtol=0, atol=1e-12)
-        np.testing.assert_allclose(row[["std_x", "std_y", "std_z"]].to_numpy(float), g.std(axis=0, ddof=1),
-                                   rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(
+            row[["gyro_x", "gyro_y", "gyro_z"]].to_numpy(float), g.mean(axis=0), rtol=0, atol=1e-12
+        )
+        np.testing.assert_allclose(
+            row[["std_x", "std_y", "std_z"]].to_numpy(float), g.std(axis=0, ddof=1), rtol=1e-9, atol=1e-12
+        )
         np.testing.assert_allclose(row["temp"], T.mean(), rtol=0, atol=1e-12)
         slope = np.polyfit(t[sel], T, 1)[0] * 60.0
         np.testing.assert_allclose(row["temp_rate"], slope, rtol=1e-8, atol=1e-10)
-        expected = g.mean(axis=0) - np.array([0.0, -5.0, 0.0])       # −y mount: gyro_y sees −5
-        np.testing.assert_allclose(row[["err_x", "err_y", "err_z"]].to_numpy(float), expected,
-                                   rtol=0, atol=1e-12)
+        expected = g.mean(axis=0) - np.array([0.0, -5.0, 0.0])  # −y mount: gyro_y sees −5
+        np.testing.assert_allclose(
+            row[["err_x", "err_y", "err_z"]].to_numpy(float), expected, rtol=0, atol=1e-12
+        )
     np.testing.assert_allclose(w["dT"], w["temp"] - w["temp"].iloc[0], rtol=0, atol=1e-12)
     np.testing.assert_allclose(w["dT2"], w["dT"] ** 2, rtol=0, atol=1e-12)
 
 
 def test_windows_drop_and_count_motion_gaps_and_reference_changes(tmp_path):
-    protocol = SweepProtocol.quick(disturbances=((600.0, 30.0),), gaps=((1200.0, 45.0),), rig_rate=10.0,
-                                   mount="+x")
+    protocol = SweepProtocol.quick(
+        disturbances=((600.0, 30.0),), gaps=((1200.0, 45.0),), rig_rate=10.0, mount="+x"
+    )
     path = tmp_path / "sweep.parquet"
     truth = render_sweep(protocol, CURVED, np.random.default_rng(3), path)
     json.dumps(truth)
     log = read_log(path)
     w = sweep_windows(log, window_s=WINDOW)
     dropped = w.attrs["dropped"]
-    assert dropped["motion"] >= 3 + 2          # 30 s of handling plus a settling window either side
+    assert dropped["motion"] >= 3 + 2  # 30 s of handling plus a settling window either side
     for ev in truth["disturbances"] + truth["gaps"]:
         overlap = (w["t_end"] >= ev["t_start"]) & (w["t_start"] < ev["t_end"])
         assert not overlap.any()
@@ -313,8 +352,11 @@ def test_windows_drop_and_count_motion_gaps_and_reference_changes(tmp_path):
     assert dropped["incomplete"] >= 1
     after = w[w["t_start"] >= resumed]
     assert len(after) > 10
-    assert np.all(np.isclose((after["t_start"] - resumed) / WINDOW, np.round((after["t_start"] - resumed) / WINDOW),
-                             atol=0.02))
+    assert np.all(
+        np.isclose(
+            (after["t_start"] - resumed) / WINDOW, np.round((after["t_start"] - resumed) / WINDOW), atol=0.02
+        )
+    )
     # The file and the in-memory log give the same windows.
     mem = sweep_windows(sweep_log(protocol, CURVED, np.random.default_rng(3))[0], window_s=WINDOW)
     pd.testing.assert_frame_equal(w, mem)
@@ -335,8 +377,15 @@ def test_a_log_without_a_sweep_is_refused():
         sweep_windows(log_of(FLAT, 1), window_s=WINDOW, min_windows=10_000)
 
 
-@given(st.lists(st.tuples(st.floats(0.01, 30.0), st.floats(-50, 100), st.floats(-1e3, 1e3),
-                          st.sampled_from([0.0, 0.0, 1.0])), min_size=0, max_size=60))
+@given(
+    st.lists(
+        st.tuples(
+            st.floats(0.01, 30.0), st.floats(-50, 100), st.floats(-1e3, 1e3), st.sampled_from([0.0, 0.0, 1.0])
+        ),
+        min_size=0,
+        max_size=60,
+    )
+)
 def test_windows_give_a_table_or_a_gyrocal_error(rows):
     if rows:
         dt, temp, g, ref = (np.asarray(c, dtype=float) for c in zip(*rows, strict=False))
@@ -351,6 +400,7 @@ def test_windows_give_a_table_or_a_gyrocal_error(rows):
 
 
 # -- stability and design ---------------------------------------------------------------------
+
 
 def test_bias_stability_and_improvements_follow_eq30_and_the_tables():
     x = np.array([[1.0, 2.0], [3.0, -2.0]])
@@ -368,17 +418,18 @@ def test_bias_stability_and_improvements_follow_eq30_and_the_tables():
 def test_stability_table_on_windows_and_on_samples(curved):
     (_, verify_log), (train, verify) = curved
     model = fit_drift(train, kind="poly", inputs="dT,dT2")
-    on_windows = stability_table(verify, {"conventional": fit_drift(train, kind="poly", inputs="dT"),
-                                          "modified": model})
+    on_windows = stability_table(
+        verify, {"conventional": fit_drift(train, kind="poly", inputs="dT"), "modified": model}
+    )
     assert list(on_windows.columns) == ["BS1", "BS2", "BS3", "P1", "P2", "P3"]
     assert on_windows.attrs["level"] == "windows"
     # Window means carry σ²/n of noise: the modified model's BS on windows is that size.
     n, m = verify["n"].mean(), len(verify)
-    np.testing.assert_allclose(on_windows["BS3"], SIGMA ** 2 / n, rtol=5 * math.sqrt(2 / m) + 3 / len(train))
+    np.testing.assert_allclose(on_windows["BS3"], SIGMA**2 / n, rtol=5 * math.sqrt(2 / m) + 3 / len(train))
     single = stability_table(verify_log, model)
     assert list(single.columns) == ["BS1", "BS2", "P1"] and single.attrs["level"] == "samples"
     raw = np.column_stack([verify_log.column(c) for c in ("gyro_x", "gyro_y", "gyro_z")]).astype(float)
-    np.testing.assert_allclose(single["BS1"], np.mean(raw ** 2, axis=0), rtol=1e-12)
+    np.testing.assert_allclose(single["BS1"], np.mean(raw**2, axis=0), rtol=1e-12)
     # At rest the reference is 0: BS2 is Eq 30 of the compensated output (Section 3.2 step 4).
     np.testing.assert_allclose(single["BS2"], np.mean(model.compensate(verify_log) ** 2, axis=0), rtol=1e-12)
 
@@ -398,12 +449,21 @@ def test_design_reproduces_the_papers_l3gd20_numbers():
 
 # -- the regenerated paper tables ----------------------------------------------------------------
 
+
 @pytest.mark.slow
 def test_seed003_tables_and_figures(tmp_path):
     from gyrocal.paper import seed003
+
     tables = seed003.tables(seed=0, quick=True)
-    assert [t.name for t in tables] == ["Section 3.1 design", "Table 2", "Table 3", "Table 4", "Table 5",
-                                        "Table 6", "Table 7"]
+    assert [t.name for t in tables] == [
+        "Section 3.1 design",
+        "Table 2",
+        "Table 3",
+        "Table 4",
+        "Table 5",
+        "Table 6",
+        "Table 7",
+    ]
     for t in tables:
         assert all(math.isfinite(r.regenerated) for r in t.rows) and t.notes
     # Experiments 2-5 (Tables 4-7, rows 2-5 of Table 2): the set-up is solved from their

@@ -13,15 +13,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.run import cli
 from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
-from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.io.errors import ConfigError
-from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.io.signals import temperature_rate
+from gyrocal.pipeline.chain import run, segment_log
+from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.protocols.turntable.segment import SegmentConfig
+from gyrocal.run import cli
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
 from gyrocal.terms import user as user_terms
@@ -70,8 +70,9 @@ def with_rate_root(log, out):
     for i, a in enumerate("xyz"):
         gyro = table.column(f"gyro_{a}").to_numpy().astype(np.float64)
         gyro += ROOT[i] * np.sign(w[:, i]) * np.sqrt(np.abs(w[:, i]))
-        table = table.set_column(table.schema.get_field_index(f"gyro_{a}"), f"gyro_{a}",
-                                 pa.array(gyro.astype(np.float32)))
+        table = table.set_column(
+            table.schema.get_field_index(f"gyro_{a}"), f"gyro_{a}", pa.array(gyro.astype(np.float32))
+        )
     pq.write_table(table, out)
     return out
 
@@ -111,8 +112,12 @@ def test_a_users_term_file_is_fitted_diagnosed_written_and_applied(tmp_path, reg
     assert cli.main(["diagnose", str(log), "--terms", str(term_file), "-o", str(tmp_path / "d.json")]) == 0
     assert json.loads((tmp_path / "d.json").read_text())["candidates"][0]["term"] == "rate_root"
     cal_path = tmp_path / "cal.json"
-    assert cli.main(["calibrate", str(log), "--terms", str(term_file), "--add-term", "rate_root",
-                     "-o", str(cal_path)]) == 0
+    assert (
+        cli.main(
+            ["calibrate", str(log), "--terms", str(term_file), "--add-term", "rate_root", "-o", str(cal_path)]
+        )
+        == 0
+    )
     spec = next(t for t in json.loads(cal_path.read_text())["model"]["terms"] if t["name"] == "rate_root")
     assert spec["source"] == {"file": "my_terms.py", "sha256": user_terms.file_hash(term_file)}
 
@@ -120,19 +125,21 @@ def test_a_users_term_file_is_fitted_diagnosed_written_and_applied(tmp_path, reg
     assert cli.main(["apply", str(cal_path), str(log), "--terms", str(term_file), "-o", str(applied)]) == 0
     floor = np.sqrt(np.mean(fixed.residuals[[f"floor_{a}" for a in "xyz"]].to_numpy() ** 2))
     with_term = hold_errors(applied, log, obs)
-    assert np.sqrt(np.mean(with_term ** 2)) < 1.5 * floor  # all holds, end points included
+    assert np.sqrt(np.mean(with_term**2)) < 1.5 * floor  # all holds, end points included
     plain = tmp_path / "plain_cal.json"
     assert cli.main(["calibrate", str(log), "-o", str(plain)]) == 0
     assert cli.main(["apply", str(plain), str(log), "-o", str(applied)]) == 0
     # In sample the seed-000 terms absorb most of the effect; what is left is about the
     # floor again (RMS of 1134 hold errors: about 2 % precision).
     without = hold_errors(applied, log, obs)
-    assert np.sqrt(np.mean(without ** 2)) > 1.25 * np.sqrt(np.mean(with_term ** 2))
+    assert np.sqrt(np.mean(without**2)) > 1.25 * np.sqrt(np.mean(with_term**2))
 
     # Elsewhere: without the file, or with the file changed, apply refuses in one line.
     def fresh(*args):
-        return subprocess.run([sys.executable, "-m", "gyrocal", *map(str, args)],
-                              capture_output=True, text=True, cwd=tmp_path)
+        return subprocess.run(
+            [sys.executable, "-m", "gyrocal", *map(str, args)], capture_output=True, text=True, cwd=tmp_path
+        )
+
     out = fresh("apply", cal_path, log, "-o", applied)
     assert out.returncode == 2 and "my_terms.py" in out.stderr and len(out.stderr.splitlines()) == 1
     term_file.write_text(TERM_FILE + "# edited\n")
@@ -176,16 +183,37 @@ def test_an_expression_term_is_tried_fitted_and_kept_in_the_file(tmp_path):
 
 def test_expressions_refuse_anything_but_arithmetic():
     from gyrocal.io.errors import ConfigError
-    for formula in ("__import__('os')", "temp.real", "[temp]", "temp if temp else 0", "open('x')",
-                    "sin(temp, rate_x)", "abs()", "9" * 5000, "1e400", "True", "std_x * 2",
-                    "(" * 300 + "temp" + ")" * 300):
+
+    for formula in (
+        "__import__('os')",
+        "temp.real",
+        "[temp]",
+        "temp if temp else 0",
+        "open('x')",
+        "sin(temp, rate_x)",
+        "abs()",
+        "9" * 5000,
+        "1e400",
+        "True",
+        "std_x * 2",
+        "(" * 300 + "temp" + ")" * 300,
+    ):
         with pytest.raises(ConfigError):
             ModelSettings.from_dict({"expressions": {"bad": formula}})
 
 
 def test_a_continuous_model_is_validated_written_and_applied_like_a_grid(tmp_path, logs):
-    model = {"kind": "continuous", "terms": ["bias", "scale", "misalignment", "bias_temp_poly(degree=3)",
-                                             "scale_temp_poly", "misalignment_temp"]}
+    model = {
+        "kind": "continuous",
+        "terms": [
+            "bias",
+            "scale",
+            "misalignment",
+            "bias_temp_poly(degree=3)",
+            "scale_temp_poly",
+            "misalignment_temp",
+        ],
+    }
     settings = replace(Settings(), model=ModelSettings.from_dict(model))
     result = run(logs["complete"], settings)
     cal = result.calibration
@@ -209,8 +237,9 @@ def test_a_continuous_model_is_validated_written_and_applied_like_a_grid(tmp_pat
     for k, temp in enumerate(temps):
         dT = temp - 25.0
         for i, a in enumerate("xyz"):
-            bias_se = np.sqrt(se[f"bias.{a}"] ** 2 + sum((dT ** j * se[f"bias_temp_poly.{a}.c{j}"]) ** 2
-                                                          for j in (1, 2, 3)))
+            bias_se = np.sqrt(
+                se[f"bias.{a}"] ** 2 + sum((dT**j * se[f"bias_temp_poly.{a}.c{j}"]) ** 2 for j in (1, 2, 3))
+            )
             assert abs(B[k, i] - unit.B(temp)[i]) < 5 * bias_se
             scale_se = np.hypot(se[f"scale.{a}"], dT * se[f"scale_temp_poly.{a}.c1"])
             assert abs(K[k, i, i] - unit.K(temp)[i, i]) < 5 * scale_se
@@ -221,7 +250,7 @@ def test_a_continuous_model_is_validated_written_and_applied_like_a_grid(tmp_pat
     applied = tmp_path / "applied.parquet"
     apply_calibration(again, logs["complete"], applied)
     errors = hold_errors(applied, logs["complete"], result.segmentation.observations)
-    assert np.sqrt(np.mean(errors ** 2)) < 1.5 * s["noise_floor"]
+    assert np.sqrt(np.mean(errors**2)) < 1.5 * s["noise_floor"]
 
 
 def test_temperature_rate_is_the_local_slope():
@@ -229,7 +258,7 @@ def test_temperature_rate_is_the_local_slope():
     temp = 20.0 + 0.5 * t / 60.0 + np.random.default_rng(1).normal(0, 0.02, len(t))
     rate = temperature_rate(t, temp)
     np.testing.assert_allclose(rate, 0.5, atol=0.01)  # ends too: odd reflection keeps the trend
-    temp[1000:1500] = np.nan                          # a gap of 5 s and non-finite rows
+    temp[1000:1500] = np.nan  # a gap of 5 s and non-finite rows
     rate = temperature_rate(t, temp)
     assert np.isnan(rate[1000:1500]).all()
     np.testing.assert_allclose(rate[~np.isnan(temp)], 0.5, atol=0.01)
@@ -240,8 +269,7 @@ def test_temperature_rate_is_the_local_slope():
 def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
     # The chamber door lets the die warm and cool around each handling: holds see dT/dt.
     unit = GyroUnit.seed000().with_effects({"temp_rate": (0.02, -0.015, 0.01)})
-    log = make_log(tmp_path, "door", seed=3, unit=unit, door_coupling=0.3, unit_tau_s=20.0,
-                   air_tau_s=2.0)
+    log = make_log(tmp_path, "door", seed=3, unit=unit, door_coupling=0.3, unit_tau_s=20.0, air_tau_s=2.0)
     settings = replace(Settings(), segmentation=SegmentConfig.from_dict({"max_temp_rate": 10.0}))
     obs = segment_log(log, settings).observations
     diag = diagnose(settings, obs)
@@ -255,12 +283,12 @@ def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
     with_term = hold_errors(applied, log, obs)
     apply_calibration(run(log, settings).calibration, log, applied)
     without = hold_errors(applied, log, obs)
-    assert np.sqrt(np.mean(with_term ** 2)) < 0.5 * np.sqrt(np.mean(without ** 2))
+    assert np.sqrt(np.mean(with_term**2)) < 0.5 * np.sqrt(np.mean(without**2))
 
 
 def test_a_term_restricted_to_the_part_a_protocol_sees_round_trips():
-    from gyrocal.pipeline.config import ModelSettings
     from gyrocal.io.errors import ConfigError
+    from gyrocal.pipeline.config import ModelSettings
     from gyrocal.terms import Restricted, make_term
 
     part = make_term('g_sensitivity(drop=["x.z", "y.z", "z.z"])')
@@ -285,27 +313,36 @@ def test_an_empirical_term_is_a_spline_without_its_constant():
 
     term = make_term('smooth(input="t", knots=[0.0, 100.0, 400.0, 1000.0])')
     assert make_term(term.spec_string()) == term and make_term(term.spec()) == term
-    assert term.coefficient_scope == "global" and term.size == 5        # K + 1: the constant left out
+    assert term.coefficient_scope == "global" and term.size == 5  # K + 1: the constant left out
     x = np.linspace(-50.0, 1200.0, 400)
     basis = spline_basis(x, term.knots)
-    first = 1.0 - basis.sum(axis=1)                  # the B-splines sum to one: the one left out
+    first = 1.0 - basis.sum(axis=1)  # the B-splines sum to one: the one left out
     assert np.all(first >= -1e-12) and first[x <= 0].min() == pytest.approx(1.0)
     np.testing.assert_array_equal(basis[x >= 1000], basis[x >= 1000][:1].repeat((x >= 1000).sum(), 0))
     # A cubic is in the span (with the constant), to rounding: the basis is a cubic spline.
     u = np.clip(x, 0, 1000) / 1000
-    cubic = 3 * u ** 3 - u ** 2 + 0.5 * u
+    cubic = 3 * u**3 - u**2 + 0.5 * u
     design = np.column_stack([np.ones_like(x), basis])
     coef, *_ = np.linalg.lstsq(design, cubic, rcond=None)
     assert np.max(np.abs(design @ coef - cubic)) < 1e-12
-    omega = term.penalty(term.coefficients()[:term.size])
+    omega = term.penalty(term.coefficients()[: term.size])
     assert np.all(np.linalg.eigvalsh(omega) > -1e-12)
     by_rate = make_term('smooth(input="temp", knots=[-20.0, 25.0, 70.0], by="rate_own", linear=False)')
     assert by_rate.varies_with_temperature and by_rate.unit == "1" and by_rate.size == 3
-    cols = by_rate.columns({"temp": np.array([25.0, 25.0]), "rate_x": np.array([2.0, 0.0]),
-                            "rate_y": np.zeros(2), "rate_z": np.zeros(2)})
+    cols = by_rate.columns(
+        {
+            "temp": np.array([25.0, 25.0]),
+            "rate_x": np.array([2.0, 0.0]),
+            "rate_y": np.zeros(2),
+            "rate_z": np.zeros(2),
+        }
+    )
     assert cols["smooth_temp_by_rate.x.k1"][1] == 0.0 and cols["smooth_temp_by_rate.x.k1"][0] != 0.0
-    for bad in ('smooth(input="pressure", knots=[0, 1])', 'smooth(input="t", knots=[1, 0])',
-                'smooth(input="t", knots=[0, 1], by="accel")'):
+    for bad in (
+        'smooth(input="pressure", knots=[0, 1])',
+        'smooth(input="t", knots=[1, 0])',
+        'smooth(input="t", knots=[0, 1], by="accel")',
+    ):
         with pytest.raises(ConfigError):
             make_term(bad)
 

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 from scipy.interpolate import CubicSpline
 
+from gyrocal.fit.thermal import OutOfRangeWarning, TemperatureGrid, interpolation_weights, lagrange3_weights
 from gyrocal.io.errors import ConfigError
-from gyrocal.fit.thermal import (OutOfRangeWarning, TemperatureGrid, interpolation_weights,
-                                 lagrange3_weights)
 
 NODES = np.array([-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0])  # Table 1
 
@@ -37,7 +36,7 @@ def test_lagrange_weights_are_eq22_on_every_interval():
 
 def test_lagrange_is_exact_for_quadratics_and_has_the_cubic_remainder():
     x = np.linspace(-40, 50, 1001)
-    quad = lambda t: 0.3 - 2e-3 * t + 4e-5 * t ** 2  # noqa: E731
+    quad = lambda t: 0.3 - 2e-3 * t + 4e-5 * t**2  # noqa: E731
     W = lagrange3_weights(NODES, x)
     np.testing.assert_allclose(W @ quad(NODES), quad(x), rtol=0, atol=1e-12)
     # For a cubic c t³ the error of three-point interpolation is c (x-a)(x-b)(x-d).
@@ -45,8 +44,9 @@ def test_lagrange_is_exact_for_quadratics_and_has_the_cubic_remainder():
     i = np.clip(np.searchsorted(NODES, x, side="left"), 1, len(NODES) - 1)
     lo = np.maximum(i - 2, 0)
     a, b, d = NODES[lo], NODES[lo + 1], NODES[lo + 2]
-    np.testing.assert_allclose(W @ (c * NODES ** 3) - c * x ** 3, -c * (x - a) * (x - b) * (x - d),
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        W @ (c * NODES**3) - c * x**3, -c * (x - a) * (x - b) * (x - d), rtol=0, atol=1e-12
+    )
 
 
 def test_every_method_passes_through_the_nodes():
@@ -60,17 +60,18 @@ def test_spline_is_the_natural_cubic_spline_and_poly_fits_polynomials():
     values = np.cos(NODES / 15.0)
     x = np.linspace(-40, 50, 333)
     W = interpolation_weights("spline", NODES, x)
-    np.testing.assert_allclose(W @ values, CubicSpline(NODES, values, bc_type="natural")(x),
-                               rtol=0, atol=1e-12)
-    cubic = 1 + 1e-2 * NODES - 3e-4 * NODES ** 2 + 2e-6 * NODES ** 3
+    np.testing.assert_allclose(
+        W @ values, CubicSpline(NODES, values, bc_type="natural")(x), rtol=0, atol=1e-12
+    )
+    cubic = 1 + 1e-2 * NODES - 3e-4 * NODES**2 + 2e-6 * NODES**3
     W = interpolation_weights("poly", NODES, x, degree=3)
-    np.testing.assert_allclose(W @ cubic, 1 + 1e-2 * x - 3e-4 * x ** 2 + 2e-6 * x ** 3,
-                               rtol=0, atol=1e-10)
+    np.testing.assert_allclose(W @ cubic, 1 + 1e-2 * x - 3e-4 * x**2 + 2e-6 * x**3, rtol=0, atol=1e-10)
 
 
 def test_outside_the_range_every_method_clamps_and_warns():
-    grid = TemperatureGrid(NODES, ("bias.x",), NODES[:, None] * 1e-3 + 1.0,
-                           np.full((10, 1), 1e-4), "lagrange3")
+    grid = TemperatureGrid(
+        NODES, ("bias.x",), NODES[:, None] * 1e-3 + 1.0, np.full((10, 1), 1e-4), "lagrange3"
+    )
     for method in ("lagrange3", "linear", "spline", "poly"):
         g = TemperatureGrid(grid.temperatures, grid.names, grid.values, grid.stderr, method)
         with pytest.warns(OutOfRangeWarning, match="2 of 3 samples"):
@@ -88,8 +89,7 @@ def test_uncertainty_propagates_through_the_weights():
     at_node = grid.stderr_at([10.0])["bias.x"]
     np.testing.assert_allclose(at_node, 2e-4, rtol=1e-12)
     L = np.array(eq22(5.0, -10.0, 0.0, 10.0))
-    np.testing.assert_allclose(grid.stderr_at([5.0])["bias.x"], 2e-4 * np.sqrt(np.sum(L ** 2)),
-                               rtol=1e-12)
+    np.testing.assert_allclose(grid.stderr_at([5.0])["bias.x"], 2e-4 * np.sqrt(np.sum(L**2)), rtol=1e-12)
 
 
 def test_small_grids_and_bad_methods():

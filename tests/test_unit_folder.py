@@ -12,16 +12,30 @@ import pytest
 from gyrocal.io import failure
 from gyrocal.io.errors import CorruptFileError
 from gyrocal.io.tables import write_table
-from gyrocal.io.unit_folder import (CONTAINERS, UNIT_FILES, job_log, pack, pack_log, pack_stage,
-                                    part_exists, part_failure, read_observations, read_part_json,
-                                    read_part_table)
+from gyrocal.io.unit_folder import (
+    CONTAINERS,
+    UNIT_FILES,
+    job_log,
+    pack,
+    pack_log,
+    pack_stage,
+    part_exists,
+    part_failure,
+    read_observations,
+    read_part_json,
+    read_part_table,
+)
 
 
 def _validation(folder, rms: float, free_points: bool = True) -> None:
-    (folder / "validation.json").write_text(json.dumps({"format": "gyrocal.validation/1",
-                                                       "summary": {"validation_rms": rms}}))
-    write_table(pd.DataFrame({"temp": [20.0, 40.0], "err": [rms, -rms]}), folder / "validation_holds.parquet",
-                {"summary": {"validation_rms": rms}})
+    (folder / "validation.json").write_text(
+        json.dumps({"format": "gyrocal.validation/1", "summary": {"validation_rms": rms}})
+    )
+    write_table(
+        pd.DataFrame({"temp": [20.0, 40.0], "err": [rms, -rms]}),
+        folder / "validation_holds.parquet",
+        {"summary": {"validation_rms": rms}},
+    )
     if free_points:
         write_table(pd.DataFrame({"temp": [20.0]}), folder / "free_points.parquet", {})
 
@@ -41,7 +55,11 @@ def test_parts_read_the_same_loose_and_packed_and_the_archive_is_the_same_bytes_
     pack_stage(b, "validate")
     assert (a / "analysis.zip").read_bytes() == (b / "analysis.zip").read_bytes()
     with zipfile.ZipFile(a / "analysis.zip") as archive:
-        assert sorted(archive.namelist()) == ["free_points.parquet", "validation.json", "validation_holds.parquet"]
+        assert sorted(archive.namelist()) == [
+            "free_points.parquet",
+            "validation.json",
+            "validation_holds.parquet",
+        ]
         assert {i.date_time for i in archive.infolist()} == {(1980, 1, 1, 0, 0, 0)}
 
 
@@ -54,7 +72,7 @@ def test_a_stage_replaces_its_own_parts_and_keeps_the_others(tmp_path):
     pack_stage(tmp_path, "validate")
     assert read_part_json(tmp_path, "validation")["summary"]["validation_rms"] == 0.25
     assert not part_exists(tmp_path, "free_points")
-    assert read_part_json(tmp_path, "diagnosis")["verdict"] == "first"   # another stage's part
+    assert read_part_json(tmp_path, "diagnosis")["verdict"] == "first"  # another stage's part
 
 
 def test_failure_records_travel_inside_the_archive(tmp_path):
@@ -79,7 +97,7 @@ def test_a_missing_or_broken_part_names_the_archive_and_the_part(tmp_path):
 def test_every_part_belongs_to_one_archive():
     parts = [k for keys in CONTAINERS.values() for k in keys]
     assert len(parts) == len(set(parts))
-    assert set(UNIT_FILES) - set(parts) == {"calibration"}   # the calibration stays a file
+    assert set(UNIT_FILES) - set(parts) == {"calibration"}  # the calibration stays a file
 
 
 def test_a_job_log_joins_its_archive_and_the_other_parts_stay_as_they_were(tmp_path):
@@ -104,7 +122,7 @@ def test_observations_are_read_packed_and_a_failure_record_there_is_passed_on(tm
     write_table(obs, tmp_path / "observations.parquet", {"info": {"noise": {"static_seconds": 12.5}}})
     pack_stage(tmp_path, "segment")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["segmentation.zip"]
-    for where in (tmp_path, tmp_path / "observations.parquet"):   # the folder, or the part's path
+    for where in (tmp_path, tmp_path / "observations.parquet"):  # the folder, or the part's path
         read, extra = read_observations(where)
         pd.testing.assert_frame_equal(read, obs)
         assert read.attrs["static_seconds"] == 12.5

@@ -7,19 +7,27 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hypothesis import given, strategies as st
+from hypothesis import given
+from hypothesis import strategies as st
 
-from gyrocal.io import kernels
 from gyrocal.fit import wander
 from gyrocal.fit.model import DEFAULT_TERMS, Model, fit, observation_floor
+from gyrocal.io import kernels
 
 from .conftest import needs
-from .wander_reference import (dense_gls, dense_semiseparable, dense_whiteners, held_covariances,
-                               time_covariances)
+from .wander_reference import (
+    dense_gls,
+    dense_semiseparable,
+    dense_whiteners,
+    held_covariances,
+    time_covariances,
+)
 
 AXES = "xyz"
-compiled = needs({"the C kernel's semiseparable factor": kernels.SEMISEPARABLE is not None},
-                 "pip builds it on install where gcc is found, as make test does")
+compiled = needs(
+    {"the C kernel's semiseparable factor": kernels.SEMISEPARABLE is not None},
+    "pip builds it on install where gcc is found, as make test does",
+)
 
 
 @st.composite
@@ -28,12 +36,12 @@ def layouts(draw, min_holds=2, max_holds=40):
     shuffled row order; the longest correlation time reaches ten times the span, so the
     pole set changes with the layout."""
     n = draw(st.integers(min_holds, max_holds))
-    seed = draw(st.integers(0, 2 ** 32 - 1))
+    seed = draw(st.integers(0, 2**32 - 1))
     rng = np.random.default_rng(seed)
     duration = 10.0 ** rng.uniform(np.log10(0.2), np.log10(3600.0), n)
     gap = np.where(rng.random(n) < 0.3, 0.0, 10.0 ** rng.uniform(-1, np.log10(3 * 3600.0), n))
     start = 1000.0 * rng.random() + np.cumsum(np.r_[0.0, duration[:-1] + gap[1:]])
-    end = np.minimum(start + duration, np.r_[start[1:], np.inf])   # back to back: no rounding overlap
+    end = np.minimum(start + duration, np.r_[start[1:], np.inf])  # back to back: no rounding overlap
     order = rng.permutation(n) if draw(st.booleans()) else np.arange(n)
     return start[order], end[order], rng
 
@@ -63,7 +71,9 @@ def test_the_compiled_factor_matches_numpy_and_lapack(layout, columns):
     assert found is not None
     Z = kernels.semiseparable_whiten(U, *found, alpha, beta, Y, scale)
     np.testing.assert_allclose(Z, reference, rtol=1e-9, atol=1e-12 * np.abs(reference).max())
-    np.testing.assert_array_equal(kernels.semiseparable_whiten(U, *found, alpha, beta, Y[:, 1], scale), Z[:, 1])
+    np.testing.assert_array_equal(
+        kernels.semiseparable_whiten(U, *found, alpha, beta, Y[:, 1], scale), Z[:, 1]
+    )
     lib = kernels.SEMISEPARABLE
     try:
         kernels.SEMISEPARABLE = None
@@ -125,7 +135,7 @@ def test_the_fit_is_dense_generalised_least_squares(layout):
     data = observations(a, b, rng, white, flicker, rrw)
     result = fit(MODEL, data)
     floor = observation_floor(data)
-    floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))   # the fit's own clamp
+    floor = np.maximum(floor, 1e-3 * np.median(floor, axis=0))  # the fit's own clamp
     whiten = dense_whiteners(data, floor)
     design = MODEL.design(data)
     for i, ax in enumerate(AXES):
@@ -181,11 +191,11 @@ def test_refits_of_the_same_holds_reuse_their_factor(monkeypatch):
     monkeypatch.setattr(kernels, "semiseparable_cholesky", lambda *x: calls.append(1) or factor(*x))
     first = fit(MODEL, data)
     count = len(calls)
-    assert count == 3                                          # one factor per output axis
-    again = fit(Model.from_spec(["bias", "scale"]), data)   # another model, the same holds
+    assert count == 3  # one factor per output axis
+    again = fit(Model.from_spec(["bias", "scale"]), data)  # another model, the same holds
     assert len(calls) == count
     keep = np.arange(n) >= 10
-    fit(MODEL, {k: v[keep] for k, v in data.items()})        # other holds: factored anew
+    fit(MODEL, {k: v[keep] for k, v in data.items()})  # other holds: factored anew
     assert len(calls) == 2 * count
     np.testing.assert_array_equal(first.values, fit(MODEL, data).values)
     assert again.n_obs == n
@@ -193,17 +203,25 @@ def test_refits_of_the_same_holds_reuse_their_factor(monkeypatch):
 
 # -- refits that reuse what the fit of all holds made ----------------------------------------
 
+
 @pytest.fixture(scope="module")
 def coloured_sweep(tmp_path_factory):
     """A short sweep of a complete unit with a Gauss-Markov bias and a rate random walk, from
     the independent generator, segmented: observations with the noise model's columns and
     the session's temperature record."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
+
     path = tmp_path_factory.mktemp("sweep") / "sweep.parquet"
-    write_session(make_unit(effect="none", protocol="sweep", noise="coloured", seed=1), path,
-                  session=0, seed=5, rate_hz=5.0, ramp_c_per_h=60.0)
+    write_session(
+        make_unit(effect="none", protocol="sweep", noise="coloured", seed=1),
+        path,
+        session=0,
+        seed=5,
+        rate_hz=5.0,
+        ramp_c_per_h=60.0,
+    )
     obs = segment_log(path, Settings(), "sweep").observations
     assert max(obs[f"{k}_{a}"].max() for k in ("flicker", "rrw") for a in AXES) > 0  # wander modelled
     return obs
@@ -219,8 +237,9 @@ def same_fit(a, b) -> None:
 def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured_sweep, monkeypatch):
     """Bit for bit what fitting the remaining holds from scratch gives, with the series
     terms' quadrature made once: a hold's columns are its own."""
-    from gyrocal.io import signals
     from gyrocal.fit.thermal import fit_continuous
+    from gyrocal.io import signals
+
     obs = coloured_sweep
     model = Model.from_spec(["bias", "bias_temp_poly(degree=1)", "temp_rate"])
     fitted = fit_continuous(model, obs)
@@ -239,32 +258,40 @@ def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured
 def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
     from dataclasses import replace
 
-    from gyrocal.pipeline.config import ModelSettings, Settings
-    from gyrocal.pipeline.chain import segment_log
     from gyrocal.fit.thermal import JointGridFit, _fit_joint, fit_model
+    from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import ModelSettings, Settings
+
     obs = segment_log(logs["complete"], Settings()).observations
-    m = replace(Settings(), model=ModelSettings.from_dict(
-        {"expressions": {"warmup": {"formula": "exp(-t / 1200)"}}})).model
+    m = replace(
+        Settings(), model=ModelSettings.from_dict({"expressions": {"warmup": {"formula": "exp(-t / 1200)"}}})
+    ).model
     fitted = fit_model(m.build(), obs, kind=m.kind, method=m.interpolation, degree=m.degree)
     assert isinstance(fitted, JointGridFit)
     for p in fitted.used_points()[:3]:
         keep = fitted.data["point"].astype(int) != p
-        fresh = _fit_joint(fitted.model, {k: v[keep] for k, v in fitted.data.items()},
-                           method=fitted.grid.method, degree=fitted.grid.degree,
-                           rows=fitted.rows[0][keep], excluded=fitted.excluded)
+        fresh = _fit_joint(
+            fitted.model,
+            {k: v[keep] for k, v in fitted.data.items()},
+            method=fitted.grid.method,
+            degree=fitted.grid.degree,
+            rows=fitted.rows[0][keep],
+            excluded=fitted.excluded,
+        )
         same_fit(fitted.leave_out(p), fresh)
 
 
 def test_the_quadrature_nodes_are_made_once_for_the_same_holds(coloured_sweep, monkeypatch):
-    from gyrocal.io import signals
     from gyrocal.fit.model import columns_of
+    from gyrocal.io import signals
+
     data = columns_of(coloured_sweep)
     model = Model.from_spec(["temp_rate"])
     first = model.design(data)
     calls = []
     made = signals._nodes
     monkeypatch.setattr(signals, "_nodes", lambda *x: calls.append(1) or made(*x))
-    for tau in (60.0, 600.0):   # a profiled lag asks for the same holds at every value
+    for tau in (60.0, 600.0):  # a profiled lag asks for the same holds at every value
         Model.from_spec([f"temp_lag(tau={tau})"]).design(data)
     again = model.design(data)
     assert calls == []

@@ -13,17 +13,19 @@ import numpy as np
 import pytest
 
 from gyrocal.calibration.file import load_calibration
-from gyrocal.run.cli import main
-from gyrocal.io.unit_folder import read_part_json, read_part_table
-from gyrocal.pipeline.config import Settings
 from gyrocal.io.errors import CalibrationFileError
+from gyrocal.io.unit_folder import read_part_json, read_part_table
 from gyrocal.pipeline.chain import run
+from gyrocal.pipeline.config import Settings
+from gyrocal.run.cli import main
 
 from .conftest import REPO, snakemake
 
 GOOD = [("B1", "A1", "2026-01-01"), ("B1", "A1", "2026-03-01"), ("B2", "A2", "2026-01-02")]
-FAILED = [("B2", "BAD", "2026-01-02", "not a readable Parquet file"),
-          ("B2", "GONE", "2026-01-03", "no such file")]
+FAILED = [
+    ("B2", "BAD", "2026-01-02", "not a readable Parquet file"),
+    ("B2", "GONE", "2026-01-03", "no such file"),
+]
 
 
 @pytest.mark.slow
@@ -50,16 +52,19 @@ def test_the_tables_hold_the_numbers_the_library_computes(fleet_run):
         np.testing.assert_array_equal(grid.values, direct.calibration.grid.values)
         np.testing.assert_array_equal(grid.stderr, direct.calibration.grid.stderr)
         import pandas as pd
+
         table = read_part_table(folder, "table_hold_means")[0]
-        pd.testing.assert_frame_equal(table, direct.validation.table_holds, check_exact=False,
-                                      rtol=1e-12)
+        pd.testing.assert_frame_equal(table, direct.validation.table_holds, check_exact=False, rtol=1e-12)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("batch, device, session, protocol",
-                         [("B3", "S1", "2026-01-04", "servo"), ("B3", "W1", "2026-01-05", "sweep")])
+@pytest.mark.parametrize(
+    "batch, device, session, protocol",
+    [("B3", "S1", "2026-01-04", "servo"), ("B3", "W1", "2026-01-05", "sweep")],
+)
 def test_servo_and_sweep_units_run_through_the_workflow_as_the_library_runs_them(
-        fleet_run, batch, device, session, protocol):
+    fleet_run, batch, device, session, protocol
+):
     folder = fleet_run / "results" / batch / device / session
     log = fleet_run / "demo" / "logs" / batch / device / f"{session}.parquet"
     direct = run(log, Settings(), protocol=protocol)
@@ -67,17 +72,16 @@ def test_servo_and_sweep_units_run_through_the_workflow_as_the_library_runs_them
     assert cal.meta["protocol"] == protocol
     np.testing.assert_array_equal(cal.grid.values, direct.calibration.grid.values)
     summary = read_part_json(folder, "validation")["summary"]
-    assert summary["validation_rms"] == pytest.approx(direct.validation.summary["validation_rms"],
-                                                      rel=1e-12)
+    assert summary["validation_rms"] == pytest.approx(direct.validation.summary["validation_rms"], rel=1e-12)
     diagnosis = read_part_json(folder, "diagnosis")
     html = (fleet_run / "reports" / batch / device / f"{session}.html").read_text()
     assert diagnosis["verdict"].split(":")[0] in html
     if protocol == "servo":
         assert "Six-observation calibration (seed 001)" in html and "Algorithm 1" in html
-        assert diagnosis["explains_the_data"]        # the 12 parameters absorb the mounting tilt
+        assert diagnosis["explains_the_data"]  # the 12 parameters absorb the mounting tilt
     else:
         assert "Drift models and bias stability (seed 003)" in html and "BS3" in html
-        assert diagnosis["best"]["term"] == "bias_temp_poly"   # ΔT² (Eq 16) is missing
+        assert diagnosis["best"]["term"] == "bias_temp_poly"  # ΔT² (Eq 16) is missing
         assert diagnosis["ladder"][-1]["excess"] < 1.2
 
 
@@ -98,8 +102,12 @@ def test_a_corrupt_or_missing_log_fails_its_unit_alone(fleet_run):
 def test_nothing_to_do_the_second_time_and_a_model_change_reruns_only_its_jobs(fleet_run):
     out = snakemake(fleet_run, "--dry-run")
     assert "Nothing to be done" in out.stdout + out.stderr
-    out = snakemake(fleet_run, "--dry-run", "--config",
-                    'model={"terms": ["bias", "scale", "misalignment"], "interpolation": "spline"}')
+    out = snakemake(
+        fleet_run,
+        "--dry-run",
+        "--config",
+        'model={"terms": ["bias", "scale", "misalignment"], "interpolation": "spline"}',
+    )
     counts = job_counts(out)
     assert counts == {"analyse": 5, "fleet": 1, "all": 1, "total": 7}
     out = snakemake(fleet_run, "--dry-run", "--config", 'diagnosis={"ladder": ["scale_cubic"]}')
@@ -113,16 +121,37 @@ def test_a_report_over_a_missing_table_names_it(fleet_run, tmp_path, table):
     a report rendered after one was deleted says which, and how to rebuild it."""
     unit = tmp_path / "unit"
     shutil.copytree(fleet_run / "results" / "B1" / "A1" / "2026-01-01", unit)
-    archive = next(unit / name for name in ("segmentation.zip", "analysis.zip")
-                   if table in zipfile.ZipFile(unit / name).namelist())
+    archive = next(
+        unit / name
+        for name in ("segmentation.zip", "analysis.zip")
+        if table in zipfile.ZipFile(unit / name).namelist()
+    )
     with zipfile.ZipFile(archive) as old:
         kept = {n: old.read(n) for n in old.namelist() if n != table}
     with zipfile.ZipFile(archive, "w") as new:
         for name, data in kept.items():
             new.writestr(name, data)
     html = tmp_path / "report.html"
-    assert main(["report", str(unit), "-o", str(html), "--device", "A1", "--batch", "B1",
-                 "--session", "2026-01-01", "--protocol", "turntable", "--record-failures"]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(unit),
+                "-o",
+                str(html),
+                "--device",
+                "A1",
+                "--batch",
+                "B1",
+                "--session",
+                "2026-01-01",
+                "--protocol",
+                "turntable",
+                "--record-failures",
+            ]
+        )
+        == 0
+    )
     page = html.read_text()
     assert "the <b>report</b> stage failed" in page
     assert f"{table} is missing from the unit&#39;s results" in page
@@ -131,7 +160,7 @@ def test_a_report_over_a_missing_table_names_it(fleet_run, tmp_path, table):
 def job_counts(out) -> dict[str, int]:
     """Jobs per rule from Snakemake's job statistics (dry run or real)."""
     text = out.stdout + out.stderr
-    stats = text[text.index("Job stats"):].split("\n\n")[0]
+    stats = text[text.index("Job stats") :].split("\n\n")[0]
     return {line.split()[0]: int(line.split()[1]) for line in stats.splitlines()[3:] if line.strip()}
 
 
@@ -150,8 +179,11 @@ def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(flee
 
     again = tmp_path / "again"
     shutil.copytree(fleet_run, again, symlinks=True)
-    config = (again / "config.yaml").read_text().replace(
-        "model: {terms: [bias, scale, misalignment]}", "model: {" + line + "}")
+    config = (
+        (again / "config.yaml")
+        .read_text()
+        .replace("model: {terms: [bias, scale, misalignment]}", "model: {" + line + "}")
+    )
     (again / "config.yaml").write_text(config)
     out = snakemake(again)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -164,17 +196,21 @@ def test_the_report_names_the_missing_effect_and_adding_it_lowers_the_error(flee
     assert after["explains_the_data"] and after["best"] is None
 
 
-
 @pytest.mark.slow
 def test_rerun_from_scratch_is_byte_identical(fleet_run, tmp_path):
     """Every unit's simulated log, calibration and diagnosis, and one unit's report (its
     figures included), made again from nothing: the same bytes."""
-    before = {p.relative_to(fleet_run): p.read_bytes() for p in
-              [*fleet_run.glob("results/*/*/*/calibration.json"), *fleet_run.glob("demo/logs/*/*/*.parquet"),
-               *fleet_run.glob("results/*/*/*/analysis.zip"),   # the validation, diagnosis and tables
-               *fleet_run.glob("results/*/*/*/segmentation.zip"),   # the observations and tables
-               fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html"]}
-    assert len(before) == 7 + 5 + 7 + 7 + 1   # the job logs inside the archives too
+    before = {
+        p.relative_to(fleet_run): p.read_bytes()
+        for p in [
+            *fleet_run.glob("results/*/*/*/calibration.json"),
+            *fleet_run.glob("demo/logs/*/*/*.parquet"),
+            *fleet_run.glob("results/*/*/*/analysis.zip"),  # the validation, diagnosis and tables
+            *fleet_run.glob("results/*/*/*/segmentation.zip"),  # the observations and tables
+            fleet_run / "reports" / "B1" / "A1" / "2026-01-01.html",
+        ]
+    }
+    assert len(before) == 7 + 5 + 7 + 7 + 1  # the job logs inside the archives too
     again = tmp_path / "again"
     again.mkdir()
     for name in ("devices.tsv", "config.yaml"):
@@ -202,8 +238,9 @@ def test_snakemake_report_bundles_the_fleet_and_every_unit(fleet_run):
 
 @pytest.mark.slow
 def test_invalid_settings_stop_before_any_job_naming_the_key(fleet_run, tmp_path):
-    (tmp_path / "config.yaml").write_text((fleet_run / "config.yaml").read_text()
-                                          + "segmentation: {trim_seconds: 1}\n")
+    (tmp_path / "config.yaml").write_text(
+        (fleet_run / "config.yaml").read_text() + "segmentation: {trim_seconds: 1}\n"
+    )
     shutil.copy(fleet_run / "devices.tsv", tmp_path)
     out = snakemake(tmp_path, "--dry-run")
     assert out.returncode != 0
@@ -213,8 +250,9 @@ def test_invalid_settings_stop_before_any_job_naming_the_key(fleet_run, tmp_path
 @pytest.mark.slow
 def test_a_bad_manifest_stops_with_the_line_named(fleet_run, tmp_path):
     (tmp_path / "config.yaml").write_text((fleet_run / "config.yaml").read_text())
-    (tmp_path / "devices.tsv").write_text((fleet_run / "devices.tsv").read_text()
-                                          + "bad id!\tB1\t2026-01-01\tturntable\tx.parquet\n")
+    (tmp_path / "devices.tsv").write_text(
+        (fleet_run / "devices.tsv").read_text() + "bad id!\tB1\t2026-01-01\tturntable\tx.parquet\n"
+    )
     out = snakemake(tmp_path, "--dry-run")
     assert out.returncode != 0
     assert "line 9: device 'bad id!' does not match" in out.stdout + out.stderr
@@ -226,9 +264,22 @@ def test_the_catalogue_test_case_runs_as_the_catalogue_runs_it(tmp_path):
     finds its config/config.yaml through the Snakefile, simulates its one unit's log and
     calibrates it. Run on a copy of its config, so nothing is written into the repository."""
     shutil.copytree(REPO / ".test" / "config", tmp_path / "config")
-    out = subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(REPO / "Snakefile"),
-                          "--directory", str(tmp_path), "--cores", "2"],
-                         capture_output=True, text=True, timeout=600)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "--snakefile",
+            str(REPO / "Snakefile"),
+            "--directory",
+            str(tmp_path),
+            "--cores",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert out.returncode == 0, out.stderr[-3000:]
     folder = tmp_path / "results" / "B1" / "T1" / "2026-01-01"
     cal = load_calibration(folder / "calibration.json")
@@ -246,17 +297,36 @@ ACCEPTED_LINTS = {("segment", "No log directive defined"), ("analyse", "No log d
 
 def test_lint_clean_and_formatted():
     # Snakemake 9 exits 1 on lints and on a workflow it cannot parse, 0 when clean.
-    out = subprocess.run([sys.executable, "-m", "snakemake", "--lint", "--snakefile",
-                          str(REPO / "Snakefile"), "--directory", str(REPO)],
-                         capture_output=True, text=True, timeout=300)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "--lint",
+            "--snakefile",
+            str(REPO / "Snakefile"),
+            "--directory",
+            str(REPO),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     text = out.stdout + out.stderr
-    lints = {(rule, title) for rule, body in re.findall(r"^Lints for rule (\w+) .*?:\n((?:    .*\n|\n)*)",
-                                                        text, flags=re.M)
-             for title in re.findall(r"^    \* (.+):$", body, flags=re.M)}
+    lints = {
+        (rule, title)
+        for rule, body in re.findall(r"^Lints for rule (\w+) .*?:\n((?:    .*\n|\n)*)", text, flags=re.M)
+        for title in re.findall(r"^    \* (.+):$", body, flags=re.M)
+    }
     assert out.returncode == 0 or (lints and lints <= ACCEPTED_LINTS), text[-3000:]
-    assert "Lints for" not in text or lints, text[-3000:]   # every lint parsed
-    fmt = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow"],
-                         cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert "Lints for" not in text or lints, text[-3000:]  # every lint parsed
+    fmt = subprocess.run(
+        [sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert fmt.returncode == 0, fmt.stderr[-2000:]
 
 
@@ -266,21 +336,27 @@ def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
 
     from gyrocal.diagnose import diagnose
     from gyrocal.report.pages import fmt
+
     folder = fleet_run / "results" / "B2" / "A2" / "2026-01-02"
     obs = read_part_table(folder, "observations")[0]
-    settings = Settings.from_dict({"diagnosis": {"ladder": [{"name": "+ nonlinearity",
-                                                             "add": ["scale_quadratic"]}]}})
+    settings = Settings.from_dict(
+        {"diagnosis": {"ladder": [{"name": "+ nonlinearity", "add": ["scale_quadratic"]}]}}
+    )
     ladder = diagnose(settings, obs).ladder
     page = (fleet_run / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
-    table = page[page.index('<table id="ladder-table">'):]
-    table = table[:table.index("</table>")]
+    table = page[page.index('<table id="ladder-table">') :]
+    table = table[: table.index("</table>")]
     rows = [re.findall(r"<td[^>]*>(.*?)</td>", row, re.S) for row in re.split(r"<tr[^>]*>", table)[2:]]
     # the configured model, the ladder's step, and the fix the diagnosis names last
     assert len(rows) == len(ladder) == 3 and ladder[-1]["fix"]
     for cells, step in zip(rows, ladder, strict=False):
         assert cells[1].startswith(step["name"])
-        assert cells[3:7] == [fmt(step["validation_rms"]), fmt(step["excess"], 3),
-                              fmt(step["expected_rms"]), fmt(step["chi2_red"], 3)]
+        assert cells[3:7] == [
+            fmt(step["validation_rms"]),
+            fmt(step["excess"], 3),
+            fmt(step["expected_rms"]),
+            fmt(step["chi2_red"], 3),
+        ]
     added = rows[1][7]
     for p in ladder[1]["parameters"]:
         assert f"{p['coefficient']} = {fmt(p['value'], 3)} ± {fmt(p['stderr'], 2)}" in added
@@ -306,7 +382,7 @@ def test_end_of_line_verdicts_yield_and_drift_pages(fleet_run):
     yields = {y["batch"]: y for y in eol["yield"]}
     assert yields["B1"]["yield_pct"] == 100.0 and yields["B1"]["units"] == 2
     assert yields["B2"]["passed"] == 0 and yields["B2"]["no_calibration"] == 2
-    assert ("S1", "2026-01-04") not in units          # no servo limits: not judged
+    assert ("S1", "2026-01-04") not in units  # no servo limits: not judged
     # A1 twice, the same simulated unit: no drift, and the old calibration still holds
     (a1,) = eol["drift"]
     assert a1["device"] == "A1" and a1["flagged"] == []
@@ -328,8 +404,7 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
 
     for this, other in ((GOOD[0], GOOD[1]), (GOOD[1], GOOD[0])):
         written = read_part_json(folder(this), "diagnosis")
-        direct = diagnose(Settings(), read_observations(folder(this))[0],
-                          read_observations(folder(other))[0])
+        direct = diagnose(Settings(), read_observations(folder(this))[0], read_observations(folder(other))[0])
         assert written["next_session"] is not None
         for key in ("validation_rms", "excess", "repeat_p_value"):
             assert written["next_session"][key] == pytest.approx(direct.next_session[key], rel=1e-12)
@@ -341,10 +416,11 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
 @pytest.mark.slow
 def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     import pyarrow.parquet as pq
+
     table = pq.read_table(fleet_run / "results" / "fleet.parquet")
     assert table.schema.metadata[b"gyrocal.format"] == b"gyrocal.fleet/1"
     rows = {(r["device"], r["session"]): r for r in table.to_pylist()}
-    assert len(rows) == table.num_rows == 7          # every manifest row, failed ones too
+    assert len(rows) == table.num_rows == 7  # every manifest row, failed ones too
     bad = rows[("BAD", "2026-01-02")]
     assert bad["status"] == "failed" and bad["failed_stage"] == "segment" and bad["error"]
     assert bad["scale.x"] is None and bad["input_hash"] is None
@@ -357,12 +433,14 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     # parameters at the reference temperature in display units, as the unit's file gives them
     from gyrocal.calibration.file import load_calibration
     from gyrocal.calibration.parameters import parameters_at
-    at_ref = parameters_at(load_calibration(fleet_run / "results" / "B1" / "A1" / "2026-01-01"
-                                            / "calibration.json")).set_index("parameter")
+
+    at_ref = parameters_at(
+        load_calibration(fleet_run / "results" / "B1" / "A1" / "2026-01-01" / "calibration.json")
+    ).set_index("parameter")
     for name in ("scale.x", "misalignment.x.y", "bias.z"):
         assert a1[name] == at_ref.loc[name, "value"] and a1[f"{name}_stderr"] == at_ref.loc[name, "stderr"]
     assert a1["scale.x_stderr"] > 0 and rows[("A2", "2026-01-02")]["eol_passed"] is False
-    assert rows[("S1", "2026-01-04")]["eol_passed"] is None   # no servo limits: not judged
+    assert rows[("S1", "2026-01-04")]["eol_passed"] is None  # no servo limits: not judged
     # a drift audit is one query
     frame = table.to_pandas()
     drift = frame[frame.status == "ok"].groupby("device")["bias.x"].agg(["count", "max", "min"])
@@ -375,6 +453,7 @@ def test_a_fix_for_one_unit_reaches_that_unit_alone_and_its_report_shows_the_fal
     config; the workflow analyses A2 alone again, every other unit's calibration stays byte
     for byte, and A2's report, the fleet page and its table show the error before and after."""
     import pyarrow.parquet as pq
+
     a2 = ("results", "B2", "A2", "2026-01-02")
     before = read_part_json(fleet_run.joinpath(*a2), "diagnosis")
     lines = before["best"]["unit_config_line"]
@@ -395,16 +474,22 @@ def test_a_fix_for_one_unit_reaches_that_unit_alone_and_its_report_shows_the_fal
     assert added["kept"] and added["with"]["excess"] < added["without"]["excess"]
     after = read_part_json(again.joinpath(*a2), "validation")["summary"]
     runs = json.loads(again.joinpath(*a2, "runs.json").read_text())["runs"]
-    assert [r["model"]["terms"] for r in runs] == [["bias", "scale", "misalignment"],
-                                                  ["bias", "scale", "misalignment", "scale_quadratic"]]
+    assert [r["model"]["terms"] for r in runs] == [
+        ["bias", "scale", "misalignment"],
+        ["bias", "scale", "misalignment", "scale_quadratic"],
+    ]
     assert runs[0]["fix"]["term"] == "scale_quadratic" and runs[0]["excess"] == before["excess"]
     page = (again / "reports" / "B2" / "A2" / "2026-01-02.html").read_text()
     from gyrocal.report.pages import fmt
+
     fell = f"from <b>{fmt(before['excess'], 3)}</b> to <b>{fmt(after['excess'], 3)}</b> times the noise floor"
     assert 'id="since-last"' in page and fell in page
-    assert page.count('class="last-run"') == 2        # the last run's model and the fix it named
-    rows = {r["device"]: r for r in pq.read_table(again / "results" / "fleet.parquet").to_pylist()
-            if r["status"] == "ok" and r["session"] in ("2026-01-01", "2026-01-02")}
+    assert page.count('class="last-run"') == 2  # the last run's model and the fix it named
+    rows = {
+        r["device"]: r
+        for r in pq.read_table(again / "results" / "fleet.parquet").to_pylist()
+        if r["status"] == "ok" and r["session"] in ("2026-01-01", "2026-01-02")
+    }
     assert rows["A2"]["model_entry"] == "A2" and rows["A2"]["previous_excess"] == before["excess"]
     assert rows["A1"]["model_entry"] is None and rows["A1"]["previous_excess"] is None
     index = (again / "reports" / "index.html").read_text()

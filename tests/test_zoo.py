@@ -47,13 +47,18 @@ def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
     not temperature); the mount and the rotating axis, which this protocol cannot tell
     apart, are one row; and a covariate is not credited with another's excess."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     log = tmp_path / "warmup.parquet"
-    write_session(make_unit(effect="warmup", protocol="turntable3", noise="white", seed=2), log,
-                  session=0, seed=7, rate_hz=25.0)
+    write_session(
+        make_unit(effect="warmup", protocol="turntable3", noise="white", seed=2),
+        log,
+        session=0,
+        seed=7,
+        rate_hz=25.0,
+    )
     diag = diagnose(Settings(), segment_log(log, Settings()).observations)
     rows = diag.covariates
     assert rows[0]["covariate"] == "time within a temperature point" and rows[0]["p_value"] < 1e-6
@@ -74,10 +79,10 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     ramp, 1.3 times the floor, is within the held-out error's own uncertainty: no gain to
     name.)"""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import TIME_DRIFT, diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
+    from gyrocal.pipeline.config import Settings
     from gyrocal.terms import make_term
 
     unit = make_unit(effect="bias_ramp", protocol="turntable3", noise="white", seed=3)
@@ -93,7 +98,7 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
         assert "drifting linearly in time" in diag.verdict
         assert any('expression(formula="t")' in a for a in diag.advice)
         fix = TIME_DRIFT
-    else:   # a term of free shape, of time alone (the drift blocks the others)
+    else:  # a term of free shape, of time alone (the drift blocks the others)
         assert diag.best.family and make_term(diag.best.term).needs == {"t"}, diag.verdict
         fix = diag.best.term
     cal = run(logs[0], extended(settings, fix)).calibration
@@ -109,18 +114,23 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     no term has anything to take away: nothing is named, not even as partial, and the
     verdict says another session would tell wander from an effect."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose, explained_tolerance
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     log = tmp_path / "coloured.parquet"
-    write_session(make_unit(effect="none", protocol=protocol, noise="coloured", seed=1), log,
-                  session=0, seed=1000, rate_hz=25.0)
+    write_session(
+        make_unit(effect="none", protocol=protocol, noise="coloured", seed=1),
+        log,
+        session=0,
+        seed=1000,
+        rate_hz=25.0,
+    )
     diag = diagnose(Settings(), segment_log(log, Settings()).observations)
     assert diag.best is None and not diag.partial, diag.verdict
     assert diag.explains, diag.verdict
     s = diag.base.summary
-    if diag.rms_over_floor["all"] > 1.5:        # the wander shows in-sample: said so
+    if diag.rms_over_floor["all"] > 1.5:  # the wander shows in-sample: said so
         assert "--other-session" in diag.verdict and diag.within_noise["explains"]
         tolerance = explained_tolerance(diag.residuals, s["holds_scored"], diag.significance)
         assert s["validation_rms"] <= diag.within_noise["expected_rms"] * tolerance
@@ -130,6 +140,7 @@ def _next_session_over_floor(logs, settings, fix, protocol="turntable"):
     from gyrocal.diagnose import extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
+
     for term in fix:
         settings = extended(settings, term)
     cal = run(logs[0], settings, protocol=protocol).calibration
@@ -145,12 +156,11 @@ def test_three_mounts_offer_the_part_of_a_g_sensitivity_they_see(one_session, tm
     the other two. The diagnosis names g_sensitivity and fits the part the protocol sees;
     calibrated with it, the next session is within 1.2 times the floor."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
-    unit = make_unit(effect="g_sensitivity", protocol="turntable3", noise="white", seed=1,
-                     imu_radius_m=0.0)
+    unit = make_unit(effect="g_sensitivity", protocol="turntable3", noise="white", seed=1, imu_radius_m=0.0)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
     for s, log in enumerate(logs):
         write_session(unit, log, session=s, seed=1000 + s, rate_hz=25.0)
@@ -175,9 +185,9 @@ def test_a_die_that_lags_is_found_and_carries_to_another_ramp_rate(tmp_path):
     fitted at 30 °C/h, the calibration holds within 1.2 times the floor at 45 °C/h, and
     the lag found is the generator's within the profile's uncertainty."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     unit = make_unit(effect="die_lag_curved", protocol="sweep", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
@@ -199,11 +209,20 @@ def _sessions_of_cells(rng, blocks=12, cells_per_block=8):
     """Two sessions' hold tables over the same cells: 12 blocks (temperature × mount) of
     eight rates each, as a three-mount turntable at four points gives."""
     import pandas as pd
+
     temps = np.repeat([-20.0, 5.0, 30.0, 55.0], 3 * cells_per_block)
     mounts = np.tile(np.repeat(["+x", "+y", "+z"], cells_per_block), 4)
     rates = np.tile(np.linspace(-400, 400, cells_per_block), blocks)
-    obs = pd.DataFrame({"temp": temps, "point_temp": temps, "point": np.repeat(np.arange(4), 3 * cells_per_block),
-                        "mount": mounts, "ref_rate": rates, "temp_rate": np.zeros(temps.size)})
+    obs = pd.DataFrame(
+        {
+            "temp": temps,
+            "point_temp": temps,
+            "point": np.repeat(np.arange(4), 3 * cells_per_block),
+            "mount": mounts,
+            "ref_rate": rates,
+            "temp_rate": np.zeros(temps.size),
+        }
+    )
     block = np.repeat(np.arange(blocks), cells_per_block)
     return obs, block
 
@@ -225,10 +244,18 @@ def test_a_pattern_that_repeats_is_found_and_independent_wander_is_not():
     # Binomial(200, 0.05): 10 expected, more than 20 has probability below 0.2 %.
     assert alarms <= 20
     pattern = 0.7 * rng.standard_normal((len(obs), 3))
-    found = sum(repeat_p_value(obs, pattern + rng.standard_normal((len(obs), 3)), obs,
-                               pattern + rng.standard_normal((len(obs), 3)) + 3.0, draws=999) < 0.005
-                for _ in range(20))
-    assert found >= 18    # an offset between the sessions (3 sigma) is not a pattern
+    found = sum(
+        repeat_p_value(
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)),
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)) + 3.0,
+            draws=999,
+        )
+        < 0.005
+        for _ in range(20)
+    )
+    assert found >= 18  # an offset between the sessions (3 sigma) is not a pattern
 
 
 def test_holds_the_sessions_do_not_share_give_no_verdict():
@@ -255,7 +282,7 @@ def test_random_walks_over_whole_sessions_do_not_look_like_a_repeat():
         z0 = rng.standard_normal((len(obs), 3)) + walks[0]
         z1 = rng.standard_normal((len(obs), 3)) + walks[1]
         alarms += repeat_p_value(obs, z0, obs, z1, draws=999) < 0.05
-    assert alarms <= 20    # Binomial(200, 0.05): 10 expected
+    assert alarms <= 20  # Binomial(200, 0.05): 10 expected
 
 
 def test_sessions_that_differ_by_more_than_white_noise_show_slow_noise():
@@ -263,13 +290,26 @@ def test_sessions_that_differ_by_more_than_white_noise_show_slow_noise():
 
     rng = np.random.default_rng(2)
     obs, block = _sessions_of_cells(rng)
-    pattern = 3.0 * rng.standard_normal((len(obs), 3))   # an effect that repeats exactly
-    white = [unrepeated_p_value(obs, pattern + rng.standard_normal((len(obs), 3)), obs,
-                                pattern + rng.standard_normal((len(obs), 3))) for _ in range(100)]
-    assert sum(p < 0.05 for p in white) <= 11          # Binomial(100, 0.05) 99.5 % bound
-    wander = [unrepeated_p_value(obs, pattern + rng.standard_normal((len(obs), 3))
-                                 + 2.0 * rng.standard_normal((12, 3))[block], obs,
-                                 pattern + rng.standard_normal((len(obs), 3))) for _ in range(20)]
+    pattern = 3.0 * rng.standard_normal((len(obs), 3))  # an effect that repeats exactly
+    white = [
+        unrepeated_p_value(
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)),
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)),
+        )
+        for _ in range(100)
+    ]
+    assert sum(p < 0.05 for p in white) <= 11  # Binomial(100, 0.05) 99.5 % bound
+    wander = [
+        unrepeated_p_value(
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)) + 2.0 * rng.standard_normal((12, 3))[block],
+            obs,
+            pattern + rng.standard_normal((len(obs), 3)),
+        )
+        for _ in range(20)
+    ]
     assert all(p < 0.005 for p in wander)
 
 
@@ -280,9 +320,9 @@ def test_a_warm_up_outside_the_library_gets_a_term_of_its_shape(tmp_path):
     and how it decays, and the next session calibrated with it is within 1.2 times the floor
     (it was 19 times)."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     unit = make_unit(effect="warmup", protocol="turntable3", noise="white", seed=1)
     logs = [tmp_path / f"s{s}.parquet" for s in range(3)]
@@ -301,6 +341,7 @@ def test_a_warm_up_outside_the_library_gets_a_term_of_its_shape(tmp_path):
 
 def make_term_inputs(spec: str) -> set:
     from gyrocal.terms import make_term
+
     return set(make_term(spec).inputs())
 
 
@@ -311,13 +352,18 @@ def test_a_step_in_time_one_session_cannot_validate_is_said_so(tmp_path):
     its shape. Nothing is offered, and the verdict says why and that another session would
     tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     log = tmp_path / "s0.parquet"
-    write_session(make_unit(effect="bias_step_time", protocol="turntable3", noise="white", seed=1),
-                  log, session=0, seed=1000, rate_hz=25.0)
+    write_session(
+        make_unit(effect="bias_step_time", protocol="turntable3", noise="white", seed=1),
+        log,
+        session=0,
+        seed=1000,
+        rate_hz=25.0,
+    )
     diag = diagnose(Settings(), segment_log(log, Settings()).observations)
     assert diag.best is None and not diag.explains, diag.verdict
     assert diag.unexplained is not None and diag.unexplained["reason"] == "unvalidated"
@@ -331,9 +377,9 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     table's angle explains it: not an effect of the sensor, and the verdict says what
     would tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     unit = make_unit(effect="table_angle_bias", protocol="turntable3", noise="white", seed=3)
     logs = [tmp_path / f"s{s}.parquet" for s in range(2)]
@@ -348,7 +394,7 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     # What is left after the angle's columns is what noise leaves (the χ² test's level).
     assert lab["left_p_value"] >= settings.diagnosis.significance / 2
     assert "encoder" in diag.verdict and "slow noise" not in diag.verdict
-    json.dumps(diag.to_dict(), allow_nan=False)   # what `gyrocal diagnose` writes
+    json.dumps(diag.to_dict(), allow_nan=False)  # what `gyrocal diagnose` writes
 
 
 @pytest.mark.parametrize("effect, seed", [("misalign_warp_tanh", 2), ("none", 1)])
@@ -359,14 +405,19 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     out (19 standard errors on this unit, the zoo's weakest). A unit with slow wander and
     nothing missing moves its bias between points, which the test leaves alone: quiet."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import Settings
     from gyrocal.diagnose import diagnose
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import Settings
 
     noise = "white" if effect != "none" else "coloured"
     log = tmp_path / "s0.parquet"
-    write_session(make_unit(effect=effect, protocol="turntable3", noise=noise, seed=seed), log,
-                  session=0, seed=1000 * seed, rate_hz=25.0)
+    write_session(
+        make_unit(effect=effect, protocol="turntable3", noise=noise, seed=seed),
+        log,
+        session=0,
+        seed=1000 * seed,
+        rate_hz=25.0,
+    )
     settings = Settings()
     diag = diagnose(settings, segment_log(log, settings).observations)
     assert diag.explains and diag.best is None, diag.verdict
@@ -374,13 +425,14 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     if effect == "none":
         # The test itself, made whatever gates it: the wander moves the bias, not the scale.
         from gyrocal.diagnose.between import between_points
+
         assert not between_points(diag.base.fitted, settings.diagnosis.significance)["fails"]
         assert diag.unexplained is None, diag.verdict
         return
     assert between["fails"] and between["worst"]["coefficient"].startswith("misalignment")
     assert diag.unexplained["reason"] == "between temperature points"
     assert "nothing is missing" not in diag.verdict and "sweep" in diag.verdict
-    json.dumps(diag.to_dict(), allow_nan=False)   # what `gyrocal diagnose` writes
+    json.dumps(diag.to_dict(), allow_nan=False)  # what `gyrocal diagnose` writes
 
 
 def test_three_points_or_a_joint_fit_are_not_judged_between_points(tmp_path):
@@ -391,14 +443,19 @@ def test_three_points_or_a_joint_fit_are_not_judged_between_points(tmp_path):
     from dataclasses import replace
 
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.pipeline.config import ModelSettings, Settings
     from gyrocal.diagnose import evaluate
     from gyrocal.diagnose.between import between_points
     from gyrocal.pipeline.chain import segment_log
+    from gyrocal.pipeline.config import ModelSettings, Settings
 
     log = tmp_path / "s0.parquet"
-    write_session(make_unit(effect="misalign_warp_tanh", protocol="turntable3", noise="white", seed=2),
-                  log, session=0, seed=2000, rate_hz=25.0)
+    write_session(
+        make_unit(effect="misalign_warp_tanh", protocol="turntable3", noise="white", seed=2),
+        log,
+        session=0,
+        seed=2000,
+        rate_hz=25.0,
+    )
     settings = Settings()
     obs = segment_log(log, settings).observations
     three = obs[obs["point"] < 3].copy()

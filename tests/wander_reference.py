@@ -34,7 +34,7 @@ def time_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
         x = T / c
         edge = -np.expm1(-x) / x
         flicker += np.outer(edge, edge) * np.exp(-gap / c)
-        variance += 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x ** 2)
+        variance += 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x**2)
     variance += 2 * poles[0] / T / (ratio - 1.0)
     np.fill_diagonal(flicker, variance)
     return q2 * flicker, walk
@@ -56,6 +56,7 @@ def held_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
     """The flicker and walk covariances gyrocal.fit.wander's generators stand for, written out
     in the rows' own order (what time_covariances gives, from the library's code)."""
     from gyrocal.fit.wander import hold_wander
+
     w = hold_wander(t_start, t_end)
     ones = np.ones((len(w.mid), 1))
     flicker = dense_semiseparable(w.flicker_var, w.edge, w.edge, w.gap_decay, w.hold_decay)
@@ -73,7 +74,7 @@ def dense_whiteners(data: dict, floor: np.ndarray) -> list:
     for i, a in enumerate("xyz"):
         white = np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
         cov = flicker * float(np.max(data[f"flicker_{a}"])) ** 2 + walk * float(np.max(data[f"rrw_{a}"])) ** 2
-        cov[np.diag_indices(n)] += white ** 2
+        cov[np.diag_indices(n)] += white**2
         lower = cho_factor(cov, lower=True)[0]
         out.append(lambda m, L=lower: solve_triangular(L, m, lower=True, check_finite=False))
     return out
@@ -99,8 +100,11 @@ def dense_model_whiteners(data: dict, floor: np.ndarray) -> list:
         w = 1.0 / floor[:, i]
         return lambda m: m * (w[:, None] if np.ndim(m) == 2 else w)
 
-    coloured = "white_x" in data and len(floor) > 1 and any(
-        np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in "xyz")
+    coloured = (
+        "white_x" in data
+        and len(floor) > 1
+        and any(np.any(np.asarray(data[f"{k}_{a}"]) > 0) for k in ("flicker", "rrw") for a in "xyz")
+    )
     if not coloured:
         return [divide(i) for i in range(3)]
     try:

@@ -22,10 +22,20 @@ import pyarrow.parquet as pq
 
 from ..io import atomic
 from ..io.errors import LogFormatError
-from ..io.log import (GYRO, READ_ERRORS, REQUIRED, check_float, declared_units, open_dataset,
-                      read_error, read_log, record_batches, time_seconds, to_internal_units)
-from ..io.signals import (RECORD_COLUMNS, SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, SampleRecord,
-                          Series)
+from ..io.log import (
+    GYRO,
+    READ_ERRORS,
+    REQUIRED,
+    check_float,
+    declared_units,
+    open_dataset,
+    read_error,
+    read_log,
+    record_batches,
+    time_seconds,
+    to_internal_units,
+)
+from ..io.signals import RECORD_COLUMNS, SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, SampleRecord, Series
 from .file import Calibration
 
 BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
@@ -49,12 +59,12 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     grid_temps = getattr(cal.grid, "temperatures", ())
     if "temp" not in schema.names and len(grid_temps) == 1 and not needs & SERIES_INPUTS:
         constant_temp = float(grid_temps[0])
-    needed = [*GYRO, *(["temp"] if constant_temp is None else [])] \
-        + sorted(c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS))
+    needed = [*GYRO, *(["temp"] if constant_temp is None else [])] + sorted(
+        c for c in needs if c not in (*DERIVED, "temp", *SERIES_INPUTS)
+    )
     missing = [c for c in ([*needed, "t"] if needs & SERIES_INPUTS else needed) if c not in schema.names]
     if missing:
-        raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}",
-                             source=path)
+        raise LogFormatError(f"cannot apply the calibration: the log lacks {', '.join(missing)}", source=path)
     for c in needed:
         check_float(schema, c, path)
     units = declared_units(schema, path)
@@ -74,14 +84,35 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     origin: list = []
     t0, series = None, None
     if needs & SERIES_INPUTS:
-        t0, series = _record(cal, path, schema.names, needs & {"temp_rate", "temp_lag"},
-                             [c for c in RECORD_COLUMNS if {"gyro": "rate_history", "accel": "accel_history"}[
-                                 c.split("_")[0]] in needs])
+        t0, series = _record(
+            cal,
+            path,
+            schema.names,
+            needs & {"temp_rate", "temp_lag"},
+            [
+                c
+                for c in RECORD_COLUMNS
+                if {"gyro": "rate_history", "accel": "accel_history"}[c.split("_")[0]] in needs
+            ],
+        )
     counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
-    transforms = cal.model.sample_transforms()   # a die temperature: filters with state
+    transforms = cal.model.sample_transforms()  # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
-        _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
-               constant_temp, transforms)
+        _write(
+            dataset,
+            tmp,
+            out_schema,
+            cal,
+            needed,
+            units,
+            path,
+            origin,
+            t0,
+            series,
+            counts,
+            constant_temp,
+            transforms,
+        )
     return counts
 
 
@@ -91,8 +122,9 @@ def _record(cal: Calibration, path: Path, names, whole: bool, columns=()) -> tup
     (the record's further columns a history reads), the record as the fit makes it
     (:class:`gyrocal.io.signals.HistoryBins`), in memory that does not grow with the log."""
     required = tuple(c for c in REQUIRED if c != "ref_rate" or c in names)
-    log = read_log(path, optional=tuple(c for c in columns if c not in REQUIRED),
-                   required=required, keep_bytes=0)
+    log = read_log(
+        path, optional=tuple(c for c in columns if c not in REQUIRED), required=required, keep_bytes=0
+    )
     first, last = log.time_span
     if not whole and not columns:
         return first, None
@@ -146,7 +178,7 @@ def _ahead(batches, depth: int = 2):
                 raise item
             yield item
     finally:
-        stop.set()   # the consumer stopped: let the thread end and free its batches
+        stop.set()  # the consumer stopped: let the thread end and free its batches
 
 
 def writer_options(schema: pa.Schema) -> dict:
@@ -156,15 +188,34 @@ def writer_options(schema: pa.Schema) -> dict:
     return {"use_dictionary": [name for name in schema.names if name not in GYRO]}
 
 
-def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, series, counts,
-           constant_temp=None, transforms=()) -> None:
-    with pq.ParquetWriter(tmp, out_schema, **writer_options(out_schema)) as writer, \
-            ThreadPoolExecutor(1) as pool:
+def _write(
+    dataset,
+    tmp,
+    out_schema,
+    cal,
+    needed,
+    units,
+    path,
+    origin,
+    t0,
+    series,
+    counts,
+    constant_temp=None,
+    transforms=(),
+) -> None:
+    with (
+        pq.ParquetWriter(tmp, out_schema, **writer_options(out_schema)) as writer,
+        ThreadPoolExecutor(1) as pool,
+    ):
         writing = None
-        histories: dict = {}   # each history's filter, its state carried from batch to batch
+        histories: dict = {}  # each history's filter, its state carried from batch to batch
         for batch in _ahead(_read(dataset, path)):
-            cols = {c: to_internal_units(c, batch.column(c).to_numpy(zero_copy_only=False)
-                                         .astype(np.float64), units) for c in needed}
+            cols = {
+                c: to_internal_units(
+                    c, batch.column(c).to_numpy(zero_copy_only=False).astype(np.float64), units
+                )
+                for c in needed
+            }
             gyro = np.column_stack([cols[c] for c in GYRO])
             data = {c: cols[c] for c in needed if c not in GYRO}
             if constant_temp is not None:
@@ -174,9 +225,12 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             if series is not None:
                 data["temp_rate"] = series.at("temp_rate", data["t"])
                 # Histories run over the samples, from the state the batch before left.
-                data["series"] = SampleRecord(series, {**cols, "t": data["t"], "temp": data["temp"],
-                                                       "temp_rate": data["temp_rate"]}, histories)
-            for transform in transforms:   # a die temperature: a filter with state
+                data["series"] = SampleRecord(
+                    series,
+                    {**cols, "t": data["t"], "temp": data["temp"], "temp_rate": data["temp_rate"]},
+                    histories,
+                )
+            for transform in transforms:  # a die temperature: a filter with state
                 data = transform(data)
             good = np.isfinite(cols[GYRO[0]])
             for c in GYRO[1:]:
@@ -205,10 +259,12 @@ def _write(dataset, tmp, out_schema, cal, needed, units, path, origin, t0, serie
             for i in range(3):
                 good &= np.isfinite(result[:, i])
             result[~good] = np.nan
-            arrays = [pa.array(result[:, GYRO.index(name)]) if name in GYRO else batch.column(name)
-                      for name in out_schema.names]
+            arrays = [
+                pa.array(result[:, GYRO.index(name)]) if name in GYRO else batch.column(name)
+                for name in out_schema.names
+            ]
             if writing is not None:
-                writing.result()   # in order, one batch written at a time
+                writing.result()  # in order, one batch written at a time
             writing = pool.submit(writer.write_table, pa.Table.from_arrays(arrays, schema=out_schema))
             counts["rows"] += batch.num_rows
             counts["nonfinite"] += int((~good).sum())

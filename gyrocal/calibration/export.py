@@ -70,16 +70,18 @@ if TYPE_CHECKING:  # the CLI registers export at start-up: what it reads is impo
 
 FORMAT = "gyrocal.firmware/1"
 FORMATS = {"c-header": ".h", "json": ".json"}
-BASE_TERMS = ("bias", "scale", "misalignment")   # the terms of w = K(T) w_true + B(T)
+BASE_TERMS = ("bias", "scale", "misalignment")  # the terms of w = K(T) w_true + B(T)
 # Where T is the die's: the logged temperature through a first-order lag, run as a filter.
 DIE_TERM = "die_temperature"
-DIE_FILTER = ("T_die[k] = a T_die[k-1] + T[k] - a T[k-1] - (T[k] - T[k-1]) (tau / dt) (1 - a), "
-              "a = exp(-dt / tau), dt = t[k] - t[k-1] > 0 (T_die kept when dt <= 0 or an input "
-              "is not finite); T_die[0] = T[0]")
+DIE_FILTER = (
+    "T_die[k] = a T_die[k-1] + T[k] - a T[k-1] - (T[k] - T[k-1]) (tau / dt) (1 - a), "
+    "a = exp(-dt / tau), dt = t[k] - t[k-1] > 0 (T_die kept when dt <= 0 or an input "
+    "is not finite); T_die[0] = T[0]"
+)
 # Continuous models may add these: affine in the rate, polynomial in temperature.
 TEMPERATURE_TERMS = ("bias_temp_poly", "scale_temp_poly", "misalignment_temp")
-MAX_DEGREE = 8          # of K(T), B(T) in a continuous model (the terms allow 5)
-POLY_RTOL = 1e-12       # the Legendre series must reproduce K(T), B(T) to this (of max |K|, |B|, 1)
+MAX_DEGREE = 8  # of K(T), B(T) in a continuous model (the terms allow 5)
+POLY_RTOL = 1e-12  # the Legendre series must reproduce K(T), B(T) to this (of max |K|, |B|, 1)
 UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
 
 
@@ -91,23 +93,23 @@ class UnsupportedModelError(InputError):
 class FirmwareTables:
     """Everything the firmware rule needs, in float64."""
 
-    temperature: np.ndarray            # (P,) °C, increasing
-    K: np.ndarray                      # (P, 3, 3)
-    B: np.ndarray                      # (P, 3) deg/s
-    K_inv: np.ndarray                  # (P, 3, 3), information only
-    method: str                        # the rule applied: lagrange3, linear, spline, poly
-    calibration_method: str            # what the calibration file says
-    degree: int | None = None          # poly: the degree used
-    spline_K: np.ndarray | None = None     # (P-1, 4, 3, 3)
-    spline_B: np.ndarray | None = None     # (P-1, 4, 3)
+    temperature: np.ndarray  # (P,) °C, increasing
+    K: np.ndarray  # (P, 3, 3)
+    B: np.ndarray  # (P, 3) deg/s
+    K_inv: np.ndarray  # (P, 3, 3), information only
+    method: str  # the rule applied: lagrange3, linear, spline, poly
+    calibration_method: str  # what the calibration file says
+    degree: int | None = None  # poly: the degree used
+    spline_K: np.ndarray | None = None  # (P-1, 4, 3, 3)
+    spline_B: np.ndarray | None = None  # (P-1, 4, 3)
     poly_centre: float | None = None
     poly_half_range: float | None = None
-    poly_K: np.ndarray | None = None       # (d+1, 3, 3)
-    poly_B: np.ndarray | None = None       # (d+1, 3)
-    die_tau: float | None = None           # s: T is the die's, the logged one lagged
-    splines: tuple = ()                    # empirical terms: dicts of input, by, knots, coefficients
-    histories: tuple = ()                  # lags of the raw output: dicts of input, tau, coefficients
-    temperature_histories: tuple = ()      # play or Duhem operators of the temperature
+    poly_K: np.ndarray | None = None  # (d+1, 3, 3)
+    poly_B: np.ndarray | None = None  # (d+1, 3)
+    die_tau: float | None = None  # s: T is the die's, the logged one lagged
+    splines: tuple = ()  # empirical terms: dicts of input, by, knots, coefficients
+    histories: tuple = ()  # lags of the raw output: dicts of input, tau, coefficients
+    temperature_histories: tuple = ()  # play or Duhem operators of the temperature
 
 
 # Empirical terms firmware evaluates beside K and B: a spline of time since power-on or of
@@ -122,19 +124,25 @@ SPLINE_INPUTS = ("t", "temp")
 # added to B, a slow pole's "- rate_own" to K's diagonal (it reads the true rate).
 HISTORY_TERM = "expression"
 _SQUARED = "rate_x ** 2 + rate_y ** 2 + rate_z ** 2"
-HISTORY_FORMS = {   # the formula as ast.unparse writes it -> (input of the lag, K's diagonal)
+HISTORY_FORMS = {  # the formula as ast.unparse writes it -> (input of the lag, K's diagonal)
     "lag(rate_own, tau) - rate_own": ("own", -1.0),
     "lag(rate_own, tau)": ("own", 0.0),
     "lag(abs(rate_own), tau)": ("abs_own", 0.0),
     f"lag(sqrt({_SQUARED}), tau)": ("magnitude", 0.0),
     f"lag({_SQUARED}, tau)": ("squared", 0.0),
 }
-HISTORY_INPUTS = {"own": "w[a]", "abs_own": "|w[a]|", "magnitude": "sqrt(w[0]^2 + w[1]^2 + w[2]^2)",
-                  "squared": "w[0]^2 + w[1]^2 + w[2]^2"}
-LAG_FILTER = ("y[k] = e y[k-1] + u[k] - e u[k-1] - (u[k] - u[k-1]) (tau / dt) (1 - e), "
-              "e = exp(-dt / tau), dt = t[k] - t[k-1] (y kept when dt <= 0); y[0] = u[0]; a sample "
-              "whose time or input is not finite leaves the state and gives NaN; one filter per "
-              "output axis, u its input on that axis (w the raw output, deg/s)")
+HISTORY_INPUTS = {
+    "own": "w[a]",
+    "abs_own": "|w[a]|",
+    "magnitude": "sqrt(w[0]^2 + w[1]^2 + w[2]^2)",
+    "squared": "w[0]^2 + w[1]^2 + w[2]^2",
+}
+LAG_FILTER = (
+    "y[k] = e y[k-1] + u[k] - e u[k-1] - (u[k] - u[k-1]) (tau / dt) (1 - e), "
+    "e = exp(-dt / tau), dt = t[k] - t[k-1] (y kept when dt <= 0); y[0] = u[0]; a sample "
+    "whose time or input is not finite leaves the state and gives NaN; one filter per "
+    "output axis, u its input on that axis (w the raw output, deg/s)"
+)
 
 
 # Histories of the temperature firmware runs as filters (issue 38): a play or Duhem operator
@@ -148,18 +156,23 @@ TEMPERATURE_HISTORY_FORMS = {
 TEMPERATURE_HISTORY_VALUES = {
     "direction": "2 (T - y) / w, T the temperature as clamped to the calibration's range, y the play operator of width w: y[k] = clamp(y[k-1], x[k] - w/2, x[k] + w/2)",
     "switch": "sign(y - T0 - m), y the play operator of width w: y[k] = clamp(y[k-1], x[k] - w/2, x[k] + w/2)",
-    "duhem": ("s, y the play operator of width w/20 (its dead band) and s[k] = d + (s[k-1] - d) "
-              "exp(-|y[k] - y[k-1]| / w), d = sign(y[k] - y[k-1]), s kept while y stands"),
+    "duhem": (
+        "s, y the play operator of width w/20 (its dead band) and s[k] = d + (s[k-1] - d) "
+        "exp(-|y[k] - y[k-1]| / w), d = sign(y[k] - y[k-1]), s kept while y stands"
+    ),
 }
-TEMPERATURE_HISTORY_START = ("a unit brought from a {room:g} degC room: y[0] = clamp({room:g}, x[0] - h, "
-                             "x[0] + h), h the play's half width; for duhem s[0] = d0 (1 - exp(-|y[0] - "
-                             "{room:g}| / w)), d0 = sign(x[0] - {room:g}) where |x[0] - {room:g}| > h, else 0")
+TEMPERATURE_HISTORY_START = (
+    "a unit brought from a {room:g} degC room: y[0] = clamp({room:g}, x[0] - h, "
+    "x[0] + h), h the play's half width; for duhem s[0] = d0 (1 - exp(-|y[0] - "
+    "{room:g}| / w)), d0 = sign(x[0] - {room:g}) where |x[0] - {room:g}| > h, else 0"
+)
 
 
 def _history_formula(spec) -> str | None:
     """An expression term's formula as ``ast.unparse`` writes it (the forms' spelling), else
     None."""
     import ast
+
     if not isinstance(spec, dict) or spec.get("name") != HISTORY_TERM or spec.get("drop"):
         return None
     try:
@@ -198,7 +211,9 @@ def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
         if history_form(spec) is not None or temperature_history_form(spec) is not None:
             continue
         name = spec.get("name") if isinstance(spec, dict) else spec
-        spline_ok = not isinstance(spec, dict) or (spec.get("input") in SPLINE_INPUTS and not spec.get("drop"))
+        spline_ok = not isinstance(spec, dict) or (
+            spec.get("input") in SPLINE_INPUTS and not spec.get("drop")
+        )
         if name not in supported_terms(kind) or (name == SPLINE_TERM and not spline_ok):
             names.append(str(name) + (f"(input={spec.get('input')})" if name == SPLINE_TERM else ""))
     return names
@@ -210,14 +225,16 @@ def _refuse(names: list[str], kind: str, source) -> None:
         f"cannot export for firmware: term{'s' * (len(names) > 1)} {', '.join(names)} "
         f"{'are' if len(names) > 1 else 'is'} beyond the rule w_true = K(T)^-1 (w - B(T)), which "
         f"for {what} calibration holds {', '.join(supported_terms(kind))}; compensate with "
-        "gyrocal apply", source=source)
+        "gyrocal apply",
+        source=source,
+    )
 
 
 def _legendre_fit(cal: Calibration, source) -> dict:
     """K(T), B(T) of a continuous calibration as Legendre series over its span: the lowest
     degree whose interpolation at Chebyshev points reproduces them everywhere."""
     lo, hi = cal.grid.span
-    centre, half = (lo + hi) / 2, max((hi - lo) / 2, 1e-12)    # as thermal.poly_weights
+    centre, half = (lo + hi) / 2, max((hi - lo) / 2, 1e-12)  # as thermal.poly_weights
     check_T = np.linspace(lo, hi, 201)
     K, B = cal.matrices_at(check_T)
     want = np.concatenate([K.reshape(-1, 9), B], axis=1)
@@ -225,14 +242,23 @@ def _legendre_fit(cal: Calibration, source) -> dict:
     for degree in range(0, MAX_DEGREE + 1 if hi > lo else 1):
         x = np.cos(np.pi * (np.arange(degree + 1) + 0.5) / (degree + 1))
         K, B = cal.matrices_at(centre + half * x)
-        L = np.linalg.solve(np.polynomial.legendre.legvander(x, degree),
-                            np.concatenate([K.reshape(-1, 9), B], axis=1))
+        L = np.linalg.solve(
+            np.polynomial.legendre.legvander(x, degree), np.concatenate([K.reshape(-1, 9), B], axis=1)
+        )
         got = np.polynomial.legendre.legvander((check_T - centre) / half, degree) @ L
         if np.max(np.abs(got - want)) <= tol:
-            return dict(degree=degree, poly_centre=float(centre), poly_half_range=float(half),
-                        poly_K=L[:, :9].reshape(degree + 1, 3, 3), poly_B=L[:, 9:].copy())
-    raise UnsupportedModelError(f"cannot export for firmware: K(T) and B(T) are not polynomials of "
-                                f"degree {MAX_DEGREE} or less in temperature", source=source)
+            return dict(
+                degree=degree,
+                poly_centre=float(centre),
+                poly_half_range=float(half),
+                poly_K=L[:, :9].reshape(degree + 1, 3, 3),
+                poly_B=L[:, 9:].copy(),
+            )
+    raise UnsupportedModelError(
+        f"cannot export for firmware: K(T) and B(T) are not polynomials of "
+        f"degree {MAX_DEGREE} or less in temperature",
+        source=source,
+    )
 
 
 def _splines(cal: Calibration) -> tuple:
@@ -252,8 +278,15 @@ def _splines(cal: Calibration) -> tuple:
         for i, a in enumerate("xyz"):
             for j in range(term.size):
                 coefficients[i, dropped + j] = float(values[f"{term.label}.{a}.k{j + 1}"][0])
-        out.append({"label": term.label, "input": term.input, "by": term.by, "knots": vector,
-                    "coefficients": coefficients})
+        out.append(
+            {
+                "label": term.label,
+                "input": term.input,
+                "by": term.by,
+                "knots": vector,
+                "coefficients": coefficients,
+            }
+        )
     return tuple(out)
 
 
@@ -261,10 +294,12 @@ def _session_wide(cal: Calibration, label: str, source) -> np.ndarray:
     """A history's coefficient per output axis. Its effect belongs to the session's time,
     not to a temperature point: the same at every grid point, or the export is refused."""
     values = cal.grid.at(np.asarray(cal.grid.temperatures, dtype=float), warn=False)
-    c = np.array([values[f"{label}.{a}"] for a in "xyz"], dtype=float)   # (3, P)
+    c = np.array([values[f"{label}.{a}"] for a in "xyz"], dtype=float)  # (3, P)
     if not np.all(c == c[:, :1]):
-        raise UnsupportedModelError(f"cannot export for firmware: {label}'s coefficients "
-                                    "differ between temperature points", source=source)
+        raise UnsupportedModelError(
+            f"cannot export for firmware: {label}'s coefficients differ between temperature points",
+            source=source,
+        )
     return c[:, 0].copy()
 
 
@@ -276,9 +311,16 @@ def _histories(cal: Calibration, source) -> tuple:
     for term, spec in zip(cal.model.terms, cal.model.spec(), strict=False):
         form = history_form(spec)
         if form is not None:
-            out.append({"label": term.label, "input": form[0], "diagonal": form[1],
-                        "tau": float(term.parameters["tau"]), "formula": term.formula,
-                        "coefficients": _session_wide(cal, term.label, source)})
+            out.append(
+                {
+                    "label": term.label,
+                    "input": form[0],
+                    "diagonal": form[1],
+                    "tau": float(term.parameters["tau"]),
+                    "formula": term.formula,
+                    "coefficients": _session_wide(cal, term.label, source),
+                }
+            )
     return tuple(out)
 
 
@@ -290,9 +332,17 @@ def _temperature_histories(cal: Calibration, source) -> tuple:
         operator = temperature_history_form(spec)
         if operator is not None:
             p = term.parameters
-            out.append({"label": term.label, "operator": operator, "formula": term.formula,
-                        "w": float(p["w"]), "T0": float(p.get("T0", 0.0)), "m": float(p.get("m", 0.0)),
-                        "coefficients": _session_wide(cal, term.label, source)})
+            out.append(
+                {
+                    "label": term.label,
+                    "operator": operator,
+                    "formula": term.formula,
+                    "w": float(p["w"]),
+                    "T0": float(p.get("T0", 0.0)),
+                    "m": float(p.get("m", 0.0)),
+                    "coefficients": _session_wide(cal, term.label, source),
+                }
+            )
     return tuple(out)
 
 
@@ -301,16 +351,24 @@ def _without_splines(cal: Calibration) -> Calibration:
     from dataclasses import replace
 
     from ..fit.model import Model
-    added = [t.name == SPLINE_TERM or history_form(s) is not None or temperature_history_form(s) is not None
-             for t, s in zip(cal.model.terms, cal.model.spec(), strict=False)]
+
+    added = [
+        t.name == SPLINE_TERM or history_form(s) is not None or temperature_history_form(s) is not None
+        for t, s in zip(cal.model.terms, cal.model.spec(), strict=False)
+    ]
     if not any(added):
         return cal
     model = Model(tuple(t for t, drop in zip(cal.model.terms, added, strict=False) if not drop))
     keep = [j for j, n in enumerate(cal.grid.names) if n in set(model.names)]
     g = cal.grid
     cov = None if g.covariance is None else g.covariance[..., keep, :][..., keep]
-    grid = replace(g, names=tuple(g.names[j] for j in keep), values=g.values[..., keep],
-                   stderr=g.stderr[..., keep], covariance=cov)
+    grid = replace(
+        g,
+        names=tuple(g.names[j] for j in keep),
+        values=g.values[..., keep],
+        stderr=g.stderr[..., keep],
+        covariance=cov,
+    )
     return replace(cal, model=model, grid=grid)
 
 
@@ -329,17 +387,27 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     declared = cal.grid.method
     method = declared if cal.kind == "temperature_grid" else "poly"
     if method in ("lagrange3", "spline") and P < 3:
-        method = "linear"                  # as thermal.lagrange3_weights / spline_weights
+        method = "linear"  # as thermal.lagrange3_weights / spline_weights
     die = [t for t in cal.model.terms if t.name == DIE_TERM]
-    tables = dict(temperature=temps, K=K, B=B, K_inv=np.linalg.inv(K), method=method,
-                  calibration_method=declared, die_tau=float(die[0].tau) if die else None,
-                  splines=splines, histories=histories, temperature_histories=temperature_histories)
-    Y = np.concatenate([K.reshape(P, 9), B], axis=1)   # every entry, one column each
+    tables = dict(
+        temperature=temps,
+        K=K,
+        B=B,
+        K_inv=np.linalg.inv(K),
+        method=method,
+        calibration_method=declared,
+        die_tau=float(die[0].tau) if die else None,
+        splines=splines,
+        histories=histories,
+        temperature_histories=temperature_histories,
+    )
+    Y = np.concatenate([K.reshape(P, 9), B], axis=1)  # every entry, one column each
     if cal.kind == "continuous":
         tables.update(_legendre_fit(cal, source))
     elif method == "spline":
         from scipy.interpolate import CubicSpline  # half a second to import: only for a spline
-        c = CubicSpline(temps, Y, bc_type="natural").c.transpose(1, 0, 2)   # (P-1, 4, 12)
+
+        c = CubicSpline(temps, Y, bc_type="natural").c.transpose(1, 0, 2)  # (P-1, 4, 12)
         tables.update(spline_K=c[..., :9].reshape(P - 1, 4, 3, 3), spline_B=c[..., 9:].copy())
     elif method == "poly":
         # thermal.poly_weights: W = legvander(x) @ pinv(legvander(nodes)), so W @ Y is the
@@ -348,8 +416,13 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
         centre, half = (temps[0] + temps[-1]) / 2, max((temps[-1] - temps[0]) / 2, 1e-12)
         V = np.polynomial.legendre.legvander((temps - centre) / half, degree)
         L = np.linalg.pinv(V) @ Y
-        tables.update(degree=degree, poly_centre=float(centre), poly_half_range=float(half),
-                      poly_K=L[:, :9].reshape(degree + 1, 3, 3), poly_B=L[:, 9:].copy())
+        tables.update(
+            degree=degree,
+            poly_centre=float(centre),
+            poly_half_range=float(half),
+            poly_K=L[:, :9].reshape(degree + 1, 3, 3),
+            poly_B=L[:, 9:].copy(),
+        )
     for name, value in tables.items():
         if isinstance(value, np.ndarray) and not np.all(np.isfinite(value)):
             raise InputError(f"cannot export for firmware: {name} is not finite", source=source)
@@ -371,62 +444,101 @@ def _source_info(source) -> dict | None:
 
 
 def _interpolation(t: FirmwareTables) -> dict:
-    return {"method": t.method, "calibration_method": t.calibration_method,
-            **({"degree": t.degree} if t.degree is not None else {}),
-            "interpolated": "K and B entries; K is inverted after interpolation"
-            if t.calibration_method != "continuous" else
-            "none: K and B entries are the continuous model's polynomials; K is inverted after",
-            "outside_range": "clamp",
-            "range": [float(t.temperature[0]), float(t.temperature[-1])]}
+    return {
+        "method": t.method,
+        "calibration_method": t.calibration_method,
+        **({"degree": t.degree} if t.degree is not None else {}),
+        "interpolated": "K and B entries; K is inverted after interpolation"
+        if t.calibration_method != "continuous"
+        else "none: K and B entries are the continuous model's polynomials; K is inverted after",
+        "outside_range": "clamp",
+        "range": [float(t.temperature[0]), float(t.temperature[-1])],
+    }
 
 
 def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dict:
     """The ``gyrocal.firmware/1`` JSON document."""
-    doc = {"format": FORMAT,
-           **{k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
-           "source": _source_info(source), "gyrocal_version": __version__, "units": UNITS,
-           "model": "w = K(T) w_true + B(T)", "compensation": "w_true = K(T)^-1 (w - B(T))",
-           "interpolation": _interpolation(tables),
-           "temperature": tables.temperature.tolist(), "K": tables.K.tolist(),
-           "B": tables.B.tolist(), "K_inv": tables.K_inv.tolist()}
+    doc = {
+        "format": FORMAT,
+        **{k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
+        "source": _source_info(source),
+        "gyrocal_version": __version__,
+        "units": UNITS,
+        "model": "w = K(T) w_true + B(T)",
+        "compensation": "w_true = K(T)^-1 (w - B(T))",
+        "interpolation": _interpolation(tables),
+        "temperature": tables.temperature.tolist(),
+        "K": tables.K.tolist(),
+        "B": tables.B.tolist(),
+        "K_inv": tables.K_inv.tolist(),
+    }
     if tables.method == "spline":
         doc["spline"] = {"K": tables.spline_K.tolist(), "B": tables.spline_B.tolist()}
     if tables.method == "poly":
-        doc["poly"] = {"degree": tables.degree, "centre": tables.poly_centre,
-                       "half_range": tables.poly_half_range, "K": tables.poly_K.tolist(),
-                       "B": tables.poly_B.tolist()}
+        doc["poly"] = {
+            "degree": tables.degree,
+            "centre": tables.poly_centre,
+            "half_range": tables.poly_half_range,
+            "K": tables.poly_K.tolist(),
+            "B": tables.poly_B.tolist(),
+        }
     if tables.splines:
-        doc["splines"] = [{"label": s["label"], "input": s["input"], "by": s["by"], "degree": 3,
-                           "knots": s["knots"].tolist(), "coefficients": s["coefficients"].tolist(),
-                           "adds_to": "K diagonal (times nothing: K_aa += s_a(x))" if s["by"]
-                           else "B (B_a += s_a(x))", "outside_knots": "clamp"}
-                          for s in tables.splines]
+        doc["splines"] = [
+            {
+                "label": s["label"],
+                "input": s["input"],
+                "by": s["by"],
+                "degree": 3,
+                "knots": s["knots"].tolist(),
+                "coefficients": s["coefficients"].tolist(),
+                "adds_to": "K diagonal (times nothing: K_aa += s_a(x))" if s["by"] else "B (B_a += s_a(x))",
+                "outside_knots": "clamp",
+            }
+            for s in tables.splines
+        ]
         doc["time"] = "t: seconds since power-on"
     if tables.histories:
-        doc["histories"] = [{"label": h["label"], "formula": h["formula"], "input": HISTORY_INPUTS[h["input"]],
-                             "tau_s": h["tau"], "filter": LAG_FILTER,
-                             "coefficients": h["coefficients"].tolist(),
-                             "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a"
-                                                                if h["diagonal"] else "")}
-                            for h in tables.histories]
+        doc["histories"] = [
+            {
+                "label": h["label"],
+                "formula": h["formula"],
+                "input": HISTORY_INPUTS[h["input"]],
+                "tau_s": h["tau"],
+                "filter": LAG_FILTER,
+                "coefficients": h["coefficients"].tolist(),
+                "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a" if h["diagonal"] else ""),
+            }
+            for h in tables.histories
+        ]
     if tables.temperature_histories:
         from ..io.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
+
         doc["temperature_histories"] = [
-            {"label": h["label"], "formula": h["formula"], "operator": h["operator"],
-             "input": f"x: the logged temperature through a first-order lag of {TEMPERATURE_SMOOTHING_S:g} s "
-                      "(the filter of 'histories', u the temperature, one filter per term)",
-             "lag_tau_s": TEMPERATURE_SMOOTHING_S, "w": h["w"],
-             **({"T0": h["T0"], "m": h["m"]} if h["operator"] == "switch" else {}),
-             "value": TEMPERATURE_HISTORY_VALUES[h["operator"]],
-             "start": TEMPERATURE_HISTORY_START.format(room=ROOM_C),
-             "filter": LAG_FILTER.split("; one filter")[0],
-             "coefficients": h["coefficients"].tolist(), "adds_to": "B (B_a += c_a value)"}
-            for h in tables.temperature_histories]
+            {
+                "label": h["label"],
+                "formula": h["formula"],
+                "operator": h["operator"],
+                "input": f"x: the logged temperature through a first-order lag of {TEMPERATURE_SMOOTHING_S:g} s "
+                "(the filter of 'histories', u the temperature, one filter per term)",
+                "lag_tau_s": TEMPERATURE_SMOOTHING_S,
+                "w": h["w"],
+                **({"T0": h["T0"], "m": h["m"]} if h["operator"] == "switch" else {}),
+                "value": TEMPERATURE_HISTORY_VALUES[h["operator"]],
+                "start": TEMPERATURE_HISTORY_START.format(room=ROOM_C),
+                "filter": LAG_FILTER.split("; one filter")[0],
+                "coefficients": h["coefficients"].tolist(),
+                "adds_to": "B (B_a += c_a value)",
+            }
+            for h in tables.temperature_histories
+        ]
     if tables.die_tau is not None:
         doc["model"] = "w = K(T_die) w_true + B(T_die)"
         doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"
-        doc["die_temperature"] = {"tau_s": tables.die_tau, "filter": DIE_FILTER,
-                                  "time": "t in seconds, increasing"}
+        doc["die_temperature"] = {
+            "tau_s": tables.die_tau,
+            "filter": DIE_FILTER,
+            "time": "t in seconds, increasing",
+        }
     return doc
 
 
@@ -446,8 +558,13 @@ def c_array(values, indent: str = "    ", level: int = 0) -> str:
     if all(not isinstance(v, (list, tuple)) for v in values):
         return "{" + ", ".join(c_number(v) for v in values) + "}"
     inner = indent * (level + 1)
-    return "{\n" + ",\n".join(inner + c_array(v, indent, level + 1) for v in values) + "\n" \
-        + indent * level + "}"
+    return (
+        "{\n"
+        + ",\n".join(inner + c_array(v, indent, level + 1) for v in values)
+        + "\n"
+        + indent * level
+        + "}"
+    )
 
 
 def c_string(value) -> str:
@@ -476,25 +593,48 @@ def _c_environment():
     made safe for C by the filters below), a name the template uses but is not given is an
     error, and block tags on lines of their own leave no blank lines."""
     import jinja2
-    env = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal.calibration", "templates"),
-                             autoescape=False, undefined=jinja2.StrictUndefined,
-                             keep_trailing_newline=True, trim_blocks=True, lstrip_blocks=True)
-    env.filters.update(c_number=c_number, c_string=c_string, c_comment=c_comment,
-                       c_array=lambda v: c_array(np.asarray(v).tolist()))
+
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("gyrocal.calibration", "templates"),
+        autoescape=False,
+        undefined=jinja2.StrictUndefined,
+        keep_trailing_newline=True,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+    env.filters.update(
+        c_number=c_number,
+        c_string=c_string,
+        c_comment=c_comment,
+        c_array=lambda v: c_array(np.asarray(v).tolist()),
+    )
     return env
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:
     from ..io.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
-    return _c_environment().get_template("compensation.h.j2").render(
-        t=tables, meta={k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
-        source=_source_info(source), version=__version__, format=FORMAT,
-        n=len(tables.temperature), room=ROOM_C, smoothing=TEMPERATURE_SMOOTHING_S, band=DUHEM_BAND)
+
+    return (
+        _c_environment()
+        .get_template("compensation.h.j2")
+        .render(
+            t=tables,
+            meta={k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
+            source=_source_info(source),
+            version=__version__,
+            format=FORMAT,
+            n=len(tables.temperature),
+            room=ROOM_C,
+            smoothing=TEMPERATURE_SMOOTHING_S,
+            band=DUHEM_BAND,
+        )
+    )
 
 
 def _render(cal: Calibration, tables: FirmwareTables, fmt: str, source) -> str:
     if fmt == "json":
         from .file import dumps
+
         return dumps(to_document(cal, tables, source=source))
     return render_c_header(cal, tables, source=source)
 
@@ -531,7 +671,7 @@ def _precheck(path) -> None:
         kind = model.get("kind")
         extra = unsupported_terms(model["terms"], kind)
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
-        return                              # load_calibration says what is wrong
+        return  # load_calibration says what is wrong
     if extra and kind in ("temperature_grid", "continuous"):
         _refuse(extra, kind, path)
 
@@ -547,12 +687,15 @@ def infer_format(output) -> str:
 def cmd_export(args) -> int:
     fmt = args.format or infer_format(args.output)
     from .file import load_calibration
+
     _precheck(args.calibration)
     cal = load_calibration(args.calibration)
     tables = export_calibration(cal, fmt, args.output, source=args.calibration)
     lo, hi = tables.temperature[0], tables.temperature[-1]
-    print(f"firmware {fmt} -> {args.output} ({len(tables.temperature)} points, {tables.method}, "
-          f"{lo:g} to {hi:g} °C, clamped outside)")
+    print(
+        f"firmware {fmt} -> {args.output} ({len(tables.temperature)} points, {tables.method}, "
+        f"{lo:g} to {hi:g} °C, clamped outside)"
+    )
     return 0
 
 
@@ -560,9 +703,12 @@ def add_export_parser(subparsers):
     """Register ``gyrocal export`` on the CLI's subparsers."""
     p = subparsers.add_parser("export", help="a calibration for firmware: C header or JSON")
     p.add_argument("calibration", help="calibration .json (gyrocal.calibration/1)")
-    p.add_argument("--format", choices=list(FORMATS),
-                   help="c-header (grid, K, B and a reference C implementation) or json "
-                   "(default: from the suffix of -o, .h or .json)")
+    p.add_argument(
+        "--format",
+        choices=list(FORMATS),
+        help="c-header (grid, K, B and a reference C implementation) or json "
+        "(default: from the suffix of -o, .h or .json)",
+    )
     p.add_argument("-o", "--output", required=True)
     p.set_defaults(func=cmd_export)
     return p

@@ -18,8 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..fit.model import Model
-from ..fit.thermal import (DIAGONAL_RTOL, ConstantCoefficients, TemperatureGrid, check_method,
-                           warn_outside)
+from ..fit.thermal import DIAGONAL_RTOL, ConstantCoefficients, TemperatureGrid, check_method, warn_outside
 from ..io import atomic, formats
 from ..io.errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
 from ..io.signals import SERIES_INPUTS, Inputs
@@ -30,12 +29,12 @@ FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
 UNITS = {"rate": "deg/s", "temperature": "degC", "K": "1", "B": "deg/s"}
 
 
-
 def distinct_rows(columns: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """The distinct rows of float columns (each (n,)), compared bit for bit: a
     representative row of each, and each row's distinct row (``first[index]`` is a row
     equal to every row)."""
     import pandas as pd  # loaded already by the calibration's modules; hashing, no sort
+
     n = len(columns[0])
     index = np.zeros(n, np.int64)
     for column in columns:
@@ -54,9 +53,14 @@ def inverse3(M: np.ndarray) -> np.ndarray:
     a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 0, 2]
     d, e, f = M[:, 1, 0], M[:, 1, 1], M[:, 1, 2]
     g, h, i = M[:, 2, 0], M[:, 2, 1], M[:, 2, 2]
-    adj = np.stack([np.stack([e * i - f * h, c * h - b * i, b * f - c * e], axis=1),
-                    np.stack([f * g - d * i, a * i - c * g, c * d - a * f], axis=1),
-                    np.stack([d * h - e * g, b * g - a * h, a * e - b * d], axis=1)], axis=1)
+    adj = np.stack(
+        [
+            np.stack([e * i - f * h, c * h - b * i, b * f - c * e], axis=1),
+            np.stack([f * g - d * i, a * i - c * g, c * d - a * f], axis=1),
+            np.stack([d * h - e * g, b * g - a * h, a * e - b * d], axis=1),
+        ],
+        axis=1,
+    )
     det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
         return adj / det[:, None, None]
@@ -74,17 +78,18 @@ def standard_coefficients(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]
                 out[f"misalignment.{a}.{b}"] = K[:, i, j]
     return out
 
+
 @dataclass(frozen=True)
 class Calibration:
     """A fitted model over a temperature grid, plus who and what it belongs to."""
 
     model: Model
-    grid: TemperatureGrid | ConstantCoefficients   # per-point values, or one set
+    grid: TemperatureGrid | ConstantCoefficients  # per-point values, or one set
     reference_temperature: float = 25.0
-    meta: dict = field(default_factory=dict)         # device, batch, session, protocol
-    provenance: dict = field(default_factory=dict)   # input, versions, config hash
-    extra: dict = field(default_factory=dict)        # carried along, not needed to apply
-    covariates: dict = field(default_factory=dict)   # how apply derives inputs, e.g. temp_rate
+    meta: dict = field(default_factory=dict)  # device, batch, session, protocol
+    provenance: dict = field(default_factory=dict)  # input, versions, config hash
+    extra: dict = field(default_factory=dict)  # carried along, not needed to apply
+    covariates: dict = field(default_factory=dict)  # how apply derives inputs, e.g. temp_rate
 
     @property
     def kind(self) -> str:
@@ -126,8 +131,7 @@ class Calibration:
         terms (:attr:`static_model`) with covariates other than temperature at zero."""
         temps = np.atleast_1d(np.asarray(temps, dtype=float))
         coefs = self.coefficients(temps, warn=False)
-        return self.static_model.linearise(coefs, self._neutral(len(temps), temps),
-                                           np.zeros((len(temps), 3)))
+        return self.static_model.linearise(coefs, self._neutral(len(temps), temps), np.zeros((len(temps), 3)))
 
     def matrices(self) -> tuple[np.ndarray, np.ndarray]:
         """K and B at the calibration's own temperature points."""
@@ -154,8 +158,11 @@ class Calibration:
             warn_outside(self.grid, temp)
         covariates = {**data, "temp": self.clamp(temp)}
         reads = sorted(k for k in self.model.inputs if k in covariates and k != "temp")
-        first, index = (None, None) if self.model.inputs & SERIES_INPUTS else \
-            distinct_rows([temp, *(covariates[k] for k in reads)])
+        first, index = (
+            (None, None)
+            if self.model.inputs & SERIES_INPUTS
+            else distinct_rows([temp, *(covariates[k] for k in reads)])
+        )
         if first is None or len(first) > len(temp) // 2:  # little to share (time, noise)
             w_true, _ = self.model.compensate(self.coefficients(temp, warn=False), gyro, covariates)
             return w_true
@@ -164,13 +171,15 @@ class Calibration:
         J, c = self.model.linearise(coefs, at, np.zeros((len(first), 3)))
         # w_true = J^-1 (w - c) = A w + d per distinct row, spread to the rows in one gather
         A = inverse3(J)
-        Ad = np.take(np.concatenate([A.reshape(-1, 9), -np.einsum("nij,nj->ni", A, c)], axis=1),
-                     index, axis=0)
+        Ad = np.take(
+            np.concatenate([A.reshape(-1, 9), -np.einsum("nij,nj->ni", A, c)], axis=1), index, axis=0
+        )
         w_true = np.einsum("nij,nj->ni", Ad[:, :9].reshape(-1, 3, 3), gyro) + Ad[:, 9:]
         names = list(coefs)
         spread = np.take(np.stack([coefs[k] for k in names]), index, axis=1)
-        w_true, _ = self.model.compensate(dict(zip(names, spread, strict=False)), gyro, covariates,
-                                          start=(w_true, None))
+        w_true, _ = self.model.compensate(
+            dict(zip(names, spread, strict=False)), gyro, covariates, start=(w_true, None)
+        )
         return w_true
 
     # -- file format -----------------------------------------------------------------
@@ -189,7 +198,7 @@ class Calibration:
             stderr = {n: g.stderr[:, j].tolist() for j, n in enumerate(g.names)}
             interpolation = {"method": g.method, "degree": g.degree, "outside_range": "clamp"}
         if g.covariance is not None:
-            extra_grid["covariance"] = g.covariance.tolist()   # canonical: see thermal.py
+            extra_grid["covariance"] = g.covariance.tolist()  # canonical: see thermal.py
         body = {
             "format": FORMAT,
             **{k: self.meta.get(k) for k in ("device", "batch", "session", "protocol")},
@@ -221,6 +230,7 @@ class Calibration:
     @classmethod
     def from_dict(cls, d: dict, *, source=None) -> Calibration:
         """Parse and check a ``gyrocal.calibration/1`` document."""
+
         def fail(problem):
             raise CalibrationFileError(problem, source=source)
 
@@ -232,8 +242,10 @@ class Calibration:
         if not isinstance(fmt, str) or "/" not in fmt or fmt.split("/")[0] != FORMAT_FAMILY:
             fail(f"format is {fmt!r}, expected {FORMAT!r}")
         if fmt.split("/")[1] != FORMAT_VERSION:
-            fail(f"format version {fmt.split('/')[1]} is not one this gyrocal reads "
-                 f"(it reads {FORMAT_VERSION})")
+            fail(
+                f"format version {fmt.split('/')[1]} is not one this gyrocal reads "
+                f"(it reads {FORMAT_VERSION})"
+            )
         try:
             model_d, grid_d = d["model"], d["grid"]
             kind = model_d.get("kind")
@@ -251,13 +263,20 @@ class Calibration:
                 except GyrocalError as exc:
                     fail(str(exc))
             reference = model_d.get("reference_temperature", 25.0)
-            if isinstance(reference, bool) or not isinstance(reference, (int, float)) \
-                    or not math.isfinite(reference):
+            if (
+                isinstance(reference, bool)
+                or not isinstance(reference, (int, float))
+                or not math.isfinite(reference)
+            ):
                 fail(f"model reference_temperature must be a number, got {reference!r}")
             covariates = model_d.get("covariates", {})
             window = covariates.get("temp_rate", {}).get("window_s", 60.0)
-            if isinstance(window, bool) or not isinstance(window, (int, float)) \
-                    or not math.isfinite(window) or window <= 0:
+            if (
+                isinstance(window, bool)
+                or not isinstance(window, (int, float))
+                or not math.isfinite(window)
+                or window <= 0
+            ):
                 fail(f"model covariates temp_rate window_s must be a positive number, got {window!r}")
             units = d.get("units", UNITS)
             wrong = {k: units.get(k) for k, v in UNITS.items() if units.get(k) != v}
@@ -266,13 +285,23 @@ class Calibration:
             temps = _floats(grid_d["temperature"], "grid.temperature", fail)
             names = tuple(model.names)
             if kind == "continuous":
-                values = np.array([_number(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names])
+                values = np.array(
+                    [_number(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names]
+                )
                 stderr = np.array([_number(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
             else:
-                values = np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail)
-                                          for n in names]) if names else np.zeros((len(temps), 0))
-                stderr = np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail)
-                                          for n in names]) if names else np.zeros((len(temps), 0))
+                values = (
+                    np.column_stack(
+                        [_floats(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names]
+                    )
+                    if names
+                    else np.zeros((len(temps), 0))
+                )
+                stderr = (
+                    np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
+                    if names
+                    else np.zeros((len(temps), 0))
+                )
         except KeyError as exc:
             fail(f"missing key {exc.args[0]!r}")
         except (TypeError, AttributeError):
@@ -289,17 +318,23 @@ class Calibration:
                 fail("grid.span must be [low, high] around the grid temperatures")
             span = (float(span[0]), float(span[1]))
         try:
-            grid = ConstantCoefficients(temps, names, values, stderr, fitted_span=span,
-                                        covariance=covariance) if kind == "continuous" \
+            grid = (
+                ConstantCoefficients(temps, names, values, stderr, fitted_span=span, covariance=covariance)
+                if kind == "continuous"
                 else TemperatureGrid(temps, names, values, stderr, method, degree, covariance)
+            )
         except GyrocalError as exc:
             fail(f"grid: {exc}")
-        known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid",
-                 "provenance"}
-        cal = cls(model, grid, float(reference),
-                  {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
-                  d.get("provenance", {}), {k: v for k, v in d.items() if k not in known},
-                  covariates)
+        known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid", "provenance"}
+        cal = cls(
+            model,
+            grid,
+            float(reference),
+            {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
+            d.get("provenance", {}),
+            {k: v for k, v in d.items() if k not in known},
+            covariates,
+        )
         K, B = cal.matrices()
         try:
             stored_K = np.asarray(grid_d["K"], dtype=float)
@@ -310,9 +345,12 @@ class Calibration:
             fail("grid K and B must be nested lists of numbers")
         if not (np.all(np.isfinite(stored_K)) and np.all(np.isfinite(stored_B))):
             fail("grid K and B must hold finite numbers")
-        if stored_K.shape != K.shape or stored_B.shape != B.shape or \
-                not np.allclose(stored_K, K, rtol=1e-9, atol=1e-12) or \
-                not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12):
+        if (
+            stored_K.shape != K.shape
+            or stored_B.shape != B.shape
+            or not np.allclose(stored_K, K, rtol=1e-9, atol=1e-12)
+            or not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12)
+        ):
             fail("grid K and B do not match the coefficients (edited by hand?)")
         return cal
 
@@ -321,7 +359,7 @@ class Calibration:
 # covariance between a coefficient of 1e-2 and one of 1e-9 is neither drowned by nor drowns
 # the others. Rounding leaves about 1e-16 of that scale. The diagonal's tolerance
 # (DIAGONAL_RTOL) is the one files already written were read with.
-ASYMMETRY_RTOL = 1e-9     # |C_ij − C_ji| ≤ rtol sqrt(C_ii C_jj)
+ASYMMETRY_RTOL = 1e-9  # |C_ij − C_ji| ≤ rtol sqrt(C_ii C_jj)
 CORRELATION_SLACK = 1e-6  # |C_ij| ≤ (1 + slack) sqrt(C_ii C_jj): correlations within ±1
 
 
@@ -335,8 +373,8 @@ def covariance_problem(cov, stderr, names, temps) -> str | None:
     per_point = cov.ndim == 3
     if not per_point:
         cov, stderr = cov[None], stderr[None]
-    variance = stderr ** 2
-    scale = stderr[:, :, None] * stderr[:, None, :]          # sqrt(C_ii C_jj) as written
+    variance = stderr**2
+    scale = stderr[:, :, None] * stderr[:, None, :]  # sqrt(C_ii C_jj) as written
 
     def at(p):
         return f" at {float(temps[p]):g} °C (point {p + 1} of {len(temps)})" if per_point else ""
@@ -345,23 +383,29 @@ def covariance_problem(cov, stderr, names, temps) -> str | None:
     off = np.abs(diag - variance)
     if np.any(off > DIAGONAL_RTOL * variance):
         p, i = np.unravel_index(np.argmax(off / np.where(variance > 0, variance, 1e-300)), off.shape)
-        return (f"grid.covariance{at(p)}: C[{names[i]},{names[i]}] = {float(diag[p, i]):.17g} "
-                f"is not the squared stderr {float(variance[p, i]):.17g}")
+        return (
+            f"grid.covariance{at(p)}: C[{names[i]},{names[i]}] = {float(diag[p, i]):.17g} "
+            f"is not the squared stderr {float(variance[p, i]):.17g}"
+        )
     for size, limit, what in (
-            (np.abs(cov - np.swapaxes(cov, -1, -2)), ASYMMETRY_RTOL * scale,
-             "is not symmetric: |C[{a},{b}] − C[{b},{a}]| = {x:.3g}"),
-            (np.abs(cov), (1 + CORRELATION_SLACK) * scale,
-             "is not a covariance: |C[{a},{b}]| = {x:.3g}")):
+        (
+            np.abs(cov - np.swapaxes(cov, -1, -2)),
+            ASYMMETRY_RTOL * scale,
+            "is not symmetric: |C[{a},{b}] − C[{b},{a}]| = {x:.3g}",
+        ),
+        (np.abs(cov), (1 + CORRELATION_SLACK) * scale, "is not a covariance: |C[{a},{b}]| = {x:.3g}"),
+    ):
         bad = size > limit
         if bad.any():
             with np.errstate(divide="ignore", invalid="ignore"):
-                ratio = np.where(bad, size / scale, 0.0)      # against a zero: infinite
+                ratio = np.where(bad, size / scale, 0.0)  # against a zero: infinite
             p, i, j = np.unravel_index(np.argmax(ratio), ratio.shape)
             a, b = names[i], names[j]
-            times = f"{float(ratio[p, i, j]):.3g} times" if np.isfinite(ratio[p, i, j]) else \
-                "against a zero"
-            return (f"grid.covariance{at(p)} {what.format(a=a, b=b, x=float(size[p, i, j]))}, "
-                    f"{times} sqrt(C[{a},{a}] C[{b},{b}])")
+            times = f"{float(ratio[p, i, j]):.3g} times" if np.isfinite(ratio[p, i, j]) else "against a zero"
+            return (
+                f"grid.covariance{at(p)} {what.format(a=a, b=b, x=float(size[p, i, j]))}, "
+                f"{times} sqrt(C[{a},{a}] C[{b},{b}])"
+            )
     return None
 
 
@@ -444,14 +488,21 @@ def save_calibration(cal: Calibration, path) -> None:
         try:
             again = dumps(load_calibration(tmp).to_dict())
         except GyrocalError as exc:
-            raise GyrocalError(f"the calibration written does not read back "
-                               f"({str(exc).removeprefix(f'{tmp}: ')}); nothing written",
-                               source=path) from None
+            raise GyrocalError(
+                f"the calibration written does not read back "
+                f"({str(exc).removeprefix(f'{tmp}: ')}); nothing written",
+                source=path,
+            ) from None
         if again != text:
             old, new = text.splitlines(), again.splitlines()
-            line = next((i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b), min(len(old), len(new)))
-            raise GyrocalError(f"the calibration written reads back as another one (line {line + 1} "
-                               "differs); nothing written", source=path)
+            line = next(
+                (i for i, (a, b) in enumerate(zip(old, new, strict=False)) if a != b), min(len(old), len(new))
+            )
+            raise GyrocalError(
+                f"the calibration written reads back as another one (line {line + 1} "
+                "differs); nothing written",
+                source=path,
+            )
 
 
 def load_calibration(path) -> Calibration:

@@ -53,27 +53,37 @@ class LookupResult:
     path: Path
     calibration: Calibration
     session: str
-    days_away: int | None          # session minus the date, days (negative: before); None without a date
+    days_away: int | None  # session minus the date, days (negative: before); None without a date
     warning: str | None
-    candidates: int = 0            # the device's readable calibration files
-    skipped: dict = field(default_factory=dict)   # failed_sessions, unreadable: counts
+    candidates: int = 0  # the device's readable calibration files
+    skipped: dict = field(default_factory=dict)  # failed_sessions, unreadable: counts
 
-    def record(self, caldir, device: str, date: dt.date | None, direction: str | None,
-               max_days: float) -> dict:
+    def record(
+        self, caldir, device: str, date: dt.date | None, direction: str | None, max_days: float
+    ) -> dict:
         """JSON-plain summary (what ``gyrocal lookup --json`` prints)."""
         meta = self.calibration.meta
-        return {"path": str(self.path), "caldir": str(caldir), "device": device,
-                "batch": meta.get("batch"), "session": self.session,
-                "protocol": meta.get("protocol"),
-                "date": date.isoformat() if date else None, "direction": direction,
-                "days_away": self.days_away, "max_days": max_days, "warning": self.warning,
-                "candidates": self.candidates, "skipped": dict(self.skipped)}
+        return {
+            "path": str(self.path),
+            "caldir": str(caldir),
+            "device": device,
+            "batch": meta.get("batch"),
+            "session": self.session,
+            "protocol": meta.get("protocol"),
+            "date": date.isoformat() if date else None,
+            "direction": direction,
+            "days_away": self.days_away,
+            "max_days": max_days,
+            "warning": self.warning,
+            "candidates": self.candidates,
+            "skipped": dict(self.skipped),
+        }
 
 
 @dataclass(frozen=True)
 class _Entry:
     path: Path
-    rel: str            # path relative to CALDIR, '/'-separated: the deterministic tie-break
+    rel: str  # path relative to CALDIR, '/'-separated: the deterministic tie-break
     session: str
     date: dt.date
     doc: dict
@@ -183,8 +193,9 @@ def _check_max_days(max_days) -> float:
     return max_days
 
 
-def find_calibration(caldir, device: str, date=None, direction: str | None = None,
-                     max_days: float = DEFAULT_MAX_DAYS) -> LookupResult:
+def find_calibration(
+    caldir, device: str, date=None, direction: str | None = None, max_days: float = DEFAULT_MAX_DAYS
+) -> LookupResult:
     """The calibration of ``device`` below ``caldir`` closest to ``date``.
 
     ``date``: ``YYYY-MM-DD`` or a date; None picks the latest session. ``direction``:
@@ -212,14 +223,17 @@ def find_calibration(caldir, device: str, date=None, direction: str | None = Non
 
     def none_found(problem: str):
         devices = _devices(caldir)
-        notes = [f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
-                 f"device{'s' * (len(devices) != 1)}{_some(devices)}"]
+        notes = [
+            f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
+            f"device{'s' * (len(devices) != 1)}{_some(devices)}"
+        ]
         if failed:
             notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
         if unreadable:
             notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
-        raise NoCalibrationError(f"no calibration of device {device} {problem}: {'; '.join(notes)}",
-                                 source=caldir)
+        raise NoCalibrationError(
+            f"no calibration of device {device} {problem}: {'; '.join(notes)}", source=caldir
+        )
 
     if not readable:
         none_found("in this folder")
@@ -227,13 +241,19 @@ def find_calibration(caldir, device: str, date=None, direction: str | None = Non
         key = lambda ec: (-ec[0].date.toordinal(), ec[0].rel)  # noqa: E731  latest first
         pool = readable
     else:
-        pool = [ec for ec in readable if direction is None
-                or (direction == "before" and ec[0].date <= date)
-                or (direction == "after" and ec[0].date >= date)]
+        pool = [
+            ec
+            for ec in readable
+            if direction is None
+            or (direction == "before" and ec[0].date <= date)
+            or (direction == "after" and ec[0].date >= date)
+        ]
         if not pool:
             sessions = sorted(e.date for e, _ in readable)
-            none_found(f"on or {direction} {date.isoformat()} (its {len(readable)} session"
-                       f"{'s are' if len(readable) > 1 else ' is'} from {sessions[0]} to {sessions[-1]})")
+            none_found(
+                f"on or {direction} {date.isoformat()} (its {len(readable)} session"
+                f"{'s are' if len(readable) > 1 else ' is'} from {sessions[0]} to {sessions[-1]})"
+            )
         key = lambda ec: (abs((ec[0].date - date).days), ec[0].date, ec[0].rel)  # noqa: E731
     entry, cal = min(pool, key=key)
 
@@ -241,13 +261,16 @@ def find_calibration(caldir, device: str, date=None, direction: str | None = Non
     warning = None
     if days is not None and abs(days) > max_days:
         side = "before" if days < 0 else "after"
-        warning = (f"the nearest calibration of {device} (session {entry.session}) is "
-                   f"{abs(days)} days {side} {date.isoformat()}, more than {max_days:g}")
+        warning = (
+            f"the nearest calibration of {device} (session {entry.session}) is "
+            f"{abs(days)} days {side} {date.isoformat()}, more than {max_days:g}"
+        )
     return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped)
 
 
 def _calibration():
     from .file import Calibration  # on demand: the CLI registers lookup at start-up
+
     return Calibration
 
 
@@ -280,8 +303,10 @@ def summary(result: LookupResult, device: str, date: dt.date | None) -> str:
         when = f"{n} day{'s' * (n != 1)} {'before' if result.days_away < 0 else 'after'} {date.isoformat()}"
     labels = {"failed_sessions": "failed session", "unreadable": "unreadable file"}
     skipped = [f"{v} {labels.get(k, k)}{'s' * (v != 1)}" for k, v in result.skipped.items() if v]
-    return (f"{device} session {result.session} ({when}), protocol {meta.get('protocol')}, "
-            f"batch {meta.get('batch')}" + (f"; skipped {', '.join(skipped)}" if skipped else ""))
+    return (
+        f"{device} session {result.session} ({when}), protocol {meta.get('protocol')}, "
+        f"batch {meta.get('batch')}" + (f"; skipped {', '.join(skipped)}" if skipped else "")
+    )
 
 
 def cmd_lookup(args) -> int:
@@ -305,12 +330,26 @@ def add_lookup_parser(subparsers):
     p.add_argument("device")
     p.add_argument("--date", help="YYYY-MM-DD (default: the latest session)")
     side = p.add_mutually_exclusive_group()
-    side.add_argument("--before", dest="direction", action="store_const", const="before",
-                      help="only sessions on or before --date")
-    side.add_argument("--after", dest="direction", action="store_const", const="after",
-                      help="only sessions on or after --date")
-    p.add_argument("--max-days", type=_days, default=DEFAULT_MAX_DAYS,
-                   help=f"warn when the nearest session is further away (default {DEFAULT_MAX_DAYS})")
+    side.add_argument(
+        "--before",
+        dest="direction",
+        action="store_const",
+        const="before",
+        help="only sessions on or before --date",
+    )
+    side.add_argument(
+        "--after",
+        dest="direction",
+        action="store_const",
+        const="after",
+        help="only sessions on or after --date",
+    )
+    p.add_argument(
+        "--max-days",
+        type=_days,
+        default=DEFAULT_MAX_DAYS,
+        help=f"warn when the nearest session is further away (default {DEFAULT_MAX_DAYS})",
+    )
     p.add_argument("--json", action="store_true", help="print a JSON record instead")
     p.set_defaults(func=cmd_lookup, direction=None)
     return p

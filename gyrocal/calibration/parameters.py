@@ -21,7 +21,7 @@ from .file import Calibration, load_calibration, standard_coefficients
 
 # term name -> (display unit, factor from the coefficient's own unit)
 DISPLAY = {"scale": ("ppm", 1e6), "misalignment": ("mrad", 1e3), "bias": ("deg/s", 1.0)}
-TC_SAMPLES = 401         # temperatures at which d/dT is evaluated across the calibrated span
+TC_SAMPLES = 401  # temperatures at which d/dT is evaluated across the calibrated span
 
 
 def _display(cal: Calibration) -> dict[str, tuple[str, float]]:
@@ -69,8 +69,10 @@ def _in_session(cal: Calibration, temps) -> tuple[dict, dict] | None:
         return None
     w = cal.grid.weights(np.clip(temps, *cal.grid.span))
     bias, se = np.asarray(found["bias"], dtype=float), np.asarray(found["stderr"], dtype=float)
-    return ({f"bias.{a}": w @ bias[:, i] for i, a in enumerate(AXES)},
-            {f"bias.{a}": np.sqrt((w ** 2) @ se[:, i] ** 2) for i, a in enumerate(AXES)})
+    return (
+        {f"bias.{a}": w @ bias[:, i] for i, a in enumerate(AXES)},
+        {f"bias.{a}": np.sqrt((w**2) @ se[:, i] ** 2) for i, a in enumerate(AXES)},
+    )
 
 
 def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.DataFrame:
@@ -103,14 +105,16 @@ def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.Data
         session = _in_session(cal, np.array([T]))
         if session is not None:
             se.update({n: float(v[0]) for n, v in session[1].items()})
-    return pd.DataFrame({
-        "parameter": names,
-        "value": [float(values[n]) for n in names],
-        "stderr": [float(se[n]) * units[n][1] for n in names],
-        "unit": [units[n][0] for n in names],
-        "temperature": T,
-        "clamped": clamped,
-    })
+    return pd.DataFrame(
+        {
+            "parameter": names,
+            "value": [float(values[n]) for n in names],
+            "stderr": [float(se[n]) * units[n][1] for n in names],
+            "unit": [units[n][0] for n in names],
+            "temperature": T,
+            "clamped": clamped,
+        }
+    )
 
 
 def temperature_coefficients(cal: Calibration) -> pd.DataFrame | None:
@@ -124,8 +128,13 @@ def temperature_coefficients(cal: Calibration) -> pd.DataFrame | None:
     curves = parameter_curves(cal, temps)
     units = _display(cal)
     slope = {n: float(np.max(np.abs(np.gradient(v, temps, edge_order=2)))) for n, v in curves.items()}
-    return pd.DataFrame({"parameter": list(slope), "value": list(slope.values()),
-                         "unit": [f"{units[n][0]}/°C" for n in slope]})
+    return pd.DataFrame(
+        {
+            "parameter": list(slope),
+            "value": list(slope.values()),
+            "unit": [f"{units[n][0]}/°C" for n in slope],
+        }
+    )
 
 
 def parameter_table(calibrations: Iterable, *, temperature: float | None = None) -> pd.DataFrame:
@@ -136,7 +145,10 @@ def parameter_table(calibrations: Iterable, *, temperature: float | None = None)
     for cal in calibrations:
         cal = cal if isinstance(cal, Calibration) else load_calibration(cal)
         p = parameters_at(cal, temperature)
-        rows.append({**{k: cal.meta.get(k) for k in ("device", "batch", "session")},
-                     **dict(zip(p["parameter"], p["value"], strict=False))})
+        rows.append(
+            {
+                **{k: cal.meta.get(k) for k in ("device", "batch", "session")},
+                **dict(zip(p["parameter"], p["value"], strict=False)),
+            }
+        )
     return pd.DataFrame(rows)
-

@@ -26,8 +26,12 @@ STENCIL = {"lagrange3": 3, "linear": 2, "spline": 4}
 def _uncertainty(fit) -> np.ndarray:
     """A point fit's covariance at least as large as the noise floor says: a fit's matrix is
     scaled by its own reduced χ², which a few holds estimate poorly and can put below 1."""
-    factor = np.array([max(1.0, fit.chi2[a] / fit.dof[a]) / (fit.chi2[a] / fit.dof[a])
-                       if fit.chi2[a] > 0 else 1.0 for a in (n.split(".")[1] for n in fit.names)])
+    factor = np.array(
+        [
+            max(1.0, fit.chi2[a] / fit.dof[a]) / (fit.chi2[a] / fit.dof[a]) if fit.chi2[a] > 0 else 1.0
+            for a in (n.split(".")[1] for n in fit.names)
+        ]
+    )
     return fit.covariance * np.sqrt(np.outer(factor, factor))
 
 
@@ -53,8 +57,9 @@ def between_points(fitted, alpha: float) -> dict | None:
         if loo is None or loo.outside(at).any():
             continue
         own = fitted.point_fit(int(p))
-        others = np.einsum("p,pcd->cd", loo.grid.weights(at)[0] ** 2,
-                           np.array([_uncertainty(f) for f in loo.fits]))
+        others = np.einsum(
+            "p,pcd->cd", loo.grid.weights(at)[0] ** 2, np.array([_uncertainty(f) for f in loo.fits])
+        )
         diff = (own.values - loo.coefficients_at(at)[0])[pick]
         cov = (_uncertainty(own) + others)[np.ix_(pick, pick)]
         if not (np.all(np.isfinite(diff)) and np.all(np.isfinite(cov))):
@@ -68,38 +73,60 @@ def between_points(fitted, alpha: float) -> dict | None:
         sd = np.sqrt(np.diag(cov))
         z = np.divide(diff, sd, out=np.zeros_like(diff), where=sd > 0)
         worst = int(np.argmax(np.abs(z)))
-        points.append({"temp": float(temp), "chi2": chi2, "dof": rank,
-                       "p_value": float(chi2_sf(chi2, rank)),
-                       "coefficient": names[pick[worst]], "difference": float(diff[worst]),
-                       "z": float(z[worst])})
+        points.append(
+            {
+                "temp": float(temp),
+                "chi2": chi2,
+                "dof": rank,
+                "p_value": float(chi2_sf(chi2, rank)),
+                "coefficient": names[pick[worst]],
+                "difference": float(diff[worst]),
+                "z": float(z[worst]),
+            }
+        )
     if not points:
         return None
     tested = len(points)
     for r in points:
-        r["p_value"] = min(1.0, tested * r["p_value"])   # Bonferroni over the points
+        r["p_value"] = min(1.0, tested * r["p_value"])  # Bonferroni over the points
     top = min(points, key=lambda r: r["p_value"])
-    return {"points": points, "worst": top, "p_value": top["p_value"],
-            "temperature_points": len(used), "fails": bool(top["p_value"] < alpha / 2),
-            "failing": [r["temp"] for r in points if r["p_value"] < alpha / 2]}
+    return {
+        "points": points,
+        "worst": top,
+        "p_value": top["p_value"],
+        "temperature_points": len(used),
+        "fails": bool(top["p_value"] < alpha / 2),
+        "failing": [r["temp"] for r in points if r["p_value"] < alpha / 2],
+    }
 
 
 def between_reason(check: dict, held_out: float | None) -> dict:
     """The verdict's why and what would tell, for a calibration that fails between points."""
     top = check["worst"]
     temps = ", ".join(f"{t:.0f}" for t in check["failing"])
-    error = (f"; left out, a point's holds err {held_out:.3g} times what a correct model would "
-             "leave" if held_out is not None else "")
-    return {"reason": "between temperature points", "term": None,
-            "lead": "No term of the sensor can hold it",
-            "text": (f"the calibration does not hold between the temperature points (leaving out "
-                     f"the point at {top['temp']:.0f} °C, the one interpolated from the other "
-                     f"points misses its {top['coefficient']} by {abs(top['z']):.3g} standard errors "
-                     f"({top['difference']:.3g}; scale and misalignment together p "
-                     f"{p_text(check['p_value'])}){error}). The sensor's scale or misalignment changes "
-                     f"between the points more than interpolation across {check['temperature_points']} "
-                     "points follows: with temperature, more sharply than they resolve, or with "
-                     "time, since the points follow each other in time; a calibration per point "
-                     "absorbs either at the points themselves, so no term fitted to them shows it"),
-            "would_tell": (f"more temperature points around {temps} °C (or a temperature sweep "
-                           "held at rates in both directions) and the first point revisited at "
-                           "the end of the session")}
+    error = (
+        f"; left out, a point's holds err {held_out:.3g} times what a correct model would leave"
+        if held_out is not None
+        else ""
+    )
+    return {
+        "reason": "between temperature points",
+        "term": None,
+        "lead": "No term of the sensor can hold it",
+        "text": (
+            f"the calibration does not hold between the temperature points (leaving out "
+            f"the point at {top['temp']:.0f} °C, the one interpolated from the other "
+            f"points misses its {top['coefficient']} by {abs(top['z']):.3g} standard errors "
+            f"({top['difference']:.3g}; scale and misalignment together p "
+            f"{p_text(check['p_value'])}){error}). The sensor's scale or misalignment changes "
+            f"between the points more than interpolation across {check['temperature_points']} "
+            "points follows: with temperature, more sharply than they resolve, or with "
+            "time, since the points follow each other in time; a calibration per point "
+            "absorbs either at the points themselves, so no term fitted to them shows it"
+        ),
+        "would_tell": (
+            f"more temperature points around {temps} °C (or a temperature sweep "
+            "held at rates in both directions) and the first point revisited at "
+            "the end of the session"
+        ),
+    }

@@ -11,16 +11,26 @@ from ..io.errors import GyrocalError, MissingInputError
 from ..io.signals import SERIES_INPUTS
 from ..pipeline.config import Settings
 from ..terms import AXES, make_term
-from .evaluation import (Evaluation, add_term_option, config_line, effect_size, evaluate, extended,
-                         identifiable_part, in_sample_summary, reason)
+from .evaluation import (
+    Evaluation,
+    add_term_option,
+    config_line,
+    effect_size,
+    evaluate,
+    extended,
+    identifiable_part,
+    in_sample_summary,
+    reason,
+)
 from .sessions import SOAKED_SPREAD, carry_over, slow_noise, usable
 from .stats import chance_bound, chi2_sf, f_sf, fisher_combined
 from .where import TIME_LIKE, leftover
 
+
 @dataclass
 class Candidate:
     term: str
-    status: str                              # ranked | not identifiable | missing inputs
+    status: str  # ranked | not identifiable | missing inputs
     validation_rms_with: float | None = None
     p_value: float | None = None
     f_statistic: float | None = None
@@ -28,52 +38,82 @@ class Candidate:
     gain_pct: float | None = None
     significant: bool = False
     size: list[dict] = field(default_factory=list)
-    peak_effect: float | None = None         # deg/s over the observations
+    peak_effect: float | None = None  # deg/s over the observations
     reason: str = ""
-    expected_with: float | None = None       # what a correct model would leave, deg/s
-    explains_excess: bool = False            # validation RMS within chance of that
-    tied_with: list[str] = field(default_factory=list)   # fits this protocol cannot tell apart
-    together: list[str] = field(default_factory=list)    # also missing: named with this one
-    alone_rms: float | None = None                       # validation RMS with this one alone
-    leftover: dict | None = None             # the covariate its residuals still follow most
-    next_session: dict | None = None         # how the extended model carries over
-    chi2: float | None = None                # of the extended fit, for ties
-    part_of: str | None = None               # the library term this is the protocol's part of
-    seen_part: str | None = None             # not identifiable: the part fitted instead
-    excited: bool = True                     # its columns are not all zero on these holds
-    validated: bool = True                   # by leaving points out (else in-sample figures)
-    option: str = ""                         # the command-line option that adds it
-    config_line: str = ""                    # the model: lines of the config with it
-    profiled: list = field(default_factory=list)   # its nonlinear settings as fitted
-    family: str | None = None                # a term of free shape: smooth, decay, ...
-    shape: str = ""                          # named, of free shape: a sentence on its shape
+    expected_with: float | None = None  # what a correct model would leave, deg/s
+    explains_excess: bool = False  # validation RMS within chance of that
+    tied_with: list[str] = field(default_factory=list)  # fits this protocol cannot tell apart
+    together: list[str] = field(default_factory=list)  # also missing: named with this one
+    alone_rms: float | None = None  # validation RMS with this one alone
+    leftover: dict | None = None  # the covariate its residuals still follow most
+    next_session: dict | None = None  # how the extended model carries over
+    chi2: float | None = None  # of the extended fit, for ties
+    part_of: str | None = None  # the library term this is the protocol's part of
+    seen_part: str | None = None  # not identifiable: the part fitted instead
+    excited: bool = True  # its columns are not all zero on these holds
+    validated: bool = True  # by leaving points out (else in-sample figures)
+    option: str = ""  # the command-line option that adds it
+    config_line: str = ""  # the model: lines of the config with it
+    profiled: list = field(default_factory=list)  # its nonlinear settings as fitted
+    family: str | None = None  # a term of free shape: smooth, decay, ...
+    shape: str = ""  # named, of free shape: a sentence on its shape
     also: list = field(default_factory=list)  # other terms of free shape that explain it too
-    base_rms: float | None = None            # the configured model's figure on the same holds
-    excess_taken: float | None = None        # partial: share of the excess it takes away
-    kind: str | None = None                  # offered in a model of this kind (continuous)
-    model: dict | None = None                # that model, as the config's model: section
-    offered: bool = False                    # partial: offered, taking away most of it
+    base_rms: float | None = None  # the configured model's figure on the same holds
+    excess_taken: float | None = None  # partial: share of the excess it takes away
+    kind: str | None = None  # offered in a model of this kind (continuous)
+    model: dict | None = None  # that model, as the config's model: section
+    offered: bool = False  # partial: offered, taking away most of it
 
     def to_dict(self) -> dict:
         from .reading import readable
-        out = {"term": self.term, "reads": readable(self.term, self.profiled), "status": self.status,
-               "validation_rms_with": self.validation_rms_with, "p_value": self.p_value}
+
+        out = {
+            "term": self.term,
+            "reads": readable(self.term, self.profiled),
+            "status": self.status,
+            "validation_rms_with": self.validation_rms_with,
+            "p_value": self.p_value,
+        }
         if self.status == "ranked":
-            out.update(f_statistic=self.f_statistic, df=list(self.df), gain_pct=self.gain_pct,
-                       validated=self.validated, base_rms=self.base_rms,
-                       **({"kind": self.kind, "model": self.model} if self.kind else {}),
-                       significant=self.significant, size=self.size, peak_effect=self.peak_effect,
-                       expected_rms_with=self.expected_with, explains_excess=self.explains_excess,
-                       tied_with=self.tied_with, together=self.together, alone_rms=self.alone_rms,
-                       leftover=self.leftover, next_session=self.next_session,
-                       part_of=self.part_of, option=self.option, config_line=self.config_line,
-                       profiled=self.profiled)
+            out.update(
+                f_statistic=self.f_statistic,
+                df=list(self.df),
+                gain_pct=self.gain_pct,
+                validated=self.validated,
+                base_rms=self.base_rms,
+                **({"kind": self.kind, "model": self.model} if self.kind else {}),
+                significant=self.significant,
+                size=self.size,
+                peak_effect=self.peak_effect,
+                expected_rms_with=self.expected_with,
+                explains_excess=self.explains_excess,
+                tied_with=self.tied_with,
+                together=self.together,
+                alone_rms=self.alone_rms,
+                leftover=self.leftover,
+                next_session=self.next_session,
+                part_of=self.part_of,
+                option=self.option,
+                config_line=self.config_line,
+                profiled=self.profiled,
+            )
             if self.family:
-                out.update(family=self.family, shape=self.shape,
-                           also=[{"term": c.term, "reads": readable(c.term, c.profiled),
-                                  "family": c.family, "option": c.option,
-                                  "config_line": c.config_line, "profiled": c.profiled,
-                                  "validation_rms_with": c.validation_rms_with} for c in self.also])
+                out.update(
+                    family=self.family,
+                    shape=self.shape,
+                    also=[
+                        {
+                            "term": c.term,
+                            "reads": readable(c.term, c.profiled),
+                            "family": c.family,
+                            "option": c.option,
+                            "config_line": c.config_line,
+                            "profiled": c.profiled,
+                            "validation_rms_with": c.validation_rms_with,
+                        }
+                        for c in self.also
+                    ],
+                )
         else:
             out["reason"] = self.reason
             if self.seen_part:
@@ -83,6 +123,7 @@ class Candidate:
 
 LEFTOVER_FRACTION = 0.02  # of the configured model's excess χ²/dof: see Judge.explains
 NEGLIGIBLE_OVER_FLOOR = 1.2  # structure left within this many times the floor is negligible
+
 
 class Judge:
     """Whether a model leaves only what a correct one would, from one session or two.
@@ -96,16 +137,22 @@ class Judge:
 
     def __init__(self, settings, obs, data, other, alpha, base_excess: float):
         self.settings, self.obs, self.data, self.other, self.alpha = settings, obs, data, other, alpha
-        self.base_excess = base_excess   # the configured model's χ²/dof − 1
+        self.base_excess = base_excess  # the configured model's χ²/dof − 1
         if other is not None and ("revolution" in obs or "revolution" in other):
             self.other = None  # a servo session's hand mount leaves the true rate unknown
         # Time is not temperature only where each point soaks at one temperature (not a sweep).
-        self.soaked = bool("point" in obs and float(
-            obs.groupby("point")["temp"].agg(lambda t: t.max() - t.min()).max()) < SOAKED_SPREAD)
+        self.soaked = bool(
+            "point" in obs
+            and float(obs.groupby("point")["temp"].agg(lambda t: t.max() - t.min()).max()) < SOAKED_SPREAD
+        )
         # The session's noise model has slow terms (bias instability, rate random walk):
         # holds close in time share their wander, which groups them by time.
-        self.slow_known = any(float(np.nanmax(obs[f"{k}_{a}"])) > 0 for k in ("flicker", "rrw")
-                              for a in AXES if f"{k}_{a}" in obs)
+        self.slow_known = any(
+            float(np.nanmax(obs[f"{k}_{a}"])) > 0
+            for k in ("flicker", "rrw")
+            for a in AXES
+            if f"{k}_{a}" in obs
+        )
 
     def carry(self, ev: Evaluation) -> dict | None:
         """:func:`carry_over` to the other session; None without one, ``{"error": ...}``
@@ -129,14 +176,16 @@ class Judge:
         # small beside the effect (2 % of the excess, a shape about 15 % off in amplitude)
         # and beside the floor (within 1.2 times it). A wrong term that merely correlates
         # with the effect leaves more.
-        sizeable = left["chi2_red_share"] > min(LEFTOVER_FRACTION * self.base_excess,
-                                                NEGLIGIBLE_OVER_FLOOR ** 2 - 1.0)
+        sizeable = left["chi2_red_share"] > min(
+            LEFTOVER_FRACTION * self.base_excess, NEGLIGIBLE_OVER_FLOOR**2 - 1.0
+        )
         structure = sizeable and left["p_value"] < half
         validated = ext.summary["held_out"] != "none"
-        in_chance = (float(chi2_sf(ext.chi2, ext.dof)) >= half
-                     or (validated and ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
-                     or (not validated and usable(nxt)
-                         and nxt["validation_rms"] <= nxt["expected_rms"] * tolerance))
+        in_chance = (
+            float(chi2_sf(ext.chi2, ext.dof)) >= half
+            or (validated and ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance)
+            or (not validated and usable(nxt) and nxt["validation_rms"] <= nxt["expected_rms"] * tolerance)
+        )
         # Slow noise lines residuals up with time and nothing else: structure in rate, mount
         # or temperature is an effect, and structure in time is one too unless slow noise is
         # known, from the static data's noise model or from two sessions that differ by more
@@ -154,8 +203,9 @@ class Judge:
         if sizeable and not exempt:
             combined = fisher_combined(left["p_value"], combined)
         nxt["left_p_value"] = combined
-        return (combined >= half and (in_chance or slow)
-                and nxt["validation_rms"] <= base_next["validation_rms"])
+        return (
+            combined >= half and (in_chance or slow) and nxt["validation_rms"] <= base_next["validation_rms"]
+        )
 
 
 # A bias drifting linearly in time, fitted per temperature point on a grid: not an effect of
@@ -163,8 +213,7 @@ class Judge:
 TIME_DRIFT = {"name": "expression", "formula": "t"}
 
 
-def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, tolerance, bound
-               ) -> dict | None:
+def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, tolerance, bound) -> dict | None:
     """How far a bias drifting in time within each temperature point takes the held-out
     error, and whether it explains the excess as a named term would have to; None where time
     within a point is not separable from temperature (a sweep) or the fit cannot be made."""
@@ -177,11 +226,16 @@ def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, toleran
     probe = Candidate("expression(formula='t')", "ranked")
     explains = judge.explains(ev, probe, base_next, tolerance)
     gain = practical_gain(base, float(ev.summary["validation_rms"]), bound)
-    return {"validation_rms": ev.summary["validation_rms"], "expected_rms": ev.summary["expected_rms"],
-            "explains": bool(explains and gain),
-            "option": add_term_option("expression(formula='t')"),
-            "config_line": config_line(extended(settings, TIME_DRIFT).model),
-            "leftover": probe.leftover, "next_session": probe.next_session, "rival_of": None}
+    return {
+        "validation_rms": ev.summary["validation_rms"],
+        "expected_rms": ev.summary["expected_rms"],
+        "explains": bool(explains and gain),
+        "option": add_term_option("expression(formula='t')"),
+        "config_line": config_line(extended(settings, TIME_DRIFT).model),
+        "leftover": probe.leftover,
+        "next_session": probe.next_session,
+        "rival_of": None,
+    }
 
 
 def extended_all(settings: Settings, best: Candidate) -> Settings:
@@ -190,8 +244,15 @@ def extended_all(settings: Settings, best: Candidate) -> Settings:
     return settings
 
 
-def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rms: float,
-                tolerance: float, *, in_sample: bool = False) -> Candidate | None:
+def second_step(
+    judge: Judge,
+    first: Candidate,
+    ranked: list[Candidate],
+    base_rms: float,
+    tolerance: float,
+    *,
+    in_sample: bool = False,
+) -> Candidate | None:
     """``first`` with one more term that, added on top, explains the excess (F-test of the
     second addition, Bonferroni over the pairs tried) and lowers the held-out error by more
     than that figure's own uncertainty (:func:`chance_bound` of the holds scored): a second
@@ -206,8 +267,7 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
     found = []
     for c in others:
         try:
-            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term,
-                           in_sample=in_sample)
+            ext = evaluate(extended(extended(settings, first.term), c.term), obs, c.term, in_sample=in_sample)
         except Exception:  # noqa: BLE001 - as for single candidates: not a pair to name
             continue
         df_num, df_den = start.dof - ext.dof + _added_nonlinear(start, ext), ext.dof
@@ -218,13 +278,19 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
         if p >= alpha / 2 / max(len(others), 1):
             continue
         held = ext.summary["held_out"] != "none"
-        if held and ext.summary["validation_rms"] * chance_bound(ext.summary["holds_scored"], alpha) \
-                >= first.validation_rms_with:
+        if (
+            held
+            and ext.summary["validation_rms"] * chance_bound(ext.summary["holds_scored"], alpha)
+            >= first.validation_rms_with
+        ):
             continue  # the second term must help on the holds left out, beyond chance
-        if not held:   # nothing left out to judge it on here: the other session must gain
+        if not held:  # nothing left out to judge it on here: the other session must gain
             there = judge.carry(ext) if usable(start_next) else None
-            if not (usable(there) and there["validation_rms"] * chance_bound(
-                    start_next["holds_scored"], alpha) < start_next["validation_rms"]):
+            if not (
+                usable(there)
+                and there["validation_rms"] * chance_bound(start_next["holds_scored"], alpha)
+                < start_next["validation_rms"]
+            ):
                 continue
         pair = replace(first, together=[c.term])
         if judge.explains(ext, pair, start_next, tolerance):
@@ -234,8 +300,10 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
     # What the user will meet decides: the other session where there is one; otherwise,
     # among the pairs as good as the best within the figure's own uncertainty, the one that
     # adds fewest coefficients (a flexible partner fits the session's own wander too).
-    there = [f[3].next_session if usable(f[3].next_session) else judge.carry(f[2])
-             if usable(start_next) else None for f in found]
+    there = [
+        f[3].next_session if usable(f[3].next_session) else judge.carry(f[2]) if usable(start_next) else None
+        for f in found
+    ]
     v_next = [t["validation_rms"] if usable(t) else np.inf for t in there]
     if np.isfinite(v_next).any():
         v, term, ext, pair = found[int(np.argmin(v_next))]
@@ -244,10 +312,16 @@ def second_step(judge: Judge, first: Candidate, ranked: list[Candidate], base_rm
         bound = chance_bound(min(f[2].summary["holds_scored"] for f in found), alpha)
         close = [f for f in found if f[0] <= top * bound]
         v, term, ext, pair = min(close, key=lambda f: (pair_df(start, f[2]), f[0]))
-    return replace(pair, validation_rms_with=v, expected_with=ext.summary["expected_rms"],
-                   explains_excess=True, alone_rms=first.validation_rms_with,
-                   gain_pct=100.0 * (1 - v / base_rms), chi2=ext.chi2,
-                   df=(first.df[0] + pair_df(start, ext), ext.dof))
+    return replace(
+        pair,
+        validation_rms_with=v,
+        expected_with=ext.summary["expected_rms"],
+        explains_excess=True,
+        alone_rms=first.validation_rms_with,
+        gain_pct=100.0 * (1 - v / base_rms),
+        chi2=ext.chi2,
+        df=(first.df[0] + pair_df(start, ext), ext.dof),
+    )
 
 
 def pair_df(start: Evaluation, ext: Evaluation) -> int:
@@ -263,8 +337,7 @@ def practical_gain(base: Evaluation, c: Candidate | float, bound: float) -> bool
     quarter of the excess."""
     v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
     gain = v0 - (c if isinstance(c, float) else c.validation_rms_with)
-    return (v0 > expected * bound and gain > v0 * (1.0 - 1.0 / bound)
-            and gain >= 0.25 * (v0 - expected))
+    return v0 > expected * bound and gain > v0 * (1.0 - 1.0 / bound) and gain >= 0.25 * (v0 - expected)
 
 
 def practical_gain_next(base_next, c: Candidate, bound: float) -> bool:
@@ -283,15 +356,21 @@ def mark_ties(tested: list[Candidate]) -> None:
     the same columns in this protocol's span (a quadratic and an asymmetric scale at one
     speed; a g-sensitivity and its square where the accelerometer reads 0 or 1 g)."""
     for c in tested:
-        c.tied_with = [o.term for o in tested if o is not c and o.df == c.df
-                       and abs(o.chi2 - c.chi2) <= max(1e-6 * max(c.chi2, 1e-300), TIE_CHI2)]
+        c.tied_with = [
+            o.term
+            for o in tested
+            if o is not c
+            and o.df == c.df
+            and abs(o.chi2 - c.chi2) <= max(1e-6 * max(c.chi2, 1e-300), TIE_CHI2)
+        ]
 
 
 TIE_CHI2 = 1.0
 
 
-def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next, tolerance, *,
-                    in_sample: bool = False) -> list[Candidate]:
+def rank_candidates(
+    judge: Judge, base: Evaluation, names: list[str], base_next, tolerance, *, in_sample: bool = False
+) -> list[Candidate]:
     """Every candidate added to the configured model in turn, refitted, validated, tested
     against the model (nested F-test, Bonferroni over the candidates tested) and judged
     (:meth:`Judge.explains`); ranked by the validation RMS they reach, then the candidates
@@ -300,17 +379,25 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
     candidates: list[Candidate] = []
     tested = []
     queue = [(spec, None) for spec in names]
-    in_sample_base: list = []   # the configured model's in-sample figure, made when needed
+    in_sample_base: list = []  # the configured model's in-sample figure, made when needed
     while queue:
         spec, part_of = queue.pop(0)
         term = make_term(spec)
         if term.moving_temperature and judge.soaked:
-            candidates.append(Candidate(spec, "not identifiable", reason=(
-                "the temperature holds still within every point: it changes nothing there")))
+            candidates.append(
+                Candidate(
+                    spec,
+                    "not identifiable",
+                    reason=("the temperature holds still within every point: it changes nothing there"),
+                )
+            )
             continue
         series = "series" in data
-        missing = sorted(c for c in term.needs if c not in data and not c.startswith("rate_")
-                         and not (series and c in SERIES_INPUTS))
+        missing = sorted(
+            c
+            for c in term.needs
+            if c not in data and not c.startswith("rate_") and not (series and c in SERIES_INPUTS)
+        )
         if missing:
             candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
             continue
@@ -320,11 +407,17 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
             candidates.append(Candidate(spec, "missing inputs", reason=reason(exc)))
             continue
         except GyrocalError as exc:
-            candidates.append(Candidate(spec, "not identifiable", reason=reason(exc),
-                                        excited=_excited(extended(settings, spec), term, data)))
+            candidates.append(
+                Candidate(
+                    spec,
+                    "not identifiable",
+                    reason=reason(exc),
+                    excited=_excited(extended(settings, spec), term, data),
+                )
+            )
             if part_of is None:
                 part = _seen_part(settings, obs, spec)
-                if part is not None:   # what the protocol can see of it, judged the same way
+                if part is not None:  # what the protocol can see of it, judged the same way
                     queue.insert(0, (part, spec))
             continue
         except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
@@ -332,10 +425,15 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
             continue
         added = [c for c in ext.fitted.names if c not in base.fitted.names]
         df_num, df_den = base.dof - ext.dof + _added_nonlinear(base, ext), ext.dof
-        problem = ("it leaves fewer temperature points"
-                   if len(ext.fitted.used_points()) != len(base.fitted.used_points())
-                   else "it adds no coefficient to the model" if df_num <= 0
-                   else "it leaves no degree of freedom" if df_den <= 0 else None)
+        problem = (
+            "it leaves fewer temperature points"
+            if len(ext.fitted.used_points()) != len(base.fitted.used_points())
+            else "it adds no coefficient to the model"
+            if df_num <= 0
+            else "it leaves no degree of freedom"
+            if df_den <= 0
+            else None
+        )
         if problem:
             candidates.append(Candidate(spec, "not identifiable", reason=problem))
             continue
@@ -349,9 +447,20 @@ def rank_candidates(judge: Judge, base: Evaluation, names: list[str], base_next,
             if not in_sample_base:
                 in_sample_base.append(in_sample_summary(base.fitted, obs)["validation_rms"])
             v0 = in_sample_base[0]
-        candidate = Candidate(spec, "ranked", v1, p, float(f_stat), (df_num, df_den),
-                              100.0 * (1 - v1 / v0), False, size, peak,
-                              expected_with=ext.summary["expected_rms"], base_rms=v0)
+        candidate = Candidate(
+            spec,
+            "ranked",
+            v1,
+            p,
+            float(f_stat),
+            (df_num, df_den),
+            100.0 * (1 - v1 / v0),
+            False,
+            size,
+            peak,
+            expected_with=ext.summary["expected_rms"],
+            base_rms=v0,
+        )
         candidate.chi2 = ext.chi2
         candidate.validated = ext.summary["held_out"] != "none"
         candidate.part_of = part_of
@@ -377,8 +486,11 @@ def _added_nonlinear(base: Evaluation, ext: Evaluation) -> int:
 
 def _profiled(ev: Evaluation) -> set:
     """The nonlinear settings a fit found by profiling and the data identified."""
-    return {(p["term"], p["parameter"]) for p in getattr(ev.fitted, "profiled", ()) or ()
-            if p.get("identified", True)}
+    return {
+        (p["term"], p["parameter"])
+        for p in getattr(ev.fitted, "profiled", ()) or ()
+        if p.get("identified", True)
+    }
 
 
 def _seen_part(settings, obs, spec) -> str | None:

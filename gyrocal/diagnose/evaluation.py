@@ -34,8 +34,9 @@ class Evaluation:
     dof: int
 
 
-def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model", *,
-             in_sample: bool = False) -> Evaluation:
+def evaluate(
+    settings: Settings, obs: pd.DataFrame, name: str = "model", *, in_sample: bool = False
+) -> Evaluation:
     """``settings.model`` fitted to ``obs`` and validated leaving temperature points out.
     ``in_sample``: where no point can be left out (a term whose shape lies within one
     point's stretch of time: without the point it is a copy of the points' biases), the
@@ -45,8 +46,15 @@ def evaluate(settings: Settings, obs: pd.DataFrame, name: str = "model", *,
     # The same model on the same holds is asked for more than once (a ladder step that is
     # also a candidate): fitted and validated once. Entries keep their holds alive, so an
     # id is not reused while cached.
-    key = (id(obs), tuple(t.spec_string() for t in model.terms), m.kind, m.interpolation,
-           m.degree, m.reference_temperature, in_sample)
+    key = (
+        id(obs),
+        tuple(t.spec_string() for t in model.terms),
+        m.kind,
+        m.interpolation,
+        m.degree,
+        m.reference_temperature,
+        in_sample,
+    )
     for held, k, ev in _EVALUATED:
         if held is obs and k == key:
             return replace(ev, name=name)
@@ -71,12 +79,19 @@ def in_sample_summary(fitted, obs) -> dict:
     """A validation summary's figures from a fit's own residuals: RMS, floor, and the floor
     as what a correct model would leave (its own fit removes a little more)."""
     from ..fit.thermal import in_sample
+
     resid, floor, rows = in_sample(fitted, len(obs))
     rms = float(np.sqrt(np.mean(resid[rows] ** 2)))
     floor_rms = float(np.sqrt(np.mean(floor[rows] ** 2)))
-    return {"validation_rms": rms, "noise_floor": floor_rms, "expected_rms": floor_rms,
-            "excess": rms / floor_rms, "excess_over_expected": rms / floor_rms,
-            "held_out": "none", "holds_scored": int(rows.sum())}
+    return {
+        "validation_rms": rms,
+        "noise_floor": floor_rms,
+        "expected_rms": floor_rms,
+        "excess": rms / floor_rms,
+        "excess_over_expected": rms / floor_rms,
+        "held_out": "none",
+        "holds_scored": int(rows.sum()),
+    }
 
 
 def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model") -> Evaluation:
@@ -84,8 +99,9 @@ def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model"
     job's fit and validate stages), as the diagnosis reads them."""
     chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
     dof = sum(sum(f.dof.values()) for f in fitted.fits)
-    return Evaluation(name, [t.spec_string() for t in fitted.model.terms], settings.model.kind,
-                      fitted, summary, chi2, dof)
+    return Evaluation(
+        name, [t.spec_string() for t in fitted.model.terms], settings.model.kind, fitted, summary, chi2, dof
+    )
 
 
 def extended(settings: Settings, spec, kind: str | None = None) -> Settings:
@@ -121,28 +137,38 @@ def pooled(fits, name: str) -> tuple[float, float]:
     """Inverse-variance mean of one coefficient over the fits (one per temperature point,
     or the single continuous fit) and its standard error."""
     # A joint grid fit holds a point-scope coefficient as ``<name>.@<point>``, one per point.
-    pairs = [(f.values[j], f.stderr[j]) for f in fits for j, n in enumerate(f.names)
-             if n == name or n.split(".@")[0] == name]
+    pairs = [
+        (f.values[j], f.stderr[j])
+        for f in fits
+        for j, n in enumerate(f.names)
+        if n == name or n.split(".@")[0] == name
+    ]
     v = np.array([p[0] for p in pairs])
     w = 1.0 / np.maximum(np.array([p[1] for p in pairs]), 1e-300) ** 2
     return float(np.sum(w * v) / np.sum(w)), float(np.sqrt(1.0 / np.sum(w)))
 
 
-def effect_size(evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
-                ) -> tuple[list[dict], float]:
+def effect_size(
+    evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
+) -> tuple[list[dict], float]:
     """Each added coefficient pooled over the fits, and the largest contribution of the
     added term to any observation (deg/s)."""
     fits = evaluation.fitted.fits
     unit = make_term(spec).unit
-    size = [dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit), strict=False))
-            for name in added]
+    size = [
+        dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit), strict=False))
+        for name in added
+    ]
     model = fits[0].model
     peak = 0.0
     for result, rows in zip(fits, evaluation.fitted.rows, strict=False):
         design = model.design({k: v[rows] for k, v in obs_data.items()})
         for a in AXES:
-            contribution = sum(result.coef(n) * np.asarray(design[n]) for n in result.names
-                               if n.split(".@")[0] in added and n.split(".")[1] == a)
+            contribution = sum(
+                result.coef(n) * np.asarray(design[n])
+                for n in result.names
+                if n.split(".@")[0] in added and n.split(".")[1] == a
+            )
             if np.ndim(contribution):
                 peak = max(peak, float(np.max(np.abs(contribution))))
     return size, peak
@@ -173,15 +199,24 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) 
 
 
 def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> dict:
-    params = [dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name)), strict=False))
-              for name in added]
+    params = [
+        dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name)), strict=False))
+        for name in added
+    ]
     s = ev.summary
     nxt = carry(ev) if carry is not None else None
-    return {"name": ev.name, "kind": ev.kind, "terms": ev.terms,
-            "validation_rms": s["validation_rms"], "noise_floor": s["noise_floor"],
-            "expected_rms": s["expected_rms"], "excess": s["excess"],
-            "chi2_red": ev.chi2 / ev.dof, "parameters": params,
-            **({"next_excess": nxt["excess"]} if nxt and "excess" in nxt else {})}
+    return {
+        "name": ev.name,
+        "kind": ev.kind,
+        "terms": ev.terms,
+        "validation_rms": s["validation_rms"],
+        "noise_floor": s["noise_floor"],
+        "expected_rms": s["expected_rms"],
+        "excess": s["excess"],
+        "chi2_red": ev.chi2 / ev.dof,
+        "parameters": params,
+        **({"next_excess": nxt["excess"]} if nxt and "excess" in nxt else {}),
+    }
 
 
 def fix_row(best, base: Evaluation) -> dict:
@@ -190,13 +225,20 @@ def fix_row(best, base: Evaluation) -> dict:
     floor = base.summary["noise_floor"]
     terms = [*base.terms, best.term, *best.together] if not best.model else best.model["terms"]
     nxt = best.next_session if best.next_session and "excess" in best.next_session else None
-    return {"name": "+ the fix named below", "kind": best.kind or base.kind, "terms": terms,
-            "validation_rms": best.validation_rms_with, "noise_floor": floor,
-            "expected_rms": best.expected_with, "excess": best.validation_rms_with / floor,
-            "chi2_red": best.chi2 / best.df[1] if best.chi2 is not None and best.df else None,
-            "parameters": [{k: z[k] for k in ("coefficient", "value", "stderr")} for z in best.size],
-            "fix": True, "in_sample": not best.validated,
-            **({"next_excess": nxt["excess"]} if nxt else {})}
+    return {
+        "name": "+ the fix named below",
+        "kind": best.kind or base.kind,
+        "terms": terms,
+        "validation_rms": best.validation_rms_with,
+        "noise_floor": floor,
+        "expected_rms": best.expected_with,
+        "excess": best.validation_rms_with / floor,
+        "chi2_red": best.chi2 / best.df[1] if best.chi2 is not None and best.df else None,
+        "parameters": [{k: z[k] for k in ("coefficient", "value", "stderr")} for z in best.size],
+        "fix": True,
+        "in_sample": not best.validated,
+        **({"next_excess": nxt["excess"]} if nxt else {}),
+    }
 
 
 def yaml_scalar(text: str) -> str:
@@ -204,6 +246,7 @@ def yaml_scalar(text: str) -> str:
     string (a name; not ``yes``, ``null`` or a number), in single quotes otherwise (a spec
     string's own strings are in double quotes)."""
     import yaml
+
     if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_.-]*", text) and yaml.safe_load(text) == text:
         return text
     return f"'{text}'" if "'" not in text else json.dumps(text)
@@ -218,8 +261,9 @@ def config_line(model) -> str:
     if model.kind != "grid":
         lines.insert(0, f"kind: {model.kind}")
     if model.expressions:
-        lines.append("expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions)
-                     + "}")
+        lines.append(
+            "expressions: {" + ", ".join(f"{k}: {json.dumps(v)}" for k, v in model.expressions) + "}"
+        )
     return "\n".join(lines)
 
 
@@ -257,8 +301,11 @@ def with_unit_lines(doc: dict, device: str | None, settings: Settings) -> dict:
     """A diagnosis' JSON with each offered fix's ``unit_config_line`` for ``device``, and its
     ``config_line`` (the whole fleet's ``model:``) made from the fleet's model rather than
     this unit's (:attr:`gyrocal.pipeline.config.Settings.fleet`)."""
-    offers = [doc.get("best"), *((doc.get("best") or {}).get("also") or ()),
-              *(p for p in doc.get("partial") or () if p.get("offered"))]
+    offers = [
+        doc.get("best"),
+        *((doc.get("best") or {}).get("also") or ()),
+        *(p for p in doc.get("partial") or () if p.get("offered")),
+    ]
     for offer in filter(None, offers):
         if not offer.get("model"):
             fleet = settings.fleet.with_terms((offer["term"], *(offer.get("together") or ())))
@@ -295,6 +342,7 @@ def identifiable_part(settings: Settings, obs: pd.DataFrame, spec: str) -> str |
     coefficient can be fitted (the term is not the problem) or none can."""
     from ..fit.model import MAX_CONDITION, axis_of, observation_floor
     from ..terms import Restricted
+
     term = make_term(spec)
     base = settings.model.build()
     model = extended(settings, spec).model.build()
@@ -317,8 +365,12 @@ def identifiable_part(settings: Settings, obs: pd.DataFrame, spec: str) -> str |
     dependent = set()
     for i, axis in enumerate(AXES):
         w = 1.0 / floor[:, i]
-        kept = [c * w for name in base.names if axis_of(name) == axis
-                for c in per_point(name, global_of.get(name, False))]
+        kept = [
+            c * w
+            for name in base.names
+            if axis_of(name) == axis
+            for c in per_point(name, global_of.get(name, False))
+        ]
         kept = [c / np.linalg.norm(c) for c in kept if np.linalg.norm(c) > 0]
         for name in term.coefficients():
             if axis_of(name) != axis:
@@ -336,4 +388,6 @@ def identifiable_part(settings: Settings, obs: pd.DataFrame, spec: str) -> str |
     if not dependent or len(dependent) == len(term.coefficients()):
         return None
     prefix = term.name + "."
-    return Restricted(term, [c.removeprefix(prefix) for c in term.coefficients() if c in dependent]).spec_string()
+    return Restricted(
+        term, [c.removeprefix(prefix) for c in term.coefficients() if c in dependent]
+    ).spec_string()

@@ -34,8 +34,11 @@ def _point_columns(obs, rows) -> tuple[np.ndarray, np.ndarray]:
     that what a point's fit took of an effect is counted back: refitted, not the residuals
     alone regressed), and each fitted hold's point."""
     n = int(np.count_nonzero(rows))
-    points = np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1] \
-        if "point" in obs else np.zeros(n, dtype=int)
+    points = (
+        np.unique(obs["point"].to_numpy()[rows], return_inverse=True)[1]
+        if "point" in obs
+        else np.zeros(n, dtype=int)
+    )
     rates = np.column_stack([np.ones(n), obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)])
     own = np.zeros((n, 4 * (points.max() + 1)))
     for k in range(4):
@@ -52,9 +55,11 @@ def _refits(z, floor, own, extras):
         base = own[ok] * w
         y = z[ok, i]
         designs = (base, *(np.column_stack([base, x[ok] * w]) for x in extras))
-        solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]   # coefficients, _, rank, _
-        yield ([float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved, strict=False)],
-               [r[2] for r in solved])
+        solved = [np.linalg.lstsq(x, y, rcond=None) for x in designs]  # coefficients, _, rank, _
+        yield (
+            [float(np.sum((y - x @ r[0]) ** 2)) for x, r in zip(designs, solved, strict=False)],
+            [r[2] for r in solved],
+        )
 
 
 def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
@@ -78,9 +83,9 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     lab = np.zeros((len(z), 2 * (mounts.max() + 1)))
     for k in range(2):
         lab[np.arange(len(z)), 2 * mounts + k] = angle[:, k]
-    before = float(np.nansum(z ** 2))
-    rss = np.zeros(3)                 # points alone, with the angle, with the offsets
-    added = np.zeros(2, dtype=int)    # the angle's and the offsets' columns beyond the points'
+    before = float(np.nansum(z**2))
+    rss = np.zeros(3)  # points alone, with the angle, with the offsets
+    added = np.zeros(2, dtype=int)  # the angle's and the offsets' columns beyond the points'
     for axis_rss, ranks in _refits(z, floor, own, (lab, offsets)):
         if ranks[1] <= ranks[0]:
             continue
@@ -95,35 +100,53 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     left_p = float(chi2_sf(left, left_dof))
     offsets_p = float(chi2_sf(rss[2], dof - int(added[1])))
     excess = max(before - dof, 0.0)
-    return {"p_value": p_value, "parameters": q, "chi2_before": before, "chi2_after": float(left),
-            "dof": left_dof, "share_of_excess": min(float(gain) / excess, 1.0) if excess > 0 else 0.0,
-            "left_p_value": left_p, "offsets_p_value": offsets_p,
-            "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2 and offsets_p < alpha / 2)}
+    return {
+        "p_value": p_value,
+        "parameters": q,
+        "chi2_before": before,
+        "chi2_after": float(left),
+        "dof": left_dof,
+        "share_of_excess": min(float(gain) / excess, 1.0) if excess > 0 else 0.0,
+        "left_p_value": left_p,
+        "offsets_p_value": offsets_p,
+        "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2 and offsets_p < alpha / 2),
+    }
 
 
 def lab_reason(lab: dict) -> dict:
     """The verdict's why and what would tell, for an excess the table's angle explains."""
-    return {"reason": "fixed in the lab", "term": None, "lead": "No term of the sensor can hold it",
-            "text": (f"the residuals follow the table's angle ({100 * lab['share_of_excess']:.0f} % of "
-                     f"the excess with its cosine and sine in each mount, F-test p "
-                     f"{p_text(lab['p_value'])}): an effect fixed in the lab and seen through the "
-                     "turning table (the Earth's rotation, a stray field of the motor, a table "
-                     "tilted off the vertical), not one of the sensor; where the table stood "
-                     "when the session began is not in the log, so nothing fitted to it here "
-                     "holds on another session"),
-            "would_tell": ("holds lasting whole turns at every rate, over which it averages out, "
-                           "or the table's angle logged from its encoder")}
+    return {
+        "reason": "fixed in the lab",
+        "term": None,
+        "lead": "No term of the sensor can hold it",
+        "text": (
+            f"the residuals follow the table's angle ({100 * lab['share_of_excess']:.0f} % of "
+            f"the excess with its cosine and sine in each mount, F-test p "
+            f"{p_text(lab['p_value'])}): an effect fixed in the lab and seen through the "
+            "turning table (the Earth's rotation, a stray field of the motor, a table "
+            "tilted off the vertical), not one of the sensor; where the table stood "
+            "when the session began is not in the log, so nothing fitted to it here "
+            "holds on another session"
+        ),
+        "would_tell": (
+            "holds lasting whole turns at every rate, over which it averages out, "
+            "or the table's angle logged from its encoder"
+        ),
+    }
 
 
-LAB_ADVICE = ("Compensate an effect fixed in the lab on the rig, not in the sensor's calibration: "
-              "make every hold last whole turns of the table (a rest at several table angles "
-              "averages it too), or log the table's angle from its encoder and subtract the "
-              "field there; the calibration as it stands holds for the sensor, with this "
-              "effect's share of its error left in.")
+LAB_ADVICE = (
+    "Compensate an effect fixed in the lab on the rig, not in the sensor's calibration: "
+    "make every hold last whole turns of the table (a rest at several table angles "
+    "averages it too), or log the table's angle from its encoder and subtract the "
+    "field there; the calibration as it stands holds for the sensor, with this "
+    "effect's share of its error left in."
+)
 
 
-def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray,
-                   direction: np.ndarray | None = None) -> dict | None:
+def mounting_fixed(
+    obs, quality, dof: int, alpha: float, stretch: np.ndarray, direction: np.ndarray | None = None
+) -> dict | None:
     """How much of the in-sample excess an offset per mounting accounts for: each output
     axis' whitened residuals refitted with one offset per stretch of holds on one mount
     (``stretch``, :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
@@ -142,7 +165,7 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray,
     groups = np.unique(np.asarray(stretch)[rows], return_inverse=True)[1]
     mounts = np.unique(obs["mount"].astype(str).to_numpy()[rows], return_inverse=True)[1]
     if groups.max() + 1 <= mounts.max() + 1:
-        return None    # each mount mounted once: the mounting is the orientation
+        return None  # each mount mounted once: the mounting is the orientation
     own, points = _point_columns(obs, rows)
     t = obs.loc[rows, "t_start"].to_numpy(float)
     drift = np.zeros((len(z), points.max() + 1))
@@ -151,8 +174,8 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray,
     if direction is not None:
         way[np.arange(len(z)), points] = np.asarray(direction, dtype=float)[rows] > 0
     rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift, way)
-    before = float(np.nansum(z ** 2))
-    rss, added = np.zeros(5), np.zeros(4, dtype=int)   # points alone, then with each
+    before = float(np.nansum(z**2))
+    rss, added = np.zeros(5), np.zeros(4, dtype=int)  # points alone, then with each
     for axis_rss, ranks in _refits(z, floor, own, rivals):
         rss += axis_rss
         added += [r - ranks[0] for r in ranks[1:]]
@@ -166,31 +189,52 @@ def mounting_fixed(obs, quality, dof: int, alpha: float, stretch: np.ndarray,
     drift_p = float(chi2_sf(rss[3], dof - int(added[2])))
     direction_p = float(chi2_sf(rss[4], dof - int(added[3])))
     excess = max(before - dof, 0.0)
-    return {"p_value": p_value, "parameters": q, "mountings": int(groups.max() + 1),
-            "chi2_after": float(rss[1]), "dof": left_dof,
-            "share_of_excess": min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
-            "left_p_value": left_p, "orientation_p_value": orientation_p, "drift_p_value": drift_p,
-            "direction_p_value": direction_p,
-            "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2
-                             and orientation_p < alpha / 2 and drift_p < alpha / 2
-                             and direction_p < alpha / 2)}
+    return {
+        "p_value": p_value,
+        "parameters": q,
+        "mountings": int(groups.max() + 1),
+        "chi2_after": float(rss[1]),
+        "dof": left_dof,
+        "share_of_excess": min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
+        "left_p_value": left_p,
+        "orientation_p_value": orientation_p,
+        "drift_p_value": drift_p,
+        "direction_p_value": direction_p,
+        "explains": bool(
+            p_value < alpha / 2
+            and left_p >= alpha / 2
+            and orientation_p < alpha / 2
+            and drift_p < alpha / 2
+            and direction_p < alpha / 2
+        ),
+    }
 
 
 def mounting_reason(found: dict) -> dict:
     """The verdict's why and what would tell, for an excess an offset per mounting explains."""
-    return {"reason": "the mounting", "term": None, "lead": "No term of the sensor can hold it",
-            "text": (f"the residuals are offsets per mounting ({100 * found['share_of_excess']:.0f} % of "
-                     f"the excess with one offset for each of the {found['mountings']} stretches of "
-                     f"holds on one mount, F-test p {p_text(found['p_value'])}), which neither the "
-                     "mount's orientation nor a drift in time accounts for: each mounting on the "
-                     "fixture leaves its own bias (the fixture's repeatability, a strain of the "
-                     "package), fresh every time, which no term of the sensor carries to the next "
-                     "mounting"),
-            "would_tell": ("the same mount revisited within a point (its offset comes back or it "
-                           "does not), or a fixture that clamps the same way each time")}
+    return {
+        "reason": "the mounting",
+        "term": None,
+        "lead": "No term of the sensor can hold it",
+        "text": (
+            f"the residuals are offsets per mounting ({100 * found['share_of_excess']:.0f} % of "
+            f"the excess with one offset for each of the {found['mountings']} stretches of "
+            f"holds on one mount, F-test p {p_text(found['p_value'])}), which neither the "
+            "mount's orientation nor a drift in time accounts for: each mounting on the "
+            "fixture leaves its own bias (the fixture's repeatability, a strain of the "
+            "package), fresh every time, which no term of the sensor carries to the next "
+            "mounting"
+        ),
+        "would_tell": (
+            "the same mount revisited within a point (its offset comes back or it "
+            "does not), or a fixture that clamps the same way each time"
+        ),
+    }
 
 
-MOUNTING_ADVICE = ("An offset per mounting is the fixture's, not the sensor's: it sets how well any "
-                   "calibration of this rig can do. Compare the unit's bias over repeated mountings "
-                   "at one temperature; a fixture that clamps the same way each time, or holds "
-                   "averaged over several mountings, bring it down.")
+MOUNTING_ADVICE = (
+    "An offset per mounting is the fixture's, not the sensor's: it sets how well any "
+    "calibration of this rig can do. Compare the unit's bias over repeated mountings "
+    "at one temperature; a fixture that clamps the same way each time, or holds "
+    "averaged over several mountings, bring it down."
+)

@@ -10,18 +10,41 @@ import ast
 from ..terms import make_term
 
 # How inputs read in a formula, and their units.
-SYMBOLS = {"t": ("t", "s"), "temp": ("T", "°C"), "temp_rate": ("dT/dt", "°C/min"),
-           "rate_own": ("ω", "deg/s"), "accel_own": ("f", "g"),
-           **{f"rate_{a}": (f"ω_{a}", "deg/s") for a in "xyz"},
-           **{f"accel_{a}": (f"f_{a}", "g") for a in "xyz"}, "ref_rate": ("ω_ref", "deg/s")}
-GREEK = {"tau": "τ", "alpha": "α", "beta": "β", "gamma": "γ", "delta": "δ", "omega": "Ω",
-         "sigma": "σ", "mu": "μ", "lambda_": "λ", "theta": "θ"}
+SYMBOLS = {
+    "t": ("t", "s"),
+    "temp": ("T", "°C"),
+    "temp_rate": ("dT/dt", "°C/min"),
+    "rate_own": ("ω", "deg/s"),
+    "accel_own": ("f", "g"),
+    **{f"rate_{a}": (f"ω_{a}", "deg/s") for a in "xyz"},
+    **{f"accel_{a}": (f"f_{a}", "g") for a in "xyz"},
+    "ref_rate": ("ω_ref", "deg/s"),
+}
+GREEK = {
+    "tau": "τ",
+    "alpha": "α",
+    "beta": "β",
+    "gamma": "γ",
+    "delta": "δ",
+    "omega": "Ω",
+    "sigma": "σ",
+    "mu": "μ",
+    "lambda_": "λ",
+    "theta": "θ",
+}
 LIBRARY = {
-    "bias": "B", "scale": "(K_aa − 1) ω_a", "misalignment": "K_ab ω_b",
-    "scale_quadratic": "k ω²", "scale_cubic": "k ω³", "scale_asymmetry": "k |ω|",
-    "g_sensitivity": "Σ_b G_ab f_b", "g_squared": "Σ_b K_ab f_b²", "temp_rate": "c dT/dt",
+    "bias": "B",
+    "scale": "(K_aa − 1) ω_a",
+    "misalignment": "K_ab ω_b",
+    "scale_quadratic": "k ω²",
+    "scale_cubic": "k ω³",
+    "scale_asymmetry": "k |ω|",
+    "g_sensitivity": "Σ_b G_ab f_b",
+    "g_squared": "Σ_b K_ab f_b²",
+    "temp_rate": "c dT/dt",
     "temp_lag": "c (T_τ − T)",
-    "bias_temp_poly": "Σ_k c_k ΔT^k", "scale_temp_poly": "ω Σ_k s_k ΔT^k",
+    "bias_temp_poly": "Σ_k c_k ΔT^k",
+    "scale_temp_poly": "ω Σ_k s_k ΔT^k",
     "misalignment_temp": "Σ_b m_ab ω_b ΔT",
 }
 _OPS = {ast.Add: " + ", ast.Sub: " − ", ast.Mult: "·", ast.Div: "/", ast.Pow: "^"}
@@ -55,8 +78,9 @@ def _formula(node, parameters: dict, parent: int = 0, right: bool = False) -> st
         rhs = _formula(node.right, parameters, level, right=True)
         text = f"{left}{_OPS[type(node.op)]}{rhs}"
         # Brackets where the order needs them (a − (b + c), a/(b·c)), not around every product.
-        needed = level < parent or (right and level == parent and
-                                    type(node.op) in (ast.Add, ast.Sub, ast.Mult, ast.Div))
+        needed = level < parent or (
+            right and level == parent and type(node.op) in (ast.Add, ast.Sub, ast.Mult, ast.Div)
+        )
         return f"({text})" if needed else text
     return ast.unparse(node)
 
@@ -70,8 +94,12 @@ def _parameter_units(tree, parameters) -> dict[str, str]:
             for n in ast.walk(node.right):
                 if isinstance(n, ast.Name) and n.id in parameters:
                     units[n.id] = ""
-        if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) \
-                and node.func.id in ("lag", "play", "duhem") and len(node.args) == 2:
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Name)
+            and node.func.id in ("lag", "play", "duhem")
+            and len(node.args) == 2
+        ):
             # A lag's time constant is in seconds; a play's or a duhem's width in its input's unit.
             inner = [n.id for n in ast.walk(node.args[0]) if isinstance(n, ast.Name) and n.id in SYMBOLS]
             unit = "s" if node.func.id == "lag" else (SYMBOLS[inner[0]][1] if inner else "")
@@ -100,8 +128,9 @@ def _values(term, profiled) -> str:
         if entry and entry.get("at_bound"):
             lo, hi = entry["bounds"]
             bound = f" (at the {'upper' if v >= (lo * hi) ** 0.5 else 'lower'} bound of its search)"
-        parts.append(f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit
-                     + bound)
+        parts.append(
+            f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit + bound
+        )
     return ", ".join(parts)
 
 
@@ -118,7 +147,7 @@ def readable(spec, profiled=()) -> str:
     tail = f" (without {', '.join(drop)})" if drop else ""
     if inner.name == "expression":
         tree = ast.parse(inner.formula, mode="eval")
-        text = "A·" + _formula(tree.body, inner.parameters, 2)   # A times the whole formula
+        text = "A·" + _formula(tree.body, inner.parameters, 2)  # A times the whole formula
         values = _values(inner, profiled)
         return text + (f", {values}" if values else "") + tail
     if inner.name == "smooth":
@@ -127,17 +156,25 @@ def readable(spec, profiled=()) -> str:
         return f"{by}a cubic spline of {symbol} on knots {_span(inner.knots, unit)}" + tail
     if inner.name == "levels":
         by = "ω × " if inner.by else ""
-        return (f"{by}a table of ω over its {len(inner.values)} levels "
-                f"{_span(inner.values, 'deg/s')}, straight between them" + tail)
+        return (
+            f"{by}a table of ω over its {len(inner.values)} levels "
+            f"{_span(inner.values, 'deg/s')}, straight between them" + tail
+        )
     if inner.name == "cross_rate":
-        text = {"square": "q_ab ω_b²", "abs": "q_ab |ω_b|",
-                "levels": f"a table of ω_b over its {len(inner.values)} levels "
-                          f"{_span(inner.values or (0,), 'deg/s')}"}[inner.shape]
+        text = {
+            "square": "q_ab ω_b²",
+            "abs": "q_ab |ω_b|",
+            "levels": f"a table of ω_b over its {len(inner.values)} levels "
+            f"{_span(inner.values or (0,), 'deg/s')}",
+        }[inner.shape]
         return f"{text} on each other output a" + tail
     if inner.name in ("die_temperature", "temp_lag", "temp_rate"):
         found = {p["parameter"]: p for p in profiled or () if p.get("identified", True)}
-        base = {"die_temperature": "every temperature dependence at the die, T_τ",
-                "temp_lag": LIBRARY["temp_lag"], "temp_rate": LIBRARY["temp_rate"]}[inner.name]
+        base = {
+            "die_temperature": "every temperature dependence at the die, T_τ",
+            "temp_lag": LIBRARY["temp_lag"],
+            "temp_rate": LIBRARY["temp_rate"],
+        }[inner.name]
         name = "tau" if inner.name != "temp_rate" else "window_s"
         entry = found.get(name)
         if entry:

@@ -27,24 +27,30 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
     from ..fleet.drift import hold_errors, revalidate
     from ..pipeline.chain import calibrate_observations
+
     cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
     errors, floor1 = hold_errors(cal, other)
     resid, floor0, rows = in_sample(ev.fitted, len(obs))
     z0, z1 = (resid / floor0)[rows], errors / floor1
-    out = {"validation_rms": r["validation_rms"], "noise_floor": r["noise_floor"],
-           "excess": r["excess"], "expected_rms": r["expected_rms"], "holds": r["holds"],
-           "holds_scored": r["holds_scored"],
-           "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
-           "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
-           "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1)}
+    out = {
+        "validation_rms": r["validation_rms"],
+        "noise_floor": r["noise_floor"],
+        "excess": r["excess"],
+        "expected_rms": r["expected_rms"],
+        "holds": r["holds"],
+        "holds_scored": r["holds_scored"],
+        "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
+        "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
+        "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
+    }
     if not all(np.isfinite(v) for v in out.values() if isinstance(v, float)):
         raise GyrocalError("the other session's errors are not finite")
     return out
 
 
 REPEAT_DRAWS = 9999
-POINT_MATCH = 3.0   # °C: soaked points of two sessions closer than this are the same point
+POINT_MATCH = 3.0  # °C: soaked points of two sessions closer than this are the same point
 
 
 def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFrame:
@@ -63,8 +69,15 @@ def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFr
     tbin = np.where(soaked, point_temp, 2.0 * np.round(temp / 2.0))
     rate = obs["temp_rate"].to_numpy(float) if "temp_rate" in obs else np.zeros(len(obs))
     rising = np.where(soaked, 0.0, np.sign(np.round(np.nan_to_num(rate), 1)))
-    return pd.DataFrame({"temp": tbin, "soaked": soaked, "mount": obs["mount"].astype(str).to_numpy(),
-                         "rate": np.round(obs["ref_rate"].to_numpy(float), 1), "rising": rising})
+    return pd.DataFrame(
+        {
+            "temp": tbin,
+            "soaked": soaked,
+            "mount": obs["mount"].astype(str).to_numpy(),
+            "rate": np.round(obs["ref_rate"].to_numpy(float), 1),
+            "rising": rising,
+        }
+    )
 
 
 def _snap(cells1: pd.DataFrame, cells0: pd.DataFrame) -> pd.DataFrame:
@@ -90,8 +103,13 @@ def _shared_cells(obs0, z0, obs1, z1):
     c1 = _snap(_cells(obs1), c0)
 
     def means(cells, z):
-        frame = pd.concat([cells[KEY].reset_index(drop=True),
-                           pd.DataFrame(np.nan_to_num(np.asarray(z, float)), columns=list(AXES))], axis=1)
+        frame = pd.concat(
+            [
+                cells[KEY].reset_index(drop=True),
+                pd.DataFrame(np.nan_to_num(np.asarray(z, float)), columns=list(AXES)),
+            ],
+            axis=1,
+        )
         grouped = frame.groupby(KEY, sort=True)
         return grouped[list(AXES)].mean(), grouped.size()
 
@@ -101,16 +119,25 @@ def _shared_cells(obs0, z0, obs1, z1):
     shared = m0.index.intersection(m1.index)
     if shared.empty:
         return None
-    block = (np.floor(shared.get_level_values("temp").to_numpy(float) / 10.0).astype(int).astype(str)
-             + "|" + shared.get_level_values("mount").to_numpy().astype(str))
+    block = (
+        np.floor(shared.get_level_values("temp").to_numpy(float) / 10.0).astype(int).astype(str)
+        + "|"
+        + shared.get_level_values("mount").to_numpy().astype(str)
+    )
     if np.unique(block).size < 6:
         return None
-    return (m0.loc[shared].to_numpy(), m1.loc[shared].to_numpy(), k0.loc[shared].to_numpy(float),
-            k1.loc[shared].to_numpy(float), block)
+    return (
+        m0.loc[shared].to_numpy(),
+        m1.loc[shared].to_numpy(),
+        k0.loc[shared].to_numpy(float),
+        k1.loc[shared].to_numpy(float),
+        block,
+    )
 
 
-def repeat_p_value(obs0: pd.DataFrame, z0: np.ndarray, obs1: pd.DataFrame, z1: np.ndarray,
-                   draws: int = REPEAT_DRAWS) -> float | None:
+def repeat_p_value(
+    obs0: pd.DataFrame, z0: np.ndarray, obs1: pd.DataFrame, z1: np.ndarray, draws: int = REPEAT_DRAWS
+) -> float | None:
     """How likely, were the two sessions' residuals independent, a pattern that repeats as
     much as this one. Two-sided: a model wrong in a way that depends on the session's
     conditions (a lag at another ramp rate) can leave the pattern reversed.
@@ -130,12 +157,16 @@ def repeat_p_value(obs0: pd.DataFrame, z0: np.ndarray, obs1: pd.DataFrame, z1: n
     labels, codes = np.unique(block, return_inverse=True)
 
     def within(m):
-        sums = np.stack([np.bincount(codes, weights=m[:, i], minlength=labels.size) for i in range(3)], axis=1)
+        sums = np.stack(
+            [np.bincount(codes, weights=m[:, i], minlength=labels.size) for i in range(3)], axis=1
+        )
         return m - (sums / np.bincount(codes, minlength=labels.size)[:, None])[codes]
 
-    products = within(a) * within(b)                                       # (cells, 3)
-    per_block = np.stack([np.bincount(codes, weights=products[:, i], minlength=labels.size)
-                          for i in range(products.shape[1])], axis=1).ravel()
+    products = within(a) * within(b)  # (cells, 3)
+    per_block = np.stack(
+        [np.bincount(codes, weights=products[:, i], minlength=labels.size) for i in range(products.shape[1])],
+        axis=1,
+    ).ravel()
     observed = per_block.sum()
     signs = np.random.default_rng(0).choice((-1.0, 1.0), size=(draws, per_block.size))
     null = signs @ per_block
@@ -154,7 +185,7 @@ def unrepeated_p_value(obs0, z0, obs1, z1) -> float | None:
         return None
     a, b, k0, k1, _ = shared
     d = ((a - a.mean(axis=0)) - b) / np.sqrt(1.0 / k0 + 1.0 / k1)[:, None]
-    return float(chi2_sf(float(np.sum(d ** 2)), d.size - 3))
+    return float(chi2_sf(float(np.sum(d**2)), d.size - 3))
 
 
 # Above this share of their pattern in common, two sessions' residuals repeat: slow noise,
@@ -174,14 +205,16 @@ def shared_fraction(obs0, z0, obs1, z1) -> float | None:
     if shared is None:
         return None
     a, b = shared[0] - shared[0].mean(axis=0), shared[1] - shared[1].mean(axis=0)
-    power = float(np.sum(a ** 2 + b ** 2))
+    power = float(np.sum(a**2 + b**2))
     return float(1.0 - np.sum((a - b) ** 2) / power) if power > 0 else 0.0
 
 
 def slow_noise(nxt, alpha: float) -> bool:
     """The sessions differ by more than the floor (:func:`unrepeated_p_value`) and do not
     share their pattern (:func:`shared_fraction`): slow noise, not an effect."""
-    return (usable(nxt) and nxt["unrepeated_p_value"] is not None
-            and nxt["unrepeated_p_value"] < alpha / 2
-            and (nxt.get("shared_fraction") is None or nxt["shared_fraction"] < REPEATS_SHARE))
-
+    return (
+        usable(nxt)
+        and nxt["unrepeated_p_value"] is not None
+        and nxt["unrepeated_p_value"] < alpha / 2
+        and (nxt.get("shared_fraction") is None or nxt["shared_fraction"] < REPEATS_SHARE)
+    )

@@ -20,12 +20,19 @@ import pandas as pd
 from ..terms import AXES, make_term
 from .where import INPUT_OF, SETTLING_ROW, SHAPE_KNOTS, input_values, knots_for
 
-LEADING = 2          # inputs of the leading covariate rows given terms of free shape
+LEADING = 2  # inputs of the leading covariate rows given terms of free shape
 # The input a term of free shape reads for each input of the covariate table: time within
 # a point is read as time since power-on (the term must mean the same in apply), |rate|
 # and the rate's direction as the own rate.
-TERM_INPUT = {"t": "t", "t_point": "t", "temp": "temp", "temp_rate": "temp_rate",
-              "abs_rate": "rate_own", "rate_own": "rate_own", "rate_cross": "rate_cross"}
+TERM_INPUT = {
+    "t": "t",
+    "t_point": "t",
+    "temp": "temp",
+    "temp_rate": "temp_rate",
+    "abs_rate": "rate_own",
+    "rate_own": "rate_own",
+    "rate_cross": "rate_cross",
+}
 UNITS = {"t": "s", "temp": "°C", "temp_rate": "°C/min", "rate_own": "deg/s", "rate_cross": "deg/s"}
 # A protocol holds its rates at a few levels when no more than this many distinct ones: a
 # table over them resolves any shape of the rate where its next session will be.
@@ -37,8 +44,8 @@ class Shape:
     """A term of free shape the diagnosis tries: its spec, what it is, and its input."""
 
     spec: str
-    kind: str            # empirical | parametric
-    family: str          # smooth, levels, decay, power, step, bump, saturation, threshold, ...
+    kind: str  # empirical | parametric
+    family: str  # smooth, levels, decay, power, step, bump, saturation, threshold, ...
     input: str
     by: str | None = None
 
@@ -59,25 +66,46 @@ def _families(name: str, lo: float, hi: float, hold: float) -> list[tuple[str, s
         # A decay within minutes of power-on and one over the session, apart: two at once
         # (a fast and a slow warm-up) are then two terms the profile keeps distinct.
         split = min(600.0, 0.2 * hi)
-        return [("decay", "exp(-{x} / tau)", {"tau": [split, 4.0 * hi]}),
-                ("fast decay", "exp(-{x} / tau)", {"tau": [max(hold / 2, 5.0), split]}),
-                ("power", "(1 + {x} / t0) ** (-p)", {"t0": [1.0, hi], "p": [0.05, 4.0]}),
-                ("step", f"tanh(({base} - m) / {float(f'{max(hold / 4, 1.0):.2g}')!r})",
-                 {"m": [0.005 * span, 1.01 * span]})]
+        return [
+            ("decay", "exp(-{x} / tau)", {"tau": [split, 4.0 * hi]}),
+            ("fast decay", "exp(-{x} / tau)", {"tau": [max(hold / 2, 5.0), split]}),
+            ("power", "(1 + {x} / t0) ** (-p)", {"t0": [1.0, hi], "p": [0.05, 4.0]}),
+            (
+                "step",
+                f"tanh(({base} - m) / {float(f'{max(hold / 4, 1.0):.2g}')!r})",
+                {"m": [0.005 * span, 1.01 * span]},
+            ),
+        ]
     if name == "temp":
-        return [("bump", f"exp(-(({base} - m) / w) ** 2)", {"m": [0.005 * span, 1.01 * span],
-                                                                   "w": [0.02 * span, span]}),
-                ("step", f"tanh(({base} - m) / w)", {"m": [0.005 * span, 1.01 * span],
-                                                           "w": [0.005 * span, 0.5 * span]})]
+        return [
+            (
+                "bump",
+                f"exp(-(({base} - m) / w) ** 2)",
+                {"m": [0.005 * span, 1.01 * span], "w": [0.02 * span, span]},
+            ),
+            (
+                "step",
+                f"tanh(({base} - m) / w)",
+                {"m": [0.005 * span, 1.01 * span], "w": [0.005 * span, 0.5 * span]},
+            ),
+        ]
     if name == "rate_own":
         top = max(abs(lo), abs(hi))
         # Sharp shapes of |rate| (a mode excited near one rate, a range switch): a bump of the
         # bias and a step of the scale, where and how wide profiled.
-        return [("saturation", "tanh({x} / w)", {"w": [0.01 * top, 10.0 * top]}),
-                ("bump", "exp(-((abs({x}) - m) / w) ** 2)", {"m": [0.01 * top, top],
-                                                               "w": [0.002 * top, 0.5 * top]}),
-                ("threshold", "{x} * (1 + tanh((abs({x}) - m) / w))", {"m": [0.01 * top, top],
-                                                                       "w": [0.002 * top, 0.5 * top]})]
+        return [
+            ("saturation", "tanh({x} / w)", {"w": [0.01 * top, 10.0 * top]}),
+            (
+                "bump",
+                "exp(-((abs({x}) - m) / w) ** 2)",
+                {"m": [0.01 * top, top], "w": [0.002 * top, 0.5 * top]},
+            ),
+            (
+                "threshold",
+                "{x} * (1 + tanh((abs({x}) - m) / w))",
+                {"m": [0.01 * top, top], "w": [0.002 * top, 0.5 * top]},
+            ),
+        ]
     return []
 
 
@@ -101,18 +129,20 @@ def for_the_unit(spec: str, profiled=()) -> str:
     to two significant figures. Other terms as they are."""
     term = make_term(spec)
     inner = getattr(term, "term", term)
-    if inner is not term:   # a restricted term: its part stays as the diagnosis fitted it
+    if inner is not term:  # a restricted term: its part stays as the diagnosis fitted it
         return spec
     if inner.name == "smooth" and inner.input == "t":
         knots = sorted({float(f"{k:.2g}") for k in inner.knots})
         return term.with_settings(knots=knots).spec_string() if len(knots) == len(inner.knots) else spec
     if inner.name != "expression" or "t" not in inner.needs or not inner.profile:
         return spec
-    fitted = {p["parameter"]: p["value"] for p in profiled or ()
-              if p.get("term") == inner.label and "value" in p}
+    fitted = {
+        p["parameter"]: p["value"] for p in profiled or () if p.get("term") == inner.label and "value" in p
+    }
     parameters = {k: float(f"{fitted.get(k, v):.3g}") for k, v in inner.parameters.items()}
-    bounds = {k: (list(TIME_CONSTANT_S) if k in TIME_CONSTANTS else list(b))
-              for k, b in inner.profile.items()}
+    bounds = {
+        k: (list(TIME_CONSTANT_S) if k in TIME_CONSTANTS else list(b)) for k, b in inner.profile.items()
+    }
     if any(not lo <= parameters[k] <= hi for k, (lo, hi) in bounds.items() if k in parameters):
         return spec
     return make_term({**inner.spec(), "parameters": parameters, "profile": bounds}).spec_string()
@@ -131,8 +161,10 @@ def rate_levels(values: np.ndarray) -> list[float] | None:
 def _cross_shapes(values: np.ndarray) -> list[Shape]:
     """Terms of the turning axis's rate seen on the other outputs: its square, its
     magnitude, and a table over the protocol's levels."""
-    shapes = [Shape(make_term({"name": "cross_rate", "shape": s}).spec_string(), "parametric", s,
-                    "rate_cross") for s in ("square", "abs")]
+    shapes = [
+        Shape(make_term({"name": "cross_rate", "shape": s}).spec_string(), "parametric", s, "rate_cross")
+        for s in ("square", "abs")
+    ]
     levels = rate_levels(values)
     if levels is not None and len(levels) >= 3:
         spec = make_term({"name": "cross_rate", "shape": "levels", "values": levels}).spec_string()
@@ -140,8 +172,9 @@ def _cross_shapes(values: np.ndarray) -> list[Shape]:
     return shapes
 
 
-def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
-                fitted_rows: np.ndarray) -> list[Shape]:
+def shape_terms(
+    settings, obs: pd.DataFrame, data: dict, covariates: list[dict], fitted_rows: np.ndarray
+) -> list[Shape]:
     """Terms of free shape for the inputs of the leading covariate rows that carry part of
     the excess (at most :data:`LEADING` inputs)."""
     shapes: list[Shape] = []
@@ -160,7 +193,7 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
         if name is None or (name, by) in seen or (name in ("rate_own", "rate_cross") and by):
             continue
         if name == "temp" and settings.model.kind == "grid":
-            continue   # a shape of temperature alone is each grid point's bias (or scale)
+            continue  # a shape of temperature alone is each grid point's bias (or scale)
         seen.add((name, by))
         values = input_values(obs, data, name)[fitted_rows]
         if name == "rate_cross":
@@ -174,10 +207,10 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
                 # Signed where it matters: an odd shape (the reference rate's row) is a scale
                 # that changes with the rate, an even one (|rate|) a bias.
                 odd = source == "rate_own"
-                table = make_term({"name": "levels", "values": levels,
-                                   "by": "rate_own" if odd else None})
-                shapes.append(Shape(table.spec_string(), "empirical", "levels", name,
-                                    "rate_own" if odd else None))
+                table = make_term({"name": "levels", "values": levels, "by": "rate_own" if odd else None})
+                shapes.append(
+                    Shape(table.spec_string(), "empirical", "levels", name, "rate_own" if odd else None)
+                )
         # A rate's shape turns within tens of deg/s of zero (a saturation, a dead band) and is
         # seen at many rates in both directions: two knots more than for time or temperature.
         knots = knots_for(values, SHAPE_KNOTS + 2 if name == "rate_own" else SHAPE_KNOTS)
@@ -185,8 +218,9 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
             continue
         # The model holds the linear part already where the scale (a rate) or a temperature
         # polynomial is in it: the spline's own would be the same column.
-        linear = not (name == "rate_own" or (name == "temp" and _has(settings, "bias_temp_poly")
-                                              and by is None))
+        linear = not (
+            name == "rate_own" or (name == "temp" and _has(settings, "bias_temp_poly") and by is None)
+        )
         smooth = make_term({"name": "smooth", "input": name, "knots": knots, "by": by, "linear": linear})
         shapes.append(Shape(smooth.spec_string(), "empirical", "smooth", name, by))
         lo, hi = float(np.min(values)), float(np.max(values))
@@ -197,12 +231,20 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
             label_ = f"{family.replace(' ', '_')}_{name}" + ("_by_rate" if by else "")
             bounds = _round(profile)
             start = {k: float(f"{np.sqrt(lo_ * hi_):.3g}") for k, (lo_, hi_) in bounds.items()}
-            spec = make_term({"name": "expression", "label": label_, "formula": formula,
-                              "parameters": start, "profile": bounds}).spec_string()
+            spec = make_term(
+                {
+                    "name": "expression",
+                    "label": label_,
+                    "formula": formula,
+                    "parameters": start,
+                    "profile": bounds,
+                }
+            ).spec_string()
             shapes.append(Shape(spec, "parametric", family, name, by))
         if by:
-            spec = make_term({"name": "expression", "label": f"product_{name}",
-                              "formula": f"rate_own * {name}"}).spec_string()
+            spec = make_term(
+                {"name": "expression", "label": f"product_{name}", "formula": f"rate_own * {name}"}
+            ).spec_string()
             shapes.append(Shape(spec, "parametric", "product", name, by))
         if len(seen) >= LEADING:
             break
@@ -214,22 +256,31 @@ def shape_terms(settings, obs: pd.DataFrame, data: dict, covariates: list[dict],
 # from turning (a first-order lag of the rate's magnitude, shared by the package's three
 # axes), and the temperature's direction of travel (a play operator of width w).
 RATE_ROWS = ("|rate|", "reference rate", "direction", "step into the hold", "previous hold's rate")
-TEMPERATURE_ROWS = ("temperature", "temperature rate", "temperature's direction",
-                    "time within a temperature point")
+TEMPERATURE_ROWS = (
+    "temperature",
+    "temperature rate",
+    "temperature's direction",
+    "time within a temperature point",
+)
 SQUARED = "rate_x**2 + rate_y**2 + rate_z**2"
 MAGNITUDE = f"sqrt({SQUARED})"
 
 
-def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict], level: float = 0.005
-                   ) -> list[Shape]:
+def history_shapes(
+    obs: pd.DataFrame, data: dict, covariates: list[dict], level: float = 0.005
+) -> list[Shape]:
     """Terms with a history for the rows that carry part of the excess, where the session's
     record holds what they read (the gyro's output for the rates; a temperature that turns
     back at least once for its direction)."""
     series = data.get("series")
     if series is None or not hasattr(series, "record"):
         return []
-    carrying = {name.split(" (")[0] for row in covariates if (row.get("share_of_excess") or 0) > 0
-                for name in row["covariate"].split(" = ")}
+    carrying = {
+        name.split(" (")[0]
+        for row in covariates
+        if (row.get("share_of_excess") or 0) > 0
+        for name in row["covariate"].split(" = ")
+    }
     # The output settling within its holds in proportion to the step into them, beyond chance
     # at ``level`` (the diagnosis' α/2) whatever the hold means say.
     if any(row["covariate"] == SETTLING_ROW and row["p_value"] < level for row in covariates):
@@ -238,15 +289,24 @@ def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict], level:
     span = float(series.t[-1] - series.t[0]) if len(series.t) > 1 else hold
     shapes = []
     if carrying & set(RATE_ROWS) and all(f"gyro_{a}" in series.record for a in AXES):
-        shapes.append(_expression("slow_pole", "lag(rate_own, tau) - rate_own",
-                                  {"tau": [0.2, max(2.0 * hold, 1.0)]}, "slow pole"))
+        shapes.append(
+            _expression(
+                "slow_pole",
+                "lag(rate_own, tau) - rate_own",
+                {"tau": [0.2, max(2.0 * hold, 1.0)]},
+                "slow pole",
+            )
+        )
         # The heat a turn makes: friction torque times speed (the magnitude) or a viscous
         # drag's power (its square).
         slow = {"tau": [max(hold / 2, 1.0), max(span, hold)]}
         shapes.append(_expression("rotation_heat", f"lag({MAGNITUDE}, tau)", slow, "heating by rotation"))
-        shapes.append(_expression("rotation_power", f"lag({SQUARED}, tau)", slow, "heating by rotation power"))
+        shapes.append(
+            _expression("rotation_power", f"lag({SQUARED}, tau)", slow, "heating by rotation power")
+        )
     if carrying & set(TEMPERATURE_ROWS):
         from ..io.signals import play_operator
+
         temp = np.asarray(series.temp, dtype=float)
         travel = float(np.ptp(temp)) if temp.size else 0.0
         narrowest = max(0.01 * travel, 0.3)
@@ -258,16 +318,23 @@ def history_shapes(obs: pd.DataFrame, data: dict, covariates: list[dict], level:
             # The direction as a switch over a width (a play operator, as a backlash), or as a
             # state relaxing over a width of travel (a Duhem model, as a strained package).
             widths = {"w": [narrowest, max(0.5 * travel, 2.0 * narrowest)]}
-            shapes.append(_expression("temp_direction", "2 * (temp - play(temp, w)) / w", widths,
-                                      "hysteresis"))
+            shapes.append(
+                _expression("temp_direction", "2 * (temp - play(temp, w)) / w", widths, "hysteresis")
+            )
             shapes.append(_expression("temp_duhem", "duhem(temp, w)", widths, "hysteresis relaxing"))
             # A switch with hysteresis (a firmware's table that changes at a temperature, back
             # below it): a step of the play operator's output, where and how wide profiled, its
             # place m measured from just below the coldest temperature (T0, held).
             origin = float(f"{float(np.min(temp)) - 0.01 * travel:.4g}")
-            shapes.append(_expression("temp_switch", "sign(play(temp, w) - T0 - m)",
-                                      {"m": [0.005 * travel, 1.01 * travel], **widths},
-                                      "switch with hysteresis", fixed={"T0": origin}))
+            shapes.append(
+                _expression(
+                    "temp_switch",
+                    "sign(play(temp, w) - T0 - m)",
+                    {"m": [0.005 * travel, 1.01 * travel], **widths},
+                    "switch with hysteresis",
+                    fixed={"T0": origin},
+                )
+            )
     return shapes
 
 
@@ -275,8 +342,9 @@ def _expression(label: str, formula: str, profile: dict, family: str, fixed=None
     bounds = _round(profile)
     start = {k: float(f"{np.sqrt(lo_ * hi_):.3g}") for k, (lo_, hi_) in bounds.items()}
     start.update(fixed or {})
-    spec = make_term({"name": "expression", "label": label, "formula": formula,
-                      "parameters": start, "profile": bounds}).spec_string()
+    spec = make_term(
+        {"name": "expression", "label": label, "formula": formula, "parameters": start, "profile": bounds}
+    ).spec_string()
     return Shape(spec, "parametric", family, "history")
 
 
@@ -288,30 +356,44 @@ def describe_history(term, coefficients: dict, family: str) -> str:
     p = inner.parameters
     if family == "slow pole":
         sizes = ", ".join(f"{v * 1e3:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
-        return (f"part of each output follows its own rate through a slow pole of "
-                f"{_quantity(p['tau'], 's')}: after a step of the rate it settles by "
-                f"{sizes} ×10⁻³ of the step.")
+        return (
+            f"part of each output follows its own rate through a slow pole of "
+            f"{_quantity(p['tau'], 's')}: after a step of the rate it settles by "
+            f"{sizes} ×10⁻³ of the step."
+        )
     if family.startswith("heating by rotation"):
         power = family.endswith("power")
-        sizes = ", ".join(f"{v * (400.0 ** 2 if power else 400.0):+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
+        sizes = ", ".join(
+            f"{v * (400.0**2 if power else 400.0):+.3g} ({a})" for a, v in zip(AXES, k, strict=False)
+        )
         what = "the rate's magnitude squared" if power else "the rate's magnitude"
-        return (f"a bias that follows the heat of turning, {what} through a lag of "
-                f"{_quantity(p['tau'], 's')}: {sizes} deg/s after a long turn at 400 deg/s.")
+        return (
+            f"a bias that follows the heat of turning, {what} through a lag of "
+            f"{_quantity(p['tau'], 's')}: {sizes} deg/s after a long turn at 400 deg/s."
+        )
     if family == "switch with hysteresis":
         sizes = ", ".join(f"{2 * v:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
         at = p.get("T0", 0.0) + p["m"]
-        return (f"a bias step at a temperature, with hysteresis: {sizes} deg/s above "
-                f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
-                f"{_quantity(at - p['w'] / 2, '°C')} falling.")
+        return (
+            f"a bias step at a temperature, with hysteresis: {sizes} deg/s above "
+            f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
+            f"{_quantity(at - p['w'] / 2, '°C')} falling."
+        )
     sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k, strict=False))
-    turns = ("it turns over once the temperature has gone back" if family == "hysteresis" else
-             "it turns over by 63 % once the temperature has gone back")
-    return (f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
-            f"deg/s, rising against falling; {turns} {_quantity(p['w'], '°C')}.")
+    turns = (
+        "it turns over once the temperature has gone back"
+        if family == "hysteresis"
+        else "it turns over by 63 % once the temperature has gone back"
+    )
+    return (
+        f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
+        f"deg/s, rising against falling; {turns} {_quantity(p['w'], '°C')}."
+    )
 
 
 def _reads_history(term) -> bool:
     from ..terms.user import HISTORIES
+
     formula = getattr(getattr(term, "term", term), "formula", "")
     return any(f"{h}(" in formula for h in HISTORIES)
 
@@ -320,8 +402,9 @@ def _has(settings, term_name: str) -> bool:
     return any(t.name == term_name for t in settings.model.build().terms)
 
 
-def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: int = 201
-             ) -> tuple[np.ndarray, np.ndarray]:
+def shape_of(
+    term, coefficients: dict, lo: float, hi: float, axis: str, points: int = 201
+) -> tuple[np.ndarray, np.ndarray]:
     """The fitted function of its input on one output axis (per unit own rate for a term
     by the rate), over [lo, hi]."""
     x = np.linspace(lo, hi, points)
@@ -333,6 +416,7 @@ def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: 
         curves = [cross_shape(inner, coefficients, x, axis, b) for b in AXES if b != axis]
         return x, max(curves, key=lambda y: float(np.max(np.abs(y - np.median(y)))))
     from ..terms.user import evaluate
+
     name = next((n for n in ("t", "temp", "temp_rate") if n in inner.needs), "rate_own")
     data = {name: x, "rate_own": x if name == "rate_own" else np.ones_like(x)}
     if "rate_own" in inner.formula and name != "rate_own":
@@ -344,12 +428,14 @@ def shape_of(term, coefficients: dict, lo: float, hi: float, axis: str, points: 
 def cross_shape(term, coefficients: dict, x: np.ndarray, axis: str, turning: str) -> np.ndarray:
     """A cross_rate term's effect on output ``axis`` while axis ``turning`` turns at ``x``."""
     from ..terms.empirical import level_basis
+
     if term.shape == "levels":
-        c = np.array([coefficients[f"{term.label}.{axis}.{turning}.k{k + 1}"]
-                      for k in range(2, len(term.values))])
+        c = np.array(
+            [coefficients[f"{term.label}.{axis}.{turning}.k{k + 1}"] for k in range(2, len(term.values))]
+        )
         return level_basis(x, term.values, (0, 1)) @ c
     value = coefficients[f"{term.label}.{axis}.{turning}"]
-    return value * (x ** 2 if term.shape == "square" else np.abs(x))
+    return value * (x**2 if term.shape == "square" else np.abs(x))
 
 
 SHAPED = ("smooth", "levels", "cross_rate", "expression")
@@ -381,16 +467,26 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
         peaks.append((x[k], rel[k]))
         after = np.flatnonzero(np.abs(rel[k:]) <= 0.5 * abs(rel[k]))
         halves.append(x[k + after[0]] if input_name == "t" and after.size and k < len(x) - 1 else None)
-    where = "time since power-on" if input_name == "t" else {
-        "temp": "the temperature", "temp_rate": "the temperature's rate",
-        "rate_own": "the axis's own rate",
-        "rate_cross": "the rate of the axis that turns, on the other outputs"}.get(input_name, input_name)
+    where = (
+        "time since power-on"
+        if input_name == "t"
+        else {
+            "temp": "the temperature",
+            "temp_rate": "the temperature's rate",
+            "rate_own": "the axis's own rate",
+            "rate_cross": "the rate of the axis that turns, on the other outputs",
+        }.get(input_name, input_name)
+    )
     kind = "a scale change" if by else "a bias"
     reference = "its value at the session's end" if input_name == "t" else "its median"
     sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks, strict=False))
     places = {_quantity(p, unit_x) for p, _ in peaks}
-    at = (f"at {places.pop()}" if len(places) == 1 else
-          "at " + ", ".join(f"{_quantity(p, unit_x)} ({a})" for a, (p, _) in zip(AXES, peaks, strict=False)))
+    at = (
+        f"at {places.pop()}"
+        if len(places) == 1
+        else "at "
+        + ", ".join(f"{_quantity(p, unit_x)} ({a})" for a, (p, _) in zip(AXES, peaks, strict=False))
+    )
     text = f"{kind} that follows {where}: {sizes} {unit_y} {at}, against {reference}"
     known = [h for h in halves if h is not None]
     if known:

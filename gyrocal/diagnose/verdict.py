@@ -9,38 +9,76 @@ from .stats import p_text
 
 
 def drift_sentence(base, drift: dict) -> str:
-    rival = (f" {drift['rival_of']} fits it as well, and neither can be named: the mounts follow "
-             "each other in time, so this protocol cannot tell an effect constant per mount from "
-             "a drift."
-             if drift["rival_of"] else "")
-    return (f"A bias drifting linearly in time within each temperature point explains the excess "
-            f"(validation RMS {base.summary['validation_rms']:.3g} → {drift['validation_rms']:.3g} deg/s, "
-            f"what a correct model would leave: {drift['expected_rms']:.3g}): the missing effect "
-            f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}")
+    rival = (
+        f" {drift['rival_of']} fits it as well, and neither can be named: the mounts follow "
+        "each other in time, so this protocol cannot tell an effect constant per mount from "
+        "a drift."
+        if drift["rival_of"]
+        else ""
+    )
+    return (
+        f"A bias drifting linearly in time within each temperature point explains the excess "
+        f"(validation RMS {base.summary['validation_rms']:.3g} → {drift['validation_rms']:.3g} deg/s, "
+        f"what a correct model would leave: {drift['expected_rms']:.3g}): the missing effect "
+        f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}"
+    )
 
 
-def verdict(base, best, explains, rms_over_floor, covariates, noise_model: bool = False,
-            partial=(), within_noise=None, unrepeated: bool = False, base_next=None,
-            tolerance=None, *, noise_explains: bool = False, unseparable=(),
-            finding: str | None = None, negligible: dict | None = None) -> str:
-    text = session_verdict(base, best, explains, rms_over_floor, covariates, noise_model,
-                           partial, within_noise, unrepeated, base_next, tolerance,
-                           noise_explains=noise_explains, unseparable=unseparable,
-                           finding=finding, negligible=negligible)
+def verdict(
+    base,
+    best,
+    explains,
+    rms_over_floor,
+    covariates,
+    noise_model: bool = False,
+    partial=(),
+    within_noise=None,
+    unrepeated: bool = False,
+    base_next=None,
+    tolerance=None,
+    *,
+    noise_explains: bool = False,
+    unseparable=(),
+    finding: str | None = None,
+    negligible: dict | None = None,
+) -> str:
+    text = session_verdict(
+        base,
+        best,
+        explains,
+        rms_over_floor,
+        covariates,
+        noise_model,
+        partial,
+        within_noise,
+        unrepeated,
+        base_next,
+        tolerance,
+        noise_explains=noise_explains,
+        unseparable=unseparable,
+        finding=finding,
+        negligible=negligible,
+    )
     if base_next is not None and base_next["holds"] and best is None and explains:
-        return text + (f" On the other session its calibration leaves {base_next['excess']:.3g} "
-                       "times the floor: it carries over.")
+        return text + (
+            f" On the other session its calibration leaves {base_next['excess']:.3g} "
+            "times the floor: it carries over."
+        )
     if base_next is None or base_next["holds"] or best is not None:
         return text
     if unrepeated:
-        return text + (f" On the other session the errors are {base_next['excess']:.3g} times the "
-                       "floor from the same noise: holds minutes apart scatter more than the floor "
-                       "from the static data says.")
+        return text + (
+            f" On the other session the errors are {base_next['excess']:.3g} times the "
+            "floor from the same noise: holds minutes apart scatter more than the floor "
+            "from the static data says."
+        )
     if explains:
-        return text + (f" On the other session the calibration's errors are {base_next['excess']:.3g} "
-                       "times the floor: it does not carry over, the unit changed between sessions "
-                       "(run-to-run bias, drift; gyrocal revalidate says by how much, the fleet "
-                       "summary's drift page which parameters).")
+        return text + (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} "
+            "times the floor: it does not carry over, the unit changed between sessions "
+            "(run-to-run bias, drift; gyrocal revalidate says by how much, the fleet "
+            "summary's drift page which parameters)."
+        )
     return text + f" On the other session the errors are {base_next['excess']:.3g} times the floor."
 
 
@@ -49,14 +87,30 @@ def _separation(c) -> str:
     what would."""
     dropped = make_term(c.term).drop
     remedy = "; ".join(SEPARATES[k] for k in sorted(input_kinds(c.term)) if k in SEPARATES)
-    return (f"this protocol cannot separate {', '.join(f'{c.part_of}.{d}' for d in dropped)} from "
-            "the rest of the model" + (f" ({remedy})" if remedy else ""))
+    return (
+        f"this protocol cannot separate {', '.join(f'{c.part_of}.{d}' for d in dropped)} from "
+        "the rest of the model" + (f" ({remedy})" if remedy else "")
+    )
 
 
-def session_verdict(base, best, explains, rms_over_floor, covariates, noise_model, partial,
-                    within_noise, unrepeated, base_next, tolerance=None, *,
-                    noise_explains: bool = False, unseparable=(), finding: str | None = None,
-                    negligible: dict | None = None) -> str:
+def session_verdict(
+    base,
+    best,
+    explains,
+    rms_over_floor,
+    covariates,
+    noise_model,
+    partial,
+    within_noise,
+    unrepeated,
+    base_next,
+    tolerance=None,
+    *,
+    noise_explains: bool = False,
+    unseparable=(),
+    finding: str | None = None,
+    negligible: dict | None = None,
+) -> str:
     """The verdict on this session; ``finding``, the reason of a finding no term holds
     (:mod:`.lab`, :mod:`.between`), which the sentence that follows the verdict states;
     ``negligible``, an excess within the noise floor's own uncertainty."""
@@ -65,110 +119,171 @@ def session_verdict(base, best, explains, rms_over_floor, covariates, noise_mode
     held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
     small = ""
     if tolerance is not None and held_out <= tolerance:
-        small = (f" On the holds left out its error is {held_out:.2f} times what a correct model "
-                 f"would leave, within that figure's uncertainty (up to {tolerance:.2f}): the "
-                 "excess is too small to attribute to an effect.")
+        small = (
+            f" On the holds left out its error is {held_out:.2f} times what a correct model "
+            f"would leave, within that figure's uncertainty (up to {tolerance:.2f}): the "
+            "excess is too small to attribute to an effect."
+        )
     if best is not None:
         sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
-        top = (f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
-               f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})") if sizes else ""
-        tied = (f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the "
-                "data equally well." if best.tied_with else "")
+        top = (
+            (
+                f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
+                f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})"
+            )
+            if sizes
+            else ""
+        )
+        tied = (
+            f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the data equally well."
+            if best.tied_with
+            else ""
+        )
         carried = ""
         if base_next is not None and usable(best.next_session):
-            carried = (f" On the other session the error falls from {base_next['excess']:.3g} to "
-                       f"{best.next_session['excess']:.3g} times the floor.")
+            carried = (
+                f" On the other session the error falls from {base_next['excess']:.3g} to "
+                f"{best.next_session['excess']:.3g} times the floor."
+            )
         if getattr(best, "kind", None) == "continuous":
-            carried += (" It is offered in a model continuous in temperature: the temperature "
-                        "moves within the points, and a grid fits each point at one temperature "
-                        "but is applied at each hold's own.")
+            carried += (
+                " It is offered in a model continuous in temperature: the temperature "
+                "moves within the points, and a grid fits each point at one temperature "
+                "but is applied at each hold's own."
+            )
         if getattr(best, "family", None):
             return _free_shape_verdict(base, best, carried)
-        name = (f"{best.part_of}, the part this protocol can see ({name_of(best)})" if best.part_of
-                else name_of(best))
-        seen = (f" That is as much of {best.part_of} as this protocol shows, and what its "
-                f"sessions need: {_separation(best)}." if best.part_of else "")
+        name = (
+            f"{best.part_of}, the part this protocol can see ({name_of(best)})"
+            if best.part_of
+            else name_of(best)
+        )
+        seen = (
+            f" That is as much of {best.part_of} as this protocol shows, and what its "
+            f"sessions need: {_separation(best)}."
+            if best.part_of
+            else ""
+        )
         if best.together:
-            return (f"Missing effects: {name} and "
-                    f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
-                    f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
-                    f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-                    f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
-                    f"{best.alone_rms:.3g}."
-                    + seen + carried)
-        return (f"Missing effect: {name}. Adding it lowers the validation RMS from "
-                f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
-                f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
-                f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
-                f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}")
+            return (
+                f"Missing effects: {name} and "
+                f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
+                f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
+                f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+                f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
+                f"{best.alone_rms:.3g}." + seen + carried
+            )
+        return (
+            f"Missing effect: {name}. Adding it lowers the validation RMS from "
+            f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
+            f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
+            f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
+            f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}"
+        )
     if noise_explains:
         wide = s["validation_rms"] / within_noise["expected_rms"]
-        return (f"The model explains the data as far as one session can tell: its in-sample "
-                f"residuals, {factor:.2f} times the floor from the static data, are within the "
-                f"slow wander that {within_noise['static_seconds']:.0f} s of static data cannot rule "
-                f"out (reduced χ² {within_noise['chi2_red']:.2f} with it), on the holds left out its "
-                f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
-                "noise, and no term takes a practical part of it away. Another session of the unit "
-                "(--other-session) would tell slow wander from an effect.")
+        return (
+            f"The model explains the data as far as one session can tell: its in-sample "
+            f"residuals, {factor:.2f} times the floor from the static data, are within the "
+            f"slow wander that {within_noise['static_seconds']:.0f} s of static data cannot rule "
+            f"out (reduced χ² {within_noise['chi2_red']:.2f} with it), on the holds left out its "
+            f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
+            "noise, and no term takes a practical part of it away. Another session of the unit "
+            "(--other-session) would tell slow wander from an effect."
+        )
     if finding in ("fixed in the lab", "the mounting") and best is None:
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
-        return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                "times their noise floor, and no candidate term accounts for it.")
+        return (
+            f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+            "times their noise floor, and no candidate term accounts for it."
+        )
     if not explains:
         lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
-        where = (f"; the excess lives mostly with {lead['covariate']} "
-                 f"({100 * lead['share_of_excess']:.0f} % of it)" if lead else "")
+        where = (
+            f"; the excess lives mostly with {lead['covariate']} "
+            f"({100 * lead['share_of_excess']:.0f} % of it)"
+            if lead
+            else ""
+        )
         if partial:
             first = partial[0]
-            name = (f"{first.part_of}, the part this protocol can see," if first.part_of
-                    else name_of(first))
+            name = f"{first.part_of}, the part this protocol can see," if first.part_of else name_of(first)
             left = first.leftover or {}
-            follows = (f" What it leaves follows {left['covariate']} (p = {left['p_value']:.2g})."
-                       if left.get("p_value", 1.0) < 0.01 else "")
-            rest = (f" The rest may be {first.part_of} beyond what {_separation(first)}, or "
-                    "another effect." if first.part_of else "")
+            follows = (
+                f" What it leaves follows {left['covariate']} (p = {left['p_value']:.2g})."
+                if left.get("p_value", 1.0) < 0.01
+                else ""
+            )
+            rest = (
+                f" The rest may be {first.part_of} beyond what {_separation(first)}, or another effect."
+                if first.part_of
+                else ""
+            )
             if getattr(first, "offered", False):
                 there = ""
                 if base_next is not None and usable(first.next_session):
-                    there = (f"; on the other session the error falls from {base_next['excess']:.3g} "
-                             f"to {first.next_session['excess']:.3g} times the floor")
-                figure = (f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
-                          f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
-                          "what a correct model would leave" if first.validated else
-                          f"in sample {first.base_rms:.3g} → {first.validation_rms_with:.3g} deg/s")
-                return (f"The model does not explain the data: its in-sample residuals are "
-                        f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
-                        f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
-                        f"{there}): add it with {first.option}.{follows}{rest}")
-            outside = rest or (" What remains needs a term of its own shape (docs/effects.md)."
-                               if not follows else "")
-            return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                    f"times their noise floor. No library or listed term explains it; "
-                    f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
-                    f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
-                    f" times what a correct model would leave){where}.{follows}{outside}")
-        return (f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                "times their noise floor, and no candidate term accounts for it" + where + "." + small)
+                    there = (
+                        f"; on the other session the error falls from {base_next['excess']:.3g} "
+                        f"to {first.next_session['excess']:.3g} times the floor"
+                    )
+                figure = (
+                    f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
+                    f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
+                    "what a correct model would leave"
+                    if first.validated
+                    else f"in sample {first.base_rms:.3g} → {first.validation_rms_with:.3g} deg/s"
+                )
+                return (
+                    f"The model does not explain the data: its in-sample residuals are "
+                    f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
+                    f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
+                    f"{there}): add it with {first.option}.{follows}{rest}"
+                )
+            outside = rest or (
+                " What remains needs a term of its own shape (docs/effects.md)." if not follows else ""
+            )
+            return (
+                f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+                f"times their noise floor. No library or listed term explains it; "
+                f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
+                f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
+                f" times what a correct model would leave){where}.{follows}{outside}"
+            )
+        return (
+            f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+            "times their noise floor, and no candidate term accounts for it" + where + "." + small
+        )
     if unrepeated:
-        return (f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
-                f"noise floor, but their pattern does not come back in the other session (p = "
-                f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
-                "resolve, not a missing effect.")
+        return (
+            f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
+            f"noise floor, but their pattern does not come back in the other session (p = "
+            f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
+            "resolve, not a missing effect."
+        )
     floor_by = "the sensor's noise model" if noise_model else "white noise within the holds"
     if negligible is not None:
-        faint = (f"; the residuals follow {negligible['covariate']} beyond chance (p = "
-                 f"{negligible['p_value']:.2g}), a pattern too faint to matter"
-                 if negligible["covariate"] else "")
-        return (f"The model explains the data: its in-sample residuals are {negligible['factor']:.2f} "
-                f"times their noise floor, within that floor's own uncertainty (±"
-                f"{100 * negligible['floor_uncertainty']:.0f} % from the static data){faint}; "
-                "nothing is missing.")
+        faint = (
+            f"; the residuals follow {negligible['covariate']} beyond chance (p = "
+            f"{negligible['p_value']:.2g}), a pattern too faint to matter"
+            if negligible["covariate"]
+            else ""
+        )
+        return (
+            f"The model explains the data: its in-sample residuals are {negligible['factor']:.2f} "
+            f"times their noise floor, within that floor's own uncertainty (±"
+            f"{100 * negligible['floor_uncertainty']:.0f} % from the static data){faint}; "
+            "nothing is missing."
+        )
     if finding == "between temperature points":
-        return (f"The model explains the data at its temperature points: its in-sample residuals "
-                f"are {factor:.2f} times their noise floor, as {floor_by} would leave.")
-    return (f"The model explains the data: its in-sample residuals are {factor:.2f} times "
-            f"their noise floor, as {floor_by} would leave; nothing is missing.")
+        return (
+            f"The model explains the data at its temperature points: its in-sample residuals "
+            f"are {factor:.2f} times their noise floor, as {floor_by} would leave."
+        )
+    return (
+        f"The model explains the data: its in-sample residuals are {factor:.2f} times "
+        f"their noise floor, as {floor_by} would leave; nothing is missing."
+    )
 
 
 def name_of(c) -> str:
@@ -181,34 +296,44 @@ def name_of(c) -> str:
 
 
 # What a term of free shape is, by its family.
-FAMILY_NAMES = {"smooth": "An empirical term", "levels": "A table over the protocol's levels",
-                "square": "A square", "abs": "A magnitude",
-                "slow pole": "A slow pole of the own rate",
-                "heating by rotation": "A lag of the rate's magnitude",
-                "heating by rotation power": "A lag of the rate's magnitude squared",
-                "hysteresis": "A play operator of the temperature",
-                "hysteresis relaxing": "A Duhem hysteresis of the temperature",
-                "switch with hysteresis": "A switch of the temperature with hysteresis"}
+FAMILY_NAMES = {
+    "smooth": "An empirical term",
+    "levels": "A table over the protocol's levels",
+    "square": "A square",
+    "abs": "A magnitude",
+    "slow pole": "A slow pole of the own rate",
+    "heating by rotation": "A lag of the rate's magnitude",
+    "heating by rotation power": "A lag of the rate's magnitude squared",
+    "hysteresis": "A play operator of the temperature",
+    "hysteresis relaxing": "A Duhem hysteresis of the temperature",
+    "switch with hysteresis": "A switch of the temperature with hysteresis",
+}
 
 
 def _free_shape_verdict(base, best, carried: str) -> str:
     """A term of free shape named: the shape in words, what it reaches, and the parametric
     forms that explain it as well."""
-    also = "".join(f" {'As a formula' if c.family not in ('smooth', 'levels') else 'Empirically'}, "
-                   f"{name_of(c)} explains it as well (validation RMS {c.validation_rms_with:.3g} deg/s)."
-                   for c in best.also[:2])
+    also = "".join(
+        f" {'As a formula' if c.family not in ('smooth', 'levels') else 'Empirically'}, "
+        f"{name_of(c)} explains it as well (validation RMS {c.validation_rms_with:.3g} deg/s)."
+        for c in best.also[:2]
+    )
     what = FAMILY_NAMES.get(best.family, f"A {best.family} formula")
-    together = (" with " + ", ".join(name_of(make_candidate(t)) for t in best.together)
-                if best.together else "")
-    return (f"Missing effect, outside the library: {best.shape} {what}, {name_of(best)}{together}, "
-            f"lowers the validation RMS from {base.summary['validation_rms']:.3g} "
-            f"to {best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-            f"({best.expected_with:.3g}).{also}{carried}")
+    together = (
+        " with " + ", ".join(name_of(make_candidate(t)) for t in best.together) if best.together else ""
+    )
+    return (
+        f"Missing effect, outside the library: {best.shape} {what}, {name_of(best)}{together}, "
+        f"lowers the validation RMS from {base.summary['validation_rms']:.3g} "
+        f"to {best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+        f"({best.expected_with:.3g}).{also}{carried}"
+    )
 
 
 def make_candidate(term: str):
     """A term named beside another, read as a candidate is."""
     from types import SimpleNamespace
+
     return SimpleNamespace(term=term, profiled=())
 
 
@@ -218,14 +343,14 @@ FREE_SHAPE_TERMS = ("smooth", "expression", "levels", "cross_rate")
 # What separates effects of each kind of input, for a protocol that cannot tell them apart.
 SEPARATES = {
     "accel": "mounts that put gravity along each axis in both directions (the six-mount "
-             "protocol) separate orientation effects from the bias",
+    "protocol) separate orientation effects from the bias",
     "rate": "holds at several speeds in both directions on every axis separate the even and "
-            "odd shapes of the rate",
+    "odd shapes of the rate",
     "thermal": "two sweeps at different ramp rates separate the temperature's rate and lag "
-               "from the temperature itself",
+    "from the temperature itself",
     "time": "revisiting the first temperature point at the end of the session separates "
-            "drift in time from temperature; another session (--other-session) tells a "
-            "drift that repeats from slow noise",
+    "drift in time from temperature; another session (--other-session) tells a "
+    "drift that repeats from slow noise",
 }
 
 
@@ -241,64 +366,98 @@ def unseen_hysteresis(one_way: dict | None, two_sessions: bool) -> str | None:
     if not one_way:
         return None
     ways = set(one_way.values())
-    how = ("rising" if ways == {1} else "falling" if ways == {-1} else "one way within each point")
-    where = "in both sessions, each point the same way" if two_sessions else "and it did not turn back within any"
-    return (f"Every temperature point was reached with the temperature {how}, {where}: a bias "
-            "that depends on the direction the temperature came from (thermal hysteresis) sits "
-            "in each point's bias here, so this protocol cannot see it, and a session reaching a "
-            "point from the other side would meet it in full. Visiting a point from both sides "
-            "(down after up, or back to a point passed) would show it.")
+    how = "rising" if ways == {1} else "falling" if ways == {-1} else "one way within each point"
+    where = (
+        "in both sessions, each point the same way" if two_sessions else "and it did not turn back within any"
+    )
+    return (
+        f"Every temperature point was reached with the temperature {how}, {where}: a bias "
+        "that depends on the direction the temperature came from (thermal hysteresis) sits "
+        "in each point's bias here, so this protocol cannot see it, and a session reaching a "
+        "point from the other side would meet it in full. Visiting a point from both sides "
+        "(down after up, or back to a point passed) would show it."
+    )
 
 
-def advice(best, partial, candidates, covariates, explains: bool, has_other: bool,
-           drift: dict | None = None) -> list[str]:
+def advice(
+    best, partial, candidates, covariates, explains: bool, has_other: bool, drift: dict | None = None
+) -> list[str]:
     """What to do next, in sentences: what would separate effects this protocol confounds
     (and that either one compensates what it sees), where an unexplained excess lives and
     how to write the effect, and when another session would decide."""
     out = []
     if best is None and drift is not None and drift["explains"]:
-        out.append("Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
-                   "a bias drifting linearly within each point, and a term file can give it the "
-                   "shape of the drift (docs/effects.md, section 7)"
-                   + ("; visiting the first mount again at the end of a point separates a drift "
-                      f"from {drift['rival_of']}" if drift["rival_of"] else "") + ".")
+        out.append(
+            "Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
+            "a bias drifting linearly within each point, and a term file can give it the "
+            "shape of the drift (docs/effects.md, section 7)"
+            + (
+                "; visiting the first mount again at the end of a point separates a drift "
+                f"from {drift['rival_of']}"
+                if drift["rival_of"]
+                else ""
+            )
+            + "."
+        )
     if best is not None and best.tied_with:
         kinds = set().union(*(input_kinds(t) for t in (best.term, *best.tied_with)))
-        out.append(f"{best.term} and {', '.join(best.tied_with)} fit this session equally well: "
-                   f"either compensates what this protocol sees (validation RMS "
-                   f"{best.validation_rms_with:.3g} deg/s). To tell them apart: "
-                   + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES) + ".")
+        out.append(
+            f"{best.term} and {', '.join(best.tied_with)} fit this session equally well: "
+            f"either compensates what this protocol sees (validation RMS "
+            f"{best.validation_rms_with:.3g} deg/s). To tell them apart: "
+            + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES)
+            + "."
+        )
     if best is not None and best.part_of:
-        out.append(f"{best.option} adds what this protocol can see of {best.part_of}; a "
-                   f"calibration made so holds for sessions of the same protocol. To fit all of it: "
-                   + "; ".join(SEPARATES[k] for k in sorted(input_kinds(best.term)) if k in SEPARATES)
-                   + ".")
+        out.append(
+            f"{best.option} adds what this protocol can see of {best.part_of}; a "
+            f"calibration made so holds for sessions of the same protocol. To fit all of it: "
+            + "; ".join(SEPARATES[k] for k in sorted(input_kinds(best.term)) if k in SEPARATES)
+            + "."
+        )
     if explains or best is not None:
         return out
     # A term the holds do not excite at all (a scale on a rig that does not turn) shows
     # nothing in them either: only one the protocol sees but cannot separate is worth a word.
-    blocked = [c for c in candidates if c.status == "not identifiable" and c.excited
-               and not getattr(c, "family", None) and make_term(c.term).name not in FREE_SHAPE_TERMS]
+    blocked = [
+        c
+        for c in candidates
+        if c.status == "not identifiable"
+        and c.excited
+        and not getattr(c, "family", None)
+        and make_term(c.term).name not in FREE_SHAPE_TERMS
+    ]
     for c in blocked:
         kinds = input_kinds(c.term)
         if kinds:
-            seen = (f" (the part it can see, {c.seen_part}, is ranked with the candidates)"
-                    if getattr(c, "seen_part", None) else "")
-            out.append(f"{c.term} cannot be fitted from this protocol ({c.reason}){seen}: "
-                       + "; ".join(SEPARATES[k] for k in sorted(kinds)) + ".")
+            seen = (
+                f" (the part it can see, {c.seen_part}, is ranked with the candidates)"
+                if getattr(c, "seen_part", None)
+                else ""
+            )
+            out.append(
+                f"{c.term} cannot be fitted from this protocol ({c.reason}){seen}: "
+                + "; ".join(SEPARATES[k] for k in sorted(kinds))
+                + "."
+            )
     for c in partial[:1]:
         if c.leftover is not None:
-            out.append(f"With {c.term} the residuals still follow {c.leftover['covariate']} "
-                       f"(p = {c.leftover['p_value']:.2g}): the effect is likely another shape "
-                       "of that covariate; write it as a term (docs/effects.md).")
+            out.append(
+                f"With {c.term} the residuals still follow {c.leftover['covariate']} "
+                f"(p = {c.leftover['p_value']:.2g}): the effect is likely another shape "
+                "of that covariate; write it as a term (docs/effects.md)."
+            )
     lead = covariates[0]["covariate"] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
     if lead is not None and lead.startswith("time") and not (drift and drift["explains"]):
-        out.append("The excess follows time: a warm-up or a drift. Write it as a term of t with "
-                   "a global coefficient (docs/effects.md, section 7, works one through); "
-                   + SEPARATES["time"] + ".")
+        out.append(
+            "The excess follows time: a warm-up or a drift. Write it as a term of t with "
+            "a global coefficient (docs/effects.md, section 7, works one through); " + SEPARATES["time"] + "."
+        )
     if not has_other:
-        out.append("Diagnose with another session of the unit (--other-session) to judge the "
-                   "candidates by how they carry over to it, as a calibration will be used.")
+        out.append(
+            "Diagnose with another session of the unit (--other-session) to judge the "
+            "candidates by how they carry over to it, as a calibration will be used."
+        )
     return out
 
 
@@ -314,7 +473,7 @@ def term_reads(term: str) -> set[str]:
         inputs.discard("temp_lag")
     kinds = set()
     if "lag(" in getattr(inner, "formula", ""):
-        kinds.add("time")     # a lag follows its input's past: it changes with time in a hold
+        kinds.add("time")  # a lag follows its input's past: it changes with time in a hold
     if any(i.startswith("accel") for i in inputs):
         kinds.add("accel")
     if any(i.startswith("rate_") or i == "ref_rate" for i in inputs):
@@ -342,8 +501,7 @@ def covariate_reads(label: str) -> set[str]:
             kinds |= {"time", "thermal"}
         elif base in ("temperature", "temperature rate"):
             kinds |= {"temperature", "thermal"}
-        elif base in ("|rate|", "reference rate", "direction", "step into the hold",
-                      "previous hold's rate"):
+        elif base in ("|rate|", "reference rate", "direction", "step into the hold", "previous hold's rate"):
             kinds.add("rate")
         elif base == "temperature's direction":
             kinds |= {"temperature", "thermal"}
@@ -362,7 +520,7 @@ def coherent(term: str, lead: dict | None) -> bool:
 # What a protocol would add to tell an effect of each kind of covariate apart.
 WOULD_TELL = {
     "time": "another session of the unit (--other-session), whose warm-up starts again, or "
-            "a temperature point revisited at the end of the session",
+    "a temperature point revisited at the end of the session",
     "temperature": "more temperature points (a sweep, or a grid finer where the excess lives)",
     "rate": "holds at more speeds, in both directions, on every axis",
     "mount": "mounts that put each axis up and down (the six-mount protocol)",
@@ -391,19 +549,28 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
     # A reason cites only shapes of the input that carries the excess.
     ranked = [c for c in tried if c.status == "ranked" and coherent(c.term, row)]
     if not ranked:
-        return None if not any(c.status == "ranked" for c in tried) else {
-            "reason": "no shape of one input", "term": None,
-            "text": f"no term of free shape of {lead} takes it away",
-            "would_tell": WOULD_TELL[kind]}
+        return (
+            None
+            if not any(c.status == "ranked" for c in tried)
+            else {
+                "reason": "no shape of one input",
+                "term": None,
+                "text": f"no term of free shape of {lead} takes it away",
+                "would_tell": WOULD_TELL[kind],
+            }
+        )
     unvalidated = [c for c in ranked if not c.validated and c.significant]
     if unvalidated and not has_other:
         c = min(unvalidated, key=lambda c: c.validation_rms_with)
-        return {"reason": "unvalidated", "term": c.term,
-                "text": f"{readable(c.term, c.profiled)} fits it within this session (in-sample RMS "
-                        f"{c.validation_rms_with:.3g} "
-                        "deg/s), but its shape lies within one temperature point's stretch of time, which "
-                        "leaving that point out to validate cannot check",
-                "would_tell": WOULD_TELL["time"]}
+        return {
+            "reason": "unvalidated",
+            "term": c.term,
+            "text": f"{readable(c.term, c.profiled)} fits it within this session (in-sample RMS "
+            f"{c.validation_rms_with:.3g} "
+            "deg/s), but its shape lies within one temperature point's stretch of time, which "
+            "leaving that point out to validate cannot check",
+            "would_tell": WOULD_TELL["time"],
+        }
     best = min(ranked, key=lambda c: c.validation_rms_with)
     left = best.leftover or {}
     follows = left.get("covariate") if left.get("p_value", 1.0) < 0.01 else None
@@ -411,24 +578,33 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
     # an excess here too, still following another covariate, is the wrong shape.
     carried = has_other and best.next_session and "validation_rms" in best.next_session
     if carried and (best.explains_excess or not follows):
-        return {"reason": "does not carry over", "term": best.term,
-                "text": f"the shape that fits best, {readable(best.term, best.profiled)}, does not hold "
-                        "on the other session "
-                        f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
-                        "is not the same function of its input from one session to the next",
-                # Another session is what showed this: what would tell is an input that
-                # follows the effect in both.
-                "would_tell": "a logged input that follows it in both sessions (a temperature "
-                              "nearer its source, the rig's own state such as its motor's "
-                              "temperature), or a protocol that repeats the same history in "
-                              "every session"}
+        return {
+            "reason": "does not carry over",
+            "term": best.term,
+            "text": f"the shape that fits best, {readable(best.term, best.profiled)}, does not hold "
+            "on the other session "
+            f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
+            "is not the same function of its input from one session to the next",
+            # Another session is what showed this: what would tell is an input that
+            # follows the effect in both.
+            "would_tell": "a logged input that follows it in both sessions (a temperature "
+            "nearer its source, the rig's own state such as its motor's "
+            "temperature), or a protocol that repeats the same history in "
+            "every session",
+        }
     if follows:
-        return {"reason": "depends on more than one input", "term": best.term,
-                "text": f"the shape that fits best, {readable(best.term, best.profiled)}, leaves residuals "
-                        "that still follow "
-                        f"{follows}: the effect depends on more than the one input a term of free shape "
-                        "reads",
-                "would_tell": WOULD_TELL[_covariate_kind(follows)]}
-    return {"reason": "no shape of one input", "term": None,
-            "text": f"no smooth function of {lead or 'the inputs tried'} describes it",
-            "would_tell": WOULD_TELL[kind]}
+        return {
+            "reason": "depends on more than one input",
+            "term": best.term,
+            "text": f"the shape that fits best, {readable(best.term, best.profiled)}, leaves residuals "
+            "that still follow "
+            f"{follows}: the effect depends on more than the one input a term of free shape "
+            "reads",
+            "would_tell": WOULD_TELL[_covariate_kind(follows)],
+        }
+    return {
+        "reason": "no shape of one input",
+        "term": None,
+        "text": f"no smooth function of {lead or 'the inputs tried'} describes it",
+        "would_tell": WOULD_TELL[kind],
+    }

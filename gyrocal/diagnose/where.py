@@ -13,13 +13,22 @@ from ..terms import AXES
 from .stats import chi2_sf
 
 COVARIATES = {
-    "temperature": "temp", "temperature rate": "temp_rate", "reference rate": "ref_rate",
-    "|rate|": "abs_rate", "direction": "direction", "mount": "mount",
-    "accel_x": "accel_x", "accel_y": "accel_y", "accel_z": "accel_z",
-    "time": "time", "hold duration": "duration",
+    "temperature": "temp",
+    "temperature rate": "temp_rate",
+    "reference rate": "ref_rate",
+    "|rate|": "abs_rate",
+    "direction": "direction",
+    "mount": "mount",
+    "accel_x": "accel_x",
+    "accel_y": "accel_y",
+    "accel_z": "accel_z",
+    "time": "time",
+    "hold duration": "duration",
     # histories: what came before the hold
-    "step into the hold": "step", "previous hold's rate": "previous_rate",
-    "temperature's direction": "temp_direction", "mounting": "mounting",
+    "step into the hold": "step",
+    "previous hold's rate": "previous_rate",
+    "temperature's direction": "temp_direction",
+    "mounting": "mounting",
 }
 TIME_LIKE = ("time", "time within a temperature point", "hold duration")
 HISTORY_ROWS = ("step into the hold", "previous hold's rate", "temperature's direction", "mounting")
@@ -29,10 +38,16 @@ HISTORY_ROWS = ("step into the hold", "previous hold's rate", "temperature's dir
 # judged within the point (what changes there is time, not the temperature); the
 # temperature's direction within the point (one direction per point is the point's own
 # bias), each mounting within its mount (one offset per mount is an effect of orientation).
-BASELINE = {"|rate|": "rotating axis", "direction": "rotating axis",
-            "reference rate": "rotating axis", "time within a temperature point": "point",
-            "step into the hold": "rotating axis", "previous hold's rate": "rotating axis",
-            "temperature's direction": "point", "mounting": "mount"}
+BASELINE = {
+    "|rate|": "rotating axis",
+    "direction": "rotating axis",
+    "reference rate": "rotating axis",
+    "time within a temperature point": "point",
+    "step into the hold": "rotating axis",
+    "previous hold's rate": "rotating axis",
+    "temperature's direction": "point",
+    "mounting": "mount",
+}
 # The width (°C) of the play operator that tells the temperature's direction of travel: a
 # few times a sensor's noise, well below a protocol's steps.
 DIRECTION_WIDTH_C = 1.0
@@ -41,12 +56,12 @@ DIRECTION_WIDTH_C = 1.0
 class FitQuality(NamedTuple):
     """The in-sample residuals of a fit against their floor."""
 
-    chi2_red: dict[str, float]        # overall and per output axis
+    chi2_red: dict[str, float]  # overall and per output axis
     rms_over_floor: dict[str, float]
-    excess_p_value: float             # of χ² against its degrees of freedom
-    resid: np.ndarray                 # (n, 3) deg/s, NaN on rows not fitted
-    floor: np.ndarray                 # (n, 3)
-    fitted_rows: np.ndarray           # (n,) bool
+    excess_p_value: float  # of χ² against its degrees of freedom
+    resid: np.ndarray  # (n, 3) deg/s, NaN on rows not fitted
+    floor: np.ndarray  # (n, 3)
+    fitted_rows: np.ndarray  # (n,) bool
 
     @property
     def z(self) -> np.ndarray:
@@ -61,8 +76,10 @@ def fit_quality(evaluation, n: int) -> FitQuality:
     dof = {a: sum(f.dof[a] for f in fits) for a in AXES}
     chi2 = {a: sum(f.chi2[a] for f in fits) for a in AXES}
     chi2_red = {"all": evaluation.chi2 / evaluation.dof, **{a: chi2[a] / dof[a] for a in AXES}}
-    rms = {"all": float(np.sqrt(np.nanmean(z ** 2))),
-           **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)}}
+    rms = {
+        "all": float(np.sqrt(np.nanmean(z**2))),
+        **{a: float(np.sqrt(np.nanmean(z[:, i] ** 2))) for i, a in enumerate(AXES)},
+    }
     return FitQuality(chi2_red, rms, float(chi2_sf(evaluation.chi2, evaluation.dof)), resid, floor, rows)
 
 
@@ -81,13 +98,14 @@ def _between(z: np.ndarray, labels: np.ndarray) -> tuple[float, int]:
 class _Layout(NamedTuple):
     """How a session's holds group by each covariate: what :func:`covariate_table` needs
     besides the residuals, the same for every fit of the same holds."""
-    labels: dict            # covariate label -> group of each fitted hold
-    groups: list            # covariates that group the holds identically, each a list
-    joints: list            # per group: (joint labels with its baseline, baseline labels)
-    product_bins: dict      # input -> bins for the rate-product rows
-    rates: np.ndarray       # (fitted holds, 3) true rates
-    heat: dict              # map name -> [(cell key, rows)]
-    own: np.ndarray         # (fitted holds, 3): the output is the hold's turning axis
+
+    labels: dict  # covariate label -> group of each fitted hold
+    groups: list  # covariates that group the holds identically, each a list
+    joints: list  # per group: (joint labels with its baseline, baseline labels)
+    product_bins: dict  # input -> bins for the rate-product rows
+    rates: np.ndarray  # (fitted holds, 3) true rates
+    heat: dict  # map name -> [(cell key, rows)]
+    own: np.ndarray  # (fitted holds, 3): the output is the hold's turning axis
 
 
 # The diagnosis shares out the residuals of many fits of the same holds (every candidate's
@@ -113,7 +131,10 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
         if column not in frame:
             continue
         values = frame[column]
-        if column not in ("mount", "rotating axis", "mounting") and not np.isfinite(values.to_numpy(dtype=float)).all():
+        if (
+            column not in ("mount", "rotating axis", "mounting")
+            and not np.isfinite(values.to_numpy(dtype=float)).all()
+        ):
             continue
         if column in ("mount", "rotating axis", "mounting") or values.nunique() <= 8:
             labels[label] = _partition(values.to_numpy())
@@ -124,8 +145,9 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
         within = np.zeros(len(frame), dtype=np.int64)
         for p in np.unique(point):  # time quartiles inside each point
             rows = np.flatnonzero(point == p)
-            within[rows] = pd.qcut(frame["time"].iloc[rows].rank(method="first"),
-                                   min(4, len(rows)), labels=False).to_numpy()
+            within[rows] = pd.qcut(
+                frame["time"].iloc[rows].rank(method="first"), min(4, len(rows)), labels=False
+            ).to_numpy()
         labels["time within a temperature point"] = point * 4 + within
         labels["point"] = point
     # Covariates that group the holds the same way are one: the protocol confounds them.
@@ -152,10 +174,12 @@ def _layout(obs: pd.DataFrame, data: dict, fitted_rows: np.ndarray) -> _Layout:
     rate_bins = frame["ref_rate"].round(3).to_numpy()
     temp_bins = frame["temp"].round(0).to_numpy()
     heat = {
-        "mount_by_rate": [(f"{m}|{r}", g.to_numpy()) for (m, r), g in
-                          idx.groupby([frame["mount"].to_numpy(), rate_bins])],
-        "temperature_by_rate": [(f"{t}|{r}", g.to_numpy()) for (t, r), g in
-                                idx.groupby([temp_bins, rate_bins])],
+        "mount_by_rate": [
+            (f"{m}|{r}", g.to_numpy()) for (m, r), g in idx.groupby([frame["mount"].to_numpy(), rate_bins])
+        ],
+        "temperature_by_rate": [
+            (f"{t}|{r}", g.to_numpy()) for (t, r), g in idx.groupby([temp_bins, rate_bins])
+        ],
     }
     own = frame["rotating axis"].to_numpy()[:, None] == np.array(AXES)[None, :]
     layout = _Layout(labels, groups, joints, product_bins, rates, heat, own)
@@ -178,6 +202,7 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     series = data.get("series")
     if series is not None and hasattr(series, "temp") and len(series.t) > 1:
         from ..io.signals import temperature_play
+
         mid = 0.5 * (t + np.asarray(data["t_end"], dtype=float)) - series.t0
         temp = np.asarray(series.temp, dtype=float)
         # from a unit brought from the room, as the fit's play of the temperature starts
@@ -199,7 +224,7 @@ def one_way_points(obs: pd.DataFrame, data: dict, before: dict | None = None) ->
     if way is None or not len(way):
         return None
     temps = np.asarray(data["temp"], dtype=float)
-    points = (np.asarray(obs["point"]) if "point" in obs else np.zeros(len(way), dtype=int))
+    points = np.asarray(obs["point"]) if "point" in obs else np.zeros(len(way), dtype=int)
     out = {}
     for p in np.unique(points):
         seen = set(np.unique(way[(points == p) & (way != 0)]).tolist())
@@ -248,6 +273,7 @@ def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:
     if not all(f"settle_{a}" in data for a in AXES) or "rate_x" not in data or "t_start" not in data:
         return None
     from .stats import f_sf, fisher_combined
+
     settle = np.column_stack([np.asarray(data[f"settle_{a}"], dtype=float) for a in AXES])
     steps = axis_steps(obs, data)
     slopes, p_values, used = {}, [], 0
@@ -269,15 +295,22 @@ def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:
         used = max(used, len(x))
     if not p_values:
         return None
-    return {"covariate": SETTLING_ROW, "bins": used, "share_of_excess": None,
-            "p_value": float(fisher_combined(*p_values)), "within": "the step into the hold",
-            "chi2_beyond_chance": 0.0, "slope": slopes,
-            "reason": "the output's change within each hold against the step of its rate into "
-                      "it (a separate test: no share of the hold means' excess)"}
+    return {
+        "covariate": SETTLING_ROW,
+        "bins": used,
+        "share_of_excess": None,
+        "p_value": float(fisher_combined(*p_values)),
+        "within": "the step into the hold",
+        "chi2_beyond_chance": 0.0,
+        "slope": slopes,
+        "reason": "the output's change within each hold against the step of its rate into "
+        "it (a separate test: no share of the hold means' excess)",
+    }
 
 
-def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray,
-                    dof: int, excess_significant: bool) -> tuple[list[dict], dict]:
+def covariate_table(
+    obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray, dof: int, excess_significant: bool
+) -> tuple[list[dict], dict]:
     """Share of the excess χ² each covariate accounts for, ranked; heat maps.
 
     A covariate's share is what grouping the holds by it adds to the grouping it is judged
@@ -289,7 +322,7 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
     out: the shares are None."""
     layout = _layout(obs, data, fitted_rows)
     zz = z[fitted_rows]
-    total = float(np.sum(zz ** 2))
+    total = float(np.sum(zz**2))
     excess = max(total - dof, 1e-9)
     rows = []
     for names, (joint, base) in zip(layout.groups, layout.joints, strict=False):
@@ -300,9 +333,14 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
         gain = ss_joint - ss_base
         p = float(chi2_sf(gain, df)) if df > 0 else 1.0
         share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
-        row = {"covariate": " = ".join(names) if len(names) > 1 else lead, "bins": int(k_joint),
-               "share_of_excess": share, "p_value": p, "within": BASELINE.get(lead),
-               "chi2_beyond_chance": max(gain - df, 0.0)}
+        row = {
+            "covariate": " = ".join(names) if len(names) > 1 else lead,
+            "bins": int(k_joint),
+            "share_of_excess": share,
+            "p_value": p,
+            "within": BASELINE.get(lead),
+            "chi2_beyond_chance": max(gain - df, 0.0),
+        }
         if len(names) > 1:
             row["confounded"] = names
             row["reason"] = "these group the holds identically in this protocol: it cannot tell them apart"
@@ -313,8 +351,10 @@ def covariate_table(obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: n
     settling = settling_row(obs, data)
     if settling is not None:
         rows.append(settling)
-    heat = {name: {key: float(np.sqrt(np.mean(zz[cell] ** 2))) for key, cell in cells}
-            for name, cells in layout.heat.items()}
+    heat = {
+        name: {key: float(np.sqrt(np.mean(zz[cell] ** 2))) for key, cell in cells}
+        for name, cells in layout.heat.items()
+    }
     return rows, heat
 
 
@@ -342,10 +382,17 @@ def _split_rows(layout: _Layout, z: np.ndarray, excess: float, excess_significan
             gain = ss_joint - ss_base
             p = float(chi2_sf(gain, df)) if df > 0 else 1.0
             share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
-            out.append({"covariate": f"{covariate} ({axes})", "bins": int(k_joint),
-                        "share_of_excess": share, "p_value": p, "within": "rotating axis",
-                        "chi2_beyond_chance": max(gain - df, 0.0),
-                        "split": {"input": covariate, "axes": axes}})
+            out.append(
+                {
+                    "covariate": f"{covariate} ({axes})",
+                    "bins": int(k_joint),
+                    "share_of_excess": share,
+                    "p_value": p,
+                    "within": "rotating axis",
+                    "chi2_beyond_chance": max(gain - df, 0.0),
+                    "split": {"input": covariate, "axes": axes},
+                }
+            )
     return out
 
 
@@ -354,8 +401,9 @@ def _split_rows(layout: _Layout, z: np.ndarray, excess: float, excess_significan
 PRODUCT_INPUTS = ("time", "time within a temperature point", "temperature", "temperature rate")
 
 
-def _product_rows(product_bins: dict, z: np.ndarray, rates: np.ndarray, excess: float,
-                  excess_significant: bool) -> list[dict]:
+def _product_rows(
+    product_bins: dict, z: np.ndarray, rates: np.ndarray, excess: float, excess_significant: bool
+) -> list[dict]:
     """Rows for products of the rates with an input: within each bin of the input, the
     residuals of each output axis regressed on its own rate (``own axis``: 1 degree of
     freedom per bin and axis) or on the two other rates (``cross axes``: 2). What the
@@ -372,9 +420,17 @@ def _product_rows(product_bins: dict, z: np.ndarray, rates: np.ndarray, excess: 
                 continue
             p = float(chi2_sf(gain, df))
             share = min(max(gain - df, 0.0) / excess, 1.0) if excess_significant else None
-            out.append({"covariate": f"rate × {name} ({kind})", "bins": int(bins.max()) + 1,
-                        "share_of_excess": share, "p_value": p, "within": None,
-                        "chi2_beyond_chance": max(gain - df, 0.0), "product": {"input": name, "axes": kind}})
+            out.append(
+                {
+                    "covariate": f"rate × {name} ({kind})",
+                    "bins": int(bins.max()) + 1,
+                    "share_of_excess": share,
+                    "p_value": p,
+                    "within": None,
+                    "chi2_beyond_chance": max(gain - df, 0.0),
+                    "product": {"input": name, "axes": kind},
+                }
+            )
     return out
 
 
@@ -400,7 +456,9 @@ def _binned_slopes(bins: np.ndarray, z: np.ndarray, rates: np.ndarray, *, own: b
         # Two regressors where they are not collinear in the bin, else the one that is there.
         gain += float(np.sum((c * u * u - 2 * b * u * v + a * v * v)[full] / det[full]))
         single = ~full & ((a > 0) | (c > 0))
-        gain += float(np.sum(np.where(a > 0, u * u / np.where(a > 0, a, 1.0), v * v / np.where(c > 0, c, 1.0))[single]))
+        gain += float(
+            np.sum(np.where(a > 0, u * u / np.where(a > 0, a, 1.0), v * v / np.where(c > 0, c, 1.0))[single])
+        )
         df += 2 * int(full.sum()) + int(single.sum())
     return gain, df
 
@@ -420,19 +478,38 @@ def leftover(obs: pd.DataFrame, data: dict, evaluation) -> dict:
     resid, floor, rows = in_sample(evaluation.fitted, len(obs))
     table, _ = covariate_table(obs, data, np.nan_to_num(resid / floor), rows, evaluation.dof, True)
     worst = min(table, key=lambda r: r["p_value"])
-    return {"covariate": worst["covariate"],
-            "p_value": min(1.0, worst["p_value"] * len(table)),  # Bonferroni
-            "chi2_red_share": worst["chi2_beyond_chance"] / max(evaluation.dof, 1)}
+    return {
+        "covariate": worst["covariate"],
+        "p_value": min(1.0, worst["p_value"] * len(table)),  # Bonferroni
+        "chi2_red_share": worst["chi2_beyond_chance"] / max(evaluation.dof, 1),
+    }
 
 
 # The input a covariate row stands for, as a term reads it (the shape's x axis).
-INPUT_OF = {"time": "t", "time within a temperature point": "t_point", "temperature": "temp",
-            "temperature rate": "temp_rate", "|rate|": "abs_rate", "reference rate": "rate_own",
-            "direction": "rate_own", "hold duration": "duration",
-            "|rate| (own axis)": "abs_rate", "reference rate (own axis)": "rate_own",
-            "|rate| (cross axes)": "rate_cross", "reference rate (cross axes)": "rate_cross"}
-INPUT_UNIT = {"t": "s", "t_point": "s", "temp": "degC", "temp_rate": "degC/min", "abs_rate": "deg/s",
-              "rate_own": "deg/s", "rate_cross": "deg/s", "duration": "s"}
+INPUT_OF = {
+    "time": "t",
+    "time within a temperature point": "t_point",
+    "temperature": "temp",
+    "temperature rate": "temp_rate",
+    "|rate|": "abs_rate",
+    "reference rate": "rate_own",
+    "direction": "rate_own",
+    "hold duration": "duration",
+    "|rate| (own axis)": "abs_rate",
+    "reference rate (own axis)": "rate_own",
+    "|rate| (cross axes)": "rate_cross",
+    "reference rate (cross axes)": "rate_cross",
+}
+INPUT_UNIT = {
+    "t": "s",
+    "t_point": "s",
+    "temp": "degC",
+    "temp_rate": "degC/min",
+    "abs_rate": "deg/s",
+    "rate_own": "deg/s",
+    "rate_cross": "deg/s",
+    "duration": "s",
+}
 SHAPE_KNOTS = 5
 SHAPE_POINTS = 61
 
@@ -453,7 +530,7 @@ def input_values(obs: pd.DataFrame, data: dict, name: str) -> np.ndarray:
         x = np.abs(np.asarray(data["ref_rate"], dtype=float))
     elif name == "rate_own":
         return np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
-    elif name == "rate_cross":   # the other axes' rate: on a turntable, the turning one's
+    elif name == "rate_cross":  # the other axes' rate: on a turntable, the turning one's
         rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])
         return rates.sum(axis=1, keepdims=True) - rates
     else:
@@ -467,7 +544,7 @@ def knots_for(values: np.ndarray, count: int = SHAPE_KNOTS) -> list[float] | Non
     if distinct.size < 3:
         return None
     knots = np.quantile(distinct, np.linspace(0.0, 1.0, min(count, distinct.size)))
-    knots = np.unique([float(f"{k:.4g}") for k in knots])   # as a person would write them
+    knots = np.unique([float(f"{k:.4g}") for k in knots])  # as a person would write them
     return [float(k) for k in knots] if knots.size >= 3 else None
 
 
@@ -479,6 +556,7 @@ def shape_estimate(obs: pd.DataFrame, data: dict, quality: FitQuality, row: dict
     fit's covariance scaled by its reduced χ² when that is above 1. None for a covariate
     without a numeric input (the mount) or with too few distinct values."""
     from ..terms.empirical import spline_basis
+
     product = row.get("product")
     label = product["input"] if product else row["covariate"].split(" = ")[0]
     name = INPUT_OF.get(label)
@@ -491,9 +569,16 @@ def shape_estimate(obs: pd.DataFrame, data: dict, quality: FitQuality, row: dict
     if knots is None:
         return None
     grid = np.linspace(knots[0], knots[-1], SHAPE_POINTS)
-    out = {"covariate": row["covariate"], "input": name, "unit": INPUT_UNIT[name],
-           "of": "scale change" if product else "residual", "value_unit": "1" if product else "deg/s",
-           "x": grid.tolist(), "knots": knots, "axes": {}}
+    out = {
+        "covariate": row["covariate"],
+        "input": name,
+        "unit": INPUT_UNIT[name],
+        "of": "scale change" if product else "residual",
+        "value_unit": "1" if product else "deg/s",
+        "x": grid.tolist(),
+        "knots": knots,
+        "axes": {},
+    }
     for i, a in enumerate(AXES):
         x, r, f = x_all[rows, i], quality.resid[rows, i], quality.floor[rows, i]
         design = np.column_stack([np.ones(len(x)), spline_basis(x, knots)])
@@ -510,6 +595,9 @@ def shape_estimate(obs: pd.DataFrame, data: dict, quality: FitQuality, row: dict
         cov = np.linalg.inv((design * w[:, None]).T @ (design * w[:, None])) * max(chi2_red, 1.0)
         fit = at @ coef
         sigma = np.sqrt(np.einsum("ij,jk,ik->i", at, cov, at))
-        out["axes"][a] = {"fit": fit.tolist(), "low": (fit - 2 * sigma).tolist(),
-                          "high": (fit + 2 * sigma).tolist()}
+        out["axes"][a] = {
+            "fit": fit.tolist(),
+            "low": (fit - 2 * sigma).tolist(),
+            "high": (fit + 2 * sigma).tolist(),
+        }
     return out if out["axes"] else None

@@ -44,12 +44,12 @@ if TYPE_CHECKING:
     import pandas as pd
 
 AXES = "xyz"
-MIN_STATIC_S = 1.0      # a stretch this long adds its short taus to the pooled estimate
+MIN_STATIC_S = 1.0  # a stretch this long adds its short taus to the pooled estimate
 MIN_STATIC_SAMPLES = 64
-MIN_TOTAL_S = 10.0      # less static time in all reaches too few octaves to tell terms apart
-MERGE_GAP_S = 1.0       # stretches closer than this are one stretch (a hold that ends a soak)
-QUIET_BLOCK_S = 1.0     # servo pauses: blocks judged quiet by their scatter
-QUIET_FACTOR = 2.0      # a block scattering more than this × the median block is moving
+MIN_TOTAL_S = 10.0  # less static time in all reaches too few octaves to tell terms apart
+MERGE_GAP_S = 1.0  # stretches closer than this are one stretch (a hold that ends a soak)
+QUIET_BLOCK_S = 1.0  # servo pauses: blocks judged quiet by their scatter
+QUIET_FACTOR = 2.0  # a block scattering more than this × the median block is moving
 FALLBACK = "within-hold scatter"
 STATIC = "noise model of the static stretches"
 
@@ -97,7 +97,8 @@ def static_stretches(log, seg, static, *, max_temp_rate: float = 0.1) -> pd.Data
     """Time spans (t_start, t_end, s) where the sensor sits still at a steady temperature,
     as the protocol finds them (``static``: its
     :attr:`gyrocal.protocols.registry.Protocol.static`), at least ``MIN_STATIC_S`` long."""
-    import pandas as pd   # here, not with the module: a report reads the noise terms without it
+    import pandas as pd  # here, not with the module: a report reads the noise terms without it
+
     t0, t1 = static(log, seg, max_temp_rate)
     out = pd.DataFrame({"t_start": np.asarray(t0, float), "t_end": np.asarray(t1, float)})
     out = out[out["t_end"] - out["t_start"] >= MIN_STATIC_S].sort_values("t_start")
@@ -120,28 +121,32 @@ class StretchSampler:
         self.rate = rate
         self._pieces: dict[int, list[dict[str, np.ndarray]]] = {}
         self._done: dict[int, tuple] = {}
-        self._pool = ThreadPoolExecutor(2)   # numpy releases the GIL: sums beside the read
+        self._pool = ThreadPoolExecutor(2)  # numpy releases the GIL: sums beside the read
 
     def push(self, batch: dict[str, np.ndarray]) -> None:
         t = batch["t"]
         lo = np.searchsorted(t, self.start, side="left")
         hi = np.searchsorted(t, self.end, side="right")
         for k in np.flatnonzero(hi > lo):
-            self._pieces.setdefault(int(k), []).append(
-                {c: batch[c][lo[k]:hi[k]] for c in self.NAMES[1:]})
+            self._pieces.setdefault(int(k), []).append({c: batch[c][lo[k] : hi[k]] for c in self.NAMES[1:]})
         for k in [k for k in self._pieces if self.end[k] < t[-1]]:
             self._close(k)
 
     def _close(self, k: int) -> None:
         pieces = self._pieces.pop(k)
-        cols = {c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
-                for c in self.NAMES[1:]}
+        cols = {
+            c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
+            for c in self.NAMES[1:]
+        }
         n = len(cols["temp"])
         if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
             gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
             # in float64: a float32 column's own accumulator overflows near its largest value
-            self._done[k] = (self._pool.submit(stretch_sums, gyro, self.rate), n,
-                             float(np.mean(cols["temp"], dtype=np.float64)))
+            self._done[k] = (
+                self._pool.submit(stretch_sums, gyro, self.rate),
+                n,
+                float(np.mean(cols["temp"], dtype=np.float64)),
+            )
 
     def result(self) -> list[tuple]:
         for k in list(self._pieces):
@@ -160,10 +165,18 @@ def _model(parts: list, rate: float) -> dict | None:
     except InputError:
         return None
     variance = sum(p.centred_sumsq for p in parts) / (sum(p.n for p in parts) - len(parts))
-    return {"sample_variance": variance.tolist(),
-            "allan": {"tau_s": allan.tau.tolist(), "adev": allan.adev.tolist(), "lo": allan.lo.tolist(),
-                      "hi": allan.hi.tolist(), "edf": allan.edf.tolist(), "level": allan.level},
-            "terms": terms.to_dict()}
+    return {
+        "sample_variance": variance.tolist(),
+        "allan": {
+            "tau_s": allan.tau.tolist(),
+            "adev": allan.adev.tolist(),
+            "lo": allan.lo.tolist(),
+            "hi": allan.hi.tolist(),
+            "edf": allan.edf.tolist(),
+            "level": allan.level,
+        },
+        "terms": terms.to_dict(),
+    }
 
 
 def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) -> dict:
@@ -177,9 +190,12 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     protocol's finder of static stretches, otherwise)."""
     obs = seg.observations
     rate = float(seg.info.get("sample_rate") or 0.0)
-    summary = {"source": FALLBACK, "points": [], "static_seconds": 0.0,
-               "reason": f"less than {MIN_TOTAL_S:g} s of static data with a steady temperature "
-                         "in the log"}
+    summary = {
+        "source": FALLBACK,
+        "points": [],
+        "static_seconds": 0.0,
+        "reason": f"less than {MIN_TOTAL_S:g} s of static data with a steady temperature in the log",
+    }
     if obs.empty or rate <= 0:
         return summary
     if sampled is None:
@@ -202,25 +218,40 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     rows = []
     for k, (point, point_temp) in enumerate(points.items()):
         mine = [p for p, j in zip(parts, nearest, strict=False) if j == k]
-        row = {"point": int(point), "temp": float(point_temp), "stretches": len(mine),
-               "seconds": float(sum(p.n for p in mine) / rate)}
+        row = {
+            "point": int(point),
+            "temp": float(point_temp),
+            "stretches": len(mine),
+            "seconds": float(sum(p.n for p in mine) / rate),
+        }
         row.update((_model(mine, rate) or {}) if mine else {})
         rows.append(row)
     longest = max(p.n for p in parts) / rate
-    return {"source": STATIC, "static_seconds": float(seconds), "stretches": len(parts),
-            "longest_static_s": float(longest), "session": session, "points": rows,
-            "resolves": resolution(longest, float(session["allan"]["tau_s"][-1]))}
+    return {
+        "source": STATIC,
+        "static_seconds": float(seconds),
+        "stretches": len(parts),
+        "longest_static_s": float(longest),
+        "session": session,
+        "points": rows,
+        "resolves": resolution(longest, float(session["allan"]["tau_s"][-1])),
+    }
 
 
 def resolution(longest_s: float, tau_max_s: float) -> dict:
     """What the static stretches can and cannot tell, JSON-plain: they measure the Allan
     deviation up to ``tau_max_s``; wander over longer times (a chamber's bursts are seconds
     long, its temperature points minutes apart) is beyond them."""
-    return {"tau_max_s": tau_max_s, "longest_static_s": longest_s,
-            "text": (f"the static stretches, {longest_s:.3g} s at the longest, measure the noise up to "
-                     f"τ = {tau_max_s:.3g} s; bias instability and rate random walk over longer times "
-                     "are not measured by them: the floors count them only where detected, and the "
-                     "diagnosis weighs an excess against the most of them the data cannot rule out")}
+    return {
+        "tau_max_s": tau_max_s,
+        "longest_static_s": longest_s,
+        "text": (
+            f"the static stretches, {longest_s:.3g} s at the longest, measure the noise up to "
+            f"τ = {tau_max_s:.3g} s; bias instability and rate random walk over longer times "
+            "are not measured by them: the floors count them only where detected, and the "
+            "diagnosis weighs an excess against the most of them the data cannot rule out"
+        ),
+    }
 
 
 def terms_of(entry: dict) -> NoiseTerms:
@@ -229,11 +260,15 @@ def terms_of(entry: dict) -> NoiseTerms:
     keys = ("arw", "bias_instability", "rrw", "quantisation")
     kw = {k: np.asarray(d[k], float) for k in keys}
     kw.update({f"{k}_stderr": np.asarray(d[f"{k}_stderr"], float) for k in keys})
-    if "ramp" in d:   # files written before the ramp was fitted have none
+    if "ramp" in d:  # files written before the ramp was fitted have none
         kw.update(ramp=np.asarray(d["ramp"], float), ramp_stderr=np.asarray(d["ramp_stderr"], float))
-    return NoiseTerms(**kw, bias_instability_min=np.asarray(d["bias_instability_min"], float),
-                      tau_min=np.asarray(d["tau_min"], float), chi2_reduced=np.asarray(d["chi2_reduced"], float),
-                      tau_range=tuple(d["tau_range_s"]))
+    return NoiseTerms(
+        **kw,
+        bias_instability_min=np.asarray(d["bias_instability_min"], float),
+        tau_min=np.asarray(d["tau_min"], float),
+        chi2_reduced=np.asarray(d["chi2_reduced"], float),
+        tau_range=tuple(d["tau_range_s"]),
+    )
 
 
 DETECTION_Z = 3.0  # a coloured term counts when its variance coefficient is this many s.e. above 0
@@ -245,7 +280,7 @@ def detected(value, error, z: float = DETECTION_Z) -> np.ndarray:
     zero. The reported error is sqrt(c + s) - sqrt(c) (in the term's unit), so
     s = (value + error)^2 - value^2."""
     value, error = np.asarray(value, float), np.asarray(error, float)
-    return value ** 2 >= z * ((value + error) ** 2 - value ** 2)
+    return value**2 >= z * ((value + error) ** 2 - value**2)
 
 
 def floor_terms(model: dict) -> NoiseTerms:
@@ -273,8 +308,8 @@ def upper_terms(model: dict, z: float = UPPER_Z) -> NoiseTerms:
     kw = {}
     for name in ("bias_instability", "rrw"):
         value = np.asarray(getattr(terms, name), float)
-        s = (value + np.asarray(getattr(terms, f"{name}_stderr"), float)) ** 2 - value ** 2
-        kw[name] = np.sqrt(value ** 2 + z * np.clip(s, 0.0, None))
+        s = (value + np.asarray(getattr(terms, f"{name}_stderr"), float)) ** 2 - value**2
+        kw[name] = np.sqrt(value**2 + z * np.clip(s, 0.0, None))
     return replace(terms, **kw)
 
 
@@ -302,28 +337,30 @@ def with_upper_floor(obs: pd.DataFrame) -> pd.DataFrame | None:
     return out
 
 
-def _floor_columns(obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTerms,
-                   prefix: str) -> pd.DataFrame:
+def _floor_columns(
+    obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTerms, prefix: str
+) -> pd.DataFrame:
     model = summary["session"]
     duration = obs["n"].to_numpy(float) / rate
     span = obs.groupby("point").agg(t0=("t_start", "min"), t1=("t_end", "max"))
     # A hold scatters about its visit's mean: a sweep passes each temperature going up and
     # coming down hours later, and the wander of those hours is no hold's noise.
     visit = _visits(obs)
-    visit_span = (obs.groupby(visit)["t_end"].transform("max")
-                  - obs.groupby(visit)["t_start"].transform("min")).to_numpy(float)
+    visit_span = (
+        obs.groupby(visit)["t_end"].transform("max") - obs.groupby(visit)["t_start"].transform("min")
+    ).to_numpy(float)
     count = np.maximum(visit_span / duration, 1.0)
     mids = ((span["t0"] + span["t1"]) / 2).sort_values().to_numpy()
     between = float(np.median(np.diff(mids))) if mids.size > 1 else 0.0
     std = obs[[f"std_{a}" for a in AXES]].to_numpy(float)
-    extra = np.clip(std ** 2 - np.asarray(model["sample_variance"])[None, :], 0.0, None)
+    extra = np.clip(std**2 - np.asarray(model["sample_variance"])[None, :], 0.0, None)
     extra /= obs["n"].to_numpy(float)[:, None]
     white = replace(terms, bias_instability=np.zeros(3), rrw=np.zeros(3))
     floor2 = terms.mean_variance(duration, count) + extra
     wander = np.sqrt(terms.coloured_variance(between)) if between > 0 else np.zeros(3)
     white2 = white.mean_variance(duration) + extra
-    flicker = np.asarray(terms.bias_instability, float) / 3600.0          # deg/h -> deg/s
-    walk = np.asarray(terms.rrw, float) / 3600.0 ** 1.5                    # -> deg/s/sqrt(s)
+    flicker = np.asarray(terms.bias_instability, float) / 3600.0  # deg/h -> deg/s
+    walk = np.asarray(terms.rrw, float) / 3600.0**1.5  # -> deg/s/sqrt(s)
     for i, a in enumerate(AXES):
         obs[f"{prefix}floor_{a}"] = np.sqrt(floor2[:, i])
         obs[f"{prefix}wander_{a}"] = wander[i]
@@ -356,10 +393,23 @@ def noise_record(summary: dict) -> dict:
     used = floor_terms(summary["session"])
     if "resolves" in summary:
         out["resolves"] = summary["resolves"]
-    out.update(static_seconds=summary["static_seconds"], stretches=summary["stretches"],
-               session=summary["session"]["terms"],
-               floor_terms={"bias_instability": np.asarray(used.bias_instability).tolist(),
-                            "rrw": np.asarray(used.rrw).tolist(), "detection_z": DETECTION_Z},
-               points=[{"temperature": p["temp"], "stretches": p["stretches"], "seconds": p["seconds"],
-                        **({"terms": p["terms"]} if "terms" in p else {})} for p in summary["points"]])
+    out.update(
+        static_seconds=summary["static_seconds"],
+        stretches=summary["stretches"],
+        session=summary["session"]["terms"],
+        floor_terms={
+            "bias_instability": np.asarray(used.bias_instability).tolist(),
+            "rrw": np.asarray(used.rrw).tolist(),
+            "detection_z": DETECTION_Z,
+        },
+        points=[
+            {
+                "temperature": p["temp"],
+                "stretches": p["stretches"],
+                "seconds": p["seconds"],
+                **({"terms": p["terms"]} if "terms" in p else {}),
+            }
+            for p in summary["points"]
+        ],
+    )
     return out

@@ -50,8 +50,9 @@ class Model:
                 if name in seen:
                     raise ConfigError(f"terms {seen[name]} and {term.name} both define {name}")
                 if axis_of(name) not in AXES:
-                    raise ConfigError(f"coefficient {name} of term {term.name} does not name "
-                                      "an output axis second")
+                    raise ConfigError(
+                        f"coefficient {name} of term {term.name} does not name an output axis second"
+                    )
                 seen[name] = term.name
 
     @classmethod
@@ -104,8 +105,7 @@ class Model:
         if holds:
             base, context = hold_inputs(data)
         else:
-            base = Inputs({k: v for k, v in data.items() if k != "series"}, data.get("series"),
-                          data.get("t"))
+            base = Inputs({k: v for k, v in data.items() if k != "series"}, data.get("series"), data.get("t"))
             context = {"span": None}
         nodes = None
         out: dict[str, np.ndarray] = {}
@@ -119,8 +119,9 @@ class Model:
                     at_nodes = term.columns(Inputs(nodes, nodes.series, nodes.times))
                     columns = {k: node_means(v, nodes.plan) for k, v in at_nodes.items()}
             except MissingInputError as exc:
-                raise MissingInputError(f"term {term.spec_string()} reads an input it cannot "
-                                        f"have: {exc}") from None
+                raise MissingInputError(
+                    f"term {term.spec_string()} reads an input it cannot have: {exc}"
+                ) from None
             missing = [c for c in term.coefficients() if c not in columns]
             if missing:
                 raise ConfigError(f"term {term.spec_string()} gives no column for {', '.join(missing)}")
@@ -130,7 +131,7 @@ class Model:
     def error(self, coefs: Mapping[str, np.ndarray | float], data: Mapping) -> np.ndarray:
         """Modelled error e (n, 3) for coefficients (scalars or per-row arrays)."""
         n = len(data[RATE_COLUMNS[0]])
-        sums = [np.zeros(n) for _ in AXES]   # per axis, contiguous: faster than a column
+        sums = [np.zeros(n) for _ in AXES]  # per axis, contiguous: faster than a column
         cols = self.design(data)
         for name, column in cols.items():
             sums[AXES.index(axis_of(name))] += np.asarray(coefs[name]) * column
@@ -146,7 +147,7 @@ class Model:
         for j in range(3):
             probe = w_true.copy()
             # 1 deg/s, or a step the rounding of a huge rate does not swallow (J singular)
-            step = np.maximum(1.0, np.abs(w_true[:, j]) * 2.0 ** -26)
+            step = np.maximum(1.0, np.abs(w_true[:, j]) * 2.0**-26)
             probe[:, j] += step
             J[:, :, j] = (self._output(coefs, covariates, probe) - f0) / step[:, None]
         return J, f0 - np.einsum("nij,nj->ni", J, w_true)
@@ -155,8 +156,9 @@ class Model:
         data = {**covariates, **{c: w_true[:, i] for i, c in enumerate(RATE_COLUMNS)}}
         return w_true + self.error(coefs, data)
 
-    def compensate(self, coefs, w: np.ndarray, covariates: Mapping, *, tol: float = 1e-9,
-                   max_iter: int = 20, start=None) -> tuple[np.ndarray, np.ndarray]:
+    def compensate(
+        self, coefs, w: np.ndarray, covariates: Mapping, *, tol: float = 1e-9, max_iter: int = 20, start=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """True rate for outputs ``w`` (n, 3): solve ``w_true + e(w_true) = w``.
 
         Returns (w_true, J) where J is the output's Jacobian at the solution (so the
@@ -176,7 +178,7 @@ class Model:
         size = np.abs(w)
         largest = size[..., :1].copy()  # the row's largest output (column by column: a
         for k in range(1, size.shape[-1]):  # reduction along a short axis is slow)
-            np.maximum(largest, size[..., k:k + 1], out=largest)
+            np.maximum(largest, size[..., k : k + 1], out=largest)
         bound = np.maximum(tol * (1.0 + size), 64 * np.finfo(float).eps * largest)
         for _ in range(max_iter):
             resid = w - self._output(coefs, covariates, w_true)
@@ -195,12 +197,12 @@ class FitResult:
     names: tuple[str, ...]
     values: np.ndarray
     stderr: np.ndarray
-    covariance: np.ndarray             # in ``names`` order; zero between output axes
-    residuals: np.ndarray              # (n_obs, 3) observed minus modelled error, deg/s
-    floor: np.ndarray                  # (n_obs, 3) noise floor of each observation, deg/s
-    chi2: dict[str, float]             # per output axis
+    covariance: np.ndarray  # in ``names`` order; zero between output axes
+    residuals: np.ndarray  # (n_obs, 3) observed minus modelled error, deg/s
+    floor: np.ndarray  # (n_obs, 3) noise floor of each observation, deg/s
+    chi2: dict[str, float]  # per output axis
     dof: dict[str, int]
-    condition: dict[str, float]        # of the column-scaled weighted design, per axis
+    condition: dict[str, float]  # of the column-scaled weighted design, per axis
     n_obs: int
     info: dict = field(default_factory=dict)
 
@@ -219,7 +221,9 @@ class FitResult:
             "coefficients": self.coefs(),
             "stderr": {n: float(s) for n, s in zip(self.names, self.stderr, strict=False)},
             "chi2_red": {a: self.chi2_red(a) for a in AXES},
-            "dof": dict(self.dof), "condition": dict(self.condition), "n_obs": self.n_obs,
+            "dof": dict(self.dof),
+            "condition": dict(self.condition),
+            "n_obs": self.n_obs,
             **self.info,
         }
 
@@ -231,11 +235,14 @@ def columns_of(obs) -> dict[str, np.ndarray]:
     """Numeric observation columns as float arrays (what terms read), with the session's
     record (``series``, :mod:`gyrocal.io.signals`) when the table carries one in its attrs; a
     mapping passes through."""
-    pd = sys.modules.get("pandas")   # not imported here: a report reads a calibration without it
+    pd = sys.modules.get("pandas")  # not imported here: a report reads a calibration without it
     if pd is None or not isinstance(obs, pd.DataFrame):
         return obs
-    data = {c: obs[c].to_numpy(dtype=float) for c in obs.columns
-            if c not in NON_NUMERIC and pd.api.types.is_numeric_dtype(obs[c])}
+    data = {
+        c: obs[c].to_numpy(dtype=float)
+        for c in obs.columns
+        if c not in NON_NUMERIC and pd.api.types.is_numeric_dtype(obs[c])
+    }
     series = obs.attrs.get("series")
     if series is not None:  # the session's record, for terms that read series signals
         data["series"] = series
@@ -263,13 +270,14 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
     out, a formula outside its domain) is refused, naming its term and how many holds."""
     for term in model.terms:
         for name in term.coefficients():
-            bad = ~np.isfinite(design[name])   # a constant column is a scalar
+            bad = ~np.isfinite(design[name])  # a constant column is a scalar
             if bad.any():
                 count = int(bad.sum()) if np.ndim(bad) else n_obs
                 raise MissingInputError(
                     f"term {term.spec_string()} is not finite for {count} of {n_obs} "
                     f"holds{f' at {label}' if label else ''} (inputs: {', '.join(sorted(term.needs))})",
-                    source=source)
+                    source=source,
+                )
 
 
 def subset_design(design: dict, rows) -> dict:
@@ -280,9 +288,15 @@ def subset_design(design: dict, rows) -> dict:
 def shares_wander(data) -> bool:
     """Whether the holds share slow wander (bias instability or rate random walk in the
     session's noise model), so that the fit whitens them jointly rather than one by one."""
-    return "white_x" in data and len(data["white_x"]) > 1 and any(
-        f"{k}_{a}" in data and bool(np.any(np.asarray(data[f"{k}_{a}"]) > 0))
-        for k in ("flicker", "rrw") for a in AXES)
+    return (
+        "white_x" in data
+        and len(data["white_x"]) > 1
+        and any(
+            f"{k}_{a}" in data and bool(np.any(np.asarray(data[f"{k}_{a}"]) > 0))
+            for k in ("flicker", "rrw")
+            for a in AXES
+        )
+    )
 
 
 def _whiteners(data: dict, floor: np.ndarray) -> list:
@@ -303,11 +317,18 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
     if not shares_wander(data):
         return [divide(i) for i in range(3)]
     from .wander import whiteners
-    white = [np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
-             for i, a in enumerate(AXES)]
-    found = whiteners(data["t_start"], data["t_end"], white,
-                      [float(np.max(data[f"flicker_{a}"])) for a in AXES],
-                      [float(np.max(data[f"rrw_{a}"])) for a in AXES])
+
+    white = [
+        np.maximum(np.asarray(data[f"white_{a}"], float), 1e-3 * np.median(floor[:, i]))
+        for i, a in enumerate(AXES)
+    ]
+    found = whiteners(
+        data["t_start"],
+        data["t_end"],
+        white,
+        [float(np.max(data[f"flicker_{a}"])) for a in AXES],
+        [float(np.max(data[f"rrw_{a}"])) for a in AXES],
+    )
     if found is None:  # observations overlapping in time (no segmenter makes them)
         return [divide(i) for i in range(3)]
     return [divide(i) if w is None else w for i, w in enumerate(found)]
@@ -319,11 +340,12 @@ def _whiteners(data: dict, floor: np.ndarray) -> list:
 # point left out to validate). Whether the penalised model is determined at all is judged
 # with the penalty at full weight: a direction only the penalty fixes is not a collinearity.
 PENALTY_WEIGHT = 1e-4
-DEAD_COLUMN = 1e-12   # a column norm below this share of the largest counts as zero
+DEAD_COLUMN = 1e-12  # a column norm below this share of the largest counts as zero
 
 
-def _penalty_rows(model: Model, cols: list[str], scale: np.ndarray,
-                  weight: float = PENALTY_WEIGHT) -> np.ndarray | None:
+def _penalty_rows(
+    model: Model, cols: list[str], scale: np.ndarray, weight: float = PENALTY_WEIGHT
+) -> np.ndarray | None:
     """Rows appended to the column-scaled, whitened design of one output axis: for each
     term with a penalty ``c' Ω c`` (:meth:`gyrocal.terms.Term.penalty`), ``sqrt(λ e) V'``
     on its columns, ``Ω / (scale scale') = V diag(e) V'``, ``λ`` the penalty weight times the
@@ -343,7 +365,7 @@ def _penalty_rows(model: Model, cols: list[str], scale: np.ndarray,
             continue
         lam = weight * len(J) / float(np.trace(scaled))
         block = np.zeros((int(keep.sum()), len(cols)))
-        block[:, J] = (np.sqrt(lam * e[keep])[:, None] * V[:, keep].T)
+        block[:, J] = np.sqrt(lam * e[keep])[:, None] * V[:, keep].T
         blocks.append(block)
     return np.vstack(blocks) if blocks else None
 
@@ -386,10 +408,10 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
             continue
         X = np.empty((n_obs, len(cols)))
         for j, c in enumerate(cols):
-            X[:, j] = design[c]   # a constant column is a scalar
+            X[:, j] = design[c]  # a constant column is a scalar
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
         whiten = whiteners[i]
-        XY = whiten(np.column_stack([X, y]))   # one pass; each column is whitened alone
+        XY = whiten(np.column_stack([X, y]))  # one pass; each column is whitened alone
         # contiguous, as whitened apart: a strided vector takes another BLAS path, whose
         # last bits steer a profiled fit of a jagged chi-square to another local minimum
         Xw, yw = np.ascontiguousarray(XY[:, :-1]), np.ascontiguousarray(XY[:, -1])
@@ -402,12 +424,13 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
         A = np.vstack([Xw / scale, rows]) if rows is not None else Xw / scale
         if rows is not None:
             yw = np.concatenate([yw, np.zeros(len(rows))])
-            dead &= ~np.any(rows != 0, axis=0)   # the penalty carries a column without holds
+            dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
         check, check_Vt = s, Vt
-        if rows is not None:   # judged with the penalty at full weight (PENALTY_WEIGHT)
-            _, check, check_Vt = np.linalg.svd(np.vstack([Xw / scale, _penalty_rows(model, cols, scale, 1.0)]),
-                                               full_matrices=False)
+        if rows is not None:  # judged with the penalty at full weight (PENALTY_WEIGHT)
+            _, check, check_Vt = np.linalg.svd(
+                np.vstack([Xw / scale, _penalty_rows(model, cols, scale, 1.0)]), full_matrices=False
+            )
         # Columns that only noise keeps apart (an accelerometer that reads the same on
         # every mount but for its noise) fit noise, not physics: refuse them too.
         weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
@@ -422,15 +445,17 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
         if n_dof < 1:
             raise IdentifiabilityError(
                 f"{n_obs} holds{where} cannot fit {len(cols)} coefficients per axis with "
-                f"a residual left to estimate their uncertainty", parameters=tuple(cols),
-                source=source)
+                f"a residual left to estimate their uncertainty",
+                parameters=tuple(cols),
+                source=source,
+            )
         theta = (Vt.T @ ((U.T @ yw) / s)) / scale
         r = y - X @ theta
         c2 = float(np.sum(whiten(r) ** 2))
-        cov = (Vt.T / s ** 2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
-        cov = 0.5 * (cov + cov.T)      # the product's triangles differ in their last bits
+        cov = (Vt.T / s**2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
+        cov = 0.5 * (cov + cov.T)  # the product's triangles differ in their last bits
         se = np.sqrt(np.diag(cov))
-        cov[np.diag_indices_from(cov)] = se ** 2   # as a calibration file holds it
+        cov[np.diag_indices_from(cov)] = se**2  # as a calibration file holds it
         names += cols
         values.append(theta)
         stderr.append(se)
@@ -440,19 +465,25 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
 
     if unexcited:
         bad = tuple(n for n in model.names if n in unexcited)
-        how = "no rotation or holds that separate them" if worst > 1e9 else \
-            f"they are nearly collinear (condition number {worst:.3g})"
+        how = (
+            "no rotation or holds that separate them"
+            if worst > 1e9
+            else f"they are nearly collinear (condition number {worst:.3g})"
+        )
         raise IdentifiabilityError(
             f"the observations{where} do not excite {', '.join(bad)}: {how} ({n_obs} holds)",
-            parameters=bad, source=source)
+            parameters=bad,
+            source=source,
+        )
     covariance = np.zeros((len(names), len(names)))
     at = 0
     for block in blocks:
         k = len(block)
-        covariance[at:at + k, at:at + k] = block
+        covariance[at : at + k, at : at + k] = block
         at += k
     order = [names.index(n) for n in model.names]  # report in the model's own order
     covariance = covariance[np.ix_(order, order)]
     values, stderr = np.concatenate(values)[order], np.concatenate(stderr)[order]
-    return FitResult(model, tuple(model.names), values, stderr, covariance, resid, floor,
-                     chi2, dof, cond, n_obs)
+    return FitResult(
+        model, tuple(model.names), values, stderr, covariance, resid, floor, chi2, dof, cond, n_obs
+    )

@@ -32,9 +32,19 @@ import numpy as np
 from ..io.errors import InputError
 from ..io.kernels import second_diff_sumsq
 
-__all__ = ["AllanResult", "NoiseTerms", "allan_deviation", "pooled_allan_deviation", "stretch_sums",
-           "pooled_from_sums", "StretchSums", "barnes_b1",
-           "fit_noise_terms", "MIN_SAMPLES", "FLICKER_FACTOR"]
+__all__ = [
+    "AllanResult",
+    "NoiseTerms",
+    "allan_deviation",
+    "pooled_allan_deviation",
+    "stretch_sums",
+    "pooled_from_sums",
+    "StretchSums",
+    "barnes_b1",
+    "fit_noise_terms",
+    "MIN_SAMPLES",
+    "FLICKER_FACTOR",
+]
 
 MIN_SAMPLES = 8  # fewer samples give a single-octave curve with one or two terms: nothing to fit
 FLICKER_FACTOR = math.sqrt(2.0 * math.log(2.0) / math.pi)  # 0.6643: Allan plateau / B
@@ -43,9 +53,9 @@ _EDF_READING = 10.0  # min(adev) reading skips long taus whose scatter (~1/sqrt(
 # SI (deg, s) -> IEEE Std 952 reporting units
 _TO_ARW = 60.0  # deg/sqrt(s) -> deg/sqrt(h)
 _TO_BI = 3600.0  # deg/s -> deg/h
-_TO_RRW = 3600.0 ** 1.5  # deg/s/sqrt(s) -> deg/h/sqrt(h)
+_TO_RRW = 3600.0**1.5  # deg/s/sqrt(s) -> deg/h/sqrt(h)
 _TO_Q = 3600.0  # deg -> arcsec
-_TO_R = 3600.0 ** 2  # deg/s^2 -> deg/h/h
+_TO_R = 3600.0**2  # deg/s^2 -> deg/h/h
 
 
 def _plain(a):
@@ -74,11 +84,19 @@ class AllanResult:
     level: float = 0.683
 
     def to_dict(self) -> dict:
-        return {"rate_hz": float(self.rate), "n_samples": int(self.n_samples),
-                "overlapping": bool(self.overlapping), "level": float(self.level),
-                "tau_s": _plain(self.tau), "m": _plain(self.m), "adev": _plain(self.adev),
-                "n_terms": _plain(self.n_terms), "edf": _plain(self.edf),
-                "lo": _plain(self.lo), "hi": _plain(self.hi)}
+        return {
+            "rate_hz": float(self.rate),
+            "n_samples": int(self.n_samples),
+            "overlapping": bool(self.overlapping),
+            "level": float(self.level),
+            "tau_s": _plain(self.tau),
+            "m": _plain(self.m),
+            "adev": _plain(self.adev),
+            "n_terms": _plain(self.n_terms),
+            "edf": _plain(self.edf),
+            "lo": _plain(self.lo),
+            "hi": _plain(self.hi),
+        }
 
 
 def _averaging_factors(taus, n: int, rate: float, overlapping: bool) -> np.ndarray:
@@ -92,8 +110,10 @@ def _averaging_factors(taus, n: int, rate: float, overlapping: bool) -> np.ndarr
         raise InputError("taus: expected positive finite averaging times in seconds")
     m = np.unique(np.rint(t * rate).astype(np.int64))
     if m[0] < 1 or m[-1] > m_max:
-        raise InputError(f"taus: averaging times must lie in [{1 / rate:g}, {m_max / rate:g}] s "
-                         f"for {n} samples at {rate:g} Hz")
+        raise InputError(
+            f"taus: averaging times must lie in [{1 / rate:g}, {m_max / rate:g}] s "
+            f"for {n} samples at {rate:g} Hz"
+        )
     return m
 
 
@@ -135,13 +155,15 @@ def _interval(adev, edf, level):
     """The two-sided interval at ``level`` from chi-squared quantiles with ``edf`` degrees
     of freedom, 2 P^-1(edf/2, q) (scipy.special: scipy.stats takes a second to import)."""
     from scipy.special import gammaincinv
+
     lo = adev * np.sqrt(edf / (2.0 * gammaincinv(edf / 2.0, 0.5 + level / 2)))[:, None]
     hi = adev * np.sqrt(edf / (2.0 * gammaincinv(edf / 2.0, 0.5 - level / 2)))[:, None]
     return lo, hi
 
 
-def allan_deviation(x, rate: float, *, taus="octave", overlapping: bool = True,
-                    level: float = 0.683) -> AllanResult:
+def allan_deviation(
+    x, rate: float, *, taus="octave", overlapping: bool = True, level: float = 0.683
+) -> AllanResult:
     """Allan deviation of a rate signal ``x`` (1-D or (n, axes)) sampled at ``rate`` Hz.
 
     ``taus="octave"`` uses m = 1, 2, 4, ... up to n/2 (overlapping; n/3 otherwise); an array gives
@@ -177,8 +199,19 @@ def allan_deviation(x, rate: float, *, taus="octave", overlapping: bool = True,
     lo, hi = _interval(adev, edf, level)
     if x.ndim == 1:
         adev, lo, hi = adev[:, 0], lo[:, 0], hi[:, 0]
-    return AllanResult(tau=tau, m=m, adev=adev, n_terms=np.asarray(n_terms), edf=edf, lo=lo,
-                       hi=hi, rate=rate, n_samples=n, overlapping=overlapping, level=level)
+    return AllanResult(
+        tau=tau,
+        m=m,
+        adev=adev,
+        n_terms=np.asarray(n_terms),
+        edf=edf,
+        lo=lo,
+        hi=hi,
+        rate=rate,
+        n_samples=n,
+        overlapping=overlapping,
+        level=level,
+    )
 
 
 @dataclass(frozen=True)
@@ -203,9 +236,13 @@ def stretch_sums(x, rate: float) -> StretchSums:
         raise InputError(f"stretch_sums: need at least {MIN_SAMPLES} finite samples, found {n}")
     m = 2 ** np.arange(int(math.log2(n // 2)) + 1)
     centred = x - x.mean(axis=0)
-    return StretchSums(sumsq=_sumsq(x, float(rate), m), n_terms=n + 1 - 2 * m,
-                       edf=edf_overlapping(n + 1, m), n=n,
-                       centred_sumsq=np.einsum("ij,ij->j", centred, centred))
+    return StretchSums(
+        sumsq=_sumsq(x, float(rate), m),
+        n_terms=n + 1 - 2 * m,
+        edf=edf_overlapping(n + 1, m),
+        n=n,
+        centred_sumsq=np.einsum("ij,ij->j", centred, centred),
+    )
 
 
 def pooled_from_sums(parts, rate: float, *, level: float = 0.683) -> AllanResult:
@@ -227,8 +264,18 @@ def pooled_from_sums(parts, rate: float, *, level: float = 0.683) -> AllanResult
     tau = m / float(rate)
     adev = np.sqrt(sumsq / (2.0 * tau[:, None] ** 2 * n_terms[:, None]))
     lo, hi = _interval(adev, edf, level)
-    return AllanResult(tau=tau, m=m, adev=adev, n_terms=n_terms.astype(np.int64), edf=edf, lo=lo,
-                       hi=hi, rate=float(rate), n_samples=int(sum(p.n for p in parts)), level=level)
+    return AllanResult(
+        tau=tau,
+        m=m,
+        adev=adev,
+        n_terms=n_terms.astype(np.int64),
+        edf=edf,
+        lo=lo,
+        hi=hi,
+        rate=float(rate),
+        n_samples=int(sum(p.n for p in parts)),
+        level=level,
+    )
 
 
 def pooled_allan_deviation(stretches, rate: float, *, level: float = 0.683) -> AllanResult:
@@ -241,8 +288,9 @@ def pooled_allan_deviation(stretches, rate: float, *, level: float = 0.683) -> A
     :func:`allan_deviation`'s result exactly. Stretches under MIN_SAMPLES are skipped.
     """
     parts = [np.asarray(x, dtype=float) for x in stretches]
-    return pooled_from_sums([stretch_sums(x, rate) for x in parts if x.shape[0] >= MIN_SAMPLES], rate,
-                            level=level)
+    return pooled_from_sums(
+        [stretch_sums(x, rate) for x in parts if x.shape[0] >= MIN_SAMPLES], rate, level=level
+    )
 
 
 def barnes_b1(count, mu: int) -> np.ndarray:
@@ -254,18 +302,19 @@ def barnes_b1(count, mu: int) -> np.ndarray:
     M = np.maximum(np.asarray(count, dtype=float), 2.0)
     if mu == 0:
         return M * np.log(M) / (2.0 * (M - 1.0) * math.log(2.0))
-    return M * (1.0 - M ** mu) / (2.0 * (M - 1.0) * (1.0 - 2.0 ** mu))
+    return M * (1.0 - M**mu) / (2.0 * (M - 1.0) * (1.0 - 2.0**mu))
 
 
 _TERMS = ("quantisation", "arw", "bias_instability", "rrw", "ramp")
-_NOISE = 4   # the first four are noise; the ramp is a drift
+_NOISE = 4  # the first four are noise; the ramp is a drift
 
 
 def _design(tau: np.ndarray) -> np.ndarray:
     """Columns multiplying (Q^2, N^2, B^2, K^2, R^2) in SI units (deg, s)."""
     tau = np.asarray(tau, dtype=float)
-    return np.stack([3.0 / tau**2, 1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0,
-                     tau**2 / 2.0], axis=-1)
+    return np.stack(
+        [3.0 / tau**2, 1.0 / tau, np.full_like(tau, FLICKER_FACTOR**2), tau / 3.0, tau**2 / 2.0], axis=-1
+    )
 
 
 _SCALE = np.array([_TO_Q, _TO_ARW, _TO_BI, _TO_RRW, _TO_R])
@@ -303,8 +352,10 @@ class NoiseTerms:
     def _coefficients(self) -> np.ndarray:
         """(axes, 5) variance coefficients (Q^2, N^2, B^2, K^2, R^2) in SI units."""
         # broadcast: terms read from a file written before the ramp was fitted have a zero ramp
-        vals = np.stack(np.broadcast_arrays(*[np.atleast_1d(np.asarray(getattr(self, k), dtype=float))
-                                              for k in _TERMS]), -1)
+        vals = np.stack(
+            np.broadcast_arrays(*[np.atleast_1d(np.asarray(getattr(self, k), dtype=float)) for k in _TERMS]),
+            -1,
+        )
         return (vals / _SCALE) ** 2
 
     def avar(self, tau, *, drift: bool = True) -> np.ndarray:
@@ -365,10 +416,20 @@ class NoiseTerms:
         return self._per_axis(parts[..., 2] + parts[..., 3])
 
     def to_dict(self) -> dict:
-        units = {"arw": "deg/sqrt(h)", "bias_instability": "deg/h", "rrw": "deg/h/sqrt(h)",
-                 "quantisation": "arcsec", "ramp": "deg/h/h", "bias_instability_min": "deg/h", "tau_min": "s"}
-        out = {"units": units, "standard": "IEEE Std 952-1997",
-               "tau_range_s": [float(self.tau_range[0]), float(self.tau_range[1])]}
+        units = {
+            "arw": "deg/sqrt(h)",
+            "bias_instability": "deg/h",
+            "rrw": "deg/h/sqrt(h)",
+            "quantisation": "arcsec",
+            "ramp": "deg/h/h",
+            "bias_instability_min": "deg/h",
+            "tau_min": "s",
+        }
+        out = {
+            "units": units,
+            "standard": "IEEE Std 952-1997",
+            "tau_range_s": [float(self.tau_range[0]), float(self.tau_range[1])],
+        }
         for k in (*_TERMS, "bias_instability_min", "tau_min", "chi2_reduced"):
             out[k] = _plain(getattr(self, k))
         for k in _TERMS:
@@ -376,7 +437,7 @@ class NoiseTerms:
         return out
 
 
-RAMP_P = 0.05   # the ramp stays only where the F-test for it passes at this level
+RAMP_P = 0.05  # the ramp stays only where the F-test for it passes at this level
 
 
 def _fit_axis(tau, avar, edf, iterations: int = 6):
@@ -392,18 +453,24 @@ def _fit_axis(tau, avar, edf, iterations: int = 6):
     point that happens to fall low does not pull the fit down with an inflated weight.
     """
     from scipy.stats import f as f_dist
+
     A = _design(tau)
     coef, se, chi2r, chi2 = _fit_columns(tau, avar, edf, A, iterations)
     coef4, se4, chi2r4, chi24 = _fit_columns(tau, avar, edf, A[:, :_NOISE], iterations)
     dof = len(tau) - A.shape[1]
-    if coef[_NOISE] > 0 and dof >= 1 and chi2 > 0 and \
-            f_dist.sf((chi24 - chi2) / (chi2 / dof), 1, dof) < RAMP_P:
+    if (
+        coef[_NOISE] > 0
+        and dof >= 1
+        and chi2 > 0
+        and f_dist.sf((chi24 - chi2) / (chi2 / dof), 1, dof) < RAMP_P
+    ):
         return coef, se, chi2r
     return np.r_[coef4, 0.0], np.r_[se4, 0.0], chi2r4
 
 
 def _fit_columns(tau, avar, edf, A, iterations):
     from scipy.optimize import nnls  # on use: scipy.optimize takes half a second to import
+
     sigma2 = avar.copy()
     for _ in range(iterations):
         w = np.sqrt(edf / 2.0) / sigma2
@@ -457,5 +524,10 @@ def fit_noise_terms(result: AllanResult) -> NoiseTerms:
     for i, k in enumerate(_TERMS):
         kw[k] = pick(values[:, i])
         kw[f"{k}_stderr"] = pick(errors[:, i])
-    return NoiseTerms(**kw, bias_instability_min=pick(bmins), tau_min=pick(tmins),
-                      chi2_reduced=pick(chi2s), tau_range=(float(tau[0]), float(tau[-1])))
+    return NoiseTerms(
+        **kw,
+        bias_instability_min=pick(bmins),
+        tau_min=pick(tmins),
+        chi2_reduced=pick(chi2s),
+        tau_range=(float(tau[0]), float(tau[-1])),
+    )

@@ -23,16 +23,18 @@ from ..io.errors import GyrocalError
 from .model import Model
 
 SCAN_POINTS = 13
-ZOOM_POINTS = 5        # per bracket: each round halves it, at two new values
+ZOOM_POINTS = 5  # per bracket: each round halves it, at two new values
 ZOOM_TOLERANCE = 1e-3  # of log θ: 0.1 % of the value
-POLISH_STEP = 0.02     # the joint search's first steps, in log θ
+POLISH_STEP = 0.02  # the joint search's first steps, in log θ
 POLISH_EVALUATIONS = 100
-POLISH_CHI2 = 0.05     # a change of χ² that decides nothing
+POLISH_CHI2 = 0.05  # a change of χ² that decides nothing
 
 
 def total_chi2(fitted) -> tuple[float, int]:
-    return (float(sum(sum(f.chi2.values()) for f in fitted.fits)),
-            int(sum(sum(f.dof.values()) for f in fitted.fits)))
+    return (
+        float(sum(sum(f.chi2.values()) for f in fitted.fits)),
+        int(sum(sum(f.dof.values()) for f in fitted.fits)),
+    )
 
 
 def _with(model: Model, index: int, name: str, value: float) -> Model:
@@ -49,7 +51,7 @@ def _zoom(chi2_at, grid, values, k) -> float:
     interpolating search stops in a side valley."""
     best, best_value = grid[k], values[k]
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, len(grid) - 1)]
-    with np.errstate(invalid="ignore"):   # a refused value's χ² is inf, on purpose
+    with np.errstate(invalid="ignore"):  # a refused value's χ² is inf, on purpose
         while b - a > ZOOM_TOLERANCE:
             xs = np.linspace(a, b, ZOOM_POINTS)
             vs = [chi2_at(x) for x in xs]
@@ -72,6 +74,7 @@ def _polish(model: Model, free, evaluate) -> Model:
     place and width: moving either alone loses a hold the other would win back). Kept only
     where χ² falls."""
     from scipy.optimize import minimize
+
     lows = np.array([math.log(lo) for _, _, (lo, _) in free])
     highs = np.array([math.log(hi) for _, _, (_, hi) in free])
 
@@ -87,9 +90,17 @@ def _polish(model: Model, free, evaluate) -> Model:
     steps = np.where(x0 + POLISH_STEP > highs, -POLISH_STEP, POLISH_STEP)
     simplex = np.vstack([x0, x0 + np.diag(steps)])
     with np.errstate(invalid="ignore"):
-        found = minimize(lambda x: evaluate(at(x))[0], x0, method="Nelder-Mead",
-                         options={"initial_simplex": simplex, "xatol": ZOOM_TOLERANCE,
-                                  "fatol": POLISH_CHI2, "maxfev": POLISH_EVALUATIONS})
+        found = minimize(
+            lambda x: evaluate(at(x))[0],
+            x0,
+            method="Nelder-Mead",
+            options={
+                "initial_simplex": simplex,
+                "xatol": ZOOM_TOLERANCE,
+                "fatol": POLISH_CHI2,
+                "maxfev": POLISH_EVALUATIONS,
+            },
+        )
     return at(found.x) if np.isfinite(found.fun) and found.fun < start else model
 
 
@@ -100,13 +111,17 @@ def _scan(current: Model, index: int, name: str, bounds, evaluate) -> tuple[Mode
 
     def chi2_at(log_value):
         return evaluate(_with(current, index, name, math.exp(log_value)))[0]
+
     grid = np.linspace(math.log(lo), math.log(hi), SCAN_POINTS)
     values = [chi2_at(g) for g in grid]
     k = int(np.argmin(values))
     if not np.isfinite(values[k]):
         failure = evaluate(_with(current, index, name, math.exp(grid[k])))[1]
-        raise failure if isinstance(failure, GyrocalError) else GyrocalError(
-            f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
+        raise (
+            failure
+            if isinstance(failure, GyrocalError)
+            else GyrocalError(f"no value of {name} within {lo:g} to {hi:g} fits every temperature point")
+        )
     finite = [v for v in values if np.isfinite(v)]
     if max(finite) - min(finite) <= 1e-9 * max(abs(min(finite)), 1.0):
         return current, True
@@ -127,18 +142,21 @@ def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
             if d:
                 m = _with(m, i, n, math.exp(x + d))
         return evaluate(m)[0]
+
     k = len(free)
     H = np.zeros((k, k))
     for a in range(k):
         e = np.zeros(k)
         e[a] = h
-        H[a, a] = (at(-e) - 2 * chi2 + at(e)) / h ** 2
+        H[a, a] = (at(-e) - 2 * chi2 + at(e)) / h**2
         for b in range(a):
             f = np.zeros(k)
             f[b] = h
-            H[a, b] = H[b, a] = (at(e + f) - at(e - f) - at(f - e) + at(-e - f)) / (4 * h ** 2)
-    own = {free[a][:2]: (math.sqrt(2 * s2 / H[a, a]) if H[a, a] > 0 and np.isfinite(H[a, a]) else math.inf)
-           for a in range(k)}
+            H[a, b] = H[b, a] = (at(e + f) - at(e - f) - at(f - e) + at(-e - f)) / (4 * h**2)
+    own = {
+        free[a][:2]: (math.sqrt(2 * s2 / H[a, a]) if H[a, a] > 0 and np.isfinite(H[a, a]) else math.inf)
+        for a in range(k)
+    }
     if k > 1 and np.all(np.isfinite(H)):
         try:
             np.linalg.cholesky(H)
@@ -152,11 +170,12 @@ def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
 def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
     """The fit of ``model`` with its nonlinear settings at their best values; the fitted
     object's ``profiled`` lists each (term, parameter, value, stderr, bounds, at_bound)."""
-    targets = [(i, name, bounds) for i, term in enumerate(model.terms)
-               for name, bounds in term.nonlinear().items()]
+    targets = [
+        (i, name, bounds) for i, term in enumerate(model.terms) for name, bounds in term.nonlinear().items()
+    ]
     cache: dict = {}
 
-    points: list = []   # the temperature points every value is judged on: at the start values
+    points: list = []  # the temperature points every value is judged on: at the start values
 
     def evaluate(m: Model):
         key = tuple(t.spec_string() for t in m.terms)
@@ -191,8 +210,11 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
         current = _polish(current, free, evaluate)
     chi2, fitted = evaluate(current)
     if not np.isfinite(chi2):
-        raise fitted if isinstance(fitted, GyrocalError) else GyrocalError(
-            "the profiled fit leaves out temperature points the start values kept")
+        raise (
+            fitted
+            if isinstance(fitted, GyrocalError)
+            else GyrocalError("the profiled fit leaves out temperature points the start values kept")
+        )
     dof = total_chi2(fitted)[1]
     s2 = chi2 / max(dof, 1)
     sigma = _log_errors(current, free, chi2, s2, evaluate) if free else {}
@@ -201,15 +223,30 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
         value = _value(current, index, name)
         term = current.terms[index]
         if (index, name) in flat:  # e.g. a temperature-rate window without the record
-            report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
-                           "value": value, "stderr": None, "bounds": [float(lo), float(hi)],
-                           "at_bound": False, "identified": False})
+            report.append(
+                {
+                    "term": getattr(term, "label", None) or term.name,
+                    "parameter": name,
+                    "value": value,
+                    "stderr": None,
+                    "bounds": [float(lo), float(hi)],
+                    "at_bound": False,
+                    "identified": False,
+                }
+            )
             continue
         sigma_log = sigma[(index, name)]
         at_bound = value <= lo * 1.0001 or value >= hi / 1.0001
-        report.append({"term": getattr(term, "label", None) or term.name, "parameter": name,
-                       "value": value, "stderr": value * sigma_log if np.isfinite(sigma_log) else None,
-                       "bounds": [float(lo), float(hi)], "at_bound": bool(at_bound),
-                       "identified": True})
+        report.append(
+            {
+                "term": getattr(term, "label", None) or term.name,
+                "parameter": name,
+                "value": value,
+                "stderr": value * sigma_log if np.isfinite(sigma_log) else None,
+                "bounds": [float(lo), float(hi)],
+                "at_bound": bool(at_bound),
+                "identified": True,
+            }
+        )
     object.__setattr__(fitted, "profiled", tuple(report))
     return fitted

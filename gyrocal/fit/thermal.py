@@ -50,7 +50,7 @@ def lagrange3_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
     i = np.clip(np.searchsorted(nodes, x, side="left"), 1, P - 1)  # T_{i-1} < x <= T_i
     lo = np.maximum(i - 2, 0)
     idx = lo[:, None] + np.arange(3)
-    t = nodes[idx]                                                  # (n, 3) stencil
+    t = nodes[idx]  # (n, 3) stencil
     rows = np.arange(len(x))
     for j in range(3):
         others = [k for k in range(3) if k != j]
@@ -78,6 +78,7 @@ def spline_weights(nodes: np.ndarray, x: np.ndarray) -> np.ndarray:
     if len(nodes) < 3:
         return linear_weights(nodes, x)
     from scipy.interpolate import CubicSpline  # half a second to import: only when a spline is used
+
     return CubicSpline(nodes, np.eye(len(nodes)), bc_type="natural")(x)
 
 
@@ -92,8 +93,7 @@ def poly_weights(nodes: np.ndarray, x: np.ndarray, degree: int) -> np.ndarray:
 def check_method(method, degree=3, *, where: str = "interpolation") -> None:
     """The one check of an interpolation setting, wherever it comes from."""
     if method not in METHODS:
-        raise ConfigError(f"{where} method {method!r} is not known; choose one of "
-                          f"{', '.join(METHODS)}")
+        raise ConfigError(f"{where} method {method!r} is not known; choose one of {', '.join(METHODS)}")
     if isinstance(degree, bool) or not isinstance(degree, int) or degree < 0:
         raise ConfigError(f"{where} degree must be a non-negative integer, got {degree!r}")
 
@@ -116,13 +116,13 @@ def interpolation_weights(method: str, nodes, x, *, degree: int = 3) -> np.ndarr
 class TemperatureGrid:
     """Coefficients fitted at temperature points, interpolated between them."""
 
-    temperatures: np.ndarray          # (P,) increasing, °C
+    temperatures: np.ndarray  # (P,) increasing, °C
     names: tuple[str, ...]
-    values: np.ndarray                # (P, C)
-    stderr: np.ndarray                # (P, C)
+    values: np.ndarray  # (P, C)
+    stderr: np.ndarray  # (P, C)
     method: str = "lagrange3"
     degree: int = 3
-    covariance: np.ndarray | None = None   # (P, C, C): each point's coefficients
+    covariance: np.ndarray | None = None  # (P, C, C): each point's coefficients
 
     def __post_init__(self):
         check_method(self.method, self.degree)
@@ -154,7 +154,7 @@ class TemperatureGrid:
         return {n: V[:, j] for j, n in enumerate(self.names)}
 
     def stderr_at(self, temp) -> dict[str, np.ndarray]:
-        S = np.sqrt(self.weights(temp) ** 2 @ self.stderr ** 2)
+        S = np.sqrt(self.weights(temp) ** 2 @ self.stderr**2)
         return {n: S[:, j] for j, n in enumerate(self.names)}
 
     def covariance_at(self, temp) -> np.ndarray:
@@ -163,17 +163,23 @@ class TemperatureGrid:
         variance each point's matrix holds); from the standard errors alone, as
         uncorrelated, when the grid has no covariances."""
         temp = np.atleast_1d(np.asarray(temp, dtype=float))
-        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr**2)
         return np.einsum("np,pcd->ncd", self.weights(temp) ** 2, cov)
 
     def without(self, index: int) -> TemperatureGrid:
         keep = np.arange(len(self.temperatures)) != index
-        return TemperatureGrid(self.temperatures[keep], self.names, self.values[keep],
-                               self.stderr[keep], self.method, self.degree,
-                               None if self.covariance is None else self.covariance[keep])
+        return TemperatureGrid(
+            self.temperatures[keep],
+            self.names,
+            self.values[keep],
+            self.stderr[keep],
+            self.method,
+            self.degree,
+            None if self.covariance is None else self.covariance[keep],
+        )
 
 
-DIAGONAL_RTOL = 1e-6   # a covariance's diagonal against the squared standard errors
+DIAGONAL_RTOL = 1e-6  # a covariance's diagonal against the squared standard errors
 
 
 def canonical_covariance(cov, stderr) -> np.ndarray:
@@ -184,15 +190,17 @@ def canonical_covariance(cov, stderr) -> np.ndarray:
     upstream, refused rather than hidden."""
     C = np.array(cov, dtype=float)
     s = np.asarray(stderr, dtype=float)
-    C = 0.5 * (C + np.swapaxes(C, -1, -2))          # a + b == b + a: exactly symmetric
-    with np.errstate(invalid="ignore"):   # an infinite variance is the writer's to refuse
-        mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s ** 2)
-    if np.any(mismatch > DIAGONAL_RTOL * s ** 2):
-        raise GyrocalError("a covariance's diagonal is not the squared standard errors (off "
-                           f"by up to {float(mismatch.max()):.3g})")
+    C = 0.5 * (C + np.swapaxes(C, -1, -2))  # a + b == b + a: exactly symmetric
+    with np.errstate(invalid="ignore"):  # an infinite variance is the writer's to refuse
+        mismatch = np.abs(np.diagonal(C, axis1=-2, axis2=-1) - s**2)
+    if np.any(mismatch > DIAGONAL_RTOL * s**2):
+        raise GyrocalError(
+            "a covariance's diagonal is not the squared standard errors (off "
+            f"by up to {float(mismatch.max()):.3g})"
+        )
     C *= (s[..., :, None] != 0) & (s[..., None, :] != 0)
     idx = np.arange(s.shape[-1])
-    C[..., idx, idx] = s ** 2
+    C[..., idx, idx] = s**2
     return C
 
 
@@ -212,12 +220,12 @@ class ConstantCoefficients:
 
     temperatures: np.ndarray
     names: tuple[str, ...]
-    values: np.ndarray                # (C,)
-    stderr: np.ndarray                # (C,)
+    values: np.ndarray  # (C,)
+    stderr: np.ndarray  # (C,)
     method: str = "continuous"
     degree: int = 0
-    fitted_span: tuple[float, float] | None = None   # the fitted holds' temperatures
-    covariance: np.ndarray | None = None             # (C, C)
+    fitted_span: tuple[float, float] | None = None  # the fitted holds' temperatures
+    covariance: np.ndarray | None = None  # (C, C)
 
     def __post_init__(self):
         if self.covariance is not None:
@@ -226,7 +234,7 @@ class ConstantCoefficients:
     def covariance_at(self, temp) -> np.ndarray:
         """(n, C, C): the coefficients' covariance at each temperature (the same for all)."""
         n = len(np.atleast_1d(temp))
-        cov = self.covariance if self.covariance is not None else diagonal(self.stderr ** 2)
+        cov = self.covariance if self.covariance is not None else diagonal(self.stderr**2)
         return np.broadcast_to(cov, (n,) + cov.shape)
 
     @property
@@ -255,10 +263,14 @@ def warn_outside(coefs, temp: np.ndarray) -> None:
     out = coefs.outside(temp)
     if out.any():
         lo, hi = coefs.span
-        warnings.warn(OutOfRangeWarning(
-            f"{int(out.sum())} of {len(temp)} samples at {temp[out].min():.2f} to "
-            f"{temp[out].max():.2f} °C lie outside the calibrated {lo:g} to {hi:g} °C and use "
-            "the calibration at the nearest end"), stacklevel=3)
+        warnings.warn(
+            OutOfRangeWarning(
+                f"{int(out.sum())} of {len(temp)} samples at {temp[out].min():.2f} to "
+                f"{temp[out].max():.2f} °C lie outside the calibrated {lo:g} to {hi:g} °C and use "
+                "the calibration at the nearest end"
+            ),
+            stacklevel=3,
+        )
 
 
 class _OnAGrid:
@@ -288,16 +300,15 @@ class GridFit(_OnAGrid):
 
     grid: TemperatureGrid
     fits: tuple[FitResult, ...]
-    points: pd.DataFrame              # point, temp, holds, used, reason
+    points: pd.DataFrame  # point, temp, holds, used, reason
     excluded: dict[int, str] = field(default_factory=dict)
     rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
-    profiled: tuple = ()               # nonlinear settings found by profiling
+    profiled: tuple = ()  # nonlinear settings found by profiling
     kind: ClassVar[str] = "grid"
 
     @property
     def model(self) -> Model:
         return self.fits[0].model
-
 
     def covariance_at(self, temp) -> np.ndarray:
         cov = np.array([f.covariance for f in self.fits])
@@ -317,9 +328,13 @@ class GridFit(_OnAGrid):
             return None
         k = used.index(point)
         keep = self.points["point"] != point
-        return GridFit(self.grid.without(k), self.fits[:k] + self.fits[k + 1:],
-                       self.points[keep].reset_index(drop=True), self.excluded,
-                       self.rows[:k] + self.rows[k + 1:])
+        return GridFit(
+            self.grid.without(k),
+            self.fits[:k] + self.fits[k + 1 :],
+            self.points[keep].reset_index(drop=True),
+            self.excluded,
+            self.rows[:k] + self.rows[k + 1 :],
+        )
 
 
 @dataclass(frozen=True)
@@ -328,7 +343,7 @@ class ContinuousFit:
 
     model: Model
     fit: FitResult
-    data: dict                        # the numeric observation columns fitted
+    data: dict  # the numeric observation columns fitted
     points: pd.DataFrame
     excluded: dict[int, str] = field(default_factory=dict)
     profiled: tuple = ()
@@ -352,8 +367,14 @@ class ContinuousFit:
         temps = np.sort(self.points.loc[self.points["used"], "temp"].to_numpy(dtype=float))
         held = np.asarray(self.data["temp"], dtype=float)
         span = (min(float(held.min()), temps[0]), max(float(held.max()), temps[-1]))
-        return ConstantCoefficients(temps, self.names, self.fit.values, self.fit.stderr,
-                                    fitted_span=span, covariance=self.fit.covariance)
+        return ConstantCoefficients(
+            temps,
+            self.names,
+            self.fit.values,
+            self.fit.stderr,
+            fitted_span=span,
+            covariance=self.fit.covariance,
+        )
 
     def used_points(self) -> list[int]:
         return [int(p) for p in self.points.loc[self.points["used"], "point"]]
@@ -376,8 +397,11 @@ class ContinuousFit:
         if len(np.unique(self.data["point"][keep])) < 1:
             return None
         try:  # the holds that stay keep their columns: only the whitening is new
-            return fit_continuous(self.model, {k: v[keep] for k, v in self.data.items()},
-                                  design=None if self.design is None else subset_design(self.design, keep))
+            return fit_continuous(
+                self.model,
+                {k: v[keep] for k, v in self.data.items()},
+                design=None if self.design is None else subset_design(self.design, keep),
+            )
         except IdentifiabilityError:
             return None
 
@@ -401,8 +425,10 @@ def fit_continuous(model: Model, obs, *, source=None, design: dict | None = None
         design = model.design(data)
     result = fit(model, data, source=source, label="all temperature points", design=design)
     point = data["point"].astype(int)
-    rows = [(int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
-            for p in np.unique(point)]
+    rows = [
+        (int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
+        for p in np.unique(point)
+    ]
     points = _points_table(rows)
     return ContinuousFit(model, result, data, points, design=design)
 
@@ -411,11 +437,19 @@ def _points_table(rows: list) -> pd.DataFrame:
     """The fit's table of temperature points. pandas is imported here, by the fits, and not
     with the module: a report reads a calibration's grid without it."""
     import pandas as pd
+
     return pd.DataFrame(rows, columns=["point", "temp", "holds", "used", "reason"])
 
 
-def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degree: int = 3,
-             source=None, fitter: Callable = fit) -> GridFit:
+def fit_grid(
+    model: Model,
+    obs: pd.DataFrame,
+    *,
+    method: str = "lagrange3",
+    degree: int = 3,
+    source=None,
+    fitter: Callable = fit,
+) -> GridFit:
     """Fit ``model`` at every temperature point of ``obs`` (column ``point``).
 
     A point whose holds cannot determine the model (a mount missing there, too few holds)
@@ -443,9 +477,15 @@ def fit_grid(model: Model, obs: pd.DataFrame, *, method: str = "lagrange3", degr
     if not fits:
         raise first_error if first_error else GyrocalError("no observations to fit", source=source)
     names = fits[0].names
-    grid = TemperatureGrid(np.array(temps), names, np.array([f.values for f in fits]),
-                           np.array([f.stderr for f in fits]), method, degree,
-                           np.array([f.covariance for f in fits]))
+    grid = TemperatureGrid(
+        np.array(temps),
+        names,
+        np.array([f.values for f in fits]),
+        np.array([f.stderr for f in fits]),
+        method,
+        degree,
+        np.array([f.covariance for f in fits]),
+    )
     points = _points_table(rows)
     return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
 
@@ -470,8 +510,10 @@ class _AtPoint(Term):
 
     def columns(self, data):
         here = np.asarray(data["point"]) == self.point
-        return {f"{k}.@{self.point}": np.where(here, np.asarray(v, float), 0.0)
-                for k, v in self.term.columns(data).items()}
+        return {
+            f"{k}.@{self.point}": np.where(here, np.asarray(v, float), 0.0)
+            for k, v in self.term.columns(data).items()
+        }
 
 
 def global_terms(model: Model) -> list[Term]:
@@ -488,13 +530,13 @@ class JointGridFit(_OnAGrid):
     back), so files and apply read it as any grid."""
 
     model: Model
-    fit: FitResult                      # of the joint model (names with ``.@<point>``)
-    data: dict                          # the observation columns of the points fitted
+    fit: FitResult  # of the joint model (names with ``.@<point>``)
+    data: dict  # the observation columns of the points fitted
     grid: TemperatureGrid
     points: pd.DataFrame
     excluded: dict[int, str] = field(default_factory=dict)
-    rows: tuple[np.ndarray, ...] = ()   # the observation rows the fit used
-    point_ids: tuple[int, ...] = ()     # grid order
+    rows: tuple[np.ndarray, ...] = ()  # the observation rows the fit used
+    point_ids: tuple[int, ...] = ()  # grid order
     profiled: tuple = ()
     design: dict | None = field(default=None, repr=False, compare=False)  # the joint fit's columns
     kind: ClassVar[str] = "grid"
@@ -502,7 +544,6 @@ class JointGridFit(_OnAGrid):
     @property
     def fits(self) -> tuple[FitResult, ...]:
         return (self.fit,)
-
 
     def _mapping(self, weights: np.ndarray) -> np.ndarray:
         """(n, C, J): coefficient values at n temperatures from the joint parameters."""
@@ -525,7 +566,7 @@ class JointGridFit(_OnAGrid):
     def point_fit(self, point: int):
         """The calibration at one point: its own coefficients and the global ones."""
         k = self.point_ids.index(int(point))
-        A = self._mapping(np.eye(len(self.point_ids))[k:k + 1])[0]
+        A = self._mapping(np.eye(len(self.point_ids))[k : k + 1])[0]
         return _PointCalibration(self.grid.values[k], A @ self.fit.covariance @ A.T)
 
     def leave_out(self, point: int) -> JointGridFit | None:
@@ -536,10 +577,15 @@ class JointGridFit(_OnAGrid):
             return None
         keep = self.data["point"].astype(int) != point
         try:  # the holds that stay keep their columns (those of the point left out drop)
-            return _fit_joint(self.model, {k: v[keep] for k, v in self.data.items()},
-                              method=self.grid.method, degree=self.grid.degree,
-                              rows=self.rows[0][keep], excluded=self.excluded,
-                              design=None if self.design is None else subset_design(self.design, keep))
+            return _fit_joint(
+                self.model,
+                {k: v[keep] for k, v in self.data.items()},
+                method=self.grid.method,
+                degree=self.grid.degree,
+                rows=self.rows[0][keep],
+                excluded=self.excluded,
+                design=None if self.design is None else subset_design(self.design, keep),
+            )
         except IdentifiabilityError:
             return None
 
@@ -550,9 +596,18 @@ class _PointCalibration:
     covariance: np.ndarray
 
 
-def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=None,
-               rows: np.ndarray | None = None, excluded=None, extra_points=(),
-               design: dict | None = None) -> JointGridFit:
+def _fit_joint(
+    model: Model,
+    data: dict,
+    *,
+    method: str,
+    degree: int,
+    source=None,
+    rows: np.ndarray | None = None,
+    excluded=None,
+    extra_points=(),
+    design: dict | None = None,
+) -> JointGridFit:
     point = data["point"].astype(int)
     ids = [int(p) for p in np.unique(point)]
     temps = np.array([float(data["temp"][point == p].mean()) for p in ids])
@@ -581,8 +636,9 @@ def _fit_joint(model: Model, data: dict, *, method: str, degree: int, source=Non
     table += list(extra_points)
     points = _points_table(table).sort_values("point", kind="stable").reset_index(drop=True)
     rows = np.arange(len(point)) if rows is None else rows
-    return JointGridFit(model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids),
-                        design=design)
+    return JointGridFit(
+        model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids), design=design
+    )
 
 
 # A per-point regressor whose within-point scatter is below this fraction of its whole
@@ -616,11 +672,14 @@ def _check_point_terms(model: Model, data: dict, source=None) -> None:
                     f"scatter there is {within / total:.1%} of its scatter overall), so a grid "
                     "model's per-point biases absorb it: use model kind continuous, with the "
                     "bias's own temperature dependence as terms (bias_temp_poly, scale_temp_poly, "
-                    "misalignment_temp)", source=source)
+                    "misalignment_temp)",
+                    source=source,
+                )
 
 
-def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3",
-              degree: int = 3, source=None) -> GridFit | ContinuousFit | JointGridFit:
+def fit_model(
+    model: Model, obs, *, kind: str = "grid", method: str = "lagrange3", degree: int = 3, source=None
+) -> GridFit | ContinuousFit | JointGridFit:
     """A model fitted as a temperature grid (per point, interpolated, with global terms
     fitted jointly) or continuously. Nonlinear settings of its terms (``profile``) are
     found by profiling (:mod:`gyrocal.fit.profile`)."""
@@ -628,27 +687,35 @@ def fit_model(model: Model, obs, *, kind: str = "grid", method: str = "lagrange3
         raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
     if any(t.nonlinear() for t in model.terms):
         from .profile import profiled_fit
+
         data = columns_of(obs)  # once, not at each of the profile's few dozen fits
         # A joint grid's per-point fit of its point-scope terms decides which points take
         # part; the profiled term is global, so it is the same at every value: made once.
         point_fits: dict = {}
-        return profiled_fit(model, lambda m: _fit_linear(m, data, kind=kind, method=method,
-                                                          degree=degree, source=source,
-                                                          point_fits=point_fits))
+        return profiled_fit(
+            model,
+            lambda m: _fit_linear(
+                m, data, kind=kind, method=method, degree=degree, source=source, point_fits=point_fits
+            ),
+        )
     return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
 
 
-def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, source=None,
-                point_fits: dict | None = None):
+def _fit_linear(
+    model: Model, obs, *, kind: str, method: str, degree: int, source=None, point_fits: dict | None = None
+):
     data = model.transform_inputs(columns_of(obs))
     if kind == "continuous":
         return fit_continuous(model, data, source=source)
-    temperature_only = [t.spec_string() for t in model.terms
-                        if t.varies_with_temperature and t.coefficient_scope != "global"]
+    temperature_only = [
+        t.spec_string() for t in model.terms if t.varies_with_temperature and t.coefficient_scope != "global"
+    ]
     if temperature_only:
-        raise ConfigError(f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
-                          "on temperature alone and cannot be fitted point by point: use model "
-                          "kind continuous")
+        raise ConfigError(
+            f"{', '.join(temperature_only)} depend{'s' if len(temperature_only) == 1 else ''} "
+            "on temperature alone and cannot be fitted point by point: use model "
+            "kind continuous"
+        )
     _check_point_terms(model, data, source)
     if not global_terms(model):
         return fit_grid(model, data, method=method, degree=degree, source=source)
@@ -667,8 +734,18 @@ def _fit_linear(model: Model, obs, *, kind: str, method: str, degree: int, sourc
         per_point = cached[key]
     used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
     rows = np.flatnonzero(np.isin(data["point"].astype(int), used))
-    dropped = [] if per_point is None else [
-        tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
-    return _fit_joint(model, {k: v[rows] for k, v in data.items()}, method=method, degree=degree,
-                      source=source, rows=rows, excluded=per_point.excluded if per_point else {},
-                      extra_points=dropped)
+    dropped = (
+        []
+        if per_point is None
+        else [tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
+    )
+    return _fit_joint(
+        model,
+        {k: v[rows] for k, v in data.items()},
+        method=method,
+        degree=degree,
+        source=source,
+        rows=rows,
+        excluded=per_point.excluded if per_point else {},
+        extra_points=dropped,
+    )

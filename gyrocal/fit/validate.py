@@ -44,12 +44,12 @@ from .model import Model, columns_of, fit, observation_floor, subset_design
 
 @dataclass(frozen=True)
 class Validation:
-    holds: pd.DataFrame              # one row per hold and method
-    table_holds: pd.DataFrame        # Mean/RMS per rotating axis x output axis, hold means
-    table_samples: pd.DataFrame      # the same on samples
-    by_temperature: pd.DataFrame     # RMS per held-out temperature and method
+    holds: pd.DataFrame  # one row per hold and method
+    table_holds: pd.DataFrame  # Mean/RMS per rotating axis x output axis, hold means
+    table_samples: pd.DataFrame  # the same on samples
+    by_temperature: pd.DataFrame  # RMS per held-out temperature and method
     summary: dict = field(default_factory=dict)
-    free_points: pd.DataFrame | None = None   # continuous models: free_point_fits()
+    free_points: pd.DataFrame | None = None  # continuous models: free_point_fits()
 
 
 @dataclass
@@ -60,9 +60,9 @@ class _Plan:
 
     model: Model
     names: tuple[str, ...]
-    values: np.ndarray       # (n, C)
-    cov: np.ndarray          # (n, C, C)
-    temp: np.ndarray         # (n,)
+    values: np.ndarray  # (n, C)
+    cov: np.ndarray  # (n, C, C)
+    temp: np.ndarray  # (n,)
 
 
 def _compensate(plan: _Plan, w, rate, sd, data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,13 +75,21 @@ def _compensate(plan: _Plan, w, rate, sd, data) -> tuple[np.ndarray, np.ndarray,
     # Design rows at the compensated rates, split by output axis: var_a = x_a' V x_a.
     design = plan.model.design({**covariates, **{f"rate_{a}": w_true[:, i] for i, a in enumerate(AXES)}})
     x = np.column_stack([np.broadcast_to(design[c], (len(w),)) for c in plan.names])
-    cal = np.column_stack([np.einsum("nc,ncd,nd->n", x * m, plan.cov, x * m) for m in
-                           [np.array([n.split(".")[1] == a for n in plan.names]) for a in AXES]])
-    return w_true - rate, np.einsum("nij,nj->ni", A2, sd ** 2), np.einsum("nij,nj->ni", A2, cal)
+    cal = np.column_stack(
+        [
+            np.einsum("nc,ncd,nd->n", x * m, plan.cov, x * m)
+            for m in [np.array([n.split(".")[1] == a for n in plan.names]) for a in AXES]
+        ]
+    )
+    return w_true - rate, np.einsum("nij,nj->ni", A2, sd**2), np.einsum("nij,nj->ni", A2, cal)
 
 
-def reference_point(temps: np.ndarray, reference_temperature: float, exclude: int | None = None,
-                    eligible: np.ndarray | None = None) -> int:
+def reference_point(
+    temps: np.ndarray,
+    reference_temperature: float,
+    exclude: int | None = None,
+    eligible: np.ndarray | None = None,
+) -> int:
     """The point nearest the reference temperature, other than ``exclude``, among the
     ``eligible`` ones (those with holds enough for a one-point calibration) where any is."""
     order = np.argsort(np.abs(temps - reference_temperature), kind="stable")
@@ -96,12 +104,14 @@ def single_point_model(model: Model, *, series: bool = True) -> Model:
     one-temperature calibration of the same model. ``series=False`` leaves out terms of
     time or the temperature's history too, which one point of a continuous model need not
     excite (a spline of time over the whole session)."""
-    return Model(tuple(t for t in model.terms if not t.varies_with_temperature
-                       and (series or not t.reads_series())))
+    return Model(
+        tuple(t for t in model.terms if not t.varies_with_temperature and (series or not t.reads_series()))
+    )
 
 
-def validate(model: Model, obs: pd.DataFrame, fitted, *,
-             reference_temperature: float = 25.0, every_point: bool = True) -> Validation:
+def validate(
+    model: Model, obs: pd.DataFrame, fitted, *, reference_temperature: float = 25.0, every_point: bool = True
+) -> Validation:
     """Compare the three methods on every hold with a calibration that never saw it.
 
     ``fitted`` is a :class:`~gyrocal.fit.thermal.GridFit` or :class:`ContinuousFit`. With two
@@ -123,8 +133,7 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     plan = None
     if len(used) >= 2:
         try:
-            plan = _leave_temperature_out(model, fitted, data, reference_temperature,
-                                          every_point=every_point)
+            plan = _leave_temperature_out(model, fitted, data, reference_temperature, every_point=every_point)
         except CannotLeaveOut:
             if fitted.kind == "grid":  # a joint grid too: its holds cannot be left out alone
                 raise
@@ -142,15 +151,19 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         single, ref_temp = interp, np.full(n, float(fitted.points.loc[fitted.points["used"], "temp"].iloc[0]))
         held_out = "hold"
     zero = np.zeros((n, 3))
-    errors = {"uncompensated": (w - rate, sd ** 2, zero),
-              "single": _compensate(single, w, rate, sd, data),
-              "interpolated": _compensate(interp, w, rate, sd, data)}
+    errors = {
+        "uncompensated": (w - rate, sd**2, zero),
+        "single": _compensate(single, w, rate, sd, data),
+        "interpolated": _compensate(interp, w, rate, sd, data),
+    }
 
     floor = observation_floor(data)
-    base = obs[["hold", "point", "point_temp", "temp", "mount", "axis", "ref_rate", "n",
-                "std_x", "std_y", "std_z"]].reset_index(drop=True)
-    base = base.assign(clamped=clamped, reference_temp=ref_temp,
-                       **{f"floor_{a}": floor[:, i] for i, a in enumerate(AXES)})
+    base = obs[
+        ["hold", "point", "point_temp", "temp", "mount", "axis", "ref_rate", "n", "std_x", "std_y", "std_z"]
+    ].reset_index(drop=True)
+    base = base.assign(
+        clamped=clamped, reference_temp=ref_temp, **{f"floor_{a}": floor[:, i] for i, a in enumerate(AXES)}
+    )
     holds = pd.concat([base] * len(METHODS), ignore_index=True)
     holds["method"] = pd.Categorical(np.repeat(METHODS, n), categories=METHODS)
     for k, kind in enumerate(("err", "var", "cal")):
@@ -163,14 +176,19 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         in_sample_rows = np.zeros(n, dtype=bool)
     # Holds a point could not be left out for are never scored: with no interior hold, the
     # ones left out (outside the remaining range) are.
-    use = interior if interior.any() else (~in_sample_rows if (~in_sample_rows).any()
-                                           else np.ones(n, dtype=bool))
+    use = (
+        interior
+        if interior.any()
+        else (~in_sample_rows if (~in_sample_rows).any() else np.ones(n, dtype=bool))
+    )
     scored = holds[np.tile(use, len(METHODS))]
     overall = {m: _pooled_rms(errors[m][0][use]) for m in METHODS}
     floor_all = _pooled_rms(floor[use])
     expected = float(np.sqrt(np.mean(floor[use] ** 2 + errors["interpolated"][2][use])))
     point_temps = fitted.points.loc[fitted.points["used"], "temp"].to_numpy(dtype=float)
-    one_point_fits = _one_point_fits(fitted, len(single_point_model(model, series=fitted.kind == "grid").names))
+    one_point_fits = _one_point_fits(
+        fitted, len(single_point_model(model, series=fitted.kind == "grid").names)
+    )
     summary = {
         "validation_rms": overall["interpolated"],
         "noise_floor": floor_all,
@@ -179,8 +197,9 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
         "excess_over_expected": overall["interpolated"] / expected if expected > 0 else float("inf"),
         "uncompensated_rms": overall["uncompensated"],
         "single_rms": overall["single"],
-        "reference_temperature": float(point_temps[reference_point(point_temps, reference_temperature,
-                                                                   eligible=one_point_fits)]),
+        "reference_temperature": float(
+            point_temps[reference_point(point_temps, reference_temperature, eligible=one_point_fits)]
+        ),
         "held_out": held_out,
         "scored": "interior" if interior.any() else ("left-out" if in_sample_rows.any() else "all"),
         "holds_scored": int(use.sum()),
@@ -189,8 +208,9 @@ def validate(model: Model, obs: pd.DataFrame, fitted, *,
     }
     if in_sample_rows.any():
         summary["points_not_left_out"] = int(np.unique(data["point"][in_sample_rows]).size)
-    return Validation(holds, _table(scored, samples=False), _table(scored, samples=True),
-                      _by_temperature(holds), summary)
+    return Validation(
+        holds, _table(scored, samples=False), _table(scored, samples=True), _by_temperature(holds), summary
+    )
 
 
 def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
@@ -201,8 +221,9 @@ def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
     return points["holds"].to_numpy() > -(-coefficients // len(AXES))
 
 
-def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperature: float, *,
-                           every_point: bool = True):
+def _leave_temperature_out(
+    model: Model, fitted, data: dict, reference_temperature: float, *, every_point: bool = True
+):
     """Per hold: the calibration without its own point (interpolated, or refitted for a
     continuous model) and the one-point calibration at the reference point (the next
     nearest when the reference is the point held out); with ``every_point`` false, a point
@@ -231,7 +252,8 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
                         f"calibration the validation compares with (the one at "
                         f"{temp[keep].mean():.1f} °C: {exc}); wider points gather more "
                         "(point_span in the protocol's options: of the config)",
-                        parameters=exc.parameters) from None
+                        parameters=exc.parameters,
+                    ) from None
         return single_fits[p]
 
     interp = _Plan(model, fitted.names, np.empty((n, C)), np.empty((n, C, C)), temp.copy())
@@ -244,8 +266,9 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         loo = fitted.leave_out(int(p))
         if loo is None:
             if every_point or not_left_out + 1 >= len(used):
-                raise CannotLeaveOut(f"leaving out the point at {temp[rows].mean():.1f} °C "
-                                      "leaves nothing to calibrate from")
+                raise CannotLeaveOut(
+                    f"leaving out the point at {temp[rows].mean():.1f} °C leaves nothing to calibrate from"
+                )
             not_left_out += 1
             in_sample_rows[rows] = True
         source = fitted if loo is None else loo
@@ -254,8 +277,12 @@ def _leave_temperature_out(model: Model, fitted, data: dict, reference_temperatu
         lo, hi = source.coefficients.span
         interp.temp[rows] = np.clip(temp[rows], lo, hi)
         clamped[rows] = True if loo is None else loo.outside(temp[rows])
-        k = reference_point(point_temps, reference_temperature,
-                            exclude=used.index(int(p)) if int(p) in used else None, eligible=eligible)
+        k = reference_point(
+            point_temps,
+            reference_temperature,
+            exclude=used.index(int(p)) if int(p) in used else None,
+            eligible=eligible,
+        )
         ref = single_fit(used[k])
         single.values[rows], single.cov[rows] = ref.values, ref.covariance
         ref_temp[rows] = point_temps[k]
@@ -269,19 +296,23 @@ def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = Fal
     n = len(data["temp"])
     point = data["point"].astype(int)
     whole = fitted.fits[0]
-    plan = _Plan(model, fitted.names, np.tile(whole.values, (n, 1)),
-                 np.tile(whole.covariance, (n, 1, 1)), data["temp"].copy())
+    plan = _Plan(
+        model,
+        fitted.names,
+        np.tile(whole.values, (n, 1)),
+        np.tile(whole.covariance, (n, 1, 1)),
+        data["temp"].copy(),
+    )
     fitted_rows = np.isin(point, fitted.used_points()) if every_point else point == fitted.used_points()[0]
     mine = np.flatnonzero(fitted_rows)
     clamped = ~fitted_rows
     own = {k: v[mine] for k, v in data.items()}
     model.check_inputs(own)
-    design = model.design(own)   # each refit keeps the columns of its holds
+    design = model.design(own)  # each refit keeps the columns of its holds
     for j, i in enumerate(mine):
         others = np.arange(len(mine)) != j
         try:
-            result = fit(model, {k: v[others] for k, v in own.items()},
-                         design=subset_design(design, others))
+            result = fit(model, {k: v[others] for k, v in own.items()}, design=subset_design(design, others))
         except IdentifiabilityError:
             clamped[i] = True  # only this hold excites something: scored with the whole fit
             continue
@@ -320,13 +351,13 @@ def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
             cal = holds[f"cal_{a}"].to_numpy()
             if samples:
                 mean = total(n * e)[r] / weight[r]
-                rms = np.sqrt(total(n * (e ** 2 + holds[f"var_{a}"].to_numpy()))[r] / weight[r])
+                rms = np.sqrt(total(n * (e**2 + holds[f"var_{a}"].to_numpy()))[r] / weight[r])
                 noise = holds[f"std_{a}"].to_numpy() ** 2
                 floor = np.sqrt(total(n * noise)[r] / weight[r])
                 expected = np.sqrt(total(n * (noise + cal))[r] / weight[r])
             else:
                 mean = total(e)[r] / weight[r]
-                rms = np.sqrt(total(e ** 2)[r] / weight[r])
+                rms = np.sqrt(total(e**2)[r] / weight[r])
                 noise = holds[f"floor_{a}"].to_numpy() ** 2
                 floor = np.sqrt(total(noise)[r] / weight[r])
                 expected = np.sqrt(total(noise + cal)[r] / weight[r])
@@ -339,10 +370,15 @@ def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
             rows.append(row)
     table = pd.DataFrame(rows)
     with np.errstate(divide="ignore", invalid="ignore"):
-        table["gain_vs_uncompensated_pct"] = 100.0 * (1 - table["interpolated_rms"] / table["uncompensated_rms"])
+        table["gain_vs_uncompensated_pct"] = 100.0 * (
+            1 - table["interpolated_rms"] / table["uncompensated_rms"]
+        )
         table["gain_vs_single_pct"] = 100.0 * (1 - table["interpolated_rms"] / table["single_rms"])
-    order = ["rotating", "output"] + [f"{m}_{s}" for m in METHODS for s in ("mean", "rms")] + \
-        ["noise_floor", "expected_rms", "gain_vs_uncompensated_pct", "gain_vs_single_pct", "holds"]
+    order = (
+        ["rotating", "output"]
+        + [f"{m}_{s}" for m in METHODS for s in ("mean", "rms")]
+        + ["noise_floor", "expected_rms", "gain_vs_uncompensated_pct", "gain_vs_single_pct", "holds"]
+    )
     return table[order]
 
 
@@ -352,16 +388,20 @@ def _by_temperature(holds: pd.DataFrame) -> pd.DataFrame:
     method = holds["method"].cat.codes.to_numpy()
     group = index * len(METHODS) + method
     size = len(points) * len(METHODS)
-    mean = lambda v: (np.bincount(group, weights=v, minlength=size)  # noqa: E731
-                      / np.maximum(np.bincount(group, minlength=size), 1)).reshape(len(points), -1)
+
+    def mean(v):
+        return (
+            np.bincount(group, weights=v, minlength=size) / np.maximum(np.bincount(group, minlength=size), 1)
+        ).reshape(len(points), -1)
+
     e2 = mean(sum(holds[f"err_{a}"].to_numpy() ** 2 for a in AXES) / 3)
     f2 = mean(sum(holds[f"floor_{a}"].to_numpy() ** 2 for a in AXES) / 3)
     first = np.unique(index, return_index=True)[1]
     counts = np.bincount(index) // len(METHODS)
-    clamped = np.bincount(index, weights=holds["clamped"].to_numpy(dtype=float)) \
-        == np.bincount(index)
-    out = pd.DataFrame({"point": points, "temp": holds["point_temp"].to_numpy()[first],
-                        "holds": counts, "clamped": clamped})
+    clamped = np.bincount(index, weights=holds["clamped"].to_numpy(dtype=float)) == np.bincount(index)
+    out = pd.DataFrame(
+        {"point": points, "temp": holds["point_temp"].to_numpy()[first], "holds": counts, "clamped": clamped}
+    )
     for m, name in enumerate(METHODS):
         out[f"{name}_rms"] = np.sqrt(e2[:, m])
     out["noise_floor"] = np.sqrt(f2[:, METHODS.index("interpolated")])
@@ -375,10 +415,15 @@ def free_point_fits(obs: pd.DataFrame) -> pd.DataFrame:
     rows when the points are too few to fit."""
     from .model import DEFAULT_TERMS
     from .thermal import fit_grid
+
     try:
         grid = fit_grid(Model.from_spec(DEFAULT_TERMS), obs).coefficients
     except GyrocalError:
         return pd.DataFrame({"temp": np.array([], dtype=float)})
-    return pd.DataFrame({"temp": grid.temperatures,
-                         **{n: grid.values[:, j] for j, n in enumerate(grid.names)},
-                         **{f"{n}_stderr": grid.stderr[:, j] for j, n in enumerate(grid.names)}})
+    return pd.DataFrame(
+        {
+            "temp": grid.temperatures,
+            **{n: grid.values[:, j] for j, n in enumerate(grid.names)},
+            **{f"{n}_stderr": grid.stderr[:, j] for j, n in enumerate(grid.names)},
+        }
+    )

@@ -52,13 +52,13 @@ class HoldWander:
     hold's end to this one's start, ``hold_decay`` across the hold. Their products give
     every pair's factor, and no exponential overflows however long the log."""
 
-    order: np.ndarray           # (n,) rows in time order
-    edge: np.ndarray            # (n, poles) q (1 - e^(-T/c)) c / T, q^2 = ln(ratio) / pi
-    gap_decay: np.ndarray       # (n, poles) e^(-(a_n - b_{n-1}) / c); 1 on the first row
-    hold_decay: np.ndarray      # (n, poles) e^(-(b_n - a_n) / c)
-    flicker_var: np.ndarray     # (n,) the flicker covariance's diagonal
-    mid: np.ndarray             # (n,) mid-times from the first start
-    walk_var: np.ndarray        # (n,) the walk's diagonal, a + T/3
+    order: np.ndarray  # (n,) rows in time order
+    edge: np.ndarray  # (n, poles) q (1 - e^(-T/c)) c / T, q^2 = ln(ratio) / pi
+    gap_decay: np.ndarray  # (n, poles) e^(-(a_n - b_{n-1}) / c); 1 on the first row
+    hold_decay: np.ndarray  # (n, poles) e^(-(b_n - a_n) / c)
+    flicker_var: np.ndarray  # (n,) the flicker covariance's diagonal
+    mid: np.ndarray  # (n,) mid-times from the first start
+    walk_var: np.ndarray  # (n,) the walk's diagonal, a + T/3
 
 
 def hold_wander(t_start, t_end) -> HoldWander | None:
@@ -76,13 +76,20 @@ def hold_wander(t_start, t_end) -> HoldWander | None:
     poles = lo * ratio ** np.arange(int(np.ceil(np.log(hi / lo) / np.log(ratio))) + 1)
     q2 = np.log(ratio) / np.pi
     x = T[:, None] / poles[None, :]
-    edge = np.sqrt(q2) * (-np.expm1(-x) / x)                            # (1 - e^-x) / x
-    variance = 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x ** 2).sum(axis=1)
+    edge = np.sqrt(q2) * (-np.expm1(-x) / x)  # (1 - e^-x) / x
+    variance = 2 * np.where(x < 1e-4, 0.5 - x / 6, (x + np.expm1(-x)) / x**2).sum(axis=1)
     # poles faster than the first average out within an observation: 2 c / T each, summed
     variance += 2 * poles[0] / T / (ratio - 1.0)
     gap = np.r_[0.0, a[1:] - b[:-1]]
-    return HoldWander(order, edge, np.exp(-gap[:, None] / poles), np.exp(-(b - a)[:, None] / poles),
-                      q2 * variance, (a + b) / 2, a + T / 3)
+    return HoldWander(
+        order,
+        edge,
+        np.exp(-gap[:, None] / poles),
+        np.exp(-(b - a)[:, None] / poles),
+        q2 * variance,
+        (a + b) / 2,
+        a + T / 3,
+    )
 
 
 @dataclass(frozen=True)
@@ -101,9 +108,15 @@ class _Generators:
     @classmethod
     def of(cls, w: HoldWander) -> _Generators:
         ones = np.ones((len(w.mid), 1))
-        return cls(w.order, np.hstack([w.edge, ones]), np.hstack([w.edge, w.mid[:, None]]),
-                   np.hstack([w.gap_decay, ones]), np.hstack([w.hold_decay, ones]),
-                   w.flicker_var, w.walk_var)
+        return cls(
+            w.order,
+            np.hstack([w.edge, ones]),
+            np.hstack([w.edge, w.mid[:, None]]),
+            np.hstack([w.gap_decay, ones]),
+            np.hstack([w.hold_decay, ones]),
+            w.flicker_var,
+            w.walk_var,
+        )
 
 
 @dataclass(frozen=True)
@@ -112,20 +125,21 @@ class Whitener:
     time order: a permutation, which least squares does not see."""
 
     gen: _Generators
-    level: np.ndarray           # per generator column: B on the poles, K on the walk
+    level: np.ndarray  # per generator column: B on the poles, K on the walk
     W: np.ndarray
     D: np.ndarray
 
     def __call__(self, m) -> np.ndarray:
         g = self.gen
-        return kernels.semiseparable_whiten(g.U, self.W, self.D, g.alpha, g.beta,
-                                            np.asarray(m, float)[g.order], self.level)
+        return kernels.semiseparable_whiten(
+            g.U, self.W, self.D, g.alpha, g.beta, np.asarray(m, float)[g.order], self.level
+        )
 
 
 def _factor(gen: _Generators, white: np.ndarray, flicker: float, rrw: float) -> Whitener | None:
     # A level of zero leaves its columns out exactly (their W stays zero).
     level = np.r_[np.full(gen.U.shape[1] - 1, flicker), rrw]
-    diag = gen.flicker_var * flicker ** 2 + gen.walk_var * rrw ** 2 + white[gen.order] ** 2
+    diag = gen.flicker_var * flicker**2 + gen.walk_var * rrw**2 + white[gen.order] ** 2
     found = kernels.semiseparable_cholesky(diag, gen.U, gen.V, gen.alpha, gen.beta, level)
     return None if found is None else Whitener(gen, level, *found)
 
@@ -137,8 +151,9 @@ _cache: OrderedDict[bytes, tuple[object, int]] = OrderedDict()
 
 
 def _nbytes(value) -> int:
-    return sum(v.nbytes for v in vars(value).values() if isinstance(v, np.ndarray)) \
-        if value is not None else 0
+    return (
+        sum(v.nbytes for v in vars(value).values() if isinstance(v, np.ndarray)) if value is not None else 0
+    )
 
 
 def _cached(key: bytes, make: Callable):

@@ -30,15 +30,20 @@ from ..io.errors import ConfigError, InputError
 from ..terms import AXES
 from .limits import check_patterns, finite_number, match_pattern
 
-Z_LIMIT = 3.0    # |z| above this is significant: two-sided p = 0.0027 per parameter and step
+Z_LIMIT = 3.0  # |z| above this is significant: two-sided p = 0.0027 per parameter and step
 
 
 def _load(cal) -> Calibration:
     return cal if isinstance(cal, Calibration) else load_calibration(cal)
 
 
-def parameter_changes(calibrations, *, temperature: float | None = None,
-                      tolerance: Mapping | None = None, z_limit: float = Z_LIMIT) -> pd.DataFrame:
+def parameter_changes(
+    calibrations,
+    *,
+    temperature: float | None = None,
+    tolerance: Mapping | None = None,
+    z_limit: float = Z_LIMIT,
+) -> pd.DataFrame:
     """Session-to-session changes of one device's parameters.
 
     ``calibrations`` (objects or file paths) are put in session-date order. Parameters are
@@ -67,7 +72,9 @@ def parameter_changes(calibrations, *, temperature: float | None = None,
         raise InputError(f"drift audit compares one device's sessions, got devices {', '.join(devices)}")
     missing = [i for i, c in enumerate(cals) if not c.meta.get("session")]
     if missing:
-        raise InputError(f"drift audit: calibration {missing[0] + 1} of device {devices[0]} has no session date")
+        raise InputError(
+            f"drift audit: calibration {missing[0] + 1} of device {devices[0]} has no session date"
+        )
     z_limit = finite_number(z_limit, "z_limit", positive=True)
     tolerance = dict(tolerance or {})
     check_patterns(tolerance, "drift tolerance")
@@ -82,7 +89,7 @@ def parameter_changes(calibrations, *, temperature: float | None = None,
     tables = [parameters_at(c, T).set_index("parameter") for c in cals]
     names = [n for n in tables[0].index if all(n in t.index for t in tables[1:])]
     left_out = sorted(set().union(*(set(t.index) for t in tables)) - set(names))
-    V = np.array([t.loc[names, "value"].to_numpy(dtype=float) for t in tables])     # (S, P)
+    V = np.array([t.loc[names, "value"].to_numpy(dtype=float) for t in tables])  # (S, P)
     E = np.array([t.loc[names, "stderr"].to_numpy(dtype=float) for t in tables])
     clamped = np.array([np.full(len(names), bool(t["clamped"].iloc[0])) for t in tables])
     prev = np.r_[0, np.arange(len(cals) - 1)]
@@ -93,30 +100,41 @@ def parameter_changes(calibrations, *, temperature: float | None = None,
 
     def z_of(change, se):
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(se > 0, change / np.where(se > 0, se, 1.0),
-                            np.where(change == 0, 0.0, np.sign(change) * np.inf))
+            return np.where(
+                se > 0,
+                change / np.where(se > 0, se, 1.0),
+                np.where(change == 0, 0.0, np.sign(change) * np.inf),
+            )
 
     z_prev, z_first = z_of(change_prev, se_prev), z_of(change_first, se_first)
     flag = lambda c, z: (np.abs(c) > tol) & (np.abs(z) > z_limit)  # noqa: E731
     flagged_prev, flagged_first = flag(change_prev, z_prev), flag(change_first, z_first)
     S, P = V.shape
     units = tables[0].loc[names, "unit"].tolist()
-    out = pd.DataFrame({
-        "device": devices[0],
-        "batch": np.repeat([c.meta.get("batch") for c in cals], P),
-        "session": np.repeat([str(c.meta["session"]) for c in cals], P),
-        "parameter": np.tile(names, S),
-        "unit": np.tile(units, S),
-        "temperature": T,
-        "clamped": clamped.ravel(),
-        "value": V.ravel(), "stderr": E.ravel(),
-        "change_prev": change_prev.ravel(), "se_prev": se_prev.ravel(), "z_prev": z_prev.ravel(),
-        "change_first": change_first.ravel(), "se_first": se_first.ravel(), "z_first": z_first.ravel(),
-        "tolerance": np.tile(tol, S),
-        "flagged_prev": flagged_prev.ravel(), "flagged_first": flagged_first.ravel(),
-        "flagged": (flagged_prev | flagged_first).ravel(),
-        "baseline": np.repeat(np.arange(S) == 0, P),
-    })
+    out = pd.DataFrame(
+        {
+            "device": devices[0],
+            "batch": np.repeat([c.meta.get("batch") for c in cals], P),
+            "session": np.repeat([str(c.meta["session"]) for c in cals], P),
+            "parameter": np.tile(names, S),
+            "unit": np.tile(units, S),
+            "temperature": T,
+            "clamped": clamped.ravel(),
+            "value": V.ravel(),
+            "stderr": E.ravel(),
+            "change_prev": change_prev.ravel(),
+            "se_prev": se_prev.ravel(),
+            "z_prev": z_prev.ravel(),
+            "change_first": change_first.ravel(),
+            "se_first": se_first.ravel(),
+            "z_first": z_first.ravel(),
+            "tolerance": np.tile(tol, S),
+            "flagged_prev": flagged_prev.ravel(),
+            "flagged_first": flagged_first.ravel(),
+            "flagged": (flagged_prev | flagged_first).ravel(),
+            "baseline": np.repeat(np.arange(S) == 0, P),
+        }
+    )
     out.attrs["left_out"] = left_out
     return out
 
@@ -140,8 +158,13 @@ def _plans(cal: Calibration, temp: np.ndarray):
         cov = g.covariance_at(at)
         k = reference_point(g.temperatures, cal.reference_temperature)
         ref_temp = float(g.temperatures[k])
-        single = _Plan(cal.model, names, np.tile(g.values[k], (n, 1)),
-                       g.covariance_at(np.full(n, ref_temp)), np.full(n, ref_temp))
+        single = _Plan(
+            cal.model,
+            names,
+            np.tile(g.values[k], (n, 1)),
+            g.covariance_at(np.full(n, ref_temp)),
+            np.full(n, ref_temp),
+        )
     return _Plan(cal.model, names, values, cov, at), single, ref_temp
 
 
@@ -155,8 +178,14 @@ def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.nda
     return errors, observation_floor(data)
 
 
-def revalidate(previous_cal, observations, *, max_excess: float | None = None,
-               alpha: float = 1e-3, span_margin: float = 1.0) -> dict:
+def revalidate(
+    previous_cal,
+    observations,
+    *,
+    max_excess: float | None = None,
+    alpha: float = 1e-3,
+    span_margin: float = 1.0,
+) -> dict:
     """Does the previous session's calibration still hold on the new session's holds?
 
     ``observations`` is the new session's observation table or its results folder (a
@@ -183,11 +212,15 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     cal = _load(previous_cal)
     if not isinstance(observations, pd.DataFrame):
         from ..io.unit_folder import read_observations
+
         observations, _ = read_observations(observations)
     from ..protocols import registry
+
     if not registry.get(cal.meta.get("protocol")).known_rate or "revolution" in observations.columns:
-        raise InputError("revalidation needs holds with a known true rate (turntable or sweep "
-                         "sessions); a servo session's hand mount leaves the rate's direction unknown")
+        raise InputError(
+            "revalidation needs holds with a known true rate (turntable or sweep "
+            "sessions); a servo session's hand mount leaves the rate's direction unknown"
+        )
     obs = observations.reset_index(drop=True)
     if obs.empty:
         raise InputError("revalidation: the new session has no holds")
@@ -202,9 +235,11 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
     n = len(obs)
     interp, single, ref_temp = _plans(cal, data["temp"])
     zero = np.zeros((n, 3))
-    errors = {"uncompensated": (w - rate, sd ** 2, zero),
-              "single": _compensate(single, w, rate, sd, data),
-              "interpolated": _compensate(interp, w, rate, sd, data)}
+    errors = {
+        "uncompensated": (w - rate, sd**2, zero),
+        "single": _compensate(single, w, rate, sd, data),
+        "interpolated": _compensate(interp, w, rate, sd, data),
+    }
     span_margin = finite_number(span_margin, "span_margin")
     lo, hi = cal.grid.span
     beyond = np.maximum(lo - data["temp"], data["temp"] - hi)
@@ -230,10 +265,15 @@ def revalidate(previous_cal, observations, *, max_excess: float | None = None,
         holds_up, limit_text = excess <= max_excess, f"limit {max_excess:g}× the floor"
     else:
         holds_up = rms <= expected * bound
-        limit_text = (f"noise and calibration uncertainty explain up to {expected * bound / floor_rms:.3g}× "
-                      f"at α = {alpha:g}")
-    verdict = (f"the old calibration still holds ({excess:.3g}× the floor)" if holds_up else
-               f"the old calibration no longer holds ({excess:.3g}× the floor; {limit_text})")
+        limit_text = (
+            f"noise and calibration uncertainty explain up to {expected * bound / floor_rms:.3g}× "
+            f"at α = {alpha:g}"
+        )
+    verdict = (
+        f"the old calibration still holds ({excess:.3g}× the floor)"
+        if holds_up
+        else f"the old calibration no longer holds ({excess:.3g}× the floor; {limit_text})"
+    )
     return {
         "device": cal.meta.get("device"),
         "calibration_session": cal.meta.get("session"),
@@ -264,6 +304,7 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
     from matplotlib.dates import AutoDateLocator, ConciseDateFormatter
 
     from ..report.plots import figure_style, panels, to_svg, write_svg
+
     if changes.empty:
         raise InputError("drift plot: no parameter changes to plot")
     params = list(dict.fromkeys(changes["parameter"]))
@@ -274,16 +315,24 @@ def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
         for axis, p in grid:
             part = changes[changes["parameter"] == p]
             x = dates[part.index] if use_dates else np.arange(len(part))
-            axis.errorbar(x, part["value"], yerr=part["stderr"], fmt="o-", ms=3, lw=0.8,
-                          capsize=2, color="#1f77b4")
+            axis.errorbar(
+                x, part["value"], yerr=part["stderr"], fmt="o-", ms=3, lw=0.8, capsize=2, color="#1f77b4"
+            )
             tol = float(part["tolerance"].iloc[0])
             if tol > 0:
                 base = float(part["value"].iloc[0])
                 axis.axhspan(base - tol, base + tol, color="#2ca02c", alpha=0.12, lw=0)
             hit = part["flagged"].to_numpy()
             if hit.any():
-                axis.plot(np.asarray(x)[hit], part["value"].to_numpy()[hit], "o", ms=9, mfc="none",
-                          mec="#d62728", mew=1.5)
+                axis.plot(
+                    np.asarray(x)[hit],
+                    part["value"].to_numpy()[hit],
+                    "o",
+                    ms=9,
+                    mfc="none",
+                    mec="#d62728",
+                    mew=1.5,
+                )
             axis.set_title(f"{p}, {part['unit'].iloc[0]}", fontsize=9, parse_math=False)
             if not use_dates:
                 axis.set_xticks(np.arange(len(part)), part["session"].tolist(), parse_math=False)

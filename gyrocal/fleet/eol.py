@@ -34,12 +34,17 @@ class Verdict:
     passed: bool
     reasons: tuple[str, ...]
     checked: dict = field(default_factory=dict)
-    meta: dict = field(default_factory=dict)        # device, batch, session, protocol
-    calibrated: bool = True                          # False: no calibration to judge
+    meta: dict = field(default_factory=dict)  # device, batch, session, protocol
+    calibrated: bool = True  # False: no calibration to judge
 
     def to_dict(self) -> dict:
-        return {**self.meta, "passed": self.passed, "calibrated": self.calibrated,
-                "reasons": list(self.reasons), "checked": self.checked}
+        return {
+            **self.meta,
+            "passed": self.passed,
+            "calibrated": self.calibrated,
+            "reasons": list(self.reasons),
+            "checked": self.checked,
+        }
 
 
 def _failure_text(what: str, failed) -> str:
@@ -50,6 +55,7 @@ def _failure_text(what: str, failed) -> str:
 
 def _is_failure(x) -> bool:
     from ..io.failure import FORMAT
+
     return isinstance(x, BaseException) or (isinstance(x, Mapping) and x.get("format") == FORMAT)
 
 
@@ -57,8 +63,7 @@ def _fmt(v: float) -> str:
     return f"{v:.4g}"
 
 
-def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
-          limits: SpecLimits) -> Verdict:
+def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits: SpecLimits) -> Verdict:
     """Judge one unit against ``limits``.
 
     ``calibration`` is a :class:`Calibration`, or the failure record (``gyrocal.failure/1``)
@@ -72,10 +77,14 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
     """
     if _is_failure(calibration) or calibration is None:
         meta = dict(calibration) if isinstance(calibration, Mapping) else {}
-        reason = _failure_text("calibration", calibration) if calibration is not None \
+        reason = (
+            _failure_text("calibration", calibration)
+            if calibration is not None
             else "calibration failed: no calibration"
-        return Verdict(False, (reason,), {},
-                       {k: meta.get(k) for k in ("device", "batch", "session", "protocol")}, False)
+        )
+        return Verdict(
+            False, (reason,), {}, {k: meta.get(k) for k in ("device", "batch", "session", "protocol")}, False
+        )
     cal: Calibration = calibration
     reasons: list[str] = []
     checked: dict = {}
@@ -94,7 +103,9 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
         patterns = [pat for pat, _ in limits.parameters]
         ranges = dict(limits.parameters)
         T = float(p["temperature"].iloc[0])
-        for name, value, unit, clamped in p[["parameter", "value", "unit", "clamped"]].itertuples(index=False):
+        for name, value, unit, clamped in p[["parameter", "value", "unit", "clamped"]].itertuples(
+            index=False
+        ):
             pat = match_pattern(patterns, name)
             if pat is None:
                 continue
@@ -103,8 +114,14 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
             limit_text = f"±{hi:g} {unit}" if symmetric else f"[{lo:g}, {hi:g}] {unit}"
             verb = "exceeds" if symmetric else "outside"
             where = f" at {T:g} °C" + (" (clamped to the calibrated span)" if clamped else "")
-            record(name, float(value), [lo, hi], unit, lo <= value <= hi,
-                   f"{name} = {_fmt(value)} {unit} {verb} {limit_text}{where}")
+            record(
+                name,
+                float(value),
+                [lo, hi],
+                unit,
+                lo <= value <= hi,
+                f"{name} = {_fmt(value)} {unit} {verb} {limit_text}{where}",
+            )
 
     if limits.temperature_coefficients:
         tc = temperature_coefficients(cal)
@@ -112,8 +129,11 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
         limit_of = dict(limits.temperature_coefficients)
         if tc is None:
             for pat in patterns:
-                unavailable(f"d({pat})/dT", f"d({pat})/dT",
-                            f"calibrated at a single temperature ({cal.grid.span[0]:.1f} °C)")
+                unavailable(
+                    f"d({pat})/dT",
+                    f"d({pat})/dT",
+                    f"calibrated at a single temperature ({cal.grid.span[0]:.1f} °C)",
+                )
         else:
             lo, hi = cal.grid.span
             for name, value, unit in tc.itertuples(index=False):
@@ -121,12 +141,20 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
                 if pat is None:
                     continue
                 lim = limit_of[pat]
-                record(f"d({name})/dT", value, lim, unit, value <= lim,
-                       f"d({name})/dT = {_fmt(value)} {unit} exceeds ±{lim:g} {unit} "
-                       f"over {lo:.1f} to {hi:.1f} °C")
+                record(
+                    f"d({name})/dT",
+                    value,
+                    lim,
+                    unit,
+                    value <= lim,
+                    f"d({name})/dT = {_fmt(value)} {unit} exceeds ±{lim:g} {unit} "
+                    f"over {lo:.1f} to {hi:.1f} °C",
+                )
 
-    for key, what, unit in (("validation_rms", "validation RMS", "deg/s"),
-                            ("excess", "excess over the noise floor", "×")):
+    for key, what, unit in (
+        ("validation_rms", "validation RMS", "deg/s"),
+        ("excess", "excess over the noise floor", "×"),
+    ):
         lim = getattr(limits, key)
         if lim is None:
             continue
@@ -135,30 +163,47 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
             continue
         value = None if summary is None else summary.get(key)
         if value is None or not math.isfinite(value):
-            unavailable(key, what, "no validation summary" if summary is None else f"the summary has no {key}")
+            unavailable(
+                key, what, "no validation summary" if summary is None else f"the summary has no {key}"
+            )
             continue
-        text = f"{_fmt(value)} deg/s exceeds {lim:g} deg/s" if unit == "deg/s" \
+        text = (
+            f"{_fmt(value)} deg/s exceeds {lim:g} deg/s"
+            if unit == "deg/s"
             else f"{value:.3g}× exceeds {lim:g}×"
+        )
         record(key, float(value), lim, unit, value <= lim, f"{what} = {text}")
 
     noise = cal.extra.get("noise") or {}
     for term, lim in limits.noise:
         what, unit = NOISE_LIMITS[term]
         if "session" not in noise:
-            unavailable(f"noise.{term}", what, noise.get("reason", "the calibration has no noise "
-                                                                  "characterisation"))
+            unavailable(
+                f"noise.{term}", what, noise.get("reason", "the calibration has no noise characterisation")
+            )
             continue
         value = float(np.max(noise["session"][term]))
-        record(f"noise.{term}", value, lim, unit, value <= lim,
-               f"{what} = {value:.3g} {unit} exceeds {lim:g} {unit} (largest axis)")
+        record(
+            f"noise.{term}",
+            value,
+            lim,
+            unit,
+            value <= lim,
+            f"{what} = {value:.3g} {unit} exceeds {lim:g} {unit} (largest axis)",
+        )
 
     if limits.temperature_span is not None:
         want_lo, want_hi = limits.temperature_span
         tol = limits.temperature_span_tolerance
         lo, hi = cal.grid.span
         ok_lo, ok_hi = lo <= want_lo + tol, hi >= want_hi - tol
-        checked["temperature_span"] = {"value": [lo, hi], "limit": [want_lo, want_hi], "unit": "°C",
-                                       "tolerance": tol, "passed": bool(ok_lo and ok_hi)}
+        checked["temperature_span"] = {
+            "value": [lo, hi],
+            "limit": [want_lo, want_hi],
+            "unit": "°C",
+            "tolerance": tol,
+            "passed": bool(ok_lo and ok_hi),
+        }
         within = f" (tolerance {tol:g} °C)" if tol else ""
         for ok, end in ((ok_lo, want_lo), (ok_hi, want_hi)):
             if not ok:
@@ -166,23 +211,38 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
 
     seg_failed = _is_failure(seg_info)
     info = {} if seg_info is None or seg_failed else seg_info
-    why_no_info = _failure_text("segmentation", seg_info).removeprefix("segmentation failed: ") \
-        if seg_failed else "no segmentation info"
+    why_no_info = (
+        _failure_text("segmentation", seg_info).removeprefix("segmentation failed: ")
+        if seg_failed
+        else "no segmentation info"
+    )
     if limits.min_holds is not None:
         n = info.get("holds_accepted")
         if n is None:
             unavailable("min_holds", "accepted holds", why_no_info)
         else:
-            record("min_holds", int(n), limits.min_holds, "holds", n >= limits.min_holds,
-                   f"accepted holds = {int(n)} below the minimum {limits.min_holds}")
+            record(
+                "min_holds",
+                int(n),
+                limits.min_holds,
+                "holds",
+                n >= limits.min_holds,
+                f"accepted holds = {int(n)} below the minimum {limits.min_holds}",
+            )
     if limits.min_hold_share is not None:
         share, why = hold_share(info) if info else (None, why_no_info)
         if share is None:
             unavailable("min_hold_share", "accepted hold share", why)
         else:
-            record("min_hold_share", share, limits.min_hold_share, "1", share >= limits.min_hold_share,
-                   f"accepted hold share = {100 * share:.1f} % below the minimum "
-                   f"{100 * limits.min_hold_share:g} %")
+            record(
+                "min_hold_share",
+                share,
+                limits.min_hold_share,
+                "1",
+                share >= limits.min_hold_share,
+                f"accepted hold share = {100 * share:.1f} % below the minimum "
+                f"{100 * limits.min_hold_share:g} %",
+            )
     if limits.min_temperature_points is not None:
         n = info.get("temperature_points")
         if n is None and not seg_failed:
@@ -190,16 +250,29 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None,
         if n is None:
             unavailable("min_temperature_points", "temperature points", why_no_info)
         else:
-            record("min_temperature_points", int(n), limits.min_temperature_points, "points",
-                   n >= limits.min_temperature_points,
-                   f"temperature points = {int(n)} below the minimum {limits.min_temperature_points}")
+            record(
+                "min_temperature_points",
+                int(n),
+                limits.min_temperature_points,
+                "points",
+                n >= limits.min_temperature_points,
+                f"temperature points = {int(n)} below the minimum {limits.min_temperature_points}",
+            )
 
     if limits.fail_on_warnings:
-        warned = [w for w in cal.extra.get("warnings", [])
-                  if limits.fail_on_warnings is True or w["code"] in limits.fail_on_warnings]
-        checked["warnings"] = {"value": [w["code"] for w in warned], "limit": limits.fail_on_warnings
-                               if limits.fail_on_warnings is True else list(limits.fail_on_warnings),
-                               "unit": None, "passed": not warned}
+        warned = [
+            w
+            for w in cal.extra.get("warnings", [])
+            if limits.fail_on_warnings is True or w["code"] in limits.fail_on_warnings
+        ]
+        checked["warnings"] = {
+            "value": [w["code"] for w in warned],
+            "limit": limits.fail_on_warnings
+            if limits.fail_on_warnings is True
+            else list(limits.fail_on_warnings),
+            "unit": None,
+            "passed": not warned,
+        }
         reasons += [f"plausibility warning {w['code']}: {w['message']}" for w in warned]
 
     meta = {k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")}
@@ -233,6 +306,7 @@ def read_unit(folder) -> tuple:
     from ..io import failure
     from ..io.tables import OBS_META_KEY
     from ..io.unit_folder import part_metadata, read_part_doc
+
     cal = read_part_doc(folder, "calibration")
     if cal is not None and cal.get("format") != failure.FORMAT:
         cal = Calibration.from_dict(cal, source=Path(folder) / "calibration.json")
@@ -240,9 +314,9 @@ def read_unit(folder) -> tuple:
     if summary is not None and summary.get("format") != failure.FORMAT:
         summary = summary.get("summary")
     info = None
-    meta = part_metadata(folder, "observations")   # the footer alone
+    meta = part_metadata(folder, "observations")  # the footer alone
     if meta is not None and meta.get(failure.META_KEY):
-        info = json.loads(meta[failure.META_KEY])   # the segmentation's failure record
+        info = json.loads(meta[failure.META_KEY])  # the segmentation's failure record
     elif meta is not None and meta.get(OBS_META_KEY):
         info = json.loads(meta[OBS_META_KEY]).get("info")
     return cal, summary, info
@@ -251,6 +325,7 @@ def read_unit(folder) -> tuple:
 def unit_inputs(folder) -> tuple:
     """:func:`read_unit` for :func:`judge`: a missing calibration is an error naming it."""
     from ..io.errors import CorruptFileError
+
     cal, summary, info = read_unit(folder)
     if cal is None:
         raise CorruptFileError("no such file", source=Path(folder) / "calibration.json")
@@ -272,20 +347,32 @@ def batch_yield(verdicts_by_unit) -> pd.DataFrame:
     ``no_calibration``), yield in percent; one row per batch, sorted by batch name.
     Accepts a mapping unit -> :class:`Verdict` or an iterable of verdicts."""
     verdicts = list(verdicts_by_unit.values() if isinstance(verdicts_by_unit, Mapping) else verdicts_by_unit)
-    frame = pd.DataFrame({
-        "batch": [str(v.meta.get("batch")) if v.meta.get("batch") is not None else "" for v in verdicts],
-        "passed": [bool(v.passed) for v in verdicts],
-        "no_calibration": [not v.calibrated for v in verdicts],
-    })
+    frame = pd.DataFrame(
+        {
+            "batch": [str(v.meta.get("batch")) if v.meta.get("batch") is not None else "" for v in verdicts],
+            "passed": [bool(v.passed) for v in verdicts],
+            "no_calibration": [not v.calibrated for v in verdicts],
+        }
+    )
     if frame.empty:
-        return pd.DataFrame({"batch": pd.Series([], dtype=str), "units": pd.Series([], dtype=int),
-                             "passed": pd.Series([], dtype=int), "failed": pd.Series([], dtype=int),
-                             "no_calibration": pd.Series([], dtype=int),
-                             "yield_pct": pd.Series([], dtype=float)})
+        return pd.DataFrame(
+            {
+                "batch": pd.Series([], dtype=str),
+                "units": pd.Series([], dtype=int),
+                "passed": pd.Series([], dtype=int),
+                "failed": pd.Series([], dtype=int),
+                "no_calibration": pd.Series([], dtype=int),
+                "yield_pct": pd.Series([], dtype=float),
+            }
+        )
     g = frame.groupby("batch", sort=True)
-    out = pd.DataFrame({"units": g.size(), "passed": g["passed"].sum().astype(int),
-                        "no_calibration": g["no_calibration"].sum().astype(int)}).reset_index()
+    out = pd.DataFrame(
+        {
+            "units": g.size(),
+            "passed": g["passed"].sum().astype(int),
+            "no_calibration": g["no_calibration"].sum().astype(int),
+        }
+    ).reset_index()
     out["failed"] = out["units"] - out["passed"]
     out["yield_pct"] = 100.0 * out["passed"] / out["units"]
     return out[["batch", "units", "passed", "failed", "no_calibration", "yield_pct"]]
-

@@ -12,8 +12,12 @@ from dataclasses import dataclass
 
 from ..io.errors import ConfigError
 
-NOISE_LIMITS = {"arw": ("angle random walk", "deg/√h"), "bias_instability": ("bias instability", "deg/h"),
-                "rrw": ("rate random walk", "deg/h/√h"), "quantisation": ("quantisation noise", "arcsec")}
+NOISE_LIMITS = {
+    "arw": ("angle random walk", "deg/√h"),
+    "bias_instability": ("bias instability", "deg/h"),
+    "rrw": ("rate random walk", "deg/h/√h"),
+    "quantisation": ("quantisation noise", "arcsec"),
+}
 _PATTERN = re.compile(r"^[A-Za-z0-9_*?]+(\.[A-Za-z0-9_*?]+)*$")
 
 
@@ -21,6 +25,7 @@ def check_patterns(patterns: Iterable[str], key: str) -> None:
     """Parameter patterns (``scale.x``, ``bias.*``) must be well formed and their first
     part must name a registered term, so that a typo is refused rather than never checked."""
     from ..terms import TERMS
+
     for p in patterns:
         if not isinstance(p, str) or not _PATTERN.match(p):
             raise ConfigError(f"{key}: {p!r} is not a parameter name or pattern like 'scale.x' or 'bias.*'")
@@ -95,9 +100,20 @@ class SpecLimits:
     noise: tuple[tuple[str, float], ...] = ()
     fail_on_warnings: bool | tuple[str, ...] = False
 
-    KEYS = ("parameters", "temperature_coefficients", "temperature", "validation_rms", "excess",
-            "temperature_span", "temperature_span_tolerance", "min_holds", "min_hold_share",
-            "min_temperature_points", "noise", "fail_on_warnings")
+    KEYS = (
+        "parameters",
+        "temperature_coefficients",
+        "temperature",
+        "validation_rms",
+        "excess",
+        "temperature_span",
+        "temperature_span_tolerance",
+        "min_holds",
+        "min_hold_share",
+        "min_temperature_points",
+        "noise",
+        "fail_on_warnings",
+    )
 
     @classmethod
     def from_dict(cls, d: Mapping | None, key: str = "spec") -> SpecLimits:
@@ -116,13 +132,15 @@ class SpecLimits:
             if name == "parameters":
                 out[name] = tuple((p, _range(v, f"{key}.{name}.{p}")) for p, v in section.items())
             else:
-                out[name] = tuple((p, finite_number(v, f"{key}.{name}.{p}", positive=True))
-                                  for p, v in section.items())
+                out[name] = tuple(
+                    (p, finite_number(v, f"{key}.{name}.{p}", positive=True)) for p, v in section.items()
+                )
         section = d.get("noise") or {}
         if not isinstance(section, Mapping) or any(k not in NOISE_LIMITS for k in section):
             raise ConfigError(f"{key}.noise must map noise terms ({', '.join(NOISE_LIMITS)}) to limits")
-        out["noise"] = tuple((k, finite_number(v, f"{key}.noise.{k}", positive=True))
-                             for k, v in section.items())
+        out["noise"] = tuple(
+            (k, finite_number(v, f"{key}.noise.{k}", positive=True)) for k, v in section.items()
+        )
         for name in ("temperature", "validation_rms", "excess", "min_hold_share"):
             if d.get(name) is not None:
                 out[name] = finite_number(d[name], f"{key}.{name}", positive=name != "temperature")
@@ -146,8 +164,10 @@ class SpecLimits:
         return cls(**out)
 
     def to_dict(self) -> dict:
-        d = {"parameters": {p: (list(r) if r[0] != -r[1] else r[1]) for p, r in self.parameters},
-             "temperature_coefficients": dict(self.temperature_coefficients)}
+        d = {
+            "parameters": {p: (list(r) if r[0] != -r[1] else r[1]) for p, r in self.parameters},
+            "temperature_coefficients": dict(self.temperature_coefficients),
+        }
         if self.noise:
             d["noise"] = dict(self.noise)
         for name in self.KEYS[2:-2]:
@@ -163,6 +183,7 @@ class SpecLimits:
 def _warning_codes(value, key: str) -> bool | tuple[str, ...]:
     """true, false, or a list of plausibility warning codes (each checked: a typo is refused)."""
     from ..io.plausibility import CODES
+
     if isinstance(value, bool):
         return value
     if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
@@ -171,4 +192,3 @@ def _warning_codes(value, key: str) -> bool | tuple[str, ...]:
     if unknown:
         raise ConfigError(f"{key}: {unknown[0]!r} is no warning code (known: {', '.join(CODES)})")
     return tuple(value)
-

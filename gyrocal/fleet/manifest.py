@@ -17,7 +17,7 @@ from ..io.errors import ConfigError, CorruptFileError
 
 _ROW = schema.load("manifest")
 COLUMNS = tuple(_ROW["required"])
-OPTIONAL = tuple(c for c in _ROW["properties"] if c not in COLUMNS)   # the model column
+OPTIONAL = tuple(c for c in _ROW["properties"] if c not in COLUMNS)  # the model column
 
 
 def _pattern(column: str) -> str:
@@ -46,12 +46,14 @@ def read_manifest(path) -> list[dict[str, str]]:
     header = reader.fieldnames or []
     missing = [c for c in COLUMNS if c not in header]
     if missing:
-        raise ConfigError(f"manifest lacks column{'s' if len(missing) > 1 else ''} "
-                          f"{', '.join(missing)} (tab-separated, header {' '.join(COLUMNS)})",
-                          source=path)
+        raise ConfigError(
+            f"manifest lacks column{'s' if len(missing) > 1 else ''} "
+            f"{', '.join(missing)} (tab-separated, header {' '.join(COLUMNS)})",
+            source=path,
+        )
     rows, seen = [], {}
     present = COLUMNS + tuple(c for c in OPTIONAL if c in header)
-    valid = {c: set() for c in present}   # each value checked once: batches, sessions repeat
+    valid = {c: set() for c in present}  # each value checked once: batches, sessions repeat
     for line, row in enumerate(reader, start=2):
         if not any((v or "").strip() for v in row.values()):
             continue  # blank line
@@ -65,8 +67,11 @@ def read_manifest(path) -> list[dict[str, str]]:
                 valid[column].add(value)
         key = (row["device"], row["session"])
         if key in seen:
-            raise ConfigError(f"line {line}: device {row['device']} session {row['session']} "
-                              f"is listed twice (first on line {seen[key]})", source=path)
+            raise ConfigError(
+                f"line {line}: device {row['device']} session {row['session']} "
+                f"is listed twice (first on line {seen[key]})",
+                source=path,
+            )
         seen[key] = line
         # Normalising would also fold a URL's "//" (s3://b/k -> s3:/b/k).
         row["log"] = row["path"] if "://" in row["path"] else os.path.normpath(path.parent / row["path"])
@@ -87,21 +92,31 @@ def model_entry(row: dict[str, str], models: dict, *, source=None) -> str | None
     unread = [k for k in models if not isinstance(k, str)]
     if unread:
         what = "true or false" if isinstance(unread[0], bool) else "null" if unread[0] is None else "a number"
-        raise ConfigError(f"models: the key {unread[0]!r} is read as {what}, not a name: quote it "
-                          f"('{unread[0]}')", source=source)
+        raise ConfigError(
+            f"models: the key {unread[0]!r} is read as {what}, not a name: quote it ('{unread[0]}')",
+            source=source,
+        )
     named = row.get("model")
     if named:
         if named not in models:
-            raise ConfigError(f"device {row['device']} session {row['session']}: the manifest's model "
-                              f"column names {named!r}, which the config's models: does not have"
-                              f"{'; it has ' + ', '.join(map(str, models)) if models else ''}",
-                              source=source)
+            raise ConfigError(
+                f"device {row['device']} session {row['session']}: the manifest's model "
+                f"column names {named!r}, which the config's models: does not have"
+                f"{'; it has ' + ', '.join(map(str, models)) if models else ''}",
+                source=source,
+            )
         return named
     for key in (row["device"], row["batch"]):
         if key in models:
             return key
-    return next((key for key in models if any(c in key for c in PATTERN_CHARACTERS)
-                 and fnmatchcase(row["device"], key)), None)
+    return next(
+        (
+            key
+            for key in models
+            if any(c in key for c in PATTERN_CHARACTERS) and fnmatchcase(row["device"], key)
+        ),
+        None,
+    )
 
 
 def shard(rows: list[dict[str, str]], size: int) -> list[list[dict[str, str]]]:
@@ -138,17 +153,24 @@ def write_shards(rows: list[dict[str, str]], size: int, out) -> list[Path]:
     shard whose rows are unchanged keeps its file as it was: the workflow that reads it
     sees nothing new to do."""
     from ..io import atomic
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
-    named = any(r.get("model") for r in rows)   # the model column, where a row names one
+    named = any(r.get("model") for r in rows)  # the model column, where a row names one
     header = COLUMNS + (("model",) if named else ())
     for k, rows_k in enumerate(shard(rows, size), start=1):
         # a shard lies in another folder than the manifest: each log by its absolute path
         lines = ["\t".join(header)] + [
-            "\t".join([*(r[c] for c in COLUMNS[:-1]),
-                       r["log"] if "://" in r["log"] else os.path.abspath(r["log"]),
-                       *((r.get("model") or "",) if named else ())]) for r in rows_k]
+            "\t".join(
+                [
+                    *(r[c] for c in COLUMNS[:-1]),
+                    r["log"] if "://" in r["log"] else os.path.abspath(r["log"]),
+                    *((r.get("model") or "",) if named else ()),
+                ]
+            )
+            for r in rows_k
+        ]
         path, text = out / f"shard-{k:04d}.tsv", "\n".join(lines) + "\n"
         if not path.is_file() or path.read_text() != text:
             atomic.write_text(path, text)

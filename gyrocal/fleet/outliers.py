@@ -8,15 +8,21 @@ import pandas as pd
 from ..io.errors import InputError
 from .limits import finite_number
 
-MIN_BATCH = 5            # fewer units than this: a median/MAD says nothing, no outlier flags
-MAD_Z = 0.6745           # Φ⁻¹(0.75): MAD / 0.6745 estimates σ for normal data (Iglewicz & Hoaglin)
+MIN_BATCH = 5  # fewer units than this: a median/MAD says nothing, no outlier flags
+MAD_Z = 0.6745  # Φ⁻¹(0.75): MAD / 0.6745 estimates σ for normal data (Iglewicz & Hoaglin)
 ID_COLUMNS = ("device", "batch", "session", "protocol", "unit")
 
 
 def parameter_columns(table: pd.DataFrame, by: str) -> list[str]:
     """The parameters of a table of units: its numeric columns but ``by`` and identifiers."""
-    return [c for c in table.columns if c != by and c not in ID_COLUMNS
-            and pd.api.types.is_numeric_dtype(table[c]) and not pd.api.types.is_bool_dtype(table[c])]
+    return [
+        c
+        for c in table.columns
+        if c != by
+        and c not in ID_COLUMNS
+        and pd.api.types.is_numeric_dtype(table[c])
+        and not pd.api.types.is_bool_dtype(table[c])
+    ]
 
 
 def fleet_outliers(table: pd.DataFrame, *, by: str = "batch", threshold: float = 3.5) -> pd.DataFrame:
@@ -41,12 +47,18 @@ def fleet_outliers(table: pd.DataFrame, *, by: str = "batch", threshold: float =
     z, note; sorted by batch, parameter (table order) and row.
     """
     if by not in table.columns:
-        raise InputError(f"outlier table has no column {by!r} (columns: {', '.join(map(str, table.columns))})")
+        raise InputError(
+            f"outlier table has no column {by!r} (columns: {', '.join(map(str, table.columns))})"
+        )
     threshold = finite_number(threshold, "threshold", positive=True)
     params = parameter_columns(table, by)
     ids = [c for c in table.columns if c not in params]
-    long = table.reset_index(drop=True).rename_axis("_row").reset_index().melt(
-        id_vars=["_row", *ids], value_vars=params, var_name="parameter", value_name="value")
+    long = (
+        table.reset_index(drop=True)
+        .rename_axis("_row")
+        .reset_index()
+        .melt(id_vars=["_row", *ids], value_vars=params, var_name="parameter", value_name="value")
+    )
     long = long[np.isfinite(long["value"].to_numpy(dtype=float))]
     long["batch_key"] = long[by].astype(str).where(long[by].notna(), "")
     keys = [long["batch_key"], long["parameter"]]
@@ -68,7 +80,8 @@ def fleet_outliers(table: pd.DataFrame, *, by: str = "batch", threshold: float =
     flagged = long[big.to_numpy() & (np.abs(z) > threshold)]
     order = {p: i for i, p in enumerate(params)}
     flagged = flagged.assign(_p=flagged["parameter"].map(order)).sort_values(
-        ["batch_key", "_p", "_row"], kind="stable")
+        ["batch_key", "_p", "_row"], kind="stable"
+    )
     out = flagged[[*ids, "parameter", "value", "median", "mad", "z", "note"]].reset_index(drop=True)
 
     notes, small = [], {}
@@ -76,26 +89,28 @@ def fleet_outliers(table: pd.DataFrame, *, by: str = "batch", threshold: float =
     for batch, n in units.items():
         if n < MIN_BATCH:
             small[batch] = int(n)
-            notes.append(f"batch {batch}: {n} unit{'s' if n != 1 else ''}, fewer than {MIN_BATCH}: "
-                         "no outlier flags")
+            notes.append(
+                f"batch {batch}: {n} unit{'s' if n != 1 else ''}, fewer than {MIN_BATCH}: no outlier flags"
+            )
     few = long[~big.to_numpy()].drop_duplicates(["batch_key", "parameter"])
     few = few[~few["batch_key"].isin(small)]
     for batch, part in few.groupby("batch_key", sort=True):
         names = sorted(part["parameter"], key=order.get)
-        notes.append(f"batch {batch}: {', '.join(names)} known for fewer than {MIN_BATCH} units: "
-                     "not checked")
+        notes.append(f"batch {batch}: {', '.join(names)} known for fewer than {MIN_BATCH} units: not checked")
     out.attrs["notes"] = notes
     out.attrs["small_batches"] = small
     return out
 
 
-def plot_parameter_distributions(table: pd.DataFrame, flagged: pd.DataFrame, path_or_none=None, *,
-                                 by: str = "batch", label: str = "device") -> str:
+def plot_parameter_distributions(
+    table: pd.DataFrame, flagged: pd.DataFrame, path_or_none=None, *, by: str = "batch", label: str = "device"
+) -> str:
     """Each parameter's values per batch (one panel per parameter, units as points, the
     batch median as a bar, batches too small to judge in grey, unit counts in the axis
     labels), flagged units ringed in red and labelled by ``label``.
     Deterministic SVG; written to ``path_or_none`` when given."""
     from ..report.plots import figure_style, panels, to_svg, write_svg
+
     params = parameter_columns(table, by)
     batches = sorted(table[by].astype(str).where(table[by].notna(), "").unique())
     position = {b: i for i, b in enumerate(batches)}
@@ -104,17 +119,21 @@ def plot_parameter_distributions(table: pd.DataFrame, flagged: pd.DataFrame, pat
     # Deterministic spread of a batch's points across ±0.3 of its slot, by row order.
     rank = bkey.groupby(bkey).cumcount().to_numpy()
     size = bkey.map(bkey.value_counts()).to_numpy()
-    x = bkey.map(position).to_numpy(dtype=float) + np.where(size > 1, (rank / np.maximum(size - 1, 1) - 0.5) * 0.6, 0)
+    x = bkey.map(position).to_numpy(dtype=float) + np.where(
+        size > 1, (rank / np.maximum(size - 1, 1) - 0.5) * 0.6, 0
+    )
     ids = [c for c in flagged.columns if c in frame.columns and c not in params]
-    hit = frame.reset_index().merge(flagged[ids + ["parameter"]], on=ids, how="inner") if len(flagged) else None
+    hit = (
+        frame.reset_index().merge(flagged[ids + ["parameter"]], on=ids, how="inner") if len(flagged) else None
+    )
     counts = bkey.value_counts()
-    ticks = [f"{b} ({counts[b]})" for b in batches]   # unit count; grey points: too few to judge
+    ticks = [f"{b} ({counts[b]})" for b in batches]  # unit count; grey points: too few to judge
     with figure_style():
         fig, grid = panels(params, 2.3)
         for axis, p in grid:
             v = frame[p].to_numpy(dtype=float)
             ok = np.isfinite(v)
-            small = (size < MIN_BATCH)
+            small = size < MIN_BATCH
             axis.plot(x[ok & ~small], v[ok & ~small], "o", ms=3, color="#1f77b4", alpha=0.8)
             axis.plot(x[ok & small], v[ok & small], "o", ms=3, color="#999999", alpha=0.8)
             medians = frame[ok].groupby(bkey[ok])[p].median()
@@ -126,12 +145,22 @@ def plot_parameter_distributions(table: pd.DataFrame, flagged: pd.DataFrame, pat
                 axis.plot(x[idx], v[idx], "o", ms=8, mfc="none", mec="#d62728", mew=1.5)
                 if label in frame.columns:
                     for i in idx:
-                        axis.annotate(str(frame[label].iloc[i]), (x[i], v[i]), xytext=(4, 3),
-                                      textcoords="offset points", fontsize=7, color="#d62728",
-                                      parse_math=False)
+                        axis.annotate(
+                            str(frame[label].iloc[i]),
+                            (x[i], v[i]),
+                            xytext=(4, 3),
+                            textcoords="offset points",
+                            fontsize=7,
+                            color="#d62728",
+                            parse_math=False,
+                        )
             axis.set_title(p, fontsize=9, parse_math=False)
-            axis.set_xticks(range(len(batches)), ticks, rotation=30 if len(batches) > 4 else 0,
-                            fontsize=7, parse_math=False)
+            axis.set_xticks(
+                range(len(batches)),
+                ticks,
+                rotation=30 if len(batches) > 4 else 0,
+                fontsize=7,
+                parse_math=False,
+            )
             axis.set_xlim(-0.6, len(batches) - 0.4)
         return write_svg(to_svg(fig), path_or_none)
-

@@ -30,10 +30,9 @@ from ..report.pages import render_page
 from ..terms import AXES
 
 
-
 @dataclass(frozen=True)
 class FleetSettings:
-    spec: dict = field(default_factory=dict)          # protocol -> SpecLimits
+    spec: dict = field(default_factory=dict)  # protocol -> SpecLimits
     outlier_threshold: float = schema.defaults("config", "outliers")["threshold"]
     drift_tolerance: dict = field(default_factory=dict)
     drift_temperature: float | None = None
@@ -42,6 +41,7 @@ class FleetSettings:
     @classmethod
     def from_dict(cls, values: dict | None) -> FleetSettings:
         from .limits import SpecLimits
+
         values = dict(values or {})
         spec = values.get("spec") or {}
         if not isinstance(spec, dict):
@@ -53,15 +53,20 @@ class FleetSettings:
             limits[protocol] = SpecLimits.from_dict(section, key=f"spec.{protocol}")
         outliers = schema.check(values.get("outliers") or {}, "config", "outliers")
         drift = schema.check(values.get("drift") or {}, "config", "drift")
-        return cls(limits, float(outliers["threshold"]), dict(drift.get("tolerance", {})),
-                   drift.get("temperature"), drift.get("max_excess"))
-
-
+        return cls(
+            limits,
+            float(outliers["threshold"]),
+            dict(drift.get("tolerance", {})),
+            drift.get("temperature"),
+            drift.get("max_excess"),
+        )
 
 
 def _records(frame: pd.DataFrame) -> list[dict]:
-    return [{k: _finite(v.item() if hasattr(v, "item") else v) for k, v in row.items()}
-            for row in frame.to_dict("records")]
+    return [
+        {k: _finite(v.item() if hasattr(v, "item") else v) for k, v in row.items()}
+        for row in frame.to_dict("records")
+    ]
 
 
 def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dict:
@@ -69,6 +74,7 @@ def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dic
     read of its folder, by (batch, device, session)), yield per batch. Units of a protocol
     without limits are not judged."""
     from .eol import batch_yield, judge
+
     verdicts = {}
     for unit in units:
         row = unit["row"]
@@ -84,9 +90,9 @@ def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dic
 def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict], list[str], str]:
     """Units of a protocol with fleet audits (the turntable) against their batch: (flagged
     rows, notes, distributions figure)."""
-    from .outliers import fleet_outliers
     from ..calibration.parameters import parameter_table
-    from .outliers import plot_parameter_distributions
+    from .outliers import fleet_outliers, plot_parameter_distributions
+
     rows = [u for u in calibrated if registry.get(u["protocol"]).fleet_audits]
     if not rows:
         return [], [], ""
@@ -102,6 +108,7 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
     parameter changes with their significance, and the previous session's calibration
     re-validated on the newest session's holds."""
     from .drift import parameter_changes, plot_drift, revalidate
+
     by_device: dict[str, list[dict]] = {}
     for unit in calibrated:
         if registry.get(unit["protocol"]).fleet_audits:
@@ -111,23 +118,32 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
         if len(sessions) < 2:
             continue
         sessions = sorted(sessions, key=lambda u: u["session"])
-        audit = {"device": device, "sessions": [u["session"] for u in sessions],
-                 "batch": sessions[-1]["batch"]}
+        audit = {
+            "device": device,
+            "sessions": [u["session"] for u in sessions],
+            "batch": sessions[-1]["batch"],
+        }
         try:
-            changes = parameter_changes([u["calibration"] for u in sessions],
-                                        temperature=settings.drift_temperature,
-                                        tolerance=settings.drift_tolerance)
+            changes = parameter_changes(
+                [u["calibration"] for u in sessions],
+                temperature=settings.drift_temperature,
+                tolerance=settings.drift_tolerance,
+            )
             audit["changes"] = _records(changes)
             audit["flagged"] = _records(changes[changes["flagged"]])
             audit["figure"] = plot_drift(changes)
             previous, newest = sessions[-2], sessions[-1]
-            reval = revalidate(previous["calibration"],
-                               folders[(newest["batch"], device, newest["session"])],
-                               max_excess=settings.drift_max_excess)
-            audit["revalidation"] = {**{k: _finite(v) for k, v in reval.items() if k != "table"},
-                                     "table": _records(reval["table"]),
-                                     "calibration_session": previous["session"],
-                                     "log_session": newest["session"]}
+            reval = revalidate(
+                previous["calibration"],
+                folders[(newest["batch"], device, newest["session"])],
+                max_excess=settings.drift_max_excess,
+            )
+            audit["revalidation"] = {
+                **{k: _finite(v) for k, v in reval.items() if k != "table"},
+                "table": _records(reval["table"]),
+                "calibration_session": previous["session"],
+                "log_session": newest["session"],
+            }
         except GyrocalError as exc:
             audit["error"] = str(exc)
         audits.append(audit)
@@ -135,12 +151,16 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
 
 
 def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, inputs: dict) -> dict:
-    folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"])
-               for u in units}
+    folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"]) for u in units}
     eol = end_of_line(units, settings, inputs)
     flagged, notes, figure = outliers(calibrated, settings)
-    return {"eol": eol, "outliers": flagged, "outlier_notes": notes, "outlier_figure": figure,
-            "drift": drift_audits(calibrated, folders, settings)}
+    return {
+        "eol": eol,
+        "outliers": flagged,
+        "outlier_notes": notes,
+        "outlier_figure": figure,
+        "drift": drift_audits(calibrated, folders, settings),
+    }
 
 
 def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict:
@@ -164,10 +184,16 @@ def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> d
 
 
 # (coefficient, column heading, factor to the unit shown, significant digits)
-KEY_PARAMETERS = (("scale.x", "scale x, ppm", 1e6, 4), ("scale.y", "scale y, ppm", 1e6, 4),
-                  ("scale.z", "scale z, ppm", 1e6, 4), ("misalignment.x.y", "K[x,y]", 1.0, 4),
-                  ("misalignment.y.x", "K[y,x]", 1.0, 4), ("bias.x", "bias x, deg/s", 1.0, 3),
-                  ("bias.y", "bias y, deg/s", 1.0, 3), ("bias.z", "bias z, deg/s", 1.0, 3))
+KEY_PARAMETERS = (
+    ("scale.x", "scale x, ppm", 1e6, 4),
+    ("scale.y", "scale y, ppm", 1e6, 4),
+    ("scale.z", "scale z, ppm", 1e6, 4),
+    ("misalignment.x.y", "K[x,y]", 1.0, 4),
+    ("misalignment.y.x", "K[y,x]", 1.0, 4),
+    ("bias.x", "bias x, deg/s", 1.0, 3),
+    ("bias.y", "bias y, deg/s", 1.0, 3),
+    ("bias.z", "bias z, deg/s", 1.0, 3),
+)
 
 
 def _unit_row(unit: dict) -> tuple[dict, tuple]:
@@ -177,38 +203,56 @@ def _unit_row(unit: dict) -> tuple[dict, tuple]:
     (validation, calibration, observations), or with what made a part unreadable."""
     from ..io.errors import CorruptFileError
     from .eol import read_unit
+
     row = dict(unit["row"])
     folder = unit["folder"]
     row["report"] = unit["report"]
     try:
         cal, summary, info = read_unit(folder)
-    except GyrocalError as exc:   # a part that cannot be read: this unit's failure alone
+    except GyrocalError as exc:  # a part that cannot be read: this unit's failure alone
         row.update(status="failed", stage="fleet", error=str(exc), internal=False)
         return row, (exc, None, None)
-    inputs = (cal if cal is not None else
-              CorruptFileError("no such file", source=Path(folder) / "calibration.json"), summary, info)
-    rec = next((d for d in (summary, cal, info)
-                if isinstance(d, dict) and d.get("format") == failure.FORMAT), None)
+    inputs = (
+        cal
+        if cal is not None
+        else CorruptFileError("no such file", source=Path(folder) / "calibration.json"),
+        summary,
+        info,
+    )
+    rec = next(
+        (d for d in (summary, cal, info) if isinstance(d, dict) and d.get("format") == failure.FORMAT), None
+    )
     if rec is not None:
-        row.update(status="failed", stage=rec["stage"], error=rec["error"],
-                   internal=rec.get("internal", False))
+        row.update(
+            status="failed", stage=rec["stage"], error=rec["error"], internal=rec.get("internal", False)
+        )
         return row, inputs
     if summary is None or cal is None:
-        row.update(status="failed", stage="workflow", error="no results: the unit's jobs "
-                   "did not run to the end (see the workflow's logs)", internal=True)
+        row.update(
+            status="failed",
+            stage="workflow",
+            error="no results: the unit's jobs did not run to the end (see the workflow's logs)",
+            internal=True,
+        )
         return row, inputs
     at_ref = cal.coefficients([cal.reference_temperature], warn=False)
     row["calibration"] = cal
     row["warnings"] = cal.extra.get("warnings", [])
     session_noise = (cal.extra.get("noise") or {}).get("session")
-    row["noise"] = {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} \
-        if session_noise else None
+    row["noise"] = (
+        {k: _largest_axis(session_noise, k) for k in ("arw", "bias_instability")} if session_noise else None
+    )
     # a session that logged no temperature has no span, only its stand-in
     logged = not any(w.get("code") == "temperature_not_logged" for w in row["warnings"])
-    row.update(status="ok", span=cal.grid.span if logged else None, summary=summary,
-               reference=cal.reference_temperature, missing=_missing_effect(folder),
-               params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref},
-               **_model_columns(cal, folder))
+    row.update(
+        status="ok",
+        span=cal.grid.span if logged else None,
+        summary=summary,
+        reference=cal.reference_temperature,
+        missing=_missing_effect(folder),
+        params={n: float(at_ref[n][0]) * f for n, _, f, _ in KEY_PARAMETERS if n in at_ref},
+        **_model_columns(cal, folder),
+    )
     return row, inputs
 
 
@@ -217,28 +261,44 @@ def _model_columns(cal, folder) -> dict:
     takes, each term beyond its protocol's model (kept or dropped, with the held-out error
     without and with it), and the run of the model before this one (:mod:`gyrocal.io.runs`)."""
     from ..io.runs import last_two, read_runs
-    added = [{"term": a["term"], "kept": a["kept"], "reason": a.get("reason"),
-              "without": (a.get("without") or {}).get("excess"), "with": (a.get("with") or {}).get("excess")}
-             for a in cal.extra.get("added_terms", ())]
+
+    added = [
+        {
+            "term": a["term"],
+            "kept": a["kept"],
+            "reason": a.get("reason"),
+            "without": (a.get("without") or {}).get("excess"),
+            "with": (a.get("with") or {}).get("excess"),
+        }
+        for a in cal.extra.get("added_terms", ())
+    ]
     current, previous = last_two(read_runs(folder), cal.provenance.get("config_sha256"))
     since = None
     if previous is not None:
-        since = {"model": ", ".join(previous["model"]["terms"]), "before": previous["excess"],
-                 "after": current["excess"],
-                 "next_before": (previous.get("next_session") or {}).get("excess"),
-                 "next_after": (current.get("next_session") or {}).get("excess"),
-                 "next_session": (current.get("next_session") or {}).get("session")}
-    return {"model": ", ".join(t.spec_string() for t in cal.model.terms) + (
-                " (continuous)" if cal.kind == "continuous" else ""),
-            "model_entry": cal.extra.get("model_entry"), "added_terms": added, "since_last": since}
+        since = {
+            "model": ", ".join(previous["model"]["terms"]),
+            "before": previous["excess"],
+            "after": current["excess"],
+            "next_before": (previous.get("next_session") or {}).get("excess"),
+            "next_after": (current.get("next_session") or {}).get("excess"),
+            "next_session": (current.get("next_session") or {}).get("session"),
+        }
+    return {
+        "model": ", ".join(t.spec_string() for t in cal.model.terms)
+        + (" (continuous)" if cal.kind == "continuous" else ""),
+        "model_entry": cal.extra.get("model_entry"),
+        "added_terms": added,
+        "since_last": since,
+    }
 
 
 def _missing_effect(folder) -> str:
     """The diagnosis in a few words, for the fleet table."""
     from ..io.unit_folder import read_part_doc
+
     try:
         diag = read_part_doc(folder, "diagnosis")
-    except GyrocalError as exc:   # the calibration stands; its diagnosis cannot be read
+    except GyrocalError as exc:  # the calibration stands; its diagnosis cannot be read
         return f"diagnosis unreadable: {exc}"
     if diag is None:
         return "–"
@@ -275,8 +335,13 @@ def servo_versus_turntable(rows: list[dict]) -> list[dict]:
             tables = sessions.get("turntable", [])
             if not tables:
                 continue
-            table = min(tables, key=lambda r: abs(np.datetime64(r["session"] or "1970-01-01")
-                                                  - np.datetime64(servo["session"] or "1970-01-01")))
+            table = min(
+                tables,
+                key=lambda r: abs(
+                    np.datetime64(r["session"] or "1970-01-01")
+                    - np.datetime64(servo["session"] or "1970-01-01")
+                ),
+            )
             s_cal, t_cal = servo["calibration"], table["calibration"]
             temp = np.array([s_cal.grid.temperatures[0]])
             s_err = s_cal.grid.stderr_at(temp)
@@ -286,33 +351,51 @@ def servo_versus_turntable(rows: list[dict]) -> list[dict]:
             params = []
             for i, a in enumerate(AXES):
                 for name, label, factor, s_val, t_val in (
-                        (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
-                        (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i])):
+                    (f"scale.{a}", f"scale {a}, ppm", 1e6, s_K[i, i] - 1, t_K[i, i] - 1),
+                    (f"bias.{a}", f"bias {a}, deg/s", 1.0, s_B[i], t_B[i]),
+                ):
                     diff = float(s_val - t_val)
                     se = float(np.hypot(s_err[name][0], t_err[name][0])) if name in t_err else None
-                    params.append({"parameter": label, "servo": float(s_val) * factor,
-                                   "servo_se": float(s_err[name][0]) * factor,
-                                   "turntable": float(t_val) * factor,
-                                   "turntable_se": None if se is None else float(t_err[name][0]) * factor,
-                                   "difference": diff * factor,
-                                   "sigmas": diff / se if se else None})
+                    params.append(
+                        {
+                            "parameter": label,
+                            "servo": float(s_val) * factor,
+                            "servo_se": float(s_err[name][0]) * factor,
+                            "turntable": float(t_val) * factor,
+                            "turntable_se": None if se is None else float(t_err[name][0]) * factor,
+                            "difference": diff * factor,
+                            "sigmas": diff / se if se else None,
+                        }
+                    )
             params.sort(key=lambda p: not p["parameter"].startswith("scale"))
-            out.append({"device": device, "servo_session": servo["session"],
-                        "turntable_session": table["session"], "temperature": float(temp[0]),
-                        "servo_report": servo["report"], "turntable_report": table["report"],
-                        "rows": params})
+            out.append(
+                {
+                    "device": device,
+                    "servo_session": servo["session"],
+                    "turntable_session": table["session"],
+                    "temperature": float(temp[0]),
+                    "servo_report": servo["report"],
+                    "turntable_report": table["report"],
+                    "rows": params,
+                }
+            )
     return out
 
 
 def eol_document(result: dict, settings: FleetSettings) -> dict:
     """The machine-readable end-of-line record: every judged unit and the batch yields."""
-    verdicts = [{**v.to_dict(), "batch": key[0], "device": key[1], "session": key[2]}
-                for key, v in sorted(result["eol"]["verdicts"].items())]
-    return {"format": "gyrocal.eol/1",
-            "spec": {p: limits.to_dict() for p, limits in sorted(settings.spec.items())},
-            "yield": result["eol"]["yield"], "units": verdicts,
-            "outliers": result["outliers"],
-            "drift": [{k: v for k, v in a.items() if k != "figure"} for a in result["drift"]]}
+    verdicts = [
+        {**v.to_dict(), "batch": key[0], "device": key[1], "session": key[2]}
+        for key, v in sorted(result["eol"]["verdicts"].items())
+    ]
+    return {
+        "format": "gyrocal.eol/1",
+        "spec": {p: limits.to_dict() for p, limits in sorted(settings.spec.items())},
+        "yield": result["eol"]["yield"],
+        "units": verdicts,
+        "outliers": result["outliers"],
+        "drift": [{k: v for k, v in a.items() if k != "figure"} for a in result["drift"]],
+    }
 
 
 def drift_page_name(device: str) -> str:
@@ -350,17 +433,32 @@ def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
 
 # The fleet table's fixed columns (results/fleet.parquet; docs/fleet-table.md says each one).
 TABLE_COLUMNS = (
-    ("device", pa.string()), ("batch", pa.string()), ("session", pa.string()),
-    ("protocol", pa.string()), ("status", pa.string()), ("failed_stage", pa.string()),
-    ("error", pa.string()), ("reference_temperature", pa.float64()),
-    ("temperature_min", pa.float64()), ("temperature_max", pa.float64()),
-    ("validation_rms", pa.float64()), ("noise_floor", pa.float64()), ("excess", pa.float64()),
-    ("excess_over_expected", pa.float64()), ("missing_effect", pa.string()),
-    ("model", pa.string()), ("model_entry", pa.string()), ("terms_dropped", pa.list_(pa.string())),
-    ("previous_model", pa.string()), ("previous_excess", pa.float64()),
-    ("warnings", pa.list_(pa.string())), ("eol_passed", pa.bool_()),
-    ("eol_reasons", pa.list_(pa.string())), ("input_name", pa.string()),
-    ("input_hash", pa.string()), ("input_hash_algorithm", pa.string()),
+    ("device", pa.string()),
+    ("batch", pa.string()),
+    ("session", pa.string()),
+    ("protocol", pa.string()),
+    ("status", pa.string()),
+    ("failed_stage", pa.string()),
+    ("error", pa.string()),
+    ("reference_temperature", pa.float64()),
+    ("temperature_min", pa.float64()),
+    ("temperature_max", pa.float64()),
+    ("validation_rms", pa.float64()),
+    ("noise_floor", pa.float64()),
+    ("excess", pa.float64()),
+    ("excess_over_expected", pa.float64()),
+    ("missing_effect", pa.string()),
+    ("model", pa.string()),
+    ("model_entry", pa.string()),
+    ("terms_dropped", pa.list_(pa.string())),
+    ("previous_model", pa.string()),
+    ("previous_excess", pa.float64()),
+    ("warnings", pa.list_(pa.string())),
+    ("eol_passed", pa.bool_()),
+    ("eol_reasons", pa.list_(pa.string())),
+    ("input_name", pa.string()),
+    ("input_hash", pa.string()),
+    ("input_hash_algorithm", pa.string()),
     ("gyrocal_version", pa.string()),
 )
 
@@ -371,8 +469,9 @@ def fleet_table(summary: dict) -> pa.Table:
     parameter of its calibration at its reference temperature in display units (scale in
     ppm, misalignment in mrad, bias in deg/s: :func:`gyrocal.calibration.parameters.parameters_at`) with
     its standard error (``<name>_stderr``). A value a unit does not have is null."""
-    from ..io.log import source_digest
     from ..calibration.parameters import parameters_at
+    from ..io.log import source_digest
+
     columns: dict[str, list] = {name: [] for name, _ in TABLE_COLUMNS}
     params: dict[str, dict[int, float]] = {}
     for i, row in enumerate(summary["rows"]):
@@ -383,14 +482,20 @@ def fleet_table(summary: dict) -> pa.Table:
         algorithm, digest = source_digest(source) or (None, None)
         eol = row.get("eol")
         values = {
-            "device": row["device"], "batch": row["batch"], "session": row["session"],
-            "protocol": row["protocol"], "status": row["status"],
-            "failed_stage": None if ok else row.get("stage"), "error": None if ok else row.get("error"),
+            "device": row["device"],
+            "batch": row["batch"],
+            "session": row["session"],
+            "protocol": row["protocol"],
+            "status": row["status"],
+            "failed_stage": None if ok else row.get("stage"),
+            "error": None if ok else row.get("error"),
             "reference_temperature": cal.reference_temperature if ok else None,
             "temperature_min": row["span"][0] if ok and row["span"] else None,
             "temperature_max": row["span"][1] if ok and row["span"] else None,
-            **{k: _finite(s.get(k)) for k in ("validation_rms", "noise_floor", "excess",
-                                               "excess_over_expected")},
+            **{
+                k: _finite(s.get(k))
+                for k in ("validation_rms", "noise_floor", "excess", "excess_over_expected")
+            },
             "missing_effect": row.get("missing") if ok else None,
             "model": row.get("model") if ok else None,
             "model_entry": row.get("model_entry") if ok else None,
@@ -400,13 +505,17 @@ def fleet_table(summary: dict) -> pa.Table:
             "warnings": [w["code"] for w in row.get("warnings", [])] if ok else None,
             "eol_passed": eol["passed"] if eol else None,
             "eol_reasons": eol["reasons"] if eol else None,
-            "input_name": source.get("name"), "input_hash": digest, "input_hash_algorithm": algorithm,
+            "input_name": source.get("name"),
+            "input_hash": digest,
+            "input_hash_algorithm": algorithm,
             "gyrocal_version": (cal.provenance.get("versions") or {}).get("gyrocal") if ok else None,
         }
         for name, _ in TABLE_COLUMNS:
             columns[name].append(values[name])
         if ok:
-            for name, value, stderr in parameters_at(cal)[["parameter", "value", "stderr"]].itertuples(index=False):
+            for name, value, stderr in parameters_at(cal)[["parameter", "value", "stderr"]].itertuples(
+                index=False
+            ):
                 params.setdefault(name, {})[i] = _finite(value)
                 params.setdefault(f"{name}_stderr", {})[i] = _finite(stderr)
     n = len(summary["rows"])
@@ -434,12 +543,18 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
     for row in rows:
         batches.setdefault(row["batch"], []).append(row)
     ok = [r for r in rows if r["status"] == "ok"]
-    figures = [(label, plots.histogram(np.array(values), label)) for label, values in [
-        *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
-        ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
-        ("excess over the noise floor", [r["summary"]["excess"] for r in ok]),
-        ("angle random walk, deg/√h (largest axis)", [r["noise"]["arw"][0] if r["noise"] else np.nan
-                                                       for r in ok])]]
+    figures = [
+        (label, plots.histogram(np.array(values), label))
+        for label, values in [
+            *[(heading, [r["params"].get(n, np.nan) for r in ok]) for n, heading, _, _ in KEY_PARAMETERS],
+            ("validation RMS, deg/s", [r["summary"]["validation_rms"] for r in ok]),
+            ("excess over the noise floor", [r["summary"]["excess"] for r in ok]),
+            (
+                "angle random walk, deg/√h (largest axis)",
+                [r["noise"]["arw"][0] if r["noise"] else np.nan for r in ok],
+            ),
+        ]
+    ]
     if fleet is not None:
         for unit in fleet["drift"]:
             unit["page"] = drift_page_name(unit["device"])
@@ -448,15 +563,23 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
         if eol_json is not None:
             _write_page(eol_json, dumps(json_safe(eol_document(fleet, settings))) + "\n")
     batches = sorted(batches.items())
-    for stale in batch_pages_of(path):   # an earlier fleet's pages: this one writes its own
+    for stale in batch_pages_of(path):  # an earlier fleet's pages: this one writes its own
         stale.unlink()
     pages = _batch_pages(batches, path) if len(rows) > PAGE_UNITS else None
     html = render_page(
         "fleet_report.html.j2",
-        batches=batches, key_parameters=KEY_PARAMETERS, figures=figures,
-        total=len(rows), calibrated=len(ok), failed=len(rows) - len(ok),
-        warned=sum(1 for r in ok if r.get("warnings")), batch_pages=pages, page_units=PAGE_UNITS,
-        servo_vs_turntable=summary["servo_vs_turntable"], fleet=fleet)
+        batches=batches,
+        key_parameters=KEY_PARAMETERS,
+        figures=figures,
+        total=len(rows),
+        calibrated=len(ok),
+        failed=len(rows) - len(ok),
+        warned=sum(1 for r in ok if r.get("warnings")),
+        batch_pages=pages,
+        page_units=PAGE_UNITS,
+        servo_vs_turntable=summary["servo_vs_turntable"],
+        fleet=fleet,
+    )
     _write_page(path, html)
 
 
@@ -479,8 +602,9 @@ def batch_pages_of(path) -> list[Path]:
     """The batch pages beside the summary at ``path`` (files named by :func:`batch_page_name`)."""
     path = Path(path)
     pattern = re.compile(rf"{re.escape(path.stem)}-batch-.*-[0-9a-f]{{8}}-[0-9]+\.html")
-    return sorted(p for p in path.parent.glob(f"{path.stem}-batch-*.html")
-                  if pattern.fullmatch(p.name) and p.is_file())
+    return sorted(
+        p for p in path.parent.glob(f"{path.stem}-batch-*.html") if pattern.fullmatch(p.name) and p.is_file()
+    )
 
 
 def _batch_pages(batches: list, path) -> list[dict]:
@@ -489,20 +613,30 @@ def _batch_pages(batches: list, path) -> list[dict]:
     path = Path(path)
     index = []
     for batch, rows in batches:
-        chunks = [rows[i:i + PAGE_UNITS] for i in range(0, len(rows), PAGE_UNITS)]
+        chunks = [rows[i : i + PAGE_UNITS] for i in range(0, len(rows), PAGE_UNITS)]
         names = [batch_page_name(batch, k + 1, path.stem) for k in range(len(chunks))]
         for k, chunk in enumerate(chunks):
             html = render_page(
-                "fleet_batch.html.j2", batch=batch, rows=chunk, total=len(rows),
+                "fleet_batch.html.j2",
+                batch=batch,
+                rows=chunk,
+                total=len(rows),
                 part=f"page {k + 1} of {len(chunks)}" if len(chunks) > 1 else "",
-                key_parameters=KEY_PARAMETERS, summary=path.name,
+                key_parameters=KEY_PARAMETERS,
+                summary=path.name,
                 previous=names[k - 1] if k else None,
-                next=names[k + 1] if k + 1 < len(chunks) else None)
+                next=names[k + 1] if k + 1 < len(chunks) else None,
+            )
             _write_page(path.parent / names[k], html)
         ok = [r for r in rows if r["status"] == "ok"]
-        index.append({"batch": batch, "units": len(rows), "calibrated": len(ok),
-                      "failed": len(rows) - len(ok), "warned": sum(1 for r in ok if r.get("warnings")),
-                      "pages": names})
+        index.append(
+            {
+                "batch": batch,
+                "units": len(rows),
+                "calibrated": len(ok),
+                "failed": len(rows) - len(ok),
+                "warned": sum(1 for r in ok if r.get("warnings")),
+                "pages": names,
+            }
+        )
     return index
-
-

@@ -23,8 +23,9 @@ from .sink import METADATA_KEY, LogSink, Summary
 __all__ = ["import_log", "Summary", "METADATA_KEY"]
 
 
-def import_log(source, output, map_path=None, *, fmt: str | None = None,
-               sample_rate: float | None = None, sections=None) -> Summary:
+def import_log(
+    source, output, map_path=None, *, fmt: str | None = None, sample_rate: float | None = None, sections=None
+) -> Summary:
     """Convert ``source`` into the contract log ``output`` (written atomically).
 
     ``map_path`` is the YAML map; ``fmt``, ``sample_rate`` and ``sections`` are the command
@@ -48,6 +49,7 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
         try:
             if spec.is_tabular:
                 from . import tabular
+
                 table = tabular.Table(source, spec)
                 spec = tabular.resolve_columns(table, spec, map_name)
                 sink = _sink(tmp, source, spec, table.locate, _order_hint(spec, map_name))
@@ -60,17 +62,19 @@ def import_log(source, output, map_path=None, *, fmt: str | None = None,
                     nonlocal sink
                     sink = _sink(tmp, source, spec, locate, hint)
                     return sink
+
                 sink, rows, extra, mapped, notes = bags.convert(source, spec, make_sink, map_name)
             if spec.sections:
-                mapped.append(f"section from {Path(spec.sections_file).name} "
-                              f"({len(spec.sections)} labels)")
-            metadata = {"gyrocal": __version__, "map": _recorded_map(spec),
-                        "source": {"name": source.name, "format": spec.format,
-                                   "sha256": digest.result()}, **extra}
+                mapped.append(f"section from {Path(spec.sections_file).name} ({len(spec.sections)} labels)")
+            metadata = {
+                "gyrocal": __version__,
+                "map": _recorded_map(spec),
+                "source": {"name": source.name, "format": spec.format, "sha256": digest.result()},
+                **extra,
+            }
             summary = sink.finish(metadata, rows)
             if spec.section_column:
-                mapped.append(f"section from column {spec.section_column} "
-                              f"({len(summary.labels)} labels)")
+                mapped.append(f"section from column {spec.section_column} ({len(summary.labels)} labels)")
         except BaseException:
             if sink is not None:
                 sink.abort()
@@ -89,8 +93,11 @@ def _order_hint(spec: ImportMap, map_name: str):
     def hint(t: float, before: float) -> str:
         if t >= before:
             return ""
-        return (f"; if the file lists its rows in another order (grouped by label, say), "
-                f"sort: true under time in {map_name} orders them by {spec.time_column}")
+        return (
+            f"; if the file lists its rows in another order (grouped by label, say), "
+            f"sort: true under time in {map_name} orders them by {spec.time_column}"
+        )
+
     return hint
 
 
@@ -126,7 +133,8 @@ def _recorded_map(spec: ImportMap) -> dict:
     would differ between machines)."""
     raw = dict(spec.raw)
     if spec.sections:
-        raw["sections"] = {"file": Path(spec.sections_file).name,
-                           "spans": {k: list(v) for k, v in spec.sections.items()}}
+        raw["sections"] = {
+            "file": Path(spec.sections_file).name,
+            "spans": {k: list(v) for k, v in spec.sections.items()},
+        }
     return raw
-

@@ -16,7 +16,7 @@ from __future__ import annotations
 import operator
 import struct
 from collections.abc import Iterator
-from datetime import datetime, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -26,10 +26,13 @@ from .mapping import ACCEL_UNITS, RATE_UNITS, Held, ImportMap, Scaled
 from .sink import LogSink
 
 IMU = "sensor_msgs/msg/Imu"
-VALUE_FIELDS = {"sensor_msgs/msg/Temperature": "temperature", "std_msgs/msg/Float64": "data",
-                "std_msgs/msg/Float32": "data"}
-BATCH = 1 << 16          # IMU samples per output batch
-MAX_WAITING = 1 << 18    # IMU samples held back for a silent topic before they go anyway
+VALUE_FIELDS = {
+    "sensor_msgs/msg/Temperature": "temperature",
+    "std_msgs/msg/Float64": "data",
+    "std_msgs/msg/Float32": "data",
+}
+BATCH = 1 << 16  # IMU samples per output batch
+MAX_WAITING = 1 << 18  # IMU samples held back for a silent topic before they go anyway
 _RAD = Scaled("rad/s", RATE_UNITS["rad/s"])
 _MS2 = Scaled("m/s^2", ACCEL_UNITS["m/s^2"])
 
@@ -48,6 +51,7 @@ class _Rosbag:
         from rosbags.rosbag2 import Reader, ReaderError
         from rosbags.serde import SerdeError
         from rosbags.typesys import TypesysError
+
         self.errors = (ReaderError, SerdeError, TypesysError, apsw.Error, struct.error)
         self.path = path
         try:
@@ -65,6 +69,7 @@ class _Rosbag:
 
     def messages(self, topics) -> Iterator[tuple[str, int, object]]:
         from rosbags.typesys import Stores, get_typestore
+
         store = get_typestore(Stores.LATEST)
         connections = [c for c in self.reader.connections if c.topic in topics]
         self._register(store, connections)
@@ -76,6 +81,7 @@ class _Rosbag:
         """Types the bag defines but the ROS 2 type store lacks (a rig's own messages)."""
         from rosbags.interfaces import MessageDefinitionFormat
         from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
         types: dict = {}
         for c in connections:
             if c.msgtype in store.types:
@@ -86,12 +92,15 @@ class _Rosbag:
                 sep = "=" * 80 + "\n"
                 for part in c.msgdef.data.split(sep):
                     if part.strip():
-                        types.update(get_types_from_idl(part.split("\n", 1)[1]
-                                                        if part.startswith("IDL: ") else part))
+                        types.update(
+                            get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part)
+                        )
             else:
-                raise LogFormatError(f"topic {c.topic}: message type {c.msgtype} is not a "
-                                     "standard ROS 2 type and the bag holds no definition of it",
-                                     source=self.path)
+                raise LogFormatError(
+                    f"topic {c.topic}: message type {c.msgtype} is not a "
+                    "standard ROS 2 type and the bag holds no definition of it",
+                    source=self.path,
+                )
         if types:
             store.register(types)
 
@@ -106,10 +115,11 @@ class _Mcap:
         from mcap.exceptions import McapError
         from mcap.reader import make_reader
         from mcap_ros2.decoder import DecoderFactory
+
         self.errors = (McapError, struct.error, EOFError)
         self.path = path
         try:
-            self.file = open(path, "rb")   # noqa: SIM115 - held by the reader, closed by close()
+            self.file = open(path, "rb")  # noqa: SIM115 - held by the reader, closed by close()
         except OSError as exc:
             raise CorruptFileError(f"cannot read ({exc.strerror})", source=path) from None
         try:
@@ -132,7 +142,8 @@ class _Mcap:
 
     def messages(self, topics) -> Iterator[tuple[str, int, object]]:
         for _, channel, message, decoded in self.reader.iter_decoded_messages(
-                topics=list(topics), log_time_order=True):
+            topics=list(topics), log_time_order=True
+        ):
             yield channel.topic, message.log_time, decoded
 
     def close(self) -> None:
@@ -150,7 +161,7 @@ class _Stream:
         self.stamps: list[int] = []
         self.values: list[float] = []
         self.carry: tuple[int, float] | None = None
-        self.seen: int | None = None     # the newest stamp heard
+        self.seen: int | None = None  # the newest stamp heard
         self.header: bool | None = None  # whether its messages carry a header stamp
         self.dropped = 0
 
@@ -169,7 +180,7 @@ class _Stream:
             values = np.concatenate(([self.carry[1]], values))
         if not len(stamps):
             return np.full(len(t), np.nan), np.zeros(len(t), dtype=bool)
-        order = np.argsort(stamps, kind="stable")   # equal stamps: the later message wins
+        order = np.argsort(stamps, kind="stable")  # equal stamps: the later message wins
         stamps, values = stamps[order], values[order]
         index = np.searchsorted(stamps, t, side="right") - 1
         known = index >= 0
@@ -187,11 +198,16 @@ def convert(path: Path, spec: ImportMap, make_sink, map_name: str):
     source = _Rosbag(path) if spec.format == "ros2" else _Mcap(path)
     try:
         imu = _imu_topic(source, spec, path, map_name)
-        streams = [_Stream(name, held, _check_held(source, held, name, path))
-                   for name, held in (("temp", spec.temperature), ("ref_rate", spec.ref_topic))
-                   if held is not None]
-        hint = (" (header stamps not filled in? map time: {source: log} to use the log time)"
-                if spec.time_source == "header" else "")
+        streams = [
+            _Stream(name, held, _check_held(source, held, name, path))
+            for name, held in (("temp", spec.temperature), ("ref_rate", spec.ref_topic))
+            if held is not None
+        ]
+        hint = (
+            " (header stamps not filled in? map time: {source: log} to use the log time)"
+            if spec.time_source == "header"
+            else ""
+        )
         sink = make_sink(lambda row: f"message {row + 1} on {imu}", hint)
         state = _Convert(sink, streams, spec.time_source == "header")
         try:
@@ -211,15 +227,24 @@ def convert(path: Path, spec: ImportMap, make_sink, map_name: str):
     notes = []
     for s in streams:
         if s.dropped:
-            notes.append(f"{s.dropped} IMU sample{'s' if s.dropped != 1 else ''} before the "
-                         f"first {s.name} message on {s.topic} dropped")
+            notes.append(
+                f"{s.dropped} IMU sample{'s' if s.dropped != 1 else ''} before the "
+                f"first {s.name} message on {s.topic} dropped"
+            )
     if sink.rows == 0:
         missing = [s.topic for s in streams if s.carry is None]
-        raise EmptyLogError(f"all {state.count} IMU samples come before the first message on "
-                            f"{', '.join(missing) or 'the held topics'} (if their stamps are on "
-                            "another clock, map time: {source: log})", source=path)
-    extra = {"imu_topic": imu, "time_source": spec.time_source,
-             "time_origin_ns": state.origin, "time_origin": _iso(state.origin)}
+        raise EmptyLogError(
+            f"all {state.count} IMU samples come before the first message on "
+            f"{', '.join(missing) or 'the held topics'} (if their stamps are on "
+            "another clock, map time: {source: log})",
+            source=path,
+        )
+    extra = {
+        "imu_topic": imu,
+        "time_source": spec.time_source,
+        "time_origin_ns": state.origin,
+        "time_origin": _iso(state.origin),
+    }
     mapped = [f"gyro{' and accel' if state.accel else ''} from {imu}"]
     mapped += [f"{s.name} from {s.topic}" + (f".{s.field}" if s.field else "") for s in streams]
     return sink, state.count, extra, mapped, notes
@@ -230,8 +255,8 @@ class _Convert:
 
     def __init__(self, sink: LogSink, streams: list[_Stream], header: bool):
         self.sink, self.streams, self.header = sink, streams, header
-        self.rows: list[tuple] = []     # (stamp, gx, gy, gz, ax, ay, az) waiting
-        self.first_row = 0              # IMU ordinal of rows[0]
+        self.rows: list[tuple] = []  # (stamp, gx, gy, gz, ax, ay, az) waiting
+        self.first_row = 0  # IMU ordinal of rows[0]
         self.count = 0
         self.accel: bool | None = None
         self.origin: int | None = None
@@ -265,8 +290,11 @@ class _Convert:
         except AttributeError:
             raise ConfigError(f"topic {s.topic}: {kind} has no field {s.field}", source=path) from None
         if isinstance(value, bool) or not isinstance(value, (int, float, np.floating, np.integer)):
-            raise ConfigError(f"topic {s.topic}: field {s.field} of {kind} is not a number "
-                              "(give a field path to one, such as vector.z)", source=path)
+            raise ConfigError(
+                f"topic {s.topic}: field {s.field} of {kind} is not a number "
+                "(give a field path to one, such as vector.z)",
+                source=path,
+            )
 
     def flush(self, force: bool = False) -> None:
         """Write the waiting samples every held topic has been heard past (all: ``force``)."""
@@ -313,33 +341,42 @@ def _imu_topic(source, spec: ImportMap, path: Path, map_name: str) -> str:
     listing = ", ".join(f"{t} ({k})" for t, k in sorted(source.topics.items())) or "none"
     if spec.imu_topic is not None:
         if spec.imu_topic not in source.topics:
-            raise LogFormatError(f"topic {spec.imu_topic} (topics.imu in {map_name}) is not in "
-                                 f"the file; its topics: {listing}", source=path)
+            raise LogFormatError(
+                f"topic {spec.imu_topic} (topics.imu in {map_name}) is not in "
+                f"the file; its topics: {listing}",
+                source=path,
+            )
         kind = source.topics[spec.imu_topic]
         if kind != IMU:
-            raise LogFormatError(f"topic {spec.imu_topic} carries {kind or 'no schema'}, expected "
-                                 f"{IMU}", source=path)
+            raise LogFormatError(
+                f"topic {spec.imu_topic} carries {kind or 'no schema'}, expected {IMU}", source=path
+            )
         return spec.imu_topic
     imus = sorted(t for t, k in source.topics.items() if k == IMU)
     if len(imus) == 1:
         return imus[0]
     if not imus:
         raise LogFormatError(f"no {IMU} topic in the file; its topics: {listing}", source=path)
-    raise LogFormatError(f"{len(imus)} {IMU} topics ({', '.join(imus)}): name one as topics.imu "
-                         "in the map", source=path)
+    raise LogFormatError(
+        f"{len(imus)} {IMU} topics ({', '.join(imus)}): name one as topics.imu in the map", source=path
+    )
 
 
 def _check_held(source, held: Held, name: str, path: Path) -> str:
     if held.topic not in source.topics:
         listing = ", ".join(f"{t} ({k})" for t, k in sorted(source.topics.items())) or "none"
-        raise LogFormatError(f"topic {held.topic} ({name}) is not in the file; its topics: "
-                             f"{listing}", source=path)
+        raise LogFormatError(
+            f"topic {held.topic} ({name}) is not in the file; its topics: {listing}", source=path
+        )
     kind = source.topics[held.topic]
     if held.field is None and kind not in VALUE_FIELDS:
         expected = "sensor_msgs/msg/Temperature" if name == "temp" else "std_msgs/msg/Float64"
-        raise LogFormatError(f"topic {held.topic} carries {kind or 'no schema'}, expected "
-                             f"{expected} or std_msgs Float64/Float32 (or give field: to read "
-                             "one of its fields)", source=path)
+        raise LogFormatError(
+            f"topic {held.topic} carries {kind or 'no schema'}, expected "
+            f"{expected} or std_msgs Float64/Float32 (or give field: to read "
+            "one of its fields)",
+            source=path,
+        )
     if source.counts.get(held.topic) == 0:
         raise EmptyLogError(f"topic {held.topic} ({name}) holds no messages", source=path)
     return kind
@@ -349,5 +386,4 @@ def _iso(ns: int | None) -> str | None:
     if ns is None:
         return None
     seconds, rest = divmod(ns, 1_000_000_000)
-    return (datetime.fromtimestamp(seconds, tz=UTC).strftime("%Y-%m-%dT%H:%M:%S")
-            + f".{rest:09d}Z")
+    return datetime.fromtimestamp(seconds, tz=UTC).strftime("%Y-%m-%dT%H:%M:%S") + f".{rest:09d}Z"

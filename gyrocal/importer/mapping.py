@@ -15,8 +15,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..io.errors import ConfigError
-from ..io.log import SECTIONS
-from ..io.log import UNIT_FACTORS
+from ..io.log import SECTIONS, UNIT_FACTORS
 
 FORMATS = ("csv", "tsv", "ros2", "mcap")
 TABULAR = ("csv", "tsv")
@@ -34,22 +33,36 @@ TEMP_SCALES = {**{u: 1.0 for u in TEMP_UNITS}, "counts": None}
 TIME_SOURCES = ("header", "log")
 
 # Keys allowed at each level (strict: an unknown key is most often a typo).
-TOP_KEYS = ("format", "delimiter", "decimal", "comment", "units_row", "time", "gyro", "accel",
-            "temp", "ref_rate", "mount", "sections", "topics")
-TABULAR_KEYS = ("gyro", "accel", "temp", "ref_rate", "mount", "delimiter", "decimal", "comment",
-                "units_row")
+TOP_KEYS = (
+    "format",
+    "delimiter",
+    "decimal",
+    "comment",
+    "units_row",
+    "time",
+    "gyro",
+    "accel",
+    "temp",
+    "ref_rate",
+    "mount",
+    "sections",
+    "topics",
+)
+TABULAR_KEYS = ("gyro", "accel", "temp", "ref_rate", "mount", "delimiter", "decimal", "comment", "units_row")
 TRIAD_KEYS = ("x", "y", "z", "unit", "sensitivity", "offset")
 TOPIC_KEYS = ("imu", "temperature", "ref_rate")
 HELD_KEYS = ("topic", "field", "unit", "sensitivity", "offset")
 
 # Without a map, a table is taken in the contract's own column names and units; its
 # optional columns only where the file has them.
-CONTRACT_NAMES = {"time": {"column": "t", "unit": "s"},
-                  "gyro": {"x": "gyro_x", "y": "gyro_y", "z": "gyro_z", "unit": "deg/s"},
-                  "accel": {"x": "accel_x", "y": "accel_y", "z": "accel_z", "unit": "g"},
-                  "temp": {"column": "temp", "unit": "degC"},
-                  "ref_rate": {"column": "ref_rate", "unit": "deg/s"},
-                  "mount": {"column": "mount"}}
+CONTRACT_NAMES = {
+    "time": {"column": "t", "unit": "s"},
+    "gyro": {"x": "gyro_x", "y": "gyro_y", "z": "gyro_z", "unit": "deg/s"},
+    "accel": {"x": "accel_x", "y": "accel_y", "z": "accel_z", "unit": "g"},
+    "temp": {"column": "temp", "unit": "degC"},
+    "ref_rate": {"column": "ref_rate", "unit": "deg/s"},
+    "mount": {"column": "mount"},
+}
 
 # The suffixes a format is recognised by (after a compression suffix, which Arrow's CSV
 # reader undoes on its own).
@@ -64,7 +77,7 @@ class Scaled:
 
     unit: str
     factor: float = 1.0
-    offset: tuple[float, ...] = (0.0,)   # one value, or one per axis
+    offset: tuple[float, ...] = (0.0,)  # one value, or one per axis
 
     def apply(self, values, axis: int = 0):
         offset = self.offset[axis if len(self.offset) > 1 else 0]
@@ -84,7 +97,7 @@ class Held:
     """A bag topic whose last value is held onto the IMU's samples (temperature, reference)."""
 
     topic: str
-    field: str | None     # None: the message type's own value field
+    field: str | None  # None: the message type's own value field
     scale: Scaled
 
 
@@ -95,14 +108,14 @@ class ImportMap:
 
     format: str
     delimiter: str = ","
-    decimal: str = "."                      # the decimal separator ("," in much of the world)
-    comment: str | None = None              # lines starting with it are skipped
-    units_row: bool = False                 # a row of units under the header
-    sort: bool = False                      # order the rows by the time (or index) column
+    decimal: str = "."  # the decimal separator ("," in much of the world)
+    comment: str | None = None  # lines starting with it are skipped
+    units_row: bool = False  # a row of units under the header
+    sort: bool = False  # order the rows by the time (or index) column
     time_column: str | None = None
-    time_factor: float | None = None        # seconds per time unit
-    sample_rate: float | None = None        # t = index / rate (index: time_column or row)
-    time_source: str = "header"             # bags: header stamp or log (receive) time
+    time_factor: float | None = None  # seconds per time unit
+    sample_rate: float | None = None  # t = index / rate (index: time_column or row)
+    time_source: str = "header"  # bags: header stamp or log (receive) time
     gyro: tuple[str, str, str] | None = None
     gyro_scale: Scaled | None = None
     accel: tuple[str, str, str] | None = None
@@ -111,15 +124,15 @@ class ImportMap:
     temp_scale: Scaled | None = None
     ref_rate: str | None = None
     ref_scale: Scaled | None = None
-    ref_value: float | None = None          # a constant reference (deg/s): a static log
+    ref_value: float | None = None  # a constant reference (deg/s): a static log
     mount: str | None = None
     imu_topic: str | None = None
     temperature: Held | None = None
     ref_topic: Held | None = None
     sections: dict[str, tuple[int, int]] | None = None
     sections_file: str | None = None
-    section_column: str | None = None       # the annotation as a label on every row
-    optional_defaults: bool = False         # no map: optional columns taken only when present
+    section_column: str | None = None  # the annotation as a label on every row
+    optional_defaults: bool = False  # no map: optional columns taken only when present
     raw: dict = field(default_factory=dict, compare=False)
 
     @property
@@ -164,8 +177,14 @@ def format_of(source: Path) -> str | None:
     return SUFFIXES.get(suffixes[-1]) if suffixes else None
 
 
-def load_map(map_path: str | Path | None, source: Path, *, fmt: str | None = None,
-             sample_rate: float | None = None, sections: str | Path | None = None) -> ImportMap:
+def load_map(
+    map_path: str | Path | None,
+    source: Path,
+    *,
+    fmt: str | None = None,
+    sample_rate: float | None = None,
+    sections: str | Path | None = None,
+) -> ImportMap:
     """The checked map from ``map_path`` (YAML; None: none) and the command line's flags,
     which take precedence. Raises a :class:`ConfigError` naming the map file and the key."""
     where = map_path if map_path is not None else "the command line"
@@ -180,14 +199,19 @@ def load_map(map_path: str | Path | None, source: Path, *, fmt: str | None = Non
     if chosen is None:
         chosen = format_of(source)
         if chosen is None:
-            raise ConfigError(f"cannot tell the format from the name; give --format or "
-                              f"format: in the map ({', '.join(FORMATS)})", source=source)
+            raise ConfigError(
+                f"cannot tell the format from the name; give --format or "
+                f"format: in the map ({', '.join(FORMATS)})",
+                source=source,
+            )
     check.choice(chosen, FORMATS, "format")
     if sample_rate is not None:
         time = dict(values.get("time") or {})
         if "unit" in time:
-            raise ConfigError("--sample-rate conflicts with time.unit: a time column in a unit, "
-                              "or a sample rate, not both", source=where)
+            raise ConfigError(
+                "--sample-rate conflicts with time.unit: a time column in a unit, or a sample rate, not both",
+                source=where,
+            )
         values["time"] = {**time, "sample_rate": sample_rate}
     if sections is not None:
         values["sections"] = str(sections)
@@ -207,17 +231,23 @@ def load_map(map_path: str | Path | None, source: Path, *, fmt: str | None = Non
         if isinstance(path, dict):
             check.keys(path, ("column",), "sections")
             if chosen not in TABULAR:
-                check.fail(f"sections.column applies to CSV/TSV; give a {chosen} source's "
-                           "annotation as a section list")
+                check.fail(
+                    f"sections.column applies to CSV/TSV; give a {chosen} source's "
+                    "annotation as a section list"
+                )
             spec["section_column"] = check.name(path.get("column"), "sections.column")
         elif not isinstance(path, str) or not path:
-            check.fail("sections must be the path of a section list, or {column: NAME}: a "
-                       "column that labels every row with its section")
+            check.fail(
+                "sections must be the path of a section list, or {column: NAME}: a "
+                "column that labels every row with its section"
+            )
         else:
             if spec.get("sort"):
-                check.fail("a section list counts the file's rows as they stand; with "
-                           "time.sort give the annotation as a label column "
-                           "(sections: {column: NAME})")
+                check.fail(
+                    "a section list counts the file's rows as they stand; with "
+                    "time.sort give the annotation as a label column "
+                    "(sections: {column: NAME})"
+                )
             resolved = Path(path) if Path(path).is_absolute() else sections_base / path
             spec["sections"] = read_sections(resolved)
             spec["sections_file"] = str(resolved)
@@ -233,25 +263,27 @@ def _read_text(path: Path, kind: str, what: str, encoding: str) -> str:
     except FileNotFoundError:
         raise ConfigError(f"no such {kind}", source=path) from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"cannot read {what} ({getattr(exc, 'strerror', None) or exc})",
-                          source=path) from None
+        raise ConfigError(
+            f"cannot read {what} ({getattr(exc, 'strerror', None) or exc})", source=path
+        ) from None
 
 
 def _read_yaml(path: Path) -> dict:
     import yaml
+
     text = _read_text(path, "map file", "the map", "utf-8")
     try:
         values = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"not valid YAML{at} ({getattr(exc, 'problem', None) or exc})",
-                          source=path) from None
+        raise ConfigError(
+            f"not valid YAML{at} ({getattr(exc, 'problem', None) or exc})", source=path
+        ) from None
     if values is None:
         return {}
     if not isinstance(values, dict):
-        raise ConfigError("the map must be a YAML mapping of keys (format, time, gyro, ...)",
-                          source=path)
+        raise ConfigError("the map must be a YAML mapping of keys (format, time, gyro, ...)", source=path)
     return values
 
 
@@ -277,8 +309,10 @@ class _Checker:
 
     def name(self, value, key: str) -> str:
         if not isinstance(value, str) or not value:
-            self.fail(f"{key} must name a column (a string), got {value!r}; quote names that "
-                      "YAML reads as numbers or booleans")
+            self.fail(
+                f"{key} must name a column (a string), got {value!r}; quote names that "
+                "YAML reads as numbers or booleans"
+            )
         return value
 
     def number(self, value, key: str, *, positive: bool = False) -> float:
@@ -330,12 +364,14 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
     for key in ("delimiter", "decimal", "comment"):
         d = values.get(key)
         if d is not None:
-            if not isinstance(d, str) or len(d) != 1 or d in "\"\r\n":
+            if not isinstance(d, str) or len(d) != 1 or d in '"\r\n':
                 check.fail(f"{key} must be one character, got {d!r}")
             spec[key] = d
     if spec.get("decimal", ".") == spec["delimiter"]:
-        check.fail(f"decimal and delimiter are both {spec['delimiter']!r}: a file with decimal "
-                   "commas separates its columns with another character (delimiter: \";\")")
+        check.fail(
+            f"decimal and delimiter are both {spec['delimiter']!r}: a file with decimal "
+            'commas separates its columns with another character (delimiter: ";")'
+        )
     if spec.get("comment") in (spec["delimiter"], spec.get("decimal", ".")):
         check.fail(f"comment {spec['comment']!r} is also the delimiter or the decimal separator")
     if values.get("units_row") is not None:
@@ -344,15 +380,16 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
         spec["units_row"] = values["units_row"]
     time = values.get("time")
     if time is None:
-        check.fail("time is missing: give time: {column: NAME, unit: s} or a sample rate "
-                   "(time: {sample_rate: HZ} or --sample-rate)")
+        check.fail(
+            "time is missing: give time: {column: NAME, unit: s} or a sample rate "
+            "(time: {sample_rate: HZ} or --sample-rate)"
+        )
     check.keys(time, ("column", "unit", "sample_rate", "sort"), "time")
     if time.get("sort") is not None:
         if not isinstance(time["sort"], bool):
             check.fail(f"time.sort must be true or false, got {time['sort']!r}")
         if time["sort"] and time.get("column") is None:
-            check.fail("time.sort orders the rows by time.column: name the time or sample-index "
-                       "column")
+            check.fail("time.sort orders the rows by time.column: name the time or sample-index column")
         spec["sort"] = time["sort"]
     if "sample_rate" in time:
         if "unit" in time:
@@ -408,8 +445,10 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
 def _bag(values: dict, fmt: str, check: _Checker) -> dict:
     for key in TABULAR_KEYS:
         if values.get(key) is not None:
-            check.fail(f"{key} applies to CSV/TSV; in a {fmt} source a sensor_msgs/msg/Imu gives "
-                       "the rates (rad/s) and accelerations (m/s^2); map other topics under topics:")
+            check.fail(
+                f"{key} applies to CSV/TSV; in a {fmt} source a sensor_msgs/msg/Imu gives "
+                "the rates (rad/s) and accelerations (m/s^2); map other topics under topics:"
+            )
     spec: dict = {}
     time = values.get("time")
     if time is not None:
@@ -422,8 +461,7 @@ def _bag(values: dict, fmt: str, check: _Checker) -> dict:
     if topics.get("imu") is not None:
         spec["imu_topic"] = check.name(topics["imu"], "topics.imu")
     if topics.get("temperature") is not None:
-        spec["temperature"] = _held(topics["temperature"], "topics.temperature", check,
-                                    TEMP_UNITS, "degC")
+        spec["temperature"] = _held(topics["temperature"], "topics.temperature", check, TEMP_UNITS, "degC")
     if topics.get("ref_rate") is not None:
         spec["ref_topic"] = _held(topics["ref_rate"], "topics.ref_rate", check, RATE_UNITS, "rad/s")
     return spec
@@ -460,37 +498,41 @@ def read_sections(path: Path) -> dict[str, tuple[int, int]]:
         rows = [r for r in csv.reader(text.splitlines()) if r]
         if not rows or [c.strip() for c in rows[0][1:]] != ["start", "end"]:
             raise ConfigError("a CSV section list starts with the header ,start,end", source=path)
-        entries = {r[0].strip(): {"start": _int_text(r[1:2]), "end": _int_text(r[2:3])}
-                   for r in rows[1:]}
+        entries = {r[0].strip(): {"start": _int_text(r[1:2]), "end": _int_text(r[2:3])} for r in rows[1:]}
     else:
         try:
             entries = json.loads(text)
         except ValueError as exc:
             raise ConfigError(f"not valid JSON ({exc})", source=path) from None
-        if isinstance(entries, dict) and set(entries) == {"start", "end"} and all(
-                isinstance(v, dict) for v in entries.values()):
-            entries = {k: {"start": entries["start"].get(k), "end": entries["end"].get(k)}
-                       for k in entries["start"]}
+        if (
+            isinstance(entries, dict)
+            and set(entries) == {"start", "end"}
+            and all(isinstance(v, dict) for v in entries.values())
+        ):
+            entries = {
+                k: {"start": entries["start"].get(k), "end": entries["end"].get(k)} for k in entries["start"]
+            }
     if not isinstance(entries, dict) or not entries:
         raise ConfigError('a section list maps labels to {"start": i, "end": j}', source=path)
     out: dict[str, tuple[int, int]] = {}
     for label, span in entries.items():
         if label not in SECTIONS:
-            raise ConfigError(f"unknown section {label!r}; expected {', '.join(SECTIONS)}",
-                              source=path)
+            raise ConfigError(f"unknown section {label!r}; expected {', '.join(SECTIONS)}", source=path)
         start, end = (span.get("start"), span.get("end")) if isinstance(span, dict) else (None, None)
         if not all(isinstance(v, int) and not isinstance(v, bool) for v in (start, end)):
-            raise ConfigError(f"section {label} needs integer start and end sample indices, "
-                              f"got {span!r}", source=path)
+            raise ConfigError(
+                f"section {label} needs integer start and end sample indices, got {span!r}", source=path
+            )
         if not 0 <= start < end:
-            raise ConfigError(f"section {label} runs from {start} to {end}; expected "
-                              "0 <= start < end (end exclusive)", source=path)
+            raise ConfigError(
+                f"section {label} runs from {start} to {end}; expected 0 <= start < end (end exclusive)",
+                source=path,
+            )
         out[label] = (start, end)
     spans = sorted((s, e, label) for label, (s, e) in out.items())
     for (s0, e0, a), (s1, _, b) in zip(spans, spans[1:], strict=False):
         if s1 < e0:
-            raise ConfigError(f"sections {a} ({s0} to {e0}) and {b} (from {s1}) overlap",
-                              source=path)
+            raise ConfigError(f"sections {a} ({s0} to {e0}) and {b} (from {s1}) overlap", source=path)
     return {label: out[label] for label in SECTIONS if label in out}
 
 

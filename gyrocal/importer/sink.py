@@ -19,8 +19,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..io.errors import ConfigError, EmptyLogError, LogFormatError
-from ..io.log import SECTIONS
-from ..io.log import ACCEL, GYRO, MOUNTS
+from ..io.log import ACCEL, GYRO, MOUNTS, SECTIONS
 
 ORDER = ("t", *GYRO, "temp", "ref_rate", *ACCEL, "mount", "section")
 METADATA_KEY = b"gyrocal.import"
@@ -39,9 +38,9 @@ class Summary:
     rows: int = 0
     span: tuple[float, float] = (0.0, 0.0)
     columns: tuple[str, ...] = ()
-    mapped: list[str] = field(default_factory=list)   # "gyro from gyr_x.. (deg/s)", ...
-    notes: list[str] = field(default_factory=list)    # rows dropped, and why
-    labels: tuple[str, ...] = ()                      # a label column's sections, in order
+    mapped: list[str] = field(default_factory=list)  # "gyro from gyr_x.. (deg/s)", ...
+    notes: list[str] = field(default_factory=list)  # rows dropped, and why
+    labels: tuple[str, ...] = ()  # a label column's sections, in order
 
 
 class LogSink:
@@ -53,9 +52,15 @@ class LogSink:
     section list is; ``hint(t, before)`` ends a time-order error (what to change in the map).
     """
 
-    def __init__(self, path: Path, source: Path, locate: Callable[[int], str],
-                 sections: dict[str, tuple[int, int]] | None = None, sections_file=None,
-                 hint: Callable[[float, float], str] | str = ""):
+    def __init__(
+        self,
+        path: Path,
+        source: Path,
+        locate: Callable[[int], str],
+        sections: dict[str, tuple[int, int]] | None = None,
+        sections_file=None,
+        hint: Callable[[float, float], str] | str = "",
+    ):
         self.path, self.source, self.locate = path, source, locate
         self.hint = hint if callable(hint) else (lambda t, before: hint)
         self.sections = sections or {}
@@ -85,15 +90,17 @@ class LogSink:
             arrays["section"] = self._labels(arrays["section"], rows)
         elif self.sections:
             arrays["section"] = self._section_column(rows)
-        table = pa.record_batch([pa.array(v) if isinstance(v, np.ndarray) else v
-                                 for v in arrays.values()], names=list(arrays))
+        table = pa.record_batch(
+            [pa.array(v) if isinstance(v, np.ndarray) else v for v in arrays.values()], names=list(arrays)
+        )
         if self.writer is None:
             self.schema = table.schema
             # Dictionary encoding only for the labels: tried on float columns it costs
             # memory and time and falls back to plain anyway (readings rarely repeat).
             labels = [name for name in ("mount", "section") if name in arrays]
-            self.writer = pq.ParquetWriter(self.path, self.schema, compression="zstd",
-                                           use_dictionary=labels or False)
+            self.writer = pq.ParquetWriter(
+                self.path, self.schema, compression="zstd", use_dictionary=labels or False
+            )
         self.pending.append(table)
         self.pending_rows += n
         if self.pending_rows >= ROW_GROUP_ROWS:
@@ -105,15 +112,16 @@ class LogSink:
 
     def _flush(self) -> None:
         if self.pending:
-            self.writer.write_table(pa.Table.from_batches(self.pending),
-                                    row_group_size=self.pending_rows)
+            self.writer.write_table(pa.Table.from_batches(self.pending), row_group_size=self.pending_rows)
             self.pending, self.pending_rows = [], 0
 
     def _check_time(self, t: np.ndarray, rows: np.ndarray) -> None:
         bad = np.flatnonzero(~np.isfinite(t))
         if bad.size:
-            raise LogFormatError(f"{self.locate(int(rows[bad[0]]))} has no valid time "
-                                 f"({float(t[bad[0]])!r})", source=self.source)
+            raise LogFormatError(
+                f"{self.locate(int(rows[bad[0]]))} has no valid time ({float(t[bad[0]])!r})",
+                source=self.source,
+            )
         if t[0] <= self.last:
             i, before = 0, self.last
         else:
@@ -121,9 +129,12 @@ class LogSink:
             if not steps.size:
                 return
             i, before = int(steps[0]) + 1, float(t[steps[0]])
-        raise LogFormatError(f"time is not strictly increasing: {self.locate(int(rows[i]))} has "
-                             f"t={float(t[i])!r} s after t={before!r} s"
-                             f"{self.hint(float(t[i]), before)}", source=self.source)
+        raise LogFormatError(
+            f"time is not strictly increasing: {self.locate(int(rows[i]))} has "
+            f"t={float(t[i])!r} s after t={before!r} s"
+            f"{self.hint(float(t[i]), before)}",
+            source=self.source,
+        )
 
     def _mounts(self, values: pa.Array, rows: np.ndarray) -> pa.Array:
         """Mount labels as a dictionary in the order of gyrocal.io.log.MOUNTS (its fast path)."""
@@ -131,8 +142,10 @@ class LogSink:
         unknown = pc.and_(pc.is_null(index), pc.is_valid(values))
         if pc.any(unknown).as_py():
             i = int(np.flatnonzero(unknown.to_numpy(zero_copy_only=False))[0])
-            raise LogFormatError(f"{self.locate(int(rows[i]))}: mount {values[i].as_py()!r} is "
-                                 f"not one of {' '.join(MOUNTS)}", source=self.source)
+            raise LogFormatError(
+                f"{self.locate(int(rows[i]))}: mount {values[i].as_py()!r} is not one of {' '.join(MOUNTS)}",
+                source=self.source,
+            )
         return pa.DictionaryArray.from_arrays(index.cast(pa.int8()), _MOUNTS)
 
     def _labels(self, values: pa.Array, rows: np.ndarray) -> pa.Array:
@@ -144,9 +157,11 @@ class LogSink:
         unknown = pc.and_(pc.is_null(index), pc.is_valid(values))
         if pc.any(unknown).as_py():
             i = int(np.flatnonzero(unknown.to_numpy(zero_copy_only=False))[0])
-            raise LogFormatError(f"{self.locate(int(rows[i]))}: section {values[i].as_py()!r} is "
-                                 f"not one of {' '.join(SECTIONS)} (or an empty cell)",
-                                 source=self.source)
+            raise LogFormatError(
+                f"{self.locate(int(rows[i]))}: section {values[i].as_py()!r} is "
+                f"not one of {' '.join(SECTIONS)} (or an empty cell)",
+                source=self.source,
+            )
         codes = index.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int8)
         # the runs of one label (or none) in this batch: a loop per run, not per sample
         starts = np.flatnonzero(np.r_[True, codes[1:] != codes[:-1]])
@@ -158,7 +173,9 @@ class LogSink:
                 raise LogFormatError(
                     f"{self.locate(int(rows[a]))}: section {label} starts again after other "
                     f"rows (it ran from {self.locate(first)} to {self.locate(last)}); a section "
-                    "is one stretch of samples in time order", source=self.source)
+                    "is one stretch of samples in time order",
+                    source=self.source,
+                )
             if label is not None:
                 self.stretches.setdefault(label, [int(rows[a]), 0])[1] = int(rows[b - 1])
             self.open_label = label
@@ -179,15 +196,22 @@ class LogSink:
         late = [(label, end) for label, (_, end) in self.sections.items() if end > source_rows]
         if late:
             label, end = late[0]
-            raise ConfigError(f"section {label} ends at sample {end}, past the source's "
-                              f"{source_rows} samples", source=self.sections_file or self.source)
+            raise ConfigError(
+                f"section {label} ends at sample {end}, past the source's {source_rows} samples",
+                source=self.sections_file or self.source,
+            )
         self._flush()
         self.writer.add_key_value_metadata(
-            {METADATA_KEY: json.dumps(metadata, sort_keys=True, separators=(",", ":"))})
+            {METADATA_KEY: json.dumps(metadata, sort_keys=True, separators=(",", ":"))}
+        )
         self.writer.close()
         self.writer = None
-        return Summary(rows=self.rows, span=(self.first, self.last),
-                       columns=tuple(self.schema.names), labels=tuple(self.stretches))
+        return Summary(
+            rows=self.rows,
+            span=(self.first, self.last),
+            columns=tuple(self.schema.names),
+            labels=tuple(self.stretches),
+        )
 
     def abort(self) -> None:
         if self.writer is not None:

@@ -30,7 +30,7 @@ from .sink import ROW_GROUP_ROWS, LogSink
 # Arrow parses this much text per batch (~17 000 rows of a rig log). Its reader keeps up to
 # 32 blocks read ahead, so the block size sets the memory: 1 MiB blocks, about 32 MiB.
 BLOCK_BYTES = 1 << 20
-HEADER_LIMIT = 1 << 20    # a header line longer than this is no header
+HEADER_LIMIT = 1 << 20  # a header line longer than this is no header
 _CONVERSION = re.compile(r"In CSV column #(\d+): .*CSV conversion error to (\w+): invalid value '(.*)'")
 
 # What a units row may call the map's units (lower case, brackets and blanks stripped).
@@ -80,7 +80,7 @@ class _Uncommented:
         self.mark = comment.encode()
         self.record = record
         self.carry = b""
-        self.out, self.at = b"", 0      # filtered text, and how much of it was read
+        self.out, self.at = b"", 0  # filtered text, and how much of it was read
         self.kept = 0
         self.eof = False
         self.closed = False
@@ -91,7 +91,7 @@ class _Uncommented:
             return text
         pieces, at = [], 0
         for match in self.pattern.finditer(text):
-            pieces.append(text[at:match.start()])
+            pieces.append(text[at : match.start()])
             self.kept += text.count(b"\n", at, match.start())
             self.record.kept_before.append(self.kept)
             at = match.end()
@@ -108,9 +108,9 @@ class _Uncommented:
                 text = self.carry + chunk
                 end = text.rfind(b"\n") + 1
                 text, self.carry = text[:end], text[end:]
-            self.out, self.at = self.out[self.at:] + self._filter(text), 0
+            self.out, self.at = self.out[self.at :] + self._filter(text), 0
         end = len(self.out) if size < 0 else min(self.at + size, len(self.out))
-        data, self.at = self.out[self.at:end], end
+        data, self.at = self.out[self.at : end], end
         return data
 
     def close(self) -> None:
@@ -130,7 +130,7 @@ class Table:
     def locate(self, row: int) -> str:
         """A data row as the line an editor shows (blank lines, which the reader skips, not
         counted)."""
-        kept = row + 1 + int(self.spec.units_row)   # the header is kept line 0
+        kept = row + 1 + int(self.spec.units_row)  # the header is kept line 0
         skipped = self.comments.before(kept) if self.spec.comment else 0
         return f"line {1 + kept + skipped}"
 
@@ -162,16 +162,18 @@ def read_header(path: Path, spec: ImportMap) -> tuple[list[str], list[str] | Non
     try:
         text = [line.rstrip(b"\r").decode("utf-8-sig") for line in lines[:wanted]]
     except UnicodeDecodeError:
-        raise CorruptFileError("not a UTF-8 text file: its first line cannot be read as column "
-                               "names", source=path) from None
+        raise CorruptFileError(
+            "not a UTF-8 text file: its first line cannot be read as column names", source=path
+        ) from None
     if not text or not text[0].strip():
         raise CorruptFileError("empty: no header line with column names", source=path)
     names = [name.strip() for name in next(csv.reader([text[0]], delimiter=spec.delimiter))]
     units = None
     if spec.units_row:
         if len(text) < 2:
-            raise LogFormatError("the map says a units row follows the header, but the file "
-                                 "ends there", source=path)
+            raise LogFormatError(
+                "the map says a units row follows the header, but the file ends there", source=path
+            )
         units = [cell.strip() for cell in next(csv.reader([text[1]], delimiter=spec.delimiter))]
     return names, units
 
@@ -181,20 +183,33 @@ def resolve_columns(table: Table, spec: ImportMap, map_name: str) -> ImportMap:
     optional contract columns the file lacks are left out."""
     names, path = table.names, table.path
     if spec.optional_defaults:
-        absent = [q for q, cols in (("accel", spec.accel), ("temp", (spec.temp,)),
-                                    ("ref_rate", (spec.ref_rate,)), ("mount", (spec.mount,)))
-                  if not all(c in names for c in cols)]
+        absent = [
+            q
+            for q, cols in (
+                ("accel", spec.accel),
+                ("temp", (spec.temp,)),
+                ("ref_rate", (spec.ref_rate,)),
+                ("mount", (spec.mount,)),
+            )
+            if not all(c in names for c in cols)
+        ]
         spec = spec.without(absent)
     for column, role in spec.columns().items():
         if column not in names:
             shown = ", ".join(names[:40]) + (", ..." if len(names) > 40 else "")
-            why = (f"{role} in {map_name}" if not spec.optional_defaults else
-                   "without --map the contract's names t, gyro_x, gyro_y, gyro_z are expected")
-            raise LogFormatError(f"column {column!r} ({why}) is not in the file; its columns: "
-                                 f"{shown}", source=path)
+            why = (
+                f"{role} in {map_name}"
+                if not spec.optional_defaults
+                else "without --map the contract's names t, gyro_x, gyro_y, gyro_z are expected"
+            )
+            raise LogFormatError(
+                f"column {column!r} ({why}) is not in the file; its columns: {shown}", source=path
+            )
         if names.count(column) > 1:
-            raise LogFormatError(f"column {column!r} ({role} in {map_name}) appears "
-                                 f"{names.count(column)} times in the header", source=path)
+            raise LogFormatError(
+                f"column {column!r} ({role} in {map_name}) appears {names.count(column)} times in the header",
+                source=path,
+            )
     if table.units is not None:
         _check_units(table, spec, map_name)
     table.spec = spec
@@ -205,11 +220,9 @@ def _check_units(table: Table, spec: ImportMap, map_name: str) -> None:
     """Refuse a map whose unit for a column is not the one the file's units row names (a
     rad/s column mapped as deg/s, a column mapped to the wrong quantity)."""
     declared = {}
-    if spec.sample_rate is None and spec.time_column:   # an index column has no unit
-        declared[spec.time_column] = ("time", next(u for u, f in TIME_UNITS.items()
-                                                   if f == spec.time_factor))
-    for name, cols, scale in (("gyro", spec.gyro, spec.gyro_scale),
-                              ("accel", spec.accel, spec.accel_scale)):
+    if spec.sample_rate is None and spec.time_column:  # an index column has no unit
+        declared[spec.time_column] = ("time", next(u for u, f in TIME_UNITS.items() if f == spec.time_factor))
+    for name, cols, scale in (("gyro", spec.gyro, spec.gyro_scale), ("accel", spec.accel, spec.accel_scale)):
         for axis, col in zip("xyz", cols or (), strict=False):
             declared.setdefault(col, (f"{name}.{axis}", scale.unit))
     for name, scale in (("temp", spec.temp_scale), ("ref_rate", spec.ref_scale)):
@@ -222,7 +235,9 @@ def _check_units(table: Table, spec: ImportMap, map_name: str) -> None:
         if named is not None and named != unit:
             raise LogFormatError(
                 f"the units row gives {cell!r} for column {column!r}, which {map_name} maps as "
-                f"{role} in {unit}: correct the map's unit (or the column)", source=table.path)
+                f"{role} in {unit}: correct the map's unit (or the column)",
+                source=table.path,
+            )
 
 
 def convert(table: Table, sink: LogSink) -> int:
@@ -265,10 +280,9 @@ def _convert_sorted(table: Table, reader, numeric: list[str], sink: LogSink) -> 
     if not batches:
         return 0
     whole = pa.Table.from_batches(batches).combine_chunks()
-    order = np.argsort(whole.column(table.spec.time_column).to_numpy(zero_copy_only=False),
-                       kind="stable")
+    order = np.argsort(whole.column(table.spec.time_column).to_numpy(zero_copy_only=False), kind="stable")
     for at in range(0, len(order), ROW_GROUP_ROWS):
-        rows = order[at:at + ROW_GROUP_ROWS]
+        rows = order[at : at + ROW_GROUP_ROWS]
         part = whole.take(pa.array(rows)).to_batches()[0]
         sink.write(_columns(part, table.spec, rows), rows)
     return whole.num_rows
@@ -278,14 +292,18 @@ def _open(table: Table, numeric, text, types=None, record: CommentLines | None =
     types = pa.float64() if types is None else types
     spec = table.spec
     convert = pacsv.ConvertOptions(
-        include_columns=numeric + text, strings_can_be_null=True, decimal_point=spec.decimal,
-        column_types={**{c: types for c in numeric}, **{c: pa.string() for c in text}})
+        include_columns=numeric + text,
+        strings_can_be_null=True,
+        decimal_point=spec.decimal,
+        column_types={**{c: types for c in numeric}, **{c: pa.string() for c in text}},
+    )
     try:
-        return pacsv.open_csv(table.text(record),
-                              read_options=pacsv.ReadOptions(block_size=BLOCK_BYTES,
-                                                             skip_rows_after_names=int(spec.units_row)),
-                              parse_options=pacsv.ParseOptions(delimiter=spec.delimiter),
-                              convert_options=convert)
+        return pacsv.open_csv(
+            table.text(record),
+            read_options=pacsv.ReadOptions(block_size=BLOCK_BYTES, skip_rows_after_names=int(spec.units_row)),
+            parse_options=pacsv.ParseOptions(delimiter=spec.delimiter),
+            convert_options=convert,
+        )
     except (pa.ArrowInvalid, OSError) as exc:  # the first block is parsed on opening
         if types == pa.string():
             raise
@@ -294,6 +312,7 @@ def _open(table: Table, numeric, text, types=None, record: CommentLines | None =
 
 def _columns(batch: pa.RecordBatch, spec: ImportMap, rows: np.ndarray) -> dict:
     """One block in the contract's columns and units."""
+
     def values(name):
         return batch.column(name).to_numpy(zero_copy_only=False)
 
@@ -327,18 +346,23 @@ def _read_error(exc, table: Table, numeric: list[str]):
     text, names, path = str(exc), table.names, table.path
     match = _CONVERSION.search(text)
     if match is None:
-        return CorruptFileError(f"not a readable {table.spec.format.upper()} file "
-                                f"({first_line(exc)})", source=path)
+        return CorruptFileError(
+            f"not a readable {table.spec.format.upper()} file ({first_line(exc)})", source=path
+        )
     index, value = int(match.group(1)), match.group(3)
     if match.group(2) != "double":
-        return LogFormatError(f"column {names[index] if index < len(names) else '?'}: "
-                              f"{value!r} cannot be read as {match.group(2)}", source=path)
+        return LogFormatError(
+            f"column {names[index] if index < len(names) else '?'}: "
+            f"{value!r} cannot be read as {match.group(2)}",
+            source=path,
+        )
     named = names[index] if index < len(names) and names[index] in numeric else None
     for column in ([named] if named else []) + [c for c in numeric if c != named]:
         row = _first_non_number(table, column)
         if row is not None:
-            return LogFormatError(f"{table.locate(row[0])}, column {column}: {row[1]!r} is not a "
-                                  "number", source=path)
+            return LogFormatError(
+                f"{table.locate(row[0])}, column {column}: {row[1]!r} is not a number", source=path
+            )
     column = named or "?"
     return LogFormatError(f"column {column}: {value!r} is not a number", source=path)
 
@@ -362,7 +386,7 @@ def _first_non_number(table: Table, column: str):
 
 
 def _bisect(values: pa.Array, decimal: str) -> int | None:
-    if decimal != ".":   # as the reader parses them
+    if decimal != ".":  # as the reader parses them
         values = pc.replace_substring(pc.replace_substring(values, ".", "\x00"), decimal, ".")
 
     def parses(part):
@@ -374,7 +398,7 @@ def _bisect(values: pa.Array, decimal: str) -> int | None:
 
     if parses(values):
         return None
-    lo, hi = 0, len(values)   # the first bad value is in [lo, hi)
+    lo, hi = 0, len(values)  # the first bad value is in [lo, hi)
     while hi - lo > 1:
         mid = (lo + hi) // 2
         if parses(values.slice(lo, mid - lo)):

@@ -55,16 +55,19 @@ class BlockAccumulator:
         size, names = self.size, self.names
         n = len(batch["t"])
         for a, c in enumerate(GYRO):  # the log's output extremes, for saturation checks
-            self.extremes[a] = min(self.extremes[a, 0], batch[c].min()), \
-                max(self.extremes[a, 1], batch[c].max())
+            self.extremes[a] = (
+                min(self.extremes[a, 0], batch[c].min()),
+                max(self.extremes[a, 1], batch[c].max()),
+            )
         start = 0
         if self._carry is not None:
             need = size - len(self._carry["t"])
             if n < need:
                 self._carry = {k: np.concatenate((self._carry[k], batch[k])) for k in names}
                 return
-            self._reduce({k: np.concatenate((self._carry[k], batch[k][:need])).reshape(1, size)
-                          for k in names})
+            self._reduce(
+                {k: np.concatenate((self._carry[k], batch[k][:need])).reshape(1, size) for k in names}
+            )
             start = need
         whole = (n - start) // size
         if whole:
@@ -85,8 +88,9 @@ class BlockAccumulator:
         ref = view["ref_rate"]
         block_mean(ref, out["ref"][sl])
         first, last = ref[:, 0], ref[:, -1]
-        out["ref_span"][sl] = np.maximum(np.abs(last - first),
-                                         2.0 * np.abs(out["ref"][sl] - (first + last) / 2))
+        out["ref_span"][sl] = np.maximum(
+            np.abs(last - first), 2.0 * np.abs(out["ref"][sl] - (first + last) / 2)
+        )
         block_mean(view["temp"], out["temp"][sl])
         for a, c in enumerate(GYRO):
             block_moments(view[c], out["gyro"][sl, a], out["gyro_var"][sl, a], self._work)
@@ -104,7 +108,7 @@ class BlockAccumulator:
         return out
 
 
-FIRST_ROWS = 20001   # the sample interval is the median step of the first rows
+FIRST_ROWS = 20001  # the sample interval is the median step of the first rows
 
 
 def _size(t: np.ndarray, block_s: float) -> tuple[int, float]:
@@ -154,8 +158,9 @@ class BlockSink:
         return self._acc.result(), self.size, self.dt
 
 
-def block_statistics(log: RigLog, block_s: float, *, workers: int | None = None
-                     ) -> tuple[dict[str, np.ndarray], int, float]:
+def block_statistics(
+    log: RigLog, block_s: float, *, workers: int | None = None
+) -> tuple[dict[str, np.ndarray], int, float]:
     """Per-block statistics of a whole log: (statistics, block size, sample interval).
 
     Made while the log was read when it was read with a :class:`BlockSink` of this block
@@ -190,8 +195,9 @@ def block_statistics(log: RigLog, block_s: float, *, workers: int | None = None
         results = [r for r in map(reduce, parts) if r]
     if len(results) < 2:
         return (results[0] if results else {}), size, dt
-    out = {k: np.concatenate([r[k] for r in results]) for k in results[0]
-           if k not in ("gyro_max", "gyro_min")}
+    out = {
+        k: np.concatenate([r[k] for r in results]) for k in results[0] if k not in ("gyro_max", "gyro_min")
+    }
     out["gyro_max"] = np.max([r["gyro_max"] for r in results], axis=0)
     out["gyro_min"] = np.min([r["gyro_min"] for r in results], axis=0)
     return out, size, dt

@@ -15,9 +15,19 @@ from __future__ import annotations
 import numpy as np
 
 # Arrow type ids (pyarrow.lib.Type_*) of the layouts read here.
-_NUMERIC = {"int8": np.int8, "int16": np.int16, "int32": np.int32, "int64": np.int64,
-            "uint8": np.uint8, "uint16": np.uint16, "uint32": np.uint32, "uint64": np.uint64,
-            "halffloat": np.float16, "float": np.float32, "double": np.float64}
+_NUMERIC = {
+    "int8": np.int8,
+    "int16": np.int16,
+    "int32": np.int32,
+    "int64": np.int64,
+    "uint8": np.uint8,
+    "uint16": np.uint16,
+    "uint32": np.uint32,
+    "uint64": np.uint64,
+    "halffloat": np.float16,
+    "float": np.float32,
+    "double": np.float64,
+}
 
 
 class Columns:
@@ -45,8 +55,7 @@ class Columns:
     @classmethod
     def from_arrow(cls, table) -> Columns:
         """A pyarrow Table's columns."""
-        return cls({name: _from_chunked(table.column(name)) for name in table.column_names},
-                   table.num_rows)
+        return cls({name: _from_chunked(table.column(name)) for name in table.column_names}, table.num_rows)
 
     def __len__(self) -> int:
         return self._rows
@@ -60,8 +69,10 @@ class Columns:
         if isinstance(key, list):
             return Columns({name: self._data[name] for name in key}, self._rows)
         mask = np.asarray(key)
-        return Columns({name: v[mask] for name, v in self._data.items()}, int(np.count_nonzero(mask))
-                       if mask.dtype == bool else len(mask))
+        return Columns(
+            {name: v[mask] for name, v in self._data.items()},
+            int(np.count_nonzero(mask)) if mask.dtype == bool else len(mask),
+        )
 
     @property
     def columns(self) -> list[str]:
@@ -94,7 +105,7 @@ def present(values: np.ndarray) -> np.ndarray:
 def _from_series(series) -> np.ndarray:
     if series.dtype.kind in "biufc" and not series.hasnans:
         return series.to_numpy()
-    if series.dtype.kind in "iuf":   # nullable integers with gaps: floats, NaN where missing
+    if series.dtype.kind in "iuf":  # nullable integers with gaps: floats, NaN where missing
         return series.to_numpy(dtype=np.float64, na_value=np.nan)
     return series.to_numpy(dtype=object, na_value=None)
 
@@ -115,25 +126,25 @@ def _valid(array) -> np.ndarray | None:
     if array.null_count == 0:
         return None
     bits = np.frombuffer(array.buffers()[0], np.uint8)
-    return np.unpackbits(bits, bitorder="little")[array.offset:array.offset + len(array)].astype(bool)
+    return np.unpackbits(bits, bitorder="little")[array.offset : array.offset + len(array)].astype(bool)
 
 
 def _from_array(array) -> np.ndarray:
     kind = str(array.type)
     n, offset = len(array), array.offset
-    if kind == "null":   # no buffers at all
+    if kind == "null":  # no buffers at all
         return np.full(n, None, object)
     valid = _valid(array)
     if kind in _NUMERIC:
         values = np.frombuffer(array.buffers()[1], _NUMERIC[kind], count=offset + n)[offset:]
         if valid is None:
             return values.copy()
-        out = values.astype(np.float64)   # a missing value in an integer column: NaN, as pandas
+        out = values.astype(np.float64)  # a missing value in an integer column: NaN, as pandas
         out[~valid] = np.nan
         return out
     if kind == "bool":
         bits = np.frombuffer(array.buffers()[1], np.uint8)
-        values = np.unpackbits(bits, bitorder="little")[offset:offset + n].astype(bool)
+        values = np.unpackbits(bits, bitorder="little")[offset : offset + n].astype(bool)
         if valid is None:
             return values
         out = values.astype(object)

@@ -42,9 +42,13 @@ def record(stage: str, error: BaseException | str, meta: dict | None = None) -> 
         text = "ran out of memory" + (f" ({text})" if text else "")
     elif internal:
         text = f"internal error: {type(error).__name__}: {text}"
-    return {"format": FORMAT, **{k: (meta or {}).get(k) for k in
-                                 ("device", "batch", "session", "protocol")},
-            "stage": stage, "error": text, "internal": internal}
+    return {
+        "format": FORMAT,
+        **{k: (meta or {}).get(k) for k in ("device", "batch", "session", "protocol")},
+        "stage": stage,
+        "error": text,
+        "internal": internal,
+    }
 
 
 def read(path, data=None) -> dict | None:

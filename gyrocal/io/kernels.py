@@ -28,8 +28,7 @@ def _load():
     for name in ("block_moments_f32", "block_moments_f64"):
         getattr(lib, name).argtypes = [p, i64, i64, p, i64, p, i64]
         getattr(lib, name).restype = None
-    for name in ("block_mean_f32", "block_mean_f64", "block_finite_mean_f32",
-                 "block_finite_mean_f64"):
+    for name in ("block_mean_f32", "block_mean_f64", "block_finite_mean_f32", "block_finite_mean_f64"):
         getattr(lib, name).argtypes = [p, i64, i64, p, i64]
         getattr(lib, name).restype = None
     lib.second_diff_sumsq.argtypes = [p, i64, p, i64, p]
@@ -106,14 +105,15 @@ def second_diff_sumsq(theta: np.ndarray, m: np.ndarray) -> np.ndarray:
         count = theta.size - 2 * int(step)
         for i0 in range(0, count, _BLOCK):
             i1 = min(i0 + _BLOCK, count)
-            d = theta[i0 + 2 * step:i1 + 2 * step] - theta[i0 + step:i1 + step]
-            d -= theta[i0 + step:i1 + step]
+            d = theta[i0 + 2 * step : i1 + 2 * step] - theta[i0 + step : i1 + step]
+            d -= theta[i0 + step : i1 + step]
             d += theta[i0:i1]
             out[j] += d @ d
     return out
 
 
 # ---- Diagonal plus semiseparable matrices: the covariance of hold means under wander ----
+
 
 def _semiseparable_lib():
     if LIB is None:
@@ -152,7 +152,9 @@ def semiseparable_cholesky(diag, U, V, alpha, beta, scale=None):
     W, D = np.empty((n, J)), np.empty(n)
     if SEMISEPARABLE is not None:
         work = np.empty(J * J + 3 * J)
-        bad = SEMISEPARABLE.semisep_factor(n, J, *(a.ctypes.data for a in (diag, U, V, s, alpha, beta, W, D, work)))
+        bad = SEMISEPARABLE.semisep_factor(
+            n, J, *(a.ctypes.data for a in (diag, U, V, s, alpha, beta, W, D, work))
+        )
         return None if bad else (W, D)
     S = np.zeros((J, J))
     for i in range(n):

@@ -46,8 +46,12 @@ UNIT_FACTORS = {
     # its own)
     "t": {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9},
 }
-_QUANTITY_OF = {**{c: "gyro" for c in GYRO}, "ref_rate": "ref_rate",
-                **{c: "accel" for c in ACCEL}, "temp": "temp"}
+_QUANTITY_OF = {
+    **{c: "gyro" for c in GYRO},
+    "ref_rate": "ref_rate",
+    **{c: "accel" for c in ACCEL},
+    "temp": "temp",
+}
 
 
 @dataclass(frozen=True)
@@ -67,10 +71,10 @@ class RigLog:
     rows_read: int
     rows_dropped: int
     declared_units: dict[str, str] = field(default_factory=dict)
-    time_origin: str | None = None   # ISO time of t = 0 when the log's t is a timestamp
-    columns: tuple[str, ...] = ()    # the columns read (when ``batches`` is None)
-    rows_kept: int = 0               # the rows kept (when ``batches`` is None)
-    span: tuple[float, float] = (0.0, 0.0)   # first and last kept t (when ``batches`` is None)
+    time_origin: str | None = None  # ISO time of t = 0 when the log's t is a timestamp
+    columns: tuple[str, ...] = ()  # the columns read (when ``batches`` is None)
+    rows_kept: int = 0  # the rows kept (when ``batches`` is None)
+    span: tuple[float, float] = (0.0, 0.0)  # first and last kept t (when ``batches`` is None)
     blocks: dict = field(default_factory=dict, compare=False)
     reread: Callable | None = field(default=None, compare=False, repr=False)
     input_stats: dict | None = field(default=None, compare=False)  # gyrocal.io.plausibility.InputStats
@@ -130,8 +134,13 @@ class RigLog:
             offset += n
             if offset >= end:
                 break
-        return [{c: (p[0][c] if len(p) == 1 else np.concatenate([q[c] for q in p]) if p else
-                     np.empty(0)) for c in names} for p in parts]
+        return [
+            {
+                c: (p[0][c] if len(p) == 1 else np.concatenate([q[c] for q in p]) if p else np.empty(0))
+                for c in names
+            }
+            for p in parts
+        ]
 
 
 def with_constants(log: RigLog, values: dict[str, float]) -> RigLog:
@@ -140,10 +149,13 @@ def with_constants(log: RigLog, values: dict[str, float]) -> RigLog:
     values = {k: float(v) for k, v in values.items() if k not in log}
     if not values:
         return log
-    if log.batches is None:   # such a protocol reads whole columns (no reading_blocks)
+    if log.batches is None:  # such a protocol reads whole columns (no reading_blocks)
         raise ValueError("constant columns are added to a log kept in memory")
-    return replace(log, columns=log.columns + tuple(values), batches=tuple(
-        {**b, **{k: np.full(len(b["t"]), v) for k, v in values.items()}} for b in log.batches))
+    return replace(
+        log,
+        columns=log.columns + tuple(values),
+        batches=tuple({**b, **{k: np.full(len(b["t"]), v) for k, v in values.items()}} for b in log.batches),
+    )
 
 
 def open_dataset(path: Path) -> ds.Dataset:
@@ -168,8 +180,9 @@ def open_dataset(path: Path) -> ds.Dataset:
     except (pa.ArrowInvalid, OSError) as exc:
         raise CorruptFileError(f"not a readable Parquet file ({first_line(exc)})", source=path) from None
     except UnicodeDecodeError:
-        raise CorruptFileError("not a readable Parquet file (a column name is not UTF-8)",
-                               source=path) from None
+        raise CorruptFileError(
+            "not a readable Parquet file (a column name is not UTF-8)", source=path
+        ) from None
 
 
 def _first_time(fragment) -> float | None:
@@ -194,8 +207,11 @@ READ_ERRORS = (pa.ArrowInvalid, pa.ArrowNotImplementedError, pa.ArrowTypeError, 
 def read_error(exc: BaseException, path) -> CorruptFileError | LogFormatError:
     """The gyrocal error, naming the log, for one of :data:`READ_ERRORS` met reading it."""
     if isinstance(exc, (pa.ArrowNotImplementedError, pa.ArrowTypeError)):
-        return LogFormatError(f"a column cannot be read as one type ({first_line(exc)}); the "
-                              "files of a directory must agree on column types", source=path)
+        return LogFormatError(
+            f"a column cannot be read as one type ({first_line(exc)}); the "
+            "files of a directory must agree on column types",
+            source=path,
+        )
     return CorruptFileError(f"cannot read Parquet data ({first_line(exc)})", source=path)
 
 
@@ -214,8 +230,9 @@ def declared_units(schema: pa.Schema, path: Path) -> dict[str, str]:
         allowed = UNIT_FACTORS.get(quantity)
         if allowed is not None and (not isinstance(unit, str) or unit not in allowed):
             raise LogFormatError(
-                f"metadata gyrocal.units gives {quantity} in {unit!r}; expected one of "
-                f"{', '.join(allowed)}", source=path)
+                f"metadata gyrocal.units gives {quantity} in {unit!r}; expected one of {', '.join(allowed)}",
+                source=path,
+            )
     return {k: v for k, v in units.items() if k in UNIT_FACTORS}
 
 
@@ -233,8 +250,11 @@ def time_seconds(col: pa.Array, path: Path, origin: list, units: dict | None = N
     unit = (units or {}).get("t", "s")
     if pa.types.is_timestamp(typ):
         if unit != "s":
-            raise LogFormatError(f"metadata gyrocal.units gives t in {unit!r}, but column t is a "
-                                 f"timestamp, which carries its own unit ({typ.unit})", source=path)
+            raise LogFormatError(
+                f"metadata gyrocal.units gives t in {unit!r}, but column t is a "
+                f"timestamp, which carries its own unit ({typ.unit})",
+                source=path,
+            )
         scale = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}[typ.unit]
         ints = col.cast(pa.int64())
         missing = ints.is_null().to_numpy(zero_copy_only=False) if ints.null_count else None
@@ -249,8 +269,7 @@ def time_seconds(col: pa.Array, path: Path, origin: list, units: dict | None = N
     if pa.types.is_float64(typ) or pa.types.is_float32(typ):
         seconds = np.asarray(col.to_numpy(zero_copy_only=False), dtype=np.float64)
         return seconds * UNIT_FACTORS["t"][unit] if unit != "s" else seconds
-    raise LogFormatError(f"column t has type {typ}, expected float64 seconds or a timestamp",
-                         source=path)
+    raise LogFormatError(f"column t has type {typ}, expected float64 seconds or a timestamp", source=path)
 
 
 def _mount_codes(col: pa.Array, path: Path) -> np.ndarray:
@@ -259,8 +278,7 @@ def _mount_codes(col: pa.Array, path: Path) -> np.ndarray:
     is_dict = pa.types.is_dictionary(typ)
     value_type = typ.value_type if is_dict else typ
     if not (pa.types.is_string(value_type) or pa.types.is_large_string(value_type)):
-        raise LogFormatError(f"column mount has type {typ}, expected string or dictionary",
-                             source=path)
+        raise LogFormatError(f"column mount has type {typ}, expected string or dictionary", source=path)
     allowed = pa.array(MOUNTS, type=value_type)
     if not is_dict:
         lookup = pc.index_in(col, value_set=allowed)
@@ -306,13 +324,17 @@ def _reject_unknown_mounts(values: pa.Array, lookup: pa.Array, used, path: Path)
         if bad_positions.size == 0:
             return
     bad = values[int(bad_positions[0])].as_py()
-    raise LogFormatError(f"column mount holds {bad!r}; expected one of {' '.join(MOUNTS)}",
-                         source=path)
+    raise LogFormatError(f"column mount holds {bad!r}; expected one of {' '.join(MOUNTS)}", source=path)
 
 
-def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
-             required: tuple[str, ...] = REQUIRED, sink=None, keep_bytes: float | None = None
-             ) -> RigLog:
+def read_log(
+    path: str | os.PathLike,
+    *,
+    optional: tuple[str, ...] = ("mount",),
+    required: tuple[str, ...] = REQUIRED,
+    sink=None,
+    keep_bytes: float | None = None,
+) -> RigLog:
     """Read and validate a rig log, returning only ``required`` plus present ``optional`` columns.
 
     Rows with a non-finite value in any numeric column read are dropped and counted. The
@@ -333,6 +355,7 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
     batches: list[dict[str, np.ndarray]] | None = []
     kept_bytes, kept_rows, first, last = 0, 0, None, 0.0
     from .plausibility import InputStats
+
     stats = InputStats()
     stream = _batches(dataset, wanted, required, units, path, stats)
     for batch in stream:
@@ -351,10 +374,16 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
         raise EmptyLogError("the log has no rows", source=path)
     if not kept_rows:
         empty = [k for k, n in (stats.nonfinite if stats is not None else {}).items() if n == rows]
-        raise EmptyLogError(f"all {rows} rows hold a non-finite value"
-                            + (f": {'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} "
-                               f"{'hold' if len(empty) > 1 else 'holds'} no finite value" if empty else ""),
-                            source=path)
+        raise EmptyLogError(
+            f"all {rows} rows hold a non-finite value"
+            + (
+                f": {'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} "
+                f"{'hold' if len(empty) > 1 else 'holds'} no finite value"
+                if empty
+                else ""
+            ),
+            source=path,
+        )
     time_origin = None
     if origin:
         value, unit = origin[0]
@@ -365,11 +394,20 @@ def read_log(path: str | os.PathLike, *, optional: tuple[str, ...] = ("mount",),
         for batch in _batches(open_dataset(path), columns, required, units, path):
             yield {k: batch[k] for k in names}
 
-    return RigLog(str(path), tuple(batches) if batches is not None else None, rows, dropped,
-                  units, time_origin, columns=tuple(wanted), rows_kept=kept_rows,
-                  span=(first, last), reread=reread,
-                  blocks={sink.block_s: sink.result()} if sink is not None else {},
-                  input_stats=stats.summary() if stats is not None else None)
+    return RigLog(
+        str(path),
+        tuple(batches) if batches is not None else None,
+        rows,
+        dropped,
+        units,
+        time_origin,
+        columns=tuple(wanted),
+        rows_kept=kept_rows,
+        span=(first, last),
+        reread=reread,
+        blocks={sink.block_s: sink.result()} if sink is not None else {},
+        input_stats=stats.summary() if stats is not None else None,
+    )
 
 
 def _open_checked(path: Path, optional, required):
@@ -379,8 +417,9 @@ def _open_checked(path: Path, optional, required):
     names = set(schema.names)
     missing = [c for c in required if c not in names]
     if missing:
-        raise LogFormatError(f"missing required column{'s' if len(missing) > 1 else ''} "
-                             f"{', '.join(missing)}", source=path)
+        raise LogFormatError(
+            f"missing required column{'s' if len(missing) > 1 else ''} {', '.join(missing)}", source=path
+        )
     wanted = [c for c in required] + [c for c in optional if c in names and c not in required]
     for name in wanted:
         if name not in ("t", "mount"):
@@ -392,8 +431,7 @@ READ_BATCH_ROWS = readahead.BATCH_ROWS
 READ_BUFFER_BYTES = readahead.BUFFER_BYTES
 
 
-def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None
-                   ) -> Iterator[pa.RecordBatch]:
+def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None) -> Iterator[pa.RecordBatch]:
     """The dataset's rows of ``columns``, batch by batch, in order, in memory that does not
     grow with the log: each column chunk is read through a buffer of ``READ_BUFFER_BYTES``
     (Arrow's default reads a row group's chunks whole, and pre-buffers the file's ahead;
@@ -408,10 +446,17 @@ def record_batches(dataset: ds.Dataset, columns, batch_rows: int | None = None
         reader = pq.ParquetFile(files[0], pre_buffer=False, buffer_size=READ_BUFFER_BYTES)
         yield from reader.iter_batches(batch_size=batch_rows, columns=list(columns), use_threads=True)
         return
-    scan = ds.ParquetFragmentScanOptions(pre_buffer=False, use_buffered_stream=True,
-                                         buffer_size=READ_BUFFER_BYTES)
-    yield from dataset.to_batches(columns=list(columns), use_threads=True, batch_size=batch_rows,
-                                  fragment_scan_options=scan, batch_readahead=4, fragment_readahead=1)
+    scan = ds.ParquetFragmentScanOptions(
+        pre_buffer=False, use_buffered_stream=True, buffer_size=READ_BUFFER_BYTES
+    )
+    yield from dataset.to_batches(
+        columns=list(columns),
+        use_threads=True,
+        batch_size=batch_rows,
+        fragment_scan_options=scan,
+        batch_readahead=4,
+        fragment_readahead=1,
+    )
 
 
 class _batches:
@@ -421,7 +466,7 @@ class _batches:
     def __init__(self, dataset, wanted, required, units, path, stats=None):
         self.args = dataset, wanted, required, units, path
         self.state = (0, 0, [])
-        self.stats = stats   # a gyrocal.io.plausibility.InputStats, fed when given
+        self.stats = stats  # a gyrocal.io.plausibility.InputStats, fed when given
 
     def __iter__(self):
         dataset, wanted, required, units, path = self.args
@@ -458,8 +503,7 @@ class _batches:
             raise read_error(exc, path) from None
 
 
-def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path,
-                   origin: list) -> dict:
+def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Path, origin: list) -> dict:
     batch = {}
     for name, col in zip(record_batch.schema.names, record_batch.columns, strict=False):
         if name == "t":
@@ -478,14 +522,14 @@ def _convert_batch(record_batch: pa.RecordBatch, units: dict[str, str], path: Pa
 READING_LIMIT = float(np.finfo(np.float32).max)
 # Likewise a float t beyond what a timestamp column can hold (int64 seconds) is no time; so
 # no difference of two times overflows.
-TIME_LIMIT = float(2 ** 63)
+TIME_LIMIT = float(2**63)
 
 
 def _reading(values: np.ndarray, limit: float = READING_LIMIT) -> np.ndarray:
     if values.dtype != np.float64 or not values.size:
-        return values   # float32 holds nothing beyond it
+        return values  # float32 holds nothing beyond it
     if values.min() >= -limit and values.max() <= limit:
-        return values   # the common case; a NaN fails both tests and gets the exact one
+        return values  # the common case; a NaN fails both tests and gets the exact one
     beyond = np.abs(values) > limit
     return np.where(beyond, np.copysign(np.inf, values), values) if beyond.any() else values
 
@@ -533,8 +577,10 @@ def _check_time(t: np.ndarray, previous: float, offset: int, positions, path: Pa
             return
         i, before = int(bad[0]), t[bad[0]]
     row = offset + (i + 1 if positions is None else int(positions[i + 1]))
-    raise LogFormatError(f"column t is not strictly increasing: row {row} has "
-                         f"t={float(t[i + 1])!r} after t={float(before)!r}", source=path)
+    raise LogFormatError(
+        f"column t is not strictly increasing: row {row} has t={float(t[i + 1])!r} after t={float(before)!r}",
+        source=path,
+    )
 
 
 def _continue_labels(codes: np.ndarray, previous: np.int8) -> tuple[np.ndarray, np.int8]:
@@ -558,14 +604,14 @@ HASH_ALGORITHMS = ("blake3", "sha256")
 def _hasher(algorithm: str):
     if algorithm == "blake3":
         import blake3
+
         return blake3.blake3()
     if algorithm == "sha256":
         return hashlib.sha256()
     raise ValueError(f"unknown hash algorithm {algorithm!r}")
 
 
-def file_digest(path: str | os.PathLike, algorithm: str = HASH_ALGORITHM, *,
-                files: str = "*.parquet") -> str:
+def file_digest(path: str | os.PathLike, algorithm: str = HASH_ALGORITHM, *, files: str = "*.parquet") -> str:
     """Hex digest of a file, or of a directory (its ``files``' relative names and digests,
     in name order: a dataset's Parquet files, by default). hashlib and blake3 release the
     GIL, so it runs beside a read."""
@@ -603,10 +649,12 @@ def verify_source(record: dict, path: str | os.PathLike) -> str:
     :class:`LogFormatError` naming the file when it is not, or when the record holds no hash."""
     found = source_digest(record)
     if found is None:
-        raise LogFormatError(f"the record names no input hash (one of {', '.join(HASH_ALGORITHMS)})",
-                             source=path)
+        raise LogFormatError(
+            f"the record names no input hash (one of {', '.join(HASH_ALGORITHMS)})", source=path
+        )
     algorithm, expected = found
     if file_digest(path, algorithm) != expected:
-        raise LogFormatError(f"is not the log the calibration was made from ({algorithm} "
-                             f"{expected[:12]}…)", source=path)
+        raise LogFormatError(
+            f"is not the log the calibration was made from ({algorithm} {expected[:12]}…)", source=path
+        )
     return algorithm

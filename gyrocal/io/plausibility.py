@@ -57,34 +57,37 @@ CODES = {
 
 # Scale-factor and cross-axis bounds (see the module docstring).
 SCALE_TOLERANCE = 0.10
-UNIT_MATCH = 0.15            # a ratio within 15 % of a unit factor is taken for it
+UNIT_MATCH = 0.15  # a ratio within 15 % of a unit factor is taken for it
 MISALIGNMENT_LIMIT = 0.2
 TEMP_RANGE = (-60.0, 150.0)  # °C, beyond every MEMS part's operating range
 KELVIN_RANGE = (200.0, 400.0)
 DROPOUT_SHARE = 0.01
 STUCK_MIN_S = 120.0
 STUCK_SHARE = 0.05
-FINE_RESOLUTION = 0.1        # °C: a sensor resolving finer than this does not sit still for long
+FINE_RESOLUTION = 0.1  # °C: a sensor resolving finer than this does not sit still for long
 JITTER_TOLERANCE = 0.10
 JITTER_SHARE = 0.05
 DROPPED_SHARE = 0.001
-GAP_INTERVALS = 10           # an interval over this many nominal ones is a logger pause
-GROSS_RESIDUAL = 20.0        # noise floors
-RUN_BREAK_S = 60.0           # a pause this long ends a run of one temperature value
-GYRO_LIMIT = 1e4             # deg/s: beyond every MEMS gyro's range (±4000 deg/s at most)
-GARBLED_LIMIT = 1e8          # no unit makes a gyro read this (4000 deg/s in mdps is 4e6)
-GARBLED_SHARE = 0.01         # of the samples beyond it: the columns are corrupt, not spiked
+GAP_INTERVALS = 10  # an interval over this many nominal ones is a logger pause
+GROSS_RESIDUAL = 20.0  # noise floors
+RUN_BREAK_S = 60.0  # a pause this long ends a run of one temperature value
+GYRO_LIMIT = 1e4  # deg/s: beyond every MEMS gyro's range (±4000 deg/s at most)
+GARBLED_LIMIT = 1e8  # no unit makes a gyro read this (4000 deg/s in mdps is 4e6)
+GARBLED_SHARE = 0.01  # of the samples beyond it: the columns are corrupt, not spiked
 # What rigs record (s): samples from 100 kHz (beyond any MEMS gyro's output rate) to 0.5 Hz
 # (a slow thermal logger), holds (a constant rate, a revolution, a face) of 0.05 s to an
 # hour, sessions of a second to a month. Beyond the second bounds nothing records at all.
-TIME_PLAUSIBLE = {"sample interval": (1e-5, 2.0), "hold": (0.05, 3600.0),
-                  "session": (1.0, 30 * 86400.0)}
-TIME_POSSIBLE = {"sample interval": (1e-6, 60.0), "hold": (0.005, 86400.0),
-                 "session": (0.1, 366 * 86400.0)}
+TIME_PLAUSIBLE = {"sample interval": (1e-5, 2.0), "hold": (0.05, 3600.0), "session": (1.0, 30 * 86400.0)}
+TIME_POSSIBLE = {"sample interval": (1e-6, 60.0), "hold": (0.005, 86400.0), "session": (0.1, 366 * 86400.0)}
 # Units a time column is written in by mistake for seconds: factor to seconds, name, and
 # the gyrocal.units entry that declares it (None: convert t to seconds).
-TIME_MISTAKES = ((1e-3, "milliseconds", "ms"), (1e-6, "microseconds", "us"),
-                 (1e-9, "nanoseconds", "ns"), (60.0, "minutes", None), (3600.0, "hours", None))
+TIME_MISTAKES = (
+    (1e-3, "milliseconds", "ms"),
+    (1e-6, "microseconds", "us"),
+    (1e-9, "nanoseconds", "ns"),
+    (60.0, "minutes", None),
+    (3600.0, "hours", None),
+)
 
 
 class ImplausibleInputError(InputError):
@@ -109,7 +112,7 @@ class InputStats:
         self.run_value = self.run_start = self.run_stop = self.last_t = None
         self.carry, self.blocks_seen = None, 0
         self.buffer = np.empty(0)
-        self.longest_run = (0.0, None, None)   # seconds, start t, value
+        self.longest_run = (0.0, None, None)  # seconds, start t, value
         self.nominal_dt = None
         self.last_raw_t = None
         self.pending: list[np.ndarray] = []
@@ -135,15 +138,17 @@ class InputStats:
                 n_bad = int(np.count_nonzero(bad))
                 if n_bad:
                     self.nonfinite[name] = self.nonfinite.get(name, 0) + n_bad
-                if n_bad and name == "temp":   # where the temperature sensor dropped out
+                if n_bad and name == "temp":  # where the temperature sensor dropped out
                     tb = t[bad if finite_t is None else bad & finite_t]
                     if tb.size:
-                        self.temp_nonfinite_span = [min(self.temp_nonfinite_span[0], float(tb[0])),
-                                                    max(self.temp_nonfinite_span[1], float(tb[-1]))]
+                        self.temp_nonfinite_span = [
+                            min(self.temp_nonfinite_span[0], float(tb[0])),
+                            max(self.temp_nonfinite_span[1], float(tb[-1])),
+                        ]
 
     def push(self, batch: dict) -> None:
         """The rows kept (finite, time strictly increasing)."""
-        t, temp = batch["t"], batch.get("temp")   # a log may have none (Protocol.without)
+        t, temp = batch["t"], batch.get("temp")  # a log may have none (Protocol.without)
         if not len(t):
             return
         for name in ("gyro_x", "gyro_y", "gyro_z"):
@@ -166,7 +171,7 @@ class InputStats:
         self._runs(t, temp)
         self.last_t = float(t[-1])
 
-    RUN_BLOCK = 64   # samples: runs of one temperature value are found block by block
+    RUN_BLOCK = 64  # samples: runs of one temperature value are found block by block
 
     def _runs(self, t, temp):
         """Runs of one temperature value, found on blocks of RUN_BLOCK samples aligned on the
@@ -194,15 +199,19 @@ class InputStats:
         constant = (xb.min(axis=1) == xb.max(axis=1)) & (last_t - first_t <= RUN_BREAK_S)
         # A run breaks before block i when either block is not constant, the value changes
         # or the log paused between them.
-        joined = constant[1:] & constant[:-1] & (value[1:] == value[:-1]) \
+        joined = (
+            constant[1:]
+            & constant[:-1]
+            & (value[1:] == value[:-1])
             & (first_t[1:] - last_t[:-1] <= RUN_BREAK_S)
+        )
         starts = np.flatnonzero(constant & np.concatenate(([True], ~joined)))
         ends = np.flatnonzero(constant & np.concatenate((~joined, [True])))
         if not starts.size:
             self._end_open_run()
             return
         begin, stop, held = first_t[starts], last_t[ends], value[starts]
-        if self.run_value is not None:   # the open run goes on into this batch's first block
+        if self.run_value is not None:  # the open run goes on into this batch's first block
             if starts[0] == 0 and held[0] == self.run_value and begin[0] - self.run_stop <= RUN_BREAK_S:
                 begin[0] = self.run_start
             else:
@@ -226,7 +235,7 @@ class InputStats:
         if seconds > self.longest_run[0]:
             self.longest_run = (float(seconds), float(start), float(value))
 
-    NOMINAL_INTERVALS = 4096   # the nominal interval is the median of the first ones
+    NOMINAL_INTERVALS = 4096  # the nominal interval is the median of the first ones
 
     def _intervals(self, t):
         if not len(t):
@@ -234,15 +243,15 @@ class InputStats:
         if self.buffer.size < len(t):
             self.buffer = np.empty(len(t))
         # the interval from the previous batch's last sample first, then this batch's
-        dt = self.buffer[:len(t) if self.last_raw_t is not None else len(t) - 1]
+        dt = self.buffer[: len(t) if self.last_raw_t is not None else len(t) - 1]
         if self.last_raw_t is not None:
             dt[0] = t[0] - self.last_raw_t
-        np.subtract(t[1:], t[:-1], out=dt[len(dt) - (len(t) - 1):])
+        np.subtract(t[1:], t[:-1], out=dt[len(dt) - (len(t) - 1) :])
         self.last_raw_t = float(t[-1])
         if self.nominal_dt is None:
             if self.pending is None:
-                return   # settled without a usable interval
-            self.pending.append(dt.copy())   # the buffer is reused
+                return  # settled without a usable interval
+            self.pending.append(dt.copy())  # the buffer is reused
             if sum(len(d) for d in self.pending) < self.NOMINAL_INTERVALS:
                 return
             self._settle()
@@ -252,8 +261,8 @@ class InputStats:
     def _settle(self):
         dt = np.concatenate(self.pending) if self.pending else np.zeros(0)
         self.pending = None
-        nominal = float(np.median(dt[:self.NOMINAL_INTERVALS])) if dt.size else 0.0
-        if nominal > 0:   # else time does not increase, which reading refuses anyway
+        nominal = float(np.median(dt[: self.NOMINAL_INTERVALS])) if dt.size else 0.0
+        if nominal > 0:  # else time does not increase, which reading refuses anyway
             self.nominal_dt = nominal
             self._count(dt)
 
@@ -261,7 +270,7 @@ class InputStats:
         if not dt.size:
             return
         lo, hi = (1 - JITTER_TOLERANCE) * self.nominal_dt, (1 + JITTER_TOLERANCE) * self.nominal_dt
-        if lo <= dt.min() and dt.max() <= hi:   # the common case: nothing to count
+        if lo <= dt.min() and dt.max() <= hi:  # the common case: nothing to count
             self.intervals += dt.size
             return
         ratio = dt / self.nominal_dt
@@ -275,36 +284,51 @@ class InputStats:
     def summary(self) -> dict:
         if self.nominal_dt is None and self.pending is not None:
             self._settle()
-        self._end_open_run()   # the last run ends with the log (a partial block left out)
+        self._end_open_run()  # the last run ends with the log (a partial block left out)
         run_s, run_t, run_value = self.longest_run
-        return json_safe({
-            "rows": self.rows, "temp_nonfinite": self.nonfinite.get("temp", 0),
-            "temp_nonfinite_span": self.temp_nonfinite_span if "temp" in self.nonfinite else None,
-            "temp_range": [self.temp_min, self.temp_max] if self.temp_min <= self.temp_max else None,
-            "temp_out_of_range": self.out_of_range,
-            "temp_finest_step": self.finest_step,
-            "temp_longest_run_s": run_s, "temp_longest_run_at": run_t,
-            "temp_longest_run_value": run_value,
-            "duration_s": (self.last_t - self.first_t) if self.first_t is not None else 0.0,
-            "nominal_dt": self.nominal_dt, "intervals": self.intervals,
-            "jittered": self.jittered, "dropped_intervals": self.dropped_intervals,
-            "missing_samples": self.missing_samples, "nonfinite": self.nonfinite,
-            "gyro_range": self.gyro_range, "gyro_beyond": self.gyro_beyond,
-            "gyro_garbled": self.gyro_garbled})
+        return json_safe(
+            {
+                "rows": self.rows,
+                "temp_nonfinite": self.nonfinite.get("temp", 0),
+                "temp_nonfinite_span": self.temp_nonfinite_span if "temp" in self.nonfinite else None,
+                "temp_range": [self.temp_min, self.temp_max] if self.temp_min <= self.temp_max else None,
+                "temp_out_of_range": self.out_of_range,
+                "temp_finest_step": self.finest_step,
+                "temp_longest_run_s": run_s,
+                "temp_longest_run_at": run_t,
+                "temp_longest_run_value": run_value,
+                "duration_s": (self.last_t - self.first_t) if self.first_t is not None else 0.0,
+                "nominal_dt": self.nominal_dt,
+                "intervals": self.intervals,
+                "jittered": self.jittered,
+                "dropped_intervals": self.dropped_intervals,
+                "missing_samples": self.missing_samples,
+                "nonfinite": self.nonfinite,
+                "gyro_range": self.gyro_range,
+                "gyro_beyond": self.gyro_beyond,
+                "gyro_garbled": self.gyro_garbled,
+            }
+        )
 
 
 def duration_text(seconds: float) -> str:
     """A duration as a person reads it: 12 µs, 0.01 s, 5.6 h, 55 days."""
-    for size, unit in ((86400.0 * 365.25, "years"), (86400.0, "days"), (3600.0, "h"),
-                       (60.0, "min"), (1.0, "s"), (1e-3, "ms"), (1e-6, "µs")):
+    for size, unit in (
+        (86400.0 * 365.25, "years"),
+        (86400.0, "days"),
+        (3600.0, "h"),
+        (60.0, "min"),
+        (1.0, "s"),
+        (1e-3, "ms"),
+        (1e-6, "µs"),
+    ):
         if seconds >= size or unit == "µs":
             value = seconds / size
             return f"{value:,.0f} {unit}" if value >= 1000 else f"{value:.3g} {unit}"
     return f"{seconds:.3g} s"
 
 
-_TIME_WORDS = {"sample interval": "samples {} apart", "hold": "holds of {}",
-               "session": "a session of {}"}
+_TIME_WORDS = {"sample interval": "samples {} apart", "hold": "holds of {}", "session": "a session of {}"}
 
 
 def _time_said(values: dict, names: list[str]) -> str:
@@ -333,8 +357,14 @@ def time_base_review(stats: dict | None, hold_s: float | None = None) -> dict | 
     odd = _time_off(measured, TIME_PLAUSIBLE)
     if not odd:
         return None
-    fix = next(((f, name, unit) for f, name, unit in TIME_MISTAKES
-                if not _time_off({q: v * f for q, v in measured.items()}, TIME_PLAUSIBLE)), None)
+    fix = next(
+        (
+            (f, name, unit)
+            for f, name, unit in TIME_MISTAKES
+            if not _time_off({q: v * f for q, v in measured.items()}, TIME_PLAUSIBLE)
+        ),
+        None,
+    )
     error = fix is not None and (len(odd) >= 2 or bool(_time_off(measured, TIME_POSSIBLE)))
     return {"odd": odd, "measured": measured, "fix": fix, "error": error}
 
@@ -343,8 +373,12 @@ def _time_fix_text(review: dict) -> str:
     """'in milliseconds, samples 10 ms apart: declare it ...'"""
     factor, name, unit = review["fix"]
     scaled = {q: v * factor for q, v in review["measured"].items()}
-    how = (f'declare it in the log\'s metadata gyrocal.units as {{"t": "{unit}"}} (an import '
-           f"map: time.unit {unit})" if unit else "convert t to seconds")
+    how = (
+        f'declare it in the log\'s metadata gyrocal.units as {{"t": "{unit}"}} (an import '
+        f"map: time.unit {unit})"
+        if unit
+        else "convert t to seconds"
+    )
     return f"in {name}, {_time_said(scaled, review['odd'])}: {how}"
 
 
@@ -362,12 +396,20 @@ def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | No
     evidence = {q.replace(" ", "_") + "_s": v for q, v in measured.items()}
     consequence = "the noise figures (ARW, Allan deviation) and time-read terms take t as seconds"
     if review["fix"] is None:
-        return None, finding("time_base_implausible", f"{said}, which rigs do not record: "
-                             f"{consequence}; check the time column", odd=odd, **evidence)
-    return None, finding("time_base_implausible",
-                         f"{said}, which rigs do not record; {_time_fix_text(review)}, if t counts "
-                         f"{review['fix'][1]}; {consequence}", unit_factor=review["fix"][0],
-                         odd=odd, **evidence)
+        return None, finding(
+            "time_base_implausible",
+            f"{said}, which rigs do not record: {consequence}; check the time column",
+            odd=odd,
+            **evidence,
+        )
+    return None, finding(
+        "time_base_implausible",
+        f"{said}, which rigs do not record; {_time_fix_text(review)}, if t counts "
+        f"{review['fix'][1]}; {consequence}",
+        unit_factor=review["fix"][0],
+        odd=odd,
+        **evidence,
+    )
 
 
 def explain_segmentation(exc: InputError, stats: dict | None, source=None) -> InputError:
@@ -379,7 +421,9 @@ def explain_segmentation(exc: InputError, stats: dict | None, source=None) -> In
     reason = str(exc).removeprefix(f"{exc.source}: ") if exc.source else str(exc)
     return ImplausibleInputError(
         f"{reason}; t may not count seconds: {_time_said(review['measured'], review['odd'])}, "
-        f"which rigs do not record; {_time_fix_text(review)}", source=source)
+        f"which rigs do not record; {_time_fix_text(review)}",
+        source=source,
+    )
 
 
 def log_errors(stats: dict | None, source=None) -> None:
@@ -396,15 +440,20 @@ def log_errors(stats: dict | None, source=None) -> None:
     if lo_hi is not None and KELVIN_RANGE[0] <= lo_hi[0] and lo_hi[1] <= KELVIN_RANGE[1]:
         raise ImplausibleInputError(
             f"column temp reads {lo_hi[0]:.1f} to {lo_hi[1]:.1f}: kelvin, not °C? (declare "
-            'it in the metadata gyrocal.units as {"temp": "K"})', source=source)
+            'it in the metadata gyrocal.units as {"temp": "K"})',
+            source=source,
+        )
     if (stats.get("gyro_garbled") or 0) > GARBLED_SHARE * stats["rows"]:
         raise ImplausibleInputError(
             f"{stats['gyro_garbled']} of {stats['rows']} gyro samples exceed ±{GARBLED_LIMIT:g}, "
-            "which no gyro reads in any unit: the gyro columns are corrupted", source=source)
+            "which no gyro reads in any unit: the gyro columns are corrupted",
+            source=source,
+        )
     for name, (lo, hi) in (stats.get("gyro_range") or {}).items():
         if lo == hi:
             raise ImplausibleInputError(
-                f"column {name} reads {lo:g} in every row: a stuck or disconnected axis", source=source)
+                f"column {name} reads {lo:g} in every row: a stuck or disconnected axis", source=source
+            )
 
 
 def log_findings(stats: dict | None, source=None) -> list[dict]:
@@ -417,62 +466,92 @@ def log_findings(stats: dict | None, source=None) -> list[dict]:
     if lo_hi is not None:
         median_guess = 0.5 * (lo_hi[0] + lo_hi[1])
         if stats["temp_out_of_range"]:
-            out.append(finding(
-                "temperature_out_of_range",
-                f"{stats['temp_out_of_range']} samples of temp lie outside {TEMP_RANGE[0]:g} to "
-                f"{TEMP_RANGE[1]:g} °C (from {lo_hi[0]:.4g} to {lo_hi[1]:.4g}): a sensor error "
-                "code or a wrong unit; those samples enter the holds' temperatures",
-                samples=stats["temp_out_of_range"], temp_min=lo_hi[0], temp_max=lo_hi[1],
-                midpoint=median_guess))
+            out.append(
+                finding(
+                    "temperature_out_of_range",
+                    f"{stats['temp_out_of_range']} samples of temp lie outside {TEMP_RANGE[0]:g} to "
+                    f"{TEMP_RANGE[1]:g} °C (from {lo_hi[0]:.4g} to {lo_hi[1]:.4g}): a sensor error "
+                    "code or a wrong unit; those samples enter the holds' temperatures",
+                    samples=stats["temp_out_of_range"],
+                    temp_min=lo_hi[0],
+                    temp_max=lo_hi[1],
+                    midpoint=median_guess,
+                )
+            )
     if stats["temp_nonfinite"] > DROPOUT_SHARE * rows:
         first, last = stats["temp_nonfinite_span"] or (None, None)
-        out.append(finding(
-            "temperature_dropout",
-            f"temp is missing (NaN) in {stats['temp_nonfinite']} of {rows} rows "
-            f"({stats['temp_nonfinite'] / rows:.1%}), between t = {first:.0f} and {last:.0f} s: "
-            "those rows are dropped with their gyro samples, and the temperature record has a hole",
-            rows=stats["temp_nonfinite"], share=stats["temp_nonfinite"] / rows, first_t=first,
-            last_t=last))
+        out.append(
+            finding(
+                "temperature_dropout",
+                f"temp is missing (NaN) in {stats['temp_nonfinite']} of {rows} rows "
+                f"({stats['temp_nonfinite'] / rows:.1%}), between t = {first:.0f} and {last:.0f} s: "
+                "those rows are dropped with their gyro samples, and the temperature record has a hole",
+                rows=stats["temp_nonfinite"],
+                share=stats["temp_nonfinite"] / rows,
+                first_t=first,
+                last_t=last,
+            )
+        )
     duration = stats.get("duration_s") or 0.0
     run = stats.get("temp_longest_run_s") or 0.0
-    if (run >= max(STUCK_MIN_S, STUCK_SHARE * duration)
-            and (stats.get("temp_finest_step") or math.inf) < FINE_RESOLUTION):
-        out.append(finding(
-            "temperature_stuck",
-            f"temp reads exactly {stats['temp_longest_run_value']:.6g} °C for {run:.0f} s from "
-            f"t = {stats['temp_longest_run_at']:.0f} s, although it resolves steps of "
-            f"{stats['temp_finest_step']:.3g} °C elsewhere: a stuck sensor; holds in that stretch "
-            "are calibrated at a temperature the unit may not have had",
-            seconds=run, from_t=stats["temp_longest_run_at"], value=stats["temp_longest_run_value"],
-            finest_step=stats["temp_finest_step"]))
+    if (
+        run >= max(STUCK_MIN_S, STUCK_SHARE * duration)
+        and (stats.get("temp_finest_step") or math.inf) < FINE_RESOLUTION
+    ):
+        out.append(
+            finding(
+                "temperature_stuck",
+                f"temp reads exactly {stats['temp_longest_run_value']:.6g} °C for {run:.0f} s from "
+                f"t = {stats['temp_longest_run_at']:.0f} s, although it resolves steps of "
+                f"{stats['temp_finest_step']:.3g} °C elsewhere: a stuck sensor; holds in that stretch "
+                "are calibrated at a temperature the unit may not have had",
+                seconds=run,
+                from_t=stats["temp_longest_run_at"],
+                value=stats["temp_longest_run_value"],
+                finest_step=stats["temp_finest_step"],
+            )
+        )
     if stats.get("gyro_beyond"):
-        out.append(finding(
-            "gyro_out_of_range",
-            f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
-            "gyro's range: corrupted values; the holds around them are split or rejected",
-            samples=stats["gyro_beyond"], ranges=stats.get("gyro_range")))
+        out.append(
+            finding(
+                "gyro_out_of_range",
+                f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
+                "gyro's range: corrupted values; the holds around them are split or rejected",
+                samples=stats["gyro_beyond"],
+                ranges=stats.get("gyro_range"),
+            )
+        )
     intervals = stats.get("intervals") or 0
     if intervals:
         nominal = stats["nominal_dt"]
         if stats["jittered"] > JITTER_SHARE * intervals:
-            out.append(finding(
-                "sample_jitter",
-                f"{stats['jittered'] / intervals:.1%} of the sample intervals differ from the "
-                f"nominal {nominal:.6g} s by over {JITTER_TOLERANCE:.0%}: timestamps from a "
-                "jittery clock; rates and hold boundaries are still computed from them",
-                share=stats["jittered"] / intervals, nominal_dt=nominal))
-        jittery = stats["jittered"] > JITTER_SHARE * intervals   # then gaps are not countable
+            out.append(
+                finding(
+                    "sample_jitter",
+                    f"{stats['jittered'] / intervals:.1%} of the sample intervals differ from the "
+                    f"nominal {nominal:.6g} s by over {JITTER_TOLERANCE:.0%}: timestamps from a "
+                    "jittery clock; rates and hold boundaries are still computed from them",
+                    share=stats["jittered"] / intervals,
+                    nominal_dt=nominal,
+                )
+            )
+        jittery = stats["jittered"] > JITTER_SHARE * intervals  # then gaps are not countable
         if stats["dropped_intervals"] > DROPPED_SHARE * intervals and not jittery:
-            out.append(finding(
-                "dropped_samples",
-                f"{stats['missing_samples']} samples are missing in {stats['dropped_intervals']} "
-                f"places (intervals of 1.75 to {GAP_INTERVALS} nominal {nominal:.6g} s): a logger "
-                "that drops data",
-                missing=stats["missing_samples"], places=stats["dropped_intervals"], nominal_dt=nominal))
+            out.append(
+                finding(
+                    "dropped_samples",
+                    f"{stats['missing_samples']} samples are missing in {stats['dropped_intervals']} "
+                    f"places (intervals of 1.75 to {GAP_INTERVALS} nominal {nominal:.6g} s): a logger "
+                    "that drops data",
+                    missing=stats["missing_samples"],
+                    places=stats["dropped_intervals"],
+                    nominal_dt=nominal,
+                )
+            )
     return out
 
 
-UNIT_RATIOS = (   # gyro over reference, what it means, how to declare it
+UNIT_RATIOS = (  # gyro over reference, what it means, how to declare it
     (math.pi / 180, "the gyro columns look like rad/s", '{"gyro": "rad/s"}'),
     (180 / math.pi, "ref_rate looks like rad/s", '{"ref_rate": "rad/s"}'),
     (1000.0, "the gyro columns look like mdps", '{"gyro": "mdps"}'),
@@ -485,11 +564,15 @@ def _unit_meaning(values: np.ndarray) -> str | None:
     for factor, what, declare in UNIT_RATIOS:
         for sign in (1.0, -1.0):
             if np.all(np.abs(values / (sign * factor) - 1) < UNIT_MATCH):
-                return (f"{what}{' and the reference sign is opposite' if sign < 0 else ''}; "
-                        f"declare it in the log's metadata gyrocal.units as {declare}")
+                return (
+                    f"{what}{' and the reference sign is opposite' if sign < 0 else ''}; "
+                    f"declare it in the log's metadata gyrocal.units as {declare}"
+                )
     if np.all(values > 5) and np.ptp(values) < UNIT_MATCH * np.median(values):
-        return (f"the gyro columns look like raw counts (about {np.median(values):.4g} LSB per "
-                "deg/s); convert them to deg/s")
+        return (
+            f"the gyro columns look like raw counts (about {np.median(values):.4g} LSB per "
+            "deg/s); convert them to deg/s"
+        )
     return None
 
 
@@ -509,27 +592,32 @@ def rate_ratio_check(ratios: dict, turning: dict, source=None) -> None:
         return
     values = np.array([m for m, _ in common.values()])
     if len(common) == 3 and np.ptp(values) <= UNIT_MATCH * np.abs(values).min():
-        held = (f"{sum(n for _, n in common.values())} of {sum(turning.values())} turning holds "
-                f"read {np.median(values):.4g} times the reference")
+        held = (
+            f"{sum(n for _, n in common.values())} of {sum(turning.values())} turning holds "
+            f"read {np.median(values):.4g} times the reference"
+        )
     else:
-        held = ", ".join(f"{n} of {turning[a]} turning holds about {a} read {m:.4g} times the "
-                         "reference" for a, (m, n) in common.items())
+        held = ", ".join(
+            f"{n} of {turning[a]} turning holds about {a} read {m:.4g} times the reference"
+            for a, (m, n) in common.items()
+        )
     meaning = _unit_meaning(values)
     if meaning is None and np.all(np.abs(values + 1) < SCALE_TOLERANCE):
-        meaning = (AXIS_SIGN if len(common) < 3 else REFERENCE_SIGN).format(
-            axes=", gyro_".join(common))
+        meaning = (AXIS_SIGN if len(common) < 3 else REFERENCE_SIGN).format(axes=", gyro_".join(common))
     if meaning is not None:
         raise ImplausibleInputError(f"{held}: {meaning}", source=source)
 
 
-REFERENCE_SIGN = ("ref_rate has the opposite sign convention (positive is right-handed about the rig "
-                  "axis, which points up)")
+REFERENCE_SIGN = (
+    "ref_rate has the opposite sign convention (positive is right-handed about the rig axis, which points up)"
+)
 AXIS_SIGN_CAUSE = "a left-handed axis convention or a reversed mount label"
 AXIS_SIGN = "gyro_{axes} has the opposite sign: " + AXIS_SIGN_CAUSE
 
 
-def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=None,
-                   temperatures=None) -> list[dict]:
+def scale_findings(
+    Ks: np.ndarray, identified: tuple[bool, bool, bool], source=None, temperatures=None
+) -> list[dict]:
     """Errors for unit conversions, signs and permutations in K (the median over the
     calibration's temperature points, ``Ks`` (n, 3, 3)); warnings for a scale or cross-axis
     term far from nominal at any point (its worst). ``identified[i]``: whether axis i's scale
@@ -546,7 +634,9 @@ def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=N
             raise ImplausibleInputError(
                 f"gyro_{a} follows the rig's {AXES[j]} rate (K[{a},{AXES[j]}] = {K[i, j]:.3g}, "
                 f"K[{a},{a}] = {diag[i]:.3g}): the gyro columns are permuted, or the mount labels name "
-                "the wrong axes", source=source)
+                "the wrong axes",
+                source=source,
+            )
     seen = [(i, d) for i, d in enumerate(diag) if identified[i]]
     if not seen:
         return out
@@ -555,18 +645,24 @@ def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=N
     if meaning is not None:
         raise ImplausibleInputError(
             f"scale factors {', '.join(f'{v:.4g}' for v in values)} against the reference: {meaning}",
-            source=source)
+            source=source,
+        )
     if np.all(np.abs(values + 1) < SCALE_TOLERANCE):
         raise ImplausibleInputError(
             f"scale factors {', '.join(f'{v:.4g}' for v in values)}: every axis reads against the "
-            f"reference; {REFERENCE_SIGN}", source=source)
+            f"reference; {REFERENCE_SIGN}",
+            source=source,
+        )
     flipped = [AXES[i] for i, d in seen if abs(d + 1) < SCALE_TOLERANCE]
     if flipped:
         raise ImplausibleInputError(
             f"gyro_{', gyro_'.join(flipped)} read{'s' if len(flipped) == 1 else ''} against the "
             f"reference (scale {', '.join(f'{diag[AXES.index(a)]:.4g}' for a in flipped)}) while the "
-            f"other axes agree: {AXIS_SIGN_CAUSE}", source=source)
-    def worst(i, j):   # the entry furthest from nominal over the points, and where
+            f"other axes agree: {AXIS_SIGN_CAUSE}",
+            source=source,
+        )
+
+    def worst(i, j):  # the entry furthest from nominal over the points, and where
         dev = np.abs(Ks[:, i, j] - (1.0 if i == j else 0.0))
         k = int(np.argmax(dev))
         return float(Ks[k, i, j]), float(temperatures[k]), float(dev[k])
@@ -577,22 +673,29 @@ def scale_findings(Ks: np.ndarray, identified: tuple[bool, bool, bool], source=N
     far = [(AXES[i], *worst(i, i)) for i, _ in seen]
     far = [f for f in far if f[3] > SCALE_TOLERANCE]
     if far:
-        out.append(finding(
-            "scale_far_from_one",
-            "scale factor " + ", ".join(f"K[{a},{a}] = {v:.4g}{at(T)}" for a, v, T, _ in far)
-            + f": more than {SCALE_TOLERANCE:.0%} from 1, beyond any MEMS gyro's sensitivity "
-            "tolerance; check the units and the reference",
-            scale={a: {"value": v, "temperature": T} for a, v, T, _ in far}))
-    cross = [(AXES[i], AXES[j], *worst(i, j)) for i in range(3) for j in range(3)
-             if i != j and identified[i]]
+        out.append(
+            finding(
+                "scale_far_from_one",
+                "scale factor "
+                + ", ".join(f"K[{a},{a}] = {v:.4g}{at(T)}" for a, v, T, _ in far)
+                + f": more than {SCALE_TOLERANCE:.0%} from 1, beyond any MEMS gyro's sensitivity "
+                "tolerance; check the units and the reference",
+                scale={a: {"value": v, "temperature": T} for a, v, T, _ in far},
+            )
+        )
+    cross = [(AXES[i], AXES[j], *worst(i, j)) for i in range(3) for j in range(3) if i != j and identified[i]]
     cross = [c for c in cross if c[4] > MISALIGNMENT_LIMIT]
     if cross:
-        out.append(finding(
-            "misalignment_large",
-            "cross-axis term " + ", ".join(f"K[{a},{b}] = {v:.3g}{at(T)}" for a, b, v, T, _ in cross)
-            + f": over {MISALIGNMENT_LIMIT:g} ({math.degrees(MISALIGNMENT_LIMIT):.0f}°); mount "
-            "labels or axes may be wrong",
-            terms={f"{a}.{b}": {"value": v, "temperature": T} for a, b, v, T, _ in cross}))
+        out.append(
+            finding(
+                "misalignment_large",
+                "cross-axis term "
+                + ", ".join(f"K[{a},{b}] = {v:.3g}{at(T)}" for a, b, v, T, _ in cross)
+                + f": over {MISALIGNMENT_LIMIT:g} ({math.degrees(MISALIGNMENT_LIMIT):.0f}°); mount "
+                "labels or axes may be wrong",
+                terms={f"{a}.{b}": {"value": v, "temperature": T} for a, b, v, T, _ in cross},
+            )
+        )
     return out
 
 
@@ -603,21 +706,32 @@ def observation_findings(obs, axis_mounts: bool, source=None, *, model_reads_acc
     out = []
     if not len(obs):
         return out
-    accel = np.column_stack([np.asarray(obs[f"accel_{a}"], float) for a in AXES]) \
-        if all(f"accel_{a}" in obs for a in AXES) else None
+    accel = (
+        np.column_stack([np.asarray(obs[f"accel_{a}"], float) for a in AXES])
+        if all(f"accel_{a}" in obs for a in AXES)
+        else None
+    )
     if accel is not None:
         accel = accel[np.all(np.isfinite(accel), axis=1)]
     if accel is not None and len(accel):
         g = float(np.median(np.linalg.norm(accel, axis=1)))
         if 9.0 <= g <= 10.6:
-            message = (f"the accelerometer reads {g:.3g} at rest: m/s², not g; set the log's "
-                       'metadata gyrocal.units to {"accel": "m/s^2"}')
+            message = (
+                f"the accelerometer reads {g:.3g} at rest: m/s², not g; set the log's "
+                'metadata gyrocal.units to {"accel": "m/s^2"}'
+            )
             if model_reads_accel:
                 raise ImplausibleInputError(message + " (the model's terms read it)", source=source)
             out.append(finding("accel_units", message, magnitude=g))
         elif not 0.8 <= g <= 1.2:
-            out.append(finding("accel_scale", f"the accelerometer's magnitude at rest is {g:.4g}, "
-                               "1 g expected: a wrong unit or sensitivity", magnitude=g))
+            out.append(
+                finding(
+                    "accel_scale",
+                    f"the accelerometer's magnitude at rest is {g:.4g}, "
+                    "1 g expected: a wrong unit or sensitivity",
+                    magnitude=g,
+                )
+            )
         elif axis_mounts and "mount" in obs and "mount_source" in obs:
             out += _mounts_against_gravity(obs)
     if axis_mounts and {"axis", "ref_rate", "mount"} <= set(obs.columns):
@@ -639,19 +753,24 @@ def _holds_off_their_line(obs) -> list[dict]:
     ref = np.asarray(obs["ref_rate"], float)
     point = np.asarray(obs["point"]) if "point" in obs else np.zeros(len(obs))
     if len(np.unique(point)) < 3 or not all(f"gyro_{b}" in obs for b in AXES):
-        return []   # no median to compare with
+        return []  # no median to compare with
     decade = 10.0 ** np.floor(np.log10(np.maximum(np.abs(ref), 1e-9)))
-    nominal = np.round(ref / decade, 1) * decade   # the rate the protocol set, to 2 digits
+    nominal = np.round(ref / decade, 1) * decade  # the rate the protocol set, to 2 digits
     outputs = np.column_stack([np.asarray(obs[f"gyro_{b}"], float) for b in AXES])
-    floors = np.column_stack([np.asarray(obs[f"floor_{b}"], float) if f"floor_{b}" in obs else
-                              np.asarray(obs[f"std_{b}"], float) / np.sqrt(np.asarray(obs["n"], float))
-                              for b in AXES])
+    floors = np.column_stack(
+        [
+            np.asarray(obs[f"floor_{b}"], float)
+            if f"floor_{b}" in obs
+            else np.asarray(obs[f"std_{b}"], float) / np.sqrt(np.asarray(obs["n"], float))
+            for b in AXES
+        ]
+    )
     off, worst, turning = [], 0.0, 0
     for ia, a in enumerate(AXES):
         if f"rate_{a}" not in obs:
             continue
         x = np.asarray(obs[f"rate_{a}"], float)
-        resid = np.full((len(obs), 3), np.nan)   # every output's, against the turning rate
+        resid = np.full((len(obs), 3), np.nan)  # every output's, against the turning rate
         for p in np.unique(point):
             rows = np.flatnonzero((point == p) & (axes == a) & (ref != 0))
             if rows.size < 5:
@@ -659,8 +778,11 @@ def _holds_off_their_line(obs) -> list[dict]:
             xi, yi = x[rows], outputs[rows]
             i, j = np.triu_indices(rows.size, 1)
             keep = xi[i] != xi[j]
-            slope = np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0) \
-                if keep.any() else np.zeros(3)
+            slope = (
+                np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0)
+                if keep.any()
+                else np.zeros(3)
+            )
             r = yi - slope * xi[:, None]
             resid[rows] = r - np.median(r, axis=0)
         rows = np.flatnonzero(np.isfinite(resid[:, 0]))
@@ -675,20 +797,30 @@ def _holds_off_their_line(obs) -> list[dict]:
         spread = 1.4826 * np.median(d[:, ia])
         others = np.max(np.delete(d, ia, axis=1), axis=1)
         # The turning output alone: a bias that moved (a warm-up) moves every output.
-        bad = (counts[group] >= 3) & (d[:, ia] > GROSS_RESIDUAL * floors[rows, ia]) \
-            & (d[:, ia] > 10 * spread) & (others < 0.1 * d[:, ia])
+        bad = (
+            (counts[group] >= 3)
+            & (d[:, ia] > GROSS_RESIDUAL * floors[rows, ia])
+            & (d[:, ia] > 10 * spread)
+            & (others < 0.1 * d[:, ia])
+        )
         off += [int(r) for r in rows[bad]]
         if bad.any():
             worst = max(worst, float(np.max(d[bad, ia] / floors[rows[bad], ia])))
     if not off:
         return []
     holds = np.asarray(obs["hold"])[off] if "hold" in obs else np.array(off)
-    return [finding("holds_disagree_with_reference",
-                    f"{len(off)} of {turning} turning holds are off by over {GROSS_RESIDUAL:g} noise "
-                    f"floors (worst {worst:.0f}×) where their rate on their axis is not at the other "
-                    "temperature points: their reference rate or their gyro output is not what the "
-                    "rig did; the fit is pulled towards them",
-                    holds=[int(h) for h in holds], of=turning, worst=worst)]
+    return [
+        finding(
+            "holds_disagree_with_reference",
+            f"{len(off)} of {turning} turning holds are off by over {GROSS_RESIDUAL:g} noise "
+            f"floors (worst {worst:.0f}×) where their rate on their axis is not at the other "
+            "temperature points: their reference rate or their gyro output is not what the "
+            "rig did; the fit is pulled towards them",
+            holds=[int(h) for h in holds],
+            of=turning,
+            worst=worst,
+        )
+    ]
 
 
 def _mounts_against_gravity(obs) -> list[dict]:
@@ -702,16 +834,22 @@ def _mounts_against_gravity(obs) -> list[dict]:
     dominant = np.abs(a[np.arange(len(a)), axis]) / np.linalg.norm(a, axis=1)
     seen = np.where(a[np.arange(len(a)), axis] > 0, "+", "-").astype(object) + np.array(AXES)[axis]
     labels = np.asarray(obs["mount"]).astype(str)[ok]
-    clear = dominant > 0.9        # gravity along one axis, as a turntable mount has it
+    clear = dominant > 0.9  # gravity along one axis, as a turntable mount has it
     wrong = clear & (labels != seen.astype(str))
     if wrong.sum() <= 0.1 * clear.sum():
         return []
     pairs = sorted({f"{lab}→{s}" for lab, s in zip(labels[wrong], seen[wrong], strict=False)})
-    return [finding("mount_contradicts_gravity",
-                    f"{int(wrong.sum())} of {int(clear.sum())} holds carry a mount label that gravity "
-                    f"on the accelerometer contradicts ({', '.join(pairs)}: label → the axis that "
-                    "points up); the rotating axis and its sign come from the labels",
-                    holds=int(wrong.sum()), of=int(clear.sum()), pairs=pairs)]
+    return [
+        finding(
+            "mount_contradicts_gravity",
+            f"{int(wrong.sum())} of {int(clear.sum())} holds carry a mount label that gravity "
+            f"on the accelerometer contradicts ({', '.join(pairs)}: label → the axis that "
+            "points up); the rotating axis and its sign come from the labels",
+            holds=int(wrong.sum()),
+            of=int(clear.sum()),
+            pairs=pairs,
+        )
+    ]
 
 
 def _balance(obs) -> list[dict]:
@@ -730,16 +868,26 @@ def _balance(obs) -> list[dict]:
     used = sorted(set(mounts[turning]))
     both = [a for a in AXES if f"+{a}" in used and f"-{a}" in used]
     if both:
-        problems += [f"mount {s}{a} is missing while {', '.join(f'±{b}' for b in both)} "
-                     f"{'has' if len(both) == 1 else 'have'} both"
-                     for a in AXES if a not in both for s in "+-" if f"{s}{a}" not in used
-                     and f"{'-' if s == '+' else '+'}{a}" in used]
+        problems += [
+            f"mount {s}{a} is missing while {', '.join(f'±{b}' for b in both)} "
+            f"{'has' if len(both) == 1 else 'have'} both"
+            for a in AXES
+            if a not in both
+            for s in "+-"
+            if f"{s}{a}" not in used and f"{'-' if s == '+' else '+'}{a}" in used
+        ]
     if not problems:
         return []
-    return [finding("protocol_unbalanced",
-                    "the protocol is unbalanced: " + "; ".join(problems) + ": errors that a "
-                    "balanced protocol averages out (a g-sensitivity, a scale asymmetry) go into "
-                    "the fitted terms", problems=problems, mounts=used)]
+    return [
+        finding(
+            "protocol_unbalanced",
+            "the protocol is unbalanced: " + "; ".join(problems) + ": errors that a "
+            "balanced protocol averages out (a g-sensitivity, a scale asymmetry) go into "
+            "the fitted terms",
+            problems=problems,
+            mounts=used,
+        )
+    ]
 
 
 # Rejections that are part of every protocol (handling between mounts, the short holds at
@@ -754,18 +902,28 @@ REJECTED_SHARE = 0.02
 def rejection_findings(info: dict) -> list[dict]:
     """A warning when segmentation rejected more than a few holds for what a working rig
     does not do (clipped output, a gyro that disagrees with the reference, instability)."""
-    rejected = {k: int(v) for k, v in (info.get("rejected_by_reason") or {}).items()
-                if k not in ROUTINE_REJECTIONS and v}
+    rejected = {
+        k: int(v)
+        for k, v in (info.get("rejected_by_reason") or {}).items()
+        if k not in ROUTINE_REJECTIONS and v
+    }
     total = sum(rejected.values())
     candidates = int(info.get("holds_accepted") or 0) + sum(
-        int(v) for v in (info.get("rejected_by_reason") or {}).values())
+        int(v) for v in (info.get("rejected_by_reason") or {}).values()
+    )
     if total < max(3, REJECTED_SHARE * candidates) and not any(k in rejected for k in NEVER_ROUTINE):
         return []
-    return [finding("holds_rejected",
-                    f"{total} of {candidates} holds were rejected ("
-                    + ", ".join(f"{k}: {v}" for k, v in sorted(rejected.items())) + "): the "
-                    "calibration rests on the rest; the report's segment list shows each one",
-                    rejected=rejected, candidates=candidates)]
+    return [
+        finding(
+            "holds_rejected",
+            f"{total} of {candidates} holds were rejected ("
+            + ", ".join(f"{k}: {v}" for k, v in sorted(rejected.items()))
+            + "): the "
+            "calibration rests on the rest; the report's segment list shows each one",
+            rejected=rejected,
+            candidates=candidates,
+        )
+    ]
 
 
 def fit_findings(cal, one_temperature: bool = False) -> list[dict]:
@@ -778,31 +936,42 @@ def fit_findings(cal, one_temperature: bool = False) -> list[dict]:
     points = cal.extra.get("points") or []
     used = [p for p in points if p["used"]]
     if len(used) == 1:
-        out.append(finding(
-            "single_temperature",
-            f"calibrated at one temperature ({used[0]['temperature']:.1f} °C): nothing is known "
-            "of the unit's temperature dependence, and the calibration applies as it is at every "
-            "temperature", temperature=used[0]["temperature"]))
+        out.append(
+            finding(
+                "single_temperature",
+                f"calibrated at one temperature ({used[0]['temperature']:.1f} °C): nothing is known "
+                "of the unit's temperature dependence, and the calibration applies as it is at every "
+                "temperature",
+                temperature=used[0]["temperature"],
+            )
+        )
     if len(points) > 1:
         typical = float(np.median([p["holds"] for p in points]))
         thin = [p for p in points if p["used"] and p["holds"] < 0.5 * typical]
         if thin:
-            out.append(finding(
-                "point_few_holds",
-                "temperature point " + ", ".join(f"{p['temperature']:.1f} °C ({p['holds']} holds)"
-                                                  for p in thin)
-                + f" has under half the typical {typical:.0f} holds: its calibration rests on less",
-                points=[{"temperature": p["temperature"], "holds": p["holds"]} for p in thin],
-                typical=typical))
+            out.append(
+                finding(
+                    "point_few_holds",
+                    "temperature point "
+                    + ", ".join(f"{p['temperature']:.1f} °C ({p['holds']} holds)" for p in thin)
+                    + f" has under half the typical {typical:.0f} holds: its calibration rests on less",
+                    points=[{"temperature": p["temperature"], "holds": p["holds"]} for p in thin],
+                    typical=typical,
+                )
+            )
     excluded = [p for p in points if not p["used"]]
     if excluded:
-        out.append(finding(
-            "point_excluded",
-            "temperature point " + ", ".join(f"{p['temperature']:.1f} °C ({p.get('excluded_because')})"
-                                              for p in excluded)
-            + " is left out of the calibration: the interpolation spans it from its neighbours",
-            points=[{"temperature": p["temperature"], "reason": p.get("excluded_because")}
-                    for p in excluded]))
+        out.append(
+            finding(
+                "point_excluded",
+                "temperature point "
+                + ", ".join(f"{p['temperature']:.1f} °C ({p.get('excluded_because')})" for p in excluded)
+                + " is left out of the calibration: the interpolation spans it from its neighbours",
+                points=[
+                    {"temperature": p["temperature"], "reason": p.get("excluded_because")} for p in excluded
+                ],
+            )
+        )
     return out
 
 
@@ -816,7 +985,7 @@ def review(obs, info: dict | None, cal, *, protocol, source=None) -> list[dict]:
     if error is not None:
         raise ImplausibleInputError(error, source=source)
     found = log_findings(info.get("input_stats"), source) + ([warning] if warning else [])
-    if info.get("stamps"):   # the windows' reading of bursty stamps says more than a median
+    if info.get("stamps"):  # the windows' reading of bursty stamps says more than a median
         found = [f for f in found if f["code"] not in ("sample_jitter", "dropped_samples")]
         found.append(finding("sample_jitter", info["stamps"], rate_hz=info.get("sample_rate")))
     Ks = cal.matrices()[0]
@@ -837,11 +1006,15 @@ def review(obs, info: dict | None, cal, *, protocol, source=None) -> list[dict]:
     for note in info.get("segmentation_warnings") or ():
         found.append(finding("phases_doubtful", note))
     if "temp" in (info.get("filled_columns") or ()):
-        found.append(finding(
-            "temperature_not_logged",
-            f"the log has no temp column: the calibration holds at the session's unknown "
-            f"temperature and is given at {float(cal.grid.temperatures[0]):.1f} °C, the reference "
-            "temperature", filled="temp"))
+        found.append(
+            finding(
+                "temperature_not_logged",
+                f"the log has no temp column: the calibration holds at the session's unknown "
+                f"temperature and is given at {float(cal.grid.temperatures[0]):.1f} °C, the reference "
+                "temperature",
+                filled="temp",
+            )
+        )
     found += fit_findings(cal, protocol.one_temperature)
     order = list(CODES)
     return sorted(found, key=lambda f: order.index(f["code"]))

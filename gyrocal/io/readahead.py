@@ -21,11 +21,10 @@ from pathlib import Path
 # The columns a log is read for (gyrocal.io.log.REQUIRED and the segmentation's optional ones):
 # what a file holds of them is decoded ahead; a reader asking for a column outside them
 # reads the file itself.
-COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "temp", "ref_rate", "mount",
-           "accel_x", "accel_y", "accel_z")
+COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "temp", "ref_rate", "mount", "accel_x", "accel_y", "accel_z")
 BATCH_ROWS = 1 << 17
-BUFFER_BYTES = 1 << 20     # each column chunk is read through a buffer this size
-DEPTH = 24                 # batches waiting: about 250 MB of ten float64 columns at most
+BUFFER_BYTES = 1 << 20  # each column chunk is read through a buffer this size
+DEPTH = 24  # batches waiting: about 250 MB of ten float64 columns at most
 
 _END = object()
 _pending: dict[str, ReadAhead] = {}
@@ -35,7 +34,7 @@ _lock = threading.Lock()
 class ReadAhead:
     def __init__(self, path: Path):
         self.path = path
-        self.columns: tuple[str, ...] | None = None   # set once the footer is read
+        self.columns: tuple[str, ...] | None = None  # set once the footer is read
         self.opened = threading.Event()
         self.batches: queue.Queue = queue.Queue(maxsize=DEPTH)
         self.stopped = threading.Event()
@@ -50,6 +49,7 @@ class ReadAhead:
             # and then).
             import pyarrow.compute  # noqa: F401
             import pyarrow.parquet as pq
+
             reader = pq.ParquetFile(self.path, pre_buffer=False, buffer_size=BUFFER_BYTES)
             names = set(reader.schema_arrow.names)
             self.columns = tuple(c for c in COLUMNS if c in names)
@@ -59,8 +59,9 @@ class ReadAhead:
             return
         self.opened.set()
         try:
-            for batch in reader.iter_batches(batch_size=BATCH_ROWS, columns=list(self.columns),
-                                             use_threads=True):
+            for batch in reader.iter_batches(
+                batch_size=BATCH_ROWS, columns=list(self.columns), use_threads=True
+            ):
                 if not self._put(batch):
                     return
             self._put(_END)
@@ -109,6 +110,6 @@ def take(path, columns, batch_rows: int, buffer_bytes: int):
         return None
     ahead.opened.wait()
     if not ahead.columns or not set(columns) <= set(ahead.columns):
-        ahead.stopped.set()   # its batches are of no use: free the thread and their memory
+        ahead.stopped.set()  # its batches are of no use: free the thread and their memory
         return None
     return ahead.stream(columns)

@@ -21,7 +21,7 @@ from . import atomic
 
 FILE = "runs.json"
 FORMAT = "gyrocal.runs/1"
-KEPT = 20   # models remembered per unit session, the newest last
+KEPT = 20  # models remembered per unit session, the newest last
 
 
 def read_runs(folder) -> list[dict]:
@@ -44,12 +44,28 @@ def _well_formed(run) -> bool:
     model = run.get("model")
     numbers = [run.get(k) for k in ("excess", "validation_rms", "noise_floor")]
     nxt, fix = run.get("next_session"), run.get("fix")
-    return (isinstance(model, dict) and isinstance(model.get("terms"), list) and model.get("kind") in ("grid", "continuous")
-            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in numbers)
-            and (nxt is None or (isinstance(nxt, dict) and isinstance(nxt.get("excess"), (int, float))
-                                 and isinstance(nxt.get("session"), str)))
-            and (fix is None or (isinstance(fix, dict) and isinstance(fix.get("term"), str)
-                                 and isinstance(fix.get("excess"), (int, float)))))
+    return (
+        isinstance(model, dict)
+        and isinstance(model.get("terms"), list)
+        and model.get("kind") in ("grid", "continuous")
+        and all(isinstance(v, (int, float)) and math.isfinite(v) for v in numbers)
+        and (
+            nxt is None
+            or (
+                isinstance(nxt, dict)
+                and isinstance(nxt.get("excess"), (int, float))
+                and isinstance(nxt.get("session"), str)
+            )
+        )
+        and (
+            fix is None
+            or (
+                isinstance(fix, dict)
+                and isinstance(fix.get("term"), str)
+                and isinstance(fix.get("excess"), (int, float))
+            )
+        )
+    )
 
 
 def record_run(folder, run: dict) -> list[dict]:
@@ -57,8 +73,7 @@ def record_run(folder, run: dict) -> list[dict]:
     of the same model; returns the runs."""
     runs = [r for r in read_runs(folder) if r["key"] != run["key"]] + [run]
     runs = runs[-KEPT:]
-    text = json.dumps({"format": FORMAT, "runs": _finite(runs)}, indent=1, sort_keys=True,
-                      allow_nan=False)
+    text = json.dumps({"format": FORMAT, "runs": _finite(runs)}, indent=1, sort_keys=True, allow_nan=False)
     atomic.write_text(Path(folder) / FILE, text + "\n")
     return runs
 
@@ -70,10 +85,14 @@ def last_two(runs: list[dict], config_sha256: str | None) -> tuple[dict | None, 
     if not runs or config_sha256 is None or runs[-1].get("config_sha256") != config_sha256:
         return None, None
     current, previous = runs[-1], (runs[-2] if len(runs) > 1 else None)
-    if previous is not None and (previous.get("next_session") or {}).get("session") != \
-            (current.get("next_session") or {}).get("session"):
-        previous = {**previous, "next_session": None, "fix": previous["fix"] and {
-            **previous["fix"], "next_excess": None}}
+    if previous is not None and (previous.get("next_session") or {}).get("session") != (
+        current.get("next_session") or {}
+    ).get("session"):
+        previous = {
+            **previous,
+            "next_session": None,
+            "fix": previous["fix"] and {**previous["fix"], "next_excess": None},
+        }
     return current, previous
 
 

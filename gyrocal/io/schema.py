@@ -26,10 +26,21 @@ FOLDER = Path(__file__).with_name("schemas")
 # libyaml's safe loader where PyYAML was built with it: the pure-Python one takes a fifth
 # of a second over the config schema, at every start of a command.
 SAFE_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-_TYPE_NAMES = {"number": "a number", "integer": "a whole number", "string": "a string",
-               "array": "a list", "object": "a mapping", "boolean": "true or false", "null": "null"}
-_BOUNDS = {"minimum": "at least", "exclusiveMinimum": "more than", "maximum": "at most",
-           "exclusiveMaximum": "less than"}
+_TYPE_NAMES = {
+    "number": "a number",
+    "integer": "a whole number",
+    "string": "a string",
+    "array": "a list",
+    "object": "a mapping",
+    "boolean": "true or false",
+    "null": "null",
+}
+_BOUNDS = {
+    "minimum": "at least",
+    "exclusiveMinimum": "more than",
+    "maximum": "at most",
+    "exclusiveMaximum": "less than",
+}
 
 
 def refuse_duplicate_keys(text: str, source=None) -> None:
@@ -39,7 +50,7 @@ def refuse_duplicate_keys(text: str, source=None) -> None:
     try:
         root = yaml.compose(text, Loader=SAFE_LOADER)
     except yaml.YAMLError:
-        return   # the load that follows says what is wrong
+        return  # the load that follows says what is wrong
     stack = [root] if root is not None else []
     while stack:
         node = stack.pop()
@@ -48,9 +59,11 @@ def refuse_duplicate_keys(text: str, source=None) -> None:
             for key, value in node.value:
                 name = getattr(key, "value", None)
                 if isinstance(name, str) and name in seen:
-                    raise ConfigError(f"line {key.start_mark.line + 1}: {name} is given twice (first on "
-                                      f"line {seen[name]}); YAML would keep only the second: merge them",
-                                      source=source)
+                    raise ConfigError(
+                        f"line {key.start_mark.line + 1}: {name} is given twice (first on "
+                        f"line {seen[name]}); YAML would keep only the second: merge them",
+                        source=source,
+                    )
                 seen[name] = key.start_mark.line + 1
                 stack.append(value)
         elif isinstance(node, yaml.SequenceNode):
@@ -76,13 +89,19 @@ def _validator_class():
     """The validator, made on the first check: jsonschema's import is a tenth of a second
     that reading the defaults (a report, the workflow's planning) does not need."""
     import jsonschema
+
     # A number is finite and not a boolean, a whole number an int: YAML reads .inf, .nan,
     # true and 3.0 as numbers, and none of them is a setting. A list may be a tuple: the
     # library's callers pass either.
-    types = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine_many({
-        "number": lambda _, v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v),
-        "integer": lambda _, v: isinstance(v, int) and not isinstance(v, bool),
-        "array": lambda _, v: isinstance(v, (list, tuple))})
+    types = jsonschema.Draft202012Validator.TYPE_CHECKER.redefine_many(
+        {
+            "number": lambda _, v: (
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            ),
+            "integer": lambda _, v: isinstance(v, int) and not isinstance(v, bool),
+            "array": lambda _, v: isinstance(v, (list, tuple)),
+        }
+    )
     return jsonschema.validators.extend(jsonschema.Draft202012Validator, type_checker=types)
 
 
@@ -96,12 +115,14 @@ def _validator(name: str, path: str):
 
 def defaults(name: str, path: str = "") -> dict:
     """The defaults the schema gives the settings of one section."""
-    return {key: copy.deepcopy(prop["default"])
-            for key, prop in section(name, path).get("properties", {}).items() if "default" in prop}
+    return {
+        key: copy.deepcopy(prop["default"])
+        for key, prop in section(name, path).get("properties", {}).items()
+        if "default" in prop
+    }
 
 
-def check(values, name: str = "config", path: str = "", *, key: str | None = None,
-          source=None) -> dict:
+def check(values, name: str = "config", path: str = "", *, key: str | None = None, source=None) -> dict:
     """``values`` checked against the section ``path`` of schema ``name``: a copy with the
     schema's defaults filled in. The first violation raises :class:`ConfigError` naming its
     key, written from ``key`` (the section's path unless given).
@@ -109,6 +130,7 @@ def check(values, name: str = "config", path: str = "", *, key: str | None = Non
     Defaults fill the sections written out under ``properties``; a ``$ref`` (a protocol's
     override of the model) is left as given, what it leaves out being the protocol's."""
     import jsonschema
+
     error = jsonschema.exceptions.best_match(_validator(name, path).iter_errors(values))
     if error is not None:
         raise ConfigError(_message(error, path if key is None else key), source=source)
@@ -146,7 +168,7 @@ def _message(error: jsonschema.ValidationError, key: str = "") -> str:
 
 def _phrase(error: jsonschema.ValidationError) -> str:
     kind, value, part, bound = error.validator, error.instance, error.schema, error.validator_value
-    if "errorMessage" in part:   # the schema's own wording for this setting
+    if "errorMessage" in part:  # the schema's own wording for this setting
         return f"{value!r} {part['errorMessage']}"
     if kind == "type":
         names = [bound] if isinstance(bound, str) else bound

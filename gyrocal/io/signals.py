@@ -41,8 +41,7 @@ SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag", "rate_history", "accel_
 RECORD_COLUMNS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 RECORD_SOURCE = {"rate_x": "gyro_x", "rate_y": "gyro_y", "rate_z": "gyro_z"}
 HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point"})  # spans, rate, grid point
-HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y",
-                         "accel_z", "temp"})
+HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y", "accel_z", "temp"})
 MAX_BINS = 50_000
 # The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in
 # apply and in firmware alike: a sensor's noise of 0.034 °C per sample falls to 0.003 °C at
@@ -61,8 +60,9 @@ def bin_width(duration_s: float, window_s: float) -> float:
     return max(min(1.0, window_s / 20.0), float(duration_s) / MAX_BINS)
 
 
-def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S,
-                     weights: np.ndarray | None = None) -> np.ndarray:
+def temperature_rate(
+    t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RATE_WINDOW_S, weights: np.ndarray | None = None
+) -> np.ndarray:
     """Temperature rate (°C/min) at every sample: the least-squares slope of the logged
     temperature over a centred window, computed on bin means (:func:`bin_width`) by one
     convolution and interpolated to the samples. ``weights`` count the samples behind each
@@ -87,11 +87,11 @@ def temperature_rate(t: np.ndarray, temp: np.ndarray, window_s: float = TEMP_RAT
     half = max(int(round(window_s / width / 2)), 1)
     if len(means) <= 2 * half:  # the whole log is shorter than the window: one slope
         lags = centres - centres.mean()
-        rate[good] = 60.0 * np.sum(lags * means) / max(np.sum(lags ** 2), 1e-300)
+        rate[good] = 60.0 * np.sum(lags * means) / max(np.sum(lags**2), 1e-300)
         return rate
     padded = np.pad(means, half, mode="reflect", reflect_type="odd")
     lags = np.arange(-half, half + 1, dtype=float)
-    slope = np.convolve(padded, lags[::-1] / (np.sum(lags ** 2) * width), mode="valid")  # °C/s
+    slope = np.convolve(padded, lags[::-1] / (np.sum(lags**2) * width), mode="valid")  # °C/s
     rate[good] = 60.0 * np.interp(tg - tg[0], centres, slope)
     return rate
 
@@ -114,7 +114,7 @@ def first_order_lag(t: np.ndarray, x: np.ndarray, tau: float, initial: float | N
     if not (np.isfinite(tau) and tau > 0):
         raise ValueError(f"a lag time constant must be positive, got {tau!r}")
     dt = np.diff(t)
-    lam = dt / tau                                            # time constants per step
+    lam = dt / tau  # time constants per step
     a = np.exp(-lam)
     ratio = np.where(dt > 0, tau / np.where(dt > 0, dt, 1.0), 0.0)
     u = np.where(dt > 0, x[1:] - a * x[:-1] - (x[1:] - x[:-1]) * ratio * (1.0 - a), 0.0)
@@ -137,11 +137,11 @@ def _decay_scan(lam: np.ndarray, a: np.ndarray, u: np.ndarray, start_value: floa
             state, start = y[start], start + 1
             continue
         stop = min(max(int(np.searchsorted(cum, cum[start - 1] + 50.0, side="right")), start + 1), len(y))
-        big = np.flatnonzero(lam[start:stop - 1] > 50.0)
+        big = np.flatnonzero(lam[start : stop - 1] > 50.0)
         if big.size:
             stop = start + 1 + int(big[0])
-        p = np.exp(-np.cumsum(lam[start - 1:stop - 1]))       # Π a up to k, >= e^-50
-        y[start:stop] = p * (state + np.cumsum(u[start - 1:stop - 1] / p))
+        p = np.exp(-np.cumsum(lam[start - 1 : stop - 1]))  # Π a up to k, >= e^-50
+        y[start:stop] = p * (state + np.cumsum(u[start - 1 : stop - 1] / p))
         state, start = y[stop - 1], stop
     return y[1:]
 
@@ -153,7 +153,7 @@ class LagFilter:
 
     def __init__(self, tau: float):
         self.tau = float(tau)
-        self.last: tuple[float, float, float] | None = None     # t, x, y
+        self.last: tuple[float, float, float] | None = None  # t, x, y
 
     def __call__(self, t: np.ndarray, x: np.ndarray) -> np.ndarray:
         t, x = np.asarray(t, dtype=float), np.asarray(x, dtype=float)
@@ -192,9 +192,11 @@ class CarriedFilter:
 def _carrying_last(play):
     """A play operator ``play(x, width, initial)`` as :class:`CarriedFilter` runs it: its
     state is its last output."""
+
     def run(x, width, last):
         y = play(x, width, last)
         return y, float(y[-1])
+
     return run
 
 
@@ -230,8 +232,9 @@ class SampleRecord:
     def __deepcopy__(self, memo):
         return self
 
-    def at(self, name: str, times: np.ndarray, tau: float | None = None,
-           window: float | None = None) -> np.ndarray:
+    def at(
+        self, name: str, times: np.ndarray, tau: float | None = None, window: float | None = None
+    ) -> np.ndarray:
         if self.bins is None:
             raise MissingInputError(f"{name} needs the session's record, which is not at hand here")
         return self.bins.at(name, times, tau, window)
@@ -242,20 +245,22 @@ class SampleRecord:
             raise MissingInputError(f"a history of {name} needs it in the log's samples")
         return self.samples[source]
 
-    def history(self, key, values, operator: str, size: float, times: np.ndarray,
-                smooth: bool = False) -> np.ndarray:
+    def history(
+        self, key, values, operator: str, size: float, times: np.ndarray, smooth: bool = False
+    ) -> np.ndarray:
         cache = (key, operator, float(size), bool(smooth))
-        if cache not in self._done:   # once per batch: the filter's state moves on once
+        if cache not in self._done:  # once per batch: the filter's state moves on once
             run = self.states.setdefault(cache, FILTERS[operator](size))
             x = np.asarray(values(self), dtype=float)
-            if smooth:   # the temperature, through the lag its operators read it by
+            if smooth:  # the temperature, through the lag its operators read it by
                 x = self.states.setdefault(("smooth", *cache), LagFilter(TEMPERATURE_SMOOTHING_S))(
-                    self.samples["t"], x)
+                    self.samples["t"], x
+                )
             self._done[cache] = run(self.samples["t"], x)
         y, t = self._done[cache], self.samples["t"]
         if len(times) == len(t):
             return y
-        kept = np.isfinite(t)   # apply's rows with every input finite: a subset of the batch
+        kept = np.isfinite(t)  # apply's rows with every input finite: a subset of the batch
         return np.interp(times, t[kept], y[kept])
 
 
@@ -268,7 +273,7 @@ class Series:
 
     t: np.ndarray
     temp: np.ndarray
-    t0: float = 0.0                   # the first sample's time in the log's own clock
+    t0: float = 0.0  # the first sample's time in the log's own clock
     temp_rate_window_s: float = TEMP_RATE_WINDOW_S
     weight: np.ndarray | None = None  # samples behind each point, when they are bin means
     # Further signals of the record, bin means as ``temp`` (RECORD_COLUMNS: the gyro's output
@@ -286,8 +291,7 @@ class Series:
         key = (name, tau, window)
         if key not in self._cache:
             if name == "temp_rate":
-                value = temperature_rate(self.t, self.temp, window or self.temp_rate_window_s,
-                                         self.weight)
+                value = temperature_rate(self.t, self.temp, window or self.temp_rate_window_s, self.weight)
             elif name == "temp":
                 value = self.temp
             else:
@@ -297,8 +301,9 @@ class Series:
             self._cache[key] = value
         return self._cache[key]
 
-    def at(self, name: str, times: np.ndarray, tau: float | None = None,
-           window: float | None = None) -> np.ndarray:
+    def at(
+        self, name: str, times: np.ndarray, tau: float | None = None, window: float | None = None
+    ) -> np.ndarray:
         """A signal at ``times`` (s since the first sample), linear between record points;
         ``window``: the temperature rate's window, when not the session's."""
         return np.interp(times, self.t, self.signal(name, tau, window))
@@ -313,13 +318,16 @@ class Series:
         source = RECORD_SOURCE.get(name, name)
         if source not in self.record:
             what = "rates" if source.startswith("gyro") else "specific force"
-            raise MissingInputError(f"a history of {name} needs the session's record of {what}, "
-                                    "which this record lacks (segment the log again, with the "
-                                    "columns logged)")
+            raise MissingInputError(
+                f"a history of {name} needs the session's record of {what}, "
+                "which this record lacks (segment the log again, with the "
+                "columns logged)"
+            )
         return self.record[source]
 
-    def history(self, key, values, operator: str, size: float, times: np.ndarray,
-                smooth: bool = False) -> np.ndarray:
+    def history(
+        self, key, values, operator: str, size: float, times: np.ndarray, smooth: bool = False
+    ) -> np.ndarray:
         """``values(self)`` (the record's points, from :meth:`column`), named ``key`` for
         the cache, through ``operator`` of ``size`` at ``times``: ``lag``, a first-order lag
         of time constant ``size`` s; ``play``, the play (backlash) operator of width
@@ -331,31 +339,54 @@ class Series:
             x = np.asarray(values(self), dtype=float)
             if smooth:
                 x = first_order_lag(self.t, x, TEMPERATURE_SMOOTHING_S)
-            self._cache[cache] = (first_order_lag(self.t, x, size) if operator == "lag"
-                                  else play_operator(x, size) if operator == "play"
-                                  else temperature_play(x, size) if operator == "temperature_play"
-                                  else duhem_operator(x, size)[0])
+            self._cache[cache] = (
+                first_order_lag(self.t, x, size)
+                if operator == "lag"
+                else play_operator(x, size)
+                if operator == "play"
+                else temperature_play(x, size)
+                if operator == "temperature_play"
+                else duhem_operator(x, size)[0]
+            )
         return np.interp(times, self.t, self._cache[cache])
 
     # -- the history file ----------------------------------------------------------------
     def to_frame(self) -> pd.DataFrame:
-        import pandas as pd   # a report reads a calibration without pandas
+        import pandas as pd  # a report reads a calibration without pandas
+
         weight = np.ones(len(self.t)) if self.weight is None else self.weight
-        return pd.DataFrame({"t": self.t, "temp": self.temp, "n": weight,
-                             **{k: self.record[k] for k in RECORD_COLUMNS if k in self.record}})
+        return pd.DataFrame(
+            {
+                "t": self.t,
+                "temp": self.temp,
+                "n": weight,
+                **{k: self.record[k] for k in RECORD_COLUMNS if k in self.record},
+            }
+        )
 
     @classmethod
     def from_frame(cls, frame: pd.DataFrame, meta: dict) -> Series:
-        return cls(frame["t"].to_numpy(float), frame["temp"].to_numpy(float), float(meta["t0"]),
-                   float(meta["temp_rate_window_s"]), frame["n"].to_numpy(float),
-                   {k: frame[k].to_numpy(float) for k in RECORD_COLUMNS if k in frame})
+        return cls(
+            frame["t"].to_numpy(float),
+            frame["temp"].to_numpy(float),
+            float(meta["t0"]),
+            float(meta["temp_rate_window_s"]),
+            frame["n"].to_numpy(float),
+            {k: frame[k].to_numpy(float) for k in RECORD_COLUMNS if k in frame},
+        )
 
     def metadata(self) -> dict:
         return {"t0": self.t0, "temp_rate_window_s": self.temp_rate_window_s}
 
 
-def history(t: np.ndarray, temp: np.ndarray, t0: float | None = None, *,
-            window_s: float = TEMP_RATE_WINDOW_S, record: dict | None = None) -> Series:
+def history(
+    t: np.ndarray,
+    temp: np.ndarray,
+    t0: float | None = None,
+    *,
+    window_s: float = TEMP_RATE_WINDOW_S,
+    record: dict | None = None,
+) -> Series:
     """A session's record as bin means, in the bins :func:`temperature_rate` uses, times
     counted from ``t0`` (default: the first sample); ``record``: further columns
     (:data:`RECORD_COLUMNS`) binned alike."""
@@ -374,20 +405,24 @@ class HistoryBins:
     times (the bin width depends on its duration). Further columns (the gyro's output, the
     accelerometer) are binned alike when every piece gives them."""
 
-    def __init__(self, t_first: float, t_last: float, t0: float | None = None, *,
-                 window_s: float = TEMP_RATE_WINDOW_S):
+    def __init__(
+        self, t_first: float, t_last: float, t0: float | None = None, *, window_s: float = TEMP_RATE_WINDOW_S
+    ):
         self.t0 = float(t_first) if t0 is None else float(t0)
         self.rel_first = float(t_first) - self.t0
         self.width = bin_width((float(t_last) - self.t0) - self.rel_first, window_s)
         self.window_s = window_s
         self._carry: dict | None = None
         self._out: list[dict] = []
-        self._first: dict | None = None   # every column's first sample
-        self._last: dict | None = None    # and its last
+        self._first: dict | None = None  # every column's first sample
+        self._last: dict | None = None  # and its last
 
     def push(self, t: np.ndarray, temp: np.ndarray, record: dict | None = None) -> None:
-        columns = {"t": np.asarray(t, dtype=float) - self.t0, "temp": np.asarray(temp, dtype=float),
-                   **{k: np.asarray(v, dtype=float) for k, v in (record or {}).items()}}
+        columns = {
+            "t": np.asarray(t, dtype=float) - self.t0,
+            "temp": np.asarray(temp, dtype=float),
+            **{k: np.asarray(v, dtype=float) for k, v in (record or {}).items()},
+        }
         if not len(columns["t"]):
             return
         if self._first is None:
@@ -465,8 +500,9 @@ DUHEM_BAND = 0.05
 ROOM_C = 25.0
 
 
-def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
-                   ) -> tuple[np.ndarray, tuple[float, float, float]]:
+def duhem_operator(
+    x: np.ndarray, width: float, state: tuple | None = None
+) -> tuple[np.ndarray, tuple[float, float, float]]:
     """The direction of travel of ``x`` as a Duhem hysteresis: a state in [−1, 1] that
     relaxes toward +1 while ``x`` rises and −1 while it falls, by a factor ``e`` per
     ``width`` of travel (``ds/dU = (sign(dx) − s) / w``, solved exactly step by step). Travel is counted on :func:`play_operator` of
@@ -502,9 +538,12 @@ def duhem_operator(x: np.ndarray, width: float, state: tuple | None = None
 
 
 # The filter apply runs for each history, by operator.
-FILTERS = {"lag": LagFilter, "play": lambda w: CarriedFilter(_carrying_last(play_operator), w),
-           "temperature_play": lambda w: CarriedFilter(_carrying_last(temperature_play), w),
-           "duhem": lambda w: CarriedFilter(duhem_operator, w)}
+FILTERS = {
+    "lag": LagFilter,
+    "play": lambda w: CarriedFilter(_carrying_last(play_operator), w),
+    "temperature_play": lambda w: CarriedFilter(_carrying_last(temperature_play), w),
+    "duhem": lambda w: CarriedFilter(duhem_operator, w),
+}
 
 
 class Inputs(dict):
@@ -530,8 +569,10 @@ class Inputs(dict):
         """The temperature rate (°C/min) over a centred window of ``window_s`` seconds."""
         self.read.add("temp_rate")
         if self.series is None or self.times is None:
-            raise MissingInputError("a temperature rate over a chosen window needs the session's "
-                                    "temperature record, which is not at hand here")
+            raise MissingInputError(
+                "a temperature rate over a chosen window needs the session's "
+                "temperature record, which is not at hand here"
+            )
         return self.series.at("temp_rate", self.times, window=float(window_s))
 
     def lag(self, name: str, tau: float) -> np.ndarray:  # noqa: D417
@@ -539,9 +580,11 @@ class Inputs(dict):
         (``tau = 0``: the record itself, never clamped to a calibrated range)."""
         self.read.add("temp_lag")
         if self.series is None or self.times is None:
-            raise MissingInputError(f"the lag of {name} needs the session's temperature record, "
-                                    "which is not at hand here (observations segmented before "
-                                    "gyrocal kept it: segment the log again)")
+            raise MissingInputError(
+                f"the lag of {name} needs the session's temperature record, "
+                "which is not at hand here (observations segmented before "
+                "gyrocal kept it: segment the log again)"
+            )
         try:
             tau = float(tau)
         except (TypeError, ValueError):
@@ -552,9 +595,9 @@ class Inputs(dict):
             raise MissingInputError(f"only temp and temp_rate can be lagged, not {name}")
         return self.series.at(name, self.times, tau or None)
 
-
-    def history(self, key, values, operator: str, size: float, reads=frozenset(),
-                smooth: bool = False) -> np.ndarray:
+    def history(
+        self, key, values, operator: str, size: float, reads=frozenset(), smooth: bool = False
+    ) -> np.ndarray:
         """A signal of the record through an operator of ``size`` (:data:`FILTERS`: a
         first-order lag of time constant ``size`` s, a play operator of width ``size``, the
         temperature's play from the room, a Duhem state), at this evaluation's times:
@@ -565,13 +608,17 @@ class Inputs(dict):
         self.read.add("temp_lag")
         self.read.update(reads)
         if self.series is None or self.times is None:
-            raise MissingInputError("an input with a history needs the session's record, which is "
-                                    "not at hand here (observations segmented before gyrocal kept "
-                                    "it: segment the log again)")
+            raise MissingInputError(
+                "an input with a history needs the session's record, which is "
+                "not at hand here (observations segmented before gyrocal kept "
+                "it: segment the log again)"
+            )
         size = float(size)
         if not (np.isfinite(size) and size > 0):
-            raise MissingInputError(f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
-                                    f"must be a positive number, got {size!r}")
+            raise MissingInputError(
+                f"a {operator}'s {'time constant' if operator == 'lag' else 'width'} "
+                f"must be a positive number, got {size!r}"
+            )
         return self.series.history(key, values, operator, size, self.times, smooth)
 
 
@@ -590,8 +637,10 @@ def hold_inputs(data) -> tuple[Inputs, dict]:
         hi = np.asarray(columns["t_end"], float) - series.t0
         columns["t"] = 0.5 * (lo + hi)
         span = (lo, hi)
-    return Inputs(columns, series, columns.get("t") if series is not None else None), \
-        {"series": series, "span": span}
+    return Inputs(columns, series, columns.get("t") if series is not None else None), {
+        "series": series,
+        "span": span,
+    }
 
 
 def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
@@ -603,15 +652,20 @@ def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
     holds' a few dozen times."""
     lo, hi = span
     n = len(lo)
-    key = ("nodes", hashlib.blake2b(np.ascontiguousarray(lo, float).tobytes()
-                                    + np.ascontiguousarray(hi, float).tobytes(), digest_size=20).digest())
+    key = (
+        "nodes",
+        hashlib.blake2b(
+            np.ascontiguousarray(lo, float).tobytes() + np.ascontiguousarray(hi, float).tobytes(),
+            digest_size=20,
+        ).digest(),
+    )
     nodes = series._cache.get(key)
     if nodes is None:
         nodes = _nodes(series, lo, hi)
         for a in nodes:
-            a.flags.writeable = False   # shared by the fits that ask for these holds
+            a.flags.writeable = False  # shared by the fits that ask for these holds
         kept = [k for k in series._cache if k[0] == "nodes"]
-        for old in kept[:len(kept) - NODE_LAYOUTS_KEPT + 1]:
+        for old in kept[: len(kept) - NODE_LAYOUTS_KEPT + 1]:
             del series._cache[old]
         series._cache[key] = nodes
     hold, times, starts, weights, temp_rate = nodes
@@ -641,19 +695,22 @@ def _nodes(series: Series, lo: np.ndarray, hi: np.ndarray) -> tuple:
     sizes = inside + 2
     starts = np.r_[0, np.cumsum(sizes)[:-1]]
     hold = np.repeat(np.arange(n), sizes)
-    position = np.arange(int(sizes.sum())) - starts[hold]          # 0 .. size-1 in a hold
-    record = first[hold] + position - 1                              # record index, inner nodes
-    times = np.where(position == 0, lo[hold],
-                     np.where(position == sizes[hold] - 1, hi[hold],
-                              series.t[np.clip(record, 0, len(series.t) - 1)]))
+    position = np.arange(int(sizes.sum())) - starts[hold]  # 0 .. size-1 in a hold
+    record = first[hold] + position - 1  # record index, inner nodes
+    times = np.where(
+        position == 0,
+        lo[hold],
+        np.where(position == sizes[hold] - 1, hi[hold], series.t[np.clip(record, 0, len(series.t) - 1)]),
+    )
     # Trapezoid weights: half the span to each neighbour, over the hold's length.
     before = np.r_[0.0, np.diff(times)]
     after = np.r_[np.diff(times), 0.0]
     before[position == 0] = 0.0
     after[position == sizes[hold] - 1] = 0.0
     length = (hi - lo)[hold]
-    weights = np.where(length > 0, 0.5 * (before + after) / np.where(length > 0, length, 1.0),
-                       1.0 / sizes[hold])
+    weights = np.where(
+        length > 0, 0.5 * (before + after) / np.where(length > 0, length, 1.0), 1.0 / sizes[hold]
+    )
     return hold, times, starts, weights, series.at("temp_rate", times)
 
 

@@ -22,11 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-GAP_CANDIDATE = 10.0   # an interval this many times the median may be a gap or a stall
-CAUGHT_UP = 0.75       # share of the expected samples that marks a stall made up by a bunch
-BURSTY_CV = 0.5        # intervals scattering more than this (std/mean) are bursty stamps
-SPAN = 32              # samples over which the nominal interval is read
-REACH = 128            # samples: the shortest stretch a stall's catching up is judged over
+GAP_CANDIDATE = 10.0  # an interval this many times the median may be a gap or a stall
+CAUGHT_UP = 0.75  # share of the expected samples that marks a stall made up by a bunch
+BURSTY_CV = 0.5  # intervals scattering more than this (std/mean) are bursty stamps
+SPAN = 32  # samples over which the nominal interval is read
+REACH = 128  # samples: the shortest stretch a stall's catching up is judged over
 
 
 @dataclass(frozen=True)
@@ -53,11 +53,16 @@ class Sampling:
         """One line for the output's warnings, None for a clocked logger."""
         if not self.bursty:
             return None
-        stalls = (f"; {self.stalls} stalls up to {self.longest_stall_s:.3g} s made up by bunched "
-                  "samples, not gaps" if self.stalls else "")
-        return (f"time stamps are bursty (intervals scatter {self.interval_cv:.0%} of their mean"
-                f"{stalls}): stamped on arrival rather than by the sensor's clock; the nominal rate "
-                f"{self.rate:.4g} Hz is samples over time")
+        stalls = (
+            f"; {self.stalls} stalls up to {self.longest_stall_s:.3g} s made up by bunched samples, not gaps"
+            if self.stalls
+            else ""
+        )
+        return (
+            f"time stamps are bursty (intervals scatter {self.interval_cv:.0%} of their mean"
+            f"{stalls}): stamped on arrival rather than by the sensor's clock; the nominal rate "
+            f"{self.rate:.4g} Hz is samples over time"
+        )
 
 
 def sampling(t: np.ndarray) -> Sampling:
@@ -87,5 +92,6 @@ def sampling(t: np.ndarray) -> Sampling:
     within = np.delete(dt, candidate[gap])
     cv = float(np.std(within) / np.mean(within)) if within.size else 0.0
     stalls = candidate[~gap]
-    return Sampling(float(rate), starts, stops, int(len(stalls)),
-                    float(dt[stalls].max()) if len(stalls) else 0.0, cv)
+    return Sampling(
+        float(rate), starts, stops, int(len(stalls)), float(dt[stalls].max()) if len(stalls) else 0.0, cv
+    )

@@ -23,8 +23,9 @@ def write_table(frame, path, metadata: dict | None = None) -> None:
         frame.attrs = {}
     table = pa.Table.from_pandas(frame, preserve_index=False)
     if metadata is not None:
-        table = table.replace_schema_metadata({**(table.schema.metadata or {}),
-                                               OBS_META_KEY: json.dumps(metadata).encode()})
+        table = table.replace_schema_metadata(
+            {**(table.schema.metadata or {}), OBS_META_KEY: json.dumps(metadata).encode()}
+        )
     with atomic.replacing(path) as tmp:
         pq.write_table(table, tmp)
 
@@ -40,6 +41,7 @@ def read_columns_with_metadata(path, data: bytes | None = None):
     """(:class:`gyrocal.io.columns.Columns`, metadata dict) of the same file, without pandas:
     what a report reads."""
     from .columns import Columns
+
     table, metadata = _read_arrow(path, data, whole_file=True)
     return Columns.from_arrow(table), metadata
 

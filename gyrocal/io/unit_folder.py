@@ -27,7 +27,7 @@ UNIT_FILES = {
     "diagnosis": "diagnosis.json",
     "residuals": "residuals.parquet",
     "protocol": "protocol.json",
-    "free_points": "free_points.parquet",   # continuous models only
+    "free_points": "free_points.parquet",  # continuous models only
 }
 OPTIONAL_FILES = ("history", "free_points")
 # Written by the validation stage beside validation.json (protocol.json: the protocol's own
@@ -46,6 +46,7 @@ def read_observations(folder):
     segmentation wrote one (``history.parquet``). A failure record there raises
     :class:`gyrocal.io.failure.UpstreamFailure`."""
     from . import failure
+
     folder = Path(folder)
     if folder.name == UNIT_FILES["observations"]:
         folder = folder.parent
@@ -71,11 +72,20 @@ def read_observations(folder):
 # when they are done (:func:`pack`); every reader reads a part where it is, packed or loose.
 CONTAINERS = {
     "segmentation.zip": ("observations", "history", "segments", "timeline"),
-    "analysis.zip": ("validation", "holds", "table_hold_means", "table_samples", "by_temperature",
-                     "protocol", "free_points", "diagnosis", "residuals"),
+    "analysis.zip": (
+        "validation",
+        "holds",
+        "table_hold_means",
+        "table_samples",
+        "by_temperature",
+        "protocol",
+        "free_points",
+        "diagnosis",
+        "residuals",
+    ),
 }
 CONTAINER_OF = {key: name for name, keys in CONTAINERS.items() for key in keys}
-_ZIP_DATE = (1980, 1, 1, 0, 0, 0)   # the archive's members carry no date: same bytes every run
+_ZIP_DATE = (1980, 1, 1, 0, 0, 0)  # the archive's members carry no date: same bytes every run
 
 
 def part_label(folder, key: str) -> Path:
@@ -96,8 +106,9 @@ def part_bytes(folder, key: str) -> bytes | None:
         try:
             return None if member is None else member.read()
         except (zipfile.BadZipFile, OSError) as exc:
-            raise CorruptFileError(f"not a readable archive ({exc})",
-                                   source=Path(folder) / CONTAINER_OF[key]) from None
+            raise CorruptFileError(
+                f"not a readable archive ({exc})", source=Path(folder) / CONTAINER_OF[key]
+            ) from None
 
 
 def _required_bytes(folder, key: str) -> tuple[bytes, Path]:
@@ -119,7 +130,7 @@ def part_exists(folder, key: str) -> bool:
         with zipfile.ZipFile(container) as archive:
             return UNIT_FILES[key] in archive.namelist()
     except (zipfile.BadZipFile, OSError):
-        return True   # there, but unreadable: its reader says so
+        return True  # there, but unreadable: its reader says so
 
 
 def read_part_table(folder, key: str):
@@ -138,6 +149,7 @@ def read_part_doc(folder, key: str) -> dict | None:
     """A JSON part as it is, a failure record or a result (read and parsed once), None
     where it is missing."""
     from . import failure
+
     data = part_bytes(folder, key)
     if data is None:
         return None
@@ -150,6 +162,7 @@ def read_part_doc(folder, key: str) -> dict | None:
 def read_part_json(folder, key: str) -> dict:
     """A JSON part; a failure record raises :class:`gyrocal.io.failure.UpstreamFailure`."""
     from . import failure
+
     data = part_bytes(folder, key)
     return failure.load_json(part_label(folder, key), data=data)
 
@@ -158,6 +171,7 @@ def part_failure(folder, key: str) -> dict | None:
     """The failure record a part holds, None where it holds a result or is missing. A
     Parquet part's record is in its footer: only that is read, loose or packed."""
     from . import failure
+
     loose = Path(folder) / UNIT_FILES[key]
     if loose.exists():
         return failure.read(loose)
@@ -170,6 +184,7 @@ def part_metadata(folder, key: str) -> dict | None:
     missing."""
     import pyarrow as pa
     import pyarrow.parquet as pq
+
     loose = Path(folder) / UNIT_FILES[key]
     try:
         if loose.exists():
@@ -177,7 +192,9 @@ def part_metadata(folder, key: str) -> dict | None:
         with _member(folder, key) as member:
             return None if member is None else pq.read_schema(member).metadata or {}
     except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"not a readable Parquet file ({exc})", source=part_label(folder, key)) from None
+        raise CorruptFileError(
+            f"not a readable Parquet file ({exc})", source=part_label(folder, key)
+        ) from None
 
 
 @contextlib.contextmanager
@@ -210,7 +227,7 @@ def pack(folder, owned=()) -> None:
     folder = Path(folder)
     for name, keys in CONTAINERS.items():
         if owned and not set(owned) & set(keys):
-            continue   # another job's archive: not this stage's to rewrite
+            continue  # another job's archive: not this stage's to rewrite
         loose = {k: folder / UNIT_FILES[k] for k in keys if (folder / UNIT_FILES[k]).exists()}
         container = folder / name
         dropped = {UNIT_FILES[k] for k in owned if k in keys and k not in loose}
@@ -231,7 +248,7 @@ def _members(container: Path) -> dict[str, bytes] | None:
         with zipfile.ZipFile(container) as archive:
             return {n: archive.read(n) for n in archive.namelist()}
     except (zipfile.BadZipFile, OSError):
-        return None   # a broken archive is rebuilt from what this run wrote (pack)
+        return None  # a broken archive is rebuilt from what this run wrote (pack)
 
 
 def _write_archive(container: Path, members: dict[str, bytes]) -> None:
@@ -245,8 +262,7 @@ def _write_archive(container: Path, members: dict[str, bytes]) -> None:
 # A workflow job's log (what the stage printed, and the guard's record of a failure it
 # caught: gyrocal/run/guard.py) is written as a file while the job runs and joins the
 # job's archive when the job ends well.
-LOG_PARTS = {"segment": ("segmentation.zip", "segment.log"),
-             "analyse": ("analysis.zip", "analyse.log")}
+LOG_PARTS = {"segment": ("segmentation.zip", "segment.log"), "analyse": ("analysis.zip", "analyse.log")}
 LOG_OF = {container: name for container, name in LOG_PARTS.values()}
 
 
@@ -269,8 +285,9 @@ def job_log(folder, stage: str) -> str | None:
     beside the archive where that is the newer, else the packed one."""
     container, name = LOG_PARTS[stage]
     loose, container = Path(folder) / name, Path(folder) / container
-    if loose.exists() and (not container.exists()
-                           or loose.stat().st_mtime_ns >= container.stat().st_mtime_ns):
+    if loose.exists() and (
+        not container.exists() or loose.stat().st_mtime_ns >= container.stat().st_mtime_ns
+    ):
         return loose.read_text(errors="replace")
     try:
         with zipfile.ZipFile(container) as archive:
@@ -297,5 +314,5 @@ def pack_stage(folder, stage: str, owned=None) -> None:
 def clear_stage(folder, stage: str, owned=None) -> None:
     """Before ``stage`` runs in ``folder``: its own parts left loose by an earlier run that
     was stopped before packing go, so that :func:`pack` takes only what this run wrote."""
-    for key in (STAGE_PARTS.get(stage, ()) if owned is None else owned):
+    for key in STAGE_PARTS.get(stage, ()) if owned is None else owned:
         (Path(folder) / UNIT_FILES[key]).unlink(missing_ok=True)

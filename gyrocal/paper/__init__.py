@@ -38,19 +38,28 @@ def check_seeds(seeds: Sequence[str]) -> tuple[str, ...]:
     seeds = tuple(seeds)
     unknown = [s for s in seeds if s not in SEEDS]
     if unknown or not seeds:
-        raise ConfigError(f"expected seeds among {', '.join(SEEDS)}, found "
-                          f"{', '.join(repr(s) for s in unknown) if unknown else 'none'}")
-    return tuple(s for s in SEEDS if s in seeds)   # the papers' order, each once
+        raise ConfigError(
+            f"expected seeds among {', '.join(SEEDS)}, found "
+            f"{', '.join(repr(s) for s in unknown) if unknown else 'none'}"
+        )
+    return tuple(s for s in SEEDS if s in seeds)  # the papers' order, each once
 
 
-def regenerate(out_dir, *, only: Sequence[str] = SEEDS, seed: int = 0, quick: bool = False,
-               say: Callable[[str], None] = print) -> list[Path]:
+def regenerate(
+    out_dir,
+    *,
+    only: Sequence[str] = SEEDS,
+    seed: int = 0,
+    quick: bool = False,
+    say: Callable[[str], None] = print,
+) -> list[Path]:
     """Regenerate the seeds' tables and figures and render them into ``out_dir``.
 
     ``say`` gets one line per seed (what was made and how long it took, or why it was
     skipped); the files themselves carry no timing, so re-runs are byte-identical.
     """
     from .render import render
+
     out = Path(out_dir)
     tables, figures, skipped = [], {}, {}
     for s in check_seeds(only):
@@ -63,8 +72,10 @@ def regenerate(out_dir, *, only: Sequence[str] = SEEDS, seed: int = 0, quick: bo
         made = list(module.tables(seed=seed, quick=quick))
         figures[s] = list(module.figures(out / "figures", seed=seed, quick=quick))
         tables += made
-        say(f"gyrocal paper: seed {s}: {len(made)} tables, {len(figures[s])} figures in "
-            f"{time.perf_counter() - start:.1f} s")
+        say(
+            f"gyrocal paper: seed {s}: {len(made)} tables, {len(figures[s])} figures in "
+            f"{time.perf_counter() - start:.1f} s"
+        )
     about = f"simulation seed {seed}, {'quick' if quick else 'full'} regeneration"
     return render(tables, out, figures=figures, skipped=skipped, about=about)
 
@@ -84,13 +95,22 @@ def cmd_paper(args) -> int:
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
     """Register ``gyrocal paper`` on the CLI's subparsers."""
-    p = subparsers.add_parser("paper", help="regenerate the seed papers' tables beside their "
-                              "published values")
+    p = subparsers.add_parser(
+        "paper", help="regenerate the seed papers' tables beside their published values"
+    )
     p.add_argument("--out", required=True, help="folder for tables.md, tables.csv, index.html")
-    p.add_argument("--only", type=_seed_list, default=SEEDS, metavar="SEEDS",
-                   help=f"comma-separated seeds (default: {','.join(SEEDS)})")
+    p.add_argument(
+        "--only",
+        type=_seed_list,
+        default=SEEDS,
+        metavar="SEEDS",
+        help=f"comma-separated seeds (default: {','.join(SEEDS)})",
+    )
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
-    p.add_argument("--quick", action="store_true",
-                   help="small simulations that run in seconds (tests), not the papers' protocols")
+    p.add_argument(
+        "--quick",
+        action="store_true",
+        help="small simulations that run in seconds (tests), not the papers' protocols",
+    )
     p.set_defaults(func=cmd_paper)
     return p

@@ -37,8 +37,8 @@ from ..terms import AXES
 from .table import PaperRow, PaperTable
 
 SEED = "000"
-TEST_TEMPERATURE = 25.0        # °C, chamber set point of the Table 4 session (Section 4)
-RIG = TurntableProtocol()      # the seed protocol: Tables 1-2, 60 s holds at 100 Hz, 1 h soaks
+TEST_TEMPERATURE = 25.0  # °C, chamber set point of the Table 4 session (Section 4)
+RIG = TurntableProtocol()  # the seed protocol: Tables 1-2, 60 s holds at 100 Hz, 1 h soaks
 
 # Table 3, per (rotating axis, output axis): uncompensated mean, RMS; proposed mean, RMS (deg/s).
 TABLE3 = {
@@ -67,22 +67,31 @@ TABLE4 = {
 }
 # Eq 23: K_g at 25 °C in the paper's order (Eq 14), each with its place in gyrocal's K
 # (output row, input column): the paper's K_ab is the a rate's share in the b output (Eq 11).
-EQ23 = (("K_xx", ("x", "x"), 1.0005), ("K_yy", ("y", "y"), 1.0005), ("K_zz", ("z", "z"), 1.0017),
-        ("K_yx", ("x", "y"), -0.0188), ("K_zx", ("x", "z"), 0.0012), ("K_xy", ("y", "x"), 0.0187),
-        ("K_zy", ("y", "z"), 5.2027e-4), ("K_xz", ("z", "x"), -0.0011),
-        ("K_yz", ("z", "y"), -7.5133e-4),
-        ("B_x", "x", -0.0303), ("B_y", "y", -0.0435), ("B_z", "z", -0.0261))
+EQ23 = (
+    ("K_xx", ("x", "x"), 1.0005),
+    ("K_yy", ("y", "y"), 1.0005),
+    ("K_zz", ("z", "z"), 1.0017),
+    ("K_yx", ("x", "y"), -0.0188),
+    ("K_zx", ("x", "z"), 0.0012),
+    ("K_xy", ("y", "x"), 0.0187),
+    ("K_zy", ("y", "z"), 5.2027e-4),
+    ("K_xz", ("z", "x"), -0.0011),
+    ("K_yz", ("z", "y"), -7.5133e-4),
+    ("B_x", "x", -0.0303),
+    ("B_y", "y", -0.0435),
+    ("B_z", "z", -0.0261),
+)
 
 
 @dataclass(frozen=True)
 class Regeneration:
     """What the tables are read from."""
 
-    table_holds: pd.DataFrame     # grid, leave-temperature-out, hold means (validate's table)
-    test: pd.DataFrame            # 25 °C session: mean/RMS on samples per method and axis pair
-    K25: np.ndarray               # calibration at 25 °C: K (3, 3) and B (3,)
+    table_holds: pd.DataFrame  # grid, leave-temperature-out, hold means (validate's table)
+    test: pd.DataFrame  # 25 °C session: mean/RMS on samples per method and axis pair
+    K25: np.ndarray  # calibration at 25 °C: K (3, 3) and B (3,)
     B25: np.ndarray
-    K25_se: np.ndarray            # their standard errors
+    K25_se: np.ndarray  # their standard errors
     B25_se: np.ndarray
     setup: dict
 
@@ -98,8 +107,9 @@ def sample_statistics(holds: pd.DataFrame) -> pd.DataFrame:
     n = holds["n"].to_numpy(dtype=float)[:, None]
     err, var = _stacked(holds, "err"), _stacked(holds, "var")
     noise = _stacked(holds, "std") ** 2
-    frame = pd.DataFrame({"method": holds["method"].astype(str).to_numpy(),
-                          "rotating": holds["axis"].astype(str).to_numpy()})
+    frame = pd.DataFrame(
+        {"method": holds["method"].astype(str).to_numpy(), "rotating": holds["axis"].astype(str).to_numpy()}
+    )
     for i, a in enumerate(AXES):
         frame[f"n_{a}"] = n[:, 0]
         frame[f"e_{a}"] = n[:, 0] * err[:, i]
@@ -109,10 +119,16 @@ def sample_statistics(holds: pd.DataFrame) -> pd.DataFrame:
     rows = []
     for (method, rotating), s in sums.iterrows():
         for a in AXES:
-            rows.append({"method": method, "rotating": rotating, "output": a,
-                         "mean": s[f"e_{a}"] / s[f"n_{a}"],
-                         "rms": np.sqrt(s[f"e2_{a}"] / s[f"n_{a}"]),
-                         "noise_floor": np.sqrt(s[f"f2_{a}"] / s[f"n_{a}"])})
+            rows.append(
+                {
+                    "method": method,
+                    "rotating": rotating,
+                    "output": a,
+                    "mean": s[f"e_{a}"] / s[f"n_{a}"],
+                    "rms": np.sqrt(s[f"e2_{a}"] / s[f"n_{a}"]),
+                    "noise_floor": np.sqrt(s[f"f2_{a}"] / s[f"n_{a}"]),
+                }
+            )
     return pd.DataFrame(rows)
 
 
@@ -124,43 +140,57 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
     grid_seq, test_seq = np.random.SeedSequence(seed).spawn(2)
     if quick:
         hold_samples = int(round(RIG.hold_s * RIG.sample_rate))
-        draw = functools.partial(observations, unit, rates=SEED000_RATES, mounts=RIG.mounts,
-                                 samples=hold_samples, sample_rate=RIG.sample_rate)
+        draw = functools.partial(
+            observations,
+            unit,
+            rates=SEED000_RATES,
+            mounts=RIG.mounts,
+            samples=hold_samples,
+            sample_rate=RIG.sample_rate,
+        )
         # The rig's die runs `self_heating` above the chamber: the draws sit where the log's holds do.
-        grid_obs = draw(np.random.default_rng(grid_seq),
-                        temperatures=[t + RIG.self_heating for t in SEED000_TEMPERATURES])
-        test_obs = draw(np.random.default_rng(test_seq),
-                        temperatures=(TEST_TEMPERATURE + RIG.self_heating,))
+        grid_obs = draw(
+            np.random.default_rng(grid_seq), temperatures=[t + RIG.self_heating for t in SEED000_TEMPERATURES]
+        )
+        test_obs = draw(np.random.default_rng(test_seq), temperatures=(TEST_TEMPERATURE + RIG.self_heating,))
         cal, fitted = calibrate_observations(grid_obs, settings, meta={"device": "seed000"})
-        grid_val = validate(cal.model, grid_obs, fitted,
-                            reference_temperature=settings.model.reference_temperature)
+        grid_val = validate(
+            cal.model, grid_obs, fitted, reference_temperature=settings.model.reference_temperature
+        )
         rows = len(grid_obs)
         how = "hold means drawn directly from the unit (no log, no segmentation)"
     else:
         with tempfile.TemporaryDirectory(prefix="gyrocal-seed000-") as tmp:
             grid_log, test_log = Path(tmp) / "grid.parquet", Path(tmp) / "test25.parquet"
             truth = render(RIG, unit, np.random.default_rng(grid_seq), grid_log)
-            render(TurntableProtocol(temperatures=(TEST_TEMPERATURE,)), unit,
-                   np.random.default_rng(test_seq), test_log)
+            render(
+                TurntableProtocol(temperatures=(TEST_TEMPERATURE,)),
+                unit,
+                np.random.default_rng(test_seq),
+                test_log,
+            )
             result = run(grid_log, settings, device="seed000")
             test_obs = segment_log(test_log, settings).observations
-        grid_obs, cal, fitted, grid_val = (result.segmentation.observations, result.calibration,
-                                           result.fitted, result.validation)
+        grid_obs, cal, fitted, grid_val = (
+            result.segmentation.observations,
+            result.calibration,
+            result.fitted,
+            result.validation,
+        )
         rows = truth["rows"]
-        how = (f"rig logs rendered at {RIG.sample_rate:g} Hz ({rows:,} rows for the grid) and "
-               "run through ingest, segmentation and calibration")
+        how = (
+            f"rig logs rendered at {RIG.sample_rate:g} Hz ({rows:,} rows for the grid) and "
+            "run through ingest, segmentation and calibration"
+        )
 
     # The 25 °C session joins the grid as one more point and, held out like every point,
     # meets the grid without it (proposed) and the calibration nearest 25 °C (traditional).
-    test_obs = test_obs.assign(hold=test_obs["hold"] + int(grid_obs["hold"].max()) + 1,
-                               point=-1)
+    test_obs = test_obs.assign(hold=test_obs["hold"] + int(grid_obs["hold"].max()) + 1, point=-1)
     both = pd.concat([grid_obs, test_obs], ignore_index=True)
     both["point"] = np.unique(both["point_temp"].to_numpy(), return_inverse=True)[1]
     test_point = int(both["point"].iloc[-1])
-    both_fit = fit_model(cal.model, both, kind=settings.model.kind,
-                         method=settings.model.interpolation)
-    both_val = validate(cal.model, both, both_fit,
-                        reference_temperature=settings.model.reference_temperature)
+    both_fit = fit_model(cal.model, both, kind=settings.model.kind, method=settings.model.interpolation)
+    both_val = validate(cal.model, both, both_fit, reference_temperature=settings.model.reference_temperature)
     test_holds = both_val.holds[both_val.holds["point"] == test_point]
 
     K, B = cal.matrices_at([TEST_TEMPERATURE])
@@ -176,7 +206,9 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
         else:
             K_se[a, AXES.index(parts[2])] = value[0]
     setup = {
-        "how": how, "rows": int(rows), "grid_holds": int(len(grid_obs)),
+        "how": how,
+        "rows": int(rows),
+        "grid_holds": int(len(grid_obs)),
         "grid_points": int(grid_val.summary["temperature_points"]),
         "scored_holds": int(grid_val.summary["holds_scored"]),
         "point_temps": fitted.points.loc[fitted.points["used"], "temp"].to_numpy(dtype=float),
@@ -186,12 +218,14 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
         "noise_sample": float(unit.noise_std(RIG.sample_rate)),
         "noise_hold": float(grid_val.summary["noise_floor"]),
         "noise_density": unit.noise_density,
-        "hold_s": RIG.hold_s, "sample_rate": RIG.sample_rate, "soak_s": RIG.soak_s,
+        "hold_s": RIG.hold_s,
+        "sample_rate": RIG.sample_rate,
+        "soak_s": RIG.soak_s,
         "self_heating": RIG.self_heating,
-        "scale_tc": unit.scale_tc, "excess": float(grid_val.summary["excess"]),
+        "scale_tc": unit.scale_tc,
+        "excess": float(grid_val.summary["excess"]),
     }
-    return Regeneration(grid_val.table_holds, sample_statistics(test_holds),
-                        K[0], B[0], K_se, B_se, setup)
+    return Regeneration(grid_val.table_holds, sample_statistics(test_holds), K[0], B[0], K_se, B_se, setup)
 
 
 def _where(rotating: str, output: str) -> str:
@@ -199,23 +233,27 @@ def _where(rotating: str, output: str) -> str:
 
 
 def _setup_note(s: dict) -> str:
-    return (f"Simulated unit: seed 000's Eq 23 K_g is the truth at a die temperature of 25 °C; "
-            f"white noise {s['noise_density']:g} deg/s/√Hz, i.e. {s['noise_sample']:.4f} deg/s per "
-            f"sample at {s['sample_rate']:g} Hz and about {s['noise_hold']:.2g} deg/s on a "
-            f"{s['hold_s']:g} s hold mean. Protocol: Table 1 set points (−40 to 50 °C, "
-            f"{s['soak_s'] / 3600:g} h soak each; the die runs {s['self_heating']:g} °C above the "
-            f"chamber), Table 2 rates (0 and ±0.1 to ±400 deg/s) forward and reverse on mounts "
-            f"+x, +y, +z, {s['hold_s']:g} s holds: {s['grid_holds']} holds at {s['grid_points']} "
-            f"points; {s['how']}.")
+    return (
+        f"Simulated unit: seed 000's Eq 23 K_g is the truth at a die temperature of 25 °C; "
+        f"white noise {s['noise_density']:g} deg/s/√Hz, i.e. {s['noise_sample']:.4f} deg/s per "
+        f"sample at {s['sample_rate']:g} Hz and about {s['noise_hold']:.2g} deg/s on a "
+        f"{s['hold_s']:g} s hold mean. Protocol: Table 1 set points (−40 to 50 °C, "
+        f"{s['soak_s'] / 3600:g} h soak each; the die runs {s['self_heating']:g} °C above the "
+        f"chamber), Table 2 rates (0 and ±0.1 to ±400 deg/s) forward and reverse on mounts "
+        f"+x, +y, +z, {s['hold_s']:g} s holds: {s['grid_holds']} holds at {s['grid_points']} "
+        f"points; {s['how']}."
+    )
 
 
 def _assumption_note(s: dict) -> str:
     tc = ", ".join(f"{1e6 * v:+.0f}" for v in s["scale_tc"])
-    return ("The paper publishes K and B at 25 °C only (Eq 23) and their trends over temperature "
-            "as curves (Figs. 4-6): the simulated unit's temperature dependence is gyrocal's own "
-            f"assumption (scale factor linear in T, {tc} ppm/°C for x, y, z; bias cubic in T), "
-            "so figures set by it (uncompensated means and on-axis RMS, the gain over a "
-            "single-temperature calibration) can agree in size only, not digit by digit.")
+    return (
+        "The paper publishes K and B at 25 °C only (Eq 23) and their trends over temperature "
+        "as curves (Figs. 4-6): the simulated unit's temperature dependence is gyrocal's own "
+        f"assumption (scale factor linear in T, {tc} ppm/°C for x, y, z; bias cubic in T), "
+        "so figures set by it (uncompensated means and on-axis RMS, the gain over a "
+        "single-temperature calibration) can agree in size only, not digit by digit."
+    )
 
 
 def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
@@ -226,13 +264,16 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
     rows3 = []
     for (rot, out), (u_mean, u_rms, p_mean, p_rms) in TABLE3.items():
         row, where = t3.loc[(rot, out)], _where(rot, out)
-        rows3 += [PaperRow(f"{where} / {label}", float(row[column]), published, "deg/s")
-                  for label, column, published in (
-                      ("Mean, uncompensated", "uncompensated_mean", u_mean),
-                      ("Mean, proposed", "interpolated_mean", p_mean),
-                      ("RMS, uncompensated", "uncompensated_rms", u_rms),
-                      ("RMS, proposed", "interpolated_rms", p_rms),
-                      ("noise floor of hold means", "noise_floor", None))]
+        rows3 += [
+            PaperRow(f"{where} / {label}", float(row[column]), published, "deg/s")
+            for label, column, published in (
+                ("Mean, uncompensated", "uncompensated_mean", u_mean),
+                ("Mean, proposed", "interpolated_mean", p_mean),
+                ("RMS, uncompensated", "uncompensated_rms", u_rms),
+                ("RMS, proposed", "interpolated_rms", p_rms),
+                ("noise floor of hold means", "noise_floor", None),
+            )
+        ]
     rate_rms = float(np.sqrt(np.mean(np.square((0.0,) + SEED000_RATES * 2))))
     notes3 = (
         _setup_note(s),
@@ -265,15 +306,29 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
     for (rot, out), (u, trad, prop, vs_u, vs_t) in TABLE4.items():
         where = _where(rot, out)
         rms = {m: float(t4.loc[(m, rot, out), "rms"]) for m in METHODS}
-        rows4 += [PaperRow(f"{where} / RMS, uncompensated", rms["uncompensated"], u, "deg/s"),
-                  PaperRow(f"{where} / RMS, traditional", rms["single"], trad, "deg/s"),
-                  PaperRow(f"{where} / RMS, proposed", rms["interpolated"], prop, "deg/s"),
-                  PaperRow(f"{where} / reduction vs uncompensated",
-                           100.0 * (1.0 - rms["interpolated"] / rms["uncompensated"]), vs_u, "%"),
-                  PaperRow(f"{where} / reduction vs traditional",
-                           100.0 * (1.0 - rms["interpolated"] / rms["single"]), vs_t, "%"),
-                  PaperRow(f"{where} / per-sample noise",
-                           float(t4.loc[("interpolated", rot, out), "noise_floor"]), None, "deg/s")]
+        rows4 += [
+            PaperRow(f"{where} / RMS, uncompensated", rms["uncompensated"], u, "deg/s"),
+            PaperRow(f"{where} / RMS, traditional", rms["single"], trad, "deg/s"),
+            PaperRow(f"{where} / RMS, proposed", rms["interpolated"], prop, "deg/s"),
+            PaperRow(
+                f"{where} / reduction vs uncompensated",
+                100.0 * (1.0 - rms["interpolated"] / rms["uncompensated"]),
+                vs_u,
+                "%",
+            ),
+            PaperRow(
+                f"{where} / reduction vs traditional",
+                100.0 * (1.0 - rms["interpolated"] / rms["single"]),
+                vs_t,
+                "%",
+            ),
+            PaperRow(
+                f"{where} / per-sample noise",
+                float(t4.loc[("interpolated", rot, out), "noise_floor"]),
+                None,
+                "deg/s",
+            ),
+        ]
     notes4 = (
         f"Test session: the same unit at a chamber set point of {TEST_TEMPERATURE:g} °C (die "
         f"{s['test_temp']:.1f} °C), {s['test_holds']} holds over Table 2's rates on the three "
@@ -319,14 +374,26 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
         f"{float(np.max(r.B25_se)):.1e} deg/s).",
     )
     return [
-        PaperTable(SEED, "Table 3", "Mean and RMS error: uncompensated and the proposed "
-                   "(interpolated) calibration, per rotating axis and output axis",
-                   tuple(rows3), notes3),
-        PaperTable(SEED, "Table 4", "RMS error at 25 °C: uncompensated, traditional "
-                   "(single-temperature) and proposed calibration, and the proposed method's "
-                   "reductions", tuple(rows4), notes4),
-        PaperTable(SEED, "Eq. 23", "K_g at 25 °C: the calibration interpolated to 25 °C",
-                   tuple(rows23), notes23),
+        PaperTable(
+            SEED,
+            "Table 3",
+            "Mean and RMS error: uncompensated and the proposed "
+            "(interpolated) calibration, per rotating axis and output axis",
+            tuple(rows3),
+            notes3,
+        ),
+        PaperTable(
+            SEED,
+            "Table 4",
+            "RMS error at 25 °C: uncompensated, traditional "
+            "(single-temperature) and proposed calibration, and the proposed method's "
+            "reductions",
+            tuple(rows4),
+            notes4,
+        ),
+        PaperTable(
+            SEED, "Eq. 23", "K_g at 25 °C: the calibration interpolated to 25 °C", tuple(rows23), notes23
+        ),
     ]
 
 
@@ -334,12 +401,16 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
     """Fig. 9's comparison: RMS per rotating and output axis for the three methods at
     25 °C, regenerated (bars) beside the paper's Table 4 (markers)."""
     from ..report import plots
+
     r = regeneration(seed, quick)
     t4 = r.test.set_index(["method", "rotating", "output"])
     pairs = list(TABLE4)
     x = np.arange(len(pairs))
-    styles = (("uncompensated", "uncompensated", 0), ("single", "traditional", 1),
-              ("interpolated", "proposed", 2))
+    styles = (
+        ("uncompensated", "uncompensated", 0),
+        ("single", "traditional", 1),
+        ("interpolated", "proposed", 2),
+    )
     fig, ax = plots.figure(8, 3.6)
     ax = ax[0, 0]
     for method, label, k in styles:
@@ -347,8 +418,15 @@ def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
         regenerated = [t4.loc[(method, rot, out), "rms"] for rot, out in pairs]
         published = [abs(TABLE4[p][k]) for p in pairs]
         ax.bar(x + (k - 1) * 0.27, regenerated, width=0.27, color=colour, label=f"{label}, regenerated")
-        ax.plot(x + (k - 1) * 0.27, published, "_", color="k", ms=9, mew=1.5,
-                label="paper, Table 4" if k == 0 else None)
+        ax.plot(
+            x + (k - 1) * 0.27,
+            published,
+            "_",
+            color="k",
+            ms=9,
+            mew=1.5,
+            label="paper, Table 4" if k == 0 else None,
+        )
     ax.set_yscale("log")
     ax.set_xticks(x, [f"{rot} rot.\n{out} out" for rot, out in pairs], fontsize=8)
     ax.set_ylabel("RMS error at 25 °C, deg/s")

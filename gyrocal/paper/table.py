@@ -4,6 +4,7 @@ Every seed module (`gyrocal.paper.seed000`, `seed001`, `seed003`) returns a list
 `PaperTable`; the renderer writes them to Markdown, CSV and HTML with the ratio
 regenerated ÷ published, so agreement is read off one column.
 """
+
 from __future__ import annotations
 
 import math
@@ -13,7 +14,8 @@ from dataclasses import dataclass, field
 @dataclass(frozen=True)
 class PaperRow:
     """One figure. `published` is None where the paper prints none (a new column)."""
-    label: str                     # e.g. "X rotates / X axis / RMS"
+
+    label: str  # e.g. "X rotates / X axis / RMS"
     regenerated: float
     published: float | None = None
     unit: str = ""
@@ -27,11 +29,11 @@ class PaperRow:
 
 @dataclass(frozen=True)
 class PaperTable:
-    seed: str                      # "000", "001" or "003"
-    name: str                      # "Table 3", "Fig. 2 statistics"
+    seed: str  # "000", "001" or "003"
+    name: str  # "Table 3", "Fig. 2 statistics"
     title: str
     rows: tuple[PaperRow, ...]
-    notes: tuple[str, ...] = field(default_factory=tuple)   # set-up, and why a figure cannot agree
+    notes: tuple[str, ...] = field(default_factory=tuple)  # set-up, and why a figure cannot agree
 
     @property
     def key(self) -> str:

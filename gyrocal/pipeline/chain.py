@@ -17,8 +17,7 @@ import pandas as pd
 
 from .. import __version__
 from ..calibration.file import Calibration
-from ..fit.floor import (StretchSampler, add_floor_columns, characterise, noise_record,
-                         static_stretches)
+from ..fit.floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
 from ..fit.thermal import ContinuousFit, GridFit
 from ..fit.validate import Validation, free_point_fits, validate
 from ..io import plausibility
@@ -31,11 +30,12 @@ from ..protocols import registry
 from ..protocols.turntable.segment import LOG_COLUMNS
 from .config import Settings
 
+
 @dataclass(frozen=True)
 class Run:
     calibration: Calibration
     segmentation: Segmentation
-    fitted: GridFit | ContinuousFit | None     # None for a servo session (seed 001's own fit)
+    fitted: GridFit | ContinuousFit | None  # None for a servo session (seed 001's own fit)
     validation: Validation
 
 
@@ -50,11 +50,12 @@ def versions() -> dict[str, str]:
 # The decoded columns of a log are kept in memory up to this size; a larger log is reduced
 # to block statistics as it is read and read again, batch by batch, for what needs samples
 # (noise, the temperature record), so that memory does not grow with the log.
-KEEP_BYTES = 384 * 2 ** 20
+KEEP_BYTES = 384 * 2**20
 
 
-def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
-                keep_bytes: float | None = KEEP_BYTES) -> Segmentation:
+def segment_log(
+    path, settings: Settings, protocol: str = registry.DEFAULT, *, keep_bytes: float | None = KEEP_BYTES
+) -> Segmentation:
     """Read and segment a log into observations by its protocol's rules; its hash
     (:data:`gyrocal.io.log.HASH_ALGORITHM`) is computed on a second thread meanwhile. Then one
     more pass over its samples (from memory, or from the file) gives the noise of its
@@ -63,9 +64,13 @@ def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
     sink = BlockSink(rules.reading_blocks(settings)) if rules.reading_blocks else None
     with ThreadPoolExecutor(1) as pool:
         digest = pool.submit(file_digest, path)
-        log = read_log(path, optional=LOG_COLUMNS + rules.without, sink=sink,
-                       required=tuple(c for c in REQUIRED if c not in rules.without),
-                       keep_bytes=keep_bytes if sink is not None else None)
+        log = read_log(
+            path,
+            optional=LOG_COLUMNS + rules.without,
+            sink=sink,
+            required=tuple(c for c in REQUIRED if c not in rules.without),
+            keep_bytes=keep_bytes if sink is not None else None,
+        )
         filled = [c for c in rules.without if c not in log]
         log = with_constants(log, {"ref_rate": 0.0, "temp": settings.model.reference_temperature})
         plausibility.log_errors(log.input_stats, path)
@@ -73,8 +78,12 @@ def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
             seg = rules.segment(log, settings)
         except SegmentationError as exc:
             raise plausibility.explain_segmentation(exc, log.input_stats, path) from None
-        seg.info["source"] = {"name": Path(path).name, HASH_ALGORITHM: digest.result(),
-                              "rows": log.rows_read, "rows_dropped": log.rows_dropped}
+        seg.info["source"] = {
+            "name": Path(path).name,
+            HASH_ALGORITHM: digest.result(),
+            "rows": log.rows_read,
+            "rows_dropped": log.rows_dropped,
+        }
         if log.input_stats is not None:
             seg.info["input_stats"] = log.input_stats
         if filled:
@@ -85,8 +94,11 @@ def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
     window = float(np.median(obs["duration"])) if len(obs) else TEMP_RATE_WINDOW_S
     max_temp_rate = settings.segmentation.max_temp_rate
     rate = float(seg.info.get("sample_rate") or 0.0)
-    stretches = static_stretches(log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate) \
-        if len(obs) and rate > 0 else None
+    stretches = (
+        static_stretches(log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate)
+        if len(obs) and rate > 0
+        else None
+    )
     sampler = StretchSampler(stretches, rate) if stretches is not None else None
     record = HistoryBins(*log.time_span, window_s=window)
     # The record keeps the gyro's output and the specific force beside the temperature, in
@@ -97,9 +109,14 @@ def segment_log(path, settings: Settings, protocol: str = registry.DEFAULT, *,
         record.push(batch["t"], batch["temp"], {c: batch[c] for c in kept})
         if sampler is not None:
             sampler.push(batch)
-    seg = with_noise_floor(log, seg, protocol, max_temp_rate=max_temp_rate,
-                           sampled=sampler.result() if sampler is not None else None)
-    if "temp" in filled:   # a constant stand-in: no temperature record for terms to read
+    seg = with_noise_floor(
+        log,
+        seg,
+        protocol,
+        max_temp_rate=max_temp_rate,
+        sampled=sampler.result() if sampler is not None else None,
+    )
+    if "temp" in filled:  # a constant stand-in: no temperature record for terms to read
         return seg
     return with_series(seg, record.result())
 
@@ -111,22 +128,32 @@ def with_series(seg: Segmentation, series: Series) -> Segmentation:
     return seg
 
 
-def with_noise_floor(log, seg: Segmentation, protocol: str, *, max_temp_rate: float,
-                     sampled=None) -> Segmentation:
+def with_noise_floor(
+    log, seg: Segmentation, protocol: str, *, max_temp_rate: float, sampled=None
+) -> Segmentation:
     """``seg`` with the session's noise characterisation in ``info["noise"]`` and every
     observation's noise floor from it (:mod:`gyrocal.fit.floor`; ``sampled``: the static
     stretches' sums, when already gathered)."""
-    summary = characterise(log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate,
-                           sampled=sampled)
+    summary = characterise(
+        log, seg, registry.get(protocol).static, max_temp_rate=max_temp_rate, sampled=sampled
+    )
     obs = add_floor_columns(seg.observations, summary, float(seg.info.get("sample_rate") or 0.0))
     obs.attrs["static_seconds"] = float(summary.get("static_seconds") or 0.0)
     return replace(seg, observations=obs, info={**seg.info, "noise": summary})
 
 
-def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
-                           source: dict | None = None, label=None, noise: dict | None = None,
-                           fitted: GridFit | ContinuousFit | None = None, info: dict | None = None,
-                           checks: bool = True) -> tuple[Calibration, GridFit | ContinuousFit | None]:
+def calibrate_observations(
+    obs: pd.DataFrame,
+    settings: Settings,
+    *,
+    meta: dict,
+    source: dict | None = None,
+    label=None,
+    noise: dict | None = None,
+    fitted: GridFit | ContinuousFit | None = None,
+    info: dict | None = None,
+    checks: bool = True,
+) -> tuple[Calibration, GridFit | ContinuousFit | None]:
     """The calibration of one unit's observations: the common model's fit, or the
     protocol's own (:attr:`gyrocal.protocols.registry.Protocol.calibrate`; a servo session's is seed
     001's six-parameter fit, and no common-model fit comes back: None). ``noise``,
@@ -148,16 +175,26 @@ def calibrate_observations(obs: pd.DataFrame, settings: Settings, *, meta: dict,
     if settings.model_entry:
         cal.extra["model_entry"] = settings.model_entry
     if checks:
-        cal.extra["warnings"] = plausibility.review(obs, info, cal,
-                                                    protocol=registry.get(meta.get("protocol")),
-                                                    source=label) + [
-            plausibility.finding("term_dropped", f"{a['term']} left out: {a['reason']}", term=a["term"])
-            for a in cal.extra.get("added_terms", ()) if not a["kept"]] + [
-            plausibility.finding("term_not_identified", f"{a['term']} kept for the held-out error it takes "
-                                 f"away, though {a['not_identified']}: the bias is judged as the "
-                                 "session measured it (bias_in_session), not as the fit extrapolates "
-                                 "it", term=a["term"])
-            for a in cal.extra.get("added_terms", ()) if a.get("not_identified")]
+        cal.extra["warnings"] = (
+            plausibility.review(obs, info, cal, protocol=registry.get(meta.get("protocol")), source=label)
+            + [
+                plausibility.finding("term_dropped", f"{a['term']} left out: {a['reason']}", term=a["term"])
+                for a in cal.extra.get("added_terms", ())
+                if not a["kept"]
+            ]
+            + [
+                plausibility.finding(
+                    "term_not_identified",
+                    f"{a['term']} kept for the held-out error it takes "
+                    f"away, though {a['not_identified']}: the bias is judged as the "
+                    "session measured it (bias_in_session), not as the fit extrapolates "
+                    "it",
+                    term=a["term"],
+                )
+                for a in cal.extra.get("added_terms", ())
+                if a.get("not_identified")
+            ]
+        )
     return cal, fitted
 
 
@@ -169,6 +206,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     added = ()
     if fitted is None:
         from .identify import identify
+
         found = identify(settings, obs, meta.get("protocol"), source=label)
         fitted, added = found.fitted, found.added
     points = fitted.points
@@ -176,24 +214,38 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     # Apply derives the temperature rate over the window the fit's record used.
     series = obs.attrs.get("series")
     window = series.temp_rate_window_s if series is not None else float(np.median(obs["duration"]))
-    covariates = {"temp_rate": {"unit": "degC/min", "window_s": window}} \
-        if "temp_rate" in model.inputs else {}
+    covariates = (
+        {"temp_rate": {"unit": "degC/min", "window_s": window}} if "temp_rate" in model.inputs else {}
+    )
     cal = Calibration(
-        model, fitted.coefficients, settings.model.reference_temperature, meta,
+        model,
+        fitted.coefficients,
+        settings.model.reference_temperature,
+        meta,
         provenance=provenance,
-        extra={"points": [
-            {"temperature": float(r.temp), "holds": int(r.holds), "used": bool(r.used),
-             **({"excluded_because": r.reason} if not r.used else {})}
-            for r in points.itertuples()],
+        extra={
+            "points": [
+                {
+                    "temperature": float(r.temp),
+                    "holds": int(r.holds),
+                    "used": bool(r.used),
+                    **({"excluded_because": r.reason} if not r.used else {}),
+                }
+                for r in points.itertuples()
+            ],
             **({"profiled": list(fitted.profiled)} if fitted.profiled else {}),
             **({"added_terms": [a.to_dict() for a in added]} if added else {}),
             **({"bias_in_session": session} if (session := _bias_in_session(fitted, added)) else {}),
-            **({"noise": noise_record(noise)} if noise else {})}, covariates=covariates)
+            **({"noise": noise_record(noise)} if noise else {}),
+        },
+        covariates=covariates,
+    )
     return cal, fitted
 
 
 def _bias_in_session(fitted, added) -> dict | None:
     from .identify import bias_in_session
+
     return bias_in_session(fitted, [a.term for a in added if a.kept and a.weakly])
 
 
@@ -201,34 +253,56 @@ def settings_used(settings: Settings, cal: Calibration) -> Settings:
     """The settings a calibration was made with: ``settings`` without the terms its unit's
     data could not identify (the file's ``added_terms``)."""
     from .identify import without
+
     dropped = [a["term"] for a in cal.extra.get("added_terms", ()) if not a["kept"]]
     return without(settings, dropped) if dropped else settings
 
 
-def run(path, settings: Settings | None = None, *, protocol: str = registry.DEFAULT,
-        device: str | None = None, batch: str | None = None, session: str | None = None) -> Run:
+def run(
+    path,
+    settings: Settings | None = None,
+    *,
+    protocol: str = registry.DEFAULT,
+    device: str | None = None,
+    batch: str | None = None,
+    session: str | None = None,
+) -> Run:
     """Calibrate one log end to end."""
     settings = (settings or Settings()).for_protocol(protocol)
     seg = segment_log(path, settings, protocol)
-    meta = {"device": device or Path(path).name.removesuffix(".parquet"), "batch": batch,
-            "session": session, "protocol": protocol}
-    cal, fitted = calibrate_observations(seg.observations, settings, meta=meta,
-                                           source=seg.info["source"], label=path,
-                                           noise=seg.info.get("noise"), info=seg.info)
+    meta = {
+        "device": device or Path(path).name.removesuffix(".parquet"),
+        "batch": batch,
+        "session": session,
+        "protocol": protocol,
+    }
+    cal, fitted = calibrate_observations(
+        seg.observations,
+        settings,
+        meta=meta,
+        source=seg.info["source"],
+        label=path,
+        noise=seg.info.get("noise"),
+        info=seg.info,
+    )
     return Run(cal, seg, fitted, validation(seg.observations, cal, fitted, settings, source=path))
 
 
-def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings, *,
-               source=None) -> Validation:
+def validation(obs: pd.DataFrame, cal: Calibration, fitted, settings: Settings, *, source=None) -> Validation:
     """The calibration's validation: the protocol's own (a servo's leave-revolution-out), or
     the common model's leave-temperature-out from ``fitted``."""
     own = registry.get(cal.meta.get("protocol")).validate
     if own is not None:
         return own(obs, cal)
     try:
-        val = validate(fitted.model, obs, fitted, reference_temperature=settings.model.reference_temperature,
-                       every_point=False)
-    except IdentifiabilityError as exc:   # named after the input it came from
+        val = validate(
+            fitted.model,
+            obs,
+            fitted,
+            reference_temperature=settings.model.reference_temperature,
+            every_point=False,
+        )
+    except IdentifiabilityError as exc:  # named after the input it came from
         if exc.source is not None or source is None:
             raise
         raise IdentifiabilityError(str(exc), parameters=exc.parameters, source=source) from None

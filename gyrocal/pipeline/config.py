@@ -36,7 +36,7 @@ class ModelSettings:
     degree: int = _MODEL["degree"]
     reference_temperature: float = _MODEL["reference_temperature"]
     term_files: tuple = tuple(_MODEL["term_files"])
-    expressions: tuple = tuple(sorted(_MODEL["expressions"].items()))   # (label, formula) pairs
+    expressions: tuple = tuple(sorted(_MODEL["expressions"].items()))  # (label, formula) pairs
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "model") -> ModelSettings:
@@ -44,18 +44,27 @@ class ModelSettings:
         term_files = tuple(str(f) for f in values["term_files"])
         for path in term_files:
             load_term_file(path)  # registers its terms before the term list is checked
-        settings = cls(tuple(values.get("terms", DEFAULT_TERMS)), values["kind"],
-                       values["interpolation"], values["degree"],
-                       float(values["reference_temperature"]), term_files,
-                       tuple(sorted((values["expressions"] or {}).items())))
+        settings = cls(
+            tuple(values.get("terms", DEFAULT_TERMS)),
+            values["kind"],
+            values["interpolation"],
+            values["degree"],
+            float(values["reference_temperature"]),
+            term_files,
+            tuple(sorted((values["expressions"] or {}).items())),
+        )
         settings.build()  # unknown terms, bad parameters, clashes: refused here
         return settings
 
     def term_specs(self) -> tuple:
         return self.terms + tuple(
-            {"name": "expression", "label": label,
-             **({"formula": value} if isinstance(value, str) else value)}
-            for label, value in self.expressions)
+            {
+                "name": "expression",
+                "label": label,
+                **({"formula": value} if isinstance(value, str) else value),
+            }
+            for label, value in self.expressions
+        )
 
     def with_terms(self, extra: tuple) -> ModelSettings:
         """The model with ``extra`` terms added. A term of the same identity as one already
@@ -86,10 +95,15 @@ class ModelSettings:
         return Model.from_spec(self.term_specs())
 
     def to_dict(self) -> dict:
-        return {"terms": [t if isinstance(t, str) else dict(t) for t in self.terms],
-                "kind": self.kind, "interpolation": self.interpolation, "degree": self.degree,
-                "reference_temperature": self.reference_temperature,
-                "term_files": list(self.term_files), "expressions": dict(self.expressions)}
+        return {
+            "terms": [t if isinstance(t, str) else dict(t) for t in self.terms],
+            "kind": self.kind,
+            "interpolation": self.interpolation,
+            "degree": self.degree,
+            "reference_temperature": self.reference_temperature,
+            "term_files": list(self.term_files),
+            "expressions": dict(self.expressions),
+        }
 
 
 @dataclass(frozen=True)
@@ -99,7 +113,7 @@ class DiagnosisSettings:
 
     significance: float = _DIAGNOSIS["significance"]
     candidates: tuple = tuple(_DIAGNOSIS["candidates"])
-    ladder: tuple = tuple(_DIAGNOSIS["ladder"])     # steps: {name, add: [terms], kind}
+    ladder: tuple = tuple(_DIAGNOSIS["ladder"])  # steps: {name, add: [terms], kind}
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "diagnosis") -> DiagnosisSettings:
@@ -119,8 +133,11 @@ class DiagnosisSettings:
         return cls(float(values["significance"]), candidates, tuple(ladder))
 
     def to_dict(self) -> dict:
-        return {"significance": self.significance, "candidates": list(self.candidates),
-                "ladder": [{**step, "add": list(step["add"])} for step in self.ladder]}
+        return {
+            "significance": self.significance,
+            "candidates": list(self.candidates),
+            "ladder": [{**step, "add": list(step["add"])} for step in self.ladder],
+        }
 
 
 @dataclass(frozen=True)
@@ -128,18 +145,17 @@ class Settings:
     segmentation: SegmentConfig = field(default_factory=SegmentConfig)
     model: ModelSettings = field(default_factory=ModelSettings)
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
-    protocols: tuple = ()       # (name, {options, model, diagnosis}) overrides, checked
-    resolved_for: str | None = None   # the protocol for_protocol() has settled these for
-    unit_model: tuple | None = None   # (key, entry): the config's models: entry this unit takes
-    fleet_model: ModelSettings | None = None   # the model before the unit's entry, or before drops
+    protocols: tuple = ()  # (name, {options, model, diagnosis}) overrides, checked
+    resolved_for: str | None = None  # the protocol for_protocol() has settled these for
+    unit_model: tuple | None = None  # (key, entry): the config's models: entry this unit takes
+    fleet_model: ModelSettings | None = None  # the model before the unit's entry, or before drops
 
     @classmethod
     def from_dict(cls, values: dict | None) -> Settings:
         values = dict(values or {})
         for name in values:
             if name not in ("segmentation", "model", "diagnosis", "protocols", "unit"):
-                raise ConfigError(f"unknown setting {name}; known: diagnosis, model, protocols, "
-                                  "segmentation")
+                raise ConfigError(f"unknown setting {name}; known: diagnosis, model, protocols, segmentation")
         model = ModelSettings.from_dict(values.get("model"))  # registers the user's terms first
         unit_model, fleet_model = _unit_model(values.get("unit")), None
         if unit_model is not None:
@@ -156,9 +172,14 @@ class Settings:
             ModelSettings.from_dict(section.get("model"), key=f"protocols.{name}.model")
             DiagnosisSettings.from_dict(section.get("diagnosis"), key=f"protocols.{name}.diagnosis")
             checked.append((name, section))
-        return cls(SegmentConfig.from_dict(values.get("segmentation")), model,
-                   DiagnosisSettings.from_dict(values.get("diagnosis")), tuple(checked),
-                   unit_model=unit_model, fleet_model=fleet_model)
+        return cls(
+            SegmentConfig.from_dict(values.get("segmentation")),
+            model,
+            DiagnosisSettings.from_dict(values.get("diagnosis")),
+            tuple(checked),
+            unit_model=unit_model,
+            fleet_model=fleet_model,
+        )
 
     def for_protocol(self, protocol: str | None) -> Settings:
         """The settings a log of ``protocol`` is processed with: the turntable's are the
@@ -170,17 +191,27 @@ class Settings:
         default = _own_settings()[protocol]
         override = dict(self.protocols).get(protocol, {})
         # The user's term files and one-line terms serve every protocol.
-        model = {**default["model"], "term_files": list(self.model.term_files),
-                 "expressions": dict(self.model.expressions), **(override.get("model") or {})}
-        diagnosis = {"significance": self.diagnosis.significance, **default["diagnosis"],
-                     **(override.get("diagnosis") or {})}
+        model = {
+            **default["model"],
+            "term_files": list(self.model.term_files),
+            "expressions": dict(self.model.expressions),
+            **(override.get("model") or {}),
+        }
+        diagnosis = {
+            "significance": self.diagnosis.significance,
+            **default["diagnosis"],
+            **(override.get("diagnosis") or {}),
+        }
         model = fleet = ModelSettings.from_dict(model, key=f"protocols.{protocol}.model")
         if self.unit_model is not None:
             model = model.changed(self.unit_model[1], key=f"models.{self.unit_model[0]}")
-        return replace(self, model=model, fleet_model=fleet if self.unit_model is not None else None,
-                       diagnosis=DiagnosisSettings.from_dict(diagnosis,
-                                                             key=f"protocols.{protocol}.diagnosis"),
-                       resolved_for=protocol)
+        return replace(
+            self,
+            model=model,
+            fleet_model=fleet if self.unit_model is not None else None,
+            diagnosis=DiagnosisSettings.from_dict(diagnosis, key=f"protocols.{protocol}.diagnosis"),
+            resolved_for=protocol,
+        )
 
     def protocol_options(self, protocol: str) -> dict:
         default = _own_settings().get(protocol, {}).get("options", {})
@@ -204,8 +235,11 @@ class Settings:
     def to_dict(self) -> dict:
         # the fleet's model and the unit's entry, as the workflow hands them to a job
         model = self.fleet if self.unit_model is not None else self.model
-        out = {"segmentation": asdict(self.segmentation), "model": model.to_dict(),
-               "diagnosis": self.diagnosis.to_dict()}
+        out = {
+            "segmentation": asdict(self.segmentation),
+            "model": model.to_dict(),
+            "diagnosis": self.diagnosis.to_dict(),
+        }
         if self.protocols:
             out["protocols"] = {name: section for name, section in self.protocols}
         if self.unit_model is not None:
@@ -254,5 +288,6 @@ def read_yaml(path) -> dict:
 def _own_settings() -> dict[str, dict]:
     """The default settings of each protocol whose settings are not the top-level ones."""
     from ..protocols import registry
+
     own = {n: registry.settings_defaults(n) for n in registry.names()}
     return {n: d for n, d in own.items() if d is not None}

@@ -43,20 +43,26 @@ MAX_INFLATION = math.sqrt(10.0)
 class AddedTerm:
     """One term beyond the protocol's own model, as a unit's data judge it."""
 
-    term: str                       # as configured
+    term: str  # as configured
     kept: bool
-    reason: str | None = None       # why it was dropped
+    reason: str | None = None  # why it was dropped
     inflation: float | None = None  # the largest growth of an own coefficient's standard error
-    inflated: str | None = None     # that coefficient
-    with_term: dict | None = None   # held-out figures of the model with the term
+    inflated: str | None = None  # that coefficient
+    with_term: dict | None = None  # held-out figures of the model with the term
     without_term: dict | None = None
-    weakly: str | None = None       # kept for its gain though the data do not identify it: why
+    weakly: str | None = None  # kept for its gain though the data do not identify it: why
 
     def to_dict(self) -> dict:
-        return {"term": self.term, "kept": self.kept, "reason": self.reason,
-                "inflation": self.inflation, "inflated": self.inflated,
-                "with": self.with_term, "without": self.without_term,
-                **({"not_identified": self.weakly} if self.weakly else {})}
+        return {
+            "term": self.term,
+            "kept": self.kept,
+            "reason": self.reason,
+            "inflation": self.inflation,
+            "inflated": self.inflated,
+            "with": self.with_term,
+            "without": self.without_term,
+            **({"not_identified": self.weakly} if self.weakly else {}),
+        }
 
 
 @dataclass(frozen=True)
@@ -84,8 +90,11 @@ def added_terms(settings: Settings, protocol: str | None) -> list[str]:
     own = own_terms(protocol)
     continuous = settings.model.kind == "continuous"
     terms = [make_term(spec) for spec in settings.model.term_specs()]
-    return [t.spec_string() for t in terms
-            if t.identity not in own and not (continuous and t.varies_with_temperature)]
+    return [
+        t.spec_string()
+        for t in terms
+        if t.identity not in own and not (continuous and t.varies_with_temperature)
+    ]
 
 
 def without(settings: Settings, specs) -> Settings:
@@ -94,10 +103,10 @@ def without(settings: Settings, specs) -> Settings:
     gone = {make_term(s).identity for s in specs}
     m = settings.model
     terms = tuple(t for t in m.terms if make_term(t).identity not in gone)
-    expressions = tuple((label, value) for label, value in m.expressions
-                        if ("expression", label) not in gone)
-    return replace(settings, model=replace(m, terms=terms, expressions=expressions),
-                   fleet_model=settings.fleet)
+    expressions = tuple((label, value) for label, value in m.expressions if ("expression", label) not in gone)
+    return replace(
+        settings, model=replace(m, terms=terms, expressions=expressions), fleet_model=settings.fleet
+    )
 
 
 def fit_of(settings: Settings, obs: pd.DataFrame, source=None):
@@ -128,19 +137,33 @@ class _Fits:
         if key not in self.held:
             try:
                 fitted = self(settings)
-                s = validate(fitted.model, self.obs, fitted,
-                             reference_temperature=settings.model.reference_temperature,
-                             every_point=False).summary
-                self.held[key] = {k: _finite(s.get(k)) for k in (
-                    "validation_rms", "noise_floor", "expected_rms", "excess", "excess_over_expected",
-                    "held_out", "holds_scored")}
+                s = validate(
+                    fitted.model,
+                    self.obs,
+                    fitted,
+                    reference_temperature=settings.model.reference_temperature,
+                    every_point=False,
+                ).summary
+                self.held[key] = {
+                    k: _finite(s.get(k))
+                    for k in (
+                        "validation_rms",
+                        "noise_floor",
+                        "expected_rms",
+                        "excess",
+                        "excess_over_expected",
+                        "held_out",
+                        "holds_scored",
+                    )
+                }
             except (GyrocalError, CannotLeaveOut):
                 self.held[key] = None
         return self.held[key]
 
 
-def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, source=None,
-             held_out: bool = True) -> Identified:
+def identify(
+    settings: Settings, obs: pd.DataFrame, protocol: str | None, *, source=None, held_out: bool = True
+) -> Identified:
     """Fit ``settings.model`` to a unit's observations, dropping each term beyond the
     protocol's own model that the data cannot identify (a profiled parameter at a bound of
     its search, a standard error of the protocol's own coefficients grown beyond
@@ -159,7 +182,7 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
     reasons: dict[str, tuple[str, float | None, str | None]] = {}
     alpha = settings.diagnosis.significance
     while True:
-        weak: dict[str, str] = {}   # kept though not identified, for the gain it brings
+        weak: dict[str, str] = {}  # kept though not identified, for the gain it brings
         kept = [s for s in extra if s not in reasons]
         current = without(settings, reasons)
         try:
@@ -168,14 +191,19 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
             culprits = _culprits(kept, exc)
             if not culprits:
                 raise
-            what = ("the data do not excite it" if isinstance(exc, IdentifiabilityError)
-                    else "the log lacks what it reads")
+            what = (
+                "the data do not excite it"
+                if isinstance(exc, IdentifiabilityError)
+                else "the log lacks what it reads"
+            )
             reasons.update({s: (f"{what} ({_message(exc)})", None, None) for s in culprits})
             continue
         overall = _inflation(fit(own), fitted, own)
         # each term's own share: the growth it makes beside the others kept
-        share = {s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own)
-                 for s in kept}
+        share = {
+            s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own)
+            for s in kept
+        }
         if overall[0] > MAX_INFLATION and all(share[s][0] <= MAX_INFLATION for s in kept):
             # several terms share one collinearity: the one whose removal relieves it most
             first = min(kept, key=lambda s: _inflation(fit(own), fit(without(current, [s])), own)[0])
@@ -185,17 +213,24 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
             why = _at_bound(fitted, spec)
             inflation, name = share[spec]
             if why is None and inflation > MAX_INFLATION:
-                why = (f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
-                       f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms")
+                why = (
+                    f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
+                    f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms"
+                )
             if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
-                why = ("with it no temperature point can be left out to validate the calibration, "
-                       "as it can without it")
+                why = (
+                    "with it no temperature point can be left out to validate the calibration, "
+                    "as it can without it"
+                )
             worse = _hurts(current, spec, fit, alpha)
             if worse is not None:
                 found[spec] = (worse, inflation, name)
             elif why is not None and not _helps(current, spec, fit, alpha):
-                found[spec] = (why + ", and it does not lower the held-out error beyond chance",
-                               inflation, name)
+                found[spec] = (
+                    why + ", and it does not lower the held-out error beyond chance",
+                    inflation,
+                    name,
+                )
             elif why is not None:
                 weak[spec] = why
         if not found:
@@ -209,9 +244,18 @@ def identify(settings: Settings, obs: pd.DataFrame, protocol: str | None, *, sou
         if held_out:
             with_term = fit.held_out(without(settings, [s for s in reasons if s != spec]))
             without_term = fit.held_out(without(current, [spec]))
-        records.append(AddedTerm(spec, reason is None, None if reason is None else reason[0],
-                                 _finite(inflation), name, with_term, without_term,
-                                 weak.get(spec) if reason is None else None))
+        records.append(
+            AddedTerm(
+                spec,
+                reason is None,
+                None if reason is None else reason[0],
+                _finite(inflation),
+                name,
+                with_term,
+                without_term,
+                weak.get(spec) if reason is None else None,
+            )
+        )
     return Identified(current, fitted, tuple(records))
 
 
@@ -227,8 +271,9 @@ def bias_in_session(fitted, specs) -> dict | None:
     f = fitted.fit
     index = {n: j for j, n in enumerate(f.names)}
     terms = {make_term(s).identity for s in specs}
-    coefficients = [n for t in fitted.model.terms if t.identity in terms for n in t.coefficients()
-                    if n in index]
+    coefficients = [
+        n for t in fitted.model.terms if t.identity in terms for n in t.coefficients() if n in index
+    ]
     design = fitted.design if fitted.design is not None else fitted.model.design(fitted.data)
     point = np.asarray(fitted.data["point"], dtype=int)
     values, stderr = [], []
@@ -240,14 +285,19 @@ def bias_in_session(fitted, specs) -> dict | None:
             g[index[f"bias.{axis}.@{p}"]] = 1.0
             for name in coefficients:
                 if name.split(".")[1] == axis:
-                    g[index[name]] = float(np.mean(np.broadcast_to(np.asarray(design[name], float),
-                                                                   at.shape)[at]))
+                    g[index[name]] = float(
+                        np.mean(np.broadcast_to(np.asarray(design[name], float), at.shape)[at])
+                    )
             row_v.append(float(g @ f.values))
             row_s.append(float(np.sqrt(max(g @ f.covariance @ g, 0.0))))
         values.append(row_v)
         stderr.append(row_s)
-    return {"terms": sorted(specs), "temperatures": [float(t) for t in fitted.grid.temperatures],
-            "bias": values, "stderr": stderr}
+    return {
+        "terms": sorted(specs),
+        "temperatures": [float(t) for t in fitted.grid.temperatures],
+        "bias": values,
+        "stderr": stderr,
+    }
 
 
 def _culprits(kept: list[str], exc: Exception) -> list[str]:
@@ -255,10 +305,13 @@ def _culprits(kept: list[str], exc: Exception) -> list[str]:
     their spec in the message (an input the log lacks)."""
     unknown = re.search(r"(\w+) is not an input here", str(exc))
     if unknown and unknown.group(1) not in HOLD_INPUTS | SERIES_INPUTS:
-        return []   # the term's own mistake, whatever the unit: the one-line error stands
+        return []  # the term's own mistake, whatever the unit: the one-line error stands
     named = set(getattr(exc, "parameters", ()))
-    return [s for s in kept if set(make_term(s).coefficients()) & named
-            or (not named and make_term(s).spec_string() in str(exc))]
+    return [
+        s
+        for s in kept
+        if set(make_term(s).coefficients()) & named or (not named and make_term(s).spec_string() in str(exc))
+    ]
 
 
 def _chance_bound(held: dict, alpha: float) -> float:
@@ -266,6 +319,7 @@ def _chance_bound(held: dict, alpha: float) -> float:
     ``sqrt(χ²_N(1 − α/2) / N)``, N the errors scored (three a hold), as the diagnosis
     judges a gain."""
     from scipy.stats import chi2
+
     n = 3 * int(held["holds_scored"])
     return math.sqrt(chi2.ppf(1.0 - alpha / 2, n) / n)
 
@@ -280,8 +334,10 @@ def _hurts(settings: Settings, spec: str, fit: _Fits, alpha: float) -> str | Non
         return None
     if with_term["validation_rms"] <= without_term["validation_rms"] * _chance_bound(without_term, alpha):
         return None
-    return (f"it raises the held-out error from {without_term['excess']:.3g} to "
-            f"{with_term['excess']:.3g} times the floor, beyond chance")
+    return (
+        f"it raises the held-out error from {without_term['excess']:.3g} to "
+        f"{with_term['excess']:.3g} times the floor, beyond chance"
+    )
 
 
 def _helps(settings: Settings, spec: str, fit: _Fits, alpha: float) -> bool:
@@ -314,8 +370,10 @@ def _at_bound(fitted, spec) -> str | None:
         if p.get("term") == label and p.get("at_bound"):
             lo, hi = p["bounds"]
             side = "upper" if p["value"] >= math.sqrt(lo * hi) else "lower"
-            return (f"{p['parameter']} = {p['value']:.4g} is at the {side} bound of its search "
-                    f"({lo:g} to {hi:g}): the data do not fix it")
+            return (
+                f"{p['parameter']} = {p['value']:.4g} is at the {side} bound of its search "
+                f"({lo:g} to {hi:g}): the data do not fix it"
+            )
     return None
 
 
@@ -323,7 +381,7 @@ def _errors(fitted, names) -> dict:
     """(coefficient, temperature point) -> standard error as the calibration reports it."""
     fits = fitted.fits
     used = fitted.used_points()
-    per_point = len(fits) > 1 and len(fits) == len(used)   # a grid's fits, one per point
+    per_point = len(fits) > 1 and len(fits) == len(used)  # a grid's fits, one per point
     out = {}
     for k, f in enumerate(fits):
         for name, se in zip(f.names, f.stderr, strict=False):

@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 from ..io.errors import ConfigError
 
 DEFAULT = "turntable"
-BUILTIN = {name: f"gyrocal.protocols.{name}.protocol"
-           for name in ("turntable", "servo", "sweep", "ferraris", "static")}
+BUILTIN = {
+    name: f"gyrocal.protocols.{name}.protocol"
+    for name in ("turntable", "servo", "sweep", "ferraris", "static")
+}
 _REGISTRY: dict[str, Protocol] = {}
 
 
@@ -115,8 +117,9 @@ def get(name: str | None) -> Protocol:
     if name not in _REGISTRY and name in BUILTIN:
         importlib.import_module(BUILTIN[name])
     if name not in _REGISTRY:
-        raise ConfigError(f"protocol {name!r} is not supported by this version of gyrocal "
-                          f"(supported: {', '.join(names())})")
+        raise ConfigError(
+            f"protocol {name!r} is not supported by this version of gyrocal (supported: {', '.join(names())})"
+        )
     return _REGISTRY[name]
 
 
@@ -124,6 +127,7 @@ def analysis(name: str | None, obs) -> tuple[dict | None, list[str]]:
     """The protocol's own methods on its observations (:attr:`Protocol.analysis`); a
     failure is recorded in the results, since the report's common sections still stand."""
     from ..io.errors import GyrocalError
+
     protocol = get(name)
     if protocol.analysis is None:
         return None, []

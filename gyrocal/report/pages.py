@@ -12,7 +12,6 @@ import jinja2
 import numpy as np
 
 
-
 def _bytecode_cache():
     """Compiled templates kept between processes (a per-user folder in the temporary
     directory, keyed by each template's source): compiling the unit report's template
@@ -23,10 +22,13 @@ def _bytecode_cache():
         return None
 
 
-ENV = jinja2.Environment(loader=jinja2.PackageLoader("gyrocal.report", "templates"),
-                         autoescape=jinja2.select_autoescape(["html", "j2"]),
-                         undefined=jinja2.StrictUndefined, keep_trailing_newline=True,
-                         bytecode_cache=_bytecode_cache())
+ENV = jinja2.Environment(
+    loader=jinja2.PackageLoader("gyrocal.report", "templates"),
+    autoescape=jinja2.select_autoescape(["html", "j2"]),
+    undefined=jinja2.StrictUndefined,
+    keep_trailing_newline=True,
+    bytecode_cache=_bytecode_cache(),
+)
 
 
 def fmt(value, digits: int = 4) -> str:
@@ -62,6 +64,7 @@ def write_failure(outputs, rec: dict) -> None:
     from pathlib import Path
 
     from ..io import atomic, failure
+
     for out in map(Path, outputs):
         if out.suffix == ".html":
             out.parent.mkdir(parents=True, exist_ok=True)

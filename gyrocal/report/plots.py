@@ -27,21 +27,41 @@ if TYPE_CHECKING:
 
 AXES = ("x", "y", "z")
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
-METHOD_STYLE = {"uncompensated": ("#7f7f7f", "o"), "single": ("#ff7f0e", "s"),
-                "interpolated": ("#1f77b4", "^")}
-REASON_COLOURS = ["#d62728", "#9467bd", "#8c564b", "#e377c2", "#bcbd22", "#17becf",
-                  "#ff7f0e", "#7f7f7f", "#2ca02c", "#1f77b4"]
+METHOD_STYLE = {
+    "uncompensated": ("#7f7f7f", "o"),
+    "single": ("#ff7f0e", "s"),
+    "interpolated": ("#1f77b4", "^"),
+}
+REASON_COLOURS = [
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#bcbd22",
+    "#17becf",
+    "#ff7f0e",
+    "#7f7f7f",
+    "#2ca02c",
+    "#1f77b4",
+]
 # The one style of the matplotlib figures. The hash salt fixes the ids inside an SVG and the
 # metadata leaves the date out, so a figure is the same bytes on every run.
-STYLE = {"svg.hashsalt": "gyrocal", "svg.fonttype": "none", "font.size": 9,
-         "axes.grid": True, "grid.alpha": 0.3, "axes.spines.top": False,
-         "axes.spines.right": False}
+STYLE = {
+    "svg.hashsalt": "gyrocal",
+    "svg.fonttype": "none",
+    "font.size": 9,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+}
 SVG_METADATA = {"Date": None, "Creator": "gyrocal"}
-WIDTH = 900   # px: a full-width figure
+WIDTH = 900  # px: a full-width figure
 
 
 def _matplotlib():
     import matplotlib
+
     matplotlib.use("Agg")
     return matplotlib
 
@@ -54,10 +74,11 @@ def figure_style(overrides: dict | None = None):
 def to_svg(fig: Figure) -> str:
     buf = io.StringIO()
     with figure_style():
-        fig.savefig(buf, format="svg", metadata=SVG_METADATA,
-                    bbox_inches="tight", dpi=110)  # dpi: the rasterised data layers
+        fig.savefig(
+            buf, format="svg", metadata=SVG_METADATA, bbox_inches="tight", dpi=110
+        )  # dpi: the rasterised data layers
     text = buf.getvalue()
-    return text[text.index("<svg"):]  # inline: drop the XML prolog and doctype
+    return text[text.index("<svg") :]  # inline: drop the XML prolog and doctype
 
 
 def write_svg(text: str, path_or_none) -> str:
@@ -71,6 +92,7 @@ def figure(w: float, h: float, rows: int = 1, cols: int = 1, **kw):
     """A matplotlib figure of w × h inches and its axes grid."""
     _matplotlib()
     from matplotlib.figure import Figure
+
     with figure_style():
         fig = Figure(figsize=(w, h), layout="constrained")
         axes = fig.subplots(rows, cols, squeeze=False, **kw)
@@ -84,7 +106,7 @@ def panels(names: list, row_height: float):
     rows = max(math.ceil(len(names) / cols), 1)
     fig, axes = figure(10, row_height * rows + 0.4, rows, cols)
     flat = list(axes.ravel())
-    for axis in flat[len(names):]:
+    for axis in flat[len(names) :]:
         axis.set_visible(False)
     return fig, list(zip(flat, names, strict=False))
 
@@ -111,8 +133,15 @@ def timeline(timeline: Columns, segments: Columns) -> str:
     ref.band(t, timeline["ref_min"], timeline["ref_max"], colour="#444", opacity=0.9, step=True)
     ref.ylabel = "reference, deg/s"
     for a in AXES:
-        gyro.band(t, timeline[f"gyro_{a}_min"], timeline[f"gyro_{a}_max"], colour=AXIS_COLOURS[a],
-                  opacity=0.6, step=True, label=a)
+        gyro.band(
+            t,
+            timeline[f"gyro_{a}_min"],
+            timeline[f"gyro_{a}_max"],
+            colour=AXIS_COLOURS[a],
+            opacity=0.6,
+            step=True,
+            label=a,
+        )
     gyro.ylabel, gyro.xlabel, gyro.legend_at = "gyro, deg/s", "time since start, h", "upper right"
     holds = segments[segments["kind"] == "hold"]
     entries = [(f"accepted hold ({len(holds)})", "vspan", {"colour": "#2ca02c", "opacity": 0.25})]
@@ -125,26 +154,39 @@ def timeline(timeline: Columns, segments: Columns) -> str:
         entries.append((f"{reason} ({len(group)})", "vspan", {"colour": colour, "opacity": 0.3}))
     lo = min(float(np.nanmin(t)) if len(t) else 0.0, 0.0)
     for panel in (temp, ref, gyro):
-        panel.xlim = (lo, float(np.nanmax(hours(segments["t_end"]))) if len(segments) else
-                      (float(np.nanmax(t)) if len(t) else 1.0))
+        panel.xlim = (
+            lo,
+            float(np.nanmax(hours(segments["t_end"])))
+            if len(segments)
+            else (float(np.nanmax(t)) if len(t) else 1.0),
+        )
     temp.show_xticklabels = ref.show_xticklabels = False
     _legend_above(fig, entries, 6)
     return str(fig)
 
 
-def parameters(grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: np.ndarray,
-               curve: dict) -> str:
+def parameters(
+    grid_temps: np.ndarray, values: dict, stderr: dict, curve_temps: np.ndarray, curve: dict
+) -> str:
     """Scale-factor errors, cross-axis terms and biases against temperature with 1-sigma
     error bars and the interpolation between points (seed 000 Figs. 4-6)."""
-    groups = [("scale-factor error, ppm", [f"scale.{a}" for a in AXES], 1e6),
-              ("cross-axis term K[a,b], ×10⁻³", [f"misalignment.{a}.{b}" for a in AXES for b in AXES
-                                                  if a != b], 1e3),
-              ("bias, deg/s", [f"bias.{a}" for a in AXES], 1.0)]
+    groups = [
+        ("scale-factor error, ppm", [f"scale.{a}" for a in AXES], 1e6),
+        (
+            "cross-axis term K[a,b], ×10⁻³",
+            [f"misalignment.{a}.{b}" for a in AXES for b in AXES if a != b],
+            1e3,
+        ),
+        ("bias, deg/s", [f"bias.{a}" for a in AXES], 1.0),
+    ]
     fig = svg.Figure(WIDTH, 300)
     for panel, (label, names, scale) in zip(fig.grid(1, 3, hgap=70), groups, strict=False):
         for k, name in enumerate(n for n in names if n in values):
-            colour = REASON_COLOURS[(k + 3) % len(REASON_COLOURS)] if len(names) > 3 \
+            colour = (
+                REASON_COLOURS[(k + 3) % len(REASON_COLOURS)]
+                if len(names) > 3
                 else AXIS_COLOURS[name.split(".")[1]]
+            )
             v = np.asarray(values[name], float) * scale
             e = np.asarray(stderr[name], float) * scale
             panel.errorbars(grid_temps, v - e, v + e, colour=colour)
@@ -161,11 +203,19 @@ def by_temperature(table: Columns) -> str:
     panel.ylog = True
     for method, (colour, marker) in METHOD_STYLE.items():
         panel.line(table["temp"], table[f"{method}_rms"], colour=colour, width=1.3)
-        panel.markers(table["temp"], table[f"{method}_rms"], colour=colour, shape=marker, size=6, label=method)
+        panel.markers(
+            table["temp"], table[f"{method}_rms"], colour=colour, shape=marker, size=6, label=method
+        )
     panel.line(table["temp"], table["noise_floor"], colour="#000", dash="5 3", label="noise floor")
     clamped = table[np.asarray(table["clamped"], bool)]
-    panel.markers(clamped["temp"], clamped["interpolated_rms"], colour="#000", shape="x", size=9,
-                  label="outside the remaining range")
+    panel.markers(
+        clamped["temp"],
+        clamped["interpolated_rms"],
+        colour="#000",
+        shape="x",
+        size=9,
+        label="outside the remaining range",
+    )
     panel.xlabel, panel.ylabel = "held-out temperature, °C", "RMS error of hold means, deg/s"
     panel.legend_at = "upper right"
     return str(fig)
@@ -182,12 +232,13 @@ def error_distribution(holds: Columns, method: str) -> str:
         g = rows[rows["axis"] == rot]
         inside = ~np.asarray(g["clamped"], bool)
         colours = np.array(svg.COOLWARM, dtype=object)[
-            svg.palette_index(np.asarray(g["temp"], float), lo, hi, len(svg.COOLWARM))]
+            svg.palette_index(np.asarray(g["temp"], float), lo, hi, len(svg.COOLWARM))
+        ]
         for j, out in enumerate(AXES):
             panel = grid[3 * i + j]
             x, y = np.asarray(g["ref_rate"], float), np.asarray(g[f"err_{out}"], float)
             panel.markers(x[inside], y[inside], colour=colours[inside], size=4)
-            if method != "uncompensated" and (~inside).any():   # clamped: hollow
+            if method != "uncompensated" and (~inside).any():  # clamped: hollow
                 panel.markers(x[~inside], y[~inside], colour="#888", size=5, hollow=True)
             panel.title = f"{rot} rotates, {out} output"
             if i == 2:
@@ -219,8 +270,13 @@ def histogram(values: np.ndarray, label: str) -> str:
         half = 0.1 * abs(centre) or 0.5
         spread = None if span > 1e-9 * max(1.0, abs(centre)) else (centre - half, centre + half)
         counts, edges = np.histogram(values, bins=min(20, max(3, values.size)), range=spread)
-        panel.band(np.repeat(edges, 2)[1:-1], np.zeros(2 * len(counts)), np.repeat(counts, 2),
-                   colour="#1f77b4", opacity=1.0)
+        panel.band(
+            np.repeat(edges, 2)[1:-1],
+            np.zeros(2 * len(counts)),
+            np.repeat(counts, 2),
+            colour="#1f77b4",
+            opacity=1.0,
+        )
     return str(fig)
 
 
@@ -237,7 +293,7 @@ def residuals(frame: Columns, covariates: list[tuple[str, str]]) -> str:
     for k, (panel, (label, column)) in enumerate(zip(grid, covariates, strict=False)):
         x = frame[column]
         ticks = None
-        if x.dtype.kind not in "biuf":   # categories side by side; a missing one not drawn
+        if x.dtype.kind not in "biuf":  # categories side by side; a missing one not drawn
             labels = x.astype(str)
             there = present(x)
             ticks = np.unique(labels[there]).tolist()
@@ -248,8 +304,14 @@ def residuals(frame: Columns, covariates: list[tuple[str, str]]) -> str:
         panel.hspan(-2, 2, "#2ca02c", 0.1)
         for m, a in enumerate(AXES):
             offset = (m - 1) * 0.15 if ticks is not None else 0.0
-            panel.markers(np.asarray(x, float) + offset, z[a], colour=AXIS_COLOURS[a], size=3.5,
-                          opacity=0.7, label=a if k == 0 else None)
+            panel.markers(
+                np.asarray(x, float) + offset,
+                z[a],
+                colour=AXIS_COLOURS[a],
+                size=3.5,
+                opacity=0.7,
+                label=a if k == 0 else None,
+            )
         panel.ylim, panel.xlabel = ylim, label
         if k % 3 == 0:
             panel.ylabel = "residual ÷ floor"
@@ -283,7 +345,7 @@ def shape_estimate(estimate: dict) -> str:
             lows.append(np.nanmin(low))
             highs.append(np.nanmax(high))
         panel.title, panel.xlabel = f"output {a}", f"{estimate['input']}, {unit}"
-    if lows:   # one scale for the three outputs
+    if lows:  # one scale for the three outputs
         lo, hi = min(min(lows), 0.0), max(max(highs), 0.0)
         pad = (hi - lo) * 0.04 or 1.0
         for k, panel in enumerate(grid):
@@ -309,15 +371,26 @@ def heatmaps(maps: list[tuple[str, str, dict]]) -> str:
         index = svg.palette_index(np.nan_to_num(values, nan=1.0), 0.5, top, len(svg.HEAT), log=True)
         colours = np.where(np.isfinite(values), np.array(svg.HEAT, dtype=object)[index], None)
         panel.cells(values, colours)
-        every = max(len(row_keys) // 16, 1)   # labels a line apart at most
+        every = max(len(row_keys) // 16, 1)  # labels a line apart at most
         panel.yticks = (np.arange(0, len(row_keys), every, dtype=float), row_keys[::every])
         step = max(len(col_keys) // 12, 1)
-        panel.xticks = (np.arange(0, len(col_keys), step, dtype=float),
-                        [f"{float(c):g}" for c in col_keys[::step]])
+        panel.xticks = (
+            np.arange(0, len(col_keys), step, dtype=float),
+            [f"{float(c):g}" for c in col_keys[::step]],
+        )
         panel.rotate_xticks = True
         panel.xlabel, panel.ylabel = col_label, row_label
-        fig.colourbar(panel.left + panel.w + 16, panel.top, 14, panel.h, svg.HEAT, 0.5, top,
-                      "RMS residual ÷ floor", log=True)
+        fig.colourbar(
+            panel.left + panel.w + 16,
+            panel.top,
+            14,
+            panel.h,
+            svg.HEAT,
+            0.5,
+            top,
+            "RMS residual ÷ floor",
+            log=True,
+        )
     return str(fig)
 
 
@@ -337,8 +410,9 @@ def ladder(rows: list[dict]) -> str:
     x = np.array(steps, float)
     panel.ylog = True
     for key, colour, shape, dash, label in (
-            ("validation_rms", "#1f77b4", "o", None, "validation RMS"),
-            ("expected_rms", "#ff7f0e", "s", "2 3", "expected of a correct model")):
+        ("validation_rms", "#1f77b4", "o", None, "validation RMS"),
+        ("expected_rms", "#ff7f0e", "s", "2 3", "expected of a correct model"),
+    ):
         y = [r[key] for r in rows]
         panel.line(x, y, colour=colour, dash=dash)
         panel.markers(x, y, colour=colour, shape=shape, size=6 if shape == "o" else 4, label=label)
@@ -358,14 +432,27 @@ def sweep_drift(train: pd.DataFrame, verify: pd.DataFrame, models: dict) -> str:
     curve = train.iloc[order]
     predictions = {name: model.predict(curve) for name, model in models.items()}
     for i, (panel, a) in enumerate(zip(grid, AXES, strict=False)):
-        panel.markers(train["temp"], train[f"err_{a}"], colour="#999999", size=2.5,
-                      label="training sweep" if i == 0 else None)
+        panel.markers(
+            train["temp"],
+            train[f"err_{a}"],
+            colour="#999999",
+            size=2.5,
+            label="training sweep" if i == 0 else None,
+        )
         if verify is not train:
-            panel.markers(verify["temp"], verify[f"err_{a}"], colour="#2ca02c", size=2.5,
-                          label="verification sweep" if i == 0 else None)
-        for (name, predicted), dash in zip(predictions.items(), ("5 3", None, "1 2", "6 2 1 2"), strict=False):
-            panel.line(curve["temp"], predicted[:, i], colour=svg.INK, dash=dash,
-                       label=name if i == 0 else None)
+            panel.markers(
+                verify["temp"],
+                verify[f"err_{a}"],
+                colour="#2ca02c",
+                size=2.5,
+                label="verification sweep" if i == 0 else None,
+            )
+        for (name, predicted), dash in zip(
+            predictions.items(), ("5 3", None, "1 2", "6 2 1 2"), strict=False
+        ):
+            panel.line(
+                curve["temp"], predicted[:, i], colour=svg.INK, dash=dash, label=name if i == 0 else None
+            )
         panel.title, panel.xlabel = f"gyro {a}", "temperature, °C"
     grid[0].ylabel, grid[0].legend_at = "drift error, deg/s", "upper left"
     return str(fig)
@@ -378,8 +465,10 @@ def servo_errors(holds: Columns) -> str:
     grid = fig.grid(1, 2, left=78, hgap=70, bottom=60)
     x = np.arange(len(holds), dtype=float)
     labels = holds["direction"].astype(str).tolist()
-    for panel, column, title in ((grid[0], "uncompensated_error", "uncompensated"),
-                                 (grid[1], "validated_error", "validated (leave-one-revolution-out)")):
+    for panel, column, title in (
+        (grid[0], "uncompensated_error", "uncompensated"),
+        (grid[1], "validated_error", "validated (leave-one-revolution-out)"),
+    ):
         if column == "validated_error":
             floor = np.asarray(holds["noise_floor"], float)
             panel.band(x, -2 * floor, 2 * floor, colour="#2ca02c", opacity=0.15, label="±2 noise floor")
@@ -400,6 +489,7 @@ def allan(noise: dict) -> str:
     random walk, 0 bias instability, +1/2 rate random walk), and each temperature point's
     curve in grey."""
     from ..fit.floor import terms_of
+
     session = noise["session"]
     curve = session["allan"]
     tau = np.asarray(curve["tau_s"], float)
@@ -407,8 +497,9 @@ def allan(noise: dict) -> str:
     terms = terms_of(session)
     grid_tau = np.geomspace(tau[0], tau[-1], 120)
     model = terms.adev(grid_tau)
-    arw, bi, rrw = (np.atleast_1d(np.asarray(getattr(terms, k), float))
-                    for k in ("arw", "bias_instability", "rrw"))
+    arw, bi, rrw = (
+        np.atleast_1d(np.asarray(getattr(terms, k), float)) for k in ("arw", "bias_instability", "rrw")
+    )
     fig = svg.Figure(WIDTH, 300)
     grid = fig.grid(1, 3, left=78, hgap=40)
     everything = [adev, lo, hi, model]
@@ -416,22 +507,28 @@ def allan(noise: dict) -> str:
         panel.xlog = panel.ylog = True
         for point in noise.get("points", []):
             if "allan" in point:
-                panel.line(point["allan"]["tau_s"], np.asarray(point["allan"]["adev"], float)[:, i],
-                           colour="#bbbbbb", width=0.8)
+                panel.line(
+                    point["allan"]["tau_s"],
+                    np.asarray(point["allan"]["adev"], float)[:, i],
+                    colour="#bbbbbb",
+                    width=0.8,
+                )
                 everything.append(np.asarray(point["allan"]["adev"], float))
         panel.errorbars(tau, lo[:, i], hi[:, i], colour=AXIS_COLOURS[a])
         panel.markers(tau, adev[:, i], colour=AXIS_COLOURS[a], size=5, label="measured")
         panel.line(grid_tau, model[:, i], colour="#000", width=1.2, label="fitted model")
-        slopes = (("−½: angle random walk", arw[i] / 60.0 / np.sqrt(grid_tau), "1 2"),
-                  ("0: bias instability", np.full_like(grid_tau, 0.6643 * bi[i] / 3600.0), "5 3"),
-                  ("+½: rate random walk", rrw[i] / 3600.0 ** 1.5 * np.sqrt(grid_tau / 3.0), "6 2 1 2"))
+        slopes = (
+            ("−½: angle random walk", arw[i] / 60.0 / np.sqrt(grid_tau), "1 2"),
+            ("0: bias instability", np.full_like(grid_tau, 0.6643 * bi[i] / 3600.0), "5 3"),
+            ("+½: rate random walk", rrw[i] / 3600.0**1.5 * np.sqrt(grid_tau / 3.0), "6 2 1 2"),
+        )
         for label, line, dash in slopes:
             if np.all(line > 0):
                 panel.line(grid_tau, line, colour="#000", width=0.8, dash=dash, label=label)
         panel.xlabel, panel.title = "averaging time τ, s", f"gyro {a}"
     values = np.concatenate([np.ravel(v) for v in everything])
     values = values[np.isfinite(values) & (values > 0)]
-    if values.size:   # one scale for the three axes
+    if values.size:  # one scale for the three axes
         ylim = (float(values.min()) / 1.3, float(values.max()) * 1.3)
         for k, panel in enumerate(grid):
             panel.ylim = ylim

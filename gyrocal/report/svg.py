@@ -23,8 +23,8 @@ import math
 
 import numpy as np
 
-FONT = 11                      # px, tick labels; axis labels and titles one px larger
-CHAR = 0.6                     # em per character, for the width of a label
+FONT = 11  # px, tick labels; axis labels and titles one px larger
+CHAR = 0.6  # em per character, for the width of a label
 GRID = "#e3e3e3"
 INK = "#333"
 
@@ -103,7 +103,7 @@ def tick_label(v: float, ticks: np.ndarray) -> str:
         digits = max(int(math.ceil(math.log10(mag / step))) + 1, 1) if step > 0 else 2
         return f"{v:.{digits - 1}e}".replace("e-0", "e-").replace("e+0", "e").replace("e+", "e")
     decimals = max(0, -int(math.floor(math.log10(step) + 1e-9))) if step > 0 else 0
-    if step > 0 and abs(round(step * 10 ** decimals) - step * 10 ** decimals) > 1e-6:
+    if step > 0 and abs(round(step * 10**decimals) - step * 10**decimals) > 1e-6:
         decimals += 1
     return f"{v:.{decimals}f}".replace("-", "−")
 
@@ -128,14 +128,14 @@ class Panel:
         self._xs: list = []
         self._ys: list = []
         self.title = self.xlabel = self.ylabel = ""
-        self.xticks: tuple | None = None            # (values, labels): categories
+        self.xticks: tuple | None = None  # (values, labels): categories
         self.yticks: tuple | None = None
-        self.legend_at: str | None = None           # "upper right", "upper left", "lower right", None
+        self.legend_at: str | None = None  # "upper right", "upper left", "lower right", None
         self.grid = True
         self.show_xticklabels = True
         self.show_yticklabels = True
         self.rotate_xticks = False
-        self.ticks_right = False                    # a colour bar's scale
+        self.ticks_right = False  # a colour bar's scale
 
     # ---------------------------------------------------------------- data items
     def _extent(self, x=None, y=None):
@@ -156,8 +156,15 @@ class Panel:
         """Markers of diameter ``size`` px; ``colour`` one colour or one per point."""
         x, y = np.asarray(x, float), np.asarray(y, float)
         self._extent(x, y)
-        self.items.append(("markers", x, y, dict(colour=colour, size=size, shape=shape, hollow=hollow,
-                                                 opacity=opacity), label))
+        self.items.append(
+            (
+                "markers",
+                x,
+                y,
+                dict(colour=colour, size=size, shape=shape, hollow=hollow, opacity=opacity),
+                label,
+            )
+        )
 
     def errorbars(self, x, lo, hi, colour=INK, width=0.8, cap=2.0):
         x, lo, hi = (np.asarray(v, float) for v in (x, lo, hi))
@@ -199,11 +206,12 @@ class Panel:
             lo, hi = min(s[0] for s in spans), max(s[1] for s in spans)
             if log:
                 lo, hi = math.log10(lo), math.log10(hi)
-            if hi - lo <= 1e-9 * max(abs(lo), abs(hi)):   # one value, up to rounding
+            if hi - lo <= 1e-9 * max(abs(lo), abs(hi)):  # one value, up to rounding
                 lo = hi = (lo + hi) / 2
             pad = (hi - lo) * 0.04 if hi > lo else (abs(lo) * 0.1 or 0.5)
             lo, hi = lo - pad, hi + pad
-            return (10 ** lo, 10 ** hi) if log else (lo, hi)
+            return (10**lo, 10**hi) if log else (lo, hi)
+
         self.X = settle(self._xs, self.xlog, self.xlim)
         self.Y = settle(self._ys, self.ylog, self.ylim)
 
@@ -248,9 +256,9 @@ class Panel:
             if k1 - k0 >= 1:
                 stride = max(1, math.ceil((k1 - k0 + 1) / 7))
                 ks = list(range(k0, k1 + 1, stride))
-                return np.array([10.0 ** k for k in ks]), [_decade(k) for k in ks]
-            if k1 - k0 >= -1:   # within about two decades: 1, 2 and 5 of each
-                ticks = np.array([m * 10.0 ** k for k in range(k0 - 1, k1 + 1) for m in (1, 2, 5)])
+                return np.array([10.0**k for k in ks]), [_decade(k) for k in ks]
+            if k1 - k0 >= -1:  # within about two decades: 1, 2 and 5 of each
+                ticks = np.array([m * 10.0**k for k in range(k0 - 1, k1 + 1) for m in (1, 2, 5)])
                 ticks = ticks[(ticks >= lo * (1 - 1e-9)) & (ticks <= hi * (1 + 1e-9))]
                 if ticks.size >= 2:
                     return ticks, [f"{v:g}" for v in ticks]
@@ -261,8 +269,10 @@ class Panel:
         return ticks, [tick_label(v, ticks) for v in ticks]
 
     def _axes_back(self) -> str:
-        parts = [f'<rect x="{_f(self.left)}" y="{_f(self.top)}" width="{_f(self.w)}" height="{_f(self.h)}" '
-                 f'fill="#fff" stroke="none"/>']
+        parts = [
+            f'<rect x="{_f(self.left)}" y="{_f(self.top)}" width="{_f(self.w)}" height="{_f(self.h)}" '
+            f'fill="#fff" stroke="none"/>'
+        ]
         if not self.grid:
             return parts[0]
         xv, _ = self.xticks or self._ticks(self.X, self.xlog)
@@ -280,8 +290,11 @@ class Panel:
 
     def _axes_front(self) -> str:
         L, T, W, H = self.left, self.top, self.w, self.h
-        frame = (f"M{_f(L)} {_f(T)}h{_f(W)}v{_f(H)}h{_f(-W)}Z" if self.ticks_right
-                 else f"M{_f(L)} {_f(T)}V{_f(T + H)}H{_f(L + W)}")
+        frame = (
+            f"M{_f(L)} {_f(T)}h{_f(W)}v{_f(H)}h{_f(-W)}Z"
+            if self.ticks_right
+            else f"M{_f(L)} {_f(T)}V{_f(T + H)}H{_f(L + W)}"
+        )
         parts = [f'<path d="{frame}" stroke="{INK}" stroke-width="1" fill="none"/>']
         xv, xl = self.xticks or self._ticks(self.X, self.xlog)
         yv, yl = self.yticks or self._ticks(self.Y, self.ylog)
@@ -292,10 +305,14 @@ class Panel:
             ticks.append(f"M{_f(px)} {_f(T + H)}v4")
             if self.show_xticklabels:
                 if self.rotate_xticks:
-                    labels.append(f'<text transform="translate({_f(px)} {_f(T + H + 8)}) rotate(-45)" '
-                                  f'text-anchor="end" dominant-baseline="middle">{_esc(lab)}</text>')
+                    labels.append(
+                        f'<text transform="translate({_f(px)} {_f(T + H + 8)}) rotate(-45)" '
+                        f'text-anchor="end" dominant-baseline="middle">{_esc(lab)}</text>'
+                    )
                 else:
-                    labels.append(f'<text x="{_f(px)}" y="{_f(T + H + 15)}" text-anchor="middle">{_esc(lab)}</text>')
+                    labels.append(
+                        f'<text x="{_f(px)}" y="{_f(T + H + 15)}" text-anchor="middle">{_esc(lab)}</text>'
+                    )
         for _, lab, py in zip(yv, yl, self.sy(yv), strict=False):
             if not (T - 0.5 <= py <= T + H + 0.5):
                 continue
@@ -311,17 +328,23 @@ class Panel:
         parts.extend(labels)
         big = FONT + 1
         if self.title:
-            parts.append(f'<text x="{_f(L + W / 2)}" y="{_f(T - 7)}" text-anchor="middle" '
-                         f'font-size="{big}">{_esc(self.title)}</text>')
+            parts.append(
+                f'<text x="{_f(L + W / 2)}" y="{_f(T - 7)}" text-anchor="middle" '
+                f'font-size="{big}">{_esc(self.title)}</text>'
+            )
         if self.xlabel:
             below = 32 + (max((text_width(s) for s in xl), default=0) * 0.7 if self.rotate_xticks else 0)
-            parts.append(f'<text x="{_f(L + W / 2)}" y="{_f(T + H + below)}" text-anchor="middle" '
-                         f'font-size="{big}">{_esc(self.xlabel)}</text>')
+            parts.append(
+                f'<text x="{_f(L + W / 2)}" y="{_f(T + H + below)}" text-anchor="middle" '
+                f'font-size="{big}">{_esc(self.xlabel)}</text>'
+            )
         if self.ylabel:
             room = max((text_width(s) for s in yl), default=20) if self.show_yticklabels else 0
             x = L - room - 14
-            parts.append(f'<text transform="translate({_f(x)} {_f(T + H / 2)}) rotate(-90)" '
-                         f'text-anchor="middle" font-size="{big}">{_esc(self.ylabel)}</text>')
+            parts.append(
+                f'<text transform="translate({_f(x)} {_f(T + H / 2)}) rotate(-90)" '
+                f'text-anchor="middle" font-size="{big}">{_esc(self.ylabel)}</text>'
+            )
         return "".join(parts)
 
     @staticmethod
@@ -359,19 +382,24 @@ class Panel:
     def _draw_line(self, x, y, colour, width, dash, opacity):
         px, py = self.sx(x), self.sy(y)
         ok = np.isfinite(px) & np.isfinite(py)
-        style = (f' stroke-dasharray="{dash}"' if dash else "") + (f' opacity="{opacity}"' if opacity < 1 else "")
+        style = (f' stroke-dasharray="{dash}"' if dash else "") + (
+            f' opacity="{opacity}"' if opacity < 1 else ""
+        )
         if ok.sum() > self.w and np.all(np.diff(px[ok]) >= 0):
             # more points than pixel columns: the envelope of each stretch without a gap,
             # drawn as a thin band, within the panel's x range
             keep = ok & self._inside_x(px)
-            return "".join(self._polygon(cx, np.maximum(hi, lo + 0.01), np.minimum(lo, hi), colour, 1.0, width, style)
-                           for cx, lo, hi in (self._envelope(px[a:b], py[a:b], py[a:b])
-                                              for a, b in self._runs(keep)))
+            return "".join(
+                self._polygon(cx, np.maximum(hi, lo + 0.01), np.minimum(lo, hi), colour, 1.0, width, style)
+                for cx, lo, hi in (self._envelope(px[a:b], py[a:b], py[a:b]) for a, b in self._runs(keep))
+            )
         # a line leaving the panel breaks off there rather than run along its edge
         outside = (py < self.top - 0.5) | (py > self.top + self.h + 0.5) | ~self._inside_x(px)
         py = np.where(outside, np.nan, py)
-        return (f'<path d="{self._path(px, py)}" stroke="{colour}" '
-                f'stroke-width="{width}" fill="none" stroke-linejoin="round"{style}/>')
+        return (
+            f'<path d="{self._path(px, py)}" stroke="{colour}" '
+            f'stroke-width="{width}" fill="none" stroke-linejoin="round"{style}/>'
+        )
 
     def _polygon(self, cx, top, bottom, colour, opacity, stroke=0.0, style=""):
         d = self._path(np.r_[cx, cx[::-1]], np.r_[top, bottom[::-1]])
@@ -388,7 +416,9 @@ class Panel:
             keep = ok & self._inside_x(px)
             out = []
             for a, b in self._runs(keep):
-                cx, top, bottom = self._envelope(px[a:b], np.fmin(plo[a:b], phi[a:b]), np.fmax(plo[a:b], phi[a:b]))
+                cx, top, bottom = self._envelope(
+                    px[a:b], np.fmin(plo[a:b], phi[a:b]), np.fmax(plo[a:b], phi[a:b])
+                )
                 out.append(self._polygon(cx, top, bottom, colour, opacity))
             return "".join(out)
         px, plo, phi = px[ok], plo[ok], phi[ok]
@@ -408,8 +438,12 @@ class Panel:
         # One marker per pixel and colour (the rest would be drawn over it), inside the panel:
         # whole points sorted by colour, then x, then y, and the repeats dropped, at once.
         kx, ky = (np.round(np.clip(p[ok], -1e6, 1e6)).astype(np.int64) for p in (px, py))
-        inside = ((kx >= self.left - 1) & (kx <= self.left + self.w + 1)
-                  & (ky >= self.top - 1) & (ky <= self.top + self.h + 1))
+        inside = (
+            (kx >= self.left - 1)
+            & (kx <= self.left + self.w + 1)
+            & (ky >= self.top - 1)
+            & (ky <= self.top + self.h + 1)
+        )
         if not inside.any():
             return ""
         names, code = np.unique(colours[ok][inside], return_inverse=True)
@@ -427,18 +461,25 @@ class Panel:
             r = size / 2
             if shape in ("o", "s") and not hollow:
                 cap = "round" if shape == "o" else "square"
-                out.append(f'<path d="{_dots(key)}" stroke="{c}" stroke-width="{_f(size)}" '
-                           f'stroke-linecap="{cap}"{alpha}/>')
+                out.append(
+                    f'<path d="{_dots(key)}" stroke="{c}" stroke-width="{_f(size)}" '
+                    f'stroke-linecap="{cap}"{alpha}/>'
+                )
             elif shape == "^":
                 d = "".join(f"M{_f(a)} {_f(b - r)}l{_f(r)} {_f(1.7 * r)}h{_f(-2 * r)}Z" for a, b in key)
                 out.append(f'<path d="{d}" fill="{c}"{alpha}/>')
             elif shape == "x":
-                d = "".join(f"M{_f(a - r)} {_f(b - r)}l{_f(2 * r)} {_f(2 * r)}m0 {_f(-2 * r)}l{_f(-2 * r)} {_f(2 * r)}"
-                            for a, b in key)
+                d = "".join(
+                    f"M{_f(a - r)} {_f(b - r)}l{_f(2 * r)} {_f(2 * r)}m0 {_f(-2 * r)}l{_f(-2 * r)} {_f(2 * r)}"
+                    for a, b in key
+                )
                 out.append(f'<path d="{d}" stroke="{c}" stroke-width="1.3" fill="none"{alpha}/>')
             else:  # hollow circles
-                d = "".join(f"M{_f(a - r)} {_f(b)}a{_f(r)} {_f(r)} 0 1 0 {_f(2 * r)} 0a{_f(r)} {_f(r)} 0 1 0 "
-                            f"{_f(-2 * r)} 0" for a, b in key)
+                d = "".join(
+                    f"M{_f(a - r)} {_f(b)}a{_f(r)} {_f(r)} 0 1 0 {_f(2 * r)} 0a{_f(r)} {_f(r)} 0 1 0 "
+                    f"{_f(-2 * r)} 0"
+                    for a, b in key
+                )
                 out.append(f'<path d="{d}" stroke="{c}" stroke-width="0.8" fill="none"{alpha}/>')
         return "".join(out)
 
@@ -446,15 +487,19 @@ class Panel:
         lo, hi = y
         px, plo, phi = self.sx(x), self._clampy(self.sy(lo)), self._clampy(self.sy(hi))
         ok = np.isfinite(px) & np.isfinite(plo) & np.isfinite(phi)
-        d = "".join(f"M{_f(a)} {_f(b)}V{_f(c)}M{_f(a - cap)} {_f(b)}h{_f(2 * cap)}M{_f(a - cap)} {_f(c)}h{_f(2 * cap)}"
-                    for a, b, c in zip(px[ok], plo[ok], phi[ok], strict=False))
+        d = "".join(
+            f"M{_f(a)} {_f(b)}V{_f(c)}M{_f(a - cap)} {_f(b)}h{_f(2 * cap)}M{_f(a - cap)} {_f(c)}h{_f(2 * cap)}"
+            for a, b, c in zip(px[ok], plo[ok], phi[ok], strict=False)
+        )
         return f'<path d="{d}" stroke="{colour}" stroke-width="{width}" fill="none"/>' if d else ""
 
     def _draw_vspan(self, x0, x1, colour, opacity):
         a, b = self._clampx(self.sx(x0)), self._clampx(self.sx(x1))
         keep = np.isfinite(a) & np.isfinite(b)
-        d = "".join(f"M{_f(p)} {_f(self.top)}h{_f(max(q - p, 0.5))}v{_f(self.h)}h{_f(-max(q - p, 0.5))}Z"
-                    for p, q in self._merge_px(a[keep], b[keep]))
+        d = "".join(
+            f"M{_f(p)} {_f(self.top)}h{_f(max(q - p, 0.5))}v{_f(self.h)}h{_f(-max(q - p, 0.5))}Z"
+            for p, q in self._merge_px(a[keep], b[keep])
+        )
         return f'<path d="{d}" fill="{colour}" fill-opacity="{opacity}"/>' if d else ""
 
     @staticmethod
@@ -472,16 +517,20 @@ class Panel:
     def _draw_hspan(self, x, y, colour, opacity):
         a, b = self._clampy(self.sy(y[0])), self._clampy(self.sy(y[1]))
         top, bottom = min(a, b), max(a, b)
-        return (f'<rect x="{_f(self.left)}" y="{_f(top)}" width="{_f(self.w)}" height="{_f(bottom - top)}" '
-                f'fill="{colour}" fill-opacity="{opacity}"/>')
+        return (
+            f'<rect x="{_f(self.left)}" y="{_f(top)}" width="{_f(self.w)}" height="{_f(bottom - top)}" '
+            f'fill="{colour}" fill-opacity="{opacity}"/>'
+        )
 
     def _draw_hline(self, x, y, colour, width, dash):
         py = float(self.sy(y))
         if not (self.top <= py <= self.top + self.h):
             return ""
         style = f' stroke-dasharray="{dash}"' if dash else ""
-        return (f'<path d="M{_f(self.left)} {_f(py)}h{_f(self.w)}" stroke="{colour}" '
-                f'stroke-width="{width}"{style}/>')
+        return (
+            f'<path d="M{_f(self.left)} {_f(py)}h{_f(self.w)}" stroke="{colour}" '
+            f'stroke-width="{width}"{style}/>'
+        )
 
     def _draw_cells(self, x, y, colours):
         rows, cols = colours.shape
@@ -491,7 +540,8 @@ class Panel:
             for j in range(cols):
                 if colours[i, j] is not None:
                     by_colour.setdefault(colours[i, j], []).append(
-                        f"M{_f(self.left + j * cw)} {_f(self.top + i * ch)}h{_f(cw + 0.3)}v{_f(ch + 0.3)}h{_f(-cw - 0.3)}Z")
+                        f"M{_f(self.left + j * cw)} {_f(self.top + i * ch)}h{_f(cw + 0.3)}v{_f(ch + 0.3)}h{_f(-cw - 0.3)}Z"
+                    )
         return "".join(f'<path d="{"".join(d)}" fill="{c}"/>' for c, d in sorted(by_colour.items()))
 
     def _draw_raw(self, x, y):
@@ -505,14 +555,18 @@ class Panel:
 def _swatch(kind: str, style: dict, x: float, y: float) -> str:
     c = style.get("colour", INK)
     if kind in ("band", "vspan"):
-        return (f'<rect x="{_f(x)}" y="{_f(y - 5)}" width="16" height="9" fill="{c}" '
-                f'fill-opacity="{max(style.get("opacity", 0.3), 0.25)}"/>')
+        return (
+            f'<rect x="{_f(x)}" y="{_f(y - 5)}" width="16" height="9" fill="{c}" '
+            f'fill-opacity="{max(style.get("opacity", 0.3), 0.25)}"/>'
+        )
     if kind == "markers":
         one = dict(style, colour=c if isinstance(c, str) else INK)
         return _marker_at(x + 8, y, one)
     dash = f' stroke-dasharray="{style["dash"]}"' if style.get("dash") else ""
-    return (f'<path d="M{_f(x)} {_f(y)}h16" stroke="{c}" stroke-width="{max(style.get("width", 1.0), 1.0)}"'
-            f'{dash}/>')
+    return (
+        f'<path d="M{_f(x)} {_f(y)}h16" stroke="{c}" stroke-width="{max(style.get("width", 1.0), 1.0)}"'
+        f"{dash}/>"
+    )
 
 
 def _marker_at(x: float, y: float, style: dict) -> str:
@@ -521,8 +575,9 @@ def _marker_at(x: float, y: float, style: dict) -> str:
     return p._draw_markers(np.array([x]), np.array([y]), **style)
 
 
-def legend(entries: list, panel: Panel | None, where: str, *, x: float = 0, y: float = 0,
-           columns: int = 1) -> str:
+def legend(
+    entries: list, panel: Panel | None, where: str, *, x: float = 0, y: float = 0, columns: int = 1
+) -> str:
     """A legend box: in a panel's corner (``where``) or at (x, y) in ``columns``."""
     if not entries:
         return ""
@@ -534,8 +589,10 @@ def legend(entries: list, panel: Panel | None, where: str, *, x: float = 0, y: f
     if panel is not None:
         x = panel.left + panel.w - box_w - 4 if "right" in where else panel.left + 4
         y = panel.top + 4 if "upper" in where else panel.top + panel.h - box_h - 4
-    parts = [f'<rect x="{_f(x)}" y="{_f(y)}" width="{_f(box_w)}" height="{_f(box_h)}" fill="#fff" '
-             f'fill-opacity="0.85" stroke="#ccc"/>']
+    parts = [
+        f'<rect x="{_f(x)}" y="{_f(y)}" width="{_f(box_w)}" height="{_f(box_h)}" fill="#fff" '
+        f'fill-opacity="0.85" stroke="#ccc"/>'
+    ]
     for k, (label, kind, style) in enumerate(entries):
         cx = x + 4 + (k % cols) * col_w
         cy = y + 11 + (k // cols) * 15
@@ -557,14 +614,26 @@ class Figure:
         self.panels.append(p)
         return p
 
-    def grid(self, rows: int, cols: int, *, left=64, right=14, top=26, bottom=44, hgap=56, vgap=48,
-             count: int | None = None) -> list[Panel]:
+    def grid(
+        self,
+        rows: int,
+        cols: int,
+        *,
+        left=64,
+        right=14,
+        top=26,
+        bottom=44,
+        hgap=56,
+        vgap=48,
+        count: int | None = None,
+    ) -> list[Panel]:
         """``rows`` × ``cols`` panels filling the canvas (the first ``count`` of them)."""
         w = (self.width - left - right - hgap * (cols - 1)) / cols
         h = (self.height - top - bottom - vgap * (rows - 1)) / rows
         n = rows * cols if count is None else count
-        return [self.panel(left + (k % cols) * (w + hgap), top + (k // cols) * (h + vgap), w, h)
-                for k in range(n)]
+        return [
+            self.panel(left + (k % cols) * (w + hgap), top + (k // cols) * (h + vgap), w, h) for k in range(n)
+        ]
 
     def colourbar(self, left, top, w, h, colours: list[str], lo, hi, label: str, log: bool = False) -> Panel:
         """A vertical scale of ``colours`` (bottom to top) from lo to hi, labelled on its right."""
@@ -572,11 +641,23 @@ class Figure:
         bar.ylog, bar.ylim, bar.xlim, bar.grid, bar.ticks_right = log, (lo, hi), (0, 1), False, True
         bar.xticks = (np.array([]), [])
         step = h / len(colours)
-        bar.items.append(("raw", None, "".join(
-            f'<rect x="{_f(left)}" y="{_f(top + h - (k + 1) * step)}" width="{_f(w)}" height="{_f(step + 0.3)}" '
-            f'fill="{c}"/>' for k, c in enumerate(colours)), {}, None))
-        self.extra.append(f'<text transform="translate({_f(left + w + 50)} {_f(top + h / 2)}) rotate(-90)" '
-                          f'text-anchor="middle" font-size="{FONT + 1}">{_esc(label)}</text>')
+        bar.items.append(
+            (
+                "raw",
+                None,
+                "".join(
+                    f'<rect x="{_f(left)}" y="{_f(top + h - (k + 1) * step)}" width="{_f(w)}" height="{_f(step + 0.3)}" '
+                    f'fill="{c}"/>'
+                    for k, c in enumerate(colours)
+                ),
+                {},
+                None,
+            )
+        )
+        self.extra.append(
+            f'<text transform="translate({_f(left + w + 50)} {_f(top + h / 2)}) rotate(-90)" '
+            f'text-anchor="middle" font-size="{FONT + 1}">{_esc(label)}</text>'
+        )
         return bar
 
     def __str__(self) -> str:
@@ -584,9 +665,11 @@ class Figure:
         for p in self.panels:
             body.extend(p.render())
         body.extend(self.extra)
-        return (f'<svg xmlns="http://www.w3.org/2000/svg" width="{_f(self.width)}" height="{_f(self.height)}" '
-                f'viewBox="0 0 {_f(self.width)} {_f(self.height)}" font-family="sans-serif" font-size="{FONT}" '
-                f'fill="{INK}">' + "".join(body) + "</svg>")
+        return (
+            f'<svg xmlns="http://www.w3.org/2000/svg" width="{_f(self.width)}" height="{_f(self.height)}" '
+            f'viewBox="0 0 {_f(self.width)} {_f(self.height)}" font-family="sans-serif" font-size="{FONT}" '
+            f'fill="{INK}">' + "".join(body) + "</svg>"
+        )
 
 
 def palette_index(values: np.ndarray, lo: float, hi: float, n: int, log: bool = False) -> np.ndarray:
@@ -599,6 +682,16 @@ def palette_index(values: np.ndarray, lo: float, hi: float, n: int, log: bool = 
 
 
 # Diverging blue-white-red for temperatures, sequential light-to-dark for the heat maps.
-COOLWARM = ["#3b4cc0", "#5d7ce6", "#82a6fb", "#aac7fd", "#cdd9ec", "#ead4c8", "#f7b89c",
-            "#f18d6f", "#d95847", "#b40426"]
+COOLWARM = [
+    "#3b4cc0",
+    "#5d7ce6",
+    "#82a6fb",
+    "#aac7fd",
+    "#cdd9ec",
+    "#ead4c8",
+    "#f7b89c",
+    "#f18d6f",
+    "#d95847",
+    "#b40426",
+]
 HEAT = ["#fcfdbf", "#fec488", "#fc8961", "#e85362", "#b73779", "#822681", "#51127c", "#1d1147"]

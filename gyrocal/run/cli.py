@@ -7,13 +7,13 @@ import sys
 import warnings
 from pathlib import Path
 
-from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
 from .. import __version__
 from ..calibration.export import add_export_parser
 from ..calibration.lookup import add_lookup_parser
 from ..io.errors import ConfigError, GyrocalError
 from ..paper import add_parser as add_paper_parser
 from ..protocols import registry
+from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
 
 EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
 
@@ -31,23 +31,30 @@ def _settings(args):
 
     from ..pipeline.config import ModelSettings, Settings, read_yaml
     from ..terms.user import load_term_file
+
     for path in getattr(args, "terms", None) or ():
         load_term_file(path)
     settings = Settings.load(args.config) if getattr(args, "config", None) else Settings()
     if getattr(args, "settings_json", None):
         values = _json_object(args.settings_json, "--settings-json")
         base = settings.to_dict()
-        settings = Settings.from_dict({k: values.get(k, base[k]) for k in base} | {
-            k: v for k, v in values.items() if k not in base})
+        settings = Settings.from_dict(
+            {k: values.get(k, base[k]) for k in base} | {k: v for k, v in values.items() if k not in base}
+        )
     # A servo or sweep log is fitted with its protocol's model; --model and --add-term
     # then change that model. A protocol with a calibration of its own (the servo's, seed
     # 001's six parameters) ignores the model: there they only change what the diagnosis reads.
     protocol = getattr(args, "protocol", None)
-    if args.command in ("calibrate", "fit") and registry.get(protocol).calibrate is not None and (
-            getattr(args, "model", None) or getattr(args, "add_term", None)):
-        raise ConfigError(f"a {protocol} calibration is the protocol's own model; --model and "
-                          "--add-term change the model the diagnosis reads: use them with "
-                          "gyrocal diagnose")
+    if (
+        args.command in ("calibrate", "fit")
+        and registry.get(protocol).calibrate is not None
+        and (getattr(args, "model", None) or getattr(args, "add_term", None))
+    ):
+        raise ConfigError(
+            f"a {protocol} calibration is the protocol's own model; --model and "
+            "--add-term change the model the diagnosis reads: use them with "
+            "gyrocal diagnose"
+        )
     settings = settings.for_protocol(protocol)
     if getattr(args, "model", None):
         values = read_yaml(args.model)
@@ -59,8 +66,9 @@ def _settings(args):
         settings = replace(settings, model=model)
     if getattr(args, "terms", None):  # --terms FILE: the model's term files, as in a config
         files = tuple(f for f in args.terms if f not in settings.model.term_files)
-        settings = replace(settings, model=replace(settings.model,
-                                                   term_files=settings.model.term_files + files))
+        settings = replace(
+            settings, model=replace(settings.model, term_files=settings.model.term_files + files)
+        )
     if getattr(args, "add_term", None):
         settings = replace(settings, model=settings.model.with_terms(tuple(args.add_term)))
         settings.model.build()  # unknown names fail here, before any work
@@ -73,6 +81,7 @@ def _num(value, spec: str) -> str:
 
 def _json_object(text: str | None, option: str) -> dict:
     import json
+
     if not text:
         return {}
     try:
@@ -93,15 +102,24 @@ def cmd_simulate(args) -> int:
 
     from ..simulate import published_unit, rig_for, simulate, simulate_unit
     from ..simulate.fleet import unit_for
+
     if (args.out is None) == (args.log is None):
         raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
-    options = {"temperatures": "--temperatures", "rates": "--rates", "mounts": "--mounts",
-               "sample_rate": "--sample-rate", "soak_s": "--soak-s", "hold_s": "--hold-s",
-               "handling_s": "--handling-s", "accel_columns": "--no-accel",
-               "mount_column": "--no-mount-column"}
+    options = {
+        "temperatures": "--temperatures",
+        "rates": "--rates",
+        "mounts": "--mounts",
+        "sample_rate": "--sample-rate",
+        "soak_s": "--soak-s",
+        "hold_s": "--hold-s",
+        "handling_s": "--handling-s",
+        "accel_columns": "--no-accel",
+        "mount_column": "--no-mount-column",
+    }
     knobs = {k: getattr(args, k) for k in options if k in vars(args)}
-    knobs.update(accel_columns=False if args.no_accel else None,
-                 mount_column=False if args.no_mount_column else None)
+    knobs.update(
+        accel_columns=False if args.no_accel else None, mount_column=False if args.no_mount_column else None
+    )
     rig = rig_for(args.protocol, args.preset, knobs, options)
     published = published_unit(args.protocol) if args.unit == "seed000" else None
     effects = _json_object(args.effects, "--effects")
@@ -125,41 +143,62 @@ def cmd_simulate(args) -> int:
         # One log of one unit: the unit follows from its device id, the noise from the
         # session too, so every session of a device is the same physical unit.
         device = args.device or "U001"
-        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000",
-                              protocol=args.protocol)
+        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000", protocol=args.protocol)
         if args.bias_shift is not None and not hasattr(unit, "bias_poly"):
-            raise ConfigError(f"--bias-shift applies to units with a bias polynomial, not to a "
-                              f"{args.protocol} unit")
+            raise ConfigError(
+                f"--bias-shift applies to units with a bias polynomial, not to a {args.protocol} unit"
+            )
         unit = shifted(unit)
         Path(args.log).parent.mkdir(parents=True, exist_ok=True)
-        simulate_unit(args.log, protocol=args.protocol, rig=rig, unit=unit,
-                      rng=np.random.default_rng(seed), device=device, batch=args.batch,
-                      session=args.session, seed=seed, effects=effects, noise=noise)
+        simulate_unit(
+            args.log,
+            protocol=args.protocol,
+            rig=rig,
+            unit=unit,
+            rng=np.random.default_rng(seed),
+            device=device,
+            batch=args.batch,
+            session=args.session,
+            seed=seed,
+            effects=effects,
+            noise=noise,
+        )
         print(f"wrote {args.log}")
         return 0
     if args.bias_shift is not None:
         raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
-    manifest = simulate(args.out, protocol=args.protocol, units=args.units, seed=args.seed,
-                        rig=rig, unit=published, batch=args.batch, session=args.session,
-                        device_prefix=args.device_prefix, effects=effects, noise=noise)
+    manifest = simulate(
+        args.out,
+        protocol=args.protocol,
+        units=args.units,
+        seed=args.seed,
+        rig=rig,
+        unit=published,
+        batch=args.batch,
+        session=args.session,
+        device_prefix=args.device_prefix,
+        effects=effects,
+        noise=noise,
+    )
     print(f"wrote {args.units} log(s) and manifest {manifest}")
     return 0
 
 
 def _stage(args, stage: str, outputs, work) -> int:
     from .stages import run_stage
+
     return run_stage(stage, outputs, _meta(args), work, record_failures=args.record_failures)
 
 
 def cmd_segment(args) -> int:
     from ..io.unit_folder import STAGE_PARTS, UNIT_FILES, clear_stage, pack_stage
     from .stages import segment_stage
+
     settings = _settings(args)
     out = Path(args.out)
     files = [out / UNIT_FILES[k] for k in STAGE_PARTS["segment"]]
     clear_stage(out, "segment")
-    status = _stage(args, "segment", files,
-                    lambda: segment_stage(args.log, out, settings, _meta(args)))
+    status = _stage(args, "segment", files, lambda: segment_stage(args.log, out, settings, _meta(args)))
     pack_stage(out, "segment")
     print(f"segmentation -> {out}")
     return status
@@ -171,21 +210,23 @@ def _noise_protocol(path) -> str:
     test): its steady windows are its static stretches, whatever its temperature does."""
     import pyarrow as pa
     import pyarrow.compute as pc
+
     from ..io.errors import GyrocalError
     from ..io.log import open_dataset
     from ..protocols import registry
-    try:   # a file, or a folder of files read as one (the contract)
+
+    try:  # a file, or a folder of files read as one (the contract)
         source = open_dataset(Path(path))
         names = set(source.schema.names)
         if "mount" in names:
             return registry.DEFAULT
-        if "ref_rate" not in names:   # an import without a reference: still, as static reads it
+        if "ref_rate" not in names:  # an import without a reference: still, as static reads it
             return "static"
         for batch in source.to_batches(columns=["ref_rate"]):
             if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
                 return registry.DEFAULT
     except (GyrocalError, OSError, ValueError, pa.ArrowException):
-        return registry.DEFAULT   # reading the log says what is wrong with it
+        return registry.DEFAULT  # reading the log says what is wrong with it
     return "static"
 
 
@@ -194,44 +235,62 @@ def cmd_noise(args) -> int:
     and pooled (gyrocal.fit.floor); the whole characterisation as JSON with -o."""
     from ..calibration.file import dumps
     from ..pipeline.chain import segment_log
+
     settings = _settings(args)
     protocol = args.protocol or _noise_protocol(args.log)
     noise = segment_log(args.log, settings, protocol).info["noise"]
     if args.output:
         from ..io.atomic import write_text
+
         write_text(args.output, dumps(noise))
     if "session" not in noise:
         print(f"{args.log}: {noise['reason']}; no noise model")
         return 0
-    print(f"{args.log}: {noise['stretches']} static stretches, {noise['static_seconds']:.1f} s "
-          "(terms per axis x / y / z)")
-    print(f"{'static data':>22}  {'ARW deg/sqrt(h)':>24}  {'bias instability deg/h':>24}  "
-          f"{'RRW deg/h/sqrt(h)':>24}")
-    rows = [("all", noise["session"]), *((f"{p['temp']:.4g} C ({p['seconds']:.0f} s)", p)
-                                        for p in noise["points"])]
+    print(
+        f"{args.log}: {noise['stretches']} static stretches, {noise['static_seconds']:.1f} s "
+        "(terms per axis x / y / z)"
+    )
+    print(
+        f"{'static data':>22}  {'ARW deg/sqrt(h)':>24}  {'bias instability deg/h':>24}  "
+        f"{'RRW deg/h/sqrt(h)':>24}"
+    )
+    rows = [
+        ("all", noise["session"]),
+        *((f"{p['temp']:.4g} C ({p['seconds']:.0f} s)", p) for p in noise["points"]),
+    ]
     for label, entry in rows:
         if "terms" not in entry:
             print(f"{label:>22}  no static stretch to fit")
             continue
         t = entry["terms"]
-        print(f"{label:>22}  " + "  ".join(f"{' / '.join(f'{v:.3g}' for v in t[k]):>24}"
-                                            for k in ("arw", "bias_instability", "rrw")))
+        print(
+            f"{label:>22}  "
+            + "  ".join(
+                f"{' / '.join(f'{v:.3g}' for v in t[k]):>24}" for k in ("arw", "bias_instability", "rrw")
+            )
+        )
     if "resolves" in noise:
         print(f"  {noise['resolves']['text']}")
     return 0
 
 
 def cmd_fit(args) -> int:
-    from .stages import fit_stage
     from ..io.unit_folder import UNIT_FILES
+    from .stages import fit_stage
+
     settings = _settings(args)
-    return _stage(args, "fit", [Path(args.unit) / UNIT_FILES["calibration"]],
-                  lambda: fit_stage(args.unit, settings, _meta(args)))
+    return _stage(
+        args,
+        "fit",
+        [Path(args.unit) / UNIT_FILES["calibration"]],
+        lambda: fit_stage(args.unit, settings, _meta(args)),
+    )
 
 
 def cmd_validate(args) -> int:
     from ..io.unit_folder import UNIT_FILES, VALIDATION_TABLES, clear_stage, pack_stage
     from .stages import validate_stage
+
     settings = _settings(args)
     files = [Path(args.unit) / UNIT_FILES[k] for k in ("validation", *VALIDATION_TABLES)]
     clear_stage(args.unit, "validate")
@@ -243,17 +302,18 @@ def cmd_validate(args) -> int:
 def cmd_analyse(args) -> int:
     from ..io.unit_folder import clear_stage, pack_stage
     from .stages import analyse_stage, report_stage
+
     settings = _settings(args)
     clear_stage(args.unit, "analyse")
-    verdict = analyse_stage(args.unit, settings, _meta(args), record_failures=args.record_failures,
-                            other=args.other_session)
+    verdict = analyse_stage(
+        args.unit, settings, _meta(args), record_failures=args.record_failures, other=args.other_session
+    )
     print(f"calibration, validation and diagnosis -> {args.unit}")
     if verdict is not None:
         print(f"  {verdict}")
     status = 0
-    if args.report:   # the workflow's report, in the same process: no second start-up
-        status = _stage(args, "report", [args.report],
-                        lambda: report_stage(args.unit, args.report, settings))
+    if args.report:  # the workflow's report, in the same process: no second start-up
+        status = _stage(args, "report", [args.report], lambda: report_stage(args.unit, args.report, settings))
         print(f"report -> {args.report}")
     pack_stage(args.unit, "analyse")
     return status
@@ -261,13 +321,14 @@ def cmd_analyse(args) -> int:
 
 def cmd_report(args) -> int:
     from .stages import report_stage
+
     settings = _settings(args)
-    return _stage(args, "report", [args.output],
-                  lambda: report_stage(args.unit, args.output, settings))
+    return _stage(args, "report", [args.output], lambda: report_stage(args.unit, args.output, settings))
 
 
 def cmd_shard(args) -> int:
     from ..fleet.manifest import read_manifest, write_shards
+
     extra = args.snakemake_args[1:] if args.snakemake_args[:1] == ["--"] else args.snakemake_args
     if extra and not args.run:
         raise ConfigError(f"{' '.join(extra)}: options for each shard's workflow need --run")
@@ -281,28 +342,38 @@ def cmd_shard(args) -> int:
     import functools
 
     from .shards import day_view, run_shards
+
     configfile = Path(args.configfile or "config/config.yaml").resolve()
-    runs = run_shards(paths, Path(args.out), extra, at_once=args.at_once, snakefile=Path(args.snakefile),
-                      configfile=configfile if args.configfile or configfile.is_file() else None,
-                      echo=functools.partial(print, flush=True))
+    runs = run_shards(
+        paths,
+        Path(args.out),
+        extra,
+        at_once=args.at_once,
+        snakefile=Path(args.snakefile),
+        configfile=configfile if args.configfile or configfile.is_file() else None,
+        echo=functools.partial(print, flush=True),
+    )
     totals = day_view(runs, Path(args.out))
     stopped = [r.name for r in runs if r.status != 0]
-    print(f"{totals['units']} unit sessions: {totals['ok']} calibrated, {totals['failed']} failed "
-          f"-> {Path(args.out) / 'index.html'}"
-          + (f"; the workflow stopped on {', '.join(stopped)}" if stopped else ""))
+    print(
+        f"{totals['units']} unit sessions: {totals['ok']} calibrated, {totals['failed']} failed "
+        f"-> {Path(args.out) / 'index.html'}"
+        + (f"; the workflow stopped on {', '.join(stopped)}" if stopped else "")
+    )
     return 1 if stopped else 0
 
 
 def cmd_fleet(args) -> int:
     from ..fleet.manifest import read_manifest
     from .stages import fleet_stage
+
     rows = read_manifest(args.manifest)
     settings = None
     if args.settings_json is not None:
         from ..fleet.summary import FleetSettings
+
         settings = FleetSettings.from_dict(_json_object(args.settings_json, "--settings-json"))
-    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol,
-                args.table)
+    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol, args.table)
     print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
 
@@ -311,9 +382,11 @@ def cmd_calibrate(args) -> int:
     from ..calibration.file import save_calibration
     from ..io.tables import write_table
     from ..pipeline.chain import run
+
     settings = _settings(args)
-    result = run(args.log, settings, protocol=args.protocol, device=args.device,
-                 batch=args.batch, session=args.session)
+    result = run(
+        args.log, settings, protocol=args.protocol, device=args.device, batch=args.batch, session=args.session
+    )
     save_calibration(result.calibration, args.output)
     if args.tables:
         out = Path(args.tables)
@@ -321,44 +394,65 @@ def cmd_calibrate(args) -> int:
         meta = {"summary": result.validation.summary}
         seg, val = result.segmentation, result.validation
         for name, frame, extra in (
-                ("observations", seg.observations, {"info": seg.info}),
-                ("segments", seg.segments, {}), ("timeline", seg.timeline, {}),
-                ("validation_holds", val.holds, meta), ("table_hold_means", val.table_holds, meta),
-                ("table_samples", val.table_samples, meta), ("by_temperature", val.by_temperature, meta)):
+            ("observations", seg.observations, {"info": seg.info}),
+            ("segments", seg.segments, {}),
+            ("timeline", seg.timeline, {}),
+            ("validation_holds", val.holds, meta),
+            ("table_hold_means", val.table_holds, meta),
+            ("table_samples", val.table_samples, meta),
+            ("by_temperature", val.by_temperature, meta),
+        ):
             write_table(frame, out / f"{name}.parquet", extra)
     if args.report:
         import shlex
 
-        from ..protocols import registry
         from ..diagnose import diagnose, evaluation_of
-        from ..report.unit import UnitResults, write_unit_report
         from ..pipeline.chain import settings_used
+        from ..protocols import registry
+        from ..report.unit import UnitResults, write_unit_report
+
         obs = result.segmentation.observations
         used = settings_used(settings.for_protocol(args.protocol), result.calibration)
-        base = None if result.fitted is None else evaluation_of(
-            used, result.fitted, result.validation.summary, "configured model")
+        base = (
+            None
+            if result.fitted is None
+            else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
+        )
         diag = diagnose(used, obs, base=base)
-        write_unit_report(UnitResults.from_run(result, " ".join(map(shlex.quote, sys.argv)), diag,
-                                               registry.analysis(args.protocol, obs)), args.report,
-                          registry.get(args.protocol))
+        write_unit_report(
+            UnitResults.from_run(
+                result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
+            ),
+            args.report,
+            registry.get(args.protocol),
+        )
     s = result.validation.summary
     print(f"calibration -> {args.output}")
-    print(f"  {result.segmentation.info['holds_accepted']} holds, "
-          f"{s['temperature_points']} temperature points "
-          f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)")
-    print(f"  leave-{s['held_out']}-out RMS {s['validation_rms']:.3g} deg/s: noise floor "
-          f"{s['noise_floor']:.3g} ({s['excess']:.2f}x), expected of a correct model "
-          f"{_num(s['expected_rms'], '.3g')} ({_num(s['excess_over_expected'], '.2f')}x); "
-          + (f"single-temperature {s['single_rms']:.3g}, " if s.get("single_rms") is not None else "")
-          + f"uncompensated {s['uncompensated_rms']:.3g}")
+    print(
+        f"  {result.segmentation.info['holds_accepted']} holds, "
+        f"{s['temperature_points']} temperature points "
+        f"({result.calibration.grid.span[0]:.1f} to {result.calibration.grid.span[1]:.1f} °C)"
+    )
+    print(
+        f"  leave-{s['held_out']}-out RMS {s['validation_rms']:.3g} deg/s: noise floor "
+        f"{s['noise_floor']:.3g} ({s['excess']:.2f}x), expected of a correct model "
+        f"{_num(s['expected_rms'], '.3g')} ({_num(s['excess_over_expected'], '.2f')}x); "
+        + (f"single-temperature {s['single_rms']:.3g}, " if s.get("single_rms") is not None else "")
+        + f"uncompensated {s['uncompensated_rms']:.3g}"
+    )
     for p in result.calibration.extra.get("profiled", []):
-        print(f"  {p['term']} {p['parameter']} = {p['value']:.4g}"
-              + (f" ± {p['stderr']:.2g}" if p.get("stderr") is not None else ""))
+        print(
+            f"  {p['term']} {p['parameter']} = {p['value']:.4g}"
+            + (f" ± {p['stderr']:.2g}" if p.get("stderr") is not None else "")
+        )
         if p["at_bound"]:
-            print(f"gyrocal: warning: {p['term']} {p['parameter']} is at a bound of "
-                  f"{p['bounds'][0]:g} to {p['bounds'][1]:g}: the effect may be absent or "
-                  "another one missing (a continuous model needs temperature terms); check the "
-                  "fit before widening the bounds", file=sys.stderr)
+            print(
+                f"gyrocal: warning: {p['term']} {p['parameter']} is at a bound of "
+                f"{p['bounds'][0]:g} to {p['bounds'][1]:g}: the effect may be absent or "
+                "another one missing (a continuous model needs temperature terms); check the "
+                "fit before widening the bounds",
+                file=sys.stderr,
+            )
     for w in result.calibration.extra.get("warnings", []):
         print(f"gyrocal: warning: {w['code']}: {w['message']}", file=sys.stderr)
     if args.report:
@@ -370,23 +464,28 @@ def cmd_diagnose(args) -> int:
     import tempfile
 
     from .stages import diagnose_stage, run_stage, segment_stage
+
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
         raise ConfigError("give the log, or --unit DIR of a segmented unit")
 
     def diagnose_folder(folder, other=None):
-        verdict = diagnose_stage(folder, settings, _meta(args), output=args.output,
-                                 residuals=args.residuals or False, other=other)
+        verdict = diagnose_stage(
+            folder, settings, _meta(args), output=args.output, residuals=args.residuals or False, other=other
+        )
         print(f"diagnosis -> {args.output}")
         print(f"  {verdict}")
         import json
+
         doc = json.loads(Path(args.output).read_text())
         offered, nxt = doc.get("best"), doc.get("next_session") or {}
-        if nxt.get("excess") is not None:   # what the calibration meets: said, not only in the JSON
+        if nxt.get("excess") is not None:  # what the calibration meets: said, not only in the JSON
             fixed = ((offered or {}).get("next_session") or {}).get("excess")
-            print(f"  on the other session ({doc.get('other_session', 'given')}): "
-                  f"{nxt['excess']:.3g} times the floor with this model"
-                  + (f", {fixed:.3g} with the fix" if fixed is not None else ""))
+            print(
+                f"  on the other session ({doc.get('other_session', 'given')}): "
+                f"{nxt['excess']:.3g} times the floor with this model"
+                + (f", {fixed:.3g} with the fix" if fixed is not None else "")
+            )
         if offered:
             print(f"  to add it: gyrocal calibrate LOG -o CAL.json {offered['option']}")
             if offered.get("unit_config_line"):
@@ -413,6 +512,7 @@ def cmd_diagnose(args) -> int:
     owned = ()
     if args.unit is not None:
         from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
+
         unit_diagnosis = (Path(args.unit) / UNIT_FILES["diagnosis"]).resolve()
         if Path(args.output).resolve() == unit_diagnosis:
             owned = ("diagnosis", "residuals")
@@ -427,17 +527,24 @@ def cmd_apply(args) -> int:
     from ..calibration.apply import apply_calibration
     from ..calibration.file import load_calibration
     from ..terms.user import load_term_file
+
     for path in args.terms or ():
         load_term_file(path)
     cal = load_calibration(args.calibration)
     counts = apply_calibration(cal, args.log, args.output)
     if counts["clamped"]:
         lo, hi = cal.grid.span
-        warnings.warn(f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
-                      f"{lo:g} to {hi:g} °C and use the nearest end's calibration", stacklevel=1)
+        warnings.warn(
+            f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
+            f"{lo:g} to {hi:g} °C and use the nearest end's calibration",
+            stacklevel=1,
+        )
     if counts["nonfinite"]:
-        warnings.warn(f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
-                      "(or rates too large to compensate) were written as NaN", stacklevel=1)
+        warnings.warn(
+            f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
+            "(or rates too large to compensate) were written as NaN",
+            stacklevel=1,
+        )
     print(f"{counts['rows']} rows compensated -> {args.output}")
     return 0
 
@@ -449,6 +556,7 @@ def cmd_verify(args) -> int:
 
     from ..io.errors import CalibrationFileError
     from ..io.log import verify_source
+
     try:
         doc = json.loads(Path(args.calibration).read_text())
         record = doc["provenance"]["input"]
@@ -473,41 +581,69 @@ def cmd_revalidate(args) -> int:
     from ..io.formats import json_safe
     from ..pipeline.chain import segment_log
     from ..terms.user import load_term_file
-    for path in args.terms or ():   # before the calibration: its own terms come from them
+
+    for path in args.terms or ():  # before the calibration: its own terms come from them
         load_term_file(path)
     cal = load_calibration(args.calibration)
     made_by = cal.meta.get("protocol") or registry.DEFAULT
-    if not registry.get(made_by).known_rate:   # refused before the log is read
-        raise InputError(f"a {made_by} calibration cannot be revalidated: {made_by} holds carry "
-                         "no known true rate to score it against", source=args.calibration)
+    if not registry.get(made_by).known_rate:  # refused before the log is read
+        raise InputError(
+            f"a {made_by} calibration cannot be revalidated: {made_by} holds carry "
+            "no known true rate to score it against",
+            source=args.calibration,
+        )
     args.protocol = args.protocol or made_by
     try:
         r = revalidate(cal, segment_log(args.log, _settings(args), args.protocol).observations)
-    except InputError as exc:   # the new session's holds do not serve
+    except InputError as exc:  # the new session's holds do not serve
         if exc.source is not None:
             raise
         raise InputError(str(exc), source=args.log) from None
     limit = r["expected_rms"] * r["limit_over_expected"] / r["noise_floor"]
-    verdict = ("the calibration carries over to this session" if r["holds"] else
-               f"it misses this session by {r['excess']:.3g} times the floor (noise and its own "
-               f"uncertainty explain up to {limit:.3g} times)")
+    verdict = (
+        "the calibration carries over to this session"
+        if r["holds"]
+        else f"it misses this session by {r['excess']:.3g} times the floor (noise and its own "
+        f"uncertainty explain up to {limit:.3g} times)"
+    )
     if args.output:
         from ..io.atomic import write_text
-        write_text(args.output, dumps(json_safe({
-            "format": "gyrocal.revalidation/1",
-            **{k: cal.meta.get(k) for k in ("device", "batch", "session")},
-            "calibration": Path(args.calibration).name, "log": Path(args.log).name,
-            **{k: v for k, v in r.items() if k not in ("device", "calibration_session", "table")},
-            "verdict": verdict, "table": r["table"].to_dict("records")})))
-    print(f"revalidation of {args.calibration} ({cal.meta.get('device')}, session "
-          f"{cal.meta.get('session')}) on {args.log}" + (f" -> {args.output}" if args.output else ""))
-    print(f"  {r['holds_scored']} holds scored"
-          + (f", {r['holds_left_out']} beyond the calibrated {cal.grid.span[0]:.1f} to "
-             f"{cal.grid.span[1]:.1f} °C left out" if r["holds_left_out"] else ""))
-    print(f"  hold-mean RMS {r['validation_rms']:.3g} deg/s: noise floor {r['noise_floor']:.3g} "
-          f"({r['excess']:.2f}x), expected of a correct calibration {r['expected_rms']:.3g} "
-          f"({r['excess_over_expected']:.2f}x); single-temperature {r['single_rms']:.3g}, "
-          f"uncompensated {r['uncompensated_rms']:.3g}")
+
+        write_text(
+            args.output,
+            dumps(
+                json_safe(
+                    {
+                        "format": "gyrocal.revalidation/1",
+                        **{k: cal.meta.get(k) for k in ("device", "batch", "session")},
+                        "calibration": Path(args.calibration).name,
+                        "log": Path(args.log).name,
+                        **{k: v for k, v in r.items() if k not in ("device", "calibration_session", "table")},
+                        "verdict": verdict,
+                        "table": r["table"].to_dict("records"),
+                    }
+                )
+            ),
+        )
+    print(
+        f"revalidation of {args.calibration} ({cal.meta.get('device')}, session "
+        f"{cal.meta.get('session')}) on {args.log}" + (f" -> {args.output}" if args.output else "")
+    )
+    print(
+        f"  {r['holds_scored']} holds scored"
+        + (
+            f", {r['holds_left_out']} beyond the calibrated {cal.grid.span[0]:.1f} to "
+            f"{cal.grid.span[1]:.1f} °C left out"
+            if r["holds_left_out"]
+            else ""
+        )
+    )
+    print(
+        f"  hold-mean RMS {r['validation_rms']:.3g} deg/s: noise floor {r['noise_floor']:.3g} "
+        f"({r['excess']:.2f}x), expected of a correct calibration {r['expected_rms']:.3g} "
+        f"({r['excess_over_expected']:.2f}x); single-temperature {r['single_rms']:.3g}, "
+        f"uncompensated {r['uncompensated_rms']:.3g}"
+    )
     print(f"  {verdict}")
     return 0
 
@@ -515,11 +651,20 @@ def cmd_revalidate(args) -> int:
 def cmd_import(args) -> int:
     """A rig's CSV/TSV, a ROS 2 bag or an MCAP file as a contract log (docs/import.md)."""
     from ..importer import import_log
-    summary = import_log(args.source, args.output, args.map, fmt=args.format,
-                         sample_rate=args.sample_rate, sections=args.sections)
+
+    summary = import_log(
+        args.source,
+        args.output,
+        args.map,
+        fmt=args.format,
+        sample_rate=args.sample_rate,
+        sections=args.sections,
+    )
     start, end = summary.span
-    print(f"{summary.rows} rows -> {args.output}: t {start:.6g} to {end:.6g} s "
-          f"({end - start:.6g} s); {'; '.join(summary.mapped)}")
+    print(
+        f"{summary.rows} rows -> {args.output}: t {start:.6g} to {end:.6g} s "
+        f"({end - start:.6g} s); {'; '.join(summary.mapped)}"
+    )
     for note in summary.notes:
         print(f"gyrocal: note: {note}", file=sys.stderr)
     return 0
@@ -533,12 +678,14 @@ class OneLineParser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = OneLineParser(prog="gyrocal", description="Calibrate MEMS gyroscopes "
-                           "across temperature from rig logs.", epilog=EPILOG)
+    parser = OneLineParser(
+        prog="gyrocal",
+        description="Calibrate MEMS gyroscopes across temperature from rig logs.",
+        epilog=EPILOG,
+    )
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND",
-                                parser_class=OneLineParser)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
 
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
     p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
@@ -547,11 +694,19 @@ def build_parser() -> argparse.ArgumentParser:
     where.add_argument("--log", help="one log of the unit --device at session --session")
     p.add_argument("--units", type=int, default=1)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--preset", choices=["seed", "quick"], default="seed",
-                   help="seed: the full seed-000 protocol; quick: a log of minutes")
-    p.add_argument("--unit", choices=["random", "seed000"], default="random",
-                   help="random production units, or the seed paper's unit (turntable: seed 000 "
-                   "Eq 23; sweep: seed 003's L3GD20 sizes)")
+    p.add_argument(
+        "--preset",
+        choices=["seed", "quick"],
+        default="seed",
+        help="seed: the full seed-000 protocol; quick: a log of minutes",
+    )
+    p.add_argument(
+        "--unit",
+        choices=["random", "seed000"],
+        default="random",
+        help="random production units, or the seed paper's unit (turntable: seed 000 "
+        "Eq 23; sweep: seed 003's L3GD20 sizes)",
+    )
     p.add_argument("--device", help="with --log: the unit (its parameters follow from it)")
     p.add_argument("--batch", default="B1")
     p.add_argument("--session", default="2026-01-01")
@@ -565,24 +720,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--handling-s", type=float)
     p.add_argument("--no-mount-column", action="store_true")
     p.add_argument("--no-accel", action="store_true")
-    p.add_argument("--bias-shift", type=_floats, help="with --log: add this to the unit's bias, "
-                   "deg/s x,y,z (a unit that drifted between sessions)")
-    p.add_argument("--effects", help="errors beyond the seed-000 model as JSON, e.g. "
-                   "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)")
-    p.add_argument("--noise", help="coloured noise beside the white: a grade (low, mid, high) or "
-                   "levels as JSON, e.g. '{\"bias_instability\": 6, \"rrw\": 20}' (deg/h, "
-                   "deg/h/sqrt(h); gyrocal/simulate/noise.py)")
+    p.add_argument(
+        "--bias-shift",
+        type=_floats,
+        help="with --log: add this to the unit's bias, deg/s x,y,z (a unit that drifted between sessions)",
+    )
+    p.add_argument(
+        "--effects",
+        help="errors beyond the seed-000 model as JSON, e.g. "
+        "'{\"scale_quadratic\": [1e-6, 0, 0]}' (see GyroUnit)",
+    )
+    p.add_argument(
+        "--noise",
+        help="coloured noise beside the white: a grade (low, mid, high) or "
+        'levels as JSON, e.g. \'{"bias_instability": 6, "rrw": 20}\' (deg/h, '
+        "deg/h/sqrt(h); gyrocal/simulate/noise.py)",
+    )
     p.set_defaults(func=cmd_simulate)
 
     def common(q, model=True):
         q.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
         q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
-        q.add_argument("--terms", action="append", metavar="FILE",
-                       help="a Python file registering your own terms (repeatable); it runs as code")
+        q.add_argument(
+            "--terms",
+            action="append",
+            metavar="FILE",
+            help="a Python file registering your own terms (repeatable); it runs as code",
+        )
         if model:
             q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
-            q.add_argument("--add-term", action="append", metavar="NAME",
-                           help="add a term to the model (repeatable)")
+            q.add_argument(
+                "--add-term", action="append", metavar="NAME", help="add a term to the model (repeatable)"
+            )
 
     def unit(q, failures=True):
         q.add_argument("--device")
@@ -590,8 +759,11 @@ def build_parser() -> argparse.ArgumentParser:
         q.add_argument("--session")
         q.add_argument("--protocol", default=registry.DEFAULT)
         if failures:
-            q.add_argument("--record-failures", action="store_true",
-                           help="on failure write failure records and exit 0 (fleet runs)")
+            q.add_argument(
+                "--record-failures",
+                action="store_true",
+                help="on failure write failure records and exit 0 (fleet runs)",
+            )
 
     p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
     p.add_argument("log")
@@ -607,9 +779,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--unit", help="a unit's results folder (workflow stage)")
     p.add_argument("-o", "--output", required=True, help="diagnosis .json")
     p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
-    p.add_argument("--other-session", metavar="LOG_OR_DIR",
-                   help="another session of the same unit (its log, or its results folder): "
-                        "candidates are judged by how they carry over to it")
+    p.add_argument(
+        "--other-session",
+        metavar="LOG_OR_DIR",
+        help="another session of the same unit (its log, or its results folder): "
+        "candidates are judged by how they carry over to it",
+    )
     unit(p)
     common(p)
     p.set_defaults(func=cmd_diagnose)
@@ -618,33 +793,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("calibration")
     p.add_argument("log")
     p.add_argument("-o", "--output", required=True)
-    p.add_argument("--terms", action="append", metavar="FILE",
-                   help="the term file a calibration's own terms come from (repeatable)")
+    p.add_argument(
+        "--terms",
+        action="append",
+        metavar="FILE",
+        help="the term file a calibration's own terms come from (repeatable)",
+    )
     p.set_defaults(func=cmd_apply)
 
-    p = sub.add_parser("verify", help="check that a log is the input a calibration records "
-                       "(its hash)")
+    p = sub.add_parser("verify", help="check that a log is the input a calibration records (its hash)")
     p.add_argument("calibration")
     p.add_argument("log")
     p.set_defaults(func=cmd_verify)
 
-    p = sub.add_parser("revalidate", help="judge a calibration on another session of its unit "
-                       "(its RMS against the noise floor)")
+    p = sub.add_parser(
+        "revalidate",
+        help="judge a calibration on another session of its unit (its RMS against the noise floor)",
+    )
     p.add_argument("calibration")
     p.add_argument("log", help="another session's rig log of the same unit")
     p.add_argument("-o", "--output", help="the figures as JSON")
-    p.add_argument("--protocol", choices=registry.names(),
-                   help="how to segment the log (default: the calibration's protocol)")
+    p.add_argument(
+        "--protocol",
+        choices=registry.names(),
+        help="how to segment the log (default: the calibration's protocol)",
+    )
     common(p, model=False)
     p.set_defaults(func=cmd_revalidate)
 
-    p = sub.add_parser("noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's "
-                       "static stretches")
+    p = sub.add_parser(
+        "noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's static stretches"
+    )
     p.add_argument("log")
     p.add_argument("-o", "--output", help="the whole characterisation as JSON")
-    p.add_argument("--protocol", choices=registry.names(),
-                   help="how to find the static stretches (default: static where the reference "
-                        "rate is 0 throughout and no mount is named, else turntable)")
+    p.add_argument(
+        "--protocol",
+        choices=registry.names(),
+        help="how to find the static stretches (default: static where the reference "
+        "rate is 0 throughout and no mount is named, else turntable)",
+    )
     common(p, model=False)
     p.set_defaults(func=cmd_noise)
 
@@ -655,8 +842,10 @@ def build_parser() -> argparse.ArgumentParser:
     common(p, model=False)
     p.set_defaults(func=cmd_segment)
 
-    for name, func, text in (("fit", cmd_fit, "stage: fit the unit's calibration"),
-                             ("validate", cmd_validate, "stage: validate the unit's calibration")):
+    for name, func, text in (
+        ("fit", cmd_fit, "stage: fit the unit's calibration"),
+        ("validate", cmd_validate, "stage: validate the unit's calibration"),
+    ):
         p = sub.add_parser(name, help=text)
         p.add_argument("unit", help="the unit's results folder")
         unit(p)
@@ -665,11 +854,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
     p.add_argument("unit", help="the unit's results folder")
-    p.add_argument("--other-session", metavar="DIR",
-                   help="the results folder of another session of the unit, segmented: the "
-                        "diagnosis judges candidates by how they carry over to it")
-    p.add_argument("--report", metavar="HTML",
-                   help="then write the unit's report here, as `gyrocal report` would")
+    p.add_argument(
+        "--other-session",
+        metavar="DIR",
+        help="the results folder of another session of the unit, segmented: the "
+        "diagnosis judges candidates by how they carry over to it",
+    )
+    p.add_argument(
+        "--report", metavar="HTML", help="then write the unit's report here, as `gyrocal report` would"
+    )
     unit(p)
     common(p)
     p.set_defaults(func=cmd_analyse)
@@ -681,25 +874,46 @@ def build_parser() -> argparse.ArgumentParser:
     common(p)
     p.set_defaults(func=cmd_report)
 
-    p = sub.add_parser("shard", help="split a day's manifest into shards, a workflow run each "
-                                     "(docs/cluster.md)")
+    p = sub.add_parser(
+        "shard", help="split a day's manifest into shards, a workflow run each (docs/cluster.md)"
+    )
     p.add_argument("--manifest", required=True)
-    p.add_argument("--size", type=int, default=10000,
-                   help="rows per shard at most (default 10000: under a minute to plan)")
+    p.add_argument(
+        "--size",
+        type=int,
+        default=10000,
+        help="rows per shard at most (default 10000: under a minute to plan)",
+    )
     p.add_argument("-o", "--out", required=True, help="folder for shard-0001.tsv, ...")
-    p.add_argument("--run", action="store_true",
-                   help="then run the workflow on each shard in OUT/shard-0001/, ..., and write "
-                        "the day's view: OUT/index.html and OUT/fleet.parquet")
-    p.add_argument("--at-once", type=int, default=1, metavar="N",
-                   help="with --run: shards whose workflows run side by side (default 1; on a "
-                        "cluster, as many as its scheduler takes)")
-    p.add_argument("--snakefile", default="Snakefile",
-                   help="with --run: the workflow (default ./Snakefile: run from the repository)")
-    p.add_argument("--configfile", help="with --run: the workflow's settings (default "
-                                        "config/config.yaml where it exists)")
-    p.add_argument("snakemake_args", nargs=argparse.REMAINDER,
-                   help="with --run, after --: options for each shard's snakemake, such as "
-                        "--profile profiles/slurm (--cores all where none says how many jobs run)")
+    p.add_argument(
+        "--run",
+        action="store_true",
+        help="then run the workflow on each shard in OUT/shard-0001/, ..., and write "
+        "the day's view: OUT/index.html and OUT/fleet.parquet",
+    )
+    p.add_argument(
+        "--at-once",
+        type=int,
+        default=1,
+        metavar="N",
+        help="with --run: shards whose workflows run side by side (default 1; on a "
+        "cluster, as many as its scheduler takes)",
+    )
+    p.add_argument(
+        "--snakefile",
+        default="Snakefile",
+        help="with --run: the workflow (default ./Snakefile: run from the repository)",
+    )
+    p.add_argument(
+        "--configfile",
+        help="with --run: the workflow's settings (default config/config.yaml where it exists)",
+    )
+    p.add_argument(
+        "snakemake_args",
+        nargs=argparse.REMAINDER,
+        help="with --run, after --: options for each shard's snakemake, such as "
+        "--profile profiles/slurm (--cores all where none says how many jobs run)",
+    )
     p.set_defaults(func=cmd_shard)
 
     p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
@@ -708,23 +922,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--reports", default="reports", help="root of the units' reports")
     p.add_argument("-o", "--output", required=True, help="fleet summary .html")
     p.add_argument("--bundle", help="also gather all reports into this folder")
-    p.add_argument("--settings-json", help="end of line, outliers and drift as one JSON object "
-                   "(spec, outliers, drift: see config/config.yaml)")
+    p.add_argument(
+        "--settings-json",
+        help="end of line, outliers and drift as one JSON object "
+        "(spec, outliers, drift: see config/config.yaml)",
+    )
     p.add_argument("--eol", help="also write the end-of-line verdicts and yields as JSON")
-    p.add_argument("--table", help="also write the fleet as one Parquet table, a row per unit "
-                   "session (docs/fleet-table.md)")
+    p.add_argument(
+        "--table",
+        help="also write the fleet as one Parquet table, a row per unit session (docs/fleet-table.md)",
+    )
     p.set_defaults(func=cmd_fleet)
-    p = sub.add_parser("import", help="convert a CSV/TSV, ROS 2 bag or MCAP file into a rig "
-                       "log (docs/import.md)")
+    p = sub.add_parser(
+        "import", help="convert a CSV/TSV, ROS 2 bag or MCAP file into a rig log (docs/import.md)"
+    )
     p.add_argument("source", help="the CSV/TSV file, rosbag2 directory or .mcap file")
     p.add_argument("-o", "--output", required=True, help="the log to write, .parquet")
     p.add_argument("--map", help="the import map, YAML: columns or topics and their units")
-    p.add_argument("--format", choices=("csv", "tsv", "ros2", "mcap"),
-                   help="the source's format (default: from its name)")
-    p.add_argument("--sample-rate", type=float, metavar="HZ",
-                   help="t = sample index / HZ (the map's time.column, else the row number)")
-    p.add_argument("--sections", metavar="FILE",
-                   help="a section list in imucal's format: writes the section column")
+    p.add_argument(
+        "--format",
+        choices=("csv", "tsv", "ros2", "mcap"),
+        help="the source's format (default: from its name)",
+    )
+    p.add_argument(
+        "--sample-rate",
+        type=float,
+        metavar="HZ",
+        help="t = sample index / HZ (the map's time.column, else the row number)",
+    )
+    p.add_argument(
+        "--sections", metavar="FILE", help="a section list in imucal's format: writes the section column"
+    )
     p.set_defaults(func=cmd_import)
     add_paper_parser(sub)
     add_lookup_parser(sub)
@@ -748,6 +976,7 @@ def _read_ahead(args) -> None:
     log = getattr(args, "log", None)
     if log is not None:
         from ..io import readahead
+
         readahead.start(log)
     _warm_imports()
 
@@ -755,12 +984,15 @@ def _read_ahead(args) -> None:
 def _warm_imports() -> None:
     def load():
         import importlib
+
         for name in WARM_IMPORTS:
             try:
                 importlib.import_module(name)
             except Exception:  # noqa: BLE001 - the command imports it again and says why
                 return
+
     import threading
+
     threading.Thread(target=load, name="warm-imports", daemon=True).start()
 
 
@@ -782,8 +1014,10 @@ def main(argv=None) -> int:
         if args.debug:
             raise
         text = " ".join(str(exc).split())
-        print(f"gyrocal: internal error: {type(exc).__name__}: {text} (rerun with --debug "
-              "for a traceback)", file=sys.stderr)
+        print(
+            f"gyrocal: internal error: {type(exc).__name__}: {text} (rerun with --debug for a traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -64,29 +64,34 @@ MEMORY_SHARE = 0.8
 
 
 # The guard's record of what a stage cost, one line on the job's stderr (:func:`_run`).
-COST_LINE = re.compile(r"^gyrocal\.run\.guard: (\w+) of (\S+) took ([\d.]+) s, ([\d.]+) s CPU, "
-                       r"(\d+) MiB peak$", re.M)
+COST_LINE = re.compile(
+    r"^gyrocal\.run\.guard: (\w+) of (\S+) took ([\d.]+) s, ([\d.]+) s CPU, "
+    r"(\d+) MiB peak$",
+    re.M,
+)
 
 
 def costs(text: str) -> list[tuple[str, str, float, float, float]]:
     """(stage, unit folder, wall s, CPU s, peak MiB) of each cost line in ``text`` (a
     workflow run's output, a SLURM job's log)."""
-    return [(stage, where, float(wall), float(cpu), float(peak))
-            for stage, where, wall, cpu, peak in COST_LINE.findall(text)]
+    return [
+        (stage, where, float(wall), float(cpu), float(peak))
+        for stage, where, wall, cpu, peak in COST_LINE.findall(text)
+    ]
 
 
 def stage_outputs(args) -> list[Path]:
     """Every file the stage's failure records go to: those ``gyrocal STAGE
     --record-failures`` writes when it fails (gyrocal/run/cli.py, gyrocal/run/stages.py)."""
-    from ..io.unit_folder import DIAGNOSIS_FILES, STAGE_PARTS, VALIDATION_TABLES, UNIT_FILES
+    from ..io.unit_folder import DIAGNOSIS_FILES, STAGE_PARTS, UNIT_FILES, VALIDATION_TABLES
+
     if args.command == "report":
         return [Path(args.output)]
     if args.command == "segment":
         folder, keys = Path(args.out), STAGE_PARTS["segment"]
     else:
-        folder, keys = Path(args.unit), ("calibration", "validation", *VALIDATION_TABLES,
-                                         *DIAGNOSIS_FILES)
-    report = [Path(args.report)] if getattr(args, "report", None) else []   # analyse --report
+        folder, keys = Path(args.unit), ("calibration", "validation", *VALIDATION_TABLES, *DIAGNOSIS_FILES)
+    report = [Path(args.report)] if getattr(args, "report", None) else []  # analyse --report
     return [folder / UNIT_FILES[k] for k in keys] + report
 
 
@@ -110,6 +115,7 @@ def kept_outputs(args, outputs: list[Path], since_ns: int) -> list[Path]:
 def stage_archives(args) -> list[Path]:
     """The archives the stage packs its parts into (their temporary files are leftovers too)."""
     from ..io.unit_folder import CONTAINER_OF, STAGE_PARTS
+
     if args.command not in ("segment", "analyse"):
         return []
     folder = Path(unit_folder(args))
@@ -128,12 +134,15 @@ def _rss_mb(pid: int) -> float | None:
 def _die_with(parent: int):
     """In the stage's process: die with the guard (a kill of the guard alone must not
     leave the stage writing on, unseen by Snakemake)."""
+
     def setup():
         if sys.platform.startswith("linux"):
             import ctypes
+
             ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
             if os.getppid() != parent:  # the guard died before prctl took effect
                 os._exit(137)
+
     return setup
 
 
@@ -167,8 +176,12 @@ def slurm_time_left() -> tuple[float, str] | None:
     if not job or not squeue:
         return None
     try:
-        out = subprocess.run([squeue, "--noheader", f"--jobs={job}", "--format=%L|%l"],
-                             capture_output=True, text=True, timeout=30)
+        out = subprocess.run(
+            [squeue, "--noheader", f"--jobs={job}", "--format=%L|%l"],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
     except (OSError, subprocess.SubprocessError):
         return None
     left, _, limit = out.stdout.strip().partition("|")
@@ -186,8 +199,7 @@ def scheduler_limit(stage: str, attempt: int | None) -> tuple[float, str] | None
         return None
     left, limit = found
     where = ", ".join(filter(None, [limit, which]))
-    return (max(left - KEEP_S[stage], 0.0),
-            f"would outrun its SLURM job's time limit ({where})")
+    return (max(left - KEEP_S[stage], 0.0), f"would outrun its SLURM job's time limit ({where})")
 
 
 def scheduler_memory(memory_mb, job_memory_mb, attempt) -> tuple[float | None, str | None]:
@@ -208,8 +220,12 @@ def scheduler_memory(memory_mb, job_memory_mb, attempt) -> tuple[float | None, s
     return share, f"ran out of memory (limit {share:g} MiB: its SLURM job's memory, {where})"
 
 
-def watch(child: subprocess.Popen, memory: tuple[float | None, str | None], timeout_s,
-          deadline: tuple[float, str] | None = None) -> tuple[int, str | None]:
+def watch(
+    child: subprocess.Popen,
+    memory: tuple[float | None, str | None],
+    timeout_s,
+    deadline: tuple[float, str] | None = None,
+) -> tuple[int, str | None]:
     """Wait for ``child``; kill it at a limit (``memory``: MiB and the reason,
     :func:`scheduler_memory`), or at ``deadline`` (seconds from now, reason). Returns (its
     wait status, the reason it was killed or None, its resource usage)."""
@@ -223,8 +239,12 @@ def watch(child: subprocess.Popen, memory: tuple[float | None, str | None], time
             # Ended on its own with more than the limit at some instant between two
             # polls: its abnormal end is the memory's (the kernel's OOM killer, a
             # MemoryError outside any stage).
-            if (reason is None and child.returncode != 0 and memory_mb is not None
-                    and usage.ru_maxrss / 1024 > memory_mb):
+            if (
+                reason is None
+                and child.returncode != 0
+                and memory_mb is not None
+                and usage.ru_maxrss / 1024 > memory_mb
+            ):
                 reason = out_of_memory
             return child.returncode, reason, usage
         if reason is None:
@@ -253,8 +273,9 @@ def _exit_status(status: int) -> int:
     return status if status >= 0 else 128 - status
 
 
-def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=None,
-        job_memory_mb=None) -> int:
+def run(
+    command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=None, job_memory_mb=None
+) -> int:
     """Run the stage; with ``log``, what the stage prints and the guard's record of a failure
     go to that file, which joins the stage's archive when the job ends well
     (:func:`gyrocal.io.unit_folder.pack_log`) and stays where it is, its end echoed to
@@ -274,8 +295,9 @@ def run(command: list[str], memory_mb=None, timeout_s=None, attempt=None, log=No
     with open(log, "w") as out:
         status, args = _run(command, memory, timeout_s, attempt, out)
     from ..io.unit_folder import LOG_PARTS, pack_log
+
     if args is not None and args.command not in LOG_PARTS:
-        return status   # a report's log stays the file it was asked to be
+        return status  # a report's log stays the file it was asked to be
     if status != 0 or args is None or not pack_log(unit_folder(args), args.command, log):
         _echo_end(log, str(log))
     return status
@@ -293,17 +315,19 @@ def unit_folder(args) -> str:
 
 def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namespace | None]:
     started = time.monotonic()
-    started_ns = time.time_ns()   # outputs written after this are this run's (kept_outputs)
-    child = subprocess.Popen([sys.executable, "-m", "gyrocal", *command],
-                             stdout=out, stderr=out, preexec_fn=_die_with(os.getpid()))
+    started_ns = time.time_ns()  # outputs written after this are this run's (kept_outputs)
+    child = subprocess.Popen(
+        [sys.executable, "-m", "gyrocal", *command], stdout=out, stderr=out, preexec_fn=_die_with(os.getpid())
+    )
     os.environ.pop(PAUSE_ENV, None)  # the test's pause is the stage's, not the records'
-    out = out or sys.stderr   # the guard's own lines: where the stage's go
+    out = out or sys.stderr  # the guard's own lines: where the stage's go
     # A signal meant for the job (Snakemake's, a Ctrl-C) ends the stage too; no record.
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda signum, _: child.send_signal(signum))
     # The stage's arguments, read by its own parser while it starts (a quarter second
     # of imports the job need not wait for). Arguments it refuses, it refuses too.
     from .cli import build_parser
+
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             args = build_parser().parse_args(command)
@@ -315,9 +339,13 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
     # (Snakemake's output; a SLURM job's log), not in its log, which is a part of the unit's
     # archive and the same on every run.
     where = None if args is None else unit_folder(args) if args.command != "report" else args.output
-    print(f"gyrocal.run.guard: {command[0]}{f' of {where}' if where else ''} took "
-          f"{time.monotonic() - started:.2f} s, {usage.ru_utime + usage.ru_stime:.2f} s CPU, "
-          f"{usage.ru_maxrss / 1024:.0f} MiB peak", file=sys.stderr, flush=True)
+    print(
+        f"gyrocal.run.guard: {command[0]}{f' of {where}' if where else ''} took "
+        f"{time.monotonic() - started:.2f} s, {usage.ru_utime + usage.ru_stime:.2f} s CPU, "
+        f"{usage.ru_maxrss / 1024:.0f} MiB peak",
+        file=sys.stderr,
+        flush=True,
+    )
     if args is None:
         return _exit_status(status), None
     outputs = stage_outputs(args)
@@ -329,11 +357,13 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
         return 1, args
     from ..io import failure
     from ..report.pages import write_failure
+
     meta = {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
     kept = kept_outputs(args, outputs, started_ns)
     write_failure([o for o in outputs if o not in kept], failure.record(args.command, reason, meta))
-    if args.command in ("segment", "analyse"):   # the records join the unit's archive
+    if args.command in ("segment", "analyse"):  # the records join the unit's archive
         from ..io.unit_folder import pack_stage
+
         pack_stage(unit_folder(args), args.command)
     print(f"gyrocal: {args.command} failed (recorded): {reason}", file=out, flush=True)
     return 0, args
@@ -342,19 +372,24 @@ def _run(command, memory, timeout_s, attempt, out) -> tuple[int, argparse.Namesp
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m gyrocal.run.guard",
-        description="Run a unit's stage under limits; record the unit as failed at a limit.")
+        description="Run a unit's stage under limits; record the unit as failed at a limit.",
+    )
     parser.add_argument("--memory-mb", type=float, help="resident memory, MiB")
     parser.add_argument("--timeout-s", type=float, help="wall time, s")
-    parser.add_argument("--attempt", type=int,
-                        help="the job's attempt, of the GYROCAL_ATTEMPTS in the environment")
-    parser.add_argument("--job-memory-mb", type=float,
-                        help="the memory the job asked of SLURM, MiB (the rule's mem_mb)")
-    parser.add_argument("--job-log", help="the job's log: written while it runs, then packed "
-                                          "into the stage's archive (gyrocal/io/unit_folder.py)")
+    parser.add_argument(
+        "--attempt", type=int, help="the job's attempt, of the GYROCAL_ATTEMPTS in the environment"
+    )
+    parser.add_argument(
+        "--job-memory-mb", type=float, help="the memory the job asked of SLURM, MiB (the rule's mem_mb)"
+    )
+    parser.add_argument(
+        "--job-log",
+        help="the job's log: written while it runs, then packed "
+        "into the stage's archive (gyrocal/io/unit_folder.py)",
+    )
     parser.add_argument("command", nargs=argparse.REMAINDER, help="STAGE ARGS... of gyrocal")
     args = parser.parse_args(argv)
-    return run(args.command, args.memory_mb, args.timeout_s, args.attempt, args.job_log,
-               args.job_memory_mb)
+    return run(args.command, args.memory_mb, args.timeout_s, args.attempt, args.job_log, args.job_memory_mb)
 
 
 if __name__ == "__main__":

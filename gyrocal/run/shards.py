@@ -24,8 +24,8 @@ from pathlib import Path
 from ..io import atomic
 from ..io.errors import ConfigError
 
-POLL_S = 0.5   # s between looks at the running shards: a shard's run takes minutes to hours
-STOP_S = 60    # s a stopped shard's Snakemake has to cancel its jobs and release its lock
+POLL_S = 0.5  # s between looks at the running shards: a shard's run takes minutes to hours
+STOP_S = 60  # s a stopped shard's Snakemake has to cancel its jobs and release its lock
 CONFIG_FLAGS = ("--config", "-C")
 # Options that say how many jobs run (or a profile that may): without any, --cores all.
 CORES_FLAGS = ("--cores", "-c", "--jobs", "-j", "--profile", "--workflow-profile")
@@ -50,14 +50,22 @@ class ShardRun:
         return self.folder / "snakemake.log"
 
 
-def workflow_command(shard: ShardRun, snakefile: Path, configfile: Path | None,
-                     snakemake_args: list[str]) -> list[str]:
+def workflow_command(
+    shard: ShardRun, snakefile: Path, configfile: Path | None, snakemake_args: list[str]
+) -> list[str]:
     """The Snakemake command of one shard: the repository's workflow in the shard's folder,
     the user's options, and one ``--config`` with the user's items and the shard's manifest
     as ``devices`` (Snakemake keeps only the last ``--config`` it is given)."""
     rest, items = _config_items(snakemake_args)
-    command = [sys.executable, "-m", "snakemake", "--snakefile", str(snakefile),
-               "--directory", str(shard.folder)]
+    command = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--snakefile",
+        str(snakefile),
+        "--directory",
+        str(shard.folder),
+    ]
     if configfile is not None and not _given(rest, ("--configfile", "--configfiles")):
         command += ["--configfile", str(configfile)]
     if not _given(rest, CORES_FLAGS) and not os.environ.get("SNAKEMAKE_PROFILE"):
@@ -69,8 +77,10 @@ def workflow_command(shard: ShardRun, snakefile: Path, configfile: Path | None,
 def _given(args: list[str], flags: tuple[str, ...]) -> bool:
     """Whether one of ``flags`` is among ``args``: ``--flag V``, ``--flag=V`` or ``-cV``."""
     short = tuple(f for f in flags if len(f) == 2)
-    return any(a in flags or a.split("=", 1)[0] in flags
-               or (a.startswith(short) and not a.startswith("--")) for a in args)
+    return any(
+        a in flags or a.split("=", 1)[0] in flags or (a.startswith(short) and not a.startswith("--"))
+        for a in args
+    )
 
 
 def _config_items(args: list[str]) -> tuple[list[str], list[str]]:
@@ -91,14 +101,24 @@ def _config_items(args: list[str]) -> tuple[list[str], list[str]]:
     return rest, items
 
 
-def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, at_once: int = 1,
-               snakefile: Path, configfile: Path | None, command=workflow_command,
-               echo=print) -> list[ShardRun]:
+def run_shards(
+    manifests: list[Path],
+    out: Path,
+    snakemake_args: list[str],
+    *,
+    at_once: int = 1,
+    snakefile: Path,
+    configfile: Path | None,
+    command=workflow_command,
+    echo=print,
+) -> list[ShardRun]:
     """Run the workflow on every shard, ``at_once`` at a time, each one's output in its
     ``snakemake.log``; ``echo`` says when each starts and ends."""
     if not Path(snakefile).is_file():
-        raise ConfigError("no workflow here: run gyrocal shard --run from the repository's "
-                          "folder, or give --snakefile", source=snakefile)
+        raise ConfigError(
+            "no workflow here: run gyrocal shard --run from the repository's folder, or give --snakefile",
+            source=snakefile,
+        )
     runs = [ShardRun(Path(m).resolve(), Path(out).resolve() / Path(m).stem) for m in manifests]
     waiting, running = list(runs), []
     with _terminate_as_interrupt():
@@ -110,7 +130,10 @@ def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, a
                     with open(shard.log, "w") as log:
                         process = subprocess.Popen(
                             command(shard, Path(snakefile).resolve(), configfile, snakemake_args),
-                            stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+                            stdout=log,
+                            stderr=subprocess.STDOUT,
+                            stdin=subprocess.DEVNULL,
+                        )
                     running.append((shard, process, time.monotonic()))
                     echo(f"{shard.name}: started ({shard.folder})")
                 time.sleep(POLL_S)
@@ -118,9 +141,15 @@ def run_shards(manifests: list[Path], out: Path, snakemake_args: list[str], *, a
                     running.remove(item)
                     shard, process, started = item
                     shard.status, shard.seconds = process.returncode, time.monotonic() - started
-                    echo(f"{shard.name}: " + ("done" if shard.status == 0 else
-                                              f"failed (exit status {shard.status}; see {shard.log})")
-                         + f" in {shard.seconds:.0f} s")
+                    echo(
+                        f"{shard.name}: "
+                        + (
+                            "done"
+                            if shard.status == 0
+                            else f"failed (exit status {shard.status}; see {shard.log})"
+                        )
+                        + f" in {shard.seconds:.0f} s"
+                    )
         finally:
             _stop([process for _, process, _ in running])
     return runs
@@ -169,27 +198,42 @@ def day_view(runs: list[ShardRun], out: Path) -> dict:
     import pyarrow.parquet as pq
 
     from ..report.pages import render_page
+
     tables, rows = [], []
     for shard in runs:
         path = shard.folder / "results" / "fleet.parquet"
         summary = shard.folder / "reports" / "index.html"
-        row = {"name": shard.name, "status": shard.status, "log": f"{shard.name}/snakemake.log",
-               "summary": f"{shard.name}/reports/index.html" if summary.is_file() else None,
-               "units": None, "ok": None, "failed": None, "eol_passed": None, "eol_failed": None}
-        if shard.status == 0 and path.is_file():   # a stopped run's table may be an earlier run's
+        row = {
+            "name": shard.name,
+            "status": shard.status,
+            "log": f"{shard.name}/snakemake.log",
+            "summary": f"{shard.name}/reports/index.html" if summary.is_file() else None,
+            "units": None,
+            "ok": None,
+            "failed": None,
+            "eol_passed": None,
+            "eol_failed": None,
+        }
+        if shard.status == 0 and path.is_file():  # a stopped run's table may be an earlier run's
             table = pq.read_table(path)
             status = table.column("status").to_pylist()
             verdicts = table.column("eol_passed").to_pylist() if "eol_passed" in table.column_names else []
-            row.update(units=table.num_rows, ok=status.count("ok"), failed=status.count("failed"),
-                       eol_passed=verdicts.count(True), eol_failed=verdicts.count(False))
-            tables.append(table.add_column(0, "shard", pa.array([shard.name] * table.num_rows,
-                                                                pa.string())))
+            row.update(
+                units=table.num_rows,
+                ok=status.count("ok"),
+                failed=status.count("failed"),
+                eol_passed=verdicts.count(True),
+                eol_failed=verdicts.count(False),
+            )
+            tables.append(table.add_column(0, "shard", pa.array([shard.name] * table.num_rows, pa.string())))
         rows.append(row)
     if tables:
         day = pa.concat_tables(tables, promote_options="permissive")
         day = day.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
         with atomic.replacing(out / "fleet.parquet") as tmp:
             pq.write_table(day, tmp)
-    totals = {key: sum(r[key] or 0 for r in rows) for key in ("units", "ok", "failed", "eol_passed", "eol_failed")}
+    totals = {
+        key: sum(r[key] or 0 for r in rows) for key in ("units", "ok", "failed", "eol_passed", "eol_failed")
+    }
     atomic.write_text(out / "index.html", render_page("day_index.html.j2", shards=rows, totals=totals))
     return totals

@@ -20,9 +20,18 @@ from ..calibration.file import dumps, load_calibration, save_calibration
 from ..io import atomic, failure
 from ..io.errors import GyrocalError
 from ..io.tables import write_table
-from ..io.unit_folder import (DIAGNOSIS_FILES, OPTIONAL_FILES, UNIT_FILES, VALIDATION_TABLES,
-                              part_exists, part_failure, part_label,
-                              read_observations, read_part_json, unit_paths)
+from ..io.unit_folder import (
+    DIAGNOSIS_FILES,
+    OPTIONAL_FILES,
+    UNIT_FILES,
+    VALIDATION_TABLES,
+    part_exists,
+    part_failure,
+    part_label,
+    read_observations,
+    read_part_json,
+    unit_paths,
+)
 from ..protocols import registry
 from ..report.pages import write_failure
 
@@ -30,8 +39,7 @@ if TYPE_CHECKING:
     from ..pipeline.config import Settings
 
 
-def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
-              record_failures: bool) -> int:
+def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *, record_failures: bool) -> int:
     """Run ``work``; when it fails and failures are recorded, write the record to every
     output and return 0 so the rest of the fleet goes on (the error goes to stderr)."""
     try:
@@ -48,12 +56,17 @@ def run_stage(stage: str, outputs, meta: dict, work: Callable[[], None], *,
 
 
 def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
-    from ..pipeline.chain import segment_log   # the chain on use: a report needs none of it
+    from ..pipeline.chain import segment_log  # the chain on use: a report needs none of it
+
     seg = segment_log(log, settings, meta.get("protocol"))
     paths = unit_paths(folder)
     paths["observations"].parent.mkdir(parents=True, exist_ok=True)
-    extra = {"info": seg.info, "meta": meta, "log": str(log),
-             "segmentation": settings.to_dict()["segmentation"]}
+    extra = {
+        "info": seg.info,
+        "meta": meta,
+        "log": str(log),
+        "segmentation": settings.to_dict()["segmentation"],
+    }
     series = seg.observations.attrs.get("series")
     if series is not None:
         write_table(series.to_frame(), paths["history"], series.metadata())
@@ -64,14 +77,20 @@ def segment_stage(log, folder, settings: Settings, meta: dict) -> None:
 
 def fit_stage(folder, settings: Settings, meta: dict):
     from ..pipeline.chain import calibrate_observations
+
     """The unit's calibration; returns the common model's fit (None for a protocol with a
     calibration of its own) and the calibration, for the stages after it in the same job."""
     paths = unit_paths(folder)
     obs, extra = read_observations(folder)
-    cal, fitted = calibrate_observations(obs, settings, meta=meta, source=extra["info"]["source"],
-                                         label=part_label(folder, "observations"),
-                                         noise=extra["info"].get("noise"),
-                                         info=extra["info"])
+    cal, fitted = calibrate_observations(
+        obs,
+        settings,
+        meta=meta,
+        source=extra["info"]["source"],
+        label=part_label(folder, "observations"),
+        noise=extra["info"].get("noise"),
+        info=extra["info"],
+    )
     save_calibration(cal, paths["calibration"])
     return fitted, cal
 
@@ -79,6 +98,7 @@ def fit_stage(folder, settings: Settings, meta: dict):
 def validate_stage(folder, settings: Settings, fitted=None):
     from ..fit.thermal import fit_model
     from ..pipeline.chain import settings_used, validation
+
     """The calibration's validation tables and summary; returns the validation. ``fitted``,
     the fit the calibration was made from in the same job, spares fitting again (the
     leave-temperature-out validation needs the per-point fits, not only the file). A
@@ -89,14 +109,25 @@ def validate_stage(folder, settings: Settings, fitted=None):
     obs, extra = read_observations(folder)
     failure.check_inputs(paths["calibration"])
     cal = load_calibration(paths["calibration"])
-    if (cal.provenance.get("config_sha256") != settings.sha256()
-            or cal.provenance.get("input") != extra["info"]["source"]):
-        raise GyrocalError("the calibration was not fitted from these observations with these "
-                           "settings: run the fit stage again", source=paths["calibration"])
+    if (
+        cal.provenance.get("config_sha256") != settings.sha256()
+        or cal.provenance.get("input") != extra["info"]["source"]
+    ):
+        raise GyrocalError(
+            "the calibration was not fitted from these observations with these "
+            "settings: run the fit stage again",
+            source=paths["calibration"],
+        )
     if fitted is None and registry.get(cal.meta.get("protocol")).validate is None:
         model = settings_used(settings, cal).model
-        fitted = fit_model(model.build(), obs, kind=model.kind, method=model.interpolation,
-                           degree=model.degree, source=source)
+        fitted = fit_model(
+            model.build(),
+            obs,
+            kind=model.kind,
+            method=model.interpolation,
+            degree=model.degree,
+            source=source,
+        )
     val = validation(obs, cal, fitted, settings, source=source)
     results, figures = registry.analysis(cal.meta.get("protocol"), obs)
     _write_json(paths["protocol"], {"format": "gyrocal.protocol/1", "results": results, "figures": figures})
@@ -114,8 +145,17 @@ def _write_json(path: Path, document: dict) -> None:
     atomic.write_text(path, dumps(document))
 
 
-def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, residuals=None,
-                   other=None, base=None, requested: Settings | None = None) -> str:
+def diagnose_stage(
+    folder,
+    settings: Settings,
+    meta: dict,
+    *,
+    output=None,
+    residuals=None,
+    other=None,
+    base=None,
+    requested: Settings | None = None,
+) -> str:
     """The diagnosis of the unit's observations (JSON) and its normalised residuals
     (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
     folder of another session of the unit, judges the candidates by how they carry over;
@@ -126,6 +166,7 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     were dropped; ``settings`` themselves otherwise)."""
     from ..diagnose import diagnose
     from ..diagnose.evaluation import with_unit_lines
+
     paths = unit_paths(folder)
     obs, _ = read_observations(folder)
     other_obs, other_note = None, {}
@@ -139,7 +180,8 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     requested = requested or settings
     if base is None:
         from ..pipeline.identify import added_terms, identify
-        if added_terms(settings, meta.get("protocol")):   # the model the unit would run with
+
+        if added_terms(settings, meta.get("protocol")):  # the model the unit would run with
             settings = identify(settings, obs, meta.get("protocol"), held_out=False).settings
     diag = diagnose(settings, obs, other_obs, base=base)
     out = Path(output or paths["diagnosis"])
@@ -150,16 +192,16 @@ def diagnose_stage(folder, settings: Settings, meta: dict, *, output=None, resid
     _write_json(out, {**doc, **other_note, **meta})
     if residuals is not False:
         write_table(diag.residuals, residuals or paths["residuals"], {"heatmaps": diag.heatmaps})
-    if out.resolve() == paths["diagnosis"].resolve():   # the unit's own: its record of runs
+    if out.resolve() == paths["diagnosis"].resolve():  # the unit's own: its record of runs
         _record_run(folder, settings, requested, doc, None if other is None else Path(other).name)
     return diag.verdict
 
 
-def _record_run(folder, settings: Settings, requested: Settings, diagnosis: dict,
-                other: str | None) -> None:
+def _record_run(folder, settings: Settings, requested: Settings, diagnosis: dict, other: str | None) -> None:
     """This run in the unit session's record (:mod:`gyrocal.io.runs`), where the folder
     holds its calibration and validation, made with the ``requested`` settings."""
     from ..io.runs import record_run
+
     paths = unit_paths(folder)
     if not paths["calibration"].is_file() or failure.read(paths["calibration"]) is not None:
         return
@@ -169,8 +211,7 @@ def _record_run(folder, settings: Settings, requested: Settings, diagnosis: dict
         record_run(folder, run_entry(settings, cal, validation, diagnosis, other))
 
 
-def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool,
-                  other=None) -> str | None:
+def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bool, other=None) -> str | None:
     """Fit, validate and diagnose a segmented unit in one process: the workflow's
     ``analyse`` rule, one job where several would each start
     Python and cost Snakemake a job to plan. The configured model is fitted once: the
@@ -182,6 +223,7 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     was recorded)."""
     from ..diagnose import evaluation_of
     from ..pipeline.chain import settings_used
+
     paths = unit_paths(folder)
     made: dict = {}
 
@@ -191,18 +233,22 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     def check():
         val = validate_stage(folder, settings, made.get("fitted"))
         if made.get("fitted") is not None:
-            made["base"] = evaluation_of(settings_used(settings, made["cal"]), made["fitted"],
-                                         val.summary, "configured model")
+            made["base"] = evaluation_of(
+                settings_used(settings, made["cal"]), made["fitted"], val.summary, "configured model"
+            )
 
     def diagnosis():
         # the model this unit runs with: without the terms its data could not identify
         used = settings_used(settings, made["cal"]) if "cal" in made else settings
-        made["verdict"] = diagnose_stage(folder, used, meta, other=other, base=made.get("base"),
-                                         requested=settings)
+        made["verdict"] = diagnose_stage(
+            folder, used, meta, other=other, base=made.get("base"), requested=settings
+        )
 
-    steps = (("fit", ["calibration"], fit),
-             ("validate", ["validation", *VALIDATION_TABLES], check),
-             ("diagnose", list(DIAGNOSIS_FILES), diagnosis))
+    steps = (
+        ("fit", ["calibration"], fit),
+        ("validate", ["validation", *VALIDATION_TABLES], check),
+        ("diagnose", list(DIAGNOSIS_FILES), diagnosis),
+    )
     for stage, outputs, work in steps:
         run_stage(stage, [paths[k] for k in outputs], meta, work, record_failures=record_failures)
     return made.get("verdict")
@@ -213,6 +259,7 @@ def run_entry(settings: Settings, cal, validation: dict, diagnosis: dict, other:
     model as configured (its key) and as fitted, its figures in the session and on the other
     session (named ``other``), and the fix the diagnosis named with its figures."""
     import hashlib
+
     model = settings.model.to_dict()
     key = hashlib.sha256(json.dumps(model, sort_keys=True).encode()).hexdigest()[:16]
     s = validation["summary"]
@@ -222,23 +269,38 @@ def run_entry(settings: Settings, cal, validation: dict, diagnosis: dict, other:
     fix = None
     if best:
         fix_next = (best.get("next_session") or {}).get("excess")
-        fix = {"term": best["term"], "together": best.get("together") or [], "reads": best.get("reads"),
-               "excess": best["validation_rms_with"] / floor, "next_excess": fix_next,
-               "option": best.get("option"), "config_line": best.get("config_line")}
-    return {"key": key, "config_sha256": cal.provenance.get("config_sha256"),
-            "entry": settings.model_entry,
-            "model": {"kind": "continuous" if cal.kind == "continuous" else "grid",
-                      "terms": [t.spec_string() for t in cal.model.terms]},
-            "dropped": [a["term"] for a in cal.extra.get("added_terms", ()) if not a["kept"]],
-            "validation_rms": s["validation_rms"], "noise_floor": floor, "excess": s["excess"],
-            "held_out": s.get("held_out"),
-            "next_session": ({"session": other, "excess": nxt["excess"]}
-                             if other and nxt.get("excess") is not None else None),
-            "fix": fix}
+        fix = {
+            "term": best["term"],
+            "together": best.get("together") or [],
+            "reads": best.get("reads"),
+            "excess": best["validation_rms_with"] / floor,
+            "next_excess": fix_next,
+            "option": best.get("option"),
+            "config_line": best.get("config_line"),
+        }
+    return {
+        "key": key,
+        "config_sha256": cal.provenance.get("config_sha256"),
+        "entry": settings.model_entry,
+        "model": {
+            "kind": "continuous" if cal.kind == "continuous" else "grid",
+            "terms": [t.spec_string() for t in cal.model.terms],
+        },
+        "dropped": [a["term"] for a in cal.extra.get("added_terms", ()) if not a["kept"]],
+        "validation_rms": s["validation_rms"],
+        "noise_floor": floor,
+        "excess": s["excess"],
+        "held_out": s.get("held_out"),
+        "next_session": (
+            {"session": other, "excess": nxt["excess"]} if other and nxt.get("excess") is not None else None
+        ),
+        "fix": fix,
+    }
 
 
 def report_stage(folder, out_html, settings: Settings | None = None) -> None:
     from ..report.unit import UnitResults, write_unit_report
+
     for key in UNIT_FILES:
         if key not in DIAGNOSIS_FILES:
             found = part_failure(folder, key)
@@ -246,11 +308,17 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
                 raise failure.UpstreamFailure(found)
     # The workflow declares the unit's products, not the tables written beside them
     # (workflow/rules/analyse.smk): name a table deleted since they were made.
-    missing = [name for key, name in UNIT_FILES.items()
-               if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not part_exists(folder, key)]
+    missing = [
+        name
+        for key, name in UNIT_FILES.items()
+        if key not in (*DIAGNOSIS_FILES, *OPTIONAL_FILES) and not part_exists(folder, key)
+    ]
     if missing:
-        raise GyrocalError(f"{missing[0]} is missing from the unit's results: delete the "
-                           "folder and run the workflow again to rebuild it", source=folder)
+        raise GyrocalError(
+            f"{missing[0]} is missing from the unit's results: delete the "
+            "folder and run the workflow again to rebuild it",
+            source=folder,
+        )
     results = UnitResults.from_folder(folder)
     if settings is not None:
         results.command = reproduce_command(results, settings)
@@ -259,32 +327,47 @@ def report_stage(folder, out_html, settings: Settings | None = None) -> None:
 
 def reproduce_command(results, settings: Settings) -> str:
     meta = results.meta
-    words = ["gyrocal", "calibrate", results.log or "LOG.parquet", "--protocol",
-             meta.get("protocol") or registry.DEFAULT]
+    words = [
+        "gyrocal",
+        "calibrate",
+        results.log or "LOG.parquet",
+        "--protocol",
+        meta.get("protocol") or registry.DEFAULT,
+    ]
     for key in ("device", "batch", "session"):
         if meta.get(key):
             words += [f"--{key}", str(meta[key])]
-    words += ["--settings-json", json.dumps(settings.to_dict(), sort_keys=True), "-o",
-              "calibration.json"]
+    words += ["--settings-json", json.dumps(settings.to_dict(), sort_keys=True), "-o", "calibration.json"]
     return " ".join(shlex.quote(w) for w in words)
 
 
-def fleet_stage(rows: list[dict], results_root, reports_root, out_index, bundle=None,
-                settings=None, eol_json=None, table=None) -> None:
+def fleet_stage(
+    rows: list[dict],
+    results_root,
+    reports_root,
+    out_index,
+    bundle=None,
+    settings=None,
+    eol_json=None,
+    table=None,
+) -> None:
     """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
     a :class:`gyrocal.fleet.summary.FleetSettings`: end of line, outliers, drift pages and
     ``eol_json``), the fleet as one table (``table``: Parquet, a row per unit session) and
     (optionally) a self-contained folder of all unit reports for ``snakemake --report``."""
     from ..fleet.summary import fleet_summary, fleet_table, write_fleet_report
+
     units = []
     for row in rows:
         folder = Path(results_root) / row["batch"] / row["device"] / row["session"]
-        units.append({"row": row, "folder": folder,
-                      "report": f"{row['batch']}/{row['device']}/{row['session']}.html"})
+        units.append(
+            {"row": row, "folder": folder, "report": f"{row['batch']}/{row['device']}/{row['session']}.html"}
+        )
     summary = fleet_summary(units, settings)
     write_fleet_report(summary, out_index, settings, eol_json)
     if table is not None:
         import pyarrow.parquet as pq
+
         frame = fleet_table(summary)
         frame = frame.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
         with atomic.replacing(table) as tmp:
@@ -316,11 +399,13 @@ def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) 
                 _link_or_copy(source, target)
         shutil.copyfile(out_index, tmp / "index.html")
         from ..fleet.summary import batch_pages_of
-        for page in batch_pages_of(out_index):   # a large fleet's pages of its batches
+
+        for page in batch_pages_of(out_index):  # a large fleet's pages of its batches
             _link_or_copy(page, tmp / page.name)
         drift_pages = Path(out_index).parent / "drift"
         if settings is not None and drift_pages.is_dir():
             from ..fleet.summary import drift_devices
+
             (tmp / "drift").mkdir()
             for device in drift_devices(rows):
                 if (drift_pages / f"{device}.html").exists():

@@ -23,7 +23,6 @@ from ..io.log import FACES
 from .unit import Electronics, GyroUnit
 
 
-
 def _rodrigues(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """Rotation matrices (n, 3, 3) about a unit ``axis`` by ``angle`` (rad, (n,))."""
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
@@ -52,11 +51,11 @@ class FerrarisProtocol:
     carry_s: float = 2.5
     turn_s: float = 3.0
     rest_s: float = 2.0
-    steps: int = 1                    # a turn in this many equal steps, resting between
-    tilt_deg: float = 0.5             # the unit's tilt on the table (rms per axis)
-    guide_error_deg: float = 0.5      # the hand's angle error against the guide (rms)
+    steps: int = 1  # a turn in this many equal steps, resting between
+    tilt_deg: float = 0.5  # the unit's tilt on the table (rms per axis)
+    guide_error_deg: float = 0.5  # the hand's angle error against the guide (rms)
     temperature: float | None = 25.0  # None: no temp column
-    sections: bool = False            # write the annotation column
+    sections: bool = False  # write the annotation column
     accel_columns: bool = True
 
     def to_dict(self) -> dict:
@@ -96,7 +95,7 @@ def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Genera
         s = np.linalg.norm(axis)
         if s > 1e-9:
             move(axis / s, math.atan2(s, float(current_up @ target_up)), rig.carry_s)
-        elif current_up @ target_up < 0:   # upside down: half a turn about a level axis
+        elif current_up @ target_up < 0:  # upside down: half a turn about a level axis
             level = np.cross(target_up, [1.0, 0.0, 0.0] if abs(target_up[0]) < 0.9 else [0.0, 1.0, 0.0])
             move(level / np.linalg.norm(level), math.pi, rig.carry_s)
 
@@ -112,7 +111,7 @@ def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Genera
         still(rig.rest_s)
         tilt = np.deg2rad(rig.tilt_deg) * rng.normal(size=3)
         axis = _up(f"{axis_name}_p") + tilt
-        axis["xyz".index(axis_name)] = 1.0   # tilted off the sensor axis by the others
+        axis["xyz".index(axis_name)] = 1.0  # tilted off the sensor axis by the others
         axis /= np.linalg.norm(axis)
         sign = rng.choice((-1.0, 1.0))
         true_angle = sign * (360.0 + rig.guide_error_deg * rng.normal())
@@ -122,8 +121,15 @@ def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Genera
             if _ + 1 < rig.steps:
                 still(rig.rest_s / 2, f"{axis_name}_rot")
         k1 = sum(len(a) for a in att)
-        turns.append({"axis": axis_name, "true_angle_deg": float(true_angle),
-                      "rotation_axis": axis.tolist(), "t_start": k0 / fs, "t_end": (k1 - 1) / fs})
+        turns.append(
+            {
+                "axis": axis_name,
+                "true_angle_deg": float(true_angle),
+                "rotation_axis": axis.tolist(),
+                "t_start": k0 / fs,
+                "t_end": (k1 - 1) / fs,
+            }
+        )
         still(rig.rest_s)
 
     attitude = np.concatenate(att)

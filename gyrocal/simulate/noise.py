@@ -51,8 +51,17 @@ def _flicker(rng: np.random.Generator, n: int, rate: float, b_si: float, axes: i
     return np.fft.irfft(spec, n=size, axis=1)[:, :n].T
 
 
-def coloured_noise(rng: np.random.Generator, n: int, rate: float, *, arw: float, bias_instability: float,
-                   rrw: float, quantisation: float = 0.0, axes: int = 3) -> np.ndarray:
+def coloured_noise(
+    rng: np.random.Generator,
+    n: int,
+    rate: float,
+    *,
+    arw: float,
+    bias_instability: float,
+    rrw: float,
+    quantisation: float = 0.0,
+    axes: int = 3,
+) -> np.ndarray:
     """(n, axes) rate noise in deg/s with the given IEEE Std 952 levels (units above).
 
     Independent across axes; the draws come from ``rng`` in a fixed order (white, flicker, random
@@ -101,6 +110,7 @@ def add_coloured_noise(path, levels: dict, rng: np.random.Generator) -> None:
     median sample rate, so the flicker's low frequencies run across the renderers' chunks."""
     import pyarrow as pa
     import pyarrow.parquet as pq
+
     if not any(levels.values()):
         return
     table = pq.read_table(path)
@@ -111,6 +121,7 @@ def add_coloured_noise(path, levels: dict, rng: np.random.Generator) -> None:
         name = f"gyro_{axis}"
         column = table.column(name)
         values = column.to_numpy().astype(np.float64) + noise[:, i]
-        table = table.set_column(table.schema.get_field_index(name), name,
-                                 pa.array(values.astype(column.type.to_pandas_dtype())))
+        table = table.set_column(
+            table.schema.get_field_index(name), name, pa.array(values.astype(column.type.to_pandas_dtype()))
+        )
     pq.write_table(table, path)

@@ -30,7 +30,7 @@ from ..io.errors import ConfigError
 from ..io.log import MOUNTS
 
 DEG = 180.0 / math.pi
-DIRECTIONS = MOUNTS   # the G-optimal design, seed 001 Section II-B
+DIRECTIONS = MOUNTS  # the G-optimal design, seed 001 Section II-B
 
 
 @dataclass(frozen=True)
@@ -44,8 +44,9 @@ class ServoUnit:
         k = np.asarray(self.k, dtype=float)
         b = np.asarray(self.b, dtype=float)
         if k.shape != (3,) or b.shape != (3,) or not (np.isfinite(k).all() and np.isfinite(b).all()):
-            raise ConfigError(f"servo unit needs three finite k and three finite b; got k={self.k!r}, "
-                              f"b={self.b!r}")
+            raise ConfigError(
+                f"servo unit needs three finite k and three finite b; got k={self.k!r}, b={self.b!r}"
+            )
         if (k <= 0).any():
             raise ConfigError(f"servo unit scale factors must be positive; got k={self.k!r}")
         object.__setattr__(self, "k", tuple(float(x) for x in k))
@@ -84,21 +85,22 @@ class ServoUnit:
     def with_effects(self, effects: dict | None) -> ServoUnit:
         """The six-parameter servo model has no further effects; any requested is refused."""
         if effects:
-            raise ConfigError(f"the servo unit model has no effects beyond k and b; got "
-                              f"{', '.join(map(str, effects))}")
+            raise ConfigError(
+                f"the servo unit model has no effects beyond k and b; got {', '.join(map(str, effects))}"
+            )
         return self
 
     def to_dict(self) -> dict:
-        return {"k": list(self.k), "b": list(self.b), "b_unit": "rad/s",
-                "convention": "g = k (m + b)"}
+        return {"k": list(self.k), "b": list(self.b), "b_unit": "rad/s", "convention": "g = k (m + b)"}
 
     @classmethod
     def from_dict(cls, d: dict) -> ServoUnit:
         return cls(tuple(d["k"]), tuple(d["b"]))
 
 
-def draw_parameters(rng: np.random.Generator, n: int, *, extreme: bool = False
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def draw_parameters(
+    rng: np.random.Generator, n: int, *, extreme: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """``n`` parameter sets (k (n, 3), b (n, 3) rad/s) from seed 001's Section III ranges."""
     if extreme:
         k = rng.uniform(1.2, 2.0, (n, 3))
@@ -121,9 +123,11 @@ def tilted_axes(axis: np.ndarray, tilt: np.ndarray, azimuth: np.ndarray) -> np.n
     axis = np.asarray(axis)
     tilt, azimuth = np.asarray(tilt, dtype=float), np.asarray(azimuth, dtype=float)
     eye = np.eye(3)
-    return (np.cos(tilt)[..., None] * eye[axis]
-            + (np.sin(tilt) * np.cos(azimuth))[..., None] * eye[(axis + 1) % 3]
-            + (np.sin(tilt) * np.sin(azimuth))[..., None] * eye[(axis + 2) % 3])
+    return (
+        np.cos(tilt)[..., None] * eye[axis]
+        + (np.sin(tilt) * np.cos(azimuth))[..., None] * eye[(axis + 1) % 3]
+        + (np.sin(tilt) * np.sin(azimuth))[..., None] * eye[(axis + 2) % 3]
+    )
 
 
 @dataclass(frozen=True)
@@ -135,19 +139,19 @@ class ServoProtocol:
     sample and a 5 % speed ripple (Section III-A, assumption 4), 22 °C room.
     """
 
-    speed: float = math.pi / 3.0        # rad/s (60 deg/s)
-    revolutions: int = 1                # whole revolutions per rotation
+    speed: float = math.pi / 3.0  # rad/s (60 deg/s)
+    revolutions: int = 1  # whole revolutions per rotation
     pause_s: float = 3.0
     sample_rate: float = 200.0
-    noise: float = 0.035                # rad/s, white, std per sample (paper: 0.035 or 0.2)
-    ripple: float = 0.05                # RMS speed ripple as a share of the speed
-    ripple_harmonics: int = 3           # ripple at the revolution frequency and its harmonics
-    mount_error_deg: float = 5.0        # hand mounting: tilt drawn from U(0, this) per mount
-    temperature: float = 22.0           # °C, constant (the paper's room)
-    temp_noise: float = 0.02            # °C, sensor
+    noise: float = 0.035  # rad/s, white, std per sample (paper: 0.035 or 0.2)
+    ripple: float = 0.05  # RMS speed ripple as a share of the speed
+    ripple_harmonics: int = 3  # ripple at the revolution frequency and its harmonics
+    mount_error_deg: float = 5.0  # hand mounting: tilt drawn from U(0, this) per mount
+    temperature: float = 22.0  # °C, constant (the paper's room)
+    temp_noise: float = 0.02  # °C, sensor
     order: tuple[str, ...] = DIRECTIONS
-    accel_s: float = 0.3                # servo ramp to and from speed (not part of a revolution)
-    handling_s: float = 4.0             # re-mounting by hand when the rotation axis changes
+    accel_s: float = 0.3  # servo ramp to and from speed (not part of a revolution)
+    handling_s: float = 4.0  # re-mounting by hand when the rotation axis changes
     remount_every_rotation: bool = False  # else the ± pair of an axis shares one mount
     mount_column: bool = False
 
@@ -186,29 +190,31 @@ def _handling_motion(rng: np.random.Generator, n: int, fs: float) -> np.ndarray:
     amp = np.radians(rng.uniform(20.0, 120.0, (3, 3))) * rng.choice((-1.0, 1.0), (3, 3))
     centre = rng.uniform(0.2, 0.8, (3, 3)) * duration
     width = rng.uniform(0.03, 0.08, (3, 3)) * duration
-    swings = amp * np.exp(-0.5 * ((tau[:, None, None] - centre) / width) ** 2)   # (n, axis, swing)
+    swings = amp * np.exp(-0.5 * ((tau[:, None, None] - centre) / width) ** 2)  # (n, axis, swing)
     w = swings.sum(axis=2)
-    a = math.exp(-2 * math.pi * 8.0 / fs)   # tremor: white noise low-passed at 8 Hz
+    a = math.exp(-2 * math.pi * 8.0 / fs)  # tremor: white noise low-passed at 8 Hz
     w += lfilter([1 - a], [1, -a], rng.normal(0.0, math.radians(3.0), (n, 3)), axis=0)
     edge = min(0.15 * duration, 5.0)
     ramp = np.clip(np.minimum(tau, duration - tau) / max(edge, 1e-9), 0.0, 1.0)
     return w * (np.sin(0.5 * np.pi * ramp) ** 2)[:, None]
 
 
-def _ripple(rng: np.random.Generator, tau: np.ndarray, period: float, rms: float,
-            harmonics: int) -> tuple[np.ndarray, dict]:
+def _ripple(
+    rng: np.random.Generator, tau: np.ndarray, period: float, rms: float, harmonics: int
+) -> tuple[np.ndarray, dict]:
     """Relative speed error, periodic in the revolution: its integral over any window one
     revolution long is zero, so each revolution keeps its exact time (Section II-B)."""
     h = np.arange(1, max(harmonics, 1) + 1)
     weights = rng.uniform(0.2, 1.0, h.size) / h
     phases = rng.uniform(0.0, 2 * math.pi, h.size)
-    amps = weights / np.sqrt(np.sum(weights ** 2) / 2.0) * rms   # RMS of the sum = rms
+    amps = weights / np.sqrt(np.sum(weights**2) / 2.0) * rms  # RMS of the sum = rms
     s = (amps * np.sin(2 * math.pi * h * tau[:, None] / period + phases)).sum(axis=1)
     return s, {"harmonics": h.tolist(), "amplitudes": amps.tolist(), "phases": phases.tolist()}
 
 
-def render_servo(protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Generator, path,
-                 *, t0: float = 0.0) -> dict:
+def render_servo(
+    protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Generator, path, *, t0: float = 0.0
+) -> dict:
     """Write the log to ``path`` (Parquet, contract section 1) and return the truth of the
     schedule: per rotation its direction, the tilted axis (sensor frame), times and speed."""
     fs = protocol.sample_rate
@@ -246,9 +252,15 @@ def render_servo(protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Genera
                 n = n_of(protocol.handling_s)
                 t_first = t0 + pos / fs
                 add(np.zeros(n), _handling_motion(rng, n, fs), "+" + "xyz"[current_axis])
-                parts_mount[-1][n // 2:] = MOUNTS.index(mount)
-                handling.append(dict(t_start=t_first, t_end=t0 + (pos - 1) / fs,
-                                     mount_from="+" + "xyz"[current_axis], mount_to=mount))
+                parts_mount[-1][n // 2 :] = MOUNTS.index(mount)
+                handling.append(
+                    dict(
+                        t_start=t_first,
+                        t_end=t0 + (pos - 1) / fs,
+                        mount_from="+" + "xyz"[current_axis],
+                        mount_to=mount,
+                    )
+                )
             still(protocol.pause_s, mount)
             tilt = math.radians(rng.uniform(0.0, protocol.mount_error_deg))
             azimuth = rng.uniform(0.0, 2 * math.pi)
@@ -258,18 +270,28 @@ def render_servo(protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Genera
             still(protocol.pause_s, mount)
         direction_vec = sign * axis_vec
         if n_acc:
-            ramp = np.linspace(0.0, w_speed, n_acc + 2)[1:-1]   # never reaches the command
+            ramp = np.linspace(0.0, w_speed, n_acc + 2)[1:-1]  # never reaches the command
             add(sign * ramp, ramp[:, None] * direction_vec, mount)
         tau = np.arange(n_rot) / fs
         ripple, ripple_truth = _ripple(rng, tau, period, protocol.ripple, protocol.ripple_harmonics)
         actual = w_speed * (1.0 + ripple)
         t_first = t0 + pos / fs
         add(np.full(n_rot, sign * w_speed), actual[:, None] * direction_vec, mount)
-        rotations.append(dict(index=i, direction=direction, mount=mount, t_start=t_first,
-                              t_end=t0 + (pos - 1) / fs, samples=n_rot,
-                              revolutions=int(protocol.revolutions), speed_rad_s=w_speed,
-                              axis=[float(x) for x in direction_vec],
-                              tilt_deg=math.degrees(tilt), ripple=ripple_truth))
+        rotations.append(
+            dict(
+                index=i,
+                direction=direction,
+                mount=mount,
+                t_start=t_first,
+                t_end=t0 + (pos - 1) / fs,
+                samples=n_rot,
+                revolutions=int(protocol.revolutions),
+                speed_rad_s=w_speed,
+                axis=[float(x) for x in direction_vec],
+                tilt_deg=math.degrees(tilt),
+                ripple=ripple_truth,
+            )
+        )
         if n_acc:
             ramp = np.linspace(w_speed, 0.0, n_acc + 2)[1:-1]
             add(sign * ramp, ramp[:, None] * direction_vec, mount)
@@ -283,12 +305,22 @@ def render_servo(protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Genera
     gyro = (raw * DEG).astype(np.float32)
     temp = protocol.temperature + rng.normal(0.0, protocol.temp_noise, n)
     temp = (np.round(temp * 256.0) / 256.0).astype(np.float32)
-    cols = {"t": pa.array(t), "gyro_x": pa.array(gyro[:, 0]), "gyro_y": pa.array(gyro[:, 1]),
-            "gyro_z": pa.array(gyro[:, 2]), "temp": pa.array(temp), "ref_rate": pa.array(ref * DEG)}
+    cols = {
+        "t": pa.array(t),
+        "gyro_x": pa.array(gyro[:, 0]),
+        "gyro_y": pa.array(gyro[:, 1]),
+        "gyro_z": pa.array(gyro[:, 2]),
+        "temp": pa.array(temp),
+        "ref_rate": pa.array(ref * DEG),
+    }
     if protocol.mount_column:
-        cols["mount"] = pa.DictionaryArray.from_arrays(pa.array(np.concatenate(parts_mount)),
-                                                       pa.array(MOUNTS, type=pa.string()))
+        cols["mount"] = pa.DictionaryArray.from_arrays(
+            pa.array(np.concatenate(parts_mount)), pa.array(MOUNTS, type=pa.string())
+        )
     pq.write_table(pa.table(cols), path)
-    return dict(rotations=rotations, handling=handling, rows=n,
-                units={"gyro": "deg/s", "ref_rate": "deg/s", "speed_rad_s": "rad/s",
-                       "b": "rad/s"})
+    return dict(
+        rotations=rotations,
+        handling=handling,
+        rows=n,
+        units={"gyro": "deg/s", "ref_rate": "deg/s", "speed_rad_s": "rad/s", "b": "rad/s"},
+    )

@@ -45,14 +45,14 @@ def _vec(value, name: str) -> Vec3:
 class SweepUnit:
     """Drift parameters of one unit. Rates in deg/s, temperatures in °C."""
 
-    bias: Vec3 = (0.0, 0.0, 0.0)                # B0 at T = t_ref
-    drift_dT: Vec3 = (0.0, 0.0, 0.0)            # c1, deg/s/°C
-    drift_dT2: Vec3 = (0.0, 0.0, 0.0)           # c2, deg/s/°C²
-    drift_rate: Vec3 = (0.0, 0.0, 0.0)          # c_r, deg/s per °C/min of the die
-    t_ref: float = -40.0                        # T0 that ΔT counts from
-    noise: Vec3 = (0.04, 0.04, 0.04)            # white, deg/s per sample at the log's rate
+    bias: Vec3 = (0.0, 0.0, 0.0)  # B0 at T = t_ref
+    drift_dT: Vec3 = (0.0, 0.0, 0.0)  # c1, deg/s/°C
+    drift_dT2: Vec3 = (0.0, 0.0, 0.0)  # c2, deg/s/°C²
+    drift_rate: Vec3 = (0.0, 0.0, 0.0)  # c_r, deg/s per °C/min of the die
+    t_ref: float = -40.0  # T0 that ΔT counts from
+    noise: Vec3 = (0.04, 0.04, 0.04)  # white, deg/s per sample at the log's rate
     K: tuple[Vec3, Vec3, Vec3] = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    temp_noise: float = 0.03                    # °C per sample, the temperature sensor
+    temp_noise: float = 0.03  # °C per sample, the temperature sensor
 
     def __post_init__(self):
         for f in ("bias", "drift_dT", "drift_dT2", "drift_rate", "noise"):
@@ -69,19 +69,22 @@ class SweepUnit:
         ``temp`` (°C) and rates ``temp_rate`` (°C/min)."""
         dT = np.asarray(temp, dtype=float)[..., None] - self.t_ref
         rate = np.asarray(temp_rate, dtype=float)[..., None]
-        return (np.asarray(self.bias) + dT * (np.asarray(self.drift_dT) + dT * np.asarray(self.drift_dT2))
-                + rate * np.asarray(self.drift_rate))
+        return (
+            np.asarray(self.bias)
+            + dT * (np.asarray(self.drift_dT) + dT * np.asarray(self.drift_dT2))
+            + rate * np.asarray(self.drift_rate)
+        )
 
     def with_effects(self, effects: dict | None) -> SweepUnit:
         """The sweep unit has no optional effects beyond its fields; only none is accepted."""
         if effects:
-            raise ConfigError(f"the sweep simulator has no effect {next(iter(effects))!r}; "
-                              "set SweepUnit fields instead")
+            raise ConfigError(
+                f"the sweep simulator has no effect {next(iter(effects))!r}; set SweepUnit fields instead"
+            )
         return self
 
     def to_dict(self) -> dict:
-        return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v)
-                for k, v in asdict(self).items()}
+        return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, d: dict) -> SweepUnit:
@@ -92,6 +95,7 @@ class SweepUnit:
 
         def tup(v):
             return tuple(tup(x) for x in v) if isinstance(v, list) else v
+
         return cls(**{k: tup(v) for k, v in d.items()})
 
     @classmethod
@@ -99,9 +103,13 @@ class SweepUnit:
         """A production unit of L3GD20 class: zero-rate level within a few deg/s, a drift of
         the datasheet's ±0.03 deg/s/°C size, curvature of 1e-4 deg/s/°C² size."""
         K = np.eye(3) + rng.normal(0.0, 2e-3, (3, 3))
-        base = dict(bias=tuple(rng.normal(0.0, 3.0, 3)), drift_dT=tuple(rng.normal(0.0, 0.02, 3)),
-                    drift_dT2=tuple(rng.normal(0.0, 1e-4, 3)), noise=tuple(rng.uniform(0.03, 0.08, 3)),
-                    K=tuple(map(tuple, K)))
+        base = dict(
+            bias=tuple(rng.normal(0.0, 3.0, 3)),
+            drift_dT=tuple(rng.normal(0.0, 0.02, 3)),
+            drift_dT2=tuple(rng.normal(0.0, 1e-4, 3)),
+            noise=tuple(rng.uniform(0.03, 0.08, 3)),
+            K=tuple(map(tuple, K)),
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -120,10 +128,18 @@ class SweepUnit:
         Section 3.2 (all three axes alike; Table 2 pools them).
         """
         sizes = {
-            "L3GD20": dict(bias=(-4.014, -4.014, -4.014), drift_dT=(-0.030, -0.030, -0.030),
-                           drift_dT2=(1.0e-4, 1.0e-4, 1.0e-4), noise=(0.0752, 0.0752, 0.0752)),
-            "I3G4250D": dict(bias=(1.119, -3.228, -0.300), drift_dT=(0.030, -0.040, 0.010),
-                             drift_dT2=(8.66e-5, 8.98e-5, 8.86e-5), noise=(0.0418, 0.0424, 0.0433)),
+            "L3GD20": dict(
+                bias=(-4.014, -4.014, -4.014),
+                drift_dT=(-0.030, -0.030, -0.030),
+                drift_dT2=(1.0e-4, 1.0e-4, 1.0e-4),
+                noise=(0.0752, 0.0752, 0.0752),
+            ),
+            "I3G4250D": dict(
+                bias=(1.119, -3.228, -0.300),
+                drift_dT=(0.030, -0.040, 0.010),
+                drift_dT2=(8.66e-5, 8.98e-5, 8.86e-5),
+                noise=(0.0418, 0.0424, 0.0433),
+            ),
         }
         if device not in sizes:
             raise ConfigError(f"unknown seed-003 device {device!r}; known: {', '.join(sizes)}")
@@ -144,12 +160,12 @@ class SweepProtocol:
 
     start_temp: float = -40.0
     segments: tuple[tuple[float, float, float], ...] = ((85.0, 18.0, 3600.0),)
-    soak_s: float = 1800.0              # stable at start_temp before the first ramp
-    step_c: float = 0.1                 # chamber jump size; 0 = a continuous ramp
+    soak_s: float = 1800.0  # stable at start_temp before the first ramp
+    step_c: float = 0.1  # chamber jump size; 0 = a continuous ramp
     rig_rate: float = 0.0
-    mount: str = "+z"                   # the sensor axis along the rig axis
+    mount: str = "+z"  # the sensor axis along the rig axis
     sample_rate: float = 10.0
-    lag_s: float = 600.0                # chamber -> die time constant
+    lag_s: float = 600.0  # chamber -> die time constant
     mount_column: bool = True
     disturbances: tuple[tuple[float, float], ...] = ()
     gaps: tuple[tuple[float, float], ...] = ()
@@ -162,12 +178,16 @@ class SweepProtocol:
             raise ConfigError("SweepProtocol.segments is empty; expected at least one ramp")
         for target, rate, hold in self.segments:
             if not (np.isfinite(target) and rate > 0 and hold >= 0):
-                raise ConfigError(f"sweep segment ({target}, {rate}, {hold}) needs a finite target, "
-                                  "a rate > 0 °C/h and a hold >= 0 s")
+                raise ConfigError(
+                    f"sweep segment ({target}, {rate}, {hold}) needs a finite target, "
+                    "a rate > 0 °C/h and a hold >= 0 s"
+                )
         for start, duration in (*self.disturbances, *self.gaps):
             if not (np.isfinite(start) and duration > 0):
-                raise ConfigError(f"sweep disturbance or gap ({start}, {duration}) needs a finite start "
-                                  "and a duration > 0 s")
+                raise ConfigError(
+                    f"sweep disturbance or gap ({start}, {duration}) needs a finite start "
+                    "and a duration > 0 s"
+                )
         if not (self.sample_rate > 0 and self.lag_s >= 0 and self.soak_s >= 0 and self.step_c >= 0):
             raise ConfigError("SweepProtocol needs sample_rate > 0 and lag_s, soak_s, step_c >= 0")
         object.__setattr__(self, "segments", tuple(tuple(float(x) for x in s) for s in self.segments))
@@ -183,8 +203,7 @@ class SweepProtocol:
     @classmethod
     def quick(cls, **overrides) -> SweepProtocol:
         """A sweep of minutes for tests: −40 → 85 °C at 250 °C/h, 2 samples/s, short lag."""
-        base = dict(segments=((85.0, 250.0, 300.0),), soak_s=120.0, step_c=0.0, sample_rate=2.0,
-                    lag_s=30.0)
+        base = dict(segments=((85.0, 250.0, 300.0),), soak_s=120.0, step_c=0.0, sample_rate=2.0, lag_s=30.0)
         base.update(overrides)
         return cls(**base)
 
@@ -192,25 +211,31 @@ class SweepProtocol:
     def demo(cls, **overrides) -> SweepProtocol:
         """The demo fleet's sweep: up −40 → 85 °C and back down at 60 °C/h, 1 sample/s, so
         one log holds a training sweep and a verification sweep (about 4.6 h, 17 k rows)."""
-        base = dict(segments=((85.0, 60.0, 600.0), (-40.0, 60.0, 600.0)), soak_s=600.0,
-                    step_c=0.0, sample_rate=1.0, lag_s=120.0)
+        base = dict(
+            segments=((85.0, 60.0, 600.0), (-40.0, 60.0, 600.0)),
+            soak_s=600.0,
+            step_c=0.0,
+            sample_rate=1.0,
+            lag_s=120.0,
+        )
         base.update(overrides)
         return cls(**base)
 
     def to_dict(self) -> dict:
-        return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v)
-                for k, v in asdict(self).items()}
+        return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
     def from_dict(cls, d: dict) -> SweepProtocol:
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(d) - known)
         if unknown:
-            raise ConfigError(f"unknown SweepProtocol field {unknown[0]!r}; "
-                              f"known: {', '.join(sorted(known))}")
+            raise ConfigError(
+                f"unknown SweepProtocol field {unknown[0]!r}; known: {', '.join(sorted(known))}"
+            )
 
         def tup(v):
             return tuple(tup(x) for x in v) if isinstance(v, list) else v
+
         return cls(**{k: tup(v) for k, v in d.items()})
 
     def breakpoints(self) -> tuple[np.ndarray, np.ndarray, list[dict]]:
@@ -220,8 +245,15 @@ class SweepProtocol:
         now, temp = self.soak_s, self.start_temp
         for target, rate, hold in self.segments:
             duration = abs(target - temp) / rate * 3600.0
-            ramps.append(dict(t_start=now, t_end=now + duration + hold, temp_from=temp,
-                              temp_to=target, rate=float(rate * np.sign(target - temp))))
+            ramps.append(
+                dict(
+                    t_start=now,
+                    t_end=now + duration + hold,
+                    temp_from=temp,
+                    temp_to=target,
+                    rate=float(rate * np.sign(target - temp)),
+                )
+            )
             now += duration
             times.append(now)
             temps.append(target)
@@ -253,8 +285,9 @@ def _handling(rng: np.random.Generator, tau: np.ndarray) -> np.ndarray:
     return (amp * np.exp(-0.5 * z * z)).sum(axis=2)
 
 
-def sweep_samples(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator
-                  ) -> tuple[dict[str, np.ndarray], dict]:
+def sweep_samples(
+    protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator
+) -> tuple[dict[str, np.ndarray], dict]:
     """The log's columns (t, gyro_x/y/z, temp, ref_rate, mount codes) and the truth."""
     p = protocol
     fs = p.sample_rate
@@ -284,29 +317,39 @@ def sweep_samples(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Gener
     keep = np.ones(n, dtype=bool)
     for start, duration in p.gaps:
         keep &= ~((tau >= start) & (tau < start + duration))
-    cols = {"t": p.t0 + tau[keep], "gyro_x": gyro[keep, 0].astype(np.float32),
-            "gyro_y": gyro[keep, 1].astype(np.float32), "gyro_z": gyro[keep, 2].astype(np.float32),
-            "temp": temp[keep].astype(np.float32), "ref_rate": np.full(int(keep.sum()), float(p.rig_rate))}
+    cols = {
+        "t": p.t0 + tau[keep],
+        "gyro_x": gyro[keep, 0].astype(np.float32),
+        "gyro_y": gyro[keep, 1].astype(np.float32),
+        "gyro_z": gyro[keep, 2].astype(np.float32),
+        "temp": temp[keep].astype(np.float32),
+        "ref_rate": np.full(int(keep.sum()), float(p.rig_rate)),
+    }
     if p.mount_column:
         cols["mount"] = np.full(int(keep.sum()), MOUNTS.index(p.mount), dtype=np.int8)
     for r in ramps:
         r["t_start"] += p.t0
         r["t_end"] += p.t0
-    truth = dict(sweeps=[dict(r, t_ref=float(r["temp_from"])) for r in ramps],
-                 soak=dict(t_start=p.t0, t_end=p.t0 + p.soak_s, temp=p.start_temp),
-                 disturbances=disturbances,
-                 gaps=[dict(t_start=p.t0 + s, t_end=p.t0 + s + d) for s, d in p.gaps],
-                 rows=int(keep.sum()), sample_rate=fs, mount=p.mount, rig_rate=float(p.rig_rate),
-                 die_temp_range=[float(die.min()), float(die.max())])
+    truth = dict(
+        sweeps=[dict(r, t_ref=float(r["temp_from"])) for r in ramps],
+        soak=dict(t_start=p.t0, t_end=p.t0 + p.soak_s, temp=p.start_temp),
+        disturbances=disturbances,
+        gaps=[dict(t_start=p.t0 + s, t_end=p.t0 + s + d) for s, d in p.gaps],
+        rows=int(keep.sum()),
+        sample_rate=fs,
+        mount=p.mount,
+        rig_rate=float(p.rig_rate),
+        die_temp_range=[float(die.min()), float(die.max())],
+    )
     return cols, truth
 
 
-def sweep_log(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator,
-              name: str = "<simulated sweep>") -> tuple[RigLog, dict]:
+def sweep_log(
+    protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator, name: str = "<simulated sweep>"
+) -> tuple[RigLog, dict]:
     """The simulated log in memory, as :func:`gyrocal.io.log.read_log` would return it."""
     cols, truth = sweep_samples(protocol, unit, rng)
-    batch = {k: (v.astype(np.float64) if k.startswith("gyro") or k == "temp" else v)
-             for k, v in cols.items()}
+    batch = {k: (v.astype(np.float64) if k.startswith("gyro") or k == "temp" else v) for k, v in cols.items()}
     return RigLog(name, (batch,), len(batch["t"]), 0), truth
 
 
@@ -318,8 +361,9 @@ def render_sweep(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Genera
     cols, truth = sweep_samples(protocol, unit, rng)
     arrays = {k: pa.array(v) for k, v in cols.items() if k != "mount"}
     if "mount" in cols:
-        arrays["mount"] = pa.DictionaryArray.from_arrays(pa.array(cols["mount"]),
-                                                         pa.array(MOUNTS, type=pa.string()))
+        arrays["mount"] = pa.DictionaryArray.from_arrays(
+            pa.array(cols["mount"]), pa.array(MOUNTS, type=pa.string())
+        )
     pq.write_table(pa.table(arrays), path)
     return truth
 

@@ -33,24 +33,24 @@ class TurntableProtocol:
     """Schedule of the rig and the thermal path from chamber to die. Times in s, rates deg/s."""
 
     temperatures: tuple[float, ...] = SEED000_TEMPERATURES
-    rates: tuple[float, ...] = SEED000_RATES     # magnitudes; each is held forward and reverse
+    rates: tuple[float, ...] = SEED000_RATES  # magnitudes; each is held forward and reverse
     mounts: tuple[str, ...] = ("+x", "+y", "+z")
     sample_rate: float = 100.0
     soak_s: float = 3600.0
     hold_s: float = 60.0
-    accel: float = 50.0                 # table acceleration between holds, deg/s²
+    accel: float = 50.0  # table acceleration between holds, deg/s²
     handling_s: float = 30.0
-    pause_s: float = 3.0                # table stopped before the person reaches in
-    chamber_ramp: float = 2.0           # °C/min between set points
+    pause_s: float = 3.0  # table stopped before the person reaches in
+    chamber_ramp: float = 2.0  # °C/min between set points
     room_temp: float = 23.0
     air_tau_s: float = 60.0
-    unit_tau_s: float = 600.0           # chamber air -> die (the sensor reads the die)
-    self_heating: float = 2.0           # °C the powered die runs above its surroundings
+    unit_tau_s: float = 600.0  # chamber air -> die (the sensor reads the die)
+    self_heating: float = 2.0  # °C the powered die runs above its surroundings
     self_heating_tau_s: float = 900.0
-    door_coupling: float = 0.05         # share of (room - set point) the air heads for, door open
-    temp_noise: float = 0.02            # °C, sensor
-    temp_lsb: float = 1.0 / 256.0       # °C, sensor
-    settle_overshoot: float = 0.002     # table overshoot after a ramp, share of the step
+    door_coupling: float = 0.05  # share of (room - set point) the air heads for, door open
+    temp_noise: float = 0.02  # °C, sensor
+    temp_lsb: float = 1.0 / 256.0  # °C, sensor
+    settle_overshoot: float = 0.002  # table overshoot after a ramp, share of the step
     settle_tau_s: float = 0.15
     settle_hz: float = 3.0
     mount_column: bool = True
@@ -59,9 +59,19 @@ class TurntableProtocol:
     @classmethod
     def quick(cls, **overrides) -> TurntableProtocol:
         """A protocol of seconds (for tests): same structure, thermal path scaled to fit."""
-        base = dict(temperatures=(-20.0, 0.0, 20.0, 40.0), soak_s=40.0, hold_s=6.0,
-                    accel=400.0, handling_s=4.0, pause_s=1.0, chamber_ramp=600.0,
-                    air_tau_s=0.5, unit_tau_s=3.0, self_heating_tau_s=2.0, door_coupling=0.0)
+        base = dict(
+            temperatures=(-20.0, 0.0, 20.0, 40.0),
+            soak_s=40.0,
+            hold_s=6.0,
+            accel=400.0,
+            handling_s=4.0,
+            pause_s=1.0,
+            chamber_ramp=600.0,
+            air_tau_s=0.5,
+            unit_tau_s=3.0,
+            self_heating_tau_s=2.0,
+            door_coupling=0.0,
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -78,9 +88,19 @@ class TurntableProtocol:
         mount = self.mounts[0]
 
         def add(kind, samples, **kw):
-            phases.append(dict(kind=kind, n=samples, rate_from=rate, rate_to=rate,
-                               set_from=set_point, set_to=set_point, mount=mount,
-                               next_mount=mount, **kw))
+            phases.append(
+                dict(
+                    kind=kind,
+                    n=samples,
+                    rate_from=rate,
+                    rate_to=rate,
+                    set_from=set_point,
+                    set_to=set_point,
+                    mount=mount,
+                    next_mount=mount,
+                    **kw,
+                )
+            )
 
         for k, temp in enumerate(self.temperatures):
             if abs(temp - set_point) > 0:
@@ -130,8 +150,9 @@ def _first_order(x: np.ndarray, tau_s: float, fs: float, state: float) -> tuple[
     return y, float(y[-1])
 
 
-def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator, path,
-           *, t0: float = 0.0) -> dict:
+def render(
+    protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator, path, *, t0: float = 0.0
+) -> dict:
     """Write the log to ``path`` (Parquet) and return the ground truth of the schedule."""
     fs = protocol.sample_rate
     phases = protocol.schedule()
@@ -144,8 +165,11 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
     mount_dict = pa.array(MOUNTS, type=pa.string())
 
     # One chunk per set point: the phases from one "chamber"/"soak" start to the next.
-    chunk_starts = [i for i, p in enumerate(phases) if p["kind"] in ("chamber", "soak")
-                    and (i == 0 or phases[i - 1]["kind"] != "chamber")]
+    chunk_starts = [
+        i
+        for i, p in enumerate(phases)
+        if p["kind"] in ("chamber", "soak") and (i == 0 or phases[i - 1]["kind"] != "chamber")
+    ]
     chunk_bounds = list(zip(chunk_starts, chunk_starts[1:] + [len(phases)], strict=False))
     try:
         for lo, hi in chunk_bounds:
@@ -171,9 +195,12 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
                 else:
                     table[sl] = ph["rate_to"]
                     if prev_step:
-                        table[sl] += (protocol.settle_overshoot * prev_step
-                                      * np.exp(-tau / protocol.settle_tau_s)
-                                      * np.sin(2 * np.pi * protocol.settle_hz * tau))
+                        table[sl] += (
+                            protocol.settle_overshoot
+                            * prev_step
+                            * np.exp(-tau / protocol.settle_tau_s)
+                            * np.sin(2 * np.pi * protocol.settle_hz * tau)
+                        )
                     prev_step = 0.0
                 set_point[sl] = ph["set_from"] + (ph["set_to"] - ph["set_from"]) * (tau + 1 / fs) * fs / k
                 axis, sign = _mount_axis(ph["mount"])
@@ -190,19 +217,28 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
                     g_new[new_axis] = new_sign
                     g = (1 - blend) * gravity[sl] + blend * g_new
                     gravity[sl] = g / np.linalg.norm(g, axis=1, keepdims=True)
-                    mount_code[pos + k // 2: pos + k] = MOUNTS.index(ph["next_mount"])
-                    handling.append(dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"],
-                                         mount_to=ph["next_mount"]))
+                    mount_code[pos + k // 2 : pos + k] = MOUNTS.index(ph["next_mount"])
+                    handling.append(
+                        dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"], mount_to=ph["next_mount"])
+                    )
                 elif ph["kind"] == "hold":
-                    holds.append(dict(t_start=t_first, t_end=t_last, mount=ph["mount"],
-                                      rate=ph["rate_to"], set_point=ph["set_to"],
-                                      point=ph["point"]))
+                    holds.append(
+                        dict(
+                            t_start=t_first,
+                            t_end=t_last,
+                            mount=ph["mount"],
+                            rate=ph["rate_to"],
+                            set_point=ph["set_to"],
+                            point=ph["point"],
+                        )
+                    )
                 elif ph["kind"] == "soak":
                     soaks.append(dict(t_start=t_first, t_end=t_last, set_point=ph["set_to"]))
                 pos += k
 
-            air_target = np.where(door, set_point + protocol.door_coupling
-                                  * (protocol.room_temp - set_point), set_point)
+            air_target = np.where(
+                door, set_point + protocol.door_coupling * (protocol.room_temp - set_point), set_point
+            )
             air, air_state = _first_order(air_target, protocol.air_tau_s, fs, air_state)
             die, die_state = _first_order(air, protocol.unit_tau_s, fs, die_state)
             die += protocol.self_heating * (1 - np.exp(-(t - t0) / protocol.self_heating_tau_s))
@@ -211,22 +247,30 @@ def render(protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator
 
             die_rate = np.gradient(die) * fs * 60.0  # °C/min, for the temp_rate effect
             gyro = electronics.measure(w_true, die, gravity, die_rate, t - t0)
-            cols = {"t": pa.array(t), "gyro_x": gyro[:, 0], "gyro_y": gyro[:, 1],
-                    "gyro_z": gyro[:, 2], "temp": pa.array(sensor.astype(np.float32)),
-                    "ref_rate": pa.array(table)}
+            cols = {
+                "t": pa.array(t),
+                "gyro_x": gyro[:, 0],
+                "gyro_y": gyro[:, 1],
+                "gyro_z": gyro[:, 2],
+                "temp": pa.array(sensor.astype(np.float32)),
+                "ref_rate": pa.array(table),
+            }
             if protocol.mount_column:
                 cols["mount"] = pa.DictionaryArray.from_arrays(pa.array(mount_code), mount_dict)
             if protocol.accel_columns:
                 accel = gravity + rng.normal(0.0, unit.accel_noise, (m, 3))
                 for i, c in enumerate("xyz"):
                     cols[f"accel_{c}"] = pa.array(accel[:, i].astype(np.float32))
-            batch = pa.table({k: (v if isinstance(v, (pa.Array, pa.ChunkedArray)) else pa.array(v))
-                              for k, v in cols.items()})
+            batch = pa.table(
+                {
+                    k: (v if isinstance(v, (pa.Array, pa.ChunkedArray)) else pa.array(v))
+                    for k, v in cols.items()
+                }
+            )
             if writer is None:
                 schema = batch.schema
                 if protocol.mount_column:
-                    schema = schema.set(schema.get_field_index("mount"),
-                                        pa.field("mount", mount_type))
+                    schema = schema.set(schema.get_field_index("mount"), pa.field("mount", mount_type))
                 writer = pq.ParquetWriter(path, schema)
             writer.write_table(batch.cast(writer.schema), row_group_size=m)
             start += m

@@ -59,11 +59,11 @@ class Term:
     """A physical effect: regressor columns for the gyro error, one per coefficient."""
 
     name: ClassVar[str] = ""
-    needs: ClassVar[frozenset[str]] = frozenset()   # observation columns required
-    unit: ClassVar[str] = ""                         # unit of the coefficients
+    needs: ClassVar[frozenset[str]] = frozenset()  # observation columns required
+    unit: ClassVar[str] = ""  # unit of the coefficients
     varies_with_temperature: ClassVar[bool] = False  # depends on temperature alone
-    scope: ClassVar[str] = "auto"   # "point" or "global" in a grid model; auto: global
-                                    # when the term reads a series signal (t, temp_rate, lag)
+    scope: ClassVar[str] = "auto"  # "point" or "global" in a grid model; auto: global
+    # when the term reads a series signal (t, temp_rate, lag)
     profile: ClassVar[Mapping[str, tuple[float, float]]] = {}  # nonlinear setting -> bounds
     moving_temperature: ClassVar[bool] = False  # seen only where the temperature moves in a point
 
@@ -77,8 +77,11 @@ class Term:
 
     def params(self) -> dict:
         """The term's settings, JSON-plain (what a calibration file stores to rebuild it)."""
-        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)} \
-            if dataclasses.is_dataclass(self) else {}
+        return (
+            {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+            if dataclasses.is_dataclass(self)
+            else {}
+        )
 
     def spec(self) -> dict:
         """What a calibration file stores to rebuild the term; a user term also records the
@@ -94,13 +97,20 @@ class Term:
     def spec_string(self) -> str:
         """The term as ``--add-term`` and config files take it: ``name`` or
         ``name(key=value, ...)`` for settings that differ from the defaults."""
-        defaults = {f.name: f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
-                    for f in dataclasses.fields(self)} if dataclasses.is_dataclass(self) else {}
+        defaults = (
+            {
+                f.name: f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
+                for f in dataclasses.fields(self)
+            }
+            if dataclasses.is_dataclass(self)
+            else {}
+        )
         changed = {k: v for k, v in self.params().items() if defaults.get(k, dataclasses.MISSING) != v}
         if self.coefficient_scope != self.default_scope():
             changed["scope"] = self.coefficient_scope
-        return self.name + ("(" + ", ".join(f"{k}={literal(v)}" for k, v in changed.items()) + ")"
-                            if changed else "")
+        return self.name + (
+            "(" + ", ".join(f"{k}={literal(v)}" for k, v in changed.items()) + ")" if changed else ""
+        )
 
     @property
     def identity(self) -> tuple:
@@ -126,6 +136,7 @@ class Term:
         the temperature's history, one per session (each temperature point covers only
         its own block of time)."""
         from ..io.signals import SERIES_INPUTS
+
         return bool(self.inputs() & SERIES_INPUTS)
 
     def inputs(self) -> frozenset[str]:
@@ -134,10 +145,17 @@ class Term:
         ``apply``)."""
         if "_inputs" not in self.__dict__:
             from ..io.signals import HOLD_INPUTS, Inputs, Series
+
             probe_t = np.array([0.0, 600.0])
-            probe = Inputs({**{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS}, "t": probe_t,
-                            "temp_rate": np.array([0.1, 0.2])},
-                           Series(probe_t, np.array([20.0, 21.0])), probe_t)
+            probe = Inputs(
+                {
+                    **{c: np.array([1.0, 2.0]) for c in HOLD_INPUTS},
+                    "t": probe_t,
+                    "temp_rate": np.array([0.1, 0.2]),
+                },
+                Series(probe_t, np.array([20.0, 21.0])),
+                probe_t,
+            )
             try:
                 with np.errstate(all="ignore"):
                     self.columns(probe)
@@ -175,12 +193,13 @@ class Term:
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
         from ..io.signals import SERIES_INPUTS
+
         series = "series" in data or "t" in data
-        missing = sorted(c for c in self.needs if c not in data
-                         and not (series and c in SERIES_INPUTS))
+        missing = sorted(c for c in self.needs if c not in data and not (series and c in SERIES_INPUTS))
         if missing:
-            raise MissingInputError(f"term {self.spec_string()} needs {', '.join(missing)}, which the "
-                                    f"data lack", source=source)
+            raise MissingInputError(
+                f"term {self.spec_string()} needs {', '.join(missing)}, which the data lack", source=source
+            )
 
 
 class Restricted(Term):
@@ -199,8 +218,10 @@ class Restricted(Term):
         own = [c.removeprefix(prefix) for c in term.coefficients()]
         unknown = [d for d in drop if d not in own]
         if unknown:
-            raise ConfigError(f"term {term.name} has no coefficient {', '.join(map(str, unknown))} "
-                              f"to drop (it has {', '.join(own)})")
+            raise ConfigError(
+                f"term {term.name} has no coefficient {', '.join(map(str, unknown))} "
+                f"to drop (it has {', '.join(own)})"
+            )
         self.term = term
         self.drop = tuple(d for d in own if d in set(drop))
         self.name = term.name
@@ -211,7 +232,7 @@ class Restricted(Term):
     def __hash__(self):
         return hash((self.term, self.drop))
 
-    def __getattr__(self, attribute):   # unit, needs, profile, ... are the term's
+    def __getattr__(self, attribute):  # unit, needs, profile, ... are the term's
         if attribute.startswith("__") or attribute in ("term", "drop"):
             raise AttributeError(attribute)
         return getattr(self.term, attribute)
@@ -252,7 +273,7 @@ class Restricted(Term):
 
     def spec_string(self) -> str:
         inner = self.term.spec_string()
-        setting = "drop=[" + ", ".join(f'"{d}"' for d in self.drop) + "]"   # shell-quotable
+        setting = "drop=[" + ", ".join(f'"{d}"' for d in self.drop) + "]"  # shell-quotable
         return inner[:-1] + f", {setting})" if inner.endswith(")") else f"{inner}({setting})"
 
     @property
@@ -290,13 +311,17 @@ class Restricted(Term):
 
 def register_term(name: str):
     """Class decorator adding a term to the registry under ``name``."""
+
     def add(cls):
         if name in TERMS and TERMS[name] is not cls:
-            raise ConfigError(f"term name {name!r} is already registered by "
-                              f"{TERMS[name].__module__}.{TERMS[name].__qualname__}")
+            raise ConfigError(
+                f"term name {name!r} is already registered by "
+                f"{TERMS[name].__module__}.{TERMS[name].__qualname__}"
+            )
         cls.name = name
         TERMS[name] = cls
         return cls
+
     return add
 
 
@@ -332,12 +357,17 @@ def make_term(spec) -> Term:
     source = params.pop("source", None)
     cls = TERMS.get(name)
     if cls is None:
-        hint = (f" (it comes from the term file {source.get('file')}: load that file)"
-                if isinstance(source, Mapping) else "")
+        hint = (
+            f" (it comes from the term file {source.get('file')}: load that file)"
+            if isinstance(source, Mapping)
+            else ""
+        )
         raise ConfigError(f"unknown model term {name!r}{hint}; known terms: {', '.join(sorted(TERMS))}")
     if isinstance(source, Mapping) and source.get("sha256") != getattr(cls, "source_sha256", None):
-        raise ConfigError(f"term {name} was fitted with {source.get('file')} of SHA-256 "
-                          f"{str(source.get('sha256'))[:12]}…, but the loaded definition differs")
+        raise ConfigError(
+            f"term {name} was fitted with {source.get('file')} of SHA-256 "
+            f"{str(source.get('sha256'))[:12]}…, but the loaded definition differs"
+        )
     scope = params.pop("scope", None)
     if scope not in (None, "point", "global"):
         raise ConfigError(f"term {name}: scope must be 'point' or 'global', got {scope!r}")

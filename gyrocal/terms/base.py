@@ -59,5 +59,9 @@ class Misalignment(Term):
         return [f"misalignment.{a}.{b}" for a in AXES for b in AXES if a != b]
 
     def columns(self, data):
-        return {f"misalignment.{a}.{b}": np.asarray(data[f"rate_{b}"], dtype=float)
-                for a in AXES for b in AXES if a != b}
+        return {
+            f"misalignment.{a}.{b}": np.asarray(data[f"rate_{b}"], dtype=float)
+            for a in AXES
+            for b in AXES
+            if a != b
+        }

@@ -44,7 +44,7 @@ class BiasTempPoly(Term):
 
     def columns(self, data):
         dT = np.asarray(data["temp"], dtype=float) - self.t_ref
-        return {f"{self.name}.{a}.c{k}": dT ** k for a in AXES for k in range(1, self.degree + 1)}
+        return {f"{self.name}.{a}.c{k}": dT**k for a in AXES for k in range(1, self.degree + 1)}
 
 
 @register_term("scale_temp_poly")
@@ -67,8 +67,11 @@ class ScaleTempPoly(Term):
 
     def columns(self, data):
         dT = np.asarray(data["temp"], dtype=float) - self.t_ref
-        return {f"{self.name}.{a}.c{k}": np.asarray(data[f"rate_{a}"], dtype=float) * dT ** k
-                for a in AXES for k in range(1, self.degree + 1)}
+        return {
+            f"{self.name}.{a}.c{k}": np.asarray(data[f"rate_{a}"], dtype=float) * dT**k
+            for a in AXES
+            for k in range(1, self.degree + 1)
+        }
 
 
 @register_term("misalignment_temp")
@@ -87,8 +90,12 @@ class MisalignmentTemp(Term):
 
     def columns(self, data):
         dT = np.asarray(data["temp"], dtype=float) - self.t_ref
-        return {f"{self.name}.{a}.{b}": np.asarray(data[f"rate_{b}"], dtype=float) * dT
-                for a in AXES for b in AXES if a != b}
+        return {
+            f"{self.name}.{a}.{b}": np.asarray(data[f"rate_{b}"], dtype=float) * dT
+            for a in AXES
+            for b in AXES
+            if a != b
+        }
 
 
 @register_term("temp_rate")
@@ -99,7 +106,7 @@ class TempRate(Term):
     slope over a centred window; the window is profiled (2-900 s): a short one follows fast
     changes, a long one averages a coarse temperature sensor's steps. [deg/s per °C/min]"""
 
-    window_s: float = 0.0   # s; 0: the session's (a typical hold), else this window
+    window_s: float = 0.0  # s; 0: the session's (a typical hold), else this window
     unit = "deg/s/(degC/min)"
     needs = frozenset({"temp_rate"})
     profile = {"window_s": (2.0, 900.0)}
@@ -108,8 +115,12 @@ class TempRate(Term):
         return [f"{self.name}.{a}" for a in AXES]
 
     def columns(self, data):
-        rate = np.asarray(data.temp_rate_over(self.window_s) if self.window_s > 0
-                          and getattr(data, "series", None) is not None else data["temp_rate"], dtype=float)
+        rate = np.asarray(
+            data.temp_rate_over(self.window_s)
+            if self.window_s > 0 and getattr(data, "series", None) is not None
+            else data["temp_rate"],
+            dtype=float,
+        )
         return {f"{self.name}.{a}": rate for a in AXES}
 
 
@@ -177,13 +188,16 @@ class DieTemperature(Term):
         logged temperature kept as ``temp_logged``). Samples are filtered by ``apply``."""
         from ..io.errors import MissingInputError
         from ..io.signals import hold_means_of_lag
+
         if "t_start" not in data:
             return data
         logged = np.asarray(data.get("temp_logged", data["temp"]), dtype=float)
         die = hold_means_of_lag(data, "temp", self.tau)
         if die is None:
-            raise MissingInputError("the die temperature needs the session's temperature record, "
-                                    "which these observations lack (segment the log again)")
+            raise MissingInputError(
+                "the die temperature needs the session's temperature record, "
+                "which these observations lack (segment the log again)"
+            )
         return {**data, "temp": die, "temp_logged": logged}
 
     def sample_transform(self):
@@ -195,6 +209,7 @@ class _DieFilter:
 
     def __init__(self, tau: float):
         from ..io.signals import LagFilter
+
         self.lag = LagFilter(tau)
 
     def __call__(self, data):
@@ -238,7 +253,7 @@ class ScaleCubic(_RatePerAxis):
 
     @staticmethod
     def shape(rate):
-        return rate ** 3
+        return rate**3
 
 
 @register_term("scale_asymmetry")
@@ -265,8 +280,9 @@ class GSensitivity(Term):
         return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES]
 
     def columns(self, data):
-        return {f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float)
-                for a in AXES for b in AXES}
+        return {
+            f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float) for a in AXES for b in AXES
+        }
 
 
 @register_term("g_squared")
@@ -285,11 +301,24 @@ class GSquared(Term):
         return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES]
 
     def columns(self, data):
-        return {f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float) ** 2
-                for a in AXES for b in AXES}
+        return {
+            f"{self.name}.{a}.{b}": np.asarray(data[f"accel_{b}"], dtype=float) ** 2
+            for a in AXES
+            for b in AXES
+        }
 
 
 # Tried by the diagnosis when not in the model, in this order (ties keep it).
-CANDIDATES = ("scale_quadratic", "scale_cubic", "scale_asymmetry", "g_sensitivity", "g_squared", "temp_rate",
-              "temp_lag", "die_temperature", "bias_temp_poly(degree=1)", "scale_temp_poly(degree=1)",
-              "misalignment_temp")
+CANDIDATES = (
+    "scale_quadratic",
+    "scale_cubic",
+    "scale_asymmetry",
+    "g_sensitivity",
+    "g_squared",
+    "temp_rate",
+    "temp_lag",
+    "die_temperature",
+    "bias_temp_poly(degree=1)",
+    "scale_temp_poly(degree=1)",
+    "misalignment_temp",
+)

@@ -38,11 +38,12 @@ def spline_basis(x: np.ndarray, knots, *, linear: bool = True) -> np.ndarray:
     constant) and, with ``linear=False``, the second too (nor its slope there: a model that
     has the linear part already holds it). Local support keeps the basis well conditioned."""
     from scipy.interpolate import BSpline
+
     knots = np.asarray(knots, dtype=float)
     t = np.r_[[knots[0]] * 3, knots, [knots[-1]] * 3]
     u = np.clip(np.asarray(x, dtype=float), knots[0], knots[-1])
     full = BSpline.design_matrix(u, t, 3).toarray()
-    return full[:, 1 if linear else 2:]
+    return full[:, 1 if linear else 2 :]
 
 
 @register_term("smooth")
@@ -67,10 +68,14 @@ class Smooth(Term):
             knots = tuple(float(k) for k in self.knots)
         except (TypeError, ValueError):
             raise ConfigError(f"term smooth: knots must be a list of numbers, got {self.knots!r}") from None
-        if not 2 <= len(knots) <= MAX_KNOTS or not all(map(math.isfinite, knots)) \
-                or any(b <= a for a, b in zip(knots, knots[1:], strict=False)):
-            raise ConfigError(f"term smooth: knots must be 2 to {MAX_KNOTS} increasing finite numbers, "
-                              f"got {self.knots!r}")
+        if (
+            not 2 <= len(knots) <= MAX_KNOTS
+            or not all(map(math.isfinite, knots))
+            or any(b <= a for a, b in zip(knots, knots[1:], strict=False))
+        ):
+            raise ConfigError(
+                f"term smooth: knots must be 2 to {MAX_KNOTS} increasing finite numbers, got {self.knots!r}"
+            )
         if not self.linear and len(knots) < 3:
             raise ConfigError("term smooth: without its linear part a spline needs 3 knots or more")
         label = self.label or f"smooth_{self.input}" + ("_by_rate" if self.by else "")
@@ -99,8 +104,13 @@ class Smooth(Term):
         return len(self.knots) + int(self.linear)
 
     def params(self) -> dict:
-        return {"input": self.input, "knots": list(self.knots), "by": self.by, "linear": self.linear,
-                "label": self.label}
+        return {
+            "input": self.input,
+            "knots": list(self.knots),
+            "by": self.by,
+            "linear": self.linear,
+            "label": self.label,
+        }
 
     def spec_string(self) -> str:
         # Double quotes, so that the option is one shell word in single quotes.
@@ -144,7 +154,6 @@ class Smooth(Term):
         return basis @ c
 
 
-
 MAX_LEVELS = 24
 
 
@@ -156,8 +165,7 @@ def level_basis(x: np.ndarray, levels, anchors) -> np.ndarray:
     levels = np.asarray(levels, dtype=float)
     keep = [k for k in range(levels.size) if k not in anchors]
     eye = np.eye(levels.size)
-    return np.column_stack([np.interp(x, levels, eye[k]) for k in keep]) if keep \
-        else np.zeros((x.size, 0))
+    return np.column_stack([np.interp(x, levels, eye[k]) for k in keep]) if keep else np.zeros((x.size, 0))
 
 
 def _number(v: float) -> str:
@@ -170,10 +178,14 @@ def _levels(values, what: str) -> tuple:
         levels = tuple(float(v) for v in values)
     except (TypeError, ValueError):
         raise ConfigError(f"term {what}: values must be a list of numbers, got {values!r}") from None
-    if not 3 <= len(levels) <= MAX_LEVELS or not all(map(math.isfinite, levels)) \
-            or any(b <= a for a, b in zip(levels, levels[1:], strict=False)):
-        raise ConfigError(f"term {what}: values must be 3 to {MAX_LEVELS} increasing finite "
-                          f"numbers, got {values!r}")
+    if (
+        not 3 <= len(levels) <= MAX_LEVELS
+        or not all(map(math.isfinite, levels))
+        or any(b <= a for a, b in zip(levels, levels[1:], strict=False))
+    ):
+        raise ConfigError(
+            f"term {what}: values must be 3 to {MAX_LEVELS} increasing finite numbers, got {values!r}"
+        )
     return levels
 
 
@@ -273,8 +285,9 @@ class CrossRate(Term):
 
     def __post_init__(self):
         if self.shape not in CROSS_SHAPES:
-            raise ConfigError(f"term cross_rate: shape must be one of {', '.join(CROSS_SHAPES)}, "
-                              f"got {self.shape!r}")
+            raise ConfigError(
+                f"term cross_rate: shape must be one of {', '.join(CROSS_SHAPES)}, got {self.shape!r}"
+            )
         if self.shape == "levels":
             object.__setattr__(self, "values", _levels(self.values, "cross_rate"))
         elif self.values:
@@ -320,11 +333,15 @@ class CrossRate(Term):
         for a, b in self._pairs():
             rate = np.asarray(data[f"rate_{b}"], dtype=float)
             if self.shape == "square":
-                out[f"{self.label}.{a}.{b}"] = rate ** 2
+                out[f"{self.label}.{a}.{b}"] = rate**2
             elif self.shape == "abs":
                 out[f"{self.label}.{a}.{b}"] = np.abs(rate)
             else:
                 basis = level_basis(rate, self.values, (0, 1))
-                out.update({f"{self.label}.{a}.{b}.k{k + 1}": basis[:, j]
-                            for j, k in enumerate(range(2, len(self.values)))})
+                out.update(
+                    {
+                        f"{self.label}.{a}.{b}.k{k + 1}": basis[:, j]
+                        for j, k in enumerate(range(2, len(self.values)))
+                    }
+                )
         return out

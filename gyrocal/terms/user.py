@@ -31,7 +31,7 @@ import numpy as np
 from ..io.errors import ConfigError
 from . import AXES, TERMS, Term, register_term
 
-_LOADED: dict[str, str] = {}   # resolved path -> sha256
+_LOADED: dict[str, str] = {}  # resolved path -> sha256
 
 
 def file_hash(path) -> str:
@@ -50,7 +50,7 @@ def load_term_file(path) -> tuple[str, list[str]]:
             raise ConfigError(f"term file {path} changed since it was loaded in this process")
         return digest, [n for n, c in TERMS.items() if getattr(c, "source_file", None) == key]
     same = next((other for other, d in _LOADED.items() if d == digest), None)
-    if same is not None:   # the same code under another path: its terms are registered
+    if same is not None:  # the same code under another path: its terms are registered
         _LOADED[key] = digest
         return digest, [n for n, c in TERMS.items() if getattr(c, "source_file", None) == same]
     before = set(TERMS)
@@ -72,23 +72,59 @@ def load_term_file(path) -> tuple[str, list[str]]:
     return digest, added
 
 
-_FUNCTIONS = {"abs": np.abs, "sqrt": np.sqrt, "exp": np.exp, "log": np.log, "sign": np.sign,
-              "tanh": np.tanh, "sin": np.sin, "cos": np.cos}
-_OPERATORS = {ast.Add: np.add, ast.Sub: np.subtract, ast.Mult: np.multiply,
-              ast.Div: np.divide, ast.Pow: np.power}
+_FUNCTIONS = {
+    "abs": np.abs,
+    "sqrt": np.sqrt,
+    "exp": np.exp,
+    "log": np.log,
+    "sign": np.sign,
+    "tanh": np.tanh,
+    "sin": np.sin,
+    "cos": np.cos,
+}
+_OPERATORS = {
+    ast.Add: np.add,
+    ast.Sub: np.subtract,
+    ast.Mult: np.multiply,
+    ast.Div: np.divide,
+    ast.Pow: np.power,
+}
 # lag(x, tau): x through a first-order lag of tau seconds; play(x, w): x through the play
 # operator of width w; duhem(x, w): x's direction of travel relaxing over w of travel. x is an input of the session's record or a formula of them, taken at
 # the record's points (the temperature, its rate, the rates as the gyro output them, the
 # specific force), so fit and apply see the same history.
 HISTORIES = ("lag", "play", "duhem")
-RECORD_INPUTS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "rate_own",
-                 "accel_x", "accel_y", "accel_z", "accel_own")
-LAGGABLE = ("temp", "temp_rate")   # lags of these alone keep their own, older path
+RECORD_INPUTS = (
+    "t",
+    "temp",
+    "temp_rate",
+    "rate_x",
+    "rate_y",
+    "rate_z",
+    "rate_own",
+    "accel_x",
+    "accel_y",
+    "accel_z",
+    "accel_own",
+)
+LAGGABLE = ("temp", "temp_rate")  # lags of these alone keep their own, older path
 
 # What a formula may read: the inputs every term has (gyrocal.io.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
-FORMULA_COLUMNS = ("t", "temp", "temp_rate", "rate_x", "rate_y", "rate_z", "ref_rate",
-                   "accel_x", "accel_y", "accel_z", "rate_own", "accel_own")
+FORMULA_COLUMNS = (
+    "t",
+    "temp",
+    "temp_rate",
+    "rate_x",
+    "rate_y",
+    "rate_z",
+    "ref_rate",
+    "accel_x",
+    "accel_y",
+    "accel_z",
+    "rate_own",
+    "accel_own",
+)
 # The output axis's own input: rate_own is rate_x in the x output's column, and so on.
 OWN_AXIS = {"rate_own": "rate", "accel_own": "accel"}
 SERIES_NAMES = frozenset({"t", "temp_rate"})
@@ -97,13 +133,19 @@ SERIES_NAMES = frozenset({"t", "temp_rate"})
 def formula_names(formula: str, parameters=()) -> frozenset[str]:
     """Inputs a formula reads (``temp_lag`` for a lag), its parameters excluded."""
     tree = _parse(formula, parameters)
-    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)
-             and n.id not in _FUNCTIONS and n.id not in HISTORIES and n.id not in parameters}
+    names = {
+        n.id
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Name)
+        and n.id not in _FUNCTIONS
+        and n.id not in HISTORIES
+        and n.id not in parameters
+    }
     for own, kind in OWN_AXIS.items():
         if own in names:
             names = (names - {own}) | {f"{kind}_{a}" for a in AXES}
     for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and n.func.id in HISTORIES):
-        names.add("temp_lag")    # the session's record
+        names.add("temp_lag")  # the session's record
         inside = {n.id for n in ast.walk(call.args[0]) if isinstance(n, ast.Name)}
         if inside & {"rate_x", "rate_y", "rate_z", "rate_own"}:
             names.add("rate_history")
@@ -126,29 +168,51 @@ def _parse(formula: str, parameters=()) -> ast.AST:
         raise ConfigError(f"cannot read the formula {formula!r}") from None
     known = (*FORMULA_COLUMNS, *parameters)
     for node in ast.walk(tree):
-        allowed = (ast.BinOp, ast.UnaryOp, ast.USub, ast.UAdd, ast.Name, ast.Constant,
-                   ast.Call, ast.Load, *_OPERATORS)
+        allowed = (
+            ast.BinOp,
+            ast.UnaryOp,
+            ast.USub,
+            ast.UAdd,
+            ast.Name,
+            ast.Constant,
+            ast.Call,
+            ast.Load,
+            *_OPERATORS,
+        )
         if not isinstance(node, allowed):
-            raise ConfigError(f"formula {formula!r}: {type(node).__name__} is not allowed "
-                              "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign tanh "
-                              "sin cos, lag, play, duhem)")
+            raise ConfigError(
+                f"formula {formula!r}: {type(node).__name__} is not allowed "
+                "(numbers, inputs, parameters, + - * / **, abs sqrt exp log sign tanh "
+                "sin cos, lag, play, duhem)"
+            )
         if isinstance(node, ast.Call):
             if not isinstance(node.func, ast.Name) or node.keywords:
-                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)}, lag, play and "
-                                  "duhem may be called")
+                raise ConfigError(
+                    f"formula {formula!r}: only {', '.join(_FUNCTIONS)}, lag, play and duhem may be called"
+                )
             if node.func.id in HISTORIES:
                 _check_history(formula, node, parameters)
             elif node.func.id not in _FUNCTIONS or len(node.args) != 1:
-                raise ConfigError(f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
-                                  "each), lag(x, tau), play(x, w) and duhem(x, w) may be called")
+                raise ConfigError(
+                    f"formula {formula!r}: only {', '.join(_FUNCTIONS)} (one argument "
+                    "each), lag(x, tau), play(x, w) and duhem(x, w) may be called"
+                )
         if isinstance(node, ast.Constant) and (
-                isinstance(node.value, bool) or not isinstance(node.value, (int, float))
-                or not _finite_number(node.value)):
-                raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
-        if isinstance(node, ast.Name) and node.id not in _FUNCTIONS and node.id not in HISTORIES \
-                and node.id not in known:
-            raise ConfigError(f"formula {formula!r}: {node.id} is neither an input a formula can "
-                              f"read ({', '.join(FORMULA_COLUMNS)}) nor one of its parameters")
+            isinstance(node.value, bool)
+            or not isinstance(node.value, (int, float))
+            or not _finite_number(node.value)
+        ):
+            raise ConfigError(f"formula {formula!r}: only finite numbers may appear as constants")
+        if (
+            isinstance(node, ast.Name)
+            and node.id not in _FUNCTIONS
+            and node.id not in HISTORIES
+            and node.id not in known
+        ):
+            raise ConfigError(
+                f"formula {formula!r}: {node.id} is neither an input a formula can "
+                f"read ({', '.join(FORMULA_COLUMNS)}) nor one of its parameters"
+            )
     return tree
 
 
@@ -156,25 +220,37 @@ def _check_history(formula: str, node: ast.Call, parameters) -> None:
     """``lag(x, tau)`` / ``play(x, w)`` / ``duhem(x, w)``: two arguments, ``x`` a formula of the record's inputs
     (no history inside a history), the size a number or a parameter."""
     what = "tau in seconds" if node.func.id == "lag" else "w its width in the input's unit"
-    usage = (f"formula {formula!r}: write {node.func.id}(x, {what.split()[0]}), x an input of the "
-             f"session's record ({', '.join(RECORD_INPUTS)}) or a formula of them, {what} "
-             "(a number or a parameter)")
+    usage = (
+        f"formula {formula!r}: write {node.func.id}(x, {what.split()[0]}), x an input of the "
+        f"session's record ({', '.join(RECORD_INPUTS)}) or a formula of them, {what} "
+        "(a number or a parameter)"
+    )
     if len(node.args) != 2:
         raise ConfigError(usage)
     inner = list(ast.walk(node.args[0]))
     if any(isinstance(n, ast.Call) and n.func.id in HISTORIES for n in inner):
-        raise ConfigError(f"formula {formula!r}: a history cannot hold another ({node.func.id} "
-                          "of a lag, a play or a duhem)")
+        raise ConfigError(
+            f"formula {formula!r}: a history cannot hold another ({node.func.id} of a lag, a play or a duhem)"
+        )
     for n in inner:
-        if isinstance(n, ast.Name) and n.id not in _FUNCTIONS and n.id not in RECORD_INPUTS \
-                and n.id not in parameters:
+        if (
+            isinstance(n, ast.Name)
+            and n.id not in _FUNCTIONS
+            and n.id not in RECORD_INPUTS
+            and n.id not in parameters
+        ):
             raise ConfigError(usage + f"; {n.id} is not in the record")
     if node.func.id == "duhem" and ast.unparse(node.args[0]) != "temp":
         # Its state before the record is the room's, which only the temperature has.
-        raise ConfigError(f"formula {formula!r}: duhem(temp, w) is the temperature's direction "
-                          "of travel; it reads the temperature alone")
-    if not all(isinstance(n, (ast.Constant, ast.UnaryOp, ast.USub, ast.UAdd, ast.Load))
-               or (isinstance(n, ast.Name) and n.id in parameters) for n in ast.walk(node.args[1])):
+        raise ConfigError(
+            f"formula {formula!r}: duhem(temp, w) is the temperature's direction "
+            "of travel; it reads the temperature alone"
+        )
+    if not all(
+        isinstance(n, (ast.Constant, ast.UnaryOp, ast.USub, ast.UAdd, ast.Load))
+        or (isinstance(n, ast.Name) and n.id in parameters)
+        for n in ast.walk(node.args[1])
+    ):
         raise ConfigError(usage)
 
 
@@ -205,8 +281,9 @@ def _value(node, data, parameters, formula):
         v = _value(node.operand, data, parameters, formula)
         return -v if isinstance(node.op, ast.USub) else v
     if isinstance(node, ast.BinOp):
-        return _OPERATORS[type(node.op)](_value(node.left, data, parameters, formula),
-                                         _value(node.right, data, parameters, formula))
+        return _OPERATORS[type(node.op)](
+            _value(node.left, data, parameters, formula), _value(node.right, data, parameters, formula)
+        )
     if node.func.id in HISTORIES:
         return _history(node, data, parameters, formula)
     return _FUNCTIONS[node.func.id](*[_value(a, data, parameters, formula) for a in node.args])
@@ -219,27 +296,38 @@ def _history(node: ast.Call, data, parameters, formula):
     arg = node.args[0]
     if node.func.id == "lag":
         if np.ndim(size) or not lag_time_constant_ok(size):
-            raise ConfigError(f"formula {formula!r}: a lag's time constant must be a number "
-                              f"of seconds >= 0, got {size!r}")
+            raise ConfigError(
+                f"formula {formula!r}: a lag's time constant must be a number of seconds >= 0, got {size!r}"
+            )
         if isinstance(arg, ast.Name) and arg.id in LAGGABLE:
             return data.lag(arg.id, float(size))
-        if float(size) == 0:   # no lag: the input itself
+        if float(size) == 0:  # no lag: the input itself
             return _value(arg, data, parameters, formula)
     elif np.ndim(size) or not (np.isfinite(size) and size > 0):
-        raise ConfigError(f"formula {formula!r}: a {node.func.id} operator's width must be a positive "
-                          f"number, got {size!r}")
+        raise ConfigError(
+            f"formula {formula!r}: a {node.func.id} operator's width must be a positive number, got {size!r}"
+        )
     axis = getattr(data, "axis", None)
     names = {n.id for n in ast.walk(arg) if isinstance(n, ast.Name)}
-    reads = {k for k, group in (("rate_history", "rate"), ("accel_history", "accel"))
-             if any(n.startswith(group) for n in names)}
+    reads = {
+        k
+        for k, group in (("rate_history", "rate"), ("accel_history", "accel"))
+        if any(n.startswith(group) for n in names)
+    }
     used = {k: float(v) for k, v in parameters.items() if k in names}
     key = (ast.unparse(arg), axis if names & set(OWN_AXIS) else None, tuple(sorted(used.items())))
     # The temperature's play starts from the room, as its Duhem state does; both read it
     # through a short lag (on the samples' noise an operator narrower than it would chatter).
     temperature = node.func.id in ("play", "duhem") and key[0] == "temp"
     operator = "temperature_play" if temperature and node.func.id == "play" else node.func.id
-    return data.history(key, lambda series: _value(arg, _Record(series, axis), used, formula),
-                        operator, float(size), reads, smooth=temperature)
+    return data.history(
+        key,
+        lambda series: _value(arg, _Record(series, axis), used, formula),
+        operator,
+        float(size),
+        reads,
+        smooth=temperature,
+    )
 
 
 class _Record:
@@ -269,10 +357,17 @@ def _plain_parameters(values, formula: str, what: str) -> dict:
         raise ConfigError(f"expression {formula!r}: {what} must be a mapping of names")
     out = {}
     for name, value in values.items():
-        if not isinstance(name, str) or not name.isidentifier() or name in FORMULA_COLUMNS \
-                or name in _FUNCTIONS or name == "lag":
-            raise ConfigError(f"expression {formula!r}: {name!r} cannot name a parameter "
-                              "(a plain name that is not an input or a function)")
+        if (
+            not isinstance(name, str)
+            or not name.isidentifier()
+            or name in FORMULA_COLUMNS
+            or name in _FUNCTIONS
+            or name == "lag"
+        ):
+            raise ConfigError(
+                f"expression {formula!r}: {name!r} cannot name a parameter "
+                "(a plain name that is not an input or a function)"
+            )
         out[name] = value
     return out
 
@@ -302,14 +397,23 @@ class Expression(Term):
         profile = _plain_parameters(self.profile, self.formula, "profile")
         for name, value in parameters.items():
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not _finite_number(value):
-                raise ConfigError(f"expression {self.label}: parameter {name} must be a finite number, "
-                                  f"got {value!r}")
+                raise ConfigError(
+                    f"expression {self.label}: parameter {name} must be a finite number, got {value!r}"
+                )
         for name, bounds in profile.items():
-            ok = isinstance(bounds, (list, tuple)) and len(bounds) == 2 and all(
-                isinstance(b, (int, float)) and not isinstance(b, bool) and _finite_number(b) for b in bounds)
+            ok = (
+                isinstance(bounds, (list, tuple))
+                and len(bounds) == 2
+                and all(
+                    isinstance(b, (int, float)) and not isinstance(b, bool) and _finite_number(b)
+                    for b in bounds
+                )
+            )
             if not ok or not 0 < bounds[0] < bounds[1]:
-                raise ConfigError(f"expression {self.label}: profile {name} must be [low, high] "
-                                  f"with 0 < low < high, got {bounds!r}")
+                raise ConfigError(
+                    f"expression {self.label}: profile {name} must be [low, high] "
+                    f"with 0 < low < high, got {bounds!r}"
+                )
             profile[name] = [float(bounds[0]), float(bounds[1])]
             parameters.setdefault(name, float(np.sqrt(bounds[0] * bounds[1])))
         object.__setattr__(self, "parameters", {k: parameters[k] for k in sorted(parameters)})
@@ -342,8 +446,12 @@ class Expression(Term):
         if not reads_own_axis(self.formula, tuple(self.parameters)):
             v = np.broadcast_to(evaluate(self.formula, data, self.parameters), n)
             return {f"{self.label}.{a}": v for a in AXES}
-        return {f"{self.label}.{a}": np.broadcast_to(
-            evaluate(self.formula, _own_axis(data, a), self.parameters), n) for a in AXES}
+        return {
+            f"{self.label}.{a}": np.broadcast_to(
+                evaluate(self.formula, _own_axis(data, a), self.parameters), n
+            )
+            for a in AXES
+        }
 
 
 class _OwnAxis:

@@ -6,6 +6,7 @@ Each file goes through `python -m gyrocal calibrate FILE --protocol turntable -o
 in a subprocess (cwd outside the repo, PYTHONPATH=/work/main), so only the command line,
 stderr, exit status and the written JSON are observed.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -28,15 +29,38 @@ def run_one(name: str, log: Path, cwd: str) -> dict:
     out.unlink(missing_ok=True)
     env = dict(os.environ, PYTHONPATH=str(REPO))
     try:
-        p = subprocess.run([sys.executable, "-m", "gyrocal", "calibrate", str(log), "--protocol", "turntable",
-                            "-o", str(out)], cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+        p = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "gyrocal",
+                "calibrate",
+                str(log),
+                "--protocol",
+                "turntable",
+                "-o",
+                str(out),
+            ],
+            cwd=cwd,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        )
         rc, err = p.returncode, p.stderr
     except subprocess.TimeoutExpired:
         rc, err = "timeout", ""
-    row = {"kind": name, "rc": rc, "stderr": (err.strip().splitlines() or [""])[0],
-           "written": out.exists(), "diagK": "", "warnings": "", "nan": ""}
+    row = {
+        "kind": name,
+        "rc": rc,
+        "stderr": (err.strip().splitlines() or [""])[0],
+        "written": out.exists(),
+        "diagK": "",
+        "warnings": "",
+        "nan": "",
+    }
     if out.exists():
-        bad = []   # json's parse_constant sees NaN / Infinity / -Infinity tokens
+        bad = []  # json's parse_constant sees NaN / Infinity / -Infinity tokens
         try:
             cal = json.loads(out.read_text(), parse_constant=lambda c: bad.append(c) or float(c))
         except ValueError as e:
@@ -60,7 +84,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     folder = Path(a.out or tempfile.mkdtemp(prefix="badlogs_")).resolve()
     files = generator.write_all(folder, seed=a.seed)
-    cwd = tempfile.mkdtemp(prefix="badlogs_cwd_")        # never run inside the repo
+    cwd = tempfile.mkdtemp(prefix="badlogs_cwd_")  # never run inside the repo
     with ThreadPoolExecutor(a.jobs) as ex:
         rows = list(ex.map(lambda kv: run_one(kv[0], kv[1], cwd), files.items()))
 
@@ -68,9 +92,24 @@ def main(argv=None) -> int:
     head = ("kind", "cat", "expect", "rc", "cal", "diag K", "warnings", "NaN", "stderr (first line)")
     table = []
     for r in rows:
-        cat, exp = ("good", "accept") if r["kind"] == "good" else (generator.KINDS[r["kind"]][1], generator.EXPECT[r["kind"]][0])
-        table.append((r["kind"], cat, exp, str(r["rc"]), "yes" if r["written"] else "no",
-                      r["diagK"], r["warnings"], r["nan"], r["stderr"][:110]))
+        cat, exp = (
+            ("good", "accept")
+            if r["kind"] == "good"
+            else (generator.KINDS[r["kind"]][1], generator.EXPECT[r["kind"]][0])
+        )
+        table.append(
+            (
+                r["kind"],
+                cat,
+                exp,
+                str(r["rc"]),
+                "yes" if r["written"] else "no",
+                r["diagK"],
+                r["warnings"],
+                r["nan"],
+                r["stderr"][:110],
+            )
+        )
     w = [max(len(x[i]) for x in table + [head]) for i in range(len(head) - 1)]
     for x in [head] + table:
         print("  ".join(c.ljust(w[i]) for i, c in enumerate(x[:-1])) + "  " + x[-1])

@@ -8,5 +8,8 @@ cannot separate are listed as not identifiable."""
 
 from ...fit.model import DEFAULT_TERMS
 
-DEFAULTS = {"options": {}, "model": {"terms": list(DEFAULT_TERMS)},
-            "diagnosis": {"candidates": ["g_sensitivity"]}}
+DEFAULTS = {
+    "options": {},
+    "model": {"terms": list(DEFAULT_TERMS)},
+    "diagnosis": {"candidates": ["g_sensitivity"]},
+}

@@ -35,6 +35,7 @@ def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
     output, less the bias and the sensitivity times its mean specific force, over the
     known angle. Returns K (3×3), B (3), K_ga (3×3 or None), in deg/s and deg/s/g."""
     from ...io.log import FACES, TURNS
+
     face = {r.section: r for r in obs[obs["phase"] == "face"].itertuples()}
     turn = {r.section: r for r in obs[obs["phase"] == "turn"].itertuples()}
     mean = lambda r: np.array([r.gyro_x, r.gyro_y, r.gyro_z])  # noqa: E731
@@ -56,6 +57,7 @@ def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> p
     """Each turn's angle about its axis as the raw output integrates it and as compensated
     (``K⁻¹ (w − B − K_ga f)`` integrated over the turn), against the known angle."""
     import pandas as pd
+
     turns = obs[obs["phase"] == "turn"]
     rows = []
     Kinv = np.linalg.inv(K)
@@ -64,13 +66,18 @@ def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> p
         w = np.array([r.gyro_x, r.gyro_y, r.gyro_z])
         offset = B + (K_ga @ np.array([r.accel_x, r.accel_y, r.accel_z]) if K_ga is not None else 0.0)
         compensated = Kinv @ (w - offset) * r.duration
-        rows.append({"turn": r.section, "known_deg": float(r.angle),
-                     "raw_deg": float(w[j] * r.duration),
-                     "compensated_deg": float(compensated[j]),
-                     # read minus known in magnitude: + reads too much of a turn
-                     "error_raw_deg": float(abs(w[j] * r.duration) - abs(r.angle)),
-                     "error_deg": float(abs(compensated[j]) - abs(r.angle)),
-                     "off_axis_deg": float(np.hypot(*np.delete(compensated, j)))})
+        rows.append(
+            {
+                "turn": r.section,
+                "known_deg": float(r.angle),
+                "raw_deg": float(w[j] * r.duration),
+                "compensated_deg": float(compensated[j]),
+                # read minus known in magnitude: + reads too much of a turn
+                "error_raw_deg": float(abs(w[j] * r.duration) - abs(r.angle)),
+                "error_deg": float(abs(compensated[j]) - abs(r.angle)),
+                "off_axis_deg": float(np.hypot(*np.delete(compensated, j))),
+            }
+        )
     return pd.DataFrame(rows)
 
 
@@ -79,16 +86,22 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
     turn's angle, uncompensated and compensated by it."""
     cf = closed_form(obs, gravity_terms="accel_x" in obs)
     angles = turn_angles(obs, cf["K"], cf["B"], cf["K_ga"])
-    return {"protocol": "ferraris", "method": "Ferraris closed form (as imucal computes it)",
-            "K": cf["K"].tolist(), "B": cf["B"].tolist(),
-            "K_ga": None if cf["K_ga"] is None else cf["K_ga"].tolist(),
-            "turns": angles.to_dict(orient="records"),
-            "faces": obs.loc[obs["phase"] == "face", ["section", "t_start", "t_end", "n"]]
-            .to_dict(orient="records")}, []
+    return {
+        "protocol": "ferraris",
+        "method": "Ferraris closed form (as imucal computes it)",
+        "K": cf["K"].tolist(),
+        "B": cf["B"].tolist(),
+        "K_ga": None if cf["K_ga"] is None else cf["K_ga"].tolist(),
+        "turns": angles.to_dict(orient="records"),
+        "faces": obs.loc[obs["phase"] == "face", ["section", "t_start", "t_end", "n"]].to_dict(
+            orient="records"
+        ),
+    }, []
 
 
 def _segment(log, options: dict):
     from .segment import segment_ferraris
+
     return segment_ferraris(log, options)
 
 
@@ -98,9 +111,16 @@ def static(log, seg, max_temp_rate: float):
     return faces["t_start"].to_numpy(float), faces["t_end"].to_numpy(float)
 
 
-FERRARIS = register(Protocol(
-    "ferraris", "hand rotations: six static faces and a full turn about each axis (Ferraris)",
-    segment=lambda log, settings: _segment(log, settings.protocol_options("ferraris")),
-    static=static, analysis=analysis, defaults=DEFAULTS,
-    report_section="protocols/ferraris_section.html.j2",
-    without=("temp", "ref_rate"), one_temperature=True))
+FERRARIS = register(
+    Protocol(
+        "ferraris",
+        "hand rotations: six static faces and a full turn about each axis (Ferraris)",
+        segment=lambda log, settings: _segment(log, settings.protocol_options("ferraris")),
+        static=static,
+        analysis=analysis,
+        defaults=DEFAULTS,
+        report_section="protocols/ferraris_section.html.j2",
+        without=("temp", "ref_rate"),
+        one_temperature=True,
+    )
+)

@@ -2,7 +2,6 @@
 and its Levenberg-Marquardt reference, the models with cross-axis terms, and the
 Monte-Carlo study of Section III with what the cross-axis terms cost and gain."""
 
-
 _WHERE = {
     "CrossAxisFit": "fit",
     "ServoFit": "fit",
@@ -18,9 +17,20 @@ _WHERE = {
     "g_optimal_warnings": "rotations",
 }
 
-__all__ = ["CrossAxisFit", "Rotations", "ServoFit", "ServoFitError", "find_rotations", "fit_fixture",
-           "fit_iterative", "fit_lm", "fit_model", "fit_observations", "fit_symmetric",
-           "g_optimal_warnings"]
+__all__ = [
+    "CrossAxisFit",
+    "Rotations",
+    "ServoFit",
+    "ServoFitError",
+    "find_rotations",
+    "fit_fixture",
+    "fit_iterative",
+    "fit_lm",
+    "fit_model",
+    "fit_observations",
+    "fit_symmetric",
+    "g_optimal_warnings",
+]
 
 
 def __getattr__(name: str):
@@ -29,4 +39,5 @@ def __getattr__(name: str):
     if name not in _WHERE:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     import importlib
+
     return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

@@ -55,7 +55,7 @@ from ...io.errors import InputError
 DEG = 180.0 / math.pi
 UNIT_TO_DEG = {"rad/s": DEG, "deg/s": 1.0}
 PARAMETERS = ("kx", "ky", "kz", "bx", "by", "bz")
-MAX_CONDITION = 1e8   # column-scaled condition number above which the design is refused
+MAX_CONDITION = 1e8  # column-scaled condition number above which the design is refused
 
 
 class ServoFitError(InputError):
@@ -83,7 +83,7 @@ class ServoFit:
     converged: bool
     residuals: np.ndarray
     unit: str = "rad/s"
-    k_se: np.ndarray | None = None     # linearised from the observations' standard errors
+    k_se: np.ndarray | None = None  # linearised from the observations' standard errors
     b_se: np.ndarray | None = None
     n_observations: int = 6
     notes: tuple[str, ...] = field(default_factory=tuple)
@@ -121,13 +121,20 @@ class ServoFit:
     def summary(self) -> dict:
         """JSON-plain record of the fit."""
         out = {
-            "method": self.method, "unit": self.unit, "convention": "g = k (m + b)",
-            "k": self.k.tolist(), "b": self.b.tolist(),
-            "K": self.K.tolist(), "B_deg_s": self.B.tolist(),
-            "beta": self.beta.tolist(), "iterations": int(self.iterations),
-            "converged": bool(self.converged), "n_observations": int(self.n_observations),
+            "method": self.method,
+            "unit": self.unit,
+            "convention": "g = k (m + b)",
+            "k": self.k.tolist(),
+            "b": self.b.tolist(),
+            "K": self.K.tolist(),
+            "B_deg_s": self.B.tolist(),
+            "beta": self.beta.tolist(),
+            "iterations": int(self.iterations),
+            "converged": bool(self.converged),
+            "n_observations": int(self.n_observations),
             "residuals": self.residuals.tolist(),
-            "trace": [dict(rec) for rec in self.trace], "notes": list(self.notes),
+            "trace": [dict(rec) for rec in self.trace],
+            "notes": list(self.notes),
         }
         if self.k_se is not None:
             out["k_se"] = self.k_se.tolist()
@@ -137,6 +144,7 @@ class ServoFit:
 
 # ---------------------------------------------------------------------------------------
 # Algorithm 1, batched: shared by fit_iterative (one run) and the Monte-Carlo study.
+
 
 def design(m: np.ndarray) -> np.ndarray:
     """Regressors x1..x6 of Eq 4 for observations m (..., n, 3): (..., n, 6)."""
@@ -160,8 +168,9 @@ def gamma(beta6: np.ndarray) -> np.ndarray:
     return np.sum(beta6[..., 3:] ** 2 / (4.0 * beta6[..., :3]), axis=-1)
 
 
-def algorithm1(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50,
-               keep_trace: bool = False) -> dict:
+def algorithm1(
+    m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50, keep_trace: bool = False
+) -> dict:
     """Algorithm 1 on R stacked runs: m (R, n, 3), omega (R, n) or broadcastable.
 
     Returns arrays: ``beta`` (R, 6) = β1..β6 at exit, ``iterations`` (R,) β0 updates made,
@@ -174,8 +183,16 @@ def algorithm1(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter:
     X = design(m)
     Y = np.broadcast_to(np.asarray(omega, dtype=float) ** 2, m.shape[:-1])
     u, v = _products(X, Y)
-    return _iterate(u, v, admissible=lambda beta: np.all(beta[:, :3] > 0, axis=1), beta0=gamma,
-                    placeholder=1.0, tol=tol, max_iter=max_iter, keep_trace=keep_trace)
+    return _iterate(
+        u,
+        v,
+        admissible=lambda beta: np.all(beta[:, :3] > 0, axis=1),
+        beta0=gamma,
+        placeholder=1.0,
+        tol=tol,
+        max_iter=max_iter,
+        keep_trace=keep_trace,
+    )
 
 
 def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=False) -> dict:
@@ -183,7 +200,7 @@ def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=
     β(n+1) = u − β0(β(n)) v until Σ|Δβ| <= tol. ``admissible(β)`` (R,): whether β has the
     square root the parameters need; ``beta0(β)``: the constant the model ties to β,
     evaluated on ``placeholder`` rows for runs that have stopped."""
-    beta = u.copy()                                  # β(1), with β0(0) = 0
+    beta = u.copy()  # β(1), with β0(0) = 0
     R = beta.shape[0]
     positive = admissible(beta)
     active = positive.copy()
@@ -207,8 +224,7 @@ def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=
         active &= ok & ~done
         if keep_trace:
             trace.append((beta.copy(), g0, np.where(step, change, np.nan)))
-    return dict(beta=beta, iterations=iterations, converged=converged, positive=positive,
-                trace=trace)
+    return dict(beta=beta, iterations=iterations, converged=converged, positive=positive, trace=trace)
 
 
 def parameters_from_beta(beta6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -217,6 +233,7 @@ def parameters_from_beta(beta6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------------------------
+
 
 def _check(m, omega, m_sem, unit: str):
     if unit not in UNIT_TO_DEG:
@@ -237,13 +254,16 @@ def _check(m, omega, m_sem, unit: str):
     if not (np.isfinite(m).all() and np.isfinite(omega).all()):
         raise ServoFitError("observations hold non-finite values")
     if np.any(omega == 0):
-        raise ServoFitError("a servo speed of 0 gives no scale information; every observation "
-                            "needs a non-zero speed")
+        raise ServoFitError(
+            "a servo speed of 0 gives no scale information; every observation needs a non-zero speed"
+        )
     X = design(m)
     scale = np.linalg.norm(X, axis=0)
     if np.any(scale == 0) or np.linalg.cond(X / scale) > MAX_CONDITION:
-        raise ServoFitError("the observations do not determine all six parameters (the design "
-                            "lacks rotations about some axis or in both directions)")
+        raise ServoFitError(
+            "the observations do not determine all six parameters (the design "
+            "lacks rotations about some axis or in both directions)"
+        )
     if m_sem is not None:
         m_sem = np.asarray(m_sem, dtype=float)
         if m_sem.shape != m.shape or not np.isfinite(m_sem).all() or np.any(m_sem < 0):
@@ -253,7 +273,7 @@ def _check(m, omega, m_sem, unit: str):
 
 def residuals_of(k, b, m, omega) -> np.ndarray:
     """ω² residuals (model minus servo) of Eq 3 for parameters k, b."""
-    return np.sum((k * (m + b)) ** 2, axis=-1) - omega ** 2
+    return np.sum((k * (m + b)) ** 2, axis=-1) - omega**2
 
 
 def _standard_errors(k, b, m, m_sem):
@@ -261,8 +281,8 @@ def _standard_errors(k, b, m, m_sem):
     if m_sem is None:
         return None, None
     mb = m + b
-    J = np.hstack([2 * k * mb ** 2, 2 * k ** 2 * mb])           # ∂r/∂(k, b)
-    var_r = np.sum((2 * k ** 2 * mb * m_sem) ** 2, axis=1)      # r's variance from m's
+    J = np.hstack([2 * k * mb**2, 2 * k**2 * mb])  # ∂r/∂(k, b)
+    var_r = np.sum((2 * k**2 * mb * m_sem) ** 2, axis=1)  # r's variance from m's
     try:
         A = np.linalg.solve(J.T @ J, J.T)
     except np.linalg.LinAlgError:
@@ -274,20 +294,34 @@ def _standard_errors(k, b, m, m_sem):
 def _result(k, b, *, m, omega, unit, method, iterations, trace, converged, m_sem, notes=()):
     k = np.abs(np.asarray(k, dtype=float))
     b = np.asarray(b, dtype=float)
-    beta = np.concatenate([[np.sum(k ** 2 * b ** 2)], k ** 2, 2 * k ** 2 * b])
+    beta = np.concatenate([[np.sum(k**2 * b**2)], k**2, 2 * k**2 * b])
     res = residuals_of(k, b, m, omega)
     k_se, b_se = _standard_errors(k, b, m, m_sem)
     values = [k, b, beta, res] + ([k_se, b_se] if k_se is not None else [])
     if not all(np.isfinite(x).all() for x in values):
         raise ServoFitError(f"{method} fit produced non-finite parameters")
-    return ServoFit(k=k, b=b, K=np.diag(1.0 / k), B=-b * UNIT_TO_DEG[unit], beta=beta,
-                    iterations=int(iterations), trace=tuple(trace), method=method,
-                    converged=bool(converged), residuals=res, unit=unit, k_se=k_se, b_se=b_se,
-                    n_observations=len(m), notes=tuple(notes))
+    return ServoFit(
+        k=k,
+        b=b,
+        K=np.diag(1.0 / k),
+        B=-b * UNIT_TO_DEG[unit],
+        beta=beta,
+        iterations=int(iterations),
+        trace=tuple(trace),
+        method=method,
+        converged=bool(converged),
+        residuals=res,
+        unit=unit,
+        k_se=k_se,
+        b_se=b_se,
+        n_observations=len(m),
+        notes=tuple(notes),
+    )
 
 
-def fit_iterative(m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str = "rad/s",
-                  m_sem=None, strict: bool = True) -> ServoFit:
+def fit_iterative(
+    m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str = "rad/s", m_sem=None, strict: bool = True
+) -> ServoFit:
     """Algorithm 1 of seed 001 on n >= 6 observations.
 
     ``m`` (n, 3): mean raw output per observation (a rotation or a revolution, Eq 8);
@@ -300,42 +334,63 @@ def fit_iterative(m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str 
     m, omega, m_sem = _check(m, omega, m_sem, unit)
     out = algorithm1(m[None], omega[None], tol=tol, max_iter=max_iter, keep_trace=True)
     if not out["positive"][0]:
-        raise ServoFitError("Algorithm 1 gave β1..β3 <= 0 (no square root for k); the β0 "
-                            "iteration diverges when Σ k² b² is not small against ω²: rotate "
-                            "faster or use fit_lm")
+        raise ServoFitError(
+            "Algorithm 1 gave β1..β3 <= 0 (no square root for k); the β0 "
+            "iteration diverges when Σ k² b² is not small against ω²: rotate "
+            "faster or use fit_lm"
+        )
     converged = bool(out["converged"][0])
     if not converged and strict:
-        raise ServoFitError(f"Algorithm 1 did not converge to Σ|Δβ| <= {tol:g} in {max_iter} "
-                            f"iterations (speed too low for the biases: β0/ω² must stay well below 1)")
+        raise ServoFitError(
+            f"Algorithm 1 did not converge to Σ|Δβ| <= {tol:g} in {max_iter} "
+            f"iterations (speed too low for the biases: β0/ω² must stay well below 1)"
+        )
     trace = []
     for i, (beta6, g0, change) in enumerate(out["trace"]):
         if i > 0 and not np.isfinite(change[0]):
             break
         kk, bb = parameters_from_beta(beta6[0])
-        trace.append({"estimate": i + 1, "beta0_used": float(g0[0]),
-                      "beta": [float(x) for x in beta6[0]], "k": [float(x) for x in kk],
-                      "b": [float(x) for x in bb], "change": None if i == 0 else float(change[0])})
+        trace.append(
+            {
+                "estimate": i + 1,
+                "beta0_used": float(g0[0]),
+                "beta": [float(x) for x in beta6[0]],
+                "k": [float(x) for x in kk],
+                "b": [float(x) for x in bb],
+                "change": None if i == 0 else float(change[0]),
+            }
+        )
     k, b = parameters_from_beta(out["beta"][0])
-    return _result(k, b, m=m, omega=omega, unit=unit, method="iterative",
-                   iterations=out["iterations"][0], trace=trace, converged=converged, m_sem=m_sem)
+    return _result(
+        k,
+        b,
+        m=m,
+        omega=omega,
+        unit=unit,
+        method="iterative",
+        iterations=out["iterations"][0],
+        trace=trace,
+        converged=converged,
+        m_sem=m_sem,
+    )
 
 
 def lm_solve(m: np.ndarray, omega: np.ndarray, x0: np.ndarray):
     """scipy's Levenberg-Marquardt on Eq 3's ω² residuals with (k, b) as unknowns."""
+
     def fun(p):
         return residuals_of(p[:3], p[3:], m, omega)
 
     def jac(p):
         k, mb = p[:3], m + p[3:]
-        return np.hstack([2 * k * mb ** 2, 2 * k ** 2 * mb])
+        return np.hstack([2 * k * mb**2, 2 * k**2 * mb])
 
-    return least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                         max_nfev=2000)
+    return least_squares(fun, x0, jac=jac, method="lm", xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=2000)
 
 
 def initial_guess(m: np.ndarray, omega: np.ndarray) -> np.ndarray:
     """Algorithm 1's first estimate β(1) (β0 = 0) as (k, b): the start of the LM fit."""
-    u, _ = _products(design(m)[None], (omega ** 2)[None])
+    u, _ = _products(design(m)[None], (omega**2)[None])
     if not np.all(u[0, :3] > 0):
         raise ServoFitError("the first linear estimate has β1..β3 <= 0; no starting point")
     k, b = parameters_from_beta(u[0])
@@ -350,16 +405,31 @@ def fit_lm(m, omega, *, unit: str = "rad/s", m_sem=None) -> ServoFit:
     res = lm_solve(m, omega, x0)
     if not res.success or not np.isfinite(res.x).all():
         raise ServoFitError(f"Levenberg-Marquardt did not converge ({res.message})")
-    trace = [{"estimate": 1, "k": x0[:3].tolist(), "b": x0[3:].tolist(), "change": None},
-             {"estimate": 2, "k": np.abs(res.x[:3]).tolist(), "b": res.x[3:].tolist(),
-              "change": float(np.sum(np.abs(res.x - x0)))}]
-    return _result(res.x[:3], res.x[3:], m=m, omega=omega, unit=unit, method="lm",
-                   iterations=res.nfev, trace=trace, converged=True, m_sem=m_sem,
-                   notes=(f"scipy least_squares lm: {res.nfev} evaluations, status {res.status}",))
+    trace = [
+        {"estimate": 1, "k": x0[:3].tolist(), "b": x0[3:].tolist(), "change": None},
+        {
+            "estimate": 2,
+            "k": np.abs(res.x[:3]).tolist(),
+            "b": res.x[3:].tolist(),
+            "change": float(np.sum(np.abs(res.x - x0))),
+        },
+    ]
+    return _result(
+        res.x[:3],
+        res.x[3:],
+        m=m,
+        omega=omega,
+        unit=unit,
+        method="lm",
+        iterations=res.nfev,
+        trace=trace,
+        converged=True,
+        m_sem=m_sem,
+        notes=(f"scipy least_squares lm: {res.nfev} evaluations, status {res.status}",),
+    )
 
 
-def fit_observations(obs, *, method: str = "iterative", tol: float = 1e-6,
-                     max_iter: int = 50) -> ServoFit:
+def fit_observations(obs, *, method: str = "iterative", tol: float = 1e-6, max_iter: int = 50) -> ServoFit:
     """Calibrate from a rotations or revolutions table (:mod:`gyrocal.protocols.servo.rotations`):
     columns ``gyro_x/y/z`` and ``ref_rate`` in deg/s, optionally ``gyro_x/y/z_sem`` (or
     ``gyro_x/y/z_noise`` and ``n``) for standard errors. The fit
@@ -381,8 +451,11 @@ def fit_observations(obs, *, method: str = "iterative", tol: float = 1e-6,
 # magnitude |K⁻¹(m − B)| = ω is free of it. A fixture makes u the commanded axis.
 
 MODELS = ("auto", "seed001", "symmetric", "fixture")
-COEFFICIENTS = (*(f"bias.{a}" for a in "xyz"), *(f"scale.{a}" for a in "xyz"),
-                *(f"misalignment.{a}.{b}" for a in "xyz" for b in "xyz" if a != b))
+COEFFICIENTS = (
+    *(f"bias.{a}" for a in "xyz"),
+    *(f"scale.{a}" for a in "xyz"),
+    *(f"misalignment.{a}.{b}" for a in "xyz" for b in "xyz" if a != b),
+)
 # The symmetric cross terms are fitted when the rotations determine each to 1e-2 (1 %, the
 # size of a large MEMS cross-axis sensitivity; a less determined term could not be told from
 # zero in any unit), and ``auto`` applies them when they are also significant together
@@ -414,12 +487,13 @@ class CrossAxisFit:
     iterations: int = 0
     converged: bool = True
     notes: tuple[str, ...] = field(default_factory=tuple)
-    covariance: np.ndarray | None = None      # of the coefficients, in COEFFICIENTS order
+    covariance: np.ndarray | None = None  # of the coefficients, in COEFFICIENTS order
 
     def cross_significance(self) -> tuple[float, float]:
         """(χ², p) of the three symmetric cross terms together against zero, from their
         covariance: how surely the rotations show cross-axis sensitivity."""
         from scipy.special import chdtrc
+
         chi2 = float(cross_chi2(self.K, self.covariance))
         return chi2, float(chdtrc(len(CROSS_PAIRS), chi2))
 
@@ -434,17 +508,30 @@ class CrossAxisFit:
         return dict(self.stderr)
 
     def summary(self) -> dict:
-        return {"model": self.model, "K": self.K.tolist(), "B_deg_s": self.B.tolist(),
-                "iterations": int(self.iterations), "converged": bool(self.converged),
-                "n_observations": int(self.n_observations), "residuals": self.residuals.tolist(),
-                "stderr": dict(self.stderr), "notes": list(self.notes)}
+        return {
+            "model": self.model,
+            "K": self.K.tolist(),
+            "B_deg_s": self.B.tolist(),
+            "iterations": int(self.iterations),
+            "converged": bool(self.converged),
+            "n_observations": int(self.n_observations),
+            "residuals": self.residuals.tolist(),
+            "stderr": dict(self.stderr),
+            "notes": list(self.notes),
+        }
 
 
 def _coefficients(K, B) -> dict[str, float]:
     out = {f"bias.{a}": float(B[i]) for i, a in enumerate("xyz")}
     out.update({f"scale.{a}": float(K[i, i] - 1.0) for i, a in enumerate("xyz")})
-    out.update({f"misalignment.{a}.{b}": float(K[i, j]) for i, a in enumerate("xyz")
-                for j, b in enumerate("xyz") if i != j})
+    out.update(
+        {
+            f"misalignment.{a}.{b}": float(K[i, j])
+            for i, a in enumerate("xyz")
+            for j, b in enumerate("xyz")
+            if i != j
+        }
+    )
     return out
 
 
@@ -469,12 +556,16 @@ def fit_fixture(m, rates, *, m_sem=None) -> CrossAxisFit:
     m = np.asarray(m, dtype=float)
     rates = np.asarray(rates, dtype=float)
     if m.ndim != 2 or m.shape[1] != 3 or rates.shape != m.shape:
-        raise ServoFitError(f"observations and rates must both have shape (n, 3); got {m.shape}, {rates.shape}")
+        raise ServoFitError(
+            f"observations and rates must both have shape (n, 3); got {m.shape}, {rates.shape}"
+        )
     X = np.column_stack([rates, np.ones(len(m))])
     scale = np.linalg.norm(X, axis=0)
     if len(m) < 4 or np.any(scale == 0) or np.linalg.cond(X / scale) > 1e3:
-        raise ServoFitError("the rotations do not determine the twelve parameters: a fixture "
-                            "calibration needs rotations about three independent axes, both ways")
+        raise ServoFitError(
+            "the rotations do not determine the twelve parameters: a fixture "
+            "calibration needs rotations about three independent axes, both ways"
+        )
     sem = np.ones_like(m) if m_sem is None else np.asarray(m_sem, dtype=float)
     if sem.shape != m.shape or not np.all(np.isfinite(sem) & (sem > 0)):
         raise ServoFitError(f"m_sem must be finite and > 0, shape {m.shape}")
@@ -492,8 +583,9 @@ def fit_fixture(m, rates, *, m_sem=None) -> CrossAxisFit:
     residuals = m - rates @ K.T - B
     if not (np.isfinite(K).all() and np.isfinite(B).all()):
         raise ServoFitError("the fixture fit produced non-finite parameters")
-    return CrossAxisFit("fixture", K, B, {k: stderr[k] for k in COEFFICIENTS if k in stderr},
-                        residuals, len(m))
+    return CrossAxisFit(
+        "fixture", K, B, {k: stderr[k] for k in COEFFICIENTS if k in stderr}, residuals, len(m)
+    )
 
 
 # The symmetric model, solved as seed 001 solves its own: Eq 3 with the cross products,
@@ -501,6 +593,7 @@ def fit_fixture(m, rates, *, m_sem=None) -> CrossAxisFit:
 # x = (m_x², m_y², m_z², 2m_xm_y, 2m_xm_z, 2m_ym_z, m_x, m_y, m_z) with
 # β = (S_xx, S_yy, S_zz, S_xy, S_xz, S_yz, c) and c = −2 S B, given the constant
 # β0 = Bᵀ S B = cᵀ S⁻¹ c / 4; Algorithm 1 freezes β0, solves, updates β0 and repeats.
+
 
 def symmetric_design(m: np.ndarray) -> np.ndarray:
     """Regressors of the symmetric model for observations m (..., n, 3): (..., n, 9)."""
@@ -512,18 +605,17 @@ def symmetric_design(m: np.ndarray) -> np.ndarray:
 def _matrix(s6: np.ndarray) -> np.ndarray:
     """Symmetric 3x3 matrices from (xx, yy, zz, xy, xz, yz) (..., 6)."""
     xx, yy, zz, xy, xz, yz = (s6[..., i] for i in range(6))
-    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1),
-                     np.stack([xz, yz, zz], -1)], -2)
+    return np.stack([np.stack([xx, xy, xz], -1), np.stack([xy, yy, yz], -1), np.stack([xz, yz, zz], -1)], -2)
 
 
 def _positive(S: np.ndarray) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        return np.all(np.linalg.eigvalsh(np.where(np.isfinite(S), S, 0.0)) > 0, axis=-1) & \
-            np.isfinite(S).all(axis=(-2, -1))
+        return np.all(np.linalg.eigvalsh(np.where(np.isfinite(S), S, 0.0)) > 0, axis=-1) & np.isfinite(S).all(
+            axis=(-2, -1)
+        )
 
 
-def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6,
-                         max_iter: int = 50) -> dict:
+def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50) -> dict:
     """Algorithm 1 for the symmetric model on R stacked runs m (R, n, 3), n >= 9:
     ``beta`` (R, 9), ``iterations``, ``converged``, ``positive`` (S positive definite)."""
     m = np.asarray(m, dtype=float)
@@ -531,11 +623,19 @@ def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6,
     Y = np.broadcast_to(np.asarray(omega, dtype=float) ** 2, m.shape[:-1])
     u, v = _products(X, Y)
 
-    def beta0(beta):   # Bᵀ S B = cᵀ S⁻¹ c / 4
+    def beta0(beta):  # Bᵀ S B = cᵀ S⁻¹ c / 4
         c = beta[:, 6:]
         return 0.25 * np.einsum("ri,ri->r", c, np.linalg.solve(_matrix(beta[:, :6]), c[..., None])[..., 0])
-    out = _iterate(u, v, admissible=lambda beta: _positive(_matrix(beta[:, :6])), beta0=beta0,
-                   placeholder=np.r_[1.0, 1, 1, 0, 0, 0, 0, 0, 0], tol=tol, max_iter=max_iter)
+
+    out = _iterate(
+        u,
+        v,
+        admissible=lambda beta: _positive(_matrix(beta[:, :6])),
+        beta0=beta0,
+        placeholder=np.r_[1.0, 1, 1, 0, 0, 0, 0, 0, 0],
+        tol=tol,
+        max_iter=max_iter,
+    )
     del out["trace"]
     return out
 
@@ -550,7 +650,7 @@ def symmetric_parameters(beta9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return C, B
 
 
-_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))   # C's entries, in β's order
+_PAIRS = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # C's entries, in β's order
 
 
 def symmetric_covariance(C, B, m, m_sem, to_deg: float = 1.0) -> np.ndarray:
@@ -562,10 +662,16 @@ def symmetric_covariance(C, B, m, m_sem, to_deg: float = 1.0) -> np.ndarray:
     (a singular Jacobian)."""
     C, B, m, m_sem = (np.asarray(x, dtype=float) for x in (C, B, m, m_sem))
     d = m - B[..., None, :]
-    v = d @ C                                     # rows C (m − B), C symmetric
+    v = d @ C  # rows C (m − B), C symmetric
     Cv = v @ C
-    J = np.stack([2 * v[..., a] * d[..., b] if a == b else 2 * (v[..., a] * d[..., b] + v[..., b] * d[..., a])
-                  for a, b in _PAIRS] + [-2 * Cv[..., j] for j in range(3)], axis=-1)
+    J = np.stack(
+        [
+            2 * v[..., a] * d[..., b] if a == b else 2 * (v[..., a] * d[..., b] + v[..., b] * d[..., a])
+            for a, b in _PAIRS
+        ]
+        + [-2 * Cv[..., j] for j in range(3)],
+        axis=-1,
+    )
     var_r = np.sum((2 * Cv * m_sem) ** 2, axis=-1)
     JT = np.swapaxes(J, -1, -2)
     with np.errstate(all="ignore"):
@@ -573,15 +679,18 @@ def symmetric_covariance(C, B, m, m_sem, to_deg: float = 1.0) -> np.ndarray:
             A = np.linalg.solve(JT @ J, JT)
         except np.linalg.LinAlgError:
             return np.full((*C.shape[:-2], 12, 12), np.nan)
-        cov = (A * var_r[..., None, :]) @ np.swapaxes(A, -1, -2)     # of (C entries, B)
+        cov = (A * var_r[..., None, :]) @ np.swapaxes(A, -1, -2)  # of (C entries, B)
         K = np.linalg.inv(C)
-    G = np.zeros((*C.shape[:-2], 12, 9))             # d(coefficients) / d(C entries, B)
+    G = np.zeros((*C.shape[:-2], 12, 9))  # d(coefficients) / d(C entries, B)
     off = [(i, j) for i in range(3) for j in range(3) if i != j]
     for p, (a, b) in enumerate(_PAIRS):
-        dK = -(K[..., :, a, None] * K[..., None, b, :] + (K[..., :, b, None] * K[..., None, a, :] if a != b else 0))
+        dK = -(
+            K[..., :, a, None] * K[..., None, b, :]
+            + (K[..., :, b, None] * K[..., None, a, :] if a != b else 0)
+        )
         G[..., 3:6, p] = np.diagonal(dK, axis1=-2, axis2=-1)
         G[..., 6:, p] = np.stack([dK[..., i, j] for i, j in off], axis=-1)
-    G[..., 0:3, 6:9] = np.eye(3) * to_deg           # bias.a = B_a in deg/s
+    G[..., 0:3, 6:9] = np.eye(3) * to_deg  # bias.a = B_a in deg/s
     out = G @ cov @ np.swapaxes(G, -1, -2)
     return np.where(np.isfinite(out).all(axis=(-2, -1))[..., None, None], out, np.nan)
 
@@ -606,7 +715,9 @@ def cross_chi2(K: np.ndarray, cov: np.ndarray) -> np.ndarray:
 
 
 def _stderr(cov: np.ndarray) -> dict:
-    return dict(zip(COEFFICIENTS, (float(x) for x in np.sqrt(np.clip(np.diag(cov), 0.0, None))), strict=False))
+    return dict(
+        zip(COEFFICIENTS, (float(x) for x in np.sqrt(np.clip(np.diag(cov), 0.0, None))), strict=False)
+    )
 
 
 def symmetric_identified(m, omega, m_sem, start: ServoFit) -> tuple[bool, float]:
@@ -621,8 +732,9 @@ def symmetric_identified(m, omega, m_sem, start: ServoFit) -> tuple[bool, float]
     return bool(worst <= MAX_CROSS_STDERR), worst
 
 
-def fit_symmetric(m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str = "rad/s",
-                  m_sem=None) -> CrossAxisFit:
+def fit_symmetric(
+    m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str = "rad/s", m_sem=None
+) -> CrossAxisFit:
     """The symmetric model by Algorithm 1 on n >= 9 observations ``m`` (n, 3) and speeds
     ``omega`` (n,) in ``unit``; K and B of the result in the file's units (1, deg/s)."""
     if unit not in UNIT_TO_DEG:
@@ -635,19 +747,29 @@ def fit_symmetric(m, omega, *, tol: float = 1e-6, max_iter: int = 50, unit: str 
         raise ServoFitError(f"the symmetric model needs at least 9 observations; got {len(m)}")
     out = algorithm1_symmetric(m[None], omega[None], tol=tol, max_iter=max_iter)
     if not (out["positive"][0] and out["converged"][0]):
-        raise ServoFitError("Algorithm 1 for the symmetric model did not converge to a positive "
-                            "definite K⁻ᵀK⁻¹: the rotations do not determine its cross terms")
+        raise ServoFitError(
+            "Algorithm 1 for the symmetric model did not converge to a positive "
+            "definite K⁻ᵀK⁻¹: the rotations do not determine its cross terms"
+        )
     C, b = symmetric_parameters(out["beta"][0])
     to_deg = UNIT_TO_DEG[unit]
     cov = None if m_sem is None else symmetric_covariance(C, b, m, m_sem, to_deg)
     if cov is not None and not np.isfinite(cov).all():
         raise ServoFitError("the rotations do not determine the symmetric model (singular Jacobian)")
     K = np.linalg.inv(C)
-    residuals = np.sum(((m - b) @ C) ** 2, axis=1) - omega ** 2
+    residuals = np.sum(((m - b) @ C) ** 2, axis=1) - omega**2
     if not (np.isfinite(K).all() and np.isfinite(b).all()):
         raise ServoFitError("the symmetric fit produced non-finite parameters")
-    return CrossAxisFit("symmetric", K, b * to_deg, {} if cov is None else _stderr(cov), residuals,
-                        len(m), iterations=int(out["iterations"][0]), covariance=cov)
+    return CrossAxisFit(
+        "symmetric",
+        K,
+        b * to_deg,
+        {} if cov is None else _stderr(cov),
+        residuals,
+        len(m),
+        iterations=int(out["iterations"][0]),
+        covariance=cov,
+    )
 
 
 def observation_arrays(obs, scale: float = 1.0):
@@ -667,8 +789,10 @@ def observation_arrays(obs, scale: float = 1.0):
     m_sem = None
     if all(c in obs for c in sem_cols):
         m_sem = obs[sem_cols].to_numpy(dtype=float) / scale
-    elif all(c in obs for c in noise_cols) and "n" in obs:          # a revolutions table
-        m_sem = obs[noise_cols].to_numpy(dtype=float) / scale / np.sqrt(obs["n"].to_numpy(dtype=float))[:, None]
+    elif all(c in obs for c in noise_cols) and "n" in obs:  # a revolutions table
+        m_sem = (
+            obs[noise_cols].to_numpy(dtype=float) / scale / np.sqrt(obs["n"].to_numpy(dtype=float))[:, None]
+        )
     label = "direction" if "direction" in obs else "mount" if "mount" in obs else None
     directions = None if label is None else obs[label].astype(str).to_numpy()
     return m, omega, m_sem, directions
@@ -689,25 +813,40 @@ def fit_model(obs, model: str = "auto", *, seed001: ServoFit | None = None):
     if model == "fixture":
         if directions is None:
             raise ServoFitError("the fixture model needs each rotation's direction (+x ... -z)")
-        return (fit_fixture(m, nominal_rates(directions, omega), m_sem=m_sem), "fixture",
-                "all twelve parameters from every output, the commanded axes taken as exact (a fixture)")
+        return (
+            fit_fixture(m, nominal_rates(directions, omega), m_sem=m_sem),
+            "fixture",
+            "all twelve parameters from every output, the commanded axes taken as exact (a fixture)",
+        )
     start = seed001 or fit_observations(obs)
     if model == "seed001":
         return start, "seed001", "seed 001's bias and scale, as configured"
-    identified, worst = symmetric_identified(m / DEG, omega / DEG, None if m_sem is None else m_sem / DEG, start)
+    identified, worst = symmetric_identified(
+        m / DEG, omega / DEG, None if m_sem is None else m_sem / DEG, start
+    )
     if not identified:
-        why = ("the rotations do not determine the symmetric cross terms (standard error "
-               + ("unbounded" if not math.isfinite(worst) else f"{worst:.2g}")
-               + f", limit {MAX_CROSS_STDERR:g}): rotations about three axes give three "
-               "magnitudes, all taken by the scale factors; turn the unit about six or more axes")
+        why = (
+            "the rotations do not determine the symmetric cross terms (standard error "
+            + ("unbounded" if not math.isfinite(worst) else f"{worst:.2g}")
+            + f", limit {MAX_CROSS_STDERR:g}): rotations about three axes give three "
+            "magnitudes, all taken by the scale factors; turn the unit about six or more axes"
+        )
         if model == "symmetric":
             raise ServoFitError(why)
         return start, "seed001", why
     fit = fit_symmetric(m / DEG, omega / DEG, m_sem=m_sem / DEG)
     chi2, p = fit.cross_significance()
     worst = max(fit.stderr[n] for n in CROSS_PAIRS)
-    told = f"χ² {chi2:.3g} of the three cross terms against zero, p {p:.2g}; standard errors up to {worst:.2g}"
+    told = (
+        f"χ² {chi2:.3g} of the three cross terms against zero, p {p:.2g}; standard errors up to {worst:.2g}"
+    )
     if model == "auto" and not p < CROSS_ALPHA:
-        return start, "seed001", (f"the rotations determine the symmetric cross terms but do not show them "
-                                  f"({told}): assuming them zero is as good")
+        return (
+            start,
+            "seed001",
+            (
+                f"the rotations determine the symmetric cross terms but do not show them "
+                f"({told}): assuming them zero is as good"
+            ),
+        )
     return fit, "symmetric", f"the rotations determine the symmetric cross terms ({told})"

@@ -45,14 +45,22 @@ from ...io import atomic
 from ...io.errors import ConfigError  # noqa: E402
 from ...report import plots  # noqa: E402
 from ...simulate.servo import DIRECTIONS, direction_axis, draw_parameters, tilted_axes  # noqa: E402
-from .fit import (PARAMETERS, ServoFit, ServoFitError, algorithm1, fit_iterative, initial_guess,
-                  lm_solve, parameters_from_beta)
+from .fit import (
+    PARAMETERS,
+    ServoFit,
+    ServoFitError,
+    algorithm1,
+    fit_iterative,
+    initial_guess,
+    lm_solve,
+    parameters_from_beta,
+)
 
-CONDITIONS = {"normal": (1, False), "extreme": (2, True)}   # name -> (seed code, extreme ranges)
-PAPER_SPEED = 3.0            # rad/s, see the module docstring
-PAPER_RATE = 200.0           # Hz, Section III-A 3)
-PAPER_SAMPLES = int(round(PAPER_RATE * 2 * math.pi / PAPER_SPEED))   # one revolution: 419
-FIG4_SPEEDS = tuple(np.round(np.arange(0.3, 3.0 + 1e-9, 0.1), 1))    # Section III-B
+CONDITIONS = {"normal": (1, False), "extreme": (2, True)}  # name -> (seed code, extreme ranges)
+PAPER_SPEED = 3.0  # rad/s, see the module docstring
+PAPER_RATE = 200.0  # Hz, Section III-A 3)
+PAPER_SAMPLES = int(round(PAPER_RATE * 2 * math.pi / PAPER_SPEED))  # one revolution: 419
+FIG4_SPEEDS = tuple(np.round(np.arange(0.3, 3.0 + 1e-9, 0.1), 1))  # Section III-B
 # Seed 001's figures keep the frame and the hash salt they were first drawn with, so that
 # their files (and the papers' page that inlines them) stay the same bytes.
 _STYLE = {"svg.hashsalt": "gyrocal-servo", "axes.spines.top": True, "axes.spines.right": True}
@@ -66,10 +74,20 @@ def _noise_code(noise: float) -> int:
     return int(round(noise * 1e6))
 
 
-def simulate_observations(k: np.ndarray, b: np.ndarray, n_runs: int, rng: np.random.Generator, *,
-                          speed: float, noise: float, samples: int, ripple: float = 0.05,
-                          ripple_mode: str = "periodic", misalignment: float = 0.1,
-                          directions=DIRECTIONS) -> np.ndarray:
+def simulate_observations(
+    k: np.ndarray,
+    b: np.ndarray,
+    n_runs: int,
+    rng: np.random.Generator,
+    *,
+    speed: float,
+    noise: float,
+    samples: int,
+    ripple: float = 0.05,
+    ripple_mode: str = "periodic",
+    misalignment: float = 0.1,
+    directions=DIRECTIONS,
+) -> np.ndarray:
     """Six-observation runs for parameter sets k, b (S, 3): mean raw outputs (S, n_runs, 6, 3)
     in rad/s. The same draws serve every ``speed``, ``noise`` and ``ripple_mode``, so runs
     differing only in those are paired."""
@@ -98,12 +116,27 @@ def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int =
     return dict(k=k, b=b, iterations=out["iterations"], converged=ok)
 
 
-def convergence_run(k, b, rng: np.random.Generator, *, speed: float = PAPER_SPEED,
-                    noise: float = 0.035, samples: int = PAPER_SAMPLES, tol: float = 1e-6) -> ServoFit:
+def convergence_run(
+    k,
+    b,
+    rng: np.random.Generator,
+    *,
+    speed: float = PAPER_SPEED,
+    noise: float = 0.035,
+    samples: int = PAPER_SAMPLES,
+    tol: float = 1e-6,
+) -> ServoFit:
     """One simulated six-observation calibration of the unit (k, b), fitted by Algorithm 1
     with its trace: the iteration-by-iteration estimates of Table I."""
-    m = simulate_observations(np.asarray(k, dtype=float)[None], np.asarray(b, dtype=float)[None], 1, rng,
-                              speed=speed, noise=noise, samples=samples)[0, 0]
+    m = simulate_observations(
+        np.asarray(k, dtype=float)[None],
+        np.asarray(b, dtype=float)[None],
+        1,
+        rng,
+        speed=speed,
+        noise=noise,
+        samples=samples,
+    )[0, 0]
     return fit_iterative(m, np.full(6, speed), tol=tol)
 
 
@@ -117,7 +150,7 @@ def lm_batch(m: np.ndarray, speed: float) -> dict:
     for r in range(R):
         try:
             x0 = initial_guess(m[r], omega)
-        except (ServoFitError, np.linalg.LinAlgError):   # no start: a failed run, counted
+        except (ServoFitError, np.linalg.LinAlgError):  # no start: a failed run, counted
             continue
         res = lm_solve(m[r], omega, x0)
         if res.success and np.isfinite(res.x).all():
@@ -128,22 +161,39 @@ def lm_batch(m: np.ndarray, speed: float) -> dict:
 def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
     S, R = k_true.shape[0], fit["k"].shape[0] // k_true.shape[0]
     ok = fit["converged"]
-    cols = {"condition": condition, "noise": noise, "method": method,
-            "set": np.repeat(np.arange(S), R), "run": np.tile(np.arange(R), S),
-            "converged": ok, "iterations": fit["iterations"]}
+    cols = {
+        "condition": condition,
+        "noise": noise,
+        "method": method,
+        "set": np.repeat(np.arange(S), R),
+        "run": np.tile(np.arange(R), S),
+        "converged": ok,
+        "iterations": fit["iterations"],
+    }
     true = np.repeat(np.hstack([k_true, b_true]), R, axis=0)
     est = np.hstack([fit["k"], fit["b"]])
     for j, p in enumerate(PARAMETERS):
         cols[f"{p}_true"] = true[:, j]
-        cols[f"{p}_err"] = np.where(ok, est[:, j] - true[:, j], np.nan)   # NaN: no estimate
+        cols[f"{p}_err"] = np.where(ok, est[:, j] - true[:, j], np.nan)  # NaN: no estimate
     return pd.DataFrame(cols)
 
 
-def study(n_sets: int = 30, n_runs: int = 500, noise=(0.035, 0.2), conditions=("normal", "extreme"),
-          seed: int = 0, method=("iterative", "lm"), *, speed: float = PAPER_SPEED,
-          samples: int | None = None, sample_rate: float = PAPER_RATE, ripple: float = 0.05,
-          ripple_mode: str = "periodic", misalignment: float = 0.1,
-          lm_runs: int | None = None) -> pd.DataFrame:
+def study(
+    n_sets: int = 30,
+    n_runs: int = 500,
+    noise=(0.035, 0.2),
+    conditions=("normal", "extreme"),
+    seed: int = 0,
+    method=("iterative", "lm"),
+    *,
+    speed: float = PAPER_SPEED,
+    samples: int | None = None,
+    sample_rate: float = PAPER_RATE,
+    ripple: float = 0.05,
+    ripple_mode: str = "periodic",
+    misalignment: float = 0.1,
+    lm_runs: int | None = None,
+) -> pd.DataFrame:
     """Estimation errors (estimate − truth) of k and b, one row per condition, noise level,
     parameter set, run and method (Section III-A and III-C).
 
@@ -158,17 +208,28 @@ def study(n_sets: int = 30, n_runs: int = 500, noise=(0.035, 0.2), conditions=("
     conds = (conditions,) if isinstance(conditions, str) else tuple(conditions)
     bad = [c for c in conds if c not in CONDITIONS] + [x for x in methods if x not in ("iterative", "lm")]
     if bad:
-        raise ConfigError(f"unknown condition or method {', '.join(map(repr, bad))}; conditions: "
-                          f"{', '.join(CONDITIONS)}; methods: iterative, lm")
+        raise ConfigError(
+            f"unknown condition or method {', '.join(map(repr, bad))}; conditions: "
+            f"{', '.join(CONDITIONS)}; methods: iterative, lm"
+        )
     n = samples or int(round(sample_rate * 2 * math.pi / speed))
     frames = []
     for cond in conds:
         code, extreme = CONDITIONS[cond]
         k, b = draw_parameters(_rng(seed, code), n_sets, extreme=extreme)
         for sigma in noises:
-            m = simulate_observations(k, b, n_runs, _rng(seed, code, _noise_code(sigma), 1),
-                                      speed=speed, noise=sigma, samples=n, ripple=ripple,
-                                      ripple_mode=ripple_mode, misalignment=misalignment)
+            m = simulate_observations(
+                k,
+                b,
+                n_runs,
+                _rng(seed, code, _noise_code(sigma), 1),
+                speed=speed,
+                noise=sigma,
+                samples=n,
+                ripple=ripple,
+                ripple_mode=ripple_mode,
+                misalignment=misalignment,
+            )
             flat = m.reshape(-1, 6, 3)
             for meth in methods:
                 if meth == "iterative":
@@ -186,16 +247,25 @@ def box_stats(df: pd.DataFrame, by=("condition", "noise", "method")) -> pd.DataF
     pooled over the axes and ``all`` six pooled: count, min, q1, median, q3, max, the
     whiskers (furthest errors within 1.5 IQR of the box) and the number beyond them."""
     by = list(by)
-    long = df.melt(id_vars=by, value_vars=[f"{p}_err" for p in PARAMETERS],
-                   var_name="parameter", value_name="error").dropna(subset=["error"])
+    long = df.melt(
+        id_vars=by, value_vars=[f"{p}_err" for p in PARAMETERS], var_name="parameter", value_name="error"
+    ).dropna(subset=["error"])
     long["parameter"] = long["parameter"].str.removesuffix("_err")
     pooled = long.assign(parameter=long["parameter"].str[0])
     everything = long.assign(parameter="all")
     long = pd.concat([long, pooled, everything], ignore_index=True)
     keys = by + ["parameter"]
     g = long.groupby(keys, sort=True)["error"]
-    out = pd.DataFrame({"count": g.size(), "min": g.min(), "q1": g.quantile(0.25),
-                        "median": g.median(), "q3": g.quantile(0.75), "max": g.max()})
+    out = pd.DataFrame(
+        {
+            "count": g.size(),
+            "min": g.min(),
+            "q1": g.quantile(0.25),
+            "median": g.median(),
+            "q3": g.quantile(0.75),
+            "max": g.max(),
+        }
+    )
     iqr = out["q3"] - out["q1"]
     lo_fence = (out["q1"] - 1.5 * iqr).rename("lo_fence")
     hi_fence = (out["q3"] + 1.5 * iqr).rename("hi_fence")
@@ -208,10 +278,20 @@ def box_stats(df: pd.DataFrame, by=("condition", "noise", "method")) -> pd.DataF
     return out.reset_index()
 
 
-def speed_sweep(speeds=FIG4_SPEEDS, *, n_sets: int = 30, n_runs: int = 500, noise=(0.035, 0.2),
-                condition: str = "normal", seed: int = 0, samples: int | None = PAPER_SAMPLES,
-                sample_rate: float = PAPER_RATE, ripple: float = 0.05, ripple_mode: str = "periodic",
-                misalignment: float = 0.1) -> pd.DataFrame:
+def speed_sweep(
+    speeds=FIG4_SPEEDS,
+    *,
+    n_sets: int = 30,
+    n_runs: int = 500,
+    noise=(0.035, 0.2),
+    condition: str = "normal",
+    seed: int = 0,
+    samples: int | None = PAPER_SAMPLES,
+    sample_rate: float = PAPER_RATE,
+    ripple: float = 0.05,
+    ripple_mode: str = "periodic",
+    misalignment: float = 0.1,
+) -> pd.DataFrame:
     """Mean squared error (Eq 9) of each parameter against the servo speed (Fig. 4), with
     Algorithm 1. The same units and draws serve every speed. ``samples=None``: one
     revolution per observation at each speed (N falls as the speed rises). Columns: speed
@@ -220,18 +300,32 @@ def speed_sweep(speeds=FIG4_SPEEDS, *, n_sets: int = 30, n_runs: int = 500, nois
     code, extreme = CONDITIONS[condition]
     k, b = draw_parameters(_rng(seed, code), n_sets, extreme=extreme)
     rows = []
-    for sigma in ((noise,) if np.isscalar(noise) else tuple(noise)):
+    for sigma in (noise,) if np.isscalar(noise) else tuple(noise):
         for w in speeds:
             n = samples or int(round(sample_rate * 2 * math.pi / w))
-            m = simulate_observations(k, b, n_runs, _rng(seed, code, _noise_code(sigma), 2),
-                                      speed=float(w), noise=sigma, samples=n, ripple=ripple,
-                                      ripple_mode=ripple_mode, misalignment=misalignment)
+            m = simulate_observations(
+                k,
+                b,
+                n_runs,
+                _rng(seed, code, _noise_code(sigma), 2),
+                speed=float(w),
+                noise=sigma,
+                samples=n,
+                ripple=ripple,
+                ripple_mode=ripple_mode,
+                misalignment=misalignment,
+            )
             fit = fit_batch(m.reshape(-1, 6, 3), float(w))
             ok = fit["converged"]
             err = np.hstack([fit["k"], fit["b"]])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
-            mse = np.mean(err ** 2, axis=0)
-            row = {"speed": float(w), "noise": sigma, "samples": n, "runs": int(ok.size),
-                   "failed": int((~ok).sum())}
+            mse = np.mean(err**2, axis=0)
+            row = {
+                "speed": float(w),
+                "noise": sigma,
+                "samples": n,
+                "runs": int(ok.size),
+                "failed": int((~ok).sum()),
+            }
             row.update({f"mse_{p}": float(v) for p, v in zip(PARAMETERS, mse, strict=False)})
             row["mse_k"], row["mse_b"] = float(mse[:3].mean()), float(mse[3:].mean())
             rows.append(row)
@@ -260,7 +354,7 @@ def plot_error_boxes(df: pd.DataFrame, path, *, title: str | None = None) -> Pat
                 sub = df[(df["condition"] == cond) & (df["noise"] == sigma) & (df["method"] == meth)]
                 data = [sub[f"{p}_err"].dropna().to_numpy() for p in PARAMETERS]
                 parts = ax.boxplot(data, whis=1.5, flierprops={"markersize": 2, "alpha": 0.4})
-                for flier in parts["fliers"]:      # thousands of points: an image layer
+                for flier in parts["fliers"]:  # thousands of points: an image layer
                     flier.set_rasterized(True)
                 ax.set_xticks(range(1, 7), [f"{p[0]}{p[1]}" for p in PARAMETERS])
                 ax.axhline(0.0, color="#888", lw=0.6)
@@ -280,8 +374,15 @@ def plot_speed_sweep(sweep: pd.DataFrame, path) -> Path:
         for ax, sigma in zip(axes, levels, strict=False):
             sub = sweep[sweep["noise"] == sigma].sort_values("speed")
             for p in PARAMETERS:
-                ax.plot(sub["speed"], sub[f"mse_{p}"], marker="o", ms=2.5, lw=1,
-                        ls="-" if p[0] == "k" else "--", label=p)
+                ax.plot(
+                    sub["speed"],
+                    sub[f"mse_{p}"],
+                    marker="o",
+                    ms=2.5,
+                    lw=1,
+                    ls="-" if p[0] == "k" else "--",
+                    label=p,
+                )
             ax.set_yscale("log")
             ax.set_xlabel("servo speed, rad/s")
             ax.set_ylabel("MSE (Eq 9)")
@@ -302,11 +403,17 @@ CROSS_DESIGNS = {
     # Fig. 1 twice, the unit re-mounted in between: twelve hand-placed axes near three
     "three axes twice": tuple((d, None) for d in DIRECTIONS * 2),
     # Fig. 1 and each way about the three face diagonals (the unit on a 45° wedge)
-    "six axes": tuple((d, None) for d in DIRECTIONS) + tuple(
-        (f"{s}{a}{b}", np.array([1.0 if c in (a, b) else 0.0 for c in "xyz"]) * (1 if s == "+" else -1)
-         / math.sqrt(2)) for a, b in (("x", "y"), ("x", "z"), ("y", "z")) for s in "+-"),
+    "six axes": tuple((d, None) for d in DIRECTIONS)
+    + tuple(
+        (
+            f"{s}{a}{b}",
+            np.array([1.0 if c in (a, b) else 0.0 for c in "xyz"]) * (1 if s == "+" else -1) / math.sqrt(2),
+        )
+        for a, b in (("x", "y"), ("x", "z"), ("y", "z"))
+        for s in "+-"
+    ),
 }
-CROSS_MOUNTINGS = {"hand": 0.1, "fixture": 0.0}   # sine of the largest tilt (Section III-A 2)
+CROSS_MOUNTINGS = {"hand": 0.1, "fixture": 0.0}  # sine of the largest tilt (Section III-A 2)
 
 
 def _design_axes(design: str, mounting: str, shape: tuple, rng: np.random.Generator):
@@ -315,8 +422,9 @@ def _design_axes(design: str, mounting: str, shape: tuple, rng: np.random.Genera
     rotation (as Section III's simulation mounts each of its six), and the nominal rate
     directions (n, 3)."""
     spec = CROSS_DESIGNS[design]
-    nominal = np.array([np.eye(3)[direction_axis(d)[0]] * direction_axis(d)[1] if v is None else v
-                        for d, v in spec])
+    nominal = np.array(
+        [np.eye(3)[direction_axis(d)[0]] * direction_axis(d)[1] if v is None else v for d, v in spec]
+    )
     n = len(nominal)
     tilt = np.arcsin(rng.uniform(0.0, CROSS_MOUNTINGS[mounting], (*shape, n)))
     azimuth = rng.uniform(0.0, 2 * math.pi, (*shape, n))
@@ -325,8 +433,11 @@ def _design_axes(design: str, mounting: str, shape: tuple, rng: np.random.Genera
     e1 = np.cross(nominal, helper)
     e1 /= np.linalg.norm(e1, axis=1)[:, None]
     e2 = np.cross(nominal, e1)
-    axes = (np.cos(tilt)[..., None] * nominal + (np.sin(tilt) * np.cos(azimuth))[..., None] * e1
-            + (np.sin(tilt) * np.sin(azimuth))[..., None] * e2)
+    axes = (
+        np.cos(tilt)[..., None] * nominal
+        + (np.sin(tilt) * np.cos(azimuth))[..., None] * e1
+        + (np.sin(tilt) * np.sin(azimuth))[..., None] * e2
+    )
     return axes, nominal
 
 
@@ -337,24 +448,41 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
     or it does not converge; ``auto`` as :func:`gyrocal.protocols.servo.fit.fit_model` chooses."""
     from scipy.special import chdtrc
 
-    from .fit import (CROSS_ALPHA, CROSS_PAIRS, MAX_CROSS_STDERR, algorithm1_symmetric, cross_chi2,
-                      cross_stderr, symmetric_covariance, symmetric_parameters)
+    from .fit import (
+        CROSS_ALPHA,
+        CROSS_PAIRS,
+        MAX_CROSS_STDERR,
+        algorithm1_symmetric,
+        cross_chi2,
+        cross_stderr,
+        symmetric_covariance,
+        symmetric_parameters,
+    )
+
     R = m.shape[0]
     out = {}
     s = fit_batch(m, speed)
     with np.errstate(divide="ignore", invalid="ignore"):
-        out["seed001"] = (np.where(s["converged"][:, None, None], np.eye(3) / s["k"][:, None, :], np.nan),
-                          -s["b"])
+        out["seed001"] = (
+            np.where(s["converged"][:, None, None], np.eye(3) / s["k"][:, None, :], np.nan),
+            -s["b"],
+        )
     X = np.column_stack([nominal * speed, np.ones(len(nominal))])
-    coef = np.linalg.pinv(X) @ m                     # (R, 4, 3): one design for every run
+    coef = np.linalg.pinv(X) @ m  # (R, 4, 3): one design for every run
     out["fixture"] = (np.swapaxes(coef[:, :3], 1, 2), coef[:, 3])
     nan = (np.full((R, 3, 3), np.nan), np.full((R, 3), np.nan))
     out["symmetric"], use = nan, np.zeros(R, dtype=bool)
     if m.shape[1] >= 9:
         m_sem = np.full(m.shape, sem)
         start_k = np.where(s["converged"][:, None], s["k"], 1.0)
-        identified = s["converged"] & (cross_stderr(symmetric_covariance(
-            start_k[:, :, None] * np.eye(3), -np.where(s["converged"][:, None], s["b"], 0.0), m, m_sem)) <= MAX_CROSS_STDERR)
+        identified = s["converged"] & (
+            cross_stderr(
+                symmetric_covariance(
+                    start_k[:, :, None] * np.eye(3), -np.where(s["converged"][:, None], s["b"], 0.0), m, m_sem
+                )
+            )
+            <= MAX_CROSS_STDERR
+        )
         a = algorithm1_symmetric(m, np.full(m.shape[:-1], speed))
         ok = identified & a["converged"] & a["positive"]
         C, B = symmetric_parameters(np.where(ok[:, None], a["beta"], np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
@@ -362,14 +490,25 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
         out["symmetric"] = (np.where(ok[:, None, None], K, np.nan), np.where(ok[:, None], B, np.nan))
         chi2 = cross_chi2(K, symmetric_covariance(C, B, m, m_sem))
         use = ok & (chdtrc(len(CROSS_PAIRS), np.nan_to_num(chi2, nan=0.0)) < CROSS_ALPHA)
-    out["auto"] = (np.where(use[:, None, None], out["symmetric"][0], out["seed001"][0]),
-                   np.where(use[:, None], out["symmetric"][1], out["seed001"][1]))
+    out["auto"] = (
+        np.where(use[:, None, None], out["symmetric"][0], out["seed001"][0]),
+        np.where(use[:, None], out["symmetric"][1], out["seed001"][1]),
+    )
     return out
 
 
-def cross_axis_study(n_sets: int = 30, n_runs: int = 200, noise=(0.035,), *, cross: float = 0.01,
-                     designs=tuple(CROSS_DESIGNS), mountings=tuple(CROSS_MOUNTINGS), seed: int = 0,
-                     speed: float = PAPER_SPEED, samples: int = PAPER_SAMPLES) -> pd.DataFrame:
+def cross_axis_study(
+    n_sets: int = 30,
+    n_runs: int = 200,
+    noise=(0.035,),
+    *,
+    cross: float = 0.01,
+    designs=tuple(CROSS_DESIGNS),
+    mountings=tuple(CROSS_MOUNTINGS),
+    seed: int = 0,
+    speed: float = PAPER_SPEED,
+    samples: int = PAPER_SAMPLES,
+) -> pd.DataFrame:
     """Next-session errors of seed 001's model, the symmetric and the fixture model, one
     row per mounting, design, noise, model, set and run.
 
@@ -385,41 +524,69 @@ def cross_axis_study(n_sets: int = 30, n_runs: int = 200, noise=(0.035,), *, cro
     rows = []
     k, b = draw_parameters(_rng(seed, code), n_sets)
     M = _rng(seed, code, 1).uniform(-cross, cross, (n_sets, 3, 3)) * (1 - np.eye(3))
-    K = np.eye(3) / k[:, None, :] + M                       # (S, 3, 3): w = K g + B
+    K = np.eye(3) / k[:, None, :] + M  # (S, 3, 3): w = K g + B
     B = -b
     for mounting in mountings:
         for design in designs:
-            for sigma in ((noise,) if np.isscalar(noise) else tuple(noise)):
-                rng = _rng(seed, code, _noise_code(sigma), 2, list(CROSS_MOUNTINGS).index(mounting),
-                           list(CROSS_DESIGNS).index(design))
+            for sigma in (noise,) if np.isscalar(noise) else tuple(noise):
+                rng = _rng(
+                    seed,
+                    code,
+                    _noise_code(sigma),
+                    2,
+                    list(CROSS_MOUNTINGS).index(mounting),
+                    list(CROSS_DESIGNS).index(design),
+                )
                 sessions = []
                 for _ in range(2):
                     axes, nominal = _design_axes(design, mounting, (n_sets, n_runs), rng)
-                    g = speed * axes                                          # (S, R, n, 3)
-                    m = np.einsum("sij,srnj->srni", K, g) + B[:, None, None, :] \
+                    g = speed * axes  # (S, R, n, 3)
+                    m = (
+                        np.einsum("sij,srnj->srni", K, g)
+                        + B[:, None, None, :]
                         + sigma / math.sqrt(samples) * rng.standard_normal(g.shape)
+                    )
                     sessions.append((g, m))
                 (g0, m0), (g1, m1) = sessions
                 fits = _cross_fits(m0.reshape(-1, *m0.shape[2:]), speed, nominal, sigma / math.sqrt(samples))
                 g1f, m1f = g1.reshape(-1, *g1.shape[2:]), m1.reshape(-1, *m1.shape[2:])
                 commanded = speed * nominal
 
-                def scores(w, commanded=commanded, g1f=g1f):   # this iteration's
-                    return (np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
-                            np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
-                            np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)))
+                def scores(w, commanded=commanded, g1f=g1f):  # this iteration's
+                    return (
+                        np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
+                        np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
+                        np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)),
+                    )
+
                 raw = scores(m1f)
                 for model, (Kf, Bf) in fits.items():
                     ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
                     safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
-                    w = np.linalg.solve(safe_K[:, None], (m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :])[..., None])[..., 0]
+                    w = np.linalg.solve(
+                        safe_K[:, None], (m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :])[..., None]
+                    )[..., 0]
                     mag, nom, true = scores(w)
-                    rows.append(pd.DataFrame({
-                        "mounting": mounting, "design": design, "noise": sigma, "model": model,
-                        "set": np.repeat(np.arange(n_sets), n_runs), "run": np.tile(np.arange(n_runs), n_sets),
-                        "estimated": ok, "magnitude": np.where(ok, mag, np.nan), "nominal": np.where(ok, nom, np.nan),
-                        "true": np.where(ok, true, np.nan), "raw_magnitude": raw[0], "raw_nominal": raw[1],
-                        "raw_true": raw[2], "floor": sigma / math.sqrt(samples)}))
+                    rows.append(
+                        pd.DataFrame(
+                            {
+                                "mounting": mounting,
+                                "design": design,
+                                "noise": sigma,
+                                "model": model,
+                                "set": np.repeat(np.arange(n_sets), n_runs),
+                                "run": np.tile(np.arange(n_runs), n_sets),
+                                "estimated": ok,
+                                "magnitude": np.where(ok, mag, np.nan),
+                                "nominal": np.where(ok, nom, np.nan),
+                                "true": np.where(ok, true, np.nan),
+                                "raw_magnitude": raw[0],
+                                "raw_nominal": raw[1],
+                                "raw_true": raw[2],
+                                "floor": sigma / math.sqrt(samples),
+                            }
+                        )
+                    )
     return pd.concat(rows, ignore_index=True)
 
 

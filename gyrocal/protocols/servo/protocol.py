@@ -51,6 +51,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
 
     from ...io.holds import Segmentation, hold_table, timeline
     from . import find_rotations
+
     rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
     rev = rot.revolutions
     gyro = rev[[f"gyro_{a}" for a in AXES]].to_numpy()
@@ -58,25 +59,47 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     t_start, t_end = rev["t_start"].to_numpy(), rev["t_end"].to_numpy()
     temp = rev["temp"].to_numpy()
     obs = hold_table(
-        t_start=t_start, t_end=t_end, n=rev["n"].to_numpy(), mount=rev["direction"].to_numpy(dtype=object),
+        t_start=t_start,
+        t_end=t_end,
+        n=rev["n"].to_numpy(),
+        mount=rev["direction"].to_numpy(dtype=object),
         mount_source="data",
-        ref_rate=rev["ref_rate"].to_numpy(), gyro=gyro, std=noise, temp=temp,
+        ref_rate=rev["ref_rate"].to_numpy(),
+        gyro=gyro,
+        std=noise,
+        temp=temp,
         temp_rate=_temperature_slopes(log, t_start, t_end),
-        point=np.zeros(len(rev), np.int64), point_temp=np.full(len(rev), float(np.mean(temp))))
+        point=np.zeros(len(rev), np.int64),
+        point_temp=np.full(len(rev), float(np.mean(temp))),
+    )
     obs["rotation"] = rev["rotation"].to_numpy()
     obs["revolution"] = rev["revolution"].to_numpy()
     for i, a in enumerate(AXES):
         obs[f"gyro_{a}_noise"] = noise[:, i]
-    segments = pd.DataFrame({"kind": "hold", "reason": "", "detail": "revolution",
-                             "t_start": t_start, "t_end": t_end, "ref_rate": obs["ref_rate"],
-                             "hold": obs["hold"]}).astype(
-        {"kind": "string", "reason": "string", "detail": "string"})
-    info = {"protocol": "servo", "path": str(log.path), "rows_read": log.rows_read,
-            "rows_dropped": log.rows_dropped, "rows_used": int(rev["n"].sum()),
-            "sample_rate": float((len(log.column("t")) - 1) / max(np.ptp(log.column("t")), 1e-12)),
-            "typical_hold_s": float(np.median(t_end - t_start)), "holds_accepted": int(len(obs)),
-            "rotations": int(rev["rotation"].nunique()), "directions": list(rot.directions),
-            "warnings": list(rot.warnings)}
+    segments = pd.DataFrame(
+        {
+            "kind": "hold",
+            "reason": "",
+            "detail": "revolution",
+            "t_start": t_start,
+            "t_end": t_end,
+            "ref_rate": obs["ref_rate"],
+            "hold": obs["hold"],
+        }
+    ).astype({"kind": "string", "reason": "string", "detail": "string"})
+    info = {
+        "protocol": "servo",
+        "path": str(log.path),
+        "rows_read": log.rows_read,
+        "rows_dropped": log.rows_dropped,
+        "rows_used": int(rev["n"].sum()),
+        "sample_rate": float((len(log.column("t")) - 1) / max(np.ptp(log.column("t")), 1e-12)),
+        "typical_hold_s": float(np.median(t_end - t_start)),
+        "holds_accepted": int(len(obs)),
+        "rotations": int(rev["rotation"].nunique()),
+        "directions": list(rot.directions),
+        "warnings": list(rot.warnings),
+    }
     stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
     return Segmentation(obs, segments, stable, timeline(log), info)
 
@@ -85,9 +108,11 @@ SERVO_TERMS = ("bias", "scale")
 CROSS_TERMS = ("bias", "scale", "misalignment")
 # How the report's headline names each model's validated figure, and the parameters a
 # held-out error's leverage counts (the fixture model: a regression of four per output axis).
-MODEL_LABELS = {"seed001": "Seed 001 six-parameter calibration",
-                "symmetric": "Servo calibration with the symmetric cross-axis terms (nine parameters)",
-                "fixture": "Servo calibration with every cross-axis term (twelve parameters, fixture)"}
+MODEL_LABELS = {
+    "seed001": "Seed 001 six-parameter calibration",
+    "symmetric": "Servo calibration with the symmetric cross-axis terms (nine parameters)",
+    "fixture": "Servo calibration with every cross-axis term (twelve parameters, fixture)",
+}
 LEVERAGE = {"seed001": 6, "symmetric": 9, "fixture": 4}
 
 
@@ -99,8 +124,8 @@ def _servo_input(obs: pd.DataFrame) -> pd.DataFrame:
     missing = [c for c in cols if c not in obs]
     if missing:
         from ...io.errors import InputError
-        raise InputError(f"servo observations lack {', '.join(missing)}: segment the log with "
-                         "protocol servo")
+
+        raise InputError(f"servo observations lack {', '.join(missing)}: segment the log with protocol servo")
     out = obs[cols].copy()
     out["ref_rate"] = obs["ref_rate"].abs()
     out["direction"] = obs["mount"].astype(str).to_numpy()
@@ -110,6 +135,7 @@ def _servo_input(obs: pd.DataFrame) -> pd.DataFrame:
 def servo_model(obs: pd.DataFrame, model: str, seed001=None):
     """(fit, model used, why) of the configured servo ``model`` (:func:`gyrocal.protocols.servo.fit.fit_model`)."""
     from .fit import fit_model
+
     return fit_model(_servo_input(obs), model, seed001=seed001)
 
 
@@ -117,12 +143,14 @@ def servo_fits(obs: pd.DataFrame):
     """(Algorithm 1, Levenberg–Marquardt) on every whole revolution (seed 001 Eq 8 per
     revolution, Eq 4–7, Algorithm 1)."""
     from .fit import fit_observations
+
     data = _servo_input(obs)
     return fit_observations(data, method="iterative"), fit_observations(data, method="lm")
 
 
-def servo_calibration(obs: pd.DataFrame, *, reference_temperature: float, meta: dict,
-                      provenance: dict, model: str = "auto"):
+def servo_calibration(
+    obs: pd.DataFrame, *, reference_temperature: float, meta: dict, provenance: dict, model: str = "auto"
+):
     """The calibration file of a servo session at the session's mean temperature, by the
     servo ``model`` (:data:`gyrocal.protocols.servo.fit.MODELS`): seed 001's ``K = diag(1/k)``,
     ``B = −b`` of Algorithm 1 (:mod:`gyrocal.protocols.servo.fit` gives the mapping) as the terms bias
@@ -132,30 +160,48 @@ def servo_calibration(obs: pd.DataFrame, *, reference_temperature: float, meta: 
     from ...calibration.file import Calibration
     from ...fit.model import Model
     from ...fit.thermal import TemperatureGrid
+
     iterative, lm = servo_fits(obs)
     fit, used, why = servo_model(obs, model, iterative)
     model_terms = Model.from_spec(SERVO_TERMS if used == "seed001" else CROSS_TERMS)
     values, errors = fit.coefficients(), fit.coefficient_errors()
     names = tuple(model_terms.names)
     temp = float(np.mean(obs["temp"]))
-    grid = TemperatureGrid(np.array([temp]), names, np.array([[values[n] for n in names]]),
-                           np.array([[errors[n] for n in names]]))
+    grid = TemperatureGrid(
+        np.array([temp]),
+        names,
+        np.array([[values[n] for n in names]]),
+        np.array([[errors[n] for n in names]]),
+    )
     if not (np.isfinite(grid.values).all() and np.isfinite(grid.stderr).all()):
         from ...io.errors import IdentifiabilityError
-        raise IdentifiabilityError("the servo fit gave non-finite parameters or errors",
-                                   parameters=names)
+
+        raise IdentifiabilityError("the servo fit gave non-finite parameters or errors", parameters=names)
     both = np.r_[iterative.k, iterative.b], np.r_[lm.k, lm.b]
-    servo = {"method": "seed 001 Algorithm 1 (iterative least squares); Levenberg–Marquardt beside it",
-             "iterative": iterative.summary(), "lm": lm.summary(),
-             "settled_at": int(iterative.settled_at()),
-             "max_difference_lm": float(np.max(np.abs(both[0] - both[1]))),
-             "revolutions": int(len(obs)), "rotations": int(obs["rotation"].nunique())
-             if "rotation" in obs else None,
-             "model": {"configured": model, "used": used, "why": why,
-                       **({} if used == "seed001" else {"fit": fit.summary()})}}
+    servo = {
+        "method": "seed 001 Algorithm 1 (iterative least squares); Levenberg–Marquardt beside it",
+        "iterative": iterative.summary(),
+        "lm": lm.summary(),
+        "settled_at": int(iterative.settled_at()),
+        "max_difference_lm": float(np.max(np.abs(both[0] - both[1]))),
+        "revolutions": int(len(obs)),
+        "rotations": int(obs["rotation"].nunique()) if "rotation" in obs else None,
+        "model": {
+            "configured": model,
+            "used": used,
+            "why": why,
+            **({} if used == "seed001" else {"fit": fit.summary()}),
+        },
+    }
     points = [{"temperature": temp, "holds": int(len(obs)), "used": True}]
-    return Calibration(model_terms, grid, reference_temperature, meta, provenance=provenance,
-                       extra={"points": points, "servo": servo})
+    return Calibration(
+        model_terms,
+        grid,
+        reference_temperature,
+        meta,
+        provenance=provenance,
+        extra={"points": points, "servo": servo},
+    )
 
 
 def _used_model(cal) -> str:
@@ -166,8 +212,8 @@ def _used_model(cal) -> str:
 def _refit(data: pd.DataFrame, used: str):
     """The servo model ``used`` fitted again on a subset (leave-one-out): the same model,
     not a new choice."""
-    from .fit import (DEG, observation_arrays, fit_fixture, fit_observations, fit_symmetric,
-                      nominal_rates)
+    from .fit import DEG, fit_fixture, fit_observations, fit_symmetric, nominal_rates, observation_arrays
+
     if used == "seed001":
         return fit_observations(data, method="iterative")
     m, omega, m_sem, directions = observation_arrays(data)
@@ -187,8 +233,9 @@ def servo_validation(obs: pd.DataFrame, cal):
     the commanded rate vector, its floor the noise of all three axes."""
     import pandas as pd
 
-    from .fit import nominal_rates
     from ...fit.validate import Validation
+    from .fit import nominal_rates
+
     used = _used_model(cal)
     data = _servo_input(obs)
     m = data[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
@@ -204,14 +251,14 @@ def servo_validation(obs: pd.DataFrame, cal):
         for r in range(len(obs)):  # one refit per revolution (a few dozen), not per sample
             keep = np.arange(len(obs)) != r
             fit = _refit(data.iloc[keep], used)
-            compensated[r] = fit.compensate(m[r:r + 1])[0]
+            compensated[r] = fit.compensate(m[r : r + 1])[0]
     # the session's noise model where segmentation made one; else the white-noise level
     # over sqrt(n) (segment_servo stores it as the revolutions' std)
     noise = observation_floor(obs) @ np.abs(np.linalg.inv(K)).T
     if used == "fixture":
         rates = nominal_rates(data["direction"], omega)
         error = lambda rate: np.linalg.norm(rate - rates, axis=1)  # noqa: E731
-        floor = np.sqrt((noise ** 2).sum(axis=1))
+        floor = np.sqrt((noise**2).sum(axis=1))
         quantity = "length of the compensated rate's difference from the commanded rate vector"
     else:
         error = lambda rate: np.linalg.norm(rate, axis=1) - omega  # noqa: E731
@@ -219,16 +266,26 @@ def servo_validation(obs: pd.DataFrame, cal):
         floor = np.sqrt(((direction * noise) ** 2).sum(axis=1))
         quantity = "magnitude of the compensated rate minus the servo speed"
     errors = {"uncompensated": error(m), "in_sample": error(in_sample), "validated": error(compensated)}
-    holds = pd.DataFrame({"hold": obs["hold"].to_numpy(), "direction": obs["mount"].astype(str).to_numpy(),
-                          "rotation": rotation, "omega": omega, "noise_floor": floor,
-                          **{f"{name}_error": e for name, e in errors.items()}})
+    holds = pd.DataFrame(
+        {
+            "hold": obs["hold"].to_numpy(),
+            "direction": obs["mount"].astype(str).to_numpy(),
+            "rotation": rotation,
+            "omega": omega,
+            "noise_floor": floor,
+            **{f"{name}_error": e for name, e in errors.items()},
+        }
+    )
     rows = []
     for d, part in holds.groupby("direction", sort=False):
-        row = {"direction": d, "revolutions": int(len(part)),
-               "noise_floor": float(np.sqrt(np.mean(part["noise_floor"] ** 2)))}
+        row = {
+            "direction": d,
+            "revolutions": int(len(part)),
+            "noise_floor": float(np.sqrt(np.mean(part["noise_floor"] ** 2))),
+        }
         for name in errors:
             e = part[f"{name}_error"].to_numpy()
-            row[f"{name}_mean"], row[f"{name}_rms"] = float(e.mean()), float(np.sqrt(np.mean(e ** 2)))
+            row[f"{name}_mean"], row[f"{name}_rms"] = float(e.mean()), float(np.sqrt(np.mean(e**2)))
         rows.append(row)
     table = pd.DataFrame(rows)
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
@@ -236,24 +293,40 @@ def servo_validation(obs: pd.DataFrame, cal):
     noise_floor = rms(floor)
     # A correct model of p parameters leaves the floor ×√(1 + p/n) on held-out revolutions
     # (leverage p/n on average), ×√(1 − p/n) in-sample; p revolutions leave nothing.
-    expected = noise_floor * np.sqrt(1 + p / n) if held_out else \
-        (noise_floor * np.sqrt(1 - p / n) if n > p else None)
+    expected = (
+        noise_floor * np.sqrt(1 + p / n)
+        if held_out
+        else (noise_floor * np.sqrt(1 - p / n) if n > p else None)
+    )
     validation = rms(errors["validated"])
     ratio = lambda a, b: a / b if b else None  # noqa: E731 - None, never inf, in the JSON
-    summary = {"validation_rms": validation, "noise_floor": noise_floor,
-               "excess": ratio(validation, noise_floor),
-               "expected_rms": None if expected is None else float(expected),
-               "excess_over_expected": ratio(validation, expected),
-               "uncompensated_rms": rms(errors["uncompensated"]), "single_rms": None,
-               "in_sample_rms": rms(errors["in_sample"]),
-               "reference_temperature": float(np.mean(obs["temp"])),
-               "held_out": "revolution" if held_out else
-               "nothing (one revolution per direction: in-sample)",
-               "scored": "all", "holds_scored": int(n), "temperature_points": 1,
-               "model_kind": "servo", "servo_model": used, "quantity": quantity,
-               "validated_as": f"{MODEL_LABELS[used]}; validated"}
-    by_temperature = pd.DataFrame({"temp": [summary["reference_temperature"]], "holds": [n],
-                                   "validated_rms": [validation], "noise_floor": [noise_floor]})
+    summary = {
+        "validation_rms": validation,
+        "noise_floor": noise_floor,
+        "excess": ratio(validation, noise_floor),
+        "expected_rms": None if expected is None else float(expected),
+        "excess_over_expected": ratio(validation, expected),
+        "uncompensated_rms": rms(errors["uncompensated"]),
+        "single_rms": None,
+        "in_sample_rms": rms(errors["in_sample"]),
+        "reference_temperature": float(np.mean(obs["temp"])),
+        "held_out": "revolution" if held_out else "nothing (one revolution per direction: in-sample)",
+        "scored": "all",
+        "holds_scored": int(n),
+        "temperature_points": 1,
+        "model_kind": "servo",
+        "servo_model": used,
+        "quantity": quantity,
+        "validated_as": f"{MODEL_LABELS[used]}; validated",
+    }
+    by_temperature = pd.DataFrame(
+        {
+            "temp": [summary["reference_temperature"]],
+            "holds": [n],
+            "validated_rms": [validation],
+            "noise_floor": [noise_floor],
+        }
+    )
     return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
 
 
@@ -268,29 +341,47 @@ def static(log, seg, max_temp_rate: float):
 def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
     """Both fits of every whole revolution, for the report."""
     iterative, lm = servo_fits(obs)
-    return {"protocol": "servo", "iterative": iterative.summary(), "lm": lm.summary(),
-            "settled_at": int(iterative.settled_at()),
-            "max_difference_lm": float(np.max(np.abs(np.r_[iterative.k, iterative.b]
-                                                     - np.r_[lm.k, lm.b])))}, []
+    return {
+        "protocol": "servo",
+        "iterative": iterative.summary(),
+        "lm": lm.summary(),
+        "settled_at": int(iterative.settled_at()),
+        "max_difference_lm": float(np.max(np.abs(np.r_[iterative.k, iterative.b] - np.r_[lm.k, lm.b]))),
+    }, []
 
 
 def _calibrate(obs, settings, meta, provenance):
-    return servo_calibration(obs, reference_temperature=settings.model.reference_temperature,
-                             meta=meta, provenance=provenance,
-                             model=settings.protocol_options("servo").get("calibration", "auto"))
+    return servo_calibration(
+        obs,
+        reference_temperature=settings.model.reference_temperature,
+        meta=meta,
+        provenance=provenance,
+        model=settings.protocol_options("servo").get("calibration", "auto"),
+    )
 
 
 def _validation_figure(holds: pd.DataFrame) -> str:
     from ...report import plots
+
     return plots.servo_errors(holds)
 
 
 # The 12-parameter model on whole-revolution means (the hand-mounting tilt of each axis
 # lands in the misalignment), for the diagnosis, beside the paper's own six-parameter fit.
-SERVO = register(Protocol(
-    "servo", "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
-    segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
-    static=static, calibrate=_calibrate, validate=servo_validation, analysis=analysis,
-    validation_figure=_validation_figure, known_rate=False, one_temperature=True,
-    report_sections="protocols/servo_sections.html.j2",
-    validated_as="Seed 001 six-parameter calibration; validated", defaults=DEFAULTS))
+SERVO = register(
+    Protocol(
+        "servo",
+        "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
+        segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
+        static=static,
+        calibrate=_calibrate,
+        validate=servo_validation,
+        analysis=analysis,
+        validation_figure=_validation_figure,
+        known_rate=False,
+        one_temperature=True,
+        report_sections="protocols/servo_sections.html.j2",
+        validated_as="Seed 001 six-parameter calibration; validated",
+        defaults=DEFAULTS,
+    )
+)

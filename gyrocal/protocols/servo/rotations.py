@@ -23,7 +23,7 @@ import pandas as pd
 from ...io.errors import ConfigError, SegmentationError
 from ...io.log import GYRO, MOUNTS, RigLog
 
-DIRECTIONS = MOUNTS   # the G-optimal design's six rotation directions (seed 001 Section II-B)
+DIRECTIONS = MOUNTS  # the G-optimal design's six rotation directions (seed 001 Section II-B)
 
 AXES = "xyz"
 
@@ -58,9 +58,16 @@ class Rotations:
         r = self.revolutions
         g = r.groupby("rotation", sort=True)
         n = g["n"].sum()
-        out = pd.DataFrame({"rotation": n.index.to_numpy(), "direction": g["direction"].first().to_numpy(),
-                            "revolutions": g.size().to_numpy(), "n": n.to_numpy(),
-                            "t_start": g["t_start"].min().to_numpy(), "t_end": g["t_end"].max().to_numpy()})
+        out = pd.DataFrame(
+            {
+                "rotation": n.index.to_numpy(),
+                "direction": g["direction"].first().to_numpy(),
+                "revolutions": g.size().to_numpy(),
+                "n": n.to_numpy(),
+                "t_start": g["t_start"].min().to_numpy(),
+                "t_end": g["t_end"].max().to_numpy(),
+            }
+        )
         weighted = r[["gyro_x", "gyro_y", "gyro_z", "ref_rate", "temp"]].multiply(r["n"], axis=0)
         sums = weighted.groupby(r["rotation"], sort=True).sum()
         for col in ("gyro_x", "gyro_y", "gyro_z", "ref_rate", "temp"):
@@ -71,8 +78,9 @@ class Rotations:
         return out
 
 
-def g_optimal_warnings(directions, means, *, speeds=None, max_tilt_deg: float = 20.0,
-                       speed_tol: float = 0.02) -> list[str]:
+def g_optimal_warnings(
+    directions, means, *, speeds=None, max_tilt_deg: float = 20.0, speed_tol: float = 0.02
+) -> list[str]:
     """Where the rotations depart from the G-optimal design of Section II-B: one rotation
     each way about each sensor axis (six), at one speed, about axes close to the sensor
     axes. ``means``: mean gyro vector per rotation (any unit); ``speeds``: servo speed per
@@ -81,8 +89,10 @@ def g_optimal_warnings(directions, means, *, speeds=None, max_tilt_deg: float = 
     means = np.asarray(means, dtype=float).reshape(-1, 3) if len(directions) else np.zeros((0, 3))
     out = []
     if len(directions) != 6:
-        out.append(f"the design has {len(directions)} rotations; the G-optimal design has six, "
-                   "one each way about each sensor axis")
+        out.append(
+            f"the design has {len(directions)} rotations; the G-optimal design has six, "
+            "one each way about each sensor axis"
+        )
     for axis in AXES:
         if not any(d[1:] == axis for d in directions):
             out.append(f"no rotation about the sensor {axis} axis: k{axis} and b{axis} are not observed")
@@ -103,14 +113,18 @@ def g_optimal_warnings(directions, means, *, speeds=None, max_tilt_deg: float = 
         axis[AXES.index(d[1])] = 1.0 if d[0] == "+" else -1.0
         tilt = math.degrees(math.acos(float(np.clip(m @ axis / norm, -1.0, 1.0))))
         if tilt > max_tilt_deg:
-            out.append(f"rotation {i} ({d}): the mean output is {tilt:.1f}° off the {d} axis "
-                       f"(limit {max_tilt_deg:g}°)")
+            out.append(
+                f"rotation {i} ({d}): the mean output is {tilt:.1f}° off the {d} axis "
+                f"(limit {max_tilt_deg:g}°)"
+            )
     if speeds is not None and len(speeds):
         s = np.abs(np.asarray(speeds, dtype=float))
         mid = float(np.median(s))
         if mid > 0 and (s.max() - s.min()) / mid > speed_tol:
-            out.append(f"rotation speeds differ ({s.min():.4g} to {s.max():.4g}); the G-optimal "
-                       f"design uses one speed")
+            out.append(
+                f"rotation speeds differ ({s.min():.4g} to {s.max():.4g}); the G-optimal "
+                f"design uses one speed"
+            )
     return out
 
 
@@ -119,9 +133,15 @@ def _runs(start: np.ndarray, member: np.ndarray) -> np.ndarray:
     return np.where(member, np.cumsum(start), 0)
 
 
-def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float = 0.01,
-                   rate_tol_rel: float = 5e-3, gap_factor: float = 3.0,
-                   max_tilt_deg: float = 20.0) -> Rotations:
+def find_rotations(
+    log: RigLog,
+    *,
+    min_revolutions: int = 1,
+    rate_tol_abs: float = 0.01,
+    rate_tol_rel: float = 5e-3,
+    gap_factor: float = 3.0,
+    max_tilt_deg: float = 20.0,
+) -> Rotations:
     """Rotations of whole revolutions in a servo log (see the module docstring).
 
     ``ref_rate`` counts as constant within ``rate_tol_abs + rate_tol_rel·|ref_rate|``
@@ -138,15 +158,14 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     mount = log.column("mount") if "mount" in log else None
     n = len(t)
     if n < 2:
-        raise SegmentationError(f"the log has {n} sample(s); a servo rotation needs many",
-                                source=log.path)
+        raise SegmentationError(f"the log has {n} sample(s); a servo rotation needs many", source=log.path)
     dt = np.diff(t)
     nominal = float(np.median(dt))
     # Each sample stands for the interval up to the next one (the typical interval across a gap).
     span = np.append(np.where(dt > gap_factor * nominal, nominal, dt), nominal)
     tol = rate_tol_abs + rate_tol_rel * np.abs(ref)
     moving = np.abs(ref) > rate_tol_abs
-    joined = np.zeros(n, dtype=bool)            # sample i continues the stretch of i - 1
+    joined = np.zeros(n, dtype=bool)  # sample i continues the stretch of i - 1
     joined[1:] = moving[1:] & moving[:-1] & (np.abs(np.diff(ref)) <= tol[1:]) & (dt <= gap_factor * nominal)
     first_pass = _runs(moving & ~joined, moving)
     # Second pass: within each stretch keep the samples at its median rate, so a slow ramp
@@ -161,21 +180,22 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     run = _runs(on & ~cont, on)
     n_runs = int(run.max())
     if n_runs == 0:
-        raise SegmentationError("ref_rate is never constant and non-zero: no servo rotation found",
-                                source=log.path)
+        raise SegmentationError(
+            "ref_rate is never constant and non-zero: no servo rotation found", source=log.path
+        )
 
     # Servo angle (deg) within each run at every sample's start and midpoint.
     step = np.where(on, np.abs(ref) * span, 0.0)
     csum = np.cumsum(step)
     starts = np.flatnonzero(on & ~cont)
-    last = np.flatnonzero(on & ~np.r_[cont[1:], False])   # each run's final sample
+    last = np.flatnonzero(on & ~np.r_[cont[1:], False])  # each run's final sample
     offset = (csum - step)[starts]
     angle_start = np.where(on, csum - step - offset[np.maximum(run - 1, 0)], 0.0)
     mid = angle_start + 0.5 * step
     total = csum[last] - offset
     half_sample = 0.5 * step[last]
-    whole = np.floor((total + half_sample) / 360.0)     # whole revolutions per run
-    rev = np.floor(mid / 360.0)       # floats: counted as integers only once the runs are usable
+    whole = np.floor((total + half_sample) / 360.0)  # whole revolutions per run
+    rev = np.floor(mid / 360.0)  # floats: counted as integers only once the runs are usable
     keep = on & (rev < whole[np.maximum(run - 1, 0)])
     # Revolutions are cut by integrating ref_rate from sample to sample: a run turning half a
     # revolution or more per sample cannot be cut (and may count more than an int64 holds).
@@ -185,27 +205,37 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
 
     warnings: list[str] = []
     for r in np.flatnonzero(~usable & (total >= 180.0)):
-        warnings.append(f"rotation at t={t[starts[r]]:.2f} s covers {total[r] / 360.0:.2f} revolutions, "
-                        + (f"fewer than {min_revolutions} whole; not used" if cuttable[r] else
-                           "half a revolution or more per sample: cannot be cut; not used"))
+        warnings.append(
+            f"rotation at t={t[starts[r]]:.2f} s covers {total[r] / 360.0:.2f} revolutions, "
+            + (
+                f"fewer than {min_revolutions} whole; not used"
+                if cuttable[r]
+                else "half a revolution or more per sample: cannot be cut; not used"
+            )
+        )
     if not keep.any() and not cuttable.all():
-        raise SegmentationError(f"ref_rate turns the servo half a revolution or more per sample "
-                                f"(up to {np.abs(ref[on]).max():.3g} deg/s at {1 / nominal:.3g} Hz): "
-                                "no revolution can be cut", source=log.path)
+        raise SegmentationError(
+            f"ref_rate turns the servo half a revolution or more per sample "
+            f"(up to {np.abs(ref[on]).max():.3g} deg/s at {1 / nominal:.3g} Hz): "
+            "no revolution can be cut",
+            source=log.path,
+        )
     if not keep.any():
         longest = float(total.max())
-        raise SegmentationError(f"no stretch of constant non-zero ref_rate covers a whole revolution "
-                                f"(longest: {longest:.1f}°)", source=log.path)
+        raise SegmentationError(
+            f"no stretch of constant non-zero ref_rate covers a whole revolution (longest: {longest:.1f}°)",
+            source=log.path,
+        )
 
     # Whole revolutions: contiguous sample ranges, in time order.
     sel = np.flatnonzero(keep)
-    rev = rev[sel].astype(int)       # revolution of each selected sample
-    usable_index = np.cumsum(usable) - 1                # run -> rotation index
+    rev = rev[sel].astype(int)  # revolution of each selected sample
+    usable_index = np.cumsum(usable) - 1  # run -> rotation index
     rotation_of = usable_index[run[sel] - 1]
     key = rotation_of.astype(np.int64) * (int(rev.max()) + 1) + rev
     bounds = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     counts = np.diff(np.r_[bounds, len(sel)])
-    seg = np.repeat(np.arange(len(bounds)), counts)     # revolution id per selected sample
+    seg = np.repeat(np.arange(len(bounds)), counts)  # revolution id per selected sample
     g = gyro[sel]
     mean = np.add.reduceat(g, bounds, axis=0) / counts[:, None]
     dev = g - mean[seg]
@@ -214,17 +244,30 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
     same = (seg[1:] == seg[:-1]) & (sel[1:] == sel[:-1] + 1)
     d2 = np.where(same[:, None], np.diff(g, axis=0) ** 2, 0.0)
     pairs = np.bincount(seg[1:], weights=same.astype(float), minlength=len(bounds))
-    noise = np.sqrt(np.column_stack([np.bincount(seg[1:], weights=d2[:, j], minlength=len(bounds))
-                                     for j in range(3)]) / (2.0 * np.maximum(pairs, 1))[:, None])
-    table = pd.DataFrame({
-        "rotation": rotation_of[bounds], "revolution": rev[bounds],
-        "t_start": t[sel][bounds], "t_end": t[sel][bounds + counts - 1], "n": counts,
-        "gyro_x": mean[:, 0], "gyro_y": mean[:, 1], "gyro_z": mean[:, 2],
-        "gyro_x_std": std[:, 0], "gyro_y_std": std[:, 1], "gyro_z_std": std[:, 2],
-        "gyro_x_noise": noise[:, 0], "gyro_y_noise": noise[:, 1], "gyro_z_noise": noise[:, 2],
-        "ref_rate": np.add.reduceat(np.abs(ref[sel]), bounds) / counts,
-        "temp": np.add.reduceat(temp[sel], bounds) / counts,
-    })
+    noise = np.sqrt(
+        np.column_stack([np.bincount(seg[1:], weights=d2[:, j], minlength=len(bounds)) for j in range(3)])
+        / (2.0 * np.maximum(pairs, 1))[:, None]
+    )
+    table = pd.DataFrame(
+        {
+            "rotation": rotation_of[bounds],
+            "revolution": rev[bounds],
+            "t_start": t[sel][bounds],
+            "t_end": t[sel][bounds + counts - 1],
+            "n": counts,
+            "gyro_x": mean[:, 0],
+            "gyro_y": mean[:, 1],
+            "gyro_z": mean[:, 2],
+            "gyro_x_std": std[:, 0],
+            "gyro_y_std": std[:, 1],
+            "gyro_z_std": std[:, 2],
+            "gyro_x_noise": noise[:, 0],
+            "gyro_y_noise": noise[:, 1],
+            "gyro_z_noise": noise[:, 2],
+            "ref_rate": np.add.reduceat(np.abs(ref[sel]), bounds) / counts,
+            "temp": np.add.reduceat(temp[sel], bounds) / counts,
+        }
+    )
 
     # Direction of each rotation: the mount column with the sign of ref_rate, else the data.
     rot_bounds = np.flatnonzero(np.r_[True, rotation_of[1:] != rotation_of[:-1]])
@@ -241,23 +284,29 @@ def find_rotations(log: RigLog, *, min_revolutions: int = 1, rate_tol_abs: float
         for i in range(n_rot):
             if lo[i] < 0 or lo[i] != hi[i]:
                 if lo[i] != hi[i]:
-                    warnings.append(f"rotation {i}: the mount column changes during the rotation; "
-                                    "direction taken from the gyro")
+                    warnings.append(
+                        f"rotation {i}: the mount column changes during the rotation; "
+                        "direction taken from the gyro"
+                    )
                 continue
             label = MOUNTS[int(lo[i])]
             ref_sign = 1.0 if ref[rot_first[i]] > 0 else -1.0
             mount_sign = 1.0 if label[0] == "+" else -1.0
             directions[i] = ("+" if ref_sign * mount_sign > 0 else "-") + label[1]
             if directions[i] != from_data[i]:
-                warnings.append(f"rotation {i}: mount column and ref_rate say {directions[i]}, "
-                                f"the gyro says {from_data[i]}")
+                warnings.append(
+                    f"rotation {i}: mount column and ref_rate say {directions[i]}, "
+                    f"the gyro says {from_data[i]}"
+                )
     table.insert(1, "direction", np.asarray(directions, dtype=object)[table["rotation"].to_numpy()])
 
     if n_rot < 6:
         raise SegmentationError(
             f"found {n_rot} rotation{'s' if n_rot != 1 else ''} of at least {min_revolutions} whole "
             f"revolution{'s' if min_revolutions != 1 else ''} at constant ref_rate "
-            f"({' '.join(directions)}); the servo protocol needs six (±x, ±y, ±z)", source=log.path)
+            f"({' '.join(directions)}); the servo protocol needs six (±x, ±y, ±z)",
+            source=log.path,
+        )
     speeds = table.groupby("rotation")["ref_rate"].mean().to_numpy()
     warnings += g_optimal_warnings(directions, rot_mean, speeds=speeds, max_tilt_deg=max_tilt_deg)
     return Rotations(table, tuple(warnings), log.path)

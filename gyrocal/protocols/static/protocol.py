@@ -8,9 +8,15 @@ from ..registry import Protocol, register
 from ..sweep.protocol import segment_sweep, static
 from .defaults import DEFAULTS
 
-STATIC = register(Protocol(
-    "static", "a unit lying still (a noise recording): windows at one temperature, the bias and "
-              "the noise terms",
-    segment=lambda log, settings: segment_sweep(log, settings.protocol_options("static"), name="static"),
-    static=static, defaults=DEFAULTS, timed_holds=False, one_temperature=True,
-    without=("ref_rate",)))
+STATIC = register(
+    Protocol(
+        "static",
+        "a unit lying still (a noise recording): windows at one temperature, the bias and the noise terms",
+        segment=lambda log, settings: segment_sweep(log, settings.protocol_options("static"), name="static"),
+        static=static,
+        defaults=DEFAULTS,
+        timed_holds=False,
+        one_temperature=True,
+        without=("ref_rate",),
+    )
+)

@@ -10,7 +10,6 @@ Typical use::
     table = stability_table(verify, {"conventional": conventional, "modified": modified})
 """
 
-
 _WHERE = {
     "SweepDesign": "design",
     "conduction_time": "design",
@@ -28,9 +27,22 @@ _WHERE = {
     "sweep_windows": "windows",
 }
 
-__all__ = ["SweepDesign", "conduction_time", "datasheet_drift", "jump_interval", "ramp_rate",
-           "DriftModel", "fit_drift", "rbf_layout", "bias_stability", "reference_errors", "improvements",
-           "stability_table", "split_sweeps", "sweep_windows"]
+__all__ = [
+    "SweepDesign",
+    "conduction_time",
+    "datasheet_drift",
+    "jump_interval",
+    "ramp_rate",
+    "DriftModel",
+    "fit_drift",
+    "rbf_layout",
+    "bias_stability",
+    "reference_errors",
+    "improvements",
+    "stability_table",
+    "split_sweeps",
+    "sweep_windows",
+]
 
 
 def __getattr__(name: str):
@@ -39,4 +51,5 @@ def __getattr__(name: str):
     if name not in _WHERE:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
     import importlib
+
     return getattr(importlib.import_module(f".{_WHERE[name]}", __name__), name)

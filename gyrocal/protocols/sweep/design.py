@@ -30,16 +30,16 @@ from ...io.errors import ConfigError
 class SweepDesign:
     """Inputs of Eq 20 and 24."""
 
-    resolution: float            # ΔE_S, deg/s per digit (the output's sensitivity)
-    zero_rate_tc: float          # α, deg/s per °C ("zero-rate level change vs temperature")
-    sensitivity_change: float    # β as the datasheet gives it: % of full scale over the range
-    full_scale: float            # deg/s, the range β refers to
-    t_min: float                 # °C, operating range
-    t_max: float                 # °C
-    specific_heat: float         # C of the chamber air, J/(kg·K)
-    density: float               # ρ of the chamber air, kg/m³
-    length: float                # L, wall to table centre, m
-    conductivity: float          # k of the air, W/(m·K)
+    resolution: float  # ΔE_S, deg/s per digit (the output's sensitivity)
+    zero_rate_tc: float  # α, deg/s per °C ("zero-rate level change vs temperature")
+    sensitivity_change: float  # β as the datasheet gives it: % of full scale over the range
+    full_scale: float  # deg/s, the range β refers to
+    t_min: float  # °C, operating range
+    t_max: float  # °C
+    specific_heat: float  # C of the chamber air, J/(kg·K)
+    density: float  # ρ of the chamber air, kg/m³
+    length: float  # L, wall to table centre, m
+    conductivity: float  # k of the air, W/(m·K)
 
     def __post_init__(self):
         for name, value in asdict(self).items():
@@ -57,9 +57,18 @@ class SweepDesign:
         """The paper's inputs: L3GD20 datasheet (8.75 mdps/digit, ±0.03 dps/°C, 2 % of
         250 dps over −40…85 °C) and chamber SET-Z-021 (C = 1.005 kJ/(kg·K), ρ = 1.293 kg/m³,
         L = 0.6 m, k = 0.0267 W/(m·°C))."""
-        return cls(resolution=8.75e-3, zero_rate_tc=0.03, sensitivity_change=2.0, full_scale=250.0,
-                   t_min=-40.0, t_max=85.0, specific_heat=1005.0, density=1.293, length=0.6,
-                   conductivity=0.0267)
+        return cls(
+            resolution=8.75e-3,
+            zero_rate_tc=0.03,
+            sensitivity_change=2.0,
+            full_scale=250.0,
+            t_min=-40.0,
+            t_max=85.0,
+            specific_heat=1005.0,
+            density=1.293,
+            length=0.6,
+            conductivity=0.0267,
+        )
 
     @property
     def sensitivity_tc(self) -> float:
@@ -79,12 +88,20 @@ class SweepDesign:
         return self.conduction_time() / 1000.0
 
     def summary(self) -> dict:
-        return dict(inputs=asdict(self), sensitivity_tc=self.sensitivity_tc,
-                    jump_interval=self.jump_interval(), conduction_time_s=self.conduction_time(),
-                    conduction_time_as_printed=self.conduction_time_as_printed(),
-                    sensor_resolution_needed=self.jump_interval() / 2.0,
-                    units=dict(sensitivity_tc="deg/s/°C", jump_interval="°C", conduction_time_s="s",
-                               sensor_resolution_needed="°C"))
+        return dict(
+            inputs=asdict(self),
+            sensitivity_tc=self.sensitivity_tc,
+            jump_interval=self.jump_interval(),
+            conduction_time_s=self.conduction_time(),
+            conduction_time_as_printed=self.conduction_time_as_printed(),
+            sensor_resolution_needed=self.jump_interval() / 2.0,
+            units=dict(
+                sensitivity_tc="deg/s/°C",
+                jump_interval="°C",
+                conduction_time_s="s",
+                sensor_resolution_needed="°C",
+            ),
+        )
 
 
 def datasheet_drift(dT, zero_rate_tc: float, sensitivity_tc: float):
@@ -96,8 +113,9 @@ def jump_interval(resolution: float, zero_rate_tc: float, sensitivity_tc: float)
     """Eq 20: ΔE_S / (|α| + |β|) in °C; ΔE_S in deg/s, α and β in deg/s/°C."""
     denominator = abs(zero_rate_tc) + abs(sensitivity_tc)
     if not (resolution > 0 and denominator > 0):
-        raise ConfigError(f"Eq 20 needs a positive resolution and drift, got {resolution!r}, "
-                          f"|α| + |β| = {denominator!r}")
+        raise ConfigError(
+            f"Eq 20 needs a positive resolution and drift, got {resolution!r}, |α| + |β| = {denominator!r}"
+        )
     return resolution / denominator
 
 
@@ -105,7 +123,7 @@ def conduction_time(specific_heat: float, density: float, length: float, conduct
     """Eq 24: t_s = C ρ L² / k in s, with C in J/(kg·K), ρ in kg/m³, L in m, k in W/(m·K)."""
     if min(specific_heat, density, length, conductivity) <= 0:
         raise ConfigError("Eq 24 needs positive specific heat, density, length and conductivity")
-    return specific_heat * density * length ** 2 / conductivity
+    return specific_heat * density * length**2 / conductivity
 
 
 def ramp_rate(step: float, period: float) -> float:

@@ -35,8 +35,13 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import pandas as pd
 
-from ...io.errors import (CalibrationFileError, ConfigError, IdentifiabilityError, InputError,
-                          MissingInputError)
+from ...io.errors import (
+    CalibrationFileError,
+    ConfigError,
+    IdentifiabilityError,
+    InputError,
+    MissingInputError,
+)
 from ...io.log import GYRO
 
 FORMAT = "gyrocal.drift/1"
@@ -91,7 +96,7 @@ class DriftModel:
         """ΔT (°C) of ``data``, counted from this model's ``t_ref``: ``temp − t_ref`` for a
         table or log with a ``temp`` column; a ``dT`` column (taken as counted from
         ``t_ref``) otherwise; a plain array is ΔT itself."""
-        if hasattr(data, "column") and hasattr(data, "batches"):      # a RigLog
+        if hasattr(data, "column") and hasattr(data, "batches"):  # a RigLog
             x = data.column("temp").astype(np.float64) - self.t_ref
         elif isinstance(data, pd.DataFrame):
             if "temp" in data.columns:
@@ -99,13 +104,17 @@ class DriftModel:
             elif "dT" in data.columns:
                 x = data["dT"].to_numpy(dtype=np.float64)
             else:
-                raise MissingInputError("drift model needs a temp or dT column, found "
-                                        f"{', '.join(map(str, data.columns)) or 'none'}")
+                raise MissingInputError(
+                    "drift model needs a temp or dT column, found "
+                    f"{', '.join(map(str, data.columns)) or 'none'}"
+                )
         else:
             x = np.asarray(data, dtype=np.float64).reshape(-1)
         if not np.isfinite(x).all():
-            raise InputError(f"ΔT holds {int(np.count_nonzero(~np.isfinite(x)))} non-finite values; "
-                             "expected finite temperatures")
+            raise InputError(
+                f"ΔT holds {int(np.count_nonzero(~np.isfinite(x)))} non-finite values; "
+                "expected finite temperatures"
+            )
         return x
 
     def predict(self, data) -> np.ndarray:
@@ -141,8 +150,11 @@ class DriftModel:
         if self.kind == "poly":
             own = [f"c{k}" for k in range(len(self.coef[0]))]
         else:
-            own = (["w0"] + [f"a{i + 1}" for i in range(self.n_inputs)]
-                   + [f"w{j + 1}" for j in range(len(self.centres))])
+            own = (
+                ["w0"]
+                + [f"a{i + 1}" for i in range(self.n_inputs)]
+                + [f"w{j + 1}" for j in range(len(self.centres))]
+            )
         return [f"{a}.{name}" for a in AXES for name in own]
 
     def summary(self) -> dict:
@@ -150,17 +162,26 @@ class DriftModel:
         names = self.parameter_names()
         values = np.asarray(self.coef).reshape(-1)
         errors = np.asarray(self.stderr).reshape(-1) if self.stderr else [None] * len(values)
-        out = dict(kind=self.kind, inputs=self.inputs, t_ref=self.t_ref, n_train=self.n_train,
-                   dT_range=list(self.dT_range),
-                   parameters={n: dict(value=float(v), stderr=None if e is None else float(e))
-                               for n, v, e in zip(names, values, errors, strict=False)},
-                   residual_rms=dict(zip(AXES, map(float, self.residual_rms), strict=False)),
-                   noise=dict(zip(AXES, map(float, self.noise), strict=False)),
-                   units=dict(parameters="deg/s per °C^k" if self.kind == "poly" else "deg/s",
-                              residual_rms="deg/s", t_ref="°C"))
+        out = dict(
+            kind=self.kind,
+            inputs=self.inputs,
+            t_ref=self.t_ref,
+            n_train=self.n_train,
+            dT_range=list(self.dT_range),
+            parameters={
+                n: dict(value=float(v), stderr=None if e is None else float(e))
+                for n, v, e in zip(names, values, errors, strict=False)
+            },
+            residual_rms=dict(zip(AXES, map(float, self.residual_rms), strict=False)),
+            noise=dict(zip(AXES, map(float, self.noise), strict=False)),
+            units=dict(
+                parameters="deg/s per °C^k" if self.kind == "poly" else "deg/s",
+                residual_rms="deg/s",
+                t_ref="°C",
+            ),
+        )
         if self.kind == "rbf":
-            out["network"] = dict(kernels=len(self.centres), widths=list(self.widths),
-                                  ridge=self.ridge)
+            out["network"] = dict(kernels=len(self.centres), widths=list(self.widths), ridge=self.ridge)
         return out
 
     def to_dict(self) -> dict:
@@ -186,8 +207,9 @@ class DriftModel:
         W = np.asarray(model.coef, dtype=float)
         expected = model.n_inputs + 1 + (len(model.centres) if model.kind == "rbf" else 0)
         if W.shape != (3, expected) or not np.isfinite(W).all():
-            raise CalibrationFileError(f"drift model coef must be 3 rows of {expected} finite numbers, "
-                                       f"found shape {W.shape}")
+            raise CalibrationFileError(
+                f"drift model coef must be 3 rows of {expected} finite numbers, found shape {W.shape}"
+            )
         return model
 
 
@@ -238,9 +260,16 @@ def _training_data(train: pd.DataFrame, t_ref: float | None):
     return t_ref, dT, y, w, noise
 
 
-def fit_drift(train_windows: pd.DataFrame, *, kind: str = "rbf", inputs: str = "dT,dT2",
-              t_ref: float | None = None, centres: int = 12, width: float = 1.0,
-              ridge: float = 1e-9) -> DriftModel:
+def fit_drift(
+    train_windows: pd.DataFrame,
+    *,
+    kind: str = "rbf",
+    inputs: str = "dT,dT2",
+    t_ref: float | None = None,
+    centres: int = 12,
+    width: float = 1.0,
+    ridge: float = 1e-9,
+) -> DriftModel:
     """Fit a drift model per axis to training windows (Section 3.2 steps 2-3).
 
     The target of each window is its error column (mean output minus the rig rate's
@@ -257,17 +286,25 @@ def fit_drift(train_windows: pd.DataFrame, *, kind: str = "rbf", inputs: str = "
     m = len(dT)
     span = float(dT.max() - dT.min()) if m else 0.0
     if not span > 1e-6 * max(1.0, float(np.abs(dT).max(initial=0.0))):
-        raise IdentifiabilityError(f"training ΔT spans {span:.3g} °C; a drift model needs a "
-                                   "temperature change", parameters=("dT",))
+        raise IdentifiabilityError(
+            f"training ΔT spans {span:.3g} °C; a drift model needs a temperature change", parameters=("dT",)
+        )
     if kind == "poly":
         return _fit_poly(dT, y, w, t_ref, inputs, noise)
     if isinstance(centres, bool) or not isinstance(centres, int) or centres < 2:
         raise ConfigError(f"rbf centres must be an integer >= 2, got {centres!r}")
     for name, value in (("width", width), ("ridge", ridge)):
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or value < 0 or (name == "width" and value == 0):
-            raise ConfigError(f"rbf {name} must be a {'positive' if name == 'width' else 'non-negative'} "
-                              f"number, got {value!r}")
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, (int, float))
+            or not math.isfinite(value)
+            or value < 0
+            or (name == "width" and value == 0)
+        ):
+            raise ConfigError(
+                f"rbf {name} must be a {'positive' if name == 'width' else 'non-negative'} "
+                f"number, got {value!r}"
+            )
     return _fit_rbf(dT, y, w, t_ref, inputs, noise, centres, float(width), float(ridge))
 
 
@@ -275,27 +312,39 @@ def _fit_poly(dT, y, w, t_ref, inputs, noise) -> DriftModel:
     p = 2 if inputs == "dT" else 3
     m = len(dT)
     if m < p + 2:
-        raise IdentifiabilityError(f"{m} training windows for {p} parameters per axis; expected at "
-                                   f"least {p + 2}", parameters=tuple(f"c{k}" for k in range(p)))
-    s = max(float(np.abs(dT).max()), 1.0)     # columns of order one for conditioning
+        raise IdentifiabilityError(
+            f"{m} training windows for {p} parameters per axis; expected at least {p + 2}",
+            parameters=tuple(f"c{k}" for k in range(p)),
+        )
+    s = max(float(np.abs(dT).max()), 1.0)  # columns of order one for conditioning
     X = (dT[:, None] / s) ** np.arange(p)
     sw = np.sqrt(w)[:, None]
     A = X * sw
     beta, _, rank, sv = np.linalg.lstsq(A, y * sw, rcond=None)
     if rank < p or sv[-1] < 1e-10 * sv[0]:
-        raise IdentifiabilityError(f"the ΔT powers are collinear over the training windows "
-                                   f"(rank {rank} of {p})", parameters=tuple(f"c{k}" for k in range(p)))
+        raise IdentifiabilityError(
+            f"the ΔT powers are collinear over the training windows (rank {rank} of {p})",
+            parameters=tuple(f"c{k}" for k in range(p)),
+        )
     resid = y - X @ beta
     dof = m - p
-    sigma2 = (w[:, None] * resid ** 2).sum(axis=0) / dof          # per-sample variance, per axis
+    sigma2 = (w[:, None] * resid**2).sum(axis=0) / dof  # per-sample variance, per axis
     cov = np.linalg.inv(A.T @ A)
     unscale = s ** -np.arange(p, dtype=float)
     coef = beta.T * unscale
     stderr = np.sqrt(np.outer(sigma2, np.diag(cov))) * unscale
-    rms = np.sqrt((w[:, None] * resid ** 2).sum(axis=0) / w.sum())
-    return DriftModel(kind="poly", inputs=inputs, t_ref=t_ref, coef=_rows(coef), stderr=_rows(stderr),
-                      residual_rms=_floats(rms), noise=_floats(noise), n_train=int(m),
-                      dT_range=(float(dT.min()), float(dT.max())))
+    rms = np.sqrt((w[:, None] * resid**2).sum(axis=0) / w.sum())
+    return DriftModel(
+        kind="poly",
+        inputs=inputs,
+        t_ref=t_ref,
+        coef=_rows(coef),
+        stderr=_rows(stderr),
+        residual_rms=_floats(rms),
+        noise=_floats(noise),
+        n_train=int(m),
+        dT_range=(float(dT.min()), float(dT.max())),
+    )
 
 
 def rbf_layout(dT: np.ndarray, inputs: str, k: int, width: float):
@@ -305,8 +354,9 @@ def rbf_layout(dT: np.ndarray, inputs: str, k: int, width: float):
     offset = X.min(axis=0)
     scale = X.max(axis=0) - offset
     if (scale <= 0).any():
-        raise IdentifiabilityError("an RBF input does not vary over the training windows",
-                                   parameters=tuple(inputs.split(",")))
+        raise IdentifiabilityError(
+            "an RBF input does not vary over the training windows", parameters=tuple(inputs.split(","))
+        )
     grid = np.linspace(dT.min(), dT.max(), k)
     C = (_inputs(grid, inputs) - offset) / scale
     gaps = np.linalg.norm(np.diff(C, axis=0), axis=1)
@@ -317,13 +367,22 @@ def rbf_layout(dT: np.ndarray, inputs: str, k: int, width: float):
 def _fit_rbf(dT, y, w, t_ref, inputs, noise, k, width, ridge) -> DriftModel:
     m = len(dT)
     if m < k + 5:
-        raise IdentifiabilityError(f"{m} training windows for an RBF network of {k} kernels; "
-                                   f"expected at least {k + 5}", parameters=("rbf",))
+        raise IdentifiabilityError(
+            f"{m} training windows for an RBF network of {k} kernels; expected at least {k + 5}",
+            parameters=("rbf",),
+        )
     C, widths, offset, scale = rbf_layout(dT, inputs, k, width)
     tail = 1 + C.shape[1]
-    shell = DriftModel(kind="rbf", inputs=inputs, t_ref=t_ref, coef=((0.0,) * (tail + k),) * 3,
-                       centres=_rows(C), widths=_floats(widths), offset=_floats(offset),
-                       scale=_floats(scale))
+    shell = DriftModel(
+        kind="rbf",
+        inputs=inputs,
+        t_ref=t_ref,
+        coef=((0.0,) * (tail + k),) * 3,
+        centres=_rows(C),
+        widths=_floats(widths),
+        offset=_floats(offset),
+        scale=_floats(scale),
+    )
     Phi = shell._kernels(dT)
     sw = np.sqrt(w)[:, None]
     A = Phi * sw
@@ -332,14 +391,26 @@ def _fit_rbf(dT, y, w, t_ref, inputs, noise, k, width, ridge) -> DriftModel:
     penalty[:, tail:] = math.sqrt(lam) * np.eye(k)
     W, *_ = np.linalg.lstsq(np.vstack([A, penalty]), np.vstack([y * sw, np.zeros((k, 3))]), rcond=None)
     resid = y - Phi @ W
-    rms = np.sqrt((w[:, None] * resid ** 2).sum(axis=0) / w.sum())
+    rms = np.sqrt((w[:, None] * resid**2).sum(axis=0) / w.sum())
     if not (np.isfinite(W).all() and np.isfinite(rms).all()):
-        raise IdentifiabilityError("the RBF weights are not finite; raise ridge or use fewer centres",
-                                   parameters=("rbf",))
-    return DriftModel(kind="rbf", inputs=inputs, t_ref=t_ref, coef=_rows(W.T), centres=_rows(C),
-                      widths=_floats(widths), offset=_floats(offset), scale=_floats(scale), ridge=ridge,
-                      residual_rms=_floats(rms), noise=_floats(noise), n_train=int(m),
-                      dT_range=(float(dT.min()), float(dT.max())))
+        raise IdentifiabilityError(
+            "the RBF weights are not finite; raise ridge or use fewer centres", parameters=("rbf",)
+        )
+    return DriftModel(
+        kind="rbf",
+        inputs=inputs,
+        t_ref=t_ref,
+        coef=_rows(W.T),
+        centres=_rows(C),
+        widths=_floats(widths),
+        offset=_floats(offset),
+        scale=_floats(scale),
+        ridge=ridge,
+        residual_rms=_floats(rms),
+        noise=_floats(noise),
+        n_train=int(m),
+        dT_range=(float(dT.min()), float(dT.max())),
+    )
 
 
 def _rows(a) -> Rows:

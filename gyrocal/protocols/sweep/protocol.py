@@ -23,7 +23,7 @@ if TYPE_CHECKING:
     from ...io.log import RigLog
 
 
-POINT_SPANS = (10.0, 5.0, 2.0, 1.0, 0.5)   # °C: the widest that gives POINTS_WANTED points
+POINT_SPANS = (10.0, 5.0, 2.0, 1.0, 0.5)  # °C: the widest that gives POINTS_WANTED points
 POINTS_WANTED = 8
 
 
@@ -44,6 +44,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     from ...io.holds import Segmentation, hold_table, temperature_points, timeline
     from ...io.log import MOUNTS
     from . import sweep_windows
+
     opts = dict(options)
     span = opts.pop("point_span", "auto")
     win = sweep_windows(log, **opts)
@@ -54,47 +55,81 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
         # At rig rate 0 the mount is immaterial to the model; +z keeps the schema.
         mount = np.full(len(win), "+z", dtype=object)
     obs = hold_table(
-        t_start=win["t_start"].to_numpy(), t_end=win["t_end"].to_numpy(), n=win["n"].to_numpy(),
-        mount=mount, mount_source=win.attrs.get("mount_source") or "none",
+        t_start=win["t_start"].to_numpy(),
+        t_end=win["t_end"].to_numpy(),
+        n=win["n"].to_numpy(),
+        mount=mount,
+        mount_source=win.attrs.get("mount_source") or "none",
         ref_rate=win["ref_rate"].to_numpy(),
-        gyro=win[[f"gyro_{a}" for a in AXES]].to_numpy(), std=win[[f"std_{a}" for a in AXES]].to_numpy(),
-        temp=win["temp"].to_numpy(), temp_rate=win["temp_rate"].to_numpy(),
-        point=point, point_temp=point_temp)
+        gyro=win[[f"gyro_{a}" for a in AXES]].to_numpy(),
+        std=win[[f"std_{a}" for a in AXES]].to_numpy(),
+        temp=win["temp"].to_numpy(),
+        temp_rate=win["temp_rate"].to_numpy(),
+        point=point,
+        point_temp=point_temp,
+    )
     obs["window"] = win["window"].to_numpy()
     window_s = float(win.attrs["window_s"])
-    kept = pd.DataFrame({"kind": "hold", "reason": "", "detail": "window",
-                         "t_start": obs["t_start"], "t_end": obs["t_end"],
-                         "ref_rate": obs["ref_rate"], "hold": obs["hold"]})
+    kept = pd.DataFrame(
+        {
+            "kind": "hold",
+            "reason": "",
+            "detail": "window",
+            "t_start": obs["t_start"],
+            "t_end": obs["t_end"],
+            "ref_rate": obs["ref_rate"],
+            "hold": obs["hold"],
+        }
+    )
     segments = kept.astype({"kind": "string", "reason": "string", "detail": "string"})
     dropped = {k: int(v) for k, v in win.attrs["dropped"].items()}
-    info = {"protocol": name, "path": str(log.path), "rows_read": log.rows_read,
-            "rows_dropped": log.rows_dropped, "rows_used": int(win["n"].sum()),
-            "sample_rate": float(win.attrs["sample_rate"]), "typical_hold_s": window_s,
-            "holds_accepted": int(len(obs)), "windows_total": int(win.attrs["windows_total"]),
-            "windows_dropped": dropped, "t_ref": float(win.attrs["t_ref"]),
-            "rig_rate": float(win.attrs["rig_rate"]), "mount": win.attrs.get("mount", ""),
-            "point_span": span, "window_s": window_s, "runs": int(win.attrs["runs"]),
-            "bursts": int(win.attrs["bursts"]), "longest_stall_s": float(win.attrs["longest_stall_s"])}
+    info = {
+        "protocol": name,
+        "path": str(log.path),
+        "rows_read": log.rows_read,
+        "rows_dropped": log.rows_dropped,
+        "rows_used": int(win["n"].sum()),
+        "sample_rate": float(win.attrs["sample_rate"]),
+        "typical_hold_s": window_s,
+        "holds_accepted": int(len(obs)),
+        "windows_total": int(win.attrs["windows_total"]),
+        "windows_dropped": dropped,
+        "t_ref": float(win.attrs["t_ref"]),
+        "rig_rate": float(win.attrs["rig_rate"]),
+        "mount": win.attrs.get("mount", ""),
+        "point_span": span,
+        "window_s": window_s,
+        "runs": int(win.attrs["runs"]),
+        "bursts": int(win.attrs["bursts"]),
+        "longest_stall_s": float(win.attrs["longest_stall_s"]),
+    }
     if win.attrs.get("stamps"):
         info["stamps"] = win.attrs["stamps"]
     stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
     return Segmentation(obs, segments, stable, timeline(log), info)
 
 
-
 def windows_from_observations(obs: pd.DataFrame) -> pd.DataFrame:
     """Sweep observations back to :func:`gyrocal.protocols.sweep.sweep_windows` columns; the error of a
     window is its mean output minus the rig rate along the mount axis."""
     import pandas as pd
+
     t_ref = float(obs.attrs.get("t_ref", obs["temp"].iloc[0]))
-    out = pd.DataFrame({
-        "window": obs["window"] if "window" in obs else obs["hold"],
-        "t_start": obs["t_start"], "t_end": obs["t_end"], "n": obs["n"], "temp": obs["temp"],
-        "temp_rate": obs["temp_rate"], "ref_rate": obs["ref_rate"],
-        **{f"gyro_{a}": obs[f"gyro_{a}"] for a in AXES},
-        **{f"std_{a}": obs[f"std_{a}"] for a in AXES},
-        **{f"err_{a}": obs[f"gyro_{a}"] - obs[f"rate_{a}"] for a in AXES},
-        "mount": obs["mount"].astype(str)})
+    out = pd.DataFrame(
+        {
+            "window": obs["window"] if "window" in obs else obs["hold"],
+            "t_start": obs["t_start"],
+            "t_end": obs["t_end"],
+            "n": obs["n"],
+            "temp": obs["temp"],
+            "temp_rate": obs["temp_rate"],
+            "ref_rate": obs["ref_rate"],
+            **{f"gyro_{a}": obs[f"gyro_{a}"] for a in AXES},
+            **{f"std_{a}": obs[f"std_{a}"] for a in AXES},
+            **{f"err_{a}": obs[f"gyro_{a}"] - obs[f"rate_{a}"] for a in AXES},
+            "mount": obs["mount"].astype(str),
+        }
+    )
     out["dT"] = out["temp"] - t_ref
     out["dT2"] = out["dT"] ** 2
     out.attrs["t_ref"] = t_ref
@@ -102,19 +137,23 @@ def windows_from_observations(obs: pd.DataFrame) -> pd.DataFrame:
 
 
 SWEEP_MODELS = {  # seed 003: conventional f(ΔT) and modified f(ΔT, ΔT²) (Eq 16), two ways each
-    "poly(ΔT)": ("poly", "dT"), "poly(ΔT, ΔT²)": ("poly", "dT,dT2"),
-    "RBF(ΔT)": ("rbf", "dT"), "RBF(ΔT, ΔT²)": ("rbf", "dT,dT2"),
+    "poly(ΔT)": ("poly", "dT"),
+    "poly(ΔT, ΔT²)": ("poly", "dT,dT2"),
+    "RBF(ΔT)": ("rbf", "dT"),
+    "RBF(ΔT, ΔT²)": ("rbf", "dT,dT2"),
 }
 
 
 def sweep_fit(obs: pd.DataFrame):
     """(training windows, verification windows, number of sweeps, the four drift models)."""
     from . import fit_drift, split_sweeps
+
     sweeps = split_sweeps(windows_from_observations(obs))
     train = sweeps[0]
     verify = sweeps[1] if len(sweeps) > 1 else sweeps[0]
-    models = {name: fit_drift(train, kind=kind, inputs=inputs)
-              for name, (kind, inputs) in SWEEP_MODELS.items()}
+    models = {
+        name: fit_drift(train, kind=kind, inputs=inputs) for name, (kind, inputs) in SWEEP_MODELS.items()
+    }
     return train, verify, len(sweeps), models
 
 
@@ -124,28 +163,52 @@ def sweep_analysis(obs: pd.DataFrame, fitted=None) -> dict:
     improvements P1/P2/P3 (Eq 30–32, the shape of Tables 3–7). A log with a single sweep is
     verified on its own training windows, and says so. JSON-plain."""
     from . import stability_table
+
     train, verify, n_sweeps, models = fitted or sweep_fit(obs)
     sweeps = range(n_sweeps)
-    pairs = {"polynomial": ("poly(ΔT)", "poly(ΔT, ΔT²)"), "RBF network": ("RBF(ΔT)", "RBF(ΔT, ΔT²)"),
-             "paper (Tables 3–7)": ("poly(ΔT)", "RBF(ΔT, ΔT²)")}
+    pairs = {
+        "polynomial": ("poly(ΔT)", "poly(ΔT, ΔT²)"),
+        "RBF network": ("RBF(ΔT)", "RBF(ΔT, ΔT²)"),
+        "paper (Tables 3–7)": ("poly(ΔT)", "RBF(ΔT, ΔT²)"),
+    }
     tables = {}
     for label, (conv, mod) in pairs.items():
         table = stability_table(verify, {"conventional": models[conv], "modified": models[mod]})
-        tables[label] = {"conventional": conv, "modified": mod,
-                         "rows": [{"axis": axis, **{k: float(v) for k, v in row.items()}}
-                                  for axis, row in table.iterrows()]}
+        tables[label] = {
+            "conventional": conv,
+            "modified": mod,
+            "rows": [
+                {"axis": axis, **{k: float(v) for k, v in row.items()}} for axis, row in table.iterrows()
+            ],
+        }
 
     def describe(part):
-        return {"windows": int(len(part)), "t_start": float(part["t_start"].iloc[0]),
-                "t_end": float(part["t_end"].iloc[-1]), "temp_from": float(part["temp"].iloc[0]),
-                "temp_to": float(part["temp"].iloc[-1]), "t_ref": float(part.attrs["t_ref"])}
-    return {"protocol": "sweep", "sweeps": len(sweeps), "train": describe(train),
-            "verify": describe(verify), "verified_on_training": len(sweeps) < 2,
-            "models": {name: {"kind": m.kind, "inputs": m.inputs,
-                              "residual_rms": [float(v) for v in m.residual_rms],
-                              "parameters": len(m.parameter_names())}
-                       for name, m in models.items()},
-            "stability": tables}
+        return {
+            "windows": int(len(part)),
+            "t_start": float(part["t_start"].iloc[0]),
+            "t_end": float(part["t_end"].iloc[-1]),
+            "temp_from": float(part["temp"].iloc[0]),
+            "temp_to": float(part["temp"].iloc[-1]),
+            "t_ref": float(part.attrs["t_ref"]),
+        }
+
+    return {
+        "protocol": "sweep",
+        "sweeps": len(sweeps),
+        "train": describe(train),
+        "verify": describe(verify),
+        "verified_on_training": len(sweeps) < 2,
+        "models": {
+            name: {
+                "kind": m.kind,
+                "inputs": m.inputs,
+                "residual_rms": [float(v) for v in m.residual_rms],
+                "parameters": len(m.parameter_names()),
+            }
+            for name, m in models.items()
+        },
+        "stability": tables,
+    }
 
 
 def static(log, seg, max_temp_rate: float):
@@ -155,14 +218,17 @@ def static(log, seg, max_temp_rate: float):
     obs = seg.observations
     steady = np.abs(obs["temp_rate"].to_numpy(float)) <= max_temp_rate
     rate = float(seg.info.get("sample_rate", 1.0))
-    return merge_intervals(obs.loc[steady, "t_start"].to_numpy(float),
-                           obs.loc[steady, "t_end"].to_numpy(float),
-                           2.0 / rate + float(seg.info.get("longest_stall_s") or 0.0))
+    return merge_intervals(
+        obs.loc[steady, "t_start"].to_numpy(float),
+        obs.loc[steady, "t_end"].to_numpy(float),
+        2.0 / rate + float(seg.info.get("longest_stall_s") or 0.0),
+    )
 
 
 def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
     """:func:`sweep_analysis` and the drift models' figure."""
     from ...report import plots
+
     fitted = sweep_fit(obs)
     train, verify, _, models = fitted
     return sweep_analysis(obs, fitted), [plots.sweep_drift(train, verify, models)]
@@ -170,8 +236,15 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
 
 # Seed 003's conventional drift model (linear in ΔT, fitted jointly over the sweep), with
 # its modified model (Eq 16, + ΔT²) as the diagnosis' candidate and the ladder's step.
-SWEEP = register(Protocol(
-    "sweep", "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)",
-    segment=lambda log, settings: segment_sweep(log, settings.protocol_options("sweep")),
-    static=static, analysis=analysis, report_section="protocols/sweep_section.html.j2",
-    defaults=DEFAULTS, timed_holds=False))
+SWEEP = register(
+    Protocol(
+        "sweep",
+        "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)",
+        segment=lambda log, settings: segment_sweep(log, settings.protocol_options("sweep")),
+        static=static,
+        analysis=analysis,
+        report_section="protocols/sweep_section.html.j2",
+        defaults=DEFAULTS,
+        timed_holds=False,
+    )
+)

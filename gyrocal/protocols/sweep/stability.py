@@ -68,12 +68,15 @@ def reference_errors(data, *, mount: str | None = None) -> tuple[np.ndarray, np.
         col = data.column
         has = data.__contains__
     elif isinstance(data, pd.DataFrame):
+
         def col(name):
             return data[name].to_numpy()
+
         has = data.columns.__contains__
     else:
-        raise InputError("bias stability needs sweep windows, samples or a RigLog, "
-                         f"got {type(data).__name__}")
+        raise InputError(
+            f"bias stability needs sweep windows, samples or a RigLog, got {type(data).__name__}"
+        )
     missing = [c for c in (*GYRO, "ref_rate") if not has(c)]
     if missing:
         raise MissingInputError(f"samples lack {', '.join(missing)}")
@@ -86,14 +89,18 @@ def reference_errors(data, *, mount: str | None = None) -> tuple[np.ndarray, np.
         code = np.full(len(ref), MOUNTS.index(mount))
     elif has("mount"):
         m = col("mount")
-        code = (np.asarray(m, dtype=np.int64) if np.asarray(m).dtype.kind in "iu"
-                else pd.Categorical(m, categories=MOUNTS).codes.astype(np.int64))
+        code = (
+            np.asarray(m, dtype=np.int64)
+            if np.asarray(m).dtype.kind in "iu"
+            else pd.Categorical(m, categories=MOUNTS).codes.astype(np.int64)
+        )
     else:
         code = None
     if code is None or (code < 0).any():
         if np.any(ref != 0):
-            raise MissingInputError("samples turn at a non-zero reference rate but give no mount; "
-                                    "pass mount= or a mount column")
+            raise MissingInputError(
+                "samples turn at a non-zero reference rate but give no mount; pass mount= or a mount column"
+            )
     else:
         rows = np.arange(len(ref))
         expected[rows, code // 2] = np.where(code % 2 == 0, 1.0, -1.0) * ref
@@ -126,7 +133,11 @@ def stability_table(data, models, *, mount: str | None = None) -> pd.DataFrame:
     table = pd.DataFrame({f"BS{i + 1}": v for i, v in enumerate(bs)}, index=pd.Index(AXES, name="axis"))
     for name, value in improvements(*bs).items():
         table[name] = value
-    table.attrs.update(n=int(len(err)), level="windows" if isinstance(data, pd.DataFrame)
-                       and set(TARGETS) <= set(data.columns) else "samples",
-                       models=[f"{m.kind}({m.inputs})" for m in chain])
+    table.attrs.update(
+        n=int(len(err)),
+        level="windows"
+        if isinstance(data, pd.DataFrame) and set(TARGETS) <= set(data.columns)
+        else "samples",
+        models=[f"{m.kind}({m.inputs})" for m in chain],
+    )
     return table

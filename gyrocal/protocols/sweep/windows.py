@@ -40,21 +40,35 @@ REASONS = {
     "motion": "the gyro scatters well beyond the noise, or next to such a window",
 }
 AXES = ("x", "y", "z")
-MIN_WINDOW_SAMPLES = 8   # a burst this short gives a mean but no scatter worth the name
+MIN_WINDOW_SAMPLES = 8  # a burst this short gives a mean but no scatter worth the name
 OPTIONS = "the config's protocols: sweep: options:, or static: options:"
 
 
 def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value < 0 or (value == 0 and not allow_zero):
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not math.isfinite(value)
+        or value < 0
+        or (value == 0 and not allow_zero)
+    ):
         kind = "non-negative" if allow_zero else "positive"
         raise ConfigError(f"sweep window setting {name} must be a {kind} number, got {value!r}")
     return float(value)
 
 
-def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = None,
-                  mount: str | None = None, motion_factor: float = 5.0, settle_windows: int = 1,
-                  fill: float = 0.9, min_span: float = 5.0, min_windows: int = 10) -> pd.DataFrame:
+def sweep_windows(
+    log: RigLog,
+    *,
+    window_s: float = 20.0,
+    t_ref: float | None = None,
+    mount: str | None = None,
+    motion_factor: float = 5.0,
+    settle_windows: int = 1,
+    fill: float = 0.9,
+    min_span: float = 5.0,
+    min_windows: int = 10,
+) -> pd.DataFrame:
     """One row per kept window of ``log``; see the module docstring.
 
     Columns: ``window`` (index along the log), ``t_start``, ``t_end`` (s), ``n``, ``temp``
@@ -86,8 +100,11 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     dt = 1.0 / stamps.rate
     per_window = window_s / dt
     if per_window < 2:
-        raise SegmentationError(f"window of {window_s:g} s holds {per_window:.2g} samples at "
-                                f"{1 / dt:.3g} Hz; expected at least 2", source=log.path)
+        raise SegmentationError(
+            f"window of {window_s:g} s holds {per_window:.2g} samples at "
+            f"{1 / dt:.3g} Hz; expected at least 2",
+            source=log.path,
+        )
 
     # Windows restart at each run between the logger's real gaps, so that a chamber's bursts
     # are not cut by a grid laid from the log's start; a run shorter than a window (a
@@ -111,7 +128,7 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
         return np.add.reduceat(x, starts, axis=0)
 
     gyro = np.column_stack([log.column(c) for c in GYRO]).astype(np.float64)
-    dev = gyro - gyro[starts][owner]       # centred on each window's first sample: exact squares
+    dev = gyro - gyro[starts][owner]  # centred on each window's first sample: exact squares
     s1, s2 = sums(dev), sums(dev * dev)
     mean_dev = s1 / counts[:, None]
     var = np.maximum(s2 - s1 * mean_dev, 0.0) / np.maximum(counts - 1, 1)[:, None]
@@ -141,19 +158,26 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     # Reasons, first one wins.
     reason = np.full(k, "", dtype=object)
     burst = run_span[run_of[starts]] < window_s
-    incomplete = (counts < fill * expected) | (burst & (counts < MIN_WINDOW_SAMPLES)) \
+    incomplete = (
+        (counts < fill * expected)
+        | (burst & (counts < MIN_WINDOW_SAMPLES))
         | (inner_gap > np.maximum(3.0 * dt, (1 - fill) * expected * dt))
+    )
     reason[incomplete] = "incomplete"
     ok = reason == ""
     if not ok.any():
-        raise SegmentationError(f"not a sweep: no complete {window_s:g}-s window in {n_rows} rows; "
-                                f"a shorter window_s fits shorter stretches ({OPTIONS})", source=log.path)
+        raise SegmentationError(
+            f"not a sweep: no complete {window_s:g}-s window in {n_rows} rows; "
+            f"a shorter window_s fits shorter stretches ({OPTIONS})",
+            source=log.path,
+        )
     rig_rate = float(np.median(ref_mean[ok]))
     tol = 0.005 + 1e-3 * abs(rig_rate)
     reason[ok & ((ref_span > tol) | (np.abs(ref_mean - rig_rate) > tol))] = "reference"
     if not (reason == "").any():
-        raise SegmentationError(f"not a sweep: no {window_s:g}-s window holds the reference rate constant",
-                                source=log.path)
+        raise SegmentationError(
+            f"not a sweep: no {window_s:g}-s window holds the reference rate constant", source=log.path
+        )
 
     codes = None
     if "mount" in log:
@@ -199,25 +223,39 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     n_keep = int(keep.sum())
     if n_keep < min_windows:
         counts_by = pd.Series(reason[~keep]).value_counts().to_dict()
-        raise SegmentationError(f"not a sweep: {n_keep} usable {window_s:g}-s windows, expected at least "
-                                f"{min_windows} (dropped: {counts_by or 'none'}); window_s and min_windows "
-                                f"set them ({OPTIONS})", source=log.path)
+        raise SegmentationError(
+            f"not a sweep: {n_keep} usable {window_s:g}-s windows, expected at least "
+            f"{min_windows} (dropped: {counts_by or 'none'}); window_s and min_windows "
+            f"set them ({OPTIONS})",
+            source=log.path,
+        )
     temps = temp_mean[keep]
     span = float(temps.max() - temps.min())
     if span < min_span:
-        raise SegmentationError(f"not a sweep: temperature spans {span:.3g} °C over the usable windows, "
-                                f"expected at least {min_span:g} °C", source=log.path)
+        raise SegmentationError(
+            f"not a sweep: temperature spans {span:.3g} °C over the usable windows, "
+            f"expected at least {min_span:g} °C",
+            source=log.path,
+        )
     t0 = float(temps[0]) if t_ref is None else float(t_ref)
     dT = temps - t0
-    out = pd.DataFrame({
-        "window": np.flatnonzero(keep), "t_start": t[starts][keep], "t_end": t_end[keep],
-        "n": counts[keep].astype(np.int64), "temp": temps, "dT": dT, "dT2": dT * dT,
-        "temp_rate": temp_rate[keep], "ref_rate": ref_mean[keep],
-        **{f"gyro_{a}": g_mean[keep, i] for i, a in enumerate(AXES)},
-        **{f"std_{a}": g_std[keep, i] for i, a in enumerate(AXES)},
-        **{f"err_{a}": err[keep, i] for i, a in enumerate(AXES)},
-        "mount": MOUNTS[mount_code] if mount_code >= 0 else "",
-    })
+    out = pd.DataFrame(
+        {
+            "window": np.flatnonzero(keep),
+            "t_start": t[starts][keep],
+            "t_end": t_end[keep],
+            "n": counts[keep].astype(np.int64),
+            "temp": temps,
+            "dT": dT,
+            "dT2": dT * dT,
+            "temp_rate": temp_rate[keep],
+            "ref_rate": ref_mean[keep],
+            **{f"gyro_{a}": g_mean[keep, i] for i, a in enumerate(AXES)},
+            **{f"std_{a}": g_std[keep, i] for i, a in enumerate(AXES)},
+            **{f"err_{a}": err[keep, i] for i, a in enumerate(AXES)},
+            "mount": MOUNTS[mount_code] if mount_code >= 0 else "",
+        }
+    )
     dropped = {r: int(np.count_nonzero(reason == r)) for r in REASONS}
     # windows a pause of a continuous log left without samples (a burst logger's pauses are
     # its design, not lost windows)
@@ -226,16 +264,28 @@ def sweep_windows(log: RigLog, *, window_s: float = 20.0, t_ref: float | None = 
     lost = int(np.sum(np.floor(pause[continuous] / window_s)))
     grid_windows = int(wid[-1]) + 1 + lost
     dropped["incomplete"] += grid_windows - k
-    out.attrs.update(t_ref=t0, window_s=window_s, sample_rate=stamps.rate, runs=len(run_starts),
-                     bursts=int(np.count_nonzero(run_span < window_s)), stamps=stamps.warning(),
-                     longest_stall_s=stamps.longest_stall_s, rig_rate=rig_rate,
-                     mount=MOUNTS[mount_code] if mount_code >= 0 else "", mount_source=mount_source,
-                     dropped=dropped, windows_total=grid_windows, rows=int(n_rows), path=log.path)
+    out.attrs.update(
+        t_ref=t0,
+        window_s=window_s,
+        sample_rate=stamps.rate,
+        runs=len(run_starts),
+        bursts=int(np.count_nonzero(run_span < window_s)),
+        stamps=stamps.warning(),
+        longest_stall_s=stamps.longest_stall_s,
+        rig_rate=rig_rate,
+        mount=MOUNTS[mount_code] if mount_code >= 0 else "",
+        mount_source=mount_source,
+        dropped=dropped,
+        windows_total=grid_windows,
+        rows=int(n_rows),
+        path=log.path,
+    )
     return out
 
 
-def split_sweeps(windows: pd.DataFrame, *, min_rate: float = 0.05, smooth_s: float = 600.0,
-                 min_span: float = 5.0) -> list[pd.DataFrame]:
+def split_sweeps(
+    windows: pd.DataFrame, *, min_rate: float = 0.05, smooth_s: float = 600.0, min_span: float = 5.0
+) -> list[pd.DataFrame]:
     """Split a log's windows into its monotone temperature ramps (Section 3.2 step 1:
     train on one sweep, verify on another).
 
@@ -251,8 +301,9 @@ def split_sweeps(windows: pd.DataFrame, *, min_rate: float = 0.05, smooth_s: flo
     _check_positive("smooth_s", smooth_s)
     need = {"t_start", "t_end", "temp"}
     if not need <= set(windows.columns):
-        raise ConfigError(f"split_sweeps needs window columns {sorted(need)}, "
-                          f"found {sorted(windows.columns)}")
+        raise ConfigError(
+            f"split_sweeps needs window columns {sorted(need)}, found {sorted(windows.columns)}"
+        )
     source = windows.attrs.get("path")
     if len(windows) == 0:
         raise SegmentationError("no windows to split into sweeps", source=source)
@@ -284,6 +335,9 @@ def split_sweeps(windows: pd.DataFrame, *, min_rate: float = 0.05, smooth_s: flo
         part.attrs = dict(windows.attrs, t_ref=t0, direction=int(filled[a]))
         out.append(part.reset_index(drop=True))
     if not out:
-        raise SegmentationError(f"no monotone temperature ramp spanning {min_span:g} °C or more "
-                                f"(rate threshold {min_rate:g} °C/min)", source=source)
+        raise SegmentationError(
+            f"no monotone temperature ramp spanning {min_span:g} °C or more "
+            f"(rate threshold {min_rate:g} °C/min)",
+            source=source,
+        )
     return out

@@ -9,7 +9,8 @@ from ..registry import Protocol, register
 
 
 def _segment(log, settings):
-    from .segment import segment   # on use: a report reads the protocol without segmentation
+    from .segment import segment  # on use: a report reads the protocol without segmentation
+
     return segment(log, settings.segmentation)
 
 
@@ -18,14 +19,22 @@ def static(log, seg, max_temp_rate: float):
     inside its stable-temperature periods."""
     s = seg.segments
     pick = (s["kind"] == "soak") | ((s["kind"] == "hold") & (s["ref_rate"] == 0))
-    t0, t1 = merge_intervals(s.loc[pick, "t_start"].to_numpy(float), s.loc[pick, "t_end"].to_numpy(float),
-                             MERGE_GAP_S)
+    t0, t1 = merge_intervals(
+        s.loc[pick, "t_start"].to_numpy(float), s.loc[pick, "t_end"].to_numpy(float), MERGE_GAP_S
+    )
     st = seg.stable_periods
     return intersect_intervals(t0, t1, st["t_start"].to_numpy(float), st["t_end"].to_numpy(float))
 
 
-TURNTABLE = register(Protocol(
-    "turntable", "multi-temperature turntable: soaks, constant-rate holds on several mounts (seed 000)",
-    segment=_segment, static=static, top_level_settings=True, fleet_audits=True,
-    axis_mounts=True,
-    reading_blocks=lambda settings: settings.segmentation.block_s))
+TURNTABLE = register(
+    Protocol(
+        "turntable",
+        "multi-temperature turntable: soaks, constant-rate holds on several mounts (seed 000)",
+        segment=_segment,
+        static=static,
+        top_level_settings=True,
+        fleet_audits=True,
+        axis_mounts=True,
+        reading_blocks=lambda settings: settings.segmentation.block_s,
+    )
+)

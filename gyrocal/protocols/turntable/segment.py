@@ -101,8 +101,7 @@ def _range_index(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.arange(lengths.sum()) + offsets
 
 
-def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
-                    cfg: SegmentConfig) -> Segmentation:
+def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentConfig) -> Segmentation:
     nb = len(blk.get("t_first", ()))
     if nb < 8:
         raise SegmentationError(f"log too short to segment ({len(log)} rows)", source=log.path)
@@ -120,16 +119,14 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     gap_limit = max(cfg.gap_bridge_s, (cfg.gap_factor - 1) * dt)
     in_gap = pause_in > gap_limit
     gap_before = np.r_[False, pause_before[1:] > gap_limit]
-    tol = np.maximum(cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(r),
-                     3.0 * _median(blk["ref_span"]))
+    tol = np.maximum(cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(r), 3.0 * _median(blk["ref_span"]))
     const = (blk["ref_span"] <= tol) & ~in_gap
     level_step = np.r_[True, np.abs(np.diff(r)) > tol[1:]]
     new_run = const & (level_step | gap_before | ~np.r_[False, const[:-1]])
     run = np.cumsum(new_run) - 1
     n_runs = int(run[-1]) + 1 if new_run.any() else 0
     if n_runs == 0:
-        raise SegmentationError("the reference rate is never constant: no hold to use",
-                                source=log.path)
+        raise SegmentationError("the reference rate is never constant: no hold to use", source=log.path)
 
     # 2. Motion at constant reference.
     ci = np.flatnonzero(const)
@@ -142,12 +139,14 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     # stretches the noise is measured on) nothing is allowed: a settling output is left out
     # there as before.
     run_ref = np.bincount(run[const], weights=r[const], minlength=n_runs) / np.maximum(
-        np.bincount(run[const], minlength=n_runs), 1)
+        np.bincount(run[const], minlength=n_runs), 1
+    )
     step_into = np.abs(np.diff(np.r_[0.0, run_ref]))
     turning = np.abs(run_ref) > cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(run_ref)
-    allowance = np.r_[cfg.settling * step_into * turning, 0.0]       # per run, dummy run last
-    active, level, gain, excursion = _motion(const, run, n_runs, mean, var, r, noise_log,
-                                             size, cfg, allowance * min(block_dt, 1.0))
+    allowance = np.r_[cfg.settling * step_into * turning, 0.0]  # per run, dummy run last
+    active, level, gain, excursion = _motion(
+        const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance * min(block_dt, 1.0)
+    )
     settle = int(math.ceil(cfg.settle_s / block_dt))
     c_act = np.r_[0, np.cumsum(active)]
     pos = np.arange(nb)
@@ -181,17 +180,30 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     for b0, b1 in zip(*true_runs(in_gap), strict=False):
         segments.append(("gap", "", "", b0, b1))
     for b0, b1 in zip(*true_runs(active), strict=False):
-        segments.append(("rejected", "handling_motion",
-                         f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
-                         f"at reference {r[b0]:.4g} deg/s", b0, b1))
+        segments.append(
+            (
+                "rejected",
+                "handling_motion",
+                f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
+                f"at reference {r[b0]:.4g} deg/s",
+                b0,
+                b1,
+            )
+        )
     for b0, b1 in zip(*true_runs(near_motion & const & ~active), strict=False):
         segments.append(("transient", "", "settling after motion", b0, b1))
     for i in np.flatnonzero(is_soak):
         segments.append(("soak", "", "", starts[i], h_start[i]))
     for i in np.flatnonzero(~long_enough):
-        segments.append(("rejected", "too_short",
-                         f"{max(c1[i] - c0[i], 0) * block_dt:.3g} s after trimming, "
-                         f"minimum {min_hold:.3g} s", h_start[i], stops[i]))
+        segments.append(
+            (
+                "rejected",
+                "too_short",
+                f"{max(c1[i] - c0[i], 0) * block_dt:.3g} s after trimming, minimum {min_hold:.3g} s",
+                h_start[i],
+                stops[i],
+            )
+        )
     for i in np.flatnonzero(long_enough & (trim > 0)):
         segments.append(("transient", "", "trimmed", h_start[i], c0[i]))
         segments.append(("transient", "", "trimmed", c1[i], stops[i]))
@@ -199,10 +211,13 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
         longest = (c1 - c0)[~is_soak].max(initial=0) * block_dt
         raise SegmentationError(
             f"no constant-rate hold long enough: the longest lasts {max(longest, 0):.3g} s "
-            f"after trimming, the minimum is {max(min_hold, block_dt):.3g} s", source=log.path)
+            f"after trimming, the minimum is {max(min_hold, block_dt):.3g} s",
+            source=log.path,
+        )
     c0, c1 = c0[long_enough], c1[long_enough]
-    h = _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var,
-                         level[run[c0]], gain[run[c0]], cfg, allowance[run[c0]])
+    h = _hold_statistics(
+        blk, size, c0, c1, log, r, tol, mean, var, level[run[c0]], gain[run[c0]], cfg, allowance[run[c0]]
+    )
     # The table's angle at each hold's start, from its first sample: the reference rate
     # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
     h["table_angle"] = np.mod(np.r_[0.0, np.cumsum(r * block_dt, dtype=np.float64)][c0], 360.0)
@@ -217,17 +232,29 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
         for i in np.flatnonzero(mask):
             detail[i] = text(i)
 
-    reject(h["ref_drift"] > h["ref_tol"], "reference_drift",
-           lambda i: f"reference spans {h['ref_drift'][i]:.3g} deg/s (tolerance {h['ref_tol'][i]:.3g})")
-    reject(h["not_steady"], "not_steady",
-           lambda i: f"halves differ by {h['half_diff'][i]:.3g} deg/s (limit {h['half_limit'][i]:.3g})")
-    reject(h["saturated"] > cfg.saturation_fraction, "saturated",
-           lambda i: f"{100 * h['saturated'][i]:.3g} % of samples at the output limit")
+    reject(
+        h["ref_drift"] > h["ref_tol"],
+        "reference_drift",
+        lambda i: f"reference spans {h['ref_drift'][i]:.3g} deg/s (tolerance {h['ref_tol'][i]:.3g})",
+    )
+    reject(
+        h["not_steady"],
+        "not_steady",
+        lambda i: f"halves differ by {h['half_diff'][i]:.3g} deg/s (limit {h['half_limit'][i]:.3g})",
+    )
+    reject(
+        h["saturated"] > cfg.saturation_fraction,
+        "saturated",
+        lambda i: f"{100 * h['saturated'][i]:.3g} % of samples at the output limit",
+    )
     # No sensor's output holds one value to the bit through a hold while the others move:
     # an axis stuck or disconnected there, whose zero scatter would also zero its floor.
     stuck = (h["var"] == 0) & (h["n"] > 1)[:, None] & (h["var"] > 0).any(axis=1, keepdims=True)
-    reject(stuck.any(axis=1), "stuck_axis",
-           lambda i: f"{GYRO[int(np.argmax(stuck[i]))]} reads one value through the hold")
+    reject(
+        stuck.any(axis=1),
+        "stuck_axis",
+        lambda i: f"{GYRO[int(np.argmax(stuck[i]))]} reads one value through the hold",
+    )
     mounts, source = _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject)
     axis = np.where(mounts >= 0, mounts // 2, 0)
     sign = np.where(mounts % 2 == 0, 1.0, -1.0)
@@ -235,20 +262,33 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     rate_vec[np.arange(len(c0)), axis] = np.where(mounts >= 0, sign * h["ref"], 0.0)
     err = np.abs(h["mean"] - rate_vec)
     limit = cfg.agree_scale * np.abs(h["ref"])[:, None] + cfg.agree_bias
-    reject((err > limit).any(axis=1) & (mounts >= 0), "gyro_disagrees",
-           lambda i: f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
-                     f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}")
+    reject(
+        (err > limit).any(axis=1) & (mounts >= 0),
+        "gyro_disagrees",
+        lambda i: (
+            f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
+            f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}"
+        ),
+    )
     turning = (mounts >= 0) & (np.abs(h["ref"]) > 10 * cfg.agree_bias)
     disagree = turning & (reason == "gyro_disagrees")
     # Most of an axis' holds off by one ratio: a unit or a sign, not a few bad holds.
     plausibility.rate_ratio_check(
-        {"xyz"[a]: h["mean"][disagree & (axis == a), a] / (sign * h["ref"])[disagree & (axis == a)]
-         for a in range(3)},
-        {"xyz"[a]: int(np.count_nonzero(turning & (axis == a))) for a in range(3)}, source=log.path)
+        {
+            "xyz"[a]: h["mean"][disagree & (axis == a), a] / (sign * h["ref"])[disagree & (axis == a)]
+            for a in range(3)
+        },
+        {"xyz"[a]: int(np.count_nonzero(turning & (axis == a))) for a in range(3)},
+        source=log.path,
+    )
     # A short hold's rate estimate is noisy: reject only rates significantly over the limit.
-    reject(np.abs(h["temp_rate"]) - 3.0 * h["temp_rate_sd"] > cfg.max_temp_rate,
-           "unstable_temperature", lambda i: f"{h['temp_rate'][i]:.3g} ± "
-           f"{h['temp_rate_sd'][i]:.2g} °C/min (limit {cfg.max_temp_rate:g})")
+    reject(
+        np.abs(h["temp_rate"]) - 3.0 * h["temp_rate_sd"] > cfg.max_temp_rate,
+        "unstable_temperature",
+        lambda i: (
+            f"{h['temp_rate'][i]:.3g} ± {h['temp_rate_sd'][i]:.2g} °C/min (limit {cfg.max_temp_rate:g})"
+        ),
+    )
 
     accepted = reason == ""
     for i in np.flatnonzero(~accepted):
@@ -258,22 +298,38 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float,
     if not accepted.any():
         counts = pd.Series(reason).value_counts()
         still = not np.any(h["ref"])
-        raise SegmentationError("no hold passed the checks (" + ", ".join(
-            f"{k}: {v}" for k, v in counts.items()) + ")" + (
-            "; the reference rate is 0 throughout: a static log, not a turntable's (--protocol "
-            "sweep for a temperature sweep, --protocol static for a unit lying still; gyrocal "
-            "noise reads either)" if still else ""), source=log.path)
+        raise SegmentationError(
+            "no hold passed the checks ("
+            + ", ".join(f"{k}: {v}" for k, v in counts.items())
+            + ")"
+            + (
+                "; the reference rate is 0 throughout: a static log, not a turntable's (--protocol "
+                "sweep for a temperature sweep, --protocol static for a unit lying still; gyrocal "
+                "noise reads either)"
+                if still
+                else ""
+            ),
+            source=log.path,
+        )
 
     obs = _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg)
     seg = _segment_table(segments, t_first, t_last, r, obs)
-    info = dict(path=log.path, rows_read=log.rows_read, rows_dropped=log.rows_dropped,
-                rows_used=len(log), sample_rate=1.0 / dt, block_samples=size,
-                typical_hold_s=typical, min_hold_s=min_hold, soak_min_s=soak_min,
-                noise_per_sample=noise_log.tolist(), holds_accepted=int(accepted.sum()),
-                rejected_by_reason=seg.loc[seg["kind"] == "rejected", "reason"]
-                .value_counts().sort_index().to_dict(),
-                temperature_points=int(obs["point"].max()) + 1,
-                has_mount_column="mount" in log)
+    info = dict(
+        path=log.path,
+        rows_read=log.rows_read,
+        rows_dropped=log.rows_dropped,
+        rows_used=len(log),
+        sample_rate=1.0 / dt,
+        block_samples=size,
+        typical_hold_s=typical,
+        min_hold_s=min_hold,
+        soak_min_s=soak_min,
+        noise_per_sample=noise_log.tolist(),
+        holds_accepted=int(accepted.sum()),
+        rejected_by_reason=seg.loc[seg["kind"] == "rejected", "reason"].value_counts().sort_index().to_dict(),
+        temperature_points=int(obs["point"].max()) + 1,
+        has_mount_column="mount" in log,
+    )
     return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), _timeline(blk), info)
 
 
@@ -287,14 +343,15 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance=No
     motion from their quiet blocks only, and tests those runs again.
     """
     nb = len(const)
-    run_of = np.where(const, run, n_runs)               # dummy run n_runs: not constant
+    run_of = np.where(const, run, n_runs)  # dummy run n_runs: not constant
     active = np.zeros(nb, dtype=bool)
     level = np.zeros((n_runs + 1, 3))
     gain = np.zeros((n_runs + 1, 3))
-    blocks = None                                        # None: all blocks, no gathers
+    blocks = None  # None: all blocks, no gathers
     for _ in range(2):
-        idx, m_b, v_b, r_b, c_b, a_b = (a if blocks is None else a[blocks]
-                                        for a in (run_of, mean, var, r, const, active))
+        idx, m_b, v_b, r_b, c_b, a_b = (
+            a if blocks is None else a[blocks] for a in (run_of, mean, var, r, const, active)
+        )
         quiet = c_b & ~a_b
         count = np.bincount(idx, weights=quiet, minlength=n_runs + 1)
         noise = np.where(count[:, None] > 0, np.sqrt(_quiet_mean(v_b, idx, quiet, count)), noise_log)
@@ -305,16 +362,18 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance=No
         moving = np.abs(r_run) > cfg.rate_tol_abs
         # The gyro follows small reference wobble (table settling, rate ripple): the run's
         # measured gain takes out what the reference explains, leaving motion it does not.
-        gain[runs] = np.where(moving[runs, None],
-                              level[runs] / np.where(moving[runs], r_run[runs], 1.0)[:, None], 0.0)
+        gain[runs] = np.where(
+            moving[runs, None], level[runs] / np.where(moving[runs], r_run[runs], 1.0)[:, None], 0.0
+        )
         resid = (m_b - gain[idx] * r_b[:, None]).astype(np.float32)
         sd = noise[idx]
         # Scatter inside a block is tested where the table stands still, which is where a
         # person handles the unit; on a turning table the gyro's scatter follows the
         # table's own wobble, and the jump test still sees a knock.
         scatter = (v_b > 9.0 * sd * sd).any(axis=1) & ~moving[idx]
-        threshold = np.maximum(np.float32(cfg.motion_sigma * math.sqrt(2.0 / size)) * sd,
-                               np.float32(cfg.motion_floor))
+        threshold = np.maximum(
+            np.float32(cfg.motion_sigma * math.sqrt(2.0 / size)) * sd, np.float32(cfg.motion_floor)
+        )
         if allowance is not None:
             threshold = threshold + allowance[idx, None].astype(np.float32)
         step = (np.abs(np.diff(resid, axis=0)) > threshold[1:]).any(axis=1)
@@ -340,13 +399,16 @@ def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance=No
 def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: np.ndarray) -> np.ndarray:
     """Per-run mean of (k, m) block values over the run's quiet blocks."""
     # where, not a product: a block variance that overflowed to inf times 0 would be NaN.
-    sums = np.column_stack([np.bincount(run, weights=np.where(quiet, values[:, a], 0.0), minlength=len(count))
-                            for a in range(values.shape[1])])
+    sums = np.column_stack(
+        [
+            np.bincount(run, weights=np.where(quiet, values[:, a], 0.0), minlength=len(count))
+            for a in range(values.shape[1])
+        ]
+    )
     return sums / np.maximum(count, 1)[:, None]
 
 
-def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg,
-                     allowance=None) -> dict:
+def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg, allowance=None) -> dict:
     """Per-hold sums over the hold's blocks: means, variances, steadiness, temperature rate.
 
     A hold's scatter is its blocks' own scatter plus the blocks' spread about the hold mean;
@@ -378,8 +440,10 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
     d1 = _range_sums(np.where(first_half[:, None], resid, 0.0), first) / np.maximum(lengths // 2, 1)[:, None]
     d2 = _range_sums(np.where(first_half[:, None], 0.0, resid), first) / (lengths - lengths // 2)[:, None]
     half_diff = np.abs(d2 - d1)
-    steady_limit = (cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
-                    + cfg.motion_floor)
+    steady_limit = (
+        cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
+        + cfg.motion_floor
+    )
     half_limit = steady_limit + (0.0 if allowance is None else allowance[:, None])
     settling = (half_diff > steady_limit).any(axis=1)
     if settling.any():
@@ -389,21 +453,31 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
         succ = np.r_[np.diff(resid, axis=0), np.zeros((1, resid.shape[1]))]
         last = np.r_[first[1:], len(hb)] - 1
         succ[last] = 0.0
-        mssd = _range_sums(succ ** 2, first) / 2.0 * size
+        mssd = _range_sums(succ**2, first) / 2.0 * size
         hold_var = np.where(settling[:, None], (within + mssd) / (n - 1)[:, None], hold_var)
     worst = np.argmax(half_diff - half_limit, axis=1)
     rows = np.arange(len(c0))
     rate, rate_sd = _hold_temp_rate(blk, c0, c1)
-    out = dict(n=n, mean=hold_mean, var=hold_var, ref=ref, temp=temp, temp_rate=rate,
-               temp_rate_sd=rate_sd, t_start=blk["t_first"][c0], t_end=blk["t_last"][c1 - 1],
-               ref_drift=ref_drift, ref_tol=tol[c0],
-               not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
-               half_diff=half_diff[rows, worst], half_limit=half_limit[rows, worst],
-               # The output's change from the hold's first half to its second (signed, per
-               # axis): what a slow pole leaves after the step into the hold.
-               settle=np.where((lengths >= 2)[:, None], d2 - d1, np.nan),
-               saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log,
-                                     cfg.full_scale))
+    out = dict(
+        n=n,
+        mean=hold_mean,
+        var=hold_var,
+        ref=ref,
+        temp=temp,
+        temp_rate=rate,
+        temp_rate_sd=rate_sd,
+        t_start=blk["t_first"][c0],
+        t_end=blk["t_last"][c1 - 1],
+        ref_drift=ref_drift,
+        ref_tol=tol[c0],
+        not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
+        half_diff=half_diff[rows, worst],
+        half_limit=half_limit[rows, worst],
+        # The output's change from the hold's first half to its second (signed, per
+        # axis): what a slow pole leaves after the step into the hold.
+        settle=np.where((lengths >= 2)[:, None], d2 - d1, np.nan),
+        saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log, cfg.full_scale),
+    )
     if "accel" in blk:  # optional: blocks without accelerometer data are left out
         acc = blk["accel"][hb].astype(np.float64)
         have = np.isfinite(acc)
@@ -504,12 +578,16 @@ def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
         from_column = np.where(changes, -2, first[c0])
         reject(changes, "mount_changes", lambda i: "mount label changes inside the hold")
     both = (from_column >= 0) & (from_data >= 0)
-    reject(both & (from_column != from_data), "mount_mismatch",
-           lambda i: f"mount column says {MOUNTS[from_column[i]]}, gyro says {MOUNTS[from_data[i]]}")
+    reject(
+        both & (from_column != from_data),
+        "mount_mismatch",
+        lambda i: f"mount column says {MOUNTS[from_column[i]]}, gyro says {MOUNTS[from_data[i]]}",
+    )
 
     mounts = np.where(from_column >= 0, from_column, from_data)
-    source = np.where(both, "both", np.where(from_column >= 0, "column",
-                                             np.where(from_data >= 0, "data", "")))
+    source = np.where(
+        both, "both", np.where(from_column >= 0, "column", np.where(from_data >= 0, "data", ""))
+    )
     # Holds too slow to tell their mount inherit it from their neighbours in the same
     # mounting, which ends at handling motion or a logging gap.
     session = np.cumsum(active | in_gap | gap_before)[c0]
@@ -518,8 +596,11 @@ def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
     inherit = (mounts == -1) & (agree >= 0)
     mounts = np.where(inherit, agree, mounts)
     source = np.where(inherit, "inherited", source)
-    reject(mounts == -1, "mount_undetermined",
-           lambda i: "too slow to tell the mount and no agreeing neighbour or mount column")
+    reject(
+        mounts == -1,
+        "mount_undetermined",
+        lambda i: "too slow to tell the mount and no agreeing neighbour or mount column",
+    )
     return mounts, source
 
 
@@ -530,10 +611,13 @@ def _timeline(blk, buckets: int = 2000) -> pd.DataFrame:
     nb = len(blk["t_first"])
     starts = np.arange(0, nb, -(-nb // buckets))
     ends = np.r_[starts[1:], nb] - 1
-    out = {"t_start": blk["t_first"][starts], "t_end": blk["t_last"][ends],
-           "temp": np.add.reduceat(blk["temp"], starts) / (ends - starts + 1),
-           "ref_min": np.minimum.reduceat(blk["ref"], starts),
-           "ref_max": np.maximum.reduceat(blk["ref"], starts)}
+    out = {
+        "t_start": blk["t_first"][starts],
+        "t_end": blk["t_last"][ends],
+        "temp": np.add.reduceat(blk["temp"], starts) / (ends - starts + 1),
+        "ref_min": np.minimum.reduceat(blk["ref"], starts),
+        "ref_max": np.maximum.reduceat(blk["ref"], starts),
+    }
     for a, c in enumerate("xyz"):
         out[f"gyro_{c}_min"] = np.minimum.reduceat(blk["gyro"][:, a], starts)
         out[f"gyro_{c}_max"] = np.maximum.reduceat(blk["gyro"][:, a], starts)
@@ -547,10 +631,12 @@ def _nearest_known(values: np.ndarray, session: np.ndarray) -> tuple[np.ndarray,
     pos = np.arange(n)
     last = np.maximum.accumulate(np.where(values >= 0, pos, -1))
     nxt = np.minimum.accumulate(np.where(values >= 0, pos, n)[::-1])[::-1]
-    before = np.where((last >= 0) & (session[np.maximum(last, 0)] == session),
-                      values[np.maximum(last, 0)], -1)
-    after = np.where((nxt < n) & (session[np.minimum(nxt, n - 1)] == session),
-                     values[np.minimum(nxt, n - 1)], -1)
+    before = np.where(
+        (last >= 0) & (session[np.maximum(last, 0)] == session), values[np.maximum(last, 0)], -1
+    )
+    after = np.where(
+        (nxt < n) & (session[np.minimum(nxt, n - 1)] == session), values[np.minimum(nxt, n - 1)], -1
+    )
     return before, after
 
 
@@ -566,25 +652,44 @@ def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
     a, b = true_runs(stable)
     first, last = lo[a], np.minimum(lo[b - 1] + width, nb)
     p = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
-    return pd.DataFrame({"t_start": blk["t_first"][first], "t_end": blk["t_last"][last - 1],
-                         "temp": (p[last] - p[first]) / (last - first)})
+    return pd.DataFrame(
+        {
+            "t_start": blk["t_first"][first],
+            "t_end": blk["t_last"][last - 1],
+            "temp": (p[last] - p[first]) / (last - first),
+        }
+    )
 
 
 def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -> pd.DataFrame:
     a = accepted
     std = np.sqrt(h["var"][a])
-    obs = pd.DataFrame({
-        "hold": np.arange(a.sum()),
-        "t_start": h["t_start"][a], "t_end": h["t_end"][a],
-        "duration": h["t_end"][a] - h["t_start"][a], "n": h["n"][a].astype(np.int64),
-        "mount": pd.Categorical([MOUNTS[m] for m in mounts[a]], categories=MOUNTS),
-        "axis": ["xyz"[x] for x in axis[a]], "sign": sign[a], "mount_source": source[a],
-        "ref_rate": h["ref"][a],
-        "rate_x": rate_vec[a, 0], "rate_y": rate_vec[a, 1], "rate_z": rate_vec[a, 2],
-        "gyro_x": h["mean"][a, 0], "gyro_y": h["mean"][a, 1], "gyro_z": h["mean"][a, 2],
-        "std_x": std[:, 0], "std_y": std[:, 1], "std_z": std[:, 2],
-        "temp": h["temp"][a], "temp_rate": h["temp_rate"][a], "table_angle": h["table_angle"][a],
-    })
+    obs = pd.DataFrame(
+        {
+            "hold": np.arange(a.sum()),
+            "t_start": h["t_start"][a],
+            "t_end": h["t_end"][a],
+            "duration": h["t_end"][a] - h["t_start"][a],
+            "n": h["n"][a].astype(np.int64),
+            "mount": pd.Categorical([MOUNTS[m] for m in mounts[a]], categories=MOUNTS),
+            "axis": ["xyz"[x] for x in axis[a]],
+            "sign": sign[a],
+            "mount_source": source[a],
+            "ref_rate": h["ref"][a],
+            "rate_x": rate_vec[a, 0],
+            "rate_y": rate_vec[a, 1],
+            "rate_z": rate_vec[a, 2],
+            "gyro_x": h["mean"][a, 0],
+            "gyro_y": h["mean"][a, 1],
+            "gyro_z": h["mean"][a, 2],
+            "std_x": std[:, 0],
+            "std_y": std[:, 1],
+            "std_z": std[:, 2],
+            "temp": h["temp"][a],
+            "temp_rate": h["temp_rate"][a],
+            "table_angle": h["table_angle"][a],
+        }
+    )
     if "accel" in h:
         for i, c in enumerate("xyz"):
             obs[f"accel_{c}"] = h["accel"][a, i]
@@ -605,13 +710,16 @@ def _segment_table(segments, t_first, t_last, r, obs) -> pd.DataFrame:
     keep = b1 > b0
     b0, b1 = b0[keep], b1[keep]
     p = np.r_[0.0, np.cumsum(r)]
-    seg = pd.DataFrame({
-        "kind": np.asarray(kinds, dtype=object)[keep],
-        "reason": np.asarray(reasons, dtype=object)[keep],
-        "detail": np.asarray(details, dtype=object)[keep],
-        "t_start": t_first[b0], "t_end": t_last[b1 - 1],
-        "ref_rate": (p[b1] - p[b0]) / (b1 - b0),
-    })
+    seg = pd.DataFrame(
+        {
+            "kind": np.asarray(kinds, dtype=object)[keep],
+            "reason": np.asarray(reasons, dtype=object)[keep],
+            "detail": np.asarray(details, dtype=object)[keep],
+            "t_start": t_first[b0],
+            "t_end": t_last[b1 - 1],
+            "ref_rate": (p[b1] - p[b0]) / (b1 - b0),
+        }
+    )
     seg = seg.sort_values(["t_start", "kind"], kind="stable").reset_index(drop=True)
     hold = np.full(len(seg), -1)
     is_hold = np.flatnonzero(seg["kind"].to_numpy() == "hold")
