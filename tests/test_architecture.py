@@ -216,7 +216,7 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
 
     from gyrocal.diagnose import evaluation
     from gyrocal.fit import thermal
-    from gyrocal.pipeline import chain, identify
+    from gyrocal.pipeline import identify
     from gyrocal.pipeline.config import Settings
     from gyrocal.run import stages
     from gyrocal.simulate import TurntableProtocol, simulate_unit
@@ -236,9 +236,9 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
             fits.append(1)
         return original(model, *args, **kwargs)
 
-    # the stages import the fit where they use it; the chain, the identification and the
-    # evaluation hold their own name
-    for module in (chain, identify, thermal, evaluation):
+    # the stages import the fit where they use it; the identification and the evaluation
+    # hold their own name
+    for module in (identify, thermal, evaluation):
         monkeypatch.setattr(module, "fit_model", counting)
     stages.analyse_stage(folder, settings, meta, record_failures=False)
     assert len(fits) == 1
