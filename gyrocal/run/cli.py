@@ -6,6 +6,7 @@ import argparse
 import sys
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 from .. import __version__
 from ..calibration.export import add_export_parser
@@ -97,30 +98,39 @@ def _meta(args) -> dict:
     return {k: getattr(args, k, None) for k in ("device", "batch", "session", "protocol")}
 
 
-def cmd_simulate(args) -> int:
-    from dataclasses import replace
+class SimulationInputs(NamedTuple):
+    """What `gyrocal simulate` renders with: the rig, the published unit (--unit seed000,
+    else None), and the errors beyond the unit's model (--effects, --noise)."""
 
-    from ..simulate import published_unit, rig_for, simulate, simulate_unit
-    from ..simulate.fleet import unit_for
+    rig: object
+    published: object
+    effects: dict
+    noise: dict | str | None
 
-    if (args.out is None) == (args.log is None):
-        raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
-    options = {
-        "temperatures": "--temperatures",
-        "rates": "--rates",
-        "mounts": "--mounts",
-        "sample_rate": "--sample-rate",
-        "soak_s": "--soak-s",
-        "hold_s": "--hold-s",
-        "handling_s": "--handling-s",
-        "accel_columns": "--no-accel",
-        "mount_column": "--no-mount-column",
-    }
-    knobs = {k: getattr(args, k) for k in options if k in vars(args)}
+
+# The rig's fields the simulate command sets, by the option that sets them
+RIG_OPTIONS = {
+    "temperatures": "--temperatures",
+    "rates": "--rates",
+    "mounts": "--mounts",
+    "sample_rate": "--sample-rate",
+    "soak_s": "--soak-s",
+    "hold_s": "--hold-s",
+    "handling_s": "--handling-s",
+    "accel_columns": "--no-accel",
+    "mount_column": "--no-mount-column",
+}
+
+
+def _simulation_inputs(args) -> SimulationInputs:
+    """The rig, unit and errors the options ask for; a malformed option is refused here."""
+    from ..simulate import published_unit, rig_for
+
+    knobs = {k: getattr(args, k) for k in RIG_OPTIONS if k in vars(args)}
     knobs.update(
         accel_columns=False if args.no_accel else None, mount_column=False if args.no_mount_column else None
     )
-    rig = rig_for(args.protocol, args.preset, knobs, options)
+    rig = rig_for(args.protocol, args.preset, knobs, RIG_OPTIONS)
     published = published_unit(args.protocol) if args.unit == "seed000" else None
     effects = _json_object(args.effects, "--effects")
     noise = None
@@ -128,43 +138,17 @@ def cmd_simulate(args) -> int:
         noise = _json_object(args.noise, "--noise") if args.noise.lstrip().startswith("{") else args.noise
     if args.bias_shift is not None and len(args.bias_shift) != 3:
         raise ConfigError(f"--bias-shift takes three numbers (deg/s, x,y,z), got {len(args.bias_shift)}")
+    return SimulationInputs(rig, published, effects, noise)
 
-    import numpy as np
 
-    def shifted(unit):
-        """The unit after its bias moved by --bias-shift (a unit that drifted since)."""
-        if args.bias_shift is None:
-            return unit
-        poly = np.array(unit.bias_poly, dtype=float)
-        poly[:, 0] += np.array(args.bias_shift)
-        return replace(unit, bias_poly=tuple(map(tuple, poly)))
+def cmd_simulate(args) -> int:
+    from ..simulate import simulate
 
+    if (args.out is None) == (args.log is None):
+        raise ConfigError("give either --out DIR (a fleet with its manifest) or --log FILE")
+    inputs = _simulation_inputs(args)
     if args.log is not None:
-        # One log of one unit: the unit follows from its device id, the noise from the
-        # session too, so every session of a device is the same physical unit.
-        device = args.device or "U001"
-        unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000", protocol=args.protocol)
-        if args.bias_shift is not None and not hasattr(unit, "bias_poly"):
-            raise ConfigError(
-                f"--bias-shift applies to units with a bias polynomial, not to a {args.protocol} unit"
-            )
-        unit = shifted(unit)
-        Path(args.log).parent.mkdir(parents=True, exist_ok=True)
-        simulate_unit(
-            args.log,
-            protocol=args.protocol,
-            rig=rig,
-            unit=unit,
-            rng=np.random.default_rng(seed),
-            device=device,
-            batch=args.batch,
-            session=args.session,
-            seed=seed,
-            effects=effects,
-            noise=noise,
-        )
-        print(f"wrote {args.log}")
-        return 0
+        return _simulate_one_log(args, inputs)
     if args.bias_shift is not None:
         raise ConfigError("--bias-shift applies to one unit's log: use it with --log")
     manifest = simulate(
@@ -172,16 +156,63 @@ def cmd_simulate(args) -> int:
         protocol=args.protocol,
         units=args.units,
         seed=args.seed,
-        rig=rig,
-        unit=published,
+        rig=inputs.rig,
+        unit=inputs.published,
         batch=args.batch,
         session=args.session,
         device_prefix=args.device_prefix,
-        effects=effects,
-        noise=noise,
+        effects=inputs.effects,
+        noise=inputs.noise,
     )
     print(f"wrote {args.units} log(s) and manifest {manifest}")
     return 0
+
+
+def _simulate_one_log(args, inputs: SimulationInputs) -> int:
+    """One log of one unit: the unit follows from its device id, the noise from the session
+    too, so every session of a device is the same physical unit."""
+    import numpy as np
+
+    from ..simulate import simulate_unit
+    from ..simulate.fleet import unit_for
+
+    device = args.device or "U001"
+    unit, seed = unit_for(device, args.session, seed000=args.unit == "seed000", protocol=args.protocol)
+    if args.bias_shift is not None and not hasattr(unit, "bias_poly"):
+        raise ConfigError(
+            f"--bias-shift applies to units with a bias polynomial, not to a {args.protocol} unit"
+        )
+    unit = _with_bias_shift(unit, args.bias_shift)
+    Path(args.log).parent.mkdir(parents=True, exist_ok=True)
+    simulate_unit(
+        args.log,
+        protocol=args.protocol,
+        rig=inputs.rig,
+        unit=unit,
+        rng=np.random.default_rng(seed),
+        device=device,
+        batch=args.batch,
+        session=args.session,
+        seed=seed,
+        effects=inputs.effects,
+        noise=inputs.noise,
+    )
+    print(f"wrote {args.log}")
+    return 0
+
+
+def _with_bias_shift(unit, shift):
+    """The unit after its bias moved by ``shift`` (deg/s x,y,z: a unit that drifted since);
+    the unit itself when ``shift`` is None."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    if shift is None:
+        return unit
+    poly = np.array(unit.bias_poly, dtype=float)
+    poly[:, 0] += np.array(shift)
+    return replace(unit, bias_poly=tuple(map(tuple, poly)))
 
 
 def _stage(args, stage: str, outputs, work) -> int:
@@ -686,7 +717,60 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
+    _add_simulate(sub)
+    _add_calibrate(sub)
+    _add_diagnose(sub)
+    _add_apply(sub)
+    _add_verify(sub)
+    _add_revalidate(sub)
+    _add_noise(sub)
+    _add_segment(sub)
+    _add_fit_and_validate(sub)
+    _add_analyse(sub)
+    _add_report(sub)
+    _add_shard(sub)
+    _add_fleet(sub)
+    _add_import(sub)
+    add_paper_parser(sub)
+    add_lookup_parser(sub)
+    add_export_parser(sub)
+    return parser
 
+
+def _add_settings_arguments(p, model: bool = True) -> None:
+    """The settings a command reads: --config, --settings-json, --terms; with ``model``, the
+    model's --model and --add-term too."""
+    p.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
+    p.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
+    p.add_argument(
+        "--terms",
+        action="append",
+        metavar="FILE",
+        help="a Python file registering your own terms (repeatable); it runs as code",
+    )
+    if model:
+        p.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
+        p.add_argument(
+            "--add-term", action="append", metavar="NAME", help="add a term to the model (repeatable)"
+        )
+
+
+def _add_unit_arguments(p, failures: bool = True) -> None:
+    """Who the log is of (--device, --batch, --session, --protocol); with ``failures``, the
+    fleet runs' --record-failures."""
+    p.add_argument("--device")
+    p.add_argument("--batch")
+    p.add_argument("--session")
+    p.add_argument("--protocol", default=registry.DEFAULT)
+    if failures:
+        p.add_argument(
+            "--record-failures",
+            action="store_true",
+            help="on failure write failure records and exit 0 (fleet runs)",
+        )
+
+
+def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
     p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
     where = p.add_mutually_exclusive_group(required=True)
@@ -711,6 +795,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--batch", default="B1")
     p.add_argument("--session", default="2026-01-01")
     p.add_argument("--device-prefix", default="U")
+    _add_rig_arguments(p)
+    _add_unit_error_arguments(p)
+    p.set_defaults(func=cmd_simulate)
+
+
+def _add_rig_arguments(p) -> None:
+    """The simulated rig's knobs, each overriding the preset's value."""
     p.add_argument("--temperatures", type=_floats, help="set points, °C, comma-separated")
     p.add_argument("--rates", type=_floats, help="hold rate magnitudes, deg/s")
     p.add_argument("--mounts", type=lambda s: tuple(s.split(",")), help="e.g. +x,+y,+z")
@@ -720,6 +811,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--handling-s", type=float)
     p.add_argument("--no-mount-column", action="store_true")
     p.add_argument("--no-accel", action="store_true")
+
+
+def _add_unit_error_arguments(p) -> None:
+    """What the simulated unit gets beyond its drawn parameters: a bias shift, effects, noise."""
     p.add_argument(
         "--bias-shift",
         type=_floats,
@@ -736,44 +831,20 @@ def build_parser() -> argparse.ArgumentParser:
         'levels as JSON, e.g. \'{"bias_instability": 6, "rrw": 20}\' (deg/h, '
         "deg/h/sqrt(h); gyrocal/simulate/noise.py)",
     )
-    p.set_defaults(func=cmd_simulate)
 
-    def common(q, model=True):
-        q.add_argument("--config", help="settings YAML (segmentation:, model:, diagnosis:)")
-        q.add_argument("--settings-json", help="settings as one JSON object (segmentation, model, diagnosis)")
-        q.add_argument(
-            "--terms",
-            action="append",
-            metavar="FILE",
-            help="a Python file registering your own terms (repeatable); it runs as code",
-        )
-        if model:
-            q.add_argument("--model", help="model YAML (terms:, interpolation:, ...)")
-            q.add_argument(
-                "--add-term", action="append", metavar="NAME", help="add a term to the model (repeatable)"
-            )
 
-    def unit(q, failures=True):
-        q.add_argument("--device")
-        q.add_argument("--batch")
-        q.add_argument("--session")
-        q.add_argument("--protocol", default=registry.DEFAULT)
-        if failures:
-            q.add_argument(
-                "--record-failures",
-                action="store_true",
-                help="on failure write failure records and exit 0 (fleet runs)",
-            )
-
+def _add_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
     p.add_argument("log")
     p.add_argument("-o", "--output", required=True, help="calibration .json")
     p.add_argument("--report", help="also write an HTML report here")
     p.add_argument("--tables", help="also write observation and validation tables here")
-    unit(p, failures=False)
-    common(p)
+    _add_unit_arguments(p, failures=False)
+    _add_settings_arguments(p)
     p.set_defaults(func=cmd_calibrate)
 
+
+def _add_diagnose(sub) -> None:
     p = sub.add_parser("diagnose", help="where the model fails and which effect is missing")
     p.add_argument("log", nargs="?", help="the rig log (or --unit for a segmented unit)")
     p.add_argument("--unit", help="a unit's results folder (workflow stage)")
@@ -785,10 +856,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="another session of the same unit (its log, or its results folder): "
         "candidates are judged by how they carry over to it",
     )
-    unit(p)
-    common(p)
+    _add_unit_arguments(p)
+    _add_settings_arguments(p)
     p.set_defaults(func=cmd_diagnose)
 
+
+def _add_apply(sub) -> None:
     p = sub.add_parser("apply", help="compensate a log with a calibration")
     p.add_argument("calibration")
     p.add_argument("log")
@@ -801,11 +874,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_apply)
 
+
+def _add_verify(sub) -> None:
     p = sub.add_parser("verify", help="check that a log is the input a calibration records (its hash)")
     p.add_argument("calibration")
     p.add_argument("log")
     p.set_defaults(func=cmd_verify)
 
+
+def _add_revalidate(sub) -> None:
     p = sub.add_parser(
         "revalidate",
         help="judge a calibration on another session of its unit (its RMS against the noise floor)",
@@ -818,9 +895,11 @@ def build_parser() -> argparse.ArgumentParser:
         choices=registry.names(),
         help="how to segment the log (default: the calibration's protocol)",
     )
-    common(p, model=False)
+    _add_settings_arguments(p, model=False)
     p.set_defaults(func=cmd_revalidate)
 
+
+def _add_noise(sub) -> None:
     p = sub.add_parser(
         "noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's static stretches"
     )
@@ -832,26 +911,32 @@ def build_parser() -> argparse.ArgumentParser:
         help="how to find the static stretches (default: static where the reference "
         "rate is 0 throughout and no mount is named, else turntable)",
     )
-    common(p, model=False)
+    _add_settings_arguments(p, model=False)
     p.set_defaults(func=cmd_noise)
 
+
+def _add_segment(sub) -> None:
     p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")
     p.add_argument("log")
     p.add_argument("--out", required=True, help="the unit's results folder")
-    unit(p)
-    common(p, model=False)
+    _add_unit_arguments(p)
+    _add_settings_arguments(p, model=False)
     p.set_defaults(func=cmd_segment)
 
+
+def _add_fit_and_validate(sub) -> None:
     for name, func, text in (
         ("fit", cmd_fit, "stage: fit the unit's calibration"),
         ("validate", cmd_validate, "stage: validate the unit's calibration"),
     ):
         p = sub.add_parser(name, help=text)
         p.add_argument("unit", help="the unit's results folder")
-        unit(p)
-        common(p)
+        _add_unit_arguments(p)
+        _add_settings_arguments(p)
         p.set_defaults(func=func)
 
+
+def _add_analyse(sub) -> None:
     p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
     p.add_argument("unit", help="the unit's results folder")
     p.add_argument(
@@ -863,17 +948,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--report", metavar="HTML", help="then write the unit's report here, as `gyrocal report` would"
     )
-    unit(p)
-    common(p)
+    _add_unit_arguments(p)
+    _add_settings_arguments(p)
     p.set_defaults(func=cmd_analyse)
 
+
+def _add_report(sub) -> None:
     p = sub.add_parser("report", help="stage: the unit's HTML report")
     p.add_argument("unit", help="the unit's results folder")
     p.add_argument("-o", "--output", required=True)
-    unit(p)
-    common(p)
+    _add_unit_arguments(p)
+    _add_settings_arguments(p)
     p.set_defaults(func=cmd_report)
 
+
+def _add_shard(sub) -> None:
     p = sub.add_parser(
         "shard", help="split a day's manifest into shards, a workflow run each (docs/cluster.md)"
     )
@@ -916,6 +1005,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.set_defaults(func=cmd_shard)
 
+
+def _add_fleet(sub) -> None:
     p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
     p.add_argument("--manifest", required=True)
     p.add_argument("--results", default="results", help="root of the units' results folders")
@@ -933,6 +1024,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write the fleet as one Parquet table, a row per unit session (docs/fleet-table.md)",
     )
     p.set_defaults(func=cmd_fleet)
+
+
+def _add_import(sub) -> None:
     p = sub.add_parser(
         "import", help="convert a CSV/TSV, ROS 2 bag or MCAP file into a rig log (docs/import.md)"
     )
@@ -954,10 +1048,6 @@ def build_parser() -> argparse.ArgumentParser:
         "--sections", metavar="FILE", help="a section list in imucal's format: writes the section column"
     )
     p.set_defaults(func=cmd_import)
-    add_paper_parser(sub)
-    add_lookup_parser(sub)
-    add_export_parser(sub)
-    return parser
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None):
