@@ -8,13 +8,15 @@ import warnings
 from pathlib import Path
 from typing import NamedTuple
 
+from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
+
+# isort: split
 from .. import __version__
 from ..calibration.export import add_export_parser
 from ..calibration.lookup import add_lookup_parser
 from ..io.errors import ConfigError, GyrocalError
 from ..paper import add_parser as add_paper_parser
 from ..protocols import registry
-from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count numpy will read
 
 EPILOG = "Rates in deg/s, temperatures in °C. See README.md for the rig log contract."
 
