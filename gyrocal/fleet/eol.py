@@ -76,81 +76,114 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
     has checked.
     """
     if _is_failure(calibration) or calibration is None:
-        meta = dict(calibration) if isinstance(calibration, Mapping) else {}
-        reason = (
-            _failure_text("calibration", calibration)
-            if calibration is not None
-            else "calibration failed: no calibration"
-        )
-        return Verdict(
-            False, (reason,), {}, {k: meta.get(k) for k in ("device", "batch", "session", "protocol")}, False
-        )
+        return _uncalibrated_verdict(calibration)
     cal: Calibration = calibration
-    reasons: list[str] = []
-    checked: dict = {}
-
-    def record(name, value, limit, unit, ok, reason=None):
-        checked[name] = {"value": value, "limit": limit, "unit": unit, "passed": bool(ok)}
-        if not ok:
-            reasons.append(reason)
-
-    def unavailable(name, what, why):
-        checked[name] = {"value": None, "limit": None, "unit": None, "passed": False, "note": why}
-        reasons.append(f"{what} not available: {why}")
-
+    checks = _Checks()
     if limits.parameters:
-        p = parameters_at(cal, limits.temperature)
-        patterns = [pat for pat, _ in limits.parameters]
-        ranges = dict(limits.parameters)
-        T = float(p["temperature"].iloc[0])
-        for name, value, unit, clamped in p[["parameter", "value", "unit", "clamped"]].itertuples(
-            index=False
-        ):
-            pat = match_pattern(patterns, name)
-            if pat is None:
-                continue
-            lo, hi = ranges[pat]
-            symmetric = lo == -hi
-            limit_text = f"±{hi:g} {unit}" if symmetric else f"[{lo:g}, {hi:g}] {unit}"
-            verb = "exceeds" if symmetric else "outside"
-            where = f" at {T:g} °C" + (" (clamped to the calibrated span)" if clamped else "")
-            record(
-                name,
-                float(value),
-                [lo, hi],
-                unit,
-                lo <= value <= hi,
-                f"{name} = {_fmt(value)} {unit} {verb} {limit_text}{where}",
-            )
-
+        _check_parameters(checks, cal, limits)
     if limits.temperature_coefficients:
-        tc = temperature_coefficients(cal)
-        patterns = [pat for pat, _ in limits.temperature_coefficients]
-        limit_of = dict(limits.temperature_coefficients)
-        if tc is None:
-            for pat in patterns:
-                unavailable(
-                    f"d({pat})/dT",
-                    f"d({pat})/dT",
-                    f"calibrated at a single temperature ({cal.grid.span[0]:.1f} °C)",
-                )
-        else:
-            lo, hi = cal.grid.span
-            for name, value, unit in tc.itertuples(index=False):
-                pat = match_pattern(patterns, name)
-                if pat is None:
-                    continue
-                lim = limit_of[pat]
-                record(
-                    f"d({name})/dT",
-                    value,
-                    lim,
-                    unit,
-                    value <= lim,
-                    f"d({name})/dT = {_fmt(value)} {unit} exceeds ±{lim:g} {unit} "
-                    f"over {lo:.1f} to {hi:.1f} °C",
-                )
+        _check_temperature_coefficients(checks, cal, limits)
+    _check_validation(checks, summary, limits)
+    _check_noise(checks, cal, limits)
+    if limits.temperature_span is not None:
+        _check_temperature_span(checks, cal, limits)
+    _check_segmentation(checks, cal, seg_info, limits)
+    if limits.fail_on_warnings:
+        _check_warnings(checks, cal, limits)
+    meta = {k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")}
+    return Verdict(not checks.reasons, tuple(checks.reasons), checks.checked, meta)
 
+
+def _uncalibrated_verdict(calibration) -> Verdict:
+    """The failed verdict of a unit without a calibration: its failure (record or exception)
+    or None is the reason."""
+    meta = dict(calibration) if isinstance(calibration, Mapping) else {}
+    reason = (
+        _failure_text("calibration", calibration)
+        if calibration is not None
+        else "calibration failed: no calibration"
+    )
+    return Verdict(
+        False, (reason,), {}, {k: meta.get(k) for k in ("device", "batch", "session", "protocol")}, False
+    )
+
+
+@dataclass
+class _Checks:
+    """What a verdict has checked so far: each value by name (value, limit, unit, passed),
+    and a line for each that failed, in the order checked."""
+
+    checked: dict = field(default_factory=dict)
+    reasons: list[str] = field(default_factory=list)
+
+    def record(self, name, value, limit, unit, ok, reason=None) -> None:
+        self.checked[name] = {"value": value, "limit": limit, "unit": unit, "passed": bool(ok)}
+        if not ok:
+            self.reasons.append(reason)
+
+    def unavailable(self, name, what, why) -> None:
+        """A configured limit whose value cannot be had: it fails, saying why."""
+        self.checked[name] = {"value": None, "limit": None, "unit": None, "passed": False, "note": why}
+        self.reasons.append(f"{what} not available: {why}")
+
+
+def _check_parameters(checks: _Checks, cal: Calibration, limits: SpecLimits) -> None:
+    """Each parameter a limit's pattern matches, at the spec's temperature, within its range."""
+    p = parameters_at(cal, limits.temperature)
+    patterns = [pat for pat, _ in limits.parameters]
+    ranges = dict(limits.parameters)
+    T = float(p["temperature"].iloc[0])
+    for name, value, unit, clamped in p[["parameter", "value", "unit", "clamped"]].itertuples(index=False):
+        pat = match_pattern(patterns, name)
+        if pat is None:
+            continue
+        lo, hi = ranges[pat]
+        symmetric = lo == -hi
+        limit_text = f"±{hi:g} {unit}" if symmetric else f"[{lo:g}, {hi:g}] {unit}"
+        verb = "exceeds" if symmetric else "outside"
+        where = f" at {T:g} °C" + (" (clamped to the calibrated span)" if clamped else "")
+        checks.record(
+            name,
+            float(value),
+            [lo, hi],
+            unit,
+            lo <= value <= hi,
+            f"{name} = {_fmt(value)} {unit} {verb} {limit_text}{where}",
+        )
+
+
+def _check_temperature_coefficients(checks: _Checks, cal: Calibration, limits: SpecLimits) -> None:
+    """Each parameter's temperature coefficient a limit's pattern matches, within its limit;
+    a single-temperature calibration has none."""
+    tc = temperature_coefficients(cal)
+    patterns = [pat for pat, _ in limits.temperature_coefficients]
+    limit_of = dict(limits.temperature_coefficients)
+    if tc is None:
+        for pat in patterns:
+            checks.unavailable(
+                f"d({pat})/dT",
+                f"d({pat})/dT",
+                f"calibrated at a single temperature ({cal.grid.span[0]:.1f} °C)",
+            )
+        return
+    lo, hi = cal.grid.span
+    for name, value, unit in tc.itertuples(index=False):
+        pat = match_pattern(patterns, name)
+        if pat is None:
+            continue
+        lim = limit_of[pat]
+        checks.record(
+            f"d({name})/dT",
+            value,
+            lim,
+            unit,
+            value <= lim,
+            f"d({name})/dT = {_fmt(value)} {unit} exceeds ±{lim:g} {unit} over {lo:.1f} to {hi:.1f} °C",
+        )
+
+
+def _check_validation(checks: _Checks, summary: Mapping | None, limits: SpecLimits) -> None:
+    """The validation RMS and the excess over the noise floor, each within its limit."""
     for key, what, unit in (
         ("validation_rms", "validation RMS", "deg/s"),
         ("excess", "excess over the noise floor", "×"),
@@ -159,11 +192,13 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
         if lim is None:
             continue
         if _is_failure(summary):
-            unavailable(key, what, _failure_text("validation", summary).removeprefix("validation failed: "))
+            checks.unavailable(
+                key, what, _failure_text("validation", summary).removeprefix("validation failed: ")
+            )
             continue
         value = None if summary is None else summary.get(key)
         if value is None or not math.isfinite(value):
-            unavailable(
+            checks.unavailable(
                 key, what, "no validation summary" if summary is None else f"the summary has no {key}"
             )
             continue
@@ -172,18 +207,21 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
             if unit == "deg/s"
             else f"{value:.3g}× exceeds {lim:g}×"
         )
-        record(key, float(value), lim, unit, value <= lim, f"{what} = {text}")
+        checks.record(key, float(value), lim, unit, value <= lim, f"{what} = {text}")
 
+
+def _check_noise(checks: _Checks, cal: Calibration, limits: SpecLimits) -> None:
+    """Each limited noise term of the calibration's session, its largest axis within the limit."""
     noise = cal.extra.get("noise") or {}
     for term, lim in limits.noise:
         what, unit = NOISE_LIMITS[term]
         if "session" not in noise:
-            unavailable(
+            checks.unavailable(
                 f"noise.{term}", what, noise.get("reason", "the calibration has no noise characterisation")
             )
             continue
         value = float(np.max(noise["session"][term]))
-        record(
+        checks.record(
             f"noise.{term}",
             value,
             lim,
@@ -192,23 +230,31 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
             f"{what} = {value:.3g} {unit} exceeds {lim:g} {unit} (largest axis)",
         )
 
-    if limits.temperature_span is not None:
-        want_lo, want_hi = limits.temperature_span
-        tol = limits.temperature_span_tolerance
-        lo, hi = cal.grid.span
-        ok_lo, ok_hi = lo <= want_lo + tol, hi >= want_hi - tol
-        checked["temperature_span"] = {
-            "value": [lo, hi],
-            "limit": [want_lo, want_hi],
-            "unit": "°C",
-            "tolerance": tol,
-            "passed": bool(ok_lo and ok_hi),
-        }
-        within = f" (tolerance {tol:g} °C)" if tol else ""
-        for ok, end in ((ok_lo, want_lo), (ok_hi, want_hi)):
-            if not ok:
-                reasons.append(f"calibrated span {lo:.1f} to {hi:.1f} °C does not reach {end:g} °C{within}")
 
+def _check_temperature_span(checks: _Checks, cal: Calibration, limits: SpecLimits) -> None:
+    """The calibrated span reaches both ends of the spec's span, within its tolerance."""
+    want_lo, want_hi = limits.temperature_span
+    tol = limits.temperature_span_tolerance
+    lo, hi = cal.grid.span
+    ok_lo, ok_hi = lo <= want_lo + tol, hi >= want_hi - tol
+    checks.checked["temperature_span"] = {
+        "value": [lo, hi],
+        "limit": [want_lo, want_hi],
+        "unit": "°C",
+        "tolerance": tol,
+        "passed": bool(ok_lo and ok_hi),
+    }
+    within = f" (tolerance {tol:g} °C)" if tol else ""
+    for ok, end in ((ok_lo, want_lo), (ok_hi, want_hi)):
+        if not ok:
+            checks.reasons.append(
+                f"calibrated span {lo:.1f} to {hi:.1f} °C does not reach {end:g} °C{within}"
+            )
+
+
+def _check_segmentation(checks: _Checks, cal: Calibration, seg_info, limits: SpecLimits) -> None:
+    """The accepted holds, their share of the candidates, and the temperature points, each
+    at least its minimum."""
     seg_failed = _is_failure(seg_info)
     info = {} if seg_info is None or seg_failed else seg_info
     why_no_info = (
@@ -219,9 +265,9 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
     if limits.min_holds is not None:
         n = info.get("holds_accepted")
         if n is None:
-            unavailable("min_holds", "accepted holds", why_no_info)
+            checks.unavailable("min_holds", "accepted holds", why_no_info)
         else:
-            record(
+            checks.record(
                 "min_holds",
                 int(n),
                 limits.min_holds,
@@ -232,9 +278,9 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
     if limits.min_hold_share is not None:
         share, why = hold_share(info) if info else (None, why_no_info)
         if share is None:
-            unavailable("min_hold_share", "accepted hold share", why)
+            checks.unavailable("min_hold_share", "accepted hold share", why)
         else:
-            record(
+            checks.record(
                 "min_hold_share",
                 share,
                 limits.min_hold_share,
@@ -248,9 +294,9 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
         if n is None and not seg_failed:
             n = len(cal.grid.temperatures)  # servo, sweep: the calibration's own points
         if n is None:
-            unavailable("min_temperature_points", "temperature points", why_no_info)
+            checks.unavailable("min_temperature_points", "temperature points", why_no_info)
         else:
-            record(
+            checks.record(
                 "min_temperature_points",
                 int(n),
                 limits.min_temperature_points,
@@ -259,24 +305,23 @@ def judge(calibration, summary: Mapping | None, seg_info: Mapping | None, limits
                 f"temperature points = {int(n)} below the minimum {limits.min_temperature_points}",
             )
 
-    if limits.fail_on_warnings:
-        warned = [
-            w
-            for w in cal.extra.get("warnings", [])
-            if limits.fail_on_warnings is True or w["code"] in limits.fail_on_warnings
-        ]
-        checked["warnings"] = {
-            "value": [w["code"] for w in warned],
-            "limit": limits.fail_on_warnings
-            if limits.fail_on_warnings is True
-            else list(limits.fail_on_warnings),
-            "unit": None,
-            "passed": not warned,
-        }
-        reasons += [f"plausibility warning {w['code']}: {w['message']}" for w in warned]
 
-    meta = {k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")}
-    return Verdict(not reasons, tuple(reasons), checked, meta)
+def _check_warnings(checks: _Checks, cal: Calibration, limits: SpecLimits) -> None:
+    """No plausibility warning the spec fails on (all of them, or the codes it names)."""
+    warned = [
+        w
+        for w in cal.extra.get("warnings", [])
+        if limits.fail_on_warnings is True or w["code"] in limits.fail_on_warnings
+    ]
+    checks.checked["warnings"] = {
+        "value": [w["code"] for w in warned],
+        "limit": limits.fail_on_warnings
+        if limits.fail_on_warnings is True
+        else list(limits.fail_on_warnings),
+        "unit": None,
+        "passed": not warned,
+    }
+    checks.reasons.extend(f"plausibility warning {w['code']}: {w['message']}" for w in warned)
 
 
 def hold_share(info: Mapping) -> tuple[float | None, str]:
