@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -64,6 +65,28 @@ def parameter_changes(
     only for a non-zero change between two calibrations that both report zero error.
     Parameters not in every session are left out (``attrs["left_out"]``).
     """
+    sessions = _drift_sessions(calibrations, tolerance, z_limit)
+    cals = sessions.calibrations
+    T = float(cals[0].reference_temperature if temperature is None else temperature)
+    values = _parameter_values(cals, T)
+    out = _changes_frame(sessions, T, values)
+    out.attrs["left_out"] = values.left_out
+    return out
+
+
+class _DriftSessions(NamedTuple):
+    """One device's calibrations in session-date order, with the checked z limit and the
+    tolerance of each parameter pattern."""
+
+    calibrations: list[Calibration]
+    device: str
+    z_limit: float
+    tolerance: dict[str, float]
+
+
+def _drift_sessions(calibrations, tolerance: Mapping | None, z_limit: float) -> _DriftSessions:
+    """The calibrations to compare, refused unless they are of one device and each names its
+    session, and the z limit and tolerances refused unless they are numbers that make sense."""
     cals = [_load(c) for c in calibrations]
     if not cals:
         raise InputError("drift audit: no calibrations to compare")
@@ -82,44 +105,67 @@ def parameter_changes(
     if any(v < 0 for v in tol_of.values()):
         bad = next(p for p, v in tol_of.items() if v < 0)
         raise ConfigError(f"drift tolerance {bad} must be at least 0, got {tol_of[bad]!r}")
-
     order = sorted(range(len(cals)), key=lambda i: str(cals[i].meta["session"]))
-    cals = [cals[i] for i in order]
-    T = float(cals[0].reference_temperature if temperature is None else temperature)
+    return _DriftSessions([cals[i] for i in order], devices[0], z_limit, tol_of)
+
+
+class _ParameterValues(NamedTuple):
+    """The parameters every session has, at one temperature: values and standard errors
+    (sessions × parameters), whether each session's value was clamped to its calibrated
+    span, and the parameters left out because some session lacks them."""
+
+    names: list[str]
+    units: list[str]
+    values: np.ndarray
+    stderr: np.ndarray
+    clamped: np.ndarray
+    left_out: list[str]
+
+
+def _parameter_values(cals: list[Calibration], T: float) -> _ParameterValues:
     tables = [parameters_at(c, T).set_index("parameter") for c in cals]
     names = [n for n in tables[0].index if all(n in t.index for t in tables[1:])]
     left_out = sorted(set().union(*(set(t.index) for t in tables)) - set(names))
     V = np.array([t.loc[names, "value"].to_numpy(dtype=float) for t in tables])  # (S, P)
     E = np.array([t.loc[names, "stderr"].to_numpy(dtype=float) for t in tables])
     clamped = np.array([np.full(len(names), bool(t["clamped"].iloc[0])) for t in tables])
+    units = tables[0].loc[names, "unit"].tolist()
+    return _ParameterValues(names, units, V, E, clamped, left_out)
+
+
+def _z_score(change: np.ndarray, se: np.ndarray) -> np.ndarray:
+    """change / se; where se is 0, 0 for no change and ±inf for a change."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(
+            se > 0,
+            change / np.where(se > 0, se, 1.0),
+            np.where(change == 0, 0.0, np.sign(change) * np.inf),
+        )
+
+
+def _changes_frame(sessions: _DriftSessions, T: float, values: _ParameterValues) -> pd.DataFrame:
+    """Each parameter's change since the previous and since the first session, its standard
+    error and z, and the flags: one row per session and parameter."""
+    cals, names, V, E = sessions.calibrations, values.names, values.values, values.stderr
     prev = np.r_[0, np.arange(len(cals) - 1)]
     change_prev, se_prev = V - V[prev], np.hypot(E, E[prev])
     change_first, se_first = V - V[0], np.hypot(E, E[0])
     se_prev[0] = se_first[0] = 0.0
+    tol_of = sessions.tolerance
     tol = np.array([tol_of[p] if (p := match_pattern(tol_of, n)) else 0.0 for n in names])
-
-    def z_of(change, se):
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(
-                se > 0,
-                change / np.where(se > 0, se, 1.0),
-                np.where(change == 0, 0.0, np.sign(change) * np.inf),
-            )
-
-    z_prev, z_first = z_of(change_prev, se_prev), z_of(change_first, se_first)
-    flag = lambda c, z: (np.abs(c) > tol) & (np.abs(z) > z_limit)  # noqa: E731
+    z_prev, z_first = _z_score(change_prev, se_prev), _z_score(change_first, se_first)
+    flag = lambda c, z: (np.abs(c) > tol) & (np.abs(z) > sessions.z_limit)  # noqa: E731
     flagged_prev, flagged_first = flag(change_prev, z_prev), flag(change_first, z_first)
     S, P = V.shape
-    units = tables[0].loc[names, "unit"].tolist()
-    out = pd.DataFrame(
+    return pd.DataFrame(
         {
-            "device": devices[0],
+            "device": sessions.device,
             "batch": np.repeat([c.meta.get("batch") for c in cals], P),
             "session": np.repeat([str(c.meta["session"]) for c in cals], P),
             "parameter": np.tile(names, S),
-            "unit": np.tile(units, S),
+            "unit": np.tile(values.units, S),
             "temperature": T,
-            "clamped": clamped.ravel(),
+            "clamped": values.clamped.ravel(),
             "value": V.ravel(),
             "stderr": E.ravel(),
             "change_prev": change_prev.ravel(),
@@ -135,8 +181,6 @@ def parameter_changes(
             "baseline": np.repeat(np.arange(S) == 0, P),
         }
     )
-    out.attrs["left_out"] = left_out
-    return out
 
 
 def _plans(cal: Calibration, temp: np.ndarray):
@@ -210,6 +254,46 @@ def revalidate(
     DataFrame; ``table.to_dict("records")`` for files).
     """
     cal = _load(previous_cal)
+    obs = _revalidation_holds(cal, observations)
+    if max_excess is not None:
+        max_excess = finite_number(max_excess, "max_excess", positive=True)
+    alpha = finite_number(alpha, "alpha", positive=True)
+    if alpha >= 1:
+        raise ConfigError(f"alpha must be below 1, got {alpha!r}")
+    data = cal.model.transform_inputs(columns_of(obs))
+    errors, ref_temp = _method_errors(cal, data)
+    span_margin = finite_number(span_margin, "span_margin")
+    scored = _scored_holds(cal, data["temp"], span_margin)
+    use = scored.use
+    floor = observation_floor(data)
+    table = _method_table(obs, errors, floor, use)
+    score = _revalidation_score(errors, floor, use, max_excess, alpha)
+    return {
+        "device": cal.meta.get("device"),
+        "calibration_session": cal.meta.get("session"),
+        "holds": bool(score.holds),
+        "verdict": score.verdict,
+        "validation_rms": score.rms,
+        "noise_floor": score.floor_rms,
+        "excess": score.excess,
+        "expected_rms": score.expected,
+        "excess_over_expected": score.rms / score.expected,
+        "limit_over_expected": score.bound if max_excess is None else None,
+        "max_excess": max_excess,
+        "uncompensated_rms": _pooled_rms(errors["uncompensated"][0][use]),
+        "single_rms": _pooled_rms(errors["single"][0][use]),
+        "reference_temperature": ref_temp,
+        "holds_scored": int(use.sum()),
+        "holds_outside_span": int((scored.beyond > 0).sum()),
+        "holds_left_out": int((~use).sum()),
+        "scored": "within the old span" if scored.within_span else "all",
+        "table": table,
+    }
+
+
+def _revalidation_holds(cal: Calibration, observations) -> pd.DataFrame:
+    """The new session's holds (a table, or read from a results folder), refused unless
+    their true rates are known and there is at least one."""
     if not isinstance(observations, pd.DataFrame):
         from ..io.unit_folder import read_observations
 
@@ -224,37 +308,70 @@ def revalidate(
     obs = observations.reset_index(drop=True)
     if obs.empty:
         raise InputError("revalidation: the new session has no holds")
-    if max_excess is not None:
-        max_excess = finite_number(max_excess, "max_excess", positive=True)
-    alpha = finite_number(alpha, "alpha", positive=True)
-    if alpha >= 1:
-        raise ConfigError(f"alpha must be below 1, got {alpha!r}")
-    data = cal.model.transform_inputs(columns_of(obs))
+    return obs
+
+
+def _method_errors(cal: Calibration, data) -> tuple[dict, float]:
+    """Each hold's (error, variance, calibration variance) by method (uncompensated, single,
+    interpolated), as the validation stage compensates, and the reference temperature."""
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
-    n = len(obs)
     interp, single, ref_temp = _plans(cal, data["temp"])
-    zero = np.zeros((n, 3))
+    zero = np.zeros((len(w), 3))
     errors = {
         "uncompensated": (w - rate, sd**2, zero),
         "single": _compensate(single, w, rate, sd, data),
         "interpolated": _compensate(interp, w, rate, sd, data),
     }
-    span_margin = finite_number(span_margin, "span_margin")
-    lo, hi = cal.grid.span
-    beyond = np.maximum(lo - data["temp"], data["temp"] - hi)
-    clamped = beyond > max(span_margin, 0.0)
-    use = ~clamped if (~clamped).any() else np.ones(n, dtype=bool)
+    return errors, ref_temp
 
-    floor = observation_floor(data)
+
+class _ScoredHolds(NamedTuple):
+    """How far each hold lies beyond the old calibrated span (°C, ≤ 0 within), which holds
+    the headline figures score, and whether those are the ones within the span."""
+
+    beyond: np.ndarray
+    use: np.ndarray
+    within_span: bool
+
+
+def _scored_holds(cal: Calibration, temp, span_margin: float) -> _ScoredHolds:
+    lo, hi = cal.grid.span
+    beyond = np.maximum(lo - temp, temp - hi)
+    clamped = beyond > max(span_margin, 0.0)
+    within_span = bool((~clamped).any())
+    use = ~clamped if within_span else np.ones(len(temp), dtype=bool)
+    return _ScoredHolds(beyond, use, within_span)
+
+
+def _method_table(obs: pd.DataFrame, errors: dict, floor: np.ndarray, use: np.ndarray) -> pd.DataFrame:
+    """Mean/RMS per rotating × output axis and method, of the scored holds."""
+    n = len(obs)
     holds = pd.concat([obs[["axis", "n", "std_x", "std_y", "std_z"]]] * len(METHODS), ignore_index=True)
     holds["method"] = pd.Categorical(np.repeat(METHODS, n), categories=METHODS)
     for i, a in enumerate(AXES):
         holds[f"floor_{a}"] = np.tile(floor[:, i], len(METHODS))
         for k, kind in enumerate(("err", "var", "cal")):
             holds[f"{kind}_{a}"] = np.concatenate([errors[m][k][:, i] for m in METHODS])
-    table = _table(holds[np.tile(use, len(METHODS))], samples=False)
+    return _table(holds[np.tile(use, len(METHODS))], samples=False)
 
+
+class _RevalidationScore(NamedTuple):
+    """The interpolated compensation's RMS against the noise floor and against what noise
+    plus calibration uncertainty explain, and whether the old calibration holds."""
+
+    rms: float
+    floor_rms: float
+    expected: float
+    bound: float
+    excess: float
+    holds: bool
+    verdict: str
+
+
+def _revalidation_score(
+    errors: dict, floor: np.ndarray, use: np.ndarray, max_excess: float | None, alpha: float
+) -> _RevalidationScore:
     rms = _pooled_rms(errors["interpolated"][0][use])
     floor_rms = _pooled_rms(floor[use])
     expected = float(np.sqrt(np.mean(floor[use] ** 2 + errors["interpolated"][2][use])))
@@ -274,27 +391,7 @@ def revalidate(
         if holds_up
         else f"the old calibration no longer holds ({excess:.3g}× the floor; {limit_text})"
     )
-    return {
-        "device": cal.meta.get("device"),
-        "calibration_session": cal.meta.get("session"),
-        "holds": bool(holds_up),
-        "verdict": verdict,
-        "validation_rms": rms,
-        "noise_floor": floor_rms,
-        "excess": excess,
-        "expected_rms": expected,
-        "excess_over_expected": rms / expected,
-        "limit_over_expected": bound if max_excess is None else None,
-        "max_excess": max_excess,
-        "uncompensated_rms": _pooled_rms(errors["uncompensated"][0][use]),
-        "single_rms": _pooled_rms(errors["single"][0][use]),
-        "reference_temperature": ref_temp,
-        "holds_scored": int(use.sum()),
-        "holds_outside_span": int((beyond > 0).sum()),
-        "holds_left_out": int((~use).sum()),
-        "scored": "within the old span" if (~clamped).any() else "all",
-        "table": table,
-    }
+    return _RevalidationScore(rms, floor_rms, expected, bound, excess, holds_up, verdict)
 
 
 def plot_drift(changes: pd.DataFrame, path_or_none=None) -> str:
