@@ -138,63 +138,96 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
     settings = Settings()
     unit = GyroUnit.seed000()
     grid_seq, test_seq = np.random.SeedSequence(seed).spawn(2)
-    if quick:
-        hold_samples = int(round(RIG.hold_s * RIG.sample_rate))
-        draw = functools.partial(
-            observations,
-            unit,
-            rates=SEED000_RATES,
-            mounts=RIG.mounts,
-            samples=hold_samples,
-            sample_rate=RIG.sample_rate,
-        )
-        # The rig's die runs `self_heating` above the chamber: the draws sit where the log's holds do.
-        grid_obs = draw(
-            np.random.default_rng(grid_seq), temperatures=[t + RIG.self_heating for t in SEED000_TEMPERATURES]
-        )
-        test_obs = draw(np.random.default_rng(test_seq), temperatures=(TEST_TEMPERATURE + RIG.self_heating,))
-        cal, fitted = calibrate_observations(grid_obs, settings, meta={"device": "seed000"})
-        grid_val = validate(
-            cal.model, grid_obs, fitted, reference_temperature=settings.model.reference_temperature
-        )
-        rows = len(grid_obs)
-        how = "hold means drawn directly from the unit (no log, no segmentation)"
-    else:
-        with tempfile.TemporaryDirectory(prefix="gyrocal-seed000-") as tmp:
-            grid_log, test_log = Path(tmp) / "grid.parquet", Path(tmp) / "test25.parquet"
-            truth = render(RIG, unit, np.random.default_rng(grid_seq), grid_log)
-            render(
-                TurntableProtocol(temperatures=(TEST_TEMPERATURE,)),
-                unit,
-                np.random.default_rng(test_seq),
-                test_log,
-            )
-            result = run(grid_log, settings, device="seed000")
-            test_obs = segment_log(test_log, settings).observations
-        grid_obs, cal, fitted, grid_val = (
-            result.segmentation.observations,
-            result.calibration,
-            result.fitted,
-            result.validation,
-        )
-        rows = truth["rows"]
-        how = (
-            f"rig logs rendered at {RIG.sample_rate:g} Hz ({rows:,} rows for the grid) and "
-            "run through ingest, segmentation and calibration"
-        )
+    make = _drawn_sessions if quick else _rendered_sessions
+    sessions = make(unit, settings, np.random.default_rng(grid_seq), np.random.default_rng(test_seq))
+    test_holds = _test_session_holds(sessions, settings)
+    cal = sessions.calibration
+    K, B = cal.matrices_at([TEST_TEMPERATURE])
+    K_se, B_se = _stderr_at(cal, TEST_TEMPERATURE)
+    setup = _setup(sessions, unit, test_holds)
+    return Regeneration(
+        sessions.grid_validation.table_holds, sample_statistics(test_holds), K[0], B[0], K_se, B_se, setup
+    )
 
-    # The 25 °C session joins the grid as one more point and, held out like every point,
-    # meets the grid without it (proposed) and the calibration nearest 25 °C (traditional).
+
+@dataclass(frozen=True)
+class _Sessions:
+    """The grid session calibrated and validated, the 25 °C session's holds, and how they
+    were made (rows: the grid's log rows, or its holds when drawn directly)."""
+
+    grid_obs: pd.DataFrame
+    test_obs: pd.DataFrame
+    calibration: object
+    fitted: object
+    grid_validation: object
+    rows: int
+    how: str
+
+
+def _drawn_sessions(unit, settings: Settings, grid_rng, test_rng) -> _Sessions:
+    """Both sessions' hold means drawn directly from the unit, the grid calibrated on them."""
+    hold_samples = int(round(RIG.hold_s * RIG.sample_rate))
+    draw = functools.partial(
+        observations,
+        unit,
+        rates=SEED000_RATES,
+        mounts=RIG.mounts,
+        samples=hold_samples,
+        sample_rate=RIG.sample_rate,
+    )
+    # The rig's die runs `self_heating` above the chamber: the draws sit where the log's holds do.
+    grid_obs = draw(grid_rng, temperatures=[t + RIG.self_heating for t in SEED000_TEMPERATURES])
+    test_obs = draw(test_rng, temperatures=(TEST_TEMPERATURE + RIG.self_heating,))
+    cal, fitted = calibrate_observations(grid_obs, settings, meta={"device": "seed000"})
+    grid_val = validate(
+        cal.model, grid_obs, fitted, reference_temperature=settings.model.reference_temperature
+    )
+    how = "hold means drawn directly from the unit (no log, no segmentation)"
+    return _Sessions(grid_obs, test_obs, cal, fitted, grid_val, len(grid_obs), how)
+
+
+def _rendered_sessions(unit, settings: Settings, grid_rng, test_rng) -> _Sessions:
+    """Both sessions rendered as rig logs; the grid's run through the whole chain, the test
+    session's segmented."""
+    with tempfile.TemporaryDirectory(prefix="gyrocal-seed000-") as tmp:
+        grid_log, test_log = Path(tmp) / "grid.parquet", Path(tmp) / "test25.parquet"
+        truth = render(RIG, unit, grid_rng, grid_log)
+        render(TurntableProtocol(temperatures=(TEST_TEMPERATURE,)), unit, test_rng, test_log)
+        result = run(grid_log, settings, device="seed000")
+        test_obs = segment_log(test_log, settings).observations
+    rows = truth["rows"]
+    how = (
+        f"rig logs rendered at {RIG.sample_rate:g} Hz ({rows:,} rows for the grid) and "
+        "run through ingest, segmentation and calibration"
+    )
+    return _Sessions(
+        result.segmentation.observations,
+        test_obs,
+        result.calibration,
+        result.fitted,
+        result.validation,
+        rows,
+        how,
+    )
+
+
+def _test_session_holds(sessions: _Sessions, settings: Settings) -> pd.DataFrame:
+    """The 25 °C session's validation holds. The session joins the grid as one more point
+    and, held out like every point, meets the grid without it (proposed) and the
+    calibration nearest 25 °C (traditional)."""
+    grid_obs, test_obs, cal = sessions.grid_obs, sessions.test_obs, sessions.calibration
     test_obs = test_obs.assign(hold=test_obs["hold"] + int(grid_obs["hold"].max()) + 1, point=-1)
     both = pd.concat([grid_obs, test_obs], ignore_index=True)
     both["point"] = np.unique(both["point_temp"].to_numpy(), return_inverse=True)[1]
     test_point = int(both["point"].iloc[-1])
     both_fit = fit_model(cal.model, both, kind=settings.model.kind, method=settings.model.interpolation)
     both_val = validate(cal.model, both, both_fit, reference_temperature=settings.model.reference_temperature)
-    test_holds = both_val.holds[both_val.holds["point"] == test_point]
+    return both_val.holds[both_val.holds["point"] == test_point]
 
-    K, B = cal.matrices_at([TEST_TEMPERATURE])
-    se = cal.grid.stderr_at([TEST_TEMPERATURE])
+
+def _stderr_at(cal, temperature: float) -> tuple[np.ndarray, np.ndarray]:
+    """The standard errors of the calibration's K (3, 3) and B (3,) at ``temperature``."""
+    se = cal.grid.stderr_at([temperature])
     K_se, B_se = np.zeros((3, 3)), np.zeros(3)
     for name, value in se.items():
         parts = name.split(".")
@@ -205,10 +238,17 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
             K_se[a, a] = value[0]
         else:
             K_se[a, AXES.index(parts[2])] = value[0]
-    setup = {
-        "how": how,
-        "rows": int(rows),
-        "grid_holds": int(len(grid_obs)),
+    return K_se, B_se
+
+
+def _setup(sessions: _Sessions, unit: GyroUnit, test_holds: pd.DataFrame) -> dict:
+    """The figures the tables' notes quote: the sessions, the rig and the unit."""
+    grid_val, test_obs = sessions.grid_validation, sessions.test_obs
+    fitted = sessions.fitted
+    return {
+        "how": sessions.how,
+        "rows": int(sessions.rows),
+        "grid_holds": int(len(sessions.grid_obs)),
         "grid_points": int(grid_val.summary["temperature_points"]),
         "scored_holds": int(grid_val.summary["holds_scored"]),
         "point_temps": fitted.points.loc[fitted.points["used"], "temp"].to_numpy(dtype=float),
@@ -225,7 +265,6 @@ def regeneration(seed: int = 0, quick: bool = False) -> Regeneration:
         "scale_tc": unit.scale_tc,
         "excess": float(grid_val.summary["excess"]),
     }
-    return Regeneration(grid_val.table_holds, sample_statistics(test_holds), K[0], B[0], K_se, B_se, setup)
 
 
 def _where(rotating: str, output: str) -> str:
@@ -259,7 +298,32 @@ def _assumption_note(s: dict) -> str:
 def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
     """Tables 3 and 4 and Eq 23 of seed 000, published beside regenerated."""
     r = regeneration(seed, quick)
-    s = r.setup
+    rows23, notes23 = _eq23(r)
+    return [
+        PaperTable(
+            SEED,
+            "Table 3",
+            "Mean and RMS error: uncompensated and the proposed "
+            "(interpolated) calibration, per rotating axis and output axis",
+            _table3_rows(r),
+            _table3_notes(r.setup),
+        ),
+        PaperTable(
+            SEED,
+            "Table 4",
+            "RMS error at 25 °C: uncompensated, traditional "
+            "(single-temperature) and proposed calibration, and the proposed method's "
+            "reductions",
+            _table4_rows(r),
+            _table4_notes(r.setup),
+        ),
+        PaperTable(SEED, "Eq. 23", "K_g at 25 °C: the calibration interpolated to 25 °C", rows23, notes23),
+    ]
+
+
+def _table3_rows(r: Regeneration) -> tuple[PaperRow, ...]:
+    """Table 3: the grid's leave-temperature-out mean and RMS per axis pair, uncompensated
+    and proposed, with the noise floor of hold means."""
     t3 = r.table_holds.set_index(["rotating", "output"])
     rows3 = []
     for (rot, out), (u_mean, u_rms, p_mean, p_rms) in TABLE3.items():
@@ -274,8 +338,12 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
                 ("noise floor of hold means", "noise_floor", None),
             )
         ]
+    return tuple(rows3)
+
+
+def _table3_notes(s: dict) -> tuple[str, ...]:
     rate_rms = float(np.sqrt(np.mean(np.square((0.0,) + SEED000_RATES * 2))))
-    notes3 = (
+    return (
         _setup_note(s),
         f"Proposed: every temperature point is left out in turn and its holds compensated by "
         f"the Lagrange interpolation (Eq 21-22) of the other points, a stricter test than "
@@ -301,6 +369,10 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
         _assumption_note(s),
     )
 
+
+def _table4_rows(r: Regeneration) -> tuple[PaperRow, ...]:
+    """Table 4: the 25 °C session's RMS over samples per axis pair and method, the proposed
+    method's reductions, and the per-sample noise."""
     t4 = r.test.set_index(["method", "rotating", "output"])
     rows4 = []
     for (rot, out), (u, trad, prop, vs_u, vs_t) in TABLE4.items():
@@ -329,7 +401,11 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
                 "deg/s",
             ),
         ]
-    notes4 = (
+    return tuple(rows4)
+
+
+def _table4_notes(s: dict) -> tuple[str, ...]:
+    return (
         f"Test session: the same unit at a chamber set point of {TEST_TEMPERATURE:g} °C (die "
         f"{s['test_temp']:.1f} °C), {s['test_holds']} holds over Table 2's rates on the three "
         f"mounts, fresh noise. Proposed: the grid of the Table 3 session interpolated to each "
@@ -354,6 +430,10 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
         _assumption_note(s),
     )
 
+
+def _eq23(r: Regeneration) -> tuple[tuple[PaperRow, ...], tuple[str, ...]]:
+    """Eq 23: the calibration at 25 °C beside the truth it was simulated from, and how many
+    standard errors the largest deviation is."""
     z, rows23 = [], []
     for name, where, published in EQ23:
         if isinstance(where, tuple):
@@ -373,28 +453,7 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
         f"factors to about {1e6 * float(np.max(np.diag(r.K25_se))):.1f} ppm, biases to "
         f"{float(np.max(r.B25_se)):.1e} deg/s).",
     )
-    return [
-        PaperTable(
-            SEED,
-            "Table 3",
-            "Mean and RMS error: uncompensated and the proposed "
-            "(interpolated) calibration, per rotating axis and output axis",
-            tuple(rows3),
-            notes3,
-        ),
-        PaperTable(
-            SEED,
-            "Table 4",
-            "RMS error at 25 °C: uncompensated, traditional "
-            "(single-temperature) and proposed calibration, and the proposed method's "
-            "reductions",
-            tuple(rows4),
-            notes4,
-        ),
-        PaperTable(
-            SEED, "Eq. 23", "K_g at 25 °C: the calibration interpolated to 25 °C", tuple(rows23), notes23
-        ),
-    ]
+    return tuple(rows23), notes23
 
 
 def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:

@@ -207,8 +207,18 @@ def _design_table() -> PaperTable:
 def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
     """Tables 2-7 and the design numbers, regenerated beside the published values."""
     study = _study(int(seed), bool(quick))
+    common = _common_notes(quick)
+    return [
+        _design_table(),
+        _table2(study, common),
+        *(_experiment_table(study, e, common) for e in range(EXPERIMENTS)),
+    ]
+
+
+def _common_notes(quick: bool) -> tuple[str, ...]:
+    """The notes every regenerated table shares: the sweeps, and where the drift sizes come from."""
     rate = "1 Hz (quick)" if quick else "10 Hz"
-    common = (
+    return (
         f"Each experiment is a simulated −40 → 85 °C sweep at 18 °C/h (0.1 °C jumps every "
         f"20 s, 30 min stable before, 1 h after, chamber-to-die lag 600 s) logged at {rate}; "
         "the models are fitted to 20-s windows of a separate training sweep of the same unit "
@@ -221,8 +231,10 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
         "(noisier after compensation in Table 2, quieter in every axis in Table 3), which "
         "one simulated unit with five noise draws does not reproduce.",
     )
-    out = [_design_table()]
 
+
+def _table2(study: dict, common: tuple[str, ...]) -> PaperTable:
+    """Table 2: the L3GD20's bias stabilities per experiment, before and after compensation."""
     t2_rows = []
     for e, ((bs1, bs2), pub) in enumerate(zip(study["table2"], TABLE2, strict=False)):
         label = f"{ORDINAL[e + 1]} experiment"
@@ -231,79 +243,78 @@ def tables(*, seed: int = 0, quick: bool = False) -> list[PaperTable]:
             PaperRow(f"{label} / BS2 (after compensation)", bs2, pub[1], "(deg/s)²"),
             PaperRow(f"{label} / improvement BS2/BS1", bs2 / bs1, pub[2], ""),
         ]
-    out.append(
-        PaperTable(
-            "003",
-            "Table 2",
-            "Bias stabilities before and after compensation (L3GD20 at rest)",
-            tuple(t2_rows),
-            common
-            + (
-                "L3GD20 at rest (reference 0 deg/s, Section 3.2), compensated by the modified model "
-                "as an RBF network on (ΔT, ΔT²): 12 Gaussian kernels plus bias and direct links. The "
-                "paper gives one figure per experiment without naming an axis; the regenerated one is "
-                "the mean of the three axes' BS, which are alike by construction.",
-            ),
-        )
+    return PaperTable(
+        "003",
+        "Table 2",
+        "Bias stabilities before and after compensation (L3GD20 at rest)",
+        tuple(t2_rows),
+        common
+        + (
+            "L3GD20 at rest (reference 0 deg/s, Section 3.2), compensated by the modified model "
+            "as an RBF network on (ΔT, ΔT²): 12 Gaussian kernels plus bias and direct links. The "
+            "paper gives one figure per experiment without naming an axis; the regenerated one is "
+            "the mean of the three axes' BS, which are alike by construction.",
+        ),
     )
 
-    axes = study["i3g4250d"]["axes"]
-    for e in range(EXPERIMENTS):
-        number = e + 3
-        rows = []
-        for axis in AXES:
-            res = axes[axis]["results"][e]
-            main = res["main"]
-            for col in COLUMNS:
-                value = float(main[col]) * (100.0 if col == "P3" else 1.0)
-                rows.append(
-                    PaperRow(
-                        f"{axis}-axis / {col}", value, TABLES[number][axis][COLUMNS.index(col)], UNITS[col]
-                    )
-                )
-        for axis in AXES:
-            res = axes[axis]["results"][e]
-            rows += [
-                PaperRow(
-                    f"{axis}-axis / BS2 with an RBF f(ΔT) as the conventional model",
-                    res["rbf_dT"],
-                    None,
-                    "(deg/s)²",
-                ),
-                PaperRow(
-                    f"{axis}-axis / BS3 with least squares in (ΔT, ΔT²) as the modified model",
-                    res["poly_dT2"],
-                    None,
-                    "(deg/s)²",
-                ),
-                PaperRow(
-                    f"{axis}-axis / P3 expected from the simulated noise and c2",
-                    100.0 * axes[axis]["expected_p3"],
-                    None,
-                    "%",
-                ),
-            ]
-        out.append(
-            PaperTable(
-                "003",
-                f"Table {number}",
-                f"Bias stabilities of the {ORDINAL[e + 1]} experiment (I3G4250D)",
-                tuple(rows),
-                common
-                + (
-                    "I3G4250D with the rig turning at 10, 5 and 20 deg/s about x, y and z (Section 4): "
-                    "one mounting per axis, each with its own training sweep; the row of each axis is "
-                    "from the sweep where it lies along the rig axis.",
-                    "BS2: the conventional model as least squares in ΔT (c0 + c1 ΔT). BS3: the modified "
-                    "model as an RBF network on (ΔT, ΔT²) (Eq 29). P1 = BS2/BS1, P2 = BS3/BS1, "
-                    "P3 = P2/P1 as the tables compute them (Eq 32 as printed would make P2 = BS3/BS2).",
-                    "An RBF network on ΔT alone fits the ΔT² curvature too (ΔT² is a function of ΔT), "
-                    "so with it as the conventional model BS2 ≈ BS3 (rows below): the paper's ≈ 10 % "
-                    "is the gain of (ΔT, ΔT²) over a model linear in ΔT.",
-                ),
+
+def _experiment_table(study: dict, e: int, common: tuple[str, ...]) -> PaperTable:
+    """Table 3 + ``e``: the I3G4250D's bias stabilities in experiment ``e`` per axis."""
+    number = e + 3
+    return PaperTable(
+        "003",
+        f"Table {number}",
+        f"Bias stabilities of the {ORDINAL[e + 1]} experiment (I3G4250D)",
+        _experiment_rows(study["i3g4250d"]["axes"], e),
+        common
+        + (
+            "I3G4250D with the rig turning at 10, 5 and 20 deg/s about x, y and z (Section 4): "
+            "one mounting per axis, each with its own training sweep; the row of each axis is "
+            "from the sweep where it lies along the rig axis.",
+            "BS2: the conventional model as least squares in ΔT (c0 + c1 ΔT). BS3: the modified "
+            "model as an RBF network on (ΔT, ΔT²) (Eq 29). P1 = BS2/BS1, P2 = BS3/BS1, "
+            "P3 = P2/P1 as the tables compute them (Eq 32 as printed would make P2 = BS3/BS2).",
+            "An RBF network on ΔT alone fits the ΔT² curvature too (ΔT² is a function of ΔT), "
+            "so with it as the conventional model BS2 ≈ BS3 (rows below): the paper's ≈ 10 % "
+            "is the gain of (ΔT, ΔT²) over a model linear in ΔT.",
+        ),
+    )
+
+
+def _experiment_rows(axes: dict, e: int) -> tuple[PaperRow, ...]:
+    """Each axis's published columns, then the alternative models' figures and the expected P3."""
+    number = e + 3
+    rows = []
+    for axis in AXES:
+        main = axes[axis]["results"][e]["main"]
+        for col in COLUMNS:
+            value = float(main[col]) * (100.0 if col == "P3" else 1.0)
+            rows.append(
+                PaperRow(f"{axis}-axis / {col}", value, TABLES[number][axis][COLUMNS.index(col)], UNITS[col])
             )
-        )
-    return out
+    for axis in AXES:
+        res = axes[axis]["results"][e]
+        rows += [
+            PaperRow(
+                f"{axis}-axis / BS2 with an RBF f(ΔT) as the conventional model",
+                res["rbf_dT"],
+                None,
+                "(deg/s)²",
+            ),
+            PaperRow(
+                f"{axis}-axis / BS3 with least squares in (ΔT, ΔT²) as the modified model",
+                res["poly_dT2"],
+                None,
+                "(deg/s)²",
+            ),
+            PaperRow(
+                f"{axis}-axis / P3 expected from the simulated noise and c2",
+                100.0 * axes[axis]["expected_p3"],
+                None,
+                "%",
+            ),
+        ]
+    return tuple(rows)
 
 
 def figures(out_dir, *, seed: int = 0, quick: bool = False) -> list[Path]:
