@@ -14,7 +14,8 @@ row group, with filter states carried across, so memory stays one set point's wo
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -157,124 +158,220 @@ def render(
     fs = protocol.sample_rate
     phases = protocol.schedule()
     electronics = Electronics(unit, fs, rng)
-    air_state = die_state = protocol.room_temp
+    thermal = _ThermalState(protocol.room_temp, protocol.room_temp)
     start = 0
-    holds, handling, soaks = [], [], []
+    truth = _Truth()
     writer = None
-    mount_type = pa.dictionary(pa.int8(), pa.string())
-    mount_dict = pa.array(MOUNTS, type=pa.string())
-
-    # One chunk per set point: the phases from one "chamber"/"soak" start to the next.
-    chunk_starts = [
-        i
-        for i, p in enumerate(phases)
-        if p["kind"] in ("chamber", "soak") and (i == 0 or phases[i - 1]["kind"] != "chamber")
-    ]
-    chunk_bounds = list(zip(chunk_starts, chunk_starts[1:] + [len(phases)], strict=False))
     try:
-        for lo, hi in chunk_bounds:
-            chunk = phases[lo:hi]
-            m = sum(p["n"] for p in chunk)
+        for lo, hi in _set_point_chunks(phases):
+            motion = _chunk_motion(protocol, phases[lo:hi], rng, start, t0, truth)
+            m = len(motion.table)
             idx = start + np.arange(m)
             t = t0 + idx / fs
-            table = np.zeros(m)
-            set_point = np.empty(m)
-            door = np.zeros(m, dtype=bool)
-            w_true = np.zeros((m, 3))
-            gravity = np.zeros((m, 3))
-            mount_code = np.empty(m, dtype=np.int8)
-            pos = 0
-            prev_step = 0.0
-            for ph in chunk:
-                k = ph["n"]
-                sl = slice(pos, pos + k)
-                tau = np.arange(k) / fs
-                if ph["kind"] == "accel":
-                    table[sl] = np.linspace(ph["rate_from"], ph["rate_to"], k + 1)[1:]
-                    prev_step = ph["rate_to"] - ph["rate_from"]
-                else:
-                    table[sl] = ph["rate_to"]
-                    if prev_step:
-                        table[sl] += (
-                            protocol.settle_overshoot
-                            * prev_step
-                            * np.exp(-tau / protocol.settle_tau_s)
-                            * np.sin(2 * np.pi * protocol.settle_hz * tau)
-                        )
-                    prev_step = 0.0
-                set_point[sl] = ph["set_from"] + (ph["set_to"] - ph["set_from"]) * (tau + 1 / fs) * fs / k
-                axis, sign = _mount_axis(ph["mount"])
-                w_true[sl, axis] = sign * table[sl]
-                gravity[sl, axis] = sign
-                mount_code[sl] = MOUNTS.index(ph["mount"])
-                t_first, t_last = t0 + (start + pos) / fs, t0 + (start + pos + k - 1) / fs
-                if ph["kind"] == "handling":
-                    door[sl] = True
-                    w_true[sl] = _handling_motion(rng, k, fs)
-                    new_axis, new_sign = _mount_axis(ph["next_mount"])
-                    blend = (tau / tau[-1])[:, None] if k > 1 else np.ones((1, 1))
-                    g_new = np.zeros(3)
-                    g_new[new_axis] = new_sign
-                    g = (1 - blend) * gravity[sl] + blend * g_new
-                    gravity[sl] = g / np.linalg.norm(g, axis=1, keepdims=True)
-                    mount_code[pos + k // 2 : pos + k] = MOUNTS.index(ph["next_mount"])
-                    handling.append(
-                        dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"], mount_to=ph["next_mount"])
-                    )
-                elif ph["kind"] == "hold":
-                    holds.append(
-                        dict(
-                            t_start=t_first,
-                            t_end=t_last,
-                            mount=ph["mount"],
-                            rate=ph["rate_to"],
-                            set_point=ph["set_to"],
-                            point=ph["point"],
-                        )
-                    )
-                elif ph["kind"] == "soak":
-                    soaks.append(dict(t_start=t_first, t_end=t_last, set_point=ph["set_to"]))
-                pos += k
-
-            air_target = np.where(
-                door, set_point + protocol.door_coupling * (protocol.room_temp - set_point), set_point
-            )
-            air, air_state = _first_order(air_target, protocol.air_tau_s, fs, air_state)
-            die, die_state = _first_order(air, protocol.unit_tau_s, fs, die_state)
-            die += protocol.self_heating * (1 - np.exp(-(t - t0) / protocol.self_heating_tau_s))
-            sensor = die + rng.normal(0.0, protocol.temp_noise, m)
-            sensor = np.round(sensor / protocol.temp_lsb) * protocol.temp_lsb
-
+            die, thermal = _die_temperature(protocol, motion, t, t0, thermal)
+            sensor = _temperature_reading(protocol, die, rng)
             die_rate = np.gradient(die) * fs * 60.0  # °C/min, for the temp_rate effect
-            gyro = electronics.measure(w_true, die, gravity, die_rate, t - t0)
-            cols = {
-                "t": pa.array(t),
-                "gyro_x": gyro[:, 0],
-                "gyro_y": gyro[:, 1],
-                "gyro_z": gyro[:, 2],
-                "temp": pa.array(sensor.astype(np.float32)),
-                "ref_rate": pa.array(table),
-            }
-            if protocol.mount_column:
-                cols["mount"] = pa.DictionaryArray.from_arrays(pa.array(mount_code), mount_dict)
-            if protocol.accel_columns:
-                accel = gravity + rng.normal(0.0, unit.accel_noise, (m, 3))
-                for i, c in enumerate("xyz"):
-                    cols[f"accel_{c}"] = pa.array(accel[:, i].astype(np.float32))
-            batch = pa.table(
-                {
-                    k: (v if isinstance(v, (pa.Array, pa.ChunkedArray)) else pa.array(v))
-                    for k, v in cols.items()
-                }
-            )
+            gyro = electronics.measure(motion.w_true, die, motion.gravity, die_rate, t - t0)
+            batch = _log_table(protocol, unit, rng, t, gyro, sensor, motion)
             if writer is None:
-                schema = batch.schema
-                if protocol.mount_column:
-                    schema = schema.set(schema.get_field_index("mount"), pa.field("mount", mount_type))
-                writer = pq.ParquetWriter(path, schema)
+                writer = pq.ParquetWriter(path, _log_schema(protocol, batch.schema))
             writer.write_table(batch.cast(writer.schema), row_group_size=m)
             start += m
     finally:
         if writer is not None:
             writer.close()
-    return dict(holds=holds, handling=handling, soaks=soaks, rows=start)
+    return dict(holds=truth.holds, handling=truth.handling, soaks=truth.soaks, rows=start)
+
+
+def _set_point_chunks(phases: list[dict]) -> list[tuple[int, int]]:
+    """The log's chunks, one per set point: the phases from one "chamber"/"soak" start to the
+    next, as (first, past-the-end) indices."""
+    chunk_starts = [
+        i
+        for i, p in enumerate(phases)
+        if p["kind"] in ("chamber", "soak") and (i == 0 or phases[i - 1]["kind"] != "chamber")
+    ]
+    return list(zip(chunk_starts, chunk_starts[1:] + [len(phases)], strict=False))
+
+
+@dataclass
+class _Truth:
+    """The schedule's ground truth, phase by phase: holds, re-mounts and soaks."""
+
+    holds: list[dict] = field(default_factory=list)
+    handling: list[dict] = field(default_factory=list)
+    soaks: list[dict] = field(default_factory=list)
+
+    def record(self, ph: dict, t_first: float, t_last: float) -> None:
+        if ph["kind"] == "handling":
+            self.handling.append(
+                dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"], mount_to=ph["next_mount"])
+            )
+        elif ph["kind"] == "hold":
+            self.holds.append(
+                dict(
+                    t_start=t_first,
+                    t_end=t_last,
+                    mount=ph["mount"],
+                    rate=ph["rate_to"],
+                    set_point=ph["set_to"],
+                    point=ph["point"],
+                )
+            )
+        elif ph["kind"] == "soak":
+            self.soaks.append(dict(t_start=t_first, t_end=t_last, set_point=ph["set_to"]))
+
+
+@dataclass(frozen=True)
+class _ChunkMotion:
+    """One chunk's samples: the table's rate, the chamber set point, whether the door is
+    open, the true rate and gravity in the unit's frame, and the mount's code in MOUNTS."""
+
+    table: np.ndarray
+    set_point: np.ndarray
+    door: np.ndarray
+    w_true: np.ndarray
+    gravity: np.ndarray
+    mount_code: np.ndarray
+
+
+def _chunk_motion(
+    protocol: TurntableProtocol, chunk: list[dict], rng: np.random.Generator, start: int, t0: float, truth
+) -> _ChunkMotion:
+    """The chunk's phases sample by sample (``start``: its first sample's index in the log);
+    each phase's truth goes to ``truth``. Draws the handling motion from ``rng``."""
+    fs = protocol.sample_rate
+    m = sum(p["n"] for p in chunk)
+    motion = _ChunkMotion(
+        table=np.zeros(m),
+        set_point=np.empty(m),
+        door=np.zeros(m, dtype=bool),
+        w_true=np.zeros((m, 3)),
+        gravity=np.zeros((m, 3)),
+        mount_code=np.empty(m, dtype=np.int8),
+    )
+    pos = 0
+    prev_step = 0.0
+    for ph in chunk:
+        k = ph["n"]
+        sl = slice(pos, pos + k)
+        tau = np.arange(k) / fs
+        motion.table[sl], prev_step = _table_rate(protocol, ph, tau, prev_step)
+        motion.set_point[sl] = ph["set_from"] + (ph["set_to"] - ph["set_from"]) * (tau + 1 / fs) * fs / k
+        axis, sign = _mount_axis(ph["mount"])
+        motion.w_true[sl, axis] = sign * motion.table[sl]
+        motion.gravity[sl, axis] = sign
+        motion.mount_code[sl] = MOUNTS.index(ph["mount"])
+        if ph["kind"] == "handling":
+            _remount(rng, ph, motion, pos, tau, fs)
+        truth.record(ph, t0 + (start + pos) / fs, t0 + (start + pos + k - 1) / fs)
+        pos += k
+    return motion
+
+
+def _table_rate(
+    protocol: TurntableProtocol, ph: dict, tau: np.ndarray, prev_step: float
+) -> tuple[np.ndarray, float]:
+    """The table's rate over the phase, and the rate step it ends with (0 unless it
+    accelerates). A phase after an acceleration starts with the table's settling overshoot."""
+    k = len(tau)
+    if ph["kind"] == "accel":
+        return np.linspace(ph["rate_from"], ph["rate_to"], k + 1)[1:], ph["rate_to"] - ph["rate_from"]
+    rate = np.full(k, ph["rate_to"], dtype=float)
+    if prev_step:
+        rate += (
+            protocol.settle_overshoot
+            * prev_step
+            * np.exp(-tau / protocol.settle_tau_s)
+            * np.sin(2 * np.pi * protocol.settle_hz * tau)
+        )
+    return rate, 0.0
+
+
+def _remount(
+    rng: np.random.Generator, ph: dict, motion: _ChunkMotion, pos: int, tau: np.ndarray, fs: float
+) -> None:
+    """A handling phase at ``pos``: the door open, the unit turned in hand, gravity swinging
+    to the next mount, whose code the second half of the phase carries."""
+    k = len(tau)
+    sl = slice(pos, pos + k)
+    motion.door[sl] = True
+    motion.w_true[sl] = _handling_motion(rng, k, fs)
+    new_axis, new_sign = _mount_axis(ph["next_mount"])
+    blend = (tau / tau[-1])[:, None] if k > 1 else np.ones((1, 1))
+    g_new = np.zeros(3)
+    g_new[new_axis] = new_sign
+    g = (1 - blend) * motion.gravity[sl] + blend * g_new
+    motion.gravity[sl] = g / np.linalg.norm(g, axis=1, keepdims=True)
+    motion.mount_code[pos + k // 2 : pos + k] = MOUNTS.index(ph["next_mount"])
+
+
+class _ThermalState(NamedTuple):
+    """The chamber air's and the die's temperature at the end of the last chunk, °C."""
+
+    air: float
+    die: float
+
+
+def _die_temperature(
+    protocol: TurntableProtocol, motion: _ChunkMotion, t: np.ndarray, t0: float, state: _ThermalState
+) -> tuple[np.ndarray, _ThermalState]:
+    """The die's temperature over the chunk: the air follows the set point (pulled toward the
+    room while the door is open), the die the air, plus the powered die's self-heating."""
+    fs = protocol.sample_rate
+    set_point = motion.set_point
+    air_target = np.where(
+        motion.door, set_point + protocol.door_coupling * (protocol.room_temp - set_point), set_point
+    )
+    air, air_state = _first_order(air_target, protocol.air_tau_s, fs, state.air)
+    die, die_state = _first_order(air, protocol.unit_tau_s, fs, state.die)
+    die += protocol.self_heating * (1 - np.exp(-(t - t0) / protocol.self_heating_tau_s))
+    return die, _ThermalState(air_state, die_state)
+
+
+def _temperature_reading(
+    protocol: TurntableProtocol, die: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
+    """The temperature sensor's reading of the die: its noise, quantised to its LSB."""
+    sensor = die + rng.normal(0.0, protocol.temp_noise, len(die))
+    return np.round(sensor / protocol.temp_lsb) * protocol.temp_lsb
+
+
+MOUNT_DICTIONARY = pa.array(MOUNTS, type=pa.string())
+
+
+def _log_table(
+    protocol: TurntableProtocol,
+    unit: GyroUnit,
+    rng: np.random.Generator,
+    t: np.ndarray,
+    gyro: np.ndarray,
+    sensor: np.ndarray,
+    motion: _ChunkMotion,
+) -> pa.Table:
+    """The chunk's rows of the log; the accelerometer's noise is drawn from ``rng``."""
+    cols = {
+        "t": pa.array(t),
+        "gyro_x": gyro[:, 0],
+        "gyro_y": gyro[:, 1],
+        "gyro_z": gyro[:, 2],
+        "temp": pa.array(sensor.astype(np.float32)),
+        "ref_rate": pa.array(motion.table),
+    }
+    if protocol.mount_column:
+        cols["mount"] = pa.DictionaryArray.from_arrays(pa.array(motion.mount_code), MOUNT_DICTIONARY)
+    if protocol.accel_columns:
+        accel = motion.gravity + rng.normal(0.0, unit.accel_noise, (len(t), 3))
+        for i, c in enumerate("xyz"):
+            cols[f"accel_{c}"] = pa.array(accel[:, i].astype(np.float32))
+    return pa.table(
+        {k: (v if isinstance(v, (pa.Array, pa.ChunkedArray)) else pa.array(v)) for k, v in cols.items()}
+    )
+
+
+def _log_schema(protocol: TurntableProtocol, schema: pa.Schema) -> pa.Schema:
+    """The log's schema from its first chunk's: the mount column as int8 dictionary codes."""
+    if protocol.mount_column:
+        mount_type = pa.dictionary(pa.int8(), pa.string())
+        schema = schema.set(schema.get_field_index("mount"), pa.field("mount", mount_type))
+    return schema
