@@ -19,7 +19,7 @@ output is ``m_j = g_j / k_j - b_j`` plus white noise. In the calibration file's 
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pyarrow as pa
@@ -217,73 +217,119 @@ def render_servo(
 ) -> dict:
     """Write the log to ``path`` (Parquet, contract section 1) and return the truth of the
     schedule: per rotation its direction, the tilted axis (sensor frame), times and speed."""
-    fs = protocol.sample_rate
-    n_of = lambda seconds: max(int(round(seconds * fs)), 1)  # noqa: E731
-    w_speed = protocol.speed
-    period = protocol.revolution_s
-    n_rot = int(round(protocol.revolutions * period * fs))
-    n_acc = int(round(protocol.accel_s * fs))
-
-    # Phases: (kind, samples, commanded rate rad/s (n,), true rate rad/s (n, 3), mount).
-    parts_ref, parts_true, parts_mount = [], [], []
-    rotations, handling = [], []
-    pos = 0
-
-    def add(ref, true, mount):
-        nonlocal pos
-        parts_ref.append(ref)
-        parts_true.append(true)
-        parts_mount.append(np.full(len(ref), MOUNTS.index(mount), dtype=np.int8))
-        pos += len(ref)
-
-    def still(seconds, mount):
-        n = n_of(seconds)
-        add(np.zeros(n), np.zeros((n, 3)), mount)
-
+    log = _ServoSchedule(protocol, t0)
     current_axis = None
     axis_vec = None
-    tilt = azimuth = 0.0
+    tilt = 0.0
     for i, direction in enumerate(protocol.order):
-        axis, sign = direction_axis(direction)
+        axis, _ = direction_axis(direction)
         mount = "+" + "xyz"[axis]
         if axis != current_axis or (protocol.remount_every_rotation and i > 0):
             if current_axis is not None:
-                still(protocol.pause_s, "+" + "xyz"[current_axis])
-                n = n_of(protocol.handling_s)
-                t_first = t0 + pos / fs
-                add(np.zeros(n), _handling_motion(rng, n, fs), "+" + "xyz"[current_axis])
-                parts_mount[-1][n // 2 :] = MOUNTS.index(mount)
-                handling.append(
-                    dict(
-                        t_start=t_first,
-                        t_end=t0 + (pos - 1) / fs,
-                        mount_from="+" + "xyz"[current_axis],
-                        mount_to=mount,
-                    )
-                )
-            still(protocol.pause_s, mount)
-            tilt = math.radians(rng.uniform(0.0, protocol.mount_error_deg))
-            azimuth = rng.uniform(0.0, 2 * math.pi)
-            axis_vec = tilted_axes(np.array(axis), np.array(tilt), np.array(azimuth))
+                log.still(protocol.pause_s, "+" + "xyz"[current_axis])
+                log.remount(rng, "+" + "xyz"[current_axis], mount)
+            log.still(protocol.pause_s, mount)
+            tilt, axis_vec = _hand_mounted_axis(protocol, rng, axis)
             current_axis = axis
         elif i > 0:
-            still(protocol.pause_s, mount)
+            log.still(protocol.pause_s, mount)
+        log.rotate(rng, i, direction, mount, axis_vec, tilt)
+    log.still(protocol.pause_s, "+" + "xyz"[current_axis])
+    rows = _write_servo_log(protocol, unit, rng, log, path)
+    return dict(
+        rotations=log.rotations,
+        handling=log.handling,
+        rows=rows,
+        units={"gyro": "deg/s", "ref_rate": "deg/s", "speed_rad_s": "rad/s", "b": "rad/s"},
+    )
+
+
+def _hand_mounted_axis(
+    protocol: ServoProtocol, rng: np.random.Generator, axis: int
+) -> tuple[float, np.ndarray]:
+    """A new hand mount about sensor axis ``axis``: its tilt (rad, drawn up to the protocol's
+    mount error) and the rotation axis it tilts to, in the sensor frame."""
+    tilt = math.radians(rng.uniform(0.0, protocol.mount_error_deg))
+    azimuth = rng.uniform(0.0, 2 * math.pi)
+    return tilt, tilted_axes(np.array(axis), np.array(tilt), np.array(azimuth))
+
+
+@dataclass
+class _ServoSchedule:
+    """The log's phases as they are scheduled, each the commanded rate (rad/s, (n,)), the
+    true rate in the sensor frame (rad/s, (n, 3)) and the mount's code in MOUNTS (n,); with
+    the truth of every rotation and re-mount."""
+
+    protocol: ServoProtocol
+    t0: float
+    ref: list[np.ndarray] = field(default_factory=list)
+    true: list[np.ndarray] = field(default_factory=list)
+    mount: list[np.ndarray] = field(default_factory=list)
+    rotations: list[dict] = field(default_factory=list)
+    handling: list[dict] = field(default_factory=list)
+    pos: int = 0  # samples scheduled so far
+
+    def add(self, ref: np.ndarray, true: np.ndarray, mount: str) -> None:
+        self.ref.append(ref)
+        self.true.append(true)
+        self.mount.append(np.full(len(ref), MOUNTS.index(mount), dtype=np.int8))
+        self.pos += len(ref)
+
+    def samples(self, seconds: float) -> int:
+        return max(int(round(seconds * self.protocol.sample_rate)), 1)
+
+    def time(self, pos: int) -> float:
+        return self.t0 + pos / self.protocol.sample_rate
+
+    def still(self, seconds: float, mount: str) -> None:
+        n = self.samples(seconds)
+        self.add(np.zeros(n), np.zeros((n, 3)), mount)
+
+    def remount(self, rng: np.random.Generator, mount_from: str, mount_to: str) -> None:
+        """The unit turned by hand from one mount to the next while the servo stands still;
+        the second half of the phase carries the new mount's code."""
+        n = self.samples(self.protocol.handling_s)
+        t_first = self.time(self.pos)
+        self.add(np.zeros(n), _handling_motion(rng, n, self.protocol.sample_rate), mount_from)
+        self.mount[-1][n // 2 :] = MOUNTS.index(mount_to)
+        self.handling.append(
+            dict(t_start=t_first, t_end=self.time(self.pos - 1), mount_from=mount_from, mount_to=mount_to)
+        )
+
+    def rotate(
+        self,
+        rng: np.random.Generator,
+        index: int,
+        direction: str,
+        mount: str,
+        axis_vec: np.ndarray,
+        tilt: float,
+    ) -> None:
+        """One rotation ``direction`` about the mount's tilted axis ``axis_vec``: the ramp up,
+        whole revolutions at the commanded speed with its ripple (drawn from ``rng``), the
+        ramp down."""
+        protocol, fs = self.protocol, self.protocol.sample_rate
+        _, sign = direction_axis(direction)
         direction_vec = sign * axis_vec
+        w_speed = protocol.speed
+        period = protocol.revolution_s
+        n_rot = int(round(protocol.revolutions * period * fs))
+        n_acc = int(round(protocol.accel_s * fs))
         if n_acc:
             ramp = np.linspace(0.0, w_speed, n_acc + 2)[1:-1]  # never reaches the command
-            add(sign * ramp, ramp[:, None] * direction_vec, mount)
+            self.add(sign * ramp, ramp[:, None] * direction_vec, mount)
         tau = np.arange(n_rot) / fs
         ripple, ripple_truth = _ripple(rng, tau, period, protocol.ripple, protocol.ripple_harmonics)
         actual = w_speed * (1.0 + ripple)
-        t_first = t0 + pos / fs
-        add(np.full(n_rot, sign * w_speed), actual[:, None] * direction_vec, mount)
-        rotations.append(
+        t_first = self.time(self.pos)
+        self.add(np.full(n_rot, sign * w_speed), actual[:, None] * direction_vec, mount)
+        self.rotations.append(
             dict(
-                index=i,
+                index=index,
                 direction=direction,
                 mount=mount,
                 t_start=t_first,
-                t_end=t0 + (pos - 1) / fs,
+                t_end=self.time(self.pos - 1),
                 samples=n_rot,
                 revolutions=int(protocol.revolutions),
                 speed_rad_s=w_speed,
@@ -294,13 +340,19 @@ def render_servo(
         )
         if n_acc:
             ramp = np.linspace(w_speed, 0.0, n_acc + 2)[1:-1]
-            add(sign * ramp, ramp[:, None] * direction_vec, mount)
-    still(protocol.pause_s, "+" + "xyz"[current_axis])
+            self.add(sign * ramp, ramp[:, None] * direction_vec, mount)
 
-    ref = np.concatenate(parts_ref)
-    g = np.concatenate(parts_true)
+
+def _write_servo_log(
+    protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Generator, log: _ServoSchedule, path
+) -> int:
+    """The unit's output over the schedule with its white noise, and the temperature
+    sensor's reading, drawn from ``rng``: written to ``path``; returns the row count."""
+    fs = protocol.sample_rate
+    ref = np.concatenate(log.ref)
+    g = np.concatenate(log.true)
     n = len(ref)
-    t = t0 + np.arange(n) / fs
+    t = log.t0 + np.arange(n) / fs
     raw = unit.measure(g) + rng.normal(0.0, protocol.noise, (n, 3))
     gyro = (raw * DEG).astype(np.float32)
     temp = protocol.temperature + rng.normal(0.0, protocol.temp_noise, n)
@@ -315,12 +367,7 @@ def render_servo(
     }
     if protocol.mount_column:
         cols["mount"] = pa.DictionaryArray.from_arrays(
-            pa.array(np.concatenate(parts_mount)), pa.array(MOUNTS, type=pa.string())
+            pa.array(np.concatenate(log.mount)), pa.array(MOUNTS, type=pa.string())
         )
     pq.write_table(pa.table(cols), path)
-    return dict(
-        rotations=rotations,
-        handling=handling,
-        rows=n,
-        units={"gyro": "deg/s", "ref_rate": "deg/s", "speed_rad_s": "rad/s", "b": "rad/s"},
-    )
+    return n
