@@ -64,76 +64,106 @@ class FerrarisProtocol:
 
 def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Generator, path) -> dict:
     """Write the session to ``path`` and return its truth (faces, turns, true angles)."""
-    fs = rig.sample_rate
-    n_of = lambda s: max(2, int(round(s * fs)))  # noqa: E731
-    # body-to-world attitude; world z up; gravity's specific force is +z in the world
-    R = np.eye(3)
-    att, w_body, label = [], [], []
+    session = _HandSession(rig)
+    session.still(1.0)
+    faces = [session.lie_on(face) for face in FACES]
+    turns = [session.turn(rng, axis_name) for axis_name in "xyz"]
+    n = _write_ferraris_log(rig, unit, rng, session, path)
+    return {"faces": faces, "turns": turns, "rows": int(n)}
 
-    def still(seconds, name=""):
-        k = n_of(seconds)
-        att.append(np.repeat(R[None], k, axis=0))
-        w_body.append(np.zeros((k, 3)))
-        label.extend([name] * k)
 
-    def move(axis_body, angle_rad, seconds, name=""):
+class _HandSession:
+    """The session's motion as the hand makes it, sample by sample: the body-to-world
+    attitude (world z up; gravity's specific force is +z in the world), the body rate
+    (deg/s) and each sample's section label ("" outside one)."""
+
+    def __init__(self, rig: FerrarisProtocol):
+        self.rig = rig
+        self.R = np.eye(3)  # the attitude now
+        self.att: list[np.ndarray] = []
+        self.w_body: list[np.ndarray] = []
+        self.label: list[str] = []
+
+    def samples(self, seconds: float) -> int:
+        return max(2, int(round(seconds * self.rig.sample_rate)))
+
+    def scheduled(self) -> int:
+        """Samples so far."""
+        return sum(len(a) for a in self.att)
+
+    def still(self, seconds: float, name: str = "") -> None:
+        k = self.samples(seconds)
+        self.att.append(np.repeat(self.R[None], k, axis=0))
+        self.w_body.append(np.zeros((k, 3)))
+        self.label.extend([name] * k)
+
+    def move(self, axis_body: np.ndarray, angle_rad: float, seconds: float, name: str = "") -> None:
         """A rotation about a body-fixed axis, bell-shaped in speed."""
-        nonlocal R
-        k = n_of(seconds)
+        k = self.samples(seconds)
         frac = _bell(k)
         turns = _rodrigues(axis_body, angle_rad * frac)
-        att.append(R[None] @ turns)
-        rate = np.diff(np.r_[0.0, frac]) * fs * angle_rad
-        w_body.append(np.outer(rate, axis_body) * 180.0 / math.pi)
-        label.extend([name] * k)
-        R = att[-1][-1]
+        self.att.append(self.R[None] @ turns)
+        rate = np.diff(np.r_[0.0, frac]) * self.rig.sample_rate * angle_rad
+        self.w_body.append(np.outer(rate, axis_body) * 180.0 / math.pi)
+        self.label.extend([name] * k)
+        self.R = self.att[-1][-1]
 
-    def carry_to(target_up: np.ndarray):
+    def carry_to(self, target_up: np.ndarray) -> None:
         """Turn the unit so that ``target_up`` (body) points up, about the one axis that does."""
-        current_up = R.T @ np.array([0.0, 0.0, 1.0])
+        current_up = self.R.T @ np.array([0.0, 0.0, 1.0])
         axis = np.cross(target_up, current_up)
         s = np.linalg.norm(axis)
         if s > 1e-9:
-            move(axis / s, math.atan2(s, float(current_up @ target_up)), rig.carry_s)
+            self.move(axis / s, math.atan2(s, float(current_up @ target_up)), self.rig.carry_s)
         elif current_up @ target_up < 0:  # upside down: half a turn about a level axis
             level = np.cross(target_up, [1.0, 0.0, 0.0] if abs(target_up[0]) < 0.9 else [0.0, 1.0, 0.0])
-            move(level / np.linalg.norm(level), math.pi, rig.carry_s)
+            self.move(level / np.linalg.norm(level), math.pi, self.rig.carry_s)
 
-    faces, turns = [], []
-    still(1.0)
-    for face in FACES:
-        carry_to(_up(face))
-        k0 = sum(len(a) for a in att)
-        still(rig.face_s, face)
-        faces.append({"face": face, "t_start": k0 / fs, "t_end": (k0 + n_of(rig.face_s) - 1) / fs})
-    for axis_name in "xyz":
-        carry_to(_up(f"{axis_name}_p"))
-        still(rig.rest_s)
+    def lie_on(self, face: str) -> dict:
+        """Carry the unit to ``face`` up and let it lie still; the face's truth."""
+        fs = self.rig.sample_rate
+        self.carry_to(_up(face))
+        k0 = self.scheduled()
+        self.still(self.rig.face_s, face)
+        return {"face": face, "t_start": k0 / fs, "t_end": (k0 + self.samples(self.rig.face_s) - 1) / fs}
+
+    def turn(self, rng: np.random.Generator, axis_name: str) -> dict:
+        """One full turn about the sensor axis ``axis_name`` with that axis up, against the
+        guide: the axis tilted as the unit sits, the angle off by the hand's error (both
+        drawn from ``rng``); the turn's truth."""
+        rig, fs = self.rig, self.rig.sample_rate
+        self.carry_to(_up(f"{axis_name}_p"))
+        self.still(rig.rest_s)
         tilt = np.deg2rad(rig.tilt_deg) * rng.normal(size=3)
         axis = _up(f"{axis_name}_p") + tilt
         axis["xyz".index(axis_name)] = 1.0  # tilted off the sensor axis by the others
         axis /= np.linalg.norm(axis)
         sign = rng.choice((-1.0, 1.0))
         true_angle = sign * (360.0 + rig.guide_error_deg * rng.normal())
-        k0 = sum(len(a) for a in att)
-        for _ in range(rig.steps):
-            move(axis, np.deg2rad(true_angle) / rig.steps, rig.turn_s / rig.steps, f"{axis_name}_rot")
-            if _ + 1 < rig.steps:
-                still(rig.rest_s / 2, f"{axis_name}_rot")
-        k1 = sum(len(a) for a in att)
-        turns.append(
-            {
-                "axis": axis_name,
-                "true_angle_deg": float(true_angle),
-                "rotation_axis": axis.tolist(),
-                "t_start": k0 / fs,
-                "t_end": (k1 - 1) / fs,
-            }
-        )
-        still(rig.rest_s)
+        k0 = self.scheduled()
+        for step in range(rig.steps):
+            self.move(axis, np.deg2rad(true_angle) / rig.steps, rig.turn_s / rig.steps, f"{axis_name}_rot")
+            if step + 1 < rig.steps:
+                self.still(rig.rest_s / 2, f"{axis_name}_rot")
+        k1 = self.scheduled()
+        self.still(rig.rest_s)
+        return {
+            "axis": axis_name,
+            "true_angle_deg": float(true_angle),
+            "rotation_axis": axis.tolist(),
+            "t_start": k0 / fs,
+            "t_end": (k1 - 1) / fs,
+        }
 
-    attitude = np.concatenate(att)
-    w_true = np.concatenate(w_body)
+
+def _write_ferraris_log(
+    rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Generator, session: _HandSession, path
+) -> int:
+    """The unit's output over the session, with the temperature sensor's and the
+    accelerometer's noise drawn from ``rng``: written to ``path``; returns the row count."""
+    fs = rig.sample_rate
+    attitude = np.concatenate(session.att)
+    w_true = np.concatenate(session.w_body)
     n = len(w_true)
     t = np.arange(n) / fs
     force = np.einsum("nji,j->ni", attitude, np.array([0.0, 0.0, 1.0]))  # R^T z, in g
@@ -148,6 +178,6 @@ def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Genera
         for i, a in enumerate("xyz"):
             cols[f"accel_{a}"] = pa.array(accel[:, i].astype(np.float32))
     if rig.sections:
-        cols["section"] = pa.array([s or None for s in label], type=pa.string()).dictionary_encode()
+        cols["section"] = pa.array([s or None for s in session.label], type=pa.string()).dictionary_encode()
     pq.write_table(pa.table(cols), path)
-    return {"faces": faces, "turns": turns, "rows": int(n)}
+    return n
