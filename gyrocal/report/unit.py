@@ -254,40 +254,14 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
     """The unit's page; ``protocol``, its :class:`gyrocal.protocols.registry.Protocol`, gives
     the report's own parts of the protocol (sections, figures, how it names its validation)."""
     cal, info = results.calibration, results.seg_info
-    obs = results.observations
-    temps, temp_of = np.unique(np.round(np.asarray(obs["point_temp"], float), 2), return_inverse=True)
-    mounts, mount_of = np.unique(obs["mount"].astype(str), return_inverse=True)
-    counts = np.zeros((len(temps), len(mounts)), np.int64)
-    np.add.at(counts, (temp_of, mount_of), 1)
+    temps, mounts, counts = _hold_counts(results.observations)
     rejected = results.segments[results.segments["kind"] == "rejected"]
     reasons, per_reason = np.unique(
         rejected["reason"][present(rejected["reason"])].astype(str), return_counts=True
     )
     own_figure = protocol.validation_figure
     g = cal.grid
-    if cal.kind == "continuous":
-        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
-        grid_rows = []
-        constants = [
-            (n, float(v), float(e), units.get(n, ""))
-            for n, v, e in zip(g.names, g.values, g.stderr, strict=False)
-        ]
-    else:
-        grid_rows = [
-            {
-                "temp": float(t),
-                **{n: (float(g.values[p, j]), float(g.stderr[p, j])) for j, n in enumerate(g.names)},
-            }
-            for p, t in enumerate(g.temperatures)
-        ]
-        # Session-wide (scope global) terms hold one value at every grid point.
-        units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
-        session = {c for t in cal.model.terms if t.coefficient_scope == "global" for c in t.coefficients()}
-        constants = [
-            (n, float(g.values[0, j]), float(g.stderr[0, j]), units.get(n, ""))
-            for j, n in enumerate(g.names)
-            if n in session
-        ]
+    grid_rows, constants = _grid_tables(cal)
     html = render_page(
         "unit_report.html.j2",
         profiled=cal.extra.get("profiled", []),
@@ -337,6 +311,45 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
         **_diagnosis_context(results),
     )
     _write(path, html)
+
+
+def _hold_counts(obs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The accepted holds per temperature point and mount: the points' temperatures, the
+    mounts, and the counts (points × mounts)."""
+    temps, temp_of = np.unique(np.round(np.asarray(obs["point_temp"], float), 2), return_inverse=True)
+    mounts, mount_of = np.unique(obs["mount"].astype(str), return_inverse=True)
+    counts = np.zeros((len(temps), len(mounts)), np.int64)
+    np.add.at(counts, (temp_of, mount_of), 1)
+    return temps, mounts, counts
+
+
+def _grid_tables(cal) -> tuple[list[dict], list[tuple]]:
+    """The calibration's coefficients as the page shows them: a row per grid point (value,
+    standard error of each coefficient), and the constants (name, value, standard error,
+    unit): a continuous model's coefficients, a grid's session-wide terms."""
+    g = cal.grid
+    units = {c: t.unit for t in cal.model.terms for c in t.coefficients()}
+    if cal.kind == "continuous":
+        constants = [
+            (n, float(v), float(e), units.get(n, ""))
+            for n, v, e in zip(g.names, g.values, g.stderr, strict=False)
+        ]
+        return [], constants
+    grid_rows = [
+        {
+            "temp": float(t),
+            **{n: (float(g.values[p, j]), float(g.stderr[p, j])) for j, n in enumerate(g.names)},
+        }
+        for p, t in enumerate(g.temperatures)
+    ]
+    # Session-wide (scope global) terms hold one value at every grid point.
+    session = {c for t in cal.model.terms if t.coefficient_scope == "global" for c in t.coefficients()}
+    constants = [
+        (n, float(g.values[0, j]), float(g.stderr[0, j]), units.get(n, ""))
+        for j, n in enumerate(g.names)
+        if n in session
+    ]
+    return grid_rows, constants
 
 
 def _write(path, text: str) -> None:
