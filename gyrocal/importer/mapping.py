@@ -360,6 +360,26 @@ class _Checker:
 def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
     if values.get("topics") is not None:
         check.fail(f"topics applies to bags and MCAP files, not to {fmt}")
+    spec = _text_format(values, fmt, check)
+    spec.update(_time_spec(values.get("time"), check))
+    if values.get("gyro") is None:
+        check.fail("gyro is missing: map x, y, z to columns and give the unit")
+    spec["gyro"], spec["gyro_scale"] = check.triad(values["gyro"], "gyro", RATE_UNITS)
+    if values.get("accel") is not None:
+        spec["accel"], spec["accel_scale"] = check.triad(values["accel"], "accel", ACCEL_UNITS)
+    if values.get("temp") is not None:
+        spec.update(_temp_spec(values["temp"], check))
+    if values.get("ref_rate") is not None:
+        spec.update(_ref_rate_spec(values["ref_rate"], check))
+    if values.get("mount") is not None:
+        check.keys(values["mount"], ("column",), "mount")
+        spec["mount"] = check.name(values["mount"].get("column"), "mount.column")
+    return spec
+
+
+def _text_format(values: dict, fmt: str, check: _Checker) -> dict:
+    """How the text file is written: delimiter, decimal separator, comment character, and
+    whether a row of units follows the header."""
     spec: dict = {"delimiter": "\t" if fmt == "tsv" else ","}
     for key in ("delimiter", "decimal", "comment"):
         d = values.get(key)
@@ -378,13 +398,19 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
         if not isinstance(values["units_row"], bool):
             check.fail(f"units_row must be true or false, got {values['units_row']!r}")
         spec["units_row"] = values["units_row"]
-    time = values.get("time")
+    return spec
+
+
+def _time_spec(time: dict | None, check: _Checker) -> dict:
+    """Where time comes from: a time column and its unit, or a sample rate (with an
+    optional sample-index column); and whether to sort the rows by it."""
     if time is None:
         check.fail(
             "time is missing: give time: {column: NAME, unit: s} or a sample rate "
             "(time: {sample_rate: HZ} or --sample-rate)"
         )
     check.keys(time, ("column", "unit", "sample_rate", "sort"), "time")
+    spec: dict = {}
     if time.get("sort") is not None:
         if not isinstance(time["sort"], bool):
             check.fail(f"time.sort must be true or false, got {time['sort']!r}")
@@ -404,42 +430,40 @@ def _tabular(values: dict, fmt: str, check: _Checker) -> dict:
             check.fail(f"time.unit is missing; expected one of {', '.join(TIME_UNITS)}")
         check.choice(unit, TIME_UNITS, "time.unit")
         spec["time_factor"] = TIME_UNITS[unit]
-
-    if values.get("gyro") is None:
-        check.fail("gyro is missing: map x, y, z to columns and give the unit")
-    spec["gyro"], spec["gyro_scale"] = check.triad(values["gyro"], "gyro", RATE_UNITS)
-    if values.get("accel") is not None:
-        spec["accel"], spec["accel_scale"] = check.triad(values["accel"], "accel", ACCEL_UNITS)
-    if values.get("temp") is not None:
-        temp = values["temp"]
-        check.keys(temp, ("column", "unit", "sensitivity", "offset"), "temp")
-        spec["temp"] = check.name(temp.get("column"), "temp.column")
-        unit = temp.get("unit", "degC")
-        check.choice(unit, TEMP_SCALES, "temp.unit")
-        if unit == "counts":
-            spec["temp_scale"] = check.scale(temp, TEMP_SCALES, "temp")
-            if len(spec["temp_scale"].offset) > 1:
-                check.fail("temp.offset takes one number (counts)")
-        else:
-            if "sensitivity" in temp or "offset" in temp:
-                check.fail(f"temp.sensitivity and temp.offset apply to unit counts only, not {unit}")
-            spec["temp_scale"] = Scaled(unit)
-    if values.get("ref_rate") is not None:
-        ref = values["ref_rate"]
-        if not isinstance(ref, dict):
-            check.fail("ref_rate takes {column: NAME, unit: ...} or, for a static log, {value: 0}")
-        if "value" in ref:
-            # A static log's reference: the rate the rig held throughout, in deg/s.
-            check.keys(ref, ("value",), "ref_rate")
-            spec["ref_value"] = check.number(ref["value"], "ref_rate.value")
-        else:
-            check.keys(ref, ("column", "unit", "sensitivity", "offset"), "ref_rate")
-            spec["ref_rate"] = check.name(ref.get("column"), "ref_rate.column")
-            spec["ref_scale"] = check.scale(ref, RATE_UNITS, "ref_rate")
-    if values.get("mount") is not None:
-        check.keys(values["mount"], ("column",), "mount")
-        spec["mount"] = check.name(values["mount"].get("column"), "mount.column")
     return spec
+
+
+def _temp_spec(temp, check: _Checker) -> dict:
+    """The temperature column and its scale: a unit of temperature (degC, K, degF), or
+    counts with their sensitivity and offset."""
+    check.keys(temp, ("column", "unit", "sensitivity", "offset"), "temp")
+    spec = {"temp": check.name(temp.get("column"), "temp.column")}
+    unit = temp.get("unit", "degC")
+    check.choice(unit, TEMP_SCALES, "temp.unit")
+    if unit == "counts":
+        spec["temp_scale"] = check.scale(temp, TEMP_SCALES, "temp")
+        if len(spec["temp_scale"].offset) > 1:
+            check.fail("temp.offset takes one number (counts)")
+    else:
+        if "sensitivity" in temp or "offset" in temp:
+            check.fail(f"temp.sensitivity and temp.offset apply to unit counts only, not {unit}")
+        spec["temp_scale"] = Scaled(unit)
+    return spec
+
+
+def _ref_rate_spec(ref, check: _Checker) -> dict:
+    """The reference rate: a column and its scale, or a static log's one value."""
+    if not isinstance(ref, dict):
+        check.fail("ref_rate takes {column: NAME, unit: ...} or, for a static log, {value: 0}")
+    if "value" in ref:
+        # A static log's reference: the rate the rig held throughout, in deg/s.
+        check.keys(ref, ("value",), "ref_rate")
+        return {"ref_value": check.number(ref["value"], "ref_rate.value")}
+    check.keys(ref, ("column", "unit", "sensitivity", "offset"), "ref_rate")
+    return {
+        "ref_rate": check.name(ref.get("column"), "ref_rate.column"),
+        "ref_scale": check.scale(ref, RATE_UNITS, "ref_rate"),
+    }
 
 
 def _bag(values: dict, fmt: str, check: _Checker) -> dict:
