@@ -119,7 +119,7 @@ SPLINE_TERM = "smooth"
 SPLINE_INPUTS = ("t", "temp")
 
 
-# Histories of the gyro's output firmware runs as filters beside K and B (issue 38): the
+# Histories of the gyro's output firmware runs as filters beside K and B: the
 # formulas the diagnosis offers, each a first-order lag of a function of the raw output,
 # added to B, a slow pole's "- rate_own" to K's diagonal (it reads the true rate).
 HISTORY_TERM = "expression"
@@ -145,7 +145,7 @@ LAG_FILTER = (
 )
 
 
-# Histories of the temperature firmware runs as filters (issue 38): a play or Duhem operator
+# Histories of the temperature firmware runs as filters: a play or Duhem operator
 # of the logged temperature through the lag apply reads it by, its value times a coefficient
 # per output axis added to B. The formula as ast.unparse writes it -> (operator, parameters).
 TEMPERATURE_HISTORY_FORMS = {

@@ -1,7 +1,7 @@
 """A results table as named numpy columns, read from Arrow without pandas.
 
 The unit report reads a dozen small tables and draws them; importing pandas (and the
-pyarrow.compute it loads) took 0.4 s of a standalone report's 1.2 s. pyarrow's own
+pyarrow.compute it loads) would take 0.4 s of a standalone report's 1.2 s. pyarrow's own
 ``to_numpy`` imports pandas too, so the Arrow buffers are read here directly: the types
 gyrocal's tables hold (numbers, booleans, strings, dictionary-encoded strings, and the null
 type of a column that held nothing). A missing value is NaN in a float column and in an

@@ -68,7 +68,7 @@ def read_observations(folder):
 # of one file per job, a ZIP archive of the same files (stored, not compressed: Parquet is
 # compressed already), and so is the job's log (:func:`pack_log`). With Snakemake's record
 # of each declared file, a line of 100,000 units a day keeps eight files per unit session
-# instead of 25 (issue 40). The stages write the parts as files, as before, and pack them
+# rather than one per part (25). The stages write the parts as loose files and pack them
 # when they are done (:func:`pack`); every reader reads a part where it is, packed or loose.
 CONTAINERS = {
     "segmentation.zip": ("observations", "history", "segments", "timeline"),

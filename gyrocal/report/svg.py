@@ -1,8 +1,8 @@
 """A small SVG plotter for the reports: figures that cost what they show.
 
-A unit report's figures used to be drawn by matplotlib: 8–10 s and about 1 MB per report, most
-of it layout and markers drawn one by one. Here a figure is a few panels of paths written
-straight to SVG text:
+matplotlib takes 8–10 s and about 1 MB to draw a unit report's figures, most of it layout
+and markers drawn one by one. Here a figure is a few panels of paths written straight to
+SVG text:
 
 * no more points than pixels: a series longer than its panel is wide becomes its envelope
   (min and max per pixel column), and markers falling on the same pixel in the same colour

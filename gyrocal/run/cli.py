@@ -583,8 +583,8 @@ def cmd_apply(args) -> int:
 
 
 def cmd_verify(args) -> int:
-    """Whether a log is the one a calibration records as its input, by the hash the file
-    names (BLAKE3 now, SHA-256 in files written before)."""
+    """Whether a log is the one a calibration records as its input, by the hash algorithm
+    its record names (BLAKE3 or SHA-256)."""
     import json
 
     from ..io.errors import CalibrationFileError
