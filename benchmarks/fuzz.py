@@ -31,6 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from gyrocal.run import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
+
+# isort: split
 import hypothesis  # noqa: E402
 import pyarrow.parquet as pq  # noqa: E402
 from host import cores, cpu_name  # noqa: E402
@@ -38,7 +41,6 @@ from hypothesis import HealthCheck, Phase, given, reject, settings  # noqa: E402
 from hypothesis import seed as hypothesis_seed  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from gyrocal.run import blas_threads  # noqa: F401,E402 - one BLAS thread, as the command line has
 from tests import fuzzing as fz  # noqa: E402
 
 COMMANDS = ("calibrate", "calibrate", "apply")

@@ -6,11 +6,12 @@ import os
 import shutil
 from dataclasses import replace
 
+from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
+
+# isort: split
 import numpy as np
 import pytest
 from hypothesis import settings
-
-from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
 
 # CI runs the same examples every time (every commit green); `pytest --hypothesis-profile
 # explore` searches afresh with many more, to hunt for new failures.
