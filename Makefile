@@ -7,7 +7,7 @@ BIN    := $(VENV)/bin
 # The C kernel is built on install: a change to it reinstalls, as a change of dependencies does.
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c | sha256sum | cut -c1-12)
 
-.PHONY: demo test bench system-packages clean
+.PHONY: demo test lint bench system-packages clean
 
 $(STAMP): pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c
 	rm -f $(VENV)/.installed-*
@@ -24,8 +24,13 @@ demo: $(STAMP)
 	@echo "demo done: fleet summary reports/index.html, unit reports reports/<batch>/<device>/<session>.html,"
 	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json"
 
-test: system-packages $(STAMP)
+test: system-packages $(STAMP) lint
 	$(BIN)/python -m pytest -n auto --dist loadfile
+
+# The lint gate ([tool.ruff] in pyproject.toml): rules that catch bugs, and one layout.
+lint: $(STAMP)
+	$(BIN)/ruff check gyrocal tests benchmarks
+	$(BIN)/ruff format --check gyrocal tests benchmarks
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernel, built on install),
