@@ -37,13 +37,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..io import AXES
 from ..io.errors import InputError
 from .noise import MIN_SAMPLES, NoiseTerms, fit_noise_terms, pooled_from_sums, stretch_sums
 
 if TYPE_CHECKING:
     import pandas as pd
 
-AXES = "xyz"
 MIN_STATIC_S = 1.0  # a stretch this long adds its short taus to the pooled estimate
 MIN_STATIC_SAMPLES = 64
 MIN_TOTAL_S = 10.0  # less static time in all reaches too few octaves to tell terms apart

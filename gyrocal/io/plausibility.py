@@ -25,10 +25,9 @@ import math
 
 import numpy as np
 
+from . import AXES
 from .errors import InputError
 from .formats import json_safe
-
-AXES = ("x", "y", "z")
 
 CODES = {
     "gyro_out_of_range": "gyro samples beyond ±10,000 deg/s",

@@ -34,9 +34,9 @@ from typing import ClassVar
 
 import numpy as np
 
+from ..io import AXES as AXES
 from ..io.errors import ConfigError, MissingInputError
 
-AXES = ("x", "y", "z")
 TERMS: dict[str, type[Term]] = {}
 
 
