@@ -237,7 +237,7 @@ def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured
     """Bit for bit what fitting the remaining holds from scratch gives, with the series
     terms' quadrature made once: a hold's columns are its own."""
     from gyrocal.fit.thermal import fit_continuous
-    from gyrocal.io import signals
+    from gyrocal.terms import signals
 
     obs = coloured_sweep
     model = Model.from_spec(["bias", "bias_temp_poly(degree=1)", "temp_rate"])
@@ -282,7 +282,7 @@ def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
 
 def test_the_quadrature_nodes_are_made_once_for_the_same_holds(coloured_sweep, monkeypatch):
     from gyrocal.fit.model import columns_of
-    from gyrocal.io import signals
+    from gyrocal.terms import signals
 
     data = columns_of(coloured_sweep)
     model = Model.from_spec(["temp_rate"])

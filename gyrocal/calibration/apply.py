@@ -35,7 +35,14 @@ from ..io.log import (
     time_seconds,
     to_internal_units,
 )
-from ..io.signals import RECORD_COLUMNS, SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, SampleRecord, Series
+from ..terms.signals import (
+    RECORD_COLUMNS,
+    SERIES_INPUTS,
+    TEMP_RATE_WINDOW_S,
+    HistoryBins,
+    SampleRecord,
+    Series,
+)
 from .file import Calibration
 
 BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
@@ -120,7 +127,7 @@ def _record(cal: Calibration, path: Path, names, whole: bool, columns=()) -> tup
     """The first kept row's time (the rule of :func:`gyrocal.io.log.read_log`: finite time,
     gyro, temperature and, when logged, reference rate) and, when ``whole`` or ``columns``
     (the record's further columns a history reads), the record as the fit makes it
-    (:class:`gyrocal.io.signals.HistoryBins`), in memory that does not grow with the log."""
+    (:class:`gyrocal.terms.signals.HistoryBins`), in memory that does not grow with the log."""
     required = tuple(c for c in REQUIRED if c != "ref_rate" or c in names)
     log = read_log(
         path, optional=tuple(c for c in columns if c not in REQUIRED), required=required, keep_bytes=0

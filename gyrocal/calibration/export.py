@@ -511,7 +511,7 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
             for h in tables.histories
         ]
     if tables.temperature_histories:
-        from ..io.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
+        from ..terms.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
 
         doc["temperature_histories"] = [
             {
@@ -612,7 +612,7 @@ def _c_environment():
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:
-    from ..io.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
+    from ..terms.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
 
     return (
         _c_environment()

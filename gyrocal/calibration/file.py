@@ -21,8 +21,8 @@ from ..fit.model import Model
 from ..fit.thermal import DIAGONAL_RTOL, ConstantCoefficients, TemperatureGrid, check_method, warn_outside
 from ..io import atomic, formats
 from ..io.errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
-from ..io.signals import SERIES_INPUTS, Inputs
 from ..terms import AXES
+from ..terms.signals import SERIES_INPUTS, Inputs
 
 FORMAT = formats.CALIBRATION
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io.errors import ConfigError, IdentifiabilityError, MissingInputError
-from ..io.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
 from ..terms import AXES, Term, make_term
+from ..terms.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
 # Largest condition number of the column-scaled, weighted design a fit accepts. Sound
@@ -99,7 +99,7 @@ class Model:
 
         ``data`` holds observation columns (one row per hold) or samples. For holds, a term
         that reads a series signal (``t``, ``temp_rate``, a lag) is evaluated at quadrature
-        nodes inside every hold and averaged (:mod:`gyrocal.io.signals`); other terms read
+        nodes inside every hold and averaged (:mod:`gyrocal.terms.signals`); other terms read
         only what is constant within a hold and are evaluated on the hold's values."""
         holds = "t_start" in data
         if holds:
@@ -233,7 +233,7 @@ NON_NUMERIC = ("mount", "axis", "mount_source")
 
 def columns_of(obs) -> dict[str, np.ndarray]:
     """Numeric observation columns as float arrays (what terms read), with the session's
-    record (``series``, :mod:`gyrocal.io.signals`) when the table carries one in its attrs; a
+    record (``series``, :mod:`gyrocal.terms.signals`) when the table carries one in its attrs; a
     mapping passes through."""
     pd = sys.modules.get("pandas")  # not imported here: a report reads a calibration without it
     if pd is None or not isinstance(obs, pd.DataFrame):

@@ -211,7 +211,7 @@ def revalidate(
     """
     cal = _load(previous_cal)
     if not isinstance(observations, pd.DataFrame):
-        from ..io.unit_folder import read_observations
+        from ..terms.signals import read_observations
 
         observations, _ = read_observations(observations)
     from ..protocols import registry

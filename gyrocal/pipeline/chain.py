@@ -25,9 +25,9 @@ from ..io.blocks import BlockSink
 from ..io.errors import IdentifiabilityError, SegmentationError
 from ..io.holds import Segmentation
 from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
-from ..io.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from ..protocols import registry
 from ..protocols.turntable.segment import LOG_COLUMNS
+from ..terms.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .config import Settings
 
 
@@ -123,7 +123,7 @@ def segment_log(
 
 def with_series(seg: Segmentation, series: Series) -> Segmentation:
     """``seg`` whose observations carry the session's record (terms read series signals
-    from it: :mod:`gyrocal.io.signals`)."""
+    from it: :mod:`gyrocal.terms.signals`)."""
     seg.observations.attrs["series"] = series
     return seg
 

@@ -28,8 +28,8 @@ import pandas as pd
 from ..fit.thermal import fit_model
 from ..fit.validate import CannotLeaveOut, validate
 from ..io.errors import GyrocalError, IdentifiabilityError, MissingInputError
-from ..io.signals import HOLD_INPUTS, SERIES_INPUTS
 from ..terms import AXES, make_term
+from ..terms.signals import HOLD_INPUTS, SERIES_INPUTS
 from .config import Settings
 
 # A standard error of the protocol's own coefficients grown by more than this factor: the

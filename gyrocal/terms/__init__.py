@@ -3,7 +3,7 @@ May import: io.
 
 The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
 terms, each linear in its coefficients. A term defines its regressor columns per sample,
-one per coefficient, from the inputs of :mod:`gyrocal.io.signals` (the true rate in the sensor
+one per coefficient, from the inputs of :mod:`gyrocal.terms.signals` (the true rate in the sensor
 frame ``rate_x/y/z``, ``ref_rate``, ``accel_x/y/z``, ``temp``, and the series signals ``t``,
 ``temp_rate`` and ``data.lag(...)``); the library takes hold means for the fit and samples
 for apply, so both see the same effect. Names are ``<term>.<output axis>[.<detail>]``: the
@@ -135,7 +135,7 @@ class Term:
         """Whether the term reads ``t``, ``temp_rate`` or a lag: an effect of time or of
         the temperature's history, one per session (each temperature point covers only
         its own block of time)."""
-        from ..io.signals import SERIES_INPUTS
+        from .signals import SERIES_INPUTS
 
         return bool(self.inputs() & SERIES_INPUTS)
 
@@ -144,7 +144,7 @@ class Term:
         probe of every input (so a term that forgot to declare one still gets it in
         ``apply``)."""
         if "_inputs" not in self.__dict__:
-            from ..io.signals import HOLD_INPUTS, Inputs, Series
+            from .signals import HOLD_INPUTS, Inputs, Series
 
             probe_t = np.array([0.0, 600.0])
             probe = Inputs(
@@ -192,7 +192,7 @@ class Term:
         return None
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
-        from ..io.signals import SERIES_INPUTS
+        from .signals import SERIES_INPUTS
 
         series = "series" in data or "t" in data
         missing = sorted(c for c in self.needs if c not in data and not (series and c in SERIES_INPUTS))

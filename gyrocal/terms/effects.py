@@ -187,7 +187,7 @@ class DieTemperature(Term):
         """``data`` with ``temp`` at the die: each hold's mean of the lagged record (the
         logged temperature kept as ``temp_logged``). Samples are filtered by ``apply``."""
         from ..io.errors import MissingInputError
-        from ..io.signals import hold_means_of_lag
+        from .signals import hold_means_of_lag
 
         if "t_start" not in data:
             return data
@@ -208,7 +208,7 @@ class _DieFilter:
     """The die temperature of samples given batch by batch (``t`` in seconds)."""
 
     def __init__(self, tau: float):
-        from ..io.signals import LagFilter
+        from .signals import LagFilter
 
         self.lag = LagFilter(tau)
 

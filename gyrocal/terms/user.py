@@ -109,7 +109,7 @@ RECORD_INPUTS = (
 )
 LAGGABLE = ("temp", "temp_rate")  # lags of these alone keep their own, older path
 
-# What a formula may read: the inputs every term has (gyrocal.io.signals), per sample in apply
+# What a formula may read: the inputs every term has (gyrocal.terms.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
 FORMULA_COLUMNS = (
     "t",
@@ -291,7 +291,7 @@ def _value(node, data, parameters, formula):
 
 def _history(node: ast.Call, data, parameters, formula):
     """``lag(x, tau)``, ``play(x, w)`` or ``duhem(x, w)``: ``x`` over the session's record, through the
-    operator, at ``data``'s times (:meth:`gyrocal.io.signals.Inputs.history`)."""
+    operator, at ``data``'s times (:meth:`gyrocal.terms.signals.Inputs.history`)."""
     size = _value(node.args[1], data, parameters, formula)
     arg = node.args[0]
     if node.func.id == "lag":

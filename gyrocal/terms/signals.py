@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import MissingInputError
+from ..io.errors import MissingInputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -731,3 +731,16 @@ def node_means(values: np.ndarray, plan) -> np.ndarray:
     starts, weights = plan
     values = np.broadcast_to(np.asarray(values, float), weights.shape)
     return np.add.reduceat(values * weights, starts)
+
+
+def read_observations(folder) -> tuple[pd.DataFrame, dict]:
+    """A unit's observation table and its metadata
+    (:func:`gyrocal.io.unit_folder.read_observation_table`), the table carrying the session's
+    record as its :class:`Series` (``attrs["series"]``) where segmentation wrote one."""
+    from ..io import unit_folder  # Parquet on use: a term file imports this module
+
+    obs, extra = unit_folder.read_observation_table(folder)
+    history = unit_folder.read_history(folder)
+    if history is not None:
+        obs.attrs["series"] = Series.from_frame(*history)
+    return obs, extra
