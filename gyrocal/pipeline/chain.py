@@ -17,6 +17,7 @@ import pandas as pd
 
 from .. import __version__
 from ..calibration.file import Calibration
+from ..calibration.review import review
 from ..fit.floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
 from ..fit.thermal import ContinuousFit, GridFit
 from ..fit.validate import Validation, free_point_fits, validate
@@ -160,11 +161,12 @@ def calibrate_observations(
     segmentation's noise characterisation, is kept in the file
     (:func:`gyrocal.fit.floor.noise_record`). ``fitted``, a fit of ``settings.model`` to ``obs``
     already made, is used rather than fitting again. ``info``, segmentation's, gives the
-    read's statistics to the plausibility checks (:mod:`gyrocal.io.plausibility`), which raise
-    where the log cannot be right and leave their warnings in the file's ``warnings``
+    read's statistics to the plausibility checks (:func:`gyrocal.calibration.review.review`),
+    which raise where the log cannot be right and leave their warnings in the file's ``warnings``
     (``checks=False``: none, for the diagnosis' candidate models)."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
-    own = registry.get(meta.get("protocol")).calibrate
+    protocol = registry.get(meta.get("protocol"))
+    own = protocol.calibrate
     if own is not None:
         cal = own(obs, settings, meta, provenance)
         if noise:
@@ -176,7 +178,15 @@ def calibrate_observations(
         cal.extra["model_entry"] = settings.model_entry
     if checks:
         cal.extra["warnings"] = (
-            plausibility.review(obs, info, cal, protocol=registry.get(meta.get("protocol")), source=label)
+            review(
+                obs,
+                info,
+                cal,
+                timed_holds=protocol.timed_holds,
+                axis_mounts=protocol.axis_mounts,
+                one_temperature=protocol.one_temperature,
+                source=label,
+            )
             + [
                 plausibility.finding("term_dropped", f"{a['term']} left out: {a['reason']}", term=a["term"])
                 for a in cal.extra.get("added_terms", ())
