@@ -1,4 +1,4 @@
-"""Physical effects as terms of the gyro error model, and the registry that names them.
+"""Physical effects as terms of the gyro error model, their registry, the signals they read.
 May import: io.
 
 The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
