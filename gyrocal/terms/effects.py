@@ -240,7 +240,10 @@ class ScaleQuadratic(_RatePerAxis):
     directions, growing with the square of the rate. [1/(deg/s)]"""
 
     unit = "1/(deg/s)"
-    shape = staticmethod(np.square)
+
+    @staticmethod
+    def shape(rate):
+        return np.square(rate)
 
 
 @register_term("scale_cubic")
@@ -263,7 +266,10 @@ class ScaleAsymmetry(_RatePerAxis):
     and negative rates (the scale is ``1 + s ± k``). [1]"""
 
     unit = "1"
-    shape = staticmethod(np.abs)
+
+    @staticmethod
+    def shape(rate):
+        return np.abs(rate)
 
 
 @register_term("g_sensitivity")
