@@ -127,8 +127,8 @@ class StretchSampler:
         t = batch["t"]
         lo = np.searchsorted(t, self.start, side="left")
         hi = np.searchsorted(t, self.end, side="right")
-        for k in np.flatnonzero(hi > lo):
-            self._pieces.setdefault(int(k), []).append({c: batch[c][lo[k] : hi[k]] for c in self.NAMES[1:]})
+        for i in np.flatnonzero(hi > lo):
+            self._pieces.setdefault(int(i), []).append({c: batch[c][lo[i] : hi[i]] for c in self.NAMES[1:]})
         for k in [k for k in self._pieces if self.end[k] < t[-1]]:
             self._close(k)
 
@@ -289,11 +289,12 @@ def floor_terms(model: dict) -> NoiseTerms:
     flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
     third and hide real effects. The ramp, a drift, counts in no floor."""
     terms = terms_of(model)
-    kw = {}
-    for name in ("bias_instability", "rrw"):
+
+    def counted(name: str) -> np.ndarray:
         value = np.asarray(getattr(terms, name), float)
-        kw[name] = np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
-    return replace(terms, **kw)
+        return np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
+
+    return replace(terms, bias_instability=counted("bias_instability"), rrw=counted("rrw"))
 
 
 UPPER_Z = 2.0  # the slow terms' upper bound: their variance coefficient 2 s.e. up

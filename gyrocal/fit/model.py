@@ -16,6 +16,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -94,10 +95,11 @@ class Model:
         """The terms' stateful transforms of samples in time order (:meth:`Term.sample_transform`)."""
         return [f for f in (t.sample_transform() for t in self.terms) if f is not None]
 
-    def design(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def design(self, data: Mapping[str, Any]) -> dict[str, np.ndarray]:
         """Regressor columns by coefficient name, one value per row of ``data``.
 
-        ``data`` holds observation columns (one row per hold) or samples. For holds, a term
+        ``data`` holds observation columns (one row per hold) or samples, and the session's
+        record (``series``) where there is one. For holds, a term
         that reads a series signal (``t``, ``temp_rate``, a lag) is evaluated at quadrature
         nodes inside every hold and averaged (:mod:`gyrocal.terms.signals`); other terms read
         only what is constant within a hold and are evaluated on the hold's values."""
@@ -470,10 +472,9 @@ def _fit_axis(
         dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
     check, check_Vt = s, Vt
-    if rows is not None:  # judged with the penalty at full weight (PENALTY_WEIGHT)
-        _, check, check_Vt = np.linalg.svd(
-            np.vstack([Xw / scale, _penalty_rows(model, cols, scale, 1.0)]), full_matrices=False
-        )
+    # judged with the penalty at full weight (PENALTY_WEIGHT), whose rows come from the same terms
+    if rows is not None and (full := _penalty_rows(model, cols, scale, 1.0)) is not None:
+        _, check, check_Vt = np.linalg.svd(np.vstack([Xw / scale, full]), full_matrices=False)
     # Columns that only noise keeps apart (an accelerometer that reads the same on
     # every mount but for its noise) fit noise, not physics: refuse them too.
     weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)

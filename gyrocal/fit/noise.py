@@ -512,9 +512,9 @@ def fit_noise_terms(result: AllanResult) -> NoiseTerms:
         bmins.append(cols[solid if solid.any() else keep, j].min() / FLICKER_FACTOR * _TO_BI)
         grid = np.geomspace(tau[keep][0], tau[keep][-1], 512)
         tmins.append(float(grid[np.argmin(_design(grid) @ coef)]))
-    coefs, ses = np.array(coefs), np.array(ses)
-    values = np.sqrt(coefs) * _SCALE
-    errors = (np.sqrt(coefs + ses) - np.sqrt(coefs)) * _SCALE
+    coef_rows, se_rows = np.array(coefs), np.array(ses)
+    values = np.sqrt(coef_rows) * _SCALE
+    errors = (np.sqrt(coef_rows + se_rows) - np.sqrt(coef_rows)) * _SCALE
 
     def pick(a):
         a = np.asarray(a, dtype=float)

@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Protocol, TypeVar
 
 import numpy as np
 
 from ..io.errors import GyrocalError
-from .model import Model
+from .model import FitResult, Model
 
 SCAN_POINTS = 13
 ZOOM_POINTS = 5  # per bracket: each round halves it, at two new values
@@ -30,7 +31,20 @@ POLISH_EVALUATIONS = 100
 POLISH_CHI2 = 0.05  # a change of χ² that decides nothing
 
 
-def total_chi2(fitted) -> tuple[float, int]:
+class LinearFit(Protocol):
+    """What profiling reads of a fit at given settings (a :mod:`gyrocal.fit.thermal` fit):
+    its least-squares fits and the temperature points they kept."""
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]: ...
+
+    def used_points(self) -> list[int]: ...
+
+
+Fitted = TypeVar("Fitted", bound=LinearFit)
+
+
+def total_chi2(fitted: LinearFit) -> tuple[float, int]:
     return (
         float(sum(sum(f.chi2.values()) for f in fitted.fits)),
         int(sum(sum(f.dof.values()) for f in fitted.fits)),
@@ -167,7 +181,7 @@ def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
     return own
 
 
-def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
+def profiled_fit(model: Model, fit_linear: Callable[[Model], Fitted]) -> Fitted:
     """The fit of ``model`` with its nonlinear settings at their best values; the fitted
     object's ``profiled`` lists each (term, parameter, value, stderr, bounds, at_bound)."""
     targets = [

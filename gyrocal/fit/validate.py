@@ -189,7 +189,7 @@ class _HeldOut:
 
 
 def _held_out(
-    model: Model, fitted, data: dict, reference_temperature: float, *, every_point: bool
+    model: Model, fitted, data: Mapping[str, np.ndarray], reference_temperature: float, *, every_point: bool
 ) -> _HeldOut:
     """Each temperature point left out in turn where two or more were fitted (a continuous
     model whose temperature terms need every point: each hold instead); with one point, each
@@ -239,7 +239,7 @@ def _hold_table(obs: pd.DataFrame, held: _HeldOut, floor: np.ndarray, errors: di
 def _summary(
     model: Model,
     fitted,
-    data: dict,
+    data: Mapping[str, np.ndarray],
     held: _HeldOut,
     errors: dict,
     floor: np.ndarray,
@@ -287,7 +287,12 @@ def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
 
 
 def _leave_temperature_out(
-    model: Model, fitted, data: dict, reference_temperature: float, *, every_point: bool = True
+    model: Model,
+    fitted,
+    data: Mapping[str, np.ndarray],
+    reference_temperature: float,
+    *,
+    every_point: bool = True,
 ):
     """Per hold: the calibration without its own point (interpolated, or refitted for a
     continuous model) and the one-point calibration at the reference point (the next
@@ -354,7 +359,7 @@ def _leave_temperature_out(
     return interp, single, clamped, ref_temp, in_sample_rows
 
 
-def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = False):
+def _leave_hold_out(model: Model, fitted, data: Mapping[str, np.ndarray], *, every_point: bool = False):
     """One usable temperature point (or, ``every_point``, one continuous fit over all
     points): each of its holds is compensated by the fit of the other holds (holds of
     points that could not be fitted use the whole fit)."""
@@ -426,7 +431,7 @@ def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
                 noise = holds[f"floor_{a}"].to_numpy() ** 2
                 floor = np.sqrt(total(noise)[r] / weight[r])
                 expected = np.sqrt(total(noise + cal)[r] / weight[r])
-            row = {"rotating": rot, "output": a}
+            row: dict[str, Any] = {"rotating": rot, "output": a}
             for m, name in enumerate(METHODS):
                 row[f"{name}_mean"], row[f"{name}_rms"] = mean[m], rms[m]
             row["noise_floor"] = floor[METHODS.index("interpolated")]

@@ -175,7 +175,7 @@ def _digest(*arrays) -> bytes:
     for a in arrays:
         a = np.ascontiguousarray(a, dtype=np.float64)
         h.update(np.int64(a.size).tobytes())
-        h.update(a)
+        h.update(a.data)
     return h.digest()
 
 
