@@ -15,6 +15,7 @@ import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -63,7 +64,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     # A log with no temperature (a hand-rotation session may have none) takes a
     # calibration made at one temperature as it is: there is nothing to interpolate.
     constant_temp = None
-    grid_temps = getattr(cal.grid, "temperatures", ())
+    grid_temps = cal.grid.temperatures
     if "temp" not in schema.names and len(grid_temps) == 1 and not needs & SERIES_INPUTS:
         constant_temp = float(grid_temps[0])
     needed = [*GYRO, *(["temp"] if constant_temp is None else [])] + sorted(
@@ -95,7 +96,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
             cal,
             path,
             schema.names,
-            needs & {"temp_rate", "temp_lag"},
+            bool(needs & {"temp_rate", "temp_lag"}),
             [
                 c
                 for c in RECORD_COLUMNS
@@ -229,43 +230,10 @@ def _write(
                 data["temp"] = np.full(len(gyro), constant_temp)
             if t0 is not None:  # the model reads series signals: time since the first row
                 data["t"] = time_seconds(batch.column("t"), path, origin, units) - t0
-            if series is not None:
-                data["temp_rate"] = series.at("temp_rate", data["t"])
-                # Histories run over the samples, from the state the batch before left.
-                data["series"] = SampleRecord(
-                    series,
-                    {**cols, "t": data["t"], "temp": data["temp"], "temp_rate": data["temp_rate"]},
-                    histories,
-                )
+            inputs = _with_record(data, cols, series, histories)
             for transform in transforms:  # a die temperature: a filter with state
-                data = transform(data)
-            good = np.isfinite(cols[GYRO[0]])
-            for c in GYRO[1:]:
-                good &= np.isfinite(cols[c])
-            for k, v in data.items():
-                if k != "series":
-                    good &= np.isfinite(v)
-            every = bool(good.all())
-            result = np.full_like(gyro, np.nan)
-            if every or good.any():
-                sub = data if every else {k: v[good] for k, v in data.items()}
-                with np.errstate(over="ignore", invalid="ignore"):  # counted just below
-                    found = cal.compensate(gyro if every else gyro[good], sub, warn=False)
-                if every:
-                    result = found
-                else:
-                    result[good] = found
-                counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
-            elif "series" in data:
-                # No row to compensate (the gyro dropped out, the temperature still logged):
-                # the histories' filters still move on over the batch, as firmware's do.
-                with np.errstate(over="ignore", invalid="ignore"):
-                    cal.compensate(gyro, data, warn=False)
-            # A finite output too large to compensate (its terms overflow) is written as
-            # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
-            for i in range(3):
-                good &= np.isfinite(result[:, i])
-            result[~good] = np.nan
+                inputs = transform(inputs)
+            result, good = _compensated(cal, gyro, cols, inputs, counts)
             arrays = [
                 pa.array(result[:, GYRO.index(name)]) if name in GYRO else batch.column(name)
                 for name in out_schema.names
@@ -277,3 +245,54 @@ def _write(
             counts["nonfinite"] += int((~good).sum())
         if writing is not None:
             writing.result()
+
+
+def _with_record(
+    data: dict[str, np.ndarray], cols: dict, series: Series | None, histories: dict
+) -> dict[str, Any]:
+    """A batch's inputs with, where the model reads series signals, the temperature rate
+    from the fit's record and the batch's samples as the record its histories run over,
+    from the state the batch before left."""
+    if series is None:
+        return data
+    temp_rate = series.at("temp_rate", data["t"])
+    record = SampleRecord(
+        series, {**cols, "t": data["t"], "temp": data["temp"], "temp_rate": temp_rate}, histories
+    )
+    return {**data, "temp_rate": temp_rate, "series": record}
+
+
+def _compensated(
+    cal, gyro: np.ndarray, cols: dict, data: dict[str, Any], counts: dict
+) -> tuple[np.ndarray, np.ndarray]:
+    """One batch's compensated rates and which rows are finite: a row whose gyro or any input
+    is not finite, or whose compensation overflows, is NaN; temperatures clamped to the
+    calibrated range are counted."""
+    good = np.isfinite(cols[GYRO[0]])
+    for c in GYRO[1:]:
+        good &= np.isfinite(cols[c])
+    for k, v in data.items():
+        if k != "series":
+            good &= np.isfinite(v)
+    every = bool(good.all())
+    result = np.full_like(gyro, np.nan)
+    if every or good.any():
+        sub = data if every else {k: v[good] for k, v in data.items()}
+        with np.errstate(over="ignore", invalid="ignore"):  # counted just below
+            found = cal.compensate(gyro if every else gyro[good], sub, warn=False)
+        if every:
+            result = found
+        else:
+            result[good] = found
+        counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
+    elif "series" in data:
+        # No row to compensate (the gyro dropped out, the temperature still logged):
+        # the histories' filters still move on over the batch, as firmware's do.
+        with np.errstate(over="ignore", invalid="ignore"):
+            cal.compensate(gyro, data, warn=False)
+    # A finite output too large to compensate (its terms overflow) is written as
+    # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
+    for i in range(3):
+        good &= np.isfinite(result[:, i])
+    result[~good] = np.nan
+    return result, good

@@ -42,7 +42,7 @@ MISALIGNMENT_LIMIT = 0.2  # 11°: beyond the several degrees of a hand-mounted r
 
 
 def scale_findings(
-    Ks: np.ndarray, identified: tuple[bool, bool, bool], source=None, temperatures=None
+    Ks: np.ndarray, identified: tuple[bool, ...], source=None, temperatures=None
 ) -> list[Finding]:
     """Errors for unit conversions, signs and permutations in K (the median over the
     calibration's temperature points, ``Ks`` (n, 3, 3)); warnings for a scale or cross-axis
@@ -51,42 +51,8 @@ def scale_findings(
     out: list[Finding] = []
     Ks = np.asarray(Ks).reshape(-1, 3, 3)
     temperatures = np.full(len(Ks), np.nan) if temperatures is None else np.asarray(temperatures)
-    K = np.median(Ks, axis=0)
-    diag = np.diag(K)
-    # Permuted axes: an output follows another axis' rate, not its own.
-    for i, a in enumerate(AXES):
-        j = int(np.argmax(np.abs(K[i])))
-        if identified[i] and j != i and abs(abs(K[i, j]) - 1) < UNIT_MATCH and abs(diag[i]) < 0.5:
-            raise ImplausibleInputError(
-                f"gyro_{a} follows the rig's {AXES[j]} rate (K[{a},{AXES[j]}] = {K[i, j]:.3g}, "
-                f"K[{a},{a}] = {diag[i]:.3g}): the gyro columns are permuted, or the mount labels name "
-                "the wrong axes",
-                source=source,
-            )
-    seen = [(i, d) for i, d in enumerate(diag) if identified[i]]
-    if not seen:
+    if not _refuse_impossible_scales(np.median(Ks, axis=0), identified, source):
         return out
-    values = np.array([d for _, d in seen])
-    meaning = unit_meaning(values)
-    if meaning is not None:
-        raise ImplausibleInputError(
-            f"scale factors {', '.join(f'{v:.4g}' for v in values)} against the reference: {meaning}",
-            source=source,
-        )
-    if np.all(np.abs(values + 1) < SCALE_TOLERANCE):
-        raise ImplausibleInputError(
-            f"scale factors {', '.join(f'{v:.4g}' for v in values)}: every axis reads against the "
-            f"reference; {REFERENCE_SIGN}",
-            source=source,
-        )
-    flipped = [AXES[i] for i, d in seen if abs(d + 1) < SCALE_TOLERANCE]
-    if flipped:
-        raise ImplausibleInputError(
-            f"gyro_{', gyro_'.join(flipped)} read{'s' if len(flipped) == 1 else ''} against the "
-            f"reference (scale {', '.join(f'{diag[AXES.index(a)]:.4g}' for a in flipped)}) while the "
-            f"other axes agree: {AXIS_SIGN_CAUSE}",
-            source=source,
-        )
 
     def worst(i, j):  # the entry furthest from nominal over the points, and where
         dev = np.abs(Ks[:, i, j] - (1.0 if i == j else 0.0))
@@ -96,7 +62,7 @@ def scale_findings(
     def at(temp):
         return f" at {temp:.1f} °C" if np.isfinite(temp) else ""
 
-    far = [(AXES[i], *worst(i, i)) for i, _ in seen]
+    far = [(AXES[i], *worst(i, i)) for i in range(3) if identified[i]]
     far = [f for f in far if f[3] > SCALE_TOLERANCE]
     if far:
         out.append(
@@ -123,6 +89,47 @@ def scale_findings(
             )
         )
     return out
+
+
+def _refuse_impossible_scales(K: np.ndarray, identified: tuple[bool, ...], source) -> bool:
+    """Raise where the median K (3, 3) cannot be a gyro's: permuted axes, a unit conversion,
+    a sign. False when no axis's scale was fitted (nothing to judge)."""
+    diag = np.diag(K)
+    # Permuted axes: an output follows another axis' rate, not its own.
+    for i, a in enumerate(AXES):
+        j = int(np.argmax(np.abs(K[i])))
+        if identified[i] and j != i and abs(abs(K[i, j]) - 1) < UNIT_MATCH and abs(diag[i]) < 0.5:
+            raise ImplausibleInputError(
+                f"gyro_{a} follows the rig's {AXES[j]} rate (K[{a},{AXES[j]}] = {K[i, j]:.3g}, "
+                f"K[{a},{a}] = {diag[i]:.3g}): the gyro columns are permuted, or the mount labels name "
+                "the wrong axes",
+                source=source,
+            )
+    seen = [(i, d) for i, d in enumerate(diag) if identified[i]]
+    if not seen:
+        return False
+    values = np.array([d for _, d in seen])
+    meaning = unit_meaning(values)
+    if meaning is not None:
+        raise ImplausibleInputError(
+            f"scale factors {', '.join(f'{v:.4g}' for v in values)} against the reference: {meaning}",
+            source=source,
+        )
+    if np.all(np.abs(values + 1) < SCALE_TOLERANCE):
+        raise ImplausibleInputError(
+            f"scale factors {', '.join(f'{v:.4g}' for v in values)}: every axis reads against the "
+            f"reference; {REFERENCE_SIGN}",
+            source=source,
+        )
+    flipped = [AXES[i] for i, d in seen if abs(d + 1) < SCALE_TOLERANCE]
+    if flipped:
+        raise ImplausibleInputError(
+            f"gyro_{', gyro_'.join(flipped)} read{'s' if len(flipped) == 1 else ''} against the "
+            f"reference (scale {', '.join(f'{diag[AXES.index(a)]:.4g}' for a in flipped)}) while the "
+            f"other axes agree: {AXIS_SIGN_CAUSE}",
+            source=source,
+        )
+    return True
 
 
 def fit_findings(cal: Calibration, one_temperature: bool = False) -> list[Finding]:

@@ -29,6 +29,7 @@ lists every warning; docs/inputs.md gives the catalogue of bad inputs and their 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from typing import Any, TypedDict
 
 import numpy as np
@@ -829,7 +830,7 @@ NEVER_ROUTINE = ("gyro_disagrees", "mount_mismatch", "mount_changes")
 REJECTED_SHARE = 0.02
 
 
-def rejection_findings(info: dict) -> list[Finding]:
+def rejection_findings(info: Mapping[str, Any]) -> list[Finding]:
     """A warning when segmentation rejected more than a few holds for what a working rig
     does not do (clipped output, a gyro that disagrees with the reference, instability)."""
     rejected = {
