@@ -15,7 +15,7 @@ import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -50,7 +50,17 @@ BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of t
 DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
 
 
-def apply_calibration(cal: Calibration, path, out) -> dict:
+class ApplyCounts(TypedDict):
+    """What ``gyrocal apply`` did to a log: its rows, those written NaN (an input not finite,
+    or a compensation that overflows), and those at temperatures clamped to the calibrated
+    range."""
+
+    rows: int
+    nonfinite: int
+    clamped: int
+
+
+def apply_calibration(cal: Calibration, path, out) -> ApplyCounts:
     """Write ``out`` from the log at ``path``; return counts (rows, non-finite, clamped).
 
     Rows whose gyro, temperature or other needed input is not finite get NaN compensated
@@ -103,7 +113,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
                 if {"gyro": "rate_history", "accel": "accel_history"}[c.split("_")[0]] in needs
             ],
         )
-    counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
+    counts: ApplyCounts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     transforms = cal.model.sample_transforms()  # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
         _write(
@@ -263,7 +273,7 @@ def _with_record(
 
 
 def _compensated(
-    cal, gyro: np.ndarray, cols: dict, data: dict[str, Any], counts: dict
+    cal, gyro: np.ndarray, cols: dict, data: dict[str, Any], counts: ApplyCounts
 ) -> tuple[np.ndarray, np.ndarray]:
     """One batch's compensated rates and which rows are finite: a row whose gyro or any input
     is not finite, or whose compensation overflows, is NaN; temperatures clamped to the

@@ -11,6 +11,7 @@ import importlib.metadata
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -18,7 +19,14 @@ import pandas as pd
 from .. import __version__
 from ..calibration.file import Calibration
 from ..calibration.review import review
-from ..fit.floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
+from ..fit.floor import (
+    NoiseSummary,
+    StretchSampler,
+    add_floor_columns,
+    characterise,
+    noise_record,
+    static_stretches,
+)
 from ..fit.thermal import ContinuousFit, GridFit
 from ..fit.validate import Validation, free_point_fits, validate
 from ..io import plausibility
@@ -30,6 +38,9 @@ from ..protocols import registry
 from ..protocols.turntable.segment import LOG_COLUMNS
 from ..terms.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .config import Settings
+
+if TYPE_CHECKING:
+    from .identify import AddedTerm, BiasInSession
 
 
 @dataclass(frozen=True)
@@ -150,7 +161,7 @@ def calibrate_observations(
     meta: dict,
     source: dict | None = None,
     label=None,
-    noise: dict | None = None,
+    noise: NoiseSummary | None = None,
     fitted: GridFit | ContinuousFit | None = None,
     info: dict | None = None,
     checks: bool = True,
@@ -213,7 +224,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     the protocol's own model are kept only where this unit's data identify them
     (:func:`gyrocal.pipeline.identify.identify`; the file's ``added_terms`` says which and
     why, with the held-out figures with and without each)."""
-    added = ()
+    added: tuple[AddedTerm, ...] = ()
     if fitted is None:
         from .identify import identify
 
@@ -253,7 +264,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     return cal, fitted
 
 
-def _bias_in_session(fitted, added) -> dict | None:
+def _bias_in_session(fitted, added) -> BiasInSession | None:
     from .identify import bias_in_session
 
     return bias_in_session(fitted, [a.term for a in added if a.kept and a.weakly])

@@ -21,11 +21,12 @@ import json
 import math
 import re
 from dataclasses import dataclass, replace
+from typing import TypedDict
 
 import numpy as np
 import pandas as pd
 
-from ..fit.thermal import fit_model
+from ..fit.thermal import ContinuousFit, GridFit, JointGridFit, fit_model
 from ..fit.validate import CannotLeaveOut, validate
 from ..io.errors import GyrocalError, IdentifiabilityError, MissingInputError
 from ..terms import AXES, make_term
@@ -39,6 +40,28 @@ from .config import Settings
 MAX_INFLATION = math.sqrt(10.0)
 
 
+class HeldOut(TypedDict):
+    """A model's leave-temperature-out figures (its validation summary's; None where not
+    finite), as a calibration file's ``added_terms`` records them with and without a term."""
+
+    validation_rms: float | None
+    noise_floor: float | None
+    expected_rms: float | None
+    excess: float | None
+    excess_over_expected: float | None
+    held_out: str | None  # what was held out: "temperature" or "hold"
+    holds_scored: float | None
+
+
+class BiasInSession(TypedDict):
+    """Each temperature point's bias as the session measured it (:func:`bias_in_session`)."""
+
+    terms: list[str]  # the session's terms it includes
+    temperatures: list[float]
+    bias: list[list[float]]  # per point, per output axis, deg/s
+    stderr: list[list[float]]
+
+
 @dataclass(frozen=True)
 class AddedTerm:
     """One term beyond the protocol's own model, as a unit's data judge it."""
@@ -48,8 +71,8 @@ class AddedTerm:
     reason: str | None = None  # why it was dropped
     inflation: float | None = None  # the largest growth of an own coefficient's standard error
     inflated: str | None = None  # that coefficient
-    with_term: dict | None = None  # held-out figures of the model with the term
-    without_term: dict | None = None
+    with_term: HeldOut | None = None  # held-out figures of the model with the term
+    without_term: HeldOut | None = None
     weakly: str | None = None  # kept for its gain though the data do not identify it: why
 
     def to_dict(self) -> dict:
@@ -118,7 +141,9 @@ class _Fits:
     """Each model fitted, and validated, once: the checks and the figures ask again."""
 
     def __init__(self, obs: pd.DataFrame, source):
-        self.obs, self.source, self.fitted, self.held = obs, source, {}, {}
+        self.obs, self.source = obs, source
+        self.fitted: dict[str, GridFit | ContinuousFit | JointGridFit] = {}
+        self.held: dict[str, HeldOut | None] = {}
 
     @staticmethod
     def key(settings: Settings) -> str:
@@ -130,7 +155,7 @@ class _Fits:
             self.fitted[key] = fit_of(settings, self.obs, self.source)
         return self.fitted[key]
 
-    def held_out(self, settings: Settings) -> dict | None:
+    def held_out(self, settings: Settings) -> HeldOut | None:
         """The model's leave-temperature-out figures (None where it cannot be fitted or
         validated on these observations)."""
         key = self.key(settings)
@@ -144,18 +169,15 @@ class _Fits:
                     reference_temperature=settings.model.reference_temperature,
                     every_point=False,
                 ).summary
-                self.held[key] = {
-                    k: _finite(s.get(k))
-                    for k in (
-                        "validation_rms",
-                        "noise_floor",
-                        "expected_rms",
-                        "excess",
-                        "excess_over_expected",
-                        "held_out",
-                        "holds_scored",
-                    )
-                }
+                self.held[key] = HeldOut(
+                    validation_rms=_finite(s.get("validation_rms")),
+                    noise_floor=_finite(s.get("noise_floor")),
+                    expected_rms=_finite(s.get("expected_rms")),
+                    excess=_finite(s.get("excess")),
+                    excess_over_expected=_finite(s.get("excess_over_expected")),
+                    held_out=_finite(s.get("held_out")),
+                    holds_scored=_finite(s.get("holds_scored")),
+                )
             except (GyrocalError, CannotLeaveOut):
                 self.held[key] = None
         return self.held[key]
@@ -239,7 +261,8 @@ def identify(
     records = []
     for spec in extra:
         reason = reasons.get(spec)
-        inflation, name = share[spec] if reason is None else reason[1:]
+        growth: float | None
+        growth, name = share[spec] if reason is None else (reason[1], reason[2])
         with_term = without_term = None
         if held_out:
             with_term = fit.held_out(without(settings, [s for s in reasons if s != spec]))
@@ -249,7 +272,7 @@ def identify(
                 spec,
                 reason is None,
                 None if reason is None else reason[0],
-                _finite(inflation),
+                _finite(growth),
                 name,
                 with_term,
                 without_term,
@@ -259,7 +282,7 @@ def identify(
     return Identified(current, fitted, tuple(records))
 
 
-def bias_in_session(fitted, specs) -> dict | None:
+def bias_in_session(fitted, specs) -> BiasInSession | None:
     """Each temperature point's bias as the session measured it, where terms of the session
     (``specs``, kept though the data cannot tell them from the bias) make the fitted bias an
     extrapolation (a decay's value long after power-on): the bias plus those terms' mean
@@ -292,12 +315,12 @@ def bias_in_session(fitted, specs) -> dict | None:
             row_s.append(float(np.sqrt(max(g @ f.covariance @ g, 0.0))))
         values.append(row_v)
         stderr.append(row_s)
-    return {
-        "terms": sorted(specs),
-        "temperatures": [float(t) for t in fitted.grid.temperatures],
-        "bias": values,
-        "stderr": stderr,
-    }
+    return BiasInSession(
+        terms=sorted(specs),
+        temperatures=[float(t) for t in fitted.grid.temperatures],
+        bias=values,
+        stderr=stderr,
+    )
 
 
 def _culprits(kept: list[str], exc: Exception) -> list[str]:
@@ -314,13 +337,13 @@ def _culprits(kept: list[str], exc: Exception) -> list[str]:
     ]
 
 
-def _chance_bound(held: dict, alpha: float) -> float:
+def _chance_bound(held: HeldOut, alpha: float) -> float:
     """How far a held-out RMS over ``held``'s holds may differ from another's by chance:
     ``sqrt(χ²_N(1 − α/2) / N)``, N the errors scored (three a hold), as the diagnosis
     judges a gain."""
     from scipy.stats import chi2
 
-    n = 3 * int(held["holds_scored"])
+    n = 3 * int(held["holds_scored"] or 0)
     return math.sqrt(chi2.ppf(1.0 - alpha / 2, n) / n)
 
 
@@ -332,7 +355,8 @@ def _hurts(settings: Settings, spec: str, fit: _Fits, alpha: float) -> str | Non
     with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
     if not with_term or not without_term or not without_term.get("holds_scored"):
         return None
-    if with_term["validation_rms"] <= without_term["validation_rms"] * _chance_bound(without_term, alpha):
+    rms, rms_without = with_term["validation_rms"], without_term["validation_rms"]
+    if rms is None or rms_without is None or rms <= rms_without * _chance_bound(without_term, alpha):
         return None
     return (
         f"it raises the held-out error from {without_term['excess']:.3g} to "
@@ -348,7 +372,8 @@ def _helps(settings: Settings, spec: str, fit: _Fits, alpha: float) -> bool:
     with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
     if not with_term or not without_term or not with_term.get("holds_scored"):
         return False
-    return with_term["validation_rms"] * _chance_bound(with_term, alpha) < without_term["validation_rms"]
+    rms, rms_without = with_term["validation_rms"], without_term["validation_rms"]
+    return rms is not None and rms_without is not None and rms * _chance_bound(with_term, alpha) < rms_without
 
 
 def _message(exc: BaseException) -> str:
