@@ -8,7 +8,7 @@ BIN    := $(VENV)/bin
 KERNELS := gyrocal/io/_blockstats.c gyrocal/fit/_kernels.c
 STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock $(KERNELS) | sha256sum | cut -c1-12)
 
-.PHONY: demo test bench system-packages clean
+.PHONY: demo test lint bench system-packages clean
 
 $(STAMP): pyproject.toml setup.py requirements.lock $(KERNELS)
 	rm -f $(VENV)/.installed-*
@@ -27,6 +27,13 @@ demo: $(STAMP)
 
 test: system-packages $(STAMP)
 	$(BIN)/python -m pytest -n auto --dist loadfile
+
+# The lint gate ([tool.ruff] in pyproject.toml): rules that catch bugs, and one layout; and
+# the type check of the layers [tool.mypy] holds to their types.
+lint: $(STAMP)
+	$(BIN)/ruff check gyrocal tests benchmarks
+	$(BIN)/ruff format --check gyrocal tests benchmarks
+	$(BIN)/mypy gyrocal/terms gyrocal/fit gyrocal/calibration gyrocal/pipeline
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernels, built on install),
