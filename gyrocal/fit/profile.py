@@ -232,6 +232,14 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], Fitted]) -> Fitted:
     dof = total_chi2(fitted)[1]
     s2 = chi2 / max(dof, 1)
     sigma = _log_errors(current, free, chi2, s2, evaluate) if free else {}
+    report = _report(current, targets, flat, sigma)
+    object.__setattr__(fitted, "profiled", tuple(report))
+    return fitted
+
+
+def _report(current: Model, targets: list, flat: set, sigma: dict) -> list[dict]:
+    """Each profiled setting: its term and value, its standard error (None where flat, or not
+    finite), its bounds, whether it ended at one, and whether the data identify it."""
     report = []
     for index, name, (lo, hi) in targets:
         value = _value(current, index, name)
@@ -262,5 +270,4 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], Fitted]) -> Fitted:
                 "identified": True,
             }
         )
-    object.__setattr__(fitted, "profiled", tuple(report))
-    return fitted
+    return report

@@ -475,6 +475,22 @@ def log_findings(stats: dict | None, source=None) -> list[Finding]:
     """Warnings from the read's :class:`InputStats` summary."""
     if not stats or not stats.get("rows"):
         return []
+    out = _temperature_findings(stats)
+    if stats.get("gyro_beyond"):
+        out.append(
+            finding(
+                "gyro_out_of_range",
+                f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
+                "gyro's range: corrupted values; the holds around them are split or rejected",
+                samples=stats["gyro_beyond"],
+                ranges=stats.get("gyro_range"),
+            )
+        )
+    return out + _timing_findings(stats)
+
+
+def _temperature_findings(stats: dict) -> list[Finding]:
+    """The temperature out of range, missing for a share of the rows, or stuck."""
     out = []
     rows = stats["rows"]
     lo_hi = stats.get("temp_range")
@@ -526,16 +542,12 @@ def log_findings(stats: dict | None, source=None) -> list[Finding]:
                 finest_step=stats["temp_finest_step"],
             )
         )
-    if stats.get("gyro_beyond"):
-        out.append(
-            finding(
-                "gyro_out_of_range",
-                f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
-                "gyro's range: corrupted values; the holds around them are split or rejected",
-                samples=stats["gyro_beyond"],
-                ranges=stats.get("gyro_range"),
-            )
-        )
+    return out
+
+
+def _timing_findings(stats: dict) -> list[Finding]:
+    """Sample intervals scattered about the nominal, or samples missing between them."""
+    out = []
     intervals = stats.get("intervals") or 0
     if intervals:
         nominal = stats["nominal_dt"]
@@ -701,21 +713,7 @@ def _holds_off_their_line(obs) -> list[Finding]:
         if f"rate_{a}" not in obs:
             continue
         x = np.asarray(obs[f"rate_{a}"], float)
-        resid = np.full((len(obs), 3), np.nan)  # every output's, against the turning rate
-        for p in np.unique(point):
-            rows = np.flatnonzero((point == p) & (axes == a) & (ref != 0))
-            if rows.size < 5:
-                continue
-            xi, yi = x[rows], outputs[rows]
-            i, j = np.triu_indices(rows.size, 1)
-            keep = xi[i] != xi[j]
-            slope = (
-                np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0)
-                if keep.any()
-                else np.zeros(3)
-            )
-            r = yi - slope * xi[:, None]
-            resid[rows] = r - np.median(r, axis=0)
+        resid = _off_the_line(x, outputs, point, (axes == a) & (ref != 0))
         rows = np.flatnonzero(np.isfinite(resid[:, 0]))
         turning += rows.size
         if not rows.size:
@@ -752,6 +750,28 @@ def _holds_off_their_line(obs) -> list[Finding]:
             worst=worst,
         )
     ]
+
+
+def _off_the_line(x: np.ndarray, outputs: np.ndarray, point: np.ndarray, turning: np.ndarray) -> np.ndarray:
+    """Every output's residual (n, 3) from its Theil–Sen line against the turning rate ``x``,
+    per temperature point, about the point's median residual; NaN for holds not ``turning``
+    or of a point with under five of them."""
+    resid = np.full((len(x), 3), np.nan)
+    for p in np.unique(point):
+        rows = np.flatnonzero((point == p) & turning)
+        if rows.size < 5:
+            continue
+        xi, yi = x[rows], outputs[rows]
+        i, j = np.triu_indices(rows.size, 1)
+        keep = xi[i] != xi[j]
+        slope = (
+            np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0)
+            if keep.any()
+            else np.zeros(3)
+        )
+        r = yi - slope * xi[:, None]
+        resid[rows] = r - np.median(r, axis=0)
+    return resid
 
 
 def _mounts_against_gravity(obs) -> list[Finding]:

@@ -204,7 +204,6 @@ def identify(
     reasons: dict[str, tuple[str, float | None, str | None]] = {}
     alpha = settings.diagnosis.significance
     while True:
-        weak: dict[str, str] = {}  # kept though not identified, for the gain it brings
         kept = [s for s in extra if s not in reasons]
         current = without(settings, reasons)
         try:
@@ -220,41 +219,8 @@ def identify(
             )
             reasons.update({s: (f"{what} ({_message(exc)})", None, None) for s in culprits})
             continue
-        overall = _inflation(fit(own), fitted, own)
-        # each term's own share: the growth it makes beside the others kept
-        share = {
-            s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own)
-            for s in kept
-        }
-        if overall[0] > MAX_INFLATION and all(share[s][0] <= MAX_INFLATION for s in kept):
-            # several terms share one collinearity: the one whose removal relieves it most
-            first = min(kept, key=lambda s: _inflation(fit(own), fit(without(current, [s])), own)[0])
-            share[first] = overall
-        found = {}
-        for spec in kept:
-            why = _at_bound(fitted, spec)
-            inflation, name = share[spec]
-            if why is None and inflation > MAX_INFLATION:
-                why = (
-                    f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
-                    f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms"
-                )
-            if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
-                why = (
-                    "with it no temperature point can be left out to validate the calibration, "
-                    "as it can without it"
-                )
-            worse = _hurts(current, spec, fit, alpha)
-            if worse is not None:
-                found[spec] = (worse, inflation, name)
-            elif why is not None and not _helps(current, spec, fit, alpha):
-                found[spec] = (
-                    why + ", and it does not lower the held-out error beyond chance",
-                    inflation,
-                    name,
-                )
-            elif why is not None:
-                weak[spec] = why
+        share = _shares(fit, own, current, fitted, kept)
+        found, weak = _judged(fit, current, fitted, kept, share, alpha)
         if not found:
             break
         reasons.update(found)
@@ -280,6 +246,55 @@ def identify(
             )
         )
     return Identified(current, fitted, tuple(records))
+
+
+def _shares(fit: _Fits, own: Settings, current: Settings, fitted, kept: list[str]) -> dict:
+    """Each kept term's share of the growth of the protocol's own coefficients' standard
+    errors (:func:`_inflation`: the factor and the coefficient): the growth it makes beside
+    the others kept; where several share one collinearity, the one whose removal relieves it
+    most carries the whole."""
+    overall = _inflation(fit(own), fitted, own)
+    share = {
+        s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own) for s in kept
+    }
+    if overall[0] > MAX_INFLATION and all(share[s][0] <= MAX_INFLATION for s in kept):
+        first = min(kept, key=lambda s: _inflation(fit(own), fit(without(current, [s])), own)[0])
+        share[first] = overall
+    return share
+
+
+def _judged(
+    fit: _Fits, current: Settings, fitted, kept: list[str], share: dict, alpha: float
+) -> tuple[dict[str, tuple[str, float | None, str | None]], dict[str, str]]:
+    """The kept terms to drop, with why (and their growth of the standard errors), and those
+    kept though not identified, for the gain they bring, with why they are not."""
+    found: dict[str, tuple[str, float | None, str | None]] = {}
+    weak: dict[str, str] = {}
+    for spec in kept:
+        why = _at_bound(fitted, spec)
+        inflation, name = share[spec]
+        if why is None and inflation > MAX_INFLATION:
+            why = (
+                f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
+                f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms"
+            )
+        if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
+            why = (
+                "with it no temperature point can be left out to validate the calibration, "
+                "as it can without it"
+            )
+        worse = _hurts(current, spec, fit, alpha)
+        if worse is not None:
+            found[spec] = (worse, inflation, name)
+        elif why is not None and not _helps(current, spec, fit, alpha):
+            found[spec] = (
+                why + ", and it does not lower the held-out error beyond chance",
+                inflation,
+                name,
+            )
+        elif why is not None:
+            weak[spec] = why
+    return found, weak
 
 
 def bias_in_session(fitted, specs) -> BiasInSession | None:
