@@ -4,12 +4,13 @@
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV   := .venv
 BIN    := $(VENV)/bin
-# The C kernel is built on install: a change to it reinstalls, as a change of dependencies does.
-STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c | sha256sum | cut -c1-12)
+# The C kernels are built on install: a change to one reinstalls, as a change of dependencies does.
+KERNELS := gyrocal/io/_blockstats.c gyrocal/fit/_kernels.c
+STAMP  := $(VENV)/.installed-$(shell cat pyproject.toml setup.py requirements.lock $(KERNELS) | sha256sum | cut -c1-12)
 
 .PHONY: demo test lint bench system-packages clean
 
-$(STAMP): pyproject.toml setup.py requirements.lock gyrocal/io/_blockstats.c
+$(STAMP): pyproject.toml setup.py requirements.lock $(KERNELS)
 	rm -f $(VENV)/.installed-*
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
@@ -27,13 +28,15 @@ demo: $(STAMP)
 test: system-packages $(STAMP) lint
 	$(BIN)/python -m pytest -n auto --dist loadfile
 
-# The lint gate ([tool.ruff] in pyproject.toml): rules that catch bugs, and one layout.
+# The lint gate ([tool.ruff] in pyproject.toml): rules that catch bugs, and one layout; and
+# the type check of the layers [tool.mypy] holds to their types.
 lint: $(STAMP)
 	$(BIN)/ruff check gyrocal tests benchmarks
 	$(BIN)/ruff format --check gyrocal tests benchmarks
+	$(BIN)/mypy gyrocal/terms gyrocal/fit gyrocal/calibration gyrocal/pipeline
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
-# browser test, gcc for the firmware export test (and the C kernel, built on install),
+# browser test, gcc for the firmware export test (and the C kernels, built on install),
 # rsync for the object-storage test (Snakemake's fs storage plugin copies with it),
 # SLURM and munge for the scheduler tests (tests/slurm.py starts its own one-node cluster).
 system-packages:

@@ -16,8 +16,8 @@ from gyrocal.calibration.file import Calibration, load_calibration, save_calibra
 from gyrocal.fit.model import Model
 from gyrocal.fit.thermal import ConstantCoefficients
 from gyrocal.io.errors import MissingInputError
-from gyrocal.io.signals import LagFilter, Series, first_order_lag
 from gyrocal.terms import make_term
+from gyrocal.terms.signals import LagFilter, Series, first_order_lag
 
 
 @given(st.integers(0, 2**31 - 1), st.lists(st.integers(1, 400), min_size=1, max_size=6))

@@ -25,11 +25,11 @@ from gyrocal.fit.model import Model, columns_of
 from gyrocal.fit.thermal import fit_model
 from gyrocal.fleet.drift import revalidate
 from gyrocal.io.errors import ConfigError, IdentifiabilityError
-from gyrocal.io.signals import Inputs, Series, first_order_lag, history
 from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.pipeline.config import ModelSettings, Settings
 from gyrocal.run.cli import main
 from gyrocal.terms import TERMS, make_term
+from gyrocal.terms.signals import Inputs, Series, first_order_lag, history
 from gyrocal.terms.user import load_term_file
 
 WARMUP_FORMULA = {"formula": "exp(-t / tau)", "profile": {"tau": [60, 14400]}}

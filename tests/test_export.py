@@ -670,7 +670,7 @@ def test_compiled_c_runs_the_temperatures_histories_as_apply_does(kind, log, tmp
     # Teeth: without its histories the compensation differs by far more, and the switch
     # turned within the log (its sign took both values).
     data, good = compiled_runs_histories_as_apply(cal, header, expected, log, tmp_path)
-    from gyrocal.io.signals import TEMPERATURE_SMOOTHING_S, first_order_lag, temperature_play
+    from gyrocal.terms.signals import TEMPERATURE_SMOOTHING_S, first_order_lag, temperature_play
 
     lagged = first_order_lag(data[good, 0], data[good, 4], TEMPERATURE_SMOOTHING_S)
     assert set(np.unique(np.sign(temperature_play(lagged, 2.5) + 12.0 - 20.0))) == {-1.0, 1.0}

@@ -12,8 +12,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gyrocal.io.errors import ConfigError
-from gyrocal.io.signals import DUHEM_BAND, ROOM_C, HistoryBins, duhem_operator, history, play_operator
 from gyrocal.terms import make_term
+from gyrocal.terms.signals import DUHEM_BAND, ROOM_C, HistoryBins, duhem_operator, history, play_operator
 
 
 def _play_by_definition(x, width, start):
@@ -167,7 +167,7 @@ def test_histories_read_as_formulas_with_their_units():
 def _turntable_log(path, tau=4.0, k=0.01):
     """A table stepping through rates on one axis, 50 Hz, with the x output passing a slow
     pole: out = u + k (lag(u) − u), written without gyrocal's simulator."""
-    from gyrocal.io.signals import first_order_lag
+    from gyrocal.terms.signals import first_order_lag
 
     fs, rates = 50.0, [0.0, 100.0, -100.0, 300.0, -300.0, 0.0, 50.0, -200.0]
     u = np.concatenate([np.full(int(20 * fs), r) for r in rates])
@@ -241,9 +241,9 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
     from gyrocal.diagnose import extended
     from gyrocal.fit.model import Model, columns_of
     from gyrocal.fleet import drift
-    from gyrocal.io.signals import SampleRecord
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
+    from gyrocal.terms.signals import SampleRecord
 
     log = tmp_path / "pole.parquet"
     write_session(
@@ -433,7 +433,7 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
     import pandas as pd
 
     from gyrocal.diagnose.shapes import history_shapes
-    from gyrocal.io.signals import Series
+    from gyrocal.terms.signals import Series
 
     t = np.linspace(0.0, 7200.0, 721)
     up_down = 20.0 + 20.0 * np.sin(np.pi * t / 7200.0)  # warms, then cools back
@@ -577,7 +577,7 @@ def test_the_temperatures_play_starts_from_the_room_in_the_fit_and_in_apply(star
     the first sample, hot rising, at the room none. On a record's points (the fit's) and
     on the same record in pieces (apply's batches, the state carried) it agrees to the bit;
     a play of any other input starts at its first value."""
-    from gyrocal.io.signals import FILTERS, Series
+    from gyrocal.terms.signals import FILTERS, Series
 
     t = np.arange(200.0)
     temp = start + 0.5 * np.sin(t / 30.0)  # within a width of its start

@@ -1,29 +1,34 @@
-"""The compiled block kernels against their numpy fallback and a direct reference."""
+"""The compiled kernels (the read's block statistics, the fit's Allan sums) against their numpy
+fallback and a direct reference."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gyrocal.io import kernels
+from gyrocal.fit import kernels
+from gyrocal.io import blockstats
 
 from .conftest import needs
 
 pytestmark = needs(
-    {"the C kernel gyrocal.io._blockstats": kernels.LIB is not None},
+    {
+        "the C kernel gyrocal.io._blockstats": blockstats.LIB is not None,
+        "the C kernel gyrocal.fit._kernels": kernels.LIB is not None,
+    },
     "pip builds it on install where gcc is found, as make test does",
 )
 
 
 @pytest.fixture
 def numpy_only(monkeypatch):
-    monkeypatch.setattr(kernels, "LIB", None)
+    monkeypatch.setattr(blockstats, "LIB", None)
 
 
 def run_moments(v):
     mean = np.empty((len(v), 3))
     var = np.empty((len(v), 3), dtype=np.float32)
-    kernels.block_moments(v, mean[:, 1], var[:, 1], [np.empty(0, np.float32)])
+    blockstats.block_moments(v, mean[:, 1], var[:, 1], [np.empty(0, np.float32)])
     return mean[:, 1], var[:, 1]
 
 
@@ -36,7 +41,7 @@ def test_moments_match_the_numpy_path_and_a_float64_reference(dtype, size, monke
     v = x.reshape(-1, size)
     ref = v.astype(np.float64)
     compiled = run_moments(v)
-    monkeypatch.setattr(kernels, "LIB", None)
+    monkeypatch.setattr(blockstats, "LIB", None)
     fallback = run_moments(v)
     for mean, var in (compiled, fallback):
         np.testing.assert_allclose(mean, ref.mean(axis=1), rtol=0, atol=1e-7)  # deg/s
@@ -50,11 +55,11 @@ def test_means_skip_non_finite_values_only_when_asked(monkeypatch):
     v[1, 2] = np.nan
     v[2, :] = np.nan
     v[3, 0] = np.inf
-    for lib in (kernels.LIB, None):
-        monkeypatch.setattr(kernels, "LIB", lib)
+    for lib in (blockstats.LIB, None):
+        monkeypatch.setattr(blockstats, "LIB", lib)
         plain, finite = np.empty(4), np.empty(4)
-        kernels.block_mean(v, plain)
-        kernels.block_mean(v, finite, finite_only=True)
+        blockstats.block_mean(v, plain)
+        blockstats.block_mean(v, finite, finite_only=True)
         assert np.isnan(plain[1]) and np.isnan(plain[2]) and plain[0] == pytest.approx(2.5)
         np.testing.assert_allclose(finite[[0, 1, 3]], [2.5, (6 + 7 + 9 + 10 + 11) / 5, 21.0])
         assert np.isnan(finite[2])
@@ -64,7 +69,7 @@ def test_segmentation_is_the_same_on_either_path(logs, monkeypatch):
     from gyrocal.protocols.turntable.segment import segment_file
 
     _, compiled = segment_file(logs["complete"])
-    monkeypatch.setattr(kernels, "LIB", None)
+    monkeypatch.setattr(blockstats, "LIB", None)
     _, fallback = segment_file(logs["complete"])
     a, b = compiled.observations, fallback.observations
     assert len(a) == len(b) and (a["t_start"].to_numpy() == b["t_start"].to_numpy()).all()

@@ -178,7 +178,7 @@ def _spline_holds(t, seed=0, floor=0.002):
         "n": np.full(n, 100.0),
         **{f"rate_{a}": np.zeros(n) for a in "xyz"},
     }
-    from gyrocal.io.signals import Series
+    from gyrocal.terms.signals import Series
 
     record = np.arange(0.0, t.max() + 60.0, 1.0)
     data["series"] = Series(record, np.full(record.size, 25.0), 0.0, 60.0, np.ones(record.size))

@@ -206,7 +206,7 @@ def test_a_log_read_again_batch_by_batch_segments_to_the_same_bits(logs, monkeyp
 
 def test_history_of_pieces_is_the_history_of_the_whole():
     """Bin sums are made within one piece, so any cut of the record gives the same bits."""
-    from gyrocal.io.signals import HistoryBins, history
+    from gyrocal.terms.signals import HistoryBins, history
 
     rng = np.random.default_rng(3)
     t = np.cumsum(rng.uniform(0.005, 0.015, 20_000))

@@ -17,7 +17,6 @@ from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.io.errors import ConfigError
-from gyrocal.io.signals import temperature_rate
 from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.protocols.turntable.segment import SegmentConfig
@@ -25,6 +24,7 @@ from gyrocal.run import cli
 from gyrocal.simulate import GyroUnit
 from gyrocal.simulate.observations import observations
 from gyrocal.terms import user as user_terms
+from gyrocal.terms.signals import temperature_rate
 
 from .conftest import make_log
 
@@ -349,7 +349,7 @@ def test_an_empirical_term_is_a_spline_without_its_constant():
 
 def test_an_own_axis_formula_is_the_three_per_axis_formulas():
     from gyrocal.fit.model import Model
-    from gyrocal.io.signals import Inputs
+    from gyrocal.terms.signals import Inputs
 
     rng = np.random.default_rng(0)
     data = Inputs({f"rate_{a}": rng.normal(0, 100, 5) for a in "xyz"} | {"t": np.arange(5.0) * 60})

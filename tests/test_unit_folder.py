@@ -21,7 +21,7 @@ from gyrocal.io.unit_folder import (
     pack_stage,
     part_exists,
     part_failure,
-    read_observations,
+    read_observation_table,
     read_part_json,
     read_part_table,
 )
@@ -123,11 +123,11 @@ def test_observations_are_read_packed_and_a_failure_record_there_is_passed_on(tm
     pack_stage(tmp_path, "segment")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["segmentation.zip"]
     for where in (tmp_path, tmp_path / "observations.parquet"):  # the folder, or the part's path
-        read, extra = read_observations(where)
+        read, extra = read_observation_table(where)
         pd.testing.assert_frame_equal(read, obs)
         assert read.attrs["static_seconds"] == 12.5
     rec = failure.record("segment", "no hold passed the checks", {"device": "U1"})
     failure.write([tmp_path / "observations.parquet"], rec)
     pack_stage(tmp_path, "segment")
     with pytest.raises(failure.UpstreamFailure, match="segment failed: no hold passed the checks"):
-        read_observations(tmp_path)
+        read_observation_table(tmp_path)

@@ -10,9 +10,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gyrocal.fit import wander
+from gyrocal.fit import kernels, wander
 from gyrocal.fit.model import DEFAULT_TERMS, Model, fit, observation_floor
-from gyrocal.io import kernels
 
 from .conftest import needs
 from .wander_reference import (
@@ -25,7 +24,7 @@ from .wander_reference import (
 
 AXES = "xyz"
 compiled = needs(
-    {"the C kernel's semiseparable factor": kernels.SEMISEPARABLE is not None},
+    {"the C kernel's semiseparable factor": kernels.LIB is not None},
     "pip builds it on install where gcc is found, as make test does",
 )
 
@@ -74,13 +73,13 @@ def test_the_compiled_factor_matches_numpy_and_lapack(layout, columns):
     np.testing.assert_array_equal(
         kernels.semiseparable_whiten(U, *found, alpha, beta, Y[:, 1], scale), Z[:, 1]
     )
-    lib = kernels.SEMISEPARABLE
+    lib = kernels.LIB
     try:
-        kernels.SEMISEPARABLE = None
+        kernels.LIB = None
         W, D = kernels.semiseparable_cholesky(diag, U, V, alpha, beta, scale)
         Zn = kernels.semiseparable_whiten(U, W, D, alpha, beta, Y, scale)
     finally:
-        kernels.SEMISEPARABLE = lib
+        kernels.LIB = lib
     np.testing.assert_allclose(D, found[1], rtol=1e-12)
     np.testing.assert_allclose(Zn, Z, rtol=1e-11, atol=1e-13 * np.abs(Z).max())
 
@@ -88,8 +87,8 @@ def test_the_compiled_factor_matches_numpy_and_lapack(layout, columns):
 def test_a_matrix_that_is_not_positive_definite_is_refused(monkeypatch):
     U = V = np.ones((3, 1))
     decay = np.ones((3, 1))
-    for lib in (kernels.SEMISEPARABLE, None):
-        monkeypatch.setattr(kernels, "SEMISEPARABLE", lib)
+    for lib in (kernels.LIB, None):
+        monkeypatch.setattr(kernels, "LIB", lib)
         assert kernels.semiseparable_cholesky(np.array([1.0, 1.0, 1.0]), U, V, decay, decay) is None
         assert kernels.semiseparable_cholesky(np.array([2.0, 2.0, 2.0]), U, V, decay, decay) is not None
 
@@ -238,7 +237,7 @@ def test_leaving_a_point_out_reuses_the_columns_and_gives_the_fresh_fit(coloured
     """Bit for bit what fitting the remaining holds from scratch gives, with the series
     terms' quadrature made once: a hold's columns are its own."""
     from gyrocal.fit.thermal import fit_continuous
-    from gyrocal.io import signals
+    from gyrocal.terms import signals
 
     obs = coloured_sweep
     model = Model.from_spec(["bias", "bias_temp_poly(degree=1)", "temp_rate"])
@@ -283,7 +282,7 @@ def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
 
 def test_the_quadrature_nodes_are_made_once_for_the_same_holds(coloured_sweep, monkeypatch):
     from gyrocal.fit.model import columns_of
-    from gyrocal.io import signals
+    from gyrocal.terms import signals
 
     data = columns_of(coloured_sweep)
     model = Model.from_spec(["temp_rate"])

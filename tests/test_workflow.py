@@ -397,7 +397,7 @@ def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
     """The workflow hands each session of A1 the other's observations, and the diagnosis
     it writes is the library's with both; A2, with one session, is diagnosed alone."""
     from gyrocal.diagnose import diagnose
-    from gyrocal.io.unit_folder import read_observations
+    from gyrocal.terms.signals import read_observations
 
     def folder(key):
         return fleet_run / "results" / key[0] / key[1] / key[2]

@@ -41,7 +41,7 @@ def time_covariances(t_start, t_end) -> tuple[np.ndarray, np.ndarray]:
 
 
 def dense_semiseparable(diag, U, V, alpha, beta) -> np.ndarray:
-    """The matrix gyrocal.io.kernels.semiseparable_cholesky factors, entry by entry."""
+    """The matrix gyrocal.fit.kernels.semiseparable_cholesky factors, entry by entry."""
     n = len(diag)
     C = np.diag(np.asarray(diag, float))
     for m in range(n):

@@ -1,2 +1,2 @@
-"""The calibration file and what reads it: its format, apply, firmware export, lookup.
+"""The calibration file, its review, and what reads it: apply, firmware export, lookup.
 May import: io, terms, fit."""

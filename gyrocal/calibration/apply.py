@@ -15,6 +15,7 @@ import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -35,14 +36,31 @@ from ..io.log import (
     time_seconds,
     to_internal_units,
 )
-from ..io.signals import RECORD_COLUMNS, SERIES_INPUTS, TEMP_RATE_WINDOW_S, HistoryBins, SampleRecord, Series
+from ..terms.signals import (
+    RECORD_COLUMNS,
+    SERIES_INPUTS,
+    TEMP_RATE_WINDOW_S,
+    HistoryBins,
+    SampleRecord,
+    Series,
+)
 from .file import Calibration
 
 BATCH_ROWS = 1 << 18  # rows compensated and written at a time, a row group of the output
 DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
 
 
-def apply_calibration(cal: Calibration, path, out) -> dict:
+class ApplyCounts(TypedDict):
+    """What ``gyrocal apply`` did to a log: its rows, those written NaN (an input not finite,
+    or a compensation that overflows), and those at temperatures clamped to the calibrated
+    range."""
+
+    rows: int
+    nonfinite: int
+    clamped: int
+
+
+def apply_calibration(cal: Calibration, path, out) -> ApplyCounts:
     """Write ``out`` from the log at ``path``; return counts (rows, non-finite, clamped).
 
     Rows whose gyro, temperature or other needed input is not finite get NaN compensated
@@ -56,7 +74,7 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
     # A log with no temperature (a hand-rotation session may have none) takes a
     # calibration made at one temperature as it is: there is nothing to interpolate.
     constant_temp = None
-    grid_temps = getattr(cal.grid, "temperatures", ())
+    grid_temps = cal.grid.temperatures
     if "temp" not in schema.names and len(grid_temps) == 1 and not needs & SERIES_INPUTS:
         constant_temp = float(grid_temps[0])
     needed = [*GYRO, *(["temp"] if constant_temp is None else [])] + sorted(
@@ -88,14 +106,14 @@ def apply_calibration(cal: Calibration, path, out) -> dict:
             cal,
             path,
             schema.names,
-            needs & {"temp_rate", "temp_lag"},
+            bool(needs & {"temp_rate", "temp_lag"}),
             [
                 c
                 for c in RECORD_COLUMNS
                 if {"gyro": "rate_history", "accel": "accel_history"}[c.split("_")[0]] in needs
             ],
         )
-    counts = {"rows": 0, "nonfinite": 0, "clamped": 0}
+    counts: ApplyCounts = {"rows": 0, "nonfinite": 0, "clamped": 0}
     transforms = cal.model.sample_transforms()  # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
         _write(
@@ -120,7 +138,7 @@ def _record(cal: Calibration, path: Path, names, whole: bool, columns=()) -> tup
     """The first kept row's time (the rule of :func:`gyrocal.io.log.read_log`: finite time,
     gyro, temperature and, when logged, reference rate) and, when ``whole`` or ``columns``
     (the record's further columns a history reads), the record as the fit makes it
-    (:class:`gyrocal.io.signals.HistoryBins`), in memory that does not grow with the log."""
+    (:class:`gyrocal.terms.signals.HistoryBins`), in memory that does not grow with the log."""
     required = tuple(c for c in REQUIRED if c != "ref_rate" or c in names)
     log = read_log(
         path, optional=tuple(c for c in columns if c not in REQUIRED), required=required, keep_bytes=0
@@ -222,43 +240,10 @@ def _write(
                 data["temp"] = np.full(len(gyro), constant_temp)
             if t0 is not None:  # the model reads series signals: time since the first row
                 data["t"] = time_seconds(batch.column("t"), path, origin, units) - t0
-            if series is not None:
-                data["temp_rate"] = series.at("temp_rate", data["t"])
-                # Histories run over the samples, from the state the batch before left.
-                data["series"] = SampleRecord(
-                    series,
-                    {**cols, "t": data["t"], "temp": data["temp"], "temp_rate": data["temp_rate"]},
-                    histories,
-                )
+            inputs = _with_record(data, cols, series, histories)
             for transform in transforms:  # a die temperature: a filter with state
-                data = transform(data)
-            good = np.isfinite(cols[GYRO[0]])
-            for c in GYRO[1:]:
-                good &= np.isfinite(cols[c])
-            for k, v in data.items():
-                if k != "series":
-                    good &= np.isfinite(v)
-            every = bool(good.all())
-            result = np.full_like(gyro, np.nan)
-            if every or good.any():
-                sub = data if every else {k: v[good] for k, v in data.items()}
-                with np.errstate(over="ignore", invalid="ignore"):  # counted just below
-                    found = cal.compensate(gyro if every else gyro[good], sub, warn=False)
-                if every:
-                    result = found
-                else:
-                    result[good] = found
-                counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
-            elif "series" in data:
-                # No row to compensate (the gyro dropped out, the temperature still logged):
-                # the histories' filters still move on over the batch, as firmware's do.
-                with np.errstate(over="ignore", invalid="ignore"):
-                    cal.compensate(gyro, data, warn=False)
-            # A finite output too large to compensate (its terms overflow) is written as
-            # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
-            for i in range(3):
-                good &= np.isfinite(result[:, i])
-            result[~good] = np.nan
+                inputs = transform(inputs)
+            result, good = _compensated(cal, gyro, cols, inputs, counts)
             arrays = [
                 pa.array(result[:, GYRO.index(name)]) if name in GYRO else batch.column(name)
                 for name in out_schema.names
@@ -270,3 +255,54 @@ def _write(
             counts["nonfinite"] += int((~good).sum())
         if writing is not None:
             writing.result()
+
+
+def _with_record(
+    data: dict[str, np.ndarray], cols: dict, series: Series | None, histories: dict
+) -> dict[str, Any]:
+    """A batch's inputs with, where the model reads series signals, the temperature rate
+    from the fit's record and the batch's samples as the record its histories run over,
+    from the state the batch before left."""
+    if series is None:
+        return data
+    temp_rate = series.at("temp_rate", data["t"])
+    record = SampleRecord(
+        series, {**cols, "t": data["t"], "temp": data["temp"], "temp_rate": temp_rate}, histories
+    )
+    return {**data, "temp_rate": temp_rate, "series": record}
+
+
+def _compensated(
+    cal, gyro: np.ndarray, cols: dict, data: dict[str, Any], counts: ApplyCounts
+) -> tuple[np.ndarray, np.ndarray]:
+    """One batch's compensated rates and which rows are finite: a row whose gyro or any input
+    is not finite, or whose compensation overflows, is NaN; temperatures clamped to the
+    calibrated range are counted."""
+    good = np.isfinite(cols[GYRO[0]])
+    for c in GYRO[1:]:
+        good &= np.isfinite(cols[c])
+    for k, v in data.items():
+        if k != "series":
+            good &= np.isfinite(v)
+    every = bool(good.all())
+    result = np.full_like(gyro, np.nan)
+    if every or good.any():
+        sub = data if every else {k: v[good] for k, v in data.items()}
+        with np.errstate(over="ignore", invalid="ignore"):  # counted just below
+            found = cal.compensate(gyro if every else gyro[good], sub, warn=False)
+        if every:
+            result = found
+        else:
+            result[good] = found
+        counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
+    elif "series" in data:
+        # No row to compensate (the gyro dropped out, the temperature still logged):
+        # the histories' filters still move on over the batch, as firmware's do.
+        with np.errstate(over="ignore", invalid="ignore"):
+            cal.compensate(gyro, data, warn=False)
+    # A finite output too large to compensate (its terms overflow) is written as
+    # NaN too, and counted with the non-finite rows: no NaN or inf goes unsaid.
+    for i in range(3):
+        good &= np.isfinite(result[:, i])
+    result[~good] = np.nan
+    return result, good

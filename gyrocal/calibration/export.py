@@ -57,7 +57,7 @@ import json
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -185,9 +185,9 @@ def temperature_history_form(spec) -> str | None:
     """The operator (``direction``, ``duhem``, ``switch``) of an expression term firmware
     runs as a filter of the temperature, else None."""
     formula = _history_formula(spec)
-    operator, names = TEMPERATURE_HISTORY_FORMS.get(formula, (None, set()))
+    form = None if formula is None else TEMPERATURE_HISTORY_FORMS.get(formula)
     given = set(spec.get("parameters") or {}) | set(spec.get("profile") or {})
-    return operator if operator and given == names else None
+    return form[0] if form is not None and given == form[1] else None
 
 
 def history_form(spec) -> tuple[str, float] | None:
@@ -266,9 +266,11 @@ def _splines(cal: Calibration) -> tuple:
     B-spline's full knot vector and, per output axis, the coefficients of all its basis
     functions (those the term leaves out at 0). Their coefficients are session-wide or
     continuous: the same at every grid point."""
+    from ..terms.empirical import Smooth
+
     out = []
     for term in cal.model.terms:
-        if term.name != SPLINE_TERM:
+        if not isinstance(term, Smooth):  # SPLINE_TERM
             continue
         knots = np.asarray(term.knots, dtype=float)
         vector = np.r_[[knots[0]] * 3, knots, [knots[-1]] * 3]
@@ -307,10 +309,12 @@ def _histories(cal: Calibration, source) -> tuple:
     """The calibration's histories of the raw output as firmware runs them: the lag's input
     and time constant, the coefficient per output axis and what a slow pole adds to K's
     diagonal."""
+    from ..terms.user import Expression
+
     out = []
     for term, spec in zip(cal.model.terms, cal.model.spec(), strict=False):
         form = history_form(spec)
-        if form is not None:
+        if form is not None and isinstance(term, Expression):
             out.append(
                 {
                     "label": term.label,
@@ -327,10 +331,12 @@ def _histories(cal: Calibration, source) -> tuple:
 def _temperature_histories(cal: Calibration, source) -> tuple:
     """The calibration's histories of the temperature as firmware runs them: the operator,
     its parameters and the coefficient per output axis."""
+    from ..terms.user import Expression
+
     out = []
     for term, spec in zip(cal.model.terms, cal.model.spec(), strict=False):
         operator = temperature_history_form(spec)
-        if operator is not None:
+        if operator is not None and isinstance(term, Expression):
             p = term.parameters
             out.append(
                 {
@@ -388,8 +394,10 @@ def firmware_tables(cal: Calibration, *, source=None) -> FirmwareTables:
     method = declared if cal.kind == "temperature_grid" else "poly"
     if method in ("lagrange3", "spline") and P < 3:
         method = "linear"  # as thermal.lagrange3_weights / spline_weights
-    die = [t for t in cal.model.terms if t.name == DIE_TERM]
-    tables = dict(
+    from ..terms.effects import DieTemperature
+
+    die = [t for t in cal.model.terms if isinstance(t, DieTemperature)]  # DIE_TERM
+    tables: dict[str, Any] = dict(
         temperature=temps,
         K=K,
         B=B,
@@ -456,9 +464,9 @@ def _interpolation(t: FirmwareTables) -> dict:
     }
 
 
-def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dict:
+def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dict[str, Any]:
     """The ``gyrocal.firmware/1`` JSON document."""
-    doc = {
+    doc: dict[str, Any] = {
         "format": FORMAT,
         **{k: cal.meta.get(k) for k in ("device", "batch", "session", "protocol")},
         "source": _source_info(source),
@@ -472,9 +480,9 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
         "B": tables.B.tolist(),
         "K_inv": tables.K_inv.tolist(),
     }
-    if tables.method == "spline":
+    if tables.method == "spline" and tables.spline_K is not None and tables.spline_B is not None:
         doc["spline"] = {"K": tables.spline_K.tolist(), "B": tables.spline_B.tolist()}
-    if tables.method == "poly":
+    if tables.method == "poly" and tables.poly_K is not None and tables.poly_B is not None:
         doc["poly"] = {
             "degree": tables.degree,
             "centre": tables.poly_centre,
@@ -483,54 +491,12 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
             "B": tables.poly_B.tolist(),
         }
     if tables.splines:
-        doc["splines"] = [
-            {
-                "label": s["label"],
-                "input": s["input"],
-                "by": s["by"],
-                "degree": 3,
-                "knots": s["knots"].tolist(),
-                "coefficients": s["coefficients"].tolist(),
-                "adds_to": "K diagonal (times nothing: K_aa += s_a(x))" if s["by"] else "B (B_a += s_a(x))",
-                "outside_knots": "clamp",
-            }
-            for s in tables.splines
-        ]
+        doc["splines"] = _spline_entries(tables.splines)
         doc["time"] = "t: seconds since power-on"
     if tables.histories:
-        doc["histories"] = [
-            {
-                "label": h["label"],
-                "formula": h["formula"],
-                "input": HISTORY_INPUTS[h["input"]],
-                "tau_s": h["tau"],
-                "filter": LAG_FILTER,
-                "coefficients": h["coefficients"].tolist(),
-                "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a" if h["diagonal"] else ""),
-            }
-            for h in tables.histories
-        ]
+        doc["histories"] = _history_entries(tables.histories)
     if tables.temperature_histories:
-        from ..io.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
-
-        doc["temperature_histories"] = [
-            {
-                "label": h["label"],
-                "formula": h["formula"],
-                "operator": h["operator"],
-                "input": f"x: the logged temperature through a first-order lag of {TEMPERATURE_SMOOTHING_S:g} s "
-                "(the filter of 'histories', u the temperature, one filter per term)",
-                "lag_tau_s": TEMPERATURE_SMOOTHING_S,
-                "w": h["w"],
-                **({"T0": h["T0"], "m": h["m"]} if h["operator"] == "switch" else {}),
-                "value": TEMPERATURE_HISTORY_VALUES[h["operator"]],
-                "start": TEMPERATURE_HISTORY_START.format(room=ROOM_C),
-                "filter": LAG_FILTER.split("; one filter")[0],
-                "coefficients": h["coefficients"].tolist(),
-                "adds_to": "B (B_a += c_a value)",
-            }
-            for h in tables.temperature_histories
-        ]
+        doc["temperature_histories"] = _temperature_history_entries(tables.temperature_histories)
     if tables.die_tau is not None:
         doc["model"] = "w = K(T_die) w_true + B(T_die)"
         doc["compensation"] = "w_true = K(T_die)^-1 (w - B(T_die))"
@@ -540,6 +506,60 @@ def to_document(cal: Calibration, tables: FirmwareTables, *, source=None) -> dic
             "time": "t in seconds, increasing",
         }
     return doc
+
+
+def _spline_entries(splines: tuple) -> list[dict[str, Any]]:
+    return [
+        {
+            "label": s["label"],
+            "input": s["input"],
+            "by": s["by"],
+            "degree": 3,
+            "knots": s["knots"].tolist(),
+            "coefficients": s["coefficients"].tolist(),
+            "adds_to": "K diagonal (times nothing: K_aa += s_a(x))" if s["by"] else "B (B_a += s_a(x))",
+            "outside_knots": "clamp",
+        }
+        for s in splines
+    ]
+
+
+def _history_entries(histories: tuple) -> list[dict[str, Any]]:
+    return [
+        {
+            "label": h["label"],
+            "formula": h["formula"],
+            "input": HISTORY_INPUTS[h["input"]],
+            "tau_s": h["tau"],
+            "filter": LAG_FILTER,
+            "coefficients": h["coefficients"].tolist(),
+            "adds_to": "B (B_a += c_a y_a)" + ("; K's diagonal: K_aa -= c_a" if h["diagonal"] else ""),
+        }
+        for h in histories
+    ]
+
+
+def _temperature_history_entries(histories: tuple) -> list[dict[str, Any]]:
+    from ..terms.signals import ROOM_C, TEMPERATURE_SMOOTHING_S
+
+    return [
+        {
+            "label": h["label"],
+            "formula": h["formula"],
+            "operator": h["operator"],
+            "input": f"x: the logged temperature through a first-order lag of {TEMPERATURE_SMOOTHING_S:g} s "
+            "(the filter of 'histories', u the temperature, one filter per term)",
+            "lag_tau_s": TEMPERATURE_SMOOTHING_S,
+            "w": h["w"],
+            **({"T0": h["T0"], "m": h["m"]} if h["operator"] == "switch" else {}),
+            "value": TEMPERATURE_HISTORY_VALUES[h["operator"]],
+            "start": TEMPERATURE_HISTORY_START.format(room=ROOM_C),
+            "filter": LAG_FILTER.split("; one filter")[0],
+            "coefficients": h["coefficients"].tolist(),
+            "adds_to": "B (B_a += c_a value)",
+        }
+        for h in histories
+    ]
 
 
 # -- C -------------------------------------------------------------------------------
@@ -612,7 +632,7 @@ def _c_environment():
 
 
 def render_c_header(cal: Calibration, tables: FirmwareTables, *, source=None) -> str:
-    from ..io.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
+    from ..terms.signals import DUHEM_BAND, ROOM_C, TEMPERATURE_SMOOTHING_S
 
     return (
         _c_environment()

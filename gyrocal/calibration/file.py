@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, NoReturn
 
 import numpy as np
 
@@ -21,8 +23,8 @@ from ..fit.model import Model
 from ..fit.thermal import DIAGONAL_RTOL, ConstantCoefficients, TemperatureGrid, check_method, warn_outside
 from ..io import atomic, formats
 from ..io.errors import CalibrationFileError, CorruptFileError, GyrocalError, MissingInputError
-from ..io.signals import SERIES_INPUTS, Inputs
 from ..terms import AXES
+from ..terms.signals import SERIES_INPUTS, Inputs
 
 FORMAT = formats.CALIBRATION
 FORMAT_FAMILY, FORMAT_VERSION = FORMAT.split("/")
@@ -158,14 +160,15 @@ class Calibration:
             warn_outside(self.grid, temp)
         covariates = {**data, "temp": self.clamp(temp)}
         reads = sorted(k for k in self.model.inputs if k in covariates and k != "temp")
-        first, index = (
-            (None, None)
+        shared = (
+            None
             if self.model.inputs & SERIES_INPUTS
             else distinct_rows([temp, *(covariates[k] for k in reads)])
         )
-        if first is None or len(first) > len(temp) // 2:  # little to share (time, noise)
+        if shared is None or len(shared[0]) > len(temp) // 2:  # little to share (time, noise)
             w_true, _ = self.model.compensate(self.coefficients(temp, warn=False), gyro, covariates)
             return w_true
+        first, index = shared
         at = {k: v[first] if isinstance(v, np.ndarray) and v.ndim else v for k, v in covariates.items()}
         coefs = self.coefficients(temp[first], warn=False)
         J, c = self.model.linearise(coefs, at, np.zeros((len(first), 3)))
@@ -187,7 +190,8 @@ class Calibration:
         K, B = self.matrices()
         g = self.grid
         extra_grid = {}
-        if self.kind == "continuous":
+        interpolation: dict[str, Any]
+        if isinstance(g, ConstantCoefficients):  # kind continuous
             coefficients = {n: float(v) for n, v in zip(g.names, g.values, strict=False)}
             stderr = {n: float(v) for n, v in zip(g.names, g.stderr, strict=False)}
             interpolation = {"method": "none", "outside_range": "clamp"}
@@ -231,128 +235,169 @@ class Calibration:
     def from_dict(cls, d: dict, *, source=None) -> Calibration:
         """Parse and check a ``gyrocal.calibration/1`` document."""
 
-        def fail(problem):
+        def fail(problem: str) -> NoReturn:
             raise CalibrationFileError(problem, source=source)
 
         if not isinstance(d, dict):
             fail("is not a JSON object")
-        fmt = d.get("format")
-        if fmt == "gyrocal.failure/1":
-            fail(f"holds no calibration: the {d.get('stage')} stage failed: {d.get('error')}")
-        if not isinstance(fmt, str) or "/" not in fmt or fmt.split("/")[0] != FORMAT_FAMILY:
-            fail(f"format is {fmt!r}, expected {FORMAT!r}")
-        if fmt.split("/")[1] != FORMAT_VERSION:
-            fail(
-                f"format version {fmt.split('/')[1]} is not one this gyrocal reads "
-                f"(it reads {FORMAT_VERSION})"
-            )
+        _check_format(d, fail)
         try:
             model_d, grid_d = d["model"], d["grid"]
-            kind = model_d.get("kind")
-            if kind not in ("temperature_grid", "continuous"):
-                fail(f"model kind {kind!r} is not known")
-            try:
-                model = Model.from_spec(model_d["terms"])
-            except GyrocalError as exc:
-                fail(f"model: {exc}")
-            interp = model_d["interpolation"]
-            method, degree = interp["method"], interp.get("degree", 3)
-            if kind == "temperature_grid":
-                try:
-                    check_method(method, degree)
-                except GyrocalError as exc:
-                    fail(str(exc))
-            reference = model_d.get("reference_temperature", 25.0)
-            if (
-                isinstance(reference, bool)
-                or not isinstance(reference, (int, float))
-                or not math.isfinite(reference)
-            ):
-                fail(f"model reference_temperature must be a number, got {reference!r}")
-            covariates = model_d.get("covariates", {})
-            window = covariates.get("temp_rate", {}).get("window_s", 60.0)
-            if (
-                isinstance(window, bool)
-                or not isinstance(window, (int, float))
-                or not math.isfinite(window)
-                or window <= 0
-            ):
-                fail(f"model covariates temp_rate window_s must be a positive number, got {window!r}")
+            parsed = _model_section(model_d, fail)
             units = d.get("units", UNITS)
             wrong = {k: units.get(k) for k, v in UNITS.items() if units.get(k) != v}
             if wrong:
                 fail(f"units {wrong} are not the {UNITS} this gyrocal writes and reads")
-            temps = _floats(grid_d["temperature"], "grid.temperature", fail)
-            names = tuple(model.names)
-            if kind == "continuous":
-                values = np.array(
-                    [_number(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names]
-                )
-                stderr = np.array([_number(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
-            else:
-                values = (
-                    np.column_stack(
-                        [_floats(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names]
-                    )
-                    if names
-                    else np.zeros((len(temps), 0))
-                )
-                stderr = (
-                    np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
-                    if names
-                    else np.zeros((len(temps), 0))
-                )
+            names = tuple(parsed.model.names)
+            temps, values, stderr = _grid_values(grid_d, parsed.kind, names, fail)
         except KeyError as exc:
             fail(f"missing key {exc.args[0]!r}")
         except (TypeError, AttributeError):
             fail("has a malformed model or grid section")
-        if kind == "continuous" and (len(temps) == 0 or np.any(np.diff(temps) <= 0)):
-            fail("grid temperatures must increase strictly")
-        if kind != "continuous" and (values.shape[0] != len(temps) or stderr.shape[0] != len(temps)):
-            fail("grid coefficients and temperatures differ in length")
-        covariance = _covariance(grid_d.get("covariance"), stderr, names, temps, fail)
-        span = None
-        if kind == "continuous" and "span" in grid_d:
-            span = _floats(grid_d["span"], "grid.span", fail)
-            if span.shape != (2,) or not span[0] <= temps[0] <= temps[-1] <= span[1]:
-                fail("grid.span must be [low, high] around the grid temperatures")
-            span = (float(span[0]), float(span[1]))
-        try:
-            grid = (
-                ConstantCoefficients(temps, names, values, stderr, fitted_span=span, covariance=covariance)
-                if kind == "continuous"
-                else TemperatureGrid(temps, names, values, stderr, method, degree, covariance)
-            )
-        except GyrocalError as exc:
-            fail(f"grid: {exc}")
+        grid = _grid(grid_d, parsed, names, temps, values, stderr, fail)
         known = {"format", "device", "batch", "session", "protocol", "units", "model", "grid", "provenance"}
         cal = cls(
-            model,
+            parsed.model,
             grid,
-            float(reference),
+            float(parsed.reference),
             {k: d.get(k) for k in ("device", "batch", "session", "protocol")},
             d.get("provenance", {}),
             {k: v for k, v in d.items() if k not in known},
-            covariates,
+            parsed.covariates,
         )
-        K, B = cal.matrices()
-        try:
-            stored_K = np.asarray(grid_d["K"], dtype=float)
-            stored_B = np.asarray(grid_d["B"], dtype=float)
-        except KeyError as exc:
-            fail(f"missing key {exc.args[0]!r}")
-        except (TypeError, ValueError):
-            fail("grid K and B must be nested lists of numbers")
-        if not (np.all(np.isfinite(stored_K)) and np.all(np.isfinite(stored_B))):
-            fail("grid K and B must hold finite numbers")
-        if (
-            stored_K.shape != K.shape
-            or stored_B.shape != B.shape
-            or not np.allclose(stored_K, K, rtol=1e-9, atol=1e-12)
-            or not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12)
-        ):
-            fail("grid K and B do not match the coefficients (edited by hand?)")
+        _check_matrices(cal, grid_d, fail)
         return cal
+
+
+Fail = Callable[[str], NoReturn]
+
+
+def _check_format(d: dict, fail: Fail) -> None:
+    """A calibration document of the version this gyrocal reads (a failure record says which
+    stage failed instead)."""
+    fmt = d.get("format")
+    if fmt == "gyrocal.failure/1":
+        fail(f"holds no calibration: the {d.get('stage')} stage failed: {d.get('error')}")
+    if not isinstance(fmt, str) or "/" not in fmt or fmt.split("/")[0] != FORMAT_FAMILY:
+        fail(f"format is {fmt!r}, expected {FORMAT!r}")
+    if fmt.split("/")[1] != FORMAT_VERSION:
+        fail(f"format version {fmt.split('/')[1]} is not one this gyrocal reads (it reads {FORMAT_VERSION})")
+
+
+@dataclass(frozen=True)
+class _ModelSection:
+    """A calibration file's ``model`` section, checked."""
+
+    kind: str  # "temperature_grid" or "continuous"
+    model: Model
+    method: str
+    degree: int
+    reference: float
+    covariates: dict
+
+
+def _model_section(model_d: dict, fail: Fail) -> _ModelSection:
+    kind = model_d.get("kind")
+    if kind not in ("temperature_grid", "continuous"):
+        fail(f"model kind {kind!r} is not known")
+    try:
+        model = Model.from_spec(model_d["terms"])
+    except GyrocalError as exc:
+        fail(f"model: {exc}")
+    interp = model_d["interpolation"]
+    method, degree = interp["method"], interp.get("degree", 3)
+    if kind == "temperature_grid":
+        try:
+            check_method(method, degree)
+        except GyrocalError as exc:
+            fail(str(exc))
+    reference = model_d.get("reference_temperature", 25.0)
+    if isinstance(reference, bool) or not isinstance(reference, (int, float)) or not math.isfinite(reference):
+        fail(f"model reference_temperature must be a number, got {reference!r}")
+    covariates = model_d.get("covariates", {})
+    window = covariates.get("temp_rate", {}).get("window_s", 60.0)
+    if (
+        isinstance(window, bool)
+        or not isinstance(window, (int, float))
+        or not math.isfinite(window)
+        or window <= 0
+    ):
+        fail(f"model covariates temp_rate window_s must be a positive number, got {window!r}")
+    return _ModelSection(kind, model, method, degree, reference, covariates)
+
+
+def _grid_values(
+    grid_d: dict, kind: str, names: tuple[str, ...], fail: Fail
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The grid's temperatures, and its coefficients and standard errors: one set for a
+    continuous model, one row per temperature for a grid."""
+    temps = _floats(grid_d["temperature"], "grid.temperature", fail)
+    if kind == "continuous":
+        values = np.array([_number(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names])
+        stderr = np.array([_number(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
+        return temps, values, stderr
+    values = (
+        np.column_stack([_floats(grid_d["coefficients"][n], f"coefficient {n}", fail) for n in names])
+        if names
+        else np.zeros((len(temps), 0))
+    )
+    stderr = (
+        np.column_stack([_floats(grid_d["stderr"][n], f"stderr {n}", fail) for n in names])
+        if names
+        else np.zeros((len(temps), 0))
+    )
+    return temps, values, stderr
+
+
+def _grid(
+    grid_d: dict,
+    parsed: _ModelSection,
+    names: tuple[str, ...],
+    temps: np.ndarray,
+    values: np.ndarray,
+    stderr: np.ndarray,
+    fail: Fail,
+) -> TemperatureGrid | ConstantCoefficients:
+    """The coefficients over temperature, their shapes, covariance and span checked."""
+    continuous = parsed.kind == "continuous"
+    if continuous and (len(temps) == 0 or np.any(np.diff(temps) <= 0)):
+        fail("grid temperatures must increase strictly")
+    if not continuous and (values.shape[0] != len(temps) or stderr.shape[0] != len(temps)):
+        fail("grid coefficients and temperatures differ in length")
+    covariance = _covariance(grid_d.get("covariance"), stderr, names, temps, fail)
+    span = None
+    if continuous and "span" in grid_d:
+        ends = _floats(grid_d["span"], "grid.span", fail)
+        if ends.shape != (2,) or not ends[0] <= temps[0] <= temps[-1] <= ends[1]:
+            fail("grid.span must be [low, high] around the grid temperatures")
+        span = (float(ends[0]), float(ends[1]))
+    try:
+        if continuous:
+            return ConstantCoefficients(temps, names, values, stderr, fitted_span=span, covariance=covariance)
+        return TemperatureGrid(temps, names, values, stderr, parsed.method, parsed.degree, covariance)
+    except GyrocalError as exc:
+        fail(f"grid: {exc}")
+
+
+def _check_matrices(cal: Calibration, grid_d: dict, fail: Fail) -> None:
+    """The file's K and B are what its coefficients give (a hand edit of one is refused)."""
+    K, B = cal.matrices()
+    try:
+        stored_K = np.asarray(grid_d["K"], dtype=float)
+        stored_B = np.asarray(grid_d["B"], dtype=float)
+    except KeyError as exc:
+        fail(f"missing key {exc.args[0]!r}")
+    except (TypeError, ValueError):
+        fail("grid K and B must be nested lists of numbers")
+    if not (np.all(np.isfinite(stored_K)) and np.all(np.isfinite(stored_B))):
+        fail("grid K and B must hold finite numbers")
+    if (
+        stored_K.shape != K.shape
+        or stored_B.shape != B.shape
+        or not np.allclose(stored_K, K, rtol=1e-9, atol=1e-12)
+        or not np.allclose(stored_B, B, rtol=1e-9, atol=1e-12)
+    ):
+        fail("grid K and B do not match the coefficients (edited by hand?)")
 
 
 # A covariance is judged at its own scale: entry (i, j) against sqrt(C_ii C_jj), so that the
@@ -409,7 +454,7 @@ def covariance_problem(cov, stderr, names, temps) -> str | None:
     return None
 
 
-def _covariance(value, stderr: np.ndarray, names, temps, fail) -> np.ndarray | None:
+def _covariance(value, stderr: np.ndarray, names, temps, fail: Fail) -> np.ndarray | None:
     """The grid's coefficient covariances (per point, or one for a continuous model):
     finite, symmetric, within ±1 in correlation, their diagonal the squared standard
     errors, each entry judged at its own scale (:func:`covariance_problem`). Absent in
@@ -429,13 +474,13 @@ def _covariance(value, stderr: np.ndarray, names, temps, fail) -> np.ndarray | N
     return cov
 
 
-def _number(value, what: str, fail) -> float:
+def _number(value, what: str, fail: Fail) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         fail(f"{what} must be a finite number")
     return float(value)
 
 
-def _floats(values, what: str, fail) -> np.ndarray:
+def _floats(values, what: str, fail: Fail) -> np.ndarray:
     try:
         a = np.asarray(values, dtype=float)
     except (TypeError, ValueError):

@@ -21,6 +21,7 @@ import json
 import os
 import re
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -237,6 +238,7 @@ def find_calibration(
 
     if not readable:
         none_found("in this folder")
+    key: Callable[[tuple], tuple]
     if date is None:
         key = lambda ec: (-ec[0].date.toordinal(), ec[0].rel)  # noqa: E731  latest first
         pool = readable
@@ -294,7 +296,7 @@ def _days(text: str) -> float:
 def summary(result: LookupResult, device: str, date: dt.date | None) -> str:
     """One line: device, session, how far from the date, protocol, batch."""
     meta = result.calibration.meta
-    if result.days_away is None:
+    if result.days_away is None or date is None:  # days away from a date, when given one
         when = f"latest of {result.candidates}"
     elif result.days_away == 0:
         when = f"on {date.isoformat()}"

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 import numpy as np
 import pandas as pd
 
+from ..fit.thermal import ConstantCoefficients, TemperatureGrid
 from ..terms import AXES
 from .file import Calibration, load_calibration, standard_coefficients
 
@@ -65,7 +66,7 @@ def _in_session(cal: Calibration, temps) -> tuple[dict, dict] | None:
     """The bias in the session's form at ``temps`` and its standard error, interpolated as
     the grid interpolates (points taken as independent); None where the file has no such form."""
     found = cal.extra.get("bias_in_session")
-    if not found or cal.kind == "continuous":
+    if not found or not isinstance(cal.grid, TemperatureGrid):  # a continuous model's
         return None
     w = cal.grid.weights(np.clip(temps, *cal.grid.span))
     bias, se = np.asarray(found["bias"], dtype=float), np.asarray(found["stderr"], dtype=float)
@@ -89,7 +90,7 @@ def parameters_at(cal: Calibration, temperature: float | None = None) -> pd.Data
     units = _display(cal)
     names = list(units)
     values = {n: v[0] for n, v in parameter_curves(cal, [T]).items()}
-    if cal.kind == "continuous":
+    if isinstance(cal.grid, ConstantCoefficients):  # a continuous model
         se = dict(zip(cal.grid.names, np.asarray(cal.grid.stderr, dtype=float), strict=False))
         # Row 0: the coefficients; row j + 1: coefficient j raised by its standard error.
         C = len(cal.grid.names)

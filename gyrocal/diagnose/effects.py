@@ -8,9 +8,9 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..io.errors import GyrocalError, MissingInputError
-from ..io.signals import SERIES_INPUTS
 from ..pipeline.config import Settings
 from ..terms import AXES, make_term
+from ..terms.signals import SERIES_INPUTS
 from .evaluation import (
     Evaluation,
     add_term_option,

@@ -305,7 +305,7 @@ def history_shapes(
             _expression("rotation_power", f"lag({SQUARED}, tau)", slow, "heating by rotation power")
         )
     if carrying & set(TEMPERATURE_ROWS):
-        from ..io.signals import play_operator
+        from ..terms.signals import play_operator
 
         temp = np.asarray(series.temp, dtype=float)
         travel = float(np.ptp(temp)) if temp.size else 0.0

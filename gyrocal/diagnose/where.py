@@ -201,7 +201,7 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     out = {"step": ref - previous, "previous_rate": previous, "mounting": stretch}
     series = data.get("series")
     if series is not None and hasattr(series, "temp") and len(series.t) > 1:
-        from ..io.signals import temperature_play
+        from ..terms.signals import temperature_play
 
         mid = 0.5 * (t + np.asarray(data["t_end"], dtype=float)) - series.t0
         temp = np.asarray(series.temp, dtype=float)

@@ -31,19 +31,20 @@ every consumer falls back to std/sqrt(n); the summary (``Segmentation.info["nois
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
 
 import numpy as np
 
+from ..io import AXES
 from ..io.errors import InputError
 from .noise import MIN_SAMPLES, NoiseTerms, fit_noise_terms, pooled_from_sums, stretch_sums
 
 if TYPE_CHECKING:
     import pandas as pd
 
-AXES = "xyz"
 MIN_STATIC_S = 1.0  # a stretch this long adds its short taus to the pooled estimate
 MIN_STATIC_SAMPLES = 64
 MIN_TOTAL_S = 10.0  # less static time in all reaches too few octaves to tell terms apart
@@ -127,8 +128,8 @@ class StretchSampler:
         t = batch["t"]
         lo = np.searchsorted(t, self.start, side="left")
         hi = np.searchsorted(t, self.end, side="right")
-        for k in np.flatnonzero(hi > lo):
-            self._pieces.setdefault(int(k), []).append({c: batch[c][lo[k] : hi[k]] for c in self.NAMES[1:]})
+        for i in np.flatnonzero(hi > lo):
+            self._pieces.setdefault(int(i), []).append({c: batch[c][lo[i] : hi[i]] for c in self.NAMES[1:]})
         for k in [k for k in self._pieces if self.end[k] < t[-1]]:
             self._close(k)
 
@@ -155,7 +156,51 @@ class StretchSampler:
         return [(sums.result(), n, temp) for _, (sums, n, temp) in sorted(self._done.items())]
 
 
-def _model(parts: list, rate: float) -> dict | None:
+class NoiseModel(TypedDict):
+    """A noise model of static stretches, JSON-plain (:func:`_model`)."""
+
+    sample_variance: list[float]  # within the stretches, per axis, (deg/s)²
+    allan: dict[str, Any]  # the pooled Allan deviation: tau_s, adev, lo, hi, edf, level
+    terms: dict[str, Any]  # the fitted IEEE Std 952 terms (NoiseTerms.to_dict)
+
+
+class Resolution(TypedDict):
+    """What the static stretches can and cannot tell (:func:`resolution`)."""
+
+    tau_max_s: float
+    longest_static_s: float
+    text: str
+
+
+class NoiseSummary(TypedDict):
+    """The session's noise characterisation (:func:`characterise`), JSON-plain: segmentation
+    writes it in its info (``noise``)."""
+
+    source: str  # STATIC (the static stretches' model) or FALLBACK (std / sqrt(n))
+    points: list[dict[str, Any]]  # per temperature point: point, temp, stretches, seconds, its model
+    static_seconds: float
+    reason: NotRequired[str]  # why the fallback
+    stretches: NotRequired[int]
+    longest_static_s: NotRequired[float]
+    session: NotRequired[NoiseModel]
+    resolves: NotRequired[Resolution]
+    between_points_s: NotRequired[float]  # set by add_floor_columns
+
+
+class NoiseRecord(TypedDict):
+    """What a calibration file keeps of the noise characterisation (:func:`noise_record`)."""
+
+    floor: str
+    reason: NotRequired[str]
+    resolves: NotRequired[Resolution]
+    static_seconds: NotRequired[float]
+    stretches: NotRequired[int]
+    session: NotRequired[dict[str, Any]]
+    floor_terms: NotRequired[dict[str, Any]]
+    points: NotRequired[list[dict[str, Any]]]
+
+
+def _model(parts: list, rate: float) -> NoiseModel | None:
     """Pooled Allan deviation, fitted terms and within-stretch sample variance of stretches
     given by their :func:`gyrocal.fit.noise.stretch_sums`, JSON-plain; None when they reach too few
     octaves for a fit."""
@@ -179,7 +224,7 @@ def _model(parts: list, rate: float) -> dict | None:
     }
 
 
-def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) -> dict:
+def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) -> NoiseSummary:
     """Noise of the session, JSON-plain: ``session`` pools every static stretch (the model the
     floors use: a few short soaks per temperature cannot pin down flicker and random walk, all
     of them together can), ``points`` the same per temperature point (the terms' temperature
@@ -190,7 +235,7 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     protocol's finder of static stretches, otherwise)."""
     obs = seg.observations
     rate = float(seg.info.get("sample_rate") or 0.0)
-    summary = {
+    summary: NoiseSummary = {
         "source": FALLBACK,
         "points": [],
         "static_seconds": 0.0,
@@ -218,7 +263,7 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     rows = []
     for k, (point, point_temp) in enumerate(points.items()):
         mine = [p for p, j in zip(parts, nearest, strict=False) if j == k]
-        row = {
+        row: dict[str, Any] = {
             "point": int(point),
             "temp": float(point_temp),
             "stretches": len(mine),
@@ -238,7 +283,7 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     }
 
 
-def resolution(longest_s: float, tau_max_s: float) -> dict:
+def resolution(longest_s: float, tau_max_s: float) -> Resolution:
     """What the static stretches can and cannot tell, JSON-plain: they measure the Allan
     deviation up to ``tau_max_s``; wander over longer times (a chamber's bursts are seconds
     long, its temperature points minutes apart) is beyond them."""
@@ -254,7 +299,7 @@ def resolution(longest_s: float, tau_max_s: float) -> dict:
     }
 
 
-def terms_of(entry: dict) -> NoiseTerms:
+def terms_of(entry: Mapping[str, Any]) -> NoiseTerms:
     """The :class:`NoiseTerms` of one point of a :func:`characterise` summary."""
     d = entry["terms"]
     keys = ("arw", "bias_instability", "rrw", "quantisation")
@@ -283,23 +328,24 @@ def detected(value, error, z: float = DETECTION_Z) -> np.ndarray:
     return value**2 >= z * ((value + error) ** 2 - value**2)
 
 
-def floor_terms(model: dict) -> NoiseTerms:
+def floor_terms(model: Mapping[str, Any]) -> NoiseTerms:
     """The session's terms as the floors use them: bias instability and rate random walk only
     where the static data detect them (:func:`detected`). A few minutes of white noise fit a
     flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
     third and hide real effects. The ramp, a drift, counts in no floor."""
     terms = terms_of(model)
-    kw = {}
-    for name in ("bias_instability", "rrw"):
+
+    def counted(name: str) -> np.ndarray:
         value = np.asarray(getattr(terms, name), float)
-        kw[name] = np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
-    return replace(terms, **kw)
+        return np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
+
+    return replace(terms, bias_instability=counted("bias_instability"), rrw=counted("rrw"))
 
 
 UPPER_Z = 2.0  # the slow terms' upper bound: their variance coefficient 2 s.e. up
 
 
-def upper_terms(model: dict, z: float = UPPER_Z) -> NoiseTerms:
+def upper_terms(model: Mapping[str, Any], z: float = UPPER_Z) -> NoiseTerms:
     """The session's terms with bias instability and rate random walk at their upper bound
     (variance coefficient ``z`` standard errors above its estimate, detected or not): the
     most slow wander the static data cannot rule out. A few minutes of static data leave
@@ -316,7 +362,7 @@ def upper_terms(model: dict, z: float = UPPER_Z) -> NoiseTerms:
 FLOOR_COLUMNS = ("floor", "wander", "white", "flicker", "rrw")
 
 
-def add_floor_columns(obs: pd.DataFrame, summary: dict, rate: float) -> pd.DataFrame:
+def add_floor_columns(obs: pd.DataFrame, summary: NoiseSummary, rate: float) -> pd.DataFrame:
     """``obs`` with ``floor_*`` and ``wander_*`` (deg/s) from the session's noise model, and
     the same columns with the slow terms at their upper bound (``upper_floor_*``, ...:
     :func:`upper_terms`); unchanged when the summary has none (the std/sqrt(n) fallback)."""
@@ -338,7 +384,7 @@ def with_upper_floor(obs: pd.DataFrame) -> pd.DataFrame | None:
 
 
 def _floor_columns(
-    obs: pd.DataFrame, summary: dict, rate: float, terms: NoiseTerms, prefix: str
+    obs: pd.DataFrame, summary: NoiseSummary, rate: float, terms: NoiseTerms, prefix: str
 ) -> pd.DataFrame:
     model = summary["session"]
     duration = obs["n"].to_numpy(float) / rate
@@ -382,10 +428,10 @@ def _visits(obs: pd.DataFrame) -> np.ndarray:
     return out
 
 
-def noise_record(summary: dict) -> dict:
+def noise_record(summary: NoiseSummary) -> NoiseRecord:
     """What a calibration file keeps of the noise characterisation: the terms (IEEE Std 952
     units), the session's and per temperature point, and which floor the fit used."""
-    out = {"floor": summary["source"]}
+    out: NoiseRecord = {"floor": summary["source"]}
     if "reason" in summary:
         out["reason"] = summary["reason"]
     if "session" not in summary:
@@ -393,23 +439,21 @@ def noise_record(summary: dict) -> dict:
     used = floor_terms(summary["session"])
     if "resolves" in summary:
         out["resolves"] = summary["resolves"]
-    out.update(
-        static_seconds=summary["static_seconds"],
-        stretches=summary["stretches"],
-        session=summary["session"]["terms"],
-        floor_terms={
-            "bias_instability": np.asarray(used.bias_instability).tolist(),
-            "rrw": np.asarray(used.rrw).tolist(),
-            "detection_z": DETECTION_Z,
-        },
-        points=[
-            {
-                "temperature": p["temp"],
-                "stretches": p["stretches"],
-                "seconds": p["seconds"],
-                **({"terms": p["terms"]} if "terms" in p else {}),
-            }
-            for p in summary["points"]
-        ],
-    )
+    out["static_seconds"] = summary["static_seconds"]
+    out["stretches"] = summary["stretches"]
+    out["session"] = summary["session"]["terms"]
+    out["floor_terms"] = {
+        "bias_instability": np.asarray(used.bias_instability).tolist(),
+        "rrw": np.asarray(used.rrw).tolist(),
+        "detection_z": DETECTION_Z,
+    }
+    out["points"] = [
+        {
+            "temperature": p["temp"],
+            "stretches": p["stretches"],
+            "seconds": p["seconds"],
+            **({"terms": p["terms"]} if "terms" in p else {}),
+        }
+        for p in summary["points"]
+    ]
     return out

@@ -16,12 +16,13 @@ from __future__ import annotations
 import sys
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..io.errors import ConfigError, IdentifiabilityError, MissingInputError
-from ..io.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
 from ..terms import AXES, Term, make_term
+from ..terms.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
 # Largest condition number of the column-scaled, weighted design a fit accepts. Sound
@@ -94,12 +95,13 @@ class Model:
         """The terms' stateful transforms of samples in time order (:meth:`Term.sample_transform`)."""
         return [f for f in (t.sample_transform() for t in self.terms) if f is not None]
 
-    def design(self, data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    def design(self, data: Mapping[str, Any]) -> dict[str, np.ndarray]:
         """Regressor columns by coefficient name, one value per row of ``data``.
 
-        ``data`` holds observation columns (one row per hold) or samples. For holds, a term
+        ``data`` holds observation columns (one row per hold) or samples, and the session's
+        record (``series``) where there is one. For holds, a term
         that reads a series signal (``t``, ``temp_rate``, a lag) is evaluated at quadrature
-        nodes inside every hold and averaged (:mod:`gyrocal.io.signals`); other terms read
+        nodes inside every hold and averaged (:mod:`gyrocal.terms.signals`); other terms read
         only what is constant within a hold and are evaluated on the hold's values."""
         holds = "t_start" in data
         if holds:
@@ -233,7 +235,7 @@ NON_NUMERIC = ("mount", "axis", "mount_source")
 
 def columns_of(obs) -> dict[str, np.ndarray]:
     """Numeric observation columns as float arrays (what terms read), with the session's
-    record (``series``, :mod:`gyrocal.io.signals`) when the table carries one in its attrs; a
+    record (``series``, :mod:`gyrocal.terms.signals`) when the table carries one in its attrs; a
     mapping passes through."""
     pd = sys.modules.get("pandas")  # not imported here: a report reads a calibration without it
     if pd is None or not isinstance(obs, pd.DataFrame):
@@ -385,105 +387,160 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
     n_obs = len(data["gyro_x"])
     design = model.design(data) if design is None else design
     _check_finite(model, design, n_obs, source, label)
-    floor = observation_floor(data)
-    # A hold whose scatter is zero (a constant, quantised output) would get infinite
-    # weight: no observation is trusted more than a thousandth of the typical floor (the
-    # largest when most holds of an axis have none; equal weights when none has any, as
-    # from an axis stuck for part of the log).
-    typical = np.median(floor, axis=0)
-    typical = np.where(typical > 0, typical, floor.max(axis=0, initial=0.0))
-    floor = np.maximum(floor, 1e-3 * np.where(typical > 0, typical, 1e3))
+    floor = _weighting_floor(observation_floor(data))
     whiteners = _whiteners(data, floor)
     where = f" at {label}" if label else ""
-
-    names: list[str] = []
-    values, stderr, blocks = [], [], []
+    axes: dict[str, _AxisFit] = {}
     resid = np.zeros((n_obs, 3))
-    chi2, dof, cond = {}, {}, {}
     unexcited: list[str] = []
     worst = 0.0
     for i, axis in enumerate(AXES):
         cols = model.axis_names(axis)
         if not cols:
             continue
-        X = np.empty((n_obs, len(cols)))
-        for j, c in enumerate(cols):
-            X[:, j] = design[c]  # a constant column is a scalar
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
-        whiten = whiteners[i]
-        XY = whiten(np.column_stack([X, y]))  # one pass; each column is whitened alone
-        # contiguous, as whitened apart: a strided vector takes another BLAS path, whose
-        # last bits steer a profiled fit of a jagged chi-square to another local minimum
-        Xw, yw = np.ascontiguousarray(XY[:, :-1]), np.ascontiguousarray(XY[:, -1])
-        scale = np.linalg.norm(Xw, axis=0)
-        # A column 1e-12 of the largest (a profiled bump whose width misses every hold)
-        # is no more excited than a zero one: its coefficient's variance would overflow.
-        dead = scale <= DEAD_COLUMN * scale.max(initial=0.0)
-        scale[dead] = 1.0
-        rows = _penalty_rows(model, cols, scale)
-        A = np.vstack([Xw / scale, rows]) if rows is not None else Xw / scale
-        if rows is not None:
-            yw = np.concatenate([yw, np.zeros(len(rows))])
-            dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
-        U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        check, check_Vt = s, Vt
-        if rows is not None:  # judged with the penalty at full weight (PENALTY_WEIGHT)
-            _, check, check_Vt = np.linalg.svd(
-                np.vstack([Xw / scale, _penalty_rows(model, cols, scale, 1.0)]), full_matrices=False
-            )
-        # Columns that only noise keeps apart (an accelerometer that reads the same on
-        # every mount but for its noise) fit noise, not physics: refuse them too.
-        weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
-        if dead.any() or weak.any():
-            involved = set(np.flatnonzero(dead))
-            for k in np.flatnonzero(weak):
-                involved |= set(np.flatnonzero(np.abs(check_Vt[k]) > 0.1))
-            unexcited += [cols[j] for j in sorted(involved)]
-            worst = max(worst, float(check[0] / max(check[-1], 1e-300)))
+        found = _fit_axis(model, cols, design, y, whiteners[i], where=where, source=source)
+        if isinstance(found, _Unexcited):
+            unexcited += found.names
+            worst = max(worst, found.condition)
             continue
-        n_dof = n_obs - len(cols)
-        if n_dof < 1:
-            raise IdentifiabilityError(
-                f"{n_obs} holds{where} cannot fit {len(cols)} coefficients per axis with "
-                f"a residual left to estimate their uncertainty",
-                parameters=tuple(cols),
-                source=source,
-            )
-        theta = (Vt.T @ ((U.T @ yw) / s)) / scale
-        r = y - X @ theta
-        c2 = float(np.sum(whiten(r) ** 2))
-        cov = (Vt.T / s**2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
-        cov = 0.5 * (cov + cov.T)  # the product's triangles differ in their last bits
-        se = np.sqrt(np.diag(cov))
-        cov[np.diag_indices_from(cov)] = se**2  # as a calibration file holds it
-        names += cols
-        values.append(theta)
-        stderr.append(se)
-        blocks.append(cov)
-        resid[:, i] = r
-        chi2[axis], dof[axis], cond[axis] = c2, n_dof, float(s[0] / s[-1])
-
+        axes[axis] = found
+        resid[:, i] = found.residuals
     if unexcited:
-        bad = tuple(n for n in model.names if n in unexcited)
-        how = (
-            "no rotation or holds that separate them"
-            if worst > 1e9
-            else f"they are nearly collinear (condition number {worst:.3g})"
-        )
+        _refuse_unexcited(model, unexcited, worst, n_obs, where, source)
+    return _joined(model, axes, resid, floor, n_obs)
+
+
+def _weighting_floor(floor: np.ndarray) -> np.ndarray:
+    """The floors the observations are weighted by. A hold whose scatter is zero (a constant,
+    quantised output) would get infinite weight: no observation is trusted more than a
+    thousandth of the typical floor (the largest when most holds of an axis have none;
+    equal weights when none has any, as from an axis stuck for part of the log)."""
+    typical = np.median(floor, axis=0)
+    typical = np.where(typical > 0, typical, floor.max(axis=0, initial=0.0))
+    return np.maximum(floor, 1e-3 * np.where(typical > 0, typical, 1e3))
+
+
+@dataclass(frozen=True)
+class _AxisFit:
+    """One output axis's regression: its coefficients (in the axis's column order), their
+    standard errors and covariance, the residuals, chi-square, degrees of freedom and the
+    condition number of the column-scaled weighted design."""
+
+    names: list[str]
+    values: np.ndarray
+    stderr: np.ndarray
+    covariance: np.ndarray
+    residuals: np.ndarray
+    chi2: float
+    dof: int
+    condition: float
+
+
+@dataclass(frozen=True)
+class _Unexcited:
+    """Coefficients of one output axis the observations do not excite, and the condition
+    number that says how badly."""
+
+    names: list[str]
+    condition: float
+
+
+def _fit_axis(
+    model: Model, cols: list[str], design: Mapping, y: np.ndarray, whiten, *, where: str, source
+) -> _AxisFit | _Unexcited:
+    """The weighted least squares of one output axis's error ``y`` on its columns ``cols``,
+    solved by the SVD of the whitened, column-scaled design (with the penalty rows of
+    :func:`_penalty_rows` beneath it)."""
+    n_obs = len(y)
+    X = np.empty((n_obs, len(cols)))
+    for j, c in enumerate(cols):
+        X[:, j] = design[c]  # a constant column is a scalar
+    XY = whiten(np.column_stack([X, y]))  # one pass; each column is whitened alone
+    # contiguous, as whitened apart: a strided vector takes another BLAS path, whose
+    # last bits steer a profiled fit of a jagged chi-square to another local minimum
+    Xw, yw = np.ascontiguousarray(XY[:, :-1]), np.ascontiguousarray(XY[:, -1])
+    scale = np.linalg.norm(Xw, axis=0)
+    # A column 1e-12 of the largest (a profiled bump whose width misses every hold)
+    # is no more excited than a zero one: its coefficient's variance would overflow.
+    dead = scale <= DEAD_COLUMN * scale.max(initial=0.0)
+    scale[dead] = 1.0
+    rows = _penalty_rows(model, cols, scale)
+    A = np.vstack([Xw / scale, rows]) if rows is not None else Xw / scale
+    if rows is not None:
+        yw = np.concatenate([yw, np.zeros(len(rows))])
+        dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
+    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    check, check_Vt = s, Vt
+    # judged with the penalty at full weight (PENALTY_WEIGHT), whose rows come from the same terms
+    if rows is not None and (full := _penalty_rows(model, cols, scale, 1.0)) is not None:
+        _, check, check_Vt = np.linalg.svd(np.vstack([Xw / scale, full]), full_matrices=False)
+    # Columns that only noise keeps apart (an accelerometer that reads the same on
+    # every mount but for its noise) fit noise, not physics: refuse them too.
+    weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
+    if dead.any() or weak.any():
+        involved = set(np.flatnonzero(dead))
+        for k in np.flatnonzero(weak):
+            involved |= set(np.flatnonzero(np.abs(check_Vt[k]) > 0.1))
+        return _Unexcited([cols[j] for j in sorted(involved)], float(check[0] / max(check[-1], 1e-300)))
+    n_dof = n_obs - len(cols)
+    if n_dof < 1:
         raise IdentifiabilityError(
-            f"the observations{where} do not excite {', '.join(bad)}: {how} ({n_obs} holds)",
-            parameters=bad,
+            f"{n_obs} holds{where} cannot fit {len(cols)} coefficients per axis with "
+            f"a residual left to estimate their uncertainty",
+            parameters=tuple(cols),
             source=source,
         )
+    theta = (Vt.T @ ((U.T @ yw) / s)) / scale
+    r = y - X @ theta
+    c2 = float(np.sum(whiten(r) ** 2))
+    cov = (Vt.T / s**2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)
+    cov = 0.5 * (cov + cov.T)  # the product's triangles differ in their last bits
+    se = np.sqrt(np.diag(cov))
+    cov[np.diag_indices_from(cov)] = se**2  # as a calibration file holds it
+    return _AxisFit(cols, theta, se, cov, r, c2, n_dof, float(s[0] / s[-1]))
+
+
+def _refuse_unexcited(model: Model, unexcited: list[str], worst: float, n_obs: int, where: str, source):
+    bad = tuple(n for n in model.names if n in unexcited)
+    how = (
+        "no rotation or holds that separate them"
+        if worst > 1e9
+        else f"they are nearly collinear (condition number {worst:.3g})"
+    )
+    raise IdentifiabilityError(
+        f"the observations{where} do not excite {', '.join(bad)}: {how} ({n_obs} holds)",
+        parameters=bad,
+        source=source,
+    )
+
+
+def _joined(
+    model: Model, axes: dict[str, _AxisFit], resid: np.ndarray, floor: np.ndarray, n_obs: int
+) -> FitResult:
+    """The output axes' regressions as one fit, in the model's order of coefficients (the
+    covariance zero between axes)."""
+    names = [n for found in axes.values() for n in found.names]
     covariance = np.zeros((len(names), len(names)))
     at = 0
-    for block in blocks:
-        k = len(block)
-        covariance[at : at + k, at : at + k] = block
+    for found in axes.values():
+        k = len(found.covariance)
+        covariance[at : at + k, at : at + k] = found.covariance
         at += k
     order = [names.index(n) for n in model.names]  # report in the model's own order
     covariance = covariance[np.ix_(order, order)]
-    values, stderr = np.concatenate(values)[order], np.concatenate(stderr)[order]
+    values = np.concatenate([found.values for found in axes.values()])[order]
+    stderr = np.concatenate([found.stderr for found in axes.values()])[order]
     return FitResult(
-        model, tuple(model.names), values, stderr, covariance, resid, floor, chi2, dof, cond, n_obs
+        model,
+        tuple(model.names),
+        values,
+        stderr,
+        covariance,
+        resid,
+        floor,
+        {a: found.chi2 for a, found in axes.items()},
+        {a: found.dof for a, found in axes.items()},
+        {a: found.condition for a, found in axes.items()},
+        n_obs,
     )

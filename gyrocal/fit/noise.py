@@ -9,7 +9,7 @@ estimator at tau = m / rate is (NIST SP 1065, eq. 11)
 
 Removing the mean before the cumulative sum leaves every second difference unchanged and keeps the
 angle small, so a long soak with a large bias loses no precision. The sum takes one read of the
-angle per tau (``gyrocal/io/_blockstats.c``; cache-sized numpy blocks where it is not built).
+angle per tau (``gyrocal/fit/_kernels.c``; cache-sized numpy blocks where it is not built).
 
 Noise model fitted to sigma^2 (IEEE Std 952, eq. C.41)
 
@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..io.errors import InputError
-from ..io.kernels import second_diff_sumsq
+from .kernels import second_diff_sumsq
 
 __all__ = [
     "AllanResult",
@@ -512,9 +512,9 @@ def fit_noise_terms(result: AllanResult) -> NoiseTerms:
         bmins.append(cols[solid if solid.any() else keep, j].min() / FLICKER_FACTOR * _TO_BI)
         grid = np.geomspace(tau[keep][0], tau[keep][-1], 512)
         tmins.append(float(grid[np.argmin(_design(grid) @ coef)]))
-    coefs, ses = np.array(coefs), np.array(ses)
-    values = np.sqrt(coefs) * _SCALE
-    errors = (np.sqrt(coefs + ses) - np.sqrt(coefs)) * _SCALE
+    coef_rows, se_rows = np.array(coefs), np.array(ses)
+    values = np.sqrt(coef_rows) * _SCALE
+    errors = (np.sqrt(coef_rows + se_rows) - np.sqrt(coef_rows)) * _SCALE
 
     def pick(a):
         a = np.asarray(a, dtype=float)

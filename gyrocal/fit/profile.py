@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from typing import Protocol, TypeVar
 
 import numpy as np
 
 from ..io.errors import GyrocalError
-from .model import Model
+from .model import FitResult, Model
 
 SCAN_POINTS = 13
 ZOOM_POINTS = 5  # per bracket: each round halves it, at two new values
@@ -30,7 +31,20 @@ POLISH_EVALUATIONS = 100
 POLISH_CHI2 = 0.05  # a change of χ² that decides nothing
 
 
-def total_chi2(fitted) -> tuple[float, int]:
+class LinearFit(Protocol):
+    """What profiling reads of a fit at given settings (a :mod:`gyrocal.fit.thermal` fit):
+    its least-squares fits and the temperature points they kept."""
+
+    @property
+    def fits(self) -> tuple[FitResult, ...]: ...
+
+    def used_points(self) -> list[int]: ...
+
+
+Fitted = TypeVar("Fitted", bound=LinearFit)
+
+
+def total_chi2(fitted: LinearFit) -> tuple[float, int]:
     return (
         float(sum(sum(f.chi2.values()) for f in fitted.fits)),
         int(sum(sum(f.dof.values()) for f in fitted.fits)),
@@ -167,7 +181,7 @@ def _log_errors(current: Model, free, chi2: float, s2: float, evaluate) -> dict:
     return own
 
 
-def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
+def profiled_fit(model: Model, fit_linear: Callable[[Model], Fitted]) -> Fitted:
     """The fit of ``model`` with its nonlinear settings at their best values; the fitted
     object's ``profiled`` lists each (term, parameter, value, stderr, bounds, at_bound)."""
     targets = [
@@ -218,6 +232,14 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
     dof = total_chi2(fitted)[1]
     s2 = chi2 / max(dof, 1)
     sigma = _log_errors(current, free, chi2, s2, evaluate) if free else {}
+    report = _report(current, targets, flat, sigma)
+    object.__setattr__(fitted, "profiled", tuple(report))
+    return fitted
+
+
+def _report(current: Model, targets: list, flat: set, sigma: dict) -> list[dict]:
+    """Each profiled setting: its term and value, its standard error (None where flat, or not
+    finite), its bounds, whether it ended at one, and whether the data identify it."""
     report = []
     for index, name, (lo, hi) in targets:
         value = _value(current, index, name)
@@ -248,5 +270,4 @@ def profiled_fit(model: Model, fit_linear: Callable[[Model], object]):
                 "identified": True,
             }
         )
-    object.__setattr__(fitted, "profiled", tuple(report))
-    return fitted
+    return report

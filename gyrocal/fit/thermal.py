@@ -20,7 +20,7 @@ Outside the calibrated range every method clamps to the end value: no extrapolat
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, ClassVar
 
@@ -276,6 +276,9 @@ def warn_outside(coefs, temp: np.ndarray) -> None:
 class _OnAGrid:
     """What a temperature-grid fit reads from its grid and points table."""
 
+    grid: TemperatureGrid
+    points: pd.DataFrame
+
     @property
     def names(self) -> tuple[str, ...]:
         return self.grid.names
@@ -497,10 +500,7 @@ class _AtPoint(Term):
     def __init__(self, term: Term, point: int):
         self.term, self.point = term, int(point)
         self.name = term.name
-
-    @property
-    def needs(self):
-        return self.term.needs
+        self.needs = term.needs
 
     def spec_string(self) -> str:
         return self.term.spec_string()
@@ -646,7 +646,7 @@ def _fit_joint(
 MIN_WITHIN_POINT = 0.01
 
 
-def _check_point_terms(model: Model, data: dict, source=None) -> None:
+def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None) -> None:
     """Refuse a point-scope term that does not vary within the temperature points: its
     per-point coefficients cannot be told from each point's bias."""
     point = data["point"].astype(int)

@@ -31,7 +31,9 @@ than extrapolated; their holds are reported but the headline figures use interio
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, NotRequired, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -42,13 +44,33 @@ from . import METHODS
 from .model import Model, columns_of, fit, observation_floor, subset_design
 
 
+class ValidationSummary(TypedDict):
+    """A validation's headline figures (validation.json's ``summary``), deg/s where a rate."""
+
+    validation_rms: float  # the interpolated calibration's error on the scored holds
+    noise_floor: float
+    excess: float  # validation_rms over noise_floor
+    expected_rms: float  # the floor and the calibration's own uncertainty
+    excess_over_expected: float
+    uncompensated_rms: float
+    single_rms: float
+    reference_temperature: float  # °C, the one-point calibration's point
+    held_out: str  # "temperature" or "hold"
+    scored: str  # "interior", "left-out" or "all"
+    holds_scored: int
+    temperature_points: int
+    model_kind: str
+    points_not_left_out: NotRequired[int]
+
+
 @dataclass(frozen=True)
 class Validation:
     holds: pd.DataFrame  # one row per hold and method
     table_holds: pd.DataFrame  # Mean/RMS per rotating axis x output axis, hold means
     table_samples: pd.DataFrame  # the same on samples
     by_temperature: pd.DataFrame  # RMS per held-out temperature and method
-    summary: dict = field(default_factory=dict)
+    # the common model's ValidationSummary; a protocol with a validation of its own adds keys
+    summary: Mapping[str, Any]
     free_points: pd.DataFrame | None = None  # continuous models: free_point_fits()
 
 
@@ -129,40 +151,81 @@ def validate(
     data = model.transform_inputs(columns_of(obs))
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     w, rate, sd = stack("gyro"), stack("rate"), stack("std")
+    held = _held_out(model, fitted, data, reference_temperature, every_point=every_point)
+    zero = np.zeros((n, 3))
+    errors = {
+        "uncompensated": (w - rate, sd**2, zero),
+        "single": _compensate(held.single, w, rate, sd, data),
+        "interpolated": _compensate(held.interpolated, w, rate, sd, data),
+    }
+    floor = observation_floor(data)
+    holds = _hold_table(obs, held, floor, errors)
+    interior = ~held.clamped
+    # Holds a point could not be left out for are never scored: with no interior hold, the
+    # ones left out (outside the remaining range) are.
+    in_sample = held.in_sample
+    use = interior if interior.any() else (~in_sample if (~in_sample).any() else np.ones(n, dtype=bool))
+    scored = holds[np.tile(use, len(METHODS))]
+    summary = _summary(model, fitted, data, held, errors, floor, use, reference_temperature)
+    return Validation(
+        holds, _table(scored, samples=False), _table(scored, samples=True), _by_temperature(holds), summary
+    )
+
+
+@dataclass(frozen=True)
+class _HeldOut:
+    """For every hold, the calibrations that never saw it: ``interpolated`` (the model without
+    its point, or without the hold) and ``single`` (the one-point calibration at the reference
+    point), whether its temperature lies outside the first's range (``clamped``), the
+    reference point's temperature, which holds could not be left out (``in_sample``), and
+    what was held out (``temperature`` or ``hold``)."""
+
+    interpolated: _Plan
+    single: _Plan
+    clamped: np.ndarray
+    reference_temp: np.ndarray
+    in_sample: np.ndarray
+    held_out: str
+
+
+def _held_out(
+    model: Model, fitted, data: Mapping[str, np.ndarray], reference_temperature: float, *, every_point: bool
+) -> _HeldOut:
+    """Each temperature point left out in turn where two or more were fitted (a continuous
+    model whose temperature terms need every point: each hold instead); with one point, each
+    of its holds."""
+    n = len(data["temp"])
     used = fitted.used_points()
-    plan = None
     if len(used) >= 2:
         try:
-            plan = _leave_temperature_out(model, fitted, data, reference_temperature, every_point=every_point)
+            interp, single, clamped, ref_temp, in_sample = _leave_temperature_out(
+                model, fitted, data, reference_temperature, every_point=every_point
+            )
+            return _HeldOut(interp, single, clamped, ref_temp, in_sample, "temperature")
         except CannotLeaveOut:
             if fitted.kind == "grid":  # a joint grid too: its holds cannot be left out alone
                 raise
             # A continuous model whose temperature terms need every point (a degree-2
             # polynomial on three points): only holds can be left out.
-    if plan is not None:
-        interp, single, clamped, ref_temp, in_sample_rows = plan
-        held_out = "temperature"
-    elif len(used) >= 2:
         interp, clamped = _leave_hold_out(model, fitted, data, every_point=True)
-        single, ref_temp = interp, data["temp"].copy()
-        held_out = "hold"
+        ref_temp = data["temp"].copy()
     else:
         interp, clamped = _leave_hold_out(model, fitted, data)
-        single, ref_temp = interp, np.full(n, float(fitted.points.loc[fitted.points["used"], "temp"].iloc[0]))
-        held_out = "hold"
-    zero = np.zeros((n, 3))
-    errors = {
-        "uncompensated": (w - rate, sd**2, zero),
-        "single": _compensate(single, w, rate, sd, data),
-        "interpolated": _compensate(interp, w, rate, sd, data),
-    }
+        ref_temp = np.full(n, float(fitted.points.loc[fitted.points["used"], "temp"].iloc[0]))
+    return _HeldOut(interp, interp, clamped, ref_temp, np.zeros(n, dtype=bool), "hold")
 
-    floor = observation_floor(data)
+
+def _hold_table(obs: pd.DataFrame, held: _HeldOut, floor: np.ndarray, errors: dict) -> pd.DataFrame:
+    """One row per hold and method: the hold, its floor, and each method's error, noise
+    variance and calibration variance per output axis."""
+    n = len(obs)
     base = obs[
         ["hold", "point", "point_temp", "temp", "mount", "axis", "ref_rate", "n", "std_x", "std_y", "std_z"]
     ].reset_index(drop=True)
     base = base.assign(
-        clamped=clamped, reference_temp=ref_temp, **{f"floor_{a}": floor[:, i] for i, a in enumerate(AXES)}
+        clamped=held.clamped,
+        reference_temp=held.reference_temp,
+        **{f"floor_{a}": floor[:, i] for i, a in enumerate(AXES)},
     )
     holds = pd.concat([base] * len(METHODS), ignore_index=True)
     holds["method"] = pd.Categorical(np.repeat(METHODS, n), categories=METHODS)
@@ -170,18 +233,22 @@ def validate(
         stacked = np.concatenate([errors[m][k] for m in METHODS])
         for i, a in enumerate(AXES):
             holds[f"{kind}_{a}"] = stacked[:, i]
+    return holds
 
-    interior = ~clamped
-    if plan is None:
-        in_sample_rows = np.zeros(n, dtype=bool)
-    # Holds a point could not be left out for are never scored: with no interior hold, the
-    # ones left out (outside the remaining range) are.
-    use = (
-        interior
-        if interior.any()
-        else (~in_sample_rows if (~in_sample_rows).any() else np.ones(n, dtype=bool))
-    )
-    scored = holds[np.tile(use, len(METHODS))]
+
+def _summary(
+    model: Model,
+    fitted,
+    data: Mapping[str, np.ndarray],
+    held: _HeldOut,
+    errors: dict,
+    floor: np.ndarray,
+    use: np.ndarray,
+    reference_temperature: float,
+) -> ValidationSummary:
+    """The headline figures over the scored holds ``use``."""
+    interior = ~held.clamped
+    used = fitted.used_points()
     overall = {m: _pooled_rms(errors[m][0][use]) for m in METHODS}
     floor_all = _pooled_rms(floor[use])
     expected = float(np.sqrt(np.mean(floor[use] ** 2 + errors["interpolated"][2][use])))
@@ -189,7 +256,7 @@ def validate(
     one_point_fits = _one_point_fits(
         fitted, len(single_point_model(model, series=fitted.kind == "grid").names)
     )
-    summary = {
+    summary: ValidationSummary = {
         "validation_rms": overall["interpolated"],
         "noise_floor": floor_all,
         "excess": overall["interpolated"] / floor_all if floor_all > 0 else float("inf"),
@@ -200,17 +267,15 @@ def validate(
         "reference_temperature": float(
             point_temps[reference_point(point_temps, reference_temperature, eligible=one_point_fits)]
         ),
-        "held_out": held_out,
-        "scored": "interior" if interior.any() else ("left-out" if in_sample_rows.any() else "all"),
+        "held_out": held.held_out,
+        "scored": "interior" if interior.any() else ("left-out" if held.in_sample.any() else "all"),
         "holds_scored": int(use.sum()),
         "temperature_points": int(len(used)),
         "model_kind": fitted.kind,
     }
-    if in_sample_rows.any():
-        summary["points_not_left_out"] = int(np.unique(data["point"][in_sample_rows]).size)
-    return Validation(
-        holds, _table(scored, samples=False), _table(scored, samples=True), _by_temperature(holds), summary
-    )
+    if held.in_sample.any():
+        summary["points_not_left_out"] = int(np.unique(data["point"][held.in_sample]).size)
+    return summary
 
 
 def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
@@ -222,7 +287,12 @@ def _one_point_fits(fitted, coefficients: int) -> np.ndarray:
 
 
 def _leave_temperature_out(
-    model: Model, fitted, data: dict, reference_temperature: float, *, every_point: bool = True
+    model: Model,
+    fitted,
+    data: Mapping[str, np.ndarray],
+    reference_temperature: float,
+    *,
+    every_point: bool = True,
 ):
     """Per hold: the calibration without its own point (interpolated, or refitted for a
     continuous model) and the one-point calibration at the reference point (the next
@@ -289,7 +359,7 @@ def _leave_temperature_out(
     return interp, single, clamped, ref_temp, in_sample_rows
 
 
-def _leave_hold_out(model: Model, fitted, data: dict, *, every_point: bool = False):
+def _leave_hold_out(model: Model, fitted, data: Mapping[str, np.ndarray], *, every_point: bool = False):
     """One usable temperature point (or, ``every_point``, one continuous fit over all
     points): each of its holds is compensated by the fit of the other holds (holds of
     points that could not be fitted use the whole fit)."""
@@ -361,7 +431,7 @@ def _table(holds: pd.DataFrame, *, samples: bool) -> pd.DataFrame:
                 noise = holds[f"floor_{a}"].to_numpy() ** 2
                 floor = np.sqrt(total(noise)[r] / weight[r])
                 expected = np.sqrt(total(noise + cal)[r] / weight[r])
-            row = {"rotating": rot, "output": a}
+            row: dict[str, Any] = {"rotating": rot, "output": a}
             for m, name in enumerate(METHODS):
                 row[f"{name}_mean"], row[f"{name}_rms"] = mean[m], rms[m]
             row["noise_floor"] = floor[METHODS.index("interpolated")]

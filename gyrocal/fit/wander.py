@@ -8,7 +8,7 @@ out, C costs O(n^2) memory and its factor O(n^3) time in the holds. But the wand
 state-space process, a random walk plus flicker as a sum of first-order Gauss-Markov
 processes, and in time order the covariance of its interval means is a diagonal plus a
 semiseparable matrix of rank poles + 1 (:class:`HoldWander`), whose Cholesky factor and
-L^-1 cost O(n J^2) and O(n J p) (:func:`gyrocal.io.kernels.semiseparable_cholesky`): the same
+L^-1 cost O(n J^2) and O(n J p) (:func:`gyrocal.fit.kernels.semiseparable_cholesky`): the same
 estimator, exactly, in time linear in the holds.
 
 Validation and the diagnosis refit the same holds many times (every candidate model leaves
@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..io import kernels
+from . import kernels
 
 POLES_PER_DECADE = 2  # flicker as a sum of Gauss-Markov processes: ripple well under 1 %
 
@@ -175,7 +175,7 @@ def _digest(*arrays) -> bytes:
     for a in arrays:
         a = np.ascontiguousarray(a, dtype=np.float64)
         h.update(np.int64(a.size).tobytes())
-        h.update(a)
+        h.update(a.data)
     return h.digest()
 
 

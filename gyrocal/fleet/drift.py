@@ -295,7 +295,7 @@ def _revalidation_holds(cal: Calibration, observations) -> pd.DataFrame:
     """The new session's holds (a table, or read from a results folder), refused unless
     their true rates are known and there is at least one."""
     if not isinstance(observations, pd.DataFrame):
-        from ..io.unit_folder import read_observations
+        from ..terms.signals import read_observations
 
         observations, _ = read_observations(observations)
     from ..protocols import registry

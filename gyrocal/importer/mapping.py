@@ -14,12 +14,12 @@ import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from ..io import AXES
 from ..io.errors import ConfigError
 from ..io.log import SECTIONS, UNIT_FACTORS
 
 FORMATS = ("csv", "tsv", "ros2", "mcap")
 TABULAR = ("csv", "tsv")
-AXES = ("x", "y", "z")
 # Factor to the contract's unit, as a log's declared units convert (gyrocal.io.log); "counts"
 # takes its factor from the sensitivity.
 RATE_UNITS = {**UNIT_FACTORS["gyro"], "counts": None}

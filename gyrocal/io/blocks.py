@@ -6,7 +6,7 @@ a block is ignored). Later stages work on per-block means and variances only, so
 samples are touched once, batch by batch, while Arrow decodes the next batch; a hold is a
 run of whole blocks, so its statistics are exact sums of block statistics.
 
-The reductions are the compiled kernels of :mod:`gyrocal.io.kernels` (one read per sample),
+The reductions are the compiled kernels of :mod:`gyrocal.io.blockstats` (one read per sample),
 or their numpy fallback. Both centre each block on its first sample before squaring, so the
 variance stays exact to well below the noise even at 400 deg/s. Optional columns
 (accelerometer) may hold NaN: their block means are taken over the finite samples.
@@ -19,7 +19,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .kernels import LIB, block_mean, block_moments
+from .blockstats import LIB, block_mean, block_moments
 from .log import ACCEL, GYRO, RigLog
 
 

@@ -10,9 +10,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from . import AXES
 from .log import GYRO, MOUNTS, RigLog
 
-AXES = ("x", "y", "z")
 TIMELINE_BUCKETS = 2000
 
 

@@ -327,6 +327,25 @@ def _reject_unknown_mounts(values: pa.Array, lookup: pa.Array, used, path: Path)
     raise LogFormatError(f"column mount holds {bad!r}; expected one of {' '.join(MOUNTS)}", source=path)
 
 
+def _refuse_empty(rows: int, kept_rows: int, nonfinite: dict[str, int], path: Path) -> None:
+    """A log without rows, or none kept (every row holds a non-finite value: the columns that
+    hold none are named), is refused."""
+    if rows == 0:
+        raise EmptyLogError("the log has no rows", source=path)
+    if not kept_rows:
+        empty = [k for k, n in nonfinite.items() if n == rows]
+        raise EmptyLogError(
+            f"all {rows} rows hold a non-finite value"
+            + (
+                f": {'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} "
+                f"{'hold' if len(empty) > 1 else 'holds'} no finite value"
+                if empty
+                else ""
+            ),
+            source=path,
+        )
+
+
 def read_log(
     path: str | os.PathLike,
     *,
@@ -370,20 +389,7 @@ def read_log(
             if keep_bytes is not None and kept_bytes > keep_bytes:
                 batches = None
     rows, dropped, origin = stream.state
-    if rows == 0:
-        raise EmptyLogError("the log has no rows", source=path)
-    if not kept_rows:
-        empty = [k for k, n in (stats.nonfinite if stats is not None else {}).items() if n == rows]
-        raise EmptyLogError(
-            f"all {rows} rows hold a non-finite value"
-            + (
-                f": {'columns' if len(empty) > 1 else 'column'} {', '.join(empty)} "
-                f"{'hold' if len(empty) > 1 else 'holds'} no finite value"
-                if empty
-                else ""
-            ),
-            source=path,
-        )
+    _refuse_empty(rows, kept_rows, stats.nonfinite if stats is not None else {}, path)
     time_origin = None
     if origin:
         value, unit = origin[0]

@@ -1,4 +1,4 @@
-"""Plausibility: is this log what a rig should have recorded, and is its calibration physical?
+"""Plausibility of the inputs: is this log what a rig should have recorded?
 
 A log can satisfy the contract (columns, types, time order) and still be wrong: gyro columns
 in rad/s or mdps while the log declares deg/s, a reference rate of the opposite sign, a
@@ -9,9 +9,16 @@ that a production line would ship. Two outcomes:
 * an **error** (:class:`ImplausibleInputError`, exit status 2, the unit quarantined in a
   fleet run) where the log cannot be right: a scale factor that is a unit conversion or a
   sign, axes that are permuted, a temperature in kelvin;
-* a **warning** otherwise, recorded in the calibration file (``warnings``: ``code``,
-  ``message``, ``evidence``), shown at the top of the unit report, counted in the fleet
-  summary, and failing end of line where the spec says ``fail_on_warnings``.
+* a **warning** otherwise (a :class:`Finding`), recorded in the calibration file
+  (``warnings``: ``code``, ``message``, ``evidence``), shown at the top of the unit report,
+  counted in the fleet summary, and failing end of line where the spec says
+  ``fail_on_warnings``.
+
+Here: the read's statistics of the log (:class:`InputStats`, batch by batch) and the checks
+on them (:func:`log_errors`, :func:`log_findings`, the time base), segmentation's check of
+the gyro against the reference (:func:`rate_ratio_check`), and the checks on the holds
+(:func:`observation_findings`, :func:`rejection_findings`). The calibration's review
+(:func:`gyrocal.calibration.review.review`) runs them with its checks on the fit.
 
 Thresholds come from what MEMS gyroscopes are: scale-factor errors within a few per cent
 (datasheets: ±1–3 % initial sensitivity tolerance), misalignment within a degree or two
@@ -22,13 +29,14 @@ lists every warning; docs/inputs.md gives the catalogue of bad inputs and their 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
+from typing import Any, TypedDict
 
 import numpy as np
 
+from . import AXES
 from .errors import InputError
 from .formats import json_safe
-
-AXES = ("x", "y", "z")
 
 CODES = {
     "gyro_out_of_range": "gyro samples beyond ±10,000 deg/s",
@@ -55,10 +63,9 @@ CODES = {
     "term_not_identified": "a term beyond the protocol's model kept for its gain, though the data cannot tell it from the model's own",
 }
 
-# Scale-factor and cross-axis bounds (see the module docstring).
+# Scale-factor bounds (see the module docstring).
 SCALE_TOLERANCE = 0.10
 UNIT_MATCH = 0.15  # a ratio within 15 % of a unit factor is taken for it
-MISALIGNMENT_LIMIT = 0.2
 TEMP_RANGE = (-60.0, 150.0)  # °C, beyond every MEMS part's operating range
 KELVIN_RANGE = (200.0, 400.0)
 DROPOUT_SHARE = 0.01
@@ -94,7 +101,15 @@ class ImplausibleInputError(InputError):
     """A log that satisfies the contract but cannot be what the rig recorded."""
 
 
-def finding(code: str, message: str, **evidence) -> dict:
+class Finding(TypedDict):
+    """A warning, as the calibration file records it (``code``: a key of :data:`CODES`)."""
+
+    code: str
+    message: str
+    evidence: dict[str, Any]
+
+
+def finding(code: str, message: str, **evidence) -> Finding:
     return {"code": code, "message": " ".join(message.split()), "evidence": json_safe(evidence)}
 
 
@@ -382,7 +397,7 @@ def _time_fix_text(review: dict) -> str:
     return f"in {name}, {_time_said(scaled, review['odd'])}: {how}"
 
 
-def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | None, dict | None]:
+def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | None, Finding | None]:
     """(an error's message, a warning) of :func:`time_base_review`. Rates are per second of
     the sensor's own clock, so a wrong time unit leaves K and B alone but not the noise
     figures (ARW, Allan deviation), the noise floor's time terms or time-read terms."""
@@ -456,10 +471,26 @@ def log_errors(stats: dict | None, source=None) -> None:
             )
 
 
-def log_findings(stats: dict | None, source=None) -> list[dict]:
+def log_findings(stats: dict | None, source=None) -> list[Finding]:
     """Warnings from the read's :class:`InputStats` summary."""
     if not stats or not stats.get("rows"):
         return []
+    out = _temperature_findings(stats)
+    if stats.get("gyro_beyond"):
+        out.append(
+            finding(
+                "gyro_out_of_range",
+                f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
+                "gyro's range: corrupted values; the holds around them are split or rejected",
+                samples=stats["gyro_beyond"],
+                ranges=stats.get("gyro_range"),
+            )
+        )
+    return out + _timing_findings(stats)
+
+
+def _temperature_findings(stats: dict) -> list[Finding]:
+    """The temperature out of range, missing for a share of the rows, or stuck."""
     out = []
     rows = stats["rows"]
     lo_hi = stats.get("temp_range")
@@ -511,16 +542,12 @@ def log_findings(stats: dict | None, source=None) -> list[dict]:
                 finest_step=stats["temp_finest_step"],
             )
         )
-    if stats.get("gyro_beyond"):
-        out.append(
-            finding(
-                "gyro_out_of_range",
-                f"{stats['gyro_beyond']} gyro samples exceed ±{GYRO_LIMIT:g} deg/s, beyond any MEMS "
-                "gyro's range: corrupted values; the holds around them are split or rejected",
-                samples=stats["gyro_beyond"],
-                ranges=stats.get("gyro_range"),
-            )
-        )
+    return out
+
+
+def _timing_findings(stats: dict) -> list[Finding]:
+    """Sample intervals scattered about the nominal, or samples missing between them."""
+    out = []
     intervals = stats.get("intervals") or 0
     if intervals:
         nominal = stats["nominal_dt"]
@@ -559,7 +586,7 @@ UNIT_RATIOS = (  # gyro over reference, what it means, how to declare it
 )
 
 
-def _unit_meaning(values: np.ndarray) -> str | None:
+def unit_meaning(values: np.ndarray) -> str | None:
     """What a gyro-over-reference ratio shared by ``values`` means, or None."""
     for factor, what, declare in UNIT_RATIOS:
         for sign in (1.0, -1.0):
@@ -601,7 +628,7 @@ def rate_ratio_check(ratios: dict, turning: dict, source=None) -> None:
             f"{n} of {turning[a]} turning holds about {a} read {m:.4g} times the reference"
             for a, (m, n) in common.items()
         )
-    meaning = _unit_meaning(values)
+    meaning = unit_meaning(values)
     if meaning is None and np.all(np.abs(values + 1) < SCALE_TOLERANCE):
         meaning = (AXIS_SIGN if len(common) < 3 else REFERENCE_SIGN).format(axes=", gyro_".join(common))
     if meaning is not None:
@@ -615,91 +642,7 @@ AXIS_SIGN_CAUSE = "a left-handed axis convention or a reversed mount label"
 AXIS_SIGN = "gyro_{axes} has the opposite sign: " + AXIS_SIGN_CAUSE
 
 
-def scale_findings(
-    Ks: np.ndarray, identified: tuple[bool, bool, bool], source=None, temperatures=None
-) -> list[dict]:
-    """Errors for unit conversions, signs and permutations in K (the median over the
-    calibration's temperature points, ``Ks`` (n, 3, 3)); warnings for a scale or cross-axis
-    term far from nominal at any point (its worst). ``identified[i]``: whether axis i's scale
-    was fitted (a sweep at rest fits none)."""
-    out = []
-    Ks = np.asarray(Ks).reshape(-1, 3, 3)
-    temperatures = np.full(len(Ks), np.nan) if temperatures is None else np.asarray(temperatures)
-    K = np.median(Ks, axis=0)
-    diag = np.diag(K)
-    # Permuted axes: an output follows another axis' rate, not its own.
-    for i, a in enumerate(AXES):
-        j = int(np.argmax(np.abs(K[i])))
-        if identified[i] and j != i and abs(abs(K[i, j]) - 1) < UNIT_MATCH and abs(diag[i]) < 0.5:
-            raise ImplausibleInputError(
-                f"gyro_{a} follows the rig's {AXES[j]} rate (K[{a},{AXES[j]}] = {K[i, j]:.3g}, "
-                f"K[{a},{a}] = {diag[i]:.3g}): the gyro columns are permuted, or the mount labels name "
-                "the wrong axes",
-                source=source,
-            )
-    seen = [(i, d) for i, d in enumerate(diag) if identified[i]]
-    if not seen:
-        return out
-    values = np.array([d for _, d in seen])
-    meaning = _unit_meaning(values)
-    if meaning is not None:
-        raise ImplausibleInputError(
-            f"scale factors {', '.join(f'{v:.4g}' for v in values)} against the reference: {meaning}",
-            source=source,
-        )
-    if np.all(np.abs(values + 1) < SCALE_TOLERANCE):
-        raise ImplausibleInputError(
-            f"scale factors {', '.join(f'{v:.4g}' for v in values)}: every axis reads against the "
-            f"reference; {REFERENCE_SIGN}",
-            source=source,
-        )
-    flipped = [AXES[i] for i, d in seen if abs(d + 1) < SCALE_TOLERANCE]
-    if flipped:
-        raise ImplausibleInputError(
-            f"gyro_{', gyro_'.join(flipped)} read{'s' if len(flipped) == 1 else ''} against the "
-            f"reference (scale {', '.join(f'{diag[AXES.index(a)]:.4g}' for a in flipped)}) while the "
-            f"other axes agree: {AXIS_SIGN_CAUSE}",
-            source=source,
-        )
-
-    def worst(i, j):  # the entry furthest from nominal over the points, and where
-        dev = np.abs(Ks[:, i, j] - (1.0 if i == j else 0.0))
-        k = int(np.argmax(dev))
-        return float(Ks[k, i, j]), float(temperatures[k]), float(dev[k])
-
-    def at(temp):
-        return f" at {temp:.1f} °C" if np.isfinite(temp) else ""
-
-    far = [(AXES[i], *worst(i, i)) for i, _ in seen]
-    far = [f for f in far if f[3] > SCALE_TOLERANCE]
-    if far:
-        out.append(
-            finding(
-                "scale_far_from_one",
-                "scale factor "
-                + ", ".join(f"K[{a},{a}] = {v:.4g}{at(T)}" for a, v, T, _ in far)
-                + f": more than {SCALE_TOLERANCE:.0%} from 1, beyond any MEMS gyro's sensitivity "
-                "tolerance; check the units and the reference",
-                scale={a: {"value": v, "temperature": T} for a, v, T, _ in far},
-            )
-        )
-    cross = [(AXES[i], AXES[j], *worst(i, j)) for i in range(3) for j in range(3) if i != j and identified[i]]
-    cross = [c for c in cross if c[4] > MISALIGNMENT_LIMIT]
-    if cross:
-        out.append(
-            finding(
-                "misalignment_large",
-                "cross-axis term "
-                + ", ".join(f"K[{a},{b}] = {v:.3g}{at(T)}" for a, b, v, T, _ in cross)
-                + f": over {MISALIGNMENT_LIMIT:g} ({math.degrees(MISALIGNMENT_LIMIT):.0f}°); mount "
-                "labels or axes may be wrong",
-                terms={f"{a}.{b}": {"value": v, "temperature": T} for a, b, v, T, _ in cross},
-            )
-        )
-    return out
-
-
-def observation_findings(obs, axis_mounts: bool, source=None, *, model_reads_accel=False) -> list[dict]:
+def observation_findings(obs, axis_mounts: bool, source=None, *, model_reads_accel=False) -> list[Finding]:
     """Warnings from the holds: accelerometer units and, for a protocol that mounts one
     axis on the rig axis at a time (``axis_mounts``), mounts against gravity and whether
     every axis turned both ways on each of its mounts."""
@@ -740,7 +683,7 @@ def observation_findings(obs, axis_mounts: bool, source=None, *, model_reads_acc
     return out
 
 
-def _holds_off_their_line(obs) -> list[dict]:
+def _holds_off_their_line(obs) -> list[Finding]:
     """Turning holds whose output is off where the same rate on the same axis is not at the
     other temperature points. Per point and axis, output against reference rate is fitted
     by a line robustly (the median of pairwise slopes, Theil–Sen: a least-squares line would
@@ -770,21 +713,7 @@ def _holds_off_their_line(obs) -> list[dict]:
         if f"rate_{a}" not in obs:
             continue
         x = np.asarray(obs[f"rate_{a}"], float)
-        resid = np.full((len(obs), 3), np.nan)  # every output's, against the turning rate
-        for p in np.unique(point):
-            rows = np.flatnonzero((point == p) & (axes == a) & (ref != 0))
-            if rows.size < 5:
-                continue
-            xi, yi = x[rows], outputs[rows]
-            i, j = np.triu_indices(rows.size, 1)
-            keep = xi[i] != xi[j]
-            slope = (
-                np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0)
-                if keep.any()
-                else np.zeros(3)
-            )
-            r = yi - slope * xi[:, None]
-            resid[rows] = r - np.median(r, axis=0)
+        resid = _off_the_line(x, outputs, point, (axes == a) & (ref != 0))
         rows = np.flatnonzero(np.isfinite(resid[:, 0]))
         turning += rows.size
         if not rows.size:
@@ -823,7 +752,29 @@ def _holds_off_their_line(obs) -> list[dict]:
     ]
 
 
-def _mounts_against_gravity(obs) -> list[dict]:
+def _off_the_line(x: np.ndarray, outputs: np.ndarray, point: np.ndarray, turning: np.ndarray) -> np.ndarray:
+    """Every output's residual (n, 3) from its Theil–Sen line against the turning rate ``x``,
+    per temperature point, about the point's median residual; NaN for holds not ``turning``
+    or of a point with under five of them."""
+    resid = np.full((len(x), 3), np.nan)
+    for p in np.unique(point):
+        rows = np.flatnonzero((point == p) & turning)
+        if rows.size < 5:
+            continue
+        xi, yi = x[rows], outputs[rows]
+        i, j = np.triu_indices(rows.size, 1)
+        keep = xi[i] != xi[j]
+        slope = (
+            np.median((yi[j] - yi[i])[keep] / (xi[j] - xi[i])[keep, None], axis=0)
+            if keep.any()
+            else np.zeros(3)
+        )
+        r = yi - slope * xi[:, None]
+        resid[rows] = r - np.median(r, axis=0)
+    return resid
+
+
+def _mounts_against_gravity(obs) -> list[Finding]:
     labelled = np.asarray(obs["mount_source"]).astype(str) == "column"
     a = np.column_stack([np.asarray(obs[f"accel_{x}"], float) for x in AXES])
     ok = labelled & np.all(np.isfinite(a), axis=1)
@@ -852,7 +803,7 @@ def _mounts_against_gravity(obs) -> list[dict]:
     ]
 
 
-def _balance(obs) -> list[dict]:
+def _balance(obs) -> list[Finding]:
     rate = np.asarray(obs["ref_rate"], float)
     turning = np.abs(rate) > 0
     axes = np.asarray(obs["axis"]).astype(str)
@@ -899,7 +850,7 @@ NEVER_ROUTINE = ("gyro_disagrees", "mount_mismatch", "mount_changes")
 REJECTED_SHARE = 0.02
 
 
-def rejection_findings(info: dict) -> list[dict]:
+def rejection_findings(info: Mapping[str, Any]) -> list[Finding]:
     """A warning when segmentation rejected more than a few holds for what a working rig
     does not do (clipped output, a gyro that disagrees with the reference, instability)."""
     rejected = {
@@ -924,97 +875,3 @@ def rejection_findings(info: dict) -> list[dict]:
             candidates=candidates,
         )
     ]
-
-
-def fit_findings(cal, one_temperature: bool = False) -> list[dict]:
-    """Warnings from the fit: one temperature point only, points left out or thin."""
-    out = []
-    # a continuous fit's points are bins; a servo's or a hand session's one temperature is
-    # its design (``one_temperature``)
-    if cal.kind != "temperature_grid" or one_temperature:
-        return out
-    points = cal.extra.get("points") or []
-    used = [p for p in points if p["used"]]
-    if len(used) == 1:
-        out.append(
-            finding(
-                "single_temperature",
-                f"calibrated at one temperature ({used[0]['temperature']:.1f} °C): nothing is known "
-                "of the unit's temperature dependence, and the calibration applies as it is at every "
-                "temperature",
-                temperature=used[0]["temperature"],
-            )
-        )
-    if len(points) > 1:
-        typical = float(np.median([p["holds"] for p in points]))
-        thin = [p for p in points if p["used"] and p["holds"] < 0.5 * typical]
-        if thin:
-            out.append(
-                finding(
-                    "point_few_holds",
-                    "temperature point "
-                    + ", ".join(f"{p['temperature']:.1f} °C ({p['holds']} holds)" for p in thin)
-                    + f" has under half the typical {typical:.0f} holds: its calibration rests on less",
-                    points=[{"temperature": p["temperature"], "holds": p["holds"]} for p in thin],
-                    typical=typical,
-                )
-            )
-    excluded = [p for p in points if not p["used"]]
-    if excluded:
-        out.append(
-            finding(
-                "point_excluded",
-                "temperature point "
-                + ", ".join(f"{p['temperature']:.1f} °C ({p.get('excluded_because')})" for p in excluded)
-                + " is left out of the calibration: the interpolation spans it from its neighbours",
-                points=[
-                    {"temperature": p["temperature"], "reason": p.get("excluded_because")} for p in excluded
-                ],
-            )
-        )
-    return out
-
-
-def review(obs, info: dict | None, cal, *, protocol, source=None) -> list[dict]:
-    """Every check on one unit session of ``protocol`` (its
-    :class:`gyrocal.protocols.registry.Protocol`): raises :class:`ImplausibleInputError` where
-    the log cannot be right, returns the warnings otherwise (the order of :data:`CODES`)."""
-    info = info or {}
-    timed = protocol.timed_holds
-    error, warning = time_base(info.get("input_stats"), info.get("typical_hold_s") if timed else None)
-    if error is not None:
-        raise ImplausibleInputError(error, source=source)
-    found = log_findings(info.get("input_stats"), source) + ([warning] if warning else [])
-    if info.get("stamps"):  # the windows' reading of bursty stamps says more than a median
-        found = [f for f in found if f["code"] not in ("sample_jitter", "dropped_samples")]
-        found.append(finding("sample_jitter", info["stamps"], rate_hz=info.get("sample_rate")))
-    Ks = cal.matrices()[0]
-    names = set(cal.model.names)
-    identified = tuple(f"scale.{a}" in names for a in AXES)
-    reads_accel = any(n.startswith("accel_") for n in cal.model.inputs)
-    seen = observation_findings(obs, protocol.axis_mounts, source, model_reads_accel=reads_accel)
-    try:
-        found += scale_findings(Ks, identified, source, cal.grid.temperatures)
-    except ImplausibleInputError as exc:
-        mounts = [f for f in seen if f["code"] == "mount_contradicts_gravity"]
-        if not mounts:
-            raise
-        joined = ImplausibleInputError(f"{exc}; and {mounts[0]['message']}")  # exc names the file
-        joined.source = exc.source
-        raise joined from None
-    found += seen + rejection_findings(info)
-    for note in info.get("segmentation_warnings") or ():
-        found.append(finding("phases_doubtful", note))
-    if "temp" in (info.get("filled_columns") or ()):
-        found.append(
-            finding(
-                "temperature_not_logged",
-                f"the log has no temp column: the calibration holds at the session's unknown "
-                f"temperature and is given at {float(cal.grid.temperatures[0]):.1f} °C, the reference "
-                "temperature",
-                filled="temp",
-            )
-        )
-    found += fit_findings(cal, protocol.one_temperature)
-    order = list(CODES)
-    return sorted(found, key=lambda f: order.index(f["code"]))

@@ -10,7 +10,6 @@ from pathlib import Path
 
 from . import atomic
 from .errors import CorruptFileError
-from .signals import Series
 from .tables import read_columns_with_metadata, read_table_with_metadata
 
 UNIT_FILES = {
@@ -40,27 +39,34 @@ def unit_paths(folder) -> dict[str, Path]:
     return {k: Path(folder) / v for k, v in UNIT_FILES.items()}
 
 
-def read_observations(folder):
+def _unit_folder(folder) -> Path:
+    """The unit's results folder, given it or its observations' path there."""
+    folder = Path(folder)
+    return folder.parent if folder.name == UNIT_FILES["observations"] else folder
+
+
+def read_observation_table(folder):
     """A unit's observation table and its metadata (``folder``: the unit's results folder,
-    or its observations' path there), the table carrying the session's record when
-    segmentation wrote one (``history.parquet``). A failure record there raises
-    :class:`gyrocal.io.failure.UpstreamFailure`."""
+    or its observations' path there). A failure record there raises
+    :class:`gyrocal.io.failure.UpstreamFailure`. The session's record beside it is
+    :func:`read_history`'s (:func:`gyrocal.terms.signals.read_observations` joins them)."""
     from . import failure
 
-    folder = Path(folder)
-    if folder.name == UNIT_FILES["observations"]:
-        folder = folder.parent
-    data, label = _required_bytes(folder, "observations")
+    data, label = _required_bytes(_unit_folder(folder), "observations")
     found = failure.read(label, data=data)
     if found is not None:
         raise failure.UpstreamFailure(found)
     obs, extra = read_table_with_metadata(label, data=data)
     if isinstance(extra.get("info"), dict) and isinstance(extra["info"].get("noise"), dict):
         obs.attrs["static_seconds"] = float(extra["info"]["noise"].get("static_seconds") or 0.0)
-    if part_exists(folder, "history"):
-        frame, meta = read_part_table(folder, "history")
-        obs.attrs["series"] = Series.from_frame(frame, meta)
     return obs, extra
+
+
+def read_history(folder):
+    """(table, metadata) of the session's record segmentation wrote (``history.parquet``),
+    None where it wrote none; ``folder`` as for :func:`read_observation_table`."""
+    folder = _unit_folder(folder)
+    return read_part_table(folder, "history") if part_exists(folder, "history") else None
 
 
 # A unit session's files: the calibration, the product `apply` and the user read, stays a

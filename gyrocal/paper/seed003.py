@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..io import AXES
 from ..protocols.sweep import SweepDesign, fit_drift, ramp_rate, stability_table, sweep_windows
 from ..simulate.sweep import SweepProtocol, SweepUnit, sweep_log, sweep_samples
 from .table import PaperRow, PaperTable
 
-AXES = ("x", "y", "z")
 EXPERIMENTS = 5
 RIG = {"x": ("+x", 10.0), "y": ("+y", 5.0), "z": ("+z", 20.0)}  # Section 4's references
 

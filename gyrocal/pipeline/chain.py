@@ -11,13 +11,22 @@ import importlib.metadata
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 
 from .. import __version__
 from ..calibration.file import Calibration
-from ..fit.floor import StretchSampler, add_floor_columns, characterise, noise_record, static_stretches
+from ..calibration.review import review
+from ..fit.floor import (
+    NoiseSummary,
+    StretchSampler,
+    add_floor_columns,
+    characterise,
+    noise_record,
+    static_stretches,
+)
 from ..fit.thermal import ContinuousFit, GridFit
 from ..fit.validate import Validation, free_point_fits, validate
 from ..io import plausibility
@@ -25,10 +34,13 @@ from ..io.blocks import BlockSink
 from ..io.errors import IdentifiabilityError, SegmentationError
 from ..io.holds import Segmentation
 from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
-from ..io.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from ..protocols import registry
 from ..protocols.turntable.segment import LOG_COLUMNS
+from ..terms.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .config import Settings
+
+if TYPE_CHECKING:
+    from .identify import AddedTerm, BiasInSession
 
 
 @dataclass(frozen=True)
@@ -123,7 +135,7 @@ def segment_log(
 
 def with_series(seg: Segmentation, series: Series) -> Segmentation:
     """``seg`` whose observations carry the session's record (terms read series signals
-    from it: :mod:`gyrocal.io.signals`)."""
+    from it: :mod:`gyrocal.terms.signals`)."""
     seg.observations.attrs["series"] = series
     return seg
 
@@ -149,7 +161,7 @@ def calibrate_observations(
     meta: dict,
     source: dict | None = None,
     label=None,
-    noise: dict | None = None,
+    noise: NoiseSummary | None = None,
     fitted: GridFit | ContinuousFit | None = None,
     info: dict | None = None,
     checks: bool = True,
@@ -160,11 +172,12 @@ def calibrate_observations(
     segmentation's noise characterisation, is kept in the file
     (:func:`gyrocal.fit.floor.noise_record`). ``fitted``, a fit of ``settings.model`` to ``obs``
     already made, is used rather than fitting again. ``info``, segmentation's, gives the
-    read's statistics to the plausibility checks (:mod:`gyrocal.io.plausibility`), which raise
-    where the log cannot be right and leave their warnings in the file's ``warnings``
+    read's statistics to the plausibility checks (:func:`gyrocal.calibration.review.review`),
+    which raise where the log cannot be right and leave their warnings in the file's ``warnings``
     (``checks=False``: none, for the diagnosis' candidate models)."""
     provenance = {"input": source or {}, "versions": versions(), "config_sha256": settings.sha256()}
-    own = registry.get(meta.get("protocol")).calibrate
+    protocol = registry.get(meta.get("protocol"))
+    own = protocol.calibrate
     if own is not None:
         cal = own(obs, settings, meta, provenance)
         if noise:
@@ -176,7 +189,15 @@ def calibrate_observations(
         cal.extra["model_entry"] = settings.model_entry
     if checks:
         cal.extra["warnings"] = (
-            plausibility.review(obs, info, cal, protocol=registry.get(meta.get("protocol")), source=label)
+            review(
+                obs,
+                info,
+                cal,
+                timed_holds=protocol.timed_holds,
+                axis_mounts=protocol.axis_mounts,
+                one_temperature=protocol.one_temperature,
+                source=label,
+            )
             + [
                 plausibility.finding("term_dropped", f"{a['term']} left out: {a['reason']}", term=a["term"])
                 for a in cal.extra.get("added_terms", ())
@@ -203,7 +224,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     the protocol's own model are kept only where this unit's data identify them
     (:func:`gyrocal.pipeline.identify.identify`; the file's ``added_terms`` says which and
     why, with the held-out figures with and without each)."""
-    added = ()
+    added: tuple[AddedTerm, ...] = ()
     if fitted is None:
         from .identify import identify
 
@@ -243,7 +264,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
     return cal, fitted
 
 
-def _bias_in_session(fitted, added) -> dict | None:
+def _bias_in_session(fitted, added) -> BiasInSession | None:
     from .identify import bias_in_session
 
     return bias_in_session(fitted, [a.term for a in added if a.kept and a.weakly])

@@ -72,9 +72,10 @@ class ModelSettings:
         terms, expressions = list(self.terms), dict(self.expressions)
         for spec in extra:
             term = make_term(spec)
-            if term.name == "expression" and term.label in expressions:
+            label = getattr(term, "label", None)  # an expression's (or a restriction of one)
+            if term.name == "expression" and label in expressions:
                 spec = {k: v for k, v in term.spec().items() if k not in ("name", "label")}
-                expressions[term.label] = spec["formula"] if set(spec) == {"formula"} else spec
+                expressions[label] = spec["formula"] if set(spec) == {"formula"} else spec
                 continue
             keys = [make_term(t).identity for t in terms]
             if term.identity in keys:
@@ -191,7 +192,7 @@ class Settings:
         default = _own_settings()[protocol]
         override = dict(self.protocols).get(protocol, {})
         # The user's term files and one-line terms serve every protocol.
-        model = {
+        model_d = {
             **default["model"],
             "term_files": list(self.model.term_files),
             "expressions": dict(self.model.expressions),
@@ -202,7 +203,7 @@ class Settings:
             **default["diagnosis"],
             **(override.get("diagnosis") or {}),
         }
-        model = fleet = ModelSettings.from_dict(model, key=f"protocols.{protocol}.model")
+        model = fleet = ModelSettings.from_dict(model_d, key=f"protocols.{protocol}.model")
         if self.unit_model is not None:
             model = model.changed(self.unit_model[1], key=f"models.{self.unit_model[0]}")
         return replace(

@@ -21,15 +21,16 @@ import json
 import math
 import re
 from dataclasses import dataclass, replace
+from typing import TypedDict
 
 import numpy as np
 import pandas as pd
 
-from ..fit.thermal import fit_model
+from ..fit.thermal import ContinuousFit, GridFit, JointGridFit, fit_model
 from ..fit.validate import CannotLeaveOut, validate
 from ..io.errors import GyrocalError, IdentifiabilityError, MissingInputError
-from ..io.signals import HOLD_INPUTS, SERIES_INPUTS
 from ..terms import AXES, make_term
+from ..terms.signals import HOLD_INPUTS, SERIES_INPUTS
 from .config import Settings
 
 # A standard error of the protocol's own coefficients grown by more than this factor: the
@@ -37,6 +38,28 @@ from .config import Settings
 # the data identify leaves them about as they were (a true warm-up: 0.9 to 1.1 times), one
 # they cannot tell from the bias multiplies them by 30 to 50 (the demo's units).
 MAX_INFLATION = math.sqrt(10.0)
+
+
+class HeldOut(TypedDict):
+    """A model's leave-temperature-out figures (its validation summary's; None where not
+    finite), as a calibration file's ``added_terms`` records them with and without a term."""
+
+    validation_rms: float | None
+    noise_floor: float | None
+    expected_rms: float | None
+    excess: float | None
+    excess_over_expected: float | None
+    held_out: str | None  # what was held out: "temperature" or "hold"
+    holds_scored: float | None
+
+
+class BiasInSession(TypedDict):
+    """Each temperature point's bias as the session measured it (:func:`bias_in_session`)."""
+
+    terms: list[str]  # the session's terms it includes
+    temperatures: list[float]
+    bias: list[list[float]]  # per point, per output axis, deg/s
+    stderr: list[list[float]]
 
 
 @dataclass(frozen=True)
@@ -48,8 +71,8 @@ class AddedTerm:
     reason: str | None = None  # why it was dropped
     inflation: float | None = None  # the largest growth of an own coefficient's standard error
     inflated: str | None = None  # that coefficient
-    with_term: dict | None = None  # held-out figures of the model with the term
-    without_term: dict | None = None
+    with_term: HeldOut | None = None  # held-out figures of the model with the term
+    without_term: HeldOut | None = None
     weakly: str | None = None  # kept for its gain though the data do not identify it: why
 
     def to_dict(self) -> dict:
@@ -118,7 +141,9 @@ class _Fits:
     """Each model fitted, and validated, once: the checks and the figures ask again."""
 
     def __init__(self, obs: pd.DataFrame, source):
-        self.obs, self.source, self.fitted, self.held = obs, source, {}, {}
+        self.obs, self.source = obs, source
+        self.fitted: dict[str, GridFit | ContinuousFit | JointGridFit] = {}
+        self.held: dict[str, HeldOut | None] = {}
 
     @staticmethod
     def key(settings: Settings) -> str:
@@ -130,7 +155,7 @@ class _Fits:
             self.fitted[key] = fit_of(settings, self.obs, self.source)
         return self.fitted[key]
 
-    def held_out(self, settings: Settings) -> dict | None:
+    def held_out(self, settings: Settings) -> HeldOut | None:
         """The model's leave-temperature-out figures (None where it cannot be fitted or
         validated on these observations)."""
         key = self.key(settings)
@@ -144,18 +169,15 @@ class _Fits:
                     reference_temperature=settings.model.reference_temperature,
                     every_point=False,
                 ).summary
-                self.held[key] = {
-                    k: _finite(s.get(k))
-                    for k in (
-                        "validation_rms",
-                        "noise_floor",
-                        "expected_rms",
-                        "excess",
-                        "excess_over_expected",
-                        "held_out",
-                        "holds_scored",
-                    )
-                }
+                self.held[key] = HeldOut(
+                    validation_rms=_finite(s.get("validation_rms")),
+                    noise_floor=_finite(s.get("noise_floor")),
+                    expected_rms=_finite(s.get("expected_rms")),
+                    excess=_finite(s.get("excess")),
+                    excess_over_expected=_finite(s.get("excess_over_expected")),
+                    held_out=_finite(s.get("held_out")),
+                    holds_scored=_finite(s.get("holds_scored")),
+                )
             except (GyrocalError, CannotLeaveOut):
                 self.held[key] = None
         return self.held[key]
@@ -182,7 +204,6 @@ def identify(
     reasons: dict[str, tuple[str, float | None, str | None]] = {}
     alpha = settings.diagnosis.significance
     while True:
-        weak: dict[str, str] = {}  # kept though not identified, for the gain it brings
         kept = [s for s in extra if s not in reasons]
         current = without(settings, reasons)
         try:
@@ -198,48 +219,16 @@ def identify(
             )
             reasons.update({s: (f"{what} ({_message(exc)})", None, None) for s in culprits})
             continue
-        overall = _inflation(fit(own), fitted, own)
-        # each term's own share: the growth it makes beside the others kept
-        share = {
-            s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own)
-            for s in kept
-        }
-        if overall[0] > MAX_INFLATION and all(share[s][0] <= MAX_INFLATION for s in kept):
-            # several terms share one collinearity: the one whose removal relieves it most
-            first = min(kept, key=lambda s: _inflation(fit(own), fit(without(current, [s])), own)[0])
-            share[first] = overall
-        found = {}
-        for spec in kept:
-            why = _at_bound(fitted, spec)
-            inflation, name = share[spec]
-            if why is None and inflation > MAX_INFLATION:
-                why = (
-                    f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
-                    f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms"
-                )
-            if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
-                why = (
-                    "with it no temperature point can be left out to validate the calibration, "
-                    "as it can without it"
-                )
-            worse = _hurts(current, spec, fit, alpha)
-            if worse is not None:
-                found[spec] = (worse, inflation, name)
-            elif why is not None and not _helps(current, spec, fit, alpha):
-                found[spec] = (
-                    why + ", and it does not lower the held-out error beyond chance",
-                    inflation,
-                    name,
-                )
-            elif why is not None:
-                weak[spec] = why
+        share = _shares(fit, own, current, fitted, kept)
+        found, weak = _judged(fit, current, fitted, kept, share, alpha)
         if not found:
             break
         reasons.update(found)
     records = []
     for spec in extra:
         reason = reasons.get(spec)
-        inflation, name = share[spec] if reason is None else reason[1:]
+        growth: float | None
+        growth, name = share[spec] if reason is None else (reason[1], reason[2])
         with_term = without_term = None
         if held_out:
             with_term = fit.held_out(without(settings, [s for s in reasons if s != spec]))
@@ -249,7 +238,7 @@ def identify(
                 spec,
                 reason is None,
                 None if reason is None else reason[0],
-                _finite(inflation),
+                _finite(growth),
                 name,
                 with_term,
                 without_term,
@@ -259,7 +248,56 @@ def identify(
     return Identified(current, fitted, tuple(records))
 
 
-def bias_in_session(fitted, specs) -> dict | None:
+def _shares(fit: _Fits, own: Settings, current: Settings, fitted, kept: list[str]) -> dict:
+    """Each kept term's share of the growth of the protocol's own coefficients' standard
+    errors (:func:`_inflation`: the factor and the coefficient): the growth it makes beside
+    the others kept; where several share one collinearity, the one whose removal relieves it
+    most carries the whole."""
+    overall = _inflation(fit(own), fitted, own)
+    share = {
+        s: overall if len(kept) == 1 else _inflation(fit(without(current, [s])), fitted, own) for s in kept
+    }
+    if overall[0] > MAX_INFLATION and all(share[s][0] <= MAX_INFLATION for s in kept):
+        first = min(kept, key=lambda s: _inflation(fit(own), fit(without(current, [s])), own)[0])
+        share[first] = overall
+    return share
+
+
+def _judged(
+    fit: _Fits, current: Settings, fitted, kept: list[str], share: dict, alpha: float
+) -> tuple[dict[str, tuple[str, float | None, str | None]], dict[str, str]]:
+    """The kept terms to drop, with why (and their growth of the standard errors), and those
+    kept though not identified, for the gain they bring, with why they are not."""
+    found: dict[str, tuple[str, float | None, str | None]] = {}
+    weak: dict[str, str] = {}
+    for spec in kept:
+        why = _at_bound(fitted, spec)
+        inflation, name = share[spec]
+        if why is None and inflation > MAX_INFLATION:
+            why = (
+                f"it multiplies the standard error of {name} by {inflation:.3g} (beyond "
+                f"{MAX_INFLATION:.3g}): the data cannot tell it from the model's own terms"
+            )
+        if why is None and fit.held_out(current) is None and fit.held_out(without(current, [spec])):
+            why = (
+                "with it no temperature point can be left out to validate the calibration, "
+                "as it can without it"
+            )
+        worse = _hurts(current, spec, fit, alpha)
+        if worse is not None:
+            found[spec] = (worse, inflation, name)
+        elif why is not None and not _helps(current, spec, fit, alpha):
+            found[spec] = (
+                why + ", and it does not lower the held-out error beyond chance",
+                inflation,
+                name,
+            )
+        elif why is not None:
+            weak[spec] = why
+    return found, weak
+
+
+def bias_in_session(fitted, specs) -> BiasInSession | None:
     """Each temperature point's bias as the session measured it, where terms of the session
     (``specs``, kept though the data cannot tell them from the bias) make the fitted bias an
     extrapolation (a decay's value long after power-on): the bias plus those terms' mean
@@ -292,12 +330,12 @@ def bias_in_session(fitted, specs) -> dict | None:
             row_s.append(float(np.sqrt(max(g @ f.covariance @ g, 0.0))))
         values.append(row_v)
         stderr.append(row_s)
-    return {
-        "terms": sorted(specs),
-        "temperatures": [float(t) for t in fitted.grid.temperatures],
-        "bias": values,
-        "stderr": stderr,
-    }
+    return BiasInSession(
+        terms=sorted(specs),
+        temperatures=[float(t) for t in fitted.grid.temperatures],
+        bias=values,
+        stderr=stderr,
+    )
 
 
 def _culprits(kept: list[str], exc: Exception) -> list[str]:
@@ -314,13 +352,13 @@ def _culprits(kept: list[str], exc: Exception) -> list[str]:
     ]
 
 
-def _chance_bound(held: dict, alpha: float) -> float:
+def _chance_bound(held: HeldOut, alpha: float) -> float:
     """How far a held-out RMS over ``held``'s holds may differ from another's by chance:
     ``sqrt(χ²_N(1 − α/2) / N)``, N the errors scored (three a hold), as the diagnosis
     judges a gain."""
     from scipy.stats import chi2
 
-    n = 3 * int(held["holds_scored"])
+    n = 3 * int(held["holds_scored"] or 0)
     return math.sqrt(chi2.ppf(1.0 - alpha / 2, n) / n)
 
 
@@ -332,7 +370,8 @@ def _hurts(settings: Settings, spec: str, fit: _Fits, alpha: float) -> str | Non
     with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
     if not with_term or not without_term or not without_term.get("holds_scored"):
         return None
-    if with_term["validation_rms"] <= without_term["validation_rms"] * _chance_bound(without_term, alpha):
+    rms, rms_without = with_term["validation_rms"], without_term["validation_rms"]
+    if rms is None or rms_without is None or rms <= rms_without * _chance_bound(without_term, alpha):
         return None
     return (
         f"it raises the held-out error from {without_term['excess']:.3g} to "
@@ -348,7 +387,8 @@ def _helps(settings: Settings, spec: str, fit: _Fits, alpha: float) -> bool:
     with_term, without_term = fit.held_out(settings), fit.held_out(without(settings, [spec]))
     if not with_term or not without_term or not with_term.get("holds_scored"):
         return False
-    return with_term["validation_rms"] * _chance_bound(with_term, alpha) < without_term["validation_rms"]
+    rms, rms_without = with_term["validation_rms"], without_term["validation_rms"]
+    return rms is not None and rms_without is not None and rms * _chance_bound(with_term, alpha) < rms_without
 
 
 def _message(exc: BaseException) -> str:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..io import atomic
+from ..io import AXES, atomic
 from ..io.columns import present
 from . import svg
 
@@ -25,7 +25,6 @@ if TYPE_CHECKING:
 
     from ..io.columns import Columns
 
-AXES = ("x", "y", "z")
 AXIS_COLOURS = {"x": "#1f77b4", "y": "#2ca02c", "z": "#d62728"}
 METHOD_STYLE = {
     "uncompensated": ("#7f7f7f", "o"),

@@ -28,12 +28,12 @@ from ..io.unit_folder import (
     part_exists,
     part_failure,
     part_label,
-    read_observations,
     read_part_json,
     unit_paths,
 )
 from ..protocols import registry
 from ..report.pages import write_failure
+from ..terms.signals import read_observations
 
 if TYPE_CHECKING:
     from ..pipeline.config import Settings

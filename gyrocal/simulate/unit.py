@@ -18,7 +18,6 @@ from scipy.signal import lfilter
 
 from ..io.errors import ConfigError
 
-AXES = "xyz"
 EFFECTS = {
     "scale_quadratic": (3,),
     "scale_cubic": (3,),

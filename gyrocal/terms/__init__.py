@@ -1,9 +1,9 @@
-"""Physical effects as terms of the gyro error model, and the registry that names them.
+"""Physical effects as terms of the gyro error model, their registry, the signals they read.
 May import: io.
 
 The model describes the error of the gyro output, ``e = w - w_true`` (deg/s), as a sum of
 terms, each linear in its coefficients. A term defines its regressor columns per sample,
-one per coefficient, from the inputs of :mod:`gyrocal.io.signals` (the true rate in the sensor
+one per coefficient, from the inputs of :mod:`gyrocal.terms.signals` (the true rate in the sensor
 frame ``rate_x/y/z``, ``ref_rate``, ``accel_x/y/z``, ``temp``, and the series signals ``t``,
 ``temp_rate`` and ``data.lag(...)``); the library takes hold means for the fit and samples
 for apply, so both see the same effect. Names are ``<term>.<output axis>[.<detail>]``: the
@@ -30,13 +30,13 @@ import dataclasses
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
+from ..io import AXES as AXES
 from ..io.errors import ConfigError, MissingInputError
 
-AXES = ("x", "y", "z")
 TERMS: dict[str, type[Term]] = {}
 
 
@@ -58,14 +58,31 @@ def literal(value) -> str:
 class Term:
     """A physical effect: regressor columns for the gyro error, one per coefficient."""
 
-    name: ClassVar[str] = ""
-    needs: ClassVar[frozenset[str]] = frozenset()  # observation columns required
-    unit: ClassVar[str] = ""  # unit of the coefficients
-    varies_with_temperature: ClassVar[bool] = False  # depends on temperature alone
+    # A class sets these; a term whose settings decide them sets its own when it is made.
+    name: str = ""
+    needs: frozenset[str] = frozenset()  # observation columns required
+    profile: Mapping[str, tuple[float, float]] = {}  # nonlinear setting -> bounds
     scope: ClassVar[str] = "auto"  # "point" or "global" in a grid model; auto: global
     # when the term reads a series signal (t, temp_rate, lag)
-    profile: ClassVar[Mapping[str, tuple[float, float]]] = {}  # nonlinear setting -> bounds
-    moving_temperature: ClassVar[bool] = False  # seen only where the temperature moves in a point
+    # The file a user term comes from and its SHA-256 (gyrocal.terms.user.load_terms)
+    source_file: ClassVar[str | None] = None
+    source_sha256: ClassVar[str | None] = None
+
+    # A class sets these as constants, or computes them from the term's settings.
+    @property
+    def unit(self) -> str:
+        """The unit of the coefficients."""
+        return ""
+
+    @property
+    def varies_with_temperature(self) -> bool:
+        """Whether the term depends on the temperature alone."""
+        return False
+
+    @property
+    def moving_temperature(self) -> bool:
+        """Whether the term is seen only where the temperature moves within a point."""
+        return False
 
     def coefficients(self) -> list[str]:
         """Full coefficient names, in a fixed order."""
@@ -89,7 +106,7 @@ class Term:
         spec = {"name": self.name, **self.params()}
         if self.coefficient_scope != self.default_scope():
             spec["scope"] = self.coefficient_scope
-        source = getattr(type(self), "source_file", None)
+        source = type(self).source_file
         if source:
             spec["source"] = {"file": Path(source).name, "sha256": type(self).source_sha256}
         return spec
@@ -97,7 +114,7 @@ class Term:
     def spec_string(self) -> str:
         """The term as ``--add-term`` and config files take it: ``name`` or
         ``name(key=value, ...)`` for settings that differ from the defaults."""
-        defaults = (
+        defaults: dict[str, Any] = (
             {
                 f.name: f.default if f.default_factory is dataclasses.MISSING else f.default_factory()
                 for f in dataclasses.fields(self)
@@ -135,7 +152,7 @@ class Term:
         """Whether the term reads ``t``, ``temp_rate`` or a lag: an effect of time or of
         the temperature's history, one per session (each temperature point covers only
         its own block of time)."""
-        from ..io.signals import SERIES_INPUTS
+        from .signals import SERIES_INPUTS
 
         return bool(self.inputs() & SERIES_INPUTS)
 
@@ -144,7 +161,7 @@ class Term:
         probe of every input (so a term that forgot to declare one still gets it in
         ``apply``)."""
         if "_inputs" not in self.__dict__:
-            from ..io.signals import HOLD_INPUTS, Inputs, Series
+            from .signals import HOLD_INPUTS, Inputs, Series
 
             probe_t = np.array([0.0, 600.0])
             probe = Inputs(
@@ -170,9 +187,12 @@ class Term:
 
     def with_settings(self, **values) -> Term:
         """The same term, scope kept, with some settings changed (a profiled parameter)."""
+        if not dataclasses.is_dataclass(self):
+            raise TypeError(f"term {self.name} is no dataclass: its settings cannot be changed")
         term = dataclasses.replace(self, **values)
-        if getattr(self, "_scope", None):
-            object.__setattr__(term, "_scope", self._scope)
+        scope = getattr(self, "_scope", None)
+        if scope:
+            object.__setattr__(term, "_scope", scope)
         return term
 
     def transform_inputs(self, data):
@@ -192,7 +212,7 @@ class Term:
         return None
 
     def check_inputs(self, data: Mapping[str, np.ndarray], source=None) -> None:
-        from ..io.signals import SERIES_INPUTS
+        from .signals import SERIES_INPUTS
 
         series = "series" in data or "t" in data
         missing = sorted(c for c in self.needs if c not in data and not (series and c in SERIES_INPUTS))
@@ -225,6 +245,8 @@ class Restricted(Term):
         self.term = term
         self.drop = tuple(d for d in own if d in set(drop))
         self.name = term.name
+        self.needs = term.needs
+        self.profile = term.profile
 
     def __eq__(self, other):
         return isinstance(other, Restricted) and (self.term, self.drop) == (other.term, other.drop)
@@ -238,23 +260,15 @@ class Restricted(Term):
         return getattr(self.term, attribute)
 
     @property
-    def needs(self):
-        return self.term.needs
-
-    @property
-    def unit(self):
+    def unit(self) -> str:
         return self.term.unit
 
     @property
-    def varies_with_temperature(self):
+    def varies_with_temperature(self) -> bool:
         return self.term.varies_with_temperature
 
     @property
-    def profile(self):
-        return self.term.profile
-
-    @property
-    def moving_temperature(self):
+    def moving_temperature(self) -> bool:
         return self.term.moving_temperature
 
     def coefficients(self) -> list[str]:

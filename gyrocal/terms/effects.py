@@ -187,7 +187,7 @@ class DieTemperature(Term):
         """``data`` with ``temp`` at the die: each hold's mean of the lagged record (the
         logged temperature kept as ``temp_logged``). Samples are filtered by ``apply``."""
         from ..io.errors import MissingInputError
-        from ..io.signals import hold_means_of_lag
+        from .signals import hold_means_of_lag
 
         if "t_start" not in data:
             return data
@@ -208,7 +208,7 @@ class _DieFilter:
     """The die temperature of samples given batch by batch (``t`` in seconds)."""
 
     def __init__(self, tau: float):
-        from ..io.signals import LagFilter
+        from .signals import LagFilter
 
         self.lag = LagFilter(tau)
 
@@ -240,7 +240,10 @@ class ScaleQuadratic(_RatePerAxis):
     directions, growing with the square of the rate. [1/(deg/s)]"""
 
     unit = "1/(deg/s)"
-    shape = staticmethod(np.square)
+
+    @staticmethod
+    def shape(rate):
+        return np.square(rate)
 
 
 @register_term("scale_cubic")
@@ -263,7 +266,10 @@ class ScaleAsymmetry(_RatePerAxis):
     and negative rates (the scale is ``1 + s ± k``). [1]"""
 
     unit = "1"
-    shape = staticmethod(np.abs)
+
+    @staticmethod
+    def shape(rate):
+        return np.abs(rate)
 
 
 @register_term("g_sensitivity")

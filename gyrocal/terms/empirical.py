@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -306,7 +307,7 @@ class CrossRate(Term):
         return (self.name, self.label)
 
     def params(self) -> dict:
-        out = {"shape": self.shape, "label": self.label}
+        out: dict[str, Any] = {"shape": self.shape, "label": self.label}
         if self.values:
             out["values"] = list(self.values)
         return out

@@ -25,6 +25,7 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -56,6 +57,8 @@ def load_term_file(path) -> tuple[str, list[str]]:
     before = set(TERMS)
     module_name = f"gyrocal_user_terms_{digest[:12]}"
     spec = importlib.util.spec_from_file_location(module_name, path)
+    if spec is None or spec.loader is None:  # a path importlib cannot load as a module
+        raise ConfigError(f"term file {path} cannot be loaded as a Python module")
     module = importlib.util.module_from_spec(spec)
     sys.modules[module_name] = module
     try:
@@ -109,7 +112,7 @@ RECORD_INPUTS = (
 )
 LAGGABLE = ("temp", "temp_rate")  # lags of these alone keep their own, older path
 
-# What a formula may read: the inputs every term has (gyrocal.io.signals), per sample in apply
+# What a formula may read: the inputs every term has (gyrocal.terms.signals), per sample in apply
 # and as hold means in the fit. ``t`` is seconds since the log's first sample.
 FORMULA_COLUMNS = (
     "t",
@@ -144,7 +147,7 @@ def formula_names(formula: str, parameters=()) -> frozenset[str]:
     for own, kind in OWN_AXIS.items():
         if own in names:
             names = (names - {own}) | {f"{kind}_{a}" for a in AXES}
-    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and n.func.id in HISTORIES):
+    for call in (n for n in ast.walk(tree) if isinstance(n, ast.Call) and _called(n) in HISTORIES):
         names.add("temp_lag")  # the session's record
         inside = {n.id for n in ast.walk(call.args[0]) if isinstance(n, ast.Name)}
         if inside & {"rate_x", "rate_y", "rate_z", "rate_own"}:
@@ -216,21 +219,26 @@ def _parse(formula: str, parameters=()) -> ast.AST:
     return tree
 
 
+def _called(call: ast.Call) -> str:
+    """The function a call of a parsed formula names (:func:`_parse` admits only names)."""
+    return call.func.id if isinstance(call.func, ast.Name) else ""
+
+
 def _check_history(formula: str, node: ast.Call, parameters) -> None:
     """``lag(x, tau)`` / ``play(x, w)`` / ``duhem(x, w)``: two arguments, ``x`` a formula of the record's inputs
     (no history inside a history), the size a number or a parameter."""
-    what = "tau in seconds" if node.func.id == "lag" else "w its width in the input's unit"
+    what = "tau in seconds" if _called(node) == "lag" else "w its width in the input's unit"
     usage = (
-        f"formula {formula!r}: write {node.func.id}(x, {what.split()[0]}), x an input of the "
+        f"formula {formula!r}: write {_called(node)}(x, {what.split()[0]}), x an input of the "
         f"session's record ({', '.join(RECORD_INPUTS)}) or a formula of them, {what} "
         "(a number or a parameter)"
     )
     if len(node.args) != 2:
         raise ConfigError(usage)
     inner = list(ast.walk(node.args[0]))
-    if any(isinstance(n, ast.Call) and n.func.id in HISTORIES for n in inner):
+    if any(isinstance(n, ast.Call) and _called(n) in HISTORIES for n in inner):
         raise ConfigError(
-            f"formula {formula!r}: a history cannot hold another ({node.func.id} of a lag, a play or a duhem)"
+            f"formula {formula!r}: a history cannot hold another ({_called(node)} of a lag, a play or a duhem)"
         )
     for n in inner:
         if (
@@ -240,7 +248,7 @@ def _check_history(formula: str, node: ast.Call, parameters) -> None:
             and n.id not in parameters
         ):
             raise ConfigError(usage + f"; {n.id} is not in the record")
-    if node.func.id == "duhem" and ast.unparse(node.args[0]) != "temp":
+    if _called(node) == "duhem" and ast.unparse(node.args[0]) != "temp":
         # Its state before the record is the room's, which only the temperature has.
         raise ConfigError(
             f"formula {formula!r}: duhem(temp, w) is the temperature's direction "
@@ -272,7 +280,7 @@ def evaluate(formula: str, data, parameters: Mapping[str, float] | None = None) 
 def _value(node, data, parameters, formula):
     """One node of a parsed formula over ``data``."""
     if isinstance(node, ast.Constant):
-        return float(node.value)
+        return float(cast(float, node.value))  # _parse admits finite numbers only
     if isinstance(node, ast.Name):
         if node.id in parameters:
             return float(parameters[node.id])
@@ -284,17 +292,17 @@ def _value(node, data, parameters, formula):
         return _OPERATORS[type(node.op)](
             _value(node.left, data, parameters, formula), _value(node.right, data, parameters, formula)
         )
-    if node.func.id in HISTORIES:
+    if _called(node) in HISTORIES:
         return _history(node, data, parameters, formula)
-    return _FUNCTIONS[node.func.id](*[_value(a, data, parameters, formula) for a in node.args])
+    return _FUNCTIONS[_called(node)](*[_value(a, data, parameters, formula) for a in node.args])
 
 
 def _history(node: ast.Call, data, parameters, formula):
     """``lag(x, tau)``, ``play(x, w)`` or ``duhem(x, w)``: ``x`` over the session's record, through the
-    operator, at ``data``'s times (:meth:`gyrocal.io.signals.Inputs.history`)."""
+    operator, at ``data``'s times (:meth:`gyrocal.terms.signals.Inputs.history`)."""
     size = _value(node.args[1], data, parameters, formula)
     arg = node.args[0]
-    if node.func.id == "lag":
+    if _called(node) == "lag":
         if np.ndim(size) or not lag_time_constant_ok(size):
             raise ConfigError(
                 f"formula {formula!r}: a lag's time constant must be a number of seconds >= 0, got {size!r}"
@@ -305,7 +313,7 @@ def _history(node: ast.Call, data, parameters, formula):
             return _value(arg, data, parameters, formula)
     elif np.ndim(size) or not (np.isfinite(size) and size > 0):
         raise ConfigError(
-            f"formula {formula!r}: a {node.func.id} operator's width must be a positive number, got {size!r}"
+            f"formula {formula!r}: a {_called(node)} operator's width must be a positive number, got {size!r}"
         )
     axis = getattr(data, "axis", None)
     names = {n.id for n in ast.walk(arg) if isinstance(n, ast.Name)}
@@ -318,8 +326,8 @@ def _history(node: ast.Call, data, parameters, formula):
     key = (ast.unparse(arg), axis if names & set(OWN_AXIS) else None, tuple(sorted(used.items())))
     # The temperature's play starts from the room, as its Duhem state does; both read it
     # through a short lag (on the samples' noise an operator narrower than it would chatter).
-    temperature = node.func.id in ("play", "duhem") and key[0] == "temp"
-    operator = "temperature_play" if temperature and node.func.id == "play" else node.func.id
+    temperature = _called(node) in ("play", "duhem") and key[0] == "temp"
+    operator = "temperature_play" if temperature and _called(node) == "play" else _called(node)
     return data.history(
         key,
         lambda series: _value(arg, _Record(series, axis), used, formula),
@@ -420,10 +428,8 @@ class Expression(Term):
         object.__setattr__(self, "profile", {k: profile[k] for k in sorted(profile)})
         object.__setattr__(self, "needs", formula_names(self.formula, tuple(self.parameters)))
 
-    def __eq__(self, other):
+    def __eq__(self, other):  # by its settings, which hold dicts: unhashable (__hash__ is None)
         return isinstance(other, Expression) and self.params() == other.params()
-
-    __hash__ = None
 
     @property
     def identity(self) -> tuple:
@@ -434,8 +440,9 @@ class Expression(Term):
 
     def with_settings(self, **values) -> Term:
         term = dataclasses.replace(self, parameters={**self.parameters, **values})
-        if getattr(self, "_scope", None):
-            object.__setattr__(term, "_scope", self._scope)
+        scope = getattr(self, "_scope", None)
+        if scope:
+            object.__setattr__(term, "_scope", scope)
         return term
 
     def coefficients(self):

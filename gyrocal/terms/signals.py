@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .errors import MissingInputError
+from ..io.errors import MissingInputError
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -452,10 +452,10 @@ class HistoryBins:
             carry = self._carry
             self._reduce(np.floor((carry["t"] - self.rel_first) / self.width).astype(np.int64), carry)
             self._carry = None
-        if not self._out:
+        first, last = self._first, self._last
+        if not self._out or first is None or last is None:  # no sample pushed
             return Series(np.empty(0), np.empty(0), self.t0, self.window_s, np.empty(0))
         out = {k: np.concatenate([part[k] for part in self._out]) for k in self._out[0]}
-        first, last = self._first, self._last
         # The first and last samples themselves bound the record (with no weight of their
         # own: they are in the first and last bins), so that a lag starts from the same
         # state as on the samples and nothing is extrapolated at the ends.
@@ -501,8 +501,8 @@ ROOM_C = 25.0
 
 
 def duhem_operator(
-    x: np.ndarray, width: float, state: tuple | None = None
-) -> tuple[np.ndarray, tuple[float, float, float]]:
+    x: np.ndarray, width: float, state: tuple[float, float, float] | None = None
+) -> tuple[np.ndarray, tuple[float, float, float] | None]:
     """The direction of travel of ``x`` as a Duhem hysteresis: a state in [−1, 1] that
     relaxes toward +1 while ``x`` rises and −1 while it falls, by a factor ``e`` per
     ``width`` of travel (``ds/dU = (sign(dx) − s) / w``, solved exactly step by step). Travel is counted on :func:`play_operator` of
@@ -556,6 +556,8 @@ class Inputs(dict):
         self.series = series
         self.times = times
         self.read: set[str] = set()
+        # At quadrature nodes (:func:`quadrature_inputs`): each hold's first node, the weights
+        self.plan: tuple[np.ndarray, np.ndarray] | None = None
 
     def __getitem__(self, name):
         self.read.add(name)
@@ -731,3 +733,16 @@ def node_means(values: np.ndarray, plan) -> np.ndarray:
     starts, weights = plan
     values = np.broadcast_to(np.asarray(values, float), weights.shape)
     return np.add.reduceat(values * weights, starts)
+
+
+def read_observations(folder) -> tuple[pd.DataFrame, dict]:
+    """A unit's observation table and its metadata
+    (:func:`gyrocal.io.unit_folder.read_observation_table`), the table carrying the session's
+    record as its :class:`Series` (``attrs["series"]``) where segmentation wrote one."""
+    from ..io import unit_folder  # Parquet on use: a term file imports this module
+
+    obs, extra = unit_folder.read_observation_table(folder)
+    history = unit_folder.read_history(folder)
+    if history is not None:
+        obs.attrs["series"] = Series.from_frame(*history)
+    return obs, extra
