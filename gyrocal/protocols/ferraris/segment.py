@@ -32,8 +32,9 @@ import numpy as np
 import pandas as pd
 
 from ...io.errors import ConfigError, SegmentationError
-from ...io.holds import AXES, Segmentation, hold_table, timeline, true_runs
+from ...io.holds import Segmentation, hold_table, no_stable_periods, segments_of_holds, timeline, true_runs
 from ...io.log import ACCEL, FACES, GYRO, SECTIONS, TURNS, RigLog, declared_units, open_dataset, time_seconds
+from ...terms import AXES
 
 FULL_TURN = 360.0
 
@@ -461,17 +462,7 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
     obs["phase"] = col("kind").astype(str)
     obs["angle"] = col("angle")
     obs["raw_angle"] = col("raw_angle")
-    segments = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": obs["section"],
-            "t_start": obs["t_start"],
-            "t_end": obs["t_end"],
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    ).astype({"kind": "string", "reason": "string", "detail": "string"})
+    segments = segments_of_holds(obs, obs["section"])
     info = {
         "protocol": "ferraris",
         "path": str(log.path),
@@ -486,5 +477,4 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
         "segmentation_warnings": warnings,
         "white_noise": [float(s) for s in sigma],
     }
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return Segmentation(obs, segments, no_stable_periods(), timeline(log), info)

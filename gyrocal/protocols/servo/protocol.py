@@ -11,7 +11,7 @@ import numpy as np
 
 from ...fit.floor import quiet_runs
 from ...fit.model import observation_floor
-from ...io.plausibility import AXES
+from ...terms import AXES
 from ..registry import Protocol, register
 from .defaults import DEFAULTS
 
@@ -26,17 +26,12 @@ if TYPE_CHECKING:
 
 def _temperature_slopes(log: RigLog, t_start: np.ndarray, t_end: np.ndarray) -> np.ndarray:
     """Least-squares temperature slope (°C/min) over each [t_start, t_end] sample range."""
-    t, temp = log.column("t"), log.column("temp")
+    from ...io.holds import range_sums, regression_rate
+
+    t = log.column("t")
     lo = np.searchsorted(t, t_start, side="left")
     hi = np.searchsorted(t, t_end, side="right")
-    tc = t - t[0]
-    csum = np.vstack([np.zeros(4), np.cumsum(np.c_[tc, temp, tc * tc, tc * temp], axis=0)])
-    s = csum[hi] - csum[lo]
-    n = (hi - lo).astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var = s[:, 2] - s[:, 0] ** 2 / n
-        slope = (s[:, 3] - s[:, 0] * s[:, 1] / n) / var
-    return np.where(np.isfinite(slope) & (var > 0), 60.0 * slope, 0.0)
+    return regression_rate(range_sums(t, log.column("temp"), lo, hi))
 
 
 def segment_servo(log: RigLog, options: dict) -> Segmentation:
@@ -47,9 +42,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     ``±ω`` along that axis. The noise of a revolution mean is the white-noise level
     (successive differences) over √n: the servo's ripple cancels over a whole revolution
     and must not inflate the floor."""
-    import pandas as pd
-
-    from ...io.holds import Segmentation, hold_table, timeline
+    from ...io.holds import Segmentation, hold_table, no_stable_periods, segments_of_holds, timeline
     from . import find_rotations
 
     rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
@@ -76,17 +69,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     obs["revolution"] = rev["revolution"].to_numpy()
     for i, a in enumerate(AXES):
         obs[f"gyro_{a}_noise"] = noise[:, i]
-    segments = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": "revolution",
-            "t_start": t_start,
-            "t_end": t_end,
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    ).astype({"kind": "string", "reason": "string", "detail": "string"})
+    segments = segments_of_holds(obs, "revolution")
     info = {
         "protocol": "servo",
         "path": str(log.path),
@@ -100,8 +83,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
         "directions": list(rot.directions),
         "warnings": list(rot.warnings),
     }
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return Segmentation(obs, segments, no_stable_periods(), timeline(log), info)
 
 
 SERVO_TERMS = ("bias", "scale")

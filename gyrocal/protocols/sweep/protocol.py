@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ...fit.floor import merge_intervals
-from ...io.plausibility import AXES
+from ...terms import AXES
 from ..registry import Protocol, register
 from .defaults import DEFAULTS
 
@@ -39,9 +39,14 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     """Seed 003 windows (:func:`gyrocal.protocols.sweep.sweep_windows`) as observations; each window's
     temperature point is its ``point_span`` °C bin (``"auto"``: :func:`auto_point_span`), so leaving a point out leaves out a
     stretch of the sweep (leave-temperature-out on a continuous ramp)."""
-    import pandas as pd
-
-    from ...io.holds import Segmentation, hold_table, temperature_points, timeline
+    from ...io.holds import (
+        Segmentation,
+        hold_table,
+        no_stable_periods,
+        segments_of_holds,
+        temperature_points,
+        timeline,
+    )
     from ...io.log import MOUNTS
     from . import sweep_windows
 
@@ -49,7 +54,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     span = opts.pop("point_span", "auto")
     win = sweep_windows(log, **opts)
     span = auto_point_span(win["temp"].to_numpy()) if span == "auto" else float(span)
-    point, point_temp = temperature_points(win["temp"].to_numpy(), span)
+    point, point_temp = temperature_points(win["temp"].to_numpy(), span=span)
     mount = win["mount"].to_numpy(dtype=object)
     if not all(isinstance(m, str) and m in MOUNTS for m in mount):
         # At rig rate 0 the mount is immaterial to the model; +z keeps the schema.
@@ -70,18 +75,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     )
     obs["window"] = win["window"].to_numpy()
     window_s = float(win.attrs["window_s"])
-    kept = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": "window",
-            "t_start": obs["t_start"],
-            "t_end": obs["t_end"],
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    )
-    segments = kept.astype({"kind": "string", "reason": "string", "detail": "string"})
+    segments = segments_of_holds(obs, "window")
     dropped = {k: int(v) for k, v in win.attrs["dropped"].items()}
     info = {
         "protocol": name,
@@ -105,8 +99,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     }
     if win.attrs.get("stamps"):
         info["stamps"] = win.attrs["stamps"]
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return Segmentation(obs, segments, no_stable_periods(), timeline(log), info)
 
 
 def windows_from_observations(obs: pd.DataFrame) -> pd.DataFrame:

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from ...io.errors import ConfigError, SegmentationError
+from ...io.holds import SlopeSums, regression_rate
 from ...io.log import GYRO, MOUNTS, RigLog
 from ...io.stamps import sampling
 
@@ -139,12 +140,9 @@ def sweep_windows(
     temp = log.column("temp").astype(np.float64)
     tt = t - t[starts][owner]
     TT = temp - temp[starts][owner]
-    St, STT = sums(tt), sums(TT)
-    Stt, StT = sums(tt * tt), sums(tt * TT)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = (StT - St * STT / counts) / (Stt - St * St / counts)
-    temp_rate = np.where(np.isfinite(slope), slope * 60.0, 0.0)
-    temp_mean = temp[starts] + STT / counts
+    window_sums = SlopeSums(counts, sums(tt), sums(TT), sums(tt * tt), sums(tt * TT))
+    temp_rate = regression_rate(window_sums)
+    temp_mean = temp[starts] + window_sums.temp / counts
 
     ref = log.column("ref_rate").astype(np.float64)
     ref_mean = sums(ref) / counts
