@@ -5,14 +5,14 @@ leaving revolutions out."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from ...fit.floor import quiet_runs
 from ...fit.model import observation_floor
 from ...terms import AXES
-from ..registry import Protocol, register
+from ..registry import OwnAnalysis, Protocol, SettingsView, checked_options, register
 from .defaults import DEFAULTS
 
 # The report reads this module for its sections and figure: what segmentation, the fits
@@ -20,6 +20,8 @@ from .defaults import DEFAULTS
 if TYPE_CHECKING:
     import pandas as pd
 
+    from ...calibration.file import Calibration
+    from ...fit.validate import Validation
     from ...io.holds import Segmentation
     from ...io.log import RigLog
 
@@ -45,7 +47,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     from ...io.holds import Segmentation, hold_table, no_stable_periods, segments_of_holds, timeline
     from . import find_rotations
 
-    rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
+    rot = find_rotations(log, min_revolutions=checked_options("servo", options)["min_revolutions"])
     rev = rot.revolutions
     gyro = rev[[f"gyro_{a}" for a in AXES]].to_numpy()
     noise = rev[[f"gyro_{a}_noise" for a in AXES]].to_numpy()
@@ -312,15 +314,17 @@ def servo_validation(obs: pd.DataFrame, cal):
     return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
 
 
-def static(log, seg, max_temp_rate: float):
-    """The pauses between rotations (reference rate 0), in quiet blocks only, since the unit
-    is turned by hand between rotations."""
-    t = log.column("t")
-    gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
-    return quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+class ServoAnalysis(TypedDict):
+    """The servo's own methods for the report (JSON-plain)."""
+
+    protocol: str
+    iterative: dict[str, Any]  # Algorithm 1's fit (ServoFit.summary)
+    lm: dict[str, Any]  # Levenberg–Marquardt's
+    settled_at: int  # the iteration Algorithm 1 settled at
+    max_difference_lm: float  # the largest difference of a parameter between the two
 
 
-def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
+def servo_analysis(obs: pd.DataFrame) -> ServoAnalysis:
     """Both fits of every whole revolution, for the report."""
     iterative, lm = servo_fits(obs)
     return {
@@ -329,41 +333,53 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
         "lm": lm.summary(),
         "settled_at": int(iterative.settled_at()),
         "max_difference_lm": float(np.max(np.abs(np.r_[iterative.k, iterative.b] - np.r_[lm.k, lm.b]))),
-    }, []
+    }
 
 
-def _calibrate(obs, settings, meta, provenance):
-    return servo_calibration(
-        obs,
-        reference_temperature=settings.model.reference_temperature,
-        meta=meta,
-        provenance=provenance,
-        model=settings.protocol_options("servo").get("calibration", "auto"),
-    )
+class Servo(Protocol):
+    """Whole revolutions as observations. The calibration is seed 001's own; the diagnosis
+    fits the 12-parameter model on the revolution means (the hand-mounting tilt of each axis
+    lands in the misalignment) beside it."""
+
+    name = "servo"
+    description = "servo-aided six-observation calibration: hand-mounted rotations (seed 001)"
+    known_rate = False
+    one_temperature = True
+    report_sections = "protocols/servo_sections.html.j2"
+    validated_as = "Seed 001 six-parameter calibration; validated"
+    defaults = DEFAULTS
+
+    def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
+        return segment_servo(log, settings.protocol_options("servo"))
+
+    def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
+        """The pauses between rotations (reference rate 0), in quiet blocks only, since the
+        unit is turned by hand between rotations."""
+        t = log.column("t")
+        gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
+        return quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+
+    def calibrate(
+        self, obs: pd.DataFrame, settings: SettingsView, meta: dict, provenance: dict
+    ) -> Calibration:
+        return servo_calibration(
+            obs,
+            reference_temperature=settings.model.reference_temperature,
+            meta=meta,
+            provenance=provenance,
+            model=settings.protocol_options("servo")["calibration"],
+        )
+
+    def validate(self, obs: pd.DataFrame, cal: Calibration) -> Validation:
+        return servo_validation(obs, cal)
+
+    def analysis(self, obs: pd.DataFrame) -> OwnAnalysis:
+        return OwnAnalysis(servo_analysis(obs), [])
+
+    def validation_figure(self, holds: pd.DataFrame) -> str:
+        from ...report import plots
+
+        return plots.servo_errors(holds)
 
 
-def _validation_figure(holds: pd.DataFrame) -> str:
-    from ...report import plots
-
-    return plots.servo_errors(holds)
-
-
-# The 12-parameter model on whole-revolution means (the hand-mounting tilt of each axis
-# lands in the misalignment), for the diagnosis, beside the paper's own six-parameter fit.
-SERVO = register(
-    Protocol(
-        "servo",
-        "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
-        segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
-        static=static,
-        calibrate=_calibrate,
-        validate=servo_validation,
-        analysis=analysis,
-        validation_figure=_validation_figure,
-        known_rate=False,
-        one_temperature=True,
-        report_sections="protocols/servo_sections.html.j2",
-        validated_as="Seed 001 six-parameter calibration; validated",
-        defaults=DEFAULTS,
-    )
-)
+SERVO = register(Servo())
