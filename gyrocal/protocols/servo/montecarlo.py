@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib
 import numpy as np
@@ -537,36 +538,12 @@ def cross_axis_study(
                     list(CROSS_MOUNTINGS).index(mounting),
                     list(CROSS_DESIGNS).index(design),
                 )
-                sessions = []
-                for _ in range(2):
-                    axes, nominal = _design_axes(design, mounting, (n_sets, n_runs), rng)
-                    g = speed * axes  # (S, R, n, 3)
-                    m = (
-                        np.einsum("sij,srnj->srni", K, g)
-                        + B[:, None, None, :]
-                        + sigma / math.sqrt(samples) * rng.standard_normal(g.shape)
-                    )
-                    sessions.append((g, m))
-                (g0, m0), (g1, m1) = sessions
-                fits = _cross_fits(m0.reshape(-1, *m0.shape[2:]), speed, nominal, sigma / math.sqrt(samples))
-                g1f, m1f = g1.reshape(-1, *g1.shape[2:]), m1.reshape(-1, *m1.shape[2:])
-                commanded = speed * nominal
-
-                def scores(w, commanded=commanded, g1f=g1f):  # this iteration's
-                    return (
-                        np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
-                        np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
-                        np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)),
-                    )
-
-                raw = scores(m1f)
-                for model, (Kf, Bf) in fits.items():
-                    ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
-                    safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
-                    w = np.linalg.solve(
-                        safe_K[:, None], (m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :])[..., None]
-                    )[..., 0]
-                    mag, nom, true = scores(w)
+                floor = sigma / math.sqrt(samples)
+                first = _servo_session(K, B, design, mounting, (n_sets, n_runs), floor, speed, rng)
+                second = _servo_session(K, B, design, mounting, (n_sets, n_runs), floor, speed, rng)
+                fits = _cross_fits(first.m.reshape(-1, *first.m.shape[2:]), speed, first.nominal, floor)
+                errors = _next_session_errors(fits, second, speed)
+                for model, (ok, (mag, nom, true)) in errors.models.items():
                     rows.append(
                         pd.DataFrame(
                             {
@@ -580,14 +557,70 @@ def cross_axis_study(
                                 "magnitude": np.where(ok, mag, np.nan),
                                 "nominal": np.where(ok, nom, np.nan),
                                 "true": np.where(ok, true, np.nan),
-                                "raw_magnitude": raw[0],
-                                "raw_nominal": raw[1],
-                                "raw_true": raw[2],
-                                "floor": sigma / math.sqrt(samples),
+                                "raw_magnitude": errors.raw.magnitude,
+                                "raw_nominal": errors.raw.nominal,
+                                "raw_true": errors.raw.true,
+                                "floor": floor,
                             }
                         )
                     )
     return pd.concat(rows, ignore_index=True)
+
+
+class ServoSession(NamedTuple):
+    """Simulated revolution means of a session: the true rates and the output (rad/s)."""
+
+    g: np.ndarray  # (S, R, n, 3) true rate vectors
+    m: np.ndarray  # (S, R, n, 3) revolution means
+    nominal: np.ndarray  # (n, 3) the commanded axes
+
+
+def _servo_session(
+    K, B, design: str, mounting: str, shape: tuple, floor: float, speed: float, rng
+) -> ServoSession:
+    """A session of every set and run: new mounts and new noise (``floor``: a revolution
+    mean's)."""
+    axes, nominal = _design_axes(design, mounting, shape, rng)
+    g = speed * axes
+    m = np.einsum("sij,srnj->srni", K, g) + B[:, None, None, :] + floor * rng.standard_normal(g.shape)
+    return ServoSession(g, m, nominal)
+
+
+class RunErrors(NamedTuple):
+    """RMS errors (rad/s) of each run's next session: against the servo speed (what a servo
+    can judge on a hand mount), the commanded rate vector (with a fixture) and the true one
+    (which only a simulation knows)."""
+
+    magnitude: np.ndarray
+    nominal: np.ndarray
+    true: np.ndarray
+
+
+class NextSession(NamedTuple):
+    raw: RunErrors  # the raw output's
+    models: dict[str, tuple[np.ndarray, RunErrors]]  # per model: where it gave an estimate, its errors
+
+
+def _next_session_errors(fits: dict, session: ServoSession, speed: float) -> NextSession:
+    """How far each model's compensation of the next session lies from the servo speed,
+    the commanded rate vector and the true one."""
+    g1f, m1f = session.g.reshape(-1, *session.g.shape[2:]), session.m.reshape(-1, *session.m.shape[2:])
+    commanded = speed * session.nominal
+
+    def rms_errors(w) -> RunErrors:
+        return RunErrors(
+            np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
+            np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
+            np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)),
+        )
+
+    models = {}
+    for model, (Kf, Bf) in fits.items():
+        ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
+        safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
+        offset = m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :]
+        models[model] = (ok, rms_errors(np.linalg.solve(safe_K[:, None], offset[..., None])[..., 0]))
+    return NextSession(rms_errors(m1f), models)
 
 
 def cross_axis_summary(df: pd.DataFrame) -> pd.DataFrame:
