@@ -108,13 +108,22 @@ def simulate_observations(
     return g / k - b + noise / math.sqrt(samples) * z_noise
 
 
-def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int = 50) -> dict:
-    """Algorithm 1 on runs m (R, 6, 3): k, b (R, 3), iterations, converged (R,)."""
+class BatchFit(NamedTuple):
+    """Seed 001's parameters fitted on R runs."""
+
+    k: np.ndarray  # (R, 3)
+    b: np.ndarray  # (R, 3)
+    iterations: np.ndarray  # (R,): Algorithm 1's β0 updates, or LM's function evaluations
+    converged: np.ndarray  # (R,): False where the run gave no estimate
+
+
+def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int = 50) -> BatchFit:
+    """Algorithm 1 on runs m (R, 6, 3)."""
     out = algorithm1(m, np.full(m.shape[:-1], speed), tol=tol, max_iter=max_iter)
-    ok = out["converged"] & out["positive"]
+    ok = out.converged & out.positive
     with np.errstate(invalid="ignore", divide="ignore"):
-        k, b = parameters_from_beta(np.where(ok[:, None], out["beta"], 1.0))
-    return dict(k=k, b=b, iterations=out["iterations"], converged=ok)
+        k, b = parameters_from_beta(np.where(ok[:, None], out.beta, 1.0))
+    return BatchFit(k, b, out.iterations, ok)
 
 
 def convergence_run(
@@ -141,7 +150,7 @@ def convergence_run(
     return fit_iterative(m, np.full(6, speed), tol=tol)
 
 
-def lm_batch(m: np.ndarray, speed: float) -> dict:
+def lm_batch(m: np.ndarray, speed: float) -> BatchFit:
     """scipy LM per run on m (R, 6, 3), started at Algorithm 1's first step."""
     R = m.shape[0]
     k, b = np.ones((R, 3)), np.zeros((R, 3))
@@ -156,12 +165,12 @@ def lm_batch(m: np.ndarray, speed: float) -> dict:
         res = lm_solve(m[r], omega, x0)
         if res.success and np.isfinite(res.x).all():
             k[r], b[r], nfev[r], ok[r] = np.abs(res.x[:3]), res.x[3:], res.nfev, True
-    return dict(k=k, b=b, iterations=nfev, converged=ok)
+    return BatchFit(k, b, nfev, ok)
 
 
-def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
-    S, R = k_true.shape[0], fit["k"].shape[0] // k_true.shape[0]
-    ok = fit["converged"]
+def _frame(condition, noise, method, k_true, b_true, fit: BatchFit) -> pd.DataFrame:
+    S, R = k_true.shape[0], fit.k.shape[0] // k_true.shape[0]
+    ok = fit.converged
     cols = {
         "condition": condition,
         "noise": noise,
@@ -169,10 +178,10 @@ def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
         "set": np.repeat(np.arange(S), R),
         "run": np.tile(np.arange(R), S),
         "converged": ok,
-        "iterations": fit["iterations"],
+        "iterations": fit.iterations,
     }
     true = np.repeat(np.hstack([k_true, b_true]), R, axis=0)
-    est = np.hstack([fit["k"], fit["b"]])
+    est = np.hstack([fit.k, fit.b])
     for j, p in enumerate(PARAMETERS):
         cols[f"{p}_true"] = true[:, j]
         cols[f"{p}_err"] = np.where(ok, est[:, j] - true[:, j], np.nan)  # NaN: no estimate
@@ -317,8 +326,8 @@ def speed_sweep(
                 misalignment=misalignment,
             )
             fit = fit_batch(m.reshape(-1, 6, 3), float(w))
-            ok = fit["converged"]
-            err = np.hstack([fit["k"], fit["b"]])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
+            ok = fit.converged
+            err = np.hstack([fit.k, fit.b])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
             mse = np.mean(err**2, axis=0)
             row = {
                 "speed": float(w),
@@ -465,8 +474,8 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
     s = fit_batch(m, speed)
     with np.errstate(divide="ignore", invalid="ignore"):
         out["seed001"] = (
-            np.where(s["converged"][:, None, None], np.eye(3) / s["k"][:, None, :], np.nan),
-            -s["b"],
+            np.where(s.converged[:, None, None], np.eye(3) / s.k[:, None, :], np.nan),
+            -s.b,
         )
     X = np.column_stack([nominal * speed, np.ones(len(nominal))])
     coef = np.linalg.pinv(X) @ m  # (R, 4, 3): one design for every run
@@ -475,18 +484,18 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
     out["symmetric"], use = nan, np.zeros(R, dtype=bool)
     if m.shape[1] >= 9:
         m_sem = np.full(m.shape, sem)
-        start_k = np.where(s["converged"][:, None], s["k"], 1.0)
-        identified = s["converged"] & (
+        start_k = np.where(s.converged[:, None], s.k, 1.0)
+        identified = s.converged & (
             cross_stderr(
                 symmetric_covariance(
-                    start_k[:, :, None] * np.eye(3), -np.where(s["converged"][:, None], s["b"], 0.0), m, m_sem
+                    start_k[:, :, None] * np.eye(3), -np.where(s.converged[:, None], s.b, 0.0), m, m_sem
                 )
             )
             <= MAX_CROSS_STDERR
         )
         a = algorithm1_symmetric(m, np.full(m.shape[:-1], speed))
-        ok = identified & a["converged"] & a["positive"]
-        C, B = symmetric_parameters(np.where(ok[:, None], a["beta"], np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
+        ok = identified & a.converged & a.positive
+        C, B = symmetric_parameters(np.where(ok[:, None], a.beta, np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
         K = np.linalg.inv(C)
         out["symmetric"] = (np.where(ok[:, None, None], K, np.nan), np.where(ok[:, None], B, np.nan))
         chi2 = cross_chi2(K, symmetric_covariance(C, B, m, m_sem))
