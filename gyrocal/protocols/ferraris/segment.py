@@ -137,8 +137,8 @@ def find_cuts(
                 dtype=np.int64,
             )
         )
-    cuts = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, np.int64)
-    return cuts[(cuts > 0) & (cuts < n)]
+    rows = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, np.int64)
+    return rows[(rows > 0) & (rows < n)]
 
 
 class Phase(NamedTuple):
@@ -290,21 +290,24 @@ def _turns(t, gyro, spans, still: Stillness, anchors: list[Anchor], opts: dict, 
     found = FoundPhases([], [], {}, 0)
     i = 0
     while i < len(anchors) - 1:
-        if anchors[i].face is None:
+        face = anchors[i].face
+        if face is None:
             i += 1
             continue
-        j, total = _chain_of_moves(anchors, i, csum, opts)
-        if j > i and abs(total[AXES.index(anchors[i].face[1])]) > FULL_TURN / 4:
-            _judge_turn(found, t, anchors[i], anchors[j], total, opts, dt)
+        j, total = _chain_of_moves(anchors, i, face, csum, opts)
+        if j > i and abs(total[AXES.index(face[1])]) > FULL_TURN / 4:
+            _judge_turn(found, t, anchors[i], anchors[j], face[1], total, opts, dt)
         i = max(j, i + 1)
     return found
 
 
-def _chain_of_moves(anchors: list[Anchor], i: int, csum: np.ndarray, opts: dict) -> tuple[int, np.ndarray]:
-    """How far does the chain of moves from anchor ``i`` run on its face and piece, each a
-    rotation about the face's vertical axis (else the unit was handled)? The last anchor
-    of the chain and the rotation it sums to."""
-    face, piece = anchors[i].face, anchors[i].piece
+def _chain_of_moves(
+    anchors: list[Anchor], i: int, face: str, csum: np.ndarray, opts: dict
+) -> tuple[int, np.ndarray]:
+    """How far does the chain of moves from anchor ``i`` (on ``face``) run on its face and
+    piece, each a rotation about the face's vertical axis (else the unit was handled)? The
+    last anchor of the chain and the rotation it sums to."""
+    piece = anchors[i].piece
     axis = AXES.index(face[1])
     j, total = i, np.zeros(3)
     while j < len(anchors) - 1 and anchors[j + 1].face == face and anchors[j + 1].piece == piece:
@@ -316,13 +319,14 @@ def _chain_of_moves(anchors: list[Anchor], i: int, csum: np.ndarray, opts: dict)
     return j, total
 
 
-def _judge_turn(found: FoundPhases, t, start: Anchor, stop: Anchor, total: np.ndarray, opts: dict, dt: float):
-    """A chain that turns a quarter or more: a whole number of turns within
+def _judge_turn(
+    found: FoundPhases, t, start: Anchor, stop: Anchor, axis: str, total: np.ndarray, opts: dict, dt: float
+) -> None:
+    """A chain about ``axis`` that turns a quarter or more: a whole number of turns within
     ``angle_tolerance`` is a turn, phases and warnings taking it; otherwise the largest
     such rotation per axis is kept for the error that no turn was found."""
-    a0, b0, face, _ = start
+    a0, b0 = start.first, start.end
     a1, b1 = stop.first, stop.end
-    axis = face[1]
     angle = total[AXES.index(axis)]
     turns = max(1, int(round(abs(angle) / FULL_TURN)))
     off = abs(abs(angle) / (turns * FULL_TURN) - 1.0)
@@ -572,8 +576,8 @@ def _phase_table(rows: list[Measured], source: str, *, with_accel: bool) -> pd.D
         mount=np.array([r.mount for r in rows], dtype=object),
         mount_source=source,
         ref_rate=col("ref_rate"),
-        gyro=np.vstack(col("gyro")),
-        std=np.vstack(col("std")),
+        gyro=np.vstack([r.gyro for r in rows]),
+        std=np.vstack([r.std for r in rows]),
         temp=col("temp"),
         temp_rate=np.zeros(k),
         point=np.zeros(k, np.int64),
@@ -582,7 +586,7 @@ def _phase_table(rows: list[Measured], source: str, *, with_accel: bool) -> pd.D
     obs["duration"] = col("T")  # the integration time: what the turn's rate divides by
     if with_accel:
         for i, a in enumerate(AXES):
-            obs[f"accel_{a}"] = np.vstack(col("accel"))[:, i]
+            obs[f"accel_{a}"] = np.vstack([r.accel for r in rows])[:, i]
     obs["section"] = col("section").astype(str)
     obs["phase"] = col("kind").astype(str)
     obs["angle"] = col("angle")

@@ -230,7 +230,7 @@ def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=
         done = step & (change <= tol)
         converged |= done
         active &= ok & ~done
-        if keep_trace:
+        if trace is not None:
             trace.append((beta.copy(), g0, np.where(step, change, np.nan)))
     return Algorithm1Runs(beta, iterations, converged, positive, trace)
 
@@ -354,7 +354,7 @@ def fit_iterative(
             f"iterations (speed too low for the biases: β0/ω² must stay well below 1)"
         )
     trace = []
-    for i, (beta6, g0, change) in enumerate(out.trace):
+    for i, (beta6, g0, change) in enumerate(out.trace or []):
         if i > 0 and not np.isfinite(change[0]):
             break
         kk, bb = parameters_from_beta(beta6[0])

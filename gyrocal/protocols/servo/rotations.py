@@ -111,9 +111,9 @@ def g_optimal_warnings(
         norm = float(np.linalg.norm(m))
         if d not in DIRECTIONS or norm == 0.0:
             continue
-        axis = np.zeros(3)
-        axis[AXES.index(d[1])] = 1.0 if d[0] == "+" else -1.0
-        tilt = math.degrees(math.acos(float(np.clip(m @ axis / norm, -1.0, 1.0))))
+        nominal = np.zeros(3)
+        nominal[AXES.index(d[1])] = 1.0 if d[0] == "+" else -1.0
+        tilt = math.degrees(math.acos(float(np.clip(m @ nominal / norm, -1.0, 1.0))))
         if tilt > max_tilt_deg:
             out.append(
                 f"rotation {i} ({d}): the mean output is {tilt:.1f}° off the {d} axis "

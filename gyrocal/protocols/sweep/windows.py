@@ -410,7 +410,7 @@ def split_sweeps(
         first = int(np.flatnonzero(direction != 0)[0])
         filled[:first] = direction[first]
     edges = np.flatnonzero(np.r_[True, filled[1:] != filled[:-1], True])
-    out = []
+    out: list[pd.DataFrame] = []
     for a, b in zip(edges[:-1], edges[1:], strict=False):  # one iteration per ramp
         part = windows.iloc[a:b].copy()
         span = float(part["temp"].max() - part["temp"].min())

@@ -350,7 +350,7 @@ class _Verdicts:
         mask = mask & (self.reason == "")
         self.reason[mask] = code
         for i in np.flatnonzero(mask):
-            self.detail[i] = text(i)
+            self.detail[i] = text(int(i))
 
 
 def _check_holds(
@@ -759,8 +759,8 @@ def _observation_table(h: dict, accepted: np.ndarray, checked: Checked, table_an
 
 
 def _segment_table(segments, t_first, t_last, r, obs) -> pd.DataFrame:
-    kinds, reasons, details, b0, b1 = (list(x) for x in zip(*segments, strict=False))
-    b0, b1 = np.asarray(b0, dtype=int), np.asarray(b1, dtype=int)
+    kinds, reasons, details, first, stop = (list(x) for x in zip(*segments, strict=False))
+    b0, b1 = np.asarray(first, dtype=int), np.asarray(stop, dtype=int)
     keep = b1 > b0
     b0, b1 = b0[keep], b1[keep]
     p = np.r_[0.0, np.cumsum(r)]
