@@ -165,19 +165,7 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     segments = _phase_segments(blk, runs, motion, st, block_dt)
     _refuse_without_long_holds(log, st, block_dt)
     c0, c1 = st.c0[st.long_enough], st.c1[st.long_enough]
-    lead = runs.run[c0]
-    h = _hold_statistics(
-        blk,
-        size,
-        c0,
-        c1,
-        log,
-        runs.tol[c0],
-        motion.level[lead],
-        motion.gain[lead],
-        cfg,
-        motion.allowance[lead],
-    )
+    h = _hold_statistics(log, blk, size, c0, c1, runs, motion, cfg)
     checked = _check_holds(log, h, blk, c0, c1, runs, motion, cfg)
     accepted = checked.reason == ""
     for i in np.flatnonzero(~accepted):
@@ -522,14 +510,17 @@ def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: n
     return sums / np.maximum(count, 1)[:, None]
 
 
-def _hold_statistics(blk, size, c0, c1, log, ref_tol, level, gain, cfg, allowance=None) -> dict:
-    """Per-hold sums over the hold's blocks: means, variances, steadiness, temperature rate.
+def _hold_statistics(log, blk, size, c0, c1, runs: Runs, motion: Motion, cfg) -> dict:
+    """Per-hold sums over the blocks ``c0:c1`` of each hold: means, variances, steadiness,
+    temperature rate.
 
     A hold's scatter is its blocks' own scatter plus the blocks' spread about the hold mean;
     block means are taken relative to the run's steady level first, so the sums hold
     noise-sized numbers and lose nothing to cancellation.
     """
     r, mean, var = blk["ref"], blk["gyro"], blk["gyro_var"]
+    lead = runs.run[c0]  # each hold's run
+    level, gain, allowance = motion.level[lead], motion.gain[lead], motion.allowance[lead]
     lengths = c1 - c0
     first = np.r_[0, np.cumsum(lengths)[:-1]]  # where each hold starts among the hold blocks
     hb = _range_index(c0, c1)
@@ -559,7 +550,7 @@ def _hold_statistics(blk, size, c0, c1, log, ref_tol, level, gain, cfg, allowanc
         cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
         + cfg.motion_floor
     )
-    half_limit = steady_limit + (0.0 if allowance is None else allowance[:, None])
+    half_limit = steady_limit + allowance[:, None]
     settling = (half_diff > steady_limit).any(axis=1)
     if settling.any():
         # A hold kept though its output settles: its scatter from successive block
@@ -584,7 +575,7 @@ def _hold_statistics(blk, size, c0, c1, log, ref_tol, level, gain, cfg, allowanc
         t_start=blk["t_first"][c0],
         t_end=blk["t_last"][c1 - 1],
         ref_drift=ref_drift,
-        ref_tol=ref_tol,
+        ref_tol=runs.tol[c0],
         not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
         half_diff=half_diff[rows, worst],
         half_limit=half_limit[rows, worst],
@@ -593,12 +584,17 @@ def _hold_statistics(blk, size, c0, c1, log, ref_tol, level, gain, cfg, allowanc
         settle=np.where((lengths >= 2)[:, None], d2 - d1, np.nan),
         saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log, cfg.full_scale),
     )
-    if "accel" in blk:  # optional: blocks without accelerometer data are left out
-        acc = blk["accel"][hb].astype(np.float64)
-        have = np.isfinite(acc)
-        with np.errstate(invalid="ignore"):
-            out["accel"] = _range_sums(np.where(have, acc, 0.0), first) / _range_sums(have * 1.0, first)
+    if "accel" in blk:
+        out["accel"] = _hold_accel(blk["accel"], hb, first)
     return out
+
+
+def _hold_accel(accel: np.ndarray, hb: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Each hold's mean specific force over its blocks that have accelerometer data."""
+    acc = accel[hb].astype(np.float64)
+    have = np.isfinite(acc)
+    with np.errstate(invalid="ignore"):
+        return _range_sums(np.where(have, acc, 0.0), first) / _range_sums(have * 1.0, first)
 
 
 def _hold_temp_rate(blk, c0, c1) -> tuple[np.ndarray, np.ndarray]:
