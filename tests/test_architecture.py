@@ -5,6 +5,9 @@ model once."""
 from __future__ import annotations
 
 import ast
+import inspect
+import types
+import typing
 from pathlib import Path
 
 import pytest
@@ -177,10 +180,65 @@ def test_the_registry_knows_the_built_in_protocols_and_refuses_others():
         registry.get("hand")
 
 
+def _parameters(function) -> list[str]:
+    return [p.name for p in inspect.signature(function).parameters.values() if p.name != "self"]
+
+
+@pytest.mark.parametrize("name", registry.BUILTIN)
+def test_every_protocol_provides_the_typed_interface(name):
+    """Each registered protocol is a :class:`registry.Protocol` whose methods take what the
+    interface says: the abstract ones defined, the optional ones None or of the interface's
+    signature, every attribute of the annotated type."""
+    p = registry.get(name)
+    assert isinstance(p, registry.Protocol) and not getattr(type(p), "__abstractmethods__", None)
+    for method in ("segment", "static", "segmentation_settings"):
+        assert _parameters(getattr(p, method)) == _parameters(getattr(registry.Protocol, method)), method
+    hints = typing.get_type_hints(registry.Protocol, vars(registry) | _names_for_hints())
+    optional = {"calibrate": 4, "validate": 2, "analysis": 1, "validation_figure": 1, "reading_blocks": 1}
+    assert {k for k, v in hints.items() if "Callable" in str(v)} == set(optional)
+    for member, arity in optional.items():
+        own = getattr(p, member)
+        assert own is None or len(_parameters(own)) == arity, member
+    for member, hint in hints.items():
+        if member in optional:
+            continue
+        value = getattr(p, member)
+        kind = typing.get_args(hint)[0] if typing.get_origin(hint) is typing.ClassVar else hint
+        assert _is_instance(value, kind), (member, value, kind)
+    assert (p.defaults is None) == p.top_level_settings
+    assert (p.segmentation_settings(None) is not None) == p.top_level_settings
+
+
+def _names_for_hints() -> dict:
+    """What the registry names only for the type checker."""
+    import numpy as np
+    import pandas as pd
+
+    from gyrocal.calibration.file import Calibration
+    from gyrocal.fit.validate import Validation
+    from gyrocal.io.holds import Segmentation
+    from gyrocal.io.log import RigLog
+
+    return dict(
+        np=np, pd=pd, Calibration=Calibration, Validation=Validation, Segmentation=Segmentation, RigLog=RigLog
+    )
+
+
+def _is_instance(value, hint) -> bool:
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        return any(_is_instance(value, h) for h in typing.get_args(hint))
+    if hint is type(None):
+        return value is None
+    if origin is tuple:
+        return isinstance(value, tuple) and all(isinstance(v, typing.get_args(hint)[0]) for v in value)
+    if typing.is_typeddict(hint):
+        return isinstance(value, dict) and set(value) == set(hint.__annotations__)
+    return isinstance(value, origin or hint)
+
+
 def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
     """Adding a protocol is one registration: a log of it is segmented by its segmenter."""
-    from dataclasses import replace
-
     import numpy as np
 
     from gyrocal.pipeline.chain import segment_log
@@ -196,11 +254,14 @@ def test_a_protocol_registered_by_a_package_is_used_by_the_pipeline(tmp_path):
     )
     seen = []
 
-    def segment(log, settings):
-        seen.append(log.path)
-        return turntable.TURNTABLE.segment(log, settings)
+    class Renamed(turntable.Turntable):
+        name = "renamed_turntable"
 
-    registry.register(replace(turntable.TURNTABLE, name="renamed_turntable", segment=segment))
+        def segment(self, log, settings):
+            seen.append(log.path)
+            return super().segment(log, settings)
+
+    registry.register(Renamed())
     try:
         assert "renamed_turntable" in registry.names()
         seg = segment_log(log, Settings(), "renamed_turntable")

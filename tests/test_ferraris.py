@@ -14,9 +14,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from gyrocal.io.errors import SegmentationError
+from gyrocal.io.errors import ConfigError, SegmentationError
+from gyrocal.io.log import ACCEL, REQUIRED, read_log
 from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.pipeline.config import Settings
+from gyrocal.protocols import registry
+from gyrocal.protocols.ferraris.segment import segment_ferraris
 from gyrocal.simulate import GyroUnit, simulate_unit
 from gyrocal.simulate.ferraris import FerrarisProtocol
 
@@ -149,6 +152,24 @@ def test_half_turn_is_not_taken_for_a_full_one(tmp_path):
     cut = _drop_rows(path, lambda t: (t < middle - 0.2) | (t > turn["t_end"] + 1.0))
     with pytest.raises(SegmentationError, match="a full turn about x"):
         run(cut, Settings().for_protocol("ferraris"), protocol="ferraris")
+
+
+def _exclusive_minimum_zero() -> list[str]:
+    properties = registry.options_schema("ferraris")["properties"]
+    return [name for name, p in properties.items() if p.get("exclusiveMinimum") == 0]
+
+
+@pytest.mark.parametrize("option", _exclusive_minimum_zero())
+def test_an_option_the_schema_keeps_above_0_refuses_0(tmp_path, option):
+    """The segmenter holds its options to the config schema's bounds, however it is called:
+    0 where the schema says exclusiveMinimum 0 is a one-line error naming the setting."""
+    path, _ = ferraris_log(tmp_path, seed=11)
+    without = registry.get("ferraris").without
+    log = read_log(path, optional=ACCEL + without, required=tuple(c for c in REQUIRED if c not in without))
+    with pytest.raises(ConfigError) as refused:
+        segment_ferraris(log, {option: 0})
+    assert str(refused.value) == f"protocols.ferraris.options.{option} must be more than 0, got 0"
+    assert registry.option_defaults("ferraris")[option] > 0
 
 
 def test_no_accelerometer_and_no_annotation_is_refused(tmp_path):

@@ -13,6 +13,7 @@ import pytest
 from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
 from gyrocal.diagnose import diagnose
+from gyrocal.io import schema
 from gyrocal.io.errors import ConfigError
 from gyrocal.pipeline.chain import run
 from gyrocal.pipeline.config import Settings
@@ -176,6 +177,20 @@ def test_protocol_settings_are_checked_and_resolved_once():
     added = replace(sweep, model=sweep.model.with_terms(("temp_rate",)))
     assert added.for_protocol("sweep") is added  # resolved once: --add-term survives
     assert s.for_protocol("turntable") is s
+
+
+@pytest.mark.parametrize("name", ["servo", "sweep", "ferraris", "static"])
+def test_a_protocols_options_come_from_the_config_schema(name):
+    """The schema holds each protocol's options with their defaults and bounds; the settings
+    complete an override with them, while the config keeps the override as given."""
+    defaults = registry.option_defaults(name)
+    properties = registry.options_schema(name)["properties"]
+    assert set(defaults) == set(properties)  # every option has its default there
+    assert Settings().protocol_options(name) == defaults
+    key, value = next(iter(defaults.items()))
+    config = schema.check({"devices": "d.tsv", "model": {}, "protocols": {name: {"options": {key: value}}}})
+    assert config["protocols"][name] == {"options": {key: value}}
+    assert Settings.from_dict({"protocols": config["protocols"]}).protocol_options(name) == defaults
 
 
 @pytest.mark.slow

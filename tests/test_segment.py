@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from gyrocal.io.errors import GyrocalError, SegmentationError
+from gyrocal.io.holds import temperature_points
 from gyrocal.io.log import read_log
 from gyrocal.protocols.turntable.segment import LOG_COLUMNS, SegmentConfig, segment, segment_file
 from gyrocal.simulate import load_truth
@@ -304,3 +305,17 @@ def test_any_log_segments_or_fails_cleanly(tmp_path, levels, lengths, noise, jit
         assert len(obs) >= 1
         assert np.all(np.isfinite(obs[["gyro_x", "gyro_y", "gyro_z", "temp"]].to_numpy()))
         assert (obs["t_end"] > obs["t_start"]).all()
+
+
+def test_temperature_points_chain_set_points_by_gap_and_cut_a_ramp_into_bins():
+    """A turntable's set points are chains of holds each within the gap of the next,
+    however far the chain reaches; a sweep's ramp is cut into bins aligned to 0 °C."""
+    temp = np.array([19.0, 21.5, 20.2, 45.0, 44.0, 70.0, 23.4])
+    by_gap = temperature_points(temp, gap=2.0)
+    assert by_gap.point.tolist() == [0, 0, 0, 1, 1, 2, 0]  # 19 … 23.4 in steps under 2 °C
+    assert by_gap.point_temp[0] == pytest.approx(np.mean([19.0, 21.5, 20.2, 23.4]), abs=1e-12)
+    by_bin = temperature_points(temp, span=10.0)
+    assert by_bin.point.tolist() == [0, 1, 1, 2, 2, 3, 1]  # [10, 20), [20, 30), [40, 50), [70, 80)
+    assert by_bin.point_temp[1] == pytest.approx(np.mean([21.5, 20.2, 23.4]), abs=1e-12)
+    with pytest.raises(ValueError):
+        temperature_points(temp)

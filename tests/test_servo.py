@@ -265,12 +265,12 @@ def test_batched_algorithm_equals_per_run_calls():
     k, b = np.array([[0.9, 1.1, 1.05], [1.7, 1.3, 1.9]]), np.array([[0.05, -0.08, 0.01], [0.15, -0.2, 0.12]])
     m = simulate_observations(k, b, 4, rng, speed=1.0, noise=0.2, samples=419).reshape(-1, 6, 3)
     batch = fit_batch(m, 1.0)
-    assert batch["converged"].all()
+    assert batch.converged.all()
     for r in range(len(m)):
         single = fit_iterative(m[r], np.ones(6))
-        np.testing.assert_allclose(batch["k"][r], single.k, rtol=1e-12)
-        np.testing.assert_allclose(batch["b"][r], single.b, rtol=1e-12)
-        assert batch["iterations"][r] == single.iterations
+        np.testing.assert_allclose(batch.k[r], single.k, rtol=1e-12)
+        np.testing.assert_allclose(batch.b[r], single.b, rtol=1e-12)
+        assert batch.iterations[r] == single.iterations
 
 
 def test_study_is_deterministic_and_methods_agree():
@@ -436,7 +436,7 @@ def test_symmetric_algorithm1_solves_nine_rotations_exactly():
     np.testing.assert_allclose(fit.B, np.degrees(B), atol=1e-8)
     np.testing.assert_allclose(fit.residuals, 0.0, atol=1e-10)
     batch = algorithm1_symmetric(np.stack([m, m]), np.full((2, 9), 3.0), tol=1e-14)
-    C, b = symmetric_parameters(batch["beta"])
+    C, b = symmetric_parameters(batch.beta)
     np.testing.assert_allclose(np.linalg.inv(C[1]), fit.K, atol=1e-12)
     with pytest.raises(ServoFitError, match="at least 9"):
         fit_symmetric(m[:8], np.full(8, 3.0))

@@ -1,5 +1,9 @@
 """Settings of a calibration run: segmentation knobs and the model, from YAML or dicts.
 
+The top-level ``segmentation:`` section is read by the protocol that owns the top-level
+settings (:meth:`gyrocal.protocols.registry.Protocol.segmentation_settings`); the other
+protocols' options are their ``protocols.<name>`` sections over their defaults.
+
 Every key is checked against the config schema (``gyrocal/io/schemas/config.schema.yaml``, which
 holds the bounds and defaults; :mod:`gyrocal.io.schema`): an unknown key or a bad value is a
 :class:`ConfigError` naming it. The settings hash (``sha256``) goes into each calibration
@@ -10,15 +14,17 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import yaml
 
 from ..fit.model import DEFAULT_TERMS, Model
 from ..io import schema
 from ..io.errors import ConfigError, CorruptFileError
-from ..protocols.turntable.config import SegmentConfig
+from ..protocols import registry
+from ..protocols.registry import ProtocolDefaults, SegmentationSettings
 from ..terms import make_term
 from ..terms.user import load_term_file
 
@@ -141,9 +147,18 @@ class DiagnosisSettings:
         }
 
 
+def segmentation_settings(values: dict | None = None) -> SegmentationSettings:
+    """The config's ``segmentation:`` section as the top-level protocol reads it."""
+    protocol = registry.top_level()
+    settings = protocol.segmentation_settings(values)
+    if settings is None:
+        raise ConfigError(f"protocol {protocol.name} owns the top-level settings but reads no segmentation:")
+    return settings
+
+
 @dataclass(frozen=True)
 class Settings:
-    segmentation: SegmentConfig = field(default_factory=SegmentConfig)
+    segmentation: SegmentationSettings = field(default_factory=segmentation_settings)
     model: ModelSettings = field(default_factory=ModelSettings)
     diagnosis: DiagnosisSettings = field(default_factory=DiagnosisSettings)
     protocols: tuple = ()  # (name, {options, model, diagnosis}) overrides, checked
@@ -174,7 +189,7 @@ class Settings:
             DiagnosisSettings.from_dict(section.get("diagnosis"), key=f"protocols.{name}.diagnosis")
             checked.append((name, section))
         return cls(
-            SegmentConfig.from_dict(values.get("segmentation")),
+            segmentation_settings(values.get("segmentation")),
             model,
             DiagnosisSettings.from_dict(values.get("diagnosis")),
             tuple(checked),
@@ -192,7 +207,7 @@ class Settings:
         default = _own_settings()[protocol]
         override = dict(self.protocols).get(protocol, {})
         # The user's term files and one-line terms serve every protocol.
-        model_d = {
+        model_values = {
             **default["model"],
             "term_files": list(self.model.term_files),
             "expressions": dict(self.model.expressions),
@@ -203,7 +218,7 @@ class Settings:
             **default["diagnosis"],
             **(override.get("diagnosis") or {}),
         }
-        model = fleet = ModelSettings.from_dict(model_d, key=f"protocols.{protocol}.model")
+        model = fleet = ModelSettings.from_dict(model_values, key=f"protocols.{protocol}.model")
         if self.unit_model is not None:
             model = model.changed(self.unit_model[1], key=f"models.{self.unit_model[0]}")
         return replace(
@@ -214,8 +229,11 @@ class Settings:
             resolved_for=protocol,
         )
 
-    def protocol_options(self, protocol: str) -> dict:
-        default = _own_settings().get(protocol, {}).get("options", {})
+    def protocol_options(self, protocol: str) -> dict[str, Any]:
+        """The options of ``protocol``'s segmenter: its defaults (the config schema's),
+        overridden key by key by ``protocols.<name>.options``."""
+        own = _own_settings().get(protocol)
+        default = own["options"] if own is not None else {}
         return {**default, **(dict(self.protocols).get(protocol, {}).get("options") or {})}
 
     @classmethod
@@ -237,7 +255,7 @@ class Settings:
         # the fleet's model and the unit's entry, as the workflow hands them to a job
         model = self.fleet if self.unit_model is not None else self.model
         out = {
-            "segmentation": asdict(self.segmentation),
+            "segmentation": self.segmentation.to_dict(),
             "model": model.to_dict(),
             "diagnosis": self.diagnosis.to_dict(),
         }
@@ -286,9 +304,7 @@ def read_yaml(path) -> dict:
     return values
 
 
-def _own_settings() -> dict[str, dict]:
+def _own_settings() -> dict[str, ProtocolDefaults]:
     """The default settings of each protocol whose settings are not the top-level ones."""
-    from ..protocols import registry
-
     own = {n: registry.settings_defaults(n) for n in registry.names()}
     return {n: d for n, d in own.items() if d is not None}

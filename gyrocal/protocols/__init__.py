@@ -1,2 +1,2 @@
-"""The four protocols (turntable, servo, sweep, hand rotations) beside their registry.
-May import: io, simulate, fit, calibration, report."""
+"""The five protocols (turntable, servo, sweep, hand rotations, static) beside their registry.
+May import: io, terms, simulate, fit, calibration, report."""

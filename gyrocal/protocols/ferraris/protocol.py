@@ -12,12 +12,12 @@ The report also shows Ferraris' own closed-form equations on the same observatio
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 import numpy as np
 
-from ...io.plausibility import AXES
-from ..registry import Protocol, register
+from ...terms import AXES
+from ..registry import OwnAnalysis, Protocol, SettingsView, register
 from .defaults import DEFAULTS
 
 # The report reads this module for its sections and figure: what segmentation, the fits
@@ -25,15 +25,25 @@ from .defaults import DEFAULTS
 if TYPE_CHECKING:
     import pandas as pd
 
+    from ...io.holds import Segmentation
+    from ...io.log import RigLog
 
-def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
+
+class ClosedForm(NamedTuple):
+    """Ferraris' parameters (``w = K w_true + B + K_ga f``), in deg/s and deg/s/g."""
+
+    K: np.ndarray  # 3×3: scale and cross-axis
+    B: np.ndarray  # 3: bias
+    K_ga: np.ndarray | None  # 3×3 acceleration sensitivity, None without the gravity terms
+
+
+def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> ClosedForm:
     """Ferraris' estimator on the faces and turns, as imucal computes it.
 
     Gyro bias: the mean of the six faces' means. Acceleration sensitivity (with
     ``gravity_terms``): ``K_ga = (U_p − U_a) / 2``, per g, from opposite faces. Each column
-    of ``K`` (scale and cross-axis, ``w = K w_true + B``): the turn's integral of the
-    output, less the bias and the sensitivity times its mean specific force, over the
-    known angle. Returns K (3×3), B (3), K_ga (3×3 or None), in deg/s and deg/s/g."""
+    of ``K``: the turn's integral of the output, less the bias and the sensitivity times its
+    mean specific force, over the known angle."""
     from ...io.log import FACES, TURNS
 
     face = {r.section: r for r in obs[obs["phase"] == "face"].itertuples()}
@@ -50,7 +60,7 @@ def closed_form(obs: pd.DataFrame, *, gravity_terms: bool = True) -> dict:
         if K_ga is not None and hasattr(r, "accel_x"):
             offset = offset + K_ga @ np.array([r.accel_x, r.accel_y, r.accel_z])
         K[:, j] = (mean(r) - offset) * r.duration / r.angle
-    return {"K": K, "B": B, "K_ga": K_ga}
+    return ClosedForm(K, B, K_ga)
 
 
 def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> pd.DataFrame:
@@ -81,46 +91,56 @@ def turn_angles(obs: pd.DataFrame, K: np.ndarray, B: np.ndarray, K_ga=None) -> p
     return pd.DataFrame(rows)
 
 
-def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
+class FerrarisAnalysis(TypedDict):
+    """Ferraris' closed form beside the common fit (JSON-plain, for the report)."""
+
+    protocol: str
+    method: str
+    K: list[list[float]]
+    B: list[float]
+    K_ga: list[list[float]] | None
+    turns: list[dict[str, Any]]  # every turn's angle, raw and compensated (turn_angles)
+    faces: list[dict[str, Any]]  # section, t_start, t_end, n of each face
+
+
+def ferraris_analysis(obs: pd.DataFrame) -> FerrarisAnalysis:
     """Ferraris' closed form beside the common fit, for the report: its parameters and every
     turn's angle, uncompensated and compensated by it."""
     cf = closed_form(obs, gravity_terms="accel_x" in obs)
-    angles = turn_angles(obs, cf["K"], cf["B"], cf["K_ga"])
+    angles = turn_angles(obs, cf.K, cf.B, cf.K_ga)
     return {
         "protocol": "ferraris",
         "method": "Ferraris closed form (as imucal computes it)",
-        "K": cf["K"].tolist(),
-        "B": cf["B"].tolist(),
-        "K_ga": None if cf["K_ga"] is None else cf["K_ga"].tolist(),
+        "K": cf.K.tolist(),
+        "B": cf.B.tolist(),
+        "K_ga": None if cf.K_ga is None else cf.K_ga.tolist(),
         "turns": angles.to_dict(orient="records"),
         "faces": obs.loc[obs["phase"] == "face", ["section", "t_start", "t_end", "n"]].to_dict(
             orient="records"
         ),
-    }, []
+    }
 
 
-def _segment(log, options: dict):
-    from .segment import segment_ferraris
+class Ferraris(Protocol):
+    name = "ferraris"
+    description = "hand rotations: six static faces and a full turn about each axis (Ferraris)"
+    defaults = DEFAULTS
+    report_section = "protocols/ferraris_section.html.j2"
+    without = ("temp", "ref_rate")
+    one_temperature = True
 
-    return segment_ferraris(log, options)
+    def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
+        from .segment import segment_ferraris
+
+        return segment_ferraris(log, settings.protocol_options("ferraris"))
+
+    def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
+        """The static faces: where the unit lay still."""
+        faces = seg.observations[seg.observations["phase"] == "face"]
+        return faces["t_start"].to_numpy(float), faces["t_end"].to_numpy(float)
+
+    def analysis(self, obs: pd.DataFrame) -> OwnAnalysis:
+        return OwnAnalysis(ferraris_analysis(obs), [])
 
 
-def static(log, seg, max_temp_rate: float):
-    """The static faces: where the unit lay still."""
-    faces = seg.observations[seg.observations["phase"] == "face"]
-    return faces["t_start"].to_numpy(float), faces["t_end"].to_numpy(float)
-
-
-FERRARIS = register(
-    Protocol(
-        "ferraris",
-        "hand rotations: six static faces and a full turn about each axis (Ferraris)",
-        segment=lambda log, settings: _segment(log, settings.protocol_options("ferraris")),
-        static=static,
-        analysis=analysis,
-        defaults=DEFAULTS,
-        report_section="protocols/ferraris_section.html.j2",
-        without=("temp", "ref_rate"),
-        one_temperature=True,
-    )
-)
+FERRARIS = register(Ferraris())

@@ -27,13 +27,16 @@ reads it weighs the turn by what it can tell.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from ...io.errors import ConfigError, SegmentationError
-from ...io.holds import AXES, Segmentation, hold_table, timeline, true_runs
+from ...io.errors import SegmentationError
+from ...io.holds import Segmentation, hold_table, no_stable_periods, segments_of_holds, timeline, true_runs
 from ...io.log import ACCEL, FACES, GYRO, SECTIONS, TURNS, RigLog, declared_units, open_dataset, time_seconds
+from ...terms import AXES
+from ..registry import checked_options
 
 FULL_TURN = 360.0
 
@@ -41,31 +44,6 @@ FULL_TURN = 360.0
 def face_mount(label: str) -> str:
     """``x_p`` → ``+x`` (x up), ``x_a`` → ``-x``."""
     return ("+" if label[2] == "p" else "-") + label[0]
-
-
-def _options(options: dict) -> dict:
-    known = {
-        "block_s": 0.1,
-        "min_still_s": 1.0,
-        "still_rate": 2.0,
-        "still_sigmas": 8.0,
-        "edge_s": 0.1,
-        "turn_margin_s": 2.0,
-        "angle_tolerance": 0.15,
-        "angle_uncertainty_deg": 1.0,
-        "tilt_uncertainty_deg": 0.5,
-        "min_gravity_share": 0.8,
-        "cut_angle_deg": 45.0,
-        "cut_gap_s": 0.5,
-    }
-    unknown = sorted(set(options) - set(known))
-    if unknown:
-        raise ConfigError(f"unknown ferraris option(s) {', '.join(unknown)} (known: {', '.join(known)})")
-    out = {**known, **options}
-    for k, v in out.items():
-        if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-            raise ConfigError(f"ferraris option {k} must be a number >= 0; got {v!r}")
-    return out
 
 
 def read_sections(log: RigLog, t: np.ndarray) -> np.ndarray | None:
@@ -159,8 +137,44 @@ def find_cuts(
                 dtype=np.int64,
             )
         )
-    cuts = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, np.int64)
-    return cuts[(cuts > 0) & (cuts < n)]
+    rows = np.unique(np.concatenate(cuts)) if cuts else np.zeros(0, np.int64)
+    return rows[(rows > 0) & (rows < n)]
+
+
+class Phase(NamedTuple):
+    """A face or a turn: its label (``x_p`` … ``z_rot``) and its rows ``first:end``."""
+
+    label: str
+    first: int
+    end: int
+
+
+class FoundPhases(NamedTuple):
+    phases: list[Phase]
+    warnings: list[str]
+    largest: dict[str, float]  # per axis, the largest rotation not taken for a turn (deg)
+    cuts: int  # where a recording cut to its sections was split
+
+
+class Stillness(NamedTuple):
+    """Where the unit rests: the rests (first row, end row) and the face each lies on."""
+
+    rests: list[tuple[int, int]]
+    faces: list[str | None]
+    cuts: np.ndarray  # the rows where a recording cut to its sections was split
+    rest_level: np.ndarray  # the gyro's resting output
+    limit: float  # deg/s: the least deviation from it that is motion
+    block: int  # samples in a block
+    edge: int  # samples left off both ends of a rest
+
+
+class Anchor(NamedTuple):
+    """What a turn runs between: a rest, or the still edge of a piece of a cut recording."""
+
+    first: int
+    end: int
+    face: str | None
+    piece: int
 
 
 def find_phases(
@@ -173,11 +187,10 @@ def find_phases(
     sigma: np.ndarray,
     spans: np.ndarray,
     source=None,
-) -> tuple[list[tuple[str, int, int]], list[str], dict[str, float], int]:
-    """(label, first row, end row) of each face and turn found from the data, warnings, per
-    axis the largest rotation not taken for a turn (deg), and the number of cuts found.
-    ``dt``: the typical sample interval; ``sigma``: the white noise per axis; ``spans``:
-    each sample's interval.
+) -> FoundPhases:
+    """Each face and turn found from the data, with warnings, per axis the largest rotation
+    not taken for a turn, and the number of cuts found. ``dt``: the typical sample
+    interval; ``sigma``: the white noise per axis; ``spans``: each sample's interval.
 
     The log is first split where it was cut (:func:`find_cuts`): a recording cut to its
     sections has no move between one face and the next, so a still stretch would run over
@@ -190,6 +203,17 @@ def find_phases(
             "static faces, or a section column that names them",
             source=source,
         )
+    still = _stillness(t, gyro, accel, opts, dt=dt, sigma=sigma, spans=spans, source=source)
+    anchors = _anchors(still, gyro, accel, opts, len(t), dt)
+    found = _turns(t, gyro, spans, still, anchors, opts, dt)
+    phases = found.phases + _face_phases(still, found.phases, len(t))
+    return found._replace(phases=phases, cuts=len(still.cuts))
+
+
+def _stillness(t, gyro, accel, opts, *, dt, sigma, spans, source) -> Stillness:
+    """Where does the unit rest, and on which face? Blocks whose gyro stays within the
+    stillness limit of its resting output, in runs of ``min_still_s`` or more that no cut
+    interrupts, less ``edge_s`` at both ends."""
     n = len(t)
     block = max(1, int(round(opts["block_s"] / dt))) if dt > 0 else 1
     cuts = find_cuts(t, gyro, accel, opts, dt=dt, spans=spans)
@@ -198,8 +222,7 @@ def find_phases(
     starts = np.concatenate(
         [np.arange(a, b - block + 1, block) for a, b in zip(bounds[:-1], bounds[1:], strict=False)]
     )
-    nb = len(starts)
-    if nb < 3:
+    if len(starts) < 3:
         raise SegmentationError(f"the log has {n} samples: too short for a ferraris session", source=source)
     g = gyro[starts[:, None] + np.arange(block)]  # (blocks, block, 3)
     rest_level = np.median(g.mean(axis=1), axis=0)  # the unit rests most of the time
@@ -228,108 +251,212 @@ def find_phases(
             source=source,
         )
     faces = [_face_of(accel[a:b].mean(axis=0), opts["min_gravity_share"]) for a, b in rests]
-    # The anchors a turn runs between: the rests, and a piece's edges where the unit is
-    # still and no rest lies (a section that begins or ends within a block or two of the
-    # motion). (first row, end row, face, piece)
-    rest_piece = np.searchsorted(cuts, [a for a, _ in rests], side="right")
-    anchors = [(a, b, f, int(p)) for (a, b), f, p in zip(rests, faces, rest_piece, strict=False)]
-    near = 2 * block + edge
+    return Stillness(rests, faces, cuts, rest_level, limit, block, edge)
+
+
+def _anchors(
+    still: Stillness, gyro: np.ndarray, accel: np.ndarray, opts: dict, n: int, dt: float
+) -> list[Anchor]:
+    """What can a turn run between? The rests, and a piece's edges where the unit is still
+    and no rest lies (a section that begins or ends within a block or two of the motion),
+    in order."""
+    cuts = still.cuts
+    bounds = np.r_[0, cuts, n]
+    rest_piece = np.searchsorted(cuts, [a for a, _ in still.rests], side="right")
+    anchors = [
+        Anchor(a, b, f, int(p)) for (a, b), f, p in zip(still.rests, still.faces, rest_piece, strict=False)
+    ]
+    near = 2 * still.block + still.edge
     m = edge_samples(dt)
-    deviation = np.abs(gyro - rest_level).max(axis=1)
+    deviation = np.abs(gyro - still.rest_level).max(axis=1)
+    share = opts["min_gravity_share"]
     for p, (a, b) in enumerate(zip(bounds[:-1], bounds[1:], strict=False)):
         if b - a < 2 * m:
             continue
-        mine = [r for r, q in zip(rests, rest_piece, strict=False) if q == p]
-        if deviation[a : a + m].min() < limit and not any(ra <= a + near for ra, _ in mine):
-            anchors.append((a, a, _face_of(accel[a : a + m].mean(axis=0), opts["min_gravity_share"]), p))
-        if deviation[b - m : b].min() < limit and not any(rb >= b - near for _, rb in mine):
-            anchors.append((b, b, _face_of(accel[b - m : b].mean(axis=0), opts["min_gravity_share"]), p))
+        mine = [r for r, q in zip(still.rests, rest_piece, strict=False) if q == p]
+        if deviation[a : a + m].min() < still.limit and not any(ra <= a + near for ra, _ in mine):
+            anchors.append(Anchor(a, a, _face_of(accel[a : a + m].mean(axis=0), share), p))
+        if deviation[b - m : b].min() < still.limit and not any(rb >= b - near for _, rb in mine):
+            anchors.append(Anchor(b, b, _face_of(accel[b - m : b].mean(axis=0), share), p))
     anchors.sort(key=lambda x: (x[0], x[1]))
-    # bias for classifying moves only (the fit estimates its own)
-    bias = np.mean([gyro[a:b].mean(axis=0) for a, b in rests], axis=0)
-    csum = np.vstack([np.zeros(3), np.cumsum((gyro - bias) * spans[:, None], axis=0)])
+    return anchors
 
-    warnings: list[str] = []
-    phases: list[tuple[str, int, int]] = []
-    largest: dict[str, float] = {}  # per axis, the largest rotation not taken for a turn
-    margin = int(round(opts["turn_margin_s"] / dt))
-    at = lambda i: float(t[min(i, n - 1)])  # noqa: E731
+
+def _turns(t, gyro, spans, still: Stillness, anchors: list[Anchor], opts: dict, dt: float) -> FoundPhases:
+    """Which chains of moves between anchors on one face are whole turns about its axis?"""
+    # bias for classifying moves only (the fit estimates its own)
+    bias = np.mean([gyro[a:b].mean(axis=0) for a, b in still.rests], axis=0)
+    csum = np.vstack([np.zeros(3), np.cumsum((gyro - bias) * spans[:, None], axis=0)])
+    found = FoundPhases([], [], {}, 0)
     i = 0
     while i < len(anchors) - 1:
-        a0, b0, face, piece = anchors[i]
+        face = anchors[i].face
         if face is None:
             i += 1
             continue
-        axis = AXES.index(face[1])
-        j, total = i, np.zeros(3)
-        while j < len(anchors) - 1 and anchors[j + 1][2] == face and anchors[j + 1][3] == piece:
-            move = csum[anchors[j + 1][0]] - csum[anchors[j][1]]
-            if abs(move[axis]) < opts["min_gravity_share"] * np.linalg.norm(move):
-                break  # not a rotation about the vertical axis: the unit was handled
-            total += move
-            j += 1
-        if j > i and abs(total[axis]) > FULL_TURN / 4:
-            turns = max(1, int(round(abs(total[axis]) / FULL_TURN)))
-            off = abs(abs(total[axis]) / (turns * FULL_TURN) - 1.0)
-            a1, b1 = anchors[j][0], anchors[j][1]
-            t_a, t_b = at(b0), at(a1)
-            if off <= opts["angle_tolerance"]:
-                # the turn reaches into the rests on either side, so that no slow start or
-                # end of the motion is lost from its integral (the bias over them is fitted)
-                # (at most half of each rest: a hand's slow start and finish lie under the
-                # stillness threshold for a few tenths of a second); a piece's edge is
-                # where its section was cut
-                first = max((a0 + b0) // 2, b0 - margin) if b0 > a0 else a0
-                end = min((a1 + b1) // 2, a1 + margin) if b1 > a1 else a1
-                phases.append((f"{face[1]}_rot", first, end))
-                if turns > 1:
-                    warnings.append(
-                        f"the turn about {face[1]} at t = {t_a:.1f}–{t_b:.1f} s reads "
-                        f"{total[axis]:.0f}°: taken as {turns} full turns"
-                    )
-            else:
-                if abs(total[axis]) > abs(largest.get(face[1], 0.0)):
-                    largest[face[1]] = float(total[axis])
-                if abs(total[axis]) >= 0.75 * FULL_TURN:  # meant as a turn, surely
-                    warnings.append(
-                        f"a rotation about {face[1]} at t = {t_a:.1f}–{t_b:.1f} s reads "
-                        f"{total[axis]:.0f}°, not a whole number of turns (within "
-                        f"{opts['angle_tolerance']:.0%}); not used"
-                    )
+        j, total = _chain_of_moves(anchors, i, face, csum, opts)
+        if j > i and abs(total[AXES.index(face[1])]) > FULL_TURN / 4:
+            _judge_turn(found, t, anchors[i], anchors[j], face[1], total, opts, dt)
         i = max(j, i + 1)
-    # a face's observation shares no sample with a turn: its rest less the turns' windows
+    return found
+
+
+def _chain_of_moves(
+    anchors: list[Anchor], i: int, face: str, csum: np.ndarray, opts: dict
+) -> tuple[int, np.ndarray]:
+    """How far does the chain of moves from anchor ``i`` (on ``face``) run on its face and
+    piece, each a rotation about the face's vertical axis (else the unit was handled)? The
+    last anchor of the chain and the rotation it sums to."""
+    piece = anchors[i].piece
+    axis = AXES.index(face[1])
+    j, total = i, np.zeros(3)
+    while j < len(anchors) - 1 and anchors[j + 1].face == face and anchors[j + 1].piece == piece:
+        move = csum[anchors[j + 1].first] - csum[anchors[j].end]
+        if abs(move[axis]) < opts["min_gravity_share"] * np.linalg.norm(move):
+            break
+        total += move
+        j += 1
+    return j, total
+
+
+def _judge_turn(
+    found: FoundPhases, t, start: Anchor, stop: Anchor, axis: str, total: np.ndarray, opts: dict, dt: float
+) -> None:
+    """A chain about ``axis`` that turns a quarter or more: a whole number of turns within
+    ``angle_tolerance`` is a turn, phases and warnings taking it; otherwise the largest
+    such rotation per axis is kept for the error that no turn was found."""
+    a0, b0 = start.first, start.end
+    a1, b1 = stop.first, stop.end
+    angle = total[AXES.index(axis)]
+    turns = max(1, int(round(abs(angle) / FULL_TURN)))
+    off = abs(abs(angle) / (turns * FULL_TURN) - 1.0)
+    t_a, t_b = float(t[min(b0, len(t) - 1)]), float(t[min(a1, len(t) - 1)])
+    if off <= opts["angle_tolerance"]:
+        # the turn reaches into the rests on either side, so that no slow start or
+        # end of the motion is lost from its integral (the bias over them is fitted)
+        # (at most half of each rest: a hand's slow start and finish lie under the
+        # stillness threshold for a few tenths of a second); a piece's edge is
+        # where its section was cut
+        margin = int(round(opts["turn_margin_s"] / dt))
+        first = max((a0 + b0) // 2, b0 - margin) if b0 > a0 else a0
+        end = min((a1 + b1) // 2, a1 + margin) if b1 > a1 else a1
+        found.phases.append(Phase(f"{axis}_rot", first, end))
+        if turns > 1:
+            found.warnings.append(
+                f"the turn about {axis} at t = {t_a:.1f}–{t_b:.1f} s reads "
+                f"{angle:.0f}°: taken as {turns} full turns"
+            )
+        return
+    if abs(angle) > abs(found.largest.get(axis, 0.0)):
+        found.largest[axis] = float(angle)
+    if abs(angle) >= 0.75 * FULL_TURN:  # meant as a turn, surely
+        found.warnings.append(
+            f"a rotation about {axis} at t = {t_a:.1f}–{t_b:.1f} s reads "
+            f"{angle:.0f}°, not a whole number of turns (within "
+            f"{opts['angle_tolerance']:.0%}); not used"
+        )
+
+
+def _face_phases(still: Stillness, turns: list[Phase], n: int) -> list[Phase]:
+    """Each face's observation: its longest rest, less the turns' windows, so that a face
+    shares no sample with a turn."""
     turning = np.zeros(n + 1, dtype=bool)
-    for _, a, b in phases:
+    for _, a, b in turns:
         turning[a:b] = True
+    out = []
     for label in FACES:
         mount = face_mount(label)
         mine = []
-        for (a, b), f in zip(rests, faces, strict=False):
+        for (a, b), f in zip(still.rests, still.faces, strict=False):
             if f == mount:
                 lo, hi = true_runs(~turning[a:b])
                 mine += [(int(h - s), a + int(s), a + int(h)) for s, h in zip(lo, hi, strict=False)]
         mine = [m for m in mine if m[0] >= 2]
         if mine:
             _, a, b = max(mine)
-            phases.append((label, a, b))
-    return phases, warnings, largest, len(cuts)
+            out.append(Phase(label, a, b))
+    return out
 
 
-def phases_from_sections(labels: np.ndarray) -> list[tuple[str, int, int]]:
-    """(label, first row, end row) of every annotated section; a label on several separate
-    stretches keeps its longest (a person marks each part once)."""
+def phases_from_sections(labels: np.ndarray) -> list[Phase]:
+    """Every annotated section; a label on several separate stretches keeps its longest (a
+    person marks each part once)."""
     out = []
     for label in SECTIONS:
         lo, hi = true_runs(labels == label)
         if len(lo):
             k = int(np.argmax(hi - lo))
-            out.append((label, int(lo[k]), int(hi[k])))
+            out.append(Phase(label, int(lo[k]), int(hi[k])))
     return out
 
 
+class Session(NamedTuple):
+    """The samples a ferraris segmentation reads."""
+
+    t: np.ndarray
+    gyro: np.ndarray  # (n, 3)
+    accel: np.ndarray | None  # (n, 3); None when the log has no accelerometer
+    temp: np.ndarray
+    labels: np.ndarray | None  # the section column, when the log has one
+    dt: float  # the typical sample interval
+    sigma: np.ndarray  # the white noise per axis
+    spans: np.ndarray  # each sample's interval, up to the next one (a gap counts one interval)
+
+
+class Measured(NamedTuple):
+    """A phase's observation: its means over the samples, time-weighted, and the reference."""
+
+    section: str
+    kind: str  # face or turn
+    t_start: float
+    t_end: float
+    n: int
+    T: float  # s: the integration time
+    gyro: np.ndarray
+    temp: float
+    accel: np.ndarray
+    mount: str
+    angle: float  # deg: the known angle (0 for a face)
+    raw_angle: float  # deg: the angle the raw output integrates to
+    ref_rate: float
+    std: np.ndarray
+
+
 def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
-    """The session's faces and turns as holds (module docstring)."""
-    opts = _options(options)
+    """The session's faces and turns as holds (module docstring); ``options`` are checked
+    against the config schema and completed with its defaults."""
+    opts = checked_options("ferraris", options)
+    s = _read_session(log)
+    if s.labels is not None and (s.labels != "").any():
+        found, source = FoundPhases(phases_from_sections(s.labels), [], {}, 0), "annotation"
+    else:
+        found = find_phases(
+            s.t, s.gyro, s.accel, opts, dt=s.dt, sigma=s.sigma, spans=s.spans, source=log.path
+        )
+        source = "data"
+    _refuse_missing_phases(found, source, log.path)
+    phases = sorted(found.phases, key=lambda p: p.first)
+    rest_bias = np.mean([s.gyro[a:b].mean(axis=0) for label, a, b in phases if label in FACES], axis=0)
+    rows = [_measure(phase, s, rest_bias, opts, log.path) for phase in phases]
+    obs = _phase_table(rows, source, with_accel=s.accel is not None)
+    info = {
+        "protocol": "ferraris",
+        "path": str(log.path),
+        "rows_read": log.rows_read,
+        "rows_dropped": log.rows_dropped,
+        "rows_used": int(obs["n"].sum()),
+        "sample_rate": float(1.0 / s.dt),
+        "typical_hold_s": float(np.median(obs["duration"])),
+        "holds_accepted": len(rows),
+        "phases_from": source,
+        "cuts": int(found.cuts),
+        "segmentation_warnings": found.warnings,
+        "white_noise": [float(x) for x in s.sigma],
+    }
+    return Segmentation(obs, segments_of_holds(obs, obs["section"]), no_stable_periods(), timeline(log), info)
+
+
+def _read_session(log: RigLog) -> Session:
     t = log.column("t")
     gyro = np.column_stack([log.column(c) for c in GYRO]).astype(float)
     accel = (
@@ -337,154 +464,131 @@ def segment_ferraris(log: RigLog, options: dict) -> Segmentation:
         if all(c in log for c in ACCEL)
         else None
     )
-    temp = log.column("temp").astype(float)
-    labels = read_sections(log, t)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    sigma = white_noise(gyro)
     # each sample stands for the interval up to the next one (a gap counts one interval)
     spans = np.diff(t, append=t[-1] + dt)
     spans = np.where(spans > 3 * dt, dt, spans)
-    warnings: list[str] = []
-    largest: dict[str, float] = {}
-    cuts = 0
-    if labels is not None and (labels != "").any():
-        phases, source = phases_from_sections(labels), "annotation"
-    else:
-        phases, warnings, largest, cuts = find_phases(
-            t, gyro, accel, opts, dt=dt, sigma=sigma, spans=spans, source=log.path
-        )
-        source = "data"
-    found = {p[0] for p in phases}
-    missing = [x for x in SECTIONS if x not in found]
-    if missing:
-        what = [
-            f"the {face_mount(m)} face ({m[0]} {'up' if m[2] == 'p' else 'down'})"
-            if m in FACES
-            else f"a full turn about {m[0]}"
-            + (f" (its largest rotation reads {largest[m[0]]:.0f}°)" if m[0] in largest else "")
-            for m in missing
-        ]
+    return Session(
+        t, gyro, accel, log.column("temp").astype(float), read_sections(log, t), dt, white_noise(gyro), spans
+    )
+
+
+def _refuse_missing_phases(found: FoundPhases, source: str, path) -> None:
+    """A session lacking a face or a turn is refused, naming what it lacks."""
+    have = {p.label for p in found.phases}
+    missing = [x for x in SECTIONS if x not in have]
+    if not missing:
+        return
+    what = [
+        f"the {face_mount(m)} face ({m[0]} {'up' if m[2] == 'p' else 'down'})"
+        if m in FACES
+        else f"a full turn about {m[0]}"
+        + (f" (its largest rotation reads {found.largest[m[0]]:.0f}°)" if m[0] in found.largest else "")
+        for m in missing
+    ]
+    raise SegmentationError(
+        f"the session lacks {', '.join(what)}" + ("" if source == "annotation" else " (found from the data)"),
+        source=path,
+    )
+
+
+class Reference(NamedTuple):
+    """What a phase is measured against."""
+
+    mount: str  # the axis up (a face) or turned about, with the turn's direction
+    angle: float  # deg: the known angle (0 for a face)
+    raw_angle: float  # deg: the angle the raw output integrates to
+    ref_rate: float  # deg/s: the angle over the integration time
+    std: np.ndarray  # the spread: the samples' for a face, the noise and the hand's for a turn
+
+
+def _measure(phase: Phase, s: Session, rest_bias: np.ndarray, opts: dict, path) -> Measured:
+    """A phase's means over its samples, each weighted by its interval, and its reference."""
+    label, a, b = phase
+    seg_t = s.t[a:b]
+    if label in TURNS and b - a > 1 and np.max(np.diff(seg_t)) > 1.5 * s.dt:
+        k = int(np.argmax(np.diff(seg_t)))
         raise SegmentationError(
-            f"the session lacks {', '.join(what)}"
-            + ("" if source == "annotation" else " (found from the data)"),
-            source=log.path,
+            f"the turn about {label[0]} has a gap of {seg_t[k + 1] - seg_t[k]:.3g} s at "
+            f"t = {seg_t[k]:.2f} s: its angle cannot be integrated",
+            source=path,
         )
-    phases.sort(key=lambda p: p[1])
-    face_rows = [(a, b) for label, a, b in phases if label in FACES]
-    rest_bias = np.mean([gyro[a:b].mean(axis=0) for a, b in face_rows], axis=0)
-    rows = []
-    for label, a, b in phases:
-        seg_t = t[a:b]
-        if label in TURNS and b - a > 1 and np.max(np.diff(seg_t)) > 1.5 * dt:
-            k = int(np.argmax(np.diff(seg_t)))
-            raise SegmentationError(
-                f"the turn about {label[0]} has a gap of {seg_t[k + 1] - seg_t[k]:.3g} s at "
-                f"t = {seg_t[k]:.2f} s: its angle cannot be integrated",
-                source=log.path,
-            )
-        w_dt = spans[a:b].copy()
-        w_dt[-1] = dt  # the phase's last sample: its interval, not the one into the next phase
-        T = float(w_dt.sum())
-        mean = (gyro[a:b] * w_dt[:, None]).sum(axis=0) / T
-        row = {
-            "section": label,
-            "kind": "turn" if label in TURNS else "face",
-            "first": a,
-            "t_start": float(seg_t[0]),
-            "t_end": float(seg_t[-1]),
-            "n": b - a,
-            "T": T,
-            "gyro": mean,
-            "temp": float(temp[a:b].mean()),
-            "accel": accel[a:b].mean(axis=0) if accel is not None else np.full(3, np.nan),
-        }
-        if label in TURNS:
-            axis = AXES.index(label[0])
-            raw = float((gyro[a:b, axis] * w_dt).sum())
-            # a turn's direction and count from the data, less the faces' resting output
-            turned = raw - rest_bias[axis] * T
-            turns = max(1, int(round(abs(turned) / FULL_TURN)))
-            if abs(abs(turned) / (turns * FULL_TURN) - 1.0) > opts["angle_tolerance"]:
-                raise SegmentationError(
-                    f"the {label} section turns {turned:.0f}° about {label[0]}, not a whole "
-                    f"number of turns (within {opts['angle_tolerance']:.0%})",
-                    source=log.path,
-                )
-            angle = np.sign(turned) * turns * FULL_TURN
-            up = _face_of(row["accel"], opts["min_gravity_share"]) if accel is not None else None
-            mount = up if up is not None and up[1] == label[0] else "+" + label[0]
-            row.update(
-                mount=mount,
-                angle=angle,
-                raw_angle=raw,
-                turns=turns,
-                ref_rate=(1.0 if mount[0] == "+" else -1.0) * angle / T,
-            )
-            # the hand's angle error moves the turning axis' mean by δθ / T, the unit's
-            # tilt on the table the other two by θ δφ / T: as spread, so that std / √n
-            # is the mean's uncertainty
-            extra = np.full(3, np.deg2rad(opts["tilt_uncertainty_deg"]) * abs(angle) / T)
-            extra[axis] = opts["angle_uncertainty_deg"] / T
-            row["std"] = np.sqrt(sigma**2 + (b - a) * extra**2)
-        else:
-            row.update(
-                mount=face_mount(label),
-                angle=0.0,
-                raw_angle=0.0,
-                turns=0,
-                ref_rate=0.0,
-                std=gyro[a:b].std(axis=0, ddof=1),
-            )
-        rows.append(row)
+    w_dt = s.spans[a:b].copy()
+    w_dt[-1] = s.dt  # the phase's last sample: its interval, not the one into the next phase
+    T = float(w_dt.sum())
+    accel = s.accel[a:b].mean(axis=0) if s.accel is not None else np.full(3, np.nan)
+    if label in TURNS:
+        reference = _turn_reference(phase, s, w_dt, T, accel, rest_bias, opts, path)
+    else:
+        reference = Reference(face_mount(label), 0.0, 0.0, 0.0, s.gyro[a:b].std(axis=0, ddof=1))
+    return Measured(
+        label,
+        "turn" if label in TURNS else "face",
+        float(seg_t[0]),
+        float(seg_t[-1]),
+        b - a,
+        T,
+        (s.gyro[a:b] * w_dt[:, None]).sum(axis=0) / T,
+        float(s.temp[a:b].mean()),
+        accel,
+        *reference,
+    )
+
+
+def _turn_reference(
+    phase: Phase, s: Session, w_dt: np.ndarray, T: float, accel: np.ndarray, rest_bias, opts: dict, path
+) -> Reference:
+    """A turn's known angle: its direction and count from the data, less the faces'
+    resting output, refused unless within ``angle_tolerance`` of a whole number of turns.
+    Its spread carries the hand's angle error (the turning axis' mean moves by δθ / T) and
+    the unit's tilt on the table (the other two by θ δφ / T), so that std / √n is the
+    mean's uncertainty."""
+    label, a, b = phase
+    axis = AXES.index(label[0])
+    raw = float((s.gyro[a:b, axis] * w_dt).sum())
+    turned = raw - rest_bias[axis] * T
+    turns = max(1, int(round(abs(turned) / FULL_TURN)))
+    if abs(abs(turned) / (turns * FULL_TURN) - 1.0) > opts["angle_tolerance"]:
+        raise SegmentationError(
+            f"the {label} section turns {turned:.0f}° about {label[0]}, not a whole "
+            f"number of turns (within {opts['angle_tolerance']:.0%})",
+            source=path,
+        )
+    angle = np.sign(turned) * turns * FULL_TURN
+    up = _face_of(accel, opts["min_gravity_share"]) if s.accel is not None else None
+    mount = up if up is not None and up[1] == label[0] else "+" + label[0]
+    extra = np.full(3, np.deg2rad(opts["tilt_uncertainty_deg"]) * abs(angle) / T)
+    extra[axis] = opts["angle_uncertainty_deg"] / T
+    ref_rate = (1.0 if mount[0] == "+" else -1.0) * angle / T
+    return Reference(mount, angle, raw, ref_rate, np.sqrt(s.sigma**2 + (b - a) * extra**2))
+
+
+def _phase_table(rows: list[Measured], source: str, *, with_accel: bool) -> pd.DataFrame:
+    """The phases as holds of the common schema, each at the session's mean temperature,
+    with the ferraris columns: the accelerometer's means, the section, face or turn, the
+    known and the raw angle."""
     k = len(rows)
-    col = lambda key: np.array([r[key] for r in rows])  # noqa: E731
+    col = lambda key: np.array([getattr(r, key) for r in rows])  # noqa: E731
     obs = hold_table(
         t_start=col("t_start"),
         t_end=col("t_end"),
         n=col("n"),
-        mount=np.array([r["mount"] for r in rows], dtype=object),
+        mount=np.array([r.mount for r in rows], dtype=object),
         mount_source=source,
         ref_rate=col("ref_rate"),
-        gyro=np.vstack(col("gyro")),
-        std=np.vstack(col("std")),
+        gyro=np.vstack([r.gyro for r in rows]),
+        std=np.vstack([r.std for r in rows]),
         temp=col("temp"),
         temp_rate=np.zeros(k),
         point=np.zeros(k, np.int64),
         point_temp=np.full(k, float(np.mean(col("temp")))),
     )
     obs["duration"] = col("T")  # the integration time: what the turn's rate divides by
-    for i, a in enumerate(AXES):
-        obs[f"accel_{a}"] = np.vstack(col("accel"))[:, i] if accel is not None else np.nan
-    if accel is None:
-        obs = obs.drop(columns=[f"accel_{a}" for a in AXES])
+    if with_accel:
+        for i, a in enumerate(AXES):
+            obs[f"accel_{a}"] = np.vstack([r.accel for r in rows])[:, i]
     obs["section"] = col("section").astype(str)
     obs["phase"] = col("kind").astype(str)
     obs["angle"] = col("angle")
     obs["raw_angle"] = col("raw_angle")
-    segments = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": obs["section"],
-            "t_start": obs["t_start"],
-            "t_end": obs["t_end"],
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    ).astype({"kind": "string", "reason": "string", "detail": "string"})
-    info = {
-        "protocol": "ferraris",
-        "path": str(log.path),
-        "rows_read": log.rows_read,
-        "rows_dropped": log.rows_dropped,
-        "rows_used": int(obs["n"].sum()),
-        "sample_rate": float(1.0 / dt),
-        "typical_hold_s": float(np.median(obs["duration"])),
-        "holds_accepted": int(k),
-        "phases_from": source,
-        "cuts": int(cuts),
-        "segmentation_warnings": warnings,
-        "white_noise": [float(s) for s in sigma],
-    }
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return obs

@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -168,16 +169,23 @@ def gamma(beta6: np.ndarray) -> np.ndarray:
     return np.sum(beta6[..., 3:] ** 2 / (4.0 * beta6[..., :3]), axis=-1)
 
 
+class Algorithm1Runs(NamedTuple):
+    """Algorithm 1 on R stacked runs, at exit."""
+
+    beta: np.ndarray  # (R, p): β1..β6 (seed 001's model) or β1..β9 (the symmetric one)
+    iterations: np.ndarray  # (R,) β0 updates made
+    converged: np.ndarray  # (R,)
+    positive: np.ndarray  # (R,) β kept the square root the parameters need
+    trace: list | None  # per estimate (β (R, p), β0 used (R,), change (R,)); None unless kept
+
+
 def algorithm1(
     m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50, keep_trace: bool = False
-) -> dict:
-    """Algorithm 1 on R stacked runs: m (R, n, 3), omega (R, n) or broadcastable.
-
-    Returns arrays: ``beta`` (R, 6) = β1..β6 at exit, ``iterations`` (R,) β0 updates made,
-    ``converged`` (R,), ``positive`` (R,) whether β1..β3 stayed > 0, and with
-    ``keep_trace`` the list of (β (R, 6), β0 used (R,), change (R,)) per estimate.
-    A run stops updating once it meets the stopping rule, so each run's result is what a
-    one-run call gives.
+) -> Algorithm1Runs:
+    """Algorithm 1 on R stacked runs: m (R, n, 3), omega (R, n) or broadcastable; with
+    ``keep_trace`` every estimate is kept (``positive``: β1..β3 stayed > 0). A run stops
+    updating once it meets the stopping rule, so each run's result is what a one-run call
+    gives.
     """
     m = np.asarray(m, dtype=float)
     X = design(m)
@@ -195,7 +203,7 @@ def algorithm1(
     )
 
 
-def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=False) -> dict:
+def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=False) -> Algorithm1Runs:
     """Algorithm 1's loop on R stacked runs, given ``u = A Y`` and ``v = A 1`` (R, p):
     β(n+1) = u − β0(β(n)) v until Σ|Δβ| <= tol. ``admissible(β)`` (R,): whether β has the
     square root the parameters need; ``beta0(β)``: the constant the model ties to β,
@@ -222,9 +230,9 @@ def _iterate(u, v, *, admissible, beta0, placeholder, tol, max_iter, keep_trace=
         done = step & (change <= tol)
         converged |= done
         active &= ok & ~done
-        if keep_trace:
+        if trace is not None:
             trace.append((beta.copy(), g0, np.where(step, change, np.nan)))
-    return dict(beta=beta, iterations=iterations, converged=converged, positive=positive, trace=trace)
+    return Algorithm1Runs(beta, iterations, converged, positive, trace)
 
 
 def parameters_from_beta(beta6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -333,20 +341,20 @@ def fit_iterative(
     """
     m, omega, m_sem = _check(m, omega, m_sem, unit)
     out = algorithm1(m[None], omega[None], tol=tol, max_iter=max_iter, keep_trace=True)
-    if not out["positive"][0]:
+    if not out.positive[0]:
         raise ServoFitError(
             "Algorithm 1 gave β1..β3 <= 0 (no square root for k); the β0 "
             "iteration diverges when Σ k² b² is not small against ω²: rotate "
             "faster or use fit_lm"
         )
-    converged = bool(out["converged"][0])
+    converged = bool(out.converged[0])
     if not converged and strict:
         raise ServoFitError(
             f"Algorithm 1 did not converge to Σ|Δβ| <= {tol:g} in {max_iter} "
             f"iterations (speed too low for the biases: β0/ω² must stay well below 1)"
         )
     trace = []
-    for i, (beta6, g0, change) in enumerate(out["trace"]):
+    for i, (beta6, g0, change) in enumerate(out.trace or []):
         if i > 0 and not np.isfinite(change[0]):
             break
         kk, bb = parameters_from_beta(beta6[0])
@@ -360,7 +368,7 @@ def fit_iterative(
                 "change": None if i == 0 else float(change[0]),
             }
         )
-    k, b = parameters_from_beta(out["beta"][0])
+    k, b = parameters_from_beta(out.beta[0])
     return _result(
         k,
         b,
@@ -368,7 +376,7 @@ def fit_iterative(
         omega=omega,
         unit=unit,
         method="iterative",
-        iterations=out["iterations"][0],
+        iterations=out.iterations[0],
         trace=trace,
         converged=converged,
         m_sem=m_sem,
@@ -615,9 +623,11 @@ def _positive(S: np.ndarray) -> np.ndarray:
         )
 
 
-def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50) -> dict:
-    """Algorithm 1 for the symmetric model on R stacked runs m (R, n, 3), n >= 9:
-    ``beta`` (R, 9), ``iterations``, ``converged``, ``positive`` (S positive definite)."""
+def algorithm1_symmetric(
+    m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6, max_iter: int = 50
+) -> Algorithm1Runs:
+    """Algorithm 1 for the symmetric model on R stacked runs m (R, n, 3), n >= 9 (``beta``
+    (R, 9); ``positive``: S positive definite)."""
     m = np.asarray(m, dtype=float)
     X = symmetric_design(m)
     Y = np.broadcast_to(np.asarray(omega, dtype=float) ** 2, m.shape[:-1])
@@ -627,7 +637,7 @@ def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6,
         c = beta[:, 6:]
         return 0.25 * np.einsum("ri,ri->r", c, np.linalg.solve(_matrix(beta[:, :6]), c[..., None])[..., 0])
 
-    out = _iterate(
+    return _iterate(
         u,
         v,
         admissible=lambda beta: _positive(_matrix(beta[:, :6])),
@@ -636,8 +646,6 @@ def algorithm1_symmetric(m: np.ndarray, omega: np.ndarray, *, tol: float = 1e-6,
         tol=tol,
         max_iter=max_iter,
     )
-    del out["trace"]
-    return out
 
 
 def symmetric_parameters(beta9: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -746,12 +754,12 @@ def fit_symmetric(
     if len(m) < 9:
         raise ServoFitError(f"the symmetric model needs at least 9 observations; got {len(m)}")
     out = algorithm1_symmetric(m[None], omega[None], tol=tol, max_iter=max_iter)
-    if not (out["positive"][0] and out["converged"][0]):
+    if not (out.positive[0] and out.converged[0]):
         raise ServoFitError(
             "Algorithm 1 for the symmetric model did not converge to a positive "
             "definite K⁻ᵀK⁻¹: the rotations do not determine its cross terms"
         )
-    C, b = symmetric_parameters(out["beta"][0])
+    C, b = symmetric_parameters(out.beta[0])
     to_deg = UNIT_TO_DEG[unit]
     cov = None if m_sem is None else symmetric_covariance(C, b, m, m_sem, to_deg)
     if cov is not None and not np.isfinite(cov).all():
@@ -767,7 +775,7 @@ def fit_symmetric(
         {} if cov is None else _stderr(cov),
         residuals,
         len(m),
-        iterations=int(out["iterations"][0]),
+        iterations=int(out.iterations[0]),
         covariance=cov,
     )
 

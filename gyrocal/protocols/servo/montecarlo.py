@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import NamedTuple
 
 import matplotlib
 import numpy as np
@@ -107,13 +108,22 @@ def simulate_observations(
     return g / k - b + noise / math.sqrt(samples) * z_noise
 
 
-def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int = 50) -> dict:
-    """Algorithm 1 on runs m (R, 6, 3): k, b (R, 3), iterations, converged (R,)."""
+class BatchFit(NamedTuple):
+    """Seed 001's parameters fitted on R runs."""
+
+    k: np.ndarray  # (R, 3)
+    b: np.ndarray  # (R, 3)
+    iterations: np.ndarray  # (R,): Algorithm 1's β0 updates, or LM's function evaluations
+    converged: np.ndarray  # (R,): False where the run gave no estimate
+
+
+def fit_batch(m: np.ndarray, speed: float, *, tol: float = 1e-6, max_iter: int = 50) -> BatchFit:
+    """Algorithm 1 on runs m (R, 6, 3)."""
     out = algorithm1(m, np.full(m.shape[:-1], speed), tol=tol, max_iter=max_iter)
-    ok = out["converged"] & out["positive"]
+    ok = out.converged & out.positive
     with np.errstate(invalid="ignore", divide="ignore"):
-        k, b = parameters_from_beta(np.where(ok[:, None], out["beta"], 1.0))
-    return dict(k=k, b=b, iterations=out["iterations"], converged=ok)
+        k, b = parameters_from_beta(np.where(ok[:, None], out.beta, 1.0))
+    return BatchFit(k, b, out.iterations, ok)
 
 
 def convergence_run(
@@ -140,7 +150,7 @@ def convergence_run(
     return fit_iterative(m, np.full(6, speed), tol=tol)
 
 
-def lm_batch(m: np.ndarray, speed: float) -> dict:
+def lm_batch(m: np.ndarray, speed: float) -> BatchFit:
     """scipy LM per run on m (R, 6, 3), started at Algorithm 1's first step."""
     R = m.shape[0]
     k, b = np.ones((R, 3)), np.zeros((R, 3))
@@ -155,12 +165,12 @@ def lm_batch(m: np.ndarray, speed: float) -> dict:
         res = lm_solve(m[r], omega, x0)
         if res.success and np.isfinite(res.x).all():
             k[r], b[r], nfev[r], ok[r] = np.abs(res.x[:3]), res.x[3:], res.nfev, True
-    return dict(k=k, b=b, iterations=nfev, converged=ok)
+    return BatchFit(k, b, nfev, ok)
 
 
-def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
-    S, R = k_true.shape[0], fit["k"].shape[0] // k_true.shape[0]
-    ok = fit["converged"]
+def _frame(condition, noise, method, k_true, b_true, fit: BatchFit) -> pd.DataFrame:
+    S, R = k_true.shape[0], fit.k.shape[0] // k_true.shape[0]
+    ok = fit.converged
     cols = {
         "condition": condition,
         "noise": noise,
@@ -168,10 +178,10 @@ def _frame(condition, noise, method, k_true, b_true, fit) -> pd.DataFrame:
         "set": np.repeat(np.arange(S), R),
         "run": np.tile(np.arange(R), S),
         "converged": ok,
-        "iterations": fit["iterations"],
+        "iterations": fit.iterations,
     }
     true = np.repeat(np.hstack([k_true, b_true]), R, axis=0)
-    est = np.hstack([fit["k"], fit["b"]])
+    est = np.hstack([fit.k, fit.b])
     for j, p in enumerate(PARAMETERS):
         cols[f"{p}_true"] = true[:, j]
         cols[f"{p}_err"] = np.where(ok, est[:, j] - true[:, j], np.nan)  # NaN: no estimate
@@ -316,8 +326,8 @@ def speed_sweep(
                 misalignment=misalignment,
             )
             fit = fit_batch(m.reshape(-1, 6, 3), float(w))
-            ok = fit["converged"]
-            err = np.hstack([fit["k"], fit["b"]])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
+            ok = fit.converged
+            err = np.hstack([fit.k, fit.b])[ok] - np.repeat(np.hstack([k, b]), n_runs, axis=0)[ok]
             mse = np.mean(err**2, axis=0)
             row = {
                 "speed": float(w),
@@ -464,8 +474,8 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
     s = fit_batch(m, speed)
     with np.errstate(divide="ignore", invalid="ignore"):
         out["seed001"] = (
-            np.where(s["converged"][:, None, None], np.eye(3) / s["k"][:, None, :], np.nan),
-            -s["b"],
+            np.where(s.converged[:, None, None], np.eye(3) / s.k[:, None, :], np.nan),
+            -s.b,
         )
     X = np.column_stack([nominal * speed, np.ones(len(nominal))])
     coef = np.linalg.pinv(X) @ m  # (R, 4, 3): one design for every run
@@ -474,18 +484,18 @@ def _cross_fits(m: np.ndarray, speed: float, nominal: np.ndarray, sem: float) ->
     out["symmetric"], use = nan, np.zeros(R, dtype=bool)
     if m.shape[1] >= 9:
         m_sem = np.full(m.shape, sem)
-        start_k = np.where(s["converged"][:, None], s["k"], 1.0)
-        identified = s["converged"] & (
+        start_k = np.where(s.converged[:, None], s.k, 1.0)
+        identified = s.converged & (
             cross_stderr(
                 symmetric_covariance(
-                    start_k[:, :, None] * np.eye(3), -np.where(s["converged"][:, None], s["b"], 0.0), m, m_sem
+                    start_k[:, :, None] * np.eye(3), -np.where(s.converged[:, None], s.b, 0.0), m, m_sem
                 )
             )
             <= MAX_CROSS_STDERR
         )
         a = algorithm1_symmetric(m, np.full(m.shape[:-1], speed))
-        ok = identified & a["converged"] & a["positive"]
-        C, B = symmetric_parameters(np.where(ok[:, None], a["beta"], np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
+        ok = identified & a.converged & a.positive
+        C, B = symmetric_parameters(np.where(ok[:, None], a.beta, np.r_[1, 1, 1, 0, 0, 0, 0, 0, 0]))
         K = np.linalg.inv(C)
         out["symmetric"] = (np.where(ok[:, None, None], K, np.nan), np.where(ok[:, None], B, np.nan))
         chi2 = cross_chi2(K, symmetric_covariance(C, B, m, m_sem))
@@ -537,36 +547,12 @@ def cross_axis_study(
                     list(CROSS_MOUNTINGS).index(mounting),
                     list(CROSS_DESIGNS).index(design),
                 )
-                sessions = []
-                for _ in range(2):
-                    axes, nominal = _design_axes(design, mounting, (n_sets, n_runs), rng)
-                    g = speed * axes  # (S, R, n, 3)
-                    m = (
-                        np.einsum("sij,srnj->srni", K, g)
-                        + B[:, None, None, :]
-                        + sigma / math.sqrt(samples) * rng.standard_normal(g.shape)
-                    )
-                    sessions.append((g, m))
-                (g0, m0), (g1, m1) = sessions
-                fits = _cross_fits(m0.reshape(-1, *m0.shape[2:]), speed, nominal, sigma / math.sqrt(samples))
-                g1f, m1f = g1.reshape(-1, *g1.shape[2:]), m1.reshape(-1, *m1.shape[2:])
-                commanded = speed * nominal
-
-                def scores(w, commanded=commanded, g1f=g1f):  # this iteration's
-                    return (
-                        np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
-                        np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
-                        np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)),
-                    )
-
-                raw = scores(m1f)
-                for model, (Kf, Bf) in fits.items():
-                    ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
-                    safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
-                    w = np.linalg.solve(
-                        safe_K[:, None], (m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :])[..., None]
-                    )[..., 0]
-                    mag, nom, true = scores(w)
+                floor = sigma / math.sqrt(samples)
+                first = _servo_session(K, B, design, mounting, (n_sets, n_runs), floor, speed, rng)
+                second = _servo_session(K, B, design, mounting, (n_sets, n_runs), floor, speed, rng)
+                fits = _cross_fits(first.m.reshape(-1, *first.m.shape[2:]), speed, first.nominal, floor)
+                errors = _next_session_errors(fits, second, speed)
+                for model, (ok, (mag, nom, true)) in errors.models.items():
                     rows.append(
                         pd.DataFrame(
                             {
@@ -580,14 +566,70 @@ def cross_axis_study(
                                 "magnitude": np.where(ok, mag, np.nan),
                                 "nominal": np.where(ok, nom, np.nan),
                                 "true": np.where(ok, true, np.nan),
-                                "raw_magnitude": raw[0],
-                                "raw_nominal": raw[1],
-                                "raw_true": raw[2],
-                                "floor": sigma / math.sqrt(samples),
+                                "raw_magnitude": errors.raw.magnitude,
+                                "raw_nominal": errors.raw.nominal,
+                                "raw_true": errors.raw.true,
+                                "floor": floor,
                             }
                         )
                     )
     return pd.concat(rows, ignore_index=True)
+
+
+class ServoSession(NamedTuple):
+    """Simulated revolution means of a session: the true rates and the output (rad/s)."""
+
+    g: np.ndarray  # (S, R, n, 3) true rate vectors
+    m: np.ndarray  # (S, R, n, 3) revolution means
+    nominal: np.ndarray  # (n, 3) the commanded axes
+
+
+def _servo_session(
+    K, B, design: str, mounting: str, shape: tuple, floor: float, speed: float, rng
+) -> ServoSession:
+    """A session of every set and run: new mounts and new noise (``floor``: a revolution
+    mean's)."""
+    axes, nominal = _design_axes(design, mounting, shape, rng)
+    g = speed * axes
+    m = np.einsum("sij,srnj->srni", K, g) + B[:, None, None, :] + floor * rng.standard_normal(g.shape)
+    return ServoSession(g, m, nominal)
+
+
+class RunErrors(NamedTuple):
+    """RMS errors (rad/s) of each run's next session: against the servo speed (what a servo
+    can judge on a hand mount), the commanded rate vector (with a fixture) and the true one
+    (which only a simulation knows)."""
+
+    magnitude: np.ndarray
+    nominal: np.ndarray
+    true: np.ndarray
+
+
+class NextSession(NamedTuple):
+    raw: RunErrors  # the raw output's
+    models: dict[str, tuple[np.ndarray, RunErrors]]  # per model: where it gave an estimate, its errors
+
+
+def _next_session_errors(fits: dict, session: ServoSession, speed: float) -> NextSession:
+    """How far each model's compensation of the next session lies from the servo speed,
+    the commanded rate vector and the true one."""
+    g1f, m1f = session.g.reshape(-1, *session.g.shape[2:]), session.m.reshape(-1, *session.m.shape[2:])
+    commanded = speed * session.nominal
+
+    def rms_errors(w) -> RunErrors:
+        return RunErrors(
+            np.sqrt(np.mean((np.linalg.norm(w, axis=-1) - speed) ** 2, axis=-1)),
+            np.sqrt(np.mean(np.sum((w - commanded) ** 2, axis=-1), axis=-1)),
+            np.sqrt(np.mean(np.sum((w - g1f) ** 2, axis=-1), axis=-1)),
+        )
+
+    models = {}
+    for model, (Kf, Bf) in fits.items():
+        ok = np.isfinite(Kf).all(axis=(1, 2)) & np.isfinite(Bf).all(axis=1)
+        safe_K = np.where(ok[:, None, None], Kf, np.eye(3))
+        offset = m1f - np.where(ok[:, None], Bf, 0.0)[:, None, :]
+        models[model] = (ok, rms_errors(np.linalg.solve(safe_K[:, None], offset[..., None])[..., 0]))
+    return NextSession(rms_errors(m1f), models)
 
 
 def cross_axis_summary(df: pd.DataFrame) -> pd.DataFrame:

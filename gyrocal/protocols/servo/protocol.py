@@ -5,14 +5,14 @@ leaving revolutions out."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 import numpy as np
 
 from ...fit.floor import quiet_runs
 from ...fit.model import observation_floor
-from ...io.plausibility import AXES
-from ..registry import Protocol, register
+from ...terms import AXES
+from ..registry import OwnAnalysis, Protocol, SettingsView, checked_options, register
 from .defaults import DEFAULTS
 
 # The report reads this module for its sections and figure: what segmentation, the fits
@@ -20,23 +20,20 @@ from .defaults import DEFAULTS
 if TYPE_CHECKING:
     import pandas as pd
 
+    from ...calibration.file import Calibration
+    from ...fit.validate import Validation
     from ...io.holds import Segmentation
     from ...io.log import RigLog
 
 
 def _temperature_slopes(log: RigLog, t_start: np.ndarray, t_end: np.ndarray) -> np.ndarray:
     """Least-squares temperature slope (°C/min) over each [t_start, t_end] sample range."""
-    t, temp = log.column("t"), log.column("temp")
+    from ...io.holds import range_sums, regression_rate
+
+    t = log.column("t")
     lo = np.searchsorted(t, t_start, side="left")
     hi = np.searchsorted(t, t_end, side="right")
-    tc = t - t[0]
-    csum = np.vstack([np.zeros(4), np.cumsum(np.c_[tc, temp, tc * tc, tc * temp], axis=0)])
-    s = csum[hi] - csum[lo]
-    n = (hi - lo).astype(float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        var = s[:, 2] - s[:, 0] ** 2 / n
-        slope = (s[:, 3] - s[:, 0] * s[:, 1] / n) / var
-    return np.where(np.isfinite(slope) & (var > 0), 60.0 * slope, 0.0)
+    return regression_rate(range_sums(t, log.column("temp"), lo, hi))
 
 
 def segment_servo(log: RigLog, options: dict) -> Segmentation:
@@ -47,12 +44,10 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     ``±ω`` along that axis. The noise of a revolution mean is the white-noise level
     (successive differences) over √n: the servo's ripple cancels over a whole revolution
     and must not inflate the floor."""
-    import pandas as pd
-
-    from ...io.holds import Segmentation, hold_table, timeline
+    from ...io.holds import Segmentation, hold_table, no_stable_periods, segments_of_holds, timeline
     from . import find_rotations
 
-    rot = find_rotations(log, **{k: v for k, v in options.items() if k != "calibration"})
+    rot = find_rotations(log, min_revolutions=checked_options("servo", options)["min_revolutions"])
     rev = rot.revolutions
     gyro = rev[[f"gyro_{a}" for a in AXES]].to_numpy()
     noise = rev[[f"gyro_{a}_noise" for a in AXES]].to_numpy()
@@ -76,17 +71,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
     obs["revolution"] = rev["revolution"].to_numpy()
     for i, a in enumerate(AXES):
         obs[f"gyro_{a}_noise"] = noise[:, i]
-    segments = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": "revolution",
-            "t_start": t_start,
-            "t_end": t_end,
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    ).astype({"kind": "string", "reason": "string", "detail": "string"})
+    segments = segments_of_holds(obs, "revolution")
     info = {
         "protocol": "servo",
         "path": str(log.path),
@@ -100,8 +85,7 @@ def segment_servo(log: RigLog, options: dict) -> Segmentation:
         "directions": list(rot.directions),
         "warnings": list(rot.warnings),
     }
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return Segmentation(obs, segments, no_stable_periods(), timeline(log), info)
 
 
 SERVO_TERMS = ("bias", "scale")
@@ -222,60 +206,113 @@ def _refit(data: pd.DataFrame, used: str):
     return fit_symmetric(m / DEG, omega / DEG)
 
 
-def servo_validation(obs: pd.DataFrame, cal):
+class Compensated(NamedTuple):
+    """The revolution means, raw and compensated by the calibration's model."""
+
+    m: np.ndarray  # (n, 3) raw means
+    omega: np.ndarray  # servo speed of each
+    K: np.ndarray  # the calibration's K at the session's temperature
+    in_sample: np.ndarray  # compensated by the calibration itself
+    validated: np.ndarray  # compensated by the model fitted on the other revolutions
+    held_out: bool  # False: every direction has one revolution, validated is in-sample
+
+
+class Scores(NamedTuple):
+    """Each revolution's error, raw, in-sample and validated, and its noise floor."""
+
+    errors: dict[str, np.ndarray]
+    floor: np.ndarray
+    quantity: str  # what the error measures
+
+
+def servo_validation(obs: pd.DataFrame, cal: Calibration) -> Validation:
     """Each revolution compensated by the calibration's model fitted on the other
     revolutions (when every rotation has two or more; otherwise in-sample, and said so),
     per rotation direction, beside the uncompensated error and the noise floor of each
-    revolution mean (the white-noise level over √n). Seed 001's and the symmetric model are
-    scored on what they match, the compensated rate's magnitude against the servo speed
-    (Eq 2; the mount's tilt does not enter it), its floor the noise projected on the
-    rotation axis; the fixture model on the length of the compensated rate's difference from
-    the commanded rate vector, its floor the noise of all three axes."""
+    revolution mean (the white-noise level over √n) (:func:`_scores`)."""
     import pandas as pd
 
     from ...fit.validate import Validation
-    from .fit import nominal_rates
 
     used = _used_model(cal)
     data = _servo_input(obs)
+    comp = _compensate(obs, data, cal, used)
+    scores = _scores(obs, data, comp, used)
+    holds = pd.DataFrame(
+        {
+            "hold": obs["hold"].to_numpy(),
+            "direction": obs["mount"].astype(str).to_numpy(),
+            "rotation": obs["rotation"].to_numpy() if "rotation" in obs else np.arange(len(obs)),
+            "omega": comp.omega,
+            "noise_floor": scores.floor,
+            **{f"{name}_error": e for name, e in scores.errors.items()},
+        }
+    )
+    table = _by_direction(holds, scores.errors)
+    summary = _validation_summary(obs, comp, scores, used)
+    by_temperature = pd.DataFrame(
+        {
+            "temp": [summary["reference_temperature"]],
+            "holds": [len(obs)],
+            "validated_rms": [summary["validation_rms"]],
+            "noise_floor": [summary["noise_floor"]],
+        }
+    )
+    return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
+
+
+def _compensate(obs: pd.DataFrame, data: pd.DataFrame, cal: Calibration, used: str) -> Compensated:
+    """Each revolution compensated by the calibration, and by the model fitted again
+    without it; leaving a revolution out keeps the fit identifiable while its direction
+    has another."""
     m = data[["gyro_x", "gyro_y", "gyro_z"]].to_numpy()
     omega = data["ref_rate"].to_numpy()
     (K,), (B,) = cal.matrices_at(np.array([float(np.mean(obs["temp"]))]))
     # K⁻¹ = diag(k) for seed 001's model, as Eq 1 compensates
     in_sample = (m - B) * (1.0 / np.diag(K)) if used == "seed001" else np.linalg.solve(K, (m - B).T).T
-    rotation = obs["rotation"].to_numpy() if "rotation" in obs else np.arange(len(obs))
-    # Leaving a revolution out keeps the fit identifiable while its direction has another.
     held_out = bool(obs["mount"].astype(str).value_counts().min() >= 2)
-    compensated = in_sample.copy()
+    validated = in_sample.copy()
     if held_out:
         for r in range(len(obs)):  # one refit per revolution (a few dozen), not per sample
             keep = np.arange(len(obs)) != r
             fit = _refit(data.iloc[keep], used)
-            compensated[r] = fit.compensate(m[r : r + 1])[0]
-    # the session's noise model where segmentation made one; else the white-noise level
-    # over sqrt(n) (segment_servo stores it as the revolutions' std)
-    noise = observation_floor(obs) @ np.abs(np.linalg.inv(K)).T
+            validated[r] = fit.compensate(m[r : r + 1])[0]
+    return Compensated(m, omega, K, in_sample, validated, held_out)
+
+
+def _scores(obs: pd.DataFrame, data: pd.DataFrame, comp: Compensated, used: str) -> Scores:
+    """Seed 001's and the symmetric model are scored on what they match, the compensated
+    rate's magnitude against the servo speed (Eq 2; the mount's tilt does not enter it),
+    its floor the noise projected on the rotation axis; the fixture model on the length of
+    the compensated rate's difference from the commanded rate vector, its floor the noise
+    of all three axes. The noise is the session's noise model where segmentation made one,
+    else the white-noise level over √n (segment_servo stores it as the revolutions' std)."""
+    from .fit import nominal_rates
+
+    noise = observation_floor(obs) @ np.abs(np.linalg.inv(comp.K)).T
     if used == "fixture":
-        rates = nominal_rates(data["direction"], omega)
+        rates = nominal_rates(data["direction"], comp.omega)
         error = lambda rate: np.linalg.norm(rate - rates, axis=1)  # noqa: E731
         floor = np.sqrt((noise**2).sum(axis=1))
         quantity = "length of the compensated rate's difference from the commanded rate vector"
     else:
-        error = lambda rate: np.linalg.norm(rate, axis=1) - omega  # noqa: E731
-        direction = compensated / np.linalg.norm(compensated, axis=1)[:, None]
+        error = lambda rate: np.linalg.norm(rate, axis=1) - comp.omega  # noqa: E731
+        direction = comp.validated / np.linalg.norm(comp.validated, axis=1)[:, None]
         floor = np.sqrt(((direction * noise) ** 2).sum(axis=1))
         quantity = "magnitude of the compensated rate minus the servo speed"
-    errors = {"uncompensated": error(m), "in_sample": error(in_sample), "validated": error(compensated)}
-    holds = pd.DataFrame(
-        {
-            "hold": obs["hold"].to_numpy(),
-            "direction": obs["mount"].astype(str).to_numpy(),
-            "rotation": rotation,
-            "omega": omega,
-            "noise_floor": floor,
-            **{f"{name}_error": e for name, e in errors.items()},
-        }
-    )
+    errors = {
+        "uncompensated": error(comp.m),
+        "in_sample": error(comp.in_sample),
+        "validated": error(comp.validated),
+    }
+    return Scores(errors, floor, quantity)
+
+
+def _by_direction(holds: pd.DataFrame, errors: dict[str, np.ndarray]) -> pd.DataFrame:
+    """Per rotation direction: its revolutions, their noise floor and each error's mean
+    and RMS."""
+    import pandas as pd
+
     rows = []
     for d, part in holds.groupby("direction", sort=False):
         row = {
@@ -287,58 +324,55 @@ def servo_validation(obs: pd.DataFrame, cal):
             e = part[f"{name}_error"].to_numpy()
             row[f"{name}_mean"], row[f"{name}_rms"] = float(e.mean()), float(np.sqrt(np.mean(e**2)))
         rows.append(row)
-    table = pd.DataFrame(rows)
+    return pd.DataFrame(rows)
+
+
+def _validation_summary(obs: pd.DataFrame, comp: Compensated, scores: Scores, used: str) -> dict[str, Any]:
+    """The validation's summary, in the common validation's keys. A correct model of p
+    parameters leaves the floor ×√(1 + p/n) on held-out revolutions (leverage p/n on
+    average), ×√(1 − p/n) in-sample; p revolutions leave nothing."""
     rms = lambda e: float(np.sqrt(np.mean(np.square(e))))  # noqa: E731
     n, p = len(obs), LEVERAGE[used]
-    noise_floor = rms(floor)
-    # A correct model of p parameters leaves the floor ×√(1 + p/n) on held-out revolutions
-    # (leverage p/n on average), ×√(1 − p/n) in-sample; p revolutions leave nothing.
+    noise_floor = rms(scores.floor)
     expected = (
         noise_floor * np.sqrt(1 + p / n)
-        if held_out
+        if comp.held_out
         else (noise_floor * np.sqrt(1 - p / n) if n > p else None)
     )
-    validation = rms(errors["validated"])
+    validation = rms(scores.errors["validated"])
     ratio = lambda a, b: a / b if b else None  # noqa: E731 - None, never inf, in the JSON
-    summary = {
+    return {
         "validation_rms": validation,
         "noise_floor": noise_floor,
         "excess": ratio(validation, noise_floor),
         "expected_rms": None if expected is None else float(expected),
         "excess_over_expected": ratio(validation, expected),
-        "uncompensated_rms": rms(errors["uncompensated"]),
+        "uncompensated_rms": rms(scores.errors["uncompensated"]),
         "single_rms": None,
-        "in_sample_rms": rms(errors["in_sample"]),
+        "in_sample_rms": rms(scores.errors["in_sample"]),
         "reference_temperature": float(np.mean(obs["temp"])),
-        "held_out": "revolution" if held_out else "nothing (one revolution per direction: in-sample)",
+        "held_out": "revolution" if comp.held_out else "nothing (one revolution per direction: in-sample)",
         "scored": "all",
         "holds_scored": int(n),
         "temperature_points": 1,
         "model_kind": "servo",
         "servo_model": used,
-        "quantity": quantity,
+        "quantity": scores.quantity,
         "validated_as": f"{MODEL_LABELS[used]}; validated",
     }
-    by_temperature = pd.DataFrame(
-        {
-            "temp": [summary["reference_temperature"]],
-            "holds": [n],
-            "validated_rms": [validation],
-            "noise_floor": [noise_floor],
-        }
-    )
-    return Validation(holds, table, table.iloc[0:0], by_temperature, summary)
 
 
-def static(log, seg, max_temp_rate: float):
-    """The pauses between rotations (reference rate 0), in quiet blocks only, since the unit
-    is turned by hand between rotations."""
-    t = log.column("t")
-    gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
-    return quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+class ServoAnalysis(TypedDict):
+    """The servo's own methods for the report (JSON-plain)."""
+
+    protocol: str
+    iterative: dict[str, Any]  # Algorithm 1's fit (ServoFit.summary)
+    lm: dict[str, Any]  # Levenberg–Marquardt's
+    settled_at: int  # the iteration Algorithm 1 settled at
+    max_difference_lm: float  # the largest difference of a parameter between the two
 
 
-def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
+def servo_analysis(obs: pd.DataFrame) -> ServoAnalysis:
     """Both fits of every whole revolution, for the report."""
     iterative, lm = servo_fits(obs)
     return {
@@ -347,41 +381,53 @@ def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
         "lm": lm.summary(),
         "settled_at": int(iterative.settled_at()),
         "max_difference_lm": float(np.max(np.abs(np.r_[iterative.k, iterative.b] - np.r_[lm.k, lm.b]))),
-    }, []
+    }
 
 
-def _calibrate(obs, settings, meta, provenance):
-    return servo_calibration(
-        obs,
-        reference_temperature=settings.model.reference_temperature,
-        meta=meta,
-        provenance=provenance,
-        model=settings.protocol_options("servo").get("calibration", "auto"),
-    )
+class Servo(Protocol):
+    """Whole revolutions as observations. The calibration is seed 001's own; the diagnosis
+    fits the 12-parameter model on the revolution means (the hand-mounting tilt of each axis
+    lands in the misalignment) beside it."""
+
+    name = "servo"
+    description = "servo-aided six-observation calibration: hand-mounted rotations (seed 001)"
+    known_rate = False
+    one_temperature = True
+    report_sections = "protocols/servo_sections.html.j2"
+    validated_as = "Seed 001 six-parameter calibration; validated"
+    defaults = DEFAULTS
+
+    def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
+        return segment_servo(log, settings.protocol_options("servo"))
+
+    def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
+        """The pauses between rotations (reference rate 0), in quiet blocks only, since the
+        unit is turned by hand between rotations."""
+        t = log.column("t")
+        gyro = np.column_stack([log.column(f"gyro_{a}") for a in AXES])
+        return quiet_runs(t, gyro, log.column("ref_rate") == 0, float(seg.info["sample_rate"]))
+
+    def calibrate(
+        self, obs: pd.DataFrame, settings: SettingsView, meta: dict, provenance: dict
+    ) -> Calibration:
+        return servo_calibration(
+            obs,
+            reference_temperature=settings.model.reference_temperature,
+            meta=meta,
+            provenance=provenance,
+            model=settings.protocol_options("servo")["calibration"],
+        )
+
+    def validate(self, obs: pd.DataFrame, cal: Calibration) -> Validation:
+        return servo_validation(obs, cal)
+
+    def analysis(self, obs: pd.DataFrame) -> OwnAnalysis:
+        return OwnAnalysis(servo_analysis(obs), [])
+
+    def validation_figure(self, holds: pd.DataFrame) -> str:
+        from ...report import plots
+
+        return plots.servo_errors(holds)
 
 
-def _validation_figure(holds: pd.DataFrame) -> str:
-    from ...report import plots
-
-    return plots.servo_errors(holds)
-
-
-# The 12-parameter model on whole-revolution means (the hand-mounting tilt of each axis
-# lands in the misalignment), for the diagnosis, beside the paper's own six-parameter fit.
-SERVO = register(
-    Protocol(
-        "servo",
-        "servo-aided six-observation calibration: hand-mounted rotations (seed 001)",
-        segment=lambda log, settings: segment_servo(log, settings.protocol_options("servo")),
-        static=static,
-        calibrate=_calibrate,
-        validate=servo_validation,
-        analysis=analysis,
-        validation_figure=_validation_figure,
-        known_rate=False,
-        one_temperature=True,
-        report_sections="protocols/servo_sections.html.j2",
-        validated_as="Seed 001 six-parameter calibration; validated",
-        defaults=DEFAULTS,
-    )
-)
+SERVO = register(Servo())

@@ -16,16 +16,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
-from ...io.errors import ConfigError, SegmentationError
+from ...io.errors import SegmentationError
 from ...io.log import GYRO, MOUNTS, RigLog
+from ...terms import AXES
+from ..registry import checked_options, option_defaults
 
 DIRECTIONS = MOUNTS  # the G-optimal design's six rotation directions (seed 001 Section II-B)
-
-AXES = "xyz"
+_OPTIONS = option_defaults("servo")
 
 
 @dataclass(frozen=True)
@@ -109,9 +111,9 @@ def g_optimal_warnings(
         norm = float(np.linalg.norm(m))
         if d not in DIRECTIONS or norm == 0.0:
             continue
-        axis = np.zeros(3)
-        axis[AXES.index(d[1])] = 1.0 if d[0] == "+" else -1.0
-        tilt = math.degrees(math.acos(float(np.clip(m @ axis / norm, -1.0, 1.0))))
+        nominal = np.zeros(3)
+        nominal[AXES.index(d[1])] = 1.0 if d[0] == "+" else -1.0
+        tilt = math.degrees(math.acos(float(np.clip(m @ nominal / norm, -1.0, 1.0))))
         if tilt > max_tilt_deg:
             out.append(
                 f"rotation {i} ({d}): the mean output is {tilt:.1f}° off the {d} axis "
@@ -133,10 +135,31 @@ def _runs(start: np.ndarray, member: np.ndarray) -> np.ndarray:
     return np.where(member, np.cumsum(start), 0)
 
 
+class SpeedRuns(NamedTuple):
+    """Stretches of constant non-zero ``ref_rate``: each sample's run (1-based, 0 outside)."""
+
+    span: np.ndarray  # s each sample stands for: the interval up to the next one
+    on: np.ndarray  # the sample lies in a run
+    cont: np.ndarray  # the sample continues the run of the one before
+    run: np.ndarray
+    nominal: float  # s: the typical sample interval
+
+
+class WholeRevolutions(NamedTuple):
+    """Each sample's revolution within its run, and which runs turn whole revolutions."""
+
+    rev: np.ndarray  # revolution of each sample (a float until the runs are known usable)
+    keep: np.ndarray  # the sample lies in a whole revolution of a usable run
+    starts: np.ndarray  # each run's first sample
+    total: np.ndarray  # deg each run turns
+    cuttable: np.ndarray  # the run turns less than half a revolution per sample
+    usable: np.ndarray  # the run turns min_revolutions whole ones and can be cut
+
+
 def find_rotations(
     log: RigLog,
     *,
-    min_revolutions: int = 1,
+    min_revolutions: int = _OPTIONS["min_revolutions"],
     rate_tol_abs: float = 0.01,
     rate_tol_rel: float = 5e-3,
     gap_factor: float = 3.0,
@@ -146,19 +169,45 @@ def find_rotations(
 
     ``ref_rate`` counts as constant within ``rate_tol_abs + rate_tol_rel·|ref_rate|``
     (deg/s) of the stretch's median; a sample interval over ``gap_factor`` times the
-    typical one ends a rotation. Raises :class:`SegmentationError` when no stretch covers a
-    whole revolution or fewer than six rotations have ``min_revolutions`` whole ones.
+    typical one ends a rotation. ``min_revolutions`` is checked against the config schema
+    (``protocols.servo.options``). Raises :class:`SegmentationError` when no stretch covers
+    a whole revolution or fewer than six rotations have ``min_revolutions`` whole ones.
     """
-    if int(min_revolutions) != min_revolutions or min_revolutions < 1:
-        raise ConfigError(f"min_revolutions must be a whole number >= 1; got {min_revolutions!r}")
+    checked_options("servo", {"min_revolutions": min_revolutions})
     t = log.column("t")
     ref = log.column("ref_rate").astype(float)
+    if len(t) < 2:
+        raise SegmentationError(
+            f"the log has {len(t)} sample(s); a servo rotation needs many", source=log.path
+        )
+    runs = _constant_speed_runs(t, ref, rate_tol_abs, rate_tol_rel, gap_factor)
+    if int(runs.run.max()) == 0:
+        raise SegmentationError(
+            "ref_rate is never constant and non-zero: no servo rotation found", source=log.path
+        )
+    whole = _whole_revolutions(ref, runs, min_revolutions)
+    warnings = _unused_runs(log, t, ref, runs, whole, min_revolutions)
     gyro = np.column_stack([log.column(c).astype(float) for c in GYRO])
-    temp = log.column("temp").astype(float)
-    mount = log.column("mount") if "mount" in log else None
+    table, sel, rotation_of = _revolution_table(t, ref, gyro, log.column("temp").astype(float), runs, whole)
+    directions, rot_mean = _directions(log, ref, gyro, sel, rotation_of, warnings)
+    table.insert(1, "direction", np.asarray(directions, dtype=object)[table["rotation"].to_numpy()])
+    if len(directions) < 6:
+        raise SegmentationError(
+            f"found {len(directions)} rotation{'s' if len(directions) != 1 else ''} of at least "
+            f"{min_revolutions} whole revolution{'s' if min_revolutions != 1 else ''} at constant "
+            f"ref_rate ({' '.join(directions)}); the servo protocol needs six (±x, ±y, ±z)",
+            source=log.path,
+        )
+    speeds = table.groupby("rotation")["ref_rate"].mean().to_numpy()
+    warnings += g_optimal_warnings(directions, rot_mean, speeds=speeds, max_tilt_deg=max_tilt_deg)
+    return Rotations(table, tuple(warnings), log.path)
+
+
+def _constant_speed_runs(t, ref, rate_tol_abs: float, rate_tol_rel: float, gap_factor: float) -> SpeedRuns:
+    """Where is ``ref_rate`` constant and non-zero? Stretches within the tolerance from
+    sample to sample, without a gap; then, within each, the samples at its median rate, so
+    that a slow ramp leading in or out is not counted as constant speed."""
     n = len(t)
-    if n < 2:
-        raise SegmentationError(f"the log has {n} sample(s); a servo rotation needs many", source=log.path)
     dt = np.diff(t)
     nominal = float(np.median(dt))
     # Each sample stands for the interval up to the next one (the typical interval across a gap).
@@ -168,8 +217,6 @@ def find_rotations(
     joined = np.zeros(n, dtype=bool)  # sample i continues the stretch of i - 1
     joined[1:] = moving[1:] & moving[:-1] & (np.abs(np.diff(ref)) <= tol[1:]) & (dt <= gap_factor * nominal)
     first_pass = _runs(moving & ~joined, moving)
-    # Second pass: within each stretch keep the samples at its median rate, so a slow ramp
-    # leading in or out is not counted as constant speed.
     ids = first_pass[moving]
     median = pd.Series(ref[moving]).groupby(ids).median()
     level = np.zeros(n)
@@ -177,15 +224,15 @@ def find_rotations(
     on = moving & (np.abs(ref - level) <= rate_tol_abs + rate_tol_rel * np.abs(level))
     cont = np.zeros(n, dtype=bool)
     cont[1:] = on[1:] & on[:-1] & (first_pass[1:] == first_pass[:-1])
-    run = _runs(on & ~cont, on)
-    n_runs = int(run.max())
-    if n_runs == 0:
-        raise SegmentationError(
-            "ref_rate is never constant and non-zero: no servo rotation found", source=log.path
-        )
+    return SpeedRuns(span, on, cont, _runs(on & ~cont, on), nominal)
 
-    # Servo angle (deg) within each run at every sample's start and midpoint.
-    step = np.where(on, np.abs(ref) * span, 0.0)
+
+def _whole_revolutions(ref, runs: SpeedRuns, min_revolutions: int) -> WholeRevolutions:
+    """Which revolution does each sample belong to? The servo angle (deg) within each run
+    at every sample's start and midpoint, integrated from ``|ref_rate|``; only revolutions
+    complete to within half a sample count."""
+    on, cont, run = runs.on, runs.cont, runs.run
+    step = np.where(on, np.abs(ref) * runs.span, 0.0)
     csum = np.cumsum(step)
     starts = np.flatnonzero(on & ~cont)
     last = np.flatnonzero(on & ~np.r_[cont[1:], False])  # each run's final sample
@@ -202,36 +249,48 @@ def find_rotations(
     cuttable = np.maximum.reduceat(step, starts) < 180.0
     usable = (whole >= min_revolutions) & cuttable
     keep &= usable[np.maximum(run - 1, 0)]
+    return WholeRevolutions(rev, keep, starts, total, cuttable, usable)
 
-    warnings: list[str] = []
-    for r in np.flatnonzero(~usable & (total >= 180.0)):
+
+def _unused_runs(
+    log: RigLog, t, ref, runs: SpeedRuns, whole: WholeRevolutions, min_revolutions: int
+) -> list[str]:
+    """A warning for each run of half a revolution or more that is not used; an error when
+    no run is."""
+    warnings = []
+    for r in np.flatnonzero(~whole.usable & (whole.total >= 180.0)):
         warnings.append(
-            f"rotation at t={t[starts[r]]:.2f} s covers {total[r] / 360.0:.2f} revolutions, "
+            f"rotation at t={t[whole.starts[r]]:.2f} s covers {whole.total[r] / 360.0:.2f} revolutions, "
             + (
                 f"fewer than {min_revolutions} whole; not used"
-                if cuttable[r]
+                if whole.cuttable[r]
                 else "half a revolution or more per sample: cannot be cut; not used"
             )
         )
-    if not keep.any() and not cuttable.all():
+    if not whole.keep.any() and not whole.cuttable.all():
         raise SegmentationError(
             f"ref_rate turns the servo half a revolution or more per sample "
-            f"(up to {np.abs(ref[on]).max():.3g} deg/s at {1 / nominal:.3g} Hz): "
+            f"(up to {np.abs(ref[runs.on]).max():.3g} deg/s at {1 / runs.nominal:.3g} Hz): "
             "no revolution can be cut",
             source=log.path,
         )
-    if not keep.any():
-        longest = float(total.max())
+    if not whole.keep.any():
+        longest = float(whole.total.max())
         raise SegmentationError(
             f"no stretch of constant non-zero ref_rate covers a whole revolution (longest: {longest:.1f}°)",
             source=log.path,
         )
+    return warnings
 
-    # Whole revolutions: contiguous sample ranges, in time order.
-    sel = np.flatnonzero(keep)
-    rev = rev[sel].astype(int)  # revolution of each selected sample
-    usable_index = np.cumsum(usable) - 1  # run -> rotation index
-    rotation_of = usable_index[run[sel] - 1]
+
+def _revolution_table(t, ref, gyro, temp, runs: SpeedRuns, whole: WholeRevolutions):
+    """Whole revolutions as contiguous sample ranges, in time order: their means, scatter
+    and white-noise level (from successive differences inside a revolution: the ripple is
+    slow). Returns the table, the selected samples and each one's rotation."""
+    sel = np.flatnonzero(whole.keep)
+    rev = whole.rev[sel].astype(int)  # revolution of each selected sample
+    usable_index = np.cumsum(whole.usable) - 1  # run -> rotation index
+    rotation_of = usable_index[runs.run[sel] - 1]
     key = rotation_of.astype(np.int64) * (int(rev.max()) + 1) + rev
     bounds = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
     counts = np.diff(np.r_[bounds, len(sel)])
@@ -240,7 +299,6 @@ def find_rotations(
     mean = np.add.reduceat(g, bounds, axis=0) / counts[:, None]
     dev = g - mean[seg]
     std = np.sqrt(np.add.reduceat(dev * dev, bounds, axis=0) / np.maximum(counts - 1, 1)[:, None])
-    # White-noise level from successive differences inside a revolution (ripple is slow).
     same = (seg[1:] == seg[:-1]) & (sel[1:] == sel[:-1] + 1)
     d2 = np.where(same[:, None], np.diff(g, axis=0) ** 2, 0.0)
     pairs = np.bincount(seg[1:], weights=same.astype(float), minlength=len(bounds))
@@ -255,21 +313,23 @@ def find_rotations(
             "t_start": t[sel][bounds],
             "t_end": t[sel][bounds + counts - 1],
             "n": counts,
-            "gyro_x": mean[:, 0],
-            "gyro_y": mean[:, 1],
-            "gyro_z": mean[:, 2],
-            "gyro_x_std": std[:, 0],
-            "gyro_y_std": std[:, 1],
-            "gyro_z_std": std[:, 2],
-            "gyro_x_noise": noise[:, 0],
-            "gyro_y_noise": noise[:, 1],
-            "gyro_z_noise": noise[:, 2],
+            **{f"gyro_{a}": mean[:, i] for i, a in enumerate(AXES)},
+            **{f"gyro_{a}_std": std[:, i] for i, a in enumerate(AXES)},
+            **{f"gyro_{a}_noise": noise[:, i] for i, a in enumerate(AXES)},
             "ref_rate": np.add.reduceat(np.abs(ref[sel]), bounds) / counts,
             "temp": np.add.reduceat(temp[sel], bounds) / counts,
         }
     )
+    return table, sel, rotation_of
 
-    # Direction of each rotation: the mount column with the sign of ref_rate, else the data.
+
+def _directions(
+    log: RigLog, ref, gyro, sel, rotation_of, warnings: list[str]
+) -> tuple[list[str], np.ndarray]:
+    """The direction of each rotation: the mount column with the sign of ref_rate, else
+    the data (the axis of its largest mean output). Returns the directions and each
+    rotation's mean output; a disagreement is a warning."""
+    g = gyro[sel]
     rot_bounds = np.flatnonzero(np.r_[True, rotation_of[1:] != rotation_of[:-1]])
     n_rot = len(rot_bounds)
     rot_first = sel[rot_bounds]
@@ -278,35 +338,24 @@ def find_rotations(
     sign = np.sign(rot_mean[np.arange(n_rot), dominant])
     from_data = [("+" if s >= 0 else "-") + AXES[a] for a, s in zip(dominant, sign, strict=False)]
     directions = list(from_data)
-    if mount is not None:
-        lo = np.minimum.reduceat(mount[sel], rot_bounds)
-        hi = np.maximum.reduceat(mount[sel], rot_bounds)
-        for i in range(n_rot):
-            if lo[i] < 0 or lo[i] != hi[i]:
-                if lo[i] != hi[i]:
-                    warnings.append(
-                        f"rotation {i}: the mount column changes during the rotation; "
-                        "direction taken from the gyro"
-                    )
-                continue
-            label = MOUNTS[int(lo[i])]
-            ref_sign = 1.0 if ref[rot_first[i]] > 0 else -1.0
-            mount_sign = 1.0 if label[0] == "+" else -1.0
-            directions[i] = ("+" if ref_sign * mount_sign > 0 else "-") + label[1]
-            if directions[i] != from_data[i]:
+    if "mount" not in log:
+        return directions, rot_mean
+    mount = log.column("mount")
+    lo = np.minimum.reduceat(mount[sel], rot_bounds)
+    hi = np.maximum.reduceat(mount[sel], rot_bounds)
+    for i in range(n_rot):
+        if lo[i] < 0 or lo[i] != hi[i]:
+            if lo[i] != hi[i]:
                 warnings.append(
-                    f"rotation {i}: mount column and ref_rate say {directions[i]}, "
-                    f"the gyro says {from_data[i]}"
+                    f"rotation {i}: the mount column changes during the rotation; direction taken from the gyro"
                 )
-    table.insert(1, "direction", np.asarray(directions, dtype=object)[table["rotation"].to_numpy()])
-
-    if n_rot < 6:
-        raise SegmentationError(
-            f"found {n_rot} rotation{'s' if n_rot != 1 else ''} of at least {min_revolutions} whole "
-            f"revolution{'s' if min_revolutions != 1 else ''} at constant ref_rate "
-            f"({' '.join(directions)}); the servo protocol needs six (±x, ±y, ±z)",
-            source=log.path,
-        )
-    speeds = table.groupby("rotation")["ref_rate"].mean().to_numpy()
-    warnings += g_optimal_warnings(directions, rot_mean, speeds=speeds, max_tilt_deg=max_tilt_deg)
-    return Rotations(table, tuple(warnings), log.path)
+            continue
+        label = MOUNTS[int(lo[i])]
+        ref_sign = 1.0 if ref[rot_first[i]] > 0 else -1.0
+        mount_sign = 1.0 if label[0] == "+" else -1.0
+        directions[i] = ("+" if ref_sign * mount_sign > 0 else "-") + label[1]
+        if directions[i] != from_data[i]:
+            warnings.append(
+                f"rotation {i}: mount column and ref_rate say {directions[i]}, the gyro says {from_data[i]}"
+            )
+    return directions, rot_mean

@@ -1,9 +1,12 @@
 """The static protocol's settings by default (a config's ``protocols.static`` overrides them
 key by key); read without importing the protocol's code. The windows are the sweep's
-(gyrocal/protocols/sweep/windows.py) with no temperature span asked of them."""
+(gyrocal/protocols/sweep/windows.py) with no temperature span asked of them; its options are
+the config schema's (``$defs/static_options``)."""
 
-DEFAULTS = {
-    "options": {"window_s": 20.0, "point_span": 10.0, "min_span": 0.0, "min_windows": 2},
+from ..registry import ProtocolDefaults, option_defaults
+
+DEFAULTS: ProtocolDefaults = {
+    "options": option_defaults("static"),
     "model": {"kind": "continuous", "terms": ["bias"]},
     "diagnosis": {"candidates": []},
 }

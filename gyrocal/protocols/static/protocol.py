@@ -4,19 +4,34 @@ temperature, and the sweep's static stretches for the noise characterisation."""
 
 from __future__ import annotations
 
-from ..registry import Protocol, register
-from ..sweep.protocol import segment_sweep, static
+from typing import TYPE_CHECKING
+
+from ..registry import Protocol, SettingsView, register
+from ..sweep.protocol import segment_sweep, static_windows
 from .defaults import DEFAULTS
 
-STATIC = register(
-    Protocol(
-        "static",
-        "a unit lying still (a noise recording): windows at one temperature, the bias and the noise terms",
-        segment=lambda log, settings: segment_sweep(log, settings.protocol_options("static"), name="static"),
-        static=static,
-        defaults=DEFAULTS,
-        timed_holds=False,
-        one_temperature=True,
-        without=("ref_rate",),
+if TYPE_CHECKING:
+    import numpy as np
+
+    from ...io.holds import Segmentation
+    from ...io.log import RigLog
+
+
+class Static(Protocol):
+    name = "static"
+    description = (
+        "a unit lying still (a noise recording): windows at one temperature, the bias and the noise terms"
     )
-)
+    defaults = DEFAULTS
+    timed_holds = False
+    one_temperature = True
+    without = ("ref_rate",)
+
+    def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
+        return segment_sweep(log, settings.protocol_options("static"), name="static")
+
+    def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
+        return static_windows(seg, max_temp_rate)
+
+
+STATIC = register(Static())

@@ -1,8 +1,11 @@
 """The sweep protocol's settings by default (a config's ``protocols.sweep`` overrides them
-key by key); read without importing the protocol's code."""
+key by key); read without importing the protocol's code. Its options are the config
+schema's (``$defs/sweep_options``)."""
 
-DEFAULTS = {
-    "options": {"window_s": 20.0, "point_span": "auto"},
+from ..registry import ProtocolDefaults, option_defaults
+
+DEFAULTS: ProtocolDefaults = {
+    "options": option_defaults("sweep"),
     "model": {"kind": "continuous", "terms": ["bias", "bias_temp_poly(degree=1)"]},
     "diagnosis": {
         "candidates": ["bias_temp_poly(degree=2)", "bias_temp_poly(degree=3)"],

@@ -5,13 +5,13 @@ RBF, ΔT and ΔT², Eq 16) with bias stability (Eq 30–32) as the report's own 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 import numpy as np
 
 from ...fit.floor import merge_intervals
-from ...io.plausibility import AXES
-from ..registry import Protocol, register
+from ...terms import AXES
+from ..registry import OwnAnalysis, Protocol, SettingsView, checked_options, register
 from .defaults import DEFAULTS
 
 # The report reads this module for its sections and figure: what segmentation, the fits
@@ -21,6 +21,7 @@ if TYPE_CHECKING:
 
     from ...io.holds import Segmentation
     from ...io.log import RigLog
+    from .models import DriftModel
 
 
 POINT_SPANS = (10.0, 5.0, 2.0, 1.0, 0.5)  # °C: the widest that gives POINTS_WANTED points
@@ -39,17 +40,22 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     """Seed 003 windows (:func:`gyrocal.protocols.sweep.sweep_windows`) as observations; each window's
     temperature point is its ``point_span`` °C bin (``"auto"``: :func:`auto_point_span`), so leaving a point out leaves out a
     stretch of the sweep (leave-temperature-out on a continuous ramp)."""
-    import pandas as pd
-
-    from ...io.holds import Segmentation, hold_table, temperature_points, timeline
+    from ...io.holds import (
+        Segmentation,
+        hold_table,
+        no_stable_periods,
+        segments_of_holds,
+        temperature_points,
+        timeline,
+    )
     from ...io.log import MOUNTS
     from . import sweep_windows
 
-    opts = dict(options)
-    span = opts.pop("point_span", "auto")
-    win = sweep_windows(log, **opts)
+    opts = checked_options(name, options)
+    span = opts.pop("point_span")
+    win = sweep_windows(log, protocol=name, **opts)
     span = auto_point_span(win["temp"].to_numpy()) if span == "auto" else float(span)
-    point, point_temp = temperature_points(win["temp"].to_numpy(), span)
+    point, point_temp = temperature_points(win["temp"].to_numpy(), span=span)
     mount = win["mount"].to_numpy(dtype=object)
     if not all(isinstance(m, str) and m in MOUNTS for m in mount):
         # At rig rate 0 the mount is immaterial to the model; +z keeps the schema.
@@ -70,18 +76,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     )
     obs["window"] = win["window"].to_numpy()
     window_s = float(win.attrs["window_s"])
-    kept = pd.DataFrame(
-        {
-            "kind": "hold",
-            "reason": "",
-            "detail": "window",
-            "t_start": obs["t_start"],
-            "t_end": obs["t_end"],
-            "ref_rate": obs["ref_rate"],
-            "hold": obs["hold"],
-        }
-    )
-    segments = kept.astype({"kind": "string", "reason": "string", "detail": "string"})
+    segments = segments_of_holds(obs, "window")
     dropped = {k: int(v) for k, v in win.attrs["dropped"].items()}
     info = {
         "protocol": name,
@@ -105,8 +100,7 @@ def segment_sweep(log: RigLog, options: dict, *, name: str = "sweep") -> Segment
     }
     if win.attrs.get("stamps"):
         info["stamps"] = win.attrs["stamps"]
-    stable = pd.DataFrame({"t_start": [], "t_end": [], "temp": []}, dtype=float)
-    return Segmentation(obs, segments, stable, timeline(log), info)
+    return Segmentation(obs, segments, no_stable_periods(), timeline(log), info)
 
 
 def windows_from_observations(obs: pd.DataFrame) -> pd.DataFrame:
@@ -144,8 +138,16 @@ SWEEP_MODELS = {  # seed 003: conventional f(ΔT) and modified f(ΔT, ΔT²) (Eq
 }
 
 
-def sweep_fit(obs: pd.DataFrame):
-    """(training windows, verification windows, number of sweeps, the four drift models)."""
+class SweepFit(NamedTuple):
+    """The four drift models fitted on the training sweep (:data:`SWEEP_MODELS`)."""
+
+    train: pd.DataFrame  # the first monotone sweep's windows
+    verify: pd.DataFrame  # the next sweep's, or the training windows again
+    sweeps: int  # how many monotone sweeps the log holds
+    models: dict[str, DriftModel]
+
+
+def sweep_fit(obs: pd.DataFrame) -> SweepFit:
     from . import fit_drift, split_sweeps
 
     sweeps = split_sweeps(windows_from_observations(obs))
@@ -154,25 +156,47 @@ def sweep_fit(obs: pd.DataFrame):
     models = {
         name: fit_drift(train, kind=kind, inputs=inputs) for name, (kind, inputs) in SWEEP_MODELS.items()
     }
-    return train, verify, len(sweeps), models
+    return SweepFit(train, verify, len(sweeps), models)
 
 
-def sweep_analysis(obs: pd.DataFrame, fitted=None) -> dict:
+class SweepPart(TypedDict):
+    windows: int
+    t_start: float
+    t_end: float
+    temp_from: float
+    temp_to: float
+    t_ref: float
+
+
+class SweepAnalysis(TypedDict):
+    """Seed 003's drift models and bias stability on a sweep (JSON-plain, for the report)."""
+
+    protocol: str
+    sweeps: int
+    train: SweepPart
+    verify: SweepPart
+    verified_on_training: bool
+    models: dict[str, dict[str, Any]]  # per model: kind, inputs, residual_rms, parameters
+    stability: dict[str, dict[str, Any]]  # per pair of models: conventional, modified, rows
+
+
+STABILITY_PAIRS = {  # (conventional, modified) of SWEEP_MODELS, as the report's tables pair them
+    "polynomial": ("poly(ΔT)", "poly(ΔT, ΔT²)"),
+    "RBF network": ("RBF(ΔT)", "RBF(ΔT, ΔT²)"),
+    "paper (Tables 3–7)": ("poly(ΔT)", "RBF(ΔT, ΔT²)"),
+}
+
+
+def sweep_analysis(obs: pd.DataFrame, fitted: SweepFit | None = None) -> SweepAnalysis:
     """Seed 003 Section 3.2 on a sweep's windows: the drift models fitted on the first
     monotone sweep and verified on the next (step 1), with bias stability BS1/BS2/BS3 and
     improvements P1/P2/P3 (Eq 30–32, the shape of Tables 3–7). A log with a single sweep is
-    verified on its own training windows, and says so. JSON-plain."""
+    verified on its own training windows, and says so."""
     from . import stability_table
 
     train, verify, n_sweeps, models = fitted or sweep_fit(obs)
-    sweeps = range(n_sweeps)
-    pairs = {
-        "polynomial": ("poly(ΔT)", "poly(ΔT, ΔT²)"),
-        "RBF network": ("RBF(ΔT)", "RBF(ΔT, ΔT²)"),
-        "paper (Tables 3–7)": ("poly(ΔT)", "RBF(ΔT, ΔT²)"),
-    }
     tables = {}
-    for label, (conv, mod) in pairs.items():
+    for label, (conv, mod) in STABILITY_PAIRS.items():
         table = stability_table(verify, {"conventional": models[conv], "modified": models[mod]})
         tables[label] = {
             "conventional": conv,
@@ -181,23 +205,12 @@ def sweep_analysis(obs: pd.DataFrame, fitted=None) -> dict:
                 {"axis": axis, **{k: float(v) for k, v in row.items()}} for axis, row in table.iterrows()
             ],
         }
-
-    def describe(part):
-        return {
-            "windows": int(len(part)),
-            "t_start": float(part["t_start"].iloc[0]),
-            "t_end": float(part["t_end"].iloc[-1]),
-            "temp_from": float(part["temp"].iloc[0]),
-            "temp_to": float(part["temp"].iloc[-1]),
-            "t_ref": float(part.attrs["t_ref"]),
-        }
-
     return {
         "protocol": "sweep",
-        "sweeps": len(sweeps),
-        "train": describe(train),
-        "verify": describe(verify),
-        "verified_on_training": len(sweeps) < 2,
+        "sweeps": n_sweeps,
+        "train": _describe(train),
+        "verify": _describe(verify),
+        "verified_on_training": n_sweeps < 2,
         "models": {
             name: {
                 "kind": m.kind,
@@ -211,7 +224,28 @@ def sweep_analysis(obs: pd.DataFrame, fitted=None) -> dict:
     }
 
 
-def static(log, seg, max_temp_rate: float):
+def _describe(part: pd.DataFrame) -> SweepPart:
+    return {
+        "windows": int(len(part)),
+        "t_start": float(part["t_start"].iloc[0]),
+        "t_end": float(part["t_end"].iloc[-1]),
+        "temp_from": float(part["temp"].iloc[0]),
+        "temp_to": float(part["temp"].iloc[-1]),
+        "t_ref": float(part.attrs["t_ref"]),
+    }
+
+
+def analysis(obs: pd.DataFrame) -> OwnAnalysis:
+    """:func:`sweep_analysis` and the drift models' figure."""
+    from ...report import plots
+
+    fitted = sweep_fit(obs)
+    return OwnAnalysis(
+        sweep_analysis(obs, fitted), [plots.sweep_drift(fitted.train, fitted.verify, fitted.models)]
+    )
+
+
+def static_windows(seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
     """Runs of adjacent windows whose temperature rate is under ``max_temp_rate`` °C/min:
     the soak before the first ramp, the dwells at the targets. Windows either side of a
     stall of arrival-stamped samples join too: the stall held no missing sample."""
@@ -225,26 +259,25 @@ def static(log, seg, max_temp_rate: float):
     )
 
 
-def analysis(obs: pd.DataFrame) -> tuple[dict, list[str]]:
-    """:func:`sweep_analysis` and the drift models' figure."""
-    from ...report import plots
+class Sweep(Protocol):
+    """Seed 003's conventional drift model (linear in ΔT, fitted jointly over the sweep) as
+    the model, its modified model (Eq 16, + ΔT²) as the diagnosis' candidate and the
+    ladder's step."""
 
-    fitted = sweep_fit(obs)
-    train, verify, _, models = fitted
-    return sweep_analysis(obs, fitted), [plots.sweep_drift(train, verify, models)]
+    name = "sweep"
+    description = "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)"
+    report_section = "protocols/sweep_section.html.j2"
+    defaults = DEFAULTS
+    timed_holds = False
+
+    def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
+        return segment_sweep(log, settings.protocol_options("sweep"))
+
+    def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
+        return static_windows(seg, max_temp_rate)
+
+    def analysis(self, obs: pd.DataFrame) -> OwnAnalysis:
+        return analysis(obs)
 
 
-# Seed 003's conventional drift model (linear in ΔT, fitted jointly over the sweep), with
-# its modified model (Eq 16, + ΔT²) as the diagnosis' candidate and the ladder's step.
-SWEEP = register(
-    Protocol(
-        "sweep",
-        "temperature sweep: windows along slow ramps at a constant rig rate (seed 003)",
-        segment=lambda log, settings: segment_sweep(log, settings.protocol_options("sweep")),
-        static=static,
-        analysis=analysis,
-        report_section="protocols/sweep_section.html.j2",
-        defaults=DEFAULTS,
-        timed_holds=False,
-    )
-)
+SWEEP = register(Sweep())

@@ -25,13 +25,18 @@ All statistics are ``reduceat`` sums over the samples; nothing loops per sample 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from ...io.errors import ConfigError, SegmentationError
+from ...io.holds import SlopeSums, regression_rate
 from ...io.log import GYRO, MOUNTS, RigLog
-from ...io.stamps import sampling
+from ...io.stamps import Sampling, sampling
+from ...terms import AXES
+from ..registry import checked_options
 
 REASONS = {
     "incomplete": "fewer samples than a full window (a logging gap or the log's end)",
@@ -39,37 +44,74 @@ REASONS = {
     "mount": "the mount column changes or differs from the sweep's mount",
     "motion": "the gyro scatters well beyond the noise, or next to such a window",
 }
-AXES = ("x", "y", "z")
 MIN_WINDOW_SAMPLES = 8  # a burst this short gives a mean but no scatter worth the name
 OPTIONS = "the config's protocols: sweep: options:, or static: options:"
 
 
-def _check_positive(name: str, value, *, allow_zero: bool = False) -> float:
+def _check_positive(name: str, value) -> float:
     if (
         isinstance(value, bool)
         or not isinstance(value, (int, float))
         or not math.isfinite(value)
-        or value < 0
-        or (value == 0 and not allow_zero)
+        or value <= 0
     ):
-        kind = "non-negative" if allow_zero else "positive"
-        raise ConfigError(f"sweep window setting {name} must be a {kind} number, got {value!r}")
+        raise ConfigError(f"split_sweeps setting {name} must be a positive number, got {value!r}")
     return float(value)
 
 
+@dataclass(frozen=True)
+class WindowSettings:
+    """How a log is cut into windows and which are kept: the window settings of the sweep's
+    or the static protocol's options (the config schema's ``$defs/<protocol>_options``)."""
+
+    window_s: float  # s
+    motion_factor: float  # a window scattering this many times the typical window is motion
+    settle_windows: int  # windows dropped either side of motion
+    fill: float  # share of a window's samples that makes it complete
+    min_span: float  # °C the kept windows span at least
+    min_windows: int
+
+    @classmethod
+    def of(cls, protocol: str = "sweep", **given) -> WindowSettings:
+        """``given`` settings of ``protocol``, checked against the config schema and
+        completed with its defaults (``point_span``, not a window setting, is left out)."""
+        options = checked_options(protocol, given)
+        return cls(**{f.name: options[f.name] for f in fields(cls)})
+
+
+class Grid(NamedTuple):
+    """The windows laid over a log: each restarts at a run between the logger's real gaps."""
+
+    run_starts: np.ndarray  # first row of each run
+    run_stops: np.ndarray
+    run_span: np.ndarray  # s each run covers
+    window_of: np.ndarray  # the grid window of each row
+    starts: np.ndarray  # first row of each window holding samples
+    counts: np.ndarray  # rows in each window
+    owner: np.ndarray  # the window of each row, numbered among those holding samples
+    expected: np.ndarray  # the rows a complete window holds: a whole window's, or a whole burst's
+    burst: np.ndarray  # the window is a run shorter than a window
+
+
+class WindowStats(NamedTuple):
+    """Per window: the gyro's mean and scatter, temperature, reference and inner gaps."""
+
+    gyro: np.ndarray  # (k, 3) mean
+    std: np.ndarray  # (k, 3) sample standard deviation
+    temp: np.ndarray  # mean
+    temp_rate: np.ndarray  # °C/min
+    ref: np.ndarray  # mean reference rate
+    ref_span: np.ndarray
+    inner_gap: np.ndarray  # s: the longest step between the window's samples
+    t_end: np.ndarray
+
+
 def sweep_windows(
-    log: RigLog,
-    *,
-    window_s: float = 20.0,
-    t_ref: float | None = None,
-    mount: str | None = None,
-    motion_factor: float = 5.0,
-    settle_windows: int = 1,
-    fill: float = 0.9,
-    min_span: float = 5.0,
-    min_windows: int = 10,
+    log: RigLog, *, t_ref: float | None = None, mount: str | None = None, protocol: str = "sweep", **settings
 ) -> pd.DataFrame:
-    """One row per kept window of ``log``; see the module docstring.
+    """One row per kept window of ``log``; see the module docstring. ``settings``: the
+    window settings (:class:`WindowSettings`) of ``protocol``'s options, by default its
+    defaults.
 
     Columns: ``window`` (index along the log), ``t_start``, ``t_end`` (s), ``n``, ``temp``
     (mean, °C), ``dT`` and ``dT2`` (ΔT and ΔT², °C and °C²), ``temp_rate`` (°C/min, the
@@ -84,17 +126,51 @@ def sweep_windows(
     that axis's median over the complete windows. Raises :class:`SegmentationError` when
     the kept windows span less than ``min_span`` °C or number fewer than ``min_windows``.
     """
-    window_s = _check_positive("window_s", window_s)
-    motion_factor = _check_positive("motion_factor", motion_factor)
-    if not 0 < fill <= 1:
-        raise ConfigError(f"sweep window setting fill must be in (0, 1], got {fill!r}")
+    cfg = WindowSettings.of(protocol, **settings)
     if mount is not None and mount not in MOUNTS:
         raise ConfigError(f"mount must be one of {' '.join(MOUNTS)}, got {mount!r}")
     t = log.column("t")
-    n_rows = len(t)
-    if n_rows < 3:
-        raise SegmentationError(f"not a sweep: {n_rows} rows, expected a long log", source=log.path)
+    if len(t) < 3:
+        raise SegmentationError(f"not a sweep: {len(t)} rows, expected a long log", source=log.path)
     stamps = sampling(t)
+    grid = _window_grid(log, t, stamps, cfg.window_s)
+    stats = _window_statistics(log, t, grid)
+    reason = np.full(len(grid.starts), "", dtype=object)
+    _drop_incomplete(log, reason, grid, stats, cfg, len(t), 1.0 / stamps.rate)
+    rig_rate, tol = _rig_rate(log, reason, stats, cfg)
+    mount_code, mount_source = _sweep_mount(log, reason, grid, stats, mount, rig_rate, tol)
+    _drop_motion(reason, stats, cfg)
+    keep = reason == ""
+    _refuse_too_few(log, reason, stats, cfg)
+    t0 = float(stats.temp[keep][0]) if t_ref is None else float(t_ref)
+    out = _window_table(t, grid, stats, keep, mount_code, t0)
+    dropped = {r: int(np.count_nonzero(reason == r)) for r in REASONS}
+    grid_windows = _grid_windows(t, grid, cfg.window_s)
+    dropped["incomplete"] += grid_windows - len(grid.starts)
+    out.attrs.update(
+        t_ref=t0,
+        window_s=cfg.window_s,
+        sample_rate=stamps.rate,
+        runs=len(grid.run_starts),
+        bursts=int(np.count_nonzero(grid.run_span < cfg.window_s)),
+        stamps=stamps.warning(),
+        longest_stall_s=stamps.longest_stall_s,
+        rig_rate=rig_rate,
+        mount=MOUNTS[mount_code] if mount_code >= 0 else "",
+        mount_source=mount_source,
+        dropped=dropped,
+        windows_total=grid_windows,
+        rows=len(t),
+        path=log.path,
+    )
+    return out
+
+
+def _window_grid(log: RigLog, t: np.ndarray, stamps: Sampling, window_s: float) -> Grid:
+    """Where do the windows lie? Windows restart at each run between the logger's real
+    gaps, so that a chamber's bursts are not cut by a grid laid from the log's start; a run
+    shorter than a window (a burst) is one window of its own length. t increases strictly,
+    so windows are runs of rows."""
     if not stamps.rate > 0:
         raise SegmentationError("cannot determine the sample interval", source=log.path)
     dt = 1.0 / stamps.rate
@@ -105,87 +181,102 @@ def sweep_windows(
             f"{1 / dt:.3g} Hz; expected at least 2",
             source=log.path,
         )
-
-    # Windows restart at each run between the logger's real gaps, so that a chamber's bursts
-    # are not cut by a grid laid from the log's start; a run shorter than a window (a
-    # burst) is one window of its own length. t increases strictly, so windows are runs.
     run_starts, run_stops = stamps.run_starts, stamps.run_stops
-    run_rows = run_stops - run_starts
-    run_of = np.repeat(np.arange(len(run_starts)), run_rows)
+    run_of = np.repeat(np.arange(len(run_starts)), run_stops - run_starts)
     run_t0 = t[run_starts]
     run_span = t[run_stops - 1] - run_t0 + dt
     local = np.floor((t - run_t0[run_of]) / window_s).astype(np.int64)
     run_windows = np.floor((t[run_stops - 1] - run_t0) / window_s).astype(np.int64) + 1
-    wid = np.r_[0, np.cumsum(run_windows)[:-1]][run_of] + local
-    starts = np.flatnonzero(np.r_[True, wid[1:] != wid[:-1]])
-    counts = np.diff(np.r_[starts, n_rows])
-    k = len(starts)
-    owner = np.repeat(np.arange(k), counts)
-    # the samples a complete window holds: a whole window's, or a whole burst's
+    window_of = np.r_[0, np.cumsum(run_windows)[:-1]][run_of] + local
+    starts = np.flatnonzero(np.r_[True, window_of[1:] != window_of[:-1]])
+    counts = np.diff(np.r_[starts, len(t)])
+    owner = np.repeat(np.arange(len(starts)), counts)
     expected = np.minimum(window_s, run_span[run_of[starts]]) * stamps.rate
+    burst = run_span[run_of[starts]] < window_s
+    return Grid(run_starts, run_stops, run_span, window_of, starts, counts, owner, expected, burst)
+
+
+def _window_statistics(log: RigLog, t: np.ndarray, grid: Grid) -> WindowStats:
+    """Each window's sums over its samples, every one centred on the window's first sample
+    (exact squares, no cancellation)."""
+    starts, counts, owner = grid.starts, grid.counts, grid.owner
 
     def sums(x):
         return np.add.reduceat(x, starts, axis=0)
 
     gyro = np.column_stack([log.column(c) for c in GYRO]).astype(np.float64)
-    dev = gyro - gyro[starts][owner]  # centred on each window's first sample: exact squares
+    dev = gyro - gyro[starts][owner]
     s1, s2 = sums(dev), sums(dev * dev)
     mean_dev = s1 / counts[:, None]
     var = np.maximum(s2 - s1 * mean_dev, 0.0) / np.maximum(counts - 1, 1)[:, None]
     g_mean = gyro[starts] + mean_dev
-    g_std = np.sqrt(var)
     del dev
 
     temp = log.column("temp").astype(np.float64)
     tt = t - t[starts][owner]
     TT = temp - temp[starts][owner]
-    St, STT = sums(tt), sums(TT)
-    Stt, StT = sums(tt * tt), sums(tt * TT)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = (StT - St * STT / counts) / (Stt - St * St / counts)
-    temp_rate = np.where(np.isfinite(slope), slope * 60.0, 0.0)
-    temp_mean = temp[starts] + STT / counts
+    window_sums = SlopeSums(counts, sums(tt), sums(TT), sums(tt * tt), sums(tt * TT))
 
     ref = log.column("ref_rate").astype(np.float64)
-    ref_mean = sums(ref) / counts
-    ref_span = np.maximum.reduceat(ref, starts) - np.minimum.reduceat(ref, starts)
-
     step = np.r_[0.0, np.diff(t)]
     step[starts] = 0.0
-    inner_gap = np.maximum.reduceat(step, starts)
-    t_end = t[np.r_[starts[1:], n_rows] - 1]
+    return WindowStats(
+        gyro=g_mean,
+        std=np.sqrt(var),
+        temp=temp[starts] + window_sums.temp / counts,
+        temp_rate=regression_rate(window_sums),
+        ref=sums(ref) / counts,
+        ref_span=np.maximum.reduceat(ref, starts) - np.minimum.reduceat(ref, starts),
+        inner_gap=np.maximum.reduceat(step, starts),
+        t_end=t[np.r_[starts[1:], len(t)] - 1],
+    )
 
-    # Reasons, first one wins.
-    reason = np.full(k, "", dtype=object)
-    burst = run_span[run_of[starts]] < window_s
+
+def _drop_incomplete(
+    log: RigLog, reason, grid: Grid, stats: WindowStats, cfg: WindowSettings, rows: int, dt: float
+) -> None:
+    """Which windows are incomplete: too few samples, a burst too short to show scatter, or
+    a gap inside? None complete is no sweep."""
     incomplete = (
-        (counts < fill * expected)
-        | (burst & (counts < MIN_WINDOW_SAMPLES))
-        | (inner_gap > np.maximum(3.0 * dt, (1 - fill) * expected * dt))
+        (grid.counts < cfg.fill * grid.expected)
+        | (grid.burst & (grid.counts < MIN_WINDOW_SAMPLES))
+        | (stats.inner_gap > np.maximum(3.0 * dt, (1 - cfg.fill) * grid.expected * dt))
     )
     reason[incomplete] = "incomplete"
-    ok = reason == ""
-    if not ok.any():
+    if not (reason == "").any():
         raise SegmentationError(
-            f"not a sweep: no complete {window_s:g}-s window in {n_rows} rows; "
+            f"not a sweep: no complete {cfg.window_s:g}-s window in {rows} rows; "
             f"a shorter window_s fits shorter stretches ({OPTIONS})",
             source=log.path,
         )
-    rig_rate = float(np.median(ref_mean[ok]))
+
+
+def _rig_rate(log: RigLog, reason, stats: WindowStats, cfg: WindowSettings) -> tuple[float, float]:
+    """The sweep's constant rig rate (the complete windows' median) and the tolerance about
+    it; windows off it are dropped. None on it is no sweep."""
+    ok = reason == ""
+    rig_rate = float(np.median(stats.ref[ok]))
     tol = 0.005 + 1e-3 * abs(rig_rate)
-    reason[ok & ((ref_span > tol) | (np.abs(ref_mean - rig_rate) > tol))] = "reference"
+    reason[ok & ((stats.ref_span > tol) | (np.abs(stats.ref - rig_rate) > tol))] = "reference"
     if not (reason == "").any():
         raise SegmentationError(
-            f"not a sweep: no {window_s:g}-s window holds the reference rate constant", source=log.path
+            f"not a sweep: no {cfg.window_s:g}-s window holds the reference rate constant", source=log.path
         )
+    return rig_rate, tol
 
+
+def _sweep_mount(
+    log: RigLog, reason, grid: Grid, stats: WindowStats, mount: str | None, rig_rate: float, tol: float
+) -> tuple[int, str]:
+    """The sweep's mount (index into MOUNTS, -1 at rig rate 0) and where it came from: the
+    argument, the mount column's commonest label, or the data. Windows whose label changes
+    or contradicts it are dropped (a null label contradicts nothing)."""
     codes = None
     if "mount" in log:
         m = log.column("mount").astype(np.int16)
-        lo, hi = np.minimum.reduceat(m, starts), np.maximum.reduceat(m, starts)
+        lo, hi = np.minimum.reduceat(m, grid.starts), np.maximum.reduceat(m, grid.starts)
         usable = (reason == "") & (lo == hi) & (lo >= 0)
         codes = np.where(lo == hi, lo, -2)
-    mount_source = ""
     if mount is not None:
         mount_code, mount_source = MOUNTS.index(mount), "argument"
     elif codes is not None and usable.any():
@@ -193,94 +284,91 @@ def sweep_windows(
     elif abs(rig_rate) > tol:
         # Without a label, the axis with the largest mean output is taken to lie along the
         # rig axis; a bias larger than the rate fools this, hence the mount column or argument.
-        level = np.median(g_mean[reason == ""], axis=0)
+        level = np.median(stats.gyro[reason == ""], axis=0)
         axis = int(np.argmax(np.abs(level)))
-        mount_code = 2 * axis + int(level[axis] * rig_rate < 0)
-        mount_source = "data"
+        mount_code, mount_source = 2 * axis + int(level[axis] * rig_rate < 0), "data"
     else:
-        mount_code = -1
-    if codes is not None:  # a null label contradicts nothing; a change inside a window does
+        mount_code, mount_source = -1, ""
+    if codes is not None:
         conflict = (codes == -2) | ((codes >= 0) & (mount_code >= 0) & (codes != mount_code))
         reason[(reason == "") & conflict] = "mount"
+    return mount_code, mount_source
 
-    # Motion: scatter far above the axis's typical scatter, plus settling neighbours.
+
+def _drop_motion(reason, stats: WindowStats, cfg: WindowSettings) -> None:
+    """Which windows show motion: scatter far above the axis's typical scatter, plus
+    ``settle_windows`` neighbours either side?"""
     ok = reason == ""
-    typical = np.median(g_std[ok], axis=0) if ok.any() else np.full(3, np.inf)
-    moving = ok & (g_std > motion_factor * np.maximum(typical, 1e-12)).any(axis=1)
-    if settle_windows > 0 and moving.any():
+    typical = np.median(stats.std[ok], axis=0) if ok.any() else np.full(3, np.inf)
+    moving = ok & (stats.std > cfg.motion_factor * np.maximum(typical, 1e-12)).any(axis=1)
+    if cfg.settle_windows > 0 and moving.any():
+        k = len(reason)
         c = np.r_[0, np.cumsum(moving)]
         pos = np.arange(k)
-        near = (c[np.minimum(pos + settle_windows + 1, k)] - c[np.maximum(pos - settle_windows, 0)]) > 0
+        near = (
+            c[np.minimum(pos + cfg.settle_windows + 1, k)] - c[np.maximum(pos - cfg.settle_windows, 0)]
+        ) > 0
         moving = (reason == "") & near
     reason[moving] = "motion"
 
+
+def _refuse_too_few(log: RigLog, reason, stats: WindowStats, cfg: WindowSettings) -> None:
+    """Too few kept windows, or too narrow a temperature span over them, is no sweep."""
     keep = reason == ""
-    expected = np.zeros((k, 3))
-    if mount_code >= 0:
-        axis, sign = mount_code // 2, (1.0 if mount_code % 2 == 0 else -1.0)
-        expected[:, axis] = sign * ref_mean
-    err = g_mean - expected
     n_keep = int(keep.sum())
-    if n_keep < min_windows:
+    if n_keep < cfg.min_windows:
         counts_by = pd.Series(reason[~keep]).value_counts().to_dict()
         raise SegmentationError(
-            f"not a sweep: {n_keep} usable {window_s:g}-s windows, expected at least "
-            f"{min_windows} (dropped: {counts_by or 'none'}); window_s and min_windows "
+            f"not a sweep: {n_keep} usable {cfg.window_s:g}-s windows, expected at least "
+            f"{cfg.min_windows} (dropped: {counts_by or 'none'}); window_s and min_windows "
             f"set them ({OPTIONS})",
             source=log.path,
         )
-    temps = temp_mean[keep]
+    temps = stats.temp[keep]
     span = float(temps.max() - temps.min())
-    if span < min_span:
+    if span < cfg.min_span:
         raise SegmentationError(
             f"not a sweep: temperature spans {span:.3g} °C over the usable windows, "
-            f"expected at least {min_span:g} °C",
+            f"expected at least {cfg.min_span:g} °C",
             source=log.path,
         )
-    t0 = float(temps[0]) if t_ref is None else float(t_ref)
+
+
+def _window_table(t, grid: Grid, stats: WindowStats, keep, mount_code: int, t0: float) -> pd.DataFrame:
+    """The kept windows, ΔT counted from ``t0``."""
+    expected = np.zeros((len(keep), 3))
+    if mount_code >= 0:
+        axis, sign = mount_code // 2, (1.0 if mount_code % 2 == 0 else -1.0)
+        expected[:, axis] = sign * stats.ref
+    err = stats.gyro - expected
+    temps = stats.temp[keep]
     dT = temps - t0
-    out = pd.DataFrame(
+    return pd.DataFrame(
         {
             "window": np.flatnonzero(keep),
-            "t_start": t[starts][keep],
-            "t_end": t_end[keep],
-            "n": counts[keep].astype(np.int64),
+            "t_start": t[grid.starts][keep],
+            "t_end": stats.t_end[keep],
+            "n": grid.counts[keep].astype(np.int64),
             "temp": temps,
             "dT": dT,
             "dT2": dT * dT,
-            "temp_rate": temp_rate[keep],
-            "ref_rate": ref_mean[keep],
-            **{f"gyro_{a}": g_mean[keep, i] for i, a in enumerate(AXES)},
-            **{f"std_{a}": g_std[keep, i] for i, a in enumerate(AXES)},
+            "temp_rate": stats.temp_rate[keep],
+            "ref_rate": stats.ref[keep],
+            **{f"gyro_{a}": stats.gyro[keep, i] for i, a in enumerate(AXES)},
+            **{f"std_{a}": stats.std[keep, i] for i, a in enumerate(AXES)},
             **{f"err_{a}": err[keep, i] for i, a in enumerate(AXES)},
             "mount": MOUNTS[mount_code] if mount_code >= 0 else "",
         }
     )
-    dropped = {r: int(np.count_nonzero(reason == r)) for r in REASONS}
-    # windows a pause of a continuous log left without samples (a burst logger's pauses are
-    # its design, not lost windows)
-    pause = t[run_starts[1:]] - t[run_stops[:-1] - 1]
-    continuous = (run_span[:-1] >= window_s) & (run_span[1:] >= window_s)
+
+
+def _grid_windows(t: np.ndarray, grid: Grid, window_s: float) -> int:
+    """The windows of the grid, counting those a pause of a continuous log left without
+    samples (a burst logger's pauses are its design, not lost windows)."""
+    pause = t[grid.run_starts[1:]] - t[grid.run_stops[:-1] - 1]
+    continuous = (grid.run_span[:-1] >= window_s) & (grid.run_span[1:] >= window_s)
     lost = int(np.sum(np.floor(pause[continuous] / window_s)))
-    grid_windows = int(wid[-1]) + 1 + lost
-    dropped["incomplete"] += grid_windows - k
-    out.attrs.update(
-        t_ref=t0,
-        window_s=window_s,
-        sample_rate=stamps.rate,
-        runs=len(run_starts),
-        bursts=int(np.count_nonzero(run_span < window_s)),
-        stamps=stamps.warning(),
-        longest_stall_s=stamps.longest_stall_s,
-        rig_rate=rig_rate,
-        mount=MOUNTS[mount_code] if mount_code >= 0 else "",
-        mount_source=mount_source,
-        dropped=dropped,
-        windows_total=grid_windows,
-        rows=int(n_rows),
-        path=log.path,
-    )
-    return out
+    return int(grid.window_of[-1]) + 1 + lost
 
 
 def split_sweeps(
@@ -322,7 +410,7 @@ def split_sweeps(
         first = int(np.flatnonzero(direction != 0)[0])
         filled[:first] = direction[first]
     edges = np.flatnonzero(np.r_[True, filled[1:] != filled[:-1], True])
-    out = []
+    out: list[pd.DataFrame] = []
     for a, b in zip(edges[:-1], edges[1:], strict=False):  # one iteration per ramp
         part = windows.iloc[a:b].copy()
         span = float(part["temp"].max() - part["temp"].min())

@@ -3,7 +3,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass
+from typing import Any
 
 from ...io import schema
 
@@ -38,5 +40,8 @@ class SegmentConfig:
     full_scale: float | None = _DEFAULTS["full_scale"]
 
     @classmethod
-    def from_dict(cls, values: dict | None, *, key: str = "segmentation") -> SegmentConfig:
-        return cls(**schema.check(values or {}, "config", "segmentation", key=key))
+    def from_dict(cls, values: Mapping[str, Any] | None, *, key: str = "segmentation") -> SegmentConfig:
+        return cls(**schema.check(dict(values or {}), "config", "segmentation", key=key))
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)

@@ -22,6 +22,8 @@ Block-level work is vectorised; hold statistics are ``reduceat`` sums over hold 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -29,8 +31,17 @@ import pandas as pd
 from ...io import plausibility
 from ...io.blocks import block_statistics
 from ...io.errors import SegmentationError
-from ...io.holds import Segmentation, true_runs
+from ...io.holds import (
+    Segmentation,
+    bucketed,
+    hold_table,
+    temperature_points,
+    thirds_rate,
+    thirds_rate_error,
+    true_runs,
+)
 from ...io.log import GYRO, MOUNTS, RigLog, read_log
+from ...terms import AXES
 from .config import SegmentConfig
 
 LOG_COLUMNS = ("mount", "accel_x", "accel_y", "accel_z")  # optional columns segmentation uses
@@ -101,6 +112,46 @@ def _range_index(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.arange(lengths.sum()) + offsets
 
 
+class Runs(NamedTuple):
+    """Step 1: where the log paused and where the reference rate stays constant."""
+
+    in_gap: np.ndarray  # the block holds a logging pause
+    gap_before: np.ndarray  # a logging pause precedes the block
+    tol: np.ndarray  # how far the block's reference may move and still count as constant
+    const: np.ndarray  # the block is at constant reference, without a pause
+    run: np.ndarray  # the constant-reference run a block belongs to
+    n_runs: int
+
+
+class Motion(NamedTuple):
+    """Step 2: where the gyro moves although the reference does not."""
+
+    noise_log: np.ndarray  # the log's noise per sample and axis
+    allowance: np.ndarray  # per run (dummy run last), the settling its output may show
+    active: np.ndarray  # the block shows motion
+    level: np.ndarray  # per run, the gyro's steady level
+    gain: np.ndarray  # per run, the gyro's gain on the reference
+    excursion: np.ndarray  # per active block, its distance from the run's steady value
+    near_motion: np.ndarray  # within the settling margin of motion
+    usable: np.ndarray  # constant reference and clear of motion
+
+
+class Stretches(NamedTuple):
+    """Step 3: the quiet stretches, soaks among them, and the hold each leaves."""
+
+    starts: np.ndarray
+    stops: np.ndarray
+    typical: float  # s: the typical rotating stretch
+    min_hold: float  # s
+    soak_min: float  # s
+    is_soak: np.ndarray
+    h_start: np.ndarray  # where the hold begins (a soak's tail)
+    trim: int  # blocks trimmed from both ends
+    c0: np.ndarray  # the hold's first block after trimming
+    c1: np.ndarray  # its stop block after trimming
+    long_enough: np.ndarray
+
+
 def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentConfig) -> Segmentation:
     nb = len(blk.get("t_first", ()))
     if nb < 8:
@@ -108,12 +159,51 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     if not dt > 0:
         raise SegmentationError("cannot determine the sample interval", source=log.path)
     block_dt = size * dt
-    t_first, t_last, r = blk["t_first"], blk["t_last"], blk["ref"]
-    mean, var = blk["gyro"], blk["gyro_var"]
+    runs = _constant_runs(log, blk, size, dt, cfg)
+    motion = _handling_motion(blk, runs, size, block_dt, cfg)
+    st = _quiet_stretches(log, blk, motion, runs, block_dt, cfg)
+    segments = _phase_segments(blk, runs, motion, st, block_dt)
+    _refuse_without_long_holds(log, st, block_dt)
+    c0, c1 = st.c0[st.long_enough], st.c1[st.long_enough]
+    h = _hold_statistics(log, blk, size, c0, c1, runs, motion, cfg)
+    checked = _check_holds(log, h, blk, c0, c1, runs, motion, cfg)
+    accepted = checked.reason == ""
+    for i in np.flatnonzero(~accepted):
+        segments.append(("rejected", checked.reason[i], checked.detail[i], c0[i], c1[i]))
+    for i in np.flatnonzero(accepted):
+        segments.append(("hold", "", "", c0[i], c1[i]))
+    if not accepted.any():
+        _refuse_without_accepted_holds(log, h, checked.reason)
+    # The table's angle at each hold's start, from its first sample: the reference rate
+    # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
+    table_angle = np.mod(np.r_[0.0, np.cumsum(blk["ref"] * block_dt, dtype=np.float64)][c0], 360.0)
+    obs = _observation_table(h, accepted, checked, table_angle, cfg)
+    seg = _segment_table(segments, blk["t_first"], blk["t_last"], blk["ref"], obs)
+    info = dict(
+        path=log.path,
+        rows_read=log.rows_read,
+        rows_dropped=log.rows_dropped,
+        rows_used=len(log),
+        sample_rate=1.0 / dt,
+        block_samples=size,
+        typical_hold_s=st.typical,
+        min_hold_s=st.min_hold,
+        soak_min_s=st.soak_min,
+        noise_per_sample=motion.noise_log.tolist(),
+        holds_accepted=int(accepted.sum()),
+        rejected_by_reason=seg.loc[seg["kind"] == "rejected", "reason"].value_counts().sort_index().to_dict(),
+        temperature_points=int(obs["point"].max()) + 1,
+        has_mount_column="mount" in log,
+    )
+    timeline = bucketed(blk["t_first"], blk["t_last"], blk["temp"], blk["ref"], blk["gyro"].T)
+    return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), timeline, info)
 
-    # 1. Gaps and constant-reference runs.
-    # A gap is a pause in logging longer than gap_factor intervals; one shorter than
-    # gap_bridge_s does not interrupt a hold (the rig kept doing what it did).
+
+def _constant_runs(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentConfig) -> Runs:
+    """Where did the logger pause, and where is the reference rate constant? A gap is a
+    pause in logging longer than gap_factor intervals; one shorter than gap_bridge_s does
+    not interrupt a hold (the rig kept doing what it did)."""
+    t_first, t_last, r = blk["t_first"], blk["t_last"], blk["ref"]
     pause_in = (t_last - t_first) - (size - 1) * dt
     pause_before = np.r_[0.0, t_first[1:] - t_last[:-1] - dt]
     gap_limit = max(cfg.gap_bridge_s, (cfg.gap_factor - 1) * dt)
@@ -127,17 +217,23 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     n_runs = int(run[-1]) + 1 if new_run.any() else 0
     if n_runs == 0:
         raise SegmentationError("the reference rate is never constant: no hold to use", source=log.path)
+    return Runs(in_gap, gap_before, tol, const, run, n_runs)
 
-    # 2. Motion at constant reference.
+
+def _handling_motion(blk: dict, runs: Runs, size: int, block_dt: float, cfg: SegmentConfig) -> Motion:
+    """Where does the gyro move at constant reference, and which blocks lie within the
+    settling margin of such motion?
+
+    An output that settles after a step of the table's rate (a slow pole, a part of the
+    output that follows the rate through a lag) is the sensor's, not a hand's: a run where
+    the table turns allows changes up to ``settling`` times the step into it (deg/s), block
+    to block in proportion to the block's length over a second (a settling of time constant
+    ≥ 1 s). Where the table stands still (handling, the static stretches the noise is
+    measured on) nothing is allowed: a settling output is left out there."""
+    const, run, n_runs, r = runs.const, runs.run, runs.n_runs, blk["ref"]
+    var = blk["gyro_var"]
     ci = np.flatnonzero(const)
     noise_log = np.maximum(np.sqrt(np.median(var[ci[:: max(1, len(ci) // 50_000)]], axis=0)), 1e-9)
-    # An output that settles after a step of the table's rate (a slow pole, a part of the
-    # output that follows the rate through a lag) is the sensor's, not a hand's: a run
-    # where the table turns allows changes up to ``settling`` times the step into it
-    # (deg/s), block to block in proportion to the block's length over a second (a
-    # settling of time constant ≥ 1 s). Where the table stands still (handling, the static
-    # stretches the noise is measured on) nothing is allowed: a settling output is left out
-    # there as before.
     run_ref = np.bincount(run[const], weights=r[const], minlength=n_runs) / np.maximum(
         np.bincount(run[const], minlength=n_runs), 1
     )
@@ -145,22 +241,30 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     turning = np.abs(run_ref) > cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(run_ref)
     allowance = np.r_[cfg.settling * step_into * turning, 0.0]  # per run, dummy run last
     active, level, gain, excursion = _motion(
-        const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance * min(block_dt, 1.0)
+        const, run, n_runs, blk["gyro"], var, r, noise_log, size, cfg, allowance * min(block_dt, 1.0)
     )
+    nb = len(const)
     settle = int(math.ceil(cfg.settle_s / block_dt))
     c_act = np.r_[0, np.cumsum(active)]
     pos = np.arange(nb)
     near_motion = (c_act[np.minimum(pos + settle + 1, nb)] - c_act[np.maximum(pos - settle, 0)]) > 0
     usable = const & ~near_motion
+    return Motion(noise_log, allowance, active, level, gain, excursion, near_motion, usable)
 
-    # 3. Quiet stretches -> soaks and hold candidates.
-    key = np.where(usable, run, -1)
+
+def _quiet_stretches(
+    log: RigLog, blk: dict, motion: Motion, runs: Runs, block_dt: float, cfg: SegmentConfig
+) -> Stretches:
+    """Which quiet constant-rate stretches are soaks, and what hold does each leave once
+    trimmed? A very long still stretch is a soak, whose tail serves as the rate-0 hold."""
+    usable = motion.usable
+    key = np.where(usable, runs.run, -1)
     change = np.r_[True, key[1:] != key[:-1]]
     starts = np.flatnonzero(usable & change)
     stops = np.flatnonzero(usable & np.r_[change[1:], True]) + 1
     if not len(starts):
         raise SegmentationError("no quiet constant-rate stretch found", source=log.path)
-    s_ref = r[starts]
+    s_ref = blk["ref"][starts]
     s_tol = cfg.rate_tol_abs + cfg.rate_tol_rel * np.abs(s_ref)
     s_dur = (stops - starts) * block_dt
     rotating = np.abs(s_ref) > s_tol
@@ -173,65 +277,78 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     trim = int(math.ceil(cfg.trim_s / block_dt))
     c0, c1 = h_start + trim, stops - trim
     long_enough = (c1 - c0) * block_dt >= max(min_hold, block_dt)
+    return Stretches(starts, stops, typical, min_hold, soak_min, is_soak, h_start, trim, c0, c1, long_enough)
 
-    segments: list[tuple] = []  # (kind, reason, detail, first block, stop block)
-    for b0, b1 in zip(*true_runs(~const & ~in_gap), strict=False):
+
+def _phase_segments(blk: dict, runs: Runs, motion: Motion, st: Stretches, block_dt: float) -> list[tuple]:
+    """Every phase before the holds are checked, as (kind, reason, detail, first block,
+    stop block): ramps, gaps, handling motion and the settling after it, soaks, stretches
+    too short to hold, and what trimming took off the holds."""
+    segments: list[tuple] = []
+    for b0, b1 in zip(*true_runs(~runs.const & ~runs.in_gap), strict=False):
         segments.append(("ramp", "", "", b0, b1))
-    for b0, b1 in zip(*true_runs(in_gap), strict=False):
+    for b0, b1 in zip(*true_runs(runs.in_gap), strict=False):
         segments.append(("gap", "", "", b0, b1))
-    for b0, b1 in zip(*true_runs(active), strict=False):
-        segments.append(
-            (
-                "rejected",
-                "handling_motion",
-                f"gyro {excursion[b0:b1].max():.3g} deg/s away from its steady value "
-                f"at reference {r[b0]:.4g} deg/s",
-                b0,
-                b1,
-            )
+    for b0, b1 in zip(*true_runs(motion.active), strict=False):
+        away = (
+            f"gyro {motion.excursion[b0:b1].max():.3g} deg/s away from its steady value "
+            f"at reference {blk['ref'][b0]:.4g} deg/s"
         )
-    for b0, b1 in zip(*true_runs(near_motion & const & ~active), strict=False):
+        segments.append(("rejected", "handling_motion", away, b0, b1))
+    for b0, b1 in zip(*true_runs(motion.near_motion & runs.const & ~motion.active), strict=False):
         segments.append(("transient", "", "settling after motion", b0, b1))
-    for i in np.flatnonzero(is_soak):
-        segments.append(("soak", "", "", starts[i], h_start[i]))
-    for i in np.flatnonzero(~long_enough):
-        segments.append(
-            (
-                "rejected",
-                "too_short",
-                f"{max(c1[i] - c0[i], 0) * block_dt:.3g} s after trimming, minimum {min_hold:.3g} s",
-                h_start[i],
-                stops[i],
-            )
-        )
-    for i in np.flatnonzero(long_enough & (trim > 0)):
-        segments.append(("transient", "", "trimmed", h_start[i], c0[i]))
-        segments.append(("transient", "", "trimmed", c1[i], stops[i]))
-    if not long_enough.any():
-        longest = (c1 - c0)[~is_soak].max(initial=0) * block_dt
+    for i in np.flatnonzero(st.is_soak):
+        segments.append(("soak", "", "", st.starts[i], st.h_start[i]))
+    for i in np.flatnonzero(~st.long_enough):
+        left = f"{max(st.c1[i] - st.c0[i], 0) * block_dt:.3g} s after trimming, minimum {st.min_hold:.3g} s"
+        segments.append(("rejected", "too_short", left, st.h_start[i], st.stops[i]))
+    for i in np.flatnonzero(st.long_enough & (st.trim > 0)):
+        segments.append(("transient", "", "trimmed", st.h_start[i], st.c0[i]))
+        segments.append(("transient", "", "trimmed", st.c1[i], st.stops[i]))
+    return segments
+
+
+def _refuse_without_long_holds(log: RigLog, st: Stretches, block_dt: float) -> None:
+    if not st.long_enough.any():
+        longest = (st.c1 - st.c0)[~st.is_soak].max(initial=0) * block_dt
         raise SegmentationError(
             f"no constant-rate hold long enough: the longest lasts {max(longest, 0):.3g} s "
-            f"after trimming, the minimum is {max(min_hold, block_dt):.3g} s",
+            f"after trimming, the minimum is {max(st.min_hold, block_dt):.3g} s",
             source=log.path,
         )
-    c0, c1 = c0[long_enough], c1[long_enough]
-    h = _hold_statistics(
-        blk, size, c0, c1, log, r, tol, mean, var, level[run[c0]], gain[run[c0]], cfg, allowance[run[c0]]
-    )
-    # The table's angle at each hold's start, from its first sample: the reference rate
-    # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
-    h["table_angle"] = np.mod(np.r_[0.0, np.cumsum(r * block_dt, dtype=np.float64)][c0], 360.0)
 
-    # 4. Checks, in order; the first failing one is the reason.
-    reason = np.full(len(c0), "", dtype=object)
-    detail = np.full(len(c0), "", dtype=object)
 
-    def reject(mask, code, text):
-        mask = mask & (reason == "")
-        reason[mask] = code
+class Checked(NamedTuple):
+    """Step 4: why each hold was rejected ("" where accepted) and the mount it was taken on."""
+
+    reason: np.ndarray
+    detail: np.ndarray
+    mounts: np.ndarray  # index into MOUNTS, -1 where unknown
+    source: np.ndarray  # where the mount came from: both, column, data, inherited
+
+
+class _Verdicts:
+    """The first failing check of each hold: its reason and the words that say why."""
+
+    def __init__(self, k: int):
+        self.reason = np.full(k, "", dtype=object)
+        self.detail = np.full(k, "", dtype=object)
+
+    def reject(self, mask: np.ndarray, code: str, text: Callable[[int], str]) -> None:
+        mask = mask & (self.reason == "")
+        self.reason[mask] = code
         for i in np.flatnonzero(mask):
-            detail[i] = text(i)
+            self.detail[i] = text(int(i))
 
+
+def _check_holds(
+    log: RigLog, h: dict, blk: dict, c0: np.ndarray, c1: np.ndarray, runs: Runs, motion: Motion, cfg
+) -> Checked:
+    """Which holds pass the checks, in order (the first failing one is the reason): steady
+    reference and output, not saturated, no stuck axis, a known mount, the gyro agreeing
+    with the reference, a stable temperature."""
+    verdicts = _Verdicts(len(c0))
+    reject = verdicts.reject
     reject(
         h["ref_drift"] > h["ref_tol"],
         "reference_drift",
@@ -255,32 +372,10 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
         "stuck_axis",
         lambda i: f"{GYRO[int(np.argmax(stuck[i]))]} reads one value through the hold",
     )
-    mounts, source = _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject)
+    mounts, source = _assign_mounts(h, blk, c0, c1, motion.active, runs.in_gap, runs.gap_before, cfg, reject)
     axis = np.where(mounts >= 0, mounts // 2, 0)
     sign = np.where(mounts % 2 == 0, 1.0, -1.0)
-    rate_vec = np.zeros((len(c0), 3))
-    rate_vec[np.arange(len(c0)), axis] = np.where(mounts >= 0, sign * h["ref"], 0.0)
-    err = np.abs(h["mean"] - rate_vec)
-    limit = cfg.agree_scale * np.abs(h["ref"])[:, None] + cfg.agree_bias
-    reject(
-        (err > limit).any(axis=1) & (mounts >= 0),
-        "gyro_disagrees",
-        lambda i: (
-            f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
-            f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}"
-        ),
-    )
-    turning = (mounts >= 0) & (np.abs(h["ref"]) > 10 * cfg.agree_bias)
-    disagree = turning & (reason == "gyro_disagrees")
-    # Most of an axis' holds off by one ratio: a unit or a sign, not a few bad holds.
-    plausibility.rate_ratio_check(
-        {
-            "xyz"[a]: h["mean"][disagree & (axis == a), a] / (sign * h["ref"])[disagree & (axis == a)]
-            for a in range(3)
-        },
-        {"xyz"[a]: int(np.count_nonzero(turning & (axis == a))) for a in range(3)},
-        source=log.path,
-    )
+    _check_agreement(log, h, verdicts, mounts, axis, sign, cfg)
     # A short hold's rate estimate is noisy: reject only rates significantly over the limit.
     reject(
         np.abs(h["temp_rate"]) - 3.0 * h["temp_rate_sd"] > cfg.max_temp_rate,
@@ -289,48 +384,55 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
             f"{h['temp_rate'][i]:.3g} ± {h['temp_rate_sd'][i]:.2g} °C/min (limit {cfg.max_temp_rate:g})"
         ),
     )
+    return Checked(verdicts.reason, verdicts.detail, mounts, source)
 
-    accepted = reason == ""
-    for i in np.flatnonzero(~accepted):
-        segments.append(("rejected", reason[i], detail[i], c0[i], c1[i]))
-    for i in np.flatnonzero(accepted):
-        segments.append(("hold", "", "", c0[i], c1[i]))
-    if not accepted.any():
-        counts = pd.Series(reason).value_counts()
-        still = not np.any(h["ref"])
-        raise SegmentationError(
-            "no hold passed the checks ("
-            + ", ".join(f"{k}: {v}" for k, v in counts.items())
-            + ")"
-            + (
-                "; the reference rate is 0 throughout: a static log, not a turntable's (--protocol "
-                "sweep for a temperature sweep, --protocol static for a unit lying still; gyrocal "
-                "noise reads either)"
-                if still
-                else ""
-            ),
-            source=log.path,
-        )
 
-    obs = _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg)
-    seg = _segment_table(segments, t_first, t_last, r, obs)
-    info = dict(
-        path=log.path,
-        rows_read=log.rows_read,
-        rows_dropped=log.rows_dropped,
-        rows_used=len(log),
-        sample_rate=1.0 / dt,
-        block_samples=size,
-        typical_hold_s=typical,
-        min_hold_s=min_hold,
-        soak_min_s=soak_min,
-        noise_per_sample=noise_log.tolist(),
-        holds_accepted=int(accepted.sum()),
-        rejected_by_reason=seg.loc[seg["kind"] == "rejected", "reason"].value_counts().sort_index().to_dict(),
-        temperature_points=int(obs["point"].max()) + 1,
-        has_mount_column="mount" in log,
+def _check_agreement(
+    log: RigLog, h: dict, verdicts: _Verdicts, mounts: np.ndarray, axis: np.ndarray, sign: np.ndarray, cfg
+) -> None:
+    """Does the gyro agree with the reference rate about the hold's mount? Most of an
+    axis' holds off by one ratio is a unit or a sign, not a few bad holds: an error of the
+    log (:func:`gyrocal.io.plausibility.rate_ratio_check`)."""
+    rate_vec = np.zeros((len(mounts), 3))
+    rate_vec[np.arange(len(mounts)), axis] = np.where(mounts >= 0, sign * h["ref"], 0.0)
+    err = np.abs(h["mean"] - rate_vec)
+    limit = cfg.agree_scale * np.abs(h["ref"])[:, None] + cfg.agree_bias
+    verdicts.reject(
+        (err > limit).any(axis=1) & (mounts >= 0),
+        "gyro_disagrees",
+        lambda i: (
+            f"gyro {np.round(h['mean'][i], 3).tolist()} deg/s for reference "
+            f"{h['ref'][i]:.4g} deg/s about {MOUNTS[mounts[i]]}"
+        ),
     )
-    return Segmentation(obs, seg, _stable_periods(blk, block_dt, cfg), _timeline(blk), info)
+    turning = (mounts >= 0) & (np.abs(h["ref"]) > 10 * cfg.agree_bias)
+    disagree = turning & (verdicts.reason == "gyro_disagrees")
+    plausibility.rate_ratio_check(
+        {
+            "xyz"[a]: h["mean"][disagree & (axis == a), a] / (sign * h["ref"])[disagree & (axis == a)]
+            for a in range(3)
+        },
+        {"xyz"[a]: int(np.count_nonzero(turning & (axis == a))) for a in range(3)},
+        source=log.path,
+    )
+
+
+def _refuse_without_accepted_holds(log: RigLog, h: dict, reason: np.ndarray) -> None:
+    counts = pd.Series(reason).value_counts()
+    still = not np.any(h["ref"])
+    raise SegmentationError(
+        "no hold passed the checks ("
+        + ", ".join(f"{k}: {v}" for k, v in counts.items())
+        + ")"
+        + (
+            "; the reference rate is 0 throughout: a static log, not a turntable's (--protocol "
+            "sweep for a temperature sweep, --protocol static for a unit lying still; gyrocal "
+            "noise reads either)"
+            if still
+            else ""
+        ),
+        source=log.path,
+    )
 
 
 def _motion(const, run, n_runs, mean, var, r, noise_log, size, cfg, allowance=None):
@@ -408,13 +510,17 @@ def _quiet_mean(values: np.ndarray, run: np.ndarray, quiet: np.ndarray, count: n
     return sums / np.maximum(count, 1)[:, None]
 
 
-def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg, allowance=None) -> dict:
-    """Per-hold sums over the hold's blocks: means, variances, steadiness, temperature rate.
+def _hold_statistics(log, blk, size, c0, c1, runs: Runs, motion: Motion, cfg) -> dict:
+    """Per-hold sums over the blocks ``c0:c1`` of each hold: means, variances, steadiness,
+    temperature rate.
 
     A hold's scatter is its blocks' own scatter plus the blocks' spread about the hold mean;
     block means are taken relative to the run's steady level first, so the sums hold
     noise-sized numbers and lose nothing to cancellation.
     """
+    r, mean, var = blk["ref"], blk["gyro"], blk["gyro_var"]
+    lead = runs.run[c0]  # each hold's run
+    level, gain, allowance = motion.level[lead], motion.gain[lead], motion.allowance[lead]
     lengths = c1 - c0
     first = np.r_[0, np.cumsum(lengths)[:-1]]  # where each hold starts among the hold blocks
     hb = _range_index(c0, c1)
@@ -444,7 +550,7 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
         cfg.motion_sigma * np.sqrt(hold_var) * np.sqrt(1.0 / np.maximum(n1, 1) + 1.0 / n2)[:, None]
         + cfg.motion_floor
     )
-    half_limit = steady_limit + (0.0 if allowance is None else allowance[:, None])
+    half_limit = steady_limit + allowance[:, None]
     settling = (half_diff > steady_limit).any(axis=1)
     if settling.any():
         # A hold kept though its output settles: its scatter from successive block
@@ -469,7 +575,7 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
         t_start=blk["t_first"][c0],
         t_end=blk["t_last"][c1 - 1],
         ref_drift=ref_drift,
-        ref_tol=tol[c0],
+        ref_tol=runs.tol[c0],
         not_steady=(half_diff > half_limit).any(axis=1) & (lengths >= 2),
         half_diff=half_diff[rows, worst],
         half_limit=half_limit[rows, worst],
@@ -478,30 +584,17 @@ def _hold_statistics(blk, size, c0, c1, log, r, tol, mean, var, level, gain, cfg
         settle=np.where((lengths >= 2)[:, None], d2 - d1, np.nan),
         saturated=_saturation(blk, size, c0, c1, n, hold_mean, hold_var, log, cfg.full_scale),
     )
-    if "accel" in blk:  # optional: blocks without accelerometer data are left out
-        acc = blk["accel"][hb].astype(np.float64)
-        have = np.isfinite(acc)
-        with np.errstate(invalid="ignore"):
-            out["accel"] = _range_sums(np.where(have, acc, 0.0), first) / _range_sums(have * 1.0, first)
+    if "accel" in blk:
+        out["accel"] = _hold_accel(blk["accel"], hb, first)
     return out
 
 
-def _window_rate(temp: np.ndarray, t_mid: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Temperature rate (°C/min) from the means of the first and last third of blocks lo:hi.
-
-    89 % as efficient as a regression slope, and free of the cancellation a regression on
-    absolute times suffers.
-    """
-    third = np.maximum((hi - lo) // 3, 1)
-    p_T = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
-    p_t = np.r_[0.0, np.cumsum(t_mid - t_mid[0])]
-    T_a = (p_T[lo + third] - p_T[lo]) / third
-    T_b = (p_T[hi] - p_T[hi - third]) / third
-    t_a = (p_t[lo + third] - p_t[lo]) / third
-    t_b = (p_t[hi] - p_t[hi - third]) / third
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rate = 60.0 * (T_b - T_a) / (t_b - t_a)
-    return np.where(np.isfinite(rate), rate, 0.0)
+def _hold_accel(accel: np.ndarray, hb: np.ndarray, first: np.ndarray) -> np.ndarray:
+    """Each hold's mean specific force over its blocks that have accelerometer data."""
+    acc = accel[hb].astype(np.float64)
+    have = np.isfinite(acc)
+    with np.errstate(invalid="ignore"):
+        return _range_sums(np.where(have, acc, 0.0), first) / _range_sums(have * 1.0, first)
 
 
 def _hold_temp_rate(blk, c0, c1) -> tuple[np.ndarray, np.ndarray]:
@@ -509,13 +602,8 @@ def _hold_temp_rate(blk, c0, c1) -> tuple[np.ndarray, np.ndarray]:
     block-to-block temperature scatter."""
     temp = blk["temp"]
     t_mid = (blk["t_first"] + blk["t_last"]) / 2
-    rate = _window_rate(temp, t_mid, c0, c1)
     block_noise = 1.4826 * _median(np.abs(np.diff(temp))) / math.sqrt(2.0)
-    third = np.maximum((c1 - c0) // 3, 1)
-    spacing = (t_mid[c1 - 1] - t_mid[c0]) * 2.0 / 3.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        sd = 60.0 * block_noise * np.sqrt(2.0 / third) / spacing
-    return rate, np.where(np.isfinite(sd), sd, np.inf)
+    return thirds_rate(temp, t_mid, c0, c1), thirds_rate_error(block_noise, t_mid, c0, c1)
 
 
 def _saturation(blk, size, c0, c1, n, mean, var, log, full_scale) -> np.ndarray:
@@ -604,26 +692,6 @@ def _assign_mounts(h, blk, c0, c1, active, in_gap, gap_before, cfg, reject):
     return mounts, source
 
 
-def _timeline(blk, buckets: int = 2000) -> pd.DataFrame:
-    """Block means in at most ``buckets`` consecutive buckets: time span, mean
-    temperature, and the range of the reference and of each gyro axis (so a second of
-    handling motion still shows in a day-long plot)."""
-    nb = len(blk["t_first"])
-    starts = np.arange(0, nb, -(-nb // buckets))
-    ends = np.r_[starts[1:], nb] - 1
-    out = {
-        "t_start": blk["t_first"][starts],
-        "t_end": blk["t_last"][ends],
-        "temp": np.add.reduceat(blk["temp"], starts) / (ends - starts + 1),
-        "ref_min": np.minimum.reduceat(blk["ref"], starts),
-        "ref_max": np.maximum.reduceat(blk["ref"], starts),
-    }
-    for a, c in enumerate("xyz"):
-        out[f"gyro_{c}_min"] = np.minimum.reduceat(blk["gyro"][:, a], starts)
-        out[f"gyro_{c}_max"] = np.maximum.reduceat(blk["gyro"][:, a], starts)
-    return pd.DataFrame(out)
-
-
 def _nearest_known(values: np.ndarray, session: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For each position, the nearest value >= 0 before (and after) it in the same
     session, or -1: a forward and a backward fill that stop at session boundaries."""
@@ -648,7 +716,7 @@ def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
     step = max(width // 4, 1)
     lo = np.arange(0, nb - width + 1, step)
     t_mid = (blk["t_first"] + blk["t_last"]) / 2
-    stable = np.abs(_window_rate(temp, t_mid, lo, lo + width)) <= cfg.max_temp_rate
+    stable = np.abs(thirds_rate(temp, t_mid, lo, lo + width)) <= cfg.max_temp_rate
     a, b = true_runs(stable)
     first, last = lo[a], np.minimum(lo[b - 1] + width, nb)
     p = np.r_[0.0, np.cumsum(temp, dtype=np.float64)]
@@ -661,52 +729,34 @@ def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
     )
 
 
-def _observation_table(h, accepted, mounts, source, axis, sign, rate_vec, cfg) -> pd.DataFrame:
+def _observation_table(h: dict, accepted: np.ndarray, checked: Checked, table_angle, cfg) -> pd.DataFrame:
+    """The accepted holds in the hold schema, with the turntable's own columns: the table's
+    angle, the accelerometer where logged, and each axis' settling within the hold.
+    Temperature points: holds closer than ``temp_gap`` in temperature belong together."""
     a = accepted
-    std = np.sqrt(h["var"][a])
-    obs = pd.DataFrame(
-        {
-            "hold": np.arange(a.sum()),
-            "t_start": h["t_start"][a],
-            "t_end": h["t_end"][a],
-            "duration": h["t_end"][a] - h["t_start"][a],
-            "n": h["n"][a].astype(np.int64),
-            "mount": pd.Categorical([MOUNTS[m] for m in mounts[a]], categories=MOUNTS),
-            "axis": ["xyz"[x] for x in axis[a]],
-            "sign": sign[a],
-            "mount_source": source[a],
-            "ref_rate": h["ref"][a],
-            "rate_x": rate_vec[a, 0],
-            "rate_y": rate_vec[a, 1],
-            "rate_z": rate_vec[a, 2],
-            "gyro_x": h["mean"][a, 0],
-            "gyro_y": h["mean"][a, 1],
-            "gyro_z": h["mean"][a, 2],
-            "std_x": std[:, 0],
-            "std_y": std[:, 1],
-            "std_z": std[:, 2],
-            "temp": h["temp"][a],
-            "temp_rate": h["temp_rate"][a],
-            "table_angle": h["table_angle"][a],
-        }
-    )
+    own = {"table_angle": table_angle[a]}
     if "accel" in h:
-        for i, c in enumerate("xyz"):
-            obs[f"accel_{c}"] = h["accel"][a, i]
-    for i, c in enumerate("xyz"):
-        obs[f"settle_{c}"] = h["settle"][a, i]
-    # Temperature points: holds closer than temp_gap in temperature belong together.
-    order = np.argsort(obs["temp"].to_numpy(), kind="stable")
-    point = np.empty(len(obs), dtype=np.int64)
-    point[order] = np.r_[0, np.cumsum(np.diff(obs["temp"].to_numpy()[order]) > cfg.temp_gap)]
-    obs["point"] = point
-    obs["point_temp"] = obs.groupby("point")["temp"].transform("mean")
-    return obs
+        own.update({f"accel_{c}": h["accel"][a, i] for i, c in enumerate(AXES)})
+    own.update({f"settle_{c}": h["settle"][a, i] for i, c in enumerate(AXES)})
+    return hold_table(
+        t_start=h["t_start"][a],
+        t_end=h["t_end"][a],
+        n=h["n"][a],
+        mount=np.array([MOUNTS[m] for m in checked.mounts[a]], dtype=object),
+        mount_source=checked.source[a],
+        ref_rate=h["ref"][a],
+        gyro=h["mean"][a],
+        std=np.sqrt(h["var"][a]),
+        temp=h["temp"][a],
+        temp_rate=h["temp_rate"][a],
+        own=own,
+        **temperature_points(h["temp"][a], gap=cfg.temp_gap)._asdict(),
+    )
 
 
 def _segment_table(segments, t_first, t_last, r, obs) -> pd.DataFrame:
-    kinds, reasons, details, b0, b1 = (list(x) for x in zip(*segments, strict=False))
-    b0, b1 = np.asarray(b0, dtype=int), np.asarray(b1, dtype=int)
+    kinds, reasons, details, first, stop = (list(x) for x in zip(*segments, strict=False))
+    b0, b1 = np.asarray(first, dtype=int), np.asarray(stop, dtype=int)
     keep = b1 > b0
     b0, b1 = b0[keep], b1[keep]
     p = np.r_[0.0, np.cumsum(r)]
