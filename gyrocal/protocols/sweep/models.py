@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import pandas as pd
 
+from ...io import AXES
 from ...io.errors import (
     CalibrationFileError,
     ConfigError,
@@ -47,7 +48,6 @@ from ...io.log import GYRO
 FORMAT = "gyrocal.drift/1"
 KINDS = ("poly", "rbf")
 INPUTS = ("dT", "dT,dT2")
-AXES = ("x", "y", "z")
 TARGETS = ("err_x", "err_y", "err_z")
 
 Rows = tuple[tuple[float, ...], ...]

@@ -23,11 +23,10 @@ from collections.abc import Mapping, Sequence
 import numpy as np
 import pandas as pd
 
+from ...io import AXES
 from ...io.errors import InputError, MissingInputError
 from ...io.log import GYRO, MOUNTS
 from .models import TARGETS, DriftModel
-
-AXES = ("x", "y", "z")
 
 
 def bias_stability(x, reference=0.0) -> np.ndarray:
