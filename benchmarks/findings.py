@@ -61,11 +61,11 @@ def run_unit(case, unit_seed: int) -> dict:
             if quality.excess_p_value < ALPHA / 2:
                 lab = lab_fixed(obs, quality, base.dof, ALPHA)
                 if lab is not None:
-                    out["lab"][0] += lab["explains"]
+                    out["lab"][0] += lab.explains
                     out["lab"][1] += 1
             between = between_points(base.fitted, ALPHA)
             if between is not None:
-                out["between"][0] += between["fails"]
+                out["between"][0] += between.fails
                 out["between"][1] += 1
     return out
 

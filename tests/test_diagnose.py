@@ -348,9 +348,9 @@ def test_the_lab_and_between_points_tests_alarm_on_complete_units_only_at_their_
         base = evaluate(settings, obs, "complete")
         lab = lab_fixed(obs, fit_quality(base, len(obs)), base.dof, 0.01)
         between = between_points(base.fitted, 0.01)
-        lab_below += lab["p_value"] < 0.05
-        between_below += between["p_value"] < 0.05
-        between_fails += between["fails"]
+        lab_below += lab.p_value < 0.05
+        between_below += between.p_value < 0.05
+        between_fails += between.fails
     bound = binom.ppf(0.999, draws, 0.05)  # 10 of 60
     assert lab_below <= bound and between_below <= bound, (lab_below, between_below)
     assert between_fails <= binom.ppf(0.999, draws, 0.005)

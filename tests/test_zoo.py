@@ -93,7 +93,7 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     diag = diagnose(settings, segment_log(logs[0], settings).observations)
     assert not diag.partial, diag.verdict
     drift = diag.time_drift
-    assert drift["explains"] and drift["rival_of"] == "g_sensitivity"
+    assert drift.explains and drift.rival_of == "g_sensitivity"
     if diag.best is None:
         assert "drifting linearly in time" in diag.verdict
         assert any('expression(formula="t")' in a for a in diag.advice)
@@ -131,9 +131,9 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     assert diag.explains, diag.verdict
     s = diag.base.summary
     if diag.rms_over_floor["all"] > 1.5:  # the wander shows in-sample: said so
-        assert "--other-session" in diag.verdict and diag.within_noise["explains"]
+        assert "--other-session" in diag.verdict and diag.within_noise.explains
         tolerance = explained_tolerance(diag.residuals, s["holds_scored"], diag.significance)
-        assert s["validation_rms"] <= diag.within_noise["expected_rms"] * tolerance
+        assert s["validation_rms"] <= diag.within_noise.expected_rms * tolerance
 
 
 def _next_session_over_floor(logs, settings, fix, protocol="turntable"):
@@ -366,7 +366,7 @@ def test_a_step_in_time_one_session_cannot_validate_is_said_so(tmp_path):
     )
     diag = diagnose(Settings(), segment_log(log, Settings()).observations)
     assert diag.best is None and not diag.explains, diag.verdict
-    assert diag.unexplained is not None and diag.unexplained["reason"] == "unvalidated"
+    assert diag.unexplained is not None and diag.unexplained.reason == "unvalidated"
     assert "--other-session" in diag.verdict
 
 
@@ -389,10 +389,10 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     obs, other = (segment_log(log, settings).observations for log in logs)
     diag = diagnose(settings, obs, other)
     assert diag.best is None and not diag.explains, diag.verdict
-    assert diag.unexplained["reason"] == "fixed in the lab", diag.verdict
+    assert diag.unexplained.reason == "fixed in the lab", diag.verdict
     lab = diag.lab_fixed
     # What is left after the angle's columns is what noise leaves (the χ² test's level).
-    assert lab["left_p_value"] >= settings.diagnosis.significance / 2
+    assert lab.left_p_value >= settings.diagnosis.significance / 2
     assert "encoder" in diag.verdict and "slow noise" not in diag.verdict
     json.dumps(diag.to_dict(), allow_nan=False)  # what `gyrocal diagnose` writes
 
@@ -426,11 +426,11 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
         # The test itself, made whatever gates it: the wander moves the bias, not the scale.
         from gyrocal.diagnose.between import between_points
 
-        assert not between_points(diag.base.fitted, settings.diagnosis.significance)["fails"]
+        assert not between_points(diag.base.fitted, settings.diagnosis.significance).fails
         assert diag.unexplained is None, diag.verdict
         return
-    assert between["fails"] and between["worst"]["coefficient"].startswith("misalignment")
-    assert diag.unexplained["reason"] == "between temperature points"
+    assert between.fails and between.worst["coefficient"].startswith("misalignment")
+    assert diag.unexplained.reason == "between temperature points"
     assert "nothing is missing" not in diag.verdict and "sweep" in diag.verdict
     json.dumps(diag.to_dict(), allow_nan=False)  # what `gyrocal diagnose` writes
 
@@ -462,4 +462,4 @@ def test_three_points_or_a_joint_fit_are_not_judged_between_points(tmp_path):
     assert between_points(evaluate(settings, three, "lagrange3").fitted, 0.01) is None
     linear = replace(settings, model=ModelSettings.from_dict({"interpolation": "linear"}))
     check = between_points(evaluate(linear, three, "linear").fitted, 0.01)
-    assert check is not None and check["fails"], check
+    assert check is not None and check.fails, check

@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fit.thermal import GridFit
+from .findings import SENSOR_LEAD, BetweenPoints, Unexplained
 from .stats import chi2_sf, p_text
 
 # Points the interpolation reads at once: with one point left out, at least this many must
@@ -35,7 +36,7 @@ def _uncertainty(fit) -> np.ndarray:
     return fit.covariance * np.sqrt(np.outer(factor, factor))
 
 
-def between_points(fitted, alpha: float) -> dict | None:
+def between_points(fitted, alpha: float) -> BetweenPoints | None:
     """Per interior point, χ² of (fitted - interpolated) scale and misalignment against the
     sum of both covariances (the point's fit and the others' are independent); the largest,
     Bonferroni over the points, judged at ``alpha``/2. None for fits not made point by point
@@ -90,43 +91,43 @@ def between_points(fitted, alpha: float) -> dict | None:
     for r in points:
         r["p_value"] = min(1.0, tested * r["p_value"])  # Bonferroni over the points
     top = min(points, key=lambda r: r["p_value"])
-    return {
-        "points": points,
-        "worst": top,
-        "p_value": top["p_value"],
-        "temperature_points": len(used),
-        "fails": bool(top["p_value"] < alpha / 2),
-        "failing": [r["temp"] for r in points if r["p_value"] < alpha / 2],
-    }
+    return BetweenPoints(
+        points=points,
+        worst=top,
+        p_value=top["p_value"],
+        temperature_points=len(used),
+        fails=bool(top["p_value"] < alpha / 2),
+        failing=[r["temp"] for r in points if r["p_value"] < alpha / 2],
+    )
 
 
-def between_reason(check: dict, held_out: float | None) -> dict:
+def between_reason(check: BetweenPoints, held_out: float | None) -> Unexplained:
     """The verdict's why and what would tell, for a calibration that fails between points."""
-    top = check["worst"]
-    temps = ", ".join(f"{t:.0f}" for t in check["failing"])
+    top = check.worst
+    temps = ", ".join(f"{t:.0f}" for t in check.failing)
     error = (
         f"; left out, a point's holds err {held_out:.3g} times what a correct model would leave"
         if held_out is not None
         else ""
     )
-    return {
-        "reason": "between temperature points",
-        "term": None,
-        "lead": "No term of the sensor can hold it",
-        "text": (
+    return Unexplained(
+        reason="between temperature points",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
             f"the calibration does not hold between the temperature points (leaving out "
             f"the point at {top['temp']:.0f} °C, the one interpolated from the other "
             f"points misses its {top['coefficient']} by {abs(top['z']):.3g} standard errors "
             f"({top['difference']:.3g}; scale and misalignment together p "
-            f"{p_text(check['p_value'])}){error}). The sensor's scale or misalignment changes "
-            f"between the points more than interpolation across {check['temperature_points']} "
+            f"{p_text(check.p_value)}){error}). The sensor's scale or misalignment changes "
+            f"between the points more than interpolation across {check.temperature_points} "
             "points follows: with temperature, more sharply than they resolve, or with "
             "time, since the points follow each other in time; a calibration per point "
             "absorbs either at the points themselves, so no term fitted to them shows it"
         ),
-        "would_tell": (
+        would_tell=(
             f"more temperature points around {temps} °C (or a temperature sweep "
             "held at rates in both directions) and the first point revisited at "
             "the end of the session"
         ),
-    }
+    )

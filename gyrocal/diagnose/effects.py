@@ -22,9 +22,10 @@ from .evaluation import (
     in_sample_summary,
     reason,
 )
-from .sessions import SOAKED_SPREAD, carry_over, slow_noise, usable
+from .findings import TimeDrift
+from .sessions import SOAKED_SPREAD, CarryOver, carry_over, slow_noise, usable
 from .stats import chance_bound, chi2_sf, f_sf, fisher_combined
-from .where import TIME_LIKE, leftover
+from .where import TIME_LIKE, Leftover, leftover
 
 
 @dataclass
@@ -45,8 +46,8 @@ class Candidate:
     tied_with: list[str] = field(default_factory=list)  # fits this protocol cannot tell apart
     together: list[str] = field(default_factory=list)  # also missing: named with this one
     alone_rms: float | None = None  # validation RMS with this one alone
-    leftover: dict | None = None  # the covariate its residuals still follow most
-    next_session: dict | None = None  # how the extended model carries over
+    leftover: Leftover | None = None  # the covariate its residuals still follow most
+    next_session: CarryOver | None = None  # how the extended model carries over
     chi2: float | None = None  # of the extended fit, for ties
     part_of: str | None = None  # the library term this is the protocol's part of
     seen_part: str | None = None  # not identifiable: the part fitted instead
@@ -154,7 +155,7 @@ class Judge:
             if f"{k}_{a}" in obs
         )
 
-    def carry(self, ev: Evaluation) -> dict | None:
+    def carry(self, ev: Evaluation) -> CarryOver | None:
         """:func:`carry_over` to the other session; None without one, ``{"error": ...}``
         when this model cannot be applied there (a term reading an input it lacks)."""
         if self.other is None:
@@ -164,7 +165,7 @@ class Judge:
         except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: note it
             return {"error": reason(exc) if isinstance(exc, GyrocalError) else f"{type(exc).__name__}: {exc}"}
 
-    def leftover(self, ev: Evaluation) -> dict:
+    def leftover(self, ev: Evaluation) -> Leftover:
         return leftover(self.obs, self.data, ev)
 
     def explains(self, ext: Evaluation, candidate: Candidate, base_next, tolerance) -> bool:
@@ -213,7 +214,9 @@ class Judge:
 TIME_DRIFT = {"name": "expression", "formula": "t"}
 
 
-def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, tolerance, bound) -> dict | None:
+def time_drift(
+    judge: Judge, settings, obs, base: Evaluation, base_next, tolerance, bound
+) -> TimeDrift | None:
     """How far a bias drifting in time within each temperature point takes the held-out
     error, and whether it explains the excess as a named term would have to; None where time
     within a point is not separable from temperature (a sweep) or the fit cannot be made."""
@@ -226,16 +229,15 @@ def time_drift(judge: Judge, settings, obs, base: Evaluation, base_next, toleran
     probe = Candidate("expression(formula='t')", "ranked")
     explains = judge.explains(ev, probe, base_next, tolerance)
     gain = practical_gain(base, float(ev.summary["validation_rms"]), bound)
-    return {
-        "validation_rms": ev.summary["validation_rms"],
-        "expected_rms": ev.summary["expected_rms"],
-        "explains": bool(explains and gain),
-        "option": add_term_option("expression(formula='t')"),
-        "config_line": config_line(extended(settings, TIME_DRIFT).model),
-        "leftover": probe.leftover,
-        "next_session": probe.next_session,
-        "rival_of": None,
-    }
+    return TimeDrift(
+        validation_rms=ev.summary["validation_rms"],
+        expected_rms=ev.summary["expected_rms"],
+        explains=bool(explains and gain),
+        option=add_term_option("expression(formula='t')"),
+        config_line=config_line(extended(settings, TIME_DRIFT).model),
+        leftover=probe.leftover,
+        next_session=probe.next_session,
+    )
 
 
 def extended_all(settings: Settings, best: Candidate) -> Settings:
@@ -374,100 +376,25 @@ def rank_candidates(
     """Every candidate added to the configured model in turn, refitted, validated, tested
     against the model (nested F-test, Bonferroni over the candidates tested) and judged
     (:meth:`Judge.explains`); ranked by the validation RMS they reach, then the candidates
-    that could not be fitted, with their reason."""
-    settings, obs, data, alpha = judge.settings, judge.obs, judge.data, judge.alpha
+    that could not be fitted, with their reason. A library term the protocol cannot
+    identify is followed by the part of it the protocol can see, judged the same way."""
+    alpha = judge.alpha
     candidates: list[Candidate] = []
     tested = []
     queue = [(spec, None) for spec in names]
     in_sample_base: list = []  # the configured model's in-sample figure, made when needed
     while queue:
         spec, part_of = queue.pop(0)
-        term = make_term(spec)
-        if term.moving_temperature and judge.soaked:
-            candidates.append(
-                Candidate(
-                    spec,
-                    "not identifiable",
-                    reason=("the temperature holds still within every point: it changes nothing there"),
-                )
-            )
-            continue
-        series = "series" in data
-        missing = sorted(
-            c
-            for c in term.needs
-            if c not in data and not c.startswith("rate_") and not (series and c in SERIES_INPUTS)
+        candidate, unfitted = _try(
+            judge, base, spec, part_of, base_next, tolerance, in_sample, in_sample_base
         )
-        if missing:
-            candidates.append(Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"))
-            continue
-        try:
-            ext = evaluate(extended(settings, spec), obs, spec, in_sample=in_sample)
-        except MissingInputError as exc:
-            candidates.append(Candidate(spec, "missing inputs", reason=reason(exc)))
-            continue
-        except GyrocalError as exc:
-            candidates.append(
-                Candidate(
-                    spec,
-                    "not identifiable",
-                    reason=reason(exc),
-                    excited=_excited(extended(settings, spec), term, data),
-                )
-            )
-            if part_of is None:
-                part = _seen_part(settings, obs, spec)
-                if part is not None:  # what the protocol can see of it, judged the same way
-                    queue.insert(0, (part, spec))
-            continue
-        except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
-            candidates.append(Candidate(spec, "failed", reason=f"{type(exc).__name__}: {exc}"))
-            continue
-        added = [c for c in ext.fitted.names if c not in base.fitted.names]
-        df_num, df_den = base.dof - ext.dof + _added_nonlinear(base, ext), ext.dof
-        problem = (
-            "it leaves fewer temperature points"
-            if len(ext.fitted.used_points()) != len(base.fitted.used_points())
-            else "it adds no coefficient to the model"
-            if df_num <= 0
-            else "it leaves no degree of freedom"
-            if df_den <= 0
-            else None
-        )
-        if problem:
-            candidates.append(Candidate(spec, "not identifiable", reason=problem))
-            continue
-        f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
-        p = float(f_sf(f_stat, df_num, df_den))
-        size, peak = effect_size(ext, spec, added, data)
-        v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
-        if ext.summary["held_out"] == "none":
-            # Scored in sample (no point could be left out): beside the configured model's
-            # in-sample figure, on the same holds, never beside its held-out one.
-            if not in_sample_base:
-                in_sample_base.append(in_sample_summary(base.fitted, obs)["validation_rms"])
-            v0 = in_sample_base[0]
-        candidate = Candidate(
-            spec,
-            "ranked",
-            v1,
-            p,
-            float(f_stat),
-            (df_num, df_den),
-            100.0 * (1 - v1 / v0),
-            False,
-            size,
-            peak,
-            expected_with=ext.summary["expected_rms"],
-            base_rms=v0,
-        )
-        candidate.chi2 = ext.chi2
-        candidate.validated = ext.summary["held_out"] != "none"
-        candidate.part_of = part_of
-        candidate.profiled = list(getattr(ext.fitted, "profiled", ()) or ())
-        candidate.explains_excess = judge.explains(ext, candidate, base_next, tolerance)
         candidates.append(candidate)
-        tested.append(candidate)
+        if candidate.status == "ranked":
+            tested.append(candidate)
+        elif unfitted and part_of is None:
+            part = _seen_part(judge.settings, judge.obs, spec)
+            if part is not None:
+                queue.insert(0, (part, spec))
     for c in tested:  # Bonferroni over the candidates actually tested
         c.significant = c.p_value < alpha / 2 / max(len(tested), 1)
     for c in candidates:  # the full term's reason stays with the part that was fitted
@@ -476,6 +403,77 @@ def rank_candidates(
     mark_ties(tested)
     ranked = sorted(tested, key=lambda c: c.validation_rms_with)
     return ranked + [c for c in candidates if c.status != "ranked"]
+
+
+def _try(
+    judge: Judge, base, spec, part_of, base_next, tolerance, in_sample, in_sample_base
+) -> tuple[Candidate, bool]:
+    """One candidate added to the model, fitted, tested and judged; or why it could not be,
+    with whether the fit itself refused it (then a part of it may be identifiable)."""
+    settings, obs, data = judge.settings, judge.obs, judge.data
+    term = make_term(spec)
+    if term.moving_temperature and judge.soaked:
+        why = "the temperature holds still within every point: it changes nothing there"
+        return Candidate(spec, "not identifiable", reason=why), False
+    series = "series" in data
+    missing = sorted(
+        c
+        for c in term.needs
+        if c not in data and not c.startswith("rate_") and not (series and c in SERIES_INPUTS)
+    )
+    if missing:
+        return Candidate(spec, "missing inputs", reason=f"needs {', '.join(missing)}"), False
+    try:
+        ext = evaluate(extended(settings, spec), obs, spec, in_sample=in_sample)
+    except MissingInputError as exc:
+        return Candidate(spec, "missing inputs", reason=reason(exc)), False
+    except GyrocalError as exc:
+        excited = _excited(extended(settings, spec), term, data)
+        return Candidate(spec, "not identifiable", reason=reason(exc), excited=excited), True
+    except Exception as exc:  # noqa: BLE001 - a user's term may fail any way: report it
+        return Candidate(spec, "failed", reason=f"{type(exc).__name__}: {exc}"), False
+    df_num, df_den = base.dof - ext.dof + _added_nonlinear(base, ext), ext.dof
+    problem = (
+        "it leaves fewer temperature points"
+        if len(ext.fitted.used_points()) != len(base.fitted.used_points())
+        else "it adds no coefficient to the model"
+        if df_num <= 0
+        else "it leaves no degree of freedom"
+        if df_den <= 0
+        else None
+    )
+    if problem:
+        return Candidate(spec, "not identifiable", reason=problem), False
+    f_stat = ((base.chi2 - ext.chi2) / df_num) / (ext.chi2 / df_den)
+    added = [c for c in ext.fitted.names if c not in base.fitted.names]
+    size, peak = effect_size(ext, spec, added, data)
+    v0, v1 = base.summary["validation_rms"], ext.summary["validation_rms"]
+    if ext.summary["held_out"] == "none":
+        # Scored in sample (no point could be left out): beside the configured model's
+        # in-sample figure, on the same holds, never beside its held-out one.
+        if not in_sample_base:
+            in_sample_base.append(in_sample_summary(base.fitted, obs)["validation_rms"])
+        v0 = in_sample_base[0]
+    candidate = Candidate(
+        spec,
+        "ranked",
+        v1,
+        float(f_sf(f_stat, df_num, df_den)),
+        float(f_stat),
+        (df_num, df_den),
+        100.0 * (1 - v1 / v0),
+        False,
+        size,
+        peak,
+        expected_with=ext.summary["expected_rms"],
+        base_rms=v0,
+    )
+    candidate.chi2 = ext.chi2
+    candidate.validated = ext.summary["held_out"] != "none"
+    candidate.part_of = part_of
+    candidate.profiled = list(getattr(ext.fitted, "profiled", ()) or ())
+    candidate.explains_excess = judge.explains(ext, candidate, base_next, tolerance)
+    return candidate, False
 
 
 def _added_nonlinear(base: Evaluation, ext: Evaluation) -> int:

@@ -8,6 +8,7 @@ import re
 import shlex
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -174,11 +175,31 @@ def effect_size(
     return size, peak
 
 
-def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) -> list[dict]:
+class LadderRow(TypedDict, total=False):
+    """A step of the ladder (:func:`ladder`, :func:`fix_row`): the model, its figures on the
+    holds left out (in sample where ``in_sample``), the coefficients it adds, its excess on
+    the other session (``next_excess``), or the ``error`` that kept it from being fitted."""
+
+    name: str
+    kind: str
+    terms: list[str]
+    validation_rms: float
+    noise_floor: float
+    expected_rms: float
+    excess: float
+    chi2_red: float | None
+    parameters: list[dict[str, Any]]
+    fix: bool
+    in_sample: bool
+    next_excess: float
+    error: str
+
+
+def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) -> list[LadderRow]:
     """The base model, then each configured step added to the one before; ``carry``
     (:meth:`gyrocal.diagnose.effects.Judge.carry`, with another session) gives each the
     figure of its calibration there."""
-    rows = [_ladder_row(base, [], carry)]
+    rows: list[LadderRow] = [_ladder_row(base, [], carry)]
     current = settings
     for step in settings.diagnosis.ladder:
         for spec in step["add"]:
@@ -198,7 +219,7 @@ def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) 
     return rows
 
 
-def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> dict:
+def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> LadderRow:
     params = [
         dict(zip(("coefficient", "value", "stderr"), (name, *pooled(ev.fitted.fits, name)), strict=False))
         for name in added
@@ -219,7 +240,7 @@ def _ladder_row(ev: Evaluation, added: list[str], carry=None) -> dict:
     }
 
 
-def fix_row(best, base: Evaluation) -> dict:
+def fix_row(best, base: Evaluation) -> LadderRow:
     """The ladder's step of the fix the diagnosis names: the configured model with it, as
     the diagnosis fitted and judged it."""
     floor = base.summary["noise_floor"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .findings import SENSOR_LEAD, LabTest, MountingTest, Unexplained
 from .stats import chi2_sf, f_sf, p_text
 
 
@@ -62,7 +63,7 @@ def _refits(z, floor, own, extras):
         )
 
 
-def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
+def lab_fixed(obs, quality, dof: int, alpha: float) -> LabTest | None:
     """How much of the in-sample excess the table's angle accounts for: each output axis'
     whitened residuals refitted with the holds' mean cosine and sine of the angle (two
     coefficients per mount and axis) beside each temperature point's bias and rates; an
@@ -100,39 +101,39 @@ def lab_fixed(obs, quality, dof: int, alpha: float) -> dict | None:
     left_p = float(chi2_sf(left, left_dof))
     offsets_p = float(chi2_sf(rss[2], dof - int(added[1])))
     excess = max(before - dof, 0.0)
-    return {
-        "p_value": p_value,
-        "parameters": q,
-        "chi2_before": before,
-        "chi2_after": float(left),
-        "dof": left_dof,
-        "share_of_excess": min(float(gain) / excess, 1.0) if excess > 0 else 0.0,
-        "left_p_value": left_p,
-        "offsets_p_value": offsets_p,
-        "explains": bool(p_value < alpha / 2 and left_p >= alpha / 2 and offsets_p < alpha / 2),
-    }
+    return LabTest(
+        p_value=p_value,
+        parameters=q,
+        chi2_before=before,
+        chi2_after=float(left),
+        dof=left_dof,
+        share_of_excess=min(float(gain) / excess, 1.0) if excess > 0 else 0.0,
+        left_p_value=left_p,
+        offsets_p_value=offsets_p,
+        explains=bool(p_value < alpha / 2 and left_p >= alpha / 2 and offsets_p < alpha / 2),
+    )
 
 
-def lab_reason(lab: dict) -> dict:
+def lab_reason(lab: LabTest) -> Unexplained:
     """The verdict's why and what would tell, for an excess the table's angle explains."""
-    return {
-        "reason": "fixed in the lab",
-        "term": None,
-        "lead": "No term of the sensor can hold it",
-        "text": (
-            f"the residuals follow the table's angle ({100 * lab['share_of_excess']:.0f} % of "
+    return Unexplained(
+        reason="fixed in the lab",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
+            f"the residuals follow the table's angle ({100 * lab.share_of_excess:.0f} % of "
             f"the excess with its cosine and sine in each mount, F-test p "
-            f"{p_text(lab['p_value'])}): an effect fixed in the lab and seen through the "
+            f"{p_text(lab.p_value)}): an effect fixed in the lab and seen through the "
             "turning table (the Earth's rotation, a stray field of the motor, a table "
             "tilted off the vertical), not one of the sensor; where the table stood "
             "when the session began is not in the log, so nothing fitted to it here "
             "holds on another session"
         ),
-        "would_tell": (
+        would_tell=(
             "holds lasting whole turns at every rate, over which it averages out, "
             "or the table's angle logged from its encoder"
         ),
-    }
+    )
 
 
 LAB_ADVICE = (
@@ -146,7 +147,7 @@ LAB_ADVICE = (
 
 def mounting_fixed(
     obs, quality, dof: int, alpha: float, stretch: np.ndarray, direction: np.ndarray | None = None
-) -> dict | None:
+) -> MountingTest | None:
     """How much of the in-sample excess an offset per mounting accounts for: each output
     axis' whitened residuals refitted with one offset per stretch of holds on one mount
     (``stretch``, :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
@@ -189,47 +190,47 @@ def mounting_fixed(
     drift_p = float(chi2_sf(rss[3], dof - int(added[2])))
     direction_p = float(chi2_sf(rss[4], dof - int(added[3])))
     excess = max(before - dof, 0.0)
-    return {
-        "p_value": p_value,
-        "parameters": q,
-        "mountings": int(groups.max() + 1),
-        "chi2_after": float(rss[1]),
-        "dof": left_dof,
-        "share_of_excess": min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
-        "left_p_value": left_p,
-        "orientation_p_value": orientation_p,
-        "drift_p_value": drift_p,
-        "direction_p_value": direction_p,
-        "explains": bool(
+    return MountingTest(
+        p_value=p_value,
+        parameters=q,
+        mountings=int(groups.max() + 1),
+        chi2_after=float(rss[1]),
+        dof=left_dof,
+        share_of_excess=min(float(rss[0] - rss[1]) / excess, 1.0) if excess > 0 else 0.0,
+        left_p_value=left_p,
+        orientation_p_value=orientation_p,
+        drift_p_value=drift_p,
+        direction_p_value=direction_p,
+        explains=bool(
             p_value < alpha / 2
             and left_p >= alpha / 2
             and orientation_p < alpha / 2
             and drift_p < alpha / 2
             and direction_p < alpha / 2
         ),
-    }
+    )
 
 
-def mounting_reason(found: dict) -> dict:
+def mounting_reason(found: MountingTest) -> Unexplained:
     """The verdict's why and what would tell, for an excess an offset per mounting explains."""
-    return {
-        "reason": "the mounting",
-        "term": None,
-        "lead": "No term of the sensor can hold it",
-        "text": (
-            f"the residuals are offsets per mounting ({100 * found['share_of_excess']:.0f} % of "
-            f"the excess with one offset for each of the {found['mountings']} stretches of "
-            f"holds on one mount, F-test p {p_text(found['p_value'])}), which neither the "
+    return Unexplained(
+        reason="the mounting",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
+            f"the residuals are offsets per mounting ({100 * found.share_of_excess:.0f} % of "
+            f"the excess with one offset for each of the {found.mountings} stretches of "
+            f"holds on one mount, F-test p {p_text(found.p_value)}), which neither the "
             "mount's orientation nor a drift in time accounts for: each mounting on the "
             "fixture leaves its own bias (the fixture's repeatability, a strain of the "
             "package), fresh every time, which no term of the sensor carries to the next "
             "mounting"
         ),
-        "would_tell": (
+        would_tell=(
             "the same mount revisited within a point (its offset comes back or it "
             "does not), or a fixture that clamps the same way each time"
         ),
-    }
+    )
 
 
 MOUNTING_ADVICE = (

@@ -3,6 +3,8 @@ the unit, and whether what a model leaves repeats there or differs by slow noise
 
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
 import pandas as pd
 
@@ -15,12 +17,33 @@ from .stats import chi2_sf
 SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
 
 
-def usable(nxt) -> bool:
+class CarryOver(TypedDict, total=False):
+    """A calibration carried to another session of the unit (:func:`carry_over`): its
+    figures there (:func:`gyrocal.fleet.drift.revalidate`), whether the pattern of its
+    residuals repeats (:func:`repeat_p_value`), whether the sessions differ by slow noise
+    (:func:`unrepeated_p_value`); ``left_p_value``, what a candidate leaves judged on both
+    sessions (:meth:`.effects.Judge.explains`). Or ``error`` alone, where it could not be
+    carried."""
+
+    validation_rms: float
+    noise_floor: float
+    excess: float
+    expected_rms: float
+    holds: bool
+    holds_scored: int
+    repeat_p_value: float | None
+    unrepeated_p_value: float | None
+    shared_fraction: float | None
+    left_p_value: float
+    error: str
+
+
+def usable(nxt: CarryOver | None) -> bool:
     """A carry-over to another session that could be made and tested."""
     return nxt is not None and "error" not in nxt and nxt.get("repeat_p_value") is not None
 
 
-def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> dict:
+def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> CarryOver:
     """``ev``'s calibration (the fit of ``settings`` extended by the candidate; its
     reference temperature is ``settings``') applied to another session of the unit
     (:func:`gyrocal.fleet.drift.revalidate`) and whether the pattern of its residuals repeats there
@@ -33,7 +56,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     errors, floor1 = hold_errors(cal, other)
     resid, floor0, rows = in_sample(ev.fitted, len(obs))
     z0, z1 = (resid / floor0)[rows], errors / floor1
-    out = {
+    out: CarryOver = {
         "validation_rms": r["validation_rms"],
         "noise_floor": r["noise_floor"],
         "excess": r["excess"],

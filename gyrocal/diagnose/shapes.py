@@ -251,7 +251,7 @@ def shape_terms(
     return shapes + history_shapes(obs, data, covariates, settings.diagnosis.significance / 2)
 
 
-# Effects with a history (issue 38), by the rows that carry their excess: the output through
+# Effects with a history, by the rows that carry their excess: the output through
 # a slow pole of the own rate (it settles over seconds after every step of the table), heat
 # from turning (a first-order lag of the rate's magnitude, shared by the package's three
 # axes), and the temperature's direction of travel (a play operator of width w).

@@ -2,84 +2,76 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from ..terms import make_term
+from .findings import Negligible, TimeDrift, Unexplained, WithinNoise
 from .reading import readable
-from .sessions import usable
+from .sessions import CarryOver, usable
 from .stats import p_text
 
-
-def drift_sentence(base, drift: dict) -> str:
-    rival = (
-        f" {drift['rival_of']} fits it as well, and neither can be named: the mounts follow "
-        "each other in time, so this protocol cannot tell an effect constant per mount from "
-        "a drift."
-        if drift["rival_of"]
-        else ""
-    )
-    return (
-        f"A bias drifting linearly in time within each temperature point explains the excess "
-        f"(validation RMS {base.summary['validation_rms']:.3g} → {drift['validation_rms']:.3g} deg/s, "
-        f"what a correct model would leave: {drift['expected_rms']:.3g}): the missing effect "
-        f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}"
-    )
+if TYPE_CHECKING:
+    from .diagnosis import Diagnosis
+    from .effects import Candidate
+    from .evaluation import Evaluation
 
 
-def verdict(
-    base,
-    best,
-    explains,
-    rms_over_floor,
-    covariates,
-    noise_model: bool = False,
-    partial=(),
-    within_noise=None,
-    unrepeated: bool = False,
-    base_next=None,
-    tolerance=None,
-    *,
-    noise_explains: bool = False,
-    unseparable=(),
-    finding: str | None = None,
-    negligible: dict | None = None,
-) -> str:
-    text = session_verdict(
-        base,
-        best,
-        explains,
-        rms_over_floor,
-        covariates,
-        noise_model,
-        partial,
-        within_noise,
-        unrepeated,
-        base_next,
-        tolerance,
-        noise_explains=noise_explains,
-        unseparable=unseparable,
-        finding=finding,
-        negligible=negligible,
-    )
-    if base_next is not None and base_next["holds"] and best is None and explains:
-        return text + (
+def verdict(diag: Diagnosis) -> str:
+    """The diagnosis in sentences: on this session, on the other one (given one), the drift
+    in time that explains it, and why no term was offered."""
+    base_next = diag.next_session if usable(diag.next_session) else None
+    timed = diag.best is None and diag.time_drift is not None and diag.time_drift.explains
+    text = session_verdict(diag, base_next, None if timed else diag.tolerance)
+    text += _other_session(diag, base_next)
+    if timed:
+        assert diag.time_drift is not None
+        text += " " + drift_sentence(diag.base, diag.time_drift)
+    why = diag.unexplained
+    if why is not None and not (why.reason == "too small" and "too small" in text):
+        text += f" {why.opening}: {why.text}; {why.would_tell} would tell."
+    return text
+
+
+def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
+    """What the configured model's calibration does on the other session, where no term
+    was named."""
+    if base_next is not None and base_next["holds"] and diag.best is None and diag.explains:
+        return (
             f" On the other session its calibration leaves {base_next['excess']:.3g} "
             "times the floor: it carries over."
         )
-    if base_next is None or base_next["holds"] or best is not None:
-        return text
-    if unrepeated:
-        return text + (
+    if base_next is None or base_next["holds"] or diag.best is not None:
+        return ""
+    if diag.unrepeated:
+        return (
             f" On the other session the errors are {base_next['excess']:.3g} times the "
             "floor from the same noise: holds minutes apart scatter more than the floor "
             "from the static data says."
         )
-    if explains:
-        return text + (
+    if diag.explains:
+        return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} "
             "times the floor: it does not carry over, the unit changed between sessions "
             "(run-to-run bias, drift; gyrocal revalidate says by how much, the fleet "
             "summary's drift page which parameters)."
         )
-    return text + f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+    return f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+
+
+def drift_sentence(base: Evaluation, drift: TimeDrift) -> str:
+    rival = (
+        f" {drift.rival_of} fits it as well, and neither can be named: the mounts follow "
+        "each other in time, so this protocol cannot tell an effect constant per mount from "
+        "a drift."
+        if drift.rival_of
+        else ""
+    )
+    return (
+        f"A bias drifting linearly in time within each temperature point explains the excess "
+        f"(validation RMS {base.summary['validation_rms']:.3g} → {drift.validation_rms:.3g} deg/s, "
+        f"what a correct model would leave: {drift.expected_rms:.3g}): the missing effect "
+        f"is a drift in time, such as a warm-up or a ramp, not a library term.{rival}"
+    )
 
 
 def _separation(c) -> str:
@@ -93,188 +85,37 @@ def _separation(c) -> str:
     )
 
 
-def session_verdict(
-    base,
-    best,
-    explains,
-    rms_over_floor,
-    covariates,
-    noise_model,
-    partial,
-    within_noise,
-    unrepeated,
-    base_next,
-    tolerance=None,
-    *,
-    noise_explains: bool = False,
-    unseparable=(),
-    finding: str | None = None,
-    negligible: dict | None = None,
-) -> str:
-    """The verdict on this session; ``finding``, the reason of a finding no term holds
-    (:mod:`.lab`, :mod:`.between`), which the sentence that follows the verdict states;
-    ``negligible``, an excess within the noise floor's own uncertainty."""
-    factor = rms_over_floor["all"]
-    s = base.summary
-    held_out = s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
-    small = ""
-    if tolerance is not None and held_out <= tolerance:
-        small = (
-            f" On the holds left out its error is {held_out:.2f} times what a correct model "
-            f"would leave, within that figure's uncertainty (up to {tolerance:.2f}): the "
-            "excess is too small to attribute to an effect."
-        )
+def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: float | None) -> str:
+    """The verdict on this session. A finding no term holds (:mod:`.lab`, :mod:`.between`)
+    is stated by the sentence that follows it; ``tolerance``, None where a drift in time is
+    the finding, lets a small held-out error be called too small to attribute."""
+    base, best, factor = diag.base, diag.best, diag.factor
+    finding = diag.unexplained.reason if diag.unexplained is not None else None
     if best is not None:
-        sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
-        top = (
-            (
-                f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
-                f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})"
-            )
-            if sizes
-            else ""
-        )
-        tied = (
-            f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the data equally well."
-            if best.tied_with
-            else ""
-        )
-        carried = ""
-        if base_next is not None and usable(best.next_session):
-            carried = (
-                f" On the other session the error falls from {base_next['excess']:.3g} to "
-                f"{best.next_session['excess']:.3g} times the floor."
-            )
-        if getattr(best, "kind", None) == "continuous":
-            carried += (
-                " It is offered in a model continuous in temperature: the temperature "
-                "moves within the points, and a grid fits each point at one temperature "
-                "but is applied at each hold's own."
-            )
-        if getattr(best, "family", None):
-            return _free_shape_verdict(base, best, carried)
-        name = (
-            f"{best.part_of}, the part this protocol can see ({name_of(best)})"
-            if best.part_of
-            else name_of(best)
-        )
-        seen = (
-            f" That is as much of {best.part_of} as this protocol shows, and what its "
-            f"sessions need: {_separation(best)}."
-            if best.part_of
-            else ""
-        )
-        if best.together:
-            return (
-                f"Missing effects: {name} and "
-                f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
-                f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
-                f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-                f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
-                f"{best.alone_rms:.3g}." + seen + carried
-            )
-        return (
-            f"Missing effect: {name}. Adding it lowers the validation RMS from "
-            f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
-            f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
-            f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
-            f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}"
-        )
-    if noise_explains:
-        wide = s["validation_rms"] / within_noise["expected_rms"]
-        return (
-            f"The model explains the data as far as one session can tell: its in-sample "
-            f"residuals, {factor:.2f} times the floor from the static data, are within the "
-            f"slow wander that {within_noise['static_seconds']:.0f} s of static data cannot rule "
-            f"out (reduced χ² {within_noise['chi2_red']:.2f} with it), on the holds left out its "
-            f"error is {min(held_out, wide):.2f} times what a correct model would leave with that "
-            "noise, and no term takes a practical part of it away. Another session of the unit "
-            "(--other-session) would tell slow wander from an effect."
-        )
-    if finding in ("fixed in the lab", "the mounting") and best is None:
+        return _named(base, best, base_next)
+    if diag.noise_explains:
+        assert diag.within_noise is not None
+        return _within_slow_noise(base, factor, diag.within_noise)
+    if finding in ("fixed in the lab", "the mounting"):
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
         return (
             f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
             "times their noise floor, and no candidate term accounts for it."
         )
-    if not explains:
-        lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
-        where = (
-            f"; the excess lives mostly with {lead['covariate']} "
-            f"({100 * lead['share_of_excess']:.0f} % of it)"
-            if lead
-            else ""
-        )
-        if partial:
-            first = partial[0]
-            name = f"{first.part_of}, the part this protocol can see," if first.part_of else name_of(first)
-            left = first.leftover or {}
-            follows = (
-                f" What it leaves follows {left['covariate']} (p = {left['p_value']:.2g})."
-                if left.get("p_value", 1.0) < 0.01
-                else ""
-            )
-            rest = (
-                f" The rest may be {first.part_of} beyond what {_separation(first)}, or another effect."
-                if first.part_of
-                else ""
-            )
-            if getattr(first, "offered", False):
-                there = ""
-                if base_next is not None and usable(first.next_session):
-                    there = (
-                        f"; on the other session the error falls from {base_next['excess']:.3g} "
-                        f"to {first.next_session['excess']:.3g} times the floor"
-                    )
-                figure = (
-                    f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
-                    f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
-                    "what a correct model would leave"
-                    if first.validated
-                    else f"in sample {first.base_rms:.3g} → {first.validation_rms_with:.3g} deg/s"
-                )
-                return (
-                    f"The model does not explain the data: its in-sample residuals are "
-                    f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
-                    f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
-                    f"{there}): add it with {first.option}.{follows}{rest}"
-                )
-            outside = rest or (
-                " What remains needs a term of its own shape (docs/effects.md)." if not follows else ""
-            )
-            return (
-                f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-                f"times their noise floor. No library or listed term explains it; "
-                f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
-                f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
-                f" times what a correct model would leave){where}.{follows}{outside}"
-            )
-        return (
-            f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
-            "times their noise floor, and no candidate term accounts for it" + where + "." + small
-        )
-    if unrepeated:
+    if not diag.explains:
+        return _not_explained(base, factor, diag.covariates, diag.partial, base_next, tolerance)
+    if diag.unrepeated:
+        assert base_next is not None
         return (
             f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
             f"noise floor, but their pattern does not come back in the other session (p = "
             f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
             "resolve, not a missing effect."
         )
-    floor_by = "the sensor's noise model" if noise_model else "white noise within the holds"
-    if negligible is not None:
-        faint = (
-            f"; the residuals follow {negligible['covariate']} beyond chance (p = "
-            f"{negligible['p_value']:.2g}), a pattern too faint to matter"
-            if negligible["covariate"]
-            else ""
-        )
-        return (
-            f"The model explains the data: its in-sample residuals are {negligible['factor']:.2f} "
-            f"times their noise floor, within that floor's own uncertainty (±"
-            f"{100 * negligible['floor_uncertainty']:.0f} % from the static data){faint}; "
-            "nothing is missing."
-        )
+    floor_by = "the sensor's noise model" if diag.noise_model else "white noise within the holds"
+    if diag.negligible is not None:
+        return _negligible(diag.negligible)
     if finding == "between temperature points":
         return (
             f"The model explains the data at its temperature points: its in-sample residuals "
@@ -283,6 +124,167 @@ def session_verdict(
     return (
         f"The model explains the data: its in-sample residuals are {factor:.2f} times "
         f"their noise floor, as {floor_by} would leave; nothing is missing."
+    )
+
+
+def _named(base: Evaluation, best: Candidate, base_next: CarryOver | None) -> str:
+    """The verdict where a term (or a pair) is named."""
+    sizes = sorted(best.size, key=lambda z: -abs(z["value"]) / max(z["stderr"], 1e-300))
+    top = (
+        (
+            f" (largest: {sizes[0]['coefficient']} = {sizes[0]['value']:.3g} ± "
+            f"{sizes[0]['stderr']:.2g} {sizes[0]['unit']})"
+        )
+        if sizes
+        else ""
+    )
+    tied = (
+        f" This protocol cannot tell it from {', '.join(best.tied_with)}: they fit the data equally well."
+        if best.tied_with
+        else ""
+    )
+    carried = ""
+    if base_next is not None and usable(best.next_session):
+        carried = (
+            f" On the other session the error falls from {base_next['excess']:.3g} to "
+            f"{best.next_session['excess']:.3g} times the floor."
+        )
+    if best.kind == "continuous":
+        carried += (
+            " It is offered in a model continuous in temperature: the temperature "
+            "moves within the points, and a grid fits each point at one temperature "
+            "but is applied at each hold's own."
+        )
+    if best.family:
+        return _free_shape_verdict(base, best, carried)
+    name = (
+        f"{best.part_of}, the part this protocol can see ({name_of(best)})" if best.part_of else name_of(best)
+    )
+    seen = (
+        f" That is as much of {best.part_of} as this protocol shows, and what its "
+        f"sessions need: {_separation(best)}."
+        if best.part_of
+        else ""
+    )
+    if best.together:
+        return (
+            f"Missing effects: {name} and "
+            f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
+            f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
+            f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
+            f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
+            f"{best.alone_rms:.3g}." + seen + carried
+        )
+    return (
+        f"Missing effect: {name}. Adding it lowers the validation RMS from "
+        f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
+        f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
+        f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
+        f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}"
+    )
+
+
+def _held_out_ratio(base: Evaluation) -> float:
+    s = base.summary
+    return s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
+
+
+def _within_slow_noise(base: Evaluation, factor: float, within_noise: WithinNoise) -> str:
+    wide = base.summary["validation_rms"] / within_noise.expected_rms
+    return (
+        f"The model explains the data as far as one session can tell: its in-sample "
+        f"residuals, {factor:.2f} times the floor from the static data, are within the "
+        f"slow wander that {within_noise.static_seconds:.0f} s of static data cannot rule "
+        f"out (reduced χ² {within_noise.chi2_red:.2f} with it), on the holds left out its "
+        f"error is {min(_held_out_ratio(base), wide):.2f} times what a correct model would leave with that "
+        "noise, and no term takes a practical part of it away. Another session of the unit "
+        "(--other-session) would tell slow wander from an effect."
+    )
+
+
+def _not_explained(base, factor, covariates, partial, base_next, tolerance) -> str:
+    """The verdict where the model misses and no term is named: a partial term's share, or
+    where the excess lives, or that it is too small to attribute."""
+    lead = covariates[0] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
+    where = (
+        f"; the excess lives mostly with {lead['covariate']} ({100 * lead['share_of_excess']:.0f} % of it)"
+        if lead
+        else ""
+    )
+    if partial:
+        return _partial(base, factor, partial[0], where, base_next)
+    held_out = _held_out_ratio(base)
+    small = ""
+    if tolerance is not None and held_out <= tolerance:
+        small = (
+            f" On the holds left out its error is {held_out:.2f} times what a correct model "
+            f"would leave, within that figure's uncertainty (up to {tolerance:.2f}): the "
+            "excess is too small to attribute to an effect."
+        )
+    return (
+        f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+        "times their noise floor, and no candidate term accounts for it" + where + "." + small
+    )
+
+
+def _partial(base, factor, first, where: str, base_next) -> str:
+    """The verdict where a term takes away part of the excess: offered where it takes most."""
+    name = f"{first.part_of}, the part this protocol can see," if first.part_of else name_of(first)
+    left = first.leftover or {}
+    follows = (
+        f" What it leaves follows {left['covariate']} (p = {left['p_value']:.2g})."
+        if left.get("p_value", 1.0) < 0.01
+        else ""
+    )
+    rest = (
+        f" The rest may be {first.part_of} beyond what {_separation(first)}, or another effect."
+        if first.part_of
+        else ""
+    )
+    if first.offered:
+        there = ""
+        if base_next is not None and usable(first.next_session):
+            there = (
+                f"; on the other session the error falls from {base_next['excess']:.3g} "
+                f"to {first.next_session['excess']:.3g} times the floor"
+            )
+        figure = (
+            f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
+            f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
+            "what a correct model would leave"
+            if first.validated
+            else f"in sample {first.base_rms:.3g} → {first.validation_rms_with:.3g} deg/s"
+        )
+        return (
+            f"The model does not explain the data: its in-sample residuals are "
+            f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
+            f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
+            f"{there}): add it with {first.option}.{follows}{rest}"
+        )
+    outside = rest or (
+        " What remains needs a term of its own shape (docs/effects.md)." if not follows else ""
+    )
+    return (
+        f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
+        f"times their noise floor. No library or listed term explains it; "
+        f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
+        f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
+        f" times what a correct model would leave){where}.{follows}{outside}"
+    )
+
+
+def _negligible(negligible: Negligible) -> str:
+    faint = (
+        f"; the residuals follow {negligible.covariate} beyond chance (p = "
+        f"{negligible.p_value:.2g}), a pattern too faint to matter"
+        if negligible.covariate
+        else ""
+    )
+    return (
+        f"The model explains the data: its in-sample residuals are {negligible.factor:.2f} "
+        f"times their noise floor, within that floor's own uncertainty (±"
+        f"{100 * negligible.floor_uncertainty:.0f} % from the static data){faint}; "
+        "nothing is missing."
     )
 
 
@@ -380,21 +382,21 @@ def unseen_hysteresis(one_way: dict | None, two_sessions: bool) -> str | None:
 
 
 def advice(
-    best, partial, candidates, covariates, explains: bool, has_other: bool, drift: dict | None = None
+    best, partial, candidates, covariates, explains: bool, has_other: bool, drift: TimeDrift | None = None
 ) -> list[str]:
     """What to do next, in sentences: what would separate effects this protocol confounds
     (and that either one compensates what it sees), where an unexplained excess lives and
     how to write the effect, and when another session would decide."""
     out = []
-    if best is None and drift is not None and drift["explains"]:
+    if best is None and drift is not None and drift.explains:
         out.append(
             "Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
             "a bias drifting linearly within each point, and a term file can give it the "
             "shape of the drift (docs/effects.md, section 7)"
             + (
                 "; visiting the first mount again at the end of a point separates a drift "
-                f"from {drift['rival_of']}"
-                if drift["rival_of"]
+                f"from {drift.rival_of}"
+                if drift.rival_of
                 else ""
             )
             + "."
@@ -448,7 +450,7 @@ def advice(
                 "of that covariate; write it as a term (docs/effects.md)."
             )
     lead = covariates[0]["covariate"] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
-    if lead is not None and lead.startswith("time") and not (drift and drift["explains"]):
+    if lead is not None and lead.startswith("time") and not (drift and drift.explains):
         out.append(
             "The excess follows time: a warm-up or a drift. Write it as a term of t with "
             "a global coefficient (docs/effects.md, section 7, works one through); " + SEPARATES["time"] + "."
@@ -537,7 +539,7 @@ def _covariate_kind(label: str) -> str:
     return "mount"
 
 
-def unexplained(tried, covariates, has_other: bool) -> dict | None:
+def unexplained(tried, covariates, has_other: bool) -> Unexplained | None:
     """Why no term of free shape could be offered, and what protocol would tell: terms
     that fit the excess but could not be validated by leaving points out (their shape
     lies within one point's stretch of time), terms that gain here but not on the other
@@ -552,25 +554,25 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
         return (
             None
             if not any(c.status == "ranked" for c in tried)
-            else {
-                "reason": "no shape of one input",
-                "term": None,
-                "text": f"no term of free shape of {lead} takes it away",
-                "would_tell": WOULD_TELL[kind],
-            }
+            else Unexplained(
+                reason="no shape of one input",
+                term=None,
+                text=f"no term of free shape of {lead} takes it away",
+                would_tell=WOULD_TELL[kind],
+            )
         )
     unvalidated = [c for c in ranked if not c.validated and c.significant]
     if unvalidated and not has_other:
         c = min(unvalidated, key=lambda c: c.validation_rms_with)
-        return {
-            "reason": "unvalidated",
-            "term": c.term,
-            "text": f"{readable(c.term, c.profiled)} fits it within this session (in-sample RMS "
+        return Unexplained(
+            reason="unvalidated",
+            term=c.term,
+            text=f"{readable(c.term, c.profiled)} fits it within this session (in-sample RMS "
             f"{c.validation_rms_with:.3g} "
             "deg/s), but its shape lies within one temperature point's stretch of time, which "
             "leaving that point out to validate cannot check",
-            "would_tell": WOULD_TELL["time"],
-        }
+            would_tell=WOULD_TELL["time"],
+        )
     best = min(ranked, key=lambda c: c.validation_rms_with)
     left = best.leftover or {}
     follows = left.get("covariate") if left.get("p_value", 1.0) < 0.01 else None
@@ -578,33 +580,33 @@ def unexplained(tried, covariates, has_other: bool) -> dict | None:
     # an excess here too, still following another covariate, is the wrong shape.
     carried = has_other and best.next_session and "validation_rms" in best.next_session
     if carried and (best.explains_excess or not follows):
-        return {
-            "reason": "does not carry over",
-            "term": best.term,
-            "text": f"the shape that fits best, {readable(best.term, best.profiled)}, does not hold "
+        return Unexplained(
+            reason="does not carry over",
+            term=best.term,
+            text=f"the shape that fits best, {readable(best.term, best.profiled)}, does not hold "
             "on the other session "
             f"({best.next_session.get('excess', float('nan')):.3g} times its floor): the effect "
             "is not the same function of its input from one session to the next",
             # Another session is what showed this: what would tell is an input that
             # follows the effect in both.
-            "would_tell": "a logged input that follows it in both sessions (a temperature "
+            would_tell="a logged input that follows it in both sessions (a temperature "
             "nearer its source, the rig's own state such as its motor's "
             "temperature), or a protocol that repeats the same history in "
             "every session",
-        }
+        )
     if follows:
-        return {
-            "reason": "depends on more than one input",
-            "term": best.term,
-            "text": f"the shape that fits best, {readable(best.term, best.profiled)}, leaves residuals "
+        return Unexplained(
+            reason="depends on more than one input",
+            term=best.term,
+            text=f"the shape that fits best, {readable(best.term, best.profiled)}, leaves residuals "
             "that still follow "
             f"{follows}: the effect depends on more than the one input a term of free shape "
             "reads",
-            "would_tell": WOULD_TELL[_covariate_kind(follows)],
-        }
-    return {
-        "reason": "no shape of one input",
-        "term": None,
-        "text": f"no smooth function of {lead or 'the inputs tried'} describes it",
-        "would_tell": WOULD_TELL[kind],
-    }
+            would_tell=WOULD_TELL[_covariate_kind(follows)],
+        )
+    return Unexplained(
+        reason="no shape of one input",
+        term=None,
+        text=f"no smooth function of {lead or 'the inputs tried'} describes it",
+        would_tell=WOULD_TELL[kind],
+    )

@@ -3,7 +3,7 @@ covariates carry the excess."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -211,7 +211,7 @@ def history_columns(obs: pd.DataFrame, data: dict) -> dict[str, np.ndarray]:
     return out
 
 
-def one_way_points(obs: pd.DataFrame, data: dict, before: dict | None = None) -> dict | None:
+def one_way_points(obs: pd.DataFrame, data: dict, before: dict | None = None) -> dict[float, str] | None:
     """The temperature's direction of travel at each temperature point (+1 rising, −1
     falling, the first from the room; the session as one point where it has none), where
     every point saw one direction only; None where some point saw both, or the record
@@ -262,7 +262,7 @@ def _before_each_hold(obs: pd.DataFrame, data: dict, values: np.ndarray) -> tupl
     return before, stretch
 
 
-def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:
+def settling_row(obs: pd.DataFrame, data: dict) -> CovariateRow | None:
     """Inside each hold, the output's change from its first half to its second (``settle_*``,
     from segmentation) against the step of that axis's rate into the hold: a slow pole, a
     part of the output that follows the rate through a lag, leaves a change in proportion to
@@ -310,7 +310,7 @@ def settling_row(obs: pd.DataFrame, data: dict) -> dict | None:
 
 def covariate_table(
     obs: pd.DataFrame, data: dict, z: np.ndarray, fitted_rows: np.ndarray, dof: int, excess_significant: bool
-) -> tuple[list[dict], dict]:
+) -> tuple[list[CovariateRow], dict[str, Any]]:
     """Share of the excess χ² each covariate accounts for, ranked; heat maps.
 
     A covariate's share is what grouping the holds by it adds to the grouping it is judged
@@ -364,7 +364,9 @@ SPLIT = ("|rate|", "reference rate")
 SPLIT_AXES = {"own axis": 1, "cross axes": 2}
 
 
-def _split_rows(layout: _Layout, z: np.ndarray, excess: float, excess_significant: bool) -> list[dict]:
+def _split_rows(
+    layout: _Layout, z: np.ndarray, excess: float, excess_significant: bool
+) -> list[CovariateRow]:
     """The rate rows again, each output's residuals taken apart: on the axis that turns
     (``own axis``, one residual per hold) and on the two others (``cross axes``, two), each
     judged within the rotating axis beyond chance as the whole row is."""
@@ -403,7 +405,7 @@ PRODUCT_INPUTS = ("time", "time within a temperature point", "temperature", "tem
 
 def _product_rows(
     product_bins: dict, z: np.ndarray, rates: np.ndarray, excess: float, excess_significant: bool
-) -> list[dict]:
+) -> list[CovariateRow]:
     """Rows for products of the rates with an input: within each bin of the input, the
     residuals of each output axis regressed on its own rate (``own axis``: 1 degree of
     freedom per bin and axis) or on the two other rates (``cross axes``: 2). What the
@@ -472,7 +474,48 @@ def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
     return len(np.unique(pairs)) == len(np.unique(a)) == len(np.unique(b))
 
 
-def leftover(obs: pd.DataFrame, data: dict, evaluation) -> dict:
+class CovariateRow(TypedDict, total=False):
+    """A row of the covariate table (:func:`covariate_table`): the share of the excess χ²
+    that a covariate's bins account for beyond chance, and its test; a split row names the
+    input and axes it splits, a product row the input the rate multiplies; the settling row
+    (:func:`settling_row`) carries its ``slope`` per axis."""
+
+    covariate: str
+    bins: int
+    share_of_excess: float | None
+    p_value: float
+    chi2_beyond_chance: float
+    within: str | None
+    split: dict[str, str]
+    product: dict[str, str]
+    slope: dict[str, float]
+    confounded: list[str]
+    reason: str
+
+
+class ShapeEstimate(TypedDict):
+    """The residuals against the leading covariate's input (:func:`shape_estimate`), binned
+    and smoothed per axis, for the report's figure."""
+
+    covariate: str
+    input: str
+    unit: str
+    of: str
+    value_unit: str
+    x: list[float]
+    knots: list[float] | None
+    axes: dict[str, dict[str, list[float]]]
+
+
+class Leftover(TypedDict):
+    """The covariate a fit's residuals still follow most (:func:`leftover`)."""
+
+    covariate: str
+    p_value: float
+    chi2_red_share: float
+
+
+def leftover(obs: pd.DataFrame, data: dict, evaluation) -> Leftover:
     """The covariate a fit's residuals still follow most, with its Bonferroni p-value and
     the share of χ²/dof it carries beyond chance."""
     resid, floor, rows = in_sample(evaluation.fitted, len(obs))
@@ -548,7 +591,9 @@ def knots_for(values: np.ndarray, count: int = SHAPE_KNOTS) -> list[float] | Non
     return [float(k) for k in knots] if knots.size >= 3 else None
 
 
-def shape_estimate(obs: pd.DataFrame, data: dict, quality: FitQuality, row: dict) -> dict | None:
+def shape_estimate(
+    obs: pd.DataFrame, data: dict, quality: FitQuality, row: CovariateRow
+) -> ShapeEstimate | None:
     """A smooth estimate of what the residuals of each output axis do against the input of a
     covariate row, with its ±2σ band: a natural cubic spline (knots at quantiles) fitted
     by weighted least squares to the residuals (deg/s), or for a product row to their

@@ -1,0 +1,173 @@
+"""What each step of the diagnosis finds: frozen, typed results.
+
+Each finding writes itself into the diagnosis file with :meth:`to_dict`, whose keys are the
+file's (``docs/effects.md``); the steps that make them are in :mod:`.steps`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from .sessions import CarryOver
+from .where import CovariateRow, FitQuality, Leftover
+
+
+class _Written:
+    """A finding written as its fields, in their order."""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)  # type: ignore[call-overload]
+
+
+@dataclass(frozen=True)
+class ExcessTest:
+    """Does the configured model explain the data (question 1 of the module docstring)?
+
+    ``fits``: the in-sample χ² is within chance (half the significance). ``faint``: it is
+    not, but sqrt(χ²/dof) is within the noise floor's own uncertainty of 1. ``bound``: the
+    held-out figure's own uncertainty as a ratio (:func:`.stats.chance_bound`); ``tolerance``:
+    what a held-out error may be, in units of what a correct model leaves, and still be
+    explained (:func:`.stats.explained_tolerance`). ``resolvable``: the held-out error
+    misses what a correct model leaves by more than ``bound``, so a term has something to
+    take away."""
+
+    quality: FitQuality
+    alpha: float
+    fits: bool
+    faint: bool
+    factor: float
+    bound: float
+    tolerance: float
+    resolvable: bool
+    validation_rms: float
+    expected_rms: float
+
+    @property
+    def explains(self) -> bool:
+        return self.fits or self.faint
+
+
+@dataclass(frozen=True)
+class LabTest(_Written):
+    """The excess against the turning table's angle (:func:`.lab.lab_fixed`)."""
+
+    p_value: float
+    parameters: int
+    chi2_before: float
+    chi2_after: float
+    dof: int
+    share_of_excess: float
+    left_p_value: float
+    offsets_p_value: float
+    explains: bool
+
+
+@dataclass(frozen=True)
+class MountingTest(_Written):
+    """The excess against an offset per mounting (:func:`.lab.mounting_fixed`)."""
+
+    p_value: float
+    parameters: int
+    mountings: int
+    chi2_after: float
+    dof: int
+    share_of_excess: float
+    left_p_value: float
+    orientation_p_value: float
+    drift_p_value: float
+    direction_p_value: float
+    explains: bool
+
+
+@dataclass(frozen=True)
+class BetweenPoints(_Written):
+    """Each temperature point left out and interpolated from the others, against its own
+    fit (:func:`.between.between_points`); ``points`` and ``worst`` are rows of the table."""
+
+    points: list[dict[str, Any]]
+    worst: dict[str, Any]
+    p_value: float
+    temperature_points: int
+    fails: bool
+    failing: list[float]
+
+
+@dataclass(frozen=True)
+class WithinNoise(_Written):
+    """The χ² test with the slow noise the static data cannot rule out at its upper bound."""
+
+    excess_p_value: float
+    chi2_red: float
+    expected_rms: float
+    static_seconds: float
+    explains: bool
+
+
+@dataclass(frozen=True)
+class Negligible(_Written):
+    """An excess within the noise floor's own uncertainty, and the covariate its residuals
+    follow beyond chance, if any (Bonferroni over the covariates)."""
+
+    factor: float
+    floor_uncertainty: float
+    covariate: str | None
+    p_value: float
+
+
+@dataclass(frozen=True)
+class TimeDrift(_Written):
+    """A bias drifting linearly in time within each temperature point: the rival no term can
+    beat (:func:`.effects.time_drift`). ``rival_of``: a named term that fits the excess as
+    well, so neither can be named."""
+
+    validation_rms: float
+    expected_rms: float
+    explains: bool
+    option: str
+    config_line: str
+    leftover: Leftover | None
+    next_session: CarryOver | None
+    rival_of: str | None = None
+
+
+# How the verdict's sentence on a finding no term holds begins.
+SENSOR_LEAD = "No term of the sensor can hold it"
+FREE_SHAPE_LEAD = "No term of free shape can be offered"
+
+
+@dataclass(frozen=True)
+class Unexplained:
+    """Why no term was offered, and what protocol would tell. ``lead`` is given for a
+    finding no term of the sensor can hold (the lab, the mounting, between points); the
+    others open with :data:`FREE_SHAPE_LEAD`, written after the rest."""
+
+    reason: str
+    term: str | None
+    text: str
+    would_tell: str
+    lead: str | None = None
+
+    @property
+    def opening(self) -> str:
+        return self.lead or FREE_SHAPE_LEAD
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"reason": self.reason, "term": self.term}
+        if self.lead:
+            out["lead"] = self.lead
+        out.update(text=self.text, would_tell=self.would_tell)
+        if not self.lead:
+            out["lead"] = FREE_SHAPE_LEAD
+        return out
+
+
+@dataclass(frozen=True)
+class Where:
+    """Where the excess lives (question 2): the covariate table, its heat maps, the leading
+    row (the first that takes a share of the excess) and a negligible excess's note."""
+
+    covariates: list[CovariateRow]
+    heatmaps: dict[str, Any]
+    lead: CovariateRow | None
+    negligible: Negligible | None

@@ -1,0 +1,673 @@
+"""The diagnosis as a sequence of named steps, each answering one question with a frozen
+result (:mod:`.findings`); :func:`diagnose` runs them in order and builds the
+:class:`.diagnosis.Diagnosis` once."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pandas as pd
+
+from ..fit.floor import with_upper_floor
+from ..fit.model import columns_of, shares_wander
+from ..pipeline.config import Settings
+from ..terms import AXES
+from .between import between_points, between_reason
+from .diagnosis import Diagnosis
+from .effects import (
+    Candidate,
+    Judge,
+    extended_all,
+    practical_gain,
+    practical_gain_next,
+    rank_candidates,
+    second_step,
+    time_drift,
+)
+from .evaluation import (
+    Evaluation,
+    add_term_option,
+    candidate_terms,
+    config_line,
+    evaluate,
+    extended,
+    fix_row,
+    ladder,
+)
+from .findings import (
+    BetweenPoints,
+    ExcessTest,
+    LabTest,
+    MountingTest,
+    Negligible,
+    TimeDrift,
+    Unexplained,
+    Where,
+    WithinNoise,
+)
+from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fixed, mounting_reason
+from .naming import (
+    continuous_instead,
+    fits_within_noise,
+    free_shape,
+    judged_on,
+    library_order,
+    misses_levels,
+    partial_offers,
+    reaches_floor,
+)
+from .sessions import slow_noise, usable
+from .stats import chance_bound, chi2_sf, explained_tolerance, floor_uncertainty
+from .verdict import advice, coherent, input_kinds, unexplained, unseen_hysteresis
+from .where import covariate_table, fit_quality, history_columns, one_way_points, shape_estimate
+
+# The most useful terms each tried as the first of two missing effects: the one that
+# gains most alone is not always part of the pair (a temperature lag's first-order form
+# beats a die temperature alone, whose pair with a cubic bias is the effect).
+PAIR_STARTS = 3
+
+
+def diagnose(
+    settings: Settings,
+    obs: pd.DataFrame,
+    other: pd.DataFrame | None = None,
+    *,
+    base: Evaluation | None = None,
+) -> Diagnosis:
+    """Diagnose ``settings.model`` on the observations (the questions of the package's
+    docstring).
+
+    ``other``, the observations of another session of the same unit, is what the user's
+    calibration will meet: each model is then also judged by how it carries over to it
+    (:func:`.sessions.carry_over`), and an excess whose pattern does not repeat there is
+    noise. ``base``, the configured model already fitted and validated on ``obs``
+    (:func:`.evaluation.evaluation_of`), is used rather than fitting again."""
+    alpha = settings.diagnosis.significance
+    if base is None:
+        base = evaluate(settings, obs, "configured model")
+    data = columns_of(obs)
+    excess = excess_test(obs, base, alpha)
+    judge = Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))
+    base_next = judge.carry(base)
+    if base_next is not None and "error" in base_next:
+        judge.other = None  # the other session cannot be used: judged on this one alone
+    before_holds = history_columns(obs, data)
+    outside = outside_the_sensor(obs, excess, base.dof, before_holds)
+    unrepeated = did_not_repeat(judge, base, excess, base_next, outside)
+    explains = excess.explains or unrepeated
+    within_noise = slow_noise_bound(settings, obs, alpha, explains, base_next)
+    library = library_search(judge, base, excess, base_next, explains)
+    drift = (
+        time_drift(judge, settings, obs, base, base_next, excess.tolerance, excess.bound)
+        if not explains
+        else None
+    )
+    where = where_it_lives(obs, data, excess, base, explains)
+    named = name_a_term(judge, base, excess, library, drift, where, base_next, explains)
+    found = when_nothing_is_named(judge, base, excess, outside, library, named, where, base_next, explains)
+    noise_explains = slow_noise_explains(excess, outside, found, within_noise, explains)
+    if noise_explains:
+        explains = True
+        found = replace(found, useful=(), drift=None, why=None)
+    why = found.why or too_small(excess, found.best, explains, noise_explains)
+    between = (
+        between_points(base.fitted, alpha)
+        if excess.fits and excess.resolvable and found.best is None and not noise_explains
+        else None
+    )
+    if why is None and between is not None and between.fails:
+        why = _between_reason(base, between)
+    best = found.best
+    if best is not None and settings.model.kind == "grid":
+        best = continuous_instead(judge, best, base_next, excess.bound) or best
+    timed = best is None and found.drift is not None and found.drift.explains
+    partial = (
+        []
+        if best or timed
+        else partial_offers([*found.useful, *found.shaped], base, base_next, where.lead, excess.bound)
+    )
+    return _diagnosis(
+        judge,
+        base,
+        excess,
+        outside,
+        within_noise,
+        where,
+        found,
+        best,
+        partial,
+        why,
+        between,
+        base_next,
+        unrepeated=unrepeated,
+        explains=explains,
+        noise_explains=noise_explains,
+        before_holds=before_holds,
+    )
+
+
+def excess_test(obs: pd.DataFrame, base: Evaluation, alpha: float) -> ExcessTest:
+    """Does the model explain the data: its χ² test, half the significance. An excess within
+    the noise floor's own uncertainty is no effect to name, however many holds make it
+    significant: the model explains the data, and a faint pattern is noted. The held-out
+    error is resolvable where it misses what a correct model leaves by more than the
+    validation's own uncertainty (chance, over the holds scored): only then is there
+    something for a term to take away, and a term's gain must exceed that uncertainty too."""
+    quality = fit_quality(base, len(obs))
+    fits = quality.excess_p_value >= alpha / 2
+    factor = float(np.sqrt(quality.chi2_red["all"]))
+    v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
+    bound = chance_bound(base.summary["holds_scored"], alpha)
+    return ExcessTest(
+        quality=quality,
+        alpha=alpha,
+        fits=fits,
+        faint=not fits and factor - 1.0 <= floor_uncertainty(obs),
+        factor=factor,
+        bound=bound,
+        tolerance=explained_tolerance(obs, base.summary["holds_scored"], alpha),
+        resolvable=v0 > expected * bound,
+        validation_rms=v0,
+        expected_rms=expected,
+    )
+
+
+@dataclass(frozen=True)
+class OutsideTheSensor:
+    """Findings no term of the sensor can hold: an effect fixed in the lab, seen through the
+    turning table's angle, and an offset per mounting on the fixture."""
+
+    lab: LabTest | None
+    mounting: MountingTest | None
+
+    @property
+    def in_lab(self) -> bool:
+        return bool(self.lab and self.lab.explains)
+
+    @property
+    def of_mounting(self) -> bool:
+        return bool(self.mounting and self.mounting.explains)
+
+    @property
+    def explains(self) -> bool:
+        return self.in_lab or self.of_mounting
+
+
+def outside_the_sensor(obs, excess: ExcessTest, dof: int, before_holds: dict) -> OutsideTheSensor:
+    """An effect fixed in the lab follows the table's angle: it does not repeat between
+    sessions (the table starts elsewhere) and is no effect of the sensor's. Each mounting on
+    the fixture may leave its own offset, fresh every time: no term of the sensor carries it,
+    and it does not repeat in another session (where it would read as slow noise or a unit
+    that changed). Tried only where the model misses, the mounting only where the lab does
+    not explain it."""
+    if excess.explains:
+        return OutsideTheSensor(None, None)
+    lab = lab_fixed(obs, excess.quality, dof, excess.alpha)
+    mounting = None
+    if not (lab and lab.explains) and "mount" in obs:
+        mounting = mounting_fixed(
+            obs,
+            excess.quality,
+            dof,
+            excess.alpha,
+            before_holds["mounting"],
+            before_holds.get("temp_direction"),
+        )
+    return OutsideTheSensor(lab, mounting)
+
+
+def did_not_repeat(judge: Judge, base: Evaluation, excess: ExcessTest, base_next, outside) -> bool:
+    """An excess that does not come back in the other session, whose residuals differ from
+    this one's by more than the floor, is slow noise, not an effect; unless a history
+    explains it here and carries to the other session (its pattern changes with the order a
+    session visits its rates or temperatures)."""
+    if (
+        excess.explains
+        or outside.explains
+        or not usable(base_next)
+        or base_next["unrepeated_p_value"] is None
+    ):
+        return False
+    return bool(
+        base_next["repeat_p_value"] >= excess.alpha / 2
+        and slow_noise(base_next, excess.alpha)
+        and not _history_explains(judge, base, excess, base_next)
+    )
+
+
+def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_next) -> bool:
+    """Whether a term with a history (:func:`.shapes.history_shapes`, for the rows that carry
+    the excess) explains it here and carries to the other session, as any named shape must:
+    then the excess that did not come back there is no slow noise."""
+    quality = excess.quality
+    rows, _ = covariate_table(
+        judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, True
+    )
+    bound = chance_bound(base.summary["holds_scored"], judge.alpha)
+    found, _ = free_shape(judge, base, rows, quality, base_next, excess.tolerance, bound, inputs=("history",))
+    return found is not None
+
+
+def slow_noise_bound(settings: Settings, obs, alpha: float, explains: bool, base_next) -> WithinNoise | None:
+    """The χ² test with the slow wander the static data could not rule out at its upper
+    bound: it may be all the excess is. Where the model misses and no other session tells."""
+    if explains or usable(base_next):
+        return None
+    upper = with_upper_floor(obs)
+    if upper is None:
+        return None
+    wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
+    p_value = float(chi2_sf(wide.chi2, wide.dof))
+    return WithinNoise(
+        excess_p_value=p_value,
+        chi2_red=wide.chi2 / wide.dof,
+        expected_rms=float(wide.summary["expected_rms"]),
+        static_seconds=float(obs.attrs.get("static_seconds") or 0.0),
+        explains=p_value >= alpha / 2,
+    )
+
+
+@dataclass(frozen=True)
+class LibrarySearch:
+    """Every candidate of the library and the user's, added in turn (question 3): all of
+    them, those ranked, and those useful (significant, with a practical gain, where the
+    model misses), the most useful where the calibration is judged first."""
+
+    candidates: list[Candidate]
+    ranked: list[Candidate]
+    useful: list[Candidate]
+
+
+def library_search(
+    judge: Judge, base: Evaluation, excess: ExcessTest, base_next, explains: bool
+) -> LibrarySearch:
+    """No name without a gain: a term is named, or reported as partial, only when the model
+    misses what a correct one leaves and the term takes away a practical part of that."""
+    settings = judge.settings
+    candidates = rank_candidates(judge, base, candidate_terms(settings), base_next, excess.tolerance)
+    ranked = [c for c in candidates if c.status == "ranked"]
+    for c in ranked:
+        c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
+    useful = [c for c in ranked if c.significant and not explains and practical_gain(base, c, excess.bound)]
+    if usable(base_next):  # what the user will meet: the other session first
+        useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
+    return LibrarySearch(candidates, ranked, useful)
+
+
+def where_it_lives(obs, data, excess: ExcessTest, base: Evaluation, explains: bool) -> Where:
+    """The excess shared out among the covariates whenever the fit shows one, also when it is
+    judged noise: where it lives is what tells wander from an effect. A faint excess notes
+    the covariate it follows beyond chance (Bonferroni over the rows)."""
+    quality = excess.quality
+    covariates, heat = covariate_table(
+        obs, data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, not explains
+    )
+    negligible = None
+    if excess.faint:
+        row = min(covariates, key=lambda r: r["p_value"])
+        p_row = min(1.0, row["p_value"] * len(covariates))
+        negligible = Negligible(
+            factor=excess.factor,
+            floor_uncertainty=floor_uncertainty(obs),
+            covariate=row["covariate"] if p_row < excess.alpha / 2 else None,
+            p_value=p_row,
+        )
+    lead = next((r for r in covariates if (r["share_of_excess"] or 0) > 0), None)
+    return Where(covariates, heat, lead, negligible)
+
+
+@dataclass(frozen=True)
+class Naming:
+    """The term named among the library's and the user's (or a shape that beat it), every
+    candidate tried so far, and the drift in time with the term it rivals, if any."""
+
+    best: Candidate | None
+    candidates: list[Candidate]
+    drift: TimeDrift | None
+
+    @property
+    def blocked(self) -> bool:
+        """A drift in time explains the excess: what fits it as per-mount steps, alone or in
+        a pair (a temperature rate and a g-sensitivity fit a ramp so), cannot be named."""
+        return self.drift is not None and self.drift.explains
+
+
+def name_a_term(
+    judge, base, excess, library: LibrarySearch, drift, where: Where, base_next, explains
+) -> Naming:
+    """Named only when it explains the excess: what is left is what a correct model leaves.
+    A term that only fits a drift's per-mount steps yields to the drift; two effects are
+    tried where one does not do; a sharper shape, or one of the input that carries the
+    excess, replaces a library term it beats."""
+    best = _first_that_explains(library.useful, excess.alpha)
+    if best is not None and drift is not None and drift.explains and "time" not in input_kinds(best.term):
+        # Within a soak the mounts follow each other in time: a term that is constant per
+        # mount (a g-sensitivity) and a bias drifting in time can fit the same steps. When
+        # the drift explains the excess too, the protocol cannot name either.
+        drift, best = replace(drift, rival_of=best.term), None
+    candidates = library.candidates
+    naming = Naming(best, candidates, drift)
+    if best is None and not naming.blocked:
+        best = _two_effects(judge, base, excess, library)
+    if best is not None and not best.part_of and excess.resolvable and not explains:
+        best, candidates = _sharper_shape(judge, base, excess, library, best, where, base_next, candidates)
+    best = _library_first(best, library.ranked)
+    if best is not None and not explains and not best.part_of:
+        best, candidates = _shape_of_the_lead(
+            judge, base, excess, library, best, where, base_next, candidates
+        )
+    return Naming(best, candidates, drift)
+
+
+def _first_that_explains(useful: list[Candidate], alpha: float) -> Candidate | None:
+    """The most useful term that explains the excess, tied with the others that do with a
+    fit within its noise (a g-sensitivity and its square where the accelerometer reads about
+    0 or 1 g): the data cannot tell them apart, whatever their figures' last digits say."""
+    best = next((c for c in useful if c.explains_excess), None)
+    if best is not None:
+        best.tied_with = list(
+            dict.fromkeys(
+                [
+                    *best.tied_with,
+                    *(
+                        c.term
+                        for c in useful
+                        if c is not best
+                        and c.explains_excess
+                        and fits_within_noise(c, alpha)
+                        and fits_within_noise(best, alpha)
+                    ),
+                ]
+            )
+        )
+    return best
+
+
+def _two_effects(
+    judge: Judge, base: Evaluation, excess: ExcessTest, library: LibrarySearch
+) -> Candidate | None:
+    """Two effects missing at once: one of the most useful terms, then each other on top."""
+    for first in library.useful[:PAIR_STARTS]:
+        pair = second_step(judge, first, library.ranked, base.summary["validation_rms"], excess.tolerance)
+        if pair is not None:
+            return pair
+    return None
+
+
+def _sharper_shape(judge, base, excess, library, best, where, base_next, candidates):
+    """A library shape of the rate may only approach a sharper one that the protocol's
+    levels resolve (a range switch read as a cubic scale); library terms that pass the tests
+    yet leave the calibration beyond the floor where it will be judged (a temperature rate
+    standing in for a warm-up, the other session 8 times the floor) may stand in for a shape
+    of another input. Those shapes are tried, and one that does better there, beyond that
+    figure's own uncertainty, is offered instead."""
+    of_rate = all(input_kinds(t) == {"rate"} for t in (best.term, *best.together))
+    if not (of_rate or not reaches_floor(best, base_next, excess.bound)):
+        return best, candidates
+    rival, tried = free_shape(
+        judge,
+        base,
+        where.covariates,
+        excess.quality,
+        base_next,
+        excess.tolerance,
+        excess.bound,
+        library=library.ranked,
+        inputs=("rate_own", "rate_cross", "history") if of_rate else None,
+    )
+    if rival is not None and (
+        judged_on(rival, base_next) * excess.bound < judged_on(best, base_next)
+        or (of_rate and misses_levels(best, tried, excess.alpha))
+    ):
+        return rival, candidates + tried
+    return best, candidates
+
+
+def _library_first(best: Candidate | None, ranked: list[Candidate]) -> Candidate | None:
+    """Among terms the data cannot tell apart, the library's order names the likelier effect."""
+    if best is None or not best.tied_with:
+        return best
+    group = [best, *(c for c in ranked if c.term in best.tied_with)]
+    first = min(group, key=library_order)
+    if first is best or not first.explains_excess:
+        return best
+    first.tied_with = list(dict.fromkeys([*first.tied_with, *(c.term for c in group if c is not first)]))
+    return first
+
+
+def _shape_of_the_lead(judge, base, excess, library, best, where, base_next, candidates):
+    """A term that fits the excess without reading the input that carries it (the
+    accelerometer, where the centripetal force follows the rate): the shapes of that input
+    are tried, and one that explains it is offered instead."""
+    if any(coherent(t, where.lead) for t in (best.term, *best.together)):
+        return best, candidates
+    rival, tried = free_shape(
+        judge,
+        base,
+        where.covariates,
+        excess.quality,
+        base_next,
+        excess.tolerance,
+        excess.bound,
+        library=library.ranked,
+    )
+    if rival is not None and coherent(rival.term, where.lead):
+        return rival, candidates + tried
+    return best, candidates
+
+
+@dataclass(frozen=True)
+class Found:
+    """What the search ends with: the term named (if any), every candidate tried, why none
+    was (if so), the terms of free shape that take a practical part of the excess, the
+    library's useful terms and the drift in time still standing beside the finding."""
+
+    best: Candidate | None
+    candidates: list[Candidate]
+    why: Unexplained | None
+    shaped: list[Candidate] | tuple = ()
+    useful: list[Candidate] | tuple = ()
+    drift: TimeDrift | None = None
+
+
+def when_nothing_is_named(
+    judge, base, excess, outside, library, named: Naming, where, base_next, explains
+) -> Found:
+    """Where no term is named: the lab or the mounting account for the whole excess (what
+    terms or a drift take of it is no part of the answer); otherwise, where the model
+    misses, terms of free shape for the inputs that carry the excess, judged as the
+    library's are, and why none could be offered."""
+    best, useful, drift = named.best, library.useful, named.drift
+    if best is not None:
+        return Found(best, named.candidates, None, (), useful, drift)
+    if outside.in_lab:
+        return Found(None, named.candidates, lab_reason(outside.lab))
+    if outside.of_mounting:
+        return Found(None, named.candidates, mounting_reason(outside.mounting))
+    if not excess.resolvable or explains:
+        return Found(None, named.candidates, None, (), useful, drift)
+    best, tried = free_shape(
+        judge,
+        base,
+        where.covariates,
+        excess.quality,
+        base_next,
+        excess.tolerance,
+        excess.bound,
+        time_only=named.blocked,
+        library=library.ranked,
+    )
+    shaped = [
+        c
+        for c in tried
+        if c.status == "ranked"
+        and c.significant
+        and (
+            practical_gain(base, c, excess.bound)
+            if c.validated
+            else practical_gain_next(base_next, c, excess.bound)
+        )
+    ]
+    why = unexplained(tried, where.covariates, usable(base_next)) if best is None else None
+    return Found(best, named.candidates + tried, why, shaped, useful, drift)
+
+
+def slow_noise_explains(excess: ExcessTest, outside, found: Found, within_noise, explains: bool) -> bool:
+    """One session whose in-sample excess the slow noise the static data cannot rule out
+    accounts for, whose held-out error is within what a correct model leaves under that
+    noise too, and that no term, no drift in time and no term of free shape takes a
+    practical part of: nothing in it asks for an effect (slow wander and a one-off effect
+    look alike in one session; another one tells them apart)."""
+    if (
+        found.best is not None
+        or explains
+        or outside.explains
+        or within_noise is None
+        or not within_noise.explains
+    ):
+        return False
+    return not excess.resolvable or (
+        excess.validation_rms <= within_noise.expected_rms * excess.tolerance
+        and not found.useful
+        and not found.shaped
+        and not (found.drift and found.drift.explains)
+    )
+
+
+def too_small(excess: ExcessTest, best, explains: bool, noise_explains: bool) -> Unexplained | None:
+    """An in-sample excess whose held-out error is within what a correct model leaves, up to
+    the validation's own uncertainty: too small to name anything from."""
+    if explains or best is not None or excess.resolvable or noise_explains:
+        return None
+    return Unexplained(
+        reason="too small",
+        term=None,
+        text=(
+            f"on the holds left out the model's error, {excess.validation_rms:.3g} deg/s, is within "
+            f"what a correct model would leave ({excess.expected_rms:.3g}) up to the validation's "
+            "own uncertainty: too small to attribute to an effect"
+        ),
+        would_tell="more holds where the excess lives (longer soaks, more rates or "
+        "temperatures), or another session (--other-session)",
+    )
+
+
+def _between_reason(base: Evaluation, between: BetweenPoints) -> Unexplained:
+    """A model that explains the data at its points may still fail between them, which only
+    leaving points out shows; the held-out error is cited where points were left out."""
+    held_out = base.summary.get("excess_over_expected")
+    left_out = (
+        base.summary.get("held_out") == "temperature" and held_out is not None and np.isfinite(held_out)
+    )
+    return between_reason(between, held_out if left_out else None)
+
+
+def _one_way(obs, data, before, other) -> tuple[dict | None, bool]:
+    """:func:`.where.one_way_points` of this session, where the other session (if any)
+    reached each point it shares with this one (within 2 °C) the same way too: only then is a
+    hysteresis of the temperature out of the data's sight. With whether the other session
+    was compared (it shares a point)."""
+    here = one_way_points(obs, data, before)
+    if here is None or other is None:
+        return here, False
+    there = one_way_points(other, columns_of(other))
+    if there is None:
+        return None, True
+    temps = np.array(list(here))
+    shared = False
+    for temp, way in there.items():
+        near = np.abs(temps - temp) <= 2.0
+        shared = shared or bool(near.any())
+        if near.any() and any(here[float(t)] != way for t in temps[near]):
+            return None, True
+    return here, shared
+
+
+def _advice(outside, found, best, partial, where, explains, base_next, blind) -> list[str]:
+    """What to do next: compensate on the rig a finding outside the sensor; otherwise the
+    advice on the terms; and a hysteresis of the temperature the session could not see."""
+    if outside.in_lab and best is None:
+        told = [LAB_ADVICE]
+    elif outside.of_mounting and best is None:
+        told = [MOUNTING_ADVICE]
+    else:
+        told = advice(
+            best, partial, found.candidates, where.covariates, explains, usable(base_next), found.drift
+        )
+    return [*told, blind] if blind else told
+
+
+def _diagnosis(
+    judge,
+    base,
+    excess,
+    outside,
+    within_noise,
+    where,
+    found,
+    best,
+    partial,
+    why,
+    between,
+    base_next,
+    *,
+    unrepeated,
+    explains,
+    noise_explains,
+    before_holds,
+) -> Diagnosis:
+    """The findings put together once: the residuals, the ladder, the advice."""
+    settings, obs, quality = judge.settings, judge.obs, excess.quality
+    # Where the holds share slow wander, RMS ÷ floor counts each hold as if its noise were its
+    # own and can sit below 1 while the whitened χ² says the model misses: the verdict gives
+    # sqrt(χ²/dof), the factor its test is made on.
+    factor = float(np.sqrt(quality.chi2_red["all"])) if shares_wander(obs) else quality.rms_over_floor["all"]
+    residuals = obs.reset_index(drop=True).assign(
+        **{
+            f"{q}_{a}": v[:, i]
+            for q, v in (("resid", quality.resid), ("floor", quality.floor), ("z", quality.z))
+            for i, a in enumerate(AXES)
+        }
+    )
+    steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
+    if best is not None:
+        steps.append(fix_row(best, base))
+    one_way, compared = _one_way(obs, judge.data, before_holds, judge.other)
+    told = _advice(
+        outside, found, best, partial, where, explains, base_next, unseen_hysteresis(one_way, compared)
+    )
+    return Diagnosis(
+        base=base,
+        significance=excess.alpha,
+        chi2_red=quality.chi2_red,
+        rms_over_floor=quality.rms_over_floor,
+        excess_p_value=quality.excess_p_value,
+        explains=explains,
+        covariates=where.covariates,
+        candidates=found.candidates,
+        best=best,
+        partial=partial,
+        heatmaps=where.heatmaps,
+        residuals=residuals,
+        config_line=config_line(extended_all(settings, best).model) if best else "",
+        ladder=steps,
+        within_noise=within_noise,
+        next_session=base_next,
+        advice=told,
+        time_drift=found.drift,
+        shape_estimate=shape_estimate(obs, judge.data, quality, where.lead)
+        if where.lead is not None and not explains
+        else None,
+        unexplained=why,
+        lab_fixed=outside.lab,
+        mounting=outside.mounting,
+        between_points=between,
+        factor=factor,
+        negligible=where.negligible,
+        one_way=one_way,
+        tolerance=excess.tolerance,
+        noise_model="floor_x" in obs,
+        unrepeated=unrepeated,
+        noise_explains=noise_explains,
+    )
