@@ -35,7 +35,6 @@ from ..io.errors import IdentifiabilityError, SegmentationError
 from ..io.holds import Segmentation
 from ..io.log import HASH_ALGORITHM, REQUIRED, file_digest, read_log, with_constants
 from ..protocols import registry
-from ..protocols.turntable.segment import LOG_COLUMNS
 from ..terms.signals import RECORD_COLUMNS, TEMP_RATE_WINDOW_S, HistoryBins, Series
 from .config import Settings
 
@@ -78,7 +77,7 @@ def segment_log(
         digest = pool.submit(file_digest, path)
         log = read_log(
             path,
-            optional=LOG_COLUMNS + rules.without,
+            optional=rules.optional_columns + rules.without,
             sink=sink,
             required=tuple(c for c in REQUIRED if c not in rules.without),
             keep_bytes=keep_bytes if sink is not None else None,

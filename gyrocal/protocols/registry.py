@@ -125,6 +125,10 @@ class Protocol(ABC):
     report_section: ClassVar[str | None] = None
     validated_as: ClassVar[str | None] = None
 
+    # Columns of the log read where it has them (the mount, the accelerometer): what the
+    # segmenter and the observations use beyond the required ones.
+    optional_columns: ClassVar[tuple[str, ...]] = ("mount", "accel_x", "accel_y", "accel_z")
+
     # The config's top-level settings are this protocol's (segmentation:, model:,
     # diagnosis:); the others take theirs from ``protocols.<name>`` over ``defaults``.
     top_level_settings: ClassVar[bool] = False
