@@ -359,3 +359,37 @@ def test_the_schemas_name_the_registrys_protocols():
     assert sorted(config["properties"]["spec"]["properties"]) == sorted(registry.names())
     own = [n for n in registry.names() if not registry.get(n).top_level_settings]
     assert sorted(config["properties"]["protocols"]["properties"]) == sorted(own)
+
+
+_HOLDERS = ("list", "tuple", "Optional")  # annotations a bare dict may hide in
+
+
+def _is_bare_dict(annotation: ast.expr | None) -> bool:
+    """Whether a return annotation is a ``dict`` that says nothing of its keys: ``dict`` alone,
+    or in a union (``dict | None``), a list or a tuple; a string annotation is read as one."""
+    if isinstance(annotation, ast.Constant) and isinstance(annotation.value, str):
+        annotation = ast.parse(annotation.value, mode="eval").body
+    if isinstance(annotation, ast.Name):
+        return annotation.id == "dict"
+    if isinstance(annotation, ast.BinOp) and isinstance(annotation.op, ast.BitOr):
+        return _is_bare_dict(annotation.left) or _is_bare_dict(annotation.right)
+    if isinstance(annotation, ast.Subscript) and ast.unparse(annotation.value) in _HOLDERS:
+        inner = annotation.slice
+        return any(_is_bare_dict(e) for e in (inner.elts if isinstance(inner, ast.Tuple) else [inner]))
+    return False
+
+
+def test_no_public_function_returns_a_bare_dict():
+    """A result that crosses a module boundary says what it holds: a record is a TypedDict or a
+    frozen dataclass, a map is ``dict[K, V]``, a JSON document built or read whole is
+    ``dict[str, Any]`` (a serialiser's ``to_dict`` among them)."""
+    offenders = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+                and not node.name.startswith("_")
+                and _is_bare_dict(node.returns)
+            ):
+                offenders.append(f"{path.relative_to(PACKAGE.parent)}:{node.lineno} {node.name}")
+    assert not offenders, offenders

@@ -14,7 +14,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from gyrocal.fleet.manifest import read_manifest, write_shards
-from gyrocal.run.shards import ShardRun, _terminate_as_interrupt, day_view, run_shards, workflow_command
+from gyrocal.run.shards import (
+    DayCounts,
+    ShardRun,
+    _terminate_as_interrupt,
+    day_view,
+    run_shards,
+    workflow_command,
+)
 
 from .conftest import FLEET_CONFIG, REPO
 
@@ -84,7 +91,7 @@ def test_shards_run_a_few_at_a_time_and_the_day_is_their_union(tmp_path):
     spans = sorted(json.loads((r.folder / "ran.json").read_text()) for r in runs if r.status == 0)
     assert spans[2][0] >= min(spans[0][1], spans[1][1]) - 0.05
     totals = day_view(runs, tmp_path)
-    assert totals == {"units": 6, "ok": 5, "failed": 1, "eol_passed": 4, "eol_failed": 1}
+    assert totals == DayCounts(units=6, ok=5, failed=1, eol_passed=4, eol_failed=1)
     day = pq.read_table(tmp_path / "fleet.parquet")
     assert day.column_names[0] == "shard" and day.num_rows == 6
     assert day.column("shard").to_pylist() == ["shard-0001"] * 3 + ["shard-0002"] + ["shard-0004"] * 2

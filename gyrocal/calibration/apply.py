@@ -199,7 +199,13 @@ def _ahead(batches, depth: int = 2):
         stop.set()  # the consumer stopped: let the thread end and free its batches
 
 
-def writer_options(schema: pa.Schema) -> dict:
+class WriterOptions(TypedDict):
+    """Keyword arguments of :class:`pyarrow.parquet.ParquetWriter` (:func:`writer_options`)."""
+
+    use_dictionary: list[str]  # the columns Arrow dictionary-encodes
+
+
+def writer_options(schema: pa.Schema) -> WriterOptions:
     """How apply writes Parquet: Arrow's defaults, but no dictionary for the compensated
     rates, whose float64 values never repeat (Arrow would build a dictionary of each
     column chunk's first megabyte before falling back to plain: half the writing time)."""

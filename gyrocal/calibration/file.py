@@ -186,7 +186,7 @@ class Calibration:
         return w_true
 
     # -- file format -----------------------------------------------------------------
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         K, B = self.matrices()
         g = self.grid
         extra_grid = {}

@@ -24,7 +24,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypedDict
 
 from ..io import formats
 from ..io.errors import ConfigError, GyrocalError, InputError
@@ -47,6 +47,24 @@ class NoCalibrationError(InputError):
     """No calibration file of the device satisfies the lookup."""
 
 
+class LookupRecord(TypedDict):
+    """A lookup's result, JSON-plain: what ``gyrocal lookup --json`` prints."""
+
+    path: str
+    caldir: str
+    device: str
+    batch: str | None
+    session: str
+    protocol: str | None
+    date: str | None  # the date asked for, ISO
+    direction: str | None  # "before", "after" or None: either
+    days_away: int | None
+    max_days: float
+    warning: str | None
+    candidates: int
+    skipped: dict[str, int]
+
+
 @dataclass(frozen=True)
 class LookupResult:
     """The chosen calibration and how far its session is from the date asked for."""
@@ -57,12 +75,12 @@ class LookupResult:
     days_away: int | None  # session minus the date, days (negative: before); None without a date
     warning: str | None
     candidates: int = 0  # the device's readable calibration files
-    skipped: dict = field(default_factory=dict)  # failed_sessions, unreadable: counts
+    skipped: dict[str, int] = field(default_factory=dict)  # failed_sessions, unreadable: counts
 
     def record(
         self, caldir, device: str, date: dt.date | None, direction: str | None, max_days: float
-    ) -> dict:
-        """JSON-plain summary (what ``gyrocal lookup --json`` prints)."""
+    ) -> LookupRecord:
+        """What ``gyrocal lookup --json`` prints."""
         meta = self.calibration.meta
         return {
             "path": str(self.path),

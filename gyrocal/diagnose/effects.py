@@ -4,6 +4,7 @@ validated and judged on what it leaves (in this session and, given one, in anoth
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -12,6 +13,7 @@ from ..pipeline.config import Settings
 from ..terms import AXES, make_term
 from ..terms.signals import SERIES_INPUTS
 from .evaluation import (
+    CoefficientSize,
     Evaluation,
     add_term_option,
     config_line,
@@ -38,7 +40,7 @@ class Candidate:
     df: tuple[int, int] | None = None
     gain_pct: float | None = None
     significant: bool = False
-    size: list[dict] = field(default_factory=list)
+    size: list[CoefficientSize] = field(default_factory=list)
     peak_effect: float | None = None  # deg/s over the observations
     reason: str = ""
     expected_with: float | None = None  # what a correct model would leave, deg/s
@@ -65,7 +67,7 @@ class Candidate:
     model: dict | None = None  # that model, as the config's model: section
     offered: bool = False  # partial: offered, taking away most of it
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         from .reading import readable
 
         out = {

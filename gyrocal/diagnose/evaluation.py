@@ -15,7 +15,7 @@ import pandas as pd
 
 from ..fit.model import columns_of
 from ..fit.thermal import fit_model
-from ..fit.validate import CannotLeaveOut, validate
+from ..fit.validate import CannotLeaveOut, ValidationFigures, validate
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES, TERMS, make_term
@@ -76,7 +76,7 @@ EVALUATIONS_KEPT = 16
 _EVALUATED: list = []
 
 
-def in_sample_summary(fitted, obs) -> dict:
+def in_sample_summary(fitted, obs) -> ValidationFigures:
     """A validation summary's figures from a fit's own residuals: RMS, floor, and the floor
     as what a correct model would leave (its own fit removes a little more)."""
     from ..fit.thermal import in_sample
@@ -149,17 +149,26 @@ def pooled(fits, name: str) -> tuple[float, float]:
     return float(np.sum(w * v) / np.sum(w)), float(np.sqrt(1.0 / np.sum(w)))
 
 
+class CoefficientSize(TypedDict):
+    """An added coefficient pooled over the fits (:func:`effect_size`)."""
+
+    coefficient: str
+    value: float
+    stderr: float
+    unit: str  # the term's
+
+
 def effect_size(
     evaluation: Evaluation, spec: str, added: list[str], obs_data: dict
-) -> tuple[list[dict], float]:
+) -> tuple[list[CoefficientSize], float]:
     """Each added coefficient pooled over the fits, and the largest contribution of the
     added term to any observation (deg/s)."""
     fits = evaluation.fitted.fits
     unit = make_term(spec).unit
-    size = [
-        dict(zip(("coefficient", "value", "stderr", "unit"), (name, *pooled(fits, name), unit), strict=False))
-        for name in added
-    ]
+    size: list[CoefficientSize] = []
+    for name in added:
+        value, stderr = pooled(fits, name)
+        size.append({"coefficient": name, "value": value, "stderr": stderr, "unit": unit})
     model = fits[0].model
     peak = 0.0
     for result, rows in zip(fits, evaluation.fitted.rows, strict=False):
@@ -318,7 +327,7 @@ def _flow(value) -> str:
     return "null" if value is None else json.dumps(value)
 
 
-def with_unit_lines(doc: dict, device: str | None, settings: Settings) -> dict:
+def with_unit_lines(doc: dict[str, Any], device: str | None, settings: Settings) -> dict[str, Any]:
     """A diagnosis' JSON with each offered fix's ``unit_config_line`` for ``device``, and its
     ``config_line`` (the whole fleet's ``model:``) made from the fleet's model rather than
     this unit's (:attr:`gyrocal.pipeline.config.Settings.fleet`)."""

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..io.errors import ConfigError, IdentifiabilityError, MissingInputError
 from ..terms import AXES, Term, make_term
-from ..terms.signals import SERIES_INPUTS, Inputs, hold_inputs, node_means, quadrature_inputs
+from ..terms.signals import SERIES_INPUTS, Inputs, Quadrature, hold_inputs, node_means, quadrature_inputs
 
 DEFAULT_TERMS = ("bias", "scale", "misalignment")
 # Largest condition number of the column-scaled, weighted design a fit accepts. Sound
@@ -60,7 +60,7 @@ class Model:
     def from_spec(cls, specs: Sequence = DEFAULT_TERMS) -> Model:
         return cls(tuple(make_term(s) for s in specs))
 
-    def spec(self) -> list[dict]:
+    def spec(self) -> list[dict[str, Any]]:
         return [t.spec() for t in self.terms]
 
     @property
@@ -108,16 +108,21 @@ class Model:
             base, context = hold_inputs(data)
         else:
             base = Inputs({k: v for k, v in data.items() if k != "series"}, data.get("series"), data.get("t"))
-            context = {"span": None}
+            context = Quadrature(None, None)
         nodes = None
         out: dict[str, np.ndarray] = {}
         for term in self.terms:
             inputs = Inputs(base, base.series, base.times)
             try:
                 columns = term.columns(inputs)
-                if context["span"] is not None and len(context["span"][0]) and inputs.read & SERIES_INPUTS:
+                if (
+                    context.series is not None
+                    and context.span is not None
+                    and len(context.span[0])
+                    and inputs.read & SERIES_INPUTS
+                ):
                     if nodes is None:
-                        nodes = quadrature_inputs(base, context["series"], context["span"])
+                        nodes = quadrature_inputs(base, context.series, context.span)
                     at_nodes = term.columns(Inputs(nodes, nodes.series, nodes.times))
                     columns = {k: node_means(v, nodes.plan) for k, v in at_nodes.items()}
             except MissingInputError as exc:
@@ -217,7 +222,9 @@ class FitResult:
     def chi2_red(self, axis: str) -> float:
         return self.chi2[axis] / self.dof[axis]
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
+        """The fit, JSON-plain: terms, coefficients and their errors, the residuals' figures
+        per axis, and what :attr:`info` holds."""
         return {
             "terms": self.model.spec(),
             "coefficients": self.coefs(),
@@ -282,7 +289,7 @@ def _check_finite(model: Model, design: dict, n_obs: int, source, label: str) ->
                 )
 
 
-def subset_design(design: dict, rows) -> dict:
+def subset_design(design: Mapping[str, np.ndarray], rows) -> dict[str, np.ndarray]:
     """A design's columns at some of its rows (a constant column stays a scalar)."""
     return {k: v[rows] if np.ndim(v) else v for k, v in design.items()}
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class AllanResult:
     overlapping: bool = True
     level: float = 0.683
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "rate_hz": float(self.rate),
             "n_samples": int(self.n_samples),
@@ -415,7 +416,7 @@ class NoiseTerms:
         parts = self._parts(tau)
         return self._per_axis(parts[..., 2] + parts[..., 3])
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         units = {
             "arw": "deg/sqrt(h)",
             "bias_instability": "deg/h",

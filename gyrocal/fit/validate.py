@@ -44,20 +44,26 @@ from . import METHODS
 from .model import Model, columns_of, fit, observation_floor, subset_design
 
 
-class ValidationSummary(TypedDict):
-    """A validation's headline figures (validation.json's ``summary``), deg/s where a rate."""
+class ValidationFigures(TypedDict):
+    """The figures every summary of a model's error has, a fit's own residuals' too
+    (:func:`gyrocal.diagnose.evaluation.in_sample_summary`), deg/s where a rate."""
 
     validation_rms: float  # the interpolated calibration's error on the scored holds
     noise_floor: float
     excess: float  # validation_rms over noise_floor
     expected_rms: float  # the floor and the calibration's own uncertainty
     excess_over_expected: float
+    held_out: str  # "temperature" or "hold"; "none" in sample
+    holds_scored: int
+
+
+class ValidationSummary(ValidationFigures):
+    """A validation's headline figures (validation.json's ``summary``), deg/s where a rate."""
+
     uncompensated_rms: float
     single_rms: float
     reference_temperature: float  # °C, the one-point calibration's point
-    held_out: str  # "temperature" or "hold"
     scored: str  # "interior", "left-out" or "all"
-    holds_scored: int
     temperature_points: int
     model_kind: str
     points_not_left_out: NotRequired[int]

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import NamedTuple
+from typing import NamedTuple, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -222,6 +222,31 @@ def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.nda
     return errors, observation_floor(data)
 
 
+class Revalidation(TypedDict):
+    """The previous session's calibration on the new session's holds (:func:`revalidate`),
+    deg/s where a rate: JSON-plain but for ``table``, which a fleet audit writes as records."""
+
+    device: str | None
+    calibration_session: str | None
+    holds: bool  # the old calibration still holds
+    verdict: str
+    validation_rms: float  # the interpolated compensation's, on the scored holds
+    noise_floor: float
+    excess: float
+    expected_rms: float  # the floor and the old calibration's uncertainty
+    excess_over_expected: float
+    limit_over_expected: float | None  # the chi-squared bound, where no max_excess is given
+    max_excess: float | None
+    uncompensated_rms: float
+    single_rms: float
+    reference_temperature: float  # °C, the one-point compensation's
+    holds_scored: int
+    holds_outside_span: int
+    holds_left_out: int
+    scored: str  # "within the old span" or "all"
+    table: pd.DataFrame  # Mean/RMS per rotating x output axis and method
+
+
 def revalidate(
     previous_cal,
     observations,
@@ -229,7 +254,7 @@ def revalidate(
     max_excess: float | None = None,
     alpha: float = 1e-3,
     span_margin: float = 1.0,
-) -> dict:
+) -> Revalidation:
     """Does the previous session's calibration still hold on the new session's holds?
 
     ``observations`` is the new session's observation table or its results folder (a
@@ -250,8 +275,8 @@ def revalidate(
     the calibration uncertainty carried to each hold. (Calibration errors are shared by
     holds, which widens the true scatter slightly; they are small beside the floor.)
 
-    Returns a JSON-plain dict (``table``, the Mean/RMS per rotating × output axis, is a
-    DataFrame; ``table.to_dict("records")`` for files).
+    Returns a :class:`Revalidation` (its ``table``, the Mean/RMS per rotating × output axis,
+    a DataFrame: ``table.to_dict("records")`` for files).
     """
     cal = _load(previous_cal)
     obs = _revalidation_holds(cal, observations)

@@ -16,6 +16,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -37,7 +38,7 @@ class Verdict:
     meta: dict = field(default_factory=dict)  # device, batch, session, protocol
     calibrated: bool = True  # False: no calibration to judge
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             **self.meta,
             "passed": self.passed,

@@ -9,6 +9,7 @@ import math
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from ..io.errors import ConfigError
 
@@ -163,7 +164,7 @@ class SpecLimits:
             out["fail_on_warnings"] = _warning_codes(d["fail_on_warnings"], f"{key}.fail_on_warnings")
         return cls(**out)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         d = {
             "parameters": {p: (list(r) if r[0] != -r[1] else r[1]) for p, r in self.parameters},
             "temperature_coefficients": dict(self.temperature_coefficients),

@@ -5,7 +5,8 @@ page (:func:`write_fleet_report`).
 The settings come from the workflow config's ``spec``, ``outliers`` and ``drift`` sections
 (:class:`FleetSettings`); the numbers from :mod:`gyrocal.fleet.eol`, :mod:`gyrocal.fleet.outliers` and
 :mod:`gyrocal.fleet.drift`. The output is JSON-plain, written to the fleet's ``eol.json`` for
-production systems and rendered in the fleet summary and one drift page per audited device.
+production systems and rendered in the fleet summary and one drift page per audited device:
+documents the pages and ``eol.json`` read whole, hence ``dict[str, Any]``.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -62,14 +64,14 @@ class FleetSettings:
         )
 
 
-def _records(frame: pd.DataFrame) -> list[dict]:
+def _records(frame: pd.DataFrame) -> list[dict[str, Any]]:
     return [
         {k: _finite(v.item() if hasattr(v, "item") else v) for k, v in row.items()}
         for row in frame.to_dict("records")
     ]
 
 
-def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dict:
+def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dict[str, Any]:
     """Verdict per unit (``unit["row"]`` manifest row; ``inputs``, what :func:`_unit_row`
     read of its folder, by (batch, device, session)), yield per batch. Units of a protocol
     without limits are not judged."""
@@ -87,7 +89,7 @@ def end_of_line(units: list[dict], settings: FleetSettings, inputs: dict) -> dic
     return {"verdicts": verdicts, "yield": _records(yields) if len(yields) else []}
 
 
-def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict], list[str], str]:
+def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict[str, Any]], list[str], str]:
     """Units of a protocol with fleet audits (the turntable) against their batch: (flagged
     rows, notes, distributions figure)."""
     from ..calibration.parameters import parameter_table
@@ -103,7 +105,7 @@ def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict
     return _records(flagged), list(flagged.attrs.get("notes", [])), figure
 
 
-def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings) -> list[dict]:
+def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings) -> list[dict[str, Any]]:
     """Devices with two or more sessions of a protocol with fleet audits (the turntable):
     parameter changes with their significance, and the previous session's calibration
     re-validated on the newest session's holds."""
@@ -150,7 +152,7 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
     return audits
 
 
-def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, inputs: dict) -> dict:
+def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, inputs: dict) -> dict[str, Any]:
     folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"]) for u in units}
     eol = end_of_line(units, settings, inputs)
     flagged, notes, figure = outliers(calibrated, settings)
@@ -163,7 +165,7 @@ def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, in
     }
 
 
-def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict:
+def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict[str, Any]:
     """What the fleet page shows, read from every unit's folder (``units``: each with its
     manifest ``row``, results ``folder`` and ``report`` link): a row per unit session,
     calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
@@ -320,7 +322,7 @@ def _largest_axis(terms: dict, name: str) -> tuple[float, float]:
     return float(values[i]), float(np.atleast_1d(terms[f"{name}_stderr"])[i])
 
 
-def servo_versus_turntable(rows: list[dict]) -> list[dict]:
+def servo_versus_turntable(rows: list[dict]) -> list[dict[str, Any]]:
     """Units calibrated both on the servo and on the turntable: scale factor (K[a,a] − 1) and
     bias of each calibration at the servo session's temperature, their difference and its
     size in combined standard errors (seed 001 Tables II–III compare the two methods so).
@@ -382,7 +384,7 @@ def servo_versus_turntable(rows: list[dict]) -> list[dict]:
     return out
 
 
-def eol_document(result: dict, settings: FleetSettings) -> dict:
+def eol_document(result: dict[str, Any], settings: FleetSettings) -> dict[str, Any]:
     """The machine-readable end-of-line record: every judged unit and the batch yields."""
     verdicts = [
         {**v.to_dict(), "batch": key[0], "device": key[1], "session": key[2]}

@@ -12,6 +12,8 @@ missing strings (NaN) and of nullable integers (its Int64) are brought to the sa
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 # Arrow type ids (pyarrow.lib.Type_*) of the layouts read here.
@@ -85,7 +87,7 @@ class Columns:
     def assign(self, **columns) -> Columns:
         return Columns({**self._data, **columns}, self._rows)
 
-    def records(self) -> list[dict]:
+    def records(self) -> list[dict[str, Any]]:
         """A dict of plain Python values per row (as pandas' ``to_dict("records")``)."""
         names = list(self._data)
         lists = [self._data[n].tolist() for n in names]

@@ -13,7 +13,9 @@ record to every output of a stage).
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any, TypedDict
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -25,15 +27,28 @@ FORMAT = formats.FAILURE
 META_KEY = b"gyrocal.failure"
 
 
+class FailureRecord(TypedDict):
+    """A failure record, as every JSON or Parquet output of the failed stage holds it."""
+
+    format: str  # FORMAT
+    device: str | None
+    batch: str | None
+    session: str | None
+    protocol: str | None
+    stage: str
+    error: str  # one line
+    internal: bool  # a bug of gyrocal rather than a fault of the input or the machine
+
+
 class UpstreamFailure(GyrocalError):
     """An input is a failure record: this stage has nothing to work on."""
 
-    def __init__(self, record: dict):
+    def __init__(self, record: FailureRecord):
         super().__init__(f"{record['stage']} failed: {record['error']}")
         self.record = record
 
 
-def record(stage: str, error: BaseException | str, meta: dict | None = None) -> dict:
+def record(stage: str, error: BaseException | str, meta: Mapping[str, Any] | None = None) -> FailureRecord:
     """The failure record of ``stage`` failing with ``error`` (an exception, or the reason
     as text: a job the workflow's limits ended, :mod:`gyrocal.run.guard`)."""
     internal = not isinstance(error, (GyrocalError, str, MemoryError))
@@ -42,16 +57,20 @@ def record(stage: str, error: BaseException | str, meta: dict | None = None) -> 
         text = "ran out of memory" + (f" ({text})" if text else "")
     elif internal:
         text = f"internal error: {type(error).__name__}: {text}"
+    meta = meta or {}
     return {
         "format": FORMAT,
-        **{k: (meta or {}).get(k) for k in ("device", "batch", "session", "protocol")},
+        "device": meta.get("device"),
+        "batch": meta.get("batch"),
+        "session": meta.get("session"),
+        "protocol": meta.get("protocol"),
         "stage": stage,
         "error": text,
         "internal": internal,
     }
 
 
-def read(path, data=None) -> dict | None:
+def read(path, data=None) -> FailureRecord | None:
     """The failure record stored at ``path`` (or in ``data``, the bytes of a file of that
     name or a seekable binary file of them: a Parquet file's footer alone is read), or None
     if it holds a real result."""
@@ -85,7 +104,7 @@ def check_inputs(*paths) -> None:
             raise UpstreamFailure(found)
 
 
-def write(outputs, rec: dict) -> None:
+def write(outputs, rec: FailureRecord) -> None:
     """Write ``rec`` into every Parquet or JSON output, in the form its suffix calls for (an
     HTML output's page is the report's: :func:`gyrocal.report.pages.write_failure`)."""
     for out in map(Path, outputs):
@@ -100,7 +119,7 @@ def write(outputs, rec: dict) -> None:
             atomic.write_text(out, json.dumps(rec, indent=2) + "\n")
 
 
-def load_json(path, data: bytes | None = None, refuse_records: bool = True) -> dict:
+def load_json(path, data: bytes | None = None, refuse_records: bool = True) -> dict[str, Any]:
     """A JSON result file (or ``data``, the bytes of one that ``path`` names), refusing
     failure records with their own message (``refuse_records``; else returned as read)."""
     path = Path(path)

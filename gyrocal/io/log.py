@@ -14,6 +14,7 @@ import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
@@ -23,6 +24,9 @@ import pyarrow.parquet as pq
 
 from . import readahead
 from .errors import CorruptFileError, EmptyLogError, LogFormatError, first_line
+
+if TYPE_CHECKING:
+    from .plausibility import InputSummary
 
 GYRO = ("gyro_x", "gyro_y", "gyro_z")
 ACCEL = ("accel_x", "accel_y", "accel_z")
@@ -77,7 +81,7 @@ class RigLog:
     span: tuple[float, float] = (0.0, 0.0)  # first and last kept t (when ``batches`` is None)
     blocks: dict = field(default_factory=dict, compare=False)
     reread: Callable | None = field(default=None, compare=False, repr=False)
-    input_stats: dict | None = field(default=None, compare=False)  # gyrocal.io.plausibility.InputStats
+    input_stats: InputSummary | None = field(default=None, compare=False)  # what InputStats saw
 
     @property
     def names(self) -> tuple[str, ...]:

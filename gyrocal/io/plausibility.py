@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any, TypedDict
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -111,6 +111,31 @@ class Finding(TypedDict):
 
 def finding(code: str, message: str, **evidence) -> Finding:
     return {"code": code, "message": " ".join(message.split()), "evidence": json_safe(evidence)}
+
+
+class InputSummary(TypedDict):
+    """What :class:`InputStats` saw of a log, JSON-plain (inf and NaN as None): segmentation
+    writes it in its info (``input_stats``), and the calibration's review reads it back."""
+
+    rows: int
+    temp_nonfinite: int
+    temp_nonfinite_span: list[float] | None  # first and last t of a non-finite temperature
+    temp_range: list[float] | None  # lowest and highest temperature, °C
+    temp_out_of_range: int
+    temp_finest_step: float | None
+    temp_longest_run_s: float  # the longest stretch of one temperature reading
+    temp_longest_run_at: float | None
+    temp_longest_run_value: float | None
+    duration_s: float
+    nominal_dt: float | None  # the first batch's median sample interval
+    intervals: int
+    jittered: int
+    dropped_intervals: int
+    missing_samples: int
+    nonfinite: dict[str, int]  # by column
+    gyro_range: dict[str, list[float]]  # by column: lowest and highest
+    gyro_beyond: int
+    gyro_garbled: int
 
 
 class InputStats:
@@ -296,7 +321,7 @@ class InputStats:
         self.dropped_intervals += int(np.count_nonzero(skipped))
         self.missing_samples += int(np.sum(np.rint(ratio[skipped]) - 1))
 
-    def summary(self) -> dict:
+    def summary(self) -> InputSummary:
         if self.nominal_dt is None and self.pending is not None:
             self._settle()
         self._end_open_run()  # the last run ends with the log (a partial block left out)
@@ -355,14 +380,23 @@ def _time_off(values: dict, bounds: dict) -> list[str]:
     return [q for q, v in values.items() if not bounds[q][0] <= v <= bounds[q][1]]
 
 
-def time_base_review(stats: dict | None, hold_s: float | None = None) -> dict | None:
+class TimeBaseReview(NamedTuple):
+    """A time base that rigs do not record (:func:`time_base_review`)."""
+
+    odd: list[str]  # the quantities off: "sample interval", "hold", "session"
+    measured: dict[str, float]  # every quantity measured, seconds as t counts them
+    fix: tuple[float, str, str | None] | None  # factor, name, declared unit that set all right
+    error: bool  # a fix exists and two quantities are off, or one that nothing records
+
+
+def time_base_review(stats: InputSummary | None, hold_s: float | None = None) -> TimeBaseReview | None:
     """The time base against what rigs record: the nominal sample interval, the session's
     length and, where the protocol's holds last as long as the rig held them, their typical
     length. None when all are what rigs record; else what is off (``odd``), the values, and
     the first unit (t in ms, µs, ns, min, h) that brings all of them into what rigs record
     (``fix``: factor, name, declared unit; None when none does) and whether it is an error:
     two of them off, or one that nothing records, with a fix."""
-    measured = {}
+    measured: dict[str, float] = {}
     if stats and stats.get("nominal_dt"):
         measured["sample interval"] = float(stats["nominal_dt"])
     if hold_s:
@@ -381,36 +415,36 @@ def time_base_review(stats: dict | None, hold_s: float | None = None) -> dict | 
         None,
     )
     error = fix is not None and (len(odd) >= 2 or bool(_time_off(measured, TIME_POSSIBLE)))
-    return {"odd": odd, "measured": measured, "fix": fix, "error": error}
+    return TimeBaseReview(odd, measured, fix, error)
 
 
-def _time_fix_text(review: dict) -> str:
+def _time_fix_text(review: TimeBaseReview) -> str:
     """'in milliseconds, samples 10 ms apart: declare it ...'"""
-    factor, name, unit = review["fix"]
-    scaled = {q: v * factor for q, v in review["measured"].items()}
+    factor, name, unit = review.fix
+    scaled = {q: v * factor for q, v in review.measured.items()}
     how = (
         f'declare it in the log\'s metadata gyrocal.units as {{"t": "{unit}"}} (an import '
         f"map: time.unit {unit})"
         if unit
         else "convert t to seconds"
     )
-    return f"in {name}, {_time_said(scaled, review['odd'])}: {how}"
+    return f"in {name}, {_time_said(scaled, review.odd)}: {how}"
 
 
-def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | None, Finding | None]:
+def time_base(stats: InputSummary | None, hold_s: float | None = None) -> tuple[str | None, Finding | None]:
     """(an error's message, a warning) of :func:`time_base_review`. Rates are per second of
     the sensor's own clock, so a wrong time unit leaves K and B alone but not the noise
     figures (ARW, Allan deviation), the noise floor's time terms or time-read terms."""
     review = time_base_review(stats, hold_s)
     if review is None:
         return None, None
-    odd, measured = review["odd"], review["measured"]
+    odd, measured = review.odd, review.measured
     said = _time_said(measured, odd)
-    if review["error"]:
+    if review.error:
         return f"t does not count seconds: {said}, which no rig records; {_time_fix_text(review)}", None
     evidence = {q.replace(" ", "_") + "_s": v for q, v in measured.items()}
     consequence = "the noise figures (ARW, Allan deviation) and time-read terms take t as seconds"
-    if review["fix"] is None:
+    if review.fix is None:
         return None, finding(
             "time_base_implausible",
             f"{said}, which rigs do not record: {consequence}; check the time column",
@@ -420,28 +454,28 @@ def time_base(stats: dict | None, hold_s: float | None = None) -> tuple[str | No
     return None, finding(
         "time_base_implausible",
         f"{said}, which rigs do not record; {_time_fix_text(review)}, if t counts "
-        f"{review['fix'][1]}; {consequence}",
-        unit_factor=review["fix"][0],
+        f"{review.fix[1]}; {consequence}",
+        unit_factor=review.fix[0],
         odd=odd,
         **evidence,
     )
 
 
-def explain_segmentation(exc: InputError, stats: dict | None, source=None) -> InputError:
+def explain_segmentation(exc: InputError, stats: InputSummary | None, source=None) -> InputError:
     """A segmentation's failure on a log whose time base is off where a unit factor would
     set it right: the time base is the likelier cause, so the error says it as well."""
     review = time_base_review(stats)
-    if review is None or review["fix"] is None:
+    if review is None or review.fix is None:
         return exc
     reason = str(exc).removeprefix(f"{exc.source}: ") if exc.source else str(exc)
     return ImplausibleInputError(
-        f"{reason}; t may not count seconds: {_time_said(review['measured'], review['odd'])}, "
+        f"{reason}; t may not count seconds: {_time_said(review.measured, review.odd)}, "
         f"which rigs do not record; {_time_fix_text(review)}",
         source=source,
     )
 
 
-def log_errors(stats: dict | None, source=None) -> None:
+def log_errors(stats: InputSummary | None, source=None) -> None:
     """Raise where the read's :class:`InputStats` show the log cannot be right: a
     temperature in kelvin, a gyro axis that never changes, a time base in another unit
     than seconds (the sample interval and the session's length; holds are judged after
@@ -471,7 +505,7 @@ def log_errors(stats: dict | None, source=None) -> None:
             )
 
 
-def log_findings(stats: dict | None, source=None) -> list[Finding]:
+def log_findings(stats: InputSummary | None, source=None) -> list[Finding]:
     """Warnings from the read's :class:`InputStats` summary."""
     if not stats or not stats.get("rows"):
         return []
@@ -489,7 +523,7 @@ def log_findings(stats: dict | None, source=None) -> list[Finding]:
     return out + _timing_findings(stats)
 
 
-def _temperature_findings(stats: dict) -> list[Finding]:
+def _temperature_findings(stats: InputSummary) -> list[Finding]:
     """The temperature out of range, missing for a share of the rows, or stuck."""
     out = []
     rows = stats["rows"]
@@ -545,7 +579,7 @@ def _temperature_findings(stats: dict) -> list[Finding]:
     return out
 
 
-def _timing_findings(stats: dict) -> list[Finding]:
+def _timing_findings(stats: InputSummary) -> list[Finding]:
     """Sample intervals scattered about the nominal, or samples missing between them."""
     out = []
     intervals = stats.get("intervals") or 0

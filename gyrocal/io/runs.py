@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import TypedDict
 
 from . import atomic
 
@@ -24,7 +25,50 @@ FORMAT = "gyrocal.runs/1"
 KEPT = 20  # models remembered per unit session, the newest last
 
 
-def read_runs(folder) -> list[dict]:
+class RunModel(TypedDict):
+    """The model a run fitted."""
+
+    kind: str  # "grid" or "continuous"
+    terms: list[str]  # each term's spec string
+
+
+class NextSession(TypedDict):
+    """A run's figure on the unit's other session."""
+
+    session: str
+    excess: float
+
+
+class RunFix(TypedDict):
+    """The fix a run's diagnosis named, with its figures."""
+
+    term: str
+    together: list[str]
+    reads: str | None
+    excess: float  # its validation RMS over the noise floor
+    next_excess: float | None  # on the other session
+    option: str | None
+    config_line: str | None
+
+
+class RunEntry(TypedDict):
+    """One run of a unit session: its model as configured (``key``, a hash of the model
+    settings) and as fitted, its figures in the session and on the other one, its fix."""
+
+    key: str
+    config_sha256: str | None
+    entry: str | None
+    model: RunModel
+    dropped: list[str]  # terms added for identification and not kept
+    validation_rms: float
+    noise_floor: float
+    excess: float
+    held_out: str | None
+    next_session: NextSession | None
+    fix: RunFix | None
+
+
+def read_runs(folder) -> list[RunEntry]:
     """The unit session's runs, oldest first; none where the record is missing or cannot be
     read (it is rewritten whole by the next run)."""
     path = Path(folder) / FILE
@@ -68,7 +112,7 @@ def _well_formed(run) -> bool:
     )
 
 
-def record_run(folder, run: dict) -> list[dict]:
+def record_run(folder, run: RunEntry) -> list[RunEntry]:
     """Add ``run`` (with its model's ``key``) as the newest entry, replacing an earlier entry
     of the same model; returns the runs."""
     runs = [r for r in read_runs(folder) if r["key"] != run["key"]] + [run]
@@ -78,7 +122,7 @@ def record_run(folder, run: dict) -> list[dict]:
     return runs
 
 
-def last_two(runs: list[dict], config_sha256: str | None) -> tuple[dict | None, dict | None]:
+def last_two(runs: list[RunEntry], config_sha256: str | None) -> tuple[RunEntry | None, RunEntry | None]:
     """The run that made the calibration of settings hash ``config_sha256`` (the newest entry,
     when it is that one) and the run of the model before it, its figure on the other session
     kept only where that session is this run's too."""

@@ -12,7 +12,7 @@ import copy
 import math
 from functools import cache
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import yaml
 
@@ -71,12 +71,12 @@ def refuse_duplicate_keys(text: str, source=None) -> None:
 
 
 @cache
-def load(name: str) -> dict:
+def load(name: str) -> dict[str, Any]:
     """The schema ``name`` (``config`` or ``manifest``)."""
     return yaml.load((FOLDER / f"{name}.schema.yaml").read_text(), Loader=SAFE_LOADER)
 
 
-def section(name: str, path: str = "") -> dict:
+def section(name: str, path: str = "") -> dict[str, Any]:
     """The part of schema ``name`` that describes the settings at the dotted ``path``."""
     part = load(name)
     for key in filter(None, path.split(".")):
@@ -113,7 +113,7 @@ def _validator(name: str, path: str):
     return root.evolve(schema=section(name, path)) if path else root
 
 
-def defaults(name: str, path: str = "") -> dict:
+def defaults(name: str, path: str = "") -> dict[str, Any]:
     """The defaults the schema gives the settings of one section."""
     return {
         key: copy.deepcopy(prop["default"])
@@ -122,7 +122,9 @@ def defaults(name: str, path: str = "") -> dict:
     }
 
 
-def check(values, name: str = "config", path: str = "", *, key: str | None = None, source=None) -> dict:
+def check(
+    values, name: str = "config", path: str = "", *, key: str | None = None, source=None
+) -> dict[str, Any]:
     """``values`` checked against the section ``path`` of schema ``name``: a copy with the
     schema's defaults filled in. The first violation raises :class:`ConfigError` naming its
     key, written from ``key`` (the section's path unless given).

@@ -7,10 +7,14 @@ from __future__ import annotations
 import contextlib
 import zipfile
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from . import atomic
 from .errors import CorruptFileError
 from .tables import read_columns_with_metadata, read_table_with_metadata
+
+if TYPE_CHECKING:
+    from .failure import FailureRecord
 
 UNIT_FILES = {
     "observations": "observations.parquet",
@@ -151,7 +155,7 @@ def read_part_columns(folder, key: str):
     return read_columns_with_metadata(label, data=data)
 
 
-def read_part_doc(folder, key: str) -> dict | None:
+def read_part_doc(folder, key: str) -> dict[str, Any] | None:
     """A JSON part as it is, a failure record or a result (read and parsed once), None
     where it is missing."""
     from . import failure
@@ -165,7 +169,7 @@ def read_part_doc(folder, key: str) -> dict | None:
     return doc
 
 
-def read_part_json(folder, key: str) -> dict:
+def read_part_json(folder, key: str) -> dict[str, Any]:
     """A JSON part; a failure record raises :class:`gyrocal.io.failure.UpstreamFailure`."""
     from . import failure
 
@@ -173,7 +177,7 @@ def read_part_json(folder, key: str) -> dict:
     return failure.load_json(part_label(folder, key), data=data)
 
 
-def part_failure(folder, key: str) -> dict | None:
+def part_failure(folder, key: str) -> FailureRecord | None:
     """The failure record a part holds, None where it holds a result or is missing. A
     Parquet part's record is in its footer: only that is read, loose or packed."""
     from . import failure
@@ -185,7 +189,7 @@ def part_failure(folder, key: str) -> dict | None:
         return None if member is None else failure.read(UNIT_FILES[key], data=member)
 
 
-def part_metadata(folder, key: str) -> dict | None:
+def part_metadata(folder, key: str) -> dict[bytes, bytes] | None:
     """The schema metadata of a Parquet part (its footer alone read), None where it is
     missing."""
     import pyarrow as pa

@@ -101,7 +101,7 @@ class ModelSettings:
             load_term_file(path)
         return Model.from_spec(self.term_specs())
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "terms": [t if isinstance(t, str) else dict(t) for t in self.terms],
             "kind": self.kind,
@@ -139,7 +139,7 @@ class DiagnosisSettings:
             ladder.append({"name": str(name), "add": add, "kind": step.get("kind")})
         return cls(float(values["significance"]), candidates, tuple(ladder))
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "significance": self.significance,
             "candidates": list(self.candidates),
@@ -251,7 +251,7 @@ class Settings:
         its data could not identify were dropped."""
         return self.fleet_model or self.model
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         # the fleet's model and the unit's entry, as the workflow hands them to a job
         model = self.fleet if self.unit_model is not None else self.model
         out = {
@@ -287,7 +287,8 @@ def _unit_model(values) -> tuple | None:
     return key, entry
 
 
-def read_yaml(path) -> dict:
+def read_yaml(path) -> dict[str, Any]:
+    """The mapping of settings a YAML file holds, as written (an empty file: none)."""
     path = Path(path)
     try:
         text = path.read_text()

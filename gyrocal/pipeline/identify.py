@@ -21,7 +21,7 @@ import json
 import math
 import re
 from dataclasses import dataclass, replace
-from typing import TypedDict
+from typing import Any, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -75,7 +75,7 @@ class AddedTerm:
     without_term: HeldOut | None = None
     weakly: str | None = None  # kept for its gain though the data do not identify it: why
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "term": self.term,
             "kept": self.kept,

@@ -389,7 +389,7 @@ def cmd_shard(args) -> int:
     totals = day_view(runs, Path(args.out))
     stopped = [r.name for r in runs if r.status != 0]
     print(
-        f"{totals['units']} unit sessions: {totals['ok']} calibrated, {totals['failed']} failed "
+        f"{totals.units} unit sessions: {totals.ok} calibrated, {totals.failed} failed "
         f"-> {Path(args.out) / 'index.html'}"
         + (f"; the workflow stopped on {', '.join(stopped)}" if stopped else "")
     )

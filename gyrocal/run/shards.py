@@ -18,7 +18,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 
 from ..io import atomic
@@ -190,7 +190,18 @@ class _terminate_as_interrupt:
         raise KeyboardInterrupt
 
 
-def day_view(runs: list[ShardRun], out: Path) -> dict:
+@dataclass(frozen=True)
+class DayCounts:
+    """The day's unit sessions over every shard whose workflow finished (:func:`day_view`)."""
+
+    units: int
+    ok: int
+    failed: int
+    eol_passed: int
+    eol_failed: int
+
+
+def day_view(runs: list[ShardRun], out: Path) -> DayCounts:
     """``OUT/fleet.parquet`` (the fleet table of every shard whose workflow finished,
     ``shard`` first; a column one shard's models lack is null there) and ``OUT/index.html``;
     returns the day's counts."""
@@ -232,8 +243,6 @@ def day_view(runs: list[ShardRun], out: Path) -> dict:
         day = day.replace_schema_metadata({b"gyrocal.format": b"gyrocal.fleet/1"})
         with atomic.replacing(out / "fleet.parquet") as tmp:
             pq.write_table(day, tmp)
-    totals = {
-        key: sum(r[key] or 0 for r in rows) for key in ("units", "ok", "failed", "eol_passed", "eol_failed")
-    }
+    totals = DayCounts(**{f.name: sum(r[f.name] or 0 for r in rows) for f in fields(DayCounts)})
     atomic.write_text(out / "index.html", render_page("day_index.html.j2", shards=rows, totals=totals))
     return totals

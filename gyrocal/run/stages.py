@@ -14,11 +14,12 @@ import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..calibration.file import dumps, load_calibration, save_calibration
 from ..io import atomic, failure
 from ..io.errors import GyrocalError
+from ..io.runs import RunEntry, RunFix
 from ..io.tables import write_table
 from ..io.unit_folder import (
     DIAGNOSIS_FILES,
@@ -254,7 +255,9 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     return made.get("verdict")
 
 
-def run_entry(settings: Settings, cal, validation: dict, diagnosis: dict, other: str | None) -> dict:
+def run_entry(
+    settings: Settings, cal, validation: dict[str, Any], diagnosis: dict[str, Any], other: str | None
+) -> RunEntry:
     """What a unit session's record of runs keeps of this one (:mod:`gyrocal.io.runs`): the
     model as configured (its key) and as fitted, its figures in the session and on the other
     session (named ``other``), and the fix the diagnosis named with its figures."""
@@ -266,7 +269,7 @@ def run_entry(settings: Settings, cal, validation: dict, diagnosis: dict, other:
     floor = s["noise_floor"]
     nxt = diagnosis.get("next_session") or {}
     best = diagnosis.get("best")
-    fix = None
+    fix: RunFix | None = None
     if best:
         fix_next = (best.get("next_session") or {}).get("excess")
         fix = {

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -96,8 +97,10 @@ def simulate_unit(
     seed: int | None = None,
     effects: dict | None = None,
     noise=None,
-) -> dict:
-    """Render one unit's log to ``path`` and its truth beside it; return the truth.
+) -> dict[str, Any]:
+    """Render one unit's log to ``path`` and its truth beside it; return the truth: a JSON
+    document of the unit's identity, its parameters (``unit``), the rig, any coloured noise
+    and the renderer's truth of the schedule (:class:`~.turntable.TurntableTruth`, ...).
     ``effects`` adds errors beyond the seed-000 model (:meth:`GyroUnit.with_effects`);
     ``noise`` (a grade or levels, :func:`gyrocal.simulate.noise.noise_levels`) adds coloured
     noise to the unit's white noise."""
@@ -135,7 +138,8 @@ def truth_path(log_path) -> Path:
     return log_path.with_name(log_path.name.removesuffix(".parquet") + ".truth.json")
 
 
-def load_truth(log_path) -> dict:
+def load_truth(log_path) -> dict[str, Any]:
+    """The truth :func:`simulate_unit` wrote beside ``log_path``, its ``unit`` as the unit's class."""
     truth = json.loads(truth_path(log_path).read_text())
     truth["unit"] = PROTOCOLS[truth.get("protocol", "turntable")][2].from_dict(truth["unit"])
     return truth

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -58,11 +59,37 @@ class FerrarisProtocol:
     sections: bool = False  # write the annotation column
     accel_columns: bool = True
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
-def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Generator, path) -> dict:
+class FaceTruth(TypedDict):
+    """A face the unit lay still on, up (a name of FACES), and when."""
+
+    face: str
+    t_start: float
+    t_end: float
+
+
+class TurnTruth(TypedDict):
+    """A turn about a sensor axis: its true angle and rotation axis (sensor frame), and when."""
+
+    axis: str
+    true_angle_deg: float
+    rotation_axis: list[float]
+    t_start: float
+    t_end: float
+
+
+class FerrarisTruth(TypedDict):
+    """The ground truth of a hand-rotation session (:func:`render_ferraris`)."""
+
+    faces: list[FaceTruth]
+    turns: list[TurnTruth]
+    rows: int
+
+
+def render_ferraris(rig: FerrarisProtocol, unit: GyroUnit, rng: np.random.Generator, path) -> FerrarisTruth:
     """Write the session to ``path`` and return its truth (faces, turns, true angles)."""
     session = _HandSession(rig)
     session.still(1.0)
@@ -119,7 +146,7 @@ class _HandSession:
             level = np.cross(target_up, [1.0, 0.0, 0.0] if abs(target_up[0]) < 0.9 else [0.0, 1.0, 0.0])
             self.move(level / np.linalg.norm(level), math.pi, self.rig.carry_s)
 
-    def lie_on(self, face: str) -> dict:
+    def lie_on(self, face: str) -> FaceTruth:
         """Carry the unit to ``face`` up and let it lie still; the face's truth."""
         fs = self.rig.sample_rate
         self.carry_to(_up(face))
@@ -127,7 +154,7 @@ class _HandSession:
         self.still(self.rig.face_s, face)
         return {"face": face, "t_start": k0 / fs, "t_end": (k0 + self.samples(self.rig.face_s) - 1) / fs}
 
-    def turn(self, rng: np.random.Generator, axis_name: str) -> dict:
+    def turn(self, rng: np.random.Generator, axis_name: str) -> TurnTruth:
         """One full turn about the sensor axis ``axis_name`` with that axis up, against the
         guide: the axis tilted as the unit sits, the angle off by the hand's error (both
         drawn from ``rng``); the turn's truth."""

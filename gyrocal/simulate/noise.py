@@ -19,6 +19,7 @@ re-simulated and a simulated one checked: ``arw`` deg/sqrt(h), ``bias_instabilit
 from __future__ import annotations
 
 import math
+from typing import TypedDict
 
 import numpy as np
 
@@ -87,7 +88,15 @@ def coloured_noise(
     return out
 
 
-def noise_levels(spec) -> dict:
+class NoiseLevels(TypedDict):
+    """Coloured-noise levels (:func:`noise_levels`): the simulated truth's ``coloured_noise``."""
+
+    bias_instability: float  # deg/h
+    rrw: float  # deg/h/sqrt(h)
+    quantisation: float  # arcsec
+
+
+def noise_levels(spec) -> NoiseLevels:
     """Coloured-noise levels from a grade name (``low``, ``mid``, ``high``: the bias instability,
     rate random walk and quantisation of :data:`GRADES`) or a mapping of those keys. ARW is not
     taken: every simulated unit already has its white noise (its noise density)."""
@@ -101,10 +110,14 @@ def noise_levels(spec) -> dict:
     unknown = sorted(set(spec) - set(keys) - {"arw"})
     if unknown:
         raise ConfigError(f"noise: unknown level(s) {', '.join(unknown)}; known: {', '.join(keys)}")
-    return {k: float(spec.get(k, 0.0)) for k in keys}
+    return NoiseLevels(
+        bias_instability=float(spec.get("bias_instability", 0.0)),
+        rrw=float(spec.get("rrw", 0.0)),
+        quantisation=float(spec.get("quantisation", 0.0)),
+    )
 
 
-def add_coloured_noise(path, levels: dict, rng: np.random.Generator) -> None:
+def add_coloured_noise(path, levels: NoiseLevels, rng: np.random.Generator) -> None:
     """Add bias instability, rate random walk and quantisation noise (``levels`` in the units
     above) to the gyro columns of the log at ``path``, in place. Drawn over the whole log at its
     median sample rate, so the flicker's low frequencies run across the renderers' chunks."""

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -28,6 +29,7 @@ from scipy.signal import lfilter
 
 from ..io.errors import ConfigError
 from ..io.log import MOUNTS
+from .turntable import HandlingTruth
 
 DEG = 180.0 / math.pi
 DIRECTIONS = MOUNTS  # the G-optimal design, seed 001 Section II-B
@@ -90,7 +92,7 @@ class ServoUnit:
             )
         return self
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"k": list(self.k), "b": list(self.b), "b_unit": "rad/s", "convention": "g = k (m + b)"}
 
     @classmethod
@@ -179,8 +181,33 @@ class ServoProtocol:
     def revolution_s(self) -> float:
         return 2.0 * math.pi / self.speed
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
+
+
+class RotationTruth(TypedDict):
+    """One rotation of the servo: its direction, mount, times and the truth of its motion."""
+
+    index: int
+    direction: str
+    mount: str
+    t_start: float
+    t_end: float
+    samples: int
+    revolutions: int
+    speed_rad_s: float
+    axis: list[float]  # the tilted rotation axis in the sensor frame
+    tilt_deg: float
+    ripple: dict[str, list[float]]  # the speed ripple's harmonics, amplitudes and phases
+
+
+class ServoTruth(TypedDict):
+    """The ground truth of a servo log's schedule (:func:`render_servo`)."""
+
+    rotations: list[RotationTruth]
+    handling: list[HandlingTruth]
+    rows: int
+    units: dict[str, str]  # by quantity
 
 
 def _handling_motion(rng: np.random.Generator, n: int, fs: float) -> np.ndarray:
@@ -201,7 +228,7 @@ def _handling_motion(rng: np.random.Generator, n: int, fs: float) -> np.ndarray:
 
 def _ripple(
     rng: np.random.Generator, tau: np.ndarray, period: float, rms: float, harmonics: int
-) -> tuple[np.ndarray, dict]:
+) -> tuple[np.ndarray, dict[str, list[float]]]:
     """Relative speed error, periodic in the revolution: its integral over any window one
     revolution long is zero, so each revolution keeps its exact time (Section II-B)."""
     h = np.arange(1, max(harmonics, 1) + 1)
@@ -214,7 +241,7 @@ def _ripple(
 
 def render_servo(
     protocol: ServoProtocol, unit: ServoUnit, rng: np.random.Generator, path, *, t0: float = 0.0
-) -> dict:
+) -> ServoTruth:
     """Write the log to ``path`` (Parquet, contract section 1) and return the truth of the
     schedule: per rotation its direction, the tilted axis (sensor frame), times and speed."""
     log = _ServoSchedule(protocol, t0)
@@ -236,7 +263,7 @@ def render_servo(
         log.rotate(rng, i, direction, mount, axis_vec, tilt)
     log.still(protocol.pause_s, "+" + "xyz"[current_axis])
     rows = _write_servo_log(protocol, unit, rng, log, path)
-    return dict(
+    return ServoTruth(
         rotations=log.rotations,
         handling=log.handling,
         rows=rows,
@@ -265,8 +292,8 @@ class _ServoSchedule:
     ref: list[np.ndarray] = field(default_factory=list)
     true: list[np.ndarray] = field(default_factory=list)
     mount: list[np.ndarray] = field(default_factory=list)
-    rotations: list[dict] = field(default_factory=list)
-    handling: list[dict] = field(default_factory=list)
+    rotations: list[RotationTruth] = field(default_factory=list)
+    handling: list[HandlingTruth] = field(default_factory=list)
     pos: int = 0  # samples scheduled so far
 
     def add(self, ref: np.ndarray, true: np.ndarray, mount: str) -> None:
@@ -293,7 +320,9 @@ class _ServoSchedule:
         self.add(np.zeros(n), _handling_motion(rng, n, self.protocol.sample_rate), mount_from)
         self.mount[-1][n // 2 :] = MOUNTS.index(mount_to)
         self.handling.append(
-            dict(t_start=t_first, t_end=self.time(self.pos - 1), mount_from=mount_from, mount_to=mount_to)
+            HandlingTruth(
+                t_start=t_first, t_end=self.time(self.pos - 1), mount_from=mount_from, mount_to=mount_to
+            )
         )
 
     def rotate(
@@ -324,7 +353,7 @@ class _ServoSchedule:
         t_first = self.time(self.pos)
         self.add(np.full(n_rot, sign * w_speed), actual[:, None] * direction_vec, mount)
         self.rotations.append(
-            dict(
+            RotationTruth(
                 index=index,
                 direction=direction,
                 mount=mount,

@@ -22,6 +22,7 @@ paper's models, zero unless set; v is white noise of ``noise`` deg/s per sample.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
+from typing import Any, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -83,7 +84,7 @@ class SweepUnit:
             )
         return self
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
@@ -146,6 +147,43 @@ class SweepUnit:
         base = dict(sizes[device], t_ref=-40.0, temp_noise=0.03)
         base.update(overrides)
         return cls(**base)
+
+
+class Ramp(TypedDict):
+    """A ramp of the chamber with the hold at its end (:meth:`SweepProtocol.breakpoints`)."""
+
+    t_start: float
+    t_end: float
+    temp_from: float  # °C
+    temp_to: float
+    rate: float  # °C/h, signed
+
+
+class Sweep(Ramp):
+    t_ref: float  # °C, the sweep's start temperature
+
+
+class Span(TypedDict):
+    t_start: float
+    t_end: float
+
+
+class Soak(Span):
+    temp: float  # °C
+
+
+class SweepTruth(TypedDict):
+    """The ground truth of a sweep log (:func:`sweep_samples`); times in the log's t."""
+
+    sweeps: list[Sweep]
+    soak: Soak
+    disturbances: list[Span]  # handled by a person
+    gaps: list[Span]  # rows left out of the log
+    rows: int
+    sample_rate: float
+    mount: str
+    rig_rate: float
+    die_temp_range: list[float]  # lowest and highest, °C
 
 
 @dataclass(frozen=True)
@@ -221,7 +259,7 @@ class SweepProtocol:
         base.update(overrides)
         return cls(**base)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod
@@ -238,15 +276,16 @@ class SweepProtocol:
 
         return cls(**{k: tup(v) for k, v in d.items()})
 
-    def breakpoints(self) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    def breakpoints(self) -> tuple[np.ndarray, np.ndarray, list[Ramp]]:
         """Chamber set point as a piecewise-linear function of time (before the staircase),
         and the ramps with their start and end times."""
-        times, temps, ramps = [0.0, self.soak_s], [self.start_temp, self.start_temp], []
+        times, temps = [0.0, self.soak_s], [self.start_temp, self.start_temp]
+        ramps: list[Ramp] = []
         now, temp = self.soak_s, self.start_temp
         for target, rate, hold in self.segments:
             duration = abs(target - temp) / rate * 3600.0
             ramps.append(
-                dict(
+                Ramp(
                     t_start=now,
                     t_end=now + duration + hold,
                     temp_from=temp,
@@ -287,7 +326,7 @@ def _handling(rng: np.random.Generator, tau: np.ndarray) -> np.ndarray:
 
 def sweep_samples(
     protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator
-) -> tuple[dict[str, np.ndarray], dict]:
+) -> tuple[dict[str, np.ndarray], SweepTruth]:
     """The log's columns (t, gyro_x/y/z, temp, ref_rate, mount codes) and the truth."""
     p = protocol
     fs = p.sample_rate
@@ -304,12 +343,12 @@ def sweep_samples(
     axis, sign = "xyz".index(p.mount[1]), (1.0 if p.mount[0] == "+" else -1.0)
     w_true = np.zeros((n, 3))
     w_true[:, axis] = sign * p.rig_rate
-    disturbances = []
+    disturbances: list[Span] = []
     for start, duration in p.disturbances:
         sel = (tau >= start) & (tau < start + duration)
         if sel.any():
             w_true[sel] += _handling(rng, tau[sel] - start)
-            disturbances.append(dict(t_start=p.t0 + start, t_end=p.t0 + start + duration))
+            disturbances.append(Span(t_start=p.t0 + start, t_end=p.t0 + start + duration))
     K = np.asarray(unit.K)
     gyro = w_true @ K.T + unit.drift(die, die_rate)
     gyro += rng.normal(0.0, 1.0, (n, 3)) * np.asarray(unit.noise)
@@ -330,11 +369,11 @@ def sweep_samples(
     for r in ramps:
         r["t_start"] += p.t0
         r["t_end"] += p.t0
-    truth = dict(
-        sweeps=[dict(r, t_ref=float(r["temp_from"])) for r in ramps],
-        soak=dict(t_start=p.t0, t_end=p.t0 + p.soak_s, temp=p.start_temp),
+    truth = SweepTruth(
+        sweeps=[Sweep(**r, t_ref=float(r["temp_from"])) for r in ramps],
+        soak=Soak(t_start=p.t0, t_end=p.t0 + p.soak_s, temp=p.start_temp),
         disturbances=disturbances,
-        gaps=[dict(t_start=p.t0 + s, t_end=p.t0 + s + d) for s, d in p.gaps],
+        gaps=[Span(t_start=p.t0 + s, t_end=p.t0 + s + d) for s, d in p.gaps],
         rows=int(keep.sum()),
         sample_rate=fs,
         mount=p.mount,
@@ -346,14 +385,14 @@ def sweep_samples(
 
 def sweep_log(
     protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator, name: str = "<simulated sweep>"
-) -> tuple[RigLog, dict]:
+) -> tuple[RigLog, SweepTruth]:
     """The simulated log in memory, as :func:`gyrocal.io.log.read_log` would return it."""
     cols, truth = sweep_samples(protocol, unit, rng)
     batch = {k: (v.astype(np.float64) if k.startswith("gyro") or k == "temp" else v) for k, v in cols.items()}
     return RigLog(name, (batch,), len(batch["t"]), 0), truth
 
 
-def render_sweep(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator, path) -> dict:
+def render_sweep(protocol: SweepProtocol, unit: SweepUnit, rng: np.random.Generator, path) -> SweepTruth:
     """Write the log to ``path`` (Parquet, contract section 1) and return its truth: the
     sweeps (each ramp with its hold, start temperature ``t_ref``), the soak, disturbances,
     gaps and row count; JSON-plain. The unit and the protocol are not repeated in it

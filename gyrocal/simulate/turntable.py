@@ -14,8 +14,8 @@ row group, with filter states carried across, so memory stays one set point's wo
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from typing import NamedTuple
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any, NamedTuple, TypedDict
 
 import numpy as np
 import pyarrow as pa
@@ -27,6 +27,56 @@ from .unit import Electronics, GyroUnit
 
 SEED000_TEMPERATURES = (-40.0, -30.0, -20.0, -10.0, 0.0, 10.0, 20.0, 30.0, 40.0, 50.0)
 SEED000_RATES = (0.1, 1.0, 10.0, 50.0, 100.0, 150.0, 200.0, 250.0, 300.0, 400.0)
+
+
+@dataclass(frozen=True)
+class Phase:
+    """A stretch of the turntable's schedule (:meth:`TurntableProtocol.schedule`): the table's
+    rate and the chamber's set point from its start to its end, the mount and the one the
+    phase ends on, and the temperature point of a soak or a hold."""
+
+    kind: str  # chamber, soak, pause, handling, hold or accel
+    n: int  # samples
+    rate_from: float
+    rate_to: float
+    set_from: float
+    set_to: float
+    mount: str
+    next_mount: str
+    point: int | None = None
+
+
+class HoldTruth(TypedDict):
+    t_start: float
+    t_end: float
+    mount: str
+    rate: float  # deg/s
+    set_point: float  # °C
+    point: int
+
+
+class HandlingTruth(TypedDict):
+    """A re-mount by hand."""
+
+    t_start: float
+    t_end: float
+    mount_from: str
+    mount_to: str
+
+
+class SoakTruth(TypedDict):
+    t_start: float
+    t_end: float
+    set_point: float  # °C
+
+
+class TurntableTruth(TypedDict):
+    """The ground truth of a turntable log's schedule (:func:`render`); times in the log's t."""
+
+    holds: list[HoldTruth]
+    handling: list[HandlingTruth]
+    soaks: list[SoakTruth]
+    rows: int
 
 
 @dataclass(frozen=True)
@@ -76,48 +126,39 @@ class TurntableProtocol:
         base.update(overrides)
         return cls(**base)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
-    def schedule(self) -> list[dict]:
+    def schedule(self) -> list[Phase]:
         """Phases in order: kind, samples, table rates, set points, mount, door."""
         fs = self.sample_rate
         n = lambda seconds: max(int(round(seconds * fs)), 1)  # noqa: E731
-        phases: list[dict] = []
+        phases: list[Phase] = []
         set_point = self.room_temp
         rate = 0.0
         mount = self.mounts[0]
 
-        def add(kind, samples, **kw):
-            phases.append(
-                dict(
-                    kind=kind,
-                    n=samples,
-                    rate_from=rate,
-                    rate_to=rate,
-                    set_from=set_point,
-                    set_to=set_point,
-                    mount=mount,
-                    next_mount=mount,
-                    **kw,
-                )
-            )
+        def add(kind, samples, point=None):
+            phases.append(Phase(kind, samples, rate, rate, set_point, set_point, mount, mount, point))
 
         for k, temp in enumerate(self.temperatures):
             if abs(temp - set_point) > 0:
                 add("chamber", n(abs(temp - set_point) / self.chamber_ramp * 60.0))
-                phases[-1]["set_to"] = set_point = float(temp)
+                set_point = float(temp)
+                phases[-1] = replace(phases[-1], set_to=set_point)
             add("soak", n(self.soak_s), point=k)
             order = self.mounts if k % 2 == 0 else self.mounts[::-1]
             for new_mount in order:
                 if new_mount != mount:
                     add("pause", n(self.pause_s))
                     add("handling", n(self.handling_s))
-                    phases[-1]["next_mount"] = mount = new_mount
+                    mount = new_mount
+                    phases[-1] = replace(phases[-1], next_mount=mount)
                 add("hold", n(self.hold_s), point=k)
                 for target in [s * r for r in self.rates for s in (1.0, -1.0)] + [0.0]:
                     add("accel", n(abs(target - rate) / self.accel))
-                    phases[-1]["rate_to"] = rate = float(target)
+                    rate = float(target)
+                    phases[-1] = replace(phases[-1], rate_to=rate)
                     if target != 0.0:
                         add("hold", n(self.hold_s), point=k)
         return phases
@@ -153,7 +194,7 @@ def _first_order(x: np.ndarray, tau_s: float, fs: float, state: float) -> tuple[
 
 def render(
     protocol: TurntableProtocol, unit: GyroUnit, rng: np.random.Generator, path, *, t0: float = 0.0
-) -> dict:
+) -> TurntableTruth:
     """Write the log to ``path`` (Parquet) and return the ground truth of the schedule."""
     fs = protocol.sample_rate
     phases = protocol.schedule()
@@ -180,16 +221,16 @@ def render(
     finally:
         if writer is not None:
             writer.close()
-    return dict(holds=truth.holds, handling=truth.handling, soaks=truth.soaks, rows=start)
+    return TurntableTruth(holds=truth.holds, handling=truth.handling, soaks=truth.soaks, rows=start)
 
 
-def _set_point_chunks(phases: list[dict]) -> list[tuple[int, int]]:
+def _set_point_chunks(phases: list[Phase]) -> list[tuple[int, int]]:
     """The log's chunks, one per set point: the phases from one "chamber"/"soak" start to the
     next, as (first, past-the-end) indices."""
     chunk_starts = [
         i
         for i, p in enumerate(phases)
-        if p["kind"] in ("chamber", "soak") and (i == 0 or phases[i - 1]["kind"] != "chamber")
+        if p.kind in ("chamber", "soak") and (i == 0 or phases[i - 1].kind != "chamber")
     ]
     return list(zip(chunk_starts, chunk_starts[1:] + [len(phases)], strict=False))
 
@@ -198,28 +239,29 @@ def _set_point_chunks(phases: list[dict]) -> list[tuple[int, int]]:
 class _Truth:
     """The schedule's ground truth, phase by phase: holds, re-mounts and soaks."""
 
-    holds: list[dict] = field(default_factory=list)
-    handling: list[dict] = field(default_factory=list)
-    soaks: list[dict] = field(default_factory=list)
+    holds: list[HoldTruth] = field(default_factory=list)
+    handling: list[HandlingTruth] = field(default_factory=list)
+    soaks: list[SoakTruth] = field(default_factory=list)
 
-    def record(self, ph: dict, t_first: float, t_last: float) -> None:
-        if ph["kind"] == "handling":
+    def record(self, ph: Phase, t_first: float, t_last: float) -> None:
+        if ph.kind == "handling":
             self.handling.append(
-                dict(t_start=t_first, t_end=t_last, mount_from=ph["mount"], mount_to=ph["next_mount"])
+                HandlingTruth(t_start=t_first, t_end=t_last, mount_from=ph.mount, mount_to=ph.next_mount)
             )
-        elif ph["kind"] == "hold":
+        elif ph.kind == "hold":
+            assert ph.point is not None  # a hold is at a temperature point
             self.holds.append(
-                dict(
+                HoldTruth(
                     t_start=t_first,
                     t_end=t_last,
-                    mount=ph["mount"],
-                    rate=ph["rate_to"],
-                    set_point=ph["set_to"],
-                    point=ph["point"],
+                    mount=ph.mount,
+                    rate=ph.rate_to,
+                    set_point=ph.set_to,
+                    point=ph.point,
                 )
             )
-        elif ph["kind"] == "soak":
-            self.soaks.append(dict(t_start=t_first, t_end=t_last, set_point=ph["set_to"]))
+        elif ph.kind == "soak":
+            self.soaks.append(SoakTruth(t_start=t_first, t_end=t_last, set_point=ph.set_to))
 
 
 @dataclass(frozen=True)
@@ -236,12 +278,12 @@ class _ChunkMotion:
 
 
 def _chunk_motion(
-    protocol: TurntableProtocol, chunk: list[dict], rng: np.random.Generator, start: int, t0: float, truth
+    protocol: TurntableProtocol, chunk: list[Phase], rng: np.random.Generator, start: int, t0: float, truth
 ) -> _ChunkMotion:
     """The chunk's phases sample by sample (``start``: its first sample's index in the log);
     each phase's truth goes to ``truth``. Draws the handling motion from ``rng``."""
     fs = protocol.sample_rate
-    m = sum(p["n"] for p in chunk)
+    m = sum(p.n for p in chunk)
     motion = _ChunkMotion(
         table=np.zeros(m),
         set_point=np.empty(m),
@@ -253,16 +295,16 @@ def _chunk_motion(
     pos = 0
     prev_step = 0.0
     for ph in chunk:
-        k = ph["n"]
+        k = ph.n
         sl = slice(pos, pos + k)
         tau = np.arange(k) / fs
         motion.table[sl], prev_step = _table_rate(protocol, ph, tau, prev_step)
-        motion.set_point[sl] = ph["set_from"] + (ph["set_to"] - ph["set_from"]) * (tau + 1 / fs) * fs / k
-        axis, sign = _mount_axis(ph["mount"])
+        motion.set_point[sl] = ph.set_from + (ph.set_to - ph.set_from) * (tau + 1 / fs) * fs / k
+        axis, sign = _mount_axis(ph.mount)
         motion.w_true[sl, axis] = sign * motion.table[sl]
         motion.gravity[sl, axis] = sign
-        motion.mount_code[sl] = MOUNTS.index(ph["mount"])
-        if ph["kind"] == "handling":
+        motion.mount_code[sl] = MOUNTS.index(ph.mount)
+        if ph.kind == "handling":
             _remount(rng, ph, motion, pos, tau, fs)
         truth.record(ph, t0 + (start + pos) / fs, t0 + (start + pos + k - 1) / fs)
         pos += k
@@ -270,14 +312,14 @@ def _chunk_motion(
 
 
 def _table_rate(
-    protocol: TurntableProtocol, ph: dict, tau: np.ndarray, prev_step: float
+    protocol: TurntableProtocol, ph: Phase, tau: np.ndarray, prev_step: float
 ) -> tuple[np.ndarray, float]:
     """The table's rate over the phase, and the rate step it ends with (0 unless it
     accelerates). A phase after an acceleration starts with the table's settling overshoot."""
     k = len(tau)
-    if ph["kind"] == "accel":
-        return np.linspace(ph["rate_from"], ph["rate_to"], k + 1)[1:], ph["rate_to"] - ph["rate_from"]
-    rate = np.full(k, ph["rate_to"], dtype=float)
+    if ph.kind == "accel":
+        return np.linspace(ph.rate_from, ph.rate_to, k + 1)[1:], ph.rate_to - ph.rate_from
+    rate = np.full(k, ph.rate_to, dtype=float)
     if prev_step:
         rate += (
             protocol.settle_overshoot
@@ -289,7 +331,7 @@ def _table_rate(
 
 
 def _remount(
-    rng: np.random.Generator, ph: dict, motion: _ChunkMotion, pos: int, tau: np.ndarray, fs: float
+    rng: np.random.Generator, ph: Phase, motion: _ChunkMotion, pos: int, tau: np.ndarray, fs: float
 ) -> None:
     """A handling phase at ``pos``: the door open, the unit turned in hand, gravity swinging
     to the next mount, whose code the second half of the phase carries."""
@@ -297,13 +339,13 @@ def _remount(
     sl = slice(pos, pos + k)
     motion.door[sl] = True
     motion.w_true[sl] = _handling_motion(rng, k, fs)
-    new_axis, new_sign = _mount_axis(ph["next_mount"])
+    new_axis, new_sign = _mount_axis(ph.next_mount)
     blend = (tau / tau[-1])[:, None] if k > 1 else np.ones((1, 1))
     g_new = np.zeros(3)
     g_new[new_axis] = new_sign
     g = (1 - blend) * motion.gravity[sl] + blend * g_new
     motion.gravity[sl] = g / np.linalg.norm(g, axis=1, keepdims=True)
-    motion.mount_code[pos + k // 2 : pos + k] = MOUNTS.index(ph["next_mount"])
+    motion.mount_code[pos + k // 2 : pos + k] = MOUNTS.index(ph.next_mount)
 
 
 class _ThermalState(NamedTuple):

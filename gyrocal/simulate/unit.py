@@ -12,6 +12,7 @@ white noise. The electronics then low-pass, saturate at the full-scale range and
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy.signal import lfilter
@@ -113,7 +114,7 @@ class GyroUnit:
         """Per-sample white-noise standard deviation over the Nyquist band."""
         return self.noise_density * np.sqrt(sample_rate / 2.0)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (np.asarray(v).tolist() if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
 
     @classmethod

@@ -92,7 +92,7 @@ class Term:
         """Regressor column per coefficient name, each of the length of ``data``."""
         raise NotImplementedError
 
-    def params(self) -> dict:
+    def params(self) -> dict[str, Any]:
         """The term's settings, JSON-plain (what a calibration file stores to rebuild it)."""
         return (
             {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -100,7 +100,7 @@ class Term:
             else {}
         )
 
-    def spec(self) -> dict:
+    def spec(self) -> dict[str, Any]:
         """What a calibration file stores to rebuild the term; a user term also records the
         file it came from and that file's SHA-256."""
         spec = {"name": self.name, **self.params()}
@@ -279,10 +279,10 @@ class Restricted(Term):
         kept = set(self.coefficients())
         return {k: v for k, v in self.term.columns(data).items() if k in kept}
 
-    def params(self) -> dict:
+    def params(self) -> dict[str, Any]:
         return {**self.term.params(), "drop": list(self.drop)}
 
-    def spec(self) -> dict:
+    def spec(self) -> dict[str, Any]:
         return {**self.term.spec(), "drop": list(self.drop)}
 
     def spec_string(self) -> str:
@@ -339,8 +339,9 @@ def register_term(name: str):
     return add
 
 
-def parse_spec(text: str) -> dict:
-    """``"name"`` or ``"name(key=value, ...)"`` (values are Python literals) as a mapping."""
+def parse_spec(text: str) -> dict[str, Any]:
+    """``"name"`` or ``"name(key=value, ...)"`` (values are Python literals) as a term's spec:
+    ``name`` and the term's own settings, which differ from term to term."""
     text = text.strip()
     try:
         node = ast.parse(text, mode="eval").body
@@ -350,7 +351,8 @@ def parse_spec(text: str) -> dict:
         return {"name": node.id}
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.args:
         try:
-            params = {kw.arg: ast.literal_eval(kw.value) for kw in node.keywords}
+            # a None key (a **mapping) is passed on for the term to refuse
+            params: dict[Any, Any] = {kw.arg: ast.literal_eval(kw.value) for kw in node.keywords}
         except ValueError:
             raise ConfigError(f"model term {text!r}: settings must be plain values") from None
         return {"name": node.func.id, **params}

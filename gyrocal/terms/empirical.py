@@ -104,7 +104,7 @@ class Smooth(Term):
     def size(self) -> int:
         return len(self.knots) + int(self.linear)
 
-    def params(self) -> dict:
+    def params(self) -> dict[str, Any]:
         return {
             "input": self.input,
             "knots": list(self.knots),
@@ -233,7 +233,7 @@ class Levels(Term):
             return tuple(sorted({zero, 0 if zero else 1}))
         return (0, 1)
 
-    def params(self) -> dict:
+    def params(self) -> dict[str, Any]:
         return {"values": list(self.values), "by": self.by, "label": self.label}
 
     def spec_string(self) -> str:
@@ -306,7 +306,7 @@ class CrossRate(Term):
     def identity(self) -> tuple:
         return (self.name, self.label)
 
-    def params(self) -> dict:
+    def params(self) -> dict[str, Any]:
         out: dict[str, Any] = {"shape": self.shape, "label": self.label}
         if self.values:
             out["values"] = list(self.values)

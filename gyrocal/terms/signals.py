@@ -24,8 +24,9 @@ hold columns.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, NamedTuple, TypedDict
 
 import numpy as np
 
@@ -264,6 +265,13 @@ class SampleRecord:
         return np.interp(times, t[kept], y[kept])
 
 
+class SeriesMetadata(TypedDict):
+    """What the history file's metadata keeps of a :class:`Series` beside its columns."""
+
+    t0: float
+    temp_rate_window_s: float
+
+
 @dataclass(frozen=True, eq=False)
 class Series:
     """A session's time (s since its first sample) and temperature (°C) record, with the
@@ -365,7 +373,7 @@ class Series:
         )
 
     @classmethod
-    def from_frame(cls, frame: pd.DataFrame, meta: dict) -> Series:
+    def from_frame(cls, frame: pd.DataFrame, meta: Mapping[str, Any]) -> Series:
         return cls(
             frame["t"].to_numpy(float),
             frame["temp"].to_numpy(float),
@@ -375,7 +383,7 @@ class Series:
             {k: frame[k].to_numpy(float) for k in RECORD_COLUMNS if k in frame},
         )
 
-    def metadata(self) -> dict:
+    def metadata(self) -> SeriesMetadata:
         return {"t0": self.t0, "temp_rate_window_s": self.temp_rate_window_s}
 
 
@@ -624,7 +632,16 @@ class Inputs(dict):
         return self.series.history(key, values, operator, size, self.times, smooth)
 
 
-def hold_inputs(data) -> tuple[Inputs, dict]:
+class Quadrature(NamedTuple):
+    """What the quadrature over holds needs (:func:`quadrature_inputs`): the session's record
+    and each hold's span (first and last time, s since the record's start), both None
+    without a record."""
+
+    series: Series | None
+    span: tuple[np.ndarray, np.ndarray] | None
+
+
+def hold_inputs(data) -> tuple[Inputs, Quadrature]:
     """Inputs at hold level (each hold's own columns; ``t`` its mid time) and what the
     quadrature needs: the series and each hold's span. Without a record (observation
     tables from before this format, hand-built tests), series signals are not inputs and
@@ -639,10 +656,7 @@ def hold_inputs(data) -> tuple[Inputs, dict]:
         hi = np.asarray(columns["t_end"], float) - series.t0
         columns["t"] = 0.5 * (lo + hi)
         span = (lo, hi)
-    return Inputs(columns, series, columns.get("t") if series is not None else None), {
-        "series": series,
-        "span": span,
-    }
+    return Inputs(columns, series, columns.get("t") if series is not None else None), Quadrature(series, span)
 
 
 def quadrature_inputs(base: Inputs, series: Series, span) -> Inputs:
@@ -720,12 +734,13 @@ def hold_means_of_lag(data, name: str, tau: float) -> np.ndarray | None:
     """Each hold's mean of ``name`` through a first-order lag of ``tau`` seconds, by the
     quadrature of :func:`quadrature_inputs`; None without the session's record."""
     base, context = hold_inputs(data)
-    if context["span"] is None:
+    if context.series is None or context.span is None:
         return None
-    if not len(context["span"][0]):
+    if not len(context.span[0]):
         return np.empty(0)
-    nodes = quadrature_inputs(base, context["series"], context["span"])
-    return node_means(context["series"].at(name, nodes.times, float(tau)), nodes.plan)
+    nodes = quadrature_inputs(base, context.series, context.span)
+    assert nodes.times is not None  # quadrature inputs are at their nodes' times
+    return node_means(context.series.at(name, nodes.times, float(tau)), nodes.plan)
 
 
 def node_means(values: np.ndarray, plan) -> np.ndarray:
@@ -735,7 +750,7 @@ def node_means(values: np.ndarray, plan) -> np.ndarray:
     return np.add.reduceat(values * weights, starts)
 
 
-def read_observations(folder) -> tuple[pd.DataFrame, dict]:
+def read_observations(folder) -> tuple[pd.DataFrame, dict[str, Any]]:
     """A unit's observation table and its metadata
     (:func:`gyrocal.io.unit_folder.read_observation_table`), the table carrying the session's
     record as its :class:`Series` (``attrs["series"]``) where segmentation wrote one."""

@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -119,7 +119,7 @@ class ServoFit:
                 return i
         return len(self.trace)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """JSON-plain record of the fit."""
         out = {
             "method": self.method,
@@ -515,7 +515,8 @@ class CrossAxisFit:
     def coefficient_errors(self) -> dict[str, float]:
         return dict(self.stderr)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
+        """JSON-plain record of the fit."""
         return {
             "model": self.model,
             "K": self.K.tolist(),

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 from ...io.errors import ConfigError
 
@@ -87,7 +88,8 @@ class SweepDesign:
         """The paper's figure for Eq 24: C entered in kJ/(kg·K), i.e. the SI time / 1000."""
         return self.conduction_time() / 1000.0
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
+        """The design's inputs and the figures derived from them, JSON-plain, with units."""
         return dict(
             inputs=asdict(self),
             sensitivity_tc=self.sensitivity_tc,

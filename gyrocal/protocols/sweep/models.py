@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -157,7 +158,7 @@ class DriftModel:
             )
         return [f"{a}.{name}" for a in AXES for name in own]
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """JSON-plain description: the model, its parameters by name, the fit quality."""
         names = self.parameter_names()
         values = np.asarray(self.coef).reshape(-1)
@@ -184,7 +185,7 @@ class DriftModel:
             out["network"] = dict(kernels=len(self.centres), widths=list(self.widths), ridge=self.ridge)
         return out
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         d = {k: (_lists(v) if isinstance(v, tuple) else v) for k, v in asdict(self).items()}
         return {"format": FORMAT, **d}
 
