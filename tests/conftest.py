@@ -231,7 +231,7 @@ def fleet_run(tmp_path_factory, worker_id):
 
 
 def pytest_report_header(config):
-    """The SLURM the scheduler tests run on (tests/test_slurm.py), named in every run."""
-    from .slurm import installed_version
+    """The SLURM the scheduler tests run on (tests/workflow/test_slurm.py), named in every run."""
+    from .workflow.slurm import installed_version
 
     return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"
