@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,7 +121,7 @@ def with_rig(**kw):
     return replace(TurntableProtocol.quick(temperatures=TEMPS), **kw)
 
 
-REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[1]
 FLEET_MANIFEST = """device\tbatch\tsession\tprotocol\tpath
 A1\tB1\t2026-01-01\tturntable\tdemo/logs/B1/A1/2026-01-01.parquet
 A1\tB1\t2026-03-01\tturntable\tdemo/logs/B1/A1/2026-03-01.parquet
@@ -205,29 +206,39 @@ def leftovers(wd):
     ]
 
 
-@pytest.fixture(scope="session")
-def fleet_run(tmp_path_factory, worker_id):
-    """A small fleet through the whole workflow: five demo unit sessions (one device
-    twice), one corrupt log and one missing log. Made once for the whole run: the test
+def made_once(tmp_path_factory, worker_id, name: str, make) -> Path:
+    """The folder ``name``, filled by ``make(folder)`` once for the whole run: the test
     processes pytest-xdist starts share it (a lock on a file beside their temporary
-    folders), so that the workflow runs once, not once per process that needs it."""
+    folders), so that what it holds is made once, not once per process that needs it."""
     import fcntl
 
     root = tmp_path_factory.getbasetemp()
     root = root if worker_id == "master" else root.parent
-    wd = root / "fleet-shared"
-    with open(root / "fleet-shared.lock", "w") as lock:
+    wd = root / name
+    with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (wd / ".made").exists():
             shutil.rmtree(wd, ignore_errors=True)
-            (wd / "logs").mkdir(parents=True)
-            (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
-            (wd / "devices.tsv").write_text(FLEET_MANIFEST)
-            (wd / "config.yaml").write_text(FLEET_CONFIG)
-            out = snakemake(wd)
-            assert out.returncode == 0, out.stderr[-3000:]
+            wd.mkdir(parents=True)
+            make(wd)
             (wd / ".made").write_text("")
     return wd
+
+
+@pytest.fixture(scope="session")
+def fleet_run(tmp_path_factory, worker_id):
+    """A small fleet through the whole workflow: five demo unit sessions (one device
+    twice), one corrupt log and one missing log. Made once for the whole run (made_once)."""
+
+    def make(wd):
+        (wd / "logs").mkdir()
+        (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
+        (wd / "devices.tsv").write_text(FLEET_MANIFEST)
+        (wd / "config.yaml").write_text(FLEET_CONFIG)
+        out = snakemake(wd)
+        assert out.returncode == 0, out.stderr[-3000:]
+
+    return made_once(tmp_path_factory, worker_id, "fleet-shared", make)
 
 
 def pytest_report_header(config):

@@ -20,14 +20,10 @@ from gyrocal.io.unit_folder import UNIT_FILES, pack_stage, part_exists, part_fai
 from gyrocal.run.cli import main
 from gyrocal.simulate import GyroUnit, TurntableProtocol, simulate_unit
 
-from .conftest import FLEET_CONFIG, REPO, needs, snakemake
+from .conftest import BAD, GOOD, GOOD_ROWS, REPO, fleet_folder, needs, snakemake
 
 PROFILES = REPO / "profiles"
-UNITS = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
-MANIFEST = "device\tbatch\tsession\tprotocol\tpath\n" + "".join(
-    f"{d}\t{b}\t{s}\tturntable\tdemo/logs/{b}/{d}/{s}.parquet\n" for b, d, s in UNITS
-)
-CONFIG = FLEET_CONFIG  # the workflow test's fleet settings
+UNITS = [*GOOD, BAD]  # the small fleet of tests/workflow/conftest.py
 UNIT_RULES = {"simulate", "segment", "analyse"}  # analyse writes the report too
 
 # The profile's submit.sh, status.sh and cancel.sh are bash scripts.
@@ -43,30 +39,20 @@ needs_plugin = needs(
 )
 
 
-def fleet_folder(path):
-    path.mkdir()
-    (path / "devices.tsv").write_text(MANIFEST)
-    (path / "config.yaml").write_text(CONFIG)
-    return path
-
-
 def unit_outputs(root) -> dict:
     """Every file the workflow leaves for the units and the fleet (summary, end-of-line
     verdicts), by relative path; timings in results/benchmark and the logs excepted."""
     files = [p for b, d, s in UNITS for p in (root / "results" / b / d / s).iterdir()]
     files += [root / "reports" / b / d / f"{s}.html" for b, d, s in UNITS]
-    files += [root / "demo" / "logs" / b / d / f"{s}.parquet" for b, d, s in UNITS]
+    files += [root / "demo" / "logs" / b / d / f"{s}.parquet" for b, d, s in GOOD]
     files += [root / "reports" / "index.html", *sorted((root / "results").glob("*.json"))]
     return {str(p.relative_to(root)): p.read_bytes() for p in files}
 
 
 @pytest.fixture(scope="module")
-def runs(tmp_path_factory):
-    """The same two-unit fleet run locally on two cores and through the cluster profile."""
-    base = tmp_path_factory.mktemp("cluster")
-    local, cluster = fleet_folder(base / "local"), fleet_folder(base / "cluster")
-    out = snakemake(local)
-    assert out.returncode == 0, out.stderr[-3000:]
+def runs(small_fleet_local, tmp_path_factory):
+    """The small fleet run through the cluster profile, and its local run on two cores."""
+    local, cluster = small_fleet_local, fleet_folder(tmp_path_factory.mktemp("cluster") / "cluster")
     # Jobs of seconds here: status asked every second instead of every ten.
     out = snakemake(
         cluster,
@@ -84,7 +70,7 @@ def runs(tmp_path_factory):
 def test_every_rule_that_runs_a_command_declares_memory_and_runtime(tmp_path):
     """Snakemake's own plan of every rule (`all` runs nothing): mem_mb and runtime as the
     rules declare them, every unit rule on one thread (benchmarks/requests.py)."""
-    folder = fleet_folder(tmp_path / "plan")
+    folder = fleet_folder(tmp_path / "plan", GOOD_ROWS)
     out = snakemake(folder, "--dry-run", "--forceall", "all", "paper")
     assert out.returncode == 0, out.stderr[-3000:]
     blocks = re.split(r"^\s*(?:local)?rule (\w+):$", out.stdout + out.stderr, flags=re.M)[1:]
@@ -108,7 +94,7 @@ def test_the_cluster_run_gives_the_local_runs_outputs_byte_for_byte(runs):
     assert got.keys() == expected.keys()
     for path, content in expected.items():
         assert got[path] == content, path
-    for batch, device, session in UNITS:
+    for batch, device, session in GOOD:
         cal = load_calibration(cluster / "results" / batch / device / session / "calibration.json")
         assert (cal.meta["device"], cal.meta["batch"], cal.meta["session"]) == (device, batch, session)
 
@@ -125,14 +111,24 @@ def test_each_unit_is_one_submission_running_its_whole_chain(runs):
     assert len(jobs) == len(UNITS) + 1
     assert [v["rule"] for v in singles] == ["fleet"]
     assert len(groups) == len(UNITS) and {v["groupid"] for v in groups.values()} == {"unit"}
+    devices = []
     for job_id, props in groups.items():
         log = (cluster / "logs" / "cluster" / f"{job_id}.log").read_text()
-        assert set(re.findall(r"^\s*(?:local)?rule (\w+):$", log, flags=re.M)) == UNIT_RULES
+        (device,) = set(re.findall(r"wildcards: batch=\w+, device=(\w+),", log))
+        devices.append(device)
+        rules = set(re.findall(r"^\s*(?:local)?rule (\w+):$", log, flags=re.M))
         assert (cluster / "logs" / "cluster" / f"{job_id}.rc").read_text().strip() == "0"
-        # One unit's jobs run one after another: the widest sets threads and memory
-        # (one thread; simulate's 1500 MB), and the steps' minutes add up (5 + 2 + 2).
+        # One unit's jobs run one after another: the widest sets threads and memory, and
+        # the steps' minutes add up. One thread; simulate's 1500 MB and 5 + 2 + 2 minutes,
+        # or, for the corrupt log's unit, which has no simulate job, segment's 1200 MB and 2 + 2.
         assert props["threads"] == 1
-        assert props["resources"]["mem_mb"] == 1500 and props["resources"]["runtime"] == 9
+        if device == BAD[1]:
+            assert rules == UNIT_RULES - {"simulate"}
+            assert props["resources"]["mem_mb"] == 1200 and props["resources"]["runtime"] == 4
+        else:
+            assert rules == UNIT_RULES
+            assert props["resources"]["mem_mb"] == 1500 and props["resources"]["runtime"] == 9
+    assert sorted(devices) == sorted(d for _, d, _ in UNITS)
     assert singles[0]["resources"]["mem_mb"] == 2000 and singles[0]["resources"]["runtime"] == 30
 
 
@@ -147,7 +143,7 @@ def test_the_slurm_profile_plans_five_units_to_a_job(tmp_path):
     """The SLURM profile parses with its plugin and groups the units (a dry run;
     tests/workflow/test_slurm.py runs it on a SLURM cluster). Two units, five to a job: one group
     job of their 3 jobs each, the fleet summary and `all`."""
-    folder = fleet_folder(tmp_path / "slurm")
+    folder = fleet_folder(tmp_path / "slurm", GOOD_ROWS)
     out = snakemake(folder, "--profile", str(PROFILES / "slurm"), "--dry-run")
     assert out.returncode == 0, out.stderr[-3000:]
     text = out.stdout + out.stderr

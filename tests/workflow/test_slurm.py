@@ -26,7 +26,22 @@ from gyrocal.io.unit_folder import part_failure
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 
 from . import slurm
-from .conftest import REPO, assert_every_file_whole, leftovers, needs, snakemake, snakemake_command
+from .conftest import (
+    BAD,
+    BAD_ROW,
+    CONFIG,
+    CORRUPT,
+    GOOD,
+    HEADER,
+    REPO,
+    ROW,
+    assert_every_file_whole,
+    fleet_folder,
+    leftovers,
+    needs,
+    snakemake,
+    snakemake_command,
+)
 
 pytestmark = [
     pytest.mark.slow,
@@ -40,17 +55,6 @@ pytestmark = [
     ),
 ]
 
-GOOD = [("B1", "A1", "2026-01-01"), ("B2", "A2", "2026-01-02")]
-BAD = ("B2", "BAD", "2026-01-02")
-ROW = "{1}\t{0}\t{2}\tturntable\tdemo/logs/{0}/{1}/{2}.parquet\n"
-CORRUPT = Path("logs", "corrupt.parquet")
-BAD_ROW = f"BAD\tB2\t{BAD[2]}\tturntable\t{CORRUPT}\n"
-HEADER = "device\tbatch\tsession\tprotocol\tpath\n"
-CONFIG = """devices: devices.tsv
-demo: {folder: demo/logs, preset: quick, temperatures: [0, 20, 40], rates: [10, 100, 400]}
-model: {terms: [bias, scale, misalignment]}
-diagnosis: {ladder: []}
-"""
 # The profile as a site without an accounting database runs it (job states from squeue;
 # the command's --cores 2 caps a job's threads at the node's two CPUs); the first status
 # check after a second rather than the profile's 20 (jobs of seconds here), and the SLURM
@@ -64,13 +68,6 @@ SLURM = [
     "1",
     "--slurm-keep-successful-logs",
 ]
-
-
-def fleet_folder(path: Path, rows: str) -> Path:
-    path.mkdir()
-    (path / "devices.tsv").write_text(HEADER + rows)
-    (path / "config.yaml").write_text(CONFIG)
-    return path
 
 
 def outputs(root: Path, units) -> dict[str, bytes]:
@@ -189,20 +186,13 @@ def slow_unit(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def runs(cluster, tmp_path_factory):
-    """The fleet, two good units in two batches and a corrupt one, run locally on two
-    cores and on the cluster through profiles/slurm."""
-    base = tmp_path_factory.mktemp("slurm")
-    rows = "".join(ROW.format(*u) for u in GOOD) + BAD_ROW
-    local, remote = fleet_folder(base / "local", rows), fleet_folder(base / "slurm", rows)
-    for wd in (local, remote):
-        (wd / CORRUPT).parent.mkdir()
-        (wd / CORRUPT).write_bytes(b"PAR1 not a parquet file")
-    out = snakemake(local)
-    assert out.returncode == 0, out.stderr[-3000:]
+def runs(cluster, small_fleet_local, tmp_path_factory):
+    """The small fleet (tests/workflow/conftest.py: two good units in two batches and a
+    corrupt one) run on the cluster through profiles/slurm, and its local run on two cores."""
+    remote = fleet_folder(tmp_path_factory.mktemp("slurm") / "slurm")
     out = snakemake(remote, *SLURM, env=cluster.env)
     assert out.returncode == 0, (out.stdout + out.stderr)[-4000:] + cluster.logs()
-    return local, remote, out.stdout + out.stderr
+    return small_fleet_local, remote, out.stdout + out.stderr
 
 
 def test_the_cluster_is_this_machine_and_runs_a_job(cluster, record_property):
@@ -266,7 +256,7 @@ def faults(cluster, runs, tmp_path_factory):
     local, _, _ = runs
     wd = fleet_folder(tmp_path_factory.mktemp("slurm-faults") / "fleet", ROW.format(*GOOD[0]) + BAD_ROW)
     for path in (Path("demo", "logs", *GOOD[0][:2], f"{GOOD[0][2]}.parquet"), CORRUPT):
-        (wd / path).parent.mkdir(parents=True)
+        (wd / path).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(local / path, wd / path)
     env = {**cluster.env, atomic.PAUSE_ENV: "validation.json:5"}
     reports = [f"reports/{b}/{d}/{s}.html" for b, d, s in FAULT_UNITS]
