@@ -18,7 +18,15 @@ from diagnosis import SMALLEST, run_case  # noqa: E402
 NEXT_SESSION_LIMIT = 1.2
 
 
-@pytest.mark.parametrize("case", SMALLEST, ids=lambda c: f"{c[0]}-{c[1]}")
+# The cases that take over 5 s each are left out of the quick loop (-m "not slow").
+SLOW_CASES = {"scale_quadratic", "warmup"}
+
+
+@pytest.mark.parametrize(
+    "case",
+    [pytest.param(c, marks=pytest.mark.slow) if c[0] in SLOW_CASES else c for c in SMALLEST],
+    ids=lambda c: f"{c[0]}-{c[1]}",
+)
 def test_the_smallest_zoo_is_diagnosed_without_a_wrong_name(case, tmp_path):
     row = run_case(case, 1, str(tmp_path))
     expected = case[3]
@@ -42,6 +50,7 @@ def test_the_smallest_zoo_is_diagnosed_without_a_wrong_name(case, tmp_path):
         assert row["next_before"] > 2 * NEXT_SESSION_LIMIT  # the effect was there to find
 
 
+@pytest.mark.slow
 def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
     """A warm-up on three mounts: the excess is drift within each temperature point (time,
     not temperature); the mount and the rotating axis, which this protocol cannot tell
@@ -106,6 +115,7 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     assert r["holds"] and r["validation_rms"] <= NEXT_SESSION_LIMIT * r["noise_floor"], r["verdict"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("protocol", ["turntable3", "turntable6"])
 def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tmp_path):
     """A complete unit with Gauss-Markov bias wander of 100-1000 s correlation time, one
@@ -397,7 +407,9 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     json.dumps(diag.to_dict(), allow_nan=False)  # what `gyrocal diagnose` writes
 
 
-@pytest.mark.parametrize("effect, seed", [("misalign_warp_tanh", 2), ("none", 1)])
+@pytest.mark.parametrize(
+    "effect, seed", [("misalign_warp_tanh", 2), pytest.param("none", 1, marks=pytest.mark.slow)]
+)
 def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, seed, tmp_path):
     """A package warp that tilts the sense axes past a glass transition between two set
     points: every point fits within its noise, so the fit's residuals show nothing, but the

@@ -239,6 +239,7 @@ def test_report_shows_the_terms_and_the_allan_figure(tmp_path):
     assert section.count("<tr>") == 1 + 1 + 4  # header, all stretches, four temperature points
 
 
+@pytest.mark.slow
 def test_cli_simulates_a_grade_and_refuses_an_unknown_one(tmp_path):
     log = tmp_path / "u.parquet"
     cmd = [

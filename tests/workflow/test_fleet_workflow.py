@@ -1,4 +1,6 @@
-"""The Snakemake workflow end to end on a small fleet (contract section 6 outputs)."""
+"""The Snakemake workflow end to end on the small fleet of tests/conftest.py (fleet_run): the
+outputs contract section 6 names, holding the library's numbers; what a second run plans;
+the Snakefile's lint and format."""
 
 from __future__ import annotations
 
