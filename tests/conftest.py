@@ -44,6 +44,51 @@ def pytest_runtest_setup(item):
         pytest.fail(f"{mark.args[0]}; GYROCAL_REQUIRE_DEPS is set", pytrace=False)
 
 
+# The files that take a minute or more on two cores, longest first (pytest --durations,
+# per file). `make test` hands whole files to the workers (pytest-xdist, --dist loadfile)
+# in collection order; these come first, so that none of them starts last and leaves one
+# worker busy alone at the end. The SLURM tests wait minutes for the scheduler's time
+# limits whatever the machine's speed. A file not named here keeps its place after them.
+LONGEST_FIRST = (
+    "tests/workflow/test_slurm.py",
+    "tests/diagnose/test_missing_effects.py",
+    "tests/workflow/test_fleet_workflow.py",  # makes fleet_run, which the next ones read
+    "tests/diagnose/test_independent_zoo.py",
+    "tests/diagnose/test_fix_lines.py",
+    "tests/workflow/test_faults.py",
+    "tests/workflow/test_fleet_reruns.py",
+    "tests/workflow/test_cluster.py",
+    "tests/workflow/test_browser.py",
+    "tests/diagnose/test_sharp_shapes.py",
+    "tests/fit/test_noise_floor.py",
+    "tests/terms/test_histories.py",
+    "tests/workflow/test_object_storage.py",
+    "tests/terms/test_user_terms.py",
+    "tests/run/test_shards.py",
+)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: one worker more than the cores. The end-to-end tests wait for minutes
+    (SLURM's time limits, the guard's timeouts, jobs held mid-write) with a core idle; the
+    extra worker's file runs meanwhile. PYTEST_XDIST_AUTO_NUM_WORKERS, if set, is taken as is."""
+    workers = yield
+    return workers if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS") else workers + 1
+
+
+def pytest_configure(config):
+    # pytest-xdist would otherwise hand out the files with the most tests first.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    """The longest files first (LONGEST_FIRST), the others in collection order."""
+    rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
+
+
 # Ten-degree spacing as in seed 000 Table 1, over a span short enough for quick tests.
 TEMPS = (-10.0, 0.0, 10.0, 20.0, 30.0, 40.0)
 
