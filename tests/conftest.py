@@ -51,20 +51,20 @@ def pytest_runtest_setup(item):
 # limits whatever the machine's speed. A file not named here keeps its place after them.
 LONGEST_FIRST = (
     "tests/workflow/test_slurm.py",
-    "tests/diagnose/test_missing_effects.py",
-    "tests/workflow/test_fleet_workflow.py",  # makes fleet_run, which the next ones read
     "tests/diagnose/test_independent_zoo.py",
+    "tests/diagnose/test_missing_effects.py",
     "tests/diagnose/test_fix_lines.py",
+    "tests/diagnose/test_sharp_shapes.py",
+    "tests/workflow/test_fleet_workflow.py",  # makes fleet_run, which the next ones read
     "tests/workflow/test_faults.py",
     "tests/workflow/test_fleet_reruns.py",
-    "tests/workflow/test_cluster.py",
-    "tests/workflow/test_browser.py",
-    "tests/diagnose/test_sharp_shapes.py",
-    "tests/fit/test_noise_floor.py",
     "tests/terms/test_histories.py",
-    "tests/workflow/test_object_storage.py",
+    "tests/workflow/test_browser.py",
+    "tests/fit/test_noise_floor.py",
+    "tests/workflow/test_cluster.py",
     "tests/terms/test_user_terms.py",
     "tests/run/test_shards.py",
+    "tests/workflow/test_object_storage.py",
 )
 
 
