@@ -38,7 +38,7 @@ lint: $(STAMP)
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernels, built on install),
 # rsync for the object-storage test (Snakemake's fs storage plugin copies with it),
-# SLURM and munge for the scheduler tests (tests/slurm.py starts its own one-node cluster).
+# SLURM and munge for the scheduler tests (tests/workflow/slurm.py starts its own one-node cluster).
 system-packages:
 	@missing=""; \
 	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \

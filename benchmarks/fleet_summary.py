@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 def main() -> None:
     from gyrocal.fleet import summary as fleet
-    from tests.test_fleet_pages import rows
+    from tests.fleet.test_summary_pages import rows
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--units", type=int, nargs="+", default=[1000, 10000, 100000])

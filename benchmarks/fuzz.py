@@ -1,6 +1,6 @@
 """Fuzzing campaign: many mutated rig logs through ingest and the command line (issue 17).
 
-The strategies and properties are the test suite's (``tests/fuzzing.py``; the suite runs a
+The strategies and properties are the test suite's (``tests/io/fuzzing.py``; the suite runs a
 few dozen examples of each, this runs thousands). Every example is checked, none stops the
 campaign: property violations are collected by where they come from, then each is shrunk by
 Hypothesis to a minimal reproducer (the same seed replays the search up to the first
@@ -41,7 +41,7 @@ from hypothesis import HealthCheck, Phase, given, reject, settings  # noqa: E402
 from hypothesis import seed as hypothesis_seed  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from tests import fuzzing as fz  # noqa: E402
+from tests.io import fuzzing as fz  # noqa: E402
 
 COMMANDS = ("calibrate", "calibrate", "apply")
 PROTOCOLS = ("turntable", "turntable", "turntable", "servo", "sweep")
@@ -205,7 +205,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     # A RuntimeWarning (arithmetic on NaN or inf, an overflow) is an error, as in
-    # tests/test_fuzz.py: stricter than pyproject.toml's gyrocal.* filter, since numpy
+    # tests/io/test_fuzzed_logs.py: stricter than pyproject.toml's gyrocal.* filter, since numpy
     # attributes the warnings of its reductions (a sum that overflows) to its own modules.
     warnings.filterwarnings("error", category=RuntimeWarning)
     cli_examples = args.examples // 10 if args.cli_examples is None else args.cli_examples

@@ -9,7 +9,7 @@ errors (the noise's alone, and with the hand's assumed errors: a 1° guide, a un
 then the same for gyrocal with the acceleration sensitivity added (imucal's model) and for
 the phases found from the data instead of the annotation; for the session in imucal's
 labelled form (its sections as a label column, rows grouped by label, the handling cut
-away: tests/test_ferraris.py makes it), imported with a map alone, from its labels and from
+away: tests/protocols/test_ferraris.py makes it), imported with a map alone, from its labels and from
 the data alone; then every turn's integrated angle, raw and after each compensation (a full
 turn reads 360°)."""
 
@@ -30,7 +30,7 @@ from gyrocal.calibration.apply import apply_calibration  # noqa: E402
 from gyrocal.importer import import_log  # noqa: E402
 from gyrocal.pipeline.chain import run  # noqa: E402
 from gyrocal.pipeline.config import Settings  # noqa: E402
-from tests.test_ferraris import LABELLED_MAP, labelled_session  # noqa: E402
+from tests.protocols.test_ferraris import LABELLED_MAP, labelled_session  # noqa: E402
 
 REAL = ROOT / "data" / "real" / "imucal-ferraris"
 RATE = 102.4

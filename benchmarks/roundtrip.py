@@ -2,7 +2,7 @@
 
 Units come from generators gyrocal's authors did not write: ``benchmarks/zoo`` (turntable
 on three and six mounts, sweep, servo; written from the log contract and the physics) and
-``tests/ferraris_gen`` (hand rotations). Each unit is drawn at random: protocol, noise kind,
+``tests/protocols/ferraris_gen`` (hand rotations). Each unit is drawn at random: protocol, noise kind,
 an effect of the zoo or none, the unit's coefficient sizes and white noise scaled by decades
 across their range, and a model of every kind a user may ask for (library terms, ``drop=``,
 profiled terms, empirical splines, formulas, the die's temperature, user term files; grid
@@ -173,7 +173,7 @@ FERRARIS_MODELS = [
     ("default", {}),
     ("g_sensitivity", {"terms": ["g_sensitivity"]}),
 ]
-# A unit lying still (tests/chamber's host-stamped IMU): the bias, or a drift in time too.
+# A unit lying still (tests/protocols/chamber's host-stamped IMU): the bias, or a drift in time too.
 STATIC_MODELS = [
     ("default", {}),
     (
@@ -250,13 +250,13 @@ def write_logs(case: dict, folder: Path, *, small: bool = False) -> list[Path]:
     """Two sessions of the case's unit. ``small``: a shorter protocol (the test suite's)."""
     logs = [folder / f"s{s}.parquet" for s in (0, 1)]
     if case["family"] == "ferraris":
-        from tests.ferraris_gen.generate import session
+        from tests.protocols.ferraris_gen.generate import session
 
         for s, path in enumerate(logs):
             session(case["kind"], case["unit_seed"] * 10 + s, path)
         return logs
-    if case["family"] == "static":  # arrival-stamped, stalls and bunches: tests/chamber
-        from tests.chamber.generator import NoiseModel, host_stamped_log, write_contract
+    if case["family"] == "static":  # arrival-stamped, stalls and bunches: tests/protocols/chamber
+        from tests.protocols.chamber.generator import NoiseModel, host_stamped_log, write_contract
 
         noise = NoiseModel(arw_deg_rt_h=0.3 * case["noise_scale"])
         for s, path in enumerate(logs):

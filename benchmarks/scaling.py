@@ -21,7 +21,7 @@ Then the paired ratios: the issue's sweep against the 100 Hz turntable's calibra
 diagnose against its calibrate, and the 64-hour sweep against the 16-hour one.
 
 ``--dense`` also runs each process with the fit's whitening replaced by the dense
-covariance and LAPACK's Cholesky (``tests/wander_reference.py``, what gyrocal did before
+covariance and LAPACK's Cholesky (``tests/fit/wander_reference.py``, what gyrocal did before
 issue 28, without its cap of 3,000 holds), once per size, until one takes longer than
 ``--dense-timeout`` seconds or its covariance would take more than 4 GiB.
 
@@ -46,7 +46,7 @@ from process import CACHE, ROOT, log_at, quartiles
 PROCESSES = ("calibrate", "diagnose")
 DENSE = (
     "import sys; sys.path[:0] = [sys.argv.pop(1)]; import gyrocal.run.blas_threads; "
-    "import gyrocal.fit.model, tests.wander_reference as r; "
+    "import gyrocal.fit.model, tests.fit.wander_reference as r; "
     "gyrocal.fit.model._whiteners = r.dense_model_whiteners; "
     "from gyrocal.run.cli import main; sys.argv[0] = 'gyrocal'; sys.exit(main())"
 )

@@ -10,7 +10,7 @@ each fleet in a fresh process:
   its units' processes is its wall time minus theirs;
 * ``local -c2`` - ``snakemake --cores 2``, what a user of two cores waits for;
 * ``slurm u=1`` and ``slurm u=5`` - ``--profile profiles/slurm`` on a one-node cluster
-  started for the benchmark (tests/slurm.py: root and Debian's slurm-wlm and munge), with
+  started for the benchmark (tests/workflow/slurm.py: root and Debian's slurm-wlm and munge), with
   ``--group-components unit=1`` and with the profile's own ``unit=5``; job states from
   squeue (no accounting database here), the profile's status checks as shipped (first
   after 20 s). Each job asks for the node's two CPUs, so the node runs one at a time.
@@ -210,7 +210,7 @@ def main() -> None:
     cluster = None
     if not args.no_slurm:
         sys.path.insert(0, str(REPO))
-        from tests import slurm
+        from tests.workflow import slurm
 
         missing = [name for name, ok in slurm.found().items() if not ok]
         if missing:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 from dataclasses import replace
+from pathlib import Path
 
 from gyrocal.run import blas_threads  # noqa: F401 - before numpy: one BLAS thread, as the CLI has
 
@@ -42,6 +43,51 @@ def pytest_runtest_setup(item):
     """Before any fixture is built: a fixture may itself need the dependency."""
     for mark in item.iter_markers("missing_dependency"):
         pytest.fail(f"{mark.args[0]}; GYROCAL_REQUIRE_DEPS is set", pytrace=False)
+
+
+# The files that take a minute or more on two cores, longest first (pytest --durations,
+# per file). `make test` hands whole files to the workers (pytest-xdist, --dist loadfile)
+# in collection order; these come first, so that none of them starts last and leaves one
+# worker busy alone at the end. The SLURM tests wait minutes for the scheduler's time
+# limits whatever the machine's speed. A file not named here keeps its place after them.
+LONGEST_FIRST = (
+    "tests/workflow/test_slurm.py",
+    "tests/diagnose/test_independent_zoo.py",
+    "tests/diagnose/test_missing_effects.py",
+    "tests/diagnose/test_fix_lines.py",
+    "tests/diagnose/test_sharp_shapes.py",
+    "tests/workflow/test_fleet_workflow.py",  # makes fleet_run, which the next ones read
+    "tests/workflow/test_faults.py",
+    "tests/workflow/test_fleet_reruns.py",
+    "tests/terms/test_histories.py",
+    "tests/workflow/test_browser.py",
+    "tests/fit/test_noise_floor.py",
+    "tests/workflow/test_cluster.py",
+    "tests/terms/test_user_terms.py",
+    "tests/run/test_shards.py",
+    "tests/workflow/test_object_storage.py",
+)
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: one worker more than the cores. The end-to-end tests wait for minutes
+    (SLURM's time limits, the guard's timeouts, jobs held mid-write) with a core idle; the
+    extra worker's file runs meanwhile. PYTEST_XDIST_AUTO_NUM_WORKERS, if set, is taken as is."""
+    workers = yield
+    return workers if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS") else workers + 1
+
+
+def pytest_configure(config):
+    # pytest-xdist would otherwise hand out the files with the most tests first.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
+
+
+def pytest_collection_modifyitems(config, items):
+    """The longest files first (LONGEST_FIRST), the others in collection order."""
+    rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
 
 
 # Ten-degree spacing as in seed 000 Table 1, over a span short enough for quick tests.
@@ -121,7 +167,7 @@ def with_rig(**kw):
     return replace(TurntableProtocol.quick(temperatures=TEMPS), **kw)
 
 
-REPO = __import__("pathlib").Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[1]
 FLEET_MANIFEST = """device\tbatch\tsession\tprotocol\tpath
 A1\tB1\t2026-01-01\tturntable\tdemo/logs/B1/A1/2026-01-01.parquet
 A1\tB1\t2026-03-01\tturntable\tdemo/logs/B1/A1/2026-03-01.parquet
@@ -206,33 +252,43 @@ def leftovers(wd):
     ]
 
 
-@pytest.fixture(scope="session")
-def fleet_run(tmp_path_factory, worker_id):
-    """A small fleet through the whole workflow: five demo unit sessions (one device
-    twice), one corrupt log and one missing log. Made once for the whole run: the test
+def made_once(tmp_path_factory, worker_id, name: str, make) -> Path:
+    """The folder ``name``, filled by ``make(folder)`` once for the whole run: the test
     processes pytest-xdist starts share it (a lock on a file beside their temporary
-    folders), so that the workflow runs once, not once per process that needs it."""
+    folders), so that what it holds is made once, not once per process that needs it."""
     import fcntl
 
     root = tmp_path_factory.getbasetemp()
     root = root if worker_id == "master" else root.parent
-    wd = root / "fleet-shared"
-    with open(root / "fleet-shared.lock", "w") as lock:
+    wd = root / name
+    with open(root / f"{name}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (wd / ".made").exists():
             shutil.rmtree(wd, ignore_errors=True)
-            (wd / "logs").mkdir(parents=True)
-            (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
-            (wd / "devices.tsv").write_text(FLEET_MANIFEST)
-            (wd / "config.yaml").write_text(FLEET_CONFIG)
-            out = snakemake(wd)
-            assert out.returncode == 0, out.stderr[-3000:]
+            wd.mkdir(parents=True)
+            make(wd)
             (wd / ".made").write_text("")
     return wd
 
 
+@pytest.fixture(scope="session")
+def fleet_run(tmp_path_factory, worker_id):
+    """A small fleet through the whole workflow: five demo unit sessions (one device
+    twice), one corrupt log and one missing log. Made once for the whole run (made_once)."""
+
+    def make(wd):
+        (wd / "logs").mkdir()
+        (wd / "logs" / "corrupt.parquet").write_bytes(b"PAR1 not a parquet file")
+        (wd / "devices.tsv").write_text(FLEET_MANIFEST)
+        (wd / "config.yaml").write_text(FLEET_CONFIG)
+        out = snakemake(wd)
+        assert out.returncode == 0, out.stderr[-3000:]
+
+    return made_once(tmp_path_factory, worker_id, "fleet-shared", make)
+
+
 def pytest_report_header(config):
-    """The SLURM the scheduler tests run on (tests/test_slurm.py), named in every run."""
-    from .slurm import installed_version
+    """The SLURM the scheduler tests run on (tests/workflow/test_slurm.py), named in every run."""
+    from .workflow.slurm import installed_version
 
     return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-# Test-only seam (tests/test_faults.py): a target whose path ends with this value sleeps
+# Test-only seam (tests/workflow/test_faults.py): a target whose path ends with this value sleeps
 # between its complete temporary file and the rename, for a test to kill the writer there
 # or to hold a job past its time limit. "SUFFIX" or "SUFFIX:SECONDS" (default 600 s).
 PAUSE_ENV = "GYROCAL_TEST_PAUSE_BEFORE_RENAME"

@@ -1,0 +1,1 @@
+"""The calibration file, applying it, looking it up, exporting it to firmware."""

@@ -1,0 +1,1 @@
+"""The fleet: end of line, drift and revalidation, the fleet summary's pages."""

@@ -1,0 +1,1 @@
+"""The protocols: turntable segmentation, servo, sweep, hand rotation (Ferraris), static logs."""

@@ -1,0 +1,1 @@
+"""The command line and the shards a day's manifest runs as."""

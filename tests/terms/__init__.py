@@ -1,0 +1,1 @@
+"""Terms and their inputs: effects, the user's terms and formulas, histories, the die temperature."""

@@ -1,0 +1,3 @@
+"""The shared helpers of tests/conftest.py that this folder's tests import as ``.conftest``."""
+
+from ..conftest import make_log  # noqa: F401
