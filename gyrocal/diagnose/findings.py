@@ -20,6 +20,11 @@ class _Written:
         return asdict(self)  # type: ignore[call-overload]
 
 
+def explained_by(finding: LabTest | MountingTest | WithinNoise | TimeDrift | None) -> bool:
+    """A test was made and its finding explains the excess."""
+    return finding is not None and finding.explains
+
+
 @dataclass(frozen=True)
 class ExcessTest:
     """Does the configured model explain the data (question 1 of the module docstring)?

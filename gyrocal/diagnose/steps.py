@@ -45,6 +45,7 @@ from .findings import (
     Unexplained,
     Where,
     WithinNoise,
+    explained_by,
 )
 from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fixed, mounting_reason
 from .naming import (
@@ -121,7 +122,7 @@ def diagnose(
     best = found.best
     if best is not None and settings.model.kind == "grid":
         best = continuous_instead(judge, best, base_next, excess.bound) or best
-    timed = best is None and found.drift is not None and found.drift.explains
+    timed = best is None and explained_by(found.drift)
     partial = (
         []
         if best or timed
@@ -183,11 +184,11 @@ class OutsideTheSensor:
 
     @property
     def in_lab(self) -> bool:
-        return bool(self.lab and self.lab.explains)
+        return explained_by(self.lab)
 
     @property
     def of_mounting(self) -> bool:
-        return bool(self.mounting and self.mounting.explains)
+        return explained_by(self.mounting)
 
     @property
     def explains(self) -> bool:
@@ -205,7 +206,7 @@ def outside_the_sensor(obs, excess: ExcessTest, dof: int, before_holds: dict) ->
         return OutsideTheSensor(None, None)
     lab = lab_fixed(obs, excess.quality, dof, excess.alpha)
     mounting = None
-    if not (lab and lab.explains) and "mount" in obs:
+    if not explained_by(lab) and "mount" in obs:
         mounting = mounting_fixed(
             obs,
             excess.quality,
@@ -244,8 +245,9 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
     rows, _ = covariate_table(
         judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, True
     )
-    bound = chance_bound(base.summary["holds_scored"], judge.alpha)
-    found, _ = free_shape(judge, base, rows, quality, base_next, excess.tolerance, bound, inputs=("history",))
+    found, _ = free_shape(
+        judge, base, rows, quality, base_next, excess.tolerance, excess.bound, inputs=("history",)
+    )
     return found is not None
 
 
@@ -330,7 +332,7 @@ class Naming:
     def blocked(self) -> bool:
         """A drift in time explains the excess: what fits it as per-mount steps, alone or in
         a pair (a temperature rate and a g-sensitivity fit a ramp so), cannot be named."""
-        return self.drift is not None and self.drift.explains
+        return explained_by(self.drift)
 
 
 def name_a_term(
@@ -341,14 +343,13 @@ def name_a_term(
     tried where one does not do; a sharper shape, or one of the input that carries the
     excess, replaces a library term it beats."""
     best = _first_that_explains(library.useful, excess.alpha)
-    if best is not None and drift is not None and drift.explains and "time" not in input_kinds(best.term):
+    if best is not None and explained_by(drift) and "time" not in input_kinds(best.term):
         # Within a soak the mounts follow each other in time: a term that is constant per
         # mount (a g-sensitivity) and a bias drifting in time can fit the same steps. When
         # the drift explains the excess too, the protocol cannot name either.
         drift, best = replace(drift, rival_of=best.term), None
     candidates = library.candidates
-    naming = Naming(best, candidates, drift)
-    if best is None and not naming.blocked:
+    if best is None and not explained_by(drift):  # a drift blocks per-mount pairs (Naming.blocked)
         best = _two_effects(judge, base, excess, library)
     if best is not None and not best.part_of and excess.resolvable and not explains:
         best, candidates = _sharper_shape(judge, base, excess, library, best, where, base_next, candidates)
@@ -513,25 +514,21 @@ def when_nothing_is_named(
     return Found(best, named.candidates + tried, why, shaped, useful, drift)
 
 
-def slow_noise_explains(excess: ExcessTest, outside, found: Found, within_noise, explains: bool) -> bool:
+def slow_noise_explains(
+    excess: ExcessTest, outside, found: Found, within_noise: WithinNoise | None, explains: bool
+) -> bool:
     """One session whose in-sample excess the slow noise the static data cannot rule out
     accounts for, whose held-out error is within what a correct model leaves under that
     noise too, and that no term, no drift in time and no term of free shape takes a
     practical part of: nothing in it asks for an effect (slow wander and a one-off effect
     look alike in one session; another one tells them apart)."""
-    if (
-        found.best is not None
-        or explains
-        or outside.explains
-        or within_noise is None
-        or not within_noise.explains
-    ):
+    if found.best is not None or explains or outside.explains or not explained_by(within_noise):
         return False
     return not excess.resolvable or (
         excess.validation_rms <= within_noise.expected_rms * excess.tolerance
         and not found.useful
         and not found.shaped
-        and not (found.drift and found.drift.explains)
+        and not explained_by(found.drift)
     )
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..terms import make_term
-from .findings import Negligible, TimeDrift, Unexplained, WithinNoise
+from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .reading import readable
 from .sessions import CarryOver, usable
 from .stats import p_text
@@ -20,7 +20,7 @@ def verdict(diag: Diagnosis) -> str:
     """The diagnosis in sentences: on this session, on the other one (given one), the drift
     in time that explains it, and why no term was offered."""
     base_next = diag.next_session if usable(diag.next_session) else None
-    timed = diag.best is None and diag.time_drift is not None and diag.time_drift.explains
+    timed = diag.best is None and explained_by(diag.time_drift)
     text = session_verdict(diag, base_next, None if timed else diag.tolerance)
     text += _other_session(diag, base_next)
     if timed:
@@ -388,7 +388,7 @@ def advice(
     (and that either one compensates what it sees), where an unexplained excess lives and
     how to write the effect, and when another session would decide."""
     out = []
-    if best is None and drift is not None and drift.explains:
+    if best is None and explained_by(drift):
         out.append(
             "Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
             "a bias drifting linearly within each point, and a term file can give it the "
@@ -450,7 +450,7 @@ def advice(
                 "of that covariate; write it as a term (docs/effects.md)."
             )
     lead = covariates[0]["covariate"] if covariates and (covariates[0]["share_of_excess"] or 0) > 0 else None
-    if lead is not None and lead.startswith("time") and not (drift and drift.explains):
+    if lead is not None and lead.startswith("time") and not explained_by(drift):
         out.append(
             "The excess follows time: a warm-up or a drift. Write it as a term of t with "
             "a global coefficient (docs/effects.md, section 7, works one through); " + SEPARATES["time"] + "."
