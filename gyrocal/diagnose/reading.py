@@ -128,8 +128,11 @@ def _values(term, profiled) -> str:
         if entry and entry.get("at_bound"):
             lo, hi = entry["bounds"]
             bound = f" (at the {'upper' if v >= (lo * hi) ** 0.5 else 'lower'} bound of its search)"
+        rival = ""
+        if entry and entry.get("rival") is not None:
+            rival = f" (or {_number(entry['rival'])}{unit}: the data fit either as well)"
         parts.append(
-            f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit + bound
+            f"{GREEK.get(name, name)} = {_number(v)}" + (f" ± {se:.2g}" if se else "") + unit + bound + rival
         )
     return ", ".join(parts)
 

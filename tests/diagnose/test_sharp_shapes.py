@@ -17,10 +17,10 @@ from benchmarks.diagnosis import story_contradiction
 from gyrocal.diagnose import diagnose, extended
 from gyrocal.diagnose.reading import readable
 from gyrocal.pipeline.chain import segment_log
-from gyrocal.pipeline.config import ModelSettings, Settings
+from gyrocal.pipeline.config import Settings
 from gyrocal.terms import make_term
 
-from .conftest import make_log
+from .conftest import make_log, next_session, zoo_sessions
 
 NEXT_SESSION_LIMIT = 1.2  # the issue's target for a fix on the unseen session
 LEVELS = [-400.0, -200.0, -100.0, -50.0, -10.0, 0.0, 10.0, 50.0, 100.0, 200.0, 400.0]
@@ -125,32 +125,6 @@ def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
     assert diag.to_dict()["negligible_excess"]["factor"] < 1 + floor_uncertainty(low)
 
 
-def _zoo_sessions(tmp_path, effect, seed, rate_hz=10.0):
-    from benchmarks.zoo.generator import make_unit, write_session
-
-    unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=seed)
-    logs = [tmp_path / f"{effect}-s{s}.parquet" for s in range(3)]
-    for s, log in enumerate(logs):
-        write_session(unit, log, session=s, seed=1000 * seed + s, rate_hz=rate_hz)
-    return logs
-
-
-def _next_session(logs, settings, offer: dict | None) -> float:
-    from dataclasses import replace
-
-    from gyrocal.fleet.drift import revalidate
-    from gyrocal.pipeline.chain import run
-
-    if offer is not None:
-        for term in (offer["term"], *offer.get("together", [])):
-            settings = extended(settings, term)
-        if offer.get("model"):
-            settings = replace(settings, model=ModelSettings.from_dict(offer["model"]))
-    cal = run(logs[0], settings).calibration
-    r = revalidate(cal, segment_log(logs[2], settings).observations)
-    return r["validation_rms"] / r["noise_floor"]
-
-
 # (effect, unit, sessions the diagnosis sees, the input the fix must read)
 NEW_EFFECTS = [
     ("rate_band_bias", 1, 1, "rate"),
@@ -172,7 +146,7 @@ def test_a_sharp_or_cross_axis_shape_is_offered_and_holds_on_the_unseen_session(
     never saw is within 1.2 times the floor, from over twice that without it."""
     from gyrocal.diagnose.verdict import term_reads
 
-    logs = _zoo_sessions(tmp_path, effect, unit)
+    logs = zoo_sessions(tmp_path, effect, unit)
     settings = Settings()
     obs = [segment_log(log, settings).observations for log in logs[:2]]
     d = diagnose(settings, obs[0], obs[1] if sessions == 2 else None).to_dict()
@@ -182,7 +156,7 @@ def test_a_sharp_or_cross_axis_shape_is_offered_and_holds_on_the_unseen_session(
     assert reads in term_reads(offer["term"])
     # The pair of the issue: a warm-up is not offered with the temperature's rate.
     assert not any("temp_rate" in t for t in offer.get("together", [])), d["verdict"]
-    before, after = _next_session(logs, settings, None), _next_session(logs, settings, offer)
+    before, after = next_session(logs, settings, None), next_session(logs, settings, offer)
     assert before > 2 * NEXT_SESSION_LIMIT and after <= NEXT_SESSION_LIMIT, (before, after, d["verdict"])
 
 
@@ -192,11 +166,11 @@ def test_a_library_shape_of_the_rate_gives_way_to_the_levels_it_misses(tmp_path)
     cubic scale with a quadratic one: good to 1.2 times the floor, but a table over the
     rates does better beyond chance (nested F-test), so the table is offered, not the
     library's pair; a true cubic scale is still named as such."""
-    logs = _zoo_sessions(tmp_path, "scale_range_switch", 3)
+    logs = zoo_sessions(tmp_path, "scale_range_switch", 3)
     settings = Settings()
     d = diagnose(settings, segment_log(logs[0], settings).observations).to_dict()
     assert d["best"] and d["best"]["family"] == "levels", d["verdict"]
-    cubic = _zoo_sessions(tmp_path, "scale_cubic", 1)
+    cubic = zoo_sessions(tmp_path, "scale_cubic", 1)
     d = diagnose(settings, segment_log(cubic[0], settings).observations).to_dict()
     assert d["best"] and d["best"]["term"] == "scale_cubic", d["verdict"]
 
@@ -208,7 +182,7 @@ def test_a_candidate_scored_in_sample_is_compared_on_the_same_holds(tmp_path):
     figure on the same holds, never against the model's held-out one."""
     from gyrocal.diagnose.evaluation import in_sample_summary
 
-    logs = _zoo_sessions(tmp_path, "bias_step_time", 1)
+    logs = zoo_sessions(tmp_path, "bias_step_time", 1)
     settings = Settings()
     obs = segment_log(logs[0], settings).observations
     diag = diagnose(settings, obs)
