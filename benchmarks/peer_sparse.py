@@ -7,8 +7,9 @@ diagnosis has to fix more units than this does.
 
 * Residual: each hold's error after the default calibration's interpolated compensation,
   compensated minus true rate, exactly as :func:`gyrocal.fleet.drift.revalidate` scores it
-  (:func:`gyrocal.fleet.drift.hold_errors`), on the holds revalidate scores; the peer's
-  "before" figure is checked against revalidate's own RMS.
+  (:func:`gyrocal.fleet.drift.hold_errors`), on the holds revalidate scores (within 1 °C
+  of the calibrated span), on the fit session too; the peer's "before" figure on the unseen
+  session is checked against revalidate's own RMS.
 * Library (per output axis): own rate, the other axes' rates, |own rate|, its sign,
   specific force where logged, temperature, its rate, time since power-on, time within the
   temperature point's visit, the previous hold's own rate and the mount one-hot (the
@@ -249,7 +250,7 @@ def fit_lasso(X: np.ndarray, y: np.ndarray, splits) -> tuple[np.ndarray, dict]:
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        model = LassoCV(alphas=50, cv=splits, max_iter=2000).fit(X[:, 1:], y)
+        model = LassoCV(alphas=50, cv=splits, max_iter=2000, precompute=True).fit(X[:, 1:], y)
     coef = np.r_[model.intercept_, model.coef_]
     return coef, {"alpha": float(model.alpha_)}
 
@@ -300,9 +301,13 @@ def peer_next(log_fit, log_unseen, protocol: str, peers=None) -> dict:
     before = _rms(err_new[use_new])
     if not np.isclose(before, check["validation_rms"], rtol=1e-9, atol=0.0):
         raise AssertionError(f"the peer's residual {before} is not revalidate's {check['validation_rms']}")
-    in_fit, in_new = hold_inputs(obs_fit), hold_inputs(obs_new)
-    splits = folds(obs_fit["point"].to_numpy())
-    fixed_fit = {p: err_fit.copy() for p in peers}
+    # Fitted on the holds revalidate would score on the fit session: beyond the calibrated
+    # span the calibration says nothing, and its error there is no residual to learn from.
+    in_fit = {k: v[use_fit] for k, v in hold_inputs(obs_fit).items()}
+    in_new = hold_inputs(obs_new)
+    y_fit = err_fit[use_fit]
+    splits = folds(obs_fit["point"].to_numpy()[use_fit])
+    fixed_fit = {p: y_fit.copy() for p in peers}
     fixed_new = {p: err_new.copy() for p in peers}
     selected: dict = {p: {} for p in peers}
     fits: dict = {p: {} for p in peers}
@@ -310,7 +315,7 @@ def peer_next(log_fit, log_unseen, protocol: str, peers=None) -> dict:
         lib = Library(in_fit, axis)
         X, X_new = lib.columns(in_fit), lib.columns(in_new)
         for p in peers:
-            coef, info = PEERS[p](X, err_fit[:, i], splits)
+            coef, info = PEERS[p](X, y_fit[:, i], splits)
             fixed_fit[p][:, i] -= X @ coef
             fixed_new[p][:, i] -= X_new @ coef
             selected[p][axis] = [lib.names[j] for j in np.flatnonzero(coef)]
@@ -322,7 +327,7 @@ def peer_next(log_fit, log_unseen, protocol: str, peers=None) -> dict:
         "next_after_by_peer": by_peer,
         "floor": float(check["noise_floor"]),
         "fit_before_rms": _rms(err_fit[use_fit]),
-        "fit_after_by_peer": {p: _rms(fixed_fit[p][use_fit]) for p in peers},
+        "fit_after_by_peer": {p: _rms(fixed_fit[p]) for p in peers},
         "holds_fit": int(use_fit.sum()),
         "holds_unseen": int(use_new.sum()),
         "selected": selected,
@@ -408,8 +413,8 @@ def judged(rows: list[dict]) -> None:
 
 def totals(rows: list[dict]) -> list[str]:
     """The fixed counts per peer: units with an effect (expected not "none") brought within
-    FIXED, of all and of those the default leaves beyond it; complete units a peer takes
-    beyond FIXED."""
+    FIXED, of all and of those the default leaves beyond it; units the default holds within
+    FIXED that a peer takes beyond it (and how many of them are complete)."""
     scored = [r for r in rows if "judged_after" in r]
     effect = [r for r in scored if r["expected"] != "none"]
     needing = [r for r in effect if r["judged_before"] > FIXED]
@@ -423,11 +428,12 @@ def totals(rows: list[dict]) -> list[str]:
     for p in peers:
         ok = [r for r in effect if r["judged_after"].get(p, np.inf) <= FIXED]
         fixed = [r for r in needing if r["judged_after"].get(p, np.inf) <= FIXED]
-        worse = [r for r in complete if r["judged_before"] <= FIXED < r["judged_after"].get(p, np.inf)]
+        spoilt = [r for r in scored if r["judged_before"] <= FIXED < r["judged_after"].get(p, np.inf)]
+        worse = [r for r in spoilt if r["expected"] == "none"]
         lines.append(
             f"{p:>6}: within {FIXED}x {len(ok)} of {len(effect)} units with an effect; fixed {len(fixed)} "
-            f"of {len(needing)} the default leaves beyond; complete units taken beyond {FIXED}x: "
-            f"{len(worse)} of {len(complete)}"
+            f"of {len(needing)} the default leaves beyond; taken beyond {FIXED}x where the default "
+            f"held: {len(spoilt)} ({len(worse)} of {len(complete)} complete units)"
         )
     return lines
 
