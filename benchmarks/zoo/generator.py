@@ -28,6 +28,12 @@ The third set (rate_band_bias ... mount_bias_shift) sizes its amplitudes on the 
 20 s hold-mean floor (drawn ARW / sqrt(20 s)); "warmup_selfheat" adds a self-heating rise to
 the sensor temperature.  Turntable sessions take ``rate_order`` and ``temp_order`` to visit
 the holds / set points in another order ("default" is byte-identical to no override).
+
+The fourth set adds a stronger slow pole, a wide bias bump between the rate levels, a
+g-sensitivity that changes with temperature and a bias step between sessions; turntable
+sessions also take ``settle_c`` / ``settle_tau_s`` (the package still settling at each new set
+point, through the fixture's slower heat path) and ``temp_order="zigzag"`` or an explicit list
+of set points.
 """
 from __future__ import annotations
 
@@ -113,16 +119,26 @@ EFFECTS: dict[str, str] = {
                             "the last motion of a play (backlash) operator of width w on the temperature",
     "mount_bias_shift": "each mounting on the fixture strains the package: a new random bias vector "
                         "at every mount stretch, fresh in every session",
+    # fourth set: effects a calibration may take for something else
+    "slow_pole_strong": "slow_pole with a larger share of the output: e = k (lag(u, tau) - u), tau about "
+                        "6 s, k sized so that the settling moves a hold's mean tens of times its floor",
+    "rate_band_bias_wide": "bias bump over a band of rates between the protocol's levels: Gaussian (or "
+                           "Lorentzian) in the own-axis rate, centre about 150 deg/s, FWHM about 40 deg/s",
+    "g_sensitivity_temp": "g-sensitivity whose coefficients change linearly with temperature, "
+                          "e = (G0 + G1 (T - 25)) f",
+    "session_bias_step": "a constant bias offset present only in the listed sessions (default: session 1): "
+                         "a step between power-ons, constant within a session",
 }
 
 # effects whose parameters live in the unit but whose state restarts at every power-on
 SESSION_RESTART = ("warmup", "bias_ramp", "run_to_run_bias", "scale_warmup", "warmup_two_exp",
                    "warmup_power_law", "bias_step_time", "motor_heating_bias", "table_angle_bias",
-                   "warmup_selfheat", "slow_pole", "rotation_heating", "mount_bias_shift")
+                   "warmup_selfheat", "slow_pole", "rotation_heating", "mount_bias_shift",
+                   "slow_pole_strong", "session_bias_step")
 
 # session overrides that change the order a turntable visits its rates or set points
 RATE_ORDERS = ("default", "reversed", "shuffled", "ascending", "descending")
-TEMP_ORDERS = ("default", "ascending", "descending", "updown", "downup", "revisit")
+TEMP_ORDERS = ("default", "ascending", "descending", "updown", "downup", "revisit", "zigzag")
 
 PROTOCOLS = ("turntable3", "turntable6", "sweep", "servo")
 NOISES = ("white", "coloured")
@@ -453,7 +469,34 @@ def _draw_effect(seed, name):
                 "storage_c": ROOM_T, "two_h_over_floor20": m}
     if name == "mount_bias_shift":
         return {"sigma_dps": float(_u(r, 12.0, 35.0)) * _u(r, 0.8, 1.2, 3) * F}
+    # fourth set
+    if name == "slow_pole_strong":
+        # k sized so that after the smallest step of the default order (0 -> +10 deg/s) the settling
+        # moves the 20 s hold mean by m = 20-40 floors; a 100 deg/s step moves it about 10 times more
+        tau = float(_u(r, 5.5, 6.5))
+        m = _u(r, 20.0, 40.0, 3)
+        return {"k": m * F / _pole_hold_shift(10.0, tau), "tau_s": tau,
+                "hold_shift_at_10_step_over_floor20": m}
+    if name == "rate_band_bias_wide":
+        m = _u(r, 20.0, 50.0, 3)
+        return {"h_dps": _signs(r, 3) * m * F, "centre_dps": float(_u(r, 145.0, 155.0)),
+                "fwhm_dps": float(_u(r, 36.0, 44.0)), "shape": "gauss", "peak_over_floor20": m}
+    if name == "g_sensitivity_temp":
+        G0 = _u(r, -0.03, 0.03, (3, 3))
+        G0[np.diag_indices(3)] = _signs(r, 3) * _u(r, 0.08, 0.2, 3)
+        rel = _signs(r, 9).reshape(3, 3) * _u(r, 2e-3, 6e-3, (3, 3))     # relative change per degC
+        return {"G0_dps_per_g": G0, "G1_dps_per_g_per_c": G0 * rel, "T0_c": T_REF}
+    if name == "session_bias_step":
+        return {"step_dps": _signs(r, 3) * _u(r, 0.05, 0.2, 3), "sessions": [1]}
     raise ValueError(f"unknown effect {name!r}; known: {sorted(EFFECTS)}")
+
+
+def _pole_hold_shift(step_dps, tau, accel_dps2=200.0, hold_s=20.0):
+    """|Hold-mean shift| per unit k of e = k (lag(u, tau) - u) after a step of step_dps into the
+    hold, ramped at accel_dps2 from a settled lag: a tau (1 - exp(-step/(a tau))) at the ramp's
+    end, decaying as exp(-t/tau) over the hold."""
+    at = accel_dps2 * tau
+    return at * (1.0 - math.exp(-step_dps / at)) * tau / hold_s * (1.0 - math.exp(-hold_s / tau))
 
 
 def _floor20(seed):
@@ -624,8 +667,13 @@ def _protocol_defaults(protocol):
 
 def _ordered_temps(temps, order):
     """The order the chamber visits the set points. "default" keeps the list as given."""
+    if isinstance(order, (list, tuple, np.ndarray)):
+        pts = [float(x) for x in order]
+        if not pts or any(x not in temps for x in pts):
+            raise ValueError(f"an explicit temp_order must list set points of temps {temps}")
+        return pts
     if not isinstance(order, str):
-        raise ValueError(f"temp_order must be one of {TEMP_ORDERS}")
+        raise ValueError(f"temp_order must be one of {TEMP_ORDERS} or a list of set points")
     if order == "default":
         return list(temps)
     up = sorted(temps)
@@ -640,6 +688,14 @@ def _ordered_temps(temps, order):
         return dn[0::2] + dn[1::2][::-1]
     if order == "revisit":            # up through every point, then the second-highest again,
         return up + up[-2:-1]         # from above (added later, for a protocol that revisits)
+    if order == "zigzag":             # second-lowest first, then alternately the highest and the
+        if len(up) < 3:               # lowest of those left: -20/5/30/55 -> 5, 55, -20, 30
+            return up
+        out, rest, hi = [up[1]], up[:1] + up[2:], True
+        while rest:
+            out.append(rest.pop(-1 if hi else 0))
+            hi = not hi
+        return out
     raise ValueError(f"unknown temp_order {order!r}; known: {TEMP_ORDERS}")
 
 
@@ -814,7 +870,8 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
     """Simulate one session; returns (columns, info).  See write_session."""
     pp = _protocol_defaults(unit.protocol)
     # visit-order overrides of the turntables; recorded in protocol_params only when given
-    extra = ("rate_order", "temp_order") if unit.protocol.startswith("turntable") else ()
+    extra = (("rate_order", "temp_order", "settle_c", "settle_tau_s")
+             if unit.protocol.startswith("turntable") else ())
     for k, v in overrides.items():
         if k not in pp and k not in extra:
             raise ValueError(f"unknown override {k!r} for protocol {unit.protocol}; "
@@ -902,6 +959,26 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
     tau_d = float(eff["die_lag"]["tau_die_s"]) if "die_lag" in eff else (
         float(eff["die_lag_curved"]["tau_die_s"]) if curved else None)
     Tc, Ts, dTs, Td = _thermal(tl.knots_t, tl.knots_T, float(base["tau_sensor_s"]), tau_d, tr)
+    settle = None
+    if float(pp.get("settle_c", 0.0)) != 0.0:
+        # the package still settling at each new set point: a share f of its heat path runs
+        # through the fixture, a slower mass that follows the chamber with tau_p; the rest is the
+        # usual sensor lag. Both paths start equilibrated, and a lagging die follows the mix
+        sc, tau_p = float(pp["settle_c"]), float(pp.get("settle_tau_s", 300.0))
+        f, left = _settle_fraction(sc, tau_p)
+        _, Tp, dTp, Tdp = _thermal(tl.knots_t, tl.knots_T, tau_p, tau_d, tr)
+        Ts = (1.0 - f) * Ts + f * Tp
+        dTs = (1.0 - f) * dTs + f * dTp
+        if Td is not None:
+            Td = (1.0 - f) * Td + f * Tdp
+        settle = {"model": "Ts = (1 - f) lag(Tc, tau_sensor_s) + f lag(Tc, settle_tau_s): a share f of the "
+                           "package's heat path runs through the fixture, which follows the chamber slowly",
+                  "settle_c": sc, "settle_tau_s": tau_p, "fixture_share_f": f,
+                  "fixture_lag_left_after_default_25C_step_c": left,
+                  "reference": "f = settle_c / (what a lag of settle_tau_s still lacks at the first hold after "
+                               "a 25 degC step at 8 degC/min and a 480 s soak); larger steps, faster ramps "
+                               "or shorter soaks leave more. Realised offsets: info['setpoint_visits']"}
+    T_pkg = Ts                                              # chamber and fixture only
     self_heat = None
     if "warmup_selfheat" in unit.effects:
         # the powered board heats the sensor: Ts = (chamber lag) + dT_self (1 - exp(-t/tau_heat)),
@@ -939,6 +1016,7 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
     # ---------------- effects ----------------
     contrib = {}
     truth_eff = {}
+    play_state = None
     for name in unit.effects:
         ep = eff[name]
         e = np.zeros((N, 3))
@@ -1052,11 +1130,19 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
             truth_eff[name] = {"bias_model": "A exp(-t/tau) + the base B(Ts), Ts including the "
                                              "self-heating; no dT/dt term",
                                "self_heating_rise_at_end_c": self_heat["rise_at_end_c"]}
-        elif name == "slow_pole":
+        elif name in ("slow_pole", "slow_pole_strong"):
             tau_p = float(ep["tau_s"])
             lagged = np.stack([_lag(np.ascontiguousarray(u_lin[:, a]), tau_p, 1.0 / fs)
                                for a in range(3)], axis=1)
             e = np.asarray(ep["k"])[None] * (lagged - u_lin)
+            if name == "slow_pole_strong":
+                acc_n, hold_n = float(pp.get("table_accel_dps2", 200.0)), float(pp.get("hold_s", 20.0))
+                truth_eff[name] = {
+                    "hold_mean_shift_after_step_dps": {
+                        f"{d:g}": np.asarray(ep["k"], float) * _pole_hold_shift(d, tau_p, acc_n, hold_n)
+                        for d in (10.0, 20.0, 100.0, 800.0)},
+                    "shift_rule": "|k| a tau (1 - exp(-step/(a tau))) (tau/hold)(1 - exp(-hold/tau)), from a "
+                                  "settled lag, a = table_accel_dps2; the sign is -sign(step)"}
         elif name == "rotation_heating":
             P = (np.linalg.norm(omega, axis=1) / float(ep["ref_speed_dps"])) ** float(ep["exponent"])
             h = _lag(P, float(ep["tau_s"]), 1.0 / fs)
@@ -1065,6 +1151,7 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                                "logged_temperature_sees": "none of it"}
         elif name == "temp_hysteresis_play":
             s_play, s0, P0 = _play_direction(T_eff, float(ep["width_c"]), float(ep["storage_c"]))
+            play_state = s_play
             e = np.asarray(ep["h_dps"])[None] * s_play[:, None]
             truth_eff[name] = {"initial_state": s0, "initial_play_position_c": P0,
                                "n_switches": int(np.sum(s_play[1:] != s_play[:-1]))}
@@ -1083,6 +1170,23 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                                       "mount": tl.mounts[mount_idx[a0]]["label"], "shift_dps": sh})
             truth_eff[name] = {"stretches": stretches,
                                "rule": "a new shift from the end of each handling phase; 0 during handling"}
+        elif name == "rate_band_bias_wide":
+            c0, fw, shp = float(ep["centre_dps"]), float(ep["fwhm_dps"]), str(ep["shape"])
+            e = np.asarray(ep["h_dps"])[None] * _band(np.abs(omega), c0, fw, shp)
+            truth_eff[name] = {"factor_at_levels": {f"{L:g}": _band(L, c0, fw, shp) for L in _levels(unit, pp)},
+                               "rate_followed": "the true own-axis rate |w_a| (a physical resonance)"}
+        elif name == "g_sensitivity_temp":
+            Ga, Gb = np.asarray(ep["G0_dps_per_g"], float), np.asarray(ep["G1_dps_per_g_per_c"], float)
+            T0 = float(ep["T0_c"])
+            e = fspec @ Ga.T + (T_eff - T0)[:, None] * (fspec @ Gb.T)
+            truth_eff[name] = {"G_vs_temperature": [{"T_c": T, "G_dps_per_g": Ga + Gb * (T - T0)}
+                                                    for T in _truth_grid(unit.protocol, pp)],
+                               "temperature": "die" if curved else "sensor (true, noise-free)"}
+        elif name == "session_bias_step":
+            present = int(session) in [int(x) for x in np.atleast_1d(ep["sessions"])]
+            off = np.asarray(ep["step_dps"], float) * (1.0 if present else 0.0)
+            e = np.broadcast_to(off, (N, 3)).copy()
+            truth_eff[name] = {"present_in_this_session": present, "offset_this_session_dps": off}
         contrib[name] = e
         gyro = gyro + e
     # ---------------- noise ----------------
@@ -1109,12 +1213,7 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
     hold_s = float(pp.get("hold_s", 20.0)) if unit.protocol.startswith("turntable") else (
         float(pp["servo_revs"]) * 360.0 / float(pp["servo_speed_dps"]) if unit.protocol == "servo"
         else 20.0)
-    if unit.protocol.startswith("turntable"):
-        grid = [float(x) for x in pp["temps"]]
-    elif unit.protocol == "sweep":
-        grid = list(np.arange(float(pp["sweep_low_c"]), float(pp["sweep_high_c"]) + 1e-9, 5.0))
-    else:
-        grid = [float(pp["servo_temp_c"])]
+    grid = _truth_grid(unit.protocol, pp)
     phases = [{"kind": ph["kind"], "t_start": ph["t0"] + t_offset, "t_end": ph["t1"] + t_offset,
                "mount": tl.mounts[ph["mount"]]["label"], "ref_rate_start": ph["r0"],
                "ref_rate_end": ph["r1"],
@@ -1156,13 +1255,96 @@ def simulate_session(unit: UnitSpec, session: int = 0, seed: int = 0, rate_hz: f
                     "chamber_knots_t": [k + t_offset for k in tl.knots_t],
                     "chamber_knots_c": tl.knots_T,
                     "temp_noise_c": float(base["temp_noise_c"]), "temp_lsb_c": lsb,
-                    **({"self_heating": self_heat} if self_heat is not None else {})},
+                    **({"self_heating": self_heat} if self_heat is not None else {}),
+                    **({"settling": settle} if settle is not None else {})},
         "mounts": [{"label": m["label"], "R_body_to_rig": m["R"],
                     **({"misalign_rotvec_rad": m["misalign_rotvec_rad"]}
                        if "misalign_rotvec_rad" in m else {})} for m in tl.mounts],
         "phases": phases,
     }
+    # the fourth set's session options also record every set point visit (how it was approached,
+    # how far the package still was from the set point); other sessions keep their truth as it was
+    if unit.protocol.startswith("turntable") and (
+            "settle_c" in pp or "settle_tau_s" in pp
+            or not isinstance(pp.get("temp_order", "default"), str) or pp.get("temp_order") == "zigzag"):
+        info["setpoint_visits"] = _visits(tl, starts, ends, tr, t_offset, T_pkg, play_state)
     return cols, _jsonable(info)
+
+
+def _visits(tl, starts, ends, tr, t_offset, T_pkg, play_state):
+    """One record per set point visit (the holds between two chamber ramps): approach side, and the
+    package temperature (chamber and fixture, without self-heating) against the set point."""
+    raw = []
+    cur = None
+    prev = ROOM_T                                        # the power-on story: stored at 22 degC
+    for ph, i0, i1 in zip(tl.phases, starts, ends):
+        if ph["kind"] == "chamber_ramp":
+            cur = None
+        if ph["kind"] != "hold" or i1 <= i0:
+            continue
+        if cur is None:
+            T = float(ph["setpoint"])
+            cur = {"setpoint_c": T, "approached_from": "below" if T > prev else "above",
+                   "power_on_here": not raw, "i0": i0}
+            raw.append(cur)
+            prev = T
+        cur["i1"] = i1 - 1
+    out = []
+    for v in raw:
+        a, b = v.pop("i0"), v.pop("i1")
+        T = v["setpoint_c"]
+        v.update({"t_first_hold": float(tr[a] + t_offset), "t_last_hold_end": float(tr[b] + t_offset),
+                  "package_minus_setpoint_at_first_hold_c": float(T_pkg[a] - T),
+                  "package_minus_setpoint_at_last_hold_end_c": float(T_pkg[b] - T),
+                  "package_moves_within_visit_c": float(T_pkg[b] - T_pkg[a])})
+        if play_state is not None:
+            v["temp_hysteresis_play_state"] = float(play_state[a])
+            v["temp_hysteresis_play_state_at_end"] = float(play_state[b])
+        out.append(v)
+    return out
+
+
+def _truth_grid(protocol, pp):
+    """Temperatures where the truth gives K and B: the set points, a 5 degC grid, or 25 degC."""
+    if protocol.startswith("turntable"):
+        return [float(x) for x in pp["temps"]]
+    if protocol == "sweep":
+        return list(np.arange(float(pp["sweep_low_c"]), float(pp["sweep_high_c"]) + 1e-9, 5.0))
+    return [float(pp["servo_temp_c"])]
+
+
+def _levels(unit, pp):
+    """The |rate| levels a session holds: 0 and the turntable rates, the sweep rate, the servo speed."""
+    if unit.protocol.startswith("turntable"):
+        return [0.0] + [abs(float(x)) for x in pp["rates"]]
+    if unit.protocol == "sweep":
+        return [abs(float(pp["sweep_rate_dps"]))]
+    return [abs(float(pp["servo_speed_dps"]))]
+
+
+def _band(x, centre, fwhm, shape):
+    """Peak-1 bump of full width at half maximum fwhm: "gauss" or "lorentz"."""
+    z = (np.asarray(x, float) - centre) / fwhm
+    if shape == "gauss":
+        return np.exp(-4.0 * math.log(2.0) * z * z)
+    if shape == "lorentz":
+        return 1.0 / (1.0 + 4.0 * z * z)
+    raise ValueError(f"rate_band_bias_wide shape must be 'gauss' or 'lorentz', not {shape!r}")
+
+
+def _settle_fraction(settle_c, tau_p):
+    """Share f of the package's heat path through the fixture (tau_p) such that a lag of tau_p
+    after a 25 degC step of the default protocol (8 degC/min, then a 480 s soak) still leaves
+    settle_c at the first hold: f = settle_c / left. Returns (f, left)."""
+    if not (settle_c > 0.0 and tau_p > 0.0):
+        raise ValueError("settle_c and settle_tau_s must be positive")
+    r, soak = 8.0 / 60.0, 480.0
+    left = r * tau_p * (1.0 - math.exp(-25.0 / r / tau_p)) * math.exp(-soak / tau_p)
+    if settle_c > left:
+        raise ValueError(f"settle_c={settle_c} C needs more than the whole heat path through a fixture of "
+                         f"tau {tau_p:.0f} s (at most {left:.2f} C left after the default soak): "
+                         "use a longer settle_tau_s")
+    return settle_c / left, left
 
 
 def _lag(x, tau, dt):

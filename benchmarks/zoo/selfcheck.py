@@ -12,7 +12,11 @@
 6. the on-axis IMU (imu_radius_m=0): accelerometer constant per mount, G recovered;
 7. the third set (rate_band_bias ... mount_bias_shift) against the README: shapes and
    magnitudes over the hold-mean floor, the visit-order overrides, the play operator's memory,
-   the mount shift's renewal, the self-heating's temperature rise (see check_third_set).
+   the mount shift's renewal, the self-heating's temperature rise (see check_third_set);
+8. the fourth set against the README: the package settling at each set point (settle_c,
+   settle_tau_s), slow_pole_strong, the zigzag order with the play operator, rate_band_bias_wide,
+   g_sensitivity_temp, session_bias_step and the range switch in the fixed default order (see
+   check_fourth_set).
 
 Light by design (5 Hz turntables, 1 Hz sweeps): about a minute on one core.
 """
@@ -69,8 +73,27 @@ LEGACY += [
      0, 1, 0.5, {"ramp_c_per_h": 60.0, "mount": "-y"}, "8ad71aabf61e067e"),
 ]
 
+# recorded before the fourth set (slow_pole_strong ... session_bias_step, settle_c, zigzag) was added
+LEGACY += [
+    ("slow_pole+temp_hysteresis_play", "turntable3", "white", 21, 0, 1, 5.0, {"temp_order": "updown"},
+     "e710114af982e17d"),
+    ("slow_pole+rotation_heating", "turntable3", "white", 21, 1, 1, 5.0, {"rate_order": "shuffled"},
+     "8d5636a17652a5da"),
+    ("temp_hysteresis_play+mount_bias_shift", "turntable6", "white", 25, 0, 1, 2.0, {"temp_order": "revisit"},
+     "fd66eb38ad2e2c18"),
+    ("cross_axis_quadratic+scale_range_switch", "turntable3", "coloured", 26, 0, 1, 5.0,
+     {"rate_order": "reversed"}, "1ee1bf5d5b46bde6"),
+    ("g_sensitivity+run_to_run_bias", "turntable6", "white", 27, 3, 2, 5.0, {}, "ddd319af2fecc76c"),
+    ("rate_band_bias+warmup_selfheat+die_lag", "turntable3", "white", 28, 0, 1, 5.0,
+     {"rates": [10.0, 100.0, 125.0, 150.0, 175.0, 200.0]}, "48b79dc0e4ab2c9b"),
+    ("die_lag_curved+temp_rate+scale_temp_rate+hysteresis", "turntable3", "white", 29, 0, 1, 2.0,
+     {"temp_order": "downup", "soak_s": 120.0}, "6f15e09be95e6061"),
+]
+
 NEW3 = ["rate_band_bias", "scale_range_switch", "cross_axis_quadratic", "warmup_selfheat",
         "slow_pole", "rotation_heating", "temp_hysteresis_play", "mount_bias_shift"]
+
+NEW4 = ["slow_pole_strong", "rate_band_bias_wide", "g_sensitivity_temp", "session_bias_step"]
 
 SEED = 21
 TT_HZ = 5.0
@@ -192,22 +215,22 @@ def windows(info, t, protocol):
     return [(t0 + 20.0 * i, t0 + 20.0 * (i + 1)) for i in range(n)]
 
 
-def detectability(effect, protocol, hz, **ov):
+def detectability(effect, protocol, hz, session=0, **ov):
     """RMS over windows and axes of the window-mean residual against the true base model,
     over the hold-mean noise floor (white noise).  For die_lag_curved the base is the same
     unit's curves felt at the sensor temperature (what the lag does)."""
     uE = make_unit(effect, protocol, "white", seed=SEED)
-    cE, info = simulate_session(uE, 0, 1, hz, **ov)
-    cN, _ = simulate_session(make_unit("none", protocol, "white", seed=SEED), 0, 1, hz, **ov)
+    cE, info = simulate_session(uE, session, 1, hz, **ov)
+    cN, _ = simulate_session(make_unit("none", protocol, "white", seed=SEED), session, 1, hz, **ov)
     cC, _ = simulate_session(make_unit("none", protocol, "white", seed=SEED,
-                                       arw_dps_rthz=[0.0, 0.0, 0.0]), 0, 1, hz, **ov)
+                                       arw_dps_rthz=[0.0, 0.0, 0.0]), session, 1, hz, **ov)
     G = lambda c: np.stack([c["gyro_x"], c["gyro_y"], c["gyro_z"]], 1)        # noqa: E731
     noise = G(cN) - G(cC)
     if effect == "none":
         resid = noise
     elif effect == "die_lag_curved":
         uB = make_unit(effect, protocol, "white", seed=SEED, die_lag_curved__tau_die_s=1e-3)
-        cB, _ = simulate_session(uB, 0, 1, hz, **ov)
+        cB, _ = simulate_session(uB, session, 1, hz, **ov)
         resid = G(cE) - G(cB) + noise
     else:
         resid = G(cE) - G(cC)
@@ -877,6 +900,363 @@ def check_third_set(tmp):
     check_detectability(NEW3)
 
 
+# ------------------------------------------------------------------ 8: the fourth set
+RATES_BAND = [10.0, 50.0, 100.0, 125.0, 150.0, 175.0, 200.0, 400.0]
+
+
+def visits_of(info):
+    """Per set point visit: (set point, [holds]) in time order (a new visit after each chamber ramp)."""
+    out = []
+    new = True
+    for p in info["phases"]:
+        if p["kind"] == "chamber_ramp":
+            new = True
+        if p["kind"] == "hold":
+            if new:
+                out.append((p["setpoint_c"], []))
+                new = False
+            out[-1][1].append(p)
+    return out
+
+
+def chamber_sensor(info, t, tau):
+    """The chamber (piecewise linear between the logged knots) through a first-order lag of tau."""
+    Tc = np.interp(t, info["thermal"]["chamber_knots_t"], info["thermal"]["chamber_knots_c"])
+    return lag(Tc, tau, float(np.median(np.diff(t))))
+
+
+def check_settling(tmp):
+    print("\n== settle_c / settle_tau_s: the package still settling at each new set point ==")
+    eff = "cross_axis_quadratic+scale_range_switch"
+    u = make_unit(eff, "turntable3", "white", seed=SEED)
+    ps, pp = os.path.join(tmp, "settle.parquet"), os.path.join(tmp, "plain.parquet")
+    p0 = os.path.join(tmp, "plain0.parquet")
+    iS = write_session(u, ps, 0, 1, TT_HZ, settle_c=1.5, settle_tau_s=300.0)
+    write_session(u, pp, 0, 1, TT_HZ, settle_tau_s=300.0)              # visits recorded, no settling
+    write_session(u, p0, 0, 1, TT_HZ)
+    assert sha(pp) == sha(p0)
+    print("  settle_tau_s without settle_c writes the same bytes as no override")
+    cS, cP = read(ps), read(pp)
+    st = iS["thermal"]["settling"]
+    f, tau_p, tau_s = st["fixture_share_f"], st["settle_tau_s"], iS["thermal"]["tau_sensor_s"]
+    t = cS["t"]
+    # the logged temperature minus the unit's without settling (same noise draws) against the two
+    # heat paths re-implemented here: f (lag(Tc, tau_p) - lag(Tc, tau_s))
+    want = f * (chamber_sensor(iS, t, tau_p) - chamber_sensor(iS, t, tau_s))
+    d = cS["temp"] - cP["temp"]
+    lsb = iS["thermal"]["temp_lsb_c"]
+    err = float(np.max(np.abs(d - want)))
+    print(f"  fixture share f = {f:.3f} (tau_p {tau_p:.0f} s, sensor tau {tau_s:.0f} s); logged temperature "
+          f"difference matches f (lag(Tc, tau_p) - lag(Tc, tau_s)) within {err:.4f} C (lsb {lsb})")
+    assert err <= lsb + 0.01
+    # per visit: the fixture path's offset at the first hold, fitted from the logged difference (the
+    # default order's steps are all 25 degC, so it is settle_c by definition), and the package's
+    # movement from the first to the last hold in the written log against the two paths' model
+    model = (1 - f) * chamber_sensor(iS, t, tau_s) + f * chamber_sensor(iS, t, tau_p)
+    taus = []
+    for k, ((T, holds), vs) in enumerate(zip(visits_of(iS), iS["setpoint_visits"])):
+        assert vs["setpoint_c"] == T
+        m = (t >= holds[0]["t_start"] + 120.0) & (t < holds[-1]["t_end"])     # the sensor lag's part gone
+        if k == 0:
+            assert np.all(np.abs(d[m]) <= lsb + 1e-9)
+            continue
+        tt = t[m] - holds[0]["t_start"]
+        tau, beta, _ = grid_fit(lambda tau: np.exp(-tt / tau)[:, None], d[m], np.arange(150.0, 600.0, 1.0))
+        taus.append(tau)
+        first, last = ((t >= hp["t_start"]) & (t < hp["t_end"]) for hp in (holds[0], holds[-1]))
+        mv_log = cS["temp"][last].mean() - cS["temp"][first].mean()
+        mv_mod = model[last].mean() - model[first].mean()
+        mv = vs["package_moves_within_visit_c"]
+        print(f"  {T:5.0f} C, from {vs['approached_from']}: fixture offset at the first hold {beta[0]:+.3f} C "
+              f"fitted "
+              f"(settle_c {st['settle_c']}), tau {tau:.0f} s; logged temp first to last hold {mv_log:+.3f} C "
+              f"(model {mv_mod:+.3f}; truth, hold start to end: {mv:+.3f})")
+        assert abs(beta[0] + st["settle_c"]) < 0.03 + lsb and abs(mv_log - mv_mod) < lsb + 0.02
+        assert abs(mv) > 1.0 and np.sign(vs["package_minus_setpoint_at_first_hold_c"]) == (
+            -1.0 if vs["approached_from"] == "below" else 1.0)
+    assert rel_ok(np.median(taus), tau_p, 0.05)
+    # the bias and scale follow the package: the base model at the logged temperature (minus the two
+    # effects) leaves the floor; the base model at the set point leaves the settling
+    res, keep, w, uu = base_residual(cS, iS)
+    ep = iS["effect_params"]
+    Q = np.asarray(ep["cross_axis_quadratic"]["q_per_dps"])
+    sw = ep["scale_range_switch"]
+    on = np.abs(uu) > sw["u_th_dps"]
+    shapes = (w ** 2) @ Q.T + on * (np.asarray(sw["ds"])[None] * uu + np.asarray(sw["db_dps"])[None])
+    F = floor_axes(iS)
+    sp = np.full(len(t), np.nan)                             # the set point, as if the package were there
+    for p in iS["phases"]:
+        if "setpoint_c" in p:
+            sp[(t >= p["t_start"]) & (t < p["t_end"])] = p["setpoint_c"]
+    cSet = {**cS, "temp": sp}
+    resSP, _, _, _ = base_residual(cSet, iS)
+    rat = {}
+    for lab, rr in (("logged temperature", res), ("set point", resSP)):
+        hm = np.array([m for mn, T, r, m in hold_table(cS, iS, rr - shapes)])
+        rat[lab] = float(np.sqrt(np.mean((hm / F) ** 2)))
+    print(f"  {eff}: hold means minus the two effects, base model at the logged temperature "
+          f"{rat['logged temperature']:.2f} x floor, at the set point {rat['set point']:.2f} x floor")
+    assert rat["logged temperature"] < 1.3 and rat["set point"] > 1.5 * rat["logged temperature"]
+    # out of order: larger steps leave more; refused on sweeps and beyond the fixture's reach
+    _, iZ = simulate_session(u, 0, 1, 1.0, settle_c=1.5, temp_order="zigzag")
+    print("  zigzag order: offsets at the first hold " + ", ".join(
+        f"{v['setpoint_c']:.0f} C {v['package_minus_setpoint_at_first_hold_c']:+.2f}"
+        for v in iZ["setpoint_visits"]))
+    for prot, kw in (("sweep", {"settle_c": 1.0}), ("turntable3", {"settle_c": 2.0, "settle_tau_s": 150.0})):
+        try:
+            simulate_session(make_unit("none", prot, "white", seed=SEED), 0, 1, 0.2, **kw)
+        except ValueError as ex:
+            print(f"  refused: {prot} {kw}: {str(ex)[:90]}")
+        else:
+            raise AssertionError((prot, kw))
+
+
+def check_slow_pole_strong(tmp):
+    print("\n== slow_pole_strong: the slow pole with a larger share (tau about 6 s) ==")
+    c, info, ep = written(tmp, "slow_pole_strong", "turntable3", TT_HZ)
+    k, tau = np.asarray(ep["k"]), ep["tau_s"]
+    cO, _ = simulate_session(make_unit("slow_pole", "turntable3", "white", seed=SEED, slow_pole__k=list(k),
+                                       slow_pole__tau_s=tau), 0, 1, TT_HZ)
+    assert np.array_equal(G3(cO), G3(read(os.path.join(tmp, "slow_pole_strong_turntable3_0.parquet"))))
+    print(f"  k = {np.array2string(k * 100, precision=2)} %, tau = {tau:.2f} s; slow_pole with "
+          "slow_pole__k and slow_pole__tau_s set to these writes the same gyro columns")
+    res, keep, w, u = base_residual(c, info)
+    t = c["t"]
+    for ph in info["phases"]:
+        if ph["kind"] == "handling":
+            keep &= ~((t >= ph["t_start"]) & (t < ph["t_end"] + 60.0))
+    k_fit, taus = [], []
+    for a in range(3):
+        tf, beta, _ = grid_fit(lambda tf: np.stack([(lag(u[:, a], tf, 1 / TT_HZ) - u[:, a])[keep],
+                                                    np.ones(keep.sum())], 1),
+                               res[keep, a], np.arange(4.0, 8.0, 0.02))
+        k_fit.append(beta[0])
+        taus.append(tf)
+    report("fit from the written log (u from ref_rate and the true K)", [("k", k_fit, k), ("tau s", taus, tau)])
+    assert rel_ok(k_fit, k, 0.03) and rel_ok(taus, tau, 0.03)
+    F = floor_axes(info)
+    arw = np.asarray(info["noise"]["arw_dps_rthz"])
+    own, inside, rates = [], [], []
+    for p in info["phases"]:
+        if p["kind"] != "hold":
+            continue
+        a = "xyz".index(p["mount"][1])
+        m = (t >= p["t_start"]) & (t < p["t_end"])
+        own.append(abs(res[m, a].mean()) / F[a])
+        early = res[(t >= p["t_start"]) & (t < p["t_start"] + 2.0), a].mean()
+        late = res[(t >= p["t_end"] - 5.0) & (t < p["t_end"]), a].mean()
+        inside.append(abs(early - late) / (arw[a] * math.sqrt(1 / 2.0 + 1 / 5.0)))
+        rates.append(p["ref_rate_start"])
+    own, inside, rates = np.array(own), np.array(inside), np.array(rates)
+    print("  written log, own-axis |hold mean| / floor by rate (median): "
+          + ", ".join(f"{r:+.0f}: {np.median(own[rates == r]):.0f}"
+                      for r in (0.0, 10.0, -10.0, 50.0, 100.0, -400.0)))
+    print(f"  inside each hold, first 2 s minus last 5 s over its noise: median {np.median(inside):.0f}, "
+          f"smallest after a rate step {np.min(inside[rates != 0.0]):.0f}")
+    assert np.min(own[rates != 0.0]) > 10.0 and np.median(own[rates != 0.0]) > 50.0
+    assert np.min(inside[rates != 0.0]) > 10.0
+    hm = {}
+    for order in ("default", "shuffled"):
+        e, c2, inf = effect_only("slow_pole_strong", "turntable3", TT_HZ, rate_order=order)
+        hm[order] = {(mn, T, r): m for mn, T, r, m in hold_table(c2, inf, e)}
+    diff = np.array([np.abs(hm["default"][q] - hm["shuffled"][q]) / F for q in hm["default"]])
+    print(f"  default vs shuffled order, |difference of hold means| over the floor: median "
+          f"{np.median(diff.max(1)):.0f}, max {np.max(diff):.0f}")
+    assert np.median(diff.max(1)) > 10.0
+
+
+def check_zigzag_play(tmp):
+    print("\n== temp_order='zigzag' (5, 55, -20, 30) and temp_hysteresis_play: the side each point came from ==")
+    u = make_unit("temp_hysteresis_play", "turntable3", "white", seed=SEED)
+    a, b = os.path.join(tmp, "z_a.parquet"), os.path.join(tmp, "z_b.parquet")
+    write_session(u, a, 0, 1, TT_HZ, temp_order="zigzag")
+    write_session(u, b, 0, 1, TT_HZ, temp_order=[5.0, 55.0, -20.0, 30.0])
+    assert sha(a) == sha(b)
+    e, c, info = effect_only("temp_hysteresis_play", "turntable3", TT_HZ, temp_order="zigzag")
+    assert setpoint_order(info) == [5.0, 55.0, -20.0, 30.0]
+    ep = info["effect_params"]["temp_hysteresis_play"]
+    h = np.asarray(ep["h_dps"])
+    side = {}
+    for v in info["setpoint_visits"]:
+        s = 1.0 if v["approached_from"] == "below" else -1.0
+        side[v["setpoint_c"]] = s
+        assert v["temp_hysteresis_play_state"] == s == v["temp_hysteresis_play_state_at_end"]
+    for mn, T, r, m in hold_table(c, info, e):
+        assert np.allclose(m, side[T] * h, rtol=1e-9, atol=1e-10)
+    print("  explicit temp_order=[5, 55, -20, 30] writes the same bytes as 'zigzag'; noise-free: "
+          + ", ".join(f"{T:.0f} C from {'below' if s > 0 else 'above'} {s:+.0f} h" for T, s in side.items()))
+    # the written logs: per visit, the mean residual against the base model over h (all three axes)
+    cz, iz, _ = written(tmp, "temp_hysteresis_play", "turntable3", TT_HZ, temp_order="zigzag")
+    cd, idf, _ = written(tmp, "temp_hysteresis_play", "turntable3", TT_HZ, session=1)
+    F = floor_axes(iz)
+    means = {}
+    for lab, cc, ii in (("zigzag", cz, iz), ("default", cd, idf)):
+        res, keep, w, uu = base_residual(cc, ii)
+        rows = hold_table(cc, ii, res)
+        means[lab] = {T: np.mean([m for mn, TT, r, m in rows if TT == T], axis=0) for T in side}
+    for T, s in side.items():
+        got = means["zigzag"][T] / h
+        print(f"  zigzag, {T:5.0f} C: mean residual / h per axis {np.array2string(got, precision=2)} "
+              f"(truth {s:+.0f})")
+        assert np.all(np.abs(got - s) < 0.25)
+    d5 = (means["default"][5.0] - means["zigzag"][5.0]) / F
+    print(f"  5 C: default (from below) minus zigzag (power-on from above) = {np.array2string(d5, precision=1)} "
+          f"x floor, 2h = {np.array2string(2 * h / F, precision=1)}")
+    assert np.all(np.abs(d5 - 2 * h / F) < 3.0)
+
+
+def check_rate_band_wide(tmp):
+    print("\n== rate_band_bias_wide: a bump about 40 deg/s wide centred about 150 deg/s, between the levels ==")
+    e, c, info = effect_only("rate_band_bias_wide", "turntable3", TT_HZ, rates=RATES_BAND)
+    ep = info["effect_params"]["rate_band_bias_wide"]
+    h, c0, fw = np.asarray(ep["h_dps"]), ep["centre_dps"], ep["fwhm_dps"]
+    gauss = lambda x, c0, fw: np.exp(-4.0 * math.log(2.0) * ((x - c0) / fw) ** 2)        # noqa: E731
+    for mn, T, r, m in hold_table(c, info, e):
+        wabs = np.zeros(3)
+        wabs["xyz".index(mn[1])] = abs(r)
+        assert np.allclose(m, h * gauss(wabs, c0, fw), rtol=1e-9, atol=1e-10)
+    print(f"  centre {c0:.1f} deg/s, FWHM {fw:.1f} deg/s; noise-free hold means match the Gaussian")
+    cw, iw, _ = written(tmp, "rate_band_bias_wide", "turntable3", TT_HZ)
+    res, keep, w, uu = base_residual(cw, iw)
+    lv = own_axis_levels(hold_table(cw, iw, res), floor_axes(iw))
+    print("  default rates, written log, own-axis |hold mean| / floor: "
+          + ", ".join(f"{k:.0f}: {v:.1f}" for k, v in lv.items()))
+    assert all(v < 2.5 for v in lv.values())
+    cw, iw, _ = written(tmp, "rate_band_bias_wide", "turntable3", TT_HZ, session=1, rates=RATES_BAND)
+    res, keep, w, uu = base_residual(cw, iw)
+    F = floor_axes(iw)
+    rows = hold_table(cw, iw, res)
+    lv = own_axis_levels(rows, F)
+    print("  rates with 125/150/175: " + ", ".join(f"{k:.0f}: {v:.1f}" for k, v in lv.items()))
+    assert lv[150.0] > 12.0 and lv[125.0] > 3.0 and lv[175.0] > 3.0 and lv[100.0] < 3.0 and lv[200.0] < 3.0
+    # centre and width from the own-axis hold means of the written log, the amplitude per axis free
+    x = np.array([abs(r) for mn, T, r, m in rows])
+    ax = np.array(["xyz".index(mn[1]) for mn, T, r, m in rows])
+    y = np.array([m["xyz".index(mn[1])] / F["xyz".index(mn[1])] for mn, T, r, m in rows])
+    grid = [(cc, ww) for cc in np.arange(130.0, 170.0, 0.25) for ww in np.arange(20.0, 70.0, 0.5)]
+    p, beta, _ = grid_fit(lambda p: np.stack([gauss(x, *p) * (ax == a) for a in range(3)]
+                                             + [np.ones(len(x))], 1), y, grid)
+    print(f"  fitted centre {p[0]:.2f} deg/s (truth {c0:.2f}), FWHM {p[1]:.1f} (truth {fw:.1f}); "
+          f"peaks {np.array2string(beta[:3] * F * 1e3, precision=2)} mdps "
+          f"(truth {np.array2string(h * 1e3, precision=2)})")
+    assert abs(p[0] - c0) < 3.0 and abs(p[1] - fw) < 6.0
+    e, c, info = effect_only("rate_band_bias_wide", "turntable3", TT_HZ, rates=RATES_BAND,
+                             unit_kw={"rate_band_bias_wide__shape": "lorentz",
+                                      "rate_band_bias_wide__centre_dps": 137.5,
+                                      "rate_band_bias_wide__fwhm_dps": 25.0})
+    for mn, T, r, m in hold_table(c, info, e):
+        wabs = np.zeros(3)
+        wabs["xyz".index(mn[1])] = abs(r)
+        assert np.allclose(m, h / (1.0 + 4.0 * ((wabs - 137.5) / 25.0) ** 2), rtol=1e-9, atol=1e-10)
+    print("  overrides shape='lorentz', centre_dps=137.5, fwhm_dps=25: hold means match 1/(1 + 4((|w| - c)/FWHM)^2)")
+
+
+def check_g_sens_temp(tmp):
+    print("\n== g_sensitivity_temp on turntable6, IMU on the rig axis: G(T) = G0 + G1 (T - 25) ==")
+    c, info, ep = written(tmp, "g_sensitivity_temp", "turntable6", 2.0, unit_kw={"imu_radius_m": 0.0})
+    res, keep, w, uu = base_residual(c, info)
+    t = c["t"]
+    G0t, G1t = np.asarray(ep["G0_dps_per_g"]), np.asarray(ep["G1_dps_per_g_per_c"])
+    Gs, Ts, n_h = [], [], 0
+    for T, holds in visits_of(info):
+        G = np.zeros((3, 3))
+        for a, lab in enumerate("xyz"):
+            mp = [(t >= p["t_start"]) & (t < p["t_end"]) for p in holds if p["mount"] == "+" + lab]
+            mm = [(t >= p["t_start"]) & (t < p["t_end"]) for p in holds if p["mount"] == "-" + lab]
+            n_h = len(mp)
+            G[:, a] = (np.mean([res[m].mean(0) for m in mp], 0) - np.mean([res[m].mean(0) for m in mm], 0)) / 2
+        Gs.append(G)
+        Ts.append(np.mean(c["temp"][(t >= holds[0]["t_start"]) & (t < holds[-1]["t_end"])]))
+    Gs, Ts = np.array(Gs), np.array(Ts)
+    X = np.stack([np.ones(len(Ts)), Ts - 25.0], 1)
+    beta, _ = lsq(X, Gs.reshape(len(Ts), 9))
+    G0f, G1f = beta[0].reshape(3, 3), beta[1].reshape(3, 3)
+    report("G0, G1 from (+a minus -a mount) hold means at each set point",
+           [("G0 diag", np.diag(G0f), np.diag(G0t)), ("G1 diag /C", np.diag(G1f), np.diag(G1t))])
+    F = info["noise_floor_hint"]
+    sig = F / math.sqrt(2 * n_h) / math.sqrt(np.sum((Ts - Ts.mean()) ** 2))      # std of a G1 entry
+    print(f"      max |G1 - G1_true| {np.max(np.abs(G1f - G1t)):.2e} dps/g/C (5 sigma {5 * sig:.2e}); change of G "
+          f"over the set points up to {np.max(np.abs(G1t)) * (Ts.max() - Ts.min()):.3f} dps/g")
+    assert np.max(np.abs(G1f - G1t)) < 5 * sig
+    assert np.max(np.abs(G0f - G0t)) < 5 * F / math.sqrt(2 * n_h * len(Ts))
+    # a constant G (the mean over the set points) leaves the change with temperature
+    const = Gs - Gs.mean(0)
+    print(f"  a constant G leaves per-set-point column errors up to "
+          f"{np.max(np.abs(const)) / (F / math.sqrt(2 * n_h)):.0f} "
+          f"times their noise ({n_h} holds per mount)")
+    assert np.max(np.abs(const)) > 10 * F / math.sqrt(2 * n_h)
+
+
+def check_session_step(tmp):
+    print("\n== session_bias_step: a constant offset new in session 1, the same throughout it ==")
+    F = None
+    for session in (0, 1, 2):
+        c, info, ep = written(tmp, "session_bias_step", "turntable3", TT_HZ, session=session)
+        F = floor_axes(info)
+        tr = info["effect_params"]["session_bias_step"]
+        res, keep, w, uu = base_residual(c, info)
+        hm = np.array([m for mn, T, r, m in hold_table(c, info, res)])
+        off = np.asarray(tr["offset_this_session_dps"])
+        dev = np.abs(hm.mean(0) - off) / (F / math.sqrt(len(hm)))
+        spread = hm.std(0) / F
+        print(f"  session {session}: present {tr['present_in_this_session']}, mean of the hold residuals "
+              f"{np.array2string(hm.mean(0) * 1e3, precision=2)} mdps "
+              f"(truth {np.array2string(off * 1e3, precision=2)}), "
+              f"spread of the holds {np.array2string(spread, precision=2)} x floor")
+        assert tr["present_in_this_session"] == (session == 1)
+        assert np.all(dev < 5.0) and np.all(spread < 1.4)
+        if session != 1:
+            p = os.path.join(tmp, "none_s.parquet")
+            write_session(make_unit("none", "turntable3", "white", seed=SEED), p, session, 1, TT_HZ)
+            assert sha(p) == sha(os.path.join(tmp, f"session_bias_step_turntable3_{session}.parquet"))
+    print("  sessions 0 and 2 write the same bytes as the unit without the effect")
+
+
+def check_switch_default_order(tmp):
+    print("\n== scale_range_switch in the fixed default order: each hold's predecessor is predictable ==")
+    e, c, info = effect_only("scale_range_switch", "turntable3", TT_HZ)
+    prev = {}
+    for (mnt, T), seq in hold_sequences(info).items():
+        for p, r in zip([None] + seq[:-1], seq):
+            prev.setdefault(r, set()).add(p)
+    assert all(len(v) == 1 for v in prev.values())
+    print("  default order: the previous hold of each rate is always the same, e.g. "
+          + ", ".join(f"{r:+.0f} after {next(iter(v)):+.0f}" for r, v in prev.items() if abs(r) >= 200))
+    F = floor_axes(info)
+    hm = {"default": {(mn, T, r): m for mn, T, r, m in hold_table(c, info, e)}}
+    e2, c2, i2 = effect_only("scale_range_switch", "turntable3", TT_HZ, rate_order="shuffled")
+    hm["shuffled"] = {(mn, T, r): m for mn, T, r, m in hold_table(c2, i2, e2)}
+    d = max(float(np.max(np.abs(hm["default"][q] - hm["shuffled"][q]) / F)) for q in hm["default"])
+    print(f"  the switch has no history: default vs shuffled hold means differ by at most {d:.3f} x floor "
+          "(K(T) at slightly other temperatures); a history effect changes with the order (slow_pole_strong above)")
+    assert d < 0.1
+
+
+def check_detectability4(tmp):
+    print(f"\n== fourth set, seed {SEED}: hold-mean residual RMS / floor (turntable3 holds, 5 Hz) ==")
+    rows = [("slow_pole_strong", "turntable3", 0, {}),
+            ("slow_pole_strong", "turntable3", 0, {"rate_order": "shuffled"}),
+            ("rate_band_bias_wide", "turntable3", 0, {}),
+            ("rate_band_bias_wide", "turntable3", 0, {"rates": RATES_BAND}),
+            ("g_sensitivity_temp", "turntable3", 0, {}), ("g_sensitivity_temp", "turntable6", 0, {}),
+            ("session_bias_step", "turntable3", 0, {}), ("session_bias_step", "turntable3", 1, {})]
+    for eff, prot, session, ov in rows:
+        a = detectability(eff, prot, TT_HZ, session=session, **ov)
+        print(f"  {eff:20s} {prot:10s} session {session} {str(ov)[:60]:60s} {a:8.1f}x")
+
+
+def check_fourth_set(tmp):
+    check_determinism(tmp, NEW4)
+    check_settling(tmp)
+    check_slow_pole_strong(tmp)
+    check_zigzag_play(tmp)
+    check_rate_band_wide(tmp)
+    check_g_sens_temp(tmp)
+    check_session_step(tmp)
+    check_switch_default_order(tmp)
+    check_detectability4(tmp)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default=None, help="folder for the logs (default: a temporary one)")
@@ -896,6 +1276,7 @@ def main():
         check_on_axis_imu(tmp)
         check_detectability()
         check_third_set(tmp)
+        check_fourth_set(tmp)
     print("\nall checks passed")
 
 
