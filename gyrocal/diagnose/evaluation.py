@@ -4,6 +4,7 @@ validated leaving temperature points out, and the config that writes them."""
 from __future__ import annotations
 
 import json
+import math
 import re
 import shlex
 from dataclasses import dataclass, replace
@@ -101,8 +102,29 @@ def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model"
     chi2 = sum(sum(f.chi2.values()) for f in fitted.fits)
     dof = sum(sum(f.dof.values()) for f in fitted.fits)
     return Evaluation(
-        name, [t.spec_string() for t in fitted.model.terms], settings.model.kind, fitted, summary, chi2, dof
+        name,
+        [t.spec_string() for t in fitted.model.terms],
+        settings.model.kind,
+        fitted,
+        noise_only(summary, chi2 / max(dof, 1)),
+        chi2,
+        dof,
     )
+
+
+def noise_only(summary: dict[str, Any], chi2_red: float) -> dict[str, Any]:
+    """The summary with what a correct model would leave (``expected_rms``) made of the noise
+    alone: the floor, and the calibration's uncertainty as the noise makes it. A fit's
+    covariance is scaled by its χ²/dof, so a missing effect inflates the uncertainty it
+    carries to every held-out hold, and a bar made of it rises with the very excess it
+    judges (a slow pole's misfit put it 80 times above the floor). The held-out part
+    ``expected² − floor²`` is the calibration's; divided by χ²/dof where that exceeds 1."""
+    expected, floor = summary.get("expected_rms"), summary.get("noise_floor")
+    if summary.get("held_out") == "none" or expected is None or not floor or chi2_red <= 1.0:
+        return summary
+    calibration = max(expected**2 - floor**2, 0.0)
+    bar = math.sqrt(floor**2 + calibration / chi2_red)
+    return {**summary, "expected_rms": bar, "excess_over_expected": summary["validation_rms"] / bar}
 
 
 def extended(settings: Settings, spec, kind: str | None = None) -> Settings:

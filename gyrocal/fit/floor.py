@@ -106,6 +106,55 @@ def static_stretches(log, seg, static, *, max_temp_rate: float = 0.1) -> pd.Data
     return out.reset_index(drop=True)
 
 
+SETTLING_SIGMAS = 8.0  # a stretch's start this far off its second half's line is settling
+SETTLING_TRIMS = (0, 32, 16, 8, 4)  # starts tried: 0, then n/32, n/16, n/8, n/4
+
+
+def settled_start(gyro: np.ndarray) -> int:
+    """Where a static stretch's output has settled: the first of the starts 0, n/32, n/16,
+    n/8 and n/4 whose next sixteenth has a mean within :data:`SETTLING_SIGMAS` of the
+    straight line through the stretch's second half, where those before it stood off that
+    line by more, on the same side and shrinking (an output that settles after the table
+    stops: a slow pole, a relaxation); n/2 where none is; 0 where the offsets do not fall
+    one way (a wander, kept whole). A drift through the whole stretch (a ramp) is on the
+    line. σ is the white noise's, from second differences, which a settling does not move.
+    A floor made of a settling would be made of the effect."""
+    n = len(gyro)
+    if n < 64:
+        return 0
+    x = np.asarray(gyro, dtype=np.float64)
+    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    sigma = np.sqrt(np.nanmean(d2**2, axis=0) / 6.0)
+    half = np.arange(n // 2, n, dtype=np.float64)
+    tail = x[n // 2 :]
+    keep = np.all(np.isfinite(tail), axis=1)
+    if keep.sum() < 8:
+        return 0
+    slope, level = np.polynomial.polynomial.polyfit(half[keep], tail[keep], 1)[::-1]
+    window = n // 16
+    previous = None
+    for trim in SETTLING_TRIMS:
+        start = n // trim if trim else 0
+        lead = x[start : start + window]
+        centre = start + (window - 1) / 2.0
+        line = level + slope * centre
+        # the lead's mean and the line's value there, each with its white-noise variance
+        spread = (
+            1.0 / window + 1.0 / len(half) + (centre - half.mean()) ** 2 / np.sum((half - half.mean()) ** 2)
+        )
+        off = (np.nanmean(lead, axis=0) - line) / (sigma * np.sqrt(spread))
+        worst = int(np.argmax(np.abs(off)))
+        if abs(off[worst]) < SETTLING_SIGMAS:
+            return start
+        shrinking = previous is None or (
+            np.sign(off[worst]) == np.sign(previous) and abs(off[worst]) < abs(previous)
+        )
+        if not shrinking:
+            return 0
+        previous = off[worst]
+    return n // 2
+
+
 class StretchSampler:
     """The samples of the static stretches, gathered from a log given batch by batch
     (``push``: dicts with t, temp and the gyro axes), each stretch reduced to its
@@ -116,7 +165,8 @@ class StretchSampler:
 
     NAMES = ("t", "temp", *(f"gyro_{a}" for a in AXES))
 
-    def __init__(self, stretches: pd.DataFrame, rate: float):
+    def __init__(self, stretches: pd.DataFrame, rate: float, *, trim_settling: bool = False):
+        self.trim_settling = trim_settling  # each stretch from where its output settled
         self.start = stretches["t_start"].to_numpy(float)
         self.end = stretches["t_end"].to_numpy(float)
         self.rate = rate
@@ -139,9 +189,11 @@ class StretchSampler:
             c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
             for c in self.NAMES[1:]
         }
-        n = len(cols["temp"])
+        gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
+        if self.trim_settling:
+            gyro = gyro[settled_start(gyro) :]
+        n = len(gyro)
         if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
-            gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
             # in float64: a float32 column's own accumulator overflows near its largest value
             self._done[k] = (
                 self._pool.submit(stretch_sums, gyro, self.rate),
@@ -244,7 +296,10 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     if obs.empty or rate <= 0:
         return summary
     if sampled is None:
-        sampler = StretchSampler(static_stretches(log, seg, static, max_temp_rate=max_temp_rate), rate)
+        after_turning = bool(getattr(getattr(static, "__self__", None), "static_after_turning", False))
+        sampler = StretchSampler(
+            static_stretches(log, seg, static, max_temp_rate=max_temp_rate), rate, trim_settling=after_turning
+        )
         for batch in log.scan(StretchSampler.NAMES):
             sampler.push(batch)
         sampled = sampler.result()

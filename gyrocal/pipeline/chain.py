@@ -110,7 +110,11 @@ def segment_log(
         if len(obs) and rate > 0
         else None
     )
-    sampler = StretchSampler(stretches, rate) if stretches is not None else None
+    sampler = (
+        StretchSampler(stretches, rate, trim_settling=registry.get(protocol).static_after_turning)
+        if stretches is not None
+        else None
+    )
     record = HistoryBins(*log.time_span, window_s=window)
     # The record keeps the gyro's output and the specific force beside the temperature, in
     # the same bins: inputs with a history (a lag of the rate) read them, in the fit and in

@@ -129,6 +129,11 @@ class Protocol(ABC):
     # segmenter and the observations use beyond the required ones.
     optional_columns: ClassVar[tuple[str, ...]] = ("mount", "accel_x", "accel_y", "accel_z")
 
+    # Whether static stretches follow the table's turning: an output still settling from
+    # the last rate (a slow pole) is trimmed from each before the noise model reads it
+    # (:func:`gyrocal.fit.floor.settled_start`).
+    static_after_turning: ClassVar[bool] = False
+
     # The config's top-level settings are this protocol's (segmentation:, model:,
     # diagnosis:); the others take theirs from ``protocols.<name>`` over ``defaults``.
     top_level_settings: ClassVar[bool] = False

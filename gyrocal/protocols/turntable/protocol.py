@@ -29,6 +29,7 @@ class Turntable(Protocol):
     top_level_settings = True
     fleet_audits = True
     axis_mounts = True
+    static_after_turning = True
 
     def segment(self, log: RigLog, settings: SettingsView) -> Segmentation:
         from .segment import segment  # on use: a report reads the protocol without segmentation

@@ -553,14 +553,7 @@ def _hold_statistics(log, blk, size, c0, c1, runs: Runs, motion: Motion, cfg) ->
     half_limit = steady_limit + allowance[:, None]
     settling = (half_diff > steady_limit).any(axis=1)
     if settling.any():
-        # A hold kept though its output settles: its scatter from successive block
-        # differences (von Neumann), which a slow settling does not inflate, so that the
-        # noise floor is made of the noise and not of the effect.
-        succ = np.r_[np.diff(resid, axis=0), np.zeros((1, resid.shape[1]))]
-        last = np.r_[first[1:], len(hb)] - 1
-        succ[last] = 0.0
-        mssd = _range_sums(succ**2, first) / 2.0 * size
-        hold_var = np.where(settling[:, None], (within + mssd) / (n - 1)[:, None], hold_var)
+        hold_var = np.where(settling[:, None], _settled_scatter(log, c0, c1, size, settling), hold_var)
     worst = np.argmax(half_diff - half_limit, axis=1)
     rows = np.arange(len(c0))
     rate, rate_sd = _hold_temp_rate(blk, c0, c1)
@@ -586,6 +579,24 @@ def _hold_statistics(log, blk, size, c0, c1, runs: Runs, motion: Motion, cfg) ->
     )
     if "accel" in blk:
         out["accel"] = _hold_accel(blk["accel"], hb, first)
+    return out
+
+
+def _settled_scatter(log, c0, c1, size: int, settling: np.ndarray) -> np.ndarray:
+    """The per-sample variance of each hold whose output settles (rows of the others NaN),
+    from its samples' second differences: ``x[i+1] − 2x[i] + x[i−1]`` has variance 6σ² for
+    white noise, and a settling's slope cancels in it, its curvature (the step over τ², times
+    the sample interval squared) far below the noise. A block's own variance or the spread of
+    block means holds the slope (slope² × block² / 12), and most where the step into the hold
+    is largest: a floor made of them would be made of the effect."""
+    out = np.full((len(c0), len(GYRO)), np.nan)
+    settling_holds = np.flatnonzero(settling)
+    parts = log.row_ranges(GYRO, [(c0[h] * size, c1[h] * size) for h in settling_holds])
+    for h, part in zip(settling_holds, parts, strict=True):  # per hold, each vectorised
+        x = np.column_stack([np.asarray(part[g], dtype=np.float64) for g in GYRO])
+        if len(x) >= 3:
+            d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
+            out[h] = np.nanmean(d2**2, axis=0) / 6.0
     return out
 
 
