@@ -49,6 +49,8 @@ class Candidate:
     together: list[str] = field(default_factory=list)  # also missing: named with this one
     alone_rms: float | None = None  # validation RMS with this one alone
     leftover: Leftover | None = None  # the covariate its residuals still follow most
+    # passed out of sample though what it leaves follows time within the points
+    second_question: bool = False
     next_session: CarryOver | None = None  # how the extended model carries over
     chi2: float | None = None  # of the extended fit, for ties
     part_of: str | None = None  # the library term this is the protocol's part of
@@ -94,6 +96,7 @@ class Candidate:
                 together=self.together,
                 alone_rms=self.alone_rms,
                 leftover=self.leftover,
+                **({"second_question": True} if self.second_question else {}),
                 next_session=self.next_session,
                 part_of=self.part_of,
                 option=self.option,
@@ -141,6 +144,7 @@ class Judge:
     def __init__(self, settings, obs, data, other, alpha, base_excess: float):
         self.settings, self.obs, self.data, self.other, self.alpha = settings, obs, data, other, alpha
         self.base_excess = base_excess  # the configured model's χ²/dof − 1
+        self.screened: list | None = None  # the grammar's candidates, screened once (.naming)
         if other is not None and ("revolution" in obs or "revolution" in other):
             self.other = None  # a servo session's hand mount leaves the true rate unknown
         # Time is not temperature only where each point soaks at one temperature (not a sweep).
@@ -197,8 +201,14 @@ class Judge:
         exempt = self.soaked and slow and left["covariate"] in TIME_LIKE
         if not usable(nxt):
             # A fit that could not be validated by leaving points out is judged by the
-            # other session or not at all.
-            return validated and in_chance and (not structure or exempt)
+            # other session or not at all. One that reaches the floor out of sample is the
+            # primary fix though what it leaves follows time within the points (a package
+            # still settling, slow noise): that is a second question, which another session
+            # answers (the verdict says so), not a reason to withhold the fix.
+            held_out = validated and ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance
+            second = held_out and left["covariate"] in TIME_LIKE
+            candidate.second_question = bool(structure and second and not exempt)
+            return validated and in_chance and (not structure or exempt or second)
         # Two independent looks at what is left, combined (Fisher): its structure in this
         # session and its repetition in the other. What is left is within chance, or known
         # to be slow noise; and the other session is no worse than with the configured model.

@@ -21,6 +21,7 @@ from .effects import (
     second_step,
 )
 from .evaluation import Evaluation, add_term_option, config_line, evaluate, extended, model_option, pooled
+from .grammar import formula_of, screen
 from .sessions import usable
 from .shapes import at_bound, describe, describe_history, for_the_unit, shape_terms
 from .stats import chi2_sf, f_sf, floor_uncertainty
@@ -211,6 +212,10 @@ def free_shape(
         for s in shape_terms(settings, obs, data, covariates, quality.fitted_rows)
         if (not time_only or s.input == "t") and (inputs is None or s.input in inputs)
     }
+    for found in _grammar(judge, quality, shapes):
+        s = found.shape
+        if (not time_only or s.input == "t") and (inputs is None or s.input in inputs):
+            shapes[s.spec] = s
     if not shapes:
         return None, []
     tried = rank_candidates(judge, base, list(shapes), base_next, tolerance, in_sample=True)
@@ -244,6 +249,15 @@ def free_shape(
         c.term = for_the_unit(c.term, c.profiled)
         c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
     return best, tried
+
+
+def _grammar(judge: Judge, quality, shapes: dict) -> list:
+    """The grammar's candidates that pass its screen (:func:`.grammar.screen`), screened once
+    per diagnosis, less those that compute what a shape already tried computes."""
+    if judge.screened is None:
+        judge.screened = screen(judge.obs, judge.data, quality, judge.alpha)
+    tried = {formula_of(spec) for spec in shapes}
+    return [s for s in judge.screened if formula_of(s.shape.spec) not in tried]
 
 
 def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound, library) -> list:

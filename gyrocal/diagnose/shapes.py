@@ -379,6 +379,9 @@ def describe_history(term, coefficients: dict, family: str) -> str:
             f"{_quantity(at + p['w'] / 2, '°C')} rising, back below "
             f"{_quantity(at - p['w'] / 2, '°C')} falling."
         )
+    if not family.startswith("hysteresis"):  # a term of the grammar: its formula and sizes
+        sizes = ", ".join(f"{v:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
+        return f"a bias that follows {family}: {sizes} deg/s per unit of {inner.formula}."
     sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k, strict=False))
     turns = (
         "it turns over once the temperature has gone back"

@@ -155,6 +155,13 @@ def _named(base: Evaluation, best: Candidate, base_next: CarryOver | None) -> st
             "moves within the points, and a grid fits each point at one temperature "
             "but is applied at each hold's own."
         )
+    if best.second_question and best.leftover is not None:
+        carried += (
+            f" What it leaves still follows {best.leftover['covariate']} (p = "
+            f"{best.leftover['p_value']:.2g}): a second question, after this fix, which another "
+            "session answers (a package still settling at the start of each point repeats; slow "
+            "noise does not)."
+        )
     if best.family:
         return _free_shape_verdict(base, best, carried)
     name = (

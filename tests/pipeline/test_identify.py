@@ -173,10 +173,10 @@ def test_a_term_that_leaves_the_calibration_unvalidated_is_dropped(tmp_path):
     )
     settings = extend(Settings().for_protocol("sweep"), "bias_temp_poly")
     seg = segment_log(log, settings, "sweep")
-    step = (
-        'expression(label="step_temp", formula="tanh((temp + 20.81 - m) / w)", parameters={"m": 5.69, '
-        '"w": 4.0}, profile={"m": [0.4, 80.8], "w": [0.4, 40.0]})'
-    )
+    # its place and width held: profiled, the sharpest width would fit best and the term be
+    # dropped at the bound of its search, before its validation is asked
+    step = 'expression(label="step_temp", formula="tanh((temp + 20.81 - m) / w)", parameters={"m": 5.69, "w": 4.0})'
+
     cal, _ = calibrate_observations(
         seg.observations,
         extend(settings, step),
