@@ -10,7 +10,16 @@ import pandas as pd
 
 from .effects import Candidate
 from .evaluation import Evaluation, LadderRow, add_term_option
-from .findings import BetweenPoints, LabTest, MountingTest, Negligible, TimeDrift, Unexplained, WithinNoise
+from .findings import (
+    Approach,
+    BetweenPoints,
+    LabTest,
+    MountingTest,
+    Negligible,
+    TimeDrift,
+    Unexplained,
+    WithinNoise,
+)
 from .reading import readable
 from .sessions import CarryOver
 from .verdict import verdict
@@ -52,6 +61,7 @@ class Diagnosis:
     factor: float
     negligible: Negligible | None
     one_way: dict[float, str] | None  # point (°C) -> the one direction it was reached in
+    approach: Approach | None  # the other session's errors against the direction of approach
     tolerance: float
     noise_model: bool
     unrepeated: bool
@@ -89,6 +99,7 @@ class Diagnosis:
             "mounting": _written(self.mounting),
             "between_points": _written(self.between_points),
             "negligible_excess": _written(self.negligible),
+            "approach": _written(self.approach),
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],

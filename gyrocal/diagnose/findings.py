@@ -20,7 +20,7 @@ class _Written:
         return asdict(self)  # type: ignore[call-overload]
 
 
-def explained_by(finding: LabTest | MountingTest | WithinNoise | TimeDrift | None) -> bool:
+def explained_by(finding: LabTest | MountingTest | WithinNoise | TimeDrift | Approach | None) -> bool:
     """A test was made and its finding explains the excess."""
     return finding is not None and finding.explains
 
@@ -176,3 +176,21 @@ class Where:
     heatmaps: dict[str, Any]
     lead: CovariateRow | None
     negligible: Negligible | None
+
+
+@dataclass(frozen=True)
+class Approach(_Written):
+    """The other session's errors against the direction each temperature point was reached
+    from (:func:`.approach.direction_of_approach`): the points reached from the other side
+    there and those reached the same way (°C), the step of the bias between the sides and
+    the offset at every point (deg/s, per axis), the F-test of the step against the offset
+    alone and the χ² tail of what the step leaves; ``explains``: the step is real and leaves
+    nothing beyond chance."""
+
+    points: list[float]
+    same: list[float]
+    shift: dict[str, float]
+    offset: dict[str, float]
+    p_value: float
+    left_p_value: float
+    explains: bool

@@ -11,8 +11,10 @@ import pandas as pd
 
 from ..fit.floor import with_upper_floor
 from ..fit.model import columns_of, shares_wander
+from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
+from .approach import direction_of_approach
 from .between import between_points, between_reason
 from .diagnosis import Diagnosis
 from .effects import (
@@ -36,6 +38,7 @@ from .evaluation import (
     ladder,
 )
 from .findings import (
+    Approach,
     BetweenPoints,
     ExcessTest,
     LabTest,
@@ -560,6 +563,23 @@ def _between_reason(base: Evaluation, between: BetweenPoints) -> Unexplained:
     return between_reason(between, held_out if left_out else None)
 
 
+def _approach(judge, base, base_next) -> Approach | None:
+    """Where the configured model's calibration does not carry over to the other session:
+    whether its errors there step with the direction each point was reached from
+    (:func:`.approach.direction_of_approach`)."""
+    if not usable(base_next) or base_next["holds"] or judge.other is None:
+        return None
+    from ..fleet.drift import hold_errors
+    from ..pipeline.chain import calibrate_observations
+
+    try:
+        cal, _ = calibrate_observations(judge.obs, judge.settings, meta={}, fitted=base.fitted, checks=False)
+        errors, floor = hold_errors(cal, judge.other)
+    except GyrocalError:
+        return None
+    return direction_of_approach(judge.obs, judge.other, errors, floor, judge.alpha)
+
+
 def _one_way(obs, data, before, other) -> tuple[dict | None, bool]:
     """:func:`.where.one_way_points` of this session, where the other session (if any)
     reached each point it shares with this one (within 2 °C) the same way too: only then is a
@@ -627,6 +647,7 @@ def _diagnosis(
             for i, a in enumerate(AXES)
         }
     )
+    approach = _approach(judge, base, base_next) if best is None else None
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
         steps.append(fix_row(best, base))
@@ -663,6 +684,7 @@ def _diagnosis(
         factor=factor,
         negligible=where.negligible,
         one_way=one_way,
+        approach=approach,
         tolerance=excess.tolerance,
         noise_model="floor_x" in obs,
         unrepeated=unrepeated,

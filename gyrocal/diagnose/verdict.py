@@ -48,6 +48,8 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             "floor from the same noise: holds minutes apart scatter more than the floor "
             "from the static data says."
         )
+    if explained_by(diag.approach):
+        return _approach_sentence(base_next, diag.approach)
     if diag.explains:
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} "
@@ -56,6 +58,28 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             "summary's drift page which parameters)."
         )
     return f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+
+
+def _approach_sentence(base_next: CarryOver, approach) -> str:
+    """The other session's failure told by the direction each point was reached from."""
+    steps = ", ".join(f"{v:+.3g} ({a})" for a, v in approach.shift.items())
+    offsets = ", ".join(f"{v:+.3g} ({a})" for a, v in approach.offset.items())
+    points = ", ".join(f"{t:g}" for t in approach.points)
+    same = ", ".join(f"{t:g}" for t in approach.same)
+    return (
+        f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
+        f"the floor, and they step with the direction the temperature came from: at the points "
+        f"that session reached from the other side ({points} °C) the bias moved by {steps} "
+        f"deg/s more than at those it reached the same way ({same} °C; offset {offsets} deg/s; "
+        f"F-test p {p_text(approach.p_value)}, what is left p = {approach.left_p_value:.2g}). "
+        "A bias that depends on the direction the temperature came from (thermal hysteresis) "
+        "is constant within each point of a session, so one session's calibration holds it in "
+        "that point's bias and no term of it can be fitted there: visiting each point from "
+        "both sides (down after up, or a point revisited from the other side) lets the "
+        "direction's term, --add-term \"expression(label='temp_direction', formula='2 * (temp "
+        "- play(temp, w)) / w', parameters={w: 1.0}, profile={w: [0.3, 20]})\", be fitted and "
+        "carried."
+    )
 
 
 def drift_sentence(base: Evaluation, drift: TimeDrift) -> str:

@@ -336,8 +336,8 @@ def _profile_interval(current: Model, free, k: int, chi2: float, s2: float, cov,
     trace (the others moved with it as their covariance says they follow: the least χ² at
     each value where the valley is quadratic), found by secant steps on the rise: a valley
     flatter or steeper than its curvature at the minimum widens or narrows the interval,
-    which a curvature alone cannot say. inf where χ² does not rise (a plateau, another
-    valley)."""
+    which a curvature alone cannot say. A side the bounds cut before χ² rises ends at the
+    bound."""
     x0 = np.array([math.log(_value(current, i, n)) for i, n, _ in free])
     lows = np.array([math.log(lo) for _, _, (lo, _) in free])
     highs = np.array([math.log(hi) for _, _, (_, hi) in free])
@@ -349,7 +349,8 @@ def _profile_interval(current: Model, free, k: int, chi2: float, s2: float, cov,
         sigma = math.sqrt(2 * s2) if len(free) else math.inf
     ends = []
     for side in (-1.0, 1.0):
-        step = sigma if np.isfinite(sigma) and sigma > 0 else 0.1
+        fallback = sigma if np.isfinite(sigma) and sigma > 0 else 0.1
+        step = fallback
         for _ in range(PROFILE_STEPS):
             x = np.clip(x0 + side * step * follow, lows, highs)
             m = current
@@ -357,7 +358,10 @@ def _profile_interval(current: Model, free, k: int, chi2: float, s2: float, cov,
                 m = _with(m, i, n, math.exp(v))
             rise = evaluate(m)[0] - chi2
             if not np.isfinite(rise) or rise <= 0:
-                step = math.inf
+                step = fallback  # not a minimum to this precision: the curvature's word
+                break
+            if x[k] != x0[k] + side * step * follow[k] and rise < s2:
+                step = abs(x[k] - x0[k])  # the bound comes first: the data do not close it
                 break
             step *= math.sqrt(s2 / rise)  # exact where the rise is quadratic in the step
         ends.append(x0[k] + side * step)
