@@ -4,18 +4,22 @@ and sessions of the independent zoo's units (benchmarks/zoo) judged as a user me
 from ..conftest import make_log  # noqa: F401
 
 
-def zoo_sessions(tmp_path, effect, seed, rate_hz=10.0, sessions=None, **unit_overrides):
+def zoo_sessions(tmp_path, effect, seed, rate_hz=10.0, sessions=None, *, with_info=False, **unit_overrides):
     """Three sessions of one zoo unit on the three-mount turntable; ``sessions`` maps a
-    session to its protocol overrides (a visit order of its own)."""
+    session to its protocol overrides (a visit order of its own). ``with_info``: with the
+    generator's truth of each session too."""
     from benchmarks.zoo.generator import make_unit, write_session
 
+    tmp_path.mkdir(parents=True, exist_ok=True)
     unit = make_unit(effect=effect, protocol="turntable3", noise="white", seed=seed, **unit_overrides)
     logs = [tmp_path / f"{effect}-s{s}.parquet" for s in range(3)]
-    for s, log in enumerate(logs):
+    infos = [
         write_session(
             unit, log, session=s, seed=1000 * seed + s, rate_hz=rate_hz, **(sessions or {}).get(s, {})
         )
-    return logs
+        for s, log in enumerate(logs)
+    ]
+    return (logs, infos) if with_info else logs
 
 
 def next_session(logs, settings, offer: dict | None) -> float:

@@ -374,3 +374,22 @@ def test_noise_terms_written_before_the_ramp_read_as_without_one():
     np.testing.assert_array_equal(ramped.floor(20.0), new.floor(20.0))
     assert np.all(ramped.avar(500.0) > new.avar(500.0))
     assert isinstance(read, NoiseTerms)
+
+
+def test_a_stretch_is_read_from_where_its_output_settled():
+    """White noise of σ = 0.01 deg/s at 10 Hz for 400 s: alone, and with a linear drift of
+    40 σ over the stretch (a ramp the noise model holds), it is read whole; after a slow
+    pole's settling (3 deg/s decaying with τ = 6 s), from a start where what is left of the
+    settling is within the noise of a sixteenth's mean (8 σ_mean ≈ 8 × 0.01 / sqrt(250))."""
+    from gyrocal.fit.floor import settled_start
+
+    rng = np.random.default_rng(5)
+    t = np.arange(0.0, 400.0, 0.1)
+    noise = 0.01 * rng.standard_normal((t.size, 3))
+    assert settled_start(noise) == 0
+    assert settled_start(noise + (0.4 * t / t[-1])[:, None]) == 0
+    settling = 3.0 * np.exp(-t / 6.0)
+    start = settled_start(noise + settling[:, None])
+    assert start > 0
+    assert settling[start] < 8 * 0.01 / np.sqrt(t.size / 16)
+    assert start <= t.size // 4

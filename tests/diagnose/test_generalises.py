@@ -1,0 +1,125 @@
+"""The diagnosis on the kinds of unit it used to fail, from the independent zoo's fourth set
+(benchmarks/zoo: written from the physics and a bug report, without reading gyrocal).
+
+A shape's place and width between the protocol's levels, a floor that a slow pole must not
+move, a calibration that fails on the other session where the temperature came from the
+other side, and the grammar's screen that proposes the candidates: each judged against the
+generator's own truth, or on a session the diagnosis never saw.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gyrocal.diagnose import diagnose
+from gyrocal.diagnose.evaluation import evaluate
+from gyrocal.diagnose.grammar import screen
+from gyrocal.diagnose.stats import floor_uncertainty
+from gyrocal.diagnose.where import fit_quality
+from gyrocal.fit.model import columns_of
+from gyrocal.pipeline.chain import segment_log
+from gyrocal.pipeline.config import Settings
+
+from .conftest import next_session, zoo_sessions
+
+NEXT_SESSION_LIMIT = 1.2  # the issue's target for a fix on the unseen session
+SIGMAS = 3.0
+
+
+@pytest.mark.slow
+def test_a_bump_between_the_levels_is_placed_from_a_grid_not_a_guess(tmp_path):
+    """A Gaussian bias bump centred between the rate levels (the zoo's rate_band_bias_wide at
+    about 146 deg/s, 38 wide at half maximum, on a protocol with 125/150/175 deg/s): the bump
+    offered is where the generator put it, its place and width within three of their reported
+    errors of the truth (a Gaussian's exp(−((|ω| − m)/w)²) has w = FWHM / (2 sqrt(ln 2))), and
+    it holds on the unseen session. Started from one guess (m = 40, w = 12.6), the place
+    stopped at a neighbouring level with an error that claimed certainty."""
+    rates = {"rates": [10, 50, 100, 125, 150, 175, 200, 400]}
+    logs, (info, *_) = zoo_sessions(
+        tmp_path, "rate_band_bias_wide", 1, sessions={s: rates for s in range(3)}, with_info=True
+    )
+    settings = Settings()
+    d = diagnose(settings, segment_log(logs[0], settings).observations).to_dict()
+    offer = d["best"]
+    assert offer is not None and offer.get("family") == "bump", d["verdict"]
+    found = {p["parameter"]: p for p in offer["profiled"]}
+    truth = info["effect_params"]["rate_band_bias_wide"]
+    width = truth["fwhm_dps"] / (2.0 * np.sqrt(np.log(2.0)))
+    assert abs(found["m"]["value"] - truth["centre_dps"]) <= SIGMAS * found["m"]["stderr"] + 0.5, found
+    assert abs(found["w"]["value"] - width) <= SIGMAS * found["w"]["stderr"] + 0.5, found
+    assert next_session(logs, settings, offer) <= NEXT_SESSION_LIMIT
+
+
+@pytest.mark.slow
+def test_a_slow_pole_does_not_move_the_floor_it_is_judged_against(tmp_path):
+    """A slow pole with a large share of the output (the zoo's slow_pole_strong: τ about 6 s,
+    each hold settling by tens of floors): the floor the diagnosis reports is the same unit's
+    without the effect, within three times the floor's own uncertainty; the pole is offered,
+    and the unseen session, visited in a shuffled rate order, falls from hundreds of floors.
+    Made of the holds' scatter and the stretches after each turn, the floor was 9 times it,
+    and the excess "too small to attribute"."""
+    settings = Settings()
+    floors = {}
+    for effect in ("none", "slow_pole_strong"):
+        logs = zoo_sessions(tmp_path / effect, effect, 1, sessions={2: {"rate_order": "shuffled"}})
+        obs = segment_log(logs[0], settings).observations
+        d = diagnose(settings, obs).to_dict()
+        floors[effect] = (d["noise_floor"], floor_uncertainty(obs))
+    ratio = floors["slow_pole_strong"][0] / floors["none"][0]
+    assert abs(ratio - 1.0) <= SIGMAS * max(u for _, u in floors.values()), floors
+    assert d["best"] is not None and d["best"]["family"] == "slow pole", d["verdict"]
+    before, after = next_session(logs, settings, None), next_session(logs, settings, d["best"])
+    assert before > 100 and after < 0.02 * before, (before, after)
+
+
+@pytest.mark.slow
+def test_points_reached_from_the_other_side_are_told_as_hysteresis(tmp_path):
+    """A bias that depends on the direction the temperature came from (the zoo's play
+    operator), in a session visiting the points out of order (5, 55, −20, 30 °C) and another
+    visiting them upward: the calibration fails on the other session only at the point
+    reached from the other side there, and the verdict says so, with the step's size, instead
+    of "the unit changed between sessions"."""
+    orders = {0: {"temp_order": [5.0, 55.0, -20.0, 30.0]}, 1: {"temp_order": [-20.0, 5.0, 30.0, 55.0]}}
+    logs, infos = zoo_sessions(tmp_path, "temp_hysteresis_play", 1, sessions=orders, with_info=True)
+    settings = Settings()
+    obs, other = (segment_log(log, settings).observations for log in logs[:2])
+    d = diagnose(settings, obs, other).to_dict()
+    approach = d["approach"]
+    assert approach is not None and approach["explains"], d["verdict"]
+    assert "direction the temperature came from" in d["verdict"]
+    assert "unit changed between sessions" not in d["verdict"]
+    # the generator's own record of each visit: the points whose side differs
+    sides = [{round(v["setpoint_c"]): v["approached_from"] for v in i["setpoint_visits"]} for i in infos[:2]]
+    differ = sorted(t for t in sides[0] if sides[0][t] != sides[1][t])
+    assert sorted(round(t) for t in approach["points"]) == differ
+    # the step is twice the hysteresis the generator drew: a point's mean error carries the
+    # first session's calibration uncertainty there, about a floor, and the step is the
+    # difference of two such means
+    h = np.abs(infos[0]["effect_params"]["temp_hysteresis_play"]["h_dps"])
+    step = np.abs([approach["shift"][a] for a in "xyz"])
+    np.testing.assert_allclose(step, 2 * h, atol=SIGMAS * np.sqrt(2.0) * d["noise_floor"])
+
+
+@pytest.mark.parametrize(
+    "effect, reads",
+    [
+        ("none", None),
+        ("rate_band_bias", "|rate|"),
+        ("cross_axis_quadratic", "other axes' rate"),
+        ("warmup", "time since power-on"),
+        ("slow_pole", "the output's slow pole"),
+    ],
+)
+def test_the_grammar_screen_puts_the_effects_input_first(effect, reads, tmp_path):
+    """The screen of every candidate the grammar makes, on one session of a zoo unit: the
+    input the generator's effect reads comes first; on a complete unit nothing passes."""
+    logs = zoo_sessions(tmp_path, effect, 1)
+    settings = Settings()
+    obs = segment_log(logs[0], settings).observations
+    base = evaluate(settings, obs, "configured model")
+    screened = screen(obs, columns_of(obs), fit_quality(base, len(obs)), settings.diagnosis.significance)
+    if reads is None:
+        assert screened == []
+    else:
+        assert screened and screened[0].input.label == reads, [s.input.label for s in screened]
