@@ -13,6 +13,7 @@ from .evaluation import Evaluation, LadderRow, add_term_option
 from .findings import (
     Approach,
     BetweenPoints,
+    Confound,
     LabTest,
     MountingTest,
     Negligible,
@@ -62,6 +63,7 @@ class Diagnosis:
     negligible: Negligible | None
     one_way: dict[float, str] | None  # point (°C) -> the one direction it was reached in
     approach: Approach | None  # the other session's errors against the direction of approach
+    confound: Confound | None  # the fix's input and another the protocol moves with it
     tolerance: float
     noise_model: bool
     unrepeated: bool
@@ -100,6 +102,7 @@ class Diagnosis:
             "between_points": _written(self.between_points),
             "negligible_excess": _written(self.negligible),
             "approach": _written(self.approach),
+            "confound": _written(self.confound),
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],

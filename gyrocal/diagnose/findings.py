@@ -194,3 +194,20 @@ class Approach(_Written):
     p_value: float
     left_p_value: float
     explains: bool
+
+
+@dataclass(frozen=True)
+class Confound(_Written):
+    """Two readings of the excess the protocol moves together (:mod:`.confounds`): what the
+    fix reads and the rival input, the rival row's share of the excess, how tightly the
+    protocol ties them (the share of holds one fixes the other for), the best candidate of
+    the rival reading that explains the data too (its term and validation RMS, deg/s; None
+    where none does) and the protocol that would tell them apart."""
+
+    reading: str
+    rival: str
+    share: float
+    tied: float
+    rival_term: str | None
+    rival_rms: float | None
+    would_tell: str

@@ -16,6 +16,7 @@ from ..pipeline.config import Settings
 from ..terms import AXES
 from .approach import direction_of_approach
 from .between import between_points, between_reason
+from .confounds import rate_order_confound
 from .diagnosis import Diagnosis
 from .effects import (
     Candidate,
@@ -648,6 +649,7 @@ def _diagnosis(
         }
     )
     approach = _approach(judge, base, base_next) if best is None else None
+    confound = rate_order_confound(obs, judge.data, best, found.candidates, where.covariates, judge.alpha)
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
         steps.append(fix_row(best, base))
@@ -685,6 +687,7 @@ def _diagnosis(
         negligible=where.negligible,
         one_way=one_way,
         approach=approach,
+        confound=confound,
         tolerance=excess.tolerance,
         noise_model="floor_x" in obs,
         unrepeated=unrepeated,

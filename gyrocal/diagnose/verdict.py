@@ -22,6 +22,8 @@ def verdict(diag: Diagnosis) -> str:
     base_next = diag.next_session if usable(diag.next_session) else None
     timed = diag.best is None and explained_by(diag.time_drift)
     text = session_verdict(diag, base_next, None if timed else diag.tolerance)
+    if diag.confound is not None:
+        text += _confound_sentence(diag.confound)
     text += _other_session(diag, base_next)
     if timed:
         assert diag.time_drift is not None
@@ -58,6 +60,22 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             "summary's drift page which parameters)."
         )
     return f" On the other session the errors are {base_next['excess']:.3g} times the floor."
+
+
+def _confound_sentence(confound) -> str:
+    """Two readings the protocol moves together, told beside the fix."""
+    rival = (
+        f" Read as {confound.rival}, {readable(confound.rival_term)} explains it too (validation "
+        f"RMS {confound.rival_rms:.3g} deg/s)."
+        if confound.rival_term
+        else ""
+    )
+    return (
+        f" The fix reads {confound.reading}; in this protocol's rate order {confound.tied:.0%} "
+        f"of the holds are entered from the same rate, so {confound.rival} groups them alike "
+        f"({confound.share:.0%} of the excess follows it) and the data cannot tell the two "
+        f"apart.{rival} {confound.would_tell[0].upper()}{confound.would_tell[1:]}."
+    )
 
 
 def _approach_sentence(base_next: CarryOver, approach) -> str:

@@ -1,0 +1,86 @@
+"""Inputs the protocol moves together, named beside the fix.
+
+In a fixed rate order each rate is entered from the same one, so an effect of this hold's
+rate (a range switch, a scale's curve) and one of the rate before it (a slow pole, heat
+left by the last turn) group the holds alike: where-it-fails puts the excess on both, and
+the data cannot say which. The fix offered reads one; the verdict says the other reading
+fits the protocol as well where a candidate of it explains the data too, and which protocol
+would tell them apart (another rate order).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from .findings import Confound
+from .where import SETTLING_ROW, history_columns
+
+TIED = 0.8  # the share of holds whose previous rate their own rate fixes, for a fixed order
+PREVIOUS_ROW = "previous hold's rate"
+OWN_RATE_ROWS = ("reference rate", "|rate|", "direction", "reference rate (own axis)", "|rate| (own axis)")
+RATE_ORDER_WOULD_TELL = (
+    "a session in another rate order (shuffled, or the rates visited in reverse) would tell "
+    "them apart: an effect of the hold's own rate keeps its value at each rate, one of the "
+    "rate before it moves with the order"
+)
+
+
+def rate_order_tie(obs: pd.DataFrame, data: dict) -> float:
+    """The share of holds whose previous rate on the same mounting is the one most often
+    before their own rate on their turning axis: 1 where the order is fixed, about the
+    inverse of the number of rates where it is shuffled."""
+    previous = history_columns(obs, data)["previous_rate"]
+    axis = obs["axis"].astype(str).to_numpy() if "axis" in obs else np.zeros(len(obs), dtype=str)
+    frame = pd.DataFrame(
+        {"axis": axis, "rate": np.round(data["ref_rate"], 3), "previous": np.round(previous, 3)}
+    )
+    counts = frame.groupby(["axis", "rate", "previous"]).size()
+    most = counts.groupby(level=["axis", "rate"]).max().sum()
+    return float(most / max(len(frame), 1))
+
+
+def _reads_history(term: str) -> bool:
+    return "lag(" in term
+
+
+def rate_order_confound(obs, data, best, candidates, covariates, alpha: float) -> Confound | None:
+    """Where the fix reads the rate (or its history) in a protocol whose rate order ties each
+    rate to the one before it (:func:`rate_order_tie` of :data:`TIED` or more) and
+    where-it-fails puts part of the excess on the other reading's rows: that reading, the
+    best candidate of it that explains the data too (if any), and what would tell. Not
+    where the fix reads the history and the output settles within its holds (beyond
+    ``alpha``/2): an effect of the hold's own rate does not."""
+    from .verdict import term_reads
+
+    if best is None or "rate" not in term_reads(best.term):
+        return None
+    history = _reads_history(best.term)
+    if history and any(r["covariate"] == SETTLING_ROW and r["p_value"] < alpha / 2 for r in covariates):
+        return None  # the output settles within its holds: only the history reading does that
+    names = OWN_RATE_ROWS if history else (PREVIOUS_ROW,)
+    rows = [r for r in covariates if set(r["covariate"].split(" = ")) & set(names)]
+    share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
+    if not share > 0:
+        return None
+    tie = rate_order_tie(obs, data)
+    if tie < TIED:
+        return None
+    rivals = [
+        c
+        for c in candidates
+        if c.status == "ranked"
+        and c.explains_excess
+        and "rate" in term_reads(c.term)
+        and _reads_history(c.term) != history
+    ]
+    rival = min(rivals, key=lambda c: c.validation_rms_with) if rivals else None
+    return Confound(
+        reading="the rate before the hold" if history else "the hold's own rate",
+        rival="the hold's own rate" if history else "the rate before the hold",
+        share=float(share),
+        tied=tie,
+        rival_term=rival.term if rival else None,
+        rival_rms=float(rival.validation_rms_with) if rival else None,
+        would_tell=RATE_ORDER_WOULD_TELL,
+    )
