@@ -14,6 +14,7 @@ from .findings import (
     Approach,
     BetweenPoints,
     Confound,
+    FloorsDiffer,
     LabTest,
     MountingTest,
     Negligible,
@@ -64,6 +65,7 @@ class Diagnosis:
     one_way: dict[float, str] | None  # point (°C) -> the one direction it was reached in
     approach: Approach | None  # the other session's errors against the direction of approach
     confound: Confound | None  # the fix's input and another the protocol moves with it
+    floors_differ: FloorsDiffer | None  # the two sessions' floors, where they differ
     tolerance: float
     noise_model: bool
     unrepeated: bool
@@ -103,6 +105,7 @@ class Diagnosis:
             "negligible_excess": _written(self.negligible),
             "approach": _written(self.approach),
             "confound": _written(self.confound),
+            "floors_differ": _written(self.floors_differ),
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],

@@ -211,3 +211,13 @@ class Confound(_Written):
     rival_term: str | None
     rival_rms: float | None
     would_tell: str
+
+
+@dataclass(frozen=True)
+class FloorsDiffer(_Written):
+    """The other session's noise floor against this one's, made the same way from each
+    session's own static data: their ratio, and how far from 1 their own uncertainties let
+    it be (three of their combined relative errors, :func:`.stats.floor_uncertainty`)."""
+
+    ratio: float
+    tolerance: float

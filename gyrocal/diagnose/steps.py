@@ -42,6 +42,7 @@ from .findings import (
     Approach,
     BetweenPoints,
     ExcessTest,
+    FloorsDiffer,
     LabTest,
     MountingTest,
     Negligible,
@@ -564,6 +565,23 @@ def _between_reason(base: Evaluation, between: BetweenPoints) -> Unexplained:
     return between_reason(between, held_out if left_out else None)
 
 
+FLOOR_SIGMAS = 3.0
+
+
+def _floors_differ(judge, base, base_next) -> FloorsDiffer | None:
+    """The two sessions' floors, each from its own static data the same way, where they
+    differ beyond their own uncertainty: a finding the verdict states (the sensor's noise
+    changed, or something shaped one session's static data), not a divisor to hide in."""
+    if not usable(base_next) or judge.other is None:
+        return None
+    ratio = float(base_next["noise_floor"]) / float(base.summary["noise_floor"])
+    spread = float(np.hypot(floor_uncertainty(judge.obs), floor_uncertainty(judge.other)))
+    if spread <= 0:
+        return None
+    tolerance = FLOOR_SIGMAS * spread
+    return FloorsDiffer(ratio, tolerance) if abs(np.log(ratio)) > np.log1p(tolerance) else None
+
+
 def _approach(judge, base, base_next) -> Approach | None:
     """Where the configured model's calibration does not carry over to the other session:
     whether its errors there step with the direction each point was reached from
@@ -649,6 +667,7 @@ def _diagnosis(
         }
     )
     approach = _approach(judge, base, base_next) if best is None else None
+    floors = _floors_differ(judge, base, base_next)
     confound = rate_order_confound(obs, judge.data, best, found.candidates, where.covariates, judge.alpha)
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
@@ -688,6 +707,7 @@ def _diagnosis(
         one_way=one_way,
         approach=approach,
         confound=confound,
+        floors_differ=floors,
         tolerance=excess.tolerance,
         noise_model="floor_x" in obs,
         unrepeated=unrepeated,

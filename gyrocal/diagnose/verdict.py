@@ -25,6 +25,14 @@ def verdict(diag: Diagnosis) -> str:
     if diag.confound is not None:
         text += _confound_sentence(diag.confound)
     text += _other_session(diag, base_next)
+    if diag.floors_differ is not None:
+        f = diag.floors_differ
+        text += (
+            f" The other session's noise floor, from its own static data, is {f.ratio:.2f} times "
+            f"this one's, beyond their own uncertainty (±{f.tolerance:.0%}): the sensor's noise "
+            "changed between sessions, or one session's static data hold something the other's "
+            "do not; each session is judged against its own."
+        )
     if timed:
         assert diag.time_drift is not None
         text += " " + drift_sentence(diag.base, diag.time_drift)

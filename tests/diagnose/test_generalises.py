@@ -182,3 +182,25 @@ def test_a_bias_new_in_the_other_session_is_a_change_between_sessions(tmp_path):
     assert d["best"] is None and not d["partial"], d["verdict"]
     assert "the unit changed between sessions" in d["verdict"]
     assert d["approach"] is None or not d["approach"]["explains"]
+
+
+@pytest.mark.slow
+def test_two_sessions_floors_that_differ_are_a_finding(tmp_path):
+    """The same complete unit, its other session with twice the white noise (the zoo's
+    arw override): each session's floor is made from its own static data the same way, and
+    the verdict says the other's is about twice this one's, beyond their uncertainty."""
+    from benchmarks.zoo.generator import make_unit, write_session
+
+    quiet = make_unit(effect="none", protocol="turntable3", noise="white", seed=1)
+    arw = 2.0 * np.asarray(quiet.params["noise"]["arw_dps_rthz"])
+    noisy = make_unit(effect="none", protocol="turntable3", noise="white", seed=1, arw_dps_rthz=list(arw))
+    logs = [tmp_path / "s0.parquet", tmp_path / "s1.parquet"]
+    write_session(quiet, logs[0], session=0, seed=1000, rate_hz=10.0)
+    write_session(noisy, logs[1], session=1, seed=1001, rate_hz=10.0)
+    settings = Settings()
+    obs, other = (segment_log(log, settings).observations for log in logs)
+    d = diagnose(settings, obs, other).to_dict()
+    found = d["floors_differ"]
+    assert found is not None, d["verdict"]
+    assert abs(found["ratio"] - 2.0) <= found["tolerance"] * 2.0
+    assert "noise floor, from its own static data" in d["verdict"]
