@@ -106,25 +106,29 @@ def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model"
         [t.spec_string() for t in fitted.model.terms],
         settings.model.kind,
         fitted,
-        noise_only(summary, chi2 / max(dof, 1)),
+        summary,
         chi2,
         dof,
     )
 
 
-def noise_only(summary: dict[str, Any], chi2_red: float) -> dict[str, Any]:
-    """The summary with what a correct model would leave (``expected_rms``) made of the noise
-    alone: the floor, and the calibration's uncertainty as the noise makes it. A fit's
-    covariance is scaled by its χ²/dof, so a missing effect inflates the uncertainty it
-    carries to every held-out hold, and a bar made of it rises with the very excess it
-    judges (a slow pole's misfit put it 80 times above the floor). The held-out part
-    ``expected² − floor²`` is the calibration's; divided by χ²/dof where that exceeds 1."""
+def noise_only(ev: Evaluation) -> Evaluation:
+    """The configured model's evaluation with what a correct model would leave
+    (``expected_rms``) made of the noise alone: the floor, and the calibration's uncertainty
+    as the noise makes it. A fit's covariance is scaled by its χ²/dof, so a missing effect
+    inflates the uncertainty it carries to every held-out hold, and the bar the excess is
+    judged against rose with the very excess (a slow pole's misfit put it 80 times above the
+    floor). The held-out part ``expected² − floor²`` is the calibration's; divided by χ²/dof
+    where that exceeds 1. A candidate keeps its own bar: one that leaves a little misfit is
+    judged by the tolerance on it, as before."""
+    summary, chi2_red = ev.summary, ev.chi2 / max(ev.dof, 1)
     expected, floor = summary.get("expected_rms"), summary.get("noise_floor")
     if summary.get("held_out") == "none" or expected is None or not floor or chi2_red <= 1.0:
-        return summary
+        return ev
     calibration = max(expected**2 - floor**2, 0.0)
     bar = math.sqrt(floor**2 + calibration / chi2_red)
-    return {**summary, "expected_rms": bar, "excess_over_expected": summary["validation_rms"] / bar}
+    figures = {**summary, "expected_rms": bar, "excess_over_expected": summary["validation_rms"] / bar}
+    return replace(ev, summary=figures)
 
 
 def extended(settings: Settings, spec, kind: str | None = None) -> Settings:

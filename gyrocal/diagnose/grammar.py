@@ -317,7 +317,10 @@ def screen(obs, data, quality, alpha: float, exclude=()) -> list[Screened]:
     configured model (``quality``, :func:`.where.fit_quality`); those that take away more
     than chance would (χ² beyond its 1 − ``alpha`` quantile) from the points they did not see,
     the best of each input first, at most :data:`KEEP`. ``exclude``: formulas already tried."""
-    rows = quality.fitted_rows
+    finite = np.all(np.isfinite(quality.z), axis=1) & np.all(
+        np.isfinite(quality.floor) & (quality.floor > 0), axis=1
+    )
+    rows = quality.fitted_rows & finite
     if "point" not in data or rows.sum() < 8:
         return []
     sub = {
@@ -368,11 +371,16 @@ def _screened(spec: str, data, project, groups, z, weights, n: int) -> tuple[flo
     total, k, judged = 0.0, 0, True
     for i, axis in enumerate(AXES):
         mine = [v for name, v in columns.items() if axis_of(name) == axis]
-        if not mine:
+        if not mine or not all(np.all(np.isfinite(v)) for v in mine):
             continue
         c = project(np.column_stack(mine) * weights[:, i : i + 1], i)
-        if not np.all(np.isfinite(c)) or not np.any(np.abs(c) > 0):
+        # unit columns (the gain does not depend on their scale): one a decay has taken to
+        # denormal numbers would make the fit's coefficient overflow
+        norms = np.linalg.norm(c, axis=0)
+        usable = np.isfinite(norms) & (norms > 1e-100)
+        if not usable.any():
             continue
+        c = c[:, usable] / norms[usable]
         gain, out_of_sample = _gain(c, z[:, i], groups)
         judged &= out_of_sample
         total += gain

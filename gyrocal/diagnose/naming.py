@@ -260,11 +260,17 @@ def _grammar(judge: Judge, quality, shapes: dict) -> list:
     return [s for s in judge.screened if formula_of(s.shape.spec) not in tried]
 
 
+def _beyond_uncertainty(base: Evaluation, c: Candidate, bound: float) -> bool:
+    """A held-out gain larger than the validation figure's own uncertainty (``bound``)."""
+    v0 = base.summary["validation_rms"]
+    return bool(c.validated and v0 - c.validation_rms_with > v0 * (1.0 - 1.0 / bound))
+
+
 def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound, library) -> list:
     """(candidate, shape) for each term of free shape, or pair of them, that takes away a
     practical part of the excess and explains it."""
     settings = judge.settings
-    good, gaining = [], []
+    good, gaining, starts = [], [], []
     for c in tried:
         shape = shapes.get(c.part_of or c.term)
         if c.status != "ranked" or shape is None:
@@ -276,10 +282,14 @@ def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound
             gaining.append(c)
             if c.explains_excess:
                 good.append((c, shape))
+        if c.significant and _beyond_uncertainty(base, c, bound):
+            starts.append(c)
     if good or not gaining:
         return good
-    # Two shapes at once (a fast and a slow warm-up): the most useful, then each other.
-    gaining.sort(key=lambda c: c.validation_rms_with)
+    # Two shapes at once (a fast and a slow warm-up): the most useful, then each other. A
+    # pair's first need not take a quarter of the excess alone (the practical gain a name
+    # asks for): only more than the held-out figure's own uncertainty.
+    gaining = sorted(starts or gaining, key=lambda c: c.validation_rms_with)
     ranked = [c for c in tried if c.status == "ranked" and c.term in shapes]
     for first in gaining[:2]:
         # An empirical term already spans every shape of its input: it pairs only with

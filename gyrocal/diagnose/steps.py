@@ -37,6 +37,7 @@ from .evaluation import (
     extended,
     fix_row,
     ladder,
+    noise_only,
 )
 from .findings import (
     Approach,
@@ -92,6 +93,7 @@ def diagnose(
     alpha = settings.diagnosis.significance
     if base is None:
         base = evaluate(settings, obs, "configured model")
+    base = noise_only(base)
     data = columns_of(obs)
     excess = excess_test(obs, base, alpha)
     judge = Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))

@@ -37,14 +37,21 @@ class Turntable(Protocol):
         return segment(log, _config(settings))
 
     def static(self, log: RigLog, seg: Segmentation, max_temp_rate: float) -> tuple[np.ndarray, np.ndarray]:
-        """The soaks and rate-0 holds segmentation found (handling motion already rejected),
-        inside its stable-temperature periods."""
+        """The soaks and the rate-0 holds segmentation kept (handling motion already
+        rejected) whose output does not settle within them, inside its stable-temperature
+        periods: a hold right after a step of the table's rate, whose output still follows
+        that step (a slow pole), is shaped by the effect and would make the floor of it."""
+        import numpy as np
+
         from ...fit.floor import MERGE_GAP_S, intersect_intervals, merge_intervals
 
         s = seg.segments
-        pick = (s["kind"] == "soak") | ((s["kind"] == "hold") & (s["ref_rate"] == 0))
+        soaks = s[s["kind"] == "soak"]
+        still = _settled_rate_zero_holds(seg.observations)
         t0, t1 = merge_intervals(
-            s.loc[pick, "t_start"].to_numpy(float), s.loc[pick, "t_end"].to_numpy(float), MERGE_GAP_S
+            np.r_[soaks["t_start"].to_numpy(float), still["t_start"].to_numpy(float)],
+            np.r_[soaks["t_end"].to_numpy(float), still["t_end"].to_numpy(float)],
+            MERGE_GAP_S,
         )
         st = seg.stable_periods
         return intersect_intervals(t0, t1, st["t_start"].to_numpy(float), st["t_end"].to_numpy(float))
@@ -55,6 +62,25 @@ class Turntable(Protocol):
     def segmentation_settings(self, values: Mapping[str, Any] | None) -> SegmentConfig:
         # None: the schema's defaults, without loading the validator
         return SegmentConfig() if values is None else SegmentConfig.from_dict(values)
+
+
+SETTLED_SIGMAS = 5.0  # a rate-0 hold's halves this many of their own σ apart: settling
+
+
+def _settled_rate_zero_holds(obs):
+    """The rate-0 holds whose output's change from the first half to the second
+    (``settle_*``) is within :data:`SETTLED_SIGMAS` of the halves' own noise on every axis."""
+    import numpy as np
+
+    if obs is None or obs.empty or "settle_x" not in obs:
+        return obs.iloc[:0] if obs is not None else obs
+    zero = obs[obs["ref_rate"] == 0]
+    noise = np.sqrt(4.0 / zero["n"].to_numpy(float))
+    settled = np.ones(len(zero), dtype=bool)
+    for a in ("x", "y", "z"):
+        change = np.abs(zero[f"settle_{a}"].to_numpy(float))
+        settled &= ~(change > SETTLED_SIGMAS * zero[f"std_{a}"].to_numpy(float) * noise)
+    return zero[settled]
 
 
 TURNTABLE = register(Turntable())
