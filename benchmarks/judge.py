@@ -17,7 +17,9 @@ offered is calibrated on session 0 and judged on session 2. The result:
   ``time``, ``mount``;
 - ``acts_on``: ``bias``, ``scale`` or ``cross-axis`` (None without a fix);
 - ``reason``: for ``no_sensor_term``: ``mounting``, ``lab``, ``unit changed``,
-  ``between points``, ``slow noise``, ``too small`` or ``unexplained``;
+  ``between points``, ``slow noise``, ``too small``, ``direction of approach`` (the other
+  session fails only where the temperature came from the other side: ``reads`` is then
+  ``thermal``) or ``unexplained``;
 - ``next_before_rms``, ``next_after_rms``: the hold-mean RMS error (deg/s) on session 2 of
   the default calibration of session 0, and of the calibration with the fix;
 - ``peer_next_after_rms``: the same for the sparse-regression peer (``peer_sparse.py``),
@@ -80,6 +82,19 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
         reads = sorted(set().union(*(_coarse(t) for t in terms)))
         return {"verdict": "fix", "reads": reads, "acts_on": _acts_on(offer["term"]), "reason": None}
     why = d.get("unexplained") or {}
+    approach = d.get("approach") or {}
+    if approach.get("explains"):
+        # the other session fails where the temperature came from the other side: a
+        # hysteresis no term of one session can carry
+        return {
+            "verdict": "no_sensor_term",
+            "reads": ["thermal"],
+            "acts_on": None,
+            "reason": "direction of approach",
+        }
+    nxt = d.get("next_session") or {}
+    if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("holds") is False:
+        return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "unit changed"}
     if d["explains_the_data"] and not why:
         noise = d.get("within_noise_uncertainty") or {}
         if not with_other and noise.get("explains") and d["excess"] > 0:
