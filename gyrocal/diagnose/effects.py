@@ -22,6 +22,7 @@ from .evaluation import (
     extended,
     identifiable_part,
     in_sample_summary,
+    noise_only,
     reason,
 )
 from .findings import TimeDrift
@@ -205,7 +206,10 @@ class Judge:
             # primary fix though what it leaves follows time within the points (a package
             # still settling, slow noise): that is a second question, which another session
             # answers (the verdict says so), not a reason to withhold the fix.
-            held_out = validated and ext.summary["validation_rms"] <= ext.summary["expected_rms"] * tolerance
+            # against the noise alone: a misfit that raises its own bar (the fit's covariance
+            # scaled by its χ²/dof) is no fix that reaches the floor
+            bar = noise_only(ext).summary["expected_rms"]
+            held_out = validated and ext.summary["validation_rms"] <= bar * tolerance
             second = held_out and left["covariate"] in TIME_LIKE
             candidate.second_question = bool(structure and second and not exempt)
             return validated and in_chance and (not structure or exempt or second)

@@ -284,7 +284,7 @@ def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound
                 good.append((c, shape))
         if c.significant and _beyond_uncertainty(base, c, bound):
             starts.append(c)
-    if good or not gaining:
+    if good or not (gaining or starts):
         return good
     # Two shapes at once (a fast and a slow warm-up): the most useful, then each other. A
     # pair's first need not take a quarter of the excess alone (the practical gain a name
