@@ -50,14 +50,6 @@ REASONS = {
 }
 
 
-def _coarse(term: str) -> set[str]:
-    """The coarse kinds of input of one term: gyrocal's own (time, temperature, thermal,
-    rate, accel); no sensor term reads the mount itself."""
-    from gyrocal.diagnose.verdict import term_reads
-
-    return term_reads(term)
-
-
 def _acts_on(term: str) -> str:
     """Where a term acts: on the other axes' outputs, on the scale (its own rate times a
     function), or on the bias."""
@@ -79,7 +71,9 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
     offer = d["best"] or (partial[0] if partial and partial[0].get("offered") else None)
     if offer:
         terms = [offer["term"], *offer.get("together", [])]
-        reads = sorted(set().union(*(_coarse(t) for t in terms)))
+        from gyrocal.diagnose.verdict import term_reads  # gyrocal's kinds are the coarse words
+
+        reads = sorted(set().union(*(term_reads(t) for t in terms)))
         return {"verdict": "fix", "reads": reads, "acts_on": _acts_on(offer["term"]), "reason": None}
     why = d.get("unexplained") or {}
     approach = d.get("approach") or {}

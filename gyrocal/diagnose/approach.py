@@ -21,7 +21,7 @@ from ..terms import AXES
 from .findings import Approach
 from .sessions import POINT_MATCH
 from .stats import chi2_sf, f_sf
-from .where import history_columns, one_way_points
+from .where import one_way_points
 
 
 def _point_means(other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -44,14 +44,20 @@ def _point_means(other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray) -> 
 
 
 def direction_of_approach(
-    obs: pd.DataFrame, other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray, alpha: float
+    obs: pd.DataFrame,
+    other: pd.DataFrame,
+    errors: np.ndarray,
+    floor: np.ndarray,
+    alpha: float,
+    here: dict[float, str] | None,
 ) -> Approach | None:
     """The finding where the configured model's errors on ``other`` (``errors``, ``floor``:
     per hold, :func:`gyrocal.fleet.drift.hold_errors`) step with the direction each point
     was reached from, which differs between the sessions at some points and not at others;
     None where the sessions cannot show it (a point reached both ways within a session, no
-    point whose direction differs, or none whose direction is the same)."""
-    ways = [one_way_points(o, columns_of(o), history_columns(o, columns_of(o))) for o in (obs, other)]
+    point whose direction differs, or none whose direction is the same). ``here``: this
+    session's :func:`.where.one_way_points`."""
+    ways = [here, one_way_points(other, columns_of(other))]
     if ways[0] is None or ways[1] is None or "point" not in other:
         return None
     temps, means, errs = _point_means(other, errors, floor)

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 
 from .findings import Confound
-from .where import SETTLING_ROW, history_columns
+from .where import SETTLING_ROW
 
 TIED = 0.8  # the share of holds whose previous rate their own rate fixes, for a fixed order
 PREVIOUS_ROW = "previous hold's rate"
@@ -26,11 +26,11 @@ RATE_ORDER_WOULD_TELL = (
 )
 
 
-def rate_order_tie(obs: pd.DataFrame, data: dict) -> float:
-    """The share of holds whose previous rate on the same mounting is the one most often
-    before their own rate on their turning axis: 1 where the order is fixed, about the
-    inverse of the number of rates where it is shuffled."""
-    previous = history_columns(obs, data)["previous_rate"]
+def rate_order_tie(obs: pd.DataFrame, data: dict, previous: np.ndarray) -> float:
+    """The share of holds whose previous rate on the same mounting (``previous``,
+    :func:`.where.history_columns`) is the one most often before their own rate on their
+    turning axis: 1 where the order is fixed, about the inverse of the number of rates where
+    it is shuffled."""
     axis = obs["axis"].astype(str).to_numpy() if "axis" in obs else np.zeros(len(obs), dtype=str)
     frame = pd.DataFrame(
         {"axis": axis, "rate": np.round(data["ref_rate"], 3), "previous": np.round(previous, 3)}
@@ -44,7 +44,7 @@ def _reads_history(term: str) -> bool:
     return "lag(" in term
 
 
-def rate_order_confound(obs, data, best, candidates, covariates, alpha: float) -> Confound | None:
+def rate_order_confound(obs, data, best, candidates, covariates, alpha: float, previous) -> Confound | None:
     """Where the fix reads the rate (or its history) in a protocol whose rate order ties each
     rate to the one before it (:func:`rate_order_tie` of :data:`TIED` or more) and
     where-it-fails puts part of the excess on the other reading's rows: that reading, the
@@ -63,7 +63,7 @@ def rate_order_confound(obs, data, best, candidates, covariates, alpha: float) -
     share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
     if not share > 0:
         return None
-    tie = rate_order_tie(obs, data)
+    tie = rate_order_tie(obs, data, previous)
     if tie < TIED:
         return None
     rivals = [

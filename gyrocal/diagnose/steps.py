@@ -584,7 +584,7 @@ def _floors_differ(judge, base, base_next) -> FloorsDiffer | None:
     return FloorsDiffer(ratio, tolerance) if abs(np.log(ratio)) > np.log1p(tolerance) else None
 
 
-def _approach(judge, base, base_next) -> Approach | None:
+def _approach(judge, base, base_next, here: dict | None) -> Approach | None:
     """Where the configured model's calibration does not carry over to the other session:
     whether its errors there step with the direction each point was reached from
     (:func:`.approach.direction_of_approach`)."""
@@ -598,7 +598,7 @@ def _approach(judge, base, base_next) -> Approach | None:
         errors, floor = hold_errors(cal, judge.other)
     except GyrocalError:
         return None
-    return direction_of_approach(judge.obs, judge.other, errors, floor, judge.alpha)
+    return direction_of_approach(judge.obs, judge.other, errors, floor, judge.alpha, here)
 
 
 def _one_way(obs, data, before, other) -> tuple[dict | None, bool]:
@@ -668,9 +668,15 @@ def _diagnosis(
             for i, a in enumerate(AXES)
         }
     )
-    approach = _approach(judge, base, base_next) if best is None else None
+    approach = (
+        _approach(judge, base, base_next, one_way_points(obs, judge.data, before_holds))
+        if best is None
+        else None
+    )
     floors = _floors_differ(judge, base, base_next)
-    confound = rate_order_confound(obs, judge.data, best, found.candidates, where.covariates, judge.alpha)
+    confound = rate_order_confound(
+        obs, judge.data, best, found.candidates, where.covariates, judge.alpha, before_holds["previous_rate"]
+    )
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
         steps.append(fix_row(best, base))
