@@ -23,7 +23,8 @@ magnitude band.
 Effect families (each is added on top of the standard per-temperature model
 ``w = K(T) w_true + B(T)``, which cannot represent it).  ``carried`` says whether a term of
 the sensor could compensate it in the field; ``reads`` are the coarse input kinds a right
-fix may read; ``reasons`` the no-sensor-term reasons that are right.
+fix may read; ``reasons`` the no-sensor-term reasons that are right (any other reason of the
+judge's vocabulary, listed in run.py, is a wrong story for that family).
 
   F01 scale asymmetry        carried; output_i += a_i |w_i|  (different scale for forward
                              and reverse rotation, a classic MEMS sense-loop asymmetry)
@@ -44,6 +45,8 @@ fix may read; ``reasons`` the no-sensor-term reasons that are right.
   F06 thermal hysteresis     carried; output_i += h_i p(t), p a play (backlash) operator on
                              die temperature of half-width 2 degC: +1 after heating, -1 after
                              cooling (package stress relaxation with friction)  reads {thermal}
+                             reason {direction of approach} (a right story; being carried,
+                             only a fix makes it a success)
   F07 electronic warm-up     carried; output_i += A_i exp(-t_on / tau), t_on the time since
                              power-on, tau 500-900 s (drive-loop / charge settling, not
                              thermal)                                          reads {time}
@@ -127,7 +130,8 @@ FAMILIES = {
     "F03": dict(carried=True, reads={"rate"}, reasons=set(), variants=("B", "A", "C")),
     "F04": dict(carried=True, reads={"accel", "mount"}, reasons=set(), variants=("A", "B")),
     "F05": dict(carried=True, reads={"thermal"}, reasons=set(), variants=("C", "A", "B")),
-    "F06": dict(carried=True, reads={"thermal"}, reasons=set(), variants=("B", "C", "A")),
+    "F06": dict(carried=True, reads={"thermal"}, reasons={"direction of approach"},
+                variants=("B", "C", "A")),
     "F07": dict(carried=True, reads={"time"}, reasons=set(), variants=("A", "C", "B")),
     "F08": dict(carried=False, reads=set(), reasons={"mounting"}, variants=("B", "A", "C")),
     "F09": dict(carried=False, reads=set(), reasons={"lab"}, variants=("A", "B", "C")),

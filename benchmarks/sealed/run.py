@@ -25,6 +25,12 @@ MAIN = "/work/main"
 JUDGE_DIR = os.path.join(MAIN, "benchmarks")
 MODES = (("two-session", False), ("one-log", True))
 
+# The judge's vocabulary of no_sensor_term reasons (judge.py's interface docstring). A reason is
+# a right story for a unit exactly when the generator's truth for its family lists it
+# (generator.FAMILIES "reasons"); any other reason, in this list or not, is a wrong story.
+REASONS = ("mounting", "lab", "unit changed", "between points", "slow noise", "too small",
+           "direction of approach", "unexplained")
+
 
 # ---------------------------------------------------------------------------- workers
 def _silence():
@@ -57,6 +63,13 @@ def _judge(args):
 
 
 # ---------------------------------------------------------------------------- scoring
+def check_vocabulary():
+    """Every right reason in the generator's truth must be a word the judge can say."""
+    unknown = sorted({r for F in gen.FAMILIES.values() for r in F["reasons"]} - set(REASONS))
+    if unknown:
+        raise SystemExit(f"generator truth names reasons outside the judge's vocabulary: {unknown}")
+
+
 def _num(x):
     try:
         x = float(x)
@@ -83,7 +96,7 @@ def score(truth, r):
     reads = set(r.get("reads") or [])
     reason = r.get("reason")
     out["fixed"] = v == "fix" and after is not None and after <= thr
-    said_why = v == "no_sensor_term" and reason in truth["reasons"]
+    said_why = v == "no_sensor_term" and reason in REASONS and reason in truth["reasons"]
     if v == "fix":
         out["right"] = bool(reads & truth["reads"])
         out["wrong"] = not out["right"]
@@ -120,6 +133,7 @@ def main(argv=None):
     ap.add_argument("--keep", default=None, help="write the logs here and keep them")
     ap.add_argument("--judge-dir", default=JUDGE_DIR, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    check_vocabulary()
 
     specs = gen.plan(args.units_per_family, args.seed, quick=args.quick)
     if args.max_units:
