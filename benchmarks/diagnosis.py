@@ -249,6 +249,9 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     named = best.split("(")[0] if best else None
     row["family"] = (offer or {}).get("family")
     row["unexplained"] = d.get("unexplained")
+    from judge import _answer  # the coarse words an outside generator scores
+
+    row["answer"] = _answer(d, with_other)
     if expected == "none":
         # A finding without a term (fixed in the lab, between temperature points) is an
         # alarm too on a unit with nothing missing.
@@ -447,11 +450,53 @@ def main(argv=None) -> int:
         f"offered and the unseen session within 1.2x without it {len(unseen)}; none of these "
         f"{len(outside) - held - why - len(unseen)}"
     )
+    print(done_when(rows))
     if args.out:
         Path(args.out).write_text(json.dumps(rows, indent=1, default=str))
     print()
     print(markdown_table(rows))
     return 0
+
+
+# The reasons a verdict without a term may rightly give, by the zoo's truth (the judge's words).
+RIGHT_REASON = {
+    "mount_bias_shift": {"mounting"},
+    "table_angle_bias": {"lab"},
+    "run_to_run_bias": {"unit changed"},
+    "session_bias_step": {"unit changed"},
+    "temp_hysteresis_play": {"direction of approach"},
+    "misalign_warp_tanh": {"between points"},
+}
+
+
+def answered(row, complete_next) -> bool:
+    """Issue 52's bar for one unit: a complete unit left quiet; otherwise the unseen session
+    within 1.2 times the floor (with the fix offered, or without one where none is needed)
+    and no story named wrong, or no fix and a reason no sensor term can carry it that is
+    the right one. Coloured noise is judged against the complete unit's own figure."""
+    if row.get("outcome") in ("error", "named wrong") or "answer" not in row:
+        return False
+    if row["expected"] == "none":
+        return row["outcome"] == "quiet"
+    after = row.get("next_after")
+    ref = complete_next.get((row["protocol"], row["noise"], row["unit"])) if row["noise"] != "white" else None
+    if isinstance(after, float) and after / (ref if isinstance(ref, float) else 1.0) <= 1.2:
+        return True
+    answer = row["answer"]
+    return answer["verdict"] == "no_sensor_term" and answer["reason"] in RIGHT_REASON.get(row["effect"], ())
+
+
+def done_when(rows) -> str:
+    complete_next = {
+        (r["protocol"], r["noise"], r["unit"]): r.get("next_before") for r in rows if r["effect"] == "none"
+    }
+    ok = [answered(r, complete_next) for r in rows]
+    missed = sorted({f"{r['effect']} {r['protocol']}" for r, a in zip(rows, ok, strict=True) if not a})
+    return (
+        f"answered (issue 52's bar: within 1.2x on the unseen session, or the right reason no "
+        f"term can carry it; complete units quiet): {sum(ok)} of {len(rows)} "
+        f"({100 * sum(ok) / max(len(rows), 1):.0f} %)" + "".join(f"\n  not: {m}" for m in missed)
+    )
 
 
 def markdown_table(rows) -> str:
