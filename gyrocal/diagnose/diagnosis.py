@@ -22,6 +22,7 @@ from .findings import (
     Unexplained,
     WithinNoise,
 )
+from .grain import Grain
 from .reading import readable
 from .sessions import CarryOver
 from .verdict import verdict
@@ -66,6 +67,7 @@ class Diagnosis:
     approach: Approach | None  # the other session's errors against the direction of approach
     confound: Confound | None  # the fix's input and another the protocol moves with it
     floors_differ: FloorsDiffer | None  # the two sessions' floors, where they differ
+    grain: tuple[Grain, ...]  # the fix with each rate level, each mount left out in turn
     tolerance: float
     noise_model: bool
     unrepeated: bool
@@ -106,6 +108,7 @@ class Diagnosis:
             "approach": _written(self.approach),
             "confound": _written(self.confound),
             "floors_differ": _written(self.floors_differ),
+            "grain": [g.to_dict() for g in self.grain],
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],

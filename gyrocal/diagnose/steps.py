@@ -53,6 +53,7 @@ from .findings import (
     WithinNoise,
     explained_by,
 )
+from .grain import grains
 from .lab import LAB_ADVICE, MOUNTING_ADVICE, lab_fixed, lab_reason, mounting_fixed, mounting_reason
 from .naming import (
     continuous_instead,
@@ -677,6 +678,7 @@ def _diagnosis(
     confound = rate_order_confound(
         obs, judge.data, best, found.candidates, where.covariates, judge.alpha, before_holds["previous_rate"]
     )
+    grain = grains(settings, extended_all(settings, best), obs) if best is not None else ()
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
         steps.append(fix_row(best, base))
@@ -716,6 +718,7 @@ def _diagnosis(
         approach=approach,
         confound=confound,
         floors_differ=floors,
+        grain=grain,
         tolerance=excess.tolerance,
         noise_model="floor_x" in obs,
         unrepeated=unrepeated,

@@ -6,6 +6,7 @@ from typing import TYPE_CHECKING
 
 from ..terms import make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
+from .grain import grain_sentence
 from .reading import readable
 from .sessions import CarryOver, usable
 from .stats import p_text
@@ -24,6 +25,7 @@ def verdict(diag: Diagnosis) -> str:
     text = session_verdict(diag, base_next, None if timed else diag.tolerance)
     if diag.confound is not None:
         text += _confound_sentence(diag.confound)
+    text += "".join(grain_sentence(g) for g in diag.grain)
     text += _other_session(diag, base_next)
     if diag.floors_differ is not None:
         f = diag.floors_differ

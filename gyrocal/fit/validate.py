@@ -396,6 +396,20 @@ def _leave_hold_out(model: Model, fitted, data: Mapping[str, np.ndarray], *, eve
     return plan, clamped
 
 
+def held_out_errors(fitted, columns: Mapping[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The errors (n, 3) of holds (``columns``: :func:`.model.columns_of`) that ``fitted``
+    never saw, compensated by its model (nonlinear settings at their fitted values) at their
+    temperatures, clamped to the fit's range as the validation clamps, and their floors."""
+    model = fitted.model
+    data = model.transform_inputs(columns)
+    lo, hi = fitted.coefficients.span
+    temp = np.clip(data["temp"], lo, hi)
+    plan = _Plan(model, fitted.names, fitted.coefficients_at(temp), fitted.covariance_at(temp), temp)
+    stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
+    errors, _, _ = _compensate(plan, stack("gyro"), stack("rate"), stack("std"), data)
+    return errors, observation_floor(data)
+
+
 class CannotLeaveOut(GyrocalError):
     """A temperature point cannot be left out: what remains does not determine the model."""
 

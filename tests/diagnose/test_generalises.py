@@ -175,7 +175,8 @@ def test_a_fixed_rate_order_is_named_and_another_order_tells(effect, tmp_path):
 def test_a_temperature_dependent_g_sensitivity_is_the_orientations_not_the_mountings(tmp_path):
     """The zoo's g_sensitivity_temp on six mounts with the accelerometer logged (a bias of
     the orientation of gravity whose coefficients change with temperature): a term of the
-    specific force is named, not offsets per mounting, and it holds on the unseen session."""
+    specific force is named, not offsets per mounting, and it holds on the unseen session and
+    on each mount left out of its fit, which offsets of the fixture would not."""
     from benchmarks.zoo.generator import make_unit, write_session
 
     unit = make_unit(effect="g_sensitivity_temp", protocol="turntable6", noise="white", seed=1)
@@ -190,6 +191,9 @@ def test_a_temperature_dependent_g_sensitivity_is_the_orientations_not_the_mount
     assert d["best"] is not None and "accel" in term_reads(d["best"]["term"]), d["verdict"]
     assert d["mounting"] is None or not d["mounting"]["explains"], d["verdict"]
     assert next_session(logs, settings, d["best"]) <= NEXT_SESSION_LIMIT
+    by_mount = {g["by"]: g for g in d["grain"]}["mount"]
+    assert by_mount["groups"] == 6 and by_mount["carries"], d["grain"]
+    assert by_mount["fix"] <= NEXT_SESSION_LIMIT < by_mount["base"], d["grain"]
 
 
 @pytest.mark.slow
@@ -226,3 +230,24 @@ def test_two_sessions_floors_that_differ_are_a_finding(tmp_path):
     assert found is not None, d["verdict"]
     assert abs(found["ratio"] - 2.0) <= found["tolerance"] * 2.0
     assert "noise floor, from its own static data" in d["verdict"]
+
+
+@pytest.mark.slow
+def test_a_fix_is_judged_leaving_each_rate_level_out(tmp_path):
+    """At the grain of the rate: a quadratic cross-axis bias (a shape of the rate) carries to
+    each interior rate level left out of its fit, near the floor; a range switch's table of
+    the levels cannot be fitted without its level, and the verdict says so. Three mounts
+    leave no mount out (each excites an axis no other does)."""
+    settings = Settings()
+    for effect, carries in (("cross_axis_quadratic", True), ("scale_range_switch", None)):
+        logs = zoo_sessions(tmp_path / effect, effect, 1)
+        d = diagnose(settings, segment_log(logs[0], settings).observations).to_dict()
+        assert d["best"] is not None, d["verdict"]
+        grain = {g["by"]: g for g in d["grain"]}
+        assert set(grain) == {"rate level"}, d["grain"]  # three mounts: none can be left out
+        level = grain["rate level"]
+        if carries:
+            assert level["carries"] and level["fix"] <= NEXT_SESSION_LIMIT < level["base"], level
+        else:  # a table over the levels: nothing to say of a level it never saw
+            assert d["best"]["term"].startswith("levels("), d["best"]["term"]
+            assert level["fix"] is None and "cannot be fitted" in d["verdict"], level
