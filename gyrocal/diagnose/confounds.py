@@ -3,9 +3,11 @@
 In a fixed rate order each rate is entered from the same one, so an effect of this hold's
 rate (a range switch, a scale's curve) and one of the rate before it (a slow pole, heat
 left by the last turn) group the holds alike: where-it-fails puts the excess on both, and
-the data cannot say which. The fix offered reads one; the verdict says the other reading
-fits the protocol as well where a candidate of it explains the data too, and which protocol
-would tell them apart (another rate order).
+the data cannot say which. Where the temperature points are visited in the order of their
+temperature, time since power-on and the temperature rise together in the same way. The
+fix offered reads one; the verdict says the other reading fits the protocol as well where a
+candidate of it explains the data too, and which protocol would tell them apart (another
+rate order, another order of the temperature points).
 """
 
 from __future__ import annotations
@@ -17,12 +19,22 @@ from .findings import Confound
 from .where import SETTLING_ROW
 
 TIED = 0.8  # the share of holds whose previous rate their own rate fixes, for a fixed order
+TIED_IN_TIME = 0.9  # |rank correlation| of the holds' start times and temperatures
+TEMPERATURE_ROWS = ("temperature",)
+TIME_ROWS = ("time",)
 PREVIOUS_ROW = "previous hold's rate"
 OWN_RATE_ROWS = ("reference rate", "|rate|", "direction", "reference rate (own axis)", "|rate| (own axis)")
 RATE_ORDER_WOULD_TELL = (
     "a session in another rate order (shuffled, or the rates visited in reverse) would tell "
     "them apart: an effect of the hold's own rate keeps its value at each rate, one of the "
     "rate before it moves with the order"
+)
+
+
+TEMPERATURE_ORDER_WOULD_TELL = (
+    "a session visiting the temperature points in another order (falling, or out of order) "
+    "would tell them apart: an effect of the temperature keeps its value at each point, one "
+    "of time since power-on moves with the order"
 )
 
 
@@ -83,4 +95,69 @@ def rate_order_confound(obs, data, best, candidates, covariates, alpha: float, p
         rival_term=rival.term if rival else None,
         rival_rms=float(rival.validation_rms_with) if rival else None,
         would_tell=RATE_ORDER_WOULD_TELL,
+        tie=f"in this protocol's rate order {tie:.0%} of the holds are entered from the same rate",
+    )
+
+
+def _reads_power_on_time(term: str) -> bool:
+    """The term reads time since power-on itself (``t``), not only a lag's past."""
+    from ..terms import make_term
+
+    made = make_term(term)
+    inner = getattr(made, "term", made)
+    return "t" in (inner.needs if hasattr(inner, "formula") else made.inputs())
+
+
+def time_temperature_tie(data: dict) -> float:
+    """The rank correlation of the holds' start times and temperatures: ±1 where the points
+    are visited in the order of their temperature, near 0 out of order or up and down."""
+    t, temp = (pd.Series(np.asarray(data[k], dtype=float)) for k in ("t_start", "temp"))
+    if len(t) < 3 or t.nunique() < 2 or temp.nunique() < 2:
+        return 0.0
+    rho = t.corr(temp, method="spearman")
+    return float(rho) if np.isfinite(rho) else 0.0
+
+
+def time_temperature_confound(data, best, candidates, covariates) -> Confound | None:
+    """Where the fix reads time since power-on and not the temperature (or the other way
+    round), the points are visited in the order of their temperature (|ρ| of
+    :data:`TIED_IN_TIME` or more) and where-it-fails puts part of the excess on the other
+    one's row: that reading, its best candidate that explains the data too, and what would
+    tell."""
+    from .verdict import term_reads
+
+    if best is None:
+        return None
+    reads = term_reads(best.term)
+    on_time = _reads_power_on_time(best.term) and not reads & {"temperature", "thermal"}
+    on_temperature = "temperature" in reads and "time" not in reads
+    if not (on_time or on_temperature):
+        return None
+    names = TEMPERATURE_ROWS if on_time else TIME_ROWS
+    rows = [r for r in covariates if set(r["covariate"].split(" = ")) & set(names)]
+    share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
+    rho = time_temperature_tie(data)
+    if not share > 0 or abs(rho) < TIED_IN_TIME:
+        return None
+    rival_kind = "temperature" if on_time else "time"
+    rivals = [
+        c
+        for c in candidates
+        if c.status == "ranked"
+        and c.explains_excess
+        and rival_kind in term_reads(c.term)
+        and not ({"time"} if on_time else {"temperature"}) & term_reads(c.term)
+    ]
+    rival = min(rivals, key=lambda c: c.validation_rms_with) if rivals else None
+    way = "rising" if rho > 0 else "falling"
+    return Confound(
+        reading="time since power-on" if on_time else "the temperature",
+        rival="the temperature" if on_time else "time since power-on",
+        share=float(share),
+        tied=abs(rho),
+        rival_term=rival.term if rival else None,
+        rival_rms=float(rival.validation_rms_with) if rival else None,
+        would_tell=TEMPERATURE_ORDER_WOULD_TELL,
+        tie=f"in this session the temperature points are visited {way} (rank correlation of time "
+        f"and temperature {rho:+.2f})",
     )

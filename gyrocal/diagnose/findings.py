@@ -200,7 +200,8 @@ class Approach(_Written):
 class Confound(_Written):
     """Two readings of the excess the protocol moves together (:mod:`.confounds`): what the
     fix reads and the rival input, the rival row's share of the excess, how tightly the
-    protocol ties them (the share of holds one fixes the other for), the best candidate of
+    protocol ties them (the share of holds one fixes the other for; for time and temperature
+    the rank correlation of the holds' start times and temperatures), the best candidate of
     the rival reading that explains the data too (its term and validation RMS, deg/s; None
     where none does) and the protocol that would tell them apart."""
 
@@ -211,6 +212,7 @@ class Confound(_Written):
     rival_term: str | None
     rival_rms: float | None
     would_tell: str
+    tie: str  # how the protocol ties them, in words
 
 
 @dataclass(frozen=True)

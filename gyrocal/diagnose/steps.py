@@ -16,7 +16,7 @@ from ..pipeline.config import Settings
 from ..terms import AXES
 from .approach import direction_of_approach
 from .between import between_points, between_reason
-from .confounds import rate_order_confound
+from .confounds import rate_order_confound, time_temperature_confound
 from .diagnosis import Diagnosis
 from .effects import (
     Candidate,
@@ -677,7 +677,7 @@ def _diagnosis(
     floors = _floors_differ(judge, base, base_next)
     confound = rate_order_confound(
         obs, judge.data, best, found.candidates, where.covariates, judge.alpha, before_holds["previous_rate"]
-    )
+    ) or time_temperature_confound(judge.data, best, found.candidates, where.covariates)
     grain = grains(settings, extended_all(settings, best), obs) if best is not None else ()
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:

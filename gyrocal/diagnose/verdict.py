@@ -81,8 +81,7 @@ def _confound_sentence(confound) -> str:
         else ""
     )
     return (
-        f" The fix reads {confound.reading}; in this protocol's rate order {confound.tied:.0%} "
-        f"of the holds are entered from the same rate, so {confound.rival} groups them alike "
+        f" The fix reads {confound.reading}; {confound.tie}, so {confound.rival} groups them alike "
         f"({confound.share:.0%} of the excess follows it) and the data cannot tell the two "
         f"apart.{rival} {confound.would_tell[0].upper()}{confound.would_tell[1:]}."
     )
@@ -230,15 +229,13 @@ def _named(base: Evaluation, best: Candidate, base_next: CarryOver | None) -> st
             f"Missing effects: {name} and "
             f"{', '.join(name_of(make_candidate(t)) for t in best.together)}. Adding both "
             f"lowers the validation RMS from {base.summary['validation_rms']:.3g} to "
-            f"{best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-            f"({best.expected_with:.3g}); {readable(best.term, best.profiled)} alone takes it to "
+            f"{best.validation_rms_with:.3g} deg/s{_bar(best, base)}; {readable(best.term, best.profiled)} alone takes it to "
             f"{best.alone_rms:.3g}." + seen + carried
         )
     return (
         f"Missing effect: {name}. Adding it lowers the validation RMS from "
         f"{base.summary['validation_rms']:.3g} to {best.validation_rms_with:.3g} deg/s "
-        f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}), what a correct model "
-        f"would leave ({best.expected_with:.3g}); its largest contribution to a hold is "
+        f"({best.gain_pct:.0f} % less; F-test p {p_text(best.p_value)}){_bar(best, base)}; its largest contribution to a hold is "
         f"{best.peak_effect:.3g} deg/s{top}.{seen}{tied}{carried}"
     )
 
@@ -386,9 +383,22 @@ def _free_shape_verdict(base, best, carried: str) -> str:
     return (
         f"Missing effect, outside the library: {best.shape} {what}, {name_of(best)}{together}, "
         f"lowers the validation RMS from {base.summary['validation_rms']:.3g} "
-        f"to {best.validation_rms_with:.3g} deg/s, what a correct model would leave "
-        f"({best.expected_with:.3g}).{also}{carried}"
+        f"to {best.validation_rms_with:.3g} deg/s{_bar(best, base)}.{also}{carried}"
     )
+
+
+def _bar(best, base: Evaluation) -> str:
+    """What a correct model would leave, beside the fix's held-out figure. Where the fix's own
+    uncertainty on a point left out exceeds the configured model's whole error (a spline of
+    time over a point's stretch), that figure says nothing: the fit's own residuals judge
+    it (and the other session), and the verdict says so."""
+    if best.expected_with is not None and best.expected_with > base.summary["validation_rms"]:
+        return (
+            "; without a temperature point its coefficients are undetermined there (what a "
+            f"correct model would leave: {best.expected_with:.3g}), so its fit's own residuals "
+            "judge it, and another session where there is one"
+        )
+    return f", what a correct model would leave ({best.expected_with:.3g})"
 
 
 def make_candidate(term: str):

@@ -251,3 +251,28 @@ def test_a_fix_is_judged_leaving_each_rate_level_out(tmp_path):
         else:  # a table over the levels: nothing to say of a level it never saw
             assert d["best"]["term"].startswith("levels("), d["best"]["term"]
             assert level["fix"] is None and "cannot be fitted" in d["verdict"], level
+
+
+@pytest.mark.slow
+def test_time_and_temperature_visited_together_are_named_and_another_order_tells(tmp_path):
+    """A bias drifting with time since power-on (the zoo's bias_ramp). Visited rising, the
+    temperature points follow time (rank correlation near 1): the fix reads time, the
+    temperature groups the holds alike, and the verdict names the confound and the order
+    that would tell. Visited out of order (zigzag), the same effect is no longer tied to the
+    temperature: nothing is named, and the fix of time still holds on the unseen session."""
+    settings = Settings()
+    rising = zoo_sessions(tmp_path / "rising", "bias_ramp", 1)
+    d = diagnose(settings, segment_log(rising[0], settings).observations).to_dict()
+    from gyrocal.diagnose.verdict import term_reads
+
+    assert d["best"] is not None and term_reads(d["best"]["term"]) == {"time"}, d["verdict"]
+    confound = d["confound"]
+    assert confound is not None and confound["reading"] == "time since power-on", d["verdict"]
+    assert confound["tied"] >= 0.9 and "another order" in d["verdict"], confound
+    zigzag = zoo_sessions(
+        tmp_path / "zigzag", "bias_ramp", 1, sessions={s: {"temp_order": "zigzag"} for s in range(3)}
+    )
+    d = diagnose(settings, segment_log(zigzag[0], settings).observations).to_dict()
+    assert d["best"] is not None and term_reads(d["best"]["term"]) == {"time"}, d["verdict"]
+    assert d["confound"] is None, d["confound"]
+    assert next_session(zigzag, settings, d["best"]) <= NEXT_SESSION_LIMIT
