@@ -678,14 +678,22 @@ def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None
 
 
 def fit_model(
-    model: Model, obs, *, kind: str = "grid", method: str = "lagrange3", degree: int = 3, source=None
+    model: Model,
+    obs,
+    *,
+    kind: str = "grid",
+    method: str = "lagrange3",
+    degree: int = 3,
+    source=None,
+    profile: bool = True,
 ) -> GridFit | ContinuousFit | JointGridFit:
     """A model fitted as a temperature grid (per point, interpolated, with global terms
     fitted jointly) or continuously. Nonlinear settings of its terms (``profile``) are
-    found by profiling (:mod:`gyrocal.fit.profile`)."""
+    found by profiling (:mod:`gyrocal.fit.profile`); with ``profile=False`` they keep the
+    model's values (a fitted model's, refitted on other holds)."""
     if kind not in ("grid", "continuous"):
         raise ConfigError(f"model kind {kind!r} is not known; choose grid or continuous")
-    if any(t.nonlinear() for t in model.terms):
+    if profile and any(t.nonlinear() for t in model.terms):
         from .profile import profiled_fit
 
         data = columns_of(obs)  # once, not at each of the profile's few dozen fits

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import functools
 import hashlib
 import importlib.util
 import sys
@@ -157,12 +158,26 @@ def formula_names(formula: str, parameters=()) -> frozenset[str]:
     return frozenset(names)
 
 
+@functools.lru_cache(maxsize=4096)
 def reads_own_axis(formula: str, parameters=()) -> bool:
     """Whether a formula reads an output axis's own input (``rate_own``, ``accel_own``)."""
     return any(isinstance(n, ast.Name) and n.id in OWN_AXIS for n in ast.walk(_parse(formula, parameters)))
 
 
 def _parse(formula: str, parameters=()) -> ast.AST:
+    """The formula's tree, checked; parsed once per formula and names (a profile evaluates
+    the same formula hundreds of times). The tree is only read, never changed."""
+    if isinstance(formula, str) and isinstance(parameters, tuple):
+        return _parse_cached(formula, parameters)
+    return _parse_checked(formula, parameters)
+
+
+@functools.lru_cache(maxsize=4096)
+def _parse_cached(formula: str, parameters: tuple) -> ast.AST:
+    return _parse_checked(formula, parameters)
+
+
+def _parse_checked(formula, parameters=()) -> ast.AST:
     if not isinstance(formula, str) or len(formula) > 500:
         raise ConfigError(f"a formula must be text of at most 500 characters, got {formula!r:.60}")
     try:
