@@ -452,22 +452,31 @@ def fit_grid(
     degree: int = 3,
     source=None,
     fitter: Callable = fit,
+    design: dict | None = None,
 ) -> GridFit:
     """Fit ``model`` at every temperature point of ``obs`` (column ``point``).
 
     A point whose holds cannot determine the model (a mount missing there, too few holds)
     is left out and reported; if no point can be fitted the first refusal is raised.
+    ``design``: the model's columns on every hold of ``obs``, where already made.
     """
     check_method(method, degree)
     fits, temps, rows, excluded, first_error, fitted_rows = [], [], [], {}, None, []
     data = columns_of(obs)
     point_of = data["point"].astype(int)
+    # A hold's columns are its own: made once for every point rather than point by point
+    # (a profile fits the same holds hundreds of times).
+    whole = None
+    if fitter is fit:
+        model.check_inputs(data, source)
+        whole = model.design(data) if design is None else design
     for point in np.unique(point_of):
         idx = np.flatnonzero(point_of == point)
         group = {k: v[idx] for k, v in data.items()}
         temp = float(group["temp"].mean())
+        own = {} if whole is None else {"design": subset_design(whole, idx)}
         try:
-            result = fitter(model, group, source=source, label=f"{temp:.1f} °C")
+            result = fitter(model, group, source=source, label=f"{temp:.1f} °C", **own)
         except IdentifiabilityError as exc:
             first_error = first_error or exc
             excluded[int(point)] = str(exc).removeprefix(f"{source}: " if source else "")
@@ -646,9 +655,10 @@ def _fit_joint(
 MIN_WITHIN_POINT = 0.01
 
 
-def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None) -> None:
+def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None) -> dict[str, np.ndarray]:
     """Refuse a point-scope term that does not vary within the temperature points: its
-    per-point coefficients cannot be told from each point's bias."""
+    per-point coefficients cannot be told from each point's bias. Returns the point-scope
+    terms' columns (the whole design of a model without global terms)."""
     point = data["point"].astype(int)
     _, index = np.unique(point, return_inverse=True)
     counts = np.bincount(index)
@@ -675,6 +685,7 @@ def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None
                     "misalignment_temp)",
                     source=source,
                 )
+    return design
 
 
 def fit_model(
@@ -724,9 +735,9 @@ def _fit_linear(
             "on temperature alone and cannot be fitted point by point: use model "
             "kind continuous"
         )
-    _check_point_terms(model, data, source)
+    point_design = _check_point_terms(model, data, source)
     if not global_terms(model):
-        return fit_grid(model, data, method=method, degree=degree, source=source)
+        return fit_grid(model, data, method=method, degree=degree, source=source, design=point_design)
     check_method(method, degree)
     # Points whose own holds cannot determine their coefficients are left out, as in a
     # plain grid; the rest are fitted together with the global terms.

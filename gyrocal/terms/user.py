@@ -136,6 +136,17 @@ SERIES_NAMES = frozenset({"t", "temp_rate"})
 
 def formula_names(formula: str, parameters=()) -> frozenset[str]:
     """Inputs a formula reads (``temp_lag`` for a lag), its parameters excluded."""
+    if isinstance(formula, str) and isinstance(parameters, tuple):
+        return _formula_names_cached(formula, parameters)
+    return _formula_names(formula, tuple(parameters))
+
+
+@functools.lru_cache(maxsize=4096)
+def _formula_names_cached(formula: str, parameters: tuple) -> frozenset[str]:
+    return _formula_names(formula, parameters)
+
+
+def _formula_names(formula: str, parameters: tuple) -> frozenset[str]:
     tree = _parse(formula, parameters)
     names = {
         n.id
