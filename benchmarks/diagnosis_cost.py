@@ -39,7 +39,7 @@ CASES = [
 DEMO = ROOT / "demo" / "logs" / "B1" / "U001"
 
 
-def write_logs(folder: Path) -> list[tuple[str, Path, Path]]:
+def write_logs(folder: Path, demo_folder: Path = DEMO) -> list[tuple[str, Path, Path]]:
     from benchmarks.zoo.generator import make_unit, write_session
 
     logs = []
@@ -49,7 +49,7 @@ def write_logs(folder: Path) -> list[tuple[str, Path, Path]]:
         for s, path in enumerate(pair):
             write_session(unit, path, session=s, seed=1000 + s, rate_hz=10.0)
         logs.append((f"{effect} {protocol}", *pair))
-    demo = sorted(DEMO.glob("*.parquet"))
+    demo = sorted(demo_folder.glob("*.parquet"))
     if len(demo) >= 2:
         logs.append(("demo U001", demo[0], demo[1]))
     return logs
@@ -72,6 +72,9 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", type=Path, required=True, help="the other checkout")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument(
+        "--demo", type=Path, default=DEMO, help="a demo unit's folder of logs (make demo writes it)"
+    )
     args = parser.parse_args(argv)
     from host import cores, cpu_name
 
@@ -81,7 +84,7 @@ def main(argv=None) -> int:
     sums = {"base": 0.0, "this": 0.0}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        for label, s0, s1 in write_logs(folder):
+        for label, s0, s1 in write_logs(folder, args.demo):
             for mode, other in (("one log", None), ("two", s1)):
                 runs: dict[str, list[float]] = {"base": [], "this": []}
                 for r in range(args.repeats):

@@ -664,27 +664,29 @@ def _check_point_terms(model: Model, data: Mapping[str, np.ndarray], source=None
     counts = np.bincount(index)
     local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
     design = local.design(data)
-    for term in local.terms:
-        for name in term.coefficients():
-            col = np.broadcast_to(np.asarray(design[name], float), point.shape)
-            if not np.all(np.isfinite(col)):
-                continue  # the fit refuses it, naming the holds
-            total = float(np.sqrt(np.mean((col - col.mean()) ** 2)))
-            if total <= 1e-12 * max(float(np.max(np.abs(col))), 1e-300):
-                continue  # constant everywhere (the bias): the fit itself judges it
-            means = np.bincount(index, weights=col) / counts
-            within = float(np.sqrt(np.mean((col - means[index]) ** 2)))
-            if within < MIN_WITHIN_POINT * total:
-                # Each point's own bias takes any function of what is constant within the
-                # point, per point or global: only a model without per-point biases fits it.
-                raise ConfigError(
-                    f"term {term.spec_string()} does not vary within a temperature point (its "
-                    f"scatter there is {within / total:.1%} of its scatter overall), so a grid "
-                    "model's per-point biases absorb it: use model kind continuous, with the "
-                    "bias's own temperature dependence as terms (bias_temp_poly, scale_temp_poly, "
-                    "misalignment_temp)",
-                    source=source,
-                )
+    names = [(term, name) for term in local.terms for name in term.coefficients()]
+    if not names:
+        return design
+    # every column at once: (holds, columns)
+    cols = np.column_stack([np.broadcast_to(np.asarray(design[n], float), point.shape) for _, n in names])
+    finite = np.isfinite(cols).all(axis=0)  # the fit refuses the others, naming the holds
+    safe = np.where(finite, cols, 0.0)
+    total = np.sqrt(np.mean((safe - safe.mean(axis=0)) ** 2, axis=0))
+    means = np.stack([np.bincount(index, weights=c) for c in safe.T], axis=1) / counts[:, None]
+    within = np.sqrt(np.mean((safe - means[index]) ** 2, axis=0))
+    varies = total > 1e-12 * np.maximum(np.max(np.abs(safe), axis=0), 1e-300)  # not the bias
+    for (term, _), ok, inside, overall in zip(names, finite & varies, within, total, strict=True):
+        if ok and inside < MIN_WITHIN_POINT * overall:
+            # Each point's own bias takes any function of what is constant within the
+            # point, per point or global: only a model without per-point biases fits it.
+            raise ConfigError(
+                f"term {term.spec_string()} does not vary within a temperature point (its "
+                f"scatter there is {inside / overall:.1%} of its scatter overall), so a grid "
+                "model's per-point biases absorb it: use model kind continuous, with the "
+                "bias's own temperature dependence as terms (bias_temp_poly, scale_temp_poly, "
+                "misalignment_temp)",
+                source=source,
+            )
     return design
 
 
