@@ -379,7 +379,15 @@ def _penalty_rows(
     return np.vstack(blocks) if blocks else None
 
 
-def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None = None) -> FitResult:
+def fit(
+    model: Model,
+    obs,
+    *,
+    source=None,
+    label: str = "",
+    design: dict | None = None,
+    weights: tuple[np.ndarray, list] | None = None,
+) -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
     ``obs`` is an observation table or a mapping of its numeric columns. Refuses
@@ -394,8 +402,7 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
     n_obs = len(data["gyro_x"])
     design = model.design(data) if design is None else design
     _check_finite(model, design, n_obs, source, label)
-    floor = _weighting_floor(observation_floor(data))
-    whiteners = _whiteners(data, floor)
+    floor, whiteners = observation_weights(data) if weights is None else weights
     where = f" at {label}" if label else ""
     axes: dict[str, _AxisFit] = {}
     resid = np.zeros((n_obs, 3))
@@ -416,6 +423,13 @@ def fit(model: Model, obs, *, source=None, label: str = "", design: dict | None 
     if unexcited:
         _refuse_unexcited(model, unexcited, worst, n_obs, where, source)
     return _joined(model, axes, resid, floor, n_obs)
+
+
+def observation_weights(data) -> tuple[np.ndarray, list]:
+    """The floors the observations are weighted by, and per output axis the map that
+    whitens their noise: what a fit of these observations weights by, whatever its model."""
+    floor = _weighting_floor(observation_floor(data))
+    return floor, _whiteners(data, floor)
 
 
 def _weighting_floor(floor: np.ndarray) -> np.ndarray:

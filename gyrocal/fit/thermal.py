@@ -22,13 +22,14 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
 from ..terms import Term
-from .model import FitResult, Model, columns_of, fit, subset_design
+from .model import FitResult, Model, columns_of, fit, observation_weights, subset_design
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -277,7 +278,13 @@ class _OnAGrid:
     """What a temperature-grid fit reads from its grid and points table."""
 
     grid: TemperatureGrid
-    points: pd.DataFrame
+    point_rows: tuple  # (point, temp, holds, used, reason) per temperature point
+
+    @cached_property
+    def points(self) -> pd.DataFrame:
+        """The points as a table (point, temp, holds, used, reason), made when read: a
+        profile makes hundreds of fits and reads none of their tables."""
+        return _points_table(list(self.point_rows))
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -288,7 +295,7 @@ class _OnAGrid:
         return self.grid
 
     def used_points(self) -> list[int]:
-        return [int(p) for p in self.points.loc[self.points["used"], "point"]]
+        return [int(row[0]) for row in self.point_rows if row[3]]
 
     def outside(self, temp) -> np.ndarray:
         return self.grid.outside(temp)
@@ -303,7 +310,7 @@ class GridFit(_OnAGrid):
 
     grid: TemperatureGrid
     fits: tuple[FitResult, ...]
-    points: pd.DataFrame  # point, temp, holds, used, reason
+    point_rows: tuple  # (point, temp, holds, used, reason) per point: the points table's
     excluded: dict[int, str] = field(default_factory=dict)
     rows: tuple[np.ndarray, ...] = ()  # the observation rows each fit used
     profiled: tuple = ()  # nonlinear settings found by profiling
@@ -330,11 +337,10 @@ class GridFit(_OnAGrid):
         if len(used) < 2:
             return None
         k = used.index(point)
-        keep = self.points["point"] != point
         return GridFit(
             self.grid.without(k),
             self.fits[:k] + self.fits[k + 1 :],
-            self.points[keep].reset_index(drop=True),
+            tuple(row for row in self.point_rows if row[0] != point),
             self.excluded,
             self.rows[:k] + self.rows[k + 1 :],
         )
@@ -453,12 +459,15 @@ def fit_grid(
     source=None,
     fitter: Callable = fit,
     design: dict | None = None,
+    prepared: dict | None = None,
 ) -> GridFit:
     """Fit ``model`` at every temperature point of ``obs`` (column ``point``).
 
     A point whose holds cannot determine the model (a mount missing there, too few holds)
     is left out and reported; if no point can be fitted the first refusal is raised.
     ``design``: the model's columns on every hold of ``obs``, where already made.
+    ``prepared``: each point's holds and weighting, kept across fits of the same ``obs``
+    (a profile's).
     """
     check_method(method, degree)
     fits, temps, rows, excluded, first_error, fitted_rows = [], [], [], {}, None, []
@@ -471,10 +480,16 @@ def fit_grid(
         model.check_inputs(data, source)
         whole = model.design(data) if design is None else design
     for point in np.unique(point_of):
-        idx = np.flatnonzero(point_of == point)
-        group = {k: v[idx] for k, v in data.items()}
+        if prepared is not None and point in prepared:
+            idx, group, weights = prepared[point]
+        else:
+            idx = np.flatnonzero(point_of == point)
+            group = {k: v[idx] for k, v in data.items()}
+            weights = observation_weights(group) if fitter is fit else None
+            if prepared is not None:
+                prepared[point] = idx, group, weights
         temp = float(group["temp"].mean())
-        own = {} if whole is None else {"design": subset_design(whole, idx)}
+        own = {} if whole is None else {"design": subset_design(whole, idx), "weights": weights}
         try:
             result = fitter(model, group, source=source, label=f"{temp:.1f} °C", **own)
         except IdentifiabilityError as exc:
@@ -498,8 +513,7 @@ def fit_grid(
         degree,
         np.array([f.covariance for f in fits]),
     )
-    points = _points_table(rows)
-    return GridFit(grid, tuple(fits), points, excluded, tuple(fitted_rows))
+    return GridFit(grid, tuple(fits), tuple(rows), excluded, tuple(fitted_rows))
 
 
 class _AtPoint(Term):
@@ -542,7 +556,7 @@ class JointGridFit(_OnAGrid):
     fit: FitResult  # of the joint model (names with ``.@<point>``)
     data: dict  # the observation columns of the points fitted
     grid: TemperatureGrid
-    points: pd.DataFrame
+    point_rows: tuple  # (point, temp, holds, used, reason) per point, in point order
     excluded: dict[int, str] = field(default_factory=dict)
     rows: tuple[np.ndarray, ...] = ()  # the observation rows the fit used
     point_ids: tuple[int, ...] = ()  # grid order
@@ -639,11 +653,11 @@ def _fit_joint(
                 j = index[f"{name}.@{p}"]
                 values[k, c], stderr[k, c] = result.values[j], result.stderr[j]
     grid = TemperatureGrid(temps, tuple(model.names), values, stderr, method, degree)
-    joint_fit = JointGridFit(model, result, data, grid, _points_table([]), {}, (), tuple(ids))
+    joint_fit = JointGridFit(model, result, data, grid, (), {}, (), tuple(ids))
     grid = replace(grid, covariance=np.array([joint_fit.point_fit(p).covariance for p in ids]))
     table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps, strict=False)]
     table += list(extra_points)
-    points = _points_table(table).sort_values("point", kind="stable").reset_index(drop=True)
+    points = tuple(sorted(table, key=lambda row: row[0]))  # stable: as the table lists them
     rows = np.arange(len(point)) if rows is None else rows
     return JointGridFit(
         model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids), design=design
@@ -713,17 +727,33 @@ def fit_model(
         # A joint grid's per-point fit of its point-scope terms decides which points take
         # part; the profiled term is global, so it is the same at every value: made once.
         point_fits: dict = {}
+        prepared: dict = {}  # each point's holds and weighting: the same at every value
         return profiled_fit(
             model,
             lambda m: _fit_linear(
-                m, data, kind=kind, method=method, degree=degree, source=source, point_fits=point_fits
+                m,
+                data,
+                kind=kind,
+                method=method,
+                degree=degree,
+                source=source,
+                point_fits=point_fits,
+                prepared=prepared,
             ),
         )
     return _fit_linear(model, obs, kind=kind, method=method, degree=degree, source=source)
 
 
 def _fit_linear(
-    model: Model, obs, *, kind: str, method: str, degree: int, source=None, point_fits: dict | None = None
+    model: Model,
+    obs,
+    *,
+    kind: str,
+    method: str,
+    degree: int,
+    source=None,
+    point_fits: dict | None = None,
+    prepared: dict | None = None,
 ):
     data = model.transform_inputs(columns_of(obs))
     if kind == "continuous":
@@ -739,7 +769,16 @@ def _fit_linear(
         )
     point_design = _check_point_terms(model, data, source)
     if not global_terms(model):
-        return fit_grid(model, data, method=method, degree=degree, source=source, design=point_design)
+        # Cached only on the inputs as given: a term that moves them moves the weighting.
+        return fit_grid(
+            model,
+            data,
+            method=method,
+            degree=degree,
+            source=source,
+            design=point_design,
+            prepared=prepared if data is obs else None,
+        )
     check_method(method, degree)
     # Points whose own holds cannot determine their coefficients are left out, as in a
     # plain grid; the rest are fitted together with the global terms.
