@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..fit.model import columns_of
+from ..fit.model import Model, columns_of
 from ..fit.thermal import fit_model
 from ..fit.validate import held_out_errors
 from ..io.errors import GyrocalError
@@ -65,18 +65,30 @@ def _groups(obs: pd.DataFrame, by: str) -> tuple[np.ndarray, list] | None:
     return labels, list(levels[1:-1])
 
 
-def left_out_rms(settings: Settings, obs: pd.DataFrame, labels: np.ndarray, left_out: list) -> float | None:
+def at_profiled(model: Model, profiled) -> Model:
+    """``model`` with its nonlinear settings at the values a fit of every hold found
+    (``profiled``: its entries, each with its term's label or name, parameter and value)."""
+    values = {(p["term"], p["parameter"]): p["value"] for p in profiled or ()}
+    terms = []
+    for term in model.terms:
+        key = getattr(term, "label", None) or term.name
+        found = {name: values[key, name] for name in term.nonlinear() if (key, name) in values}
+        terms.append(term.with_settings(**found) if found else term)
+    return Model(tuple(terms))
+
+
+def left_out_rms(
+    settings: Settings, obs: pd.DataFrame, labels: np.ndarray, left_out: list, profiled=()
+) -> float | None:
     """RMS ÷ floor of each group's holds under the model fitted without that group; None
     where a group cannot be left out (what remains does not determine the model). A shape's
     nonlinear settings (a place, a width, a time constant) stay where the fit of every hold
-    put them; its size and every other coefficient are refitted without the group."""
+    put them (``profiled``); its size and every other coefficient are refitted without the
+    group."""
     m = settings.model
     options = {"kind": m.kind, "method": m.interpolation, "degree": m.degree}
     errors, floors = [], []
-    try:
-        model = fit_model(m.build(), obs, **options).model
-    except (GyrocalError, np.linalg.LinAlgError, ValueError):
-        return None
+    model = at_profiled(m.build(), profiled)
     for group in left_out:
         out = labels == group
         try:
@@ -92,10 +104,12 @@ def left_out_rms(settings: Settings, obs: pd.DataFrame, labels: np.ndarray, left
     return float(np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(floor**2)))
 
 
-def at_the_grain(settings: Settings, fixed: Settings, obs: pd.DataFrame, by: str) -> Grain | None:
-    """The configured model (``settings``) and the fix (``fixed``) judged leaving out each
-    group ``by`` (``"rate level"`` or ``"mount"``) in turn; None where the protocol does not
-    allow it."""
+def at_the_grain(
+    settings: Settings, fixed: Settings, obs: pd.DataFrame, by: str, profiled=()
+) -> Grain | None:
+    """The configured model (``settings``) and the fix (``fixed``, its nonlinear settings as
+    ``profiled`` found them) judged leaving out each group ``by`` (``"rate level"`` or
+    ``"mount"``) in turn; None where the protocol does not allow it."""
     grouped = _groups(obs, by)
     if grouped is None:
         return None
@@ -103,13 +117,13 @@ def at_the_grain(settings: Settings, fixed: Settings, obs: pd.DataFrame, by: str
     base = left_out_rms(settings, obs, labels, left_out)
     if base is None:
         return None
-    fix = left_out_rms(fixed, obs, labels, left_out)
+    fix = left_out_rms(fixed, obs, labels, left_out, profiled)
     return Grain(by, len(left_out), int(np.isin(labels, left_out).sum()), base, fix)
 
 
-def grains(settings: Settings, fixed: Settings, obs: pd.DataFrame) -> tuple[Grain, ...]:
+def grains(settings: Settings, fixed: Settings, obs: pd.DataFrame, profiled=()) -> tuple[Grain, ...]:
     """The fix at each grain the protocol allows."""
-    found = (at_the_grain(settings, fixed, obs, by) for by in ("rate level", "mount"))
+    found = (at_the_grain(settings, fixed, obs, by, profiled) for by in ("rate level", "mount"))
     return tuple(g for g in found if g is not None)
 
 

@@ -678,7 +678,7 @@ def _diagnosis(
     confound = rate_order_confound(
         obs, judge.data, best, found.candidates, where.covariates, judge.alpha, before_holds["previous_rate"]
     ) or time_temperature_confound(judge.data, best, found.candidates, where.covariates)
-    grain = grains(settings, extended_all(settings, best), obs) if best is not None else ()
+    grain = grains(settings, extended_all(settings, best), obs, best.profiled) if best is not None else ()
     steps = ladder(settings, obs, base, judge.carry if usable(base_next) else None)
     if best is not None:
         steps.append(fix_row(best, base))
