@@ -21,7 +21,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import generator as gen  # noqa: E402
 
-MAIN = "/work/main"
+MAIN = os.path.dirname(os.path.dirname(HERE))  # the checkout this runner lies in
 JUDGE_DIR = os.path.join(MAIN, "benchmarks")
 MODES = (("two-session", False), ("one-log", True))
 
