@@ -87,6 +87,10 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
             "reason": "direction of approach",
         }
     nxt = d.get("next_session") or {}
+    if d["explains_the_data"] and not why and d["best"] is None and d.get("unrepeated"):
+        # the excess's pattern does not come back in the other session: the verdict calls it
+        # slow noise the static data did not resolve, not a change of the unit
+        return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
     if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("holds") is False:
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "unit changed"}
     if d["explains_the_data"] and not why:

@@ -109,6 +109,7 @@ class Diagnosis:
             "confound": _written(self.confound),
             "floors_differ": _written(self.floors_differ),
             "grain": [g.to_dict() for g in self.grain],
+            "unrepeated": self.unrepeated,
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],
