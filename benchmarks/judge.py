@@ -91,7 +91,7 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
         # the excess's pattern does not come back in the other session: the verdict calls it
         # slow noise the static data did not resolve, not a change of the unit
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
-    if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("holds") is False:
+    if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("fails_in_practice"):
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "unit changed"}
     if d["explains_the_data"] and not why:
         noise = d.get("within_noise_uncertainty") or {}

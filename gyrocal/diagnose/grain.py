@@ -23,11 +23,9 @@ from ..fit.validate import held_out_errors
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from .findings import _Written
+from .sessions import CARRIES_WITHIN  # the bar a fix meets on data it never saw
 
 MIN_LEVELS = 4  # below this, leaving an interior level out leaves too little to fit a shape
-# Within this many times the floor on holds it never saw, a fix carries: the bar every fix
-# meets on the unseen session (1.2 times the floor, as the benchmarks judge it).
-CARRIES_WITHIN = 1.2
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from ..terms import make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .grain import grain_sentence
 from .reading import readable
-from .sessions import CarryOver, usable
+from .sessions import CARRIES_WITHIN, CarryOver, fails_in_practice, usable
 from .stats import p_text
 
 if TYPE_CHECKING:
@@ -62,6 +62,14 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if explained_by(diag.approach):
         return _approach_sentence(base_next, diag.approach)
+    if diag.explains and not fails_in_practice(base_next):
+        return (
+            f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
+            "floor: more than the noise alone would, but within "
+            f"{CARRIES_WITHIN:g} times what a correct model would leave there "
+            f"({base_next['validation_rms'] / base_next['expected_rms']:.2f}), a difference too small "
+            "to act on (a turn-on bias a little apart between power-ons): it carries over."
+        )
     if diag.explains:
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} "
