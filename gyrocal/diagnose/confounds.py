@@ -99,15 +99,6 @@ def rate_order_confound(obs, data, best, candidates, covariates, alpha: float, p
     )
 
 
-def _reads_power_on_time(term: str) -> bool:
-    """The term reads time since power-on itself (``t``), not only a lag's past."""
-    from ..terms import make_term
-
-    made = make_term(term)
-    inner = getattr(made, "term", made)
-    return "t" in (inner.needs if hasattr(inner, "formula") else made.inputs())
-
-
 def time_temperature_tie(data: dict) -> float:
     """The rank correlation of the holds' start times and temperatures: ±1 where the points
     are visited in the order of their temperature, near 0 out of order or up and down."""
@@ -124,12 +115,12 @@ def time_temperature_confound(data, best, candidates, covariates) -> Confound | 
     :data:`TIED_IN_TIME` or more) and where-it-fails puts part of the excess on the other
     one's row: that reading, its best candidate that explains the data too, and what would
     tell."""
-    from .verdict import term_reads
+    from .verdict import term_inputs, term_reads
 
     if best is None:
         return None
     reads = term_reads(best.term)
-    on_time = _reads_power_on_time(best.term) and not reads & {"temperature", "thermal"}
+    on_time = "t" in term_inputs(best.term) and not reads & {"temperature", "thermal"}
     on_temperature = "temperature" in reads and "time" not in reads
     if not (on_time or on_temperature):
         return None

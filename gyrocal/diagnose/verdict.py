@@ -540,14 +540,21 @@ def advice(
     return out
 
 
+def term_inputs(term: str) -> set[str]:
+    """The inputs a term reads: a formula what it names (its probe reads a rate for the
+    column's length), another term what its probe reads."""
+    made = make_term(term)
+    inner = getattr(made, "term", made)
+    return set(inner.needs if hasattr(inner, "formula") else made.inputs())
+
+
 def term_reads(term: str) -> set[str]:
     """The kinds of input a term reads: time, temperature (its value), thermal (its rate or
     lag), rate, accel."""
     made = make_term(term)
     inner = getattr(made, "term", made)
-    # A formula reads what it names (its probe reads a rate for the column's length); the
-    # record behind a history of the rates or the accelerometer is no thermal input.
-    inputs = set(inner.needs if hasattr(inner, "formula") else made.inputs())
+    # the record behind a history of the rates or the accelerometer is no thermal input
+    inputs = term_inputs(term)
     if inputs & {"rate_history", "accel_history"} and not inputs & {"temp", "temp_rate"}:
         inputs.discard("temp_lag")
     kinds = set()
