@@ -20,6 +20,7 @@ from .where import SETTLING_ROW
 
 TIED = 0.8  # the share of holds whose previous rate their own rate fixes, for a fixed order
 TIED_IN_TIME = 0.9  # |rank correlation| of the holds' start times and temperatures
+NAMED_SHARE = 0.1  # of the excess on the rival's row, below which it groups nothing worth naming
 TEMPERATURE_ROWS = ("temperature",)
 TIME_ROWS = ("time",)
 PREVIOUS_ROW = "previous hold's rate"
@@ -36,6 +37,14 @@ TEMPERATURE_ORDER_WOULD_TELL = (
     "would tell them apart: an effect of the temperature keeps its value at each point, one "
     "of time since power-on moves with the order"
 )
+
+MOUNTING_WOULD_TELL = (
+    "the other session, the unit mounted again, would tell them apart: an offset of the "
+    "fixture comes anew with each mounting, the sensor's g-sensitivity stays; so would "
+    "mounting each orientation again at another temperature point, or six mounts"
+)
+MOUNT_ROWS = ("mount", "mounting", "rotating axis")
+JUDGED_BY_A_LEFT_OUT_MOUNT = 4  # mounts from which one can be left out of a fix on the rest
 
 
 def rate_order_tie(obs: pd.DataFrame, data: dict, previous: np.ndarray) -> float:
@@ -73,7 +82,7 @@ def rate_order_confound(obs, data, best, candidates, covariates, alpha: float, p
     names = OWN_RATE_ROWS if history else (PREVIOUS_ROW,)
     rows = [r for r in covariates if set(r["covariate"].split(" = ")) & set(names)]
     share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
-    if not share > 0:
+    if not share >= NAMED_SHARE:
         return None
     tie = rate_order_tie(obs, data, previous)
     if tie < TIED:
@@ -128,7 +137,7 @@ def time_temperature_confound(data, best, candidates, covariates) -> Confound | 
     rows = [r for r in covariates if set(r["covariate"].split(" = ")) & set(names)]
     share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
     rho = time_temperature_tie(data)
-    if not share > 0 or abs(rho) < TIED_IN_TIME:
+    if not share >= NAMED_SHARE or abs(rho) < TIED_IN_TIME:
         return None
     rival_kind = "temperature" if on_time else "time"
     rivals = [
@@ -151,4 +160,36 @@ def time_temperature_confound(data, best, candidates, covariates) -> Confound | 
         would_tell=TEMPERATURE_ORDER_WOULD_TELL,
         tie=f"in this session the temperature points are visited {way} (rank correlation of time "
         f"and temperature {rho:+.2f})",
+    )
+
+
+def mounting_confound(obs, best, covariates, stretch, other_session: bool) -> Confound | None:
+    """Where the fix reads the specific force, this session mounts each of its (fewer than
+    :data:`JUDGED_BY_A_LEFT_OUT_MOUNT`) mounts once (``stretch``: each hold's mounting,
+    :func:`.where.history_columns`) and no other session judged the fix: the specific force
+    then takes one value per mounting, so an offset the fixture gave each mounting fits as
+    well as the fix, and none of the protocol's holds can tell which. Nothing of the sensor
+    carries the fixture's reading, so it has no rival term."""
+    from .verdict import term_reads
+
+    if best is None or other_session or "mount" not in obs or "accel" not in term_reads(best.term):
+        return None
+    mounts = obs["mount"].astype(str).nunique()
+    mountings = int(np.unique(np.asarray(stretch)).size)
+    if mounts >= JUDGED_BY_A_LEFT_OUT_MOUNT or mountings > mounts:
+        return None
+    rows = [r for r in covariates if set(r["covariate"].split(" = ")) & set(MOUNT_ROWS)]
+    share = max((r.get("share_of_excess") or 0.0 for r in rows), default=0.0)
+    if not share >= NAMED_SHARE:
+        return None
+    return Confound(
+        reading="the specific force",
+        rival="the mounting",
+        share=float(share),
+        tied=1.0,
+        rival_term=None,
+        rival_rms=None,
+        would_tell=MOUNTING_WOULD_TELL,
+        tie=f"in this session each of the {mounts} mounts is mounted once and the specific force "
+        "takes one value on each",
     )

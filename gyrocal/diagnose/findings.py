@@ -111,10 +111,13 @@ class WithinNoise(_Written):
 
 @dataclass(frozen=True)
 class Negligible(_Written):
-    """An excess within the noise floor's own uncertainty, and the covariate its residuals
-    follow beyond chance, if any (Bonferroni over the covariates)."""
+    """An excess within the noise floor's own uncertainty, or within the bar a calibration
+    meets on its next session in sample and on the holds left out (``held_out``, its error
+    there over what a correct model leaves), and the covariate its residuals follow beyond
+    chance, if any (Bonferroni over the covariates)."""
 
     factor: float
+    held_out: float
     floor_uncertainty: float
     covariate: str | None
     p_value: float
@@ -185,7 +188,8 @@ class Approach(_Written):
     there and those reached the same way (°C), the step of the bias between the sides and
     the offset at every point (deg/s, per axis), the F-test of the step against the offset
     alone and the χ² tail of what the step leaves; ``explains``: the step is real and leaves
-    nothing beyond chance."""
+    nothing beyond chance. ``tied``: every point was reached from the other side, one way
+    round, so the step and the offset are one (a turn-on bias would leave the same)."""
 
     points: list[float]
     same: list[float]
@@ -194,6 +198,8 @@ class Approach(_Written):
     p_value: float
     left_p_value: float
     explains: bool
+    tied: bool = False
+    left_within_bar: bool = False  # what is left beyond chance, within CARRIES_WITHIN x the holds' floor
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 A candidate is an input the log has (the axis's own rate, its magnitude, the other axes'
 rates, the specific force, the temperature's rate and direction of travel, time since
 power-on, the output's history), through a transform (a power, a sign, a saturation, a
-threshold, a bump, a decay, a lag), acting on the bias or on the scale (the own rate times
+threshold, a bump, a decay, a logarithm, a lag), acting on the bias or on the scale (the own rate times
 it). Every one the log can feed is screened: its hold-mean regressor, with the configured
 model's own columns at each temperature point projected out (bias, scale and misalignment
 per point, what a grid fits), is fitted to the residuals leaving each temperature point out
@@ -93,6 +93,8 @@ THRESHOLD = Transform("threshold", "1 + tanh((({x}) - m) / w)", _place_width)
 BUMP = Transform("bump", "exp(-((({x}) - m) / w) ** 2)", _place_width)
 DECAY = Transform("decay", "exp(-({x}) / tau)", _time_constant)
 ABS = Transform("abs", "abs({x})")
+SIGNED_SQUARE = Transform("signed_square", "({x}) * abs({x})")
+LOG = Transform("log", "log(1 + ({x}) / tau)", _time_constant)  # a creep: slower than any decay
 
 # input -> transforms, and where each acts: a bias (the transform itself) or a scale (the
 # own rate times it). The own rate's odd shapes are scales already.
@@ -103,7 +105,11 @@ RULES: tuple[tuple[Input, tuple[Transform, ...], tuple[str, ...]], ...] = (
         (SQUARE, BUMP, THRESHOLD),
         ("bias", "scale"),
     ),
-    (Input("other axes' rate", "cross_rate", "rate", shape_input="rate_cross"), (SQUARE, ABS), ("cross",)),
+    (
+        Input("other axes' rate", "cross_rate", "rate", shape_input="rate_cross"),
+        (SQUARE, ABS, SIGNED_SQUARE),
+        ("cross",),
+    ),
     (
         Input("specific force", "accel_own", "accel", family="square of the specific force"),
         (SQUARE,),
@@ -121,7 +127,7 @@ RULES: tuple[tuple[Input, tuple[Transform, ...], tuple[str, ...]], ...] = (
         (SQUARE,),
         ("bias", "scale"),
     ),
-    (Input("time since power-on", "t", "time", shape_input="t"), (DECAY,), ("bias", "scale")),
+    (Input("time since power-on", "t", "time", shape_input="t"), (DECAY, LOG), ("bias", "scale")),
     (
         Input("the output's slow pole", "lag(rate_own, tau) - rate_own", "rate", True, family="slow pole"),
         (IDENTITY,),

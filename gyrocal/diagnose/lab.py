@@ -136,6 +136,25 @@ def lab_reason(lab: LabTest) -> Unexplained:
     )
 
 
+def reference_reason(nxt) -> Unexplained:
+    """The verdict's why where the other session differs by one scale error every axis
+    shares (:func:`.sessions.reference_scaled`): the reference rate's, not the sensor's."""
+    return Unexplained(
+        reason="fixed in the lab",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
+            f"on the other session every axis reads the rates {1e6 * nxt['reference_scale']:+.0f} "
+            "ppm apart from this calibration, the same on each (with that one scale and the "
+            f"turn-on bias taken out, {nxt['rescaled_rms'] / nxt['expected_rms']:.2f} times what a "
+            "correct model would leave): a scale of the reference rate, fixed in the lab (the "
+            "table's tachometer or commanded rate read differently between the sessions), "
+            "not the sensor's, whose axes' scales change each its own way"
+        ),
+        would_tell="the table's rate checked against its encoder's count over whole turns in each session",
+    )
+
+
 LAB_ADVICE = (
     "Compensate an effect fixed in the lab on the rig, not in the sensor's calibration: "
     "make every hold last whole turns of the table (a rest at several table angles "
@@ -149,8 +168,9 @@ def mounting_fixed(
     obs, quality, dof: int, alpha: float, stretch: np.ndarray, direction: np.ndarray | None = None
 ) -> MountingTest | None:
     """How much of the in-sample excess an offset per mounting accounts for: each output
-    axis' whitened residuals refitted with one offset per stretch of holds on one mount
-    (``stretch``, :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
+    axis' whitened residuals refitted with one offset and one misalignment (its share of
+    the turning rate) per stretch of holds on one mount (``stretch``,
+    :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
     point's bias and rates. The mounting explains the excess when its offsets' gain passes
     an F-test, what they leave is within chance, and neither of its rivals does as well:
     one offset per mount for the whole session (an effect of the orientation, which a
@@ -174,7 +194,19 @@ def mounting_fixed(
     way = np.zeros((len(z), points.max() + 1))
     if direction is not None:
         way[np.arange(len(z)), points] = np.asarray(direction, dtype=float)[rows] > 0
-    rivals = (np.eye(groups.max() + 1)[groups], np.eye(mounts.max() + 1)[mounts], drift, way)
+    # A mounting seats the unit at its own tilt as well as its own strain: the turning rate
+    # leaks into the other outputs by a misalignment of its own. Each reading gets its
+    # rates' share alike: per mounting, per mount, per point's drift.
+    rate = obs.loc[rows, "ref_rate"].to_numpy(float)[:, None] / max(
+        float(np.nanmax(np.abs(obs["ref_rate"]))), 1e-9
+    )
+    with_rate = lambda x: np.column_stack([x, x * rate])  # noqa: E731
+    rivals = (
+        with_rate(np.eye(groups.max() + 1)[groups]),
+        with_rate(np.eye(mounts.max() + 1)[mounts]),
+        with_rate(drift),
+        way,
+    )
     before = float(np.nansum(z**2))
     rss, added = np.zeros(5), np.zeros(4, dtype=int)  # points alone, then with each
     for axis_rss, ranks in _refits(z, floor, own, rivals):
@@ -219,10 +251,10 @@ def mounting_reason(found: MountingTest) -> Unexplained:
         lead=SENSOR_LEAD,
         text=(
             f"the residuals are offsets per mounting ({100 * found.share_of_excess:.0f} % of "
-            f"the excess with one offset for each of the {found.mountings} stretches of "
-            f"holds on one mount, F-test p {p_text(found.p_value)}), which neither the "
-            "mount's orientation nor a drift in time accounts for: each mounting on the "
-            "fixture leaves its own bias (the fixture's repeatability, a strain of the "
+            f"the excess with one offset and one misalignment for each of the {found.mountings} "
+            f"stretches of holds on one mount, F-test p {p_text(found.p_value)}), which neither "
+            "the mount's orientation nor a drift in time accounts for: each mounting on the "
+            "fixture leaves its own bias and tilt (the fixture's repeatability, a strain of the "
             "package), fresh every time, which no term of the sensor carries to the next "
             "mounting"
         ),

@@ -167,6 +167,7 @@ def readable(spec, profiled=()) -> str:
         text = {
             "square": "q_ab ω_b²",
             "abs": "q_ab |ω_b|",
+            "signed_square": "q_ab ω_b |ω_b|",
             "levels": f"a table of ω_b over its {len(inner.values)} levels "
             f"{_span(inner.values or (0,), 'deg/s')}",
         }[inner.shape]

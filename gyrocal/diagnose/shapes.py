@@ -160,10 +160,10 @@ def rate_levels(values: np.ndarray) -> list[float] | None:
 
 def _cross_shapes(values: np.ndarray) -> list[Shape]:
     """Terms of the turning axis's rate seen on the other outputs: its square, its
-    magnitude, and a table over the protocol's levels."""
+    magnitude, its square with its sign, and a table over the protocol's levels."""
     shapes = [
         Shape(make_term({"name": "cross_rate", "shape": s}).spec_string(), "parametric", s, "rate_cross")
-        for s in ("square", "abs")
+        for s in ("square", "abs", "signed_square")
     ]
     levels = rate_levels(values)
     if levels is not None and len(levels) >= 3:
@@ -438,7 +438,7 @@ def cross_shape(term, coefficients: dict, x: np.ndarray, axis: str, turning: str
         )
         return level_basis(x, term.values, (0, 1)) @ c
     value = coefficients[f"{term.label}.{axis}.{turning}"]
-    return value * (x**2 if term.shape == "square" else np.abs(x))
+    return value * {"square": x**2, "signed_square": x * np.abs(x)}.get(term.shape, np.abs(x))
 
 
 SHAPED = ("smooth", "levels", "cross_rate", "expression")

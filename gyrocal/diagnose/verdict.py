@@ -8,7 +8,7 @@ from ..terms import make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .grain import grain_sentence
 from .reading import readable
-from .sessions import CARRIES_WITHIN, CarryOver, fails_in_practice, usable
+from .sessions import CARRIES_WITHIN, CarryOver, fails_in_practice, reference_scaled, turned_on, usable
 from .stats import p_text
 
 if TYPE_CHECKING:
@@ -62,6 +62,15 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if explained_by(diag.approach):
         return _approach_sentence(base_next, diag.approach)
+    if diag.explains and turned_on(base_next):
+        offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
+        return (
+            f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
+            f"floor, most of it an offset per axis ({offsets} deg/s): the bias the unit took at "
+            "that power-on, which no calibration carries (a static stretch at power-on zeroes "
+            f"it); without it, {base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times "
+            "what a correct model would leave: the calibration carries over."
+        )
     if diag.explains and not fails_in_practice(base_next):
         return (
             f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
@@ -69,6 +78,11 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f"{CARRIES_WITHIN:g} times what a correct model would leave there "
             f"({base_next['validation_rms'] / base_next['expected_rms']:.2f}), a difference too small "
             "to act on (a turn-on bias a little apart between power-ons): it carries over."
+        )
+    if diag.explains and reference_scaled(base_next):
+        return (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} "
+            "times the floor: it does not carry over."
         )
     if diag.explains:
         return (
@@ -101,12 +115,26 @@ def _approach_sentence(base_next: CarryOver, approach) -> str:
     offsets = ", ".join(f"{v:+.3g} ({a})" for a, v in approach.offset.items())
     points = ", ".join(f"{t:g}" for t in approach.points)
     same = ", ".join(f"{t:g}" for t in approach.same)
+    if approach.tied:
+        return (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
+            f"the floor, one offset at every point ({steps} deg/s; what it leaves p = "
+            f"{approach.left_p_value:.2g}), and that session reached every point ({points} °C) "
+            "from the other side: a bias that depends on the direction the temperature came "
+            "from (thermal hysteresis) leaves exactly that, as would a bias the unit took anew "
+            "at power-on, and these two sessions cannot tell them apart. Visiting some points "
+            "from both sides (down after up, or a point revisited from the other side) would, "
+            "and lets the direction's term, --add-term \"expression(label='temp_direction', "
+            "formula='2 * (temp - play(temp, w)) / w', parameters={w: 1.0}, profile={w: [0.3, "
+            '20]})", be fitted and carried.'
+        )
     return (
         f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
         f"the floor, and they step with the direction the temperature came from: at the points "
         f"that session reached from the other side ({points} °C) the bias moved by {steps} "
         f"deg/s more than at those it reached the same way ({same} °C; offset {offsets} deg/s; "
-        f"F-test p {p_text(approach.p_value)}, what is left p = {approach.left_p_value:.2g}). "
+        f"F-test p {p_text(approach.p_value)}, what is left p = {approach.left_p_value:.2g}"
+        f"{f', within {CARRIES_WITHIN:g} times the floor of its holds' if approach.left_within_bar else ''}). "
         "A bias that depends on the direction the temperature came from (thermal hysteresis) "
         "is constant within each point of a session, so one session's calibration holds it in "
         "that point's bias and no term of it can be fitted there: visiting each point from "
@@ -155,7 +183,7 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
     if diag.noise_explains:
         assert diag.within_noise is not None
         return _within_slow_noise(base, factor, diag.within_noise)
-    if finding in ("fixed in the lab", "the mounting"):
+    if finding in ("fixed in the lab", "the mounting") and not diag.explains:
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
         return (
@@ -344,11 +372,20 @@ def _negligible(negligible: Negligible) -> str:
         if negligible.covariate
         else ""
     )
+    if negligible.factor - 1.0 <= negligible.floor_uncertainty:
+        return (
+            f"The model explains the data: its in-sample residuals are {negligible.factor:.2f} "
+            f"times their noise floor, within that floor's own uncertainty (±"
+            f"{100 * negligible.floor_uncertainty:.0f} % from the static data){faint}; "
+            "nothing is missing."
+        )
     return (
-        f"The model explains the data: its in-sample residuals are {negligible.factor:.2f} "
-        f"times their noise floor, within that floor's own uncertainty (±"
-        f"{100 * negligible.floor_uncertainty:.0f} % from the static data){faint}; "
-        "nothing is missing."
+        f"The model explains the data in practice: its in-sample residuals are "
+        f"{negligible.factor:.2f} times their noise floor and on the holds left out "
+        f"{negligible.held_out:.2f} times what a correct model would leave, within the "
+        f"{CARRIES_WITHIN:g} times a calibration must meet on its next session up to that "
+        f"figure's own uncertainty{faint}; "
+        "nothing worth a term is missing."
     )
 
 
@@ -367,6 +404,8 @@ FAMILY_NAMES = {
     "levels": "A table over the protocol's levels",
     "square": "A square",
     "abs": "A magnitude",
+    "signed_square": "A square with its sign",
+    "log": "A logarithm",
     "slow pole": "A slow pole of the own rate",
     "heating by rotation": "A lag of the rate's magnitude",
     "heating by rotation power": "A lag of the rate's magnitude squared",

@@ -266,7 +266,7 @@ class Levels(Term):
         return level_basis(x, self.values, self.anchors) @ c
 
 
-CROSS_SHAPES = ("square", "abs", "levels")
+CROSS_SHAPES = ("square", "abs", "signed_square", "levels")
 
 
 @register_term("cross_rate")
@@ -274,7 +274,8 @@ CROSS_SHAPES = ("square", "abs", "levels")
 class CrossRate(Term):
     """The rate of another axis on each output: ``e_a += Σ_{b≠a} f_ab(ω_b)``, one shape per
     pair of axes: ``square`` (``q_ab ω_b²``: the turning axis's rate squared, anisoinertia or
-    rectified vibration on the other outputs), ``abs`` (``q_ab |ω_b|``) or ``levels`` (a
+    rectified vibration on the other outputs), ``abs`` (``q_ab |ω_b|``), ``signed_square``
+    (``q_ab ω_b |ω_b|``: a misalignment growing with the rate, keeping its sign) or ``levels`` (a
     table of ``ω_b`` at the protocol's levels, as :class:`Levels`, 0 at the two lowest: the
     bias and the misalignment hold a straight line). [deg/s per (deg/s)², per deg/s, or deg/s]"""
 
@@ -300,7 +301,9 @@ class CrossRate(Term):
 
     @property
     def unit(self) -> str:
-        return {"square": "1/(deg/s)", "abs": "1", "levels": "deg/s"}[self.shape]
+        return {"square": "1/(deg/s)", "abs": "1", "signed_square": "1/(deg/s)", "levels": "deg/s"}[
+            self.shape
+        ]
 
     @property
     def identity(self) -> tuple:
@@ -337,6 +340,8 @@ class CrossRate(Term):
                 out[f"{self.label}.{a}.{b}"] = rate**2
             elif self.shape == "abs":
                 out[f"{self.label}.{a}.{b}"] = np.abs(rate)
+            elif self.shape == "signed_square":
+                out[f"{self.label}.{a}.{b}"] = rate * np.abs(rate)
             else:
                 basis = level_basis(rate, self.values, (0, 1))
                 out.update(

@@ -1,0 +1,150 @@
+"""The diagnosis on units of a second independent generator (benchmarks/open2: written by a
+helper from the log contract, the papers and the judge's interface, without reading gyrocal),
+each judged against that generator's truth or on the session the diagnosis never saw.
+
+Its nuisances are what every real unit carries and what the project's own simulator and the
+first zoo did not: a turn-on bias of about one hold-mean floor at each power-on, bias
+instability, door upsets at each remount. Its families include a table whose reference rate
+reads a scale apart in one session, a bias bump in temperature between the points, a thermal
+backlash, a fixture that tilts the unit anew at each mounting and a bias from the fixture's
+thermal gradient under shorter soaks.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from gyrocal.diagnose import diagnose
+from gyrocal.pipeline.chain import segment_log
+from gyrocal.pipeline.config import Settings
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from judge import _answer  # noqa: E402  (the benchmark's words for a diagnosis)
+from open2.generator import generate_unit, make_units  # noqa: E402
+
+PROTOCOL = "turntable"
+NEXT_SESSION_LIMIT = 1.2  # the issue's target for a fix on the unseen session
+
+
+def open2_unit(tmp_path, name: str):
+    """The runner's unit ``name`` (its default seed), its three logs and its truth."""
+    family = name.rsplit("_", 1)[0].removeprefix("o2_")
+    unit = next(u for u in make_units(families=[family]) if u["name"] == name)
+    paths, truth, _ = generate_unit(unit, str(tmp_path))
+    return [Path(p) for p in paths], truth
+
+
+def next_session_rms(logs, offer: dict) -> float:
+    """Session 0 calibrated with the offer's terms, judged on session 2: its hold-mean RMS
+    (deg/s)."""
+    from gyrocal.diagnose import extended
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run
+
+    settings = Settings().for_protocol(PROTOCOL)
+    for term in (offer["term"], *offer.get("together", [])):
+        settings = extended(settings, term)
+    cal = run(logs[0], settings, protocol=PROTOCOL).calibration
+    return revalidate(cal, segment_log(logs[2], settings, PROTOCOL).observations)["validation_rms"]
+
+
+def diagnosed(logs, two_sessions: bool) -> dict:
+    settings = Settings().for_protocol(PROTOCOL)
+    obs = segment_log(logs[0], settings, PROTOCOL).observations
+    other = segment_log(logs[1], settings, PROTOCOL).observations if two_sessions else None
+    return diagnose(settings, obs, other).to_dict()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["o2_complete_0", "o2_complete_3"])
+def test_a_complete_unit_with_a_turn_on_bias_is_quiet_in_both_modes(name, tmp_path):
+    """A complete unit whose bias moves by about one hold-mean floor at each power-on, with
+    bias instability besides: quiet from one log and from two sessions. The other session's
+    error beyond the floor is an offset per axis, the power-on's bias, which no calibration
+    carries; without it the calibration carries within the issue's bar."""
+    logs, _ = open2_unit(tmp_path, name)
+    for two in (False, True):
+        d = diagnosed(logs, two)
+        assert _answer(d, two)["verdict"] == "quiet", d["verdict"]
+    nxt = d["next_session"]
+    assert not nxt["fails_in_practice"], d["verdict"]
+    assert nxt["rezeroed_rms"] <= NEXT_SESSION_LIMIT * nxt["expected_rms"] * 1.05, nxt
+
+
+@pytest.mark.slow
+def test_a_reference_rate_read_with_a_scale_error_is_told_as_the_labs(tmp_path):
+    """The table's tachometer reads one session's rates a scale apart: the calibration of that
+    session fails on the other by one scale every axis shares, which the verdict tells as the
+    lab's (not "the unit changed"), with the scale the generator put in: the calibration's
+    rates read 1 + ε times the true ones where the reference read 1 + ε, within the table's ripple (2e-5 of the
+    rate) and its jitter."""
+    logs, truth = open2_unit(tmp_path, "o2_table_tach_scale_2")
+    d = diagnosed(logs, True)
+    assert _answer(d, True)["reason"] == "lab", d["verdict"]
+    from open2.generator import effect_params
+
+    unit = next(u for u in make_units(families=["table_tach_scale"]) if u["name"] == "o2_table_tach_scale_2")
+    eps = effect_params(unit["seed"], "table_tach_scale")["sign"] * 1e-3 * truth["amp"]
+    assert abs(d["next_session"]["reference_scale"] - eps) <= 3e-5, (eps, d["next_session"])
+
+
+@pytest.mark.slow
+def test_a_bump_between_the_points_is_told_where_the_other_session_visits_between_them(tmp_path):
+    """A bias bump in temperature between the set points; the other session visits only the
+    temperatures between this one's: no pattern can be compared, and the verdict says the
+    calibration does not hold between its points (or the unit changed), not a bare change."""
+    logs, _ = open2_unit(tmp_path, "o2_mode_crossing_1")
+    d = diagnosed(logs, True)
+    assert _answer(d, True)["reason"] == "between points", d["verdict"]
+
+
+@pytest.mark.slow
+def test_a_thermal_backlash_is_told_by_the_direction_each_point_was_reached_from(tmp_path):
+    """A play operator of the temperature (5-8 °C wide) on the bias; the other session visits
+    the points the other way round, so three of five are reached from the other side: the
+    errors there step with the direction, within the bar a hold may err once the step and an
+    offset are taken out."""
+    logs, _ = open2_unit(tmp_path, "o2_thermal_play_1")
+    d = diagnosed(logs, True)
+    assert _answer(d, True)["reason"] == "direction of approach", d["verdict"]
+    assert d["approach"]["explains"] and len(d["approach"]["points"]) == 3, d["approach"]
+
+
+@pytest.mark.slow
+def test_a_fixture_that_tilts_the_unit_at_each_mounting_is_the_mountings(tmp_path):
+    """Six mounts, each mounting tilting the unit by a new angle: the turning rate leaks into
+    the other outputs by a misalignment of each mounting's own, which a misalignment per
+    mounting holds and per mount, per point's drift or per direction does not."""
+    logs, _ = open2_unit(tmp_path, "o2_fixture_reseat_0")
+    for two in (False, True):
+        d = diagnosed(logs, two)
+        assert _answer(d, two)["reason"] == "mounting", d["verdict"]
+
+
+@pytest.mark.slow
+def test_a_misalignment_growing_with_the_rate_keeps_its_sign(tmp_path):
+    """A cross-axis term ω_b |ω_b| (odd in the turning rate): the grammar's square with its
+    sign is offered from one log and brings the unseen session within the issue's bar of the
+    generator's floor (what its complete unit leaves there, turn-on bias included)."""
+    logs, truth = open2_unit(tmp_path, "o2_cross_rate_square_1")
+    d = diagnosed(logs, False)
+    assert d["best"] is not None and "signed_square" in d["best"]["term"], d["verdict"]
+    assert next_session_rms(logs, d["best"]) <= NEXT_SESSION_LIMIT * truth["floor_ref"]
+
+
+@pytest.mark.slow
+def test_an_excess_the_other_session_does_not_repeat_is_searched_before_it_is_called_noise(tmp_path):
+    """A bias from the fixture's thermal gradient, with a soak half as long in this session
+    as in the other: the pattern differs between the sessions, but a term of the temperature's
+    history explains this one and carries to the other, so it is offered, not called slow
+    noise."""
+    logs, _ = open2_unit(tmp_path, "o2_fixture_heat_flux_2")
+    d = diagnosed(logs, True)
+    answer = _answer(d, True)
+    assert answer["verdict"] == "fix" and "thermal" in answer["reads"], d["verdict"]
+    assert not d["unrepeated"]
