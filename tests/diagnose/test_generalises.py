@@ -298,3 +298,22 @@ def test_a_turn_on_bias_a_little_apart_carries_over_and_a_new_one_does_not(tmp_p
         assert ("the unit changed between sessions" in d["verdict"]) is changed, d["verdict"]
         unseen = revalidate(run(logs[0], settings).calibration, segment_log(logs[2], settings).observations)
         assert (unseen["validation_rms"] > 1.2 * unseen["expected_rms"]) is changed, unseen["validation_rms"]
+
+
+@pytest.mark.slow
+def test_three_mounts_mounted_once_tie_the_specific_force_to_the_mounting(tmp_path):
+    """A g-sensitivity (the zoo's) on a session that mounts each of three mounts once (one
+    temperature point): the fix reads the specific force, which takes one value per mounting,
+    so an offset the fixture gave each mounting fits as well and the verdict names it with
+    what would tell. Where each mount is mounted again at every point (the zoo's default,
+    twelve mountings) the two part and nothing is named."""
+    settings = Settings()
+    once = zoo_sessions(
+        tmp_path / "once", "g_sensitivity", 3, sessions={s: {"temps": [30.0]} for s in range(3)}
+    )
+    d = diagnose(settings, segment_log(once[0], settings).observations).to_dict()
+    assert d["best"] is not None and "g_sensitivity" in d["best"]["term"], d["verdict"]
+    assert d["confound"] is not None and d["confound"]["rival"] == "the mounting", d["verdict"]
+    again = zoo_sessions(tmp_path / "again", "g_sensitivity", 3)
+    d = diagnose(settings, segment_log(again[0], settings).observations).to_dict()
+    assert d["best"] is not None and d["confound"] is None, d["verdict"]
