@@ -26,9 +26,9 @@ from .where import one_way_points
 
 def _point_means(other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray) -> tuple[np.ndarray, ...]:
     """Each point's weighted mean error per axis and its standard error, with the point's
-    temperature."""
+    temperature and label."""
     points = np.asarray(other["point"])
-    temps, means, errs = [], [], []
+    labels, temps, means, errs = [], [], [], []
     for p in np.unique(points):
         rows = points == p
         w = 1.0 / floor[rows] ** 2
@@ -37,20 +37,22 @@ def _point_means(other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray) -> 
         total = w.sum(axis=0)
         if not np.all(total > 0):
             continue
+        labels.append(p)
         temps.append(float(np.median(other["temp"].to_numpy(float)[rows])))
         means.append((np.where(ok, errors[rows], 0.0) * w).sum(axis=0) / total)
         errs.append(1.0 / np.sqrt(total))
-    return np.array(temps), np.array(means), np.array(errs)
+    return np.array(temps), np.array(means), np.array(errs), np.array(labels)
 
 
-def _within_the_bar(other, temps, change, offset, shift, errors, floor) -> bool:
+def _within_the_bar(other, labels, change, offset, shift, errors, floor) -> bool:
     """Whether the other session's holds, less the offset and the step of their point's
-    direction, err within :data:`.sessions.CARRIES_WITHIN` times their floor: a point mean
-    of hundreds of holds resolves what no hold would feel."""
-    point_temp = other.groupby(np.asarray(other["point"]))["temp"].transform("median").to_numpy(float)
+    direction (``change`` at the points ``labels``), err within
+    :data:`.sessions.CARRIES_WITHIN` times their floor: a point mean of hundreds of holds
+    resolves what no hold would feel."""
+    points = np.asarray(other["point"])
     step = np.zeros(len(other))
-    for t, c in zip(temps, change, strict=True):
-        step[np.abs(point_temp - t) < 1e-6] = c
+    for p, c in zip(labels, change, strict=True):
+        step[points == p] = c
     left = errors - offset[None, :] - step[:, None] * shift[None, :]
     ok = np.all(np.isfinite(left), axis=1) & np.all(np.isfinite(floor), axis=1)
     if not ok.any():
@@ -100,7 +102,7 @@ def direction_of_approach(
     ways = [here, one_way_points(other, columns_of(other))]
     if ways[0] is None or ways[1] is None or "point" not in other:
         return None
-    temps, means, errs = _point_means(other, errors, floor)
+    temps, means, errs, labels = _point_means(other, errors, floor)
     before = np.array(list(ways[0]))
     change = np.full(len(temps), np.nan)
     for i, t in enumerate(temps):
@@ -113,7 +115,7 @@ def direction_of_approach(
         return _tied(temps[known], means[known], errs[known], float(change[known][0]), alpha)
     if known.sum() < 3 or not (np.any(change[known] != 0) and np.any(change[known] == 0)):
         return None
-    temps, means, errs, change = temps[known], means[known], errs[known], change[known]
+    temps, means, errs, labels, change = temps[known], means[known], errs[known], labels[known], change[known]
     chi2 = {}
     shift = np.zeros(len(AXES))
     offset = np.zeros(len(AXES))
@@ -137,7 +139,7 @@ def direction_of_approach(
     p = float(f_sf(f, k1 - k0, n - k1))
     left = float(chi2_sf(chi2["direction"], n - k1))
     # beyond chance in the points' means may still be within what a hold may err
-    within = left < alpha / 2 and _within_the_bar(other, temps, change, offset, shift, errors, floor)
+    within = left < alpha / 2 and _within_the_bar(other, labels, change, offset, shift, errors, floor)
     return Approach(
         points=[float(np.round(t, 1)) for t, c in zip(temps, change, strict=True) if c != 0],
         same=[float(np.round(t, 1)) for t, c in zip(temps, change, strict=True) if c == 0],

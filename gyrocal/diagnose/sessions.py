@@ -79,23 +79,19 @@ def turned_on(nxt: CarryOver) -> bool:
     )
 
 
-def _turn_on_offsets(cal, other: pd.DataFrame, errors: np.ndarray, floor: np.ndarray) -> dict:
-    """On the holds revalidation scores: the other session's mean error per axis (weighted
-    by each hold's floor), the bias the unit took at that power-on, and the RMS error left
-    with it taken out (deg/s); and one scale error every axis shares fitted with those
-    offsets, and what they leave. A reference rate read with a scale error (a table's
-    tachometer) puts the same relative error on every axis' rate; a sensor's scales change
-    each its own way."""
-    from ..fit.model import columns_of
-    from ..fleet.drift import _scored_holds
-
-    data = cal.model.transform_inputs(columns_of(other))
-    use = _scored_holds(cal, data["temp"], 1.0).use & np.all(np.isfinite(errors), axis=1)
-    e, w = errors[use], 1.0 / np.maximum(floor[use], 1e-300) ** 2
+def _turn_on_offsets(held) -> dict:
+    """On the holds revalidation scores (``held``, :func:`gyrocal.fleet.drift.scored_hold_errors`):
+    the other session's mean error per axis (weighted by each hold's floor), the bias the unit
+    took at that power-on, and the RMS error left with it taken out (deg/s); and one scale
+    error every axis shares fitted with those offsets, and what they leave. A reference rate
+    read with a scale error (a table's tachometer) puts the same relative error on every
+    axis' rate; a sensor's scales change each its own way."""
+    use = held.scored & np.all(np.isfinite(held.errors), axis=1)
+    e, w = held.errors[use], 1.0 / np.maximum(held.floor[use], 1e-300) ** 2
     if not len(e):
         return {}
     offset = np.sum(e * w, axis=0) / np.sum(w, axis=0)
-    rates = np.column_stack([np.asarray(data[f"rate_{a}"], dtype=float) for a in AXES])[use]
+    rates = held.rates[use]
     centred = rates - np.sum(rates * w, axis=0) / np.sum(w, axis=0)
     power = float(np.sum(w * centred**2))
     scale = float(np.sum(w * centred * (e - offset)) / power) if power > 0 else 0.0
@@ -130,12 +126,13 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     reference temperature is ``settings``') applied to another session of the unit
     (:func:`gyrocal.fleet.drift.revalidate`) and whether the pattern of its residuals repeats there
     (:func:`repeat_p_value`) or the sessions differ by slow noise (:func:`unrepeated_p_value`)."""
-    from ..fleet.drift import hold_errors, revalidate
+    from ..fleet.drift import revalidate, scored_hold_errors
     from ..pipeline.chain import calibrate_observations
 
     cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
-    errors, floor1 = hold_errors(cal, other)
+    held = scored_hold_errors(cal, other)
+    errors, floor1 = held.errors, held.floor
     resid, floor0, rows = in_sample(ev.fitted, len(obs))
     z0, z1 = (resid / floor0)[rows], errors / floor1
     out: CarryOver = {
@@ -149,7 +146,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
     }
-    out.update(_turn_on_offsets(cal, other, errors, floor1))  # type: ignore[typeddict-item]
+    out.update(_turn_on_offsets(held))  # type: ignore[typeddict-item]
     if not all(
         np.isfinite(v) for v in [*out.values(), *out.get("turn_on_bias", {}).values()] if isinstance(v, float)
     ):

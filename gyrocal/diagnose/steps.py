@@ -137,10 +137,8 @@ def diagnose(
         explains = True
         found = replace(found, useful=(), drift=None, why=None)
     why = found.why or too_small(excess, found.best, explains, noise_explains)
-    if why is None and explains and found.best is None and usable(base_next) and reference_scaled(base_next):
-        why = reference_reason(base_next)
-    if why is None and explains and found.best is None and not usable(base_next):
-        why = between_the_sessions(judge, base_next)
+    if why is None and explains and found.best is None:
+        why = _other_session_reason(judge, base_next)
     between = (
         between_points(base.fitted, alpha)
         if excess.fits and excess.resolvable and found.best is None and not noise_explains
@@ -589,6 +587,15 @@ def too_small(excess: ExcessTest, best, explains: bool, noise_explains: bool) ->
         would_tell="more holds where the excess lives (longer soaks, more rates or "
         "temperatures), or another session (--other-session)",
     )
+
+
+def _other_session_reason(judge: Judge, base_next) -> Unexplained | None:
+    """Why a calibration that explains this session fails on the other, where that says
+    more than a change of the unit: one scale every axis shares (the reference's), or the
+    other session's points all between this one's."""
+    if usable(base_next):
+        return reference_reason(base_next) if reference_scaled(base_next) else None
+    return between_the_sessions(judge, base_next)
 
 
 def _point_temperatures(obs: pd.DataFrame) -> np.ndarray:

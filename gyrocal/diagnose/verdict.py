@@ -109,6 +109,14 @@ def _confound_sentence(confound) -> str:
     )
 
 
+# What fits the direction of approach once points are reached from both sides.
+DIRECTION_TERM = (
+    "the direction's term, --add-term \"expression(label='temp_direction', formula='2 * (temp "
+    "- play(temp, w)) / w', parameters={w: 1.0}, profile={w: [0.3, 20]})\", be fitted and "
+    "carried."
+)
+
+
 def _approach_sentence(base_next: CarryOver, approach) -> str:
     """The other session's failure told by the direction each point was reached from."""
     steps = ", ".join(f"{v:+.3g} ({a})" for a, v in approach.shift.items())
@@ -124,9 +132,7 @@ def _approach_sentence(base_next: CarryOver, approach) -> str:
             "from (thermal hysteresis) leaves exactly that, as would a bias the unit took anew "
             "at power-on, and these two sessions cannot tell them apart. Visiting some points "
             "from both sides (down after up, or a point revisited from the other side) would, "
-            "and lets the direction's term, --add-term \"expression(label='temp_direction', "
-            "formula='2 * (temp - play(temp, w)) / w', parameters={w: 1.0}, profile={w: [0.3, "
-            '20]})", be fitted and carried.'
+            f"and lets {DIRECTION_TERM}"
         )
     return (
         f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
@@ -138,10 +144,8 @@ def _approach_sentence(base_next: CarryOver, approach) -> str:
         "A bias that depends on the direction the temperature came from (thermal hysteresis) "
         "is constant within each point of a session, so one session's calibration holds it in "
         "that point's bias and no term of it can be fitted there: visiting each point from "
-        "both sides (down after up, or a point revisited from the other side) lets the "
-        "direction's term, --add-term \"expression(label='temp_direction', formula='2 * (temp "
-        "- play(temp, w)) / w', parameters={w: 1.0}, profile={w: [0.3, 20]})\", be fitted and "
-        "carried."
+        "both sides (down after up, or a point revisited from the other side) lets "
+        f"{DIRECTION_TERM}"
     )
 
 

@@ -212,14 +212,34 @@ def _plans(cal: Calibration, temp: np.ndarray):
     return _Plan(cal.model, names, values, cov, at), single, ref_temp
 
 
-def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
-    """Each hold's error (n, 3) after ``cal``'s interpolated compensation, as
-    :func:`revalidate` scores it, and the hold's noise floor (n, 3), deg/s."""
+class HoldErrors(NamedTuple):
+    """Each hold's error (n, 3) after a calibration's interpolated compensation, its noise
+    floor (n, 3) and true rates (n, 3), deg/s, and the holds :func:`revalidate` scores."""
+
+    errors: np.ndarray
+    floor: np.ndarray
+    rates: np.ndarray
+    scored: np.ndarray
+
+
+def scored_hold_errors(cal: Calibration, obs: pd.DataFrame, span_margin: float = 1.0) -> HoldErrors:
+    """Each hold's error after ``cal``'s interpolated compensation, as :func:`revalidate`
+    scores it, with what a reader of them needs beside (:class:`HoldErrors`), from one pass
+    over the holds' inputs."""
     data = cal.model.transform_inputs(columns_of(obs))
     stack = lambda prefix: np.column_stack([data[f"{prefix}_{a}"] for a in AXES])  # noqa: E731
     interp, _, _ = _plans(cal, data["temp"])
-    errors, _, _ = _compensate(interp, stack("gyro"), stack("rate"), stack("std"), data)
-    return errors, observation_floor(data)
+    rates = stack("rate")
+    errors, _, _ = _compensate(interp, stack("gyro"), rates, stack("std"), data)
+    scored = _scored_holds(cal, data["temp"], span_margin).use
+    return HoldErrors(errors, observation_floor(data), rates, scored)
+
+
+def hold_errors(cal: Calibration, obs: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Each hold's error (n, 3) after ``cal``'s interpolated compensation, as
+    :func:`revalidate` scores it, and the hold's noise floor (n, 3), deg/s."""
+    held = scored_hold_errors(cal, obs)
+    return held.errors, held.floor
 
 
 class Revalidation(TypedDict):
