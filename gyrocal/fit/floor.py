@@ -34,7 +34,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import TYPE_CHECKING, Any, NotRequired, TypedDict
+from typing import TYPE_CHECKING, Any, NamedTuple, NotRequired, TypedDict
 
 import numpy as np
 
@@ -194,18 +194,79 @@ class StretchSampler:
             gyro = gyro[settled_start(gyro) :]
         n = len(gyro)
         if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
+            half = n // 2
             # in float64: a float32 column's own accumulator overflows near its largest value
+            drift = np.mean(gyro[half:], axis=0, dtype=np.float64) - np.mean(
+                gyro[:half], axis=0, dtype=np.float64
+            )
             self._done[k] = (
                 self._pool.submit(stretch_sums, gyro, self.rate),
                 n,
                 float(np.mean(cols["temp"], dtype=np.float64)),
+                float(self.start[k]),
+                drift,
             )
 
-    def result(self) -> list[tuple]:
+    def result(self) -> list[Stretch]:
         for k in list(self._pieces):
             self._close(k)
         self._pool.shutdown()
-        return [(sums.result(), n, temp) for _, (sums, n, temp) in sorted(self._done.items())]
+        return [Stretch(sums.result(), *rest) for _, (sums, *rest) in sorted(self._done.items())]
+
+
+class Stretch(NamedTuple):
+    """A static stretch as the noise model reads it: its sums (:func:`gyrocal.fit.noise.stretch_sums`),
+    its samples, its mean temperature, its start (s) and its drift (the second half's mean
+    less the first's, per axis, deg/s)."""
+
+    sums: Any
+    n: int
+    temp: float
+    start: float
+    drift: np.ndarray
+
+
+MOTION_DRIFT_P = 1e-3  # per axis: the stretches' drifts follow the motion before them
+
+
+def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, list] | None:
+    """Whether the static stretches' drifts follow the motion before them, per axis: each
+    stretch's drift regressed on 1, the previous hold's rate on that axis and its rate's
+    magnitude, F-tested against no drift (p per axis; ``follows`` where p < MOTION_DRIFT_P).
+    Rate random walk and bias instability drift each stretch its own random way; an output
+    that relaxes after turning (a slow pole, a charge that decays) drifts the way the turn
+    before it says, and its Allan deviation at long τ would pass for random walk: a floor made
+    of the effect. None where fewer than eight stretches follow a hold or the holds have no
+    rates."""
+    if not stretches or any(f"rate_{a}" not in obs for a in AXES) or obs.empty:
+        return None
+    holds = obs.sort_values("t_end")
+    ends = holds["t_end"].to_numpy(float)
+    rates = holds[[f"rate_{a}" for a in AXES]].to_numpy(float)
+    starts = np.array([s.start for s in stretches])
+    previous = np.searchsorted(ends, starts, side="right") - 1
+    keep = previous >= 0
+    if keep.sum() < 8:
+        return None
+    prev = rates[previous[keep]]
+    drifts = np.array([s.drift for s in stretches])[keep]
+    magnitude = np.linalg.norm(prev, axis=1)
+    from scipy.special import fdtrc  # the F distribution's tail, without scipy.stats' import
+
+    p_values = []
+    for i in range(3):
+        design = np.column_stack([np.ones(len(prev)), prev[:, i], magnitude])
+        y = drifts[:, i]
+        coef, *_ = np.linalg.lstsq(design, y, rcond=None)
+        rank = int(np.linalg.matrix_rank(design))
+        left = float(np.sum((y - design @ coef) ** 2))
+        dof = len(y) - rank
+        total = float(np.sum(y**2))
+        if dof < 1 or left <= 0 or not np.isfinite(total):
+            p_values.append(1.0)
+            continue
+        p_values.append(float(fdtrc(rank, dof, ((total - left) / rank) / (left / dof))))
+    return {"p": p_values, "follows": [p < MOTION_DRIFT_P for p in p_values]}
 
 
 class NoiseModel(TypedDict):
@@ -214,6 +275,7 @@ class NoiseModel(TypedDict):
     sample_variance: list[float]  # within the stretches, per axis, (deg/s)²
     allan: dict[str, Any]  # the pooled Allan deviation: tau_s, adev, lo, hi, edf, level
     terms: dict[str, Any]  # the fitted IEEE Std 952 terms (NoiseTerms.to_dict)
+    motion_drift: NotRequired[dict[str, list]]  # :func:`motion_drift`, where it could be judged
 
 
 class Resolution(TypedDict):
@@ -295,24 +357,27 @@ def characterise(log, seg, static, *, max_temp_rate: float = 0.1, sampled=None) 
     }
     if obs.empty or rate <= 0:
         return summary
+    after_turning = bool(getattr(getattr(static, "__self__", None), "static_after_turning", False))
     if sampled is None:
-        after_turning = bool(getattr(getattr(static, "__self__", None), "static_after_turning", False))
         sampler = StretchSampler(
             static_stretches(log, seg, static, max_temp_rate=max_temp_rate), rate, trim_settling=after_turning
         )
         for batch in log.scan(StretchSampler.NAMES):
             sampler.push(batch)
         sampled = sampler.result()
-    seconds = sum(n for _, n, _ in sampled) / rate
+    seconds = sum(s.n for s in sampled) / rate
     if seconds < MIN_TOTAL_S:
         return summary
-    parts = [sums for sums, _, _ in sampled]
+    parts = [s.sums for s in sampled]
     session = _model(parts, rate)
     if session is None:
         summary["reason"] = "the static stretches are too short for a noise model"
         return summary
+    drift = motion_drift(obs, sampled) if after_turning else None
+    if drift is not None:
+        session["motion_drift"] = drift
     points = obs.groupby("point")["point_temp"].first()
-    temps = np.array([temp for _, _, temp in sampled])
+    temps = np.array([s.temp for s in sampled])
     # each stretch belongs to the temperature point nearest its mean temperature
     nearest = np.abs(temps[:, None] - points.to_numpy()[None, :]).argmin(axis=1)
     rows = []
@@ -387,12 +452,16 @@ def floor_terms(model: Mapping[str, Any]) -> NoiseTerms:
     """The session's terms as the floors use them: bias instability and rate random walk only
     where the static data detect them (:func:`detected`). A few minutes of white noise fit a
     flicker level of a few deg/h; counted, it would raise the floor of a white-noise unit by a
-    third and hide real effects. The ramp, a drift, counts in no floor."""
+    third and hide real effects. The ramp, a drift, counts in no floor; nor do they on an
+    axis whose static stretches drift the way the turn before them says (:func:`motion_drift`):
+    there the slow part of the static data is an effect of the motion, which the fit is
+    asked to find, and a floor made of it would hide it."""
     terms = terms_of(model)
+    follows = np.asarray(model.get("motion_drift", {}).get("follows", [False] * 3), bool)
 
     def counted(name: str) -> np.ndarray:
         value = np.asarray(getattr(terms, name), float)
-        return np.where(detected(value, getattr(terms, f"{name}_stderr")), value, 0.0)
+        return np.where(detected(value, getattr(terms, f"{name}_stderr")) & ~follows, value, 0.0)
 
     return replace(terms, bias_instability=counted("bias_instability"), rrw=counted("rrw"))
 
