@@ -32,11 +32,15 @@ RATE_ORDER_WOULD_TELL = (
 )
 
 
-TEMPERATURE_ORDER_WOULD_TELL = (
-    "a session visiting the temperature points in another order (falling, or out of order) "
-    "would tell them apart: an effect of the temperature keeps its value at each point, one "
-    "of time since power-on moves with the order"
-)
+def temperature_order_would_tell(way: str) -> str:
+    """The protocol change that tells time from temperature, given this session's order."""
+    other = "rising" if way == "falling" else "falling"
+    return (
+        f"a session visiting the temperature points in another order ({other}, or out of order) "
+        "would tell them apart: an effect of the temperature keeps its value at each point, one "
+        "of time since power-on moves with the order"
+    )
+
 
 MOUNTING_WOULD_TELL = (
     "the other session, the unit mounted again, would tell them apart: an offset of the "
@@ -157,7 +161,7 @@ def time_temperature_confound(data, best, candidates, covariates) -> Confound | 
         tied=abs(rho),
         rival_term=rival.term if rival else None,
         rival_rms=float(rival.validation_rms_with) if rival else None,
-        would_tell=TEMPERATURE_ORDER_WOULD_TELL,
+        would_tell=temperature_order_would_tell(way),
         tie=f"in this session the temperature points are visited {way} (rank correlation of time "
         f"and temperature {rho:+.2f})",
     )

@@ -313,6 +313,7 @@ def second_step(
         pair = replace(first, together=[c.term])
         if judge.explains(ext, pair, start_next, tolerance):
             found.append((ext.summary["validation_rms"], c.term, ext, pair))
+    found = _carrying_pairs(judge, first, found, alpha)
     if not found:
         return None
     # What the user will meet decides: the other session where there is one; otherwise,
@@ -332,6 +333,7 @@ def second_step(
         v, term, ext, pair = min(close, key=lambda f: (pair_df(start, f[2]), f[0]))
     return replace(
         pair,
+        profiled=list(getattr(ext.fitted, "profiled", ()) or first.profiled),
         validation_rms_with=v,
         expected_with=ext.summary["expected_rms"],
         explains_excess=True,
@@ -340,6 +342,30 @@ def second_step(
         chi2=ext.chi2,
         df=(first.df[0] + pair_df(start, ext), ext.dof),
     )
+
+
+def _carrying_pairs(judge: Judge, first: Candidate, found: list, alpha: float) -> list:
+    """The pairs that carry to a rate level they never saw as well as ``first`` alone does,
+    within chance (:func:`chance_bound` of the holds left out) or within
+    :data:`~.grain.CARRIES_WITHIN`: a partner that fits its own session's levels and misses
+    the one left out fits what the first leaves of this session, not an effect. Where the
+    protocol allows no such grain, every pair stands."""
+    from .grain import CARRIES_WITHIN, at_the_grain
+
+    settings, obs = judge.settings, judge.obs
+    alone = at_the_grain(settings, extended(settings, first.term), obs, "rate level", first.profiled)
+    if alone is None or alone.fix is None:
+        return found
+    kept = []
+    for entry in found:
+        ext, pair = entry[2], entry[3]
+        fixed = extended(extended(settings, first.term), pair.together[0])
+        profiled = getattr(ext.fitted, "profiled", ()) or ()
+        grain = at_the_grain(settings, fixed, obs, "rate level", profiled)
+        bar = max(alone.fix * chance_bound(alone.holds, alpha), CARRIES_WITHIN)
+        if grain is None or grain.fix is None or grain.fix <= bar:
+            kept.append(entry)
+    return kept
 
 
 def pair_df(start: Evaluation, ext: Evaluation) -> int:

@@ -24,7 +24,7 @@ from .evaluation import Evaluation, add_term_option, config_line, evaluate, exte
 from .grammar import formula_of, screen
 from .sessions import usable
 from .shapes import at_bound, describe, describe_history, for_the_unit, shape_terms
-from .stats import chi2_sf, f_sf, floor_uncertainty
+from .stats import chance_bound, chi2_sf, f_sf, floor_uncertainty
 from .verdict import coherent
 from .where import SETTLING_ROW, input_values
 
@@ -306,7 +306,7 @@ def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound
         ]
         partners += [c for c in library if c.significant]
         pair = second_step(judge, first, partners, base.summary["validation_rms"], tolerance, in_sample=True)
-        if pair is not None:
+        if pair is not None and _beats_the_singles(pair, gaining, base_next, judge.alpha):
             good.append((pair, own))
     if len(good) > 1 and not usable(base_next):
         # Pairs alike within the figure's own uncertainty: the one with fewest coefficients.
@@ -318,6 +318,20 @@ def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound
             )
         ]
     return good
+
+
+def _beats_the_singles(pair: Candidate, singles: list[Candidate], base_next, alpha: float) -> bool:
+    """A pair that explains this session is offered over a term alone only where it carries
+    to the other session better than the best of them, beyond that figure's own uncertainty:
+    a partner that takes up what one term leaves here and misses there fits this session's
+    own leftovers. Without another session, every pair stands."""
+    if not usable(base_next) or not usable(pair.next_session):
+        return True
+    alone = [c.next_session["validation_rms"] for c in singles if usable(c.next_session)]
+    if not alone:
+        return True
+    bound = chance_bound(base_next["holds_scored"], alpha)
+    return bool(pair.next_session["validation_rms"] * bound < min(alone))
 
 
 def _shape_sentence(judge: Judge, best: Candidate, shape, covariates, quality) -> str:

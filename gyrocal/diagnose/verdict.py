@@ -354,7 +354,7 @@ def _partial(base, factor, first, where: str, base_next) -> str:
         return (
             f"The model does not explain the data: its in-sample residuals are "
             f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
-            f"{name} takes away {100 * first.excess_taken:.0f} % of the excess ({figure}"
+            f"{name} takes away {100 * min(first.excess_taken, 1.0):.0f} % of the excess ({figure}"
             f"{there}): add it with {first.option}.{follows}{rest}"
         )
     outside = rest or (

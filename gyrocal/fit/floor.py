@@ -226,13 +226,18 @@ class Stretch(NamedTuple):
     drift: np.ndarray
 
 
-MOTION_DRIFT_P = 1e-3  # per axis: the stretches' drifts follow the motion before them
+MOTION_DRIFT_P = 1e-3  # the session's: the stretches' drifts follow the motion (the axes' tests combined)
+MOTION_DRIFT_AXIS_P = 0.05  # then each axis whose own test passes at this level
 
 
 def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, list] | None:
     """Whether the static stretches' drifts follow the motion before them, per axis: each
     stretch's drift regressed on 1, the previous hold's rate on that axis and its rate's
-    magnitude, F-tested against no drift (p per axis; ``follows`` where p < MOTION_DRIFT_P).
+    magnitude, F-tested against no drift (p per axis). A session's drifts follow the motion
+    where the axes' tests combined (Fisher's: -2 Σ ln p is χ² with six degrees of freedom when
+    no axis follows) give p below MOTION_DRIFT_P; then ``follows`` every
+    axis whose own p is below MOTION_DRIFT_AXIS_P (an effect of the motion shows on the axes
+    its direction reaches, some more faintly than others).
     Rate random walk and bias instability drift each stretch its own random way; an output
     that relaxes after turning (a slow pole, a charge that decays) drifts the way the turn
     before it says, and its Allan deviation at long τ would pass for random walk: a floor made
@@ -251,7 +256,7 @@ def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, list]
     prev = rates[previous[keep]]
     drifts = np.array([s.drift for s in stretches])[keep]
     magnitude = np.linalg.norm(prev, axis=1)
-    from scipy.special import fdtrc  # the F distribution's tail, without scipy.stats' import
+    from scipy.special import chdtrc, fdtrc  # tails, without scipy.stats' import
 
     p_values = []
     for i in range(3):
@@ -266,7 +271,9 @@ def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, list]
             p_values.append(1.0)
             continue
         p_values.append(float(fdtrc(rank, dof, ((total - left) / rank) / (left / dof))))
-    return {"p": p_values, "follows": [p < MOTION_DRIFT_P for p in p_values]}
+    combined = float(chdtrc(2 * len(p_values), -2.0 * np.sum(np.log(np.maximum(p_values, 1e-300)))))
+    follows = [combined < MOTION_DRIFT_P and p < MOTION_DRIFT_AXIS_P for p in p_values]
+    return {"p": p_values, "p_session": combined, "follows": follows}
 
 
 class NoiseModel(TypedDict):

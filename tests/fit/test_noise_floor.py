@@ -393,3 +393,63 @@ def test_a_stretch_is_read_from_where_its_output_settled():
     assert start > 0
     assert settling[start] < 8 * 0.01 / np.sqrt(t.size / 16)
     assert start <= t.size // 4
+
+
+def _holds_and_stretches(rng, drift_of, count: int = 24):
+    """``count`` holds of ±50…±300 deg/s about one axis each, a static stretch after each;
+    ``drift_of(previous rates)``: each stretch's drift (deg/s, per axis)."""
+    from gyrocal.fit.floor import Stretch
+
+    rates = np.zeros((count, 3))
+    rates[np.arange(count), np.arange(count) % 3] = rng.choice([-1, 1], count) * rng.uniform(50, 300, count)
+    holds = pd.DataFrame(
+        {"t_start": 100.0 * np.arange(count), "t_end": 100.0 * np.arange(count) + 40.0}
+        | {f"rate_{a}": rates[:, i] for i, a in enumerate(AXES)}
+    )
+    stretches = [
+        Stretch(None, 2000, 25.0, 100.0 * k + 45.0, np.asarray(drift_of(rates[k]), float))
+        for k in range(count)
+    ]
+    return holds, stretches
+
+
+def test_static_drifts_that_follow_the_turn_before_them_are_told_from_random_walk():
+    """A charge that the turn's magnitude builds and that decays in the stillness after it
+    drifts every stretch the same way, by an amount the turn sets (here 2e-4 per deg/s, with
+    white noise of 0.002 deg/s on each drift): its axes follow the motion. A random walk
+    drifts each stretch its own way, ten times that noise: out of 400 such sessions no more
+    than the test's level (0.1 % a session) plus chance flag any axis."""
+    from gyrocal.fit.floor import MOTION_DRIFT_P, motion_drift
+
+    rng = np.random.default_rng(11)
+    holds, stretches = _holds_and_stretches(
+        rng, lambda r: -2e-4 * np.linalg.norm(r) * np.array([1.0, 0.5, -0.7]) + rng.normal(0, 0.002, 3)
+    )
+    found = motion_drift(holds, stretches)
+    assert found is not None and all(found["follows"]), found
+    flagged = 0
+    sessions = 400
+    for _ in range(sessions):
+        holds, stretches = _holds_and_stretches(rng, lambda r: rng.normal(0, 0.02, 3))
+        flagged += any(motion_drift(holds, stretches)["follows"])
+    # binomial: 0.4 sessions expected in 400 at p = 0.001; more than isf(0.001) is < 0.1 % likely
+    assert flagged <= stats.binom.isf(1e-3, sessions, MOTION_DRIFT_P), flagged
+
+
+def test_a_random_walk_of_the_motion_is_not_counted_in_the_floor():
+    """A rate random walk the static stretches detect counts in the floor of an axis whose
+    stretches drift at random, and not on one whose stretches drift the way the turn before
+    them says: there the walk is the effect's relaxation, which the fit is asked to find."""
+    from gyrocal.fit.noise import fit_noise_terms
+
+    rng = np.random.default_rng(3)
+    rate = 10.0
+    walk = [
+        np.cumsum(rng.normal(0, 2e-3, (4000, 3)), axis=0) + rng.normal(0, 0.01, (4000, 3)) for _ in range(6)
+    ]
+    terms = fit_noise_terms(pooled_allan_deviation(walk, rate))
+    model = {"terms": terms.to_dict()}
+    assert np.all(floor_terms(model).rrw > 0)  # detected on every axis
+    model["motion_drift"] = {"p": [1e-6, 0.5, 0.5], "follows": [True, False, False]}
+    used = floor_terms(model)
+    assert used.rrw[0] == 0 and np.all(used.rrw[1:] > 0)
