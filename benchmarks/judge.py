@@ -93,6 +93,15 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
         # the excess's pattern does not come back in the other session: the verdict calls it
         # slow noise the static data did not resolve, not a change of the unit
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
+    if (
+        d["explains_the_data"]
+        and not why
+        and d["best"] is None
+        and (d.get("floors_differ") or {}).get("covers_other")
+    ):
+        # the other session fails within what this session's own, larger noise leaves: the
+        # verdict calls it slow noise this session's static data caught, not a unit change
+        return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
     if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("fails_in_practice"):
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "unit changed"}
     if d["explains_the_data"] and not why:

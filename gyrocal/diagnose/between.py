@@ -71,6 +71,16 @@ def between_points(fitted, alpha: float) -> BetweenPoints | None:
         if rank == 0:
             continue
         chi2 = float(diff @ np.linalg.pinv(cov) @ diff)
+        parts = {}
+        for part in ("scale", "misalignment"):
+            sub = [k for k, i in enumerate(pick) if names[i].split(".")[0] == part]
+            sub_cov = cov[np.ix_(sub, sub)]
+            sub_rank = int(np.linalg.matrix_rank(sub_cov)) if sub else 0
+            parts[part] = (
+                float(chi2_sf(float(diff[sub] @ np.linalg.pinv(sub_cov) @ diff[sub]), sub_rank))
+                if sub_rank
+                else 1.0
+            )
         sd = np.sqrt(np.diag(cov))
         z = np.divide(diff, sd, out=np.zeros_like(diff), where=sd > 0)
         worst = int(np.argmax(np.abs(z)))
@@ -83,13 +93,16 @@ def between_points(fitted, alpha: float) -> BetweenPoints | None:
                 "coefficient": names[pick[worst]],
                 "difference": float(diff[worst]),
                 "z": float(z[worst]),
+                "scale_p_value": parts["scale"],
+                "misalignment_p_value": parts["misalignment"],
             }
         )
     if not points:
         return None
     tested = len(points)
-    for r in points:
-        r["p_value"] = min(1.0, tested * r["p_value"])  # Bonferroni over the points
+    for r in points:  # Bonferroni over the points
+        for key in ("p_value", "scale_p_value", "misalignment_p_value"):
+            r[key] = min(1.0, tested * r[key])
     top = min(points, key=lambda r: r["p_value"])
     return BetweenPoints(
         points=points,
@@ -98,6 +111,83 @@ def between_points(fitted, alpha: float) -> BetweenPoints | None:
         temperature_points=len(used),
         fails=bool(top["p_value"] < alpha / 2),
         failing=[r["temp"] for r in points if r["p_value"] < alpha / 2],
+    )
+
+
+OWN_POINT_SHARE = 0.9  # a mounting belongs to the point that holds this share of its holds
+
+
+REVERSAL_SIGMAS = 3.0  # a step between neighbouring points this many standard errors is real
+
+
+def reverses(fitted, coefficient: str) -> bool:
+    """Whether ``coefficient``, fitted point by point, steps up and down across temperature:
+    two steps between neighbouring points, each beyond :data:`REVERSAL_SIGMAS` of their
+    combined uncertainty, of opposite sign. A warp past a transition moves it one way."""
+    names = list(fitted.names)
+    if coefficient not in names:
+        return False
+    k = names.index(coefficient)
+    used = list(fitted.used_points())
+    order = np.argsort(fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float))
+    fits = [fitted.point_fit(int(used[i])) for i in order]
+    values = np.array([f.values[k] for f in fits])
+    var = np.array([_uncertainty(f)[k, k] for f in fits])
+    steps = np.diff(values)
+    real = np.abs(steps) > REVERSAL_SIGMAS * np.sqrt(var[1:] + var[:-1])
+    signs = np.sign(steps[real])
+    return bool(signs.size > 1 and np.any(signs[1:] != signs[:-1]))
+
+
+def tilted_per_point(
+    check: BetweenPoints, alpha: float, mounting: np.ndarray, points: np.ndarray, fitted=None
+) -> bool:
+    """Whether what fails between the points is the misalignment alone, stepping up and down
+    across temperature (:func:`reverses`; ``fitted``, the grid fit, where known), at points
+    that each mount the unit anew (each mounting's holds, but for a stray one at a point's
+    change, at one point). A fixture seats the unit at a slightly different tilt each time,
+    and here each point has mountings of its own; a package warp past a transition tilts the
+    sense axes too, but one way with temperature, and a package's stresses show in its scale."""
+    failing = [r for r in check.points if r["p_value"] < alpha / 2]
+    if not failing or any(
+        r["scale_p_value"] < alpha / 2 or r["misalignment_p_value"] >= alpha / 2 for r in failing
+    ):
+        return False
+    if fitted is not None and not reverses(fitted, check.worst["coefficient"]):
+        return False
+    mounting, points = np.asarray(mounting), np.asarray(points)
+    if np.unique(points).size < 2:
+        return False
+    for stretch in np.unique(mounting):
+        _, counts = np.unique(points[mounting == stretch], return_counts=True)
+        if counts.max() < OWN_POINT_SHARE * counts.sum():
+            return False
+    return True
+
+
+def tilted_reason(check: BetweenPoints) -> Unexplained:
+    """The verdict's why, where the misalignment alone fails between points each mounted anew
+    (:func:`tilted_per_point`)."""
+    top = check.worst
+    return Unexplained(
+        reason="the mounting",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
+            f"the misalignment interpolated from the other points misses the one fitted at "
+            f"{top['temp']:.0f} °C ({top['coefficient']} by {abs(top['z']):.3g} standard errors), "
+            "while the scale meets its interpolation; it steps up and down across temperature, "
+            "and every temperature point mounts the unit anew. A tilt the fixture gives each "
+            "mounting reads so; a package warp would tilt the sense axes one way with "
+            "temperature: the mounting's, which no term of the sensor carries to the next "
+            "mounting (with one mounting per point the data cannot rule out the sensor's "
+            "misalignment changing sharply between the points)"
+        ),
+        would_tell=(
+            "one orientation mounted twice at a point, or the unit left on its mount across two "
+            "points (a tilt changes with the mounting, the sensor's misalignment with the "
+            "temperature)"
+        ),
     )
 
 

@@ -229,3 +229,7 @@ class FloorsDiffer(_Written):
 
     ratio: float
     tolerance: float
+    # The other session's floor the smaller, and its errors, failing against it, within
+    # CARRIES_WITHIN times what a correct model leaves under this session's noise: the noise
+    # this session's static data caught (a bias that jumps, bursts) is in the other's holds.
+    covers_other: bool = False

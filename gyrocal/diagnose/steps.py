@@ -15,7 +15,7 @@ from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
 from .approach import direction_of_approach
-from .between import between_points, between_reason
+from .between import between_points, between_reason, tilted_per_point, tilted_reason
 from .confounds import mounting_confound, rate_order_confound, time_temperature_confound
 from .diagnosis import Diagnosis
 from .effects import (
@@ -145,7 +145,9 @@ def diagnose(
         else None
     )
     if why is None and between is not None and between.fails:
-        why = _between_reason(base, between)
+        points = obs["point"].to_numpy() if "point" in obs else np.zeros(len(obs))
+        tilted = tilted_per_point(between, alpha, before_holds["mounting"], points, base.fitted)
+        why = tilted_reason(between) if tilted else _between_reason(base, between)
     best = found.best
     if best is not None and settings.model.kind == "grid":
         best = continuous_instead(judge, best, base_next, excess.bound) or best
@@ -659,7 +661,14 @@ def _floors_differ(judge, base, base_next) -> FloorsDiffer | None:
     if spread <= 0:
         return None
     tolerance = FLOOR_SIGMAS * spread
-    return FloorsDiffer(ratio, tolerance) if abs(np.log(ratio)) > np.log1p(tolerance) else None
+    if abs(np.log(ratio)) <= np.log1p(tolerance):
+        return None
+    covers = (
+        ratio < 1.0
+        and fails_in_practice(base_next)
+        and base_next["validation_rms"] <= CARRIES_WITHIN * base_next["expected_rms"] / ratio
+    )
+    return FloorsDiffer(ratio, tolerance, bool(covers))
 
 
 def _approach(judge, base, base_next, here: dict | None) -> Approach | None:

@@ -27,7 +27,16 @@ def verdict(diag: Diagnosis) -> str:
         text += _confound_sentence(diag.confound)
     text += "".join(grain_sentence(g) for g in diag.grain)
     text += _other_session(diag, base_next)
-    if diag.floors_differ is not None:
+    if diag.floors_differ is not None and noise_covers_the_other(diag):
+        f = diag.floors_differ
+        text += (
+            f" The other session's noise floor, from its own static data, is {f.ratio:.2f} times "
+            f"this one's, beyond their own uncertainty (±{f.tolerance:.0%}), and its errors are "
+            f"within {CARRIES_WITHIN:g} times what a correct model leaves under this session's "
+            "noise: slow noise this session's static data caught (a bias that jumps, bursts) "
+            "and the other's did not, in the other session's holds; not a change of the unit."
+        )
+    elif diag.floors_differ is not None:
         f = diag.floors_differ
         text += (
             f" The other session's noise floor, from its own static data, is {f.ratio:.2f} times "
@@ -42,6 +51,14 @@ def verdict(diag: Diagnosis) -> str:
     if why is not None and not (why.reason == "too small" and "too small" in text):
         text += f" {why.opening}: {why.text}; {why.would_tell} would tell."
     return text
+
+
+def noise_covers_the_other(diag: Diagnosis) -> bool:
+    """A model that explains this session whose calibration fails on the other within what
+    this session's own (larger) noise leaves (:class:`.findings.FloorsDiffer`): slow noise."""
+    return bool(
+        diag.explains and diag.best is None and diag.floors_differ and diag.floors_differ.covers_other
+    )
 
 
 def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
@@ -79,10 +96,15 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f"({base_next['validation_rms'] / base_next['expected_rms']:.2f}), a difference too small "
             "to act on (a turn-on bias a little apart between power-ons): it carries over."
         )
-    if diag.explains and reference_scaled(base_next):
+    mounted = diag.unexplained is not None and diag.unexplained.reason == "the mounting"
+    if diag.explains and (reference_scaled(base_next) or mounted):
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} "
             "times the floor: it does not carry over."
+        )
+    if diag.explains and noise_covers_the_other(diag):
+        return (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} times its floor."
         )
     if diag.explains:
         return (

@@ -230,7 +230,7 @@ MOTION_DRIFT_P = 1e-3  # the session's: the stretches' drifts follow the motion 
 MOTION_DRIFT_AXIS_P = 0.05  # then each axis whose own test passes at this level
 
 
-def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, list] | None:
+def motion_drift(obs: pd.DataFrame, stretches: list[Stretch]) -> dict[str, Any] | None:
     """Whether the static stretches' drifts follow the motion before them, per axis: each
     stretch's drift regressed on 1, the previous hold's rate on that axis and its rate's
     magnitude, F-tested against no drift (p per axis). A session's drifts follow the motion
@@ -282,7 +282,7 @@ class NoiseModel(TypedDict):
     sample_variance: list[float]  # within the stretches, per axis, (deg/s)²
     allan: dict[str, Any]  # the pooled Allan deviation: tau_s, adev, lo, hi, edf, level
     terms: dict[str, Any]  # the fitted IEEE Std 952 terms (NoiseTerms.to_dict)
-    motion_drift: NotRequired[dict[str, list]]  # :func:`motion_drift`, where it could be judged
+    motion_drift: NotRequired[dict[str, Any]]  # :func:`motion_drift`, where it could be judged
 
 
 class Resolution(TypedDict):
