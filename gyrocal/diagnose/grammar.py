@@ -128,6 +128,8 @@ RULES: tuple[tuple[Input, tuple[Transform, ...], tuple[str, ...]], ...] = (
         ("bias", "scale"),
     ),
     (Input("time since power-on", "t", "time", shape_input="t"), (DECAY, LOG), ("bias", "scale")),
+    # a clamp or a strain that relaxes after each mounting (the log's handling marks it)
+    (Input("time since the mounting", "t_mount", "time", shape_input="t_mount"), (DECAY,), ("bias", "scale")),
     (
         Input("the output's slow pole", "lag(rate_own, tau) - rate_own", "rate", True, family="slow pole"),
         (IDENTITY,),
@@ -186,6 +188,9 @@ def _range(obs, data, rule: Input) -> tuple[float, float] | None:
         series = data.get("series")
         t0 = series.t0 if series is not None else float(np.min(data["t_start"]))
         return 0.0, float(np.max(t) - t0)
+    if x == "t_mount":
+        since = np.asarray(data["t_end"], float) - np.asarray(data["mounted_at"], float)
+        return 0.0, float(np.max(since))
     if "rate_own" in x or x == "cross_rate":
         top = float(np.nanmax(np.abs([data[f"rate_{a}"] for a in AXES])))
         return (0.0, top) if top > 0 else None
@@ -214,6 +219,9 @@ def _temperature_turns(data) -> bool:
 
 
 def _available(rule: Input, data) -> bool:
+    if rule.formula == "t_mount":
+        # mounted more than once in the session: else it is time since power-on
+        return "mounted_at" in data and np.unique(np.asarray(data["mounted_at"], float)).size > 1
     if "accel_own" in rule.formula and not all(f"accel_{a}" in data for a in AXES):
         return False
     if rule.formula == "temp_rate" and "temp_rate" not in data:

@@ -168,10 +168,18 @@ def held_out_gain(c: Candidate, base: Evaluation, base_next) -> float:
 MOST = 0.5
 
 
-def partial_offers(gaining: list[Candidate], base: Evaluation, base_next, lead, bound) -> list[Candidate]:
+CARRYING_SHARE = 0.1  # of the excess on a covariate row, for a term reading it to be coherent
+
+
+def partial_offers(
+    gaining: list[Candidate], base: Evaluation, base_next, lead, bound, rows=()
+) -> list[Candidate]:
     """Terms that take away a practical part of the excess without explaining it, the one
     that takes most first (at most three); the first is offered when it takes away most and
-    reads the input that carries the excess (``lead``, the leading covariate row)."""
+    reads an input that carries the excess: the leading covariate row's (``lead``) or that of
+    another row of ``rows`` carrying at least :data:`CARRYING_SHARE` of it. Rows of one
+    protocol move together (after a remount the table starts from rest, so the step into a
+    hold follows the mounting), and the leading one is not always the effect's."""
     ranked = sorted(gaining, key=lambda c: -held_out_gain(c, base, base_next))
     if ranked:
         # The library's term first where it takes about as much (within the figure's own
@@ -183,7 +191,8 @@ def partial_offers(gaining: list[Candidate], base: Evaluation, base_next, lead, 
             ranked.insert(0, library)
     for c in ranked:
         c.excess_taken = held_out_gain(c, base, base_next)
-        c.offered = c is ranked[0] and c.excess_taken > MOST and coherent(c.term, lead)
+        carrying = [lead, *(r for r in rows if (r.get("share_of_excess") or 0.0) >= CARRYING_SHARE)]
+        c.offered = c is ranked[0] and c.excess_taken > MOST and any(coherent(c.term, r) for r in carrying)
     return ranked[:3]
 
 

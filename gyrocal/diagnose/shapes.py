@@ -33,7 +33,14 @@ TERM_INPUT = {
     "rate_own": "rate_own",
     "rate_cross": "rate_cross",
 }
-UNITS = {"t": "s", "temp": "°C", "temp_rate": "°C/min", "rate_own": "deg/s", "rate_cross": "deg/s"}
+UNITS = {
+    "t": "s",
+    "t_mount": "s",
+    "temp": "°C",
+    "temp_rate": "°C/min",
+    "rate_own": "deg/s",
+    "rate_cross": "deg/s",
+}
 # A protocol holds its rates at a few levels when no more than this many distinct ones: a
 # table over them resolves any shape of the rate where its next session will be.
 MAX_RATE_LEVELS = 24

@@ -65,9 +65,11 @@ from .lab import (
     reference_reason,
 )
 from .naming import (
+    MOST,
     continuous_instead,
     fits_within_noise,
     free_shape,
+    held_out_gain,
     judged_on,
     library_order,
     misses_levels,
@@ -155,7 +157,9 @@ def diagnose(
     partial = (
         []
         if best or timed
-        else partial_offers([*found.useful, *found.shaped], base, base_next, where.lead, excess.bound)
+        else partial_offers(
+            [*found.useful, *found.shaped], base, base_next, where.lead, excess.bound, where.covariates
+        )
     )
     return _diagnosis(
         judge,
@@ -285,10 +289,15 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
     rows, _ = covariate_table(
         judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, True
     )
-    found, _ = free_shape(
-        judge, base, rows, quality, base_next, excess.tolerance, excess.bound, inputs=("history",)
+    found, tried = free_shape(
+        judge, base, rows, quality, base_next, excess.tolerance, excess.bound, inputs=("history", "t_mount")
     )
-    return found is not None
+    # or takes most of what the configured model leaves on the other session, which slow
+    # noise of this one's would not (what it leaves is a second question)
+    return found is not None or any(
+        c.status == "ranked" and usable(c.next_session) and held_out_gain(c, base, base_next) > MOST
+        for c in tried
+    )
 
 
 def slow_noise_bound(settings: Settings, obs, alpha: float, explains: bool, base_next) -> WithinNoise | None:

@@ -635,6 +635,8 @@ def term_reads(term: str) -> set[str]:
         kinds.add("temperature")
     if "t" in inputs:
         kinds.add("time")
+    if "t_mount" in inputs:
+        kinds |= {"time", "mount"}
     return kinds
 
 

@@ -569,6 +569,8 @@ def input_values(obs: pd.DataFrame, data: dict, name: str) -> np.ndarray:
         if name == "t_point" and "point" in data:
             start = pd.Series(x).groupby(np.asarray(data["point"])).transform("min").to_numpy()
             x = x - start
+    elif name == "t_mount" and "mounted_at" in data:
+        x = 0.5 * (np.asarray(data["t_start"]) + np.asarray(data["t_end"])) - np.asarray(data["mounted_at"])
     elif name == "abs_rate":
         x = np.abs(np.asarray(data["ref_rate"], dtype=float))
     elif name == "rate_own":

@@ -89,6 +89,7 @@ def segment_log(
             seg = rules.segment(log, settings)
         except SegmentationError as exc:
             raise plausibility.explain_segmentation(exc, log.input_stats, path) from None
+        seg = with_mountings(seg, float(log.time_span[0]))
         seg.info["source"] = {
             "name": Path(path).name,
             HASH_ALGORITHM: digest.result(),
@@ -141,6 +142,26 @@ def with_series(seg: Segmentation, series: Series) -> Segmentation:
     from it: :mod:`gyrocal.terms.signals`)."""
     seg.observations.attrs["series"] = series
     return seg
+
+
+HANDLING = "handling_motion"  # the segments a remount leaves (rejected: the unit in hand)
+
+
+def with_mountings(seg: Segmentation, first_time: float) -> Segmentation:
+    """``seg`` whose observations say when the unit was last mounted (``mounted_at``, s on
+    the log's clock): the end of the last handling before each hold, the log's first sample
+    where none is. Terms read it as ``t_mount`` (:class:`gyrocal.terms.signals.Inputs`): a
+    clamp that relaxes after each mounting follows it, not time since power-on."""
+    obs, segments = seg.observations, seg.segments
+    if obs.empty or "t_start" not in obs:
+        return seg
+    handled = segments["reason"].astype(str).to_numpy() == HANDLING if "reason" in segments else []
+    ends = np.sort(segments["t_end"].to_numpy(float)[handled]) if len(handled) else np.empty(0)
+    before = np.searchsorted(ends, obs["t_start"].to_numpy(float), side="right") - 1
+    mounted = np.where(before >= 0, ends[np.maximum(before, 0)] if ends.size else first_time, first_time)
+    obs = obs.copy()
+    obs["mounted_at"] = mounted
+    return replace(seg, observations=obs)
 
 
 def with_noise_floor(

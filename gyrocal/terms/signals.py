@@ -35,13 +35,14 @@ from ..io.errors import MissingInputError
 if TYPE_CHECKING:
     import pandas as pd
 
-SERIES_INPUTS = frozenset({"t", "temp_rate", "temp_lag", "rate_history", "accel_history"})
+SERIES_INPUTS = frozenset({"t", "t_mount", "temp_rate", "temp_lag", "rate_history", "accel_history"})
 # The record's further columns (bin means, like the temperature) and the inputs they stand for
 # in a history: a history of the rate is that of the gyro's output, which apply has as the fit
 # does; a constant difference (the bias, a scale's few per cent) is the model's to absorb.
 RECORD_COLUMNS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 RECORD_SOURCE = {"rate_x": "gyro_x", "rate_y": "gyro_y", "rate_z": "gyro_z"}
-HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point"})  # spans, rate, grid point
+# spans, rate, grid point, and when the unit was last mounted (s, the log's clock)
+HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point", "mounted_at"})
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y", "accel_z", "temp"})
 MAX_BINS = 50_000
 # The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in
@@ -569,11 +570,27 @@ class Inputs(dict):
 
     def __getitem__(self, name):
         self.read.add(name)
+        if name == "t_mount" and not dict.__contains__(self, name):
+            return self._since_mounting()
         try:
             return super().__getitem__(name)
         except KeyError:
             shown = sorted(k for k in self if k not in ("series", "t_start", "t_end", "point"))
             raise MissingInputError(f"{name} is not an input here (inputs: {', '.join(shown)})") from None
+
+    def _since_mounting(self) -> np.ndarray:
+        """``t_mount``: seconds since the unit was last mounted, from each hold's
+        ``mounted_at`` (segmentation's, the end of the handling before it) at ``t``. A
+        stream without mountings (apply, in the field) is long since mounted: infinite, where
+        whatever relaxes after a mounting has settled."""
+        t = dict.get(self, "t")
+        if t is None:
+            raise MissingInputError("t_mount is not an input here: it needs the time (t)")
+        mounted = dict.get(self, "mounted_at")
+        if mounted is None:
+            return np.full(np.shape(t), np.inf)
+        t0 = self.series.t0 if self.series is not None else 0.0
+        return np.maximum(np.asarray(t, float) - (np.asarray(mounted, float) - t0), 0.0)
 
     def temp_rate_over(self, window_s: float) -> np.ndarray:
         """The temperature rate (°C/min) over a centred window of ``window_s`` seconds."""

@@ -114,9 +114,11 @@ RECORD_INPUTS = (
 LAGGABLE = ("temp", "temp_rate")  # lags of these alone keep their own, older path
 
 # What a formula may read: the inputs every term has (gyrocal.terms.signals), per sample in apply
-# and as hold means in the fit. ``t`` is seconds since the log's first sample.
+# and as hold means in the fit. ``t`` is seconds since the log's first sample; ``t_mount``
+# seconds since the unit was last mounted (infinite in apply: a stream long since mounted).
 FORMULA_COLUMNS = (
     "t",
+    "t_mount",
     "temp",
     "temp_rate",
     "rate_x",
@@ -131,7 +133,7 @@ FORMULA_COLUMNS = (
 )
 # The output axis's own input: rate_own is rate_x in the x output's column, and so on.
 OWN_AXIS = {"rate_own": "rate", "accel_own": "accel"}
-SERIES_NAMES = frozenset({"t", "temp_rate"})
+SERIES_NAMES = frozenset({"t", "t_mount", "temp_rate"})
 
 
 def formula_names(formula: str, parameters=()) -> frozenset[str]:

@@ -196,3 +196,28 @@ def test_a_tilt_at_each_mounting_with_every_point_mounted_anew_is_the_mountings(
         d = diagnosed(logs, two)
         assert _answer(d, two)["reason"] == "mounting", d["verdict"]
         assert "unit changed" not in d["verdict"]
+
+
+@pytest.mark.slow
+def test_a_clamp_that_relaxes_after_each_mounting_is_read_by_the_time_since_it(tmp_path):
+    """A bias that relaxes over one to two minutes after each mounting (the clamp settling):
+    the grammar's decay of the time since the mounting takes most of the excess, from one
+    log and from two sessions (where the pattern, in another mounting order, does not repeat
+    by hold and so once read as slow noise), and takes most of the unseen session's error
+    (more than the half a partial offer must take)."""
+    logs, truth = open2_unit(tmp_path, "o2_clamp_relaxation_2")
+    settings = Settings().for_protocol(PROTOCOL)
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run
+
+    before = revalidate(
+        run(logs[0], settings, protocol=PROTOCOL).calibration,
+        segment_log(logs[2], settings, PROTOCOL).observations,
+    )["validation_rms"]
+    for two in (False, True):
+        d = diagnosed(logs, two)
+        offer = d["best"] or d["partial"][0]
+        assert offer.get("offered", True) and "t_mount" in offer["term"], d["verdict"]
+        assert not d["unrepeated"]
+        after = next_session_rms(logs, offer)
+        assert before - after > 0.5 * (before - truth["floor_ref"]), (before, after)
