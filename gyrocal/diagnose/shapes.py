@@ -427,7 +427,7 @@ def shape_of(
         return x, max(curves, key=lambda y: float(np.max(np.abs(y - np.median(y)))))
     from ..terms.user import evaluate
 
-    name = next((n for n in ("t", "temp", "temp_rate") if n in inner.needs), "rate_own")
+    name = next((n for n in ("t", "t_mount", "temp", "temp_rate") if n in inner.needs), "rate_own")
     data = {name: x, "rate_own": x if name == "rate_own" else np.ones_like(x)}
     if "rate_own" in inner.formula and name != "rate_own":
         data["rate_own"] = np.ones_like(x)
@@ -470,17 +470,19 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
     peaks, halves = [], []
     for axis in AXES:
         y = sum(shape_of(term, coefficients, lo, hi, axis)[1] for term in terms) * (1e6 if by else 1.0)
-        rel = y - (y[-1] if input_name == "t" else np.median(y))
+        timed = input_name in ("t", "t_mount")
+        rel = y - (y[-1] if timed else np.median(y))
         # A scale change is told where it matters, where it moves the output most (times
         # the own rate), not near zero rate, where the holds barely see it.
         k = int(np.argmax(np.abs(rel) * (np.abs(x) if by and input_name == "rate_own" else 1.0)))
         peaks.append((x[k], rel[k]))
         after = np.flatnonzero(np.abs(rel[k:]) <= 0.5 * abs(rel[k]))
-        halves.append(x[k + after[0]] if input_name == "t" and after.size and k < len(x) - 1 else None)
+        halves.append(x[k + after[0]] if timed and after.size and k < len(x) - 1 else None)
     where = (
         "time since power-on"
         if input_name == "t"
         else {
+            "t_mount": "time since the mounting",
             "temp": "the temperature",
             "temp_rate": "the temperature's rate",
             "rate_own": "the axis's own rate",
@@ -488,7 +490,13 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
         }.get(input_name, input_name)
     )
     kind = "a scale change" if by else "a bias"
-    reference = "its value at the session's end" if input_name == "t" else "its median"
+    reference = (
+        "its value at the session's end"
+        if input_name == "t"
+        else "its value long after"
+        if input_name == "t_mount"
+        else "its median"
+    )
     sizes = ", ".join(f"{v:+.3g} ({a})" for a, (_, v) in zip(AXES, peaks, strict=False))
     places = {_quantity(p, unit_x) for p, _ in peaks}
     at = (
