@@ -356,13 +356,13 @@ def _carrying_pairs(judge: Judge, first: Candidate, found: list, alpha: float) -
     alone = at_the_grain(settings, extended(settings, first.term), obs, "rate level", first.profiled)
     if alone is None or alone.fix is None:
         return found
+    bar = max(alone.fix * chance_bound(alone.holds, alpha), CARRIES_WITHIN)
     kept = []
     for entry in found:
         ext, pair = entry[2], entry[3]
         fixed = extended(extended(settings, first.term), pair.together[0])
         profiled = getattr(ext.fitted, "profiled", ()) or ()
         grain = at_the_grain(settings, fixed, obs, "rate level", profiled)
-        bar = max(alone.fix * chance_bound(alone.holds, alpha), CARRIES_WITHIN)
         if grain is None or grain.fix is None or grain.fix <= bar:
             kept.append(entry)
     return kept

@@ -189,9 +189,9 @@ def partial_offers(
         if library is not None:
             ranked.remove(library)
             ranked.insert(0, library)
+    carrying = [lead, *(r for r in rows if (r.get("share_of_excess") or 0.0) >= CARRYING_SHARE)]
     for c in ranked:
         c.excess_taken = held_out_gain(c, base, base_next)
-        carrying = [lead, *(r for r in rows if (r.get("share_of_excess") or 0.0) >= CARRYING_SHARE)]
         c.offered = c is ranked[0] and c.excess_taken > MOST and any(coherent(c.term, r) for r in carrying)
     return ranked[:3]
 

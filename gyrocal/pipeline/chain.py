@@ -155,12 +155,14 @@ def with_mountings(seg: Segmentation, first_time: float) -> Segmentation:
     obs, segments = seg.observations, seg.segments
     if obs.empty or "t_start" not in obs:
         return seg
-    handled = segments["reason"].astype(str).to_numpy() == HANDLING if "reason" in segments else []
-    ends = np.sort(segments["t_end"].to_numpy(float)[handled]) if len(handled) else np.empty(0)
-    before = np.searchsorted(ends, obs["t_start"].to_numpy(float), side="right") - 1
-    mounted = np.where(before >= 0, ends[np.maximum(before, 0)] if ends.size else first_time, first_time)
+    ends = (
+        np.sort(segments.loc[segments["reason"] == HANDLING, "t_end"].to_numpy(float))
+        if "reason" in segments
+        else np.empty(0)
+    )
+    mountings = np.r_[first_time, ends]  # the first before any handling: the log's start
     obs = obs.copy()
-    obs["mounted_at"] = mounted
+    obs["mounted_at"] = mountings[np.searchsorted(ends, obs["t_start"].to_numpy(float), side="right")]
     return replace(seg, observations=obs)
 
 
