@@ -36,12 +36,22 @@ def _uncertainty(fit) -> np.ndarray:
     return fit.covariance * np.sqrt(np.outer(factor, factor))
 
 
+def point_by_point(fitted) -> GridFit | None:
+    """The calibration fitted point by point, each point's holds alone: the fit itself, or
+    the one a joint grid made to choose its points. None where the model has global terms
+    (the points share coefficients, so none is the point's alone)."""
+    if isinstance(fitted, GridFit):
+        return fitted
+    return getattr(fitted, "alone", None)
+
+
 def between_points(fitted, alpha: float) -> BetweenPoints | None:
     """Per interior point, χ² of (fitted - interpolated) scale and misalignment against the
     sum of both covariances (the point's fit and the others' are independent); the largest,
     Bonferroni over the points, judged at ``alpha``/2. None for fits not made point by point
     (a joint grid's points share coefficients), or with no interior point to leave out."""
-    if not isinstance(fitted, GridFit):
+    fitted = point_by_point(fitted)
+    if fitted is None:
         return None
     names = list(fitted.names)
     pick = [i for i, n in enumerate(names) if n.split(".")[0] in ("scale", "misalignment")]
@@ -124,6 +134,9 @@ def reverses(fitted, coefficient: str) -> bool:
     """Whether ``coefficient``, fitted point by point, steps up and down across temperature:
     two steps between neighbouring points, each beyond :data:`REVERSAL_SIGMAS` of their
     combined uncertainty, of opposite sign. A warp past a transition moves it one way."""
+    fitted = point_by_point(fitted)
+    if fitted is None:
+        return False
     names = list(fitted.names)
     if coefficient not in names:
         return False

@@ -12,7 +12,7 @@ from ..fit.thermal import in_sample
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
-from .stats import chi2_sf
+from .stats import chance_bound, chi2_sf
 
 SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
 
@@ -36,6 +36,7 @@ class CarryOver(TypedDict, total=False):
     reference_scale: float  # one scale error shared by every axis, fitted to its errors
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
     holds_scored: int
+    bound: float  # how far above expected_rms its figures may lie by chance (stats.chance_bound)
     repeat_p_value: float | None
     unrepeated_p_value: float | None
     shared_fraction: float | None
@@ -55,13 +56,19 @@ CARRIES_WITHIN = 1.2
 TURN_ON_FLOORS = 3.0
 
 
+def practical_bar(nxt: CarryOver) -> float:
+    """What a calibration may leave on the other session and still carry over (deg/s):
+    :data:`CARRIES_WITHIN` times what a correct model would leave there, up to that figure's
+    own uncertainty (the chance bound of its holds, as the in-sample test allows)."""
+    return CARRIES_WITHIN * nxt["expected_rms"] * nxt.get("bound", 1.0)
+
+
 def fails_in_practice(nxt: CarryOver) -> bool:
     """The calibration fails on the other session beyond chance and beyond
-    :data:`CARRIES_WITHIN` times what a correct model would leave there; within that, a
-    difference the test resolves is too small to act on. Nor does it fail where only the
-    power-on's bias sets it apart: an offset per axis within :data:`TURN_ON_FLOORS` floors
-    whose removal brings it within that bar."""
-    if nxt["holds"] or nxt["validation_rms"] <= CARRIES_WITHIN * nxt["expected_rms"]:
+    :func:`practical_bar`; within that, a difference the test resolves is too small to act
+    on. Nor does it fail where only the power-on's bias sets it apart: an offset per axis
+    within :data:`TURN_ON_FLOORS` floors whose removal brings it within that bar."""
+    if nxt["holds"] or nxt["validation_rms"] <= practical_bar(nxt):
         return False
     return not turned_on(nxt)
 
@@ -69,13 +76,13 @@ def fails_in_practice(nxt: CarryOver) -> bool:
 def turned_on(nxt: CarryOver) -> bool:
     """Whether the other session differs by the bias of its power-on alone: each axis' mean
     error within :data:`TURN_ON_FLOORS` floors, and what is left within
-    :data:`CARRIES_WITHIN` times what a correct model would leave."""
+    :func:`practical_bar`."""
     offsets = nxt.get("turn_on_bias")
     if not offsets or nxt.get("rezeroed_rms") is None:
         return False
     return bool(
         max(abs(v) for v in offsets.values()) <= TURN_ON_FLOORS * nxt["noise_floor"]
-        and nxt["rezeroed_rms"] <= CARRIES_WITHIN * nxt["expected_rms"]
+        and nxt["rezeroed_rms"] <= practical_bar(nxt)
     )
 
 
@@ -106,14 +113,11 @@ def _turn_on_offsets(held) -> dict:
 
 def reference_scaled(nxt: CarryOver) -> bool:
     """Whether the other session fails by one scale error every axis shares (beyond
-    :data:`CARRIES_WITHIN`, and within it once that scale and the turn-on bias are taken
+    :func:`practical_bar`, and within it once that scale and the turn-on bias are taken
     out): the reference rate's scale, not the sensor's."""
     if not fails_in_practice(nxt) or nxt.get("rescaled_rms") is None:
         return False
-    return bool(
-        nxt["rescaled_rms"] <= CARRIES_WITHIN * nxt["expected_rms"]
-        and nxt["rezeroed_rms"] > CARRIES_WITHIN * nxt["expected_rms"]
-    )
+    return bool(nxt["rescaled_rms"] <= practical_bar(nxt) < nxt["rezeroed_rms"])
 
 
 def usable(nxt: CarryOver | None) -> bool:
@@ -142,6 +146,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "expected_rms": r["expected_rms"],
         "holds": r["holds"],
         "holds_scored": r["holds_scored"],
+        "bound": chance_bound(r["holds_scored"], settings.diagnosis.significance),
         "repeat_p_value": repeat_p_value(obs.iloc[rows], z0, other, z1),
         "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),

@@ -76,7 +76,15 @@ from .naming import (
     partial_offers,
     reaches_floor,
 )
-from .sessions import CARRIES_WITHIN, POINT_MATCH, fails_in_practice, reference_scaled, slow_noise, usable
+from .sessions import (
+    CARRIES_WITHIN,
+    POINT_MATCH,
+    fails_in_practice,
+    practical_bar,
+    reference_scaled,
+    slow_noise,
+    usable,
+)
 from .stats import chance_bound, chi2_sf, explained_tolerance, floor_uncertainty
 from .verdict import advice, coherent, input_kinds, unexplained, unseen_hysteresis
 from .where import covariate_table, fit_quality, history_columns, one_way_points, shape_estimate
@@ -675,7 +683,7 @@ def _floors_differ(judge, base, base_next) -> FloorsDiffer | None:
     covers = (
         ratio < 1.0
         and fails_in_practice(base_next)
-        and base_next["validation_rms"] <= CARRIES_WITHIN * base_next["expected_rms"] / ratio
+        and base_next["validation_rms"] <= practical_bar(base_next) / ratio
     )
     return FloorsDiffer(ratio, tolerance, bool(covers))
 

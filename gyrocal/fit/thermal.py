@@ -1,9 +1,13 @@
-"""Calibration across temperature: one fit per temperature point, interpolated between.
+"""Calibration across temperature: coefficients at temperature points, interpolated between.
 
 Every interpolation method here is linear in the grid values, so it is expressed as a
 weight matrix ``W`` (evaluation temperatures x grid points): coefficients at any temperature
 are ``W @ values`` for all coefficients at once, and their uncertainty is
-``sqrt(W² @ stderr²)`` (grid points are fitted independently).
+``sqrt(W² @ stderr²)`` (each point's covariance, the points taken as independent).
+
+The grid is fitted in one least-squares problem with each hold at its own temperature (its
+columns times ``W`` at the hold's temperature, :func:`_fit_joint`); which points are nodes is
+decided by fitting each point's holds alone (:func:`fit_grid`).
 
 Methods:
 
@@ -29,7 +33,7 @@ import numpy as np
 
 from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
 from ..terms import Term
-from .model import FitResult, Model, columns_of, fit, observation_weights, subset_design
+from .model import FitResult, Model, columns_of, fit, observation_weights, shares_wander, subset_design
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -435,7 +439,7 @@ def fit_continuous(model: Model, obs, *, source=None, design: dict | None = None
     result = fit(model, data, source=source, label="all temperature points", design=design)
     point = data["point"].astype(int)
     rows = [
-        (int(p), float(data["temp"][point == p].mean()), int((point == p).sum()), True, "")
+        (int(p), point_temperature(data["temp"][point == p]), int((point == p).sum()), True, "")
         for p in np.unique(point)
     ]
     points = _points_table(rows)
@@ -488,7 +492,7 @@ def fit_grid(
             weights = observation_weights(group) if fitter is fit else None
             if prepared is not None:
                 prepared[point] = idx, group, weights
-        temp = float(group["temp"].mean())
+        temp = point_temperature(group["temp"])
         own = {} if whole is None else {"design": subset_design(whole, idx), "weights": weights}
         try:
             result = fitter(model, group, source=source, label=f"{temp:.1f} °C", **own)
@@ -547,10 +551,10 @@ def global_terms(model: Model) -> list[Term]:
 
 @dataclass(frozen=True)
 class JointGridFit(_OnAGrid):
-    """A grid model with session-wide (scope global) terms: every point's own coefficients
-    and the global ones fitted in one least-squares problem over the points' holds. The
-    grid holds each global coefficient at every point (interpolating a constant gives it
-    back), so files and apply read it as any grid."""
+    """A grid model fitted in one least-squares problem over the points' holds, each hold at
+    its own temperature: every point's own coefficients and the session-wide (scope global)
+    ones where the model has them. The grid holds each global coefficient at every point
+    (interpolating a constant gives it back), so files and apply read it as any grid."""
 
     model: Model
     fit: FitResult  # of the joint model (names with ``.@<point>``)
@@ -561,7 +565,10 @@ class JointGridFit(_OnAGrid):
     rows: tuple[np.ndarray, ...] = ()  # the observation rows the fit used
     point_ids: tuple[int, ...] = ()  # grid order
     profiled: tuple = ()
-    design: dict | None = field(default=None, repr=False, compare=False)  # the joint fit's columns
+    design: dict | None = field(default=None, repr=False, compare=False)  # the model's own columns
+    # The same model fitted point by point, each point's holds alone (a model without global
+    # terms): what a test of the interpolation between points compares against.
+    alone: GridFit | None = field(default=None, repr=False, compare=False)
     kind: ClassVar[str] = "grid"
 
     @property
@@ -605,6 +612,7 @@ class JointGridFit(_OnAGrid):
                 {k: v[keep] for k, v in self.data.items()},
                 method=self.grid.method,
                 degree=self.grid.degree,
+                used=[p for p in self.point_ids if p != point],
                 rows=self.rows[0][keep],
                 excluded=self.excluded,
                 design=None if self.design is None else subset_design(self.design, keep),
@@ -619,29 +627,100 @@ class _PointCalibration:
     covariance: np.ndarray
 
 
+WANDER_COLUMNS = frozenset(f"wander_{a}" for a in "xyz")
+
+
+def _weights_by_point(data: dict, point: np.ndarray) -> tuple[np.ndarray, list]:
+    """The weighting of a grid's holds where they share slow wander: each point's holds
+    whitened among themselves, as a fit of that point alone whitens them. Each node's bias
+    takes the wander between the points; whitened as one record, the wander of hours would
+    make the early points' biases as uncertain as a random walk from power-on."""
+    blocks = []
+    floor = np.empty((len(point), 3))
+    for p in np.unique(point):
+        idx = np.flatnonzero(point == p)
+        floor[idx], found = observation_weights({k: v[idx] for k, v in data.items()})
+        blocks.append((idx, found))
+
+    def axis(i):
+        def whiten(m):
+            m = np.asarray(m, dtype=float)
+            out = np.empty(m.shape)
+            for idx, found in blocks:
+                out[idx] = found[i](m[idx])
+            return out
+
+        return whiten
+
+    return floor, [axis(i) for i in range(3)]
+
+
+def point_temperature(temps) -> float:
+    """A temperature point's place on the grid: the median of its holds' temperatures, where
+    most of them settled (a hold warmed by an open door after a remount does not move it)."""
+    return float(np.median(np.asarray(temps, dtype=float)))
+
+
 def _fit_joint(
     model: Model,
     data: dict,
     *,
     method: str,
     degree: int,
+    used: list[int],
     source=None,
     rows: np.ndarray | None = None,
     excluded=None,
     extra_points=(),
     design: dict | None = None,
+    alone: GridFit | None = None,
 ) -> JointGridFit:
+    """The grid fitted in one least-squares problem, each hold at its own temperature: a
+    point-scope coefficient's column at node ``k`` is the hold's column times the weight
+    the interpolation gives node ``k`` at the hold's temperature, so a hold is fitted with
+    the coefficients apply will give it (seed 000 Eq 21-22). A hold settled at its point
+    weighs that node alone; one still off it (the door opened at a remount) informs the
+    nodes its temperature lies between. ``used``: the points that are nodes (their own
+    holds determine them); holds of other points take part where they lie inside the nodes'
+    span. ``design``: the model's own columns on ``data``."""
     point = data["point"].astype(int)
-    ids = [int(p) for p in np.unique(point)]
-    temps = np.array([float(data["temp"][point == p].mean()) for p in ids])
+    ids = [int(p) for p in used]
+    temps = np.array([point_temperature(data["temp"][point == p]) for p in ids])
     order = np.argsort(temps, kind="stable")
     ids, temps = [ids[i] for i in order], temps[order]
+    temp = np.asarray(data["temp"], dtype=float)
+    inside = np.isin(point, ids) | ((temp >= temps[0]) & (temp <= temps[-1]))
+    rows = np.arange(len(point)) if rows is None else np.asarray(rows)
+    if not inside.all():
+        data = {k: v[inside] for k, v in data.items()}
+        rows, point, temp = rows[inside], point[inside], temp[inside]
+        design = None if design is None else subset_design(design, inside)
+    if design is None:
+        model.check_inputs(data, source)
+        design = model.design(data)
     local = [t for t in model.terms if t.coefficient_scope != "global"]
     joint = Model(tuple(_AtPoint(t, p) for t in local for p in ids) + tuple(global_terms(model)))
-    if design is None:
-        joint.check_inputs(data, source)
-        design = joint.design(data)
-    result = fit(joint, data, source=source, label="all temperature points", design=design)
+    weights = interpolation_weights(method, temps, temp, degree=degree)
+    n = len(point)
+    joint_design = {}
+    for term in local:
+        for name in term.coefficients():
+            column = np.broadcast_to(np.asarray(design[name], dtype=float), (n,))
+            for k, p in enumerate(ids):
+                joint_design[f"{name}.@{p}"] = weights[:, k] * column
+    for term in global_terms(model):
+        joint_design.update({name: design[name] for name in term.coefficients()})
+    # Each node's bias takes the wander between the points, as a fit point by point does:
+    # the floor it weights by is a hold's own, without that wander (fit.model.observation_floor).
+    own_floor = {k: v for k, v in data.items() if k not in WANDER_COLUMNS}
+    result = fit(
+        joint,
+        own_floor,
+        source=source,
+        label="all temperature points",
+        design=joint_design,
+        weights=_weights_by_point(own_floor, point) if shares_wander(own_floor) else None,
+    )
     index = {name: j for j, name in enumerate(result.names)}
     values = np.empty((len(ids), len(model.names)))
     stderr = np.empty_like(values)
@@ -658,9 +737,17 @@ def _fit_joint(
     table = [(p, float(t), int((point == p).sum()), True, "") for p, t in zip(ids, temps, strict=False)]
     table += list(extra_points)
     points = tuple(sorted(table, key=lambda row: row[0]))  # stable: as the table lists them
-    rows = np.arange(len(point)) if rows is None else rows
     return JointGridFit(
-        model, result, data, grid, points, dict(excluded or {}), (rows,), tuple(ids), design=design
+        model,
+        result,
+        data,
+        grid,
+        points,
+        dict(excluded or {}),
+        (rows,),
+        tuple(ids),
+        design=design,
+        alone=alone,
     )
 
 
@@ -768,20 +855,9 @@ def _fit_linear(
             "kind continuous"
         )
     point_design = _check_point_terms(model, data, source)
-    if not global_terms(model):
-        # Cached only on the inputs as given: a term that moves them moves the weighting.
-        return fit_grid(
-            model,
-            data,
-            method=method,
-            degree=degree,
-            source=source,
-            design=point_design,
-            prepared=prepared if data is obs else None,
-        )
     check_method(method, degree)
-    # Points whose own holds cannot determine their coefficients are left out, as in a
-    # plain grid; the rest are fitted together with the global terms.
+    # Which points are nodes: those whose own holds determine their coefficients, as a fit
+    # point by point finds; every hold is then fitted at its own temperature (_fit_joint).
     local = Model(tuple(t for t in model.terms if t.coefficient_scope != "global"))
     per_point = None
     if local.terms:
@@ -790,22 +866,35 @@ def _fit_linear(
         cached = point_fits if point_fits is not None and data is obs else {}
         key = tuple(t.spec_string() for t in local.terms)
         if key not in cached:
-            cached[key] = fit_grid(local, data, method=method, degree=degree, source=source)
+            cached[key] = fit_grid(
+                local,
+                data,
+                method=method,
+                degree=degree,
+                source=source,
+                design=point_design,
+                prepared=prepared if data is obs else None,
+            )
         per_point = cached[key]
     used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
-    rows = np.flatnonzero(np.isin(data["point"].astype(int), used))
     dropped = (
         []
         if per_point is None
         else [tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
     )
+    globals_ = global_terms(model)
+    if globals_:
+        model.check_inputs(data, source)
+    design = {**point_design, **(Model(tuple(globals_)).design(data) if globals_ else {})}
     return _fit_joint(
         model,
-        {k: v[rows] for k, v in data.items()},
+        dict(data),
         method=method,
         degree=degree,
+        used=used,
+        design=design,
         source=source,
-        rows=rows,
         excluded=per_point.excluded if per_point else {},
         extra_points=dropped,
+        alone=None if globals_ else per_point,
     )

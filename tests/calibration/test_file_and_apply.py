@@ -231,8 +231,9 @@ def test_each_point_keeps_its_coefficient_covariance(complete_run, tmp_path):
     """The file carries each point's covariance as the fit made it, read back to the bit;
     a file of an earlier version without it still loads (standard errors as uncorrelated)."""
     cal = complete_run.calibration
-    fits = complete_run.fitted.fits
-    np.testing.assert_array_equal(cal.grid.covariance, np.array([f.covariance for f in fits]))
+    fitted = complete_run.fitted  # one joint fit: each point's block of its covariance
+    points = np.array([fitted.point_fit(p).covariance for p in fitted.point_ids])
+    np.testing.assert_array_equal(cal.grid.covariance, points)
     path = tmp_path / "cal.json"
     save_calibration(cal, path)
     again = load_calibration(path)

@@ -274,6 +274,7 @@ def test_a_joint_grid_leaves_a_point_out_as_a_fresh_fit_would(logs):
             {k: v[keep] for k, v in fitted.data.items()},
             method=fitted.grid.method,
             degree=fitted.grid.degree,
+            used=[q for q in fitted.point_ids if q != p],
             rows=fitted.rows[0][keep],
             excluded=fitted.excluded,
         )
