@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit.thermal import GridFit
+from ..fit.thermal import GridFit, global_terms
 from .findings import SENSOR_LEAD, BetweenPoints, Unexplained
 from .stats import chi2_sf, p_text
 
@@ -24,34 +24,79 @@ from .stats import chi2_sf, p_text
 STENCIL = {"lagrange3": 3, "linear": 2, "spline": 4}
 
 
-def _uncertainty(fit) -> np.ndarray:
-    """A point fit's covariance at least as large as the noise floor says: a fit's matrix is
-    scaled by its own reduced χ², which a few holds estimate poorly and can put below 1."""
-    factor = np.array(
-        [
-            max(1.0, fit.chi2[a] / fit.dof[a]) / (fit.chi2[a] / fit.dof[a]) if fit.chi2[a] > 0 else 1.0
-            for a in (n.split(".")[1] for n in fit.names)
-        ]
+def _floor_factor(fit, names) -> np.ndarray:
+    """Per coefficient, what brings a fit's covariance up to what the noise floor says: a
+    fit's matrix is scaled by its own reduced χ², which a few holds estimate poorly and can
+    put below 1 (square roots: the factor of a standard error)."""
+    return np.sqrt(
+        np.array(
+            [
+                max(1.0, fit.chi2[a] / fit.dof[a]) / (fit.chi2[a] / fit.dof[a]) if fit.chi2[a] > 0 else 1.0
+                for a in (n.split(".")[1] for n in names)
+            ]
+        )
     )
-    return fit.covariance * np.sqrt(np.outer(factor, factor))
 
 
-def point_by_point(fitted) -> GridFit | None:
-    """The calibration fitted point by point, each point's holds alone: the fit itself, or
-    the one a joint grid made to choose its points. None where the model has global terms
-    (the points share coefficients, so none is the point's alone)."""
+def _uncertainty(fit) -> np.ndarray:
+    """A point fit's covariance at least as large as the noise floor says."""
+    factor = _floor_factor(fit, fit.names)
+    return fit.covariance * np.outer(factor, factor)
+
+
+class _Points:
+    """What the test reads of a grid calibration: each point's coefficients and covariance
+    as the calibration fitted them, and those the other points interpolate there.
+
+    A grid fitted point by point (:class:`GridFit`): each point's own fit, and the others'
+    fits interpolated (independent of it). A joint grid without global terms, each hold at
+    its own temperature: each node's coefficients from the joint fit (its own holds weigh it
+    nearly alone), and the grid fitted again without the point's holds. Fitted point by
+    point, a hold taken off its point (warm after the chamber's door) would be read at the
+    point and move its scale: the interpolation would then miss points that have no such
+    holds, a failure of the fit, not of the sensor between points."""
+
+    def __init__(self, fitted):
+        self.fitted = fitted
+        self.joint = not isinstance(fitted, GridFit)
+
+    def own(self, point: int) -> tuple[np.ndarray, np.ndarray]:
+        if not self.joint:
+            f = self.fitted.point_fit(point)
+            return f.values, _uncertainty(f)
+        f = self.fitted.point_fit(point)
+        factor = _floor_factor(self.fitted.fit, self.fitted.names)
+        return f.values, f.covariance * np.outer(factor, factor)
+
+    def others(self, point: int, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        loo = self.fitted.leave_out(point)
+        if loo is None or loo.outside(at).any():
+            return None
+        values = loo.coefficients_at(at)[0]
+        if not self.joint:
+            weights = loo.grid.weights(at)[0] ** 2
+            return values, np.einsum("p,pcd->cd", weights, np.array([_uncertainty(f) for f in loo.fits]))
+        factor = _floor_factor(loo.fit, loo.names)
+        return values, loo.covariance_at(at)[0] * np.outer(factor, factor)
+
+
+def _points(fitted) -> _Points | None:
+    """The test's view of ``fitted``; None where the points share coefficients (a model
+    with global terms: no point's calibration is its own)."""
     if isinstance(fitted, GridFit):
-        return fitted
-    return getattr(fitted, "alone", None)
+        return _Points(fitted)
+    if getattr(fitted, "point_ids", None) and not global_terms(fitted.model):
+        return _Points(fitted)
+    return None
 
 
 def between_points(fitted, alpha: float) -> BetweenPoints | None:
     """Per interior point, χ² of (fitted - interpolated) scale and misalignment against the
-    sum of both covariances (the point's fit and the others' are independent); the largest,
-    Bonferroni over the points, judged at ``alpha``/2. None for fits not made point by point
-    (a joint grid's points share coefficients), or with no interior point to leave out."""
-    fitted = point_by_point(fitted)
-    if fitted is None:
+    sum of both covariances (the point's and the others' taken as independent); the largest,
+    Bonferroni over the points, judged at ``alpha``/2. None for a model with global terms
+    (its points share coefficients), or with no interior point to leave out."""
+    view = _points(fitted)
+    if view is None:
         return None
     names = list(fitted.names)
     pick = [i for i, n in enumerate(names) if n.split(".")[0] in ("scale", "misalignment")]
@@ -63,16 +108,13 @@ def between_points(fitted, alpha: float) -> BetweenPoints | None:
     temps = fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float)
     points = []
     for p, temp in zip(used[1:-1], temps[1:-1], strict=False):
-        loo = fitted.leave_out(int(p))
         at = np.array([temp])
-        if loo is None or loo.outside(at).any():
+        others = view.others(int(p), at)
+        if others is None:
             continue
-        own = fitted.point_fit(int(p))
-        others = np.einsum(
-            "p,pcd->cd", loo.grid.weights(at)[0] ** 2, np.array([_uncertainty(f) for f in loo.fits])
-        )
-        diff = (own.values - loo.coefficients_at(at)[0])[pick]
-        cov = (_uncertainty(own) + others)[np.ix_(pick, pick)]
+        own_values, own_cov = view.own(int(p))
+        diff = (own_values - others[0])[pick]
+        cov = (own_cov + others[1])[np.ix_(pick, pick)]
         if not (np.all(np.isfinite(diff)) and np.all(np.isfinite(cov))):
             continue
         # A coefficient held fixed has no variance: the pseudo-inverse leaves it out, and
@@ -134,8 +176,8 @@ def reverses(fitted, coefficient: str) -> bool:
     """Whether ``coefficient``, fitted point by point, steps up and down across temperature:
     two steps between neighbouring points, each beyond :data:`REVERSAL_SIGMAS` of their
     combined uncertainty, of opposite sign. A warp past a transition moves it one way."""
-    fitted = point_by_point(fitted)
-    if fitted is None:
+    view = _points(fitted)
+    if view is None:
         return False
     names = list(fitted.names)
     if coefficient not in names:
@@ -143,9 +185,9 @@ def reverses(fitted, coefficient: str) -> bool:
     k = names.index(coefficient)
     used = list(fitted.used_points())
     order = np.argsort(fitted.points.set_index("point").loc[used, "temp"].to_numpy(dtype=float))
-    fits = [fitted.point_fit(int(used[i])) for i in order]
-    values = np.array([f.values[k] for f in fits])
-    var = np.array([_uncertainty(f)[k, k] for f in fits])
+    own = [view.own(int(used[i])) for i in order]
+    values = np.array([v[k] for v, _ in own])
+    var = np.array([c[k, k] for _, c in own])
     steps = np.diff(values)
     real = np.abs(steps) > REVERSAL_SIGMAS * np.sqrt(var[1:] + var[:-1])
     signs = np.sign(steps[real])

@@ -566,9 +566,6 @@ class JointGridFit(_OnAGrid):
     point_ids: tuple[int, ...] = ()  # grid order
     profiled: tuple = ()
     design: dict | None = field(default=None, repr=False, compare=False)  # the model's own columns
-    # The same model fitted point by point, each point's holds alone (a model without global
-    # terms): what a test of the interpolation between points compares against.
-    alone: GridFit | None = field(default=None, repr=False, compare=False)
     kind: ClassVar[str] = "grid"
 
     @property
@@ -661,6 +658,24 @@ def point_temperature(temps) -> float:
     return float(np.median(np.asarray(temps, dtype=float)))
 
 
+END_SHARE = 5.0  # percent: the end nodes leave out this share of their point's holds beyond them
+
+
+def _settled_ends(temps: np.ndarray, temp, point, ids) -> np.ndarray:
+    """The end nodes moved out to where their point's holds settled: past all but
+    :data:`END_SHARE` % of them. At the coldest point the door warms the holds after each
+    remount, at the hottest it cools them: the median lies inward, and the next session's
+    settled holds, beyond the calibrated span, would be read at its end (apply clamps). A hold
+    is fitted at its own temperature: where a node sits changes little but which holds lie beyond
+    the span."""
+    out = temps.copy()
+    low = np.percentile(np.asarray(temp)[point == ids[0]], END_SHARE)
+    high = np.percentile(np.asarray(temp)[point == ids[-1]], 100.0 - END_SHARE)
+    out[0] = min(out[0], low) if low < out[1] else out[0]
+    out[-1] = max(out[-1], high) if high > out[-2] else out[-1]
+    return out
+
+
 def _fit_joint(
     model: Model,
     data: dict,
@@ -673,7 +688,6 @@ def _fit_joint(
     excluded=None,
     extra_points=(),
     design: dict | None = None,
-    alone: GridFit | None = None,
 ) -> JointGridFit:
     """The grid fitted in one least-squares problem, each hold at its own temperature: a
     point-scope coefficient's column at node ``k`` is the hold's column times the weight
@@ -688,6 +702,8 @@ def _fit_joint(
     temps = np.array([point_temperature(data["temp"][point == p]) for p in ids])
     order = np.argsort(temps, kind="stable")
     ids, temps = [ids[i] for i in order], temps[order]
+    if len(ids) > 1:
+        temps = _settled_ends(temps, data["temp"], point, ids)
     temp = np.asarray(data["temp"], dtype=float)
     inside = np.isin(point, ids) | ((temp >= temps[0]) & (temp <= temps[-1]))
     rows = np.arange(len(point)) if rows is None else np.asarray(rows)
@@ -747,7 +763,6 @@ def _fit_joint(
         (rows,),
         tuple(ids),
         design=design,
-        alone=alone,
     )
 
 
@@ -896,5 +911,4 @@ def _fit_linear(
         source=source,
         excluded=per_point.excluded if per_point else {},
         extra_points=dropped,
-        alone=None if globals_ else per_point,
     )

@@ -80,8 +80,9 @@ def z_scores(grid) -> np.ndarray:
 def test_holds_off_their_point_are_fitted_where_they_were():
     obs = session()
     fitted = fit_model(Model.from_spec(DEFAULT_TERMS), obs, kind="grid", method="lagrange3")
-    # each node at its settled holds' temperature, not pulled by the warm ones
-    np.testing.assert_allclose(fitted.grid.temperatures, [-20.0, 25.0, 70.0], atol=0.01)
+    # each node at its settled holds' temperature, not pulled by the warm ones (the end
+    # nodes past all but 5 % of them: 1.6 times the 0.01 °C scatter of a hold's temperature)
+    np.testing.assert_allclose(fitted.grid.temperatures, [-20.0, 25.0, 70.0], atol=0.03)
     z = z_scores(fitted.grid)
     # 36 coefficients: beyond 4.5 standard errors by chance with probability 2.5e-4
     assert np.max(np.abs(z)) < 4.5, np.round(z, 1)
