@@ -658,10 +658,20 @@ def point_temperature(temps) -> float:
     return float(np.median(np.asarray(temps, dtype=float)))
 
 
+def _temperatures_by_point(temp: np.ndarray, point: np.ndarray, ids) -> dict[int, np.ndarray]:
+    """Each point's hold temperatures, sorted: one sort for every point of a fit (a profile
+    makes hundreds)."""
+    order = np.lexsort((temp, point))
+    sorted_point, sorted_temp = point[order], temp[order]
+    starts = np.searchsorted(sorted_point, ids, side="left")
+    ends = np.searchsorted(sorted_point, ids, side="right")
+    return {int(p): sorted_temp[a:b] for p, a, b in zip(ids, starts, ends, strict=True)}
+
+
 END_SHARE = 5.0  # percent: the end nodes leave out this share of their point's holds beyond them
 
 
-def _settled_ends(temps: np.ndarray, temp, point, ids) -> np.ndarray:
+def _settled_ends(temps: np.ndarray, first: np.ndarray, last: np.ndarray) -> np.ndarray:
     """The end nodes moved out to where their point's holds settled: past all but
     :data:`END_SHARE` % of them. At the coldest point the door warms the holds after each
     remount, at the hottest it cools them: the median lies inward, and the next session's
@@ -669,8 +679,8 @@ def _settled_ends(temps: np.ndarray, temp, point, ids) -> np.ndarray:
     is fitted at its own temperature: where a node sits changes little but which holds lie beyond
     the span."""
     out = temps.copy()
-    low = np.percentile(np.asarray(temp)[point == ids[0]], END_SHARE)
-    high = np.percentile(np.asarray(temp)[point == ids[-1]], 100.0 - END_SHARE)
+    low = np.percentile(first, END_SHARE)  # ``first``, ``last``: the end points' holds
+    high = np.percentile(last, 100.0 - END_SHARE)
     out[0] = min(out[0], low) if low < out[1] else out[0]
     out[-1] = max(out[-1], high) if high > out[-2] else out[-1]
     return out
@@ -699,11 +709,12 @@ def _fit_joint(
     span. ``design``: the model's own columns on ``data``."""
     point = data["point"].astype(int)
     ids = [int(p) for p in used]
-    temps = np.array([point_temperature(data["temp"][point == p]) for p in ids])
+    held = _temperatures_by_point(np.asarray(data["temp"], dtype=float), point, ids)
+    temps = np.array([point_temperature(held[p]) for p in ids])
     order = np.argsort(temps, kind="stable")
     ids, temps = [ids[i] for i in order], temps[order]
     if len(ids) > 1:
-        temps = _settled_ends(temps, data["temp"], point, ids)
+        temps = _settled_ends(temps, held[ids[0]], held[ids[-1]])
     temp = np.asarray(data["temp"], dtype=float)
     inside = np.isin(point, ids) | ((temp >= temps[0]) & (temp <= temps[-1]))
     rows = np.arange(len(point)) if rows is None else np.asarray(rows)
@@ -877,9 +888,11 @@ def _fit_linear(
     per_point = None
     if local.terms:
         # Cached only on the inputs as given: a term that moves them (the die's temperature)
-        # changes every point's fit.
+        # changes every point's fit. Within a profile the points are those of its start
+        # (profile.profiled_fit judges every value on them): keyed on the terms' coefficients,
+        # not their settings, a profiled point-scope term is fitted point by point once.
         cached = point_fits if point_fits is not None and data is obs else {}
-        key = tuple(t.spec_string() for t in local.terms)
+        key = tuple((t.name, tuple(t.coefficients())) for t in local.terms)
         if key not in cached:
             cached[key] = fit_grid(
                 local,
@@ -892,11 +905,7 @@ def _fit_linear(
             )
         per_point = cached[key]
     used = per_point.used_points() if per_point is not None else [int(p) for p in np.unique(data["point"])]
-    dropped = (
-        []
-        if per_point is None
-        else [tuple(r) for r in per_point.points.loc[~per_point.points["used"]].itertuples(index=False)]
-    )
+    dropped = [] if per_point is None else [tuple(r) for r in per_point.point_rows if not r[3]]
     globals_ = global_terms(model)
     if globals_:
         model.check_inputs(data, source)
