@@ -61,10 +61,9 @@ class _Points:
         self.joint = not isinstance(fitted, GridFit)
 
     def own(self, point: int) -> tuple[np.ndarray, np.ndarray]:
-        if not self.joint:
-            f = self.fitted.point_fit(point)
-            return f.values, _uncertainty(f)
         f = self.fitted.point_fit(point)
+        if not self.joint:
+            return f.values, _uncertainty(f)
         factor = _floor_factor(self.fitted.fit, self.fitted.names)
         return f.values, f.covariance * np.outer(factor, factor)
 

@@ -32,7 +32,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
-from ..terms import Term
+from ..terms import AXES, Term
 from .model import FitResult, Model, columns_of, fit, observation_weights, shares_wander, subset_design
 
 if TYPE_CHECKING:
@@ -624,7 +624,7 @@ class _PointCalibration:
     covariance: np.ndarray
 
 
-WANDER_COLUMNS = frozenset(f"wander_{a}" for a in "xyz")
+WANDER_COLUMNS = frozenset(f"wander_{a}" for a in AXES)
 
 
 def _weights_by_point(data: dict, point: np.ndarray) -> tuple[np.ndarray, list]:
@@ -709,13 +709,13 @@ def _fit_joint(
     span. ``design``: the model's own columns on ``data``."""
     point = data["point"].astype(int)
     ids = [int(p) for p in used]
-    held = _temperatures_by_point(np.asarray(data["temp"], dtype=float), point, ids)
+    temp = np.asarray(data["temp"], dtype=float)
+    held = _temperatures_by_point(temp, point, ids)
     temps = np.array([point_temperature(held[p]) for p in ids])
     order = np.argsort(temps, kind="stable")
     ids, temps = [ids[i] for i in order], temps[order]
     if len(ids) > 1:
         temps = _settled_ends(temps, held[ids[0]], held[ids[-1]])
-    temp = np.asarray(data["temp"], dtype=float)
     inside = np.isin(point, ids) | ((temp >= temps[0]) & (temp <= temps[-1]))
     rows = np.arange(len(point)) if rows is None else np.asarray(rows)
     if not inside.all():
