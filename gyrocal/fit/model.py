@@ -387,6 +387,7 @@ def fit(
     label: str = "",
     design: dict | None = None,
     weights: tuple[np.ndarray, list] | None = None,
+    blocks: list[np.ndarray] | None = None,
 ) -> FitResult:
     """Weighted least squares of the gyro error on the model's columns, per output axis.
 
@@ -395,7 +396,9 @@ def fit(
     excite some coefficient, or leave no degree of freedom for the covariance. ``design``,
     the model's columns on these observations when already made (:func:`subset_design`
     of a fit of more holds: a hold's columns are its own, as apply evaluates them sample by
-    sample), saves making them again.
+    sample), saves making them again. ``blocks``: row sets the weighting keeps apart (a
+    joint grid's points) and each of which touches a few of many columns: a wide design is
+    then solved from their normal equations (:func:`_block_normal`).
     """
     data = columns_of(obs)
     model.check_inputs(data, source)
@@ -413,7 +416,7 @@ def fit(
         if not cols:
             continue
         y = data[f"gyro_{axis}"] - data[f"rate_{axis}"]
-        found = _fit_axis(model, cols, design, y, whiteners[i], where=where, source=source)
+        found = _fit_axis(model, cols, design, y, whiteners[i], where=where, source=source, blocks=blocks)
         if isinstance(found, _Unexcited):
             unexcited += found.names
             worst = max(worst, found.condition)
@@ -467,12 +470,55 @@ class _Unexcited:
     condition: float
 
 
+# From this many columns of one axis a design whose rows fall in blocks touching few of them
+# (a joint grid of many points) is solved from its normal equations block by block: the SVD
+# of the whole design grows with its columns squared times its rows. Below it the SVD keeps
+# every narrower fit's figures to the last bit.
+BLOCK_SOLVE_COLUMNS = 64
+
+
+def _block_normal(A: np.ndarray, b: np.ndarray, blocks: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """``A'A`` and ``A'b`` summed over row ``blocks``, each on the columns it touches: a
+    joint grid's point reads only the nodes its holds' temperatures lie between."""
+    C = A.shape[1]
+    N, Ab = np.zeros((C, C)), np.zeros(C)
+    for idx in blocks:
+        part = A[idx]
+        live = np.flatnonzero(np.any(part != 0.0, axis=0))
+        part = part[:, live]
+        N[np.ix_(live, live)] += part.T @ part
+        Ab[live] += part.T @ b[idx]
+    return N, Ab
+
+
+def _spectrum(A: np.ndarray, yw: np.ndarray, blocks: list[np.ndarray] | None):
+    """The column-scaled design's singular values (descending), right singular vectors, and
+    the scaled solution ``V diag(1/s) U'y`` to make once the spectrum is accepted: by SVD, or,
+    for a wide design in blocks, from the eigenvalues of its normal equations (sound for what
+    the fit accepts: a condition number within MAX_CONDITION, squared, is far from rounding)."""
+    if blocks is None or A.shape[1] < BLOCK_SOLVE_COLUMNS:
+        U, s, Vt = np.linalg.svd(A, full_matrices=False)
+        return s, Vt, lambda: Vt.T @ ((U.T @ yw) / s)
+    N, Ab = _block_normal(A, yw, blocks)
+    e, V = np.linalg.eigh(N)
+    e, V = np.maximum(e[::-1], 0.0), V[:, ::-1]
+    return np.sqrt(e), V.T, lambda: V @ ((V.T @ Ab) / e)
+
+
 def _fit_axis(
-    model: Model, cols: list[str], design: Mapping, y: np.ndarray, whiten, *, where: str, source
+    model: Model,
+    cols: list[str],
+    design: Mapping,
+    y: np.ndarray,
+    whiten,
+    *,
+    where: str,
+    source,
+    blocks: list[np.ndarray] | None = None,
 ) -> _AxisFit | _Unexcited:
     """The weighted least squares of one output axis's error ``y`` on its columns ``cols``,
     solved by the SVD of the whitened, column-scaled design (with the penalty rows of
-    :func:`_penalty_rows` beneath it)."""
+    :func:`_penalty_rows` beneath it), or from its normal equations (:func:`_spectrum`)."""
     n_obs = len(y)
     X = np.empty((n_obs, len(cols)))
     for j, c in enumerate(cols):
@@ -491,7 +537,8 @@ def _fit_axis(
     if rows is not None:
         yw = np.concatenate([yw, np.zeros(len(rows))])
         dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
-    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    # penalty rows span every column: no block structure then
+    s, Vt, solve = _spectrum(A, yw, blocks if rows is None else None)
     check, check_Vt = s, Vt
     # judged with the penalty at full weight (PENALTY_WEIGHT), whose rows come from the same terms
     if rows is not None and (full := _penalty_rows(model, cols, scale, 1.0)) is not None:
@@ -512,7 +559,7 @@ def _fit_axis(
             parameters=tuple(cols),
             source=source,
         )
-    theta = (Vt.T @ ((U.T @ yw) / s)) / scale
+    theta = solve() / scale
     r = y - X @ theta
     c2 = float(np.sum(whiten(r) ** 2))
     cov = (Vt.T / s**2) @ Vt / np.outer(scale, scale) * (c2 / n_dof)

@@ -34,6 +34,7 @@ import numpy as np
 from ..io.errors import ConfigError, GyrocalError, IdentifiabilityError
 from ..terms import AXES, Term
 from .model import FitResult, Model, columns_of, fit, observation_weights, shares_wander, subset_design
+from .wander import Whitener, stacked
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -566,35 +567,60 @@ class JointGridFit(_OnAGrid):
     point_ids: tuple[int, ...] = ()  # grid order
     profiled: tuple = ()
     design: dict | None = field(default=None, repr=False, compare=False)  # the model's own columns
+    point_weights: _PointWeights | None = field(default=None, repr=False, compare=False)
     kind: ClassVar[str] = "grid"
 
     @property
     def fits(self) -> tuple[FitResult, ...]:
         return (self.fit,)
 
+    @cached_property
+    def _layout(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Where each coefficient sits among the joint parameters: the point-scope ones
+        (their index in ``names``, and (C_l, P) joint indices, one per node) and the global
+        ones (index in ``names``, joint index)."""
+        joint = {name: j for j, name in enumerate(self.fit.names)}
+        local = [c for c, name in enumerate(self.names) if name not in joint]
+        index = [[joint[f"{self.names[c]}.@{p}"] for p in self.point_ids] for c in local]
+        shared = [c for c, name in enumerate(self.names) if name in joint]
+        return (
+            np.array(local, dtype=int),
+            np.array(index, dtype=int).reshape(len(local), len(self.point_ids)),
+            np.array(shared, dtype=int),
+            np.array([joint[self.names[c]] for c in shared], dtype=int),
+        )
+
     def _mapping(self, weights: np.ndarray) -> np.ndarray:
         """(n, C, J): coefficient values at n temperatures from the joint parameters."""
-        joint = {name: j for j, name in enumerate(self.fit.names)}
-        A = np.zeros((len(weights), len(self.names), len(joint)))
-        for c, name in enumerate(self.names):
-            if name in joint:
-                A[:, c, joint[name]] = 1.0
-            else:
-                for k, p in enumerate(self.point_ids):
-                    A[:, c, joint[f"{name}.@{p}"]] = weights[:, k]
+        local, index, shared, at = self._layout
+        A = np.zeros((len(weights), len(self.names), len(self.fit.names)))
+        A[:, local[:, None], index] = weights[:, None, :]
+        A[:, shared, at] = 1.0
         return A
 
     def covariance_at(self, temp) -> np.ndarray:
-        A = self._mapping(self.grid.weights(np.atleast_1d(np.asarray(temp, float))))
-        # Two products, not one three-operand einsum: numpy's einsum would loop over all
-        # five indices at once (n·c²·j², seconds for a diagnosis' candidates).
-        return (A @ self.fit.covariance) @ A.transpose(0, 2, 1)
+        """(n, C, C): the coefficients' covariance at each temperature, ``A Σ A'`` with ``A``
+        the mapping, contracted over the nodes rather than built: A has P·C columns of which
+        each coefficient reads P (n·C·J·P operations, not n·C·J²)."""
+        weights = self.grid.weights(np.atleast_1d(np.asarray(temp, float)))
+        local, index, shared, at = self._layout
+        cov = self.fit.covariance
+        n, C = len(weights), len(self.names)
+        B = np.empty((n, C, cov.shape[1]))  # A Σ
+        B[:, local] = np.tensordot(weights, cov[index], axes=([1], [1]))
+        B[:, shared] = cov[at][None]
+        out = np.empty((n, C, C))
+        out[:, :, local] = (B[:, :, index] @ weights[:, None, :, None])[..., 0]
+        out[:, :, shared] = B[:, :, at]
+        return out
 
     def point_fit(self, point: int):
         """The calibration at one point: its own coefficients and the global ones."""
         k = self.point_ids.index(int(point))
-        A = self._mapping(np.eye(len(self.point_ids))[k : k + 1])[0]
-        return _PointCalibration(self.grid.values[k], A @ self.fit.covariance @ A.T)
+        local, index, shared, at = self._layout
+        pick = np.empty(len(self.names), dtype=int)  # the joint parameter each coefficient is there
+        pick[local], pick[shared] = index[:, k], at
+        return _PointCalibration(self.grid.values[k], self.fit.covariance[np.ix_(pick, pick)])
 
     def leave_out(self, point: int) -> JointGridFit | None:
         """Refitted without ``point``'s holds (the global coefficients change with it)."""
@@ -613,6 +639,7 @@ class JointGridFit(_OnAGrid):
                 rows=self.rows[0][keep],
                 excluded=self.excluded,
                 design=None if self.design is None else subset_design(self.design, keep),
+                known_weights=self.point_weights,
             )
         except IdentifiabilityError:
             return None
@@ -627,29 +654,58 @@ class _PointCalibration:
 WANDER_COLUMNS = frozenset(f"wander_{a}" for a in AXES)
 
 
-def _weights_by_point(data: dict, point: np.ndarray) -> tuple[np.ndarray, list]:
+@dataclass(frozen=True)
+class _PointWeights:
+    """The weighting of a joint grid's holds, point by point (:func:`_weights_by_point`):
+    each point's observation rows (``rows``, the fit's own numbering) and their floors and
+    whiteners, kept so that a refit without one point reuses the others'."""
+
+    rows: dict[int, np.ndarray]
+    found: dict[int, tuple[np.ndarray, list]]
+
+
+def _weights_by_point(
+    data: dict, point: np.ndarray, rows: np.ndarray, known: _PointWeights | None = None
+) -> tuple[tuple[np.ndarray, list], _PointWeights]:
     """The weighting of a grid's holds where they share slow wander: each point's holds
     whitened among themselves, as a fit of that point alone whitens them. Each node's bias
     takes the wander between the points; whitened as one record, the wander of hours would
-    make the early points' biases as uncertain as a random walk from power-on."""
+    make the early points' biases as uncertain as a random walk from power-on. A point whose
+    holds (``rows``) are those ``known`` weighed keeps their weights."""
     blocks = []
     floor = np.empty((len(point), 3))
+    table = _PointWeights({}, {})
     for p in np.unique(point):
+        p = int(p)
         idx = np.flatnonzero(point == p)
-        floor[idx], found = observation_weights({k: v[idx] for k, v in data.items()})
+        if known is not None and p in known.rows and np.array_equal(known.rows[p], rows[idx]):
+            floor[idx], found = known.found[p]
+        else:
+            floor[idx], found = observation_weights({k: v[idx] for k, v in data.items()})
+        table.rows[p], table.found[p] = rows[idx], (floor[idx], found)
         blocks.append((idx, found))
 
     def axis(i):
+        parts = [found[i] for _, found in blocks]
+        # one pass over every point's holds where each point's map is a wander whitener
+        together = stacked(parts) if all(isinstance(w, Whitener) for w in parts) else None
+        if together is not None:
+            into = np.concatenate([idx for idx, _ in blocks])
+            taken = np.concatenate([idx[w.gen.order] for (idx, _), w in zip(blocks, parts, strict=True)])
+
         def whiten(m):
             m = np.asarray(m, dtype=float)
             out = np.empty(m.shape)
+            if together is not None:
+                out[into] = together(m[taken])
+                return out
             for idx, found in blocks:
                 out[idx] = found[i](m[idx])
             return out
 
         return whiten
 
-    return floor, [axis(i) for i in range(3)]
+    return (floor, [axis(i) for i in range(3)]), table
 
 
 def point_temperature(temps) -> float:
@@ -698,6 +754,7 @@ def _fit_joint(
     excluded=None,
     extra_points=(),
     design: dict | None = None,
+    known_weights: _PointWeights | None = None,
 ) -> JointGridFit:
     """The grid fitted in one least-squares problem, each hold at its own temperature: a
     point-scope coefficient's column at node ``k`` is the hold's column times the weight
@@ -740,13 +797,17 @@ def _fit_joint(
     # Each node's bias takes the wander between the points, as a fit point by point does:
     # the floor it weights by is a hold's own, without that wander (fit.model.observation_floor).
     own_floor = {k: v for k, v in data.items() if k not in WANDER_COLUMNS}
+    weighting, point_weights = None, None
+    if shares_wander(own_floor):
+        weighting, point_weights = _weights_by_point(own_floor, point, rows, known_weights)
     result = fit(
         joint,
         own_floor,
         source=source,
         label="all temperature points",
         design=joint_design,
-        weights=_weights_by_point(own_floor, point) if shares_wander(own_floor) else None,
+        weights=weighting,
+        blocks=[np.flatnonzero(point == p) for p in np.unique(point)],
     )
     index = {name: j for j, name in enumerate(result.names)}
     values = np.empty((len(ids), len(model.names)))
@@ -774,6 +835,7 @@ def _fit_joint(
         (rows,),
         tuple(ids),
         design=design,
+        point_weights=point_weights,
     )
 
 

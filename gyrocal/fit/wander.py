@@ -136,6 +136,36 @@ class Whitener:
         )
 
 
+def stacked(parts: list[Whitener]):
+    """Independent records' whiteners as one map over their rows concatenated, each record's
+    rows coming out in its own time order (as :class:`Whitener` gives them): the recursion is
+    cut at each record's first row (its decays zero), so one pass whitens them all alike. A
+    record with fewer poles has zero columns for the others (they stay zero throughout). None
+    where the records' levels differ."""
+    flicker, walk = parts[0].level[0], parts[0].level[-1]
+    if any(not (np.all(w.level[:-1] == flicker) and w.level[-1] == walk) for w in parts):
+        return None
+    J = max(w.gen.U.shape[1] for w in parts)
+
+    def widened(m: np.ndarray) -> np.ndarray:  # the poles' columns padded, the walk's last
+        out = np.zeros((len(m), J))
+        out[:, : m.shape[1] - 1], out[:, -1] = m[:, :-1], m[:, -1]
+        return out
+
+    U = np.vstack([widened(w.gen.U) for w in parts])
+    W = np.vstack([widened(w.W) for w in parts])
+    alpha = np.vstack([widened(w.gen.alpha) for w in parts])
+    beta = np.vstack([widened(w.gen.beta) for w in parts])
+    alpha[np.cumsum([0] + [len(w.D) for w in parts[:-1]])] = 0.0
+    D = np.concatenate([w.D for w in parts])
+    level = np.r_[np.full(J - 1, flicker), walk]
+
+    def whiten(Y: np.ndarray) -> np.ndarray:
+        return kernels.semiseparable_whiten(U, W, D, alpha, beta, Y, level)
+
+    return whiten
+
+
 def _factor(gen: _Generators, white: np.ndarray, flicker: float, rrw: float) -> Whitener | None:
     # A level of zero leaves its columns out exactly (their W stays zero).
     level = np.r_[np.full(gen.U.shape[1] - 1, flicker), rrw]
