@@ -251,7 +251,7 @@ def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict
     row["unexplained"] = d.get("unexplained")
     from judge import _answer  # the coarse words an outside generator scores
 
-    row["answer"] = _answer(d, with_other)
+    row["answer"] = _answer(d)
     if expected == "none":
         # A finding without a term (fixed in the lab, between temperature points) is an
         # alarm too on a unit with nothing missing.

@@ -66,9 +66,7 @@ def _acts_on(term: str) -> str:
     return "bias"
 
 
-def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
-    from gyrocal.diagnose.sessions import CARRIES_WITHIN
-
+def _answer(d: dict[str, Any]) -> dict[str, Any]:
     partial = d.get("partial") or []
     offer = d["best"] or (partial[0] if partial and partial[0].get("offered") else None)
     if offer:
@@ -105,11 +103,9 @@ def _answer(d: dict[str, Any], with_other: bool) -> dict[str, Any]:
     if d["explains_the_data"] and not why and d["best"] is None and nxt and nxt.get("fails_in_practice"):
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "unit changed"}
     if d["explains_the_data"] and not why:
-        noise = d.get("within_noise_uncertainty") or {}
-        # slow noise named as the cause of an excess that matters; within the bar a
-        # calibration meets on its next session the model explains the data
-        if not with_other and noise.get("explains") and d["factor"] > CARRIES_WITHIN:
-            return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
+        # One log whose excess lies within the slow wander its static data cannot rule out is
+        # told "explains the data as far as one session can tell", another session to tell
+        # wander from an effect: the verdict names nothing missing, so the answer is quiet.
         return {"verdict": "quiet", "reads": [], "acts_on": None, "reason": None}
     reason = REASONS.get(why.get("reason"), "unexplained")
     return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": reason}
@@ -134,7 +130,7 @@ def judge_unit(logs: list, protocol: str, one_session: bool = False) -> dict[str
             obs = segment_log(s0, settings, protocol).observations
             other = None if one_session else segment_log(s1, settings, protocol).observations
             d = diagnose(settings, obs, other).to_dict()
-            out.update(_answer(d, not one_session))
+            out.update(_answer(d))
             out["detail"] = d["verdict"]
             unseen = segment_log(s2, settings, protocol).observations
 

@@ -73,16 +73,20 @@ def fails_in_practice(nxt: CarryOver) -> bool:
     return not turned_on(nxt)
 
 
-def turned_on(nxt: CarryOver) -> bool:
-    """Whether the other session differs by the bias of its power-on alone: each axis' mean
-    error within :data:`TURN_ON_FLOORS` floors, and what is left within
-    :func:`practical_bar`."""
-    offsets = nxt.get("turn_on_bias")
-    if not offsets or nxt.get("rezeroed_rms") is None:
+def offset_alone(nxt: CarryOver) -> bool:
+    """Whether an offset per axis is all that sets the other session apart: with each axis'
+    mean error taken out, what is left is within :func:`practical_bar`. Such an offset is the
+    same at every temperature, so it is no failure between the temperature points."""
+    if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None:
         return False
-    return bool(
-        max(abs(v) for v in offsets.values()) <= TURN_ON_FLOORS * nxt["noise_floor"]
-        and nxt["rezeroed_rms"] <= practical_bar(nxt)
+    return bool(nxt["rezeroed_rms"] <= practical_bar(nxt))
+
+
+def turned_on(nxt: CarryOver) -> bool:
+    """Whether the other session differs by the bias of its power-on alone: an offset per
+    axis (:func:`offset_alone`) within :data:`TURN_ON_FLOORS` floors."""
+    return offset_alone(nxt) and bool(
+        max(abs(v) for v in nxt["turn_on_bias"].values()) <= TURN_ON_FLOORS * nxt["noise_floor"]
     )
 
 

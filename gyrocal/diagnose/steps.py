@@ -80,6 +80,7 @@ from .sessions import (
     CARRIES_WITHIN,
     POINT_MATCH,
     fails_in_practice,
+    offset_alone,
     practical_bar,
     reference_scaled,
     slow_noise,
@@ -626,9 +627,11 @@ def _point_temperatures(obs: pd.DataFrame) -> np.ndarray:
 def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
     """Where the other session's temperature points all lie between this one's (none
     within :data:`.sessions.POINT_MATCH` of them, so no pattern can be compared) and the
-    calibration fails there in practice: it does not hold between its points, or the unit
-    changed, and only a point both sessions visit tells which."""
+    calibration fails there in practice beyond an offset per axis: it does not hold between its
+    points, or the unit changed, and only a point both sessions visit tells which."""
     if judge.other is None or base_next is None or "error" in base_next or not fails_in_practice(base_next):
+        return None
+    if offset_alone(base_next):  # the same offset at every temperature: the bias moved
         return None
     here, there = _point_temperatures(judge.obs), _point_temperatures(judge.other)
     if here.size < 2 or not there.size:

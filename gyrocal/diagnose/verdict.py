@@ -8,7 +8,16 @@ from ..terms import make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .grain import grain_sentence
 from .reading import readable
-from .sessions import CARRIES_WITHIN, CarryOver, fails_in_practice, reference_scaled, turned_on, usable
+from .sessions import (
+    CARRIES_WITHIN,
+    TURN_ON_FLOORS,
+    CarryOver,
+    fails_in_practice,
+    offset_alone,
+    reference_scaled,
+    turned_on,
+    usable,
+)
 from .stats import p_text
 
 if TYPE_CHECKING:
@@ -26,7 +35,10 @@ def verdict(diag: Diagnosis) -> str:
     if diag.confound is not None:
         text += _confound_sentence(diag.confound)
     text += "".join(grain_sentence(g) for g in diag.grain)
-    text += _other_session(diag, base_next)
+    # what the calibration does there is told where no point of it matched one of this
+    # session's (the pattern's repetition alone needs shared points)
+    carried = diag.next_session if diag.next_session and "error" not in diag.next_session else None
+    text += _other_session(diag, carried)
     if diag.floors_differ is not None and noise_covers_the_other(diag):
         f = diag.floors_differ
         text += (
@@ -105,6 +117,17 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
     if diag.explains and noise_covers_the_other(diag):
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times its floor."
+        )
+    if diag.explains and offset_alone(base_next):
+        offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
+        largest = max(abs(v) for v in base_next["turn_on_bias"].values()) / base_next["noise_floor"]
+        return (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
+            f"the floor, an offset per axis ({offsets} deg/s; without it "
+            f"{base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times what a correct model "
+            f"would leave): the unit's bias moved between sessions by up to {largest:.3g} floors, more "
+            f"than the {TURN_ON_FLOORS:g} a power-on's bias is granted (a sensor's turn-on repeatability "
+            "beyond that, or a drift; its datasheet or a third session tells)."
         )
     if diag.explains:
         return (

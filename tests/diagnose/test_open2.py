@@ -70,7 +70,7 @@ def test_a_complete_unit_with_a_turn_on_bias_is_quiet_in_both_modes(name, tmp_pa
     logs, _ = open2_unit(tmp_path, name)
     for two in (False, True):
         d = diagnosed(logs, two)
-        assert _answer(d, two)["verdict"] == "quiet", d["verdict"]
+        assert _answer(d)["verdict"] == "quiet", d["verdict"]
     nxt = d["next_session"]
     assert not nxt["fails_in_practice"], d["verdict"]
     assert nxt["rezeroed_rms"] <= NEXT_SESSION_LIMIT * nxt["expected_rms"] * 1.05, nxt
@@ -85,7 +85,7 @@ def test_a_reference_rate_read_with_a_scale_error_is_told_as_the_labs(tmp_path):
     rate) and its jitter."""
     logs, truth = open2_unit(tmp_path, "o2_table_tach_scale_2")
     d = diagnosed(logs, True)
-    assert _answer(d, True)["reason"] == "lab", d["verdict"]
+    assert _answer(d)["reason"] == "lab", d["verdict"]
     from open2.generator import effect_params
 
     unit = next(u for u in make_units(families=["table_tach_scale"]) if u["name"] == "o2_table_tach_scale_2")
@@ -100,7 +100,7 @@ def test_a_bump_between_the_points_is_told_where_the_other_session_visits_betwee
     calibration does not hold between its points (or the unit changed), not a bare change."""
     logs, _ = open2_unit(tmp_path, "o2_mode_crossing_1")
     d = diagnosed(logs, True)
-    assert _answer(d, True)["reason"] == "between points", d["verdict"]
+    assert _answer(d)["reason"] == "between points", d["verdict"]
 
 
 @pytest.mark.slow
@@ -111,7 +111,7 @@ def test_a_thermal_backlash_is_told_by_the_direction_each_point_was_reached_from
     offset are taken out."""
     logs, _ = open2_unit(tmp_path, "o2_thermal_play_1")
     d = diagnosed(logs, True)
-    assert _answer(d, True)["reason"] == "direction of approach", d["verdict"]
+    assert _answer(d)["reason"] == "direction of approach", d["verdict"]
     assert d["approach"]["explains"] and len(d["approach"]["points"]) == 3, d["approach"]
 
 
@@ -123,7 +123,7 @@ def test_a_fixture_that_tilts_the_unit_at_each_mounting_is_the_mountings(tmp_pat
     logs, _ = open2_unit(tmp_path, "o2_fixture_reseat_0")
     for two in (False, True):
         d = diagnosed(logs, two)
-        assert _answer(d, two)["reason"] == "mounting", d["verdict"]
+        assert _answer(d)["reason"] == "mounting", d["verdict"]
 
 
 @pytest.mark.slow
@@ -145,7 +145,7 @@ def test_an_excess_the_other_session_does_not_repeat_is_searched_before_it_is_ca
     noise."""
     logs, _ = open2_unit(tmp_path, "o2_fixture_heat_flux_2")
     d = diagnosed(logs, True)
-    answer = _answer(d, True)
+    answer = _answer(d)
     assert answer["verdict"] == "fix" and "thermal" in answer["reads"], d["verdict"]
     assert not d["unrepeated"]
 
@@ -181,7 +181,7 @@ def test_a_bias_that_jumps_in_one_sessions_static_data_is_slow_noise(tmp_path):
     logs, _ = open2_unit(tmp_path, "o2_popcorn_bias_2")
     d = diagnosed(logs, True)
     assert d["floors_differ"]["covers_other"], d["verdict"]
-    assert _answer(d, True)["reason"] == "slow noise", d["verdict"]
+    assert _answer(d)["reason"] == "slow noise", d["verdict"]
 
 
 @pytest.mark.slow
@@ -194,7 +194,7 @@ def test_a_tilt_at_each_mounting_with_every_point_mounted_anew_is_the_mountings(
     logs, _ = open2_unit(tmp_path, "o2_fixture_reseat_2")
     for two in (False, True):
         d = diagnosed(logs, two)
-        assert _answer(d, two)["reason"] == "mounting", d["verdict"]
+        assert _answer(d)["reason"] == "mounting", d["verdict"]
         assert "unit changed" not in d["verdict"]
 
 
