@@ -10,7 +10,9 @@ The interface between gyrocal and generators written without reading it (the sea
 Session 0 is diagnosed (with session 1 as the other session unless ``one_session``); the fix
 offered is calibrated on session 0 and judged on session 2. The result:
 
-- ``verdict``: ``quiet`` (the model explains the data), ``fix`` (a term offered),
+- ``verdict``: ``quiet`` (the model explains the data; also from one log whose excess lies
+  within the slow wander its static data cannot rule out, which the diagnosis leaves to
+  another session), ``fix`` (a term offered),
   ``no_sensor_term`` (no term can carry the excess; ``reason`` says why) or ``error``;
 - ``reads``: the coarse kinds of input the offered fix reads, from ``rate``, ``accel``,
   ``temperature``, ``thermal`` (the temperature's rate, lag, or direction of travel),

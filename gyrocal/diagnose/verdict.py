@@ -108,8 +108,13 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f"({base_next['validation_rms'] / base_next['expected_rms']:.2f}), a difference too small "
             "to act on (a turn-on bias a little apart between power-ons): it carries over."
         )
-    mounted = diag.unexplained is not None and diag.unexplained.reason == "the mounting"
-    if diag.explains and (reference_scaled(base_next) or mounted):
+    # the why that follows tells the failure (the mounting's, or between the points, which
+    # leaves the unit changed as one reading): the sentence here claims no cause
+    told = diag.unexplained is not None and diag.unexplained.reason in (
+        "the mounting",
+        "between temperature points",
+    )
+    if diag.explains and (reference_scaled(base_next) or told):
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} "
             "times the floor: it does not carry over."
@@ -125,9 +130,18 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
             f"the floor, an offset per axis ({offsets} deg/s; without it "
             f"{base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times what a correct model "
-            f"would leave): the unit's bias moved between sessions by up to {largest:.3g} floors, more "
-            f"than the {TURN_ON_FLOORS:g} a power-on's bias is granted (a sensor's turn-on repeatability "
-            "beyond that, or a drift; its datasheet or a third session tells)."
+            f"would leave): the unit changed between sessions, its bias by up to {largest:.3g} floors, "
+            f"more than the {TURN_ON_FLOORS:g} a power-on's bias is granted (a sensor's turn-on repeatability "
+            "beyond that, or a drift; its datasheet or a third session tells)"
+            + (
+                # no point matched: a bias stepping between this session's points by the same
+                # amount at every point the other visits reads alike
+                "; or a bias that changes between this session's points by the same amount at "
+                "each point the other session visits"
+                if base_next.get("repeat_p_value") is None
+                else ""
+            )
+            + "."
         )
     if diag.explains:
         return (

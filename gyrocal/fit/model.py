@@ -14,7 +14,7 @@ Compensation inverts ``w = w_true + e(w_true, covariates)``: the model is affine
 from __future__ import annotations
 
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -491,7 +491,9 @@ def _block_normal(A: np.ndarray, b: np.ndarray, blocks: list[np.ndarray]) -> tup
     return N, Ab
 
 
-def _spectrum(A: np.ndarray, yw: np.ndarray, blocks: list[np.ndarray] | None):
+def _spectrum(
+    A: np.ndarray, yw: np.ndarray, blocks: list[np.ndarray] | None
+) -> tuple[np.ndarray, np.ndarray, Callable[[], np.ndarray]]:
     """The column-scaled design's singular values (descending), right singular vectors, and
     the scaled solution ``V diag(1/s) U'y`` to make once the spectrum is accepted: by SVD, or,
     for a wide design in blocks, from the eigenvalues of its normal equations (sound for what
@@ -546,6 +548,11 @@ def _fit_axis(
     # Columns that only noise keeps apart (an accelerometer that reads the same on
     # every mount but for its noise) fit noise, not physics: refuse them too.
     weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
+    if weak.any() and blocks is not None and rows is None and A.shape[1] >= BLOCK_SOLVE_COLUMNS:
+        # a refusal is judged and named as the SVD finds it: the normal equations' square puts
+        # an exact collinearity at rounding of either sign (1e8 or 1e300, not 1e16)
+        _, check, check_Vt = np.linalg.svd(A, full_matrices=False)
+        weak = check <= check[0] / MAX_CONDITION
     if dead.any() or weak.any():
         involved = set(np.flatnonzero(dead))
         for k in np.flatnonzero(weak):

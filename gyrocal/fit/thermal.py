@@ -590,14 +590,6 @@ class JointGridFit(_OnAGrid):
             np.array([joint[self.names[c]] for c in shared], dtype=int),
         )
 
-    def _mapping(self, weights: np.ndarray) -> np.ndarray:
-        """(n, C, J): coefficient values at n temperatures from the joint parameters."""
-        local, index, shared, at = self._layout
-        A = np.zeros((len(weights), len(self.names), len(self.fit.names)))
-        A[:, local[:, None], index] = weights[:, None, :]
-        A[:, shared, at] = 1.0
-        return A
-
     def covariance_at(self, temp) -> np.ndarray:
         """(n, C, C): the coefficients' covariance at each temperature, ``A Σ A'`` with ``A``
         the mapping, contracted over the nodes rather than built: A has P·C columns of which
