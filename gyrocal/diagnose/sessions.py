@@ -32,6 +32,7 @@ class CarryOver(TypedDict, total=False):
     holds: bool
     fails_in_practice: bool  # beyond chance and beyond CARRIES_WITHIN x what a correct model leaves
     turn_on_bias: dict[str, float]  # deg/s per axis: the other session's mean error, the power-on's bias
+    turn_on_allowance: float  # deg/s: the offset per axis a power-on's bias may take (turned_on)
     rezeroed_rms: float  # deg/s: its RMS error with that bias taken out
     reference_scale: float  # one scale error shared by every axis, fitted to its errors
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
@@ -53,7 +54,17 @@ CARRIES_WITHIN = 1.2
 # cannot carry: up to this many hold-mean floors per axis, an offset of the other session's
 # errors is that, not a change of the unit. The floor stands for a sensor's specification
 # the log does not give; a unit whose bias moves tens of floors between power-ons changed.
+# Given the specification (diagnosis: turn_on_repeatability, 1 sigma), as many sigmas.
 TURN_ON_FLOORS = 3.0
+
+
+def turn_on_allowance(settings: Settings, noise_floor: float) -> float:
+    """The offset per axis (deg/s) another session's power-on may give the bias: 3 times the
+    sensor's turn-on repeatability where the settings give it, else :data:`TURN_ON_FLOORS`
+    hold-mean floors; the larger, as a floor's own offset is within chance either way."""
+    allowance = TURN_ON_FLOORS * noise_floor
+    spec = settings.diagnosis.turn_on_repeatability
+    return allowance if spec is None else max(allowance, TURN_ON_FLOORS * spec)
 
 
 def practical_bar(nxt: CarryOver) -> float:
@@ -84,10 +95,9 @@ def offset_alone(nxt: CarryOver) -> bool:
 
 def turned_on(nxt: CarryOver) -> bool:
     """Whether the other session differs by the bias of its power-on alone: an offset per
-    axis (:func:`offset_alone`) within :data:`TURN_ON_FLOORS` floors."""
-    return offset_alone(nxt) and bool(
-        max(abs(v) for v in nxt["turn_on_bias"].values()) <= TURN_ON_FLOORS * nxt["noise_floor"]
-    )
+    axis (:func:`offset_alone`) within :func:`turn_on_allowance`."""
+    allowance = nxt.get("turn_on_allowance", TURN_ON_FLOORS * nxt["noise_floor"])
+    return offset_alone(nxt) and bool(max(abs(v) for v in nxt["turn_on_bias"].values()) <= allowance)
 
 
 def _turn_on_offsets(held) -> dict:
@@ -156,6 +166,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
     }
     out.update(_turn_on_offsets(held))  # type: ignore[typeddict-item]
+    out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
     if not all(
         np.isfinite(v) for v in [*out.values(), *out.get("turn_on_bias", {}).values()] if isinstance(v, float)
     ):

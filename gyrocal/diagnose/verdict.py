@@ -125,14 +125,17 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if diag.explains and offset_alone(base_next):
         offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
-        largest = max(abs(v) for v in base_next["turn_on_bias"].values()) / base_next["noise_floor"]
+        floor = base_next["noise_floor"]
+        largest = max(abs(v) for v in base_next["turn_on_bias"].values()) / floor
+        allowance = base_next.get("turn_on_allowance", TURN_ON_FLOORS * floor)
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
             f"the floor, an offset per axis ({offsets} deg/s; without it "
             f"{base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times what a correct model "
             f"would leave): the unit changed between sessions, its bias by up to {largest:.3g} floors, "
-            f"more than the {TURN_ON_FLOORS:g} a power-on's bias is granted (a sensor's turn-on repeatability "
-            "beyond that, or a drift; its datasheet or a third session tells)"
+            f"more than the {allowance / floor:.3g} a power-on's bias is granted (a sensor's turn-on "
+            "repeatability beyond that, or a drift; its datasheet, as diagnosis: turn_on_repeatability, "
+            "or a third session tells)"
             + (
                 # no point matched: a bias stepping between this session's points by the same
                 # amount at every point the other visits reads alike

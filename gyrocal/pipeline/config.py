@@ -121,6 +121,7 @@ class DiagnosisSettings:
     significance: float = _DIAGNOSIS["significance"]
     candidates: tuple = tuple(_DIAGNOSIS["candidates"])
     ladder: tuple = tuple(_DIAGNOSIS["ladder"])  # steps: {name, add: [terms], kind}
+    turn_on_repeatability: float | None = None  # deg/s, 1 sigma: the sensor's datasheet's
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "diagnosis") -> DiagnosisSettings:
@@ -137,14 +138,23 @@ class DiagnosisSettings:
                 make_term(spec)
             name = step.get("name") or "+" + " +".join(make_term(a).spec_string() for a in add)
             ladder.append({"name": str(name), "add": add, "kind": step.get("kind")})
-        return cls(float(values["significance"]), candidates, tuple(ladder))
+        repeatability = values.get("turn_on_repeatability")
+        return cls(
+            float(values["significance"]),
+            candidates,
+            tuple(ladder),
+            None if repeatability is None else float(repeatability),
+        )
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        out: dict[str, Any] = {
             "significance": self.significance,
             "candidates": list(self.candidates),
             "ladder": [{**step, "add": list(step["add"])} for step in self.ladder],
         }
+        if self.turn_on_repeatability is not None:  # unset, the settings' digest stays as it was
+            out["turn_on_repeatability"] = self.turn_on_repeatability
+        return out
 
 
 def segmentation_settings(values: dict | None = None) -> SegmentationSettings:
@@ -215,6 +225,8 @@ class Settings:
         }
         diagnosis = {
             "significance": self.diagnosis.significance,
+            # the sensor's, whatever the protocol
+            "turn_on_repeatability": self.diagnosis.turn_on_repeatability,
             **default["diagnosis"],
             **(override.get("diagnosis") or {}),
         }
