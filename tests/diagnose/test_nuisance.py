@@ -70,3 +70,23 @@ def test_a_datasheets_turn_on_repeatability_is_the_allowance_for_a_power_ons_bia
     assert largest <= nxt["turn_on_allowance"] == pytest.approx(3 * sigma), nxt
     assert not nxt["fails_in_practice"] and _answer(d)["verdict"] == "quiet", d["verdict"]
     assert "the bias the unit took at that power-on" in d["verdict"]
+
+
+def test_holds_still_moving_after_a_door_serve_the_calibration(tmp_path):
+    """Unit N046: after each remount the chamber's door lets the air go and the unit's
+    temperature recovers at tenths of a degree a minute through the holds. Each hold is fitted
+    at its own temperature, so they serve; rejected at the static stretches' 0.1 °C/min, they
+    took whole mounts from points and the calibration erred 49 times the set's reference
+    floor on the unseen session. The default calibration of session 0 meets the issue's bar,
+    1.2 times that floor, on session 2."""
+    from gyrocal.fleet.drift import revalidate
+    from gyrocal.pipeline.chain import run
+
+    built = nuisance.build_unit(nuisance.draw_unit(SEED, 46))
+    paths = nuisance.write_unit(built, str(tmp_path))
+    floor = nuisance.reference_floor(built)["floor"]
+    settings = Settings().for_protocol("turntable")
+    unseen = revalidate(
+        run(paths[0], settings).calibration, segment_log(paths[2], settings, "turntable").observations
+    )
+    assert unseen["validation_rms"] <= 1.2 * floor, (unseen["validation_rms"], floor)

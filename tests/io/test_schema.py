@@ -35,8 +35,8 @@ def test_the_settings_take_their_defaults_from_the_schema():
     ) == (model["kind"], model["interpolation"], model["degree"], model["reference_temperature"])
     assert DiagnosisSettings().significance == diagnosis["significance"]
     # Calibration files record this hash: the defaults' values and types are unchanged (it
-    # changed with segmentation: settling, issue 38).
-    assert Settings().sha256() == "dc0e574014884041316bf9817ecf94a3374d46f8c05619f8d62820a354e10f3e"
+    # changed with segmentation: settling, issue 38, and hold_max_temp_rate, issue 52).
+    assert Settings().sha256() == "9a5f781b7569e4b86b31b2f41b12d7c9b6f0c574f028c8befdb127574908c900"
     assert Settings.from_dict({}) == Settings()
     assert ModelSettings.from_dict({"terms": ("bias", "scale")}).terms == ("bias", "scale")
 

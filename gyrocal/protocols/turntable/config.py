@@ -27,6 +27,7 @@ class SegmentConfig:
     min_hold_s: float | None = _DEFAULTS["min_hold_s"]
     soak_min_s: float | None = _DEFAULTS["soak_min_s"]
     max_temp_rate: float = _DEFAULTS["max_temp_rate"]
+    hold_max_temp_rate: float = _DEFAULTS["hold_max_temp_rate"]
     temp_window_s: float = _DEFAULTS["temp_window_s"]
     temp_gap: float = _DEFAULTS["temp_gap"]
     motion_sigma: float = _DEFAULTS["motion_sigma"]
