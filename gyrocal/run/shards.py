@@ -133,6 +133,7 @@ def run_shards(
                             stdout=log,
                             stderr=subprocess.STDOUT,
                             stdin=subprocess.DEVNULL,
+                            preexec_fn=_interruptible,
                         )
                     running.append((shard, process, time.monotonic()))
                     echo(f"{shard.name}: started ({shard.folder})")
@@ -153,6 +154,13 @@ def run_shards(
         finally:
             _stop([process for _, process, _ in running])
     return runs
+
+
+def _interruptible() -> None:
+    """In a shard's process before it runs: Ctrl-C back to its default. A run started in the
+    background by a script (or under a test runner's worker) ignores SIGINT, and a child
+    inherits that: its Snakemake would not hear the stop and be killed STOP_S later."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _stop(processes: list[subprocess.Popen]) -> None:

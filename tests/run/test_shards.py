@@ -183,17 +183,22 @@ def test_shards_still_running_are_stopped_with_the_run(tmp_path):
         return [sys.executable, "-c", script, str(shard.folder / "alive")]
 
     t0 = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        run_shards(
-            paths,
-            tmp_path,
-            [],
-            at_once=2,
-            snakefile=REPO / "Snakefile",
-            configfile=None,
-            command=command,
-            echo=interrupt,
-        )
+    # started in the background by a script, a run ignores SIGINT and its children would too
+    ignored = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_shards(
+                paths,
+                tmp_path,
+                [],
+                at_once=2,
+                snakefile=REPO / "Snakefile",
+                configfile=None,
+                command=command,
+                echo=interrupt,
+            )
+    finally:
+        signal.signal(signal.SIGINT, ignored)
     assert time.monotonic() - t0 < 30 and len(children) == 2  # stopped, not waited for
     assert not [pid for pid in os.listdir("/proc") if pid.isdigit() and _runs(pid, str(tmp_path))]
     with pytest.raises(KeyboardInterrupt), _terminate_as_interrupt():

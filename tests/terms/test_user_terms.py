@@ -270,7 +270,9 @@ def test_a_temperature_rate_term_is_found_and_applied_from_the_log(tmp_path):
     # The chamber door lets the die warm and cool around each handling: holds see dT/dt.
     unit = GyroUnit.seed000().with_effects({"temp_rate": (0.02, -0.015, 0.01)})
     log = make_log(tmp_path, "door", seed=3, unit=unit, door_coupling=0.3, unit_tau_s=20.0, air_tau_s=2.0)
-    settings = replace(Settings(), segmentation=SegmentConfig.from_dict({"max_temp_rate": 10.0}))
+    settings = replace(
+        Settings(), segmentation=SegmentConfig.from_dict({"max_temp_rate": 10.0, "hold_max_temp_rate": 10.0})
+    )
     obs = segment_log(log, settings).observations
     diag = diagnose(settings, obs)
     assert diag.best is not None and diag.best.term == "temp_rate"
