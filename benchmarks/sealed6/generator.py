@@ -526,7 +526,6 @@ def draw_effect(rng, fam, k, u, p):
     elif fam == "changed":
         dK = np.zeros((3, 3))
         if fx["variant"] == 0:
-            dK[rng.integers(0, 3)] [rng.integers(0, 3)] = 0.0
             i = int(rng.integers(0, 3))
             dK[i, i] = rng.choice([-1, 1]) * 1e-4
         elif fx["variant"] == 1:
@@ -741,17 +740,9 @@ def build_unit(spec, max_tries=6):
                 if attempt < max_tries - 1:
                     continue
                 target = S(cap)
-            lo, hi = 0.0, cap
-            for _ in range(50):
-                mid = 0.5 * (lo + hi) if lo > 0 else hi / 2 ** 0.5 if hi > cap * 1e-6 else hi
-                if lo == 0.0:
-                    mid = hi / 2
-                    if S(mid) >= target:
-                        hi = mid
-                        continue
-                    lo = mid
-                    continue
-                mid = np.sqrt(lo * hi)
+            lo, hi = cap * 1e-6, cap       # geometric bisection: S(lo) ~ base/floor < target
+            for _ in range(45):
+                mid = float(np.sqrt(lo * hi))
                 if S(mid) >= target:
                     hi = mid
                 else:
