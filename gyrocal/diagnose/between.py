@@ -38,10 +38,16 @@ def _floor_factor(fit, names) -> np.ndarray:
     )
 
 
+def _floored(covariance: np.ndarray, fit, names) -> np.ndarray:
+    """``covariance`` of coefficients ``names`` of ``fit`` (or mapped from it) at least as
+    large as the noise floor says."""
+    factor = _floor_factor(fit, names)
+    return covariance * np.outer(factor, factor)
+
+
 def _uncertainty(fit) -> np.ndarray:
     """A point fit's covariance at least as large as the noise floor says."""
-    factor = _floor_factor(fit, fit.names)
-    return fit.covariance * np.outer(factor, factor)
+    return _floored(fit.covariance, fit, fit.names)
 
 
 class _Points:
@@ -64,8 +70,7 @@ class _Points:
         f = self.fitted.point_fit(point)
         if not self.joint:
             return f.values, _uncertainty(f)
-        factor = _floor_factor(self.fitted.fit, self.fitted.names)
-        return f.values, f.covariance * np.outer(factor, factor)
+        return f.values, _floored(f.covariance, self.fitted.fit, self.fitted.names)
 
     def others(self, point: int, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         loo = self.fitted.leave_out(point)
@@ -75,8 +80,7 @@ class _Points:
         if not self.joint:
             weights = loo.grid.weights(at)[0] ** 2
             return values, np.einsum("p,pcd->cd", weights, np.array([_uncertainty(f) for f in loo.fits]))
-        factor = _floor_factor(loo.fit, loo.names)
-        return values, loo.covariance_at(at)[0] * np.outer(factor, factor)
+        return values, _floored(loo.covariance_at(at)[0], loo.fit, loo.names)
 
 
 def _points(fitted) -> _Points | None:

@@ -93,11 +93,20 @@ def offset_alone(nxt: CarryOver) -> bool:
     return bool(nxt["rezeroed_rms"] <= practical_bar(nxt))
 
 
+def offset_and_allowance(nxt: CarryOver) -> tuple[float, float]:
+    """The other session's largest offset of an axis, and what a power-on's bias may take
+    (:func:`turn_on_allowance`, as :func:`carry_over` found it), deg/s."""
+    allowance = nxt.get("turn_on_allowance", TURN_ON_FLOORS * nxt["noise_floor"])
+    return max(abs(v) for v in nxt["turn_on_bias"].values()), allowance
+
+
 def turned_on(nxt: CarryOver) -> bool:
     """Whether the other session differs by the bias of its power-on alone: an offset per
     axis (:func:`offset_alone`) within :func:`turn_on_allowance`."""
-    allowance = nxt.get("turn_on_allowance", TURN_ON_FLOORS * nxt["noise_floor"])
-    return offset_alone(nxt) and bool(max(abs(v) for v in nxt["turn_on_bias"].values()) <= allowance)
+    if not offset_alone(nxt):
+        return False
+    largest, allowance = offset_and_allowance(nxt)
+    return bool(largest <= allowance)
 
 
 def _turn_on_offsets(held) -> dict:

@@ -10,10 +10,10 @@ from .grain import grain_sentence
 from .reading import readable
 from .sessions import (
     CARRIES_WITHIN,
-    TURN_ON_FLOORS,
     CarryOver,
     fails_in_practice,
     offset_alone,
+    offset_and_allowance,
     reference_scaled,
     turned_on,
     usable,
@@ -126,13 +126,12 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
     if diag.explains and offset_alone(base_next):
         offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
         floor = base_next["noise_floor"]
-        largest = max(abs(v) for v in base_next["turn_on_bias"].values()) / floor
-        allowance = base_next.get("turn_on_allowance", TURN_ON_FLOORS * floor)
+        largest, allowance = offset_and_allowance(base_next)
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
             f"the floor, an offset per axis ({offsets} deg/s; without it "
             f"{base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times what a correct model "
-            f"would leave): the unit changed between sessions, its bias by up to {largest:.3g} floors, "
+            f"would leave): the unit changed between sessions, its bias by up to {largest / floor:.3g} floors, "
             f"more than the {allowance / floor:.3g} a power-on's bias is granted (a sensor's turn-on "
             "repeatability beyond that, or a drift; its datasheet, as diagnosis: turn_on_repeatability, "
             "or a third session tells)"

@@ -496,9 +496,9 @@ def _spectrum(
 ) -> tuple[np.ndarray, np.ndarray, Callable[[], np.ndarray]]:
     """The column-scaled design's singular values (descending), right singular vectors, and
     the scaled solution ``V diag(1/s) U'y`` to make once the spectrum is accepted: by SVD, or,
-    for a wide design in blocks, from the eigenvalues of its normal equations (sound for what
-    the fit accepts: a condition number within MAX_CONDITION, squared, is far from rounding)."""
-    if blocks is None or A.shape[1] < BLOCK_SOLVE_COLUMNS:
+    given row ``blocks``, from the eigenvalues of its normal equations (sound for what the fit
+    accepts: a condition number within MAX_CONDITION, squared, is far from rounding)."""
+    if blocks is None:
         U, s, Vt = np.linalg.svd(A, full_matrices=False)
         return s, Vt, lambda: Vt.T @ ((U.T @ yw) / s)
     N, Ab = _block_normal(A, yw, blocks)
@@ -540,7 +540,8 @@ def _fit_axis(
         yw = np.concatenate([yw, np.zeros(len(rows))])
         dead &= ~np.any(rows != 0, axis=0)  # the penalty carries a column without holds
     # penalty rows span every column: no block structure then
-    s, Vt, solve = _spectrum(A, yw, blocks if rows is None else None)
+    by_blocks = blocks is not None and rows is None and A.shape[1] >= BLOCK_SOLVE_COLUMNS
+    s, Vt, solve = _spectrum(A, yw, blocks if by_blocks else None)
     check, check_Vt = s, Vt
     # judged with the penalty at full weight (PENALTY_WEIGHT), whose rows come from the same terms
     if rows is not None and (full := _penalty_rows(model, cols, scale, 1.0)) is not None:
@@ -548,7 +549,7 @@ def _fit_axis(
     # Columns that only noise keeps apart (an accelerometer that reads the same on
     # every mount but for its noise) fit noise, not physics: refuse them too.
     weak = check <= check[0] / MAX_CONDITION if check.size else np.array([], bool)
-    if weak.any() and blocks is not None and rows is None and A.shape[1] >= BLOCK_SOLVE_COLUMNS:
+    if weak.any() and by_blocks:
         # a refusal is judged and named as the SVD finds it: the normal equations' square puts
         # an exact collinearity at rounding of either sign (1e8 or 1e300, not 1e16)
         _, check, check_Vt = np.linalg.svd(A, full_matrices=False)

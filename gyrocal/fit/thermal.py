@@ -657,33 +657,32 @@ class _PointWeights:
 
 
 def _weights_by_point(
-    data: dict, point: np.ndarray, rows: np.ndarray, known: _PointWeights | None = None
+    data: dict, blocks: dict[int, np.ndarray], rows: np.ndarray, known: _PointWeights | None = None
 ) -> tuple[tuple[np.ndarray, list], _PointWeights]:
     """The weighting of a grid's holds where they share slow wander: each point's holds
     whitened among themselves, as a fit of that point alone whitens them. Each node's bias
     takes the wander between the points; whitened as one record, the wander of hours would
-    make the early points' biases as uncertain as a random walk from power-on. A point whose
-    holds (``rows``) are those ``known`` weighed keeps their weights."""
-    blocks = []
-    floor = np.empty((len(point), 3))
+    make the early points' biases as uncertain as a random walk from power-on. ``blocks``:
+    each point's positions among the holds. A point whose holds (``rows``) are those
+    ``known`` weighed keeps their weights."""
+    weighed = []
+    floor = np.empty((len(rows), 3))
     table = _PointWeights({}, {})
-    for p in np.unique(point):
-        p = int(p)
-        idx = np.flatnonzero(point == p)
+    for p, idx in blocks.items():
         if known is not None and p in known.rows and np.array_equal(known.rows[p], rows[idx]):
             floor[idx], found = known.found[p]
         else:
             floor[idx], found = observation_weights({k: v[idx] for k, v in data.items()})
         table.rows[p], table.found[p] = rows[idx], (floor[idx], found)
-        blocks.append((idx, found))
+        weighed.append((idx, found))
 
     def axis(i):
-        parts = [found[i] for _, found in blocks]
+        parts = [found[i] for _, found in weighed]
         # one pass over every point's holds where each point's map is a wander whitener
         together = stacked(parts) if all(isinstance(w, Whitener) for w in parts) else None
         if together is not None:
-            into = np.concatenate([idx for idx, _ in blocks])
-            taken = np.concatenate([idx[w.gen.order] for (idx, _), w in zip(blocks, parts, strict=True)])
+            into = np.concatenate([idx for idx, _ in weighed])
+            taken = np.concatenate([idx[w.gen.order] for (idx, _), w in zip(weighed, parts, strict=True)])
 
         def whiten(m):
             m = np.asarray(m, dtype=float)
@@ -691,7 +690,7 @@ def _weights_by_point(
             if together is not None:
                 out[into] = together(m[taken])
                 return out
-            for idx, found in blocks:
+            for idx, found in weighed:
                 out[idx] = found[i](m[idx])
             return out
 
@@ -789,9 +788,10 @@ def _fit_joint(
     # Each node's bias takes the wander between the points, as a fit point by point does:
     # the floor it weights by is a hold's own, without that wander (fit.model.observation_floor).
     own_floor = {k: v for k, v in data.items() if k not in WANDER_COLUMNS}
+    blocks = {int(p): np.flatnonzero(point == p) for p in np.unique(point)}
     weighting, point_weights = None, None
     if shares_wander(own_floor):
-        weighting, point_weights = _weights_by_point(own_floor, point, rows, known_weights)
+        weighting, point_weights = _weights_by_point(own_floor, blocks, rows, known_weights)
     result = fit(
         joint,
         own_floor,
@@ -799,7 +799,7 @@ def _fit_joint(
         label="all temperature points",
         design=joint_design,
         weights=weighting,
-        blocks=[np.flatnonzero(point == p) for p in np.unique(point)],
+        blocks=list(blocks.values()),
     )
     index = {name: j for j, name in enumerate(result.names)}
     values = np.empty((len(ids), len(model.names)))
