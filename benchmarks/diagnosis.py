@@ -466,8 +466,10 @@ def main(argv=None) -> int:
 RIGHT_REASON = {
     "mount_bias_shift": {"mounting"},
     "table_angle_bias": {"lab"},
-    "run_to_run_bias": {"unit changed"},
-    "session_bias_step": {"unit changed"},
+    # a bias new at each power-on: the sensor's turn-on repeatability, no change of the unit
+    # and nothing missing from its model; the verdict names it and the quiet answer says so
+    "run_to_run_bias": {"unit changed", "turn-on bias"},
+    "session_bias_step": {"unit changed", "turn-on bias"},
     "temp_hysteresis_play": {"direction of approach"},
     "misalign_warp_tanh": {"between points"},
 }
@@ -482,7 +484,7 @@ def answered(row, complete_next) -> bool:
     if row.get("outcome") in ("error", "named wrong") or "answer" not in row:
         return False
     answer = row["answer"]
-    named_why = answer["verdict"] == "no_sensor_term" and answer["reason"] in RIGHT_REASON.get(
+    named_why = answer["verdict"] in ("no_sensor_term", "quiet") and answer["reason"] in RIGHT_REASON.get(
         row["effect"], ()
     )
     ref = complete_next.get((row["protocol"], row["noise"], row["unit"])) if row["noise"] != "white" else None

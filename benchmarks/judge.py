@@ -12,7 +12,8 @@ offered is calibrated on session 0 and judged on session 2. The result:
 
 - ``verdict``: ``quiet`` (the model explains the data; also from one log whose excess lies
   within the slow wander its static data cannot rule out, which the diagnosis leaves to
-  another session), ``fix`` (a term offered),
+  another session; ``reason`` ``turn-on bias`` where the other session misses by the
+  offsets of its power-ons alone, which no calibration carries), ``fix`` (a term offered),
   ``no_sensor_term`` (no term can carry the excess; ``reason`` says why) or ``error``;
 - ``reads``: the coarse kinds of input the offered fix reads, from ``rate``, ``accel``,
   ``temperature``, ``thermal`` (the temperature's rate, lag, or direction of travel),
@@ -89,9 +90,16 @@ def _answer(d: dict[str, Any]) -> dict[str, Any]:
             "reason": "direction of approach",
         }
     nxt = d.get("next_session") or {}
-    if d["explains_the_data"] and not why and d["best"] is None and d.get("unrepeated"):
-        # the excess's pattern does not come back in the other session: the verdict calls it
-        # slow noise the static data did not resolve, not a change of the unit
+    if (
+        d["explains_the_data"]
+        and not why
+        and d["best"] is None
+        and d.get("unrepeated")
+        and nxt.get("fails_in_practice")
+    ):
+        # the excess's pattern does not come back in the other session, where the calibration
+        # fails: the verdict calls it slow noise the static data did not resolve, not a change
+        # of the unit (where the calibration carries over, it says nothing is missing: quiet)
         return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": "slow noise"}
     if (
         d["explains_the_data"]
@@ -108,9 +116,25 @@ def _answer(d: dict[str, Any]) -> dict[str, Any]:
         # One log whose excess lies within the slow wander its static data cannot rule out is
         # told "explains the data as far as one session can tell", another session to tell
         # wander from an effect: the verdict names nothing missing, so the answer is quiet.
-        return {"verdict": "quiet", "reads": [], "acts_on": None, "reason": None}
+        # Where the other session misses by its power-ons' offsets alone, which no
+        # calibration carries, the answer is quiet and says so.
+        power_on = bool(nxt) and _power_ons_alone(nxt)
+        return {
+            "verdict": "quiet",
+            "reads": [],
+            "acts_on": None,
+            "reason": "turn-on bias" if power_on else None,
+        }
     reason = REASONS.get(why.get("reason"), "unexplained")
     return {"verdict": "no_sensor_term", "reads": [], "acts_on": None, "reason": reason}
+
+
+def _power_ons_alone(nxt: dict[str, Any]) -> bool:
+    """The other session missing by its power-ons' offsets alone (gyrocal's
+    ``sessions.power_ons_alone``)."""
+    from gyrocal.diagnose.sessions import power_ons_alone
+
+    return "error" not in nxt and power_ons_alone(nxt)
 
 
 def judge_unit(logs: list, protocol: str, one_session: bool = False) -> dict[str, Any]:

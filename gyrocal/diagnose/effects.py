@@ -214,11 +214,13 @@ class Judge:
             candidate.second_question = bool(structure and second and not exempt)
             return validated and in_chance and (not structure or exempt or second)
         # Two independent looks at what is left, combined (Fisher): its structure in this
-        # session and its repetition in the other. What is left is within chance, or known
-        # to be slow noise; and the other session is no worse than with the configured model.
-        combined = nxt["repeat_p_value"]
+        # session and its repetition in the other (where they share cells to compare). What
+        # is left is within chance, or known to be slow noise; and the other session is no
+        # worse than with the configured model.
+        repeat = nxt["repeat_p_value"]
+        combined = 1.0 if repeat is None else repeat
         if sizeable and not exempt:
-            combined = fisher_combined(left["p_value"], combined)
+            combined = left["p_value"] if repeat is None else fisher_combined(left["p_value"], repeat)
         nxt["left_p_value"] = combined
         return (
             combined >= half and (in_chance or slow) and nxt["validation_rms"] <= base_next["validation_rms"]

@@ -8,6 +8,7 @@ from typing import TypedDict
 import numpy as np
 import pandas as pd
 
+from ..fit.floor import with_upper_floor
 from ..fit.thermal import in_sample
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
@@ -29,13 +30,18 @@ class CarryOver(TypedDict, total=False):
     noise_floor: float
     excess: float
     expected_rms: float
+    wander_rms: float  # deg/s: expected_rms with the slow noise its static data cannot rule out
     holds: bool
     fails_in_practice: bool  # beyond chance and beyond CARRIES_WITHIN x what a correct model leaves
     turn_on_bias: dict[str, float]  # deg/s per axis: the other session's mean error, the power-on's bias
-    turn_on_allowance: float  # deg/s: the offset per axis a power-on's bias may take (turned_on)
+    power_ons: int  # stretches between the other session's log gaps, each with its own offsets
+    largest_turn_on: float  # deg/s: the largest offset of an axis in any of them
+    turn_on_allowance: float | None  # deg/s: the offset per axis a power-on's bias may take (None: any)
     rezeroed_rms: float  # deg/s: its RMS error with that bias taken out
     reference_scale: float  # one scale error shared by every axis, fitted to its errors
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
+    rate_shaped_rms: float  # deg/s: the part of its errors (power-ons' out) in proportion to the rates
+    rescaled_shaped_rms: float  # deg/s: that part with the one shared scale out too
     holds_scored: int
     bound: float  # how far above expected_rms its figures may lie by chance (stats.chance_bound)
     repeat_p_value: float | None
@@ -51,53 +57,101 @@ CARRIES_WITHIN = 1.2
 
 
 # A bias a unit takes anew at each power-on (its turn-on repeatability) and the calibration
-# cannot carry: up to this many hold-mean floors per axis, an offset of the other session's
-# errors is that, not a change of the unit. The floor stands for a sensor's specification
-# the log does not give; a unit whose bias moves tens of floors between power-ons changed.
-# Given the specification (diagnosis: turn_on_repeatability, 1 sigma), as many sigmas.
-TURN_ON_FLOORS = 3.0
+# cannot carry. A MEMS gyroscope's is commonly tens to hundreds of hold-mean floors, so the
+# log alone bounds it nowhere: without the sensor's specification an offset per axis of the
+# other session's errors, of any size, is read as that power-on's bias. Given it (diagnosis:
+# turn_on_repeatability, 1 sigma), an offset beyond this many sigmas is a change of the unit.
+TURN_ON_SIGMAS = 3.0
 
 
-def turn_on_allowance(settings: Settings, noise_floor: float) -> float:
-    """The offset per axis (deg/s) another session's power-on may give the bias: 3 times the
-    sensor's turn-on repeatability where the settings give it, else :data:`TURN_ON_FLOORS`
-    hold-mean floors; the larger, as a floor's own offset is within chance either way."""
-    allowance = TURN_ON_FLOORS * noise_floor
+def turn_on_allowance(settings: Settings, noise_floor: float) -> float | None:
+    """The offset per axis (deg/s) another session's power-on may give the bias:
+    :data:`TURN_ON_SIGMAS` times the sensor's turn-on repeatability where the settings give
+    it (at least as many hold-mean floors, a floor's own offset being chance); None, any
+    offset, where they do not."""
     spec = settings.diagnosis.turn_on_repeatability
-    return allowance if spec is None else max(allowance, TURN_ON_FLOORS * spec)
+    return None if spec is None else TURN_ON_SIGMAS * max(spec, noise_floor)
 
 
 def practical_bar(nxt: CarryOver) -> float:
     """What a calibration may leave on the other session and still carry over (deg/s):
     :data:`CARRIES_WITHIN` times what a correct model would leave there, up to that figure's
-    own uncertainty (the chance bound of its holds, as the in-sample test allows)."""
+    own uncertainty (the chance bound of its holds, as the in-sample test allows). What a
+    correct model leaves there counts that session's slow noise as its own static data
+    bound it, at the bound's top (``wander_rms``), as one session's own test does
+    (:func:`.steps.slow_noise_bound`): the other session's floor computed as this one's."""
+    return CARRIES_WITHIN * carry_expected(nxt) * nxt.get("bound", 1.0)
+
+
+def carry_expected(nxt: CarryOver) -> float:
+    """What a correct model leaves on the other session (deg/s), its slow noise counted at
+    the top of what its static data allow."""
+    return max(nxt["expected_rms"], nxt.get("wander_rms", 0.0))
+
+
+def white_bar(nxt: CarryOver) -> float:
+    """:func:`practical_bar` for white noise alone: :data:`CARRIES_WITHIN` times the other
+    session's ``expected_rms``, up to its chance bound (deg/s)."""
     return CARRIES_WITHIN * nxt["expected_rms"] * nxt.get("bound", 1.0)
+
+
+def rate_shaped(nxt: CarryOver, key: str = "rate_shaped_rms") -> bool:
+    """Whether the other session's errors hold a part in proportion to the rates (a change
+    of scale or axes, the power-ons' offsets out) that alone would fail the calibration under
+    white noise: slow wander, a bias, does not follow the rate, so its allowance does not
+    cover such a part. ``key``: that part as :func:`_turn_on_offsets` measured it."""
+    part = nxt.get(key)
+    if part is None:
+        return False
+    within = nxt["expected_rms"] * np.sqrt(max((CARRIES_WITHIN * nxt.get("bound", 1.0)) ** 2 - 1.0, 0.0))
+    return bool(part > within)
 
 
 def fails_in_practice(nxt: CarryOver) -> bool:
     """The calibration fails on the other session beyond chance and beyond
     :func:`practical_bar`; within that, a difference the test resolves is too small to act
-    on. Nor does it fail where only the power-on's bias sets it apart: an offset per axis
-    within :data:`TURN_ON_FLOORS` floors whose removal brings it within that bar."""
-    if nxt["holds"] or nxt["validation_rms"] <= practical_bar(nxt):
+    on. Nor does it fail where only the power-ons' biases set it apart: offsets per axis
+    within :func:`turn_on_allowance` whose removal brings it within that bar. Beyond the bar
+    for white noise alone (:func:`white_bar`), a part in proportion to the rates
+    (:func:`rate_shaped`) fails it whatever the slow wander allows."""
+    if nxt["holds"]:
+        return False
+    if nxt["validation_rms"] <= white_bar(nxt):
+        return False
+    if rate_shaped(nxt):
+        return True
+    if nxt["validation_rms"] <= practical_bar(nxt):
         return False
     return not turned_on(nxt)
 
 
 def offset_alone(nxt: CarryOver) -> bool:
     """Whether an offset per axis is all that sets the other session apart: with each axis'
-    mean error taken out, what is left is within :func:`practical_bar`. Such an offset is the
-    same at every temperature, so it is no failure between the temperature points."""
-    if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None:
+    mean error taken out (per stretch between the log's gaps, each of which may hold a power-on:
+    :func:`_turn_on_offsets`), what is left is within :func:`practical_bar`. Such an offset is
+    the same at every temperature of a stretch, so it is no failure between the temperature
+    points that the log could tell from a power-on's."""
+    if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None or rate_shaped(nxt):
         return False
     return bool(nxt["rezeroed_rms"] <= practical_bar(nxt))
 
 
-def offset_and_allowance(nxt: CarryOver) -> tuple[float, float]:
+def power_ons_alone(nxt: CarryOver) -> bool:
+    """Whether the power-ons' offsets are what the other session misses by: its errors
+    beyond what white noise leaves (:func:`white_bar`), within :func:`practical_bar` without
+    the offsets (:func:`turned_on`), and beyond that bar with them or the offsets taking most
+    of the excess over white noise."""
+    v, e = nxt["validation_rms"], nxt["expected_rms"]
+    if v <= white_bar(nxt) or not turned_on(nxt):
+        return False
+    return bool(v > practical_bar(nxt) or v**2 - nxt["rezeroed_rms"] ** 2 >= 0.5 * (v**2 - e**2))
+
+
+def offset_and_allowance(nxt: CarryOver) -> tuple[float, float | None]:
     """The other session's largest offset of an axis, and what a power-on's bias may take
-    (:func:`turn_on_allowance`, as :func:`carry_over` found it), deg/s."""
-    allowance = nxt.get("turn_on_allowance", TURN_ON_FLOORS * nxt["noise_floor"])
-    return max(abs(v) for v in nxt["turn_on_bias"].values()), allowance
+    (:func:`turn_on_allowance`, as :func:`carry_over` found it; None: any), deg/s."""
+    largest = nxt.get("largest_turn_on", max(abs(v) for v in nxt["turn_on_bias"].values()))
+    return largest, nxt.get("turn_on_allowance")
 
 
 def turned_on(nxt: CarryOver) -> bool:
@@ -106,31 +160,89 @@ def turned_on(nxt: CarryOver) -> bool:
     if not offset_alone(nxt):
         return False
     largest, allowance = offset_and_allowance(nxt)
-    return bool(largest <= allowance)
+    return allowance is None or bool(largest <= allowance)
 
 
-def _turn_on_offsets(held) -> dict:
+# A stretch between the log's gaps with fewer holds than this joins the one before it: a
+# logger that pauses between holds would otherwise give each hold a power-on of its own and
+# leave nothing to judge.
+MIN_STRETCH_HOLDS = 6
+
+
+def _stretches(resumed: np.ndarray | None, n: int) -> np.ndarray:
+    """Each hold's stretch between the log's gaps (codes 0, 1, ... in time), stretches of
+    fewer than :data:`MIN_STRETCH_HOLDS` holds joined to the one before (the first to the
+    one after)."""
+    if resumed is None:
+        return np.zeros(n, dtype=int)
+    codes = np.unique(resumed, return_inverse=True)[1]
+    kept = np.flatnonzero(np.bincount(codes) >= MIN_STRETCH_HOLDS)
+    if kept.size == 0:
+        return np.zeros(n, dtype=int)
+    owner = np.maximum(np.searchsorted(kept, np.arange(codes.max() + 1), side="right") - 1, 0)
+    return owner[codes]
+
+
+def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     """On the holds revalidation scores (``held``, :func:`gyrocal.fleet.drift.scored_hold_errors`):
     the other session's mean error per axis (weighted by each hold's floor), the bias the unit
-    took at that power-on, and the RMS error left with it taken out (deg/s); and one scale
+    took at its power-on, and the RMS error left with it taken out (deg/s); and one scale
     error every axis shares fitted with those offsets, and what they leave. A reference rate
     read with a scale error (a table's tachometer) puts the same relative error on every
-    axis' rate; a sensor's scales change each its own way."""
+    axis' rate; a sensor's scales change each its own way.
+
+    Given when the log last resumed before each hold (``resumed``, the chain's
+    ``resumed_at``), each stretch between the log's gaps (:func:`_stretches`) has its own
+    offsets: the unit may have been powered anew in any gap, and the log cannot tell
+    (``power_ons``, the stretches; ``largest_turn_on``, the largest offset of an axis in any
+    of them). What is left counts the means taken out (``rezeroed_rms`` scaled by
+    sqrt(N / (N − power_ons)) over N holds), as a fit's residuals count its parameters."""
     use = held.scored & np.all(np.isfinite(held.errors), axis=1)
     e, w = held.errors[use], 1.0 / np.maximum(held.floor[use], 1e-300) ** 2
     if not len(e):
         return {}
+    runs = _stretches(None if resumed is None else resumed[use], len(e))
+    count = int(runs.max()) + 1
+
+    def run_mean(x: np.ndarray, weight: np.ndarray) -> np.ndarray:
+        """Per stretch, the mean of each column of ``x`` weighted by ``weight`` (one per hold)."""
+        total = np.bincount(runs, weights=weight, minlength=count)
+        sums = np.stack(
+            [np.bincount(runs, weights=x[:, j] * weight, minlength=count) for j in range(x.shape[1])], 1
+        )
+        return sums / total[:, None]
+
+    offsets = np.column_stack([run_mean(e[:, [i]], w[:, i])[:, 0] for i in range(3)])
     offset = np.sum(e * w, axis=0) / np.sum(w, axis=0)
     rates = held.rates[use]
-    centred = rates - np.sum(rates * w, axis=0) / np.sum(w, axis=0)
+    centred = rates - np.column_stack([run_mean(rates[:, [i]], w[:, i])[:, 0] for i in range(3)])[runs]
     power = float(np.sum(w * centred**2))
-    scale = float(np.sum(w * centred * (e - offset)) / power) if power > 0 else 0.0
-    left = e - offset - scale * centred
+    rezeroed = e - offsets[runs]
+    scale = float(np.sum(w * centred * rezeroed) / power) if power > 0 else 0.0
+    left = rezeroed - scale * centred
+    spent = np.sqrt(len(e) / (len(e) - count)) if len(e) > count else 1.0
+
+    # A change of the sensor's scale and axes: each output's error against the three rates,
+    # centred per stretch (weighted least squares by that output's floor), the part of the
+    # errors in proportion to the rate
+    def shaped_rms(errors) -> float:
+        shaped = np.zeros_like(errors)
+        for i in range(3):
+            own = rates - run_mean(rates, w[:, i])[runs]
+            root = np.sqrt(w[:, i])
+            coef = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
+            shaped[:, i] = own @ coef
+        return float(np.sqrt(np.mean(shaped**2)))
+
     return {
         "turn_on_bias": {a: float(v) for a, v in zip(AXES, offset, strict=True)},
-        "rezeroed_rms": float(np.sqrt(np.mean((e - offset) ** 2))),
+        "power_ons": count,
+        "largest_turn_on": float(np.max(np.abs(offsets))),
+        "rezeroed_rms": float(np.sqrt(np.mean(rezeroed**2)) * spent),
         "reference_scale": scale,
         "rescaled_rms": float(np.sqrt(np.mean(left**2))),
+        "rate_shaped_rms": shaped_rms(rezeroed),
+        "rescaled_shaped_rms": shaped_rms(left),
     }
 
 
@@ -140,12 +252,16 @@ def reference_scaled(nxt: CarryOver) -> bool:
     out): the reference rate's scale, not the sensor's."""
     if not fails_in_practice(nxt) or nxt.get("rescaled_rms") is None:
         return False
+    if rate_shaped(nxt):  # the shared scale is all the rates' part: what is left is not
+        return not rate_shaped(nxt, "rescaled_shaped_rms") and nxt["rescaled_rms"] <= practical_bar(nxt)
     return bool(nxt["rescaled_rms"] <= practical_bar(nxt) < nxt["rezeroed_rms"])
 
 
 def usable(nxt: CarryOver | None) -> bool:
-    """A carry-over to another session that could be made and tested."""
-    return nxt is not None and "error" not in nxt and nxt.get("repeat_p_value") is not None
+    """A carry-over to another session that could be made: its figures judge a calibration
+    whether or not the sessions share the cells that compare their residuals' patterns
+    (``repeat_p_value`` None where they do not)."""
+    return nxt is not None and "error" not in nxt
 
 
 def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> CarryOver:
@@ -158,6 +274,10 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
 
     cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
+    upper = with_upper_floor(other)
+    wander_rms = r["expected_rms"] if upper is None else revalidate(cal, upper)["expected_rms"]
+    if not np.isfinite(wander_rms):  # upper floors the static data could not bound
+        wander_rms = r["expected_rms"]
     held = scored_hold_errors(cal, other)
     errors, floor1 = held.errors, held.floor
     resid, floor0, rows = in_sample(ev.fitted, len(obs))
@@ -167,6 +287,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "noise_floor": r["noise_floor"],
         "excess": r["excess"],
         "expected_rms": r["expected_rms"],
+        "wander_rms": wander_rms,
         "holds": r["holds"],
         "holds_scored": r["holds_scored"],
         "bound": chance_bound(r["holds_scored"], settings.diagnosis.significance),
@@ -174,7 +295,8 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
     }
-    out.update(_turn_on_offsets(held))  # type: ignore[typeddict-item]
+    resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
+    out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
     if not all(
         np.isfinite(v) for v in [*out.values(), *out.get("turn_on_bias", {}).values()] if isinstance(v, float)

@@ -81,10 +81,11 @@ from .sessions import (
     POINT_MATCH,
     fails_in_practice,
     offset_alone,
-    practical_bar,
+    rate_shaped,
     reference_scaled,
     slow_noise,
     usable,
+    white_bar,
 )
 from .stats import chance_bound, chi2_sf, explained_tolerance, floor_uncertainty
 from .verdict import advice, coherent, input_kinds, unexplained, unseen_hysteresis
@@ -122,13 +123,15 @@ def diagnose(
     if base_next is not None and "error" in base_next:
         judge.other = None  # the other session cannot be used: judged on this one alone
     before_holds = history_columns(obs, data)
-    outside = outside_the_sensor(obs, excess, base.dof, before_holds)
+    # One session alone: the slow wander its static data cannot rule out, before the
+    # mounting is read (wander leaves offsets per mounting too).
+    within_noise = slow_noise_bound(settings, obs, alpha, excess.explains, base_next)
+    outside = outside_the_sensor(obs, excess, base.dof, before_holds, base_next, within_noise)
     unrepeated = did_not_repeat(judge, base, excess, base_next, outside)
     # An excess that does not come back in the other session is still searched: an effect
     # of conditions the sessions do not share (a shorter soak, another order) holds there
     # through its term, which slow noise does not.
     explains = excess.explains
-    within_noise = slow_noise_bound(settings, obs, alpha, explains or unrepeated, base_next)
     library = library_search(judge, base, excess, base_next, explains)
     drift = (
         time_drift(judge, settings, obs, base, base_next, excess.tolerance, excess.bound)
@@ -244,19 +247,26 @@ class OutsideTheSensor:
         return self.in_lab or self.of_mounting
 
 
-def outside_the_sensor(obs, excess: ExcessTest, dof: int, before_holds: dict) -> OutsideTheSensor:
+def outside_the_sensor(
+    obs, excess: ExcessTest, dof: int, before_holds: dict, base_next=None, within_noise=None
+) -> OutsideTheSensor:
     """An effect fixed in the lab follows the table's angle: it does not repeat between
     sessions (the table starts elsewhere) and is no effect of the sensor's. Each mounting on
     the fixture may leave its own offset, fresh every time: no term of the sensor carries it,
     and it does not repeat in another session (where it would read as slow noise or a unit
     that changed). Tried only where the model misses, the mounting only where the lab does
     not explain it; neither where the in-sample residuals are within the bar a calibration
-    meets on its next session (slow wander leaves faint offsets per mounting too)."""
+    meets on its next session. Slow wander leaves offsets per mounting too: the mounting is
+    no finding where the wander one session's static data cannot rule out explains its
+    excess (``within_noise``), nor where the calibration carries to the other session within
+    the bar (``base_next``): the fixture's scatter is then part of what a calibration of this
+    rig meets, not what limits it."""
     if excess.explains or excess.factor <= CARRIES_WITHIN:
         return OutsideTheSensor(None, None)
     lab = lab_fixed(obs, excess.quality, dof, excess.alpha)
     mounting = None
-    if not explained_by(lab) and "mount" in obs:
+    within = explained_by(within_noise) or (usable(base_next) and not fails_in_practice(base_next))
+    if not explained_by(lab) and "mount" in obs and not within:
         mounting = mounting_fixed(
             obs,
             excess.quality,
@@ -278,9 +288,9 @@ def did_not_repeat(judge: Judge, base: Evaluation, excess: ExcessTest, base_next
         or outside.explains
         or not usable(base_next)
         or base_next["unrepeated_p_value"] is None
-        # a practical failure there from residuals within the bar here is no wander of
-        # this session's: the other session holds what this one does not
-        or (excess.factor <= CARRIES_WITHIN and fails_in_practice(base_next))
+        # residuals within the bar a calibration meets on its next session have no slow
+        # noise worth a verdict; and a practical failure there is no wander of this one's
+        or excess.factor <= CARRIES_WITHIN
     ):
         return False
     return bool(
@@ -311,8 +321,12 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
 
 def slow_noise_bound(settings: Settings, obs, alpha: float, explains: bool, base_next) -> WithinNoise | None:
     """The χ² test with the slow wander the static data could not rule out at its upper
-    bound: it may be all the excess is. Where the model misses and no other session tells."""
-    if explains or usable(base_next):
+    bound: it may be all the excess is. Where the model misses and no other session tells:
+    none is given, or it shares no cells with this one to compare the residuals' patterns
+    (``repeat_p_value`` None) and its calibration carries there."""
+    if explains or (
+        usable(base_next) and (base_next["repeat_p_value"] is not None or fails_in_practice(base_next))
+    ):
         return None
     upper = with_upper_floor(obs)
     if upper is None:
@@ -349,7 +363,23 @@ def library_search(
     ranked = [c for c in candidates if c.status == "ranked"]
     for c in ranked:
         c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
-    useful = [c for c in ranked if c.significant and not explains and practical_gain(base, c, excess.bound)]
+    # A practical gain on the points left out, or on the other session where the calibration
+    # fails there: the left-out point's error can be interpolation's, which no term of the
+    # sensor takes away, while the other session is what the user meets.
+    useful = [
+        c
+        for c in ranked
+        if c.significant
+        and not explains
+        and (
+            practical_gain(base, c, excess.bound)
+            or (
+                usable(base_next)
+                and fails_in_practice(base_next)
+                and practical_gain_next(base_next, c, excess.bound)
+            )
+        )
+    ]
     if usable(base_next):  # what the user will meet: the other session first
         useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
     return LibrarySearch(candidates, ranked, useful)
@@ -613,8 +643,8 @@ def _other_session_reason(judge: Judge, base_next) -> Unexplained | None:
     """Why a calibration that explains this session fails on the other, where that says
     more than a change of the unit: one scale every axis shares (the reference's), or the
     other session's points all between this one's."""
-    if usable(base_next):
-        return reference_reason(base_next) if reference_scaled(base_next) else None
+    if usable(base_next) and reference_scaled(base_next):
+        return reference_reason(base_next)
     return between_the_sessions(judge, base_next)
 
 
@@ -683,10 +713,14 @@ def _floors_differ(judge, base, base_next) -> FloorsDiffer | None:
     tolerance = FLOOR_SIGMAS * spread
     if abs(np.log(ratio)) <= np.log1p(tolerance):
         return None
+    # within the bar for this session's white noise (the other's wander allowance comes
+    # from the static data whose floor is in question); a part in proportion to the rates is
+    # no noise's
     covers = (
         ratio < 1.0
         and fails_in_practice(base_next)
-        and base_next["validation_rms"] <= practical_bar(base_next) / ratio
+        and not rate_shaped(base_next)
+        and base_next["validation_rms"] <= white_bar(base_next) / ratio
     )
     return FloorsDiffer(ratio, tolerance, bool(covers))
 

@@ -11,11 +11,13 @@ from .reading import readable
 from .sessions import (
     CARRIES_WITHIN,
     CarryOver,
+    carry_expected,
     fails_in_practice,
     offset_alone,
     offset_and_allowance,
+    power_ons_alone,
+    rate_shaped,
     reference_scaled,
-    turned_on,
     usable,
 )
 from .stats import p_text
@@ -73,6 +75,38 @@ def noise_covers_the_other(diag: Diagnosis) -> bool:
     )
 
 
+def _offsets_told(nxt: CarryOver) -> str:
+    """The other session's offsets in words: one per axis, or per stretch between its log's gaps."""
+    offsets = ", ".join(f"{a} {v:+.2g}" for a, v in nxt["turn_on_bias"].items())
+    runs = nxt.get("power_ons", 1)
+    if runs <= 1:
+        return f"an offset per axis ({offsets} deg/s)"
+    return (
+        f"offsets per axis for each of the {runs} stretches between gaps in its log (on average "
+        f"{offsets}, up to {nxt['largest_turn_on']:.2g} deg/s)"
+    )
+
+
+def _power_ons(nxt: CarryOver) -> str:
+    if nxt.get("power_ons", 1) <= 1:
+        return "that power-on"
+    return "each power-on the gaps may hold (the log cannot tell where the unit was switched off)"
+
+
+def _left_told(nxt: CarryOver) -> str:
+    """What the other session's errors leave with the power-on's offsets out, over what a
+    correct model leaves there, with that session's slow noise where it counts."""
+    left = nxt["rezeroed_rms"]
+    told = f"{left / nxt['expected_rms']:.2f} times what a correct model would leave for white noise"
+    wander = nxt.get("wander_rms", 0.0)
+    if wander > nxt["expected_rms"]:
+        told += (
+            f", {left / wander:.2f} times what it leaves with the slow noise that session's static "
+            "data cannot rule out"
+        )
+    return told
+
+
 def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
     """What the configured model's calibration does on the other session, where no term
     was named."""
@@ -83,7 +117,7 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if base_next is None or base_next["holds"] or diag.best is not None:
         return ""
-    if diag.unrepeated:
+    if diag.unrepeated and fails_in_practice(base_next):
         return (
             f" On the other session the errors are {base_next['excess']:.3g} times the "
             "floor from the same noise: holds minutes apart scatter more than the floor "
@@ -91,22 +125,35 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if explained_by(diag.approach):
         return _approach_sentence(base_next, diag.approach)
-    if diag.explains and turned_on(base_next):
-        offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
+    if diag.explains and power_ons_alone(base_next):
+        unbounded = base_next.get("turn_on_allowance") is None
         return (
             f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
-            f"floor, most of it an offset per axis ({offsets} deg/s): the bias the unit took at "
-            "that power-on, which no calibration carries (a static stretch at power-on zeroes "
-            f"it); without it, {base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times "
-            "what a correct model would leave: the calibration carries over."
+            f"floor, most of it {_offsets_told(base_next)}: the bias the unit took at "
+            f"{_power_ons(base_next)}, which no calibration carries (a static stretch at power-on "
+            f"zeroes it); without {'them' if base_next.get('power_ons', 1) > 1 else 'it'}, {_left_told(base_next)}: "
+            "the calibration carries over."
+            + (
+                " (With no turn-on bias repeatability given, any offset reads so; given, as "
+                "diagnosis: turn_on_repeatability, one beyond 3 sigma of it reads as a change of "
+                "the unit.)"
+                if unbounded
+                else ""
+            )
         )
     if diag.explains and not fails_in_practice(base_next):
         return (
             f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
             "floor: more than the noise alone would, but within "
             f"{CARRIES_WITHIN:g} times what a correct model would leave there "
-            f"({base_next['validation_rms'] / base_next['expected_rms']:.2f}), a difference too small "
-            "to act on (a turn-on bias a little apart between power-ons): it carries over."
+            f"({base_next['validation_rms'] / carry_expected(base_next):.2f}"
+            + (
+                ", with the slow noise that session's static data cannot rule out"
+                if carry_expected(base_next) > base_next["expected_rms"]
+                else ""
+            )
+            + "), a difference too small to act on (a turn-on bias a little apart between "
+            "power-ons): it carries over."
         )
     # the why that follows tells the failure (the mounting's, or between the points, which
     # leaves the unit changed as one reading): the sentence here claims no cause
@@ -124,17 +171,14 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times its floor."
         )
     if diag.explains and offset_alone(base_next):
-        offsets = ", ".join(f"{a} {v:+.2g}" for a, v in base_next["turn_on_bias"].items())
-        floor = base_next["noise_floor"]
         largest, allowance = offset_and_allowance(base_next)
+        assert allowance is not None  # turned_on() is true without one
         return (
             f" On the other session the calibration's errors are {base_next['excess']:.3g} times "
-            f"the floor, an offset per axis ({offsets} deg/s; without it "
-            f"{base_next['rezeroed_rms'] / base_next['expected_rms']:.2f} times what a correct model "
-            f"would leave): the unit changed between sessions, its bias by up to {largest / floor:.3g} floors, "
-            f"more than the {allowance / floor:.3g} a power-on's bias is granted (a sensor's turn-on "
-            "repeatability beyond that, or a drift; its datasheet, as diagnosis: turn_on_repeatability, "
-            "or a third session tells)"
+            f"the floor, {_offsets_told(base_next)} (without them {_left_told(base_next)}): "
+            f"the unit changed between sessions, its bias by up to {largest:.3g} deg/s, "
+            f"more than the {allowance:.3g} (3 sigma of the turn-on repeatability given, at least 3 floors) a power-on's "
+            "bias is granted (a drift, or a sensor out of its specification; a third session tells)"
             + (
                 # no point matched: a bias stepping between this session's points by the same
                 # amount at every point the other visits reads alike
@@ -144,6 +188,15 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
                 else ""
             )
             + "."
+        )
+    if diag.explains and rate_shaped(base_next):
+        return (
+            f" On the other session the calibration's errors are {base_next['excess']:.3g} "
+            f"times the floor, {base_next['rate_shaped_rms']:.2g} deg/s of them in proportion to "
+            "the rates (the power-ons' offsets out), which slow wander, a bias, does not make: "
+            "it does not carry over, the unit's scale or axes changed between sessions "
+            "(gyrocal revalidate says by how much, the fleet summary's drift page which "
+            "parameters)."
         )
     if diag.explains:
         return (
@@ -247,7 +300,7 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
         return _named(base, best, base_next)
     if diag.noise_explains:
         assert diag.within_noise is not None
-        return _within_slow_noise(base, factor, diag.within_noise)
+        return _within_slow_noise(base, factor, diag.within_noise, base_next)
     if finding in ("fixed in the lab", "the mounting") and not diag.explains:
         # Where the excess lives among the sensor's inputs, or that it is too small, would
         # point at an effect of the sensor: the sentence that follows says what it is.
@@ -263,7 +316,8 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
             f"The model explains the data: its in-sample residuals are {factor:.2f} times their "
             f"noise floor, but their pattern does not come back in the other session (p = "
             f"{base_next['repeat_p_value']:.2g}): the excess is slow noise the static data did not "
-            "resolve, not a missing effect."
+            "resolve, not a missing effect"
+            + ("." if fails_in_practice(base_next) else "; nothing is missing.")
         )
     floor_by = "the sensor's noise model" if diag.noise_model else "white noise within the holds"
     if diag.negligible is not None:
@@ -346,16 +400,24 @@ def _held_out_ratio(base: Evaluation) -> float:
     return s["validation_rms"] / s["expected_rms"] if s["expected_rms"] > 0 else float("inf")
 
 
-def _within_slow_noise(base: Evaluation, factor: float, within_noise: WithinNoise) -> str:
+def _within_slow_noise(
+    base: Evaluation, factor: float, within_noise: WithinNoise, base_next: CarryOver | None = None
+) -> str:
     wide = base.summary["validation_rms"] / within_noise.expected_rms
+    told = (
+        "Another session of the unit (--other-session) would tell slow wander from an effect."
+        if base_next is None
+        else "The other session shares no cell (temperature point, mount and rate) with this one "
+        "to tell whether the pattern repeats; a session revisiting this one's points would."
+    )
     return (
-        f"The model explains the data as far as one session can tell: its in-sample "
+        f"The model explains the data as far as {'one session' if base_next is None else 'the sessions'} "
+        f"can tell: its in-sample "
         f"residuals, {factor:.2f} times the floor from the static data, are within the "
         f"slow wander that {within_noise.static_seconds:.0f} s of static data cannot rule "
         f"out (reduced χ² {within_noise.chi2_red:.2f} with it), on the holds left out its "
         f"error is {min(_held_out_ratio(base), wide):.2f} times what a correct model would leave with that "
-        "noise, and no term takes a practical part of it away. Another session of the unit "
-        "(--other-session) would tell slow wander from an effect."
+        f"noise, and no term takes a practical part of it away. {told}"
     )
 
 

@@ -151,18 +151,22 @@ def with_mountings(seg: Segmentation, first_time: float) -> Segmentation:
     """``seg`` whose observations say when the unit was last mounted (``mounted_at``, s on
     the log's clock): the end of the last handling before each hold, the log's first sample
     where none is. Terms read it as ``t_mount`` (:class:`gyrocal.terms.signals.Inputs`): a
-    clamp that relaxes after each mounting follows it, not time since power-on."""
+    clamp that relaxes after each mounting follows it, not time since power-on. And when the
+    log last resumed (``resumed_at``): the end of the last gap in it before each hold, the
+    log's first sample where none is; the unit may have been powered anew in any gap, which
+    gives its bias a new turn-on value (:mod:`gyrocal.diagnose.sessions`)."""
     obs, segments = seg.observations, seg.segments
     if obs.empty or "t_start" not in obs:
         return seg
-    ends = (
-        np.sort(segments.loc[segments["reason"] == HANDLING, "t_end"].to_numpy(float))
-        if "reason" in segments
-        else np.empty(0)
-    )
-    mountings = np.r_[first_time, ends]  # the first before any handling: the log's start
-    obs = obs.copy()
-    obs["mounted_at"] = mountings[np.searchsorted(ends, obs["t_start"].to_numpy(float), side="right")]
+
+    def last_before(rows) -> np.ndarray:
+        ends = np.sort(segments.loc[rows, "t_end"].to_numpy(float))
+        starts = np.r_[first_time, ends]  # the first before any: the log's start
+        return starts[np.searchsorted(ends, obs["t_start"].to_numpy(float), side="right")]
+
+    handled = segments["reason"] == HANDLING if "reason" in segments else np.zeros(len(segments), bool)
+    gaps = segments["kind"] == "gap" if "kind" in segments else np.zeros(len(segments), bool)
+    obs = obs.assign(mounted_at=last_before(handled), resumed_at=last_before(gaps))
     return replace(seg, observations=obs)
 
 

@@ -41,8 +41,8 @@ SERIES_INPUTS = frozenset({"t", "t_mount", "temp_rate", "temp_lag", "rate_histor
 # does; a constant difference (the bias, a scale's few per cent) is the model's to absorb.
 RECORD_COLUMNS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 RECORD_SOURCE = {"rate_x": "gyro_x", "rate_y": "gyro_y", "rate_z": "gyro_z"}
-# spans, rate, grid point, and when the unit was last mounted (s, the log's clock)
-HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point", "mounted_at"})
+# spans, rate, grid point, when the unit was last mounted and when its log last resumed (s)
+HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point", "mounted_at", "resumed_at"})
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y", "accel_z", "temp"})
 MAX_BINS = 50_000
 # The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in

@@ -36,6 +36,29 @@ def test_each_hold_is_mounted_at_the_end_of_the_handling_before_it(tmp_path):
     assert np.unique(obs["mounted_at"]).size >= handled.size  # one per mounting at least
 
 
+def test_each_hold_knows_when_its_log_last_resumed_after_a_gap(tmp_path):
+    """A log with ten minutes cut out of its middle (the unit off, or the logger paused):
+    the holds after the cut resumed at its end, those before at the log's first sample; a log
+    without a gap resumes nowhere."""
+    import pandas as pd
+
+    log = tmp_path / "u.parquet"
+    simulate_unit(log, rig=TurntableProtocol.quick(), rng=np.random.default_rng(5))
+    whole = segment_log(log, Settings()).observations
+    assert np.unique(whole["resumed_at"]).size == 1
+    frame = pd.read_parquet(log)
+    t = frame["t"].to_numpy(float)
+    mid = 0.5 * (t[0] + t[-1])
+    cut = tmp_path / "cut.parquet"
+    frame[(t < mid) | (t > mid + 600.0)].to_parquet(cut, index=False)
+    obs = segment_log(cut, Settings()).observations
+    after = obs["t_start"].to_numpy(float) > mid
+    assert after.any() and (~after).any()
+    resumed = obs["resumed_at"].to_numpy(float)
+    assert np.all(resumed[~after] == t[0])
+    assert np.all((resumed[after] > mid + 599.0) & (resumed[after] <= obs["t_start"].to_numpy(float)[after]))
+
+
 def test_a_relaxation_after_mounting_reads_the_holds_and_is_settled_in_apply(tmp_path):
     """At holds the term is the hold's mean of exp(-(t - mounted_at)/tau) over its samples;
     on samples without mountings (a stream in the field) it is zero: long since mounted."""

@@ -1,0 +1,62 @@
+"""The other session's errors read per power-on: offsets per stretch between the log's gaps
+(:func:`gyrocal.diagnose.sessions._turn_on_offsets`), on hold errors made up here."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gyrocal.diagnose.sessions import MIN_STRETCH_HOLDS, _stretches, _turn_on_offsets
+from gyrocal.fleet.drift import HoldErrors
+
+
+def held(errors, rates, floor=1e-3):
+    n = len(errors)
+    return HoldErrors(
+        np.asarray(errors, float), np.full((n, 3), floor), np.asarray(rates, float), np.ones(n, bool)
+    )
+
+
+def test_stretches_too_short_to_judge_join_the_one_before():
+    """Stretches of 8, 2 and 7 holds: the two holds after the second gap join the first
+    stretch (a logger pausing between holds gives no power-on of its own); a log that never
+    resumes is one stretch."""
+    resumed = np.repeat([0.0, 100.0, 200.0], [8, 2, 7])
+    assert MIN_STRETCH_HOLDS > 2
+    np.testing.assert_array_equal(_stretches(resumed, 17), np.repeat([0, 0, 1], [8, 2, 7]))
+    np.testing.assert_array_equal(_stretches(None, 5), np.zeros(5, int))
+    np.testing.assert_array_equal(_stretches(np.repeat([0.0, 1.0], [2, 8]), 10), np.zeros(10, int))
+
+
+def test_offsets_per_power_on_are_taken_out_and_counted():
+    """Two stretches of 12 holds whose errors are white noise about their own offsets (x
+    +0.02 then −0.01 deg/s): each stretch's offsets are found, the largest is 0.02, and what
+    is left, scaled for the six means taken out, is the noise's RMS within its sampling
+    error. No part follows the rates."""
+    rng = np.random.default_rng(3)
+    n, sigma = 24, 1e-3
+    rates = np.zeros((n, 3))
+    rates[:, 2] = np.tile([-100.0, -10.0, 10.0, 100.0], 6)
+    offsets = np.repeat([[0.02, 0.0, 0.005], [-0.01, 0.003, 0.005]], 12, axis=0)
+    noise = rng.normal(0.0, sigma, (n, 3))
+    out = _turn_on_offsets(held(offsets + noise, rates), np.repeat([0.0, 500.0], 12))
+    assert out["power_ons"] == 2
+    assert abs(out["largest_turn_on"] - 0.02) < 4 * sigma / np.sqrt(12)
+    left = noise - np.repeat([noise[:12].mean(0), noise[12:].mean(0)], 12, axis=0)
+    assert out["rezeroed_rms"] == pytest.approx(np.sqrt(np.mean(left**2) * n / (n - 2)), rel=1e-12)
+    assert abs(out["rezeroed_rms"] / sigma - 1.0) < 3 / np.sqrt(3 * (n - 2))
+    assert out["rate_shaped_rms"] < 3 * sigma * np.sqrt(3 / (3 * n))
+
+
+def test_a_scale_change_is_the_part_that_follows_the_rates():
+    """The same holds with the z output reading 100 ppm more of the z rate: the part of the
+    errors in proportion to the rates is that change's RMS over the holds."""
+    rng = np.random.default_rng(4)
+    n = 24
+    rates = np.zeros((n, 3))
+    rates[:, 2] = np.tile([-100.0, -10.0, 10.0, 100.0], 6)
+    errors = rng.normal(0.0, 1e-4, (n, 3))
+    errors[:, 2] += 1e-4 * rates[:, 2]
+    out = _turn_on_offsets(held(errors, rates), None)
+    expected = np.sqrt(np.mean((1e-4 * rates[:, 2]) ** 2) / 3)
+    assert abs(out["rate_shaped_rms"] / expected - 1.0) < 0.05, out
