@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..fit.floor import with_upper_floor
+from ..fit.model import observation_floor
 from ..fit.thermal import in_sample
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
@@ -274,11 +275,16 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
 
     cal, _ = calibrate_observations(obs, settings, meta={}, fitted=ev.fitted, checks=False)
     r = revalidate(cal, other)
-    upper = with_upper_floor(other)
-    wander_rms = r["expected_rms"] if upper is None else revalidate(cal, upper)["expected_rms"]
-    if not np.isfinite(wander_rms):  # upper floors the static data could not bound
-        wander_rms = r["expected_rms"]
     held = scored_hold_errors(cal, other)
+    # revalidation's expected RMS with the upper floors in place of the floors (the
+    # calibration's share is the same)
+    upper = with_upper_floor(other)
+    wander_rms = r["expected_rms"]
+    if upper is not None and held.scored.any():
+        extra = observation_floor(upper)[held.scored] ** 2 - held.floor[held.scored] ** 2
+        widened = float(np.sqrt(r["expected_rms"] ** 2 + np.mean(extra)))
+        if np.isfinite(widened):  # upper floors the static data could bound
+            wander_rms = max(widened, r["expected_rms"])
     errors, floor1 = held.errors, held.floor
     resid, floor0, rows = in_sample(ev.fitted, len(obs))
     z0, z1 = (resid / floor0)[rows], errors / floor1

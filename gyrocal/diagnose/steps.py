@@ -477,8 +477,12 @@ def _first_that_explains(useful: list[Candidate], alpha: float) -> Candidate | N
 def _two_effects(
     judge: Judge, base: Evaluation, excess: ExcessTest, library: LibrarySearch
 ) -> Candidate | None:
-    """Two effects missing at once: one of the most useful terms, then each other on top."""
-    for first in library.useful[:PAIR_STARTS]:
+    """Two effects missing at once: one of the most useful terms, then each other on top.
+    A pair starts from a term whose gain shows on the points left out: one useful by the
+    other session alone takes its place as a single term, and pairs from it cost seconds
+    for what the left-out points could not have told."""
+    starts = [c for c in library.useful if practical_gain(base, c, excess.bound)]
+    for first in starts[:PAIR_STARTS]:
         pair = second_step(judge, first, library.ranked, base.summary["validation_rms"], excess.tolerance)
         if pair is not None:
             return pair
