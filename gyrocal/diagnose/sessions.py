@@ -226,10 +226,11 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     # A change of the sensor's scale and axes: each output's error against the three rates,
     # centred per stretch (weighted least squares by that output's floor), the part of the
     # errors in proportion to the rate
+    by_output = [rates - run_mean(rates, w[:, i])[runs] for i in range(3)]
+
     def shaped_rms(errors) -> float:
         shaped = np.zeros_like(errors)
-        for i in range(3):
-            own = rates - run_mean(rates, w[:, i])[runs]
+        for i, own in enumerate(by_output):
             root = np.sqrt(w[:, i])
             coef = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
             shaped[:, i] = own @ coef
