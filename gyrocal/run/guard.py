@@ -64,8 +64,10 @@ MEMORY_SHARE = 0.8
 
 
 # The guard's record of what a stage cost, one line on the job's stderr (:func:`_run`).
+# Not anchored at a line's start: Snakemake writes a message and its line end in two
+# writes, so a job's line may land between them, after a message of Snakemake's.
 COST_LINE = re.compile(
-    r"^gyrocal\.run\.guard: (\w+) of (\S+) took ([\d.]+) s, ([\d.]+) s CPU, "
+    r"gyrocal\.run\.guard: (\w+) of (\S+) took ([\d.]+) s, ([\d.]+) s CPU, "
     r"(\d+) MiB peak$",
     re.M,
 )
@@ -305,7 +307,9 @@ def run(
 
 def _echo_end(log: Path, what: str) -> None:
     tail = log.read_text(errors="replace").splitlines()[-20:]
-    print("\n".join([f"gyrocal.run.guard: the end of {what}:", *tail]), file=sys.stderr)
+    # One write, line end included, so that no other job's line lands inside it.
+    sys.stderr.write("\n".join([f"gyrocal.run.guard: the end of {what}:", *tail, ""]))
+    sys.stderr.flush()
 
 
 def unit_folder(args) -> str:
