@@ -48,6 +48,7 @@ class CarryOver(TypedDict, total=False):
     repeat_p_value: float | None
     unrepeated_p_value: float | None
     shared_fraction: float | None
+    between_share: float  # its scored holds' share at temperatures between this session's points
     left_p_value: float
     error: str
 
@@ -266,6 +267,25 @@ def usable(nxt: CarryOver | None) -> bool:
     return nxt is not None and "error" not in nxt
 
 
+# The share of the other session's holds between this session's temperature points from
+# which its carrying over answers what leaving a point out asks (a point's worth of holds
+# in a session of three or four points).
+BETWEEN_SHARE = 0.25
+
+
+def carries_between(nxt: CarryOver | None) -> bool:
+    """Whether the other session meets the calibration where only its interpolation reaches
+    (at least :data:`BETWEEN_SHARE` of its holds between this session's points,
+    ``between_share``) and the calibration carries over there: the interpolation holds as
+    its user meets it, whatever leaving a point out, which doubles the spacing, says."""
+    return bool(
+        usable(nxt)
+        and nxt is not None
+        and not nxt["fails_in_practice"]
+        and nxt.get("between_share", 0.0) >= BETWEEN_SHARE
+    )
+
+
 def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> CarryOver:
     """``ev``'s calibration (the fit of ``settings`` extended by the candidate; its
     reference temperature is ``settings``') applied to another session of the unit
@@ -302,6 +322,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "unrepeated_p_value": unrepeated_p_value(obs.iloc[rows], z0, other, z1),
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
     }
+    out["between_share"] = between_share(obs, other["temp"].to_numpy(float)[held.scored])
     resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
     out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
@@ -315,6 +336,20 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
 
 REPEAT_DRAWS = 9999
 POINT_MATCH = 3.0  # °C: soaked points of two sessions closer than this are the same point
+
+
+def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
+    """The share of ``temps`` (the other session's holds) inside this session's span of
+    temperature points and further than :data:`POINT_MATCH` from every one of them: where
+    the calibration is met by its interpolation alone, as leaving a point out tests it."""
+    if "point" not in obs or not len(temps):
+        return 0.0
+    points = obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
+    if points.size < 2:
+        return 0.0
+    inside = (temps > points.min()) & (temps < points.max())
+    apart = np.abs(temps[:, None] - points[None, :]).min(axis=1) > POINT_MATCH
+    return float(np.mean(inside & apart))
 
 
 def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFrame:

@@ -79,6 +79,7 @@ from .naming import (
 from .sessions import (
     CARRIES_WITHIN,
     POINT_MATCH,
+    carries_between,
     fails_in_practice,
     offset_alone,
     rate_shaped,
@@ -158,7 +159,7 @@ def diagnose(
         if excess.fits and excess.resolvable and found.best is None and not noise_explains
         else None
     )
-    if why is None and between is not None and between.fails:
+    if why is None and between is not None and between.fails and _between_matters(excess, base_next):
         points = obs["point"].to_numpy() if "point" in obs else np.zeros(len(obs))
         tilted = tilted_per_point(between, alpha, before_holds["mounting"], points, base.fitted)
         why = tilted_reason(between) if tilted else _between_reason(base, between)
@@ -689,6 +690,17 @@ def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
         ),
         would_tell="a session visiting this session's points and the ones between",
     )
+
+
+def _between_matters(excess: ExcessTest, base_next) -> bool:
+    """Whether a failure between the temperature points matters as the calibration's user
+    meets it: the holds of points left out err beyond the bar a calibration meets on its
+    next session (:data:`.sessions.CARRIES_WITHIN` times what a correct model leaves, up to
+    that figure's chance bound), although a point left out doubles the span the
+    interpolation bridges; and the other session, where it lies between this one's points,
+    does not carry the calibration over (:func:`.sessions.carries_between`)."""
+    beyond = excess.validation_rms > CARRIES_WITHIN * excess.expected_rms * excess.bound
+    return beyond and not carries_between(base_next)
 
 
 def _between_reason(base: Evaluation, between: BetweenPoints) -> Unexplained:

@@ -11,6 +11,7 @@ from .reading import readable
 from .sessions import (
     CARRIES_WITHIN,
     CarryOver,
+    carries_between,
     carry_expected,
     fails_in_practice,
     offset_alone,
@@ -20,7 +21,7 @@ from .sessions import (
     reference_scaled,
     usable,
 )
-from .stats import p_text
+from .stats import chance_bound, p_text
 
 if TYPE_CHECKING:
     from .diagnosis import Diagnosis
@@ -61,10 +62,41 @@ def verdict(diag: Diagnosis) -> str:
     if timed:
         assert diag.time_drift is not None
         text += " " + drift_sentence(diag.base, diag.time_drift)
+    text += _between_met(diag)
     why = diag.unexplained
     if why is not None and not (why.reason == "too small" and "too small" in text):
         text += f" {why.opening}: {why.text}; {why.would_tell} would tell."
     return text
+
+
+def _between_met(diag: Diagnosis) -> str:
+    """Where leaving a point out fails, but not as the calibration's user meets it
+    (:func:`.steps._between_matters`): what each test says."""
+    check, nxt = diag.between_points, diag.next_session
+    if check is None or not check.fails or diag.unexplained is not None:
+        return ""
+    top = check.worst
+    missed = (
+        f" Leaving a point out, the calibration interpolated from the other points misses the "
+        f"one at {top['temp']:.0f} °C ({top['coefficient']} by {abs(top['z']):.3g} standard "
+        "errors)"
+    )
+    if carries_between(nxt):
+        assert nxt is not None
+        return missed + (
+            f", but on the other session, {nxt['between_share']:.0%} of whose holds lie between "
+            "this session's points, it carries over: the interpolation holds where the unit "
+            "meets it (a point left out doubles the span the interpolation bridges)."
+        )
+    summary = diag.base.summary
+    bar = CARRIES_WITHIN * chance_bound(summary["holds_scored"], diag.significance)
+    return missed + (
+        f", but the holds of the points left out then err "
+        f"{summary['validation_rms'] / summary['expected_rms']:.2f} times what a correct model "
+        f"would leave, within the bar a calibration meets on its next session ({CARRIES_WITHIN:g} "
+        f"times, {bar:.2f} with what chance allows over its holds), although a point left out "
+        "doubles the span the interpolation bridges: too small to act on."
+    )
 
 
 def noise_covers_the_other(diag: Diagnosis) -> bool:

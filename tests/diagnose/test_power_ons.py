@@ -60,3 +60,18 @@ def test_a_scale_change_is_the_part_that_follows_the_rates():
     out = _turn_on_offsets(held(errors, rates), None)
     expected = np.sqrt(np.mean((1e-4 * rates[:, 2]) ** 2) / 3)
     assert abs(out["rate_shaped_rms"] / expected - 1.0) < 0.05, out
+
+
+def test_the_other_sessions_holds_between_this_ones_points_are_counted():
+    """Points at 0, 20 and 40 °C (each point's holds scattered by a few tenths): of the other
+    session's holds at 10, 20.5, 30, 45 and -5 °C, those at 10 and 30 lie where only the
+    interpolation reaches; 20.5 is at a point (within POINT_MATCH), 45 and -5 outside the span."""
+    import pandas as pd
+
+    from gyrocal.diagnose.sessions import POINT_MATCH, between_share
+
+    temps = np.array([0.0, 0.3, -0.2, 20.0, 20.4, 40.0, 39.8])
+    obs = pd.DataFrame({"point": [0, 0, 0, 1, 1, 2, 2], "temp": temps})
+    assert POINT_MATCH > 0.5
+    assert between_share(obs, np.array([10.0, 20.5, 30.0, 45.0, -5.0])) == pytest.approx(2 / 5)
+    assert between_share(obs.drop(columns="point"), np.array([10.0])) == 0.0
