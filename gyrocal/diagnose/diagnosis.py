@@ -72,6 +72,8 @@ class Diagnosis:
     noise_model: bool
     unrepeated: bool
     noise_explains: bool
+    # the shape that fit this session's excess and failed where the calibration carries over
+    unrepeated_shape: str | None = None
 
     @cached_property
     def verdict(self) -> str:
@@ -88,6 +90,9 @@ class Diagnosis:
             "expected_rms": s["expected_rms"],
             "excess_over_expected": s["excess_over_expected"],
             "held_out": s["held_out"],
+            # points logged on their own, scored with their turn-on biases out
+            # (gyrocal.fit.validate.own_power_ons): the validation's own figure, and how many
+            **{k: s[k] for k in ("validation_rms_as_scored", "rezeroed_stretches") if k in s},
             "significance": self.significance,
             "chi2_red": self.chi2_red,
             "rms_over_floor": self.rms_over_floor,
@@ -110,6 +115,7 @@ class Diagnosis:
             "floors_differ": _written(self.floors_differ),
             "grain": [g.to_dict() for g in self.grain],
             "unrepeated": self.unrepeated,
+            "unrepeated_shape": self.unrepeated_shape,
             "one_way_points": None
             if self.one_way is None
             else [{"temp": t, "direction": d} for t, d in self.one_way.items()],

@@ -106,10 +106,30 @@ def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model"
         [t.spec_string() for t in fitted.model.terms],
         settings.model.kind,
         fitted,
-        summary,
+        rezeroed(summary),
         chi2,
         dof,
     )
+
+
+def rezeroed(summary: dict) -> dict:
+    """The figures the diagnosis judges a model by: where temperature points are logged on
+    their own, each with the turn-on bias it may hold taken out
+    (:func:`gyrocal.fit.validate.own_power_ons`), as the other session's power-ons are
+    (:func:`.sessions._turn_on_offsets`). ``validation_rms_as_scored`` keeps the
+    validation's own figure."""
+    if "rezeroed_rms" not in summary:
+        return summary
+    rms = summary["rezeroed_rms"]
+    return {
+        **summary,
+        "validation_rms_as_scored": summary["validation_rms"],
+        "validation_rms": rms,
+        "excess": rms / summary["noise_floor"] if summary["noise_floor"] > 0 else float("inf"),
+        "excess_over_expected": rms / summary["expected_rms"]
+        if summary["expected_rms"] > 0
+        else float("inf"),
+    }
 
 
 def noise_only(ev: Evaluation) -> Evaluation:

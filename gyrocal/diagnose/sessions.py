@@ -11,6 +11,7 @@ import pandas as pd
 from ..fit.floor import with_upper_floor
 from ..fit.model import observation_floor
 from ..fit.thermal import in_sample
+from ..fit.validate import stretches_between_gaps
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
@@ -165,26 +166,6 @@ def turned_on(nxt: CarryOver) -> bool:
     return allowance is None or bool(largest <= allowance)
 
 
-# A stretch between the log's gaps with fewer holds than this joins the one before it: a
-# logger that pauses between holds would otherwise give each hold a power-on of its own and
-# leave nothing to judge.
-MIN_STRETCH_HOLDS = 6
-
-
-def _stretches(resumed: np.ndarray | None, n: int) -> np.ndarray:
-    """Each hold's stretch between the log's gaps (codes 0, 1, ... in time), stretches of
-    fewer than :data:`MIN_STRETCH_HOLDS` holds joined to the one before (the first to the
-    one after)."""
-    if resumed is None:
-        return np.zeros(n, dtype=int)
-    codes = np.unique(resumed, return_inverse=True)[1]
-    kept = np.flatnonzero(np.bincount(codes) >= MIN_STRETCH_HOLDS)
-    if kept.size == 0:
-        return np.zeros(n, dtype=int)
-    owner = np.maximum(np.searchsorted(kept, np.arange(codes.max() + 1), side="right") - 1, 0)
-    return owner[codes]
-
-
 def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     """On the holds revalidation scores (``held``, :func:`gyrocal.fleet.drift.scored_hold_errors`):
     the other session's mean error per axis (weighted by each hold's floor), the bias the unit
@@ -194,7 +175,7 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     axis' rate; a sensor's scales change each its own way.
 
     Given when the log last resumed before each hold (``resumed``, the chain's
-    ``resumed_at``), each stretch between the log's gaps (:func:`_stretches`) has its own
+    ``resumed_at``), each stretch between the log's gaps (:func:`gyrocal.fit.validate.stretches_between_gaps`) has its own
     offsets: the unit may have been powered anew in any gap, and the log cannot tell
     (``power_ons``, the stretches; ``largest_turn_on``, the largest offset of an axis in any
     of them). What is left counts the means taken out (``rezeroed_rms`` scaled by
@@ -203,7 +184,7 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     e, w = held.errors[use], 1.0 / np.maximum(held.floor[use], 1e-300) ** 2
     if not len(e):
         return {}
-    runs = _stretches(None if resumed is None else resumed[use], len(e))
+    runs = stretches_between_gaps(None if resumed is None else resumed[use], len(e))
     count = int(runs.max()) + 1
 
     def run_mean(x: np.ndarray, weight: np.ndarray) -> np.ndarray:

@@ -76,6 +76,7 @@ from .naming import (
     partial_offers,
     reaches_floor,
 )
+from .reading import readable
 from .sessions import (
     CARRIES_WITHIN,
     POINT_MATCH,
@@ -142,6 +143,12 @@ def diagnose(
     where = where_it_lives(obs, data, excess, base, explains)
     named = name_a_term(judge, base, excess, library, drift, where, base_next, explains)
     found = when_nothing_is_named(judge, base, excess, outside, library, named, where, base_next, explains)
+    # A shape that fits this session and fails on the other, where the calibration carries
+    # over: this session's slow noise, which no term should carry (not a unit that changed).
+    unrepeated_shape = _shape_left_behind(found, base_next)
+    if unrepeated_shape is not None:
+        explains = True
+        found = replace(found, useful=(), shaped=(), why=None)
     if unrepeated and found.best is not None:
         unrepeated = False
     elif unrepeated:
@@ -188,6 +195,7 @@ def diagnose(
         between,
         base_next,
         unrepeated=unrepeated,
+        unrepeated_shape=unrepeated_shape,
         explains=explains,
         noise_explains=noise_explains,
         before_holds=before_holds,
@@ -692,6 +700,20 @@ def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
     )
 
 
+def _shape_left_behind(found: Found, base_next) -> str | None:
+    """The shape of free form that fits this session best, where it does not hold on the
+    other session ("does not carry over") and the configured calibration carries over there
+    (:func:`.sessions.fails_in_practice`): what it took here was this session's own slow
+    noise. The shape in words, or None."""
+    why = found.why
+    if why is None or why.reason != "does not carry over" or not usable(base_next):
+        return None
+    if base_next["fails_in_practice"]:
+        return None
+    best = next((c for c in found.candidates if c.term == why.term), None)
+    return readable(why.term, best.profiled if best is not None else ()) if why.term else None
+
+
 def _between_matters(excess: ExcessTest, base_next) -> bool:
     """Whether a failure between the temperature points matters as the calibration's user
     meets it: the holds of points left out err beyond the bar a calibration meets on its
@@ -811,6 +833,7 @@ def _diagnosis(
     explains,
     noise_explains,
     before_holds,
+    unrepeated_shape=None,
 ) -> Diagnosis:
     """The findings put together once: the residuals, the ladder, the advice."""
     settings, obs, quality = judge.settings, judge.obs, excess.quality
@@ -882,4 +905,5 @@ def _diagnosis(
         noise_model="floor_x" in obs,
         unrepeated=unrepeated,
         noise_explains=noise_explains,
+        unrepeated_shape=unrepeated_shape,
     )

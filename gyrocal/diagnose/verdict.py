@@ -342,6 +342,14 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
         )
     if not diag.explains:
         return _not_explained(base, factor, diag.covariates, diag.partial, base_next, tolerance)
+    if diag.unrepeated_shape is not None:
+        return (
+            f"The model explains the data as the other session judges it: its in-sample "
+            f"residuals are {factor:.2f} times their noise floor, and the shape that fits them "
+            f"best, {diag.unrepeated_shape}, does not hold on the other session, where the "
+            "calibration carries over: the excess is slow noise this session's static data did "
+            "not resolve, not a missing effect; nothing is missing."
+        )
     if diag.unrepeated:
         assert base_next is not None
         return (

@@ -67,6 +67,10 @@ class ValidationSummary(ValidationFigures):
     temperature_points: int
     model_kind: str
     points_not_left_out: NotRequired[int]
+    # points logged on their own (a gap in the log before and after: each may hold a power-on
+    # of the unit) scored with their holds' mean error per axis taken out (own_power_ons)
+    rezeroed_rms: NotRequired[float]
+    rezeroed_stretches: NotRequired[int]
 
 
 @dataclass(frozen=True)
@@ -173,6 +177,10 @@ def validate(
     use = interior if interior.any() else (~in_sample if (~in_sample).any() else np.ones(n, dtype=bool))
     scored = holds[np.tile(use, len(METHODS))]
     summary = _summary(model, fitted, data, held, errors, floor, use, reference_temperature)
+    if held.held_out == "temperature":
+        rezeroed = own_power_ons(obs, errors["interpolated"][0], floor, use)
+        if rezeroed is not None:
+            summary["rezeroed_rms"], summary["rezeroed_stretches"] = rezeroed
     return Validation(
         holds, _table(scored, samples=False), _table(scored, samples=True), _by_temperature(holds), summary
     )
@@ -412,6 +420,62 @@ def held_out_errors(fitted, columns: Mapping[str, np.ndarray]) -> tuple[np.ndarr
 
 class CannotLeaveOut(GyrocalError):
     """A temperature point cannot be left out: what remains does not determine the model."""
+
+
+# A stretch between the log's gaps with fewer holds than this joins the one before it: a
+# logger that pauses between holds would otherwise give each hold a power-on of its own and
+# leave nothing to judge.
+MIN_STRETCH_HOLDS = 6
+
+
+def stretches_between_gaps(resumed: np.ndarray | None, n: int) -> np.ndarray:
+    """Each hold's stretch between the log's gaps (codes 0, 1, ... in time; ``resumed``,
+    the chain's ``resumed_at``), stretches of fewer than :data:`MIN_STRETCH_HOLDS` holds
+    joined to the one before (the first to the one after). The unit may have been switched
+    off in any gap, and the log cannot tell."""
+    if resumed is None:
+        return np.zeros(n, dtype=int)
+    codes = np.unique(resumed, return_inverse=True)[1]
+    kept = np.flatnonzero(np.bincount(codes) >= MIN_STRETCH_HOLDS)
+    if kept.size == 0:
+        return np.zeros(n, dtype=int)
+    owner = np.maximum(np.searchsorted(kept, np.arange(codes.max() + 1), side="right") - 1, 0)
+    return owner[codes]
+
+
+def own_power_ons(
+    obs: pd.DataFrame, errors: np.ndarray, floor: np.ndarray, use: np.ndarray
+) -> tuple[float, int] | None:
+    """The held-out error (RMS over the scored holds ``use``) with each stretch between the
+    log's gaps that holds one temperature point alone rezeroed: its mean error per axis
+    (weighted by the holds' floors) taken out, and the RMS scaled by sqrt(N / (N − k)) for
+    the k means over N holds, as a fit's residuals count its parameters. A unit switched off
+    between set points (or a log that stops between them) takes a turn-on bias at each that
+    no interpolation from the other points knows; the log cannot tell it from a bias that
+    changes between the points in the same way, so neither is the calibration's failure to
+    interpolate. None where no point is logged on its own."""
+    if "resumed_at" not in obs or "point" not in obs or not use.any():
+        return None
+    runs = stretches_between_gaps(obs["resumed_at"].to_numpy(float), len(obs))
+    points = obs["point"].to_numpy()
+    alone = pd.Series(points).groupby(runs).nunique().to_numpy() == 1
+    take = use & alone[runs]
+    if not take.any():
+        return None
+    codes, run = np.unique(runs[take], return_inverse=True)
+    weight = 1.0 / np.maximum(floor[take], 1e-300) ** 2
+    means = np.column_stack(
+        [
+            np.bincount(run, weights=errors[take, i] * weight[:, i]) / np.bincount(run, weights=weight[:, i])
+            for i in range(errors.shape[1])
+        ]
+    )
+    rezeroed = errors.copy()
+    rezeroed[take] -= means[run]
+    count, scored = codes.size, int(use.sum())
+    if scored <= count:
+        return None
+    return _pooled_rms(rezeroed[use]) * float(np.sqrt(scored / (scored - count))), count
 
 
 def _pooled_rms(values: np.ndarray) -> float:

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrocal.diagnose.sessions import MIN_STRETCH_HOLDS, _stretches, _turn_on_offsets
+from gyrocal.diagnose.sessions import _turn_on_offsets
+from gyrocal.fit.validate import MIN_STRETCH_HOLDS, stretches_between_gaps
 from gyrocal.fleet.drift import HoldErrors
 
 
@@ -23,9 +24,11 @@ def test_stretches_too_short_to_judge_join_the_one_before():
     resumes is one stretch."""
     resumed = np.repeat([0.0, 100.0, 200.0], [8, 2, 7])
     assert MIN_STRETCH_HOLDS > 2
-    np.testing.assert_array_equal(_stretches(resumed, 17), np.repeat([0, 0, 1], [8, 2, 7]))
-    np.testing.assert_array_equal(_stretches(None, 5), np.zeros(5, int))
-    np.testing.assert_array_equal(_stretches(np.repeat([0.0, 1.0], [2, 8]), 10), np.zeros(10, int))
+    np.testing.assert_array_equal(stretches_between_gaps(resumed, 17), np.repeat([0, 0, 1], [8, 2, 7]))
+    np.testing.assert_array_equal(stretches_between_gaps(None, 5), np.zeros(5, int))
+    np.testing.assert_array_equal(
+        stretches_between_gaps(np.repeat([0.0, 1.0], [2, 8]), 10), np.zeros(10, int)
+    )
 
 
 def test_offsets_per_power_on_are_taken_out_and_counted():
@@ -75,3 +78,29 @@ def test_the_other_sessions_holds_between_this_ones_points_are_counted():
     assert POINT_MATCH > 0.5
     assert between_share(obs, np.array([10.0, 20.5, 30.0, 45.0, -5.0])) == pytest.approx(2 / 5)
     assert between_share(obs.drop(columns="point"), np.array([10.0])) == 0.0
+
+
+def test_a_point_logged_on_its_own_is_scored_with_its_turn_on_bias_taken_out():
+    """Three points of 8 holds: the first logged on its own (a gap in the log after it), the
+    second and third in one stretch. The first point's offsets (its own stretch, which may
+    hold a power-on) are taken out; the other two, one stretch over two points, keep theirs.
+    What is left is the noise, scaled for the one mean per axis taken out."""
+    import pandas as pd
+
+    from gyrocal.fit.validate import own_power_ons
+
+    rng = np.random.default_rng(7)
+    n = 24
+    obs = pd.DataFrame({"point": np.repeat([0, 1, 2], 8), "resumed_at": np.repeat([0.0, 500.0, 500.0], 8)})
+    noise = rng.normal(0.0, 1e-3, (n, 3))
+    offsets = np.zeros((n, 3))
+    offsets[:8] = [0.02, -0.01, 0.03]  # the first point's power-on
+    floor = np.full((n, 3), 1e-3)
+    use = np.ones(n, bool)
+    rms, stretches = own_power_ons(obs, noise + offsets, floor, use)
+    left = noise.copy()
+    left[:8] -= noise[:8].mean(axis=0)
+    assert stretches == 1
+    assert rms == pytest.approx(np.sqrt(np.mean(left**2)) * np.sqrt(n / (n - 1)))
+    # one stretch for every point: no point is logged on its own
+    assert own_power_ons(obs.assign(resumed_at=0.0), noise + offsets, floor, use) is None
