@@ -106,13 +106,13 @@ def evaluation_of(settings: Settings, fitted, summary: dict, name: str = "model"
         [t.spec_string() for t in fitted.model.terms],
         settings.model.kind,
         fitted,
-        rezeroed(summary),
+        _rezeroed(summary),
         chi2,
         dof,
     )
 
 
-def rezeroed(summary: dict) -> dict:
+def _rezeroed(summary: dict) -> dict:
     """The figures the diagnosis judges a model by: where temperature points are logged on
     their own, each with the turn-on bias it may hold taken out
     (:func:`gyrocal.fit.validate.own_power_ons`), as the other session's power-ons are
