@@ -11,7 +11,7 @@ import pandas as pd
 from ..fit.floor import with_upper_floor
 from ..fit.model import observation_floor
 from ..fit.thermal import in_sample
-from ..fit.validate import stretches_between_gaps
+from ..fit.validate import stretch_means, stretches_between_gaps
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
@@ -186,19 +186,10 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
         return {}
     runs = stretches_between_gaps(None if resumed is None else resumed[use], len(e))
     count = int(runs.max()) + 1
-
-    def run_mean(x: np.ndarray, weight: np.ndarray) -> np.ndarray:
-        """Per stretch, the mean of each column of ``x`` weighted by ``weight`` (one per hold)."""
-        total = np.bincount(runs, weights=weight, minlength=count)
-        sums = np.stack(
-            [np.bincount(runs, weights=x[:, j] * weight, minlength=count) for j in range(x.shape[1])], 1
-        )
-        return sums / total[:, None]
-
-    offsets = np.column_stack([run_mean(e[:, [i]], w[:, i])[:, 0] for i in range(3)])
+    offsets = stretch_means(runs, e, w)
     offset = np.sum(e * w, axis=0) / np.sum(w, axis=0)
     rates = held.rates[use]
-    centred = rates - np.column_stack([run_mean(rates[:, [i]], w[:, i])[:, 0] for i in range(3)])[runs]
+    centred = rates - stretch_means(runs, rates, w)[runs]
     power = float(np.sum(w * centred**2))
     rezeroed = e - offsets[runs]
     scale = float(np.sum(w * centred * rezeroed) / power) if power > 0 else 0.0
@@ -208,7 +199,7 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     # A change of the sensor's scale and axes: each output's error against the three rates,
     # centred per stretch (weighted least squares by that output's floor), the part of the
     # errors in proportion to the rate
-    by_output = [rates - run_mean(rates, w[:, i])[runs] for i in range(3)]
+    by_output = [rates - stretch_means(runs, rates, w[:, i])[runs] for i in range(3)]
 
     def shaped_rms(errors) -> float:
         shaped = np.zeros_like(errors)
@@ -248,6 +239,12 @@ def usable(nxt: CarryOver | None) -> bool:
     return nxt is not None and "error" not in nxt
 
 
+def carries(nxt: CarryOver | None) -> bool:
+    """A carry-over that could be made, on which the calibration does not fail in practice
+    (:func:`fails_in_practice`)."""
+    return usable(nxt) and nxt is not None and not nxt["fails_in_practice"]
+
+
 # The share of the other session's holds between this session's temperature points from
 # which its carrying over answers what leaving a point out asks (a point's worth of holds
 # in a session of three or four points).
@@ -259,12 +256,7 @@ def carries_between(nxt: CarryOver | None) -> bool:
     (at least :data:`BETWEEN_SHARE` of its holds between this session's points,
     ``between_share``) and the calibration carries over there: the interpolation holds as
     its user meets it, whatever leaving a point out, which doubles the spacing, says."""
-    return bool(
-        usable(nxt)
-        and nxt is not None
-        and not nxt["fails_in_practice"]
-        and nxt.get("between_share", 0.0) >= BETWEEN_SHARE
-    )
+    return carries(nxt) and nxt is not None and nxt.get("between_share", 0.0) >= BETWEEN_SHARE
 
 
 def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -> CarryOver:

@@ -80,6 +80,7 @@ from .reading import readable
 from .sessions import (
     CARRIES_WITHIN,
     POINT_MATCH,
+    carries,
     carries_between,
     fails_in_practice,
     offset_alone,
@@ -274,7 +275,7 @@ def outside_the_sensor(
         return OutsideTheSensor(None, None)
     lab = lab_fixed(obs, excess.quality, dof, excess.alpha)
     mounting = None
-    within = explained_by(within_noise) or (usable(base_next) and not fails_in_practice(base_next))
+    within = explained_by(within_noise) or carries(base_next)
     if not explained_by(lab) and "mount" in obs and not within:
         mounting = mounting_fixed(
             obs,
@@ -706,9 +707,7 @@ def _shape_left_behind(found: Found, base_next) -> str | None:
     (:func:`.sessions.fails_in_practice`): what it took here was this session's own slow
     noise. The shape in words, or None."""
     why = found.why
-    if why is None or why.reason != "does not carry over" or not usable(base_next):
-        return None
-    if base_next["fails_in_practice"]:
+    if why is None or why.reason != "does not carry over" or not carries(base_next):
         return None
     best = next((c for c in found.candidates if c.term == why.term), None)
     return readable(why.term, best.profiled if best is not None else ()) if why.term else None

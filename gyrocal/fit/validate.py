@@ -443,6 +443,20 @@ def stretches_between_gaps(resumed: np.ndarray | None, n: int) -> np.ndarray:
     return owner[codes]
 
 
+def stretch_means(runs: np.ndarray, values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Per stretch (``runs``, codes 0, 1, ... as :func:`stretches_between_gaps` gives), the
+    weighted mean of each column of ``values`` (n, c): ``weights`` (n,) shared by the columns
+    or (n, c) one per column. Shape (stretches, c)."""
+    count = int(runs.max()) + 1
+    weights = np.broadcast_to(weights.reshape(len(runs), -1), values.shape)
+    columns = range(values.shape[1])
+    totals = np.stack([np.bincount(runs, weights=weights[:, j], minlength=count) for j in columns], 1)
+    sums = np.stack(
+        [np.bincount(runs, weights=values[:, j] * weights[:, j], minlength=count) for j in columns], 1
+    )
+    return sums / totals
+
+
 def own_power_ons(
     obs: pd.DataFrame, errors: np.ndarray, floor: np.ndarray, use: np.ndarray
 ) -> tuple[float, int] | None:
@@ -463,15 +477,8 @@ def own_power_ons(
     if not take.any():
         return None
     codes, run = np.unique(runs[take], return_inverse=True)
-    weight = 1.0 / np.maximum(floor[take], 1e-300) ** 2
-    means = np.column_stack(
-        [
-            np.bincount(run, weights=errors[take, i] * weight[:, i]) / np.bincount(run, weights=weight[:, i])
-            for i in range(errors.shape[1])
-        ]
-    )
     rezeroed = errors.copy()
-    rezeroed[take] -= means[run]
+    rezeroed[take] -= stretch_means(run, errors[take], 1.0 / np.maximum(floor[take], 1e-300) ** 2)[run]
     count, scored = codes.size, int(use.sum())
     if scored <= count:
         return None
