@@ -137,8 +137,12 @@ def _power_ons_alone(nxt: dict[str, Any]) -> bool:
     return "error" not in nxt and power_ons_alone(nxt)
 
 
-def judge_unit(logs: list, protocol: str, one_session: bool = False) -> dict[str, Any]:
-    """Diagnose session 0 (with session 1 unless ``one_session``), judge the fix on session 2."""
+def judge_unit(
+    logs: list, protocol: str, one_session: bool = False, *, peer: bool = True, keep_diagnosis: bool = False
+) -> dict[str, Any]:
+    """Diagnose session 0 (with session 1 unless ``one_session``), judge the fix on session 2;
+    the sparse peer beside it unless not ``peer``; with ``keep_diagnosis``, the diagnosis'
+    JSON as ``diagnosis`` (a test reads both)."""
     from dataclasses import replace
 
     from gyrocal.diagnose import diagnose, extended
@@ -158,6 +162,8 @@ def judge_unit(logs: list, protocol: str, one_session: bool = False) -> dict[str
             d = diagnose(settings, obs, other).to_dict()
             out.update(_answer(d))
             out["detail"] = d["verdict"]
+            if keep_diagnosis:
+                out["diagnosis"] = d
             unseen = segment_log(s2, settings, protocol).observations
 
             def next_rms(s: Settings) -> tuple[float, float]:
@@ -178,6 +184,8 @@ def judge_unit(logs: list, protocol: str, one_session: bool = False) -> dict[str
                 out["detail"] += f" [{offer['term']}]"
     except GyrocalError as exc:
         return {**out, "verdict": "error", "reads": [], "acts_on": None, "reason": None, "detail": str(exc)}
+    if not peer:
+        return out
     try:
         from peer_sparse import peer_next
     except ImportError:

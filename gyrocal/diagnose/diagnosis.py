@@ -154,4 +154,5 @@ def _partial_row(c: Candidate) -> dict[str, Any]:
         "family": c.family,
         "leftover": c.leftover,
         "next_session": c.next_session,
+        **({"grain": c.grain.to_dict()} if c.grain is not None else {}),
     }

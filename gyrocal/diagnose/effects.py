@@ -26,7 +26,7 @@ from .evaluation import (
     reason,
 )
 from .findings import TimeDrift
-from .sessions import SOAKED_SPREAD, CarryOver, carry_over, slow_noise, usable
+from .sessions import SOAKED_SPREAD, CarryOver, carry_over, fails_in_practice, slow_noise, usable
 from .stats import chance_bound, chi2_sf, f_sf, fisher_combined
 from .where import TIME_LIKE, Leftover, leftover
 
@@ -69,6 +69,7 @@ class Candidate:
     kind: str | None = None  # offered in a model of this kind (continuous)
     model: dict | None = None  # that model, as the config's model: section
     offered: bool = False  # partial: offered, taking away most of it
+    grain: Any = None  # partial, one log: the rate-level grain that offered it (.grain.Grain)
 
     def to_dict(self) -> dict[str, Any]:
         from .reading import readable
@@ -222,9 +223,18 @@ class Judge:
         if sizeable and not exempt:
             combined = left["p_value"] if repeat is None else fisher_combined(left["p_value"], repeat)
         nxt["left_p_value"] = combined
-        return (
-            combined >= half and (in_chance or slow) and nxt["validation_rms"] <= base_next["validation_rms"]
+        if combined >= half and (in_chance or slow) and nxt["validation_rms"] <= base_next["validation_rms"]:
+            return True
+        # Where the configured model fails on the other session and this term carries the
+        # calibration there, taking a practical part of that failure, it is the fix the
+        # user needs; what it leaves in this session is a second question, after it.
+        carried = (
+            fails_in_practice(base_next)
+            and not fails_in_practice(nxt)
+            and practical_gain_next(base_next, candidate, 1.0)
         )
+        candidate.second_question = bool(carried and structure)
+        return bool(carried)
 
 
 # A bias drifting linearly in time, fitted per temperature point on a grid: not an effect of
@@ -384,6 +394,19 @@ def practical_gain(base: Evaluation, c: Candidate | float, bound: float) -> bool
     v0, expected = base.summary["validation_rms"], base.summary["expected_rms"]
     gain = v0 - (c if isinstance(c, float) else c.validation_rms_with)
     return v0 > expected * bound and gain > v0 * (1.0 - 1.0 / bound) and gain >= 0.25 * (v0 - expected)
+
+
+def gains_where_judged(base: Evaluation, c: Candidate, base_next, bound: float) -> bool:
+    """A practical gain where the calibration is judged: on the other session where the
+    configured model fails there (:func:`practical_gain_next`), for that is what the user
+    meets, and a term that leaves it failing as before fixes nothing they will see;
+    otherwise on the points left out (:func:`practical_gain`), or on the other session
+    for a term no point could be left out for."""
+    if usable(base_next) and fails_in_practice(base_next):
+        return practical_gain_next(base_next, c, bound)
+    if c.validated:
+        return practical_gain(base, c, bound)
+    return practical_gain_next(base_next, c, bound)
 
 
 def practical_gain_next(base_next, c: Candidate, bound: float) -> bool:

@@ -35,7 +35,8 @@ class ExcessTest:
     what a held-out error may be, in units of what a correct model leaves, and still be
     explained (:func:`.stats.explained_tolerance`). ``resolvable``: the held-out error
     misses what a correct model leaves by more than ``bound``, so a term has something to
-    take away."""
+    take away; ``next_fails``: the calibration fails on the other session in practice, which
+    resolves what the points left out could not (``open``: either)."""
 
     quality: FitQuality
     alpha: float
@@ -47,10 +48,15 @@ class ExcessTest:
     resolvable: bool
     validation_rms: float
     expected_rms: float
+    next_fails: bool = False
 
     @property
     def explains(self) -> bool:
         return self.fits or self.faint
+
+    @property
+    def open(self) -> bool:
+        return self.resolvable or self.next_fails
 
 
 @dataclass(frozen=True)
@@ -83,6 +89,7 @@ class MountingTest(_Written):
     drift_p_value: float
     direction_p_value: float
     explains: bool
+    rival_share: float = 0.0  # the largest share of the excess any rival takes
 
 
 @dataclass(frozen=True)

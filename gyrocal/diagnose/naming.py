@@ -15,8 +15,7 @@ from .effects import (
     Candidate,
     Judge,
     extended_all,
-    practical_gain,
-    practical_gain_next,
+    gains_where_judged,
     rank_candidates,
     second_step,
 )
@@ -25,7 +24,7 @@ from .grammar import formula_of, screen
 from .sessions import usable
 from .shapes import at_bound, describe, describe_history, for_the_unit, shape_terms
 from .stats import chance_bound, chi2_sf, f_sf, floor_uncertainty
-from .verdict import coherent
+from .verdict import coherent, shared_by_every_axis
 from .where import SETTLING_ROW, input_values
 
 
@@ -172,14 +171,16 @@ CARRYING_SHARE = 0.1  # of the excess on a covariate row, for a term reading it 
 
 
 def partial_offers(
-    gaining: list[Candidate], base: Evaluation, base_next, lead, bound, rows=()
+    gaining: list[Candidate], base: Evaluation, base_next, lead, bound, rows=(), at_its_grain=None
 ) -> list[Candidate]:
     """Terms that take away a practical part of the excess without explaining it, the one
     that takes most first (at most three); the first is offered when it takes away most and
     reads an input that carries the excess: the leading covariate row's (``lead``) or that of
     another row of ``rows`` carrying at least :data:`CARRYING_SHARE` of it. Rows of one
     protocol move together (after a remount the table starts from rest, so the step into a
-    hold follows the mounting), and the leading one is not always the effect's."""
+    hold follows the mounting), and the leading one is not always the effect's. Where the
+    held-out points leave the first short of most, ``at_its_grain(c)`` may still offer it:
+    judged at the grain its input varies over (one log: :func:`takes_most_at_its_grain`)."""
     ranked = sorted(gaining, key=lambda c: -held_out_gain(c, base, base_next))
     if ranked:
         # The library's term first where it takes about as much (within the figure's own
@@ -193,7 +194,30 @@ def partial_offers(
     for c in ranked:
         c.excess_taken = held_out_gain(c, base, base_next)
         c.offered = c is ranked[0] and c.excess_taken > MOST and any(coherent(c.term, r) for r in carrying)
+    first = ranked[0] if ranked else None
+    if first is not None and not first.offered and at_its_grain is not None:
+        first.offered = any(coherent(first.term, r) for r in carrying) and at_its_grain(first)
     return ranked[:3]
+
+
+def takes_most_at_its_grain(judge: Judge, c: Candidate) -> bool:
+    """A term of the rate alone judged where it must carry, leaving each interior rate level
+    out in turn (:func:`.grain.at_the_grain`): it takes most (:data:`MOST`) of what the
+    configured model leaves there beyond the floor, which is itself beyond the bar a
+    calibration meets on data it never saw. Not one the same on every axis
+    (:func:`shared_by_every_axis`): the reference's, as likely as the sensor's. The points left out mix its effect with the
+    interpolation's between temperatures, which no term of the rate takes away: that part
+    is a second question, after the fix."""
+    from .grain import CARRIES_WITHIN, at_the_grain
+    from .verdict import input_kinds
+
+    if input_kinds(c.term) != {"rate"} or shared_by_every_axis(c):
+        return False
+    grain = at_the_grain(judge.settings, extended_all(judge.settings, c), judge.obs, "rate level", c.profiled)
+    if grain is None or grain.fix is None or grain.base <= CARRIES_WITHIN:
+        return False
+    c.grain = grain
+    return bool((grain.base - grain.fix) / (grain.base - 1.0) > MOST)
 
 
 def free_shape(
@@ -286,14 +310,16 @@ def _shapes_that_explain(judge, base, shapes, tried, base_next, tolerance, bound
             continue
         c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
         c.family = shape.family
-        gain = practical_gain(base, c, bound) if c.validated else practical_gain_next(base_next, c, bound)
+        gain = gains_where_judged(base, c, base_next, bound)
         if c.significant and gain:
             gaining.append(c)
             if c.explains_excess:
                 good.append((c, shape))
         if c.significant and _beyond_uncertainty(base, c, bound):
             starts.append(c)
-    if good or not (gaining or starts):
+    # A single that passes only as the fix its other session needs, leaving a pattern here
+    # (a second question), may be half of a pair: pairs are tried beside it.
+    if (good and not all(g[0].second_question for g in good)) or not (gaining or starts):
         return good
     # Two shapes at once (a fast and a slow warm-up): the most useful, then each other. A
     # pair's first need not take a quarter of the excess alone (the practical gain a name

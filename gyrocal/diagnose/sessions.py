@@ -44,12 +44,17 @@ class CarryOver(TypedDict, total=False):
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
     rate_shaped_rms: float  # deg/s: the part of its errors (power-ons' out) in proportion to the rates
     rescaled_shaped_rms: float  # deg/s: that part with the one shared scale out too
+    changed_rms: float  # deg/s: its RMS error less one change of bias, scale and axes for the session
     holds_scored: int
     bound: float  # how far above expected_rms its figures may lie by chance (stats.chance_bound)
     repeat_p_value: float | None
     unrepeated_p_value: float | None
     shared_fraction: float | None
     between_share: float  # its scored holds' share at temperatures between this session's points
+    between_rms: float  # deg/s: its RMS error on those holds (NaN-free: absent without any)
+    at_points_rms: float  # deg/s: its RMS error on the holds at this session's points
+    between_expected: float  # deg/s: expected_rms on the holds between, by their floors
+    at_points_expected: float  # deg/s: the same on the holds at the points
     left_p_value: float
     error: str
 
@@ -136,7 +141,16 @@ def offset_alone(nxt: CarryOver) -> bool:
     points that the log could tell from a power-on's."""
     if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None or rate_shaped(nxt):
         return False
-    return bool(nxt["rezeroed_rms"] <= practical_bar(nxt))
+    return bool(nxt["rezeroed_rms"] <= _rezeroed_bar(nxt))
+
+
+def _rezeroed_bar(nxt: CarryOver) -> float:
+    """What the other session may leave once its offsets are out: :func:`practical_bar` for
+    one offset per axis (the session's own power-on); :func:`white_bar` where each stretch
+    between gaps has its own, for those offsets already take out every wander slower than a
+    stretch, which the slow-noise allowance would count a second time (a warm-up or a
+    wander read as power-ons leaves its course within the stretches)."""
+    return white_bar(nxt) if nxt.get("power_ons", 1) > 1 else practical_bar(nxt)
 
 
 def power_ons_alone(nxt: CarryOver) -> bool:
@@ -209,7 +223,19 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
             shaped[:, i] = own @ coef
         return float(np.sqrt(np.mean(shaped**2)))
 
+    # One change of the unit for the whole session, the same at every temperature: an offset
+    # and a row of the rate matrix per output (weighted least squares by that output's floor).
+    design = np.column_stack([np.ones(len(e)), rates])
+    changed = np.empty_like(e)
+    for i in range(3):
+        root = np.sqrt(w[:, i])
+        coef = np.linalg.lstsq(design * root[:, None], e[:, i] * root, rcond=None)[0]
+        changed[:, i] = e[:, i] - design @ coef
+    kept = len(e) * 3
+    spent_changed = np.sqrt(kept / (kept - 12)) if kept > 12 else 1.0
+
     return {
+        "changed_rms": float(np.sqrt(np.mean(changed**2)) * spent_changed),
         "turn_on_bias": {a: float(v) for a, v in zip(AXES, offset, strict=True)},
         "power_ons": count,
         "largest_turn_on": float(np.max(np.abs(offsets))),
@@ -227,9 +253,10 @@ def reference_scaled(nxt: CarryOver) -> bool:
     out): the reference rate's scale, not the sensor's."""
     if not fails_in_practice(nxt) or nxt.get("rescaled_rms") is None:
         return False
+    bar = _rezeroed_bar(nxt)  # the offsets per stretch are taken out here too
     if rate_shaped(nxt):  # the shared scale is all the rates' part: what is left is not
-        return not rate_shaped(nxt, "rescaled_shaped_rms") and nxt["rescaled_rms"] <= practical_bar(nxt)
-    return bool(nxt["rescaled_rms"] <= practical_bar(nxt) < nxt["rezeroed_rms"])
+        return not rate_shaped(nxt, "rescaled_shaped_rms") and nxt["rescaled_rms"] <= bar
+    return bool(nxt["rescaled_rms"] <= bar < nxt["rezeroed_rms"])
 
 
 def usable(nxt: CarryOver | None) -> bool:
@@ -296,6 +323,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
         "shared_fraction": shared_fraction(obs.iloc[rows], z0, other, z1),
     }
     out["between_share"] = between_share(obs, other["temp"].to_numpy(float)[held.scored])
+    out.update(_split_at_points(obs, other["temp"].to_numpy(float), held, r["expected_rms"]))  # type: ignore[typeddict-item]
     resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
     out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
@@ -323,6 +351,56 @@ def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
     inside = (temps > points.min()) & (temps < points.max())
     apart = np.abs(temps[:, None] - points[None, :]).min(axis=1) > POINT_MATCH
     return float(np.mean(inside & apart))
+
+
+def _split_at_points(obs: pd.DataFrame, temps: np.ndarray, held, expected: float) -> dict:
+    """The other session's RMS error on its scored holds at this session's temperature points
+    (within :data:`POINT_MATCH`) and on those between them, each with what a correct model
+    leaves there (``expected`` scaled by the holds' floors); empty unless both have holds."""
+    if "point" not in obs:
+        return {}
+    points = obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
+    use = held.scored & np.all(np.isfinite(held.errors), axis=1)
+    if points.size < 2 or not use.any():
+        return {}
+    t = temps[use]
+    near = np.abs(t[:, None] - points[None, :]).min(axis=1) <= POINT_MATCH
+    between = ~near & (t > points.min()) & (t < points.max())
+    if not near.any() or not between.any():
+        return {}
+    e, f = held.errors[use], held.floor[use]
+    scale = lambda m: expected * float(np.sqrt(np.mean(f[m] ** 2) / np.mean(f**2)))  # noqa: E731
+    return {
+        "between_rms": float(np.sqrt(np.mean(e[between] ** 2))),
+        "at_points_rms": float(np.sqrt(np.mean(e[near] ** 2))),
+        "between_expected": scale(between),
+        "at_points_expected": scale(near),
+    }
+
+
+def changed_alone(nxt: CarryOver | None) -> bool:
+    """Whether one change of the unit, the same at every temperature of the other session (an
+    offset and a rate matrix per output: ``changed_rms``), brings its errors within
+    :func:`practical_bar` where they fail: a shape of the sensor between this session's
+    points would differ from one temperature to the next."""
+    if not usable(nxt) or nxt is None or not nxt["fails_in_practice"] or "changed_rms" not in nxt:
+        return False
+    return bool(nxt["changed_rms"] <= practical_bar(nxt))
+
+
+def fails_between_only(nxt: CarryOver | None) -> bool:
+    """Whether the other session fails where only the calibration's interpolation reaches and
+    carries where this session measured: its holds between this session's points err beyond
+    :func:`practical_bar` (scaled to their floors) while those at the points are within it.
+    The unit did not change (it carries at the points); the calibration does not hold
+    between them."""
+    if not usable(nxt) or nxt is None or "between_rms" not in nxt or not nxt["fails_in_practice"]:
+        return False
+    bar = practical_bar(nxt) / nxt["expected_rms"]
+    return bool(
+        nxt["between_rms"] > bar * nxt["between_expected"]
+        and nxt["at_points_rms"] <= bar * nxt["at_points_expected"]
+    )
 
 
 def _cells(obs: pd.DataFrame, soaked_spread: float = SOAKED_SPREAD) -> pd.DataFrame:

@@ -131,9 +131,10 @@ def at_bound(profiled) -> bool:
 
 def for_the_unit(spec: str, profiled=()) -> str:
     """An offered term of free shape written for the unit rather than the session it was
-    found in: a formula of time since power-on with its fitted values as the start and its
-    time constants searched over :data:`TIME_CONSTANT_S`; a spline of it on knots rounded
-    to two significant figures. Other terms as they are."""
+    found in: a formula with profiled settings starts from its fitted values (a calibration
+    that profiles them again from the grid's start may stop at another optimum), and one of
+    time since power-on searches its time constants over :data:`TIME_CONSTANT_S`; a spline
+    of time on knots rounded to two significant figures. Other terms as they are."""
     term = make_term(spec)
     inner = getattr(term, "term", term)
     if inner is not term:  # a restricted term: its part stays as the diagnosis fitted it
@@ -141,14 +142,16 @@ def for_the_unit(spec: str, profiled=()) -> str:
     if inner.name == "smooth" and inner.input == "t":
         knots = sorted({float(f"{k:.2g}") for k in inner.knots})
         return term.with_settings(knots=knots).spec_string() if len(knots) == len(inner.knots) else spec
-    if inner.name != "expression" or "t" not in inner.needs or not inner.profile:
+    if inner.name != "expression" or not inner.profile:
         return spec
     fitted = {
         p["parameter"]: p["value"] for p in profiled or () if p.get("term") == inner.label and "value" in p
     }
     parameters = {k: float(f"{fitted.get(k, v):.3g}") for k, v in inner.parameters.items()}
+    of_time = "t" in inner.needs
     bounds = {
-        k: (list(TIME_CONSTANT_S) if k in TIME_CONSTANTS else list(b)) for k, b in inner.profile.items()
+        k: (list(TIME_CONSTANT_S) if of_time and k in TIME_CONSTANTS else list(b))
+        for k, b in inner.profile.items()
     }
     if any(not lo <= parameters[k] <= hi for k, (lo, hi) in bounds.items() if k in parameters):
         return spec

@@ -22,8 +22,8 @@ from .effects import (
     Candidate,
     Judge,
     extended_all,
+    gains_where_judged,
     practical_gain,
-    practical_gain_next,
     rank_candidates,
     second_step,
     time_drift,
@@ -75,6 +75,7 @@ from .naming import (
     misses_levels,
     partial_offers,
     reaches_floor,
+    takes_most_at_its_grain,
 )
 from .reading import readable
 from .sessions import (
@@ -82,6 +83,8 @@ from .sessions import (
     POINT_MATCH,
     carries,
     carries_between,
+    changed_alone,
+    fails_between_only,
     fails_in_practice,
     offset_alone,
     rate_shaped,
@@ -125,6 +128,9 @@ def diagnose(
     base_next = judge.carry(base)
     if base_next is not None and "error" in base_next:
         judge.other = None  # the other session cannot be used: judged on this one alone
+    # A failure where the user meets the calibration leaves the question open however small
+    # the held-out error: the other session resolves what the points left out could not.
+    excess = replace(excess, next_fails=usable(base_next) and fails_in_practice(base_next))
     before_holds = history_columns(obs, data)
     # One session alone: the slow wander its static data cannot rule out, before the
     # mounting is read (wander leaves offsets per mounting too).
@@ -179,7 +185,13 @@ def diagnose(
         []
         if best or timed
         else partial_offers(
-            [*found.useful, *found.shaped], base, base_next, where.lead, excess.bound, where.covariates
+            [*found.useful, *found.shaped],
+            base,
+            base_next,
+            where.lead,
+            excess.bound,
+            where.covariates,
+            at_its_grain=None if usable(base_next) else lambda c: takes_most_at_its_grain(judge, c),
         )
     )
     return _diagnosis(
@@ -373,22 +385,10 @@ def library_search(
     ranked = [c for c in candidates if c.status == "ranked"]
     for c in ranked:
         c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
-    # A practical gain on the points left out, or on the other session where the calibration
-    # fails there: the left-out point's error can be interpolation's, which no term of the
-    # sensor takes away, while the other session is what the user meets.
     useful = [
         c
         for c in ranked
-        if c.significant
-        and not explains
-        and (
-            practical_gain(base, c, excess.bound)
-            or (
-                usable(base_next)
-                and fails_in_practice(base_next)
-                and practical_gain_next(base_next, c, excess.bound)
-            )
-        )
+        if c.significant and not explains and gains_where_judged(base, c, base_next, excess.bound)
     ]
     if usable(base_next):  # what the user will meet: the other session first
         useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
@@ -450,7 +450,7 @@ def name_a_term(
     candidates = library.candidates
     if best is None and not explained_by(drift):  # a drift blocks per-mount pairs (Naming.blocked)
         best = _two_effects(judge, base, excess, library)
-    if best is not None and not best.part_of and excess.resolvable and not explains:
+    if best is not None and not best.part_of and excess.open and not explains:
         best, candidates = _sharper_shape(judge, base, excess, library, best, where, base_next, candidates)
     best = _library_first(best, library.ranked)
     if best is not None and not explains and not best.part_of:
@@ -589,7 +589,7 @@ def when_nothing_is_named(
         return Found(None, named.candidates, lab_reason(outside.lab))
     if outside.of_mounting:
         return Found(None, named.candidates, mounting_reason(outside.mounting))
-    if not excess.resolvable or explains:
+    if not excess.open or explains:
         return Found(None, named.candidates, None, (), useful, drift)
     best, tried = free_shape(
         judge,
@@ -605,16 +605,39 @@ def when_nothing_is_named(
     shaped = [
         c
         for c in tried
-        if c.status == "ranked"
-        and c.significant
-        and (
-            practical_gain(base, c, excess.bound)
-            if c.validated
-            else practical_gain_next(base_next, c, excess.bound)
-        )
+        if c.status == "ranked" and c.significant and gains_where_judged(base, c, base_next, excess.bound)
     ]
     why = unexplained(tried, where.covariates, usable(base_next)) if best is None else None
+    if best is None and not shaped and not useful and excess.next_fails:
+        # Nothing fitted to this session takes a practical part of the other session's
+        # failure: that failure lies between the sessions, not in this session's excess.
+        why = _other_session_reason(judge, base_next) or _changed_between(base_next) or why
     return Found(best, named.candidates + tried, why, shaped, useful, drift)
+
+
+def _changed_between(base_next, alike: bool = False) -> Unexplained:
+    """Why the calibration fails on the other session where no term fitted to this one takes
+    a practical part of that failure, or (``alike``) where one change of bias, scale and axes
+    for the whole other session fits every temperature it visits: the unit (or the rig's
+    reference) changed between the sessions."""
+    why = (
+        "one change of bias, scale and axes, the same at each of its temperatures, brings it "
+        f"to {base_next['changed_rms'] / base_next['expected_rms']:.3g} times what a correct model "
+        "would leave"
+        if alike
+        else "no term fitted to this session takes a practical part of that"
+    )
+    return Unexplained(
+        reason="does not carry over",
+        term=None,
+        lead=SENSOR_LEAD,
+        text=(
+            f"on the other session the calibration errs {base_next['excess']:.3g} times the floor, "
+            f"and {why}: the unit changed between the sessions (its bias, scale or axes), or the "
+            "rig's reference did"
+        ),
+        would_tell="a third session (a drift continues, a one-off change does not)",
+    )
 
 
 def slow_noise_explains(
@@ -627,7 +650,7 @@ def slow_noise_explains(
     look alike in one session; another one tells them apart)."""
     if found.best is not None or explains or outside.explains or not explained_by(within_noise):
         return False
-    return not excess.resolvable or (
+    return not excess.open or (
         excess.validation_rms <= within_noise.expected_rms * excess.tolerance
         and not found.useful
         and not found.shaped
@@ -638,7 +661,7 @@ def slow_noise_explains(
 def too_small(excess: ExcessTest, best, explains: bool, noise_explains: bool) -> Unexplained | None:
     """An in-sample excess whose held-out error is within what a correct model leaves, up to
     the validation's own uncertainty: too small to name anything from."""
-    if explains or best is not None or excess.resolvable or noise_explains:
+    if explains or best is not None or excess.open or noise_explains:
         return None
     return Unexplained(
         reason="too small",
@@ -669,10 +692,12 @@ def _point_temperatures(obs: pd.DataFrame) -> np.ndarray:
 
 
 def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
-    """Where the other session's temperature points all lie between this one's (none
-    within :data:`.sessions.POINT_MATCH` of them, so no pattern can be compared) and the
-    calibration fails there in practice beyond an offset per axis: it does not hold between its
-    points, or the unit changed, and only a point both sessions visit tells which."""
+    """Where the calibration fails on the other session in practice beyond an offset per axis,
+    and only between this session's points (:func:`.sessions.fails_between_only`: it carries
+    at the points both visit), it does not hold between its points. Where the other
+    session's points all lie between this one's (none within :data:`.sessions.POINT_MATCH`
+    of them, so no pattern can be compared), it does not, or the unit changed, and only a
+    point both sessions visit tells which."""
     if judge.other is None or base_next is None or "error" in base_next or not fails_in_practice(base_next):
         return None
     if offset_alone(base_next):  # the same offset at every temperature: the bias moved
@@ -682,8 +707,28 @@ def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
         return None
     apart = np.abs(there[:, None] - here[None, :]).min(axis=1) > POINT_MATCH
     inside = (there > here.min()) & (there < here.max())
+    if fails_between_only(base_next):
+        # both sessions measured some points: the calibration carries there and fails between
+        return Unexplained(
+            reason="between temperature points",
+            term=None,
+            lead=SENSOR_LEAD,
+            text=(
+                "on the other session the calibration carries over at this session's temperature "
+                f"points ({base_next['at_points_rms'] / base_next['at_points_expected']:.3g} times "
+                "what a correct model would leave there) and errs between them, where it "
+                f"interpolates ({base_next['between_rms'] / base_next['between_expected']:.3g} "
+                "times): the sensor changes between the points more sharply than they resolve (a "
+                "bias or scale of its own shape in temperature), not the unit between sessions"
+            ),
+            would_tell="more temperature points where the other session errs",
+        )
     if not (apart.all() and inside.all()):
         return None
+    if there.size >= 2 and changed_alone(base_next):
+        # one change for the whole session fits every point alike: a shape of the sensor
+        # between this session's points would differ from one temperature to the next
+        return _changed_between(base_next, alike=True)
     points = ", ".join(f"{t:.3g}" for t in np.sort(there))
     return Unexplained(
         reason="between temperature points",

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from ..terms import make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .grain import grain_sentence
@@ -13,6 +15,7 @@ from .sessions import (
     CarryOver,
     carries_between,
     carry_expected,
+    fails_between_only,
     fails_in_practice,
     offset_alone,
     offset_and_allowance,
@@ -149,7 +152,7 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
         )
     if base_next is None or base_next["holds"] or diag.best is not None:
         return ""
-    if diag.unrepeated and fails_in_practice(base_next):
+    if diag.unrepeated and fails_in_practice(base_next) and not fails_between_only(base_next):
         return (
             f" On the other session the errors are {base_next['excess']:.3g} times the "
             "floor from the same noise: holds minutes apart scatter more than the floor "
@@ -507,6 +510,14 @@ def _partial(base, factor, first, where: str, base_next) -> str:
                 f"; on the other session the error falls from {base_next['excess']:.3g} "
                 f"to {first.next_session['excess']:.3g} times the floor"
             )
+        at_grain = (
+            f" Left out one rate level at a time, it leaves {first.grain.fix:.3g} times the floor "
+            f"on the holds it never saw, the configured model {first.grain.base:.3g}: most of the "
+            "error where its input varies is gone; what the temperature points left out still "
+            "miss is a second question, after it."
+            if first.grain is not None
+            else ""
+        )
         figure = (
             f"validation RMS {first.base_rms:.3g} → {first.validation_rms_with:.3g} "
             f"deg/s, still {first.validation_rms_with / first.expected_with:.2g} times "
@@ -518,17 +529,25 @@ def _partial(base, factor, first, where: str, base_next) -> str:
             f"The model does not explain the data: its in-sample residuals are "
             f"{factor:.2f} times their noise floor{where}. No term explains all of it; "
             f"{name} takes away {100 * min(first.excess_taken, 1.0):.0f} % of the excess ({figure}"
-            f"{there}): add it with {first.option}.{follows}{rest}"
+            f"{there}): add it with {first.option}.{at_grain}{follows}{rest}"
         )
     outside = rest or (
         " What remains needs a term of its own shape (docs/effects.md)." if not follows else ""
+    )
+    shared = (
+        " Its coefficient is the same on every axis, as an error of the reference rate (one "
+        "table read by each axis in turn) gives and a sensor's axes, each with its own, would "
+        "not: one log cannot tell the two apart; the table's rate checked against its "
+        "encoder's count over whole turns, or a session on another table, would."
+        if input_kinds(first.term) == {"rate"} and shared_by_every_axis(first)
+        else ""
     )
     return (
         f"The model does not explain the data: its in-sample residuals are {factor:.2f} "
         f"times their noise floor. No library or listed term explains it; "
         f"{name} explains part of it (validation RMS {base.summary['validation_rms']:.3g}"
         f" → {first.validation_rms_with:.3g} deg/s, still {first.validation_rms_with / first.expected_with:.2g}"
-        f" times what a correct model would leave){where}.{follows}{outside}"
+        f" times what a correct model would leave){where}.{shared}{follows}{outside}"
     )
 
 
@@ -637,6 +656,24 @@ SEPARATES = {
     "drift in time from temperature; another session (--other-session) tells a "
     "drift that repeats from slow noise",
 }
+
+
+# Three sense elements share a nonlinearity of one sign to this relative spread only by
+# chance; the reference rate's error, seen through each axis' scale (1 ± 1 %), does so always.
+SHARED_SPREAD = 0.1
+
+
+def shared_by_every_axis(c: Candidate) -> bool:
+    """Whether a term's coefficient is the same on every axis (one sign, within
+    :data:`SHARED_SPREAD` of their mean, or within three standard errors of it): what an
+    error of the reference rate gives, one table read by every axis in turn, where a
+    sensor's axes each have their own. From one log the two cannot be told apart."""
+    values = np.array([s["value"] for s in c.size], float)
+    errors = np.array([s["stderr"] for s in c.size], float)
+    if values.size != 3 or not np.all(np.isfinite(values)) or np.ptp(np.sign(values)) != 0:
+        return False
+    mean = abs(float(values.mean()))
+    return bool(mean > 0 and np.all(np.abs(values - values.mean()) <= SHARED_SPREAD * mean + 3 * errors))
 
 
 def input_kinds(term: str) -> set[str]:

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from gyrocal.diagnose import diagnose
-from gyrocal.diagnose.sessions import offset_alone, turned_on
+from gyrocal.diagnose.sessions import offset_alone, turned_on, white_bar
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings
 
@@ -80,15 +80,29 @@ def test_a_datasheets_turn_on_repeatability_bounds_a_power_ons_bias(tmp_path):
 
 @pytest.mark.slow
 def test_a_unit_switched_off_between_points_takes_a_bias_per_power_on(tmp_path):
-    """Unit N038 is switched off at every change of set point, and its log stops there: each
+    """Unit N002 is switched off at every change of set point, and its log stops there: each
     stretch of the other session between its log's gaps has its own turn-on bias. Its errors
-    there are offsets per axis for each stretch; with them out the calibration carries over,
+    there are offsets per axis for each stretch; with them out what is left is white noise
+    (offsets per stretch already take every slower wander out), the calibration carries over,
     and the verdict says the log cannot tell where the unit was switched off."""
-    d = diagnosed(tmp_path, 38)
+    d = diagnosed(tmp_path, 2)
     nxt = d["next_session"]
     assert nxt["power_ons"] > 1 and nxt["largest_turn_on"] > max(abs(v) for v in nxt["turn_on_bias"].values())
+    assert nxt["rezeroed_rms"] <= white_bar(nxt) < nxt["validation_rms"], nxt
     assert not nxt["fails_in_practice"] and _answer(d)["verdict"] == "quiet", d["verdict"]
     assert f"each of the {nxt['power_ons']} stretches between gaps in its log" in d["verdict"], d["verdict"]
+
+
+def test_offsets_per_stretch_that_leave_more_than_white_noise_are_not_read_as_power_ons(tmp_path):
+    """Unit N038, switched off at every change of set point too: with its offsets per stretch
+    out the other session still errs beyond the bar for white noise, so the offsets are not
+    what sets it apart; its errors, with the slow wander its static data cannot rule out,
+    are within the bar, and the calibration carries over without reading power-ons."""
+    d = diagnosed(tmp_path, 38)
+    nxt = d["next_session"]
+    assert nxt["power_ons"] > 1 and nxt["rezeroed_rms"] > white_bar(nxt) and not offset_alone(nxt), nxt
+    assert not nxt["fails_in_practice"] and _answer(d)["verdict"] == "quiet", d["verdict"]
+    assert "stretches between gaps" not in d["verdict"] and "it carries over" in d["verdict"], d["verdict"]
 
 
 @pytest.mark.slow
