@@ -385,10 +385,15 @@ def library_search(
     ranked = [c for c in candidates if c.status == "ranked"]
     for c in ranked:
         c.option, c.config_line = add_term_option(c.term), config_line(extended(settings, c.term).model)
+    # A library term's gain on the points left out counts beside the other session's: it
+    # may be half of a pair that the other session needs whole (a die's lag with its bias
+    # polynomial along a sweep).
     useful = [
         c
         for c in ranked
-        if c.significant and not explains and gains_where_judged(base, c, base_next, excess.bound)
+        if c.significant
+        and not explains
+        and (practical_gain(base, c, excess.bound) or gains_where_judged(base, c, base_next, excess.bound))
     ]
     if usable(base_next):  # what the user will meet: the other session first
         useful.sort(key=lambda c: c.next_session["validation_rms"] if usable(c.next_session) else np.inf)
@@ -450,6 +455,12 @@ def name_a_term(
     candidates = library.candidates
     if best is None and not explained_by(drift):  # a drift blocks per-mount pairs (Naming.blocked)
         best = _two_effects(judge, base, excess, library)
+    elif best is not None and best.second_question and not explained_by(drift):
+        # a single that passes as the fix the other session needs, leaving a pattern here,
+        # may be half of a pair that leaves none: the pair where it does better there
+        pair = _two_effects(judge, base, excess, library)
+        if pair is not None and judged_on(pair, base_next) * excess.bound < judged_on(best, base_next):
+            best = pair
     if best is not None and not best.part_of and excess.open and not explains:
         best, candidates = _sharper_shape(judge, base, excess, library, best, where, base_next, candidates)
     best = _library_first(best, library.ranked)
