@@ -69,7 +69,7 @@ class Candidate:
     kind: str | None = None  # offered in a model of this kind (continuous)
     model: dict | None = None  # that model, as the config's model: section
     offered: bool = False  # partial: offered, taking away most of it
-    grain: Any = None  # partial, one log: the rate-level grain that offered it (.grain.Grain)
+    grain: Any = None  # partial, one log: the rate-level grain it was judged at (.grain.Grain)
 
     def to_dict(self) -> dict[str, Any]:
         from .reading import readable
@@ -178,6 +178,7 @@ class Judge:
 
     def explains(self, ext: Evaluation, candidate: Candidate, base_next, tolerance) -> bool:
         half = self.alpha / 2
+        candidate.second_question = False  # a pair starts as a copy of its first term
         candidate.leftover = left = self.leftover(ext)
         candidate.next_session = nxt = self.carry(ext) if usable(base_next) else None
         # Structure left over counts when it is real and not negligible. The right effect
@@ -401,7 +402,9 @@ def gains_where_judged(base: Evaluation, c: Candidate, base_next, bound: float) 
     configured model fails there (:func:`practical_gain_next`), for that is what the user
     meets, and a term that leaves it failing as before fixes nothing they will see;
     otherwise on the points left out (:func:`practical_gain`), or on the other session
-    for a term no point could be left out for."""
+    for a term no point could be left out for. Terms of free shape are judged so; the
+    library's count their held-out gain beside it (:func:`.steps.library_search`: half of a
+    pair the other session needs whole)."""
     if usable(base_next) and fails_in_practice(base_next):
         return practical_gain_next(base_next, c, bound)
     if c.validated:

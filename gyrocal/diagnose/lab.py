@@ -274,10 +274,17 @@ def mounting_reason(found: MountingTest) -> Unexplained:
             f"the residuals are offsets per mounting ({100 * found.share_of_excess:.0f} % of "
             f"the excess with one offset and one misalignment for each of the {found.mountings} "
             f"stretches of holds on one mount, F-test p {p_text(found.p_value)}), which neither "
-            "the mount's orientation nor a drift in time accounts for: each mounting on the "
-            "fixture leaves its own bias and tilt (the fixture's repeatability, a strain of the "
-            "package), fresh every time, which no term of the sensor carries to the next "
-            "mounting"
+            "the mount's orientation, a drift in time, the temperature's direction nor a power-on "
+            f"in each gap of the log accounts for as well (the best of them {100 * found.rival_share:.0f} %): "
+            "each mounting on the fixture leaves its own bias and tilt (the fixture's "
+            "repeatability, a strain of the package), fresh every time, which no term of the "
+            "sensor carries to the next mounting"
+            + (
+                f"; what it leaves is beyond chance (p {p_text(found.left_p_value)}), a second "
+                "question after it (the rig's other scatter)"
+                if found.left_p_value < 0.01
+                else ""
+            )
         ),
         would_tell=(
             "the same mount revisited within a point (its offset comes back or it "

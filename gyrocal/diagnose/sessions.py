@@ -11,7 +11,7 @@ import pandas as pd
 from ..fit.floor import with_upper_floor
 from ..fit.model import observation_floor
 from ..fit.thermal import in_sample
-from ..fit.validate import stretch_means, stretches_between_gaps
+from ..fit.validate import MIN_STRETCH_HOLDS, stretch_means, stretches_between_gaps
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
@@ -119,7 +119,8 @@ def fails_in_practice(nxt: CarryOver) -> bool:
     """The calibration fails on the other session beyond chance and beyond
     :func:`practical_bar`; within that, a difference the test resolves is too small to act
     on. Nor does it fail where only the power-ons' biases set it apart: offsets per axis
-    within :func:`turn_on_allowance` whose removal brings it within that bar. Beyond the bar
+    within :func:`turn_on_allowance` whose removal brings it within the bar of what is left
+    (:func:`_rezeroed_bar`: the white noise's, for offsets per stretch). Beyond the bar
     for white noise alone (:func:`white_bar`), a part in proportion to the rates
     (:func:`rate_shaped`) fails it whatever the slow wander allows."""
     if nxt["holds"]:
@@ -136,7 +137,7 @@ def fails_in_practice(nxt: CarryOver) -> bool:
 def offset_alone(nxt: CarryOver) -> bool:
     """Whether an offset per axis is all that sets the other session apart: with each axis'
     mean error taken out (per stretch between the log's gaps, each of which may hold a power-on:
-    :func:`_turn_on_offsets`), what is left is within :func:`practical_bar`. Such an offset is
+    :func:`_turn_on_offsets`), what is left is within :func:`_rezeroed_bar`. Such an offset is
     the same at every temperature of a stretch, so it is no failure between the temperature
     points that the log could tell from a power-on's."""
     if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None or rate_shaped(nxt):
@@ -155,8 +156,8 @@ def _rezeroed_bar(nxt: CarryOver) -> float:
 
 def power_ons_alone(nxt: CarryOver) -> bool:
     """Whether the power-ons' offsets are what the other session misses by: its errors
-    beyond what white noise leaves (:func:`white_bar`), within :func:`practical_bar` without
-    the offsets (:func:`turned_on`), and beyond that bar with them or the offsets taking most
+    beyond what white noise leaves (:func:`white_bar`), within the bar of what is left without
+    the offsets (:func:`turned_on`), and beyond :func:`practical_bar` with them or the offsets taking most
     of the excess over white noise."""
     v, e = nxt["validation_rms"], nxt["expected_rms"]
     if v <= white_bar(nxt) or not turned_on(nxt):
@@ -356,7 +357,8 @@ def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
 def _split_at_points(obs: pd.DataFrame, temps: np.ndarray, held, expected: float) -> dict:
     """The other session's RMS error on its scored holds at this session's temperature points
     (within :data:`POINT_MATCH`) and on those between them, each with what a correct model
-    leaves there (``expected`` scaled by the holds' floors); empty unless both have holds."""
+    leaves there (``expected`` scaled by the holds' floors); empty unless each has at least
+    :data:`gyrocal.fit.validate.MIN_STRETCH_HOLDS` holds."""
     if "point" not in obs:
         return {}
     points = obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
@@ -366,8 +368,8 @@ def _split_at_points(obs: pd.DataFrame, temps: np.ndarray, held, expected: float
     t = temps[use]
     near = np.abs(t[:, None] - points[None, :]).min(axis=1) <= POINT_MATCH
     between = ~near & (t > points.min()) & (t < points.max())
-    if not near.any() or not between.any():
-        return {}
+    if near.sum() < MIN_STRETCH_HOLDS or between.sum() < MIN_STRETCH_HOLDS:
+        return {}  # a hold or two at a point decide nothing
     e, f = held.errors[use], held.floor[use]
     scale = lambda m: expected * float(np.sqrt(np.mean(f[m] ** 2) / np.mean(f**2)))  # noqa: E731
     return {

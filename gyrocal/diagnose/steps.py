@@ -455,7 +455,7 @@ def name_a_term(
     candidates = library.candidates
     if best is None and not explained_by(drift):  # a drift blocks per-mount pairs (Naming.blocked)
         best = _two_effects(judge, base, excess, library)
-    elif best is not None and best.second_question and not explained_by(drift):
+    elif best is not None and best.second_question and usable(base_next) and not explained_by(drift):
         # a single that passes as the fix the other session needs, leaving a pattern here,
         # may be half of a pair that leaves none: the pair where it does better there
         pair = _two_effects(judge, base, excess, library)
@@ -622,7 +622,7 @@ def when_nothing_is_named(
     if best is None and not shaped and not useful and excess.next_fails:
         # Nothing fitted to this session takes a practical part of the other session's
         # failure: that failure lies between the sessions, not in this session's excess.
-        why = _other_session_reason(judge, base_next) or _changed_between(base_next) or why
+        why = _other_session_reason(judge, base_next) or _changed_between(base_next)
     return Found(best, named.candidates + tried, why, shaped, useful, drift)
 
 
@@ -727,9 +727,10 @@ def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
             text=(
                 "on the other session the calibration carries over at this session's temperature "
                 f"points ({base_next['at_points_rms'] / base_next['at_points_expected']:.3g} times "
-                "what a correct model would leave there) and errs between them, where it "
-                f"interpolates ({base_next['between_rms'] / base_next['between_expected']:.3g} "
-                "times): the sensor changes between the points more sharply than they resolve (a "
+                "what a correct model would leave there for white noise, within the bar with the "
+                "slow wander that session's static data cannot rule out) and errs between them, "
+                f"where it interpolates ({base_next['between_rms'] / base_next['between_expected']:.3g} "
+                "times, beyond that bar): the sensor changes between the points more sharply than they resolve (a "
                 "bias or scale of its own shape in temperature), not the unit between sessions"
             ),
             would_tell="more temperature points where the other session errs",

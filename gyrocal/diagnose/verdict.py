@@ -539,7 +539,7 @@ def _partial(base, factor, first, where: str, base_next) -> str:
         "table read by each axis in turn) gives and a sensor's axes, each with its own, would "
         "not: one log cannot tell the two apart; the table's rate checked against its "
         "encoder's count over whole turns, or a session on another table, would."
-        if input_kinds(first.term) == {"rate"} and shared_by_every_axis(first)
+        if base_next is None and input_kinds(first.term) == {"rate"} and shared_by_every_axis(first)
         else ""
     )
     return (
@@ -673,7 +673,9 @@ def shared_by_every_axis(c: Candidate) -> bool:
     if values.size != 3 or not np.all(np.isfinite(values)) or np.ptp(np.sign(values)) != 0:
         return False
     mean = abs(float(values.mean()))
-    return bool(mean > 0 and np.all(np.abs(values - values.mean()) <= SHARED_SPREAD * mean + 3 * errors))
+    if not mean > 3 * float(errors.max()):  # a coefficient the data hardly fix is no sign of sameness
+        return False
+    return bool(np.all(np.abs(values - values.mean()) <= SHARED_SPREAD * mean + 3 * errors))
 
 
 def input_kinds(term: str) -> set[str]:

@@ -93,6 +93,7 @@ def test_a_unit_switched_off_between_points_takes_a_bias_per_power_on(tmp_path):
     assert f"each of the {nxt['power_ons']} stretches between gaps in its log" in d["verdict"], d["verdict"]
 
 
+@pytest.mark.slow
 def test_offsets_per_stretch_that_leave_more_than_white_noise_are_not_read_as_power_ons(tmp_path):
     """Unit N038, switched off at every change of set point too: with its offsets per stretch
     out the other session still errs beyond the bar for white noise, so the offsets are not
