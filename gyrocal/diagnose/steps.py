@@ -24,6 +24,7 @@ from .effects import (
     extended_all,
     gains_where_judged,
     practical_gain,
+    practical_gain_next,
     rank_candidates,
     second_step,
     time_drift,
@@ -619,7 +620,11 @@ def when_nothing_is_named(
         if c.status == "ranked" and c.significant and gains_where_judged(base, c, base_next, excess.bound)
     ]
     why = unexplained(tried, where.covariates, usable(base_next)) if best is None else None
-    if best is None and not shaped and not useful and excess.next_fails:
+    if (
+        best is None
+        and excess.next_fails
+        and not any(practical_gain_next(base_next, c, excess.bound) for c in [*useful, *shaped])
+    ):
         # Nothing fitted to this session takes a practical part of the other session's
         # failure: that failure lies between the sessions, not in this session's excess.
         why = _other_session_reason(judge, base_next) or _changed_between(base_next)
