@@ -20,11 +20,12 @@ from .effects import (
     second_step,
 )
 from .evaluation import Evaluation, add_term_option, config_line, evaluate, extended, model_option, pooled
+from .grain import at_the_grain
 from .grammar import formula_of, screen
-from .sessions import usable
+from .sessions import CARRIES_WITHIN, usable
 from .shapes import at_bound, describe, describe_history, for_the_unit, shape_terms
 from .stats import chance_bound, chi2_sf, f_sf, floor_uncertainty
-from .verdict import coherent, shared_by_every_axis
+from .verdict import coherent, input_kinds, shared_by_every_axis
 from .where import SETTLING_ROW, input_values
 
 
@@ -208,9 +209,6 @@ def takes_most_at_its_grain(judge: Judge, c: Candidate) -> bool:
     (:func:`shared_by_every_axis`): the reference's, as likely as the sensor's. The points left out mix its effect with the
     interpolation's between temperatures, which no term of the rate takes away: that part
     is a second question, after the fix."""
-    from .grain import CARRIES_WITHIN, at_the_grain
-    from .verdict import input_kinds
-
     if input_kinds(c.term) != {"rate"} or shared_by_every_axis(c):
         return False
     grain = at_the_grain(judge.settings, extended_all(judge.settings, c), judge.obs, "rate level", c.profiled)

@@ -340,13 +340,18 @@ REPEAT_DRAWS = 9999
 POINT_MATCH = 3.0  # °C: soaked points of two sessions closer than this are the same point
 
 
+def _point_medians(obs: pd.DataFrame) -> np.ndarray:
+    """Each temperature point's median temperature (°C), in point order."""
+    return obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
+
+
 def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
     """The share of ``temps`` (the other session's holds) inside this session's span of
     temperature points and further than :data:`POINT_MATCH` from every one of them: where
     the calibration is met by its interpolation alone, as leaving a point out tests it."""
     if "point" not in obs or not len(temps):
         return 0.0
-    points = obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
+    points = _point_medians(obs)
     if points.size < 2:
         return 0.0
     inside = (temps > points.min()) & (temps < points.max())
@@ -361,7 +366,7 @@ def _split_at_points(obs: pd.DataFrame, temps: np.ndarray, held, expected: float
     :data:`gyrocal.fit.validate.MIN_STRETCH_HOLDS` holds."""
     if "point" not in obs:
         return {}
-    points = obs.groupby(obs["point"].to_numpy())["temp"].median().to_numpy(float)
+    points = _point_medians(obs)
     use = held.scored & np.all(np.isfinite(held.errors), axis=1)
     if points.size < 2 or not use.any():
         return {}
