@@ -149,7 +149,7 @@ RULES: tuple[tuple[Input, tuple[Transform, ...], tuple[str, ...]], ...] = (
             family="hysteresis",
         ),
         (IDENTITY,),
-        ("bias",),
+        ("bias", "scale"),
     ),
 )
 

@@ -9,8 +9,9 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..fit.model import columns_of
 from ..io.errors import GyrocalError
-from ..terms import make_term
+from ..terms import AXES, make_term
 from .effects import (
     Candidate,
     Judge,
@@ -39,7 +40,10 @@ def continuous_instead(judge: Judge, best: Candidate, base_next, bound) -> Candi
     it applies. Offered instead where it does better where the calibration will be judged
     (the other session, or the holds left out), beyond that figure's own uncertainty."""
     settings, obs = judge.settings, judge.obs
-    if "point" not in obs or not (obs.groupby("point")["temp"].agg(np.ptp) > MOVING_IN_POINT).any():
+    if "point" not in obs:
+        return None
+    moving = (obs.groupby("point")["temp"].agg(np.ptp) > MOVING_IN_POINT).any()
+    if not moving and not absorbed_by_points(settings, obs, (best.term, *best.together)):
         return None
     # The ladder's continuous step where the config has one; otherwise polynomials in ΔT as
     # curved as a point left out still allows (up to a cubic bias and a quadratic scale),
@@ -85,6 +89,46 @@ def continuous_instead(judge: Judge, best: Candidate, base_next, bound) -> Candi
         model=cont.model.to_dict(),
         also=[],
     )
+
+
+def absorbed_by_points(settings, obs, terms) -> bool:
+    """Whether the grid's own parameters at each point (a bias and a row of K: the output
+    against 1 and the three rates) take up nearly all of the terms' columns: a term the grid
+    absorbs point by point (a state the temperature's history sets once per point, as a
+    hysteresis does) changes nothing the grid applies, and only a model continuous in
+    temperature holds it apart from the points' own parameters."""
+    try:
+        for spec in terms:
+            settings = extended(settings, spec)
+        model = settings.model.build()
+        data = model.transform_inputs(columns_of(obs))
+    except GyrocalError:
+        return False
+    points = np.asarray(obs["point"])
+    rates = np.column_stack([np.ones(len(obs)), *(np.asarray(data[f"rate_{a}"], float) for a in AXES)])
+    try:
+        design = model.design(data)
+    except GyrocalError:
+        return False
+    wanted = {make_term(t).spec_string() for t in terms}
+    names = [c for t in model.terms if t.spec_string() in wanted for c in t.coefficients()]
+    for name in names:
+        c = np.asarray(design[name], dtype=float)
+        if not np.all(np.isfinite(c)) or not np.any(c):
+            return False
+        left = 0.0
+        for p in np.unique(points):
+            rows = points == p
+            coef, *_ = np.linalg.lstsq(rates[rows], c[rows], rcond=None)
+            left += float(np.sum((c[rows] - rates[rows] @ coef) ** 2))
+        if left > ABSORBED * float(np.sum(c**2)):
+            return False
+    return True
+
+
+# The share of a term's column the points' own parameters may leave for the grid to be
+# said to absorb it: what remains is the temperature's wander within a point.
+ABSORBED = 0.01
 
 
 def judge_held_out(c: Candidate) -> str:

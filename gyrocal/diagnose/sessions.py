@@ -255,9 +255,21 @@ def reference_scaled(nxt: CarryOver) -> bool:
     if not fails_in_practice(nxt) or nxt.get("rescaled_rms") is None:
         return False
     bar = _rezeroed_bar(nxt)  # the offsets per stretch are taken out here too
-    if rate_shaped(nxt):  # the shared scale is all the rates' part: what is left is not
-        return not rate_shaped(nxt, "rescaled_shaped_rms") and nxt["rescaled_rms"] <= bar
+    if rate_shaped(nxt):
+        # the shared scale is the rates' part, or nearly all of it (what is left of that
+        # part, the fixture's re-seating, is no rival); what is left follows no rate, a
+        # wander the slow-noise allowance covers as it does for one change of the unit
+        left = nxt["rescaled_shaped_rms"] ** 2 if rate_shaped(nxt, "rescaled_shaped_rms") else 0.0
+        return bool(
+            left <= (1.0 - SHARED_SCALE_DOMINANT) * nxt["rate_shaped_rms"] ** 2
+            and nxt["rescaled_rms"] <= practical_bar(nxt)
+        )
     return bool(nxt["rescaled_rms"] <= bar < nxt["rezeroed_rms"])
+
+
+# The share of the other session's part in proportion to the rates that one scale every axis
+# shares must take to be read as the reference's (as the mounting's dominance is read).
+SHARED_SCALE_DOMINANT = 0.9
 
 
 def usable(nxt: CarryOver | None) -> bool:

@@ -392,12 +392,18 @@ def describe_history(term, coefficients: dict, family: str) -> str:
     if not family.startswith("hysteresis"):  # a term of the grammar: its formula and sizes
         sizes = ", ".join(f"{v:+.3g} ({a})" for a, v in zip(AXES, k, strict=False))
         return f"a bias that follows {family}: {sizes} deg/s per unit of {inner.formula}."
-    sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k, strict=False))
     turns = (
         "it turns over once the temperature has gone back"
         if family == "hysteresis"
         else "it turns over by 63 % once the temperature has gone back"
     )
+    if inner.formula.startswith("rate_own *"):  # the grammar's scale: the own rate times it
+        sizes = ", ".join(f"±{abs(v) * 1e6:.3g} ({a})" for a, v in zip(AXES, k, strict=False))
+        return (
+            f"a scale factor that depends on the temperature's direction of travel (hysteresis): "
+            f"{sizes} ppm, rising against falling; {turns} {_quantity(p['w'], '°C')}."
+        )
+    sizes = ", ".join(f"±{abs(v):.3g} ({a})" for a, v in zip(AXES, k, strict=False))
     return (
         f"a bias that depends on the temperature's direction of travel (hysteresis): {sizes} "
         f"deg/s, rising against falling; {turns} {_quantity(p['w'], '°C')}."

@@ -316,9 +316,12 @@ def did_not_repeat(judge: Judge, base: Evaluation, excess: ExcessTest, base_next
         or excess.factor <= CARRIES_WITHIN
     ):
         return False
+    # A failure there that one change of bias, scale and axes takes whole is a change
+    # between the sessions, not a wander: slow noise scatters hold by hold.
     return bool(
         base_next["repeat_p_value"] >= excess.alpha / 2
         and slow_noise(base_next, excess.alpha)
+        and not changed_alone(base_next)
         and not _history_explains(judge, base, excess, base_next)
     )
 
@@ -600,7 +603,14 @@ def when_nothing_is_named(
     if outside.in_lab:
         return Found(None, named.candidates, lab_reason(outside.lab))
     if outside.of_mounting:
-        return Found(None, named.candidates, mounting_reason(outside.mounting))
+        # a fixture's seating is fresh at each mounting, each its own tilt: it makes no one
+        # scale every axis of the other session shares, which is the reference's
+        if excess.next_fails and reference_scaled(base_next):
+            return Found(None, named.candidates, reference_reason(base_next))
+        # A term of the sensor that takes most of the held-out error is a rival the
+        # mounting's offsets mimic (each mount holds gravity one way): not the mounting's.
+        if not any(held_out_gain(c, base, base_next) > MOST for c in useful):
+            return Found(None, named.candidates, mounting_reason(outside.mounting))
     if not excess.open or explains:
         return Found(None, named.candidates, None, (), useful, drift)
     best, tried = free_shape(

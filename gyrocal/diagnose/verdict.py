@@ -332,7 +332,7 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
     base, best, factor = diag.base, diag.best, diag.factor
     finding = diag.unexplained.reason if diag.unexplained is not None else None
     if best is not None:
-        return _named(base, best, base_next)
+        return _named(base, best, base_next) + _force_of_mounts(diag)
     if diag.noise_explains:
         assert diag.within_noise is not None
         return _within_slow_noise(base, factor, diag.within_noise, base_next)
@@ -373,6 +373,18 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
     return (
         f"The model explains the data: its in-sample residuals are {factor:.2f} times "
         f"their noise floor, as {floor_by} would leave; nothing is missing."
+    )
+
+
+def _force_of_mounts(diag: Diagnosis) -> str:
+    """Where the fix reads the specific force of a log with no accelerometer, whence it came."""
+    frame = diag.residuals
+    terms = [diag.best.term, *diag.best.together] if diag.best is not None else []
+    if "accel_source" not in frame or not any("accel" in term_reads(t) for t in terms):
+        return ""
+    return (
+        " The log has no accelerometer: the specific force is the one each mount implies (the "
+        "table's axis points up), without the fixture's small tilts."
     )
 
 

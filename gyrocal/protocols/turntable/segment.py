@@ -743,6 +743,21 @@ def _stable_periods(blk, block_dt, cfg) -> pd.DataFrame:
     )
 
 
+def _specific_force_of_mounts(mounts: np.ndarray) -> dict[str, np.ndarray]:
+    """The specific force each hold's mount implies where no accelerometer is logged, g:
+    the turntable's axis points up (the log contract), so a unit mounted with axis ``+a``
+    along it feels +1 g along ``a`` and nothing along the others. Terms of the specific
+    force (an acceleration sensitivity) then read it as from an accelerometer; the fixture's
+    small tilts, which an accelerometer would see, are left out. ``accel_source`` says so."""
+    mounts = np.asarray(mounts, dtype=int)
+    out: dict[str, np.ndarray] = {}
+    for c in AXES:
+        along = np.where(mounts == MOUNTS.index(f"+{c}"), 1.0, 0.0)
+        out[f"accel_{c}"] = np.where(mounts == MOUNTS.index(f"-{c}"), -1.0, along)
+    out["accel_source"] = np.full(mounts.size, "mount", dtype=object)
+    return out
+
+
 def _observation_table(h: dict, accepted: np.ndarray, checked: Checked, table_angle, cfg) -> pd.DataFrame:
     """The accepted holds in the hold schema, with the turntable's own columns: the table's
     angle, the accelerometer where logged, and each axis' settling within the hold.
@@ -751,6 +766,8 @@ def _observation_table(h: dict, accepted: np.ndarray, checked: Checked, table_an
     own = {"table_angle": table_angle[a]}
     if "accel" in h:
         own.update({f"accel_{c}": h["accel"][a, i] for i, c in enumerate(AXES)})
+    else:
+        own.update(_specific_force_of_mounts(checked.mounts[a]))
     own.update({f"settle_{c}": h["settle"][a, i] for i, c in enumerate(AXES)})
     return hold_table(
         t_start=h["t_start"][a],
