@@ -50,6 +50,7 @@ REASONS = {
     "between temperature points": "between points",
     "too small": "too small",
     "does not carry over": "unit changed",
+    "slow noise": "slow noise",
 }
 
 

@@ -55,6 +55,8 @@ class CarryOver(TypedDict, total=False):
     at_points_rms: float  # deg/s: its RMS error on the holds at this session's points
     between_expected: float  # deg/s: expected_rms on the holds between, by their floors
     at_points_expected: float  # deg/s: the same on the holds at the points
+    within_points_rms: float  # deg/s: its errors less each of its points' own bias and rates
+    within_points_expected: float  # deg/s: what white noise leaves of them
     left_p_value: float
     error: str
 
@@ -337,6 +339,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     }
     out["between_share"] = between_share(obs, other["temp"].to_numpy(float)[held.scored])
     out.update(_split_at_points(obs, other["temp"].to_numpy(float), held, r["expected_rms"]))  # type: ignore[typeddict-item]
+    out.update(_within_points(other, held, r["expected_rms"]))  # type: ignore[typeddict-item]
     resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
     out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
@@ -369,6 +372,59 @@ def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
     inside = (temps > points.min()) & (temps < points.max())
     apart = np.abs(temps[:, None] - points[None, :]).min(axis=1) > POINT_MATCH
     return float(np.mean(inside & apart))
+
+
+def _within_points(other: pd.DataFrame, held, expected: float) -> dict:
+    """The other session's errors less what its own points' parameters take (a bias and a
+    row of K at each point: whatever the calibration misses as a function of temperature, a
+    shape between this session's points or a change of the unit, is one such set a point)
+    and less an offset per rate the table held (any function of the rate, shared by the
+    points), and what white noise leaves of them there (``expected`` scaled by the holds'
+    floors and by the parameters spent). What is left moves in time. Empty unless the holds
+    outnumber the parameters by :data:`gyrocal.fit.validate.MIN_STRETCH_HOLDS` a point."""
+    if "point" not in other:
+        return {}
+    use = held.scored & np.all(np.isfinite(held.errors), axis=1)
+    points = np.asarray(other["point"])
+    labels, counts = np.unique(points[use], return_counts=True)
+    kept_points = labels[counts >= 1 + held.rates.shape[1] + MIN_STRETCH_HOLDS]
+    rows = use & np.isin(points, kept_points)
+    if not rows.any():
+        return {}
+    rates = held.rates[rows]
+    blocks = [
+        (points[rows] == p)[:, None] * np.column_stack([np.ones(len(rates)), rates]) for p in kept_points
+    ]
+    levels = np.unique(np.round(rates, 1), axis=0, return_inverse=True)[1].ravel()
+    design = np.column_stack([*blocks, np.eye(levels.max() + 1)[levels]])
+    coef, *_ = np.linalg.lstsq(design, held.errors[rows], rcond=None)
+    left = held.errors[rows] - design @ coef
+    spent = np.linalg.matrix_rank(design) / rows.sum()
+    if spent >= 1.0:
+        return {}
+    scale = float(np.sqrt(np.mean(held.floor[rows] ** 2) * (1.0 - spent) / np.mean(held.floor[use] ** 2)))
+    return {"within_points_rms": float(np.sqrt(np.mean(left**2))), "within_points_expected": expected * scale}
+
+
+def wanders_within_points(nxt: CarryOver | None) -> bool:
+    """Whether the other session's errors move within its temperature points beyond the bar
+    white noise sets (:data:`CARRIES_WITHIN`, up to the chance bound), once each point's own
+    bias and rates and a function of the rate are out: what no function of temperature or of
+    the rate makes, nor one change of the unit, but a bias or scale that wanders in time."""
+    if not usable(nxt) or nxt is None or "within_points_rms" not in nxt:
+        return False
+    bar = CARRIES_WITHIN * nxt["within_points_expected"] * nxt.get("bound", 1.0)
+    return bool(nxt["within_points_rms"] > bar)
+
+
+def wanders_most(nxt: CarryOver | None) -> bool:
+    """Whether the wander within the other session's points (:func:`wanders_within_points`)
+    is most of its failure: its excess over white noise at least half of the whole session's."""
+    if not wanders_within_points(nxt):
+        return False
+    assert nxt is not None
+    within = nxt["within_points_rms"] ** 2 - nxt["within_points_expected"] ** 2
+    return bool(within >= 0.5 * (nxt["validation_rms"] ** 2 - nxt["expected_rms"] ** 2))
 
 
 def _split_at_points(obs: pd.DataFrame, temps: np.ndarray, held, expected: float) -> dict:

@@ -195,6 +195,7 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
     told = diag.unexplained is not None and diag.unexplained.reason in (
         "the mounting",
         "between temperature points",
+        "slow noise",
     )
     if diag.explains and (reference_scaled(base_next) or told):
         return (

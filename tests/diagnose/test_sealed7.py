@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose.sessions import SHARED_SCALE_DOMINANT, changed_alone, reference_scaled
+from gyrocal.diagnose.sessions import SHARED_SCALE_DOMINANT, changed_alone, reference_scaled, wanders_most
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))
@@ -81,6 +81,34 @@ def test_a_scale_that_depends_on_the_direction_of_approach(tmp_path):
     to under a tenth of that."""
     truth, answer, d = judged(tmp_path, "U704")
     assert truth["reasons"] == ["direction of approach"] and truth["acts"] == {"scale"}, truth
-    assert answer["verdict"] == "fix" and "thermal" in answer["reads"] and answer["acts_on"] == "scale", answer
+    assert answer["verdict"] == "fix" and "thermal" in answer["reads"] and answer["acts_on"] == "scale", (
+        answer
+    )
     assert "scale factor that depends on the temperature's direction" in d["verdict"], d["verdict"]
     assert answer["next_after_rms"] < 0.1 * answer["next_before_rms"], answer
+
+
+@pytest.mark.slow
+def test_a_failure_that_moves_within_the_other_sessions_points_is_slow_noise(tmp_path):
+    """U702: a bias that switches between two levels at random (dwells of tens of minutes).
+    The other session's points all lie between session 0's, so no pattern can be compared;
+    its errors, 14 times the floor, move within each of its points once the point's own bias
+    and rates are out (nearly all of the failure), which no shape in temperature and no
+    change of the unit does: slow noise, not a failure between the points."""
+    truth, answer, d = judged(tmp_path, "U702")
+    assert truth["reasons"] == ["slow noise"], truth
+    nxt = d["next_session"]
+    assert wanders_most(nxt) and nxt["between_share"] == 1.0, nxt
+    assert answer["verdict"] == "no_sensor_term" and answer["reason"] == "slow noise", answer
+
+
+@pytest.mark.slow
+def test_a_complete_unit_whose_excess_the_user_never_meets_is_quiet(tmp_path):
+    """U738, no effect: the in-sample residuals are 3.3 times a floor from within the holds,
+    but the points left out err 1.12 times what a correct model leaves and the calibration
+    carries to the other session: within the bar a calibration meets on its next session, an
+    excess nobody will meet. Quiet, not an unexplained effect."""
+    truth, answer, d = judged(tmp_path, "U738")
+    assert truth["complete"], truth
+    assert d["factor"] > 1.2 and not d["next_session"]["fails_in_practice"], d["next_session"]
+    assert answer["verdict"] == "quiet", answer
