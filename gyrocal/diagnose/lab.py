@@ -150,7 +150,8 @@ def reference_reason(nxt) -> Unexplained:
             f"turn-on bias taken out, {nxt['rescaled_rms'] / nxt['expected_rms']:.2f} times what a "
             "correct model would leave): a scale of the reference rate, fixed in the lab (the "
             "table's tachometer or commanded rate read differently between the sessions), "
-            "not the sensor's, whose axes' scales change each its own way"
+            "more likely than the sensor's, whose axes' scales change each its own way unless "
+            "one drive loop or one reference voltage moves them all alike"
         ),
         would_tell="the table's rate checked against its encoder's count over whole turns in each session",
     )

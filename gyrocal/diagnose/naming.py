@@ -113,7 +113,7 @@ def absorbed_by_points(settings, obs, terms) -> bool:
     wanted = {make_term(t).spec_string() for t in terms}
     names = [c for t in model.terms if t.spec_string() in wanted for c in t.coefficients()]
     for name in names:
-        c = np.asarray(design[name], dtype=float)
+        c = np.broadcast_to(np.asarray(design[name], dtype=float), (len(obs),))
         if not np.all(np.isfinite(c)) or not np.any(c):
             return False
         left = 0.0

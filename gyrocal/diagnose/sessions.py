@@ -56,7 +56,8 @@ class CarryOver(TypedDict, total=False):
     between_expected: float  # deg/s: expected_rms on the holds between, by their floors
     at_points_expected: float  # deg/s: the same on the holds at the points
     within_points_rms: float  # deg/s: its errors less each of its points' own bias and rates
-    within_points_expected: float  # deg/s: what white noise leaves of them
+    within_points_expected: float  # deg/s: what a correct model leaves of them
+    within_points_bound: float  # its chance bound, over the holds less the parameters spent
     left_p_value: float
     error: str
 
@@ -256,16 +257,17 @@ def reference_scaled(nxt: CarryOver) -> bool:
     out): the reference rate's scale, not the sensor's."""
     if not fails_in_practice(nxt) or nxt.get("rescaled_rms") is None:
         return False
-    bar = _rezeroed_bar(nxt)  # the offsets per stretch are taken out here too
     if rate_shaped(nxt):
         # the shared scale is the rates' part, or nearly all of it (what is left of that
-        # part, the fixture's re-seating, is no rival); what is left follows no rate, a
-        # wander the slow-noise allowance covers as it does for one change of the unit
+        # part, the fixture's re-seating, is no rival); what is left follows no rate, and is
+        # held to the bar one change of the unit is (changed_alone): a wander within the
+        # stretches that the shared scale's reading neither makes nor needs to explain
         left = nxt["rescaled_shaped_rms"] ** 2 if rate_shaped(nxt, "rescaled_shaped_rms") else 0.0
         return bool(
             left <= (1.0 - SHARED_SCALE_DOMINANT) * nxt["rate_shaped_rms"] ** 2
             and nxt["rescaled_rms"] <= practical_bar(nxt)
         )
+    bar = _rezeroed_bar(nxt)  # the offsets per stretch are taken out here too
     return bool(nxt["rescaled_rms"] <= bar < nxt["rezeroed_rms"])
 
 
@@ -339,7 +341,7 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     }
     out["between_share"] = between_share(obs, other["temp"].to_numpy(float)[held.scored])
     out.update(_split_at_points(obs, other["temp"].to_numpy(float), held, r["expected_rms"]))  # type: ignore[typeddict-item]
-    out.update(_within_points(other, held, r["expected_rms"]))  # type: ignore[typeddict-item]
+    out.update(_within_points(other, held, r["expected_rms"], settings.diagnosis.significance))  # type: ignore[typeddict-item]
     resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
     out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
@@ -374,14 +376,15 @@ def between_share(obs: pd.DataFrame, temps: np.ndarray) -> float:
     return float(np.mean(inside & apart))
 
 
-def _within_points(other: pd.DataFrame, held, expected: float) -> dict:
+def _within_points(other: pd.DataFrame, held, expected: float, alpha: float) -> dict:
     """The other session's errors less what its own points' parameters take (a bias and a
     row of K at each point: whatever the calibration misses as a function of temperature, a
     shape between this session's points or a change of the unit, is one such set a point)
-    and less an offset per rate the table held (any function of the rate, shared by the
-    points), and what white noise leaves of them there (``expected`` scaled by the holds'
-    floors and by the parameters spent). What is left moves in time. Empty unless the holds
-    outnumber the parameters by :data:`gyrocal.fit.validate.MIN_STRETCH_HOLDS` a point."""
+    and less an offset per mount and rate the table held (any function of the rate, and a
+    fixture's tilt or gravity's pull at each mount, shared by the points), and what a correct
+    model leaves of them there (``expected`` scaled by the holds' floors and by the parameters
+    spent). What is left moves in time, or with the temperature within a point. Empty unless
+    the holds outnumber the parameters by :data:`gyrocal.fit.validate.MIN_STRETCH_HOLDS`."""
     if "point" not in other:
         return {}
     use = held.scored & np.all(np.isfinite(held.errors), axis=1)
@@ -395,25 +398,41 @@ def _within_points(other: pd.DataFrame, held, expected: float) -> dict:
     blocks = [
         (points[rows] == p)[:, None] * np.column_stack([np.ones(len(rates)), rates]) for p in kept_points
     ]
-    levels = np.unique(np.round(rates, 1), axis=0, return_inverse=True)[1].ravel()
+    # a level is a mount at a rate the protocol set (two digits: a jittering reference stays
+    # one level), so a fixture's tilt or gravity's pull at each mount is a level's too
+    decade = 10.0 ** np.floor(np.log10(np.maximum(np.abs(rates), 1e-3)))
+    nominal = np.round(rates / decade, 1) * decade
+    mount = (
+        np.unique(other["mount"].astype(str).to_numpy()[rows], return_inverse=True)[1]
+        if "mount" in other
+        else 0
+    )
+    key = np.column_stack([nominal, np.broadcast_to(mount, len(rates))])
+    levels = np.unique(key, axis=0, return_inverse=True)[1].ravel()
     design = np.column_stack([*blocks, np.eye(levels.max() + 1)[levels]])
     coef, *_ = np.linalg.lstsq(design, held.errors[rows], rcond=None)
     left = held.errors[rows] - design @ coef
-    spent = np.linalg.matrix_rank(design) / rows.sum()
-    if spent >= 1.0:
+    free = int(rows.sum()) - int(np.linalg.matrix_rank(design))
+    if free < MIN_STRETCH_HOLDS:
         return {}
-    scale = float(np.sqrt(np.mean(held.floor[rows] ** 2) * (1.0 - spent) / np.mean(held.floor[use] ** 2)))
-    return {"within_points_rms": float(np.sqrt(np.mean(left**2))), "within_points_expected": expected * scale}
+    scale = float(np.sqrt(np.mean(held.floor[rows] ** 2) * free / rows.sum() / np.mean(held.floor[use] ** 2)))
+    out = {
+        "within_points_rms": float(np.sqrt(np.mean(left**2))),
+        "within_points_expected": expected * scale,
+        "within_points_bound": chance_bound(free, alpha),
+    }
+    return out if all(np.isfinite(v) and v > 0 for v in out.values()) else {}
 
 
 def wanders_within_points(nxt: CarryOver | None) -> bool:
     """Whether the other session's errors move within its temperature points beyond the bar
-    white noise sets (:data:`CARRIES_WITHIN`, up to the chance bound), once each point's own
-    bias and rates and a function of the rate are out: what no function of temperature or of
-    the rate makes, nor one change of the unit, but a bias or scale that wanders in time."""
+    a correct model sets (:data:`CARRIES_WITHIN`, up to the chance bound of what is left),
+    once each point's own bias and rates and a function of the mount and rate are out: what
+    no function of temperature, of the rate or of the mount makes, nor one change of the
+    unit, but a bias or scale that wanders in time."""
     if not usable(nxt) or nxt is None or "within_points_rms" not in nxt:
         return False
-    bar = CARRIES_WITHIN * nxt["within_points_expected"] * nxt.get("bound", 1.0)
+    bar = CARRIES_WITHIN * nxt["within_points_expected"] * nxt["within_points_bound"]
     return bool(nxt["within_points_rms"] > bar)
 
 

@@ -345,7 +345,9 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
             "times their noise floor, and no candidate term accounts for it."
         )
     if not diag.explains:
-        return _not_explained(base, factor, diag.covariates, diag.partial, base_next, tolerance)
+        return _not_explained(base, factor, diag.covariates, diag.partial, base_next, tolerance) + (
+            _force_of_mounts(diag)
+        )
     if diag.unrepeated_shape is not None:
         return (
             f"The model explains the data as the other session judges it: its in-sample "
@@ -380,12 +382,14 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
 def _force_of_mounts(diag: Diagnosis) -> str:
     """Where the fix reads the specific force of a log with no accelerometer, whence it came."""
     frame = diag.residuals
-    terms = [diag.best.term, *diag.best.together] if diag.best is not None else []
+    offer = diag.best or next((c for c in diag.partial if c.offered), None)
+    terms = [offer.term, *offer.together] if offer is not None else []
     if "accel_source" not in frame or not any("accel" in term_reads(t) for t in terms):
         return ""
     return (
         " The log has no accelerometer: the specific force is the one each mount implies (the "
-        "table's axis points up), without the fixture's small tilts."
+        "table's axis points up), without the fixture's small tilts or a centripetal force; "
+        "applying the calibration needs an accelerometer in the log it compensates."
     )
 
 
@@ -578,9 +582,15 @@ def _negligible(negligible: Negligible) -> str:
             f"{100 * negligible.floor_uncertainty:.0f} % from the static data){faint}; "
             "nothing is missing."
         )
+    above = (
+        " (above the bar a session alone is held to: the calibration carries to the other "
+        "session, and a floor from within the holds understates slow noise)"
+        if negligible.factor > CARRIES_WITHIN
+        else ""
+    )
     return (
         f"The model explains the data in practice: its in-sample residuals are "
-        f"{negligible.factor:.2f} times their noise floor and on the holds left out "
+        f"{negligible.factor:.2f} times their noise floor{above} and on the holds left out "
         f"{negligible.held_out:.2f} times what a correct model would leave, within the "
         f"{CARRIES_WITHIN:g} times a calibration must meet on its next session up to that "
         f"figure's own uncertainty{faint}; "

@@ -48,6 +48,7 @@ CODES = {
     "accel_units": "the accelerometer reads about 9.8 at rest: m/s², not g",
     "accel_scale": "the accelerometer's magnitude at rest is far from 1 g",
     "mount_contradicts_gravity": "mount labels that disagree with gravity on the accelerometer",
+    "accel_from_mounts": "no accelerometer: terms of the specific force read each mount's; applying needs one",
     "time_base_implausible": "a sample interval, hold length or session length no rig records",
     "sample_jitter": "sample intervals scattered by more than 10 % of the nominal",
     "dropped_samples": "samples missing between regular ones",
@@ -683,11 +684,21 @@ def observation_findings(obs, axis_mounts: bool, source=None, *, model_reads_acc
     out = []
     if not len(obs):
         return out
+    from_mounts = "accel_source" in obs and bool((obs["accel_source"] == "mount").all())
     accel = (
         np.column_stack([np.asarray(obs[f"accel_{a}"], float) for a in AXES])
-        if all(f"accel_{a}" in obs for a in AXES)
+        if all(f"accel_{a}" in obs for a in AXES) and not from_mounts
         else None
     )
+    if from_mounts and model_reads_accel:
+        out.append(
+            finding(
+                "accel_from_mounts",
+                "the log has no accelerometer: the model's terms read the specific force each "
+                "mount implies (the table's axis up, no fixture tilt, no centripetal force); "
+                "applying the calibration needs an accelerometer in the log it compensates",
+            )
+        )
     if accel is not None:
         accel = accel[np.all(np.isfinite(accel), axis=1)]
     if accel is not None and len(accel):

@@ -77,15 +77,33 @@ def test_a_scale_that_depends_on_the_direction_of_approach(tmp_path):
     """U704: a scale factor with thermal hysteresis (a play of a few °C in the temperature),
     points visited out of order. The grammar's direction of travel, acting on the scale, is
     the fix, offered in a model continuous in temperature (a grid absorbs a state that is one
-    value per point); it takes the unseen session's error from 29 times the reference floor
-    to under a tenth of that."""
+    value per point). It takes most of the effect's error on the unseen session (29 times the
+    reference floor) but not all: 2.8 times the floor is left (the logged temperature lags
+    the die's, whose play the generator applies), a gap issue 52 keeps open; the test asks
+    for the right story and nine tenths of the excess over the reference floor gone."""
     truth, answer, d = judged(tmp_path, "U704")
     assert truth["reasons"] == ["direction of approach"] and truth["acts"] == {"scale"}, truth
     assert answer["verdict"] == "fix" and "thermal" in answer["reads"] and answer["acts_on"] == "scale", (
         answer
     )
     assert "scale factor that depends on the temperature's direction" in d["verdict"], d["verdict"]
-    assert answer["next_after_rms"] < 0.1 * answer["next_before_rms"], answer
+    before, after = answer["next_before_rms"], answer["next_after_rms"]
+    assert before - after >= 0.9 * (before - truth["floor"]), (answer, truth)
+
+
+@pytest.mark.slow
+def test_one_log_offers_the_sensor_term_the_mountings_offsets_would_mimic(tmp_path):
+    """U726 from one log: offsets per mounting fit the excess whole (each mounting holds
+    gravity one way), but the g-sensitivity read from the mounts takes most of the held-out
+    error (83 %), which a fixture's seating would not: the mounting is not the answer, the
+    term is offered in part, and it carries to the unseen session within 1.2 times the
+    generator's reference floor."""
+    truth, answer, d = judged(tmp_path, "U726", one_session=True)
+    assert "accel" in truth["reads"], truth
+    assert d["mounting"]["explains"], d["mounting"]
+    assert answer["verdict"] == "fix" and answer["reads"] == ["accel"] and answer["acts_on"] == "bias", answer
+    assert "the specific force is the one each mount implies" in d["verdict"], d["verdict"]
+    assert answer["next_after_rms"] <= truth["threshold"], (answer, truth)
 
 
 @pytest.mark.slow

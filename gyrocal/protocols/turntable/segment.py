@@ -748,12 +748,15 @@ def _specific_force_of_mounts(mounts: np.ndarray) -> dict[str, np.ndarray]:
     the turntable's axis points up (the log contract), so a unit mounted with axis ``+a``
     along it feels +1 g along ``a`` and nothing along the others. Terms of the specific
     force (an acceleration sensitivity) then read it as from an accelerometer; the fixture's
-    small tilts, which an accelerometer would see, are left out. ``accel_source`` says so."""
+    small tilts and the centripetal force of a unit off the table's centre (ω²r, which an
+    accelerometer would see) are left out. ``accel_source`` says so; a hold whose mount is
+    unknown gets none (NaN)."""
     mounts = np.asarray(mounts, dtype=int)
     out: dict[str, np.ndarray] = {}
     for c in AXES:
         along = np.where(mounts == MOUNTS.index(f"+{c}"), 1.0, 0.0)
-        out[f"accel_{c}"] = np.where(mounts == MOUNTS.index(f"-{c}"), -1.0, along)
+        along = np.where(mounts == MOUNTS.index(f"-{c}"), -1.0, along)
+        out[f"accel_{c}"] = np.where(mounts >= 0, along, np.nan)
     out["accel_source"] = np.full(mounts.size, "mount", dtype=object)
     return out
 
