@@ -32,7 +32,7 @@ class ExcessTest:
     ``fits``: the in-sample χ² is within chance (half the significance). ``faint``: it is
     not, but sqrt(χ²/dof) is within the noise floor's own uncertainty of 1, or within
     CARRIES_WITHIN with the held-out error within the practical bar, or (with another session
-    on which the calibration carries) the held-out error alone within that bar. ``bound``: the
+    on which the calibration carries) the held-out error alone within CARRIES_WITHIN. ``bound``: the
     held-out figure's own uncertainty as a ratio (:func:`.stats.chance_bound`); ``tolerance``:
     what a held-out error may be, in units of what a correct model leaves, and still be
     explained (:func:`.stats.explained_tolerance`). ``resolvable``: the held-out error

@@ -133,10 +133,15 @@ def diagnose(
     # A failure where the user meets the calibration leaves the question open however small
     # the held-out error: the other session resolves what the points left out could not.
     excess = replace(excess, next_fails=usable(base_next) and fails_in_practice(base_next))
-    if not excess.explains and carries(base_next) and excess.validation_rms <= practical_held_out(excess):
+    if (
+        not excess.explains
+        and carries(base_next)
+        and excess.validation_rms <= CARRIES_WITHIN * excess.expected_rms
+    ):
         # The calibration carries to the other session, and on the points left out it errs
-        # within the bar it meets there: an in-sample excess the user never meets (a floor
-        # from within the holds that understates this session's slow noise) is faint.
+        # within the bar it meets there (the bar itself: beside an in-sample excess beyond
+        # chance, no room for the figure's own uncertainty): an excess the user never meets
+        # (a floor from within the holds that understates this session's slow noise) is faint.
         excess = replace(excess, faint=True)
     before_holds = history_columns(obs, data)
     # One session alone: the slow wander its static data cannot rule out, before the
@@ -244,7 +249,7 @@ def excess_test(obs: pd.DataFrame, base: Evaluation, alpha: float) -> ExcessTest
         faint=not fits
         and (
             factor - 1.0 <= floor_uncertainty(obs)
-            or (factor <= CARRIES_WITHIN and v0 <= CARRIES_WITHIN * expected * bound)  # practical_held_out
+            or (factor <= CARRIES_WITHIN and v0 <= CARRIES_WITHIN * expected * bound)
         ),
         factor=factor,
         bound=bound,
@@ -253,13 +258,6 @@ def excess_test(obs: pd.DataFrame, base: Evaluation, alpha: float) -> ExcessTest
         validation_rms=v0,
         expected_rms=expected,
     )
-
-
-def practical_held_out(excess: ExcessTest) -> float:
-    """What the held-out error may be and a calibration still carry over in practice:
-    :data:`.sessions.CARRIES_WITHIN` times what a correct model leaves, up to that figure's
-    own uncertainty, the bar the other session is held to (deg/s)."""
-    return CARRIES_WITHIN * excess.expected_rms * excess.bound
 
 
 @dataclass(frozen=True)
