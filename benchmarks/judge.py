@@ -56,7 +56,7 @@ REASONS = {
 
 def _acts_on(term: str) -> str:
     """Where a term acts: on the other axes' outputs, on the scale (its own rate times a
-    function), or on the bias."""
+    function, or any odd function of the own rate alone), or on the bias."""
     from gyrocal.terms import make_term
 
     made = make_term(term)
@@ -67,7 +67,9 @@ def _acts_on(term: str) -> str:
     scaled = formula.startswith("rate_own*") or formula.endswith("*rate_own") or formula.startswith("{x}*")
     if inner.name.startswith("scale") or getattr(inner, "by", None) == "rate_own" or scaled:
         return "scale"
-    return "bias"
+    from gyrocal.diagnose.shapes import odd_in_own_rate
+
+    return "scale" if odd_in_own_rate(made) else "bias"
 
 
 def _answer(d: dict[str, Any]) -> dict[str, Any]:

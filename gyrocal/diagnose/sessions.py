@@ -16,6 +16,7 @@ from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
 from .stats import chance_bound, chi2_sf
+from .where import mountings
 
 SOAKED_SPREAD = 5.0  # °C: a temperature point's spread below which it is one soak
 
@@ -44,6 +45,10 @@ class CarryOver(TypedDict, total=False):
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
     rate_shaped_rms: float  # deg/s: the part of its errors (power-ons' out) in proportion to the rates
     rescaled_shaped_rms: float  # deg/s: that part with the one shared scale out too
+    scale_allowance: float  # rad: the change of a row the unit's repeatability grants (scale_allowance)
+    reseated_rms: float  # deg/s: rezeroed_rms with that part out too
+    seating_rms: float  # deg/s: that part (per mounting where the mountings are known)
+    rate_shaped_change: float  # rad: that part as the RMS change of an output's row of the rate matrix
     changed_rms: float  # deg/s: its RMS error less one change of bias, scale and axes for the session
     holds_scored: int
     bound: float  # how far above expected_rms its figures may lie by chance (stats.chance_bound)
@@ -84,6 +89,22 @@ def turn_on_allowance(settings: Settings, noise_floor: float) -> float | None:
     return None if spec is None else TURN_ON_SIGMAS * max(spec, noise_floor)
 
 
+# The unit's scale and axes repeat from one session to the next only so far: a MEMS gyroscope
+# takes a scale at each power-on, and a fixture seats the unit anew each time, a good one to a
+# few arcseconds (25 µrad is 5"). Tens of ppm is normal; given the sensor's figure
+# (diagnosis: scale_repeatability, ppm, 1 sigma) a change beyond TURN_ON_SIGMAS of it is a
+# change of the unit.
+SCALE_REPEATABILITY_PPM = 30.0
+
+
+def scale_allowance(settings: Settings) -> float:
+    """The change of an output's row of the rate matrix (rad, dimensionless) another
+    session's scale and axes may take and still be the unit's: :data:`TURN_ON_SIGMAS` times
+    the scale repeatability the settings give, :data:`SCALE_REPEATABILITY_PPM` without."""
+    spec = settings.diagnosis.scale_repeatability
+    return TURN_ON_SIGMAS * (SCALE_REPEATABILITY_PPM if spec is None else spec) * 1e-6
+
+
 def practical_bar(nxt: CarryOver) -> float:
     """What a calibration may leave on the other session and still carry over (deg/s):
     :data:`CARRIES_WITHIN` times what a correct model would leave there, up to that figure's
@@ -114,6 +135,8 @@ def rate_shaped(nxt: CarryOver, key: str = "rate_shaped_rms") -> bool:
     part = nxt.get(key)
     if part is None:
         return False
+    if key == "rate_shaped_rms" and reseated(nxt):
+        return False
     within = nxt["expected_rms"] * np.sqrt(max((CARRIES_WITHIN * nxt.get("bound", 1.0)) ** 2 - 1.0, 0.0))
     return bool(part > within)
 
@@ -132,9 +155,18 @@ def fails_in_practice(nxt: CarryOver) -> bool:
         return False
     if rate_shaped(nxt):
         return True
-    if nxt["validation_rms"] <= practical_bar(nxt):
+    if seated_rms(nxt) <= practical_bar(nxt):
         return False
     return not turned_on(nxt)
+
+
+def seated_rms(nxt: CarryOver) -> float:
+    """The other session's RMS error (deg/s), without its part in proportion to the rates
+    where that part is the unit's normal repeatability (:func:`reseated`)."""
+    v = nxt["validation_rms"]
+    if not reseated(nxt) or nxt.get("seating_rms") is None:
+        return v
+    return float(np.sqrt(max(v**2 - nxt["seating_rms"] ** 2, 0.0)))
 
 
 def offset_alone(nxt: CarryOver) -> bool:
@@ -145,7 +177,27 @@ def offset_alone(nxt: CarryOver) -> bool:
     points that the log could tell from a power-on's."""
     if not nxt.get("turn_on_bias") or nxt.get("rezeroed_rms") is None or rate_shaped(nxt):
         return False
-    return bool(nxt["rezeroed_rms"] <= _rezeroed_bar(nxt))
+    return bool(rezeroed_rms(nxt) <= _rezeroed_bar(nxt))
+
+
+def reseated(nxt: CarryOver) -> bool:
+    """Whether the other session's part in proportion to the rates is within the unit's
+    normal repeatability of scale and axes (:func:`scale_allowance`). Not where one scale
+    every axis shares takes nearly all of it (:data:`SHARED_SCALE_DOMINANT`): a seating is a
+    rotation and a sensor's scales repeat each its own way, so that is the reference's."""
+    if nxt.get("rate_shaped_change", np.inf) > nxt.get("scale_allowance", 0.0):
+        return False
+    part, left = nxt.get("rate_shaped_rms"), nxt.get("rescaled_shaped_rms")
+    return not (part and left is not None and left**2 <= (1.0 - SHARED_SCALE_DOMINANT) * part**2)
+
+
+def rezeroed_rms(nxt: CarryOver) -> float:
+    """What the other session errs with its power-ons' offsets out (deg/s), and with its
+    part in proportion to the rates out too where that part is the unit's normal
+    repeatability (:func:`reseated`): a fixture seats the unit anew each session."""
+    if reseated(nxt) and nxt.get("reseated_rms") is not None:
+        return min(nxt["rezeroed_rms"], nxt["reseated_rms"])
+    return nxt["rezeroed_rms"]
 
 
 def _rezeroed_bar(nxt: CarryOver) -> float:
@@ -165,7 +217,7 @@ def power_ons_alone(nxt: CarryOver) -> bool:
     v, e = nxt["validation_rms"], nxt["expected_rms"]
     if v <= white_bar(nxt) or not turned_on(nxt):
         return False
-    return bool(v > practical_bar(nxt) or v**2 - nxt["rezeroed_rms"] ** 2 >= 0.5 * (v**2 - e**2))
+    return bool(v > practical_bar(nxt) or v**2 - rezeroed_rms(nxt) ** 2 >= 0.5 * (v**2 - e**2))
 
 
 def offset_and_allowance(nxt: CarryOver) -> tuple[float, float | None]:
@@ -184,7 +236,7 @@ def turned_on(nxt: CarryOver) -> bool:
     return allowance is None or bool(largest <= allowance)
 
 
-def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
+def _turn_on_offsets(held, resumed: np.ndarray | None = None, mounting: np.ndarray | None = None) -> dict:
     """On the holds revalidation scores (``held``, :func:`gyrocal.fleet.drift.scored_hold_errors`):
     the other session's mean error per axis (weighted by each hold's floor), the bias the unit
     took at its power-on, and the RMS error left with it taken out (deg/s); and one scale
@@ -197,7 +249,12 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     offsets: the unit may have been powered anew in any gap, and the log cannot tell
     (``power_ons``, the stretches; ``largest_turn_on``, the largest offset of an axis in any
     of them). What is left counts the means taken out (``rezeroed_rms`` scaled by
-    sqrt(N / (N − power_ons)) over N holds), as a fit's residuals count its parameters."""
+    sqrt(N / (N − power_ons)) over N holds), as a fit's residuals count its parameters.
+
+    Given each hold's ``mounting`` (the stretch of consecutive holds on one mount), the part
+    in proportion to the rates is also fitted per mounting, for the fixture seats the unit
+    at a tilt of its own each time: ``rate_shaped_change`` is then the RMS change of an
+    output's row of the rate matrix over the mountings, ``reseated_rms`` what is left."""
     use = held.scored & np.all(np.isfinite(held.errors), axis=1)
     e, w = held.errors[use], 1.0 / np.maximum(held.floor[use], 1e-300) ** 2
     if not len(e):
@@ -219,13 +276,23 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
     # errors in proportion to the rate
     by_output = [rates - stretch_means(runs, rates, w[:, i])[runs] for i in range(3)]
 
-    def shaped_rms(errors) -> float:
-        shaped = np.zeros_like(errors)
+    def shaped(errors) -> tuple[float, float, float]:
+        """The part in proportion to the rates (RMS, deg/s), the RMS change of an output's
+        row of the rate matrix it makes, and the RMS error left without it."""
+        part, rows = np.zeros_like(errors), np.zeros((3, 3))
         for i, own in enumerate(by_output):
             root = np.sqrt(w[:, i])
-            coef = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
-            shaped[:, i] = own @ coef
-        return float(np.sqrt(np.mean(shaped**2)))
+            rows[i] = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
+            part[:, i] = own @ rows[i]
+        left = float(np.sqrt(np.mean((errors - part) ** 2)))
+        change = float(np.sqrt(np.mean(np.sum(rows**2, axis=1))))
+        return float(np.sqrt(np.mean(part**2))), change, left
+
+    shaped_part, shaped_change, reseated = shaped(rezeroed)
+    spent_reseated = np.sqrt(len(e) / (len(e) - count - 3)) if len(e) > count + 3 else 1.0
+    seating = np.sqrt(max(float(np.mean(rezeroed**2)) - reseated**2, 0.0))
+    if mounting is not None:
+        shaped_change, reseated, spent_reseated, seating = _reseated(rezeroed, w, rates, mounting[use], count)
 
     # One change of the unit for the whole session, the same at every temperature: an offset
     # and a row of the rate matrix per output (weighted least squares by that output's floor).
@@ -246,9 +313,47 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None) -> dict:
         "rezeroed_rms": float(np.sqrt(np.mean(rezeroed**2)) * spent),
         "reference_scale": scale,
         "rescaled_rms": float(np.sqrt(np.mean(left**2))),
-        "rate_shaped_rms": shaped_rms(rezeroed),
-        "rescaled_shaped_rms": shaped_rms(left),
+        "rate_shaped_rms": shaped_part,
+        "rate_shaped_change": shaped_change,
+        "reseated_rms": reseated * spent_reseated,
+        "seating_rms": seating,
+        "rescaled_shaped_rms": shaped(left)[0],
     }
+
+
+def _reseated(errors, weights, rates, mounting, offsets: int) -> tuple[float, float, float, float]:
+    """Each output's errors against the rates, a row of coefficients per mounting (weighted
+    least squares): the RMS change of a row over the mountings (rad), the RMS error left,
+    the factor that counts the parameters spent (with the ``offsets`` already out) and the
+    RMS of the part fitted (deg/s)."""
+    groups = np.unique(mounting, return_inverse=True)[1]
+    one_hot = np.eye(groups.max() + 1)[groups]
+    design = (one_hot[:, :, None] * rates[:, None, :]).reshape(len(rates), -1)
+    # Only the rates a mounting turns: an axis the table never turns on it (the earth's rate
+    # alone) would take any error at a tilt the data cannot bound.
+    power = np.sum(design**2, axis=0)
+    turned = power > TURNED_SHARE * power.max(initial=0.0)
+    design = design[:, turned]
+    left, rows, spent = errors.copy(), np.zeros((3, turned.size)), offsets
+    for i in range(3):
+        root = np.sqrt(weights[:, i])
+        coef, _, rank, _ = np.linalg.lstsq(design * root[:, None], errors[:, i] * root, rcond=None)
+        left[:, i] -= design @ coef
+        rows[i, turned] = coef
+        spent += rank / 3.0
+    change = np.linalg.norm(rows.reshape(3, -1, 3), axis=2)  # (output, mounting)
+    change = change[:, np.any(rows.reshape(3, -1, 3) != 0.0, axis=(0, 2))]
+    n = len(errors)
+    return (
+        float(np.sqrt(np.mean(change**2))) if change.size else 0.0,
+        float(np.sqrt(np.mean(left**2))),
+        float(np.sqrt(n / (n - spent))) if n > spent else 1.0,
+        float(np.sqrt(np.mean((errors - left) ** 2))),
+    )
+
+
+# A rate a mounting turns, against the most a mounting turns any (in power).
+TURNED_SHARE = 1e-4
 
 
 def reference_scaled(nxt: CarryOver) -> bool:
@@ -343,8 +448,10 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     out.update(_split_at_points(obs, other["temp"].to_numpy(float), held, r["expected_rms"]))  # type: ignore[typeddict-item]
     out.update(_within_points(other, held, r["expected_rms"], settings.diagnosis.significance))  # type: ignore[typeddict-item]
     resumed = other["resumed_at"].to_numpy(float) if "resumed_at" in other else None
-    out.update(_turn_on_offsets(held, resumed))  # type: ignore[typeddict-item]
+    mounting = mountings(other) if "mount" in other and "t_start" in other else None
+    out.update(_turn_on_offsets(held, resumed, mounting))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
+    out["scale_allowance"] = scale_allowance(settings)
     if not all(
         np.isfinite(v) for v in [*out.values(), *out.get("turn_on_bias", {}).values()] if isinstance(v, float)
     ):

@@ -466,6 +466,38 @@ def _quantity(value: float, unit: str) -> str:
     return f"{value:.3g} {unit}"
 
 
+def odd_in_own_rate(term) -> bool:
+    """Whether a term added to the output is an odd function of each axis' own rate alone:
+    f(ω) = ω·g(|ω|), a scale that changes with the rate's magnitude (a scale nonlinearity)
+    however its formula is written; an even one is a bias of |ω| (a rectification). Judged
+    on the term's own columns, one axis turning at a time; False for a term that reads any
+    other input."""
+
+    class RatesOnly(dict):
+        def __missing__(self, key):
+            raise KeyError(key)
+
+    made = make_term(term) if isinstance(term, str | dict) else term
+    w = np.linspace(-400.0, 400.0, 41)
+    try:
+        for turning, axis in enumerate(AXES):
+            data = RatesOnly(
+                {f"rate_{a}": w if i == turning else np.zeros_like(w) for i, a in enumerate(AXES)}
+            )
+            cols = made.columns(data)
+            own = [np.asarray(v, float) for k, v in cols.items() if k.split(".")[1:2] == [axis]]
+            rest = [np.asarray(v, float) for k, v in cols.items() if k.split(".")[1:2] != [axis]]
+            if not own or any(np.any(np.abs(v) > 1e-12 * (1.0 + np.max(np.abs(own[0])))) for v in rest):
+                return False
+            for v in own:
+                size = float(np.max(np.abs(v)))
+                if size == 0.0 or not np.allclose(v, -v[::-1], atol=1e-9 * size):
+                    return False
+    except Exception:  # noqa: BLE001 - a term that needs more than the rates reads another input
+        return False
+    return True
+
+
 def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, by) -> str:
     """A sentence on a fitted shape: where it is largest against its value at the session's
     end (time) or its median (other inputs), how large on each output axis, and by when a
@@ -498,7 +530,8 @@ def describe(terms, coefficients: dict, lo: float, hi: float, input_name: str, b
             "rate_cross": "the rate of the axis that turns, on the other outputs",
         }.get(input_name, input_name)
     )
-    kind = "a scale change" if by else "a bias"
+    odd = input_name == "rate_own" and not by and terms and all(odd_in_own_rate(t) for t in terms)
+    kind = "a scale change" if by else "a scale nonlinearity (odd in the rate)" if odd else "a bias"
     reference = (
         "its value at the session's end"
         if input_name == "t"

@@ -88,8 +88,10 @@ from .sessions import (
     fails_between_only,
     fails_in_practice,
     offset_alone,
+    practical_bar,
     rate_shaped,
     reference_scaled,
+    seated_rms,
     slow_noise,
     usable,
     wanders_most,
@@ -809,12 +811,21 @@ def between_the_sessions(judge: Judge, base_next) -> Unexplained | None:
 
 
 def _shape_left_behind(found: Found, base_next) -> str | None:
-    """The shape of free form that fits this session best, where it does not hold on the
-    other session ("does not carry over") and the configured calibration carries over there
-    (:func:`.sessions.fails_in_practice`): what it took here was this session's own slow
-    noise. The shape in words, or None."""
+    """The shape of free form that fits this session best, where no term could be offered
+    (it does not hold on the other session, or leaves what it cannot reach) and the
+    configured calibration carries over there (:func:`.sessions.fails_in_practice`; for a
+    shape that does hold there, with no term that takes a practical part of the excess and
+    within the bar without reading offsets as power-ons): what it
+    took here was this session's own slow noise, which its user never meets. The shape in
+    words, or None."""
     why = found.why
-    if why is None or why.reason != "does not carry over" or not carries(base_next):
+    if why is None or found.best is not None or not carries(base_next):
+        return None
+    if why.reason != "does not carry over" and (
+        found.useful or found.shaped or seated_rms(base_next) > practical_bar(base_next)
+    ):
+        # a term that takes a practical part of it is offered as it stands; and where the
+        # calibration carries by the power-ons' offsets alone, the shape may be what they hide
         return None
     best = next((c for c in found.candidates if c.term == why.term), None)
     return readable(why.term, best.profiled if best is not None else ()) if why.term else None

@@ -22,6 +22,7 @@ from .sessions import (
     power_ons_alone,
     rate_shaped,
     reference_scaled,
+    rezeroed_rms,
     usable,
 )
 from .stats import chance_bound, p_text
@@ -131,8 +132,14 @@ def _power_ons(nxt: CarryOver) -> str:
 def _left_told(nxt: CarryOver) -> str:
     """What the other session's errors leave with the power-on's offsets out, over what a
     correct model leaves there, with that session's slow noise where it counts."""
-    left = nxt["rezeroed_rms"]
+    left = rezeroed_rms(nxt)
     told = f"{left / nxt['expected_rms']:.2f} times what a correct model would leave for white noise"
+    if left < nxt["rezeroed_rms"]:
+        told += (
+            f" (its part in proportion to the rates out too: a change of a row of the rate matrix of "
+            f"{nxt['rate_shaped_change'] * 1e6:.0f} ppm, within the {nxt['scale_allowance'] * 1e6:.0f} the "
+            "unit's scale and the fixture's seating repeat to, diagnosis: scale_repeatability)"
+        )
     wander = nxt.get("wander_rms", 0.0)
     if wander > nxt["expected_rms"]:
         told += (
@@ -351,10 +358,11 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
     if diag.unrepeated_shape is not None:
         return (
             f"The model explains the data as the other session judges it: its in-sample "
-            f"residuals are {factor:.2f} times their noise floor, and the shape that fits them "
-            f"best, {diag.unrepeated_shape}, does not hold on the other session, where the "
-            "calibration carries over: the excess is slow noise this session's static data did "
-            "not resolve, not a missing effect; nothing is missing."
+            f"residuals are {factor:.2f} times their noise floor, no term can be offered for "
+            f"them (the shape that fits them best, {diag.unrepeated_shape}, does not hold), and the "
+            "calibration carries over to the other session: the excess is this session's own, "
+            "slow noise its static data did not resolve, which the calibration's user does not "
+            "meet; nothing is missing."
         )
     if diag.unrepeated:
         assert base_next is not None

@@ -246,6 +246,11 @@ def axis_steps(obs: pd.DataFrame, data: dict) -> np.ndarray:
     return rates - _before_each_hold(obs, data, rates)[0]
 
 
+def mountings(obs: pd.DataFrame) -> np.ndarray:
+    """Each hold's mounting: the stretch of consecutive holds on one mount, numbered in time."""
+    return _before_each_hold(obs, {"t_start": obs["t_start"].to_numpy(float)}, np.zeros((len(obs), 1)))[1]
+
+
 def _before_each_hold(obs: pd.DataFrame, data: dict, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``values`` (n, k) of the hold before each one in time on the same mounting (0 for the
     first after a remount: the table stood still while the unit was handled), and each
