@@ -3,7 +3,7 @@ the unit, and whether what a model leaves repeats there or differs by slow noise
 
 from __future__ import annotations
 
-from typing import TypedDict
+from typing import NamedTuple, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -45,10 +45,12 @@ class CarryOver(TypedDict, total=False):
     rescaled_rms: float  # deg/s: its RMS error with that scale and the turn-on bias taken out
     rate_shaped_rms: float  # deg/s: the part of its errors (power-ons' out) in proportion to the rates
     rescaled_shaped_rms: float  # deg/s: that part with the one shared scale out too
-    scale_allowance: float  # rad: the change of a row the unit's repeatability grants (scale_allowance)
-    reseated_rms: float  # deg/s: rezeroed_rms with that part out too
-    seating_rms: float  # deg/s: that part (per mounting where the mountings are known)
-    rate_shaped_change: float  # rad: that part as the RMS change of an output's row of the rate matrix
+    unseated_shaped_rms: float  # deg/s: rate_shaped_rms with each mounting's rotation out first
+    seating_change: float | None  # rad: each mounting's rotation, the RMS of its coefficients
+    seating_coefficients: int  # how many were fitted
+    seating_allowance: float  # rad: what the fixture's seating may give that RMS (reseated)
+    reseated_rms: float  # deg/s: rezeroed_rms with the rotations out too
+    seating_rms: float  # deg/s: the part the rotations make, less the noise the fit took
     changed_rms: float  # deg/s: its RMS error less one change of bias, scale and axes for the session
     holds_scored: int
     bound: float  # how far above expected_rms its figures may lie by chance (stats.chance_bound)
@@ -89,20 +91,19 @@ def turn_on_allowance(settings: Settings, noise_floor: float) -> float | None:
     return None if spec is None else TURN_ON_SIGMAS * max(spec, noise_floor)
 
 
-# The unit's scale and axes repeat from one session to the next only so far: a MEMS gyroscope
-# takes a scale at each power-on, and a fixture seats the unit anew each time, a good one to a
-# few arcseconds (25 µrad is 5"). Tens of ppm is normal; given the sensor's figure
-# (diagnosis: scale_repeatability, ppm, 1 sigma) a change beyond TURN_ON_SIGMAS of it is a
-# change of the unit.
-SCALE_REPEATABILITY_PPM = 30.0
+# A fixture seats the unit anew at each mounting, a good one to a few arcseconds (25 µrad is
+# 5"): each mounting turns the unit's axes by its own small rotation, which no calibration
+# carries to the next. Its 1 sigma per component, µrad, without the rig's figure
+# (diagnosis: seating_repeatability).
+SEATING_REPEATABILITY_URAD = 30.0
 
 
-def scale_allowance(settings: Settings) -> float:
-    """The change of an output's row of the rate matrix (rad, dimensionless) another
-    session's scale and axes may take and still be the unit's: :data:`TURN_ON_SIGMAS` times
-    the scale repeatability the settings give, :data:`SCALE_REPEATABILITY_PPM` without."""
-    spec = settings.diagnosis.scale_repeatability
-    return TURN_ON_SIGMAS * (SCALE_REPEATABILITY_PPM if spec is None else spec) * 1e-6
+def seating_sigma(settings: Settings) -> float:
+    """The fixture's seating repeatability (rad, 1 sigma per component of a mounting's
+    rotation): the settings' ``seating_repeatability``, :data:`SEATING_REPEATABILITY_URAD`
+    without."""
+    spec = settings.diagnosis.seating_repeatability
+    return (SEATING_REPEATABILITY_URAD if spec is None else spec) * 1e-6
 
 
 def practical_bar(nxt: CarryOver) -> float:
@@ -131,20 +132,22 @@ def rate_shaped(nxt: CarryOver, key: str = "rate_shaped_rms") -> bool:
     """Whether the other session's errors hold a part in proportion to the rates (a change
     of scale or axes, the power-ons' offsets out) that alone would fail the calibration under
     white noise: slow wander, a bias, does not follow the rate, so its allowance does not
-    cover such a part. ``key``: that part as :func:`_turn_on_offsets` measured it."""
+    cover such a part. ``key``: that part as :func:`_turn_on_offsets` measured it; where the
+    mountings' rotations are the fixture's seating (:func:`reseated`), what is left of it
+    once they are out."""
     part = nxt.get(key)
     if part is None:
         return False
     if key == "rate_shaped_rms" and reseated(nxt):
-        return False
+        part = nxt.get("unseated_shaped_rms", part)  # the fixture's seating is no change of the unit
     within = nxt["expected_rms"] * np.sqrt(max((CARRIES_WITHIN * nxt.get("bound", 1.0)) ** 2 - 1.0, 0.0))
     return bool(part > within)
 
 
 def fails_in_practice(nxt: CarryOver) -> bool:
     """The calibration fails on the other session beyond chance and beyond
-    :func:`practical_bar`; within that, a difference the test resolves is too small to act
-    on. Nor does it fail where only the power-ons' biases set it apart: offsets per axis
+    :func:`practical_bar` (the fixture's seating out, :func:`seated_rms`); within that, a
+    difference the test resolves is too small to act on. Nor does it fail where only the power-ons' biases set it apart: offsets per axis
     within :func:`turn_on_allowance` whose removal brings it within the bar of what is left
     (:func:`_rezeroed_bar`: the white noise's, for offsets per stretch). Beyond the bar
     for white noise alone (:func:`white_bar`), a part in proportion to the rates
@@ -161,8 +164,8 @@ def fails_in_practice(nxt: CarryOver) -> bool:
 
 
 def seated_rms(nxt: CarryOver) -> float:
-    """The other session's RMS error (deg/s), without its part in proportion to the rates
-    where that part is the unit's normal repeatability (:func:`reseated`)."""
+    """The other session's RMS error (deg/s), without the mountings' rotations where they are
+    the fixture's seating (:func:`reseated`; ``seating_rms`` counts the noise the fit took)."""
     v = nxt["validation_rms"]
     if not reseated(nxt) or nxt.get("seating_rms") is None:
         return v
@@ -181,20 +184,25 @@ def offset_alone(nxt: CarryOver) -> bool:
 
 
 def reseated(nxt: CarryOver) -> bool:
-    """Whether the other session's part in proportion to the rates is within the unit's
-    normal repeatability of scale and axes (:func:`scale_allowance`). Not where one scale
-    every axis shares takes nearly all of it (:data:`SHARED_SCALE_DOMINANT`): a seating is a
-    rotation and a sensor's scales repeat each its own way, so that is the reference's."""
-    if nxt.get("rate_shaped_change", np.inf) > nxt.get("scale_allowance", 0.0):
-        return False
-    part, left = nxt.get("rate_shaped_rms"), nxt.get("rescaled_shaped_rms")
-    return not (part and left is not None and left**2 <= (1.0 - SHARED_SCALE_DOMINANT) * part**2)
+    """Whether the other session's part in proportion to the rates, one rotation per
+    mounting fitted (``seating_change``, the RMS of its coefficients), is within the
+    fixture's seating repeatability: :func:`seating_sigma`, up to the chance bound of an RMS
+    over that many coefficients (``seating_allowance``)."""
+    change, allowance = nxt.get("seating_change"), nxt.get("seating_allowance")
+    return change is not None and allowance is not None and bool(change <= allowance)
+
+
+def _rms_bound(count: int, alpha: float) -> float:
+    """How far the RMS of ``count`` draws of unit spread may lie above 1 by chance, at
+    significance ``alpha``: sqrt(χ²_(1−α)(count) / count)."""
+    from scipy.stats import chi2
+
+    return float(np.sqrt(chi2.ppf(1.0 - alpha, count) / count)) if count > 0 else 1.0
 
 
 def rezeroed_rms(nxt: CarryOver) -> float:
-    """What the other session errs with its power-ons' offsets out (deg/s), and with its
-    part in proportion to the rates out too where that part is the unit's normal
-    repeatability (:func:`reseated`): a fixture seats the unit anew each session."""
+    """What the other session errs with its power-ons' offsets out (deg/s), and with each
+    mounting's rotation out too where those are the fixture's seating (:func:`reseated`)."""
     if reseated(nxt) and nxt.get("reseated_rms") is not None:
         return min(nxt["rezeroed_rms"], nxt["reseated_rms"])
     return nxt["rezeroed_rms"]
@@ -217,7 +225,7 @@ def power_ons_alone(nxt: CarryOver) -> bool:
     v, e = nxt["validation_rms"], nxt["expected_rms"]
     if v <= white_bar(nxt) or not turned_on(nxt):
         return False
-    return bool(v > practical_bar(nxt) or v**2 - rezeroed_rms(nxt) ** 2 >= 0.5 * (v**2 - e**2))
+    return bool(v > practical_bar(nxt) or v**2 - nxt["rezeroed_rms"] ** 2 >= 0.5 * (v**2 - e**2))
 
 
 def offset_and_allowance(nxt: CarryOver) -> tuple[float, float | None]:
@@ -251,10 +259,9 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None, mounting: np.ndarr
     of them). What is left counts the means taken out (``rezeroed_rms`` scaled by
     sqrt(N / (N − power_ons)) over N holds), as a fit's residuals count its parameters.
 
-    Given each hold's ``mounting`` (the stretch of consecutive holds on one mount), the part
-    in proportion to the rates is also fitted per mounting, for the fixture seats the unit
-    at a tilt of its own each time: ``rate_shaped_change`` is then the RMS change of an
-    output's row of the rate matrix over the mountings, ``reseated_rms`` what is left."""
+    Given each hold's ``mounting`` (the stretch of consecutive holds on one mount), each
+    mounting's own rotation is fitted too (:func:`_seating`), for the fixture seats the unit
+    anew each time."""
     use = held.scored & np.all(np.isfinite(held.errors), axis=1)
     e, w = held.errors[use], 1.0 / np.maximum(held.floor[use], 1e-300) ** 2
     if not len(e):
@@ -276,23 +283,16 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None, mounting: np.ndarr
     # errors in proportion to the rate
     by_output = [rates - stretch_means(runs, rates, w[:, i])[runs] for i in range(3)]
 
-    def shaped(errors) -> tuple[float, float, float]:
-        """The part in proportion to the rates (RMS, deg/s), the RMS change of an output's
-        row of the rate matrix it makes, and the RMS error left without it."""
-        part, rows = np.zeros_like(errors), np.zeros((3, 3))
+    def shaped(errors) -> float:
+        part = np.zeros_like(errors)
         for i, own in enumerate(by_output):
             root = np.sqrt(w[:, i])
-            rows[i] = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
-            part[:, i] = own @ rows[i]
-        left = float(np.sqrt(np.mean((errors - part) ** 2)))
-        change = float(np.sqrt(np.mean(np.sum(rows**2, axis=1))))
-        return float(np.sqrt(np.mean(part**2))), change, left
+            coef = np.linalg.lstsq(own * root[:, None], errors[:, i] * root, rcond=None)[0]
+            part[:, i] = own @ coef
+        return float(np.sqrt(np.mean(part**2)))
 
-    shaped_part, shaped_change, reseated = shaped(rezeroed)
-    spent_reseated = np.sqrt(len(e) / (len(e) - count - 3)) if len(e) > count + 3 else 1.0
-    seating = np.sqrt(max(float(np.mean(rezeroed**2)) - reseated**2, 0.0))
-    if mounting is not None:
-        shaped_change, reseated, spent_reseated, seating = _reseated(rezeroed, w, rates, mounting[use], count)
+    seated = _seating(rezeroed, w, rates, None if mounting is None else mounting[use], count)
+    unseated = rezeroed - seated.part
 
     # One change of the unit for the whole session, the same at every temperature: an offset
     # and a row of the rate matrix per output (weighted least squares by that output's floor).
@@ -313,47 +313,75 @@ def _turn_on_offsets(held, resumed: np.ndarray | None = None, mounting: np.ndarr
         "rezeroed_rms": float(np.sqrt(np.mean(rezeroed**2)) * spent),
         "reference_scale": scale,
         "rescaled_rms": float(np.sqrt(np.mean(left**2))),
-        "rate_shaped_rms": shaped_part,
-        "rate_shaped_change": shaped_change,
-        "reseated_rms": reseated * spent_reseated,
-        "seating_rms": seating,
-        "rescaled_shaped_rms": shaped(left)[0],
+        "rate_shaped_rms": shaped(rezeroed),
+        "rescaled_shaped_rms": shaped(left),
+        "unseated_shaped_rms": shaped(unseated),
+        "seating_change": seated.change,
+        "seating_coefficients": seated.coefficients,
+        "reseated_rms": seated.left_rms,
+        "seating_rms": seated.part_rms,
     }
 
 
-def _reseated(errors, weights, rates, mounting, offsets: int) -> tuple[float, float, float, float]:
-    """Each output's errors against the rates, a row of coefficients per mounting (weighted
-    least squares): the RMS change of a row over the mountings (rad), the RMS error left,
-    the factor that counts the parameters spent (with the ``offsets`` already out) and the
-    RMS of the part fitted (deg/s)."""
-    groups = np.unique(mounting, return_inverse=True)[1]
-    one_hot = np.eye(groups.max() + 1)[groups]
-    design = (one_hot[:, :, None] * rates[:, None, :]).reshape(len(rates), -1)
-    # Only the rates a mounting turns: an axis the table never turns on it (the earth's rate
-    # alone) would take any error at a tilt the data cannot bound.
-    power = np.sum(design**2, axis=0)
-    turned = power > TURNED_SHARE * power.max(initial=0.0)
-    design = design[:, turned]
-    left, rows, spent = errors.copy(), np.zeros((3, turned.size)), offsets
+class Seating(NamedTuple):
+    """Each mounting's rotation fitted to the other session's errors (:func:`_seating`)."""
+
+    part: np.ndarray  # (n, 3) deg/s: the errors the rotations make
+    change: float | None  # rad: the RMS of the coefficients fitted (None: none fitted)
+    coefficients: int  # how many
+    left_rms: float  # deg/s: what is left, counting the parameters spent
+    part_rms: float  # deg/s: the part, less the noise the fit took
+
+
+def _seating(errors, weights, rates, mounting, offsets: int) -> Seating:
+    """Each mounting's own small rotation (the fixture seats the unit anew each time): each
+    output's errors against the rates of the *other* axes the mounting turns, a coefficient
+    each, with an offset per mounting beside them so that rates of one sign do not read a
+    bias as a tilt (weighted least squares; the offsets are not taken out: a bias that
+    differs between mountings is no rotation). A scale, an output against its own rate, is
+    no seating and stays in. A mounting with fewer than :data:`SEATING_MIN_HOLDS` holds keeps
+    its errors. ``offsets``: the parameters already spent on the errors (the power-ons')."""
+    n = len(errors)
+    none = Seating(np.zeros_like(errors), None, 0, float(np.sqrt(np.mean(errors**2))) if n else 0.0, 0.0)
+    if mounting is None or not n:
+        return none
+    groups, counts = np.unique(mounting, return_inverse=True, return_counts=True)[1:]
+    one_hot = np.eye(counts.size)[groups] * (counts >= SEATING_MIN_HOLDS)[None, :]
+    part, spent, coefficients = np.zeros_like(errors), float(offsets), []
     for i in range(3):
+        others = np.delete(np.arange(3), i)
+        columns = (one_hot[:, :, None] * rates[:, None, others]).reshape(n, -1)
+        power = np.sum(columns**2, axis=0)
+        turned = power > TURNED_SHARE * power.max(initial=0.0)
+        if not turned.any():
+            continue
+        tilts = columns[:, turned]
+        design = np.column_stack([one_hot[:, one_hot.any(axis=0)], tilts])
         root = np.sqrt(weights[:, i])
         coef, _, rank, _ = np.linalg.lstsq(design * root[:, None], errors[:, i] * root, rcond=None)
-        left[:, i] -= design @ coef
-        rows[i, turned] = coef
+        tilt = coef[design.shape[1] - tilts.shape[1] :]
+        part[:, i] = tilts @ tilt
+        coefficients.extend(tilt)
         spent += rank / 3.0
-    change = np.linalg.norm(rows.reshape(3, -1, 3), axis=2)  # (output, mounting)
-    change = change[:, np.any(rows.reshape(3, -1, 3) != 0.0, axis=(0, 2))]
-    n = len(errors)
-    return (
-        float(np.sqrt(np.mean(change**2))) if change.size else 0.0,
-        float(np.sqrt(np.mean(left**2))),
-        float(np.sqrt(n / (n - spent))) if n > spent else 1.0,
-        float(np.sqrt(np.mean((errors - left) ** 2))),
+    if not coefficients or n - spent <= 1.0:
+        return none
+    left = errors - part
+    # the fitted part holds its share of the noise: count it out of the part and back into
+    # what is left (as a fit's residuals count its parameters)
+    share = (spent - offsets) / n
+    return Seating(
+        part,
+        float(np.sqrt(np.mean(np.square(coefficients)))),
+        len(coefficients),
+        float(np.sqrt(np.mean(left**2) * n / (n - spent))),
+        float(np.sqrt(max(float(np.mean(part**2)) - share * float(np.mean(1.0 / weights)), 0.0))),
     )
 
 
 # A rate a mounting turns, against the most a mounting turns any (in power).
 TURNED_SHARE = 1e-4
+# The holds a mounting needs for its rotation to be told from its offset.
+SEATING_MIN_HOLDS = 3
 
 
 def reference_scaled(nxt: CarryOver) -> bool:
@@ -451,7 +479,11 @@ def carry_over(settings: Settings, ev, obs: pd.DataFrame, other: pd.DataFrame) -
     mounting = mountings(other) if "mount" in other and "t_start" in other else None
     out.update(_turn_on_offsets(held, resumed, mounting))  # type: ignore[typeddict-item]
     out["turn_on_allowance"] = turn_on_allowance(settings, r["noise_floor"])
-    out["scale_allowance"] = scale_allowance(settings)
+    if out.get("seating_change") is not None:
+        count = int(out.get("seating_coefficients", 0))
+        out["seating_allowance"] = seating_sigma(settings) * _rms_bound(
+            count, settings.diagnosis.significance
+        )
     if not all(
         np.isfinite(v) for v in [*out.values(), *out.get("turn_on_bias", {}).values()] if isinstance(v, float)
     ):

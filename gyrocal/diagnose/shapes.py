@@ -466,12 +466,18 @@ def _quantity(value: float, unit: str) -> str:
     return f"{value:.3g} {unit}"
 
 
+# How far above the line from zero to its largest value an odd term may lie at the smallest
+# rate judged (20 of 400 deg/s) and still vanish with the rate as a scale does.
+LINEAR_FROM_ZERO = 4.0
+
+
 def odd_in_own_rate(term) -> bool:
-    """Whether a term added to the output is an odd function of each axis' own rate alone:
-    f(ω) = ω·g(|ω|), a scale that changes with the rate's magnitude (a scale nonlinearity)
-    however its formula is written; an even one is a bias of |ω| (a rectification). Judged
-    on the term's own columns, one axis turning at a time; False for a term that reads any
-    other input."""
+    """Whether a term added to the output is an odd function of each axis' own rate alone
+    that vanishes with it: f(ω) = ω·g(|ω|), a scale that changes with the rate's magnitude (a
+    scale nonlinearity) however its formula is written. An even one is a bias of |ω| (a
+    rectification), and one that keeps its size down to small rates (a sign) a bias that
+    flips with the direction. Judged on the term's own columns, one axis turning at a time;
+    False for a term that reads any other input."""
 
     class RatesOnly(dict):
         def __missing__(self, key):
@@ -492,6 +498,10 @@ def odd_in_own_rate(term) -> bool:
             for v in own:
                 size = float(np.max(np.abs(v)))
                 if size == 0.0 or not np.allclose(v, -v[::-1], atol=1e-9 * size):
+                    return False
+                # it vanishes with the rate: a bias that flips with the direction (a sign, a
+                # saturation far below the rates) is no scale
+                if abs(v[w.size // 2 + 1]) > LINEAR_FROM_ZERO * size * w[w.size // 2 + 1] / w[-1]:
                     return False
     except Exception:  # noqa: BLE001 - a term that needs more than the rates reads another input
         return False

@@ -817,7 +817,7 @@ def _shape_left_behind(found: Found, base_next) -> str | None:
     shape that does hold there, with no term that takes a practical part of the excess and
     within the bar without reading offsets as power-ons): what it
     took here was this session's own slow noise, which its user never meets. The shape in
-    words, or None."""
+    words and why it was not offered, or None."""
     why = found.why
     if why is None or found.best is not None or not carries(base_next):
         return None
@@ -828,7 +828,11 @@ def _shape_left_behind(found: Found, base_next) -> str | None:
         # calibration carries by the power-ons' offsets alone, the shape may be what they hide
         return None
     best = next((c for c in found.candidates if c.term == why.term), None)
-    return readable(why.term, best.profiled if best is not None else ()) if why.term else None
+    if not why.term:
+        return None
+    shape = readable(why.term, best.profiled if best is not None else ())
+    told = "does not hold on the other session" if why.reason == "does not carry over" else why.reason
+    return f"{shape}, which {told}"
 
 
 def _between_matters(excess: ExcessTest, base_next) -> bool:

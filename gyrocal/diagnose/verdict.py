@@ -23,6 +23,7 @@ from .sessions import (
     rate_shaped,
     reference_scaled,
     rezeroed_rms,
+    seated_rms,
     usable,
 )
 from .stats import chance_bound, p_text
@@ -136,9 +137,9 @@ def _left_told(nxt: CarryOver) -> str:
     told = f"{left / nxt['expected_rms']:.2f} times what a correct model would leave for white noise"
     if left < nxt["rezeroed_rms"]:
         told += (
-            f" (its part in proportion to the rates out too: a change of a row of the rate matrix of "
-            f"{nxt['rate_shaped_change'] * 1e6:.0f} ppm, within the {nxt['scale_allowance'] * 1e6:.0f} the "
-            "unit's scale and the fixture's seating repeat to, diagnosis: scale_repeatability)"
+            f" (each mounting's rotation out too: {nxt['seating_change'] * 1e6:.0f} µrad RMS, within "
+            f"the {nxt['seating_allowance'] * 1e6:.0f} µrad the fixture's seating gives up to chance, "
+            "diagnosis: seating_repeatability)"
         )
     wander = nxt.get("wander_rms", 0.0)
     if wander > nxt["expected_rms"]:
@@ -188,14 +189,21 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
             f" On the other session its calibration leaves {base_next['excess']:.3g} times the "
             "floor: more than the noise alone would, but within "
             f"{CARRIES_WITHIN:g} times what a correct model would leave there "
-            f"({base_next['validation_rms'] / carry_expected(base_next):.2f}"
+            f"({seated_rms(base_next) / carry_expected(base_next):.2f}"
             + (
                 ", with the slow noise that session's static data cannot rule out"
                 if carry_expected(base_next) > base_next["expected_rms"]
                 else ""
             )
+            + (
+                f", each mounting's rotation out: {base_next['seating_change'] * 1e6:.0f} µrad RMS, "
+                f"within the {base_next['seating_allowance'] * 1e6:.0f} µrad the fixture's seating "
+                "gives up to chance"
+                if seated_rms(base_next) < base_next["validation_rms"]
+                else ""
+            )
             + "), a difference too small to act on (a turn-on bias a little apart between "
-            "power-ons): it carries over."
+            "power-ons, the fixture seating the unit anew): it carries over."
         )
     # the why that follows tells the failure (the mounting's, or between the points, which
     # leaves the unit changed as one reading): the sentence here claims no cause
@@ -359,7 +367,7 @@ def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: flo
         return (
             f"The model explains the data as the other session judges it: its in-sample "
             f"residuals are {factor:.2f} times their noise floor, no term can be offered for "
-            f"them (the shape that fits them best, {diag.unrepeated_shape}, does not hold), and the "
+            f"them (the shape that fits them best, {diag.unrepeated_shape}), and the "
             "calibration carries over to the other session: the excess is this session's own, "
             "slow noise its static data did not resolve, which the calibration's user does not "
             "meet; nothing is missing."

@@ -122,7 +122,7 @@ class DiagnosisSettings:
     candidates: tuple = tuple(_DIAGNOSIS["candidates"])
     ladder: tuple = tuple(_DIAGNOSIS["ladder"])  # steps: {name, add: [terms], kind}
     turn_on_repeatability: float | None = None  # deg/s, 1 sigma: the sensor's datasheet's
-    scale_repeatability: float | None = None  # ppm, 1 sigma (None: the diagnosis' default)
+    seating_repeatability: float | None = None  # µrad, 1 sigma (None: the diagnosis' default)
 
     @classmethod
     def from_dict(cls, values: dict | None, *, key: str = "diagnosis") -> DiagnosisSettings:
@@ -140,13 +140,13 @@ class DiagnosisSettings:
             name = step.get("name") or "+" + " +".join(make_term(a).spec_string() for a in add)
             ladder.append({"name": str(name), "add": add, "kind": step.get("kind")})
         repeatability = values.get("turn_on_repeatability")
-        scale = values.get("scale_repeatability")
+        seating = values.get("seating_repeatability")
         return cls(
             float(values["significance"]),
             candidates,
             tuple(ladder),
             None if repeatability is None else float(repeatability),
-            None if scale is None else float(scale),
+            None if seating is None else float(seating),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -157,8 +157,8 @@ class DiagnosisSettings:
         }
         if self.turn_on_repeatability is not None:  # unset, the settings' digest stays as it was
             out["turn_on_repeatability"] = self.turn_on_repeatability
-        if self.scale_repeatability is not None:
-            out["scale_repeatability"] = self.scale_repeatability
+        if self.seating_repeatability is not None:
+            out["seating_repeatability"] = self.seating_repeatability
         return out
 
 
@@ -232,7 +232,7 @@ class Settings:
             "significance": self.diagnosis.significance,
             # the sensor's, whatever the protocol
             "turn_on_repeatability": self.diagnosis.turn_on_repeatability,
-            "scale_repeatability": self.diagnosis.scale_repeatability,
+            "seating_repeatability": self.diagnosis.seating_repeatability,
             **default["diagnosis"],
             **(override.get("diagnosis") or {}),
         }
