@@ -130,17 +130,21 @@ def _power_ons(nxt: CarryOver) -> str:
     return "each power-on the gaps may hold (the log cannot tell where the unit was switched off)"
 
 
+def _seating_told(nxt: CarryOver) -> str:
+    """The mountings' rotations against what the fixture's seating may give them."""
+    return (
+        f"{nxt['seating_change'] * 1e6:.0f} µrad RMS, within the {nxt['seating_allowance'] * 1e6:.0f} "
+        "µrad the fixture's seating gives up to chance"
+    )
+
+
 def _left_told(nxt: CarryOver) -> str:
     """What the other session's errors leave with the power-on's offsets out, over what a
     correct model leaves there, with that session's slow noise where it counts."""
     left = rezeroed_rms(nxt)
     told = f"{left / nxt['expected_rms']:.2f} times what a correct model would leave for white noise"
     if left < nxt["rezeroed_rms"]:
-        told += (
-            f" (each mounting's rotation out too: {nxt['seating_change'] * 1e6:.0f} µrad RMS, within "
-            f"the {nxt['seating_allowance'] * 1e6:.0f} µrad the fixture's seating gives up to chance, "
-            "diagnosis: seating_repeatability)"
-        )
+        told += f" (each mounting's rotation out too: {_seating_told(nxt)}, diagnosis: seating_repeatability)"
     wander = nxt.get("wander_rms", 0.0)
     if wander > nxt["expected_rms"]:
         told += (
@@ -196,9 +200,7 @@ def _other_session(diag: Diagnosis, base_next: CarryOver | None) -> str:
                 else ""
             )
             + (
-                f", each mounting's rotation out: {base_next['seating_change'] * 1e6:.0f} µrad RMS, "
-                f"within the {base_next['seating_allowance'] * 1e6:.0f} µrad the fixture's seating "
-                "gives up to chance"
+                f", each mounting's rotation out: {_seating_told(base_next)}"
                 if seated_rms(base_next) < base_next["validation_rms"]
                 else ""
             )

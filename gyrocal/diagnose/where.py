@@ -248,19 +248,26 @@ def axis_steps(obs: pd.DataFrame, data: dict) -> np.ndarray:
 
 def mountings(obs: pd.DataFrame) -> np.ndarray:
     """Each hold's mounting: the stretch of consecutive holds on one mount, numbered in time."""
-    return _before_each_hold(obs, {"t_start": obs["t_start"].to_numpy(float)}, np.zeros((len(obs), 1)))[1]
+    return _in_time(obs, obs["t_start"].to_numpy(float))[2]
+
+
+def _in_time(obs: pd.DataFrame, t_start) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The holds' order in time, whether each (in that order) starts a mounting, and each
+    hold's mounting (in the holds' own order)."""
+    n = len(obs)
+    order = np.argsort(np.asarray(t_start, dtype=float), kind="stable")
+    mount = obs["mount"].astype(str).to_numpy()[order] if "mount" in obs else np.zeros(n)
+    stretch_start = np.r_[True, mount[1:] != mount[:-1]]
+    stretch = np.empty(n, dtype=np.int64)
+    stretch[order] = np.cumsum(stretch_start) - 1
+    return order, stretch_start, stretch
 
 
 def _before_each_hold(obs: pd.DataFrame, data: dict, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``values`` (n, k) of the hold before each one in time on the same mounting (0 for the
     first after a remount: the table stood still while the unit was handled), and each
     hold's mounting (the stretch of consecutive holds on one mount, numbered in time)."""
-    n = len(values)
-    order = np.argsort(np.asarray(data["t_start"], dtype=float), kind="stable")
-    mount = obs["mount"].astype(str).to_numpy()[order] if "mount" in obs else np.zeros(n)
-    stretch_start = np.r_[True, mount[1:] != mount[:-1]]
-    stretch = np.empty(n, dtype=np.int64)
-    stretch[order] = np.cumsum(stretch_start) - 1
+    order, stretch_start, stretch = _in_time(obs, data["t_start"])
     ordered = values[order]
     before = np.empty_like(values)
     before[order] = np.where(stretch_start[:, None], 0.0, np.r_[np.zeros((1, values.shape[1])), ordered[:-1]])
