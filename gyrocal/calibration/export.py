@@ -38,6 +38,8 @@ Other terms (``scale_quadratic``, ``scale_cubic``, ``scale_asymmetry``, ``g_sens
 ``temp_rate``, user terms) make the output more than ``K(T) w_true + B(T)``: such models
 are refused, naming the terms; compensate them with ``gyrocal apply``. A temperature grid
 takes the base terms only (its coefficients are interpolated, not its terms' products).
+A term of the rig (:data:`RIG_TERMS`: the fixture's faces) is zero off the fixture and is
+left behind.
 
 JSON keys (``format: gyrocal.firmware/1``): ``device``, ``batch``, ``session``,
 ``protocol``, ``source`` (file name and SHA-256 of the calibration), ``gyrocal_version``,
@@ -71,6 +73,9 @@ if TYPE_CHECKING:  # the CLI registers export at start-up: what it reads is impo
 FORMAT = "gyrocal.firmware/1"
 FORMATS = {"c-header": ".h", "json": ".json"}
 BASE_TERMS = ("bias", "scale", "misalignment")  # the terms of w = K(T) w_true + B(T)
+# The rig's, not the sensor's: zero off the fixture, where firmware runs (their
+# coefficients are left behind, K and B hold the sensor).
+RIG_TERMS = ("misalignment_faces",)
 # Where T is the die's: the logged temperature through a first-order lag, run as a filter.
 DIE_TERM = "die_temperature"
 DIE_FILTER = (
@@ -211,6 +216,8 @@ def unsupported_terms(specs, kind: str = "temperature_grid") -> list[str]:
         if history_form(spec) is not None or temperature_history_form(spec) is not None:
             continue
         name = spec.get("name") if isinstance(spec, dict) else spec
+        if name in RIG_TERMS:
+            continue
         spline_ok = not isinstance(spec, dict) or (
             spec.get("input") in SPLINE_INPUTS and not spec.get("drop")
         )

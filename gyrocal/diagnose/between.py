@@ -72,15 +72,19 @@ class _Points:
             return f.values, _uncertainty(f)
         return f.values, _floored(f.covariance, self.fitted.fit, self.fitted.names)
 
-    def others(self, point: int, at: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def others(self, point: int, at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list] | None:
+        """The others' coefficients at ``at`` and their covariance, with the interpolation's
+        weights and the points they fall on."""
         loo = self.fitted.leave_out(point)
         if loo is None or loo.outside(at).any():
             return None
         values = loo.coefficients_at(at)[0]
+        weights = loo.grid.weights(at)[0]
         if not self.joint:
-            weights = loo.grid.weights(at)[0] ** 2
-            return values, np.einsum("p,pcd->cd", weights, np.array([_uncertainty(f) for f in loo.fits]))
-        return values, _floored(loo.covariance_at(at)[0], loo.fit, loo.names)
+            cov = np.einsum("p,pcd->cd", weights**2, np.array([_uncertainty(f) for f in loo.fits]))
+        else:
+            cov = _floored(loo.covariance_at(at)[0], loo.fit, loo.names)
+        return values, cov, weights, list(loo.used_points())
 
 
 def _points(fitted) -> _Points | None:
@@ -93,11 +97,53 @@ def _points(fitted) -> _Points | None:
     return None
 
 
-def between_points(fitted, alpha: float) -> BetweenPoints | None:
+def seating_variance(obs, mounting: np.ndarray, sigma: float) -> dict[int, np.ndarray]:
+    """Per temperature point, the variance (rad²) the fixture's seating gives the misalignment
+    fitted there against each axis' rate: σ² over the mountings at the point that turn that
+    axis (each seats the unit at its own small rotation, independent of the others')."""
+    if "point" not in obs:
+        return {}
+    rates = np.abs(obs[["rate_x", "rate_y", "rate_z"]].to_numpy(float)) > 0
+    points, mounting = obs["point"].to_numpy(), np.asarray(mounting)
+    out = {}
+    for p in np.unique(points):
+        at = points == p
+        turning = np.array([np.unique(mounting[at & rates[:, j]]).size for j in range(3)])
+        out[int(p)] = np.where(turning > 0, sigma**2 / np.maximum(turning, 1), 0.0)
+    return out
+
+
+def _with_seating(names, pick, own_cov, others_cov, point, weights, used, seating) -> tuple:
+    """The two covariances with the fixture's seating on each misalignment's diagonal: the
+    point's own mountings', and the other points' carried by the interpolation's weights."""
+    if not seating:
+        return own_cov, others_cov
+    own_cov, others_cov = own_cov.copy(), others_cov.copy()
+    axes = "xyz"
+    for k in pick:
+        part = names[k].split(".")
+        if part[0] != "misalignment":
+            continue
+        j = axes.index(part[2])
+        own_cov[k, k] += seating.get(int(point), np.zeros(3))[j]
+        others_cov[k, k] += float(
+            sum(w**2 * seating.get(int(q), np.zeros(3))[j] for w, q in zip(weights, used, strict=True))
+        )
+    return own_cov, others_cov
+
+
+def between_points(
+    fitted, alpha: float, seating: dict[int, np.ndarray] | None = None
+) -> BetweenPoints | None:
     """Per interior point, χ² of (fitted - interpolated) scale and misalignment against the
     sum of both covariances (the point's and the others' taken as independent); the largest,
     Bonferroni over the points, judged at ``alpha``/2. None for a model with global terms
-    (its points share coefficients), or with no interior point to leave out."""
+    (its points share coefficients), or with no interior point to leave out.
+
+    ``seating`` (:func:`seating_variance`): each mounting's own small rotation on the fixture
+    moves the misalignment fitted at its point; a calibration meets it as part of the
+    rig's scatter, so it joins the covariances (the interpolation carries the other points'
+    by its weights squared)."""
     view = _points(fitted)
     if view is None:
         return None
@@ -116,8 +162,9 @@ def between_points(fitted, alpha: float) -> BetweenPoints | None:
         if others is None:
             continue
         own_values, own_cov = view.own(int(p))
+        own_cov, others_cov = _with_seating(names, pick, own_cov, others[1], p, others[2], others[3], seating)
         diff = (own_values - others[0])[pick]
-        cov = (own_cov + others[1])[np.ix_(pick, pick)]
+        cov = (own_cov + others_cov)[np.ix_(pick, pick)]
         if not (np.all(np.isfinite(diff)) and np.all(np.isfinite(cov))):
             continue
         # A coefficient held fixed has no variance: the pseudo-inverse leaves it out, and

@@ -109,13 +109,18 @@ class BetweenPoints(_Written):
 
 @dataclass(frozen=True)
 class WithinNoise(_Written):
-    """The χ² test with the slow noise the static data cannot rule out at its upper bound."""
+    """The χ² test with the slow noise the static data cannot rule out at its upper bound,
+    and, where that alone does not explain the excess, the fixture's seating at its
+    repeatability beside it (``seating_change``, rad: the RMS of each mounting's rotation
+    fitted; ``seating_repeatability``, rad: its prior; None where it was not needed)."""
 
     excess_p_value: float
     chi2_red: float
     expected_rms: float
     static_seconds: float
     explains: bool
+    seating_change: float | None = None
+    seating_repeatability: float | None = None
 
 
 @dataclass(frozen=True)

@@ -11,10 +11,13 @@ it so that it can say so, rather than call it noise or an effect of the rate.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from ..fit.validate import stretches_between_gaps
 from .findings import SENSOR_LEAD, LabTest, MountingTest, Unexplained
+from .sessions import TURNED_SHARE
 from .stats import chi2_sf, f_sf, p_text
 
 
@@ -300,3 +303,68 @@ MOUNTING_ADVICE = (
     "at one temperature; a fixture that clamps the same way each time, or holds "
     "averaged over several mountings, bring it down."
 )
+
+
+class SeatingFit(NamedTuple):
+    """Each mounting's small rotation, fitted in sample as a random effect
+    (:func:`seating_in_sample`)."""
+
+    part: np.ndarray  # (n, 3) deg/s: the errors the rotations make (zero on rows not fitted)
+    penalty: float  # Σ ε² / σ²: the rotations' own χ², beside the residuals'
+    change: float  # rad: the RMS of the rotations fitted
+    coefficients: int
+
+
+def turned_columns(mounting: np.ndarray, rates: np.ndarray, output: int) -> np.ndarray:
+    """(n, k): per mounting, the rates of the axes other than ``output`` that it turns, a
+    column each; a mounting's small rotation moves each into ``output`` by a coefficient of
+    its own (radians). Columns a mounting hardly turns (:data:`.sessions.TURNED_SHARE` of the
+    most any turns, in power) are left out."""
+    groups = np.unique(mounting, return_inverse=True)[1]
+    others = np.delete(np.arange(3), output)
+    columns = (np.eye(groups.max() + 1)[groups][:, :, None] * rates[:, None, others]).reshape(len(rates), -1)
+    power = np.sum(columns**2, axis=0)
+    return columns[:, power > TURNED_SHARE * power.max(initial=0.0)]
+
+
+def seating_in_sample(obs, quality, stretch: np.ndarray, sigma: float) -> SeatingFit | None:
+    """The fixture's seating in the session's own residuals: each mounting's rotation a random
+    effect of 1σ ``sigma`` (rad, the rig's repeatability) beside each temperature point's bias
+    and rates, fitted per output axis by penalised least squares (the rotations' prior as
+    rows of the design: min ‖z − Xβ − Sε‖² + ‖ε‖²/σ², whitened by the hold's floor). The
+    minimum is the χ² of generalised least squares with the seating's covariance σ² S Sᵀ
+    added to the noise's: its degrees of freedom are the model's, for a random effect spends
+    none. A point's own rates take each point's mean rotation (a calibration absorbs that),
+    so what the rotations fit is how mountings at one point differ. None where no mounting
+    turns a rate into another output."""
+    rows = quality.fitted_rows
+    if not rows.any() or sigma <= 0:
+        return None
+    z, floor = quality.z[rows], quality.floor[rows]
+    own, _ = _point_columns(obs, rows)
+    rates = obs.loc[rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)
+    mounting = np.asarray(stretch)[rows]
+    part = np.zeros((len(obs), 3))
+    fitted_rows = np.flatnonzero(rows)
+    rotations: list[np.ndarray] = []
+    for i in range(3):
+        ok = np.isfinite(z[:, i])
+        tilts = turned_columns(mounting[ok], rates[ok], i)
+        if not tilts.shape[1]:
+            continue
+        w = 1.0 / floor[ok, i]
+        design = np.block(
+            [
+                [own[ok] * w[:, None], tilts * w[:, None]],
+                [np.zeros((tilts.shape[1], own.shape[1])), np.eye(tilts.shape[1]) / sigma],
+            ]
+        )
+        target = np.concatenate([z[ok, i], np.zeros(tilts.shape[1])])
+        coef = np.linalg.lstsq(design, target, rcond=None)[0]
+        rotation = coef[own.shape[1] :]
+        part[fitted_rows[ok], i] = tilts @ rotation
+        rotations.append(rotation)
+    if not rotations:
+        return None
+    eps = np.concatenate(rotations)
+    return SeatingFit(part, float(np.sum(eps**2)) / sigma**2, float(np.sqrt(np.mean(eps**2))), eps.size)

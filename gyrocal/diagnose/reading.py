@@ -46,6 +46,7 @@ LIBRARY = {
     "bias_temp_poly": "Σ_k c_k ΔT^k",
     "scale_temp_poly": "ω Σ_k s_k ΔT^k",
     "misalignment_temp": "Σ_b m_ab ω_b ΔT",
+    "misalignment_faces": "Σ_b D_ab s ω_b",
 }
 _OPS = {ast.Add: " + ", ast.Sub: " − ", ast.Mult: "·", ast.Div: "/", ast.Pow: "^"}
 _PRECEDENCE = {ast.Add: 1, ast.Sub: 1, ast.Mult: 2, ast.Div: 2, ast.Pow: 3}

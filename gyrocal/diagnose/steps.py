@@ -15,7 +15,7 @@ from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES
 from .approach import direction_of_approach
-from .between import between_points, between_reason, tilted_per_point, tilted_reason
+from .between import between_points, between_reason, seating_variance, tilted_per_point, tilted_reason
 from .confounds import mounting_confound, rate_order_confound, time_temperature_confound
 from .diagnosis import Diagnosis
 from .effects import (
@@ -64,6 +64,7 @@ from .lab import (
     mounting_fixed,
     mounting_reason,
     reference_reason,
+    seating_in_sample,
 )
 from .naming import (
     MOST,
@@ -92,6 +93,7 @@ from .sessions import (
     rate_shaped,
     reference_scaled,
     seated_rms,
+    seating_sigma,
     slow_noise,
     usable,
     wanders_most,
@@ -148,7 +150,7 @@ def diagnose(
     before_holds = history_columns(obs, data)
     # One session alone: the slow wander its static data cannot rule out, before the
     # mounting is read (wander leaves offsets per mounting too).
-    within_noise = slow_noise_bound(settings, obs, alpha, excess.explains, base_next)
+    within_noise = slow_noise_bound(settings, obs, alpha, excess, base_next, before_holds["mounting"])
     outside = outside_the_sensor(obs, excess, base.dof, before_holds, base_next, within_noise)
     unrepeated = did_not_repeat(judge, base, excess, base_next, outside)
     # An excess that does not come back in the other session is still searched: an effect
@@ -183,7 +185,9 @@ def diagnose(
     if why is None and explains and found.best is None:
         why = _other_session_reason(judge, base_next)
     between = (
-        between_points(base.fitted, alpha)
+        between_points(
+            base.fitted, alpha, seating_variance(obs, before_holds["mounting"], seating_sigma(settings))
+        )
         if excess.fits and excess.resolvable and found.best is None and not noise_explains
         else None
     )
@@ -358,12 +362,22 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
     )
 
 
-def slow_noise_bound(settings: Settings, obs, alpha: float, explains: bool, base_next) -> WithinNoise | None:
+def slow_noise_bound(
+    settings: Settings, obs, alpha: float, excess: ExcessTest, base_next, mounting: np.ndarray | None = None
+) -> WithinNoise | None:
     """The χ² test with the slow wander the static data could not rule out at its upper
     bound: it may be all the excess is. Where the model misses and no other session tells:
     none is given, or it shares no cells with this one to compare the residuals' patterns
-    (``repeat_p_value`` None) and its calibration carries there."""
-    if explains or (
+    (``repeat_p_value`` None) and its calibration carries there.
+
+    Where the wander alone leaves an excess and the holds' ``mounting`` (stretches on one
+    mount) shows mountings whose rotations differ, the fixture's seating at the rig's
+    repeatability (:func:`.sessions.seating_sigma`) joins it: each mounting's rotation a
+    random effect (:func:`.lab.seating_in_sample`), its part taken out of the holds and its
+    own χ² (Σ ε²/σ²) added to what the model leaves, on the model's degrees of freedom. What
+    a correct model leaves on the holds left out then counts the seating at the size fitted
+    (a point's mean rotation, which a calibration absorbs in sample, errs there)."""
+    if excess.explains or (
         usable(base_next) and (base_next["repeat_p_value"] is not None or fails_in_practice(base_next))
     ):
         return None
@@ -371,13 +385,35 @@ def slow_noise_bound(settings: Settings, obs, alpha: float, explains: bool, base
     if upper is None:
         return None
     wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
-    p_value = float(chi2_sf(wide.chi2, wide.dof))
+    chi2, expected = wide.chi2, float(wide.summary["expected_rms"])
+    sigma = seating_sigma(settings)
+    seated = (
+        seating_in_sample(obs, excess.quality, mounting, sigma)
+        if mounting is not None and chi2_sf(chi2, wide.dof) < alpha / 2
+        else None
+    )
+    if seated is not None and seated.change > 0:
+        unseated = upper.copy()
+        for i, a in enumerate(AXES):
+            unseated[f"gyro_{a}"] = upper[f"gyro_{a}"].to_numpy(float) - seated.part[:, i]
+        chi2 = evaluate(
+            settings, unseated, "configured model, slow noise at its upper bound, seating out"
+        ).chi2
+        chi2 += seated.penalty
+        rates = obs.loc[excess.quality.fitted_rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)
+        turned = 2.0 / 3.0 * float(np.mean(np.sum(rates**2, axis=1)))  # Σ over the other axes, per output
+        expected = float(np.hypot(expected, seated.change * np.sqrt(turned)))
+    else:
+        seated = None
+    p_value = float(chi2_sf(chi2, wide.dof))
     return WithinNoise(
         excess_p_value=p_value,
-        chi2_red=wide.chi2 / wide.dof,
-        expected_rms=float(wide.summary["expected_rms"]),
+        chi2_red=chi2 / wide.dof,
+        expected_rms=expected,
         static_seconds=float(obs.attrs.get("static_seconds") or 0.0),
         explains=p_value >= alpha / 2,
+        seating_change=None if seated is None else seated.change,
+        seating_repeatability=None if seated is None else sigma,
     )
 
 

@@ -493,9 +493,21 @@ def _within_slow_noise(
         f"can tell: its in-sample "
         f"residuals, {factor:.2f} times the floor from the static data, are within the "
         f"slow wander that {within_noise.static_seconds:.0f} s of static data cannot rule "
-        f"out (reduced χ² {within_noise.chi2_red:.2f} with it), on the holds left out its "
+        f"out{_seating_beside(within_noise)} (reduced χ² {within_noise.chi2_red:.2f} with "
+        f"{'them' if within_noise.seating_change is not None else 'it'}), on the holds left out its "
         f"error is {min(_held_out_ratio(base), wide):.2f} times what a correct model would leave with that "
         f"noise, and no term takes a practical part of it away. {told}"
+    )
+
+
+def _seating_beside(within_noise: WithinNoise) -> str:
+    """The fixture's seating where it joined the slow wander (:func:`.steps.slow_noise_bound`)."""
+    if within_noise.seating_change is None or within_noise.seating_repeatability is None:
+        return ""
+    return (
+        " and the fixture's seating (each mounting's own small rotation, "
+        f"{1e6 * within_noise.seating_change:.0f} µrad RMS fitted against the rig's repeatability of "
+        f"{1e6 * within_noise.seating_repeatability:.0f} µrad, diagnosis: seating_repeatability)"
     )
 
 
@@ -696,6 +708,9 @@ SEPARATES = {
     "time": "revisiting the first temperature point at the end of the session separates "
     "drift in time from temperature; another session (--other-session) tells a "
     "drift that repeats from slow noise",
+    "mount": "mounting both faces of each axis (the six-mount protocol) separates a tilt that "
+    "stays with the fixture's face from the sensor's misalignment; remounting the unit "
+    "separates what stays with the mounting from what stays with the sensor",
 }
 
 
@@ -802,7 +817,7 @@ def advice(
             )
             out.append(
                 f"{c.term} cannot be fitted from this protocol ({c.reason}){seen}: "
-                + "; ".join(SEPARATES[k] for k in sorted(kinds))
+                + "; ".join(SEPARATES[k] for k in sorted(kinds) if k in SEPARATES)
                 + "."
             )
     for c in partial[:1]:
@@ -858,6 +873,8 @@ def term_reads(term: str) -> set[str]:
         kinds.add("time")
     if "t_mount" in inputs:
         kinds |= {"time", "mount"}
+    if getattr(inner, "reads_face", False):
+        kinds.add("mount")
     return kinds
 
 

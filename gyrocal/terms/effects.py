@@ -314,6 +314,38 @@ class GSquared(Term):
         }
 
 
+@register_term("misalignment_faces")
+@dataclass(frozen=True)
+class MisalignmentFaces(Term):
+    """The fixture's opposite faces out of parallel, ``e_a += Σ_(b≠a) D_ab s ω_b``, ``s`` the
+    mount's facing (+1 on +b, -1 on -b): mounted on its -b face the unit sits at a tilt of its
+    own, and the turning rate leaks into the other outputs by a misalignment that differs
+    between the two faces. The misalignment fitted is their mean, ``D`` half their
+    difference: the rig's, not the sensor's (a calibration applied off the fixture leaves it
+    out: its ``sign`` is 0 where no face is known). Told apart only by a protocol that mounts
+    both faces of an axis; one set for the session. [1]"""
+
+    unit = "1"
+    # the face is the hold's, not an input apply must have (:meth:`.signals.Inputs.__getitem__`)
+    needs = frozenset({"rate_x", "rate_y", "rate_z"})
+    # the fixture's faces do not change with the chamber's temperature: one set per session,
+    # which a point that mounts one face of an axis alone does not leave unfitted
+    scope = "global"
+    reads_face = True  # the kind of input it reads is the mount (its face)
+
+    def coefficients(self):
+        return [f"{self.name}.{a}.{b}" for a in AXES for b in AXES if a != b]
+
+    def columns(self, data):
+        sign = np.asarray(data["sign"], dtype=float)
+        return {
+            f"{self.name}.{a}.{b}": sign * np.asarray(data[f"rate_{b}"], dtype=float)
+            for a in AXES
+            for b in AXES
+            if a != b
+        }
+
+
 # Tried by the diagnosis when not in the model, in this order (ties keep it).
 CANDIDATES = (
     "scale_quadratic",
@@ -327,4 +359,5 @@ CANDIDATES = (
     "bias_temp_poly(degree=1)",
     "scale_temp_poly(degree=1)",
     "misalignment_temp",
+    "misalignment_faces",
 )

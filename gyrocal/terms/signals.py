@@ -41,8 +41,9 @@ SERIES_INPUTS = frozenset({"t", "t_mount", "temp_rate", "temp_lag", "rate_histor
 # does; a constant difference (the bias, a scale's few per cent) is the model's to absorb.
 RECORD_COLUMNS = ("gyro_x", "gyro_y", "gyro_z", "accel_x", "accel_y", "accel_z")
 RECORD_SOURCE = {"rate_x": "gyro_x", "rate_y": "gyro_y", "rate_z": "gyro_z"}
-# spans, rate, grid point, when the unit was last mounted and when its log last resumed (s)
-HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point", "mounted_at", "resumed_at"})
+# spans, rate, grid point, when the unit was last mounted and when its log last resumed (s),
+# and the face of the fixture the unit is mounted on (+1 or -1 along its turning axis)
+HOLD_PLUMBING = frozenset({"t_start", "t_end", "temp_rate", "point", "mounted_at", "resumed_at", "sign"})
 HOLD_INPUTS = frozenset({"rate_x", "rate_y", "rate_z", "ref_rate", "accel_x", "accel_y", "accel_z", "temp"})
 MAX_BINS = 50_000
 # The lag (s) a play or Duhem operator of the temperature reads it through, in the fit, in
@@ -569,6 +570,8 @@ class Inputs(dict):
         self.plan: tuple[np.ndarray, np.ndarray] | None = None
 
     def __getitem__(self, name):
+        if name == "sign" and not dict.__contains__(self, name):
+            return self._off_the_fixture()  # optional: no input a stream must have
         self.read.add(name)
         if name == "t_mount" and not dict.__contains__(self, name):
             return self._since_mounting()
@@ -577,6 +580,16 @@ class Inputs(dict):
         except KeyError:
             shown = sorted(k for k in self if k not in ("series", "t_start", "t_end", "point"))
             raise MissingInputError(f"{name} is not an input here (inputs: {', '.join(shown)})") from None
+
+    def _off_the_fixture(self) -> np.ndarray:
+        """``sign``, the fixture's face, where no face is known (apply, in the field): 0, so
+        that a term of the fixture's faces adds nothing off it."""
+        like = next(
+            (dict.get(self, c) for c in ("t", "rate_x", "temp") if dict.get(self, c) is not None), None
+        )
+        if like is None:
+            raise MissingInputError("sign is not an input here: no hold or sample to give it for")
+        return np.zeros(np.shape(like))
 
     def _since_mounting(self) -> np.ndarray:
         """``t_mount``: seconds since the unit was last mounted, from each hold's

@@ -630,6 +630,9 @@ def test_histories_firmware_cannot_run_are_refused_by_name():
         ]
     )
     assert refused == ["expression", "expression", "expression"]
+    # the fixture's faces are the rig's: zero off it, left behind rather than refused
+    names = ("bias", "scale", "misalignment", "misalignment_faces", "scale_cubic")
+    assert unsupported_terms([{"name": n} for n in names]) == ["scale_cubic"]
 
 
 TEMPERATURE_HISTORY_TERMS = [

@@ -332,3 +332,16 @@ def test_three_mounts_mounted_once_tie_the_specific_force_to_the_mounting(tmp_pa
     again = zoo_sessions(tmp_path / "again", "g_sensitivity", 3)
     d = diagnose(settings, segment_log(again[0], settings).observations).to_dict()
     assert d["best"] is not None and d["confound"] is None, d["verdict"]
+
+
+def test_every_kind_of_input_a_candidate_reads_has_the_protocol_that_separates_it():
+    """The advice for a candidate the protocol cannot fit names, for each kind of input it
+    reads, the protocol that would separate it: no kind is left without its sentence (a
+    term of the fixture's faces, blocked on three mounts, once had none)."""
+    from gyrocal.diagnose.verdict import SEPARATES, input_kinds
+    from gyrocal.terms.effects import CANDIDATES
+
+    specs = [*CANDIDATES, "expression(formula='exp(-t_mount / 100)')", "expression(formula='t')"]
+    for spec in specs:
+        assert input_kinds(spec) <= SEPARATES.keys(), spec
+    assert "mount" in input_kinds("misalignment_faces")

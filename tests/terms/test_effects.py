@@ -120,6 +120,7 @@ def hold_means_of_samples(log, obs, term) -> dict[str, np.ndarray]:
             **{f"accel_{x}": table.column(f"accel_{x}").to_numpy()[a:b].astype(float) for x in "xyz"},
             **{f"rate_{x}": np.full(b - a, obs[f"rate_{x}"].iloc[i]) for x in "xyz"},
             "ref_rate": np.full(b - a, obs["ref_rate"].iloc[i]),
+            "sign": np.full(b - a, obs["sign"].iloc[i]),  # the fixture's face, the hold's
         }
         columns = term.columns(Inputs(data, series, data["t"]))
         for c in out:
@@ -192,6 +193,20 @@ def test_fit_and_apply_see_the_same_library_effect(observed, spec):
 def test_fit_and_apply_see_the_same_user_effect(observed, spec):
     """The same for user terms of time, lags, temperature rate and orientation."""
     check_fit_and_apply_agree(observed, spec)
+
+
+def test_the_fixtures_faces_vanish_off_the_fixture(observed):
+    """A term of the fixture's faces is the rig's: where no face is known (apply in the
+    field) it adds nothing, and on the fixture it is the face times the other axes' rates."""
+    _, obs = observed
+    term = make_term("misalignment_faces")
+    rates = {f"rate_{a}": obs[f"rate_{a}"].to_numpy(float) for a in "xyz"}
+    off = term.columns(Inputs(dict(rates)))
+    assert all(np.all(np.asarray(v) == 0.0) for v in off.values())
+    on = term.columns(Inputs({**rates, "sign": obs["sign"].to_numpy(float)}))
+    assert np.array_equal(on["misalignment_faces.x.y"], obs["sign"].to_numpy(float) * rates["rate_y"])
+    assert set(on) == {f"misalignment_faces.{a}.{b}" for a in "xyz" for b in "xyz" if a != b}
+    assert "sign" not in term.inputs()  # apply never asks a stream for the face
 
 
 def test_each_library_term_is_checked():
