@@ -399,6 +399,8 @@ def slow_noise_bound(
         chi2 = evaluate(
             settings, unseated, "configured model, slow noise at its upper bound, seating out"
         ).chi2
+        # the rotations were fitted under the white floor, not the wander's covariance: the
+        # sum is that objective at a rotation other than its best, never below its minimum
         chi2 += seated.penalty
         rates = obs.loc[excess.quality.fitted_rows, ["rate_x", "rate_y", "rate_z"]].to_numpy(float)
         turned = 2.0 / 3.0 * float(np.mean(np.sum(rates**2, axis=1)))  # Σ over the other axes, per output
