@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fit.thermal import GridFit, global_terms
+from ..terms import AXES
 from .findings import SENSOR_LEAD, BetweenPoints, Unexplained
 from .stats import chi2_sf, p_text
 
@@ -119,12 +120,11 @@ def _with_seating(names, pick, own_cov, others_cov, point, weights, used, seatin
     if not seating:
         return own_cov, others_cov
     own_cov, others_cov = own_cov.copy(), others_cov.copy()
-    axes = "xyz"
     for k in pick:
         part = names[k].split(".")
         if part[0] != "misalignment":
             continue
-        j = axes.index(part[2])
+        j = AXES.index(part[2])
         own_cov[k, k] += seating.get(int(point), np.zeros(3))[j]
         others_cov[k, k] += float(
             sum(w**2 * seating.get(int(q), np.zeros(3))[j] for w, q in zip(weights, used, strict=True))

@@ -17,7 +17,7 @@ import numpy as np
 
 from ..fit.validate import stretches_between_gaps
 from .findings import SENSOR_LEAD, LabTest, MountingTest, Unexplained
-from .sessions import TURNED_SHARE
+from .sessions import turned_columns
 from .stats import chi2_sf, f_sf, p_text
 
 
@@ -313,18 +313,6 @@ class SeatingFit(NamedTuple):
     penalty: float  # Σ ε² / σ²: the rotations' own χ², beside the residuals'
     change: float  # rad: the RMS of the rotations fitted
     coefficients: int
-
-
-def turned_columns(mounting: np.ndarray, rates: np.ndarray, output: int) -> np.ndarray:
-    """(n, k): per mounting, the rates of the axes other than ``output`` that it turns, a
-    column each; a mounting's small rotation moves each into ``output`` by a coefficient of
-    its own (radians). Columns a mounting hardly turns (:data:`.sessions.TURNED_SHARE` of the
-    most any turns, in power) are left out."""
-    groups = np.unique(mounting, return_inverse=True)[1]
-    others = np.delete(np.arange(3), output)
-    columns = (np.eye(groups.max() + 1)[groups][:, :, None] * rates[:, None, others]).reshape(len(rates), -1)
-    power = np.sum(columns**2, axis=0)
-    return columns[:, power > TURNED_SHARE * power.max(initial=0.0)]
 
 
 def seating_in_sample(obs, quality, stretch: np.ndarray, sigma: float) -> SeatingFit | None:

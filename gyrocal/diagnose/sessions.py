@@ -349,13 +349,9 @@ def _seating(errors, weights, rates, mounting, offsets: int) -> Seating:
     one_hot = np.eye(counts.size)[groups] * (counts >= SEATING_MIN_HOLDS)[None, :]
     part, spent, coefficients = np.zeros_like(errors), float(offsets), []
     for i in range(3):
-        others = np.delete(np.arange(3), i)
-        columns = (one_hot[:, :, None] * rates[:, None, others]).reshape(n, -1)
-        power = np.sum(columns**2, axis=0)
-        turned = power > TURNED_SHARE * power.max(initial=0.0)
-        if not turned.any():
+        tilts = turned_columns(mounting, rates, i, counts >= SEATING_MIN_HOLDS)
+        if not tilts.shape[1]:
             continue
-        tilts = columns[:, turned]
         design = np.column_stack([one_hot[:, one_hot.any(axis=0)], tilts])
         root = np.sqrt(weights[:, i])
         coef, _, rank, _ = np.linalg.lstsq(design * root[:, None], errors[:, i] * root, rcond=None)
@@ -382,6 +378,24 @@ def _seating(errors, weights, rates, mounting, offsets: int) -> Seating:
 TURNED_SHARE = 1e-4
 # The holds a mounting needs for its rotation to be told from its offset.
 SEATING_MIN_HOLDS = 3
+
+
+def turned_columns(
+    mounting: np.ndarray, rates: np.ndarray, output: int, keep: np.ndarray | None = None
+) -> np.ndarray:
+    """(n, k): per mounting, the rates of the axes other than ``output`` that it turns, a
+    column each; a mounting's small rotation moves each into ``output`` by a coefficient of
+    its own (radians). Columns a mounting hardly turns (:data:`TURNED_SHARE` of the most any
+    turns, in power) are left out, and those of mountings ``keep`` (per mounting, in sorted
+    order) leaves out."""
+    groups = np.unique(mounting, return_inverse=True)[1]
+    one_hot = np.eye(groups.max() + 1)[groups]
+    if keep is not None:
+        one_hot = one_hot * keep[None, :]
+    others = np.delete(np.arange(3), output)
+    columns = (one_hot[:, :, None] * rates[:, None, others]).reshape(len(rates), -1)
+    power = np.sum(columns**2, axis=0)
+    return columns[:, power > TURNED_SHARE * power.max(initial=0.0)]
 
 
 def reference_scaled(nxt: CarryOver) -> bool:
