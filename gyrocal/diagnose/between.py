@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..fit.thermal import GridFit, global_terms
+from ..fit.model import columns_of
+from ..fit.thermal import GridFit, global_terms, interpolation_weights
 from ..terms import AXES
 from .findings import SENSOR_LEAD, BetweenPoints, Unexplained
 from .stats import chi2_sf, p_text
@@ -96,6 +97,49 @@ def _points(fitted) -> _Points | None:
     if getattr(fitted, "point_ids", None) and not global_terms(fitted.model):
         return _Points(fitted)
     return None
+
+
+def drift_chord(fitted, obs) -> tuple[np.ndarray, np.ndarray] | None:
+    """The errors (n, 3) a correct model's smooth drift makes on the interior points left out,
+    and those points' holds: the drift of the calibration's own order (degree stencil − 1 in
+    temperature: ΔT and ΔT² for Lagrange-3, seed 003 Eq 16), fitted through the points'
+    coefficients, interpolated at each interior point from the others as the validation
+    interpolates, against itself there. Where the others leave fewer points than the
+    calibration's stencil (three points leave two: a line where the calibration runs a
+    parabola), leaving a point out judges a rule the calibration does not use, and the
+    curvature that rule misses is no effect. None where the others leave the stencil whole
+    (the drift is then interpolated exactly) or the model is off a grid."""
+    grid = getattr(fitted, "grid", None)
+    if grid is None or "point" not in obs:
+        return None
+    temps, used = grid.temperatures, list(fitted.used_points())
+    stencil = STENCIL.get(grid.method, grid.degree + 1)
+    degree = min(stencil - 1, len(temps) - 1)
+    if len(temps) < 3 or len(temps) - 1 >= stencil or degree < 2 or len(used) != len(temps):
+        return None
+    sd = np.asarray(grid.stderr, dtype=float)
+    weight = np.divide(1.0, sd, out=np.ones_like(sd), where=sd > 0)  # a coefficient held fixed: even
+    centre = float(temps.mean())
+    polys = [
+        np.polyfit(temps - centre, grid.values[:, j], degree, w=weight[:, j]) for j in range(len(grid.names))
+    ]
+    drift_at = lambda t: np.column_stack([np.polyval(c, t - centre) for c in polys])  # noqa: E731
+    drift = drift_at(temps)
+    point, temp = obs["point"].to_numpy(), obs["temp"].to_numpy(float)
+    design = fitted.model.design(fitted.model.transform_inputs(columns_of(obs)))
+    axis = [AXES.index(name.split(".")[1]) for name in grid.names]
+    errors, use = np.zeros((len(obs), len(AXES))), np.zeros(len(obs), dtype=bool)
+    for k in range(1, len(temps) - 1):
+        rows = np.flatnonzero(point == used[k])
+        at = np.clip(temp[rows], temps[k - 1], temps[k + 1])
+        others = np.arange(len(temps)) != k
+        delta = interpolation_weights(grid.method, temps[others], at, degree=grid.degree) @ drift[others]
+        delta -= drift_at(at)
+        for j, name in enumerate(grid.names):
+            column = np.broadcast_to(np.asarray(design[name], dtype=float), (len(obs),))[rows]
+            errors[rows, axis[j]] -= column * delta[:, j]  # a coefficient too large takes its excess off
+        use[rows] = True
+    return errors, use
 
 
 def seating_variance(obs, mounting: np.ndarray, sigma: float) -> dict[int, np.ndarray]:

@@ -93,6 +93,8 @@ class Diagnosis:
             # points logged on their own, scored with their turn-on biases out
             # (gyrocal.fit.validate.own_power_ons): the validation's own figure, and how many
             **{k: s[k] for k in ("validation_rms_as_scored", "rezeroed_stretches") if k in s},
+            # the curvature a point left out of too few points misses (.between.drift_chord)
+            **({"drift_chord_rms": s["drift_chord_rms"]} if "drift_chord_rms" in s else {}),
             "significance": self.significance,
             "chi2_red": self.chi2_red,
             "rms_over_floor": self.rms_over_floor,

@@ -14,13 +14,14 @@ from typing import Any, TypedDict
 import numpy as np
 import pandas as pd
 
-from ..fit.model import columns_of
+from ..fit.model import columns_of, observation_floor
 from ..fit.thermal import fit_model
-from ..fit.validate import CannotLeaveOut, ValidationFigures, validate
+from ..fit.validate import CannotLeaveOut, ValidationFigures, own_power_ons, validate
 from ..io.errors import GyrocalError
 from ..pipeline.config import Settings
 from ..terms import AXES, TERMS, make_term
 from ..terms.effects import CANDIDATES
+from .between import drift_chord
 
 
 @dataclass
@@ -67,7 +68,7 @@ def evaluate(
         if not in_sample:
             raise
         summary = in_sample_summary(fitted, obs)
-    ev = evaluation_of(settings, fitted, summary, name)
+    ev = with_drift_chord(evaluation_of(settings, fitted, summary, name), obs)
     _EVALUATED.insert(0, (obs, key, ev))
     del _EVALUATED[EVALUATIONS_KEPT:]
     return ev
@@ -132,6 +133,34 @@ def _rezeroed(summary: dict) -> dict:
     }
 
 
+def with_drift_chord(ev: Evaluation, obs: pd.DataFrame) -> Evaluation:
+    """The evaluation with what a correct model leaves on the points left out
+    (``expected_rms``) counting the smooth drift that leaving a point out cannot interpolate
+    where the calibration can (:func:`.between.drift_chord`; ``drift_chord_rms``, scored as the
+    held-out error is: its stretches rezeroed where the validation's are). Unchanged where
+    leaving a point out interpolates by the calibration's own rule, or nothing was."""
+    summary = ev.summary
+    if summary.get("held_out") != "temperature" or "drift_chord_rms" in summary:
+        return ev
+    chord = drift_chord(ev.fitted, obs)
+    if chord is None:
+        return ev
+    errors, use = chord
+    rms = float(np.sqrt(np.mean(np.square(errors[use])))) if use.any() else 0.0
+    if "rezeroed_rms" in summary:
+        floor = observation_floor(columns_of(obs))
+        rezeroed = own_power_ons(obs, errors, floor, use)
+        rms = rms if rezeroed is None else rezeroed[0]
+    expected = math.hypot(summary["expected_rms"], rms)
+    figures = {
+        **summary,
+        "drift_chord_rms": rms,
+        "expected_rms": expected,
+        "excess_over_expected": summary["validation_rms"] / expected if expected > 0 else float("inf"),
+    }
+    return replace(ev, summary=figures)
+
+
 def noise_only(ev: Evaluation) -> Evaluation:
     """The configured model's evaluation with what a correct model would leave
     (``expected_rms``) made of the noise alone: the floor, and the calibration's uncertainty
@@ -145,8 +174,9 @@ def noise_only(ev: Evaluation) -> Evaluation:
     expected, floor = summary.get("expected_rms"), summary.get("noise_floor")
     if summary.get("held_out") == "none" or expected is None or not floor or chi2_red <= 1.0:
         return ev
-    calibration = max(expected**2 - floor**2, 0.0)
-    bar = math.sqrt(floor**2 + calibration / chi2_red)
+    chord = summary.get("drift_chord_rms", 0.0)  # the drift's, not the noise's: kept whole
+    calibration = max(expected**2 - floor**2 - chord**2, 0.0)
+    bar = math.sqrt(floor**2 + calibration / chi2_red + chord**2)
     figures = {**summary, "expected_rms": bar, "excess_over_expected": summary["validation_rms"] / bar}
     return replace(ev, summary=figures)
 

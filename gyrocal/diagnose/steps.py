@@ -39,6 +39,7 @@ from .evaluation import (
     fix_row,
     ladder,
     noise_only,
+    with_drift_chord,
 )
 from .findings import (
     SENSOR_LEAD,
@@ -127,7 +128,7 @@ def diagnose(
     alpha = settings.diagnosis.significance
     if base is None:
         base = evaluate(settings, obs, "configured model")
-    base = noise_only(base)
+    base = noise_only(with_drift_chord(base, obs))
     data = columns_of(obs)
     excess = excess_test(obs, base, alpha)
     judge = Judge(settings, obs, data, other, alpha, max(base.chi2 / base.dof - 1.0, 0.0))

@@ -68,6 +68,7 @@ def verdict(diag: Diagnosis) -> str:
         assert diag.time_drift is not None
         text += " " + drift_sentence(diag.base, diag.time_drift)
     text += _between_met(diag)
+    text += _drift_chord_told(diag.base)
     why = diag.unexplained
     if why is not None and not (why.reason == "too small" and "too small" in text):
         text += f" {why.opening}: {why.text}; {why.would_tell} would tell."
@@ -101,6 +102,25 @@ def _between_met(diag: Diagnosis) -> str:
         f"would leave, within the bar a calibration meets on its next session ({CARRIES_WITHIN:g} "
         f"times, {bar:.2f} with what chance allows over its holds), although a point left out "
         "doubles the span the interpolation bridges: too small to act on."
+    )
+
+
+def _drift_chord_told(base: Evaluation) -> str:
+    """Where leaving a point out interpolates it by a lower-order rule than the calibration
+    uses (:func:`.between.drift_chord`) and the curvature that rule misses is above the noise
+    floor: what the held-out figure counts as drift, and what would test it."""
+    s = base.summary
+    chord = s.get("drift_chord_rms")
+    if chord is None or chord <= s["noise_floor"]:
+        return ""
+    points = s["temperature_points"]
+    rule = " (a line where it runs a parabola)" if points == 3 else ""
+    return (
+        f" With {points} temperature points, a point left out is interpolated from the "
+        f"{points - 1} others by a lower-order rule than the calibration's{rule}: the "
+        f"temperature curvature between them, {chord:.3g} deg/s on the held-out holds, is "
+        "counted as the smooth drift a correct model has, which no point left out can test; "
+        "another temperature point would."
     )
 
 

@@ -191,9 +191,9 @@ def test_a_unit_switched_off_at_each_set_point_is_validated_with_its_power_ons_o
     of its three points is logged on its own, with a turn-on bias no interpolation from the
     other points knows. Left out, the points' holds erred 63 times what a correct model leaves,
     read as an effect; with each point's offsets per axis taken out, the error is what slow
-    noise leaves, and from one log the model explains the data. With the other session, the
-    shape that fits this session's faint excess best fails there while the calibration
-    carries over: slow noise, not a unit that changed."""
+    noise leaves, and from one log the model explains the data. With the other session, whose
+    offsets per stretch its power-ons explain, the calibration carries over: slow noise and
+    power-ons, not a unit that changed."""
     settings = Settings().for_protocol("turntable")
     obs, other = sessions(tmp_path, 13, settings)
     one = diagnose(settings, obs).to_dict()
@@ -201,9 +201,9 @@ def test_a_unit_switched_off_at_each_set_point_is_validated_with_its_power_ons_o
     assert one["validation_rms_as_scored"] > 10 * one["validation_rms"], one
     assert _answer(one)["verdict"] == "quiet", one["verdict"]
     two = diagnose(settings, obs, other).to_dict()
-    assert not two["next_session"]["fails_in_practice"] and two["unrepeated_shape"], two["verdict"]
+    assert not two["next_session"]["fails_in_practice"], two["verdict"]
     assert _answer(two)["verdict"] == "quiet", two["verdict"]
-    assert "which does not hold on the other session), and the calibration carries over" in two["verdict"]
+    assert "the calibration carries over" in two["verdict"], two["verdict"]
 
 
 def test_holds_still_moving_after_a_door_serve_the_calibration(tmp_path):
@@ -224,3 +224,25 @@ def test_holds_still_moving_after_a_door_serve_the_calibration(tmp_path):
         run(paths[0], settings).calibration, segment_log(paths[2], settings, "turntable").observations
     )
     assert unseen["validation_rms"] <= 1.2 * floor, (unseen["validation_rms"], floor)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("index", [20, 40])
+def test_three_points_left_out_count_the_curvature_a_line_misses(tmp_path, index):
+    """Units N020 and N040: complete, on three temperature points, their bias curving with
+    temperature by several floors between the points. Left out, the middle point is read by
+    the line through the other two where the calibration runs a parabola through all three,
+    and erred 8 (N040) to 26 (N020) times what a correct model leaves: from one log,
+    "unexplained". That error is the curvature: the drift chord (the smooth drift of the
+    calibration's own order interpolated from the other points) matches it within three
+    noise bars of the held-out figure; counted in what a correct model leaves, the model
+    explains the data and the verdict says that only another temperature point would test
+    the curvature."""
+    settings = Settings().for_protocol("turntable")
+    obs, _ = sessions(tmp_path, index, settings)
+    d = diagnose(settings, obs).to_dict()
+    chord, held_out = d["drift_chord_rms"], d["validation_rms"]
+    noise = (d["expected_rms"] ** 2 - chord**2) ** 0.5  # the floor and the calibration's uncertainty
+    assert held_out > 5 * noise and abs(held_out - chord) <= 3 * noise, d
+    assert _answer(d)["verdict"] == "quiet", d["verdict"]
+    assert "another temperature point would" in d["verdict"], d["verdict"]
