@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..fit.model import columns_of
-from ..fit.thermal import GridFit, global_terms, interpolation_weights
+from ..fit.thermal import GridFit, diagonal, global_terms, interpolation_weights
 from ..terms import AXES
 from .findings import SENSOR_LEAD, BetweenPoints, Unexplained
 from .stats import chi2_sf, p_text
@@ -99,47 +99,58 @@ def _points(fitted) -> _Points | None:
     return None
 
 
-def drift_chord(fitted, obs) -> tuple[np.ndarray, np.ndarray] | None:
-    """The errors (n, 3) a correct model's smooth drift makes on the interior points left out,
-    and those points' holds: the drift of the calibration's own order (degree stencil − 1 in
-    temperature: ΔT and ΔT² for Lagrange-3, seed 003 Eq 16), fitted through the points'
-    coefficients, interpolated at each interior point from the others as the validation
-    interpolates, against itself there. Where the others leave fewer points than the
-    calibration's stencil (three points leave two: a line where the calibration runs a
-    parabola), leaving a point out judges a rule the calibration does not use, and the
-    curvature that rule misses is no effect. None where the others leave the stencil whole
-    (the drift is then interpolated exactly) or the model is off a grid."""
+def drift_chord(fitted, obs) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Where leaving a point out leaves fewer points than the calibration's stencil (three
+    points leave two: a line where the calibration runs a parabola), what the calibration
+    itself says that leave-out misses at the holds it scores: per hold, the calibration
+    interpolated from the other points less the calibration from all of them, carried to
+    the outputs by the model's columns (errors (n, 3)); the same difference's variance from
+    the points' coefficient covariances (n, 3), the part of it the noise makes; and the
+    holds the validation scores (inside the span of the points left in). Beyond the noise it
+    is the temperature curvature every gyro has (seed 003 Eq 16's ΔT²), which such a
+    leave-out judges by a rule the calibration does not use. None where the others leave
+    the stencil whole or the model is off a grid."""
     grid = getattr(fitted, "grid", None)
-    if grid is None or "point" not in obs:
+    temps = None if grid is None else grid.temperatures
+    if grid is None or len(temps) < 3 or len(temps) - 1 >= STENCIL.get(grid.method, grid.degree + 1):
         return None
-    temps, used = grid.temperatures, list(fitted.used_points())
-    stencil = STENCIL.get(grid.method, grid.degree + 1)
-    degree = min(stencil - 1, len(temps) - 1)
-    if len(temps) < 3 or len(temps) - 1 >= stencil or degree < 2 or len(used) != len(temps):
+    used = list(getattr(fitted, "point_ids", ()) or fitted.used_points())  # grid order
+    if len(used) != len(temps):
         return None
-    sd = np.asarray(grid.stderr, dtype=float)
-    weight = np.divide(1.0, sd, out=np.ones_like(sd), where=sd > 0)  # a coefficient held fixed: even
-    centre = float(temps.mean())
-    polys = [
-        np.polyfit(temps - centre, grid.values[:, j], degree, w=weight[:, j]) for j in range(len(grid.names))
-    ]
-    drift_at = lambda t: np.column_stack([np.polyval(c, t - centre) for c in polys])  # noqa: E731
-    drift = drift_at(temps)
-    point, temp = obs["point"].to_numpy(), obs["temp"].to_numpy(float)
-    design = fitted.model.design(fitted.model.transform_inputs(columns_of(obs)))
-    axis = [AXES.index(name.split(".")[1]) for name in grid.names]
-    errors, use = np.zeros((len(obs), len(AXES))), np.zeros(len(obs), dtype=bool)
-    for k in range(1, len(temps) - 1):
-        rows = np.flatnonzero(point == used[k])
-        at = np.clip(temp[rows], temps[k - 1], temps[k + 1])
+    data = fitted.model.transform_inputs(columns_of(obs))
+    point, temp = np.asarray(data["point"]).astype(int), np.asarray(data["temp"], float)
+    design = fitted.model.design(data)
+    n, names = len(temp), list(grid.names)
+    x = np.column_stack([np.broadcast_to(np.asarray(design[c], dtype=float), (n,)) for c in names])
+    mine = np.array([[AXES.index(c.split(".")[1]) == i for c in names] for i in range(len(AXES))])
+    cov = grid.covariance if grid.covariance is not None else diagonal(grid.stderr**2)
+    errors, variance = np.zeros((n, len(AXES))), np.zeros((n, len(AXES)))
+    use = np.zeros(n, dtype=bool)
+    for p in np.unique(point):
+        rows = np.flatnonzero(point == p)
+        if int(p) not in used:  # a point the fit dropped is scored with the whole calibration
+            use[rows] = ~grid.outside(temp[rows])
+            continue
+        k = used.index(int(p))
         others = np.arange(len(temps)) != k
-        delta = interpolation_weights(grid.method, temps[others], at, degree=grid.degree) @ drift[others]
-        delta -= drift_at(at)
-        for j, name in enumerate(grid.names):
-            column = np.broadcast_to(np.asarray(design[name], dtype=float), (len(obs),))[rows]
-            errors[rows, axis[j]] -= column * delta[:, j]  # a coefficient too large takes its excess off
-        use[rows] = True
-    return errors, use
+        inside = (temp[rows] >= temps[others][0]) & (temp[rows] <= temps[others][-1])
+        use[rows] = inside
+        rows = rows[inside]
+        if rows.size == 0:
+            continue
+        weights = np.zeros((rows.size, len(temps)))
+        weights[:, others] = interpolation_weights(grid.method, temps[others], temp[rows], degree=grid.degree)
+        weights -= grid.weights(temp[rows])
+        delta = weights @ grid.values  # (rows, C): left out less whole
+        errors[rows] = -(x[rows] * delta) @ mine.T.astype(
+            float
+        )  # a coefficient too large takes its excess off
+        for i in range(len(AXES)):
+            xa = x[rows] * mine[i]
+            variance[rows, i] = np.einsum("np,nc,pcd,nd->n", weights**2, xa, cov, xa)
+    if not (np.all(np.isfinite(errors)) and np.all(np.isfinite(variance))):
+        return None
+    return errors, variance, use
 
 
 def seating_variance(obs, mounting: np.ndarray, sigma: float) -> dict[int, np.ndarray]:

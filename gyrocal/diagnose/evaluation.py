@@ -135,22 +135,27 @@ def _rezeroed(summary: dict) -> dict:
 
 def with_drift_chord(ev: Evaluation, obs: pd.DataFrame) -> Evaluation:
     """The evaluation with what a correct model leaves on the points left out
-    (``expected_rms``) counting the smooth drift that leaving a point out cannot interpolate
-    where the calibration can (:func:`.between.drift_chord`; ``drift_chord_rms``, scored as the
-    held-out error is: its stretches rezeroed where the validation's are). Unchanged where
-    leaving a point out interpolates by the calibration's own rule, or nothing was."""
+    (``expected_rms``) counting the temperature curvature a leave-out from too few points
+    cannot interpolate where the calibration does (:func:`.between.drift_chord`):
+    ``drift_chord_rms``, the calibration's own difference at the scored holds, scored as the
+    held-out error is (rezeroed where it is), less the part its coefficients' noise makes
+    (which the bar holds already). Unchanged where a point left out is interpolated by the
+    calibration's own rule, or nothing was left out."""
     summary = ev.summary
     if summary.get("held_out") != "temperature" or "drift_chord_rms" in summary:
         return ev
     chord = drift_chord(ev.fitted, obs)
-    if chord is None:
+    if chord is None or not chord[2].any():
         return ev
-    errors, use = chord
-    rms = float(np.sqrt(np.mean(np.square(errors[use])))) if use.any() else 0.0
+    errors, variance, use = chord
+    mean_square = float(np.mean(np.square(errors[use])))
     if "rezeroed_rms" in summary:
-        floor = observation_floor(columns_of(obs))
-        rezeroed = own_power_ons(obs, errors, floor, use)
-        rms = rms if rezeroed is None else rezeroed[0]
+        rezeroed = own_power_ons(obs, errors, observation_floor(columns_of(obs)), use)
+        mean_square = mean_square if rezeroed is None else rezeroed[0] ** 2
+    # the coefficients' covariance is scaled by the fit's χ²/dof: the noise's part is without
+    # it (as in noise_only), a misfit's share of their scatter is no noise
+    noise = float(np.mean(variance[use])) / max(ev.chi2 / max(ev.dof, 1), 1.0)
+    rms = math.sqrt(max(mean_square - noise, 0.0))
     expected = math.hypot(summary["expected_rms"], rms)
     figures = {
         **summary,

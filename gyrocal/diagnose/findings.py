@@ -112,7 +112,9 @@ class WithinNoise(_Written):
     """The χ² test with the slow noise the static data cannot rule out at its upper bound,
     and, where that alone does not explain the excess, the fixture's seating at its
     repeatability beside it (``seating_change``, rad: the RMS of each mounting's rotation
-    fitted; ``seating_repeatability``, rad: its prior; None where it was not needed)."""
+    fitted; ``seating_repeatability``, rad: its prior; None where it was not needed).
+    ``drowned``: terms that take more than chance from the excess under white noise but not
+    from what that wander leaves (:func:`.steps.beyond_slow_noise`), with that test's p."""
 
     excess_p_value: float
     chi2_red: float
@@ -121,6 +123,7 @@ class WithinNoise(_Written):
     explains: bool
     seating_change: float | None = None
     seating_repeatability: float | None = None
+    drowned: tuple[tuple[str, float], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -115,6 +115,13 @@ RULES: tuple[tuple[Input, tuple[Transform, ...], tuple[str, ...]], ...] = (
         (SQUARE,),
         ("bias",),
     ),
+    # a proof mass the specific force deflects changes the drive-sense coupling: the scale
+    # moves with the force along the axis (mounts with the axis up and down tell it)
+    (
+        Input("specific force along the axis", "accel_own", "accel", family="scale × specific force"),
+        (IDENTITY,),
+        ("scale",),
+    ),
     (
         Input(
             "specific force × temperature", "accel_own * temp", "accel", family="specific force × temperature"

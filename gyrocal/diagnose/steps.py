@@ -178,6 +178,12 @@ def diagnose(
     elif unrepeated:
         explains = True
         found = replace(found, useful=(), shaped=(), drift=None, why=None)
+    if (
+        not usable(base_next)
+        and explained_by(within_noise)
+        and excess.validation_rms <= CARRIES_WITHIN * excess.expected_rms * excess.bound
+    ):
+        found, within_noise = beyond_slow_noise(settings, obs, alpha, found, within_noise)
     noise_explains = slow_noise_explains(excess, outside, found, within_noise, explains)
     if noise_explains:
         explains = True
@@ -418,6 +424,48 @@ def slow_noise_bound(
         seating_change=None if seated is None else seated.change,
         seating_repeatability=None if seated is None else sigma,
     )
+
+
+def beyond_slow_noise(
+    settings: Settings, obs, alpha: float, found: Found, within_noise: WithinNoise
+) -> tuple[Found, WithinNoise]:
+    """One session whose excess the slow wander its static data cannot rule out accounts
+    for (``within_noise``), and whose held-out error is within the bar a calibration meets on
+    its next session (so only the in-sample fit speaks for a term): a term offered must also
+    take more than chance from what that wander leaves, the χ² drop with the slow terms at their upper bound on the coefficients
+    it adds (half the significance), or it is a shape the wander may have made (holds close
+    in time share it: offsets per mount on a protocol that mounts one axis after another are
+    the wander's as much as a g-sensitivity's). Those that do not are dropped from the offer
+    and named in ``within_noise.drowned``."""
+    offered = [c for c in (found.best, *found.useful, *found.shaped) if c is not None]
+    upper = with_upper_floor(obs) if offered else None
+    if upper is None:
+        return found, within_noise
+    wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
+    beyond: dict[str, bool] = {}
+    drowned = []
+    for c in offered:
+        if c.term in beyond:
+            continue
+        try:
+            extended_settings = extended(settings, c.term)
+            for term in c.together:
+                extended_settings = extended(extended_settings, term)
+            ev = evaluate(extended_settings, upper, f"{c.term}, slow noise at its upper bound")
+        except GyrocalError:
+            beyond[c.term] = True  # not to be judged this way: kept as found
+            continue
+        added = wide.dof - ev.dof
+        p_value = float(chi2_sf(max(wide.chi2 - ev.chi2, 0.0), added)) if added > 0 else 0.0
+        beyond[c.term] = p_value < alpha / 2
+        if not beyond[c.term]:
+            drowned.append((c.term, p_value))
+    if not drowned:
+        return found, within_noise
+    kept = lambda cs: [c for c in cs if beyond[c.term]]  # noqa: E731
+    best = found.best if found.best is not None and beyond[found.best.term] else None
+    found = replace(found, best=best, useful=kept(found.useful), shaped=kept(found.shaped))
+    return found, replace(within_noise, drowned=tuple(drowned))
 
 
 @dataclass(frozen=True)

@@ -516,7 +516,18 @@ def _within_slow_noise(
         f"out{_seating_beside(within_noise)} (reduced χ² {within_noise.chi2_red:.2f} with "
         f"{'them' if within_noise.seating_change is not None else 'it'}), on the holds left out its "
         f"error is {min(_held_out_ratio(base), wide):.2f} times what a correct model would leave with that "
-        f"noise, and no term takes a practical part of it away. {told}"
+        f"noise, and no term takes a practical part of it away{_drowned(within_noise)}. {told}"
+    )
+
+
+def _drowned(within_noise: WithinNoise) -> str:
+    """Terms that beat white noise but not that wander (:func:`.steps.beyond_slow_noise`)."""
+    if not within_noise.drowned:
+        return ""
+    terms = "; ".join(f"{readable(term)} (p {p_text(p)})" for term, p in within_noise.drowned)
+    return (
+        f" beyond what that wander may make: {terms} take more than white noise would leave, "
+        "not more than chance from what the wander leaves (holds close in time share it)"
     )
 
 

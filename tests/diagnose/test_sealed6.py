@@ -82,7 +82,6 @@ def test_one_log_offers_a_term_of_the_rate_beside_the_curvature_three_points_mis
     reference floor."""
     truth, answer, d = judged(tmp_path, "S6U18", one_session=True)
     assert truth["family"] == "rate_knee" and truth["acts"] == {"scale"}, truth
-    assert d["temperature_points"] == 3 if "temperature_points" in d else True
     assert d["drift_chord_rms"] > 0.5 * d["validation_rms"], d
     first = d["partial"][0]
     assert first["offered"] and first["excess_taken"] >= MOST, first
