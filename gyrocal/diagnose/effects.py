@@ -224,7 +224,19 @@ class Judge:
         if sizeable and not exempt:
             combined = left["p_value"] if repeat is None else fisher_combined(left["p_value"], repeat)
         nxt["left_p_value"] = combined
-        if combined >= half and (in_chance or slow) and nxt["validation_rms"] <= base_next["validation_rms"]:
+        # Where the calibration fails on the other session in practice, a term that leaves that
+        # failure as it was answers this session's excess, not what the user meets.
+        untouched = (
+            fails_in_practice(base_next)
+            and fails_in_practice(nxt)
+            and not practical_gain_next(base_next, candidate, 1.0)
+        )
+        if (
+            combined >= half
+            and (in_chance or slow)
+            and nxt["validation_rms"] <= base_next["validation_rms"]
+            and not untouched
+        ):
             return True
         # Where the configured model fails on the other session and this term carries the
         # calibration there, taking a practical part of that failure, it is the fix the

@@ -54,3 +54,17 @@ def test_offsets_per_mount_the_wander_may_make_are_no_g_sensitivity_from_one_log
     assert truth["complete"], truth
     assert answer["verdict"] == "quiet", answer
     assert "not more than chance from what the wander leaves" in answer["detail"], answer["detail"]
+
+
+@pytest.mark.slow
+def test_a_term_that_leaves_the_other_sessions_failure_as_it_was_is_no_fix(tmp_path):
+    """V18, two sessions: a narrow bias feature in temperature between two of session 0's
+    points (45 times the reference floor on the unseen session). The other session visits it:
+    there the calibration errs 82 times the floor between this session's points and carries
+    at them. A g-sensitivity took 10 % of this session's held-out error and, leaving the other
+    session's failure as it was (82.3 → 82.3 times the floor), was offered as the fix. A term
+    must take a practical part of the failure the user meets where the calibration fails
+    there: the verdict is the failure between the points."""
+    truth, answer = judged(tmp_path, "V18")
+    assert set(truth["reasons"]) == {"between points"}, truth
+    assert answer["verdict"] == "no_sensor_term" and answer["reason"] == "between points", answer
