@@ -123,6 +123,7 @@ def drift_chord(fitted, obs) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None
     n, names = len(temp), list(grid.names)
     x = np.column_stack([np.broadcast_to(np.asarray(design[c], dtype=float), (n,)) for c in names])
     mine = np.array([[AXES.index(c.split(".")[1]) == i for c in names] for i in range(len(AXES))])
+    to_output = mine.T.astype(float)  # (C, 3): each coefficient's output axis
     cov = grid.covariance if grid.covariance is not None else diagonal(grid.stderr**2)
     errors, variance = np.zeros((n, len(AXES))), np.zeros((n, len(AXES)))
     use = np.zeros(n, dtype=bool)
@@ -142,9 +143,7 @@ def drift_chord(fitted, obs) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None
         weights[:, others] = interpolation_weights(grid.method, temps[others], temp[rows], degree=grid.degree)
         weights -= grid.weights(temp[rows])
         delta = weights @ grid.values  # (rows, C): left out less whole
-        errors[rows] = -(x[rows] * delta) @ mine.T.astype(
-            float
-        )  # a coefficient too large takes its excess off
+        errors[rows] = -(x[rows] * delta) @ to_output  # a coefficient too large takes its excess off
         for i in range(len(AXES)):
             xa = x[rows] * mine[i]
             variance[rows, i] = np.einsum("np,nc,pcd,nd->n", weights**2, xa, cov, xa)

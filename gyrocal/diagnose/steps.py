@@ -151,7 +151,9 @@ def diagnose(
     before_holds = history_columns(obs, data)
     # One session alone: the slow wander its static data cannot rule out, before the
     # mounting is read (wander leaves offsets per mounting too).
-    within_noise = slow_noise_bound(settings, obs, alpha, excess, base_next, before_holds["mounting"])
+    # the holds with the slow terms at their upper bound: one frame for both tests below
+    upper = with_upper_floor(obs)
+    within_noise = slow_noise_bound(settings, obs, upper, alpha, excess, base_next, before_holds["mounting"])
     outside = outside_the_sensor(obs, excess, base.dof, before_holds, base_next, within_noise)
     unrepeated = did_not_repeat(judge, base, excess, base_next, outside)
     # An excess that does not come back in the other session is still searched: an effect
@@ -183,7 +185,7 @@ def diagnose(
         and explained_by(within_noise)
         and excess.validation_rms <= CARRIES_WITHIN * excess.expected_rms * excess.bound
     ):
-        found, within_noise = beyond_slow_noise(settings, obs, alpha, found, within_noise)
+        found, within_noise = beyond_slow_noise(settings, upper, alpha, found, within_noise)
     noise_explains = slow_noise_explains(excess, outside, found, within_noise, explains)
     if noise_explains:
         explains = True
@@ -370,7 +372,13 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
 
 
 def slow_noise_bound(
-    settings: Settings, obs, alpha: float, excess: ExcessTest, base_next, mounting: np.ndarray | None = None
+    settings: Settings,
+    obs,
+    upper: pd.DataFrame | None,
+    alpha: float,
+    excess: ExcessTest,
+    base_next,
+    mounting: np.ndarray | None = None,
 ) -> WithinNoise | None:
     """The χ² test with the slow wander the static data could not rule out at its upper
     bound: it may be all the excess is. Where the model misses and no other session tells:
@@ -388,7 +396,6 @@ def slow_noise_bound(
         usable(base_next) and (base_next["repeat_p_value"] is not None or fails_in_practice(base_next))
     ):
         return None
-    upper = with_upper_floor(obs)
     if upper is None:
         return None
     wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
@@ -427,19 +434,19 @@ def slow_noise_bound(
 
 
 def beyond_slow_noise(
-    settings: Settings, obs, alpha: float, found: Found, within_noise: WithinNoise
+    settings: Settings, upper: pd.DataFrame | None, alpha: float, found: Found, within_noise: WithinNoise
 ) -> tuple[Found, WithinNoise]:
     """One session whose excess the slow wander its static data cannot rule out accounts
     for (``within_noise``), and whose held-out error is within the bar a calibration meets on
     its next session (so only the in-sample fit speaks for a term): a term offered must also
-    take more than chance from what that wander leaves, the χ² drop with the slow terms at their upper bound on the coefficients
-    it adds (half the significance), or it is a shape the wander may have made (holds close
-    in time share it: offsets per mount on a protocol that mounts one axis after another are
-    the wander's as much as a g-sensitivity's). Those that do not are dropped from the offer
-    and named in ``within_noise.drowned``."""
+    take more than chance from what that wander leaves (``upper``: the holds with the slow
+    terms at their upper bound), the χ² drop there on the coefficients it adds (half the
+    significance), or it is a shape the wander may have made (holds close in time share it:
+    offsets per mount on a protocol that mounts one axis after another are the wander's as
+    much as a g-sensitivity's). Those that do not are dropped from the offer and named in
+    ``within_noise.drowned``."""
     offered = [c for c in (found.best, *found.useful, *found.shaped) if c is not None]
-    upper = with_upper_floor(obs) if offered else None
-    if upper is None:
+    if upper is None or not offered:
         return found, within_noise
     wide = evaluate(settings, upper, "configured model, slow noise at its upper bound")
     beyond: dict[str, bool] = {}
