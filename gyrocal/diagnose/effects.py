@@ -10,7 +10,7 @@ import numpy as np
 
 from ..io.errors import GyrocalError, MissingInputError
 from ..pipeline.config import Settings
-from ..terms import AXES, make_term
+from ..terms import AXES, Restricted, make_term, parse_spec
 from ..terms.signals import SERIES_INPUTS
 from .evaluation import (
     CoefficientSize,
@@ -274,7 +274,7 @@ def time_drift(
         validation_rms=ev.summary["validation_rms"],
         expected_rms=ev.summary["expected_rms"],
         explains=bool(explains and gain),
-        option=add_term_option("expression(formula='t')"),
+        option=add_term_option(make_term(TIME_DRIFT).spec_string()),
         config_line=config_line(extended(settings, TIME_DRIFT).model),
         leftover=probe.leftover,
         next_session=probe.next_session,
@@ -477,6 +477,10 @@ def rank_candidates(
             part = _seen_part(judge.settings, judge.obs, spec)
             if part is not None:
                 queue.insert(0, (part, spec))
+        elif candidate.reason == FEWER_POINTS and part_of is None:
+            shared = _one_set_for_the_session(spec)
+            if shared is not None:
+                queue.insert(0, (shared, spec))
     for c in tested:  # Bonferroni over the candidates actually tested
         c.significant = c.p_value < alpha / 2 / max(len(tested), 1)
     for c in candidates:  # the full term's reason stays with the part that was fitted
@@ -516,7 +520,7 @@ def _try(
         return Candidate(spec, "failed", reason=f"{type(exc).__name__}: {exc}"), False
     df_num, df_den = base.dof - ext.dof + _added_nonlinear(base, ext), ext.dof
     problem = (
-        "it leaves fewer temperature points"
+        FEWER_POINTS
         if len(ext.fitted.used_points()) != len(base.fitted.used_points())
         else "it adds no coefficient to the model"
         if df_num <= 0
@@ -571,6 +575,21 @@ def _profiled(ev: Evaluation) -> set:
         for p in getattr(ev.fitted, "profiled", ()) or ()
         if p.get("identified", True)
     }
+
+
+FEWER_POINTS = "it leaves fewer temperature points"
+
+
+def _one_set_for_the_session(spec) -> str | None:
+    """A per-point term as one set of coefficients for the whole session (``scope=global``):
+    where some point's holds cannot separate the term's coefficients from the base ones (a
+    point with few rate levels, say), a per-point fit drops that point, while one set fitted
+    over all points needs only that the points together excite it. What it cannot carry is
+    the effect's change with temperature, which its held-out score then shows."""
+    term = make_term(spec)
+    if term.coefficient_scope != "point" or isinstance(term, Restricted):
+        return None
+    return make_term({**parse_spec(term.spec_string()), "scope": "global"}).spec_string()
 
 
 def _seen_part(settings, obs, spec) -> str | None:

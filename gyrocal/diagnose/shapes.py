@@ -264,7 +264,8 @@ def shape_terms(
 # Effects with a history, by the rows that carry their excess: the output through
 # a slow pole of the own rate (it settles over seconds after every step of the table), heat
 # from turning (a first-order lag of the rate's magnitude, shared by the package's three
-# axes), and the temperature's direction of travel (a play operator of width w).
+# axes), a memory of each axis' own speed (the same lag of its own |rate|), and the
+# temperature's direction of travel (a play operator of width w).
 RATE_ROWS = ("|rate|", "reference rate", "direction", "step into the hold", "previous hold's rate")
 TEMPERATURE_ROWS = (
     "temperature",
@@ -314,6 +315,9 @@ def history_shapes(
         shapes.append(
             _expression("rotation_power", f"lag({SQUARED}, tau)", slow, "heating by rotation power")
         )
+        # A memory of each axis' own speed (charge a sense loop builds while it turns fast,
+        # its own axis only): the bias follows the magnitude of its own rate through a lag.
+        shapes.append(_expression("rate_memory", "lag(abs(rate_own), tau)", slow, "memory of its own rate"))
     if carrying & set(TEMPERATURE_ROWS):
         from ..terms.signals import play_operator
 

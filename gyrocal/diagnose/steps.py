@@ -183,9 +183,15 @@ def diagnose(
     if (
         not usable(base_next)
         and explained_by(within_noise)
-        and excess.validation_rms <= CARRIES_WITHIN * excess.expected_rms * excess.bound
+        and excess.validation_rms
+        <= max(CARRIES_WITHIN * excess.expected_rms * excess.bound, within_noise.expected_rms * excess.bound)
     ):
-        found, within_noise = beyond_slow_noise(settings, upper, alpha, found, within_noise)
+        # beyond the white bar the held-out error speaks for a term too: the wander at the
+        # points left out is not the wander the term's coefficients were fitted to
+        held_out_speaks = excess.validation_rms > CARRIES_WITHIN * excess.expected_rms * excess.bound
+        found, within_noise = beyond_slow_noise(
+            settings, upper, alpha, found, within_noise, base if held_out_speaks else None
+        )
     noise_explains = slow_noise_explains(excess, outside, found, within_noise, explains)
     if noise_explains:
         explains = True
@@ -361,7 +367,14 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
         judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, True
     )
     found, tried = free_shape(
-        judge, base, rows, quality, base_next, excess.tolerance, excess.bound, inputs=("history", "t_mount")
+        judge,
+        base,
+        rows,
+        quality,
+        base_next,
+        excess.tolerance,
+        excess.bound,
+        inputs=("history", "t_mount"),
     )
     # or takes most of what the configured model leaves on the other session, which slow
     # noise of this one's would not (what it leaves is a second question)
@@ -434,17 +447,25 @@ def slow_noise_bound(
 
 
 def beyond_slow_noise(
-    settings: Settings, upper: pd.DataFrame | None, alpha: float, found: Found, within_noise: WithinNoise
+    settings: Settings,
+    upper: pd.DataFrame | None,
+    alpha: float,
+    found: Found,
+    within_noise: WithinNoise,
+    held_out: Evaluation | None = None,
 ) -> tuple[Found, WithinNoise]:
     """One session whose excess the slow wander its static data cannot rule out accounts
-    for (``within_noise``), and whose held-out error is within the bar a calibration meets on
-    its next session (so only the in-sample fit speaks for a term): a term offered must also
-    take more than chance from what that wander leaves (``upper``: the holds with the slow
-    terms at their upper bound), the χ² drop there on the coefficients it adds (half the
-    significance), or it is a shape the wander may have made (holds close in time share it:
-    offsets per mount on a protocol that mounts one axis after another are the wander's as
-    much as a g-sensitivity's). Those that do not are dropped from the offer and named in
-    ``within_noise.drowned``."""
+    for (``within_noise``), and whose held-out error is within what a correct model leaves
+    under that wander (so the held-out error alone cannot tell a term's effect from the
+    wander's): a term offered must also take more than chance from what that wander leaves
+    (``upper``: the holds with the slow terms at their upper bound), the χ² drop there on the
+    coefficients it adds (half the significance), or it is a shape the wander may have made
+    (holds close in time share it: offsets per mount on a protocol that mounts one axis after
+    another are the wander's as much as a g-sensitivity's). Where the held-out error is beyond
+    what white noise leaves (``held_out``, the configured model's evaluation, given then), a
+    term that takes most of that excess on the points left out (:data:`.naming.MOST`) is kept
+    too: its coefficients were fitted to other points, whose wander is not theirs. Those
+    dropped are named in ``within_noise.drowned``."""
     offered = [c for c in (found.best, *found.useful, *found.shaped) if c is not None]
     if upper is None or not offered:
         return found, within_noise
@@ -453,6 +474,9 @@ def beyond_slow_noise(
     drowned = []
     for c in offered:
         if c.term in beyond:
+            continue
+        if held_out is not None and c.validated and held_out_gain(c, held_out, None) > MOST:
+            beyond[c.term] = True
             continue
         try:
             extended_settings = extended(settings, c.term)

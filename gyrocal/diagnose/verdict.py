@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..terms import make_term
+from ..terms import Restricted, make_term
 from .findings import Negligible, TimeDrift, Unexplained, WithinNoise, explained_by
 from .grain import grain_sentence
 from .reading import readable
@@ -355,12 +355,20 @@ def drift_sentence(base: Evaluation, drift: TimeDrift) -> str:
 def _separation(c) -> str:
     """What of a library term the protocol cannot separate, for the part it fitted, and
     what would."""
-    dropped = make_term(c.term).drop
+    term = make_term(c.term)
     remedy = "; ".join(SEPARATES[k] for k in sorted(input_kinds(c.term)) if k in SEPARATES)
-    return (
-        f"this protocol cannot separate {', '.join(f'{c.part_of}.{d}' for d in dropped)} from "
-        "the rest of the model" + (f" ({remedy})" if remedy else "")
-    )
+    remedy = f" ({remedy})" if remedy else ""
+    if not isinstance(term, Restricted) and term.coefficient_scope == "global":
+        # one set for the session (effects._one_set_for_the_session)
+        return (
+            f"some temperature point's holds cannot separate {c.part_of} from the rest of the "
+            "model, so one set of its coefficients is fitted for the session, which cannot "
+            f"follow its change with temperature{remedy}"
+        )
+    if not isinstance(term, Restricted):
+        return f"this protocol cannot separate all of {c.part_of} from the rest of the model{remedy}"
+    dropped = ", ".join(f"{c.part_of}.{d}" for d in term.drop)
+    return f"this protocol cannot separate {dropped} from the rest of the model{remedy}"
 
 
 def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: float | None) -> str:
@@ -799,7 +807,7 @@ def advice(
     out = []
     if best is None and explained_by(drift):
         out.append(
-            "Write the drift as a term of t: --add-term \"expression(formula='t')\" fits "
+            f"Write the drift as a term of t: {drift.option} fits "
             "a bias drifting linearly within each point, and a term file can give it the "
             "shape of the drift (docs/effects.md, section 7)"
             + (

@@ -426,7 +426,8 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
 
 def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
     """The rows of where-it-fails decide which histories are tried: what came before a hold
-    (its step, the previous rate) the rates' (a slow pole, heat from turning); the
+    (its step, the previous rate) the rates' (a slow pole, heat from turning, a memory of
+    each axis' own speed); the
     temperature's rows its direction, only where the record's temperature turns back (a
     direction that never changes is the bias's own); nothing where the record lacks the
     gyro's output a history of the rates reads."""
@@ -445,7 +446,7 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
         data = {"series": Series(t, temp, record=dict(record))}
         return {s.family for s in history_shapes(obs, data, covariates)}
 
-    rates = {"slow pole", "heating by rotation", "heating by rotation power"}
+    rates = {"slow pole", "heating by rotation", "heating by rotation power", "memory of its own rate"}
     temperature = {"hysteresis", "hysteresis relaxing", "switch with hysteresis"}
     assert families(["reference rate = step into the hold"]) == rates
     assert families(["previous hold's rate"], record={}) == set()
