@@ -180,15 +180,15 @@ def diagnose(
     elif unrepeated:
         explains = True
         found = replace(found, useful=(), shaped=(), drift=None, why=None)
+    white_bar = CARRIES_WITHIN * excess.expected_rms * excess.bound
     if (
         not usable(base_next)
         and explained_by(within_noise)
-        and excess.validation_rms
-        <= max(CARRIES_WITHIN * excess.expected_rms * excess.bound, within_noise.expected_rms * excess.bound)
+        and excess.validation_rms <= max(white_bar, within_noise.expected_rms * excess.bound)
     ):
         # beyond the white bar the held-out error speaks for a term too: the wander at the
         # points left out is not the wander the term's coefficients were fitted to
-        held_out_speaks = excess.validation_rms > CARRIES_WITHIN * excess.expected_rms * excess.bound
+        held_out_speaks = excess.validation_rms > white_bar
         found, within_noise = beyond_slow_noise(
             settings, upper, alpha, found, within_noise, base if held_out_speaks else None
         )
@@ -367,14 +367,7 @@ def _history_explains(judge: Judge, base: Evaluation, excess: ExcessTest, base_n
         judge.obs, judge.data, np.nan_to_num(quality.z), quality.fitted_rows, base.dof, True
     )
     found, tried = free_shape(
-        judge,
-        base,
-        rows,
-        quality,
-        base_next,
-        excess.tolerance,
-        excess.bound,
-        inputs=("history", "t_mount"),
+        judge, base, rows, quality, base_next, excess.tolerance, excess.bound, inputs=("history", "t_mount")
     )
     # or takes most of what the configured model leaves on the other session, which slow
     # noise of this one's would not (what it leaves is a second question)

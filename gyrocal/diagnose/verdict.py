@@ -358,17 +358,15 @@ def _separation(c) -> str:
     term = make_term(c.term)
     remedy = "; ".join(SEPARATES[k] for k in sorted(input_kinds(c.term)) if k in SEPARATES)
     remedy = f" ({remedy})" if remedy else ""
-    if not isinstance(term, Restricted) and term.coefficient_scope == "global":
-        # one set for the session (effects._one_set_for_the_session)
-        return (
-            f"some temperature point's holds cannot separate {c.part_of} from the rest of the "
-            "model, so one set of its coefficients is fitted for the session, which cannot "
-            f"follow its change with temperature{remedy}"
-        )
-    if not isinstance(term, Restricted):
-        return f"this protocol cannot separate all of {c.part_of} from the rest of the model{remedy}"
-    dropped = ", ".join(f"{c.part_of}.{d}" for d in term.drop)
-    return f"this protocol cannot separate {dropped} from the rest of the model{remedy}"
+    if isinstance(term, Restricted):
+        dropped = ", ".join(f"{c.part_of}.{d}" for d in term.drop)
+        return f"this protocol cannot separate {dropped} from the rest of the model{remedy}"
+    # the other part a protocol can see: one set for the session (effects._one_set_for_the_session)
+    return (
+        f"some temperature point's holds cannot separate {c.part_of} from the rest of the "
+        "model, so one set of its coefficients is fitted for the session, which cannot "
+        f"follow its change with temperature{remedy}"
+    )
 
 
 def session_verdict(diag: Diagnosis, base_next: CarryOver | None, tolerance: float | None) -> str:
