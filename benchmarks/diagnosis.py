@@ -175,7 +175,7 @@ def label(case) -> str:
 
 def run_case(case, unit_seed: int, folder: str, with_other: bool = True) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose, extended
+    from gyrocal.diagnosis import diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run, segment_log
@@ -326,7 +326,7 @@ def story_contradiction(d: dict) -> str | None:
     offers or cites (as the reason no term can be offered) reads none of the inputs of the
     covariate row that carries most of the excess. None where it does, where the data are
     explained, or where the finding is one no term holds (fixed in the lab, between points)."""
-    from gyrocal.diagnose.verdict import coherent
+    from gyrocal.diagnosis.verdict import coherent
 
     if d["explains_the_data"]:
         return None

@@ -1,7 +1,7 @@
 """Benchmark: the diagnosis' two findings no term holds, on every turntable case of the zoo.
 
-"Fixed in the lab" (``gyrocal.diagnose.lab``) and "between the temperature points"
-(``gyrocal.diagnose.between``) are tests of their own, each made under its own gate. Here
+"Fixed in the lab" (``gyrocal.diagnosis.lab``) and "between the temperature points"
+(``gyrocal.diagnosis.between``) are tests of their own, each made under its own gate. Here
 both are made on every unit, ungated, so that what they would say where they are not asked
 shows too: for each turntable case of ``benchmarks/diagnosis.py`` (units from
 ``benchmarks/zoo``, the simulator written without gyrocal's code), each unit and sessions 0
@@ -31,10 +31,10 @@ ALPHA = 0.01  # the diagnosis' default significance
 
 def run_unit(case, unit_seed: int) -> dict:
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import evaluate
-    from gyrocal.diagnose.between import between_points
-    from gyrocal.diagnose.lab import lab_fixed
-    from gyrocal.diagnose.where import fit_quality
+    from gyrocal.diagnosis import evaluate
+    from gyrocal.diagnosis.between import between_points
+    from gyrocal.diagnosis.lab import lab_fixed
+    from gyrocal.diagnosis.where import fit_quality
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 

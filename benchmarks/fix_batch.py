@@ -86,7 +86,7 @@ def judged(case) -> bool:
 
 
 def batch_settings(gyrocal_protocol: str):
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.pipeline.config import Settings
 
     settings = Settings().for_protocol(gyrocal_protocol)
@@ -168,7 +168,7 @@ def _verdict(figures: dict, limits) -> dict:
 def _fixed_settings(settings, offer):
     from dataclasses import replace
 
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.pipeline.config import ModelSettings
 
     if offer.get("model"):  # a whole model of another kind (continuous_instead)
@@ -351,7 +351,7 @@ def _batch(case, n_others: int, settings, gyrocal_protocol: str, folder) -> list
 
 
 def run_case(case, n_others: int, folder: str) -> dict:
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.config import Settings
 

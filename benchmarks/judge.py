@@ -67,7 +67,7 @@ def _acts_on(term: str) -> str:
     scaled = formula.startswith("rate_own*") or formula.endswith("*rate_own") or formula.startswith("{x}*")
     if inner.name.startswith("scale") or getattr(inner, "by", None) == "rate_own" or scaled:
         return "scale"
-    from gyrocal.diagnose.shapes import odd_in_own_rate
+    from gyrocal.diagnosis.shapes import odd_in_own_rate
 
     return "scale" if odd_in_own_rate(made) else "bias"
 
@@ -77,7 +77,7 @@ def _answer(d: dict[str, Any]) -> dict[str, Any]:
     offer = d["best"] or (partial[0] if partial and partial[0].get("offered") else None)
     if offer:
         terms = [offer["term"], *offer.get("together", [])]
-        from gyrocal.diagnose.verdict import term_reads  # gyrocal's kinds are the coarse words
+        from gyrocal.diagnosis.verdict import term_reads  # gyrocal's kinds are the coarse words
 
         reads = sorted(set().union(*(term_reads(t) for t in terms)))
         return {"verdict": "fix", "reads": reads, "acts_on": _acts_on(offer["term"]), "reason": None}
@@ -135,7 +135,7 @@ def _answer(d: dict[str, Any]) -> dict[str, Any]:
 def _power_ons_alone(nxt: dict[str, Any]) -> bool:
     """The other session missing by its power-ons' offsets alone (gyrocal's
     ``sessions.power_ons_alone``)."""
-    from gyrocal.diagnose.sessions import power_ons_alone
+    from gyrocal.diagnosis.sessions import power_ons_alone
 
     return "error" not in nxt and power_ons_alone(nxt)
 
@@ -148,7 +148,7 @@ def judge_unit(
     JSON as ``diagnosis`` (a test reads both)."""
     from dataclasses import replace
 
-    from gyrocal.diagnose import diagnose, extended
+    from gyrocal.diagnosis import diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.io.errors import GyrocalError
     from gyrocal.pipeline.chain import run, segment_log

@@ -48,7 +48,7 @@ def timed(command: list[str]) -> tuple[float, float, float]:
 
 IN_JOB = """
 import resource, sys
-import gyrocal.diagnose, gyrocal.pipeline.chain, gyrocal.run.cli, gyrocal.run.stages as stages
+import gyrocal.diagnosis, gyrocal.pipeline.chain, gyrocal.run.cli, gyrocal.run.stages as stages
 before = resource.getrusage(resource.RUSAGE_SELF)
 stages.report_stage(sys.argv[1], sys.argv[2])
 after = resource.getrusage(resource.RUSAGE_SELF)

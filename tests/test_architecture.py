@@ -99,7 +99,7 @@ LAYERS = (
     "protocols",
     "pipeline",
     "fleet",
-    "diagnose",
+    "diagnosis",
     "paper",
     "run",
 )
@@ -288,7 +288,7 @@ def test_the_analyse_job_fits_the_configured_model_once(tmp_path, monkeypatch):
     fits only its candidates), and what they write is what separate stages write."""
     import numpy as np
 
-    from gyrocal.diagnose import evaluation
+    from gyrocal.diagnosis import evaluation
     from gyrocal.fit import thermal
     from gyrocal.pipeline import identify
     from gyrocal.pipeline.config import Settings

@@ -46,7 +46,7 @@ from .model import Model, columns_of, fit, observation_floor, subset_design
 
 class ValidationFigures(TypedDict):
     """The figures every summary of a model's error has, a fit's own residuals' too
-    (:func:`gyrocal.diagnose.evaluation.in_sample_summary`), deg/s where a rate."""
+    (:func:`gyrocal.diagnosis.evaluation.in_sample_summary`), deg/s where a rate."""
 
     validation_rms: float  # the interpolated calibration's error on the scored holds
     noise_floor: float

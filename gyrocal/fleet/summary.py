@@ -416,7 +416,7 @@ def drift_devices(rows: list[dict]) -> list[str]:
 
 def other_sessions(rows: list[dict]) -> dict[tuple, tuple]:
     """For each unit session, another session of the same device and protocol whose
-    carry-over judges the diagnosis' candidates (:func:`gyrocal.diagnose.diagnose`): the
+    carry-over judges the diagnosis' candidates (:func:`gyrocal.diagnosis.diagnose`): the
     next in session order, the one before for the last. Sessions of protocols whose
     observations carry the true rate only (not a servo's hand mount)."""
     by_device: dict[tuple, list[tuple]] = {}

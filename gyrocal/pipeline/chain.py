@@ -154,7 +154,7 @@ def with_mountings(seg: Segmentation, first_time: float) -> Segmentation:
     clamp that relaxes after each mounting follows it, not time since power-on. And when the
     log last resumed (``resumed_at``): the end of the last gap in it before each hold, the
     log's first sample where none is; the unit may have been powered anew in any gap, which
-    gives its bias a new turn-on value (:mod:`gyrocal.diagnose.sessions`)."""
+    gives its bias a new turn-on value (:mod:`gyrocal.diagnosis.sessions`)."""
     obs, segments = seg.observations, seg.segments
     if obs.empty or "t_start" not in obs:
         return seg

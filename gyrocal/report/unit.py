@@ -53,7 +53,7 @@ class UnitResults:
 
     @classmethod
     def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
-        """``diagnosis``: a :class:`gyrocal.diagnose.Diagnosis` of the same run, if any;
+        """``diagnosis``: a :class:`gyrocal.diagnosis.Diagnosis` of the same run, if any;
         ``analysis``: its protocol's own methods (:func:`gyrocal.protocols.registry.analysis`)."""
         seg, val = run.segmentation, run.validation
         extra = (

@@ -1,2 +1,2 @@
-"""Running it: the command line, the workflow's stages, the job guard, the BLAS thread count.
+"""Running it: the command line, the Python API, the workflow's stages, the job guard, BLAS threads.
 May import: every other folder of gyrocal."""

@@ -439,7 +439,7 @@ def cmd_calibrate(args) -> int:
     if args.report:
         import shlex
 
-        from ..diagnose import diagnose, evaluation_of
+        from ..diagnosis import diagnose, evaluation_of
         from ..pipeline.chain import settings_used
         from ..protocols import registry
         from ..report.unit import UnitResults, write_unit_report

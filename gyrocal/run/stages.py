@@ -161,12 +161,12 @@ def diagnose_stage(
     (Parquet, heat maps in the metadata); returns the verdict. ``other``, the results
     folder of another session of the unit, judges the candidates by how they carry over;
     ``base``, the configured model's fit and validation made in the same job
-    (:func:`gyrocal.diagnose.evaluation_of`), spares making them again. A diagnosis written as
+    (:func:`gyrocal.diagnosis.evaluation_of`), spares making them again. A diagnosis written as
     the unit's own is added to its record of runs when the unit's calibration was made with
     the settings asked for (``requested``, before the terms its data could not identify
     were dropped; ``settings`` themselves otherwise)."""
-    from ..diagnose import diagnose
-    from ..diagnose.evaluation import with_unit_lines
+    from ..diagnosis import diagnose
+    from ..diagnosis.evaluation import with_unit_lines
 
     paths = unit_paths(folder)
     obs, _ = read_observations(folder)
@@ -222,7 +222,7 @@ def analyse_stage(folder, settings: Settings, meta: dict, *, record_failures: bo
     and passed on to the validation, and the diagnosis, which reads only the observations,
     still runs (fitting for itself). Returns the diagnosis verdict (None when it failed and
     was recorded)."""
-    from ..diagnose import evaluation_of
+    from ..diagnosis import evaluation_of
     from ..pipeline.chain import settings_used
 
     paths = unit_paths(folder)

@@ -400,7 +400,7 @@ def test_a_term_only_one_point_excites_is_calibrated_that_point_not_scored(logs,
     holds see both of its sides, so leaving it out leaves the step undetermined. The
     calibration is still made, validated on the other points, and the point is counted
     and never scored (on three points, the end points left out are what is scored)."""
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fit.validate import CannotLeaveOut, validate
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings

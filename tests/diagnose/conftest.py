@@ -27,7 +27,7 @@ def next_session(logs, settings, offer: dict | None) -> float:
     session 2: its hold-mean RMS ÷ the floor."""
     from dataclasses import replace
 
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import ModelSettings

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from gyrocal.diagnose.between import tilted_per_point
-from gyrocal.diagnose.findings import BetweenPoints
+from gyrocal.diagnosis.between import tilted_per_point
+from gyrocal.diagnosis.findings import BetweenPoints
 
 ALPHA = 0.01
 

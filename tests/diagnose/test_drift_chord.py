@@ -1,11 +1,11 @@
-"""The temperature curvature a point left out of three misses (gyrocal.diagnose.between.
+"""The temperature curvature a point left out of three misses (gyrocal.diagnosis.between.
 drift_chord), on simulated units whose bias is a known polynomial in temperature: the
 arithmetic of the chord, not a finding (the simulator and the formula agree by construction
 of the physics, which is what is checked)."""
 
 from __future__ import annotations
 
-from gyrocal.diagnose.evaluation import evaluate
+from gyrocal.diagnosis.evaluation import evaluate
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings
 from gyrocal.simulate.unit import GyroUnit

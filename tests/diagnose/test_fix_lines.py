@@ -84,7 +84,7 @@ def test_each_option_pasted_into_a_shell_calibrates_with_the_fix(offered):
         if "validation_rms_with" in fix:
             # what the diagnosis promised, within that figure's own uncertainty over the holds
             # (the offered term is written for the unit: its start and bounds, not the session's)
-            from gyrocal.diagnose import chance_bound
+            from gyrocal.diagnosis import chance_bound
 
             got = float(RMS.search(done.stdout).group(1))
             holds = sum(p["holds"] for p in cal["points"] if p["used"])

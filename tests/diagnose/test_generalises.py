@@ -12,12 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrocal.diagnose import diagnose
-from gyrocal.diagnose.evaluation import evaluate
-from gyrocal.diagnose.grammar import screen
-from gyrocal.diagnose.sessions import turned_on
-from gyrocal.diagnose.stats import floor_uncertainty
-from gyrocal.diagnose.where import fit_quality
+from gyrocal.diagnosis import diagnose
+from gyrocal.diagnosis.evaluation import evaluate
+from gyrocal.diagnosis.grammar import screen
+from gyrocal.diagnosis.sessions import turned_on
+from gyrocal.diagnosis.stats import floor_uncertainty
+from gyrocal.diagnosis.where import fit_quality
 from gyrocal.fit.model import columns_of
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings
@@ -187,7 +187,7 @@ def test_a_temperature_dependent_g_sensitivity_is_the_orientations_not_the_mount
     settings = Settings()
     obs, other = (segment_log(log, settings).observations for log in logs[:2])
     d = diagnose(settings, obs, other).to_dict()
-    from gyrocal.diagnose.verdict import term_reads
+    from gyrocal.diagnosis.verdict import term_reads
 
     assert d["best"] is not None and "accel" in term_reads(d["best"]["term"]), d["verdict"]
     assert d["mounting"] is None or not d["mounting"]["explains"], d["verdict"]
@@ -269,7 +269,7 @@ def test_time_and_temperature_visited_together_are_named_and_another_order_tells
     settings = Settings()
     rising = zoo_sessions(tmp_path / "rising", "bias_ramp", 1)
     d = diagnose(settings, segment_log(rising[0], settings).observations).to_dict()
-    from gyrocal.diagnose.verdict import term_reads
+    from gyrocal.diagnosis.verdict import term_reads
 
     assert d["best"] is not None and term_reads(d["best"]["term"]) == {"time"}, d["verdict"]
     confound = d["confound"]
@@ -338,7 +338,7 @@ def test_every_kind_of_input_a_candidate_reads_has_the_protocol_that_separates_i
     """The advice for a candidate the protocol cannot fit names, for each kind of input it
     reads, the protocol that would separate it: no kind is left without its sentence (a
     term of the fixture's faces, blocked on three mounts, once had none)."""
-    from gyrocal.diagnose.verdict import SEPARATES, input_kinds
+    from gyrocal.diagnosis.verdict import SEPARATES, input_kinds
     from gyrocal.terms.effects import CANDIDATES
 
     specs = [*CANDIDATES, "expression(formula='exp(-t_mount / 100)')", "expression(formula='t')"]

@@ -56,7 +56,7 @@ def test_where_it_fails_is_measured_against_what_does_not_contain_it(tmp_path):
     not temperature); the mount and the rotating axis, which this protocol cannot tell
     apart, are one row; and a covariate is not credited with another's excess."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -88,7 +88,7 @@ def test_a_drift_in_time_is_not_named_as_an_effect_constant_per_mount(tmp_path):
     ramp, 1.3 times the floor, is within the held-out error's own uncertainty: no gain to
     name.)"""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import TIME_DRIFT, diagnose, extended
+    from gyrocal.diagnosis import TIME_DRIFT, diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
@@ -124,7 +124,7 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
     no term has anything to take away: nothing is named, not even as partial, and the
     verdict says another session would tell wander from an effect."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose, explained_tolerance
+    from gyrocal.diagnosis import diagnose, explained_tolerance
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -147,7 +147,7 @@ def test_on_coloured_noise_one_session_names_nothing_without_a_gain(protocol, tm
 
 
 def _next_session_over_floor(logs, settings, fix, protocol="turntable"):
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
 
@@ -166,7 +166,7 @@ def test_three_mounts_offer_the_part_of_a_g_sensitivity_they_see(one_session, tm
     the other two. The diagnosis names g_sensitivity and fits the part the protocol sees;
     calibrated with it, the next session is within 1.2 times the floor."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -195,7 +195,7 @@ def test_a_die_that_lags_is_found_and_carries_to_another_ramp_rate(tmp_path):
     fitted at 30 °C/h, the calibration holds within 1.2 times the floor at 45 °C/h, and
     the lag found is the generator's within the profile's uncertainty."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -241,7 +241,7 @@ def test_a_pattern_that_repeats_is_found_and_independent_wander_is_not():
     """The repeat test's false-alarm rate is its significance level, also when slow wander
     makes the holds of a block move together (which a per-hold test would count many
     times over), and a pattern of 0.7 of the noise shared by both sessions is found."""
-    from gyrocal.diagnose import repeat_p_value
+    from gyrocal.diagnosis import repeat_p_value
 
     rng = np.random.default_rng(5)
     obs, block = _sessions_of_cells(rng)
@@ -269,7 +269,7 @@ def test_a_pattern_that_repeats_is_found_and_independent_wander_is_not():
 
 
 def test_holds_the_sessions_do_not_share_give_no_verdict():
-    from gyrocal.diagnose import repeat_p_value
+    from gyrocal.diagnosis import repeat_p_value
 
     rng = np.random.default_rng(1)
     obs, _ = _sessions_of_cells(rng)
@@ -282,7 +282,7 @@ def test_random_walks_over_whole_sessions_do_not_look_like_a_repeat():
     """Bias wander that runs across blocks (a random walk over each session, independent
     between sessions) moves whole blocks together: compared block means would correlate
     by chance (a spurious regression); the pattern within blocks does not."""
-    from gyrocal.diagnose import repeat_p_value
+    from gyrocal.diagnosis import repeat_p_value
 
     rng = np.random.default_rng(11)
     obs, block = _sessions_of_cells(rng)
@@ -296,7 +296,7 @@ def test_random_walks_over_whole_sessions_do_not_look_like_a_repeat():
 
 
 def test_sessions_that_differ_by_more_than_white_noise_show_slow_noise():
-    from gyrocal.diagnose import unrepeated_p_value
+    from gyrocal.diagnosis import unrepeated_p_value
 
     rng = np.random.default_rng(2)
     obs, block = _sessions_of_cells(rng)
@@ -330,7 +330,7 @@ def test_a_warm_up_outside_the_library_gets_a_term_of_its_shape(tmp_path):
     and how it decays, and the next session calibrated with it is within 1.2 times the floor
     (it was 19 times)."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -362,7 +362,7 @@ def test_a_step_in_time_one_session_cannot_validate_is_said_so(tmp_path):
     its shape. Nothing is offered, and the verdict says why and that another session would
     tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -387,7 +387,7 @@ def test_an_effect_fixed_in_the_lab_is_told_from_slow_noise(tmp_path):
     table's angle explains it: not an effect of the sensor, and the verdict says what
     would tell."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -417,7 +417,7 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     out (19 standard errors on this unit, the zoo's weakest). A unit with slow wander and
     nothing missing moves its bias between points, which the test leaves alone: quiet."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -436,7 +436,7 @@ def test_a_calibration_that_fails_between_temperature_points_is_said_so(effect, 
     between = diag.between_points
     if effect == "none":
         # The test itself, made whatever gates it: the wander moves the bias, not the scale.
-        from gyrocal.diagnose.between import between_points
+        from gyrocal.diagnosis.between import between_points
 
         assert not between_points(diag.base.fitted, settings.diagnosis.significance).fails
         assert diag.unexplained is None, diag.verdict
@@ -455,8 +455,8 @@ def test_three_points_or_a_joint_fit_are_not_judged_between_points(tmp_path):
     from dataclasses import replace
 
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import evaluate
-    from gyrocal.diagnose.between import between_points
+    from gyrocal.diagnosis import evaluate
+    from gyrocal.diagnosis.between import between_points
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import ModelSettings, Settings
 

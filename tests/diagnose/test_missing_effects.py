@@ -11,7 +11,7 @@ from hypothesis import settings as hypothesis_settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from gyrocal.diagnose import candidate_terms, config_line, diagnose, extended
+from gyrocal.diagnosis import candidate_terms, config_line, diagnose, extended
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings
 from gyrocal.simulate import GyroUnit
@@ -165,7 +165,7 @@ def test_without_a_library_term_the_excess_is_pointed_at_its_covariate_and_shape
     settings = Settings()
     diag = diagnose(settings, obs)
     assert diag.best is not None and diag.best.term == "temp_rate"  # the library has it
-    import gyrocal.diagnose.evaluation as module
+    import gyrocal.diagnosis.evaluation as module
 
     monkeypatch.setattr(module, "CANDIDATES", tuple(c for c in module.CANDIDATES if c != "temp_rate"))
     blind_diag = diagnose(settings, obs)
@@ -261,7 +261,7 @@ def test_the_ladder_steps_add_terms_and_fall_toward_the_floor(effect_logs):
 def test_the_tails_are_scipy_stats_own_numbers():
     """The diagnosis takes its χ² and F tails from scipy.special (scipy.stats takes longer
     to import than a diagnosis runs): the same numbers, to the bit, below the support too."""
-    from gyrocal.diagnose import chi2_ppf, chi2_sf, f_sf, fisher_combined
+    from gyrocal.diagnosis import chi2_ppf, chi2_sf, f_sf, fisher_combined
 
     rng = np.random.default_rng(5)
     for x, df, df_den, q in zip(
@@ -283,7 +283,7 @@ def test_products_with_the_own_rate_are_told_from_the_other_axes_and_from_chance
     """Where it fails, products: a scale that changes with an input shows as per-bin slopes
     of each axis' residuals against its own rate, not the other axes'; on residuals that are
     noise the product rows are significant only at their level."""
-    from gyrocal.diagnose.where import _product_rows
+    from gyrocal.diagnosis.where import _product_rows
 
     rng = np.random.default_rng(3)
     n = 240
@@ -315,7 +315,7 @@ def test_a_holds_mean_cosine_and_sine_of_the_table_angle_are_its_samples_means(s
     a fine grid of its samples, whose midpoint rule errs by at most turn² / (24 N²)."""
     import pandas as pd
 
-    from gyrocal.diagnose.lab import angle_means
+    from gyrocal.diagnosis.lab import angle_means
 
     obs = pd.DataFrame({"table_angle": [start], "ref_rate": [rate], "duration": [duration]})
     n = 200_000
@@ -333,10 +333,10 @@ def test_the_lab_and_between_points_tests_alarm_on_complete_units_only_at_their_
     between-points test fails at its level (0.5 %) at most as often as chance allows."""
     from scipy.stats import binom
 
-    from gyrocal.diagnose import evaluate
-    from gyrocal.diagnose.between import between_points
-    from gyrocal.diagnose.lab import lab_fixed
-    from gyrocal.diagnose.where import fit_quality
+    from gyrocal.diagnosis import evaluate
+    from gyrocal.diagnosis.between import between_points
+    from gyrocal.diagnosis.lab import lab_fixed
+    from gyrocal.diagnosis.where import fit_quality
 
     rng = np.random.default_rng(5)
     settings = Settings()

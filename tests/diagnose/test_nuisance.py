@@ -10,11 +10,11 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose import diagnose
-from gyrocal.diagnose.between import between_points, seating_variance
-from gyrocal.diagnose.evaluation import evaluate
-from gyrocal.diagnose.sessions import offset_alone, seating_sigma, turned_on, white_bar
-from gyrocal.diagnose.where import history_columns
+from gyrocal.diagnosis import diagnose
+from gyrocal.diagnosis.between import between_points, seating_variance
+from gyrocal.diagnosis.evaluation import evaluate
+from gyrocal.diagnosis.sessions import offset_alone, seating_sigma, turned_on, white_bar
+from gyrocal.diagnosis.where import history_columns
 from gyrocal.fit.model import columns_of
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose import diagnose
+from gyrocal.diagnosis import diagnose
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings
 
@@ -42,7 +42,7 @@ def open2_unit(tmp_path, name: str):
 def next_session_rms(logs, offer: dict) -> float:
     """Session 0 calibrated with the offer's terms, judged on session 2: its hold-mean RMS
     (deg/s)."""
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run
 

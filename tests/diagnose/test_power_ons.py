@@ -1,12 +1,12 @@
 """The other session's errors read per power-on: offsets per stretch between the log's gaps
-(:func:`gyrocal.diagnose.sessions._turn_on_offsets`), on hold errors made up here."""
+(:func:`gyrocal.diagnosis.sessions._turn_on_offsets`), on hold errors made up here."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from gyrocal.diagnose.sessions import _turn_on_offsets
+from gyrocal.diagnosis.sessions import _turn_on_offsets
 from gyrocal.fit.validate import MIN_STRETCH_HOLDS, stretches_between_gaps
 from gyrocal.fleet.drift import HoldErrors
 
@@ -71,7 +71,7 @@ def test_the_other_sessions_holds_between_this_ones_points_are_counted():
     interpolation reaches; 20.5 is at a point (within POINT_MATCH), 45 and -5 outside the span."""
     import pandas as pd
 
-    from gyrocal.diagnose.sessions import POINT_MATCH, between_share
+    from gyrocal.diagnosis.sessions import POINT_MATCH, between_share
 
     temps = np.array([0.0, 0.3, -0.2, 20.0, 20.4, 40.0, 39.8])
     obs = pd.DataFrame({"point": [0, 0, 0, 1, 1, 2, 2], "temp": temps})

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gyrocal.diagnose.sessions import (
+from gyrocal.diagnosis.sessions import (
     SEATING_REPEATABILITY_URAD,
     _rms_bound,
     _seating,
@@ -18,7 +18,7 @@ from gyrocal.diagnose.sessions import (
     reseated,
     seating_sigma,
 )
-from gyrocal.diagnose.shapes import odd_in_own_rate
+from gyrocal.diagnosis.shapes import odd_in_own_rate
 from gyrocal.fleet.drift import HoldErrors
 from gyrocal.pipeline.config import DiagnosisSettings, Settings
 
@@ -166,7 +166,7 @@ def test_a_mounting_is_a_stretch_of_consecutive_holds_on_one_mount_in_time():
     mounting."""
     import pandas as pd
 
-    from gyrocal.diagnose.where import mountings
+    from gyrocal.diagnosis.where import mountings
 
     other = pd.DataFrame({"t_start": [5.0, 1.0, 2.0, 3.0, 4.0], "mount": ["+x", "+x", "+x", "+y", "+x"]})
     assert mountings(other).tolist() == [2, 0, 0, 1, 2]

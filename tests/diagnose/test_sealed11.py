@@ -33,7 +33,7 @@ def judged(tmp_path, uid: str, one_session: bool = False) -> tuple[dict, dict]:
 
 def diagnosed_alone(tmp_path, uid: str) -> tuple[dict, dict]:
     """The unit's truth and session 0's diagnosis from that log alone, as a dict."""
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -99,8 +99,8 @@ def test_a_term_per_point_is_retried_as_one_set_for_the_session():
     """The retry's spec: a per-point library term becomes the same term with one set of
     coefficients for the session, which reloads as global; a term already global, or a
     restricted part of one, has no such retry."""
-    from gyrocal.diagnose.effects import _one_set_for_the_session
-    from gyrocal.diagnose.verdict import _separation
+    from gyrocal.diagnosis.effects import _one_set_for_the_session
+    from gyrocal.diagnosis.verdict import _separation
     from gyrocal.terms import make_term
 
     shared = _one_set_for_the_session("scale_cubic")

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose.lab import MOUNTING_DOMINANT, RIVAL_HALF
-from gyrocal.diagnose.naming import MOST
-from gyrocal.diagnose.sessions import changed_alone, fails_between_only, offset_alone, white_bar
+from gyrocal.diagnosis.lab import MOUNTING_DOMINANT, RIVAL_HALF
+from gyrocal.diagnosis.naming import MOST
+from gyrocal.diagnosis.sessions import changed_alone, fails_between_only, offset_alone, white_bar
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose.sessions import SHARED_SCALE_DOMINANT, changed_alone, reference_scaled, wanders_most
+from gyrocal.diagnosis.sessions import SHARED_SCALE_DOMINANT, changed_alone, reference_scaled, wanders_most
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))

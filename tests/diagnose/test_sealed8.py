@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from gyrocal.diagnose.sessions import fails_in_practice, rate_shaped, reseated
+from gyrocal.diagnosis.sessions import fails_in_practice, rate_shaped, reseated
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "benchmarks"))

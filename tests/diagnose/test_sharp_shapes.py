@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from benchmarks.diagnosis import story_contradiction
-from gyrocal.diagnose import diagnose, extended
-from gyrocal.diagnose.reading import readable
+from gyrocal.diagnosis import diagnose, extended
+from gyrocal.diagnosis.reading import readable
 from gyrocal.pipeline.chain import segment_log
 from gyrocal.pipeline.config import Settings
 from gyrocal.terms import make_term
@@ -110,7 +110,7 @@ def test_an_excess_within_the_floors_own_uncertainty_is_no_effect(logs):
     """A complete unit whose floor reads 10 % low: the χ² test fails, but the excess is
     within what the session's little static data know the floor to (11 % here): the model
     explains the data and the verdict says the pattern is too faint to matter."""
-    from gyrocal.diagnose.stats import floor_uncertainty
+    from gyrocal.diagnosis.stats import floor_uncertainty
 
     obs = segment_log(logs["complete"], Settings()).observations
     low = obs.copy()
@@ -144,7 +144,7 @@ def test_a_sharp_or_cross_axis_shape_is_offered_and_holds_on_the_unseen_session(
     temperature where the temperature moves within the points), it reads the input that
     where-it-fails says carries the excess, and calibrated with it the session the diagnosis
     never saw is within 1.2 times the floor, from over twice that without it."""
-    from gyrocal.diagnose.verdict import term_reads
+    from gyrocal.diagnosis.verdict import term_reads
 
     logs = zoo_sessions(tmp_path, effect, unit)
     settings = Settings()
@@ -180,7 +180,7 @@ def test_a_candidate_scored_in_sample_is_compared_on_the_same_holds(tmp_path):
     """A step in time inside one temperature point cannot be validated by leaving that point
     out: its figure is in sample, and its gain is against the configured model's in-sample
     figure on the same holds, never against the model's held-out one."""
-    from gyrocal.diagnose.evaluation import in_sample_summary
+    from gyrocal.diagnosis.evaluation import in_sample_summary
 
     logs = zoo_sessions(tmp_path, "bias_step_time", 1)
     settings = Settings()

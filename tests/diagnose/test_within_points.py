@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from gyrocal.diagnose.sessions import _within_points, wanders_within_points
+from gyrocal.diagnosis.sessions import _within_points, wanders_within_points
 from gyrocal.fleet.drift import HoldErrors
 
 FLOOR = 1e-3  # deg/s, a hold mean's white noise

@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 
 from gyrocal.calibration.file import dumps
-from gyrocal.diagnose import diagnose
+from gyrocal.diagnosis import diagnose
 from gyrocal.fit.floor import FALLBACK, STATIC, floor_terms
 from gyrocal.fit.noise import FLICKER_FACTOR, allan_deviation, barnes_b1, pooled_allan_deviation
 from gyrocal.pipeline.chain import run
@@ -113,8 +113,8 @@ def _unit(seed: int, grade: str | None, effects=None, rig=RIG, tmp=None) -> dict
 
 
 def _fit_quality(settings, obs):
-    from gyrocal.diagnose.evaluation import evaluate
-    from gyrocal.diagnose.where import fit_quality
+    from gyrocal.diagnosis.evaluation import evaluate
+    from gyrocal.diagnosis.where import fit_quality
 
     return fit_quality(evaluate(settings, obs, "configured model"), len(obs))
 

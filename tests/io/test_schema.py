@@ -270,7 +270,7 @@ def test_a_fix_line_for_a_unit_that_takes_a_batch_entry_keeps_that_entry_and_add
     alone."""
     import yaml
 
-    from gyrocal.diagnose.evaluation import unit_config_line
+    from gyrocal.diagnosis.evaluation import unit_config_line
     from gyrocal.fleet.manifest import model_entry
     from gyrocal.pipeline.config import Settings
 
@@ -285,7 +285,7 @@ def test_a_fix_line_for_a_unit_that_takes_a_batch_entry_keeps_that_entry_and_add
     pasted = Settings.from_dict({"unit": {"entry": "yes", "model": models["yes"]}})
     assert pasted.model == unit.model.with_terms(("scale_quadratic",))
     # the whole fleet's line is the fleet's model with the fix, not this unit's
-    from gyrocal.diagnose.evaluation import with_unit_lines
+    from gyrocal.diagnosis.evaluation import with_unit_lines
 
     doc = with_unit_lines({"best": {"term": "scale_quadratic", "config_line": "x"}}, "yes", unit)
     assert doc["best"]["config_line"] == "terms: [bias, scale, misalignment, scale_quadratic]"

@@ -227,7 +227,7 @@ def test_apply_reads_the_temperature_record_the_fit_read(logs, monkeypatch):
     import pyarrow.parquet as pq
 
     from gyrocal.calibration import apply
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.io import log
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings

@@ -15,7 +15,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from benchmarks.zoo.generator import make_unit, write_session  # noqa: E402
 from gyrocal.calibration.parameters import parameters_at  # noqa: E402
-from gyrocal.diagnose import extended  # noqa: E402
+from gyrocal.diagnosis import extended  # noqa: E402
 from gyrocal.pipeline.chain import calibrate_observations, segment_log  # noqa: E402
 from gyrocal.pipeline.config import Settings  # noqa: E402
 from gyrocal.pipeline.identify import MAX_INFLATION  # noqa: E402
@@ -160,7 +160,7 @@ def test_a_term_that_leaves_the_calibration_unvalidated_is_dropped(tmp_path):
     """A step of the bias in temperature, fitted to a sweep without one: the fit takes it,
     but then no one-point calibration can be compared with the sweep's (the point holds too
     little of the step to fit it), so the calibration would reach end of line unvalidated."""
-    from gyrocal.diagnose import extended as extend
+    from gyrocal.diagnosis import extended as extend
 
     log = tmp_path / "sweep.parquet"
     write_session(

@@ -12,7 +12,7 @@ import pytest
 
 from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
-from gyrocal.diagnose import diagnose
+from gyrocal.diagnosis import diagnose
 from gyrocal.io import schema
 from gyrocal.io.errors import ConfigError
 from gyrocal.pipeline.chain import run

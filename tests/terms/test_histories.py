@@ -153,7 +153,7 @@ def test_formulas_take_histories_of_the_record():
 
 
 def test_histories_read_as_formulas_with_their_units():
-    from gyrocal.diagnose.reading import readable
+    from gyrocal.diagnosis.reading import readable
 
     pole = "expression(label='pole', formula='lag(rate_own, tau) - rate_own', parameters={'tau': 7.42})"
     assert (
@@ -238,7 +238,7 @@ def test_a_slow_pole_fitted_on_hold_means_is_what_apply_takes_off_the_samples(tm
     of the hold's noise floor, and the calibration compensates the whole log."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.calibration.apply import apply_calibration
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fit.model import Model, columns_of
     from gyrocal.fleet import drift
     from gyrocal.pipeline.chain import run, segment_log
@@ -322,7 +322,7 @@ def test_offsets_new_at_every_mounting_are_named_as_the_mountings(tmp_path, effe
     two, no term is named and the verdict names the mounting, not slow noise or a step in
     time. An orientation effect (a g-sensitivity, the same at every mounting of a mount), a
     warm-up (the mountings follow each other in time) and a complete unit are not."""
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -349,7 +349,7 @@ def test_histories_of_the_rate_are_offered_and_hold_on_the_next_session(tmp_path
     slow pole: within 1.2 times the floor there (the issue's figure for a fix), where the
     default model errs several times it."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose, extended
+    from gyrocal.diagnosis import diagnose, extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings
@@ -382,7 +382,7 @@ def test_a_duhem_hysteresis_calibrated_and_applied_leaves_the_noise(tmp_path):
     calibration carries to the unit's next ramp within 1.2 times the floor."""
     from benchmarks.zoo.generator import make_unit, write_session
     from gyrocal.calibration.apply import apply_calibration
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fit.model import columns_of
     from gyrocal.fleet import drift
     from gyrocal.pipeline.chain import run, segment_log
@@ -433,7 +433,7 @@ def test_history_terms_are_tried_for_the_rows_that_carry_the_excess():
     gyro's output a history of the rates reads."""
     import pandas as pd
 
-    from gyrocal.diagnose.shapes import history_shapes
+    from gyrocal.diagnosis.shapes import history_shapes
     from gyrocal.terms.signals import Series
 
     t = np.linspace(0.0, 7200.0, 721)
@@ -462,7 +462,7 @@ def test_the_output_settling_within_its_holds_is_tested_against_the_step_into_th
     independent zoo's slow pole (k (lag(u, τ) − u), k > 0) it is beyond any chance, with the
     change of the pole's sign on every axis; a complete unit and a warm-up (a drift the same
     in every hold, which the line's intercept holds) are not beyond the diagnosis' α/2."""
-    from gyrocal.diagnose.where import settling_row
+    from gyrocal.diagnosis.where import settling_row
     from gyrocal.fit.model import columns_of
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
@@ -486,7 +486,7 @@ def test_points_reached_one_way_are_found_from_the_record(tmp_path, order, one_w
     points' biases either way. Back to a point passed, that point is reached from both
     sides."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose.where import one_way_points
+    from gyrocal.diagnosis.where import one_way_points
     from gyrocal.fit.model import columns_of
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
@@ -516,7 +516,7 @@ def test_a_hysteresis_no_session_can_see_is_said_to_be_out_of_sight(tmp_path):
     hysteresis and what would show it; with the other session visiting the points up then
     down it is in sight and the advice is not given."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.pipeline.chain import segment_log
     from gyrocal.pipeline.config import Settings
 
@@ -545,7 +545,7 @@ def test_a_switch_with_hysteresis_is_placed_within_a_hold_of_the_truth(tmp_path)
     search one parameter at a time stopped 0.13 °C off, in a side valley where moving
     the place or the width alone loses a straddling hold (3.6 times the floor there)."""
     from benchmarks.zoo.generator import make_unit, write_session
-    from gyrocal.diagnose import extended
+    from gyrocal.diagnosis import extended
     from gyrocal.fleet.drift import revalidate
     from gyrocal.pipeline.chain import run, segment_log
     from gyrocal.pipeline.config import Settings

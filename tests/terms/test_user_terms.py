@@ -15,7 +15,7 @@ import pytest
 
 from gyrocal.calibration.apply import apply_calibration
 from gyrocal.calibration.file import load_calibration, save_calibration
-from gyrocal.diagnose import diagnose, extended
+from gyrocal.diagnosis import diagnose, extended
 from gyrocal.io.errors import ConfigError
 from gyrocal.pipeline.chain import run, segment_log
 from gyrocal.pipeline.config import DiagnosisSettings, ModelSettings, Settings

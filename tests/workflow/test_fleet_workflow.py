@@ -237,7 +237,7 @@ def test_lint_clean_and_formatted():
 def test_the_ladder_in_the_report_holds_the_librarys_numbers(fleet_run):
     import re
 
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.report.pages import fmt
 
     folder = fleet_run / "results" / "B2" / "A2" / "2026-01-02"
@@ -300,7 +300,7 @@ def test_end_of_line_verdicts_yield_and_drift_pages(fleet_run):
 def test_a_device_with_two_sessions_is_diagnosed_against_the_other(fleet_run):
     """The workflow hands each session of A1 the other's observations, and the diagnosis
     it writes is the library's with both; A2, with one session, is diagnosed alone."""
-    from gyrocal.diagnose import diagnose
+    from gyrocal.diagnosis import diagnose
     from gyrocal.terms.signals import read_observations
 
     def folder(key):

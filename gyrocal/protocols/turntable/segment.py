@@ -175,7 +175,7 @@ def _segment_blocks(log: RigLog, blk: dict, size: int, dt: float, cfg: SegmentCo
     if not accepted.any():
         _refuse_without_accepted_holds(log, h, checked.reason)
     # The table's angle at each hold's start, from its first sample: the reference rate
-    # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnose.lab).
+    # summed over the samples. An effect fixed in the lab shows through it (gyrocal.diagnosis.lab).
     table_angle = np.mod(np.r_[0.0, np.cumsum(blk["ref"] * block_dt, dtype=np.float64)][c0], 360.0)
     obs = _observation_table(h, accepted, checked, table_angle, cfg)
     seg = _segment_table(segments, blk["t_first"], blk["t_last"], blk["ref"], obs)

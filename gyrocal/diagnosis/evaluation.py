@@ -287,7 +287,7 @@ class LadderRow(TypedDict, total=False):
 
 def ladder(settings: Settings, obs: pd.DataFrame, base: Evaluation, carry=None) -> list[LadderRow]:
     """The base model, then each configured step added to the one before; ``carry``
-    (:meth:`gyrocal.diagnose.effects.Judge.carry`, with another session) gives each the
+    (:meth:`gyrocal.diagnosis.effects.Judge.carry`, with another session) gives each the
     figure of its calibration there."""
     rows: list[LadderRow] = [_ladder_row(base, [], carry)]
     current = settings

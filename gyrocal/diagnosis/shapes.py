@@ -1,12 +1,12 @@
 """The shape of an effect outside the library.
 
 When no library term explains the excess, the inputs that carry it (the leading rows of
-:func:`gyrocal.diagnose.where.covariate_table`, products with the own rate included) are
+:func:`gyrocal.diagnosis.where.covariate_table`, products with the own rate included) are
 given terms of free shape: an empirical term (:class:`gyrocal.terms.empirical.Smooth`, a
 natural cubic spline of the input, times the own rate for a product) and parametric
 families of that input (a decay, a power law, a step, a bump, a saturation), their
 nonlinear parameters profiled. They are judged exactly as the library's terms
-(:func:`gyrocal.diagnose.effects.rank_candidates`), and the one named comes with a sentence
+(:func:`gyrocal.diagnosis.effects.rank_candidates`), and the one named comes with a sentence
 on its shape.
 """
 

@@ -778,7 +778,7 @@ def input_kinds(term: str) -> set[str]:
 
 def unseen_hysteresis(one_way: dict | None, two_sessions: bool) -> str | None:
     """The advice where every temperature point saw the temperature travel one way
-    (:func:`gyrocal.diagnose.where.one_way_points`): a hysteresis of the temperature hides
+    (:func:`gyrocal.diagnosis.where.one_way_points`): a hysteresis of the temperature hides
     in the points' biases, and only a session that reaches a point from the other side tells."""
     if not one_way:
         return None

@@ -182,7 +182,7 @@ def mounting_fixed(
     """How much of the in-sample excess an offset per mounting accounts for: each output
     axis' whitened residuals refitted with one offset and one misalignment (its share of
     the turning rate) per stretch of holds on one mount (``stretch``,
-    :func:`gyrocal.diagnose.where.history_columns`) beside each temperature
+    :func:`gyrocal.diagnosis.where.history_columns`) beside each temperature
     point's bias and rates. The mounting explains the excess when its offsets' gain passes
     an F-test, what they leave is within chance, and neither of its rivals does as well:
     one offset per mount for the whole session (an effect of the orientation, which a
