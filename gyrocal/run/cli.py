@@ -494,6 +494,9 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
+    """The diagnosis: its verdict and the line that adds the missing term on the terminal;
+    with -o the whole of it as JSON (without, it is written to scratch space and read back,
+    so what is printed is the same either way)."""
     import tempfile
 
     from .stages import diagnose_stage, run_stage, segment_stage
@@ -501,16 +504,21 @@ def cmd_diagnose(args) -> int:
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
         raise ConfigError("give the log, or --unit DIR of a segmented unit")
+    if args.record_failures and not args.output:  # the record would go nowhere, the exit be 0
+        raise ConfigError("--record-failures writes the failure to -o FILE: give -o")
 
-    def diagnose_folder(folder, other=None):
+    def diagnose_folder(folder, output, other=None):
         verdict = diagnose_stage(
-            folder, settings, _meta(args), output=args.output, residuals=args.residuals or False, other=other
+            folder, settings, _meta(args), output=output, residuals=args.residuals or False, other=other
         )
-        print(f"diagnosis -> {args.output}")
+        if args.output:
+            print(f"diagnosis -> {args.output}")
+        else:
+            print(f"diagnosis of {args.log or args.unit}")
         print(f"  {verdict}")
         import json
 
-        doc = json.loads(Path(args.output).read_text())
+        doc = json.loads(Path(output).read_text())
         offered, nxt = doc.get("best"), doc.get("next_session") or {}
         if nxt.get("excess") is not None:  # what the calibration meets: said, not only in the JSON
             fixed = ((offered or {}).get("next_session") or {}).get("excess")
@@ -527,23 +535,24 @@ def cmd_diagnose(args) -> int:
 
     def work():
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
+            output = args.output or Path(scratch) / "diagnosis.json"
             other = args.other_session
             if other is not None and not Path(other).is_dir():
                 registry.get(args.protocol)
                 other = Path(scratch) / "other" / Path(args.other_session).name.removesuffix(".parquet")
                 segment_stage(args.other_session, other, settings, _meta(args))
             if args.unit is not None:
-                return diagnose_folder(args.unit, other)
+                return diagnose_folder(args.unit, output, other)
             registry.get(args.protocol)
             folder = Path(scratch) / "unit"
             segment_stage(args.log, folder, settings, _meta(args))
-            diagnose_folder(folder, other)
+            diagnose_folder(folder, output, other)
 
-    outputs = [args.output] + ([args.residuals] if args.residuals else [])
+    outputs = [o for o in (args.output, args.residuals) if o]
     # A diagnosis written as the unit's own part joins its archive, and replaces the
     # residuals there (written again or left out).
     owned = ()
-    if args.unit is not None:
+    if args.unit is not None and args.output:
         from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
 
         unit_diagnosis = (Path(args.unit) / UNIT_FILES["diagnosis"]).resolve()
@@ -850,7 +859,11 @@ def _add_diagnose(sub) -> None:
     p = sub.add_parser("diagnose", help="where the model fails and which effect is missing")
     p.add_argument("log", nargs="?", help="the rig log (or --unit for a segmented unit)")
     p.add_argument("--unit", help="a unit's results folder (workflow stage)")
-    p.add_argument("-o", "--output", required=True, help="diagnosis .json")
+    p.add_argument(
+        "-o",
+        "--output",
+        help="also write the whole diagnosis here, .json (default: the verdict printed only)",
+    )
     p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
     p.add_argument(
         "--other-session",
