@@ -452,13 +452,11 @@ def cmd_calibrate(args) -> int:
             else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
         )
         diag = diagnose(used, obs, base=base)
-        write_unit_report(
-            UnitResults.from_run(
-                result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
-            ),
-            args.report,
-            registry.get(args.protocol),
+        results = UnitResults.from_run(
+            result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
         )
+        results.device_unknown = args.device is None  # the page names the log instead
+        write_unit_report(results, args.report, registry.get(args.protocol))
     s = result.validation.summary
     print(f"calibration -> {args.output}")
     print(
