@@ -572,11 +572,17 @@ def cmd_apply(args) -> int:
         load_term_file(path)
     cal = load_calibration(args.calibration)
     counts = apply_calibration(cal, args.log, args.output)
-    if counts["clamped"]:
-        lo, hi = cal.grid.span
+    if counts["beyond"]:  # beyond by less than the end points' own scatter is no news
+        (lo, hi), (below, above) = cal.grid.span, cal.range_tolerance()
         warnings.warn(
-            f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
-            f"{lo:g} to {hi:g} °C and use the nearest end's calibration",
+            f"{counts['beyond']} of {counts['rows']} rows lie outside the calibrated "
+            f"{lo:g} to {hi:g} °C"
+            + (
+                f" by more than its end points' temperature spread ({below:.2g} and {above:.2g} °C)"
+                if below or above
+                else ""
+            )
+            + " and use the nearest end's calibration",
             stacklevel=1,
         )
     if counts["nonfinite"]:
