@@ -52,16 +52,19 @@ DERIVED = ("rate_x", "rate_y", "rate_z")  # solved for
 
 class ApplyCounts(TypedDict):
     """What ``gyrocal apply`` did to a log: its rows, those written NaN (an input not finite,
-    or a compensation that overflows), and those at temperatures clamped to the calibrated
-    range."""
+    or a compensation that overflows), those at temperatures clamped to the calibrated
+    range, and of those the ones beyond it by more than the end points' own temperature
+    spread (:meth:`gyrocal.calibration.file.Calibration.range_tolerance`: the ones to warn of)."""
 
     rows: int
     nonfinite: int
     clamped: int
+    beyond: int
 
 
 def apply_calibration(cal: Calibration, path, out) -> ApplyCounts:
-    """Write ``out`` from the log at ``path``; return counts (rows, non-finite, clamped).
+    """Write ``out`` from the log at ``path``; return counts (rows, non-finite, clamped,
+    beyond the clamping's tolerance).
 
     Rows whose gyro, temperature or other needed input is not finite get NaN compensated
     rates (counted); temperatures outside the calibrated range use the nearest end's
@@ -113,7 +116,7 @@ def apply_calibration(cal: Calibration, path, out) -> ApplyCounts:
                 if {"gyro": "rate_history", "accel": "accel_history"}[c.split("_")[0]] in needs
             ],
         )
-    counts: ApplyCounts = {"rows": 0, "nonfinite": 0, "clamped": 0}
+    counts: ApplyCounts = {"rows": 0, "nonfinite": 0, "clamped": 0, "beyond": 0}
     transforms = cal.model.sample_transforms()  # a die temperature: filters with state
     with atomic.replacing(out) as tmp:  # never leave half a file behind
         _write(
@@ -301,6 +304,7 @@ def _compensated(
         else:
             result[good] = found
         counts["clamped"] += int(cal.grid.outside(sub["temp"]).sum())
+        counts["beyond"] += int(cal.beyond_tolerance(sub["temp"]).sum())
     elif "series" in data:
         # No row to compensate (the gyro dropped out, the temperature still logged):
         # the histories' filters still move on over the batch, as firmware's do.

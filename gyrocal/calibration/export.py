@@ -736,6 +736,6 @@ def add_export_parser(subparsers):
         help="c-header (grid, K, B and a reference C implementation) or json "
         "(default: from the suffix of -o, .h or .json)",
     )
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("-o", "--output", required=True, help="the file to write, .h or .json")
     p.set_defaults(func=cmd_export)
     return p

@@ -100,6 +100,32 @@ class Calibration:
     def coefficients(self, temp, *, warn: bool = True) -> dict[str, np.ndarray]:
         return self.grid.at(temp, warn=warn)
 
+    def range_tolerance(self) -> tuple[float, float]:
+        """How far below and above the calibrated range (°C) a temperature still counts as
+        within it: the end points' own temperature spread, each used point's
+        ``temp_spread`` in the file (the highest minus the lowest temperature read during
+        its holds, :class:`gyrocal.pipeline.chain.HeldTemperatures`). A point's place is its
+        holds' typical temperature, but its samples scatter about it by the sensor's noise
+        and the chamber's cycling, and a log of the same rig scatters as far beyond it: a
+        row beyond the end by less than that point's spread is read at the end as the
+        calibration's own samples were. The whole spread, not half of it, so that the
+        scatter of another session, whose extremes differ by chance, stays within. A file
+        that records no spread (written before gyrocal kept it, or by a protocol with a
+        calibration of its own) gives 0: its range is the grid's."""
+        used = [p for p in self.extra.get("points", ()) if p.get("used", True) and "temperature" in p]
+        if not used:
+            return 0.0, 0.0
+        ends = min(used, key=lambda p: p["temperature"]), max(used, key=lambda p: p["temperature"])
+        lo, hi = (float(p.get("temp_spread") or 0.0) for p in ends)
+        return lo, hi
+
+    def beyond_tolerance(self, temp) -> np.ndarray:
+        """Which temperatures lie outside the calibrated range by more than
+        :meth:`range_tolerance`: the rows apply warns of (all outside it are clamped)."""
+        temp = np.asarray(temp, dtype=float)
+        (lo, hi), (below, above) = self.grid.span, self.range_tolerance()
+        return (temp < lo - below) | (temp > hi + above)
+
     def clamp(self, temp) -> np.ndarray:
         """Temperatures limited to the calibrated range: terms never extrapolate."""
         lo, hi = self.grid.span

@@ -347,7 +347,7 @@ def add_lookup_parser(subparsers):
     """Register ``gyrocal lookup`` on the CLI's subparsers."""
     p = subparsers.add_parser("lookup", help="the calibration of a unit closest to a date")
     p.add_argument("caldir", help="folder of calibration files (e.g. the workflow's results/)")
-    p.add_argument("device")
+    p.add_argument("device", help="the unit's device id, as its calibrations record it")
     p.add_argument("--date", help="YYYY-MM-DD (default: the latest session)")
     side = p.add_mutually_exclusive_group()
     side.add_argument(

@@ -182,11 +182,66 @@ def open_dataset(path: Path) -> ds.Dataset:
         dataset.schema.names  # noqa: B018
         return dataset
     except (pa.ArrowInvalid, OSError) as exc:
-        raise CorruptFileError(f"not a readable Parquet file ({first_line(exc)})", source=path) from None
+        raise CorruptFileError(unreadable(path, exc), source=path) from None
     except UnicodeDecodeError:
         raise CorruptFileError(
             "not a readable Parquet file (a column name is not UTF-8)", source=path
         ) from None
+
+
+PARQUET_MAGIC = b"PAR1"  # a Parquet file starts and ends with it
+SNIFF_BYTES = 4096
+DELIMITERS = {",": "CSV", "\t": "TSV", ";": "CSV"}
+
+
+def unreadable(path: Path, exc: BaseException) -> str:
+    """Why Arrow could not open ``path``, naming the fix where the bytes show it: a file
+    cut short (the leading magic without the trailing one: a copy interrupted), or text
+    with delimiters (a CSV or TSV file, which ``gyrocal import`` converts). The bytes decide,
+    not the name: a CSV file is often saved as .parquet by a script, and a cut copy keeps
+    its name."""
+    reason = f"not a readable Parquet file ({first_line(exc)})"
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as f:
+            head = f.read(SNIFF_BYTES)
+            f.seek(max(size - len(PARQUET_MAGIC), 0))
+            tail = f.read()
+    except OSError:
+        return reason
+    if size < len(PARQUET_MAGIC):  # empty: Arrow's own words say so
+        return reason
+    if head.startswith(PARQUET_MAGIC):
+        if tail != PARQUET_MAGIC:
+            return (
+                "not a readable Parquet file, truncated: the file ends without Parquet's "
+                f"footer ({size} bytes; a cut copy?)"
+            )
+        return reason
+    kind = _delimited_text(head)
+    if kind is None:
+        return reason
+    import shlex
+
+    fmt = "" if path.suffix.lower() == f".{kind.lower()}" else f" --format {kind.lower()}"
+    return (
+        f"not a readable Parquet file: it looks like {kind} text; "
+        f"gyrocal import {shlex.quote(str(path))} -o LOG.parquet{fmt} converts it (docs/import.md)"
+    )
+
+
+def _delimited_text(head: bytes) -> str | None:
+    """The kind of text (CSV or TSV) the file's first bytes are: printable UTF-8 whose first
+    line a delimiter splits; None for anything else."""
+    text = head.decode("utf-8", errors="ignore")  # a character cut at the end is dropped
+    if len(text) < len(head) // 2:  # mostly not UTF-8: binary
+        return None
+    if any(not (c.isprintable() or c in "\r\n\t") for c in text.lstrip("\ufeff")):
+        return None
+    first = text.lstrip("\ufeff").splitlines()[0] if text.strip() else ""
+    counts = {d: first.count(d) for d in DELIMITERS}
+    delimiter = max(counts, key=lambda d: counts[d])
+    return DELIMITERS[delimiter] if counts[delimiter] else None
 
 
 def _first_time(fragment) -> float | None:

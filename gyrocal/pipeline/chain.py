@@ -121,10 +121,13 @@ def segment_log(
     # the same bins: inputs with a history (a lag of the rate) read them, in the fit and in
     # apply alike.
     kept = [c for c in RECORD_COLUMNS if c in log]
+    held = HeldTemperatures(obs) if "temp" not in filled else None
     for batch in log.scan(tuple(dict.fromkeys((*StretchSampler.NAMES, *kept)))):
         record.push(batch["t"], batch["temp"], {c: batch[c] for c in kept})
         if sampler is not None:
             sampler.push(batch)
+        if held is not None:
+            held.push(batch["t"], batch["temp"])
     seg = with_noise_floor(
         log,
         seg,
@@ -134,7 +137,48 @@ def segment_log(
     )
     if "temp" in filled:  # a constant stand-in: no temperature record for terms to read
         return seg
+    if held is not None and (spread := held.spread()) is not None:
+        seg.info["point_temp_spread"] = spread
     return with_series(seg, record.result())
+
+
+class HeldTemperatures:
+    """The temperatures read during each temperature point's holds, sample by sample: their
+    lowest and highest, gathered batch by batch in the pass that makes the temperature
+    record. A hold's mean hides the sensor's scatter, which a log of the same rig shows
+    again: a calibration keeps each point's spread so that apply can tell a row beyond its
+    end points by that scatter from one beyond the calibrated range."""
+
+    def __init__(self, obs: pd.DataFrame):
+        self.ok = len(obs) > 0 and {"t_start", "t_end", "point"} <= set(obs.columns)
+        if not self.ok:
+            return
+        order = np.argsort(obs["t_start"].to_numpy(float), kind="stable")
+        self.starts = obs["t_start"].to_numpy(float)[order]
+        self.ends = obs["t_end"].to_numpy(float)[order]
+        self.point = obs["point"].to_numpy(np.int64)[order]
+        points = int(self.point.max()) + 1
+        self.lo, self.hi = np.full(points, np.inf), np.full(points, -np.inf)
+
+    def push(self, t: np.ndarray, temp: np.ndarray) -> None:
+        if not self.ok or not len(t):
+            return
+        hold = np.searchsorted(self.starts, t, side="right") - 1
+        inside = (hold >= 0) & (t <= self.ends[np.maximum(hold, 0)]) & np.isfinite(temp)
+        hold, temp = hold[inside], np.asarray(temp, float)[inside]
+        if not len(hold):
+            return
+        runs = np.flatnonzero(np.r_[True, hold[1:] != hold[:-1]])  # a hold's samples are contiguous
+        point = self.point[hold[runs]]
+        np.minimum.at(self.lo, point, np.minimum.reduceat(temp, runs))
+        np.maximum.at(self.hi, point, np.maximum.reduceat(temp, runs))
+
+    def spread(self) -> list[float | None] | None:
+        """Each point's spread (highest minus lowest temperature read in its holds, °C), by
+        point number; None for a point no sample was read in, or when there are no holds."""
+        if not self.ok:
+            return None
+        return [float(h - lo) if h >= lo else None for lo, h in zip(self.lo, self.hi, strict=True)]
 
 
 def with_series(seg: Segmentation, series: Series) -> Segmentation:
@@ -214,7 +258,8 @@ def calibrate_observations(
             cal.extra["noise"] = noise_record(noise)
         fitted = None
     else:
-        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted)
+        spread = (info or {}).get("point_temp_spread")
+        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted, spread)
     if settings.model_entry:
         cal.extra["model_entry"] = settings.model_entry
     if checks:
@@ -249,11 +294,12 @@ def calibrate_observations(
     return cal, fitted
 
 
-def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
+def _common_calibration(obs, settings, meta, provenance, label, noise, fitted, spread=None):
     """The common model's calibration (and fit, unless ``fitted`` is given). Terms beyond
     the protocol's own model are kept only where this unit's data identify them
     (:func:`gyrocal.pipeline.identify.identify`; the file's ``added_terms`` says which and
-    why, with the held-out figures with and without each)."""
+    why, with the held-out figures with and without each). ``spread``, segmentation's
+    ``point_temp_spread``, gives each point's ``temp_spread``."""
     added: tuple[AddedTerm, ...] = ()
     if fitted is None:
         from .identify import identify
@@ -280,6 +326,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
                     "temperature": float(r.temp),
                     "holds": int(r.holds),
                     "used": bool(r.used),
+                    **_spread_entry(spread, int(r.point)),
                     **({"excluded_because": r.reason} if not r.used else {}),
                 }
                 for r in points.itertuples()
@@ -292,6 +339,13 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted):
         covariates=covariates,
     )
     return cal, fitted
+
+
+def _spread_entry(spread: list | None, point: int) -> dict:
+    """A point's ``temp_spread`` for the file (:class:`HeldTemperatures`), where recorded."""
+    if spread is None or point >= len(spread) or spread[point] is None:
+        return {}
+    return {"temp_spread": spread[point]}
 
 
 def _bias_in_session(fitted, added) -> BiasInSession | None:

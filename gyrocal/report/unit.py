@@ -50,6 +50,9 @@ class UnitResults:
     protocol_figures: list = field(default_factory=list)
     free_points: Columns | None = None  # continuous models: free per-point fits
     runs: tuple = (None, None)  # this run and the last of another model (gyrocal.io.runs)
+    # The device was not given: the page names the log (its file name), not a device id
+    # made up from it.
+    device_unknown: bool = False
 
     @classmethod
     def from_run(cls, run, command: str = "", diagnosis=None, analysis=None) -> UnitResults:
@@ -268,6 +271,10 @@ def write_unit_report(results: UnitResults, path, protocol) -> None:
         added_terms=cal.extra.get("added_terms", []),
         model_entry=cal.extra.get("model_entry"),
         meta=cal.meta,
+        unit_name=Path(results.log).name
+        if results.device_unknown and results.log
+        else cal.meta.get("device"),
+        device_known=not results.device_unknown,
         span=g.span,
         summary=results.summary,
         methods=METHODS,

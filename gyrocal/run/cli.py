@@ -452,13 +452,11 @@ def cmd_calibrate(args) -> int:
             else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
         )
         diag = diagnose(used, obs, base=base)
-        write_unit_report(
-            UnitResults.from_run(
-                result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
-            ),
-            args.report,
-            registry.get(args.protocol),
+        results = UnitResults.from_run(
+            result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
         )
+        results.device_unknown = args.device is None  # the page names the log instead
+        write_unit_report(results, args.report, registry.get(args.protocol))
     s = result.validation.summary
     print(f"calibration -> {args.output}")
     print(
@@ -494,6 +492,9 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_diagnose(args) -> int:
+    """The diagnosis: its verdict and the line that adds the missing term on the terminal;
+    with -o the whole of it as JSON (without, it is written to scratch space and read back,
+    so what is printed is the same either way)."""
     import tempfile
 
     from .stages import diagnose_stage, run_stage, segment_stage
@@ -501,16 +502,21 @@ def cmd_diagnose(args) -> int:
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
         raise ConfigError("give the log, or --unit DIR of a segmented unit")
+    if args.record_failures and not args.output:  # the record would go nowhere, the exit be 0
+        raise ConfigError("--record-failures writes the failure to -o FILE: give -o")
 
-    def diagnose_folder(folder, other=None):
+    def diagnose_folder(folder, output, other=None):
         verdict = diagnose_stage(
-            folder, settings, _meta(args), output=args.output, residuals=args.residuals or False, other=other
+            folder, settings, _meta(args), output=output, residuals=args.residuals or False, other=other
         )
-        print(f"diagnosis -> {args.output}")
+        if args.output:
+            print(f"diagnosis -> {args.output}")
+        else:
+            print(f"diagnosis of {args.log or args.unit}")
         print(f"  {verdict}")
         import json
 
-        doc = json.loads(Path(args.output).read_text())
+        doc = json.loads(Path(output).read_text())
         offered, nxt = doc.get("best"), doc.get("next_session") or {}
         if nxt.get("excess") is not None:  # what the calibration meets: said, not only in the JSON
             fixed = ((offered or {}).get("next_session") or {}).get("excess")
@@ -527,23 +533,24 @@ def cmd_diagnose(args) -> int:
 
     def work():
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
+            output = args.output or Path(scratch) / "diagnosis.json"
             other = args.other_session
             if other is not None and not Path(other).is_dir():
                 registry.get(args.protocol)
                 other = Path(scratch) / "other" / Path(args.other_session).name.removesuffix(".parquet")
                 segment_stage(args.other_session, other, settings, _meta(args))
             if args.unit is not None:
-                return diagnose_folder(args.unit, other)
+                return diagnose_folder(args.unit, output, other)
             registry.get(args.protocol)
             folder = Path(scratch) / "unit"
             segment_stage(args.log, folder, settings, _meta(args))
-            diagnose_folder(folder, other)
+            diagnose_folder(folder, output, other)
 
-    outputs = [args.output] + ([args.residuals] if args.residuals else [])
+    outputs = [o for o in (args.output, args.residuals) if o]
     # A diagnosis written as the unit's own part joins its archive, and replaces the
     # residuals there (written again or left out).
     owned = ()
-    if args.unit is not None:
+    if args.unit is not None and args.output:
         from ..io.unit_folder import UNIT_FILES, clear_stage, pack_stage
 
         unit_diagnosis = (Path(args.unit) / UNIT_FILES["diagnosis"]).resolve()
@@ -565,11 +572,17 @@ def cmd_apply(args) -> int:
         load_term_file(path)
     cal = load_calibration(args.calibration)
     counts = apply_calibration(cal, args.log, args.output)
-    if counts["clamped"]:
-        lo, hi = cal.grid.span
+    if counts["beyond"]:  # beyond by less than the end points' own scatter is no news
+        (lo, hi), (below, above) = cal.grid.span, cal.range_tolerance()
         warnings.warn(
-            f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
-            f"{lo:g} to {hi:g} °C and use the nearest end's calibration",
+            f"{counts['beyond']} of {counts['rows']} rows lie outside the calibrated "
+            f"{lo:g} to {hi:g} °C"
+            + (
+                f" by more than its end points' temperature spread ({below:.2g} and {above:.2g} °C)"
+                if below or above
+                else ""
+            )
+            + " and use the nearest end's calibration",
             stacklevel=1,
         )
     if counts["nonfinite"]:
@@ -710,6 +723,42 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"gyrocal: error: {' '.join(message.split())} (see {self.prog} --help)\n")
 
 
+# The workflow's stages: commands on a unit's results folder (or a fleet's manifest) that
+# the Snakefile runs. `gyrocal --help` lists them under a heading of their own, after the
+# commands a user runs on a log or a calibration.
+STAGES = ("segment", "fit", "validate", "analyse", "report", "fleet")
+
+
+class _Listing(argparse.Action):
+    """Help only: commands listed under a heading of their own, as the subparsers list
+    theirs. It sits in an argument group, not among the parser's actions, so it parses
+    nothing and stays out of the usage line."""
+
+    def __init__(self, choices_actions, metavar: str, help: str):
+        super().__init__(option_strings=[], dest=argparse.SUPPRESS, nargs=0, metavar=metavar, help=help)
+        self._choices_actions = choices_actions
+
+    def _get_subactions(self):
+        return self._choices_actions
+
+    def __call__(self, parser, namespace, values, option_string=None):  # never parsed
+        raise NotImplementedError
+
+
+def _list_stages_apart(parser: argparse.ArgumentParser, sub) -> None:
+    """Move the stages' lines of the subparsers' help into a group of their own: every
+    command still parses through ``sub`` (``gyrocal fit --help`` works), only the top-level
+    help shows two lists."""
+    lines = sub._choices_actions  # argparse's one list of (name, help) lines
+    sub._choices_actions = [a for a in lines if a.dest not in STAGES]
+    group = parser.add_argument_group(
+        "workflow stages", "steps of the workflow (Snakefile) on a unit's results folder or a manifest"
+    )
+    group._group_actions.append(
+        _Listing([a for a in lines if a.dest in STAGES], "STAGE", "gyrocal STAGE --help for its options")
+    )
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="gyrocal",
@@ -718,7 +767,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"gyrocal {__version__}")
     parser.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND", parser_class=OneLineParser)
+    sub = parser.add_subparsers(
+        title="commands",
+        dest="command",
+        required=True,
+        metavar="COMMAND",
+        help="gyrocal COMMAND --help for its options",
+        parser_class=OneLineParser,
+    )
     _add_simulate(sub)
     _add_calibrate(sub)
     _add_diagnose(sub)
@@ -736,6 +792,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_paper_parser(sub)
     add_lookup_parser(sub)
     add_export_parser(sub)
+    _list_stages_apart(parser, sub)
     return parser
 
 
@@ -760,10 +817,17 @@ def _add_settings_arguments(p, model: bool = True) -> None:
 def _add_unit_arguments(p, failures: bool = True) -> None:
     """Who the log is of (--device, --batch, --session, --protocol); with ``failures``, the
     fleet runs' --record-failures."""
-    p.add_argument("--device")
-    p.add_argument("--batch")
-    p.add_argument("--session")
-    p.add_argument("--protocol", default=registry.DEFAULT)
+    p.add_argument(
+        "--device", help="the unit's id, recorded in the outputs (calibrate without it: the log's file name)"
+    )
+    p.add_argument("--batch", help="the unit's production batch, recorded in the outputs")
+    p.add_argument("--session", help="the calibration session, e.g. its date, recorded in the outputs")
+    p.add_argument(
+        "--protocol",
+        default=registry.DEFAULT,
+        choices=registry.names(),
+        help=f"how the rig moved the unit: which segmentation and model apply (default {registry.DEFAULT})",
+    )
     if failures:
         p.add_argument(
             "--record-failures",
@@ -774,12 +838,17 @@ def _add_unit_arguments(p, failures: bool = True) -> None:
 
 def _add_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="write simulated rig logs with ground truth")
-    p.add_argument("--protocol", default=registry.DEFAULT, choices=registry.names())
+    p.add_argument(
+        "--protocol",
+        default=registry.DEFAULT,
+        choices=registry.names(),
+        help=f"the rig's protocol to simulate (default {registry.DEFAULT})",
+    )
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--out", help="folder for N units' logs, truth JSON and devices.tsv")
     where.add_argument("--log", help="one log of the unit --device at session --session")
-    p.add_argument("--units", type=int, default=1)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--units", type=int, default=1, help="with --out: how many units (default 1)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the units and noise (default 0)")
     p.add_argument(
         "--preset",
         choices=["seed", "quick"],
@@ -794,9 +863,13 @@ def _add_simulate(sub) -> None:
         "Eq 23; sweep: seed 003's L3GD20 sizes)",
     )
     p.add_argument("--device", help="with --log: the unit (its parameters follow from it)")
-    p.add_argument("--batch", default="B1")
-    p.add_argument("--session", default="2026-01-01")
-    p.add_argument("--device-prefix", default="U")
+    p.add_argument("--batch", default="B1", help="the batch the logs record (default B1)")
+    p.add_argument("--session", default="2026-01-01", help="the session the logs record (default 2026-01-01)")
+    p.add_argument(
+        "--device-prefix",
+        default="U",
+        help="with --out: device ids are this and a number (default U: U001, ...)",
+    )
     _add_rig_arguments(p)
     _add_unit_error_arguments(p)
     p.set_defaults(func=cmd_simulate)
@@ -807,12 +880,12 @@ def _add_rig_arguments(p) -> None:
     p.add_argument("--temperatures", type=_floats, help="set points, °C, comma-separated")
     p.add_argument("--rates", type=_floats, help="hold rate magnitudes, deg/s")
     p.add_argument("--mounts", type=lambda s: tuple(s.split(",")), help="e.g. +x,+y,+z")
-    p.add_argument("--sample-rate", type=float)
-    p.add_argument("--soak-s", type=float)
-    p.add_argument("--hold-s", type=float)
-    p.add_argument("--handling-s", type=float)
-    p.add_argument("--no-mount-column", action="store_true")
-    p.add_argument("--no-accel", action="store_true")
+    p.add_argument("--sample-rate", type=float, metavar="HZ", help="samples per second")
+    p.add_argument("--soak-s", type=float, help="seconds the chamber soaks at each set point")
+    p.add_argument("--hold-s", type=float, help="seconds of each constant-rate hold")
+    p.add_argument("--handling-s", type=float, help="seconds a remount takes by hand")
+    p.add_argument("--no-mount-column", action="store_true", help="leave out the mount column")
+    p.add_argument("--no-accel", action="store_true", help="leave out the accelerometer columns")
 
 
 def _add_unit_error_arguments(p) -> None:
@@ -837,7 +910,7 @@ def _add_unit_error_arguments(p) -> None:
 
 def _add_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="the whole chain for one log -> calibration JSON")
-    p.add_argument("log")
+    p.add_argument("log", help="the rig log, .parquet (a CSV: convert it with gyrocal import)")
     p.add_argument("-o", "--output", required=True, help="calibration .json")
     p.add_argument("--report", help="also write an HTML report here")
     p.add_argument("--tables", help="also write observation and validation tables here")
@@ -850,7 +923,11 @@ def _add_diagnose(sub) -> None:
     p = sub.add_parser("diagnose", help="where the model fails and which effect is missing")
     p.add_argument("log", nargs="?", help="the rig log (or --unit for a segmented unit)")
     p.add_argument("--unit", help="a unit's results folder (workflow stage)")
-    p.add_argument("-o", "--output", required=True, help="diagnosis .json")
+    p.add_argument(
+        "-o",
+        "--output",
+        help="also write the whole diagnosis here, .json (default: the verdict printed only)",
+    )
     p.add_argument("--residuals", help="also write the normalised residuals, .parquet")
     p.add_argument(
         "--other-session",
@@ -865,9 +942,9 @@ def _add_diagnose(sub) -> None:
 
 def _add_apply(sub) -> None:
     p = sub.add_parser("apply", help="compensate a log with a calibration")
-    p.add_argument("calibration")
-    p.add_argument("log")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("calibration", help="calibration .json (gyrocal calibrate's output)")
+    p.add_argument("log", help="the log to compensate, .parquet")
+    p.add_argument("-o", "--output", required=True, help="the compensated log to write, .parquet")
     p.add_argument(
         "--terms",
         action="append",
@@ -879,8 +956,8 @@ def _add_apply(sub) -> None:
 
 def _add_verify(sub) -> None:
     p = sub.add_parser("verify", help="check that a log is the input a calibration records (its hash)")
-    p.add_argument("calibration")
-    p.add_argument("log")
+    p.add_argument("calibration", help="calibration .json recording its input's hash")
+    p.add_argument("log", help="the log to check, .parquet")
     p.set_defaults(func=cmd_verify)
 
 
@@ -889,7 +966,7 @@ def _add_revalidate(sub) -> None:
         "revalidate",
         help="judge a calibration on another session of its unit (its RMS against the noise floor)",
     )
-    p.add_argument("calibration")
+    p.add_argument("calibration", help="calibration .json of the unit")
     p.add_argument("log", help="another session's rig log of the same unit")
     p.add_argument("-o", "--output", help="the figures as JSON")
     p.add_argument(
@@ -905,7 +982,7 @@ def _add_noise(sub) -> None:
     p = sub.add_parser(
         "noise", help="the noise terms (Allan deviation, IEEE Std 952) of a log's static stretches"
     )
-    p.add_argument("log")
+    p.add_argument("log", help="the rig log, .parquet")
     p.add_argument("-o", "--output", help="the whole characterisation as JSON")
     p.add_argument(
         "--protocol",
@@ -918,8 +995,8 @@ def _add_noise(sub) -> None:
 
 
 def _add_segment(sub) -> None:
-    p = sub.add_parser("segment", help="stage: find holds; write the unit's observation tables")
-    p.add_argument("log")
+    p = sub.add_parser("segment", help="find holds; write the unit's observation tables")
+    p.add_argument("log", help="the rig log, .parquet")
     p.add_argument("--out", required=True, help="the unit's results folder")
     _add_unit_arguments(p)
     _add_settings_arguments(p, model=False)
@@ -928,8 +1005,8 @@ def _add_segment(sub) -> None:
 
 def _add_fit_and_validate(sub) -> None:
     for name, func, text in (
-        ("fit", cmd_fit, "stage: fit the unit's calibration"),
-        ("validate", cmd_validate, "stage: validate the unit's calibration"),
+        ("fit", cmd_fit, "fit the unit's calibration"),
+        ("validate", cmd_validate, "validate the unit's calibration"),
     ):
         p = sub.add_parser(name, help=text)
         p.add_argument("unit", help="the unit's results folder")
@@ -939,7 +1016,7 @@ def _add_fit_and_validate(sub) -> None:
 
 
 def _add_analyse(sub) -> None:
-    p = sub.add_parser("analyse", help="stage: fit, validate and diagnose the unit in one process")
+    p = sub.add_parser("analyse", help="fit, validate and diagnose the unit in one process")
     p.add_argument("unit", help="the unit's results folder")
     p.add_argument(
         "--other-session",
@@ -956,9 +1033,9 @@ def _add_analyse(sub) -> None:
 
 
 def _add_report(sub) -> None:
-    p = sub.add_parser("report", help="stage: the unit's HTML report")
+    p = sub.add_parser("report", help="the unit's HTML report")
     p.add_argument("unit", help="the unit's results folder")
-    p.add_argument("-o", "--output", required=True)
+    p.add_argument("-o", "--output", required=True, help="the report to write, .html")
     _add_unit_arguments(p)
     _add_settings_arguments(p)
     p.set_defaults(func=cmd_report)
@@ -968,7 +1045,7 @@ def _add_shard(sub) -> None:
     p = sub.add_parser(
         "shard", help="split a day's manifest into shards, a workflow run each (docs/cluster.md)"
     )
-    p.add_argument("--manifest", required=True)
+    p.add_argument("--manifest", required=True, help="the day's manifest, .tsv (one row per unit session)")
     p.add_argument(
         "--size",
         type=int,
@@ -1009,8 +1086,8 @@ def _add_shard(sub) -> None:
 
 
 def _add_fleet(sub) -> None:
-    p = sub.add_parser("fleet", help="stage: the fleet summary over a manifest")
-    p.add_argument("--manifest", required=True)
+    p = sub.add_parser("fleet", help="the fleet summary over a manifest")
+    p.add_argument("--manifest", required=True, help="the manifest, .tsv (one row per unit session)")
     p.add_argument("--results", default="results", help="root of the units' results folders")
     p.add_argument("--reports", default="reports", help="root of the units' reports")
     p.add_argument("-o", "--output", required=True, help="fleet summary .html")

@@ -43,17 +43,22 @@ COMMANDS = {
 }
 
 
+def listed_commands(help_text: str, heading: str) -> list[str]:
+    """The commands under a heading of the top-level help, in order: each a line of its own
+    four spaces in, its name first (a name found anywhere in the text would be found in
+    another command's help: "analyse" says fit, validate and diagnose)."""
+    lines = help_text.split(f"\n{heading}:\n", 1)[1].splitlines()
+    end = next((i for i, line in enumerate(lines) if line and not line.startswith(" ")), len(lines))
+    return [line.split()[0] for line in lines[:end] if re.match(r" {4}\S", line)]
+
+
 def test_help_lists_the_commands():
-    """Each command is a line of its own under COMMAND (four spaces in, its name first): a
-    name found anywhere in the text would be found in another command's help ("analyse"
-    says fit, validate and diagnose)."""
     out = gyrocal("--help")
     assert out.returncode == 0
-    section = out.stdout.split("\n  COMMAND\n", 1)[1].split("\n\n", 1)[0]
-    listed = {line.split()[0] for line in section.splitlines() if re.match(r" {4}\S", line)}
-    assert listed == COMMANDS
+    listed = listed_commands(out.stdout, "commands") + listed_commands(out.stdout, "workflow stages")
+    assert set(listed) == COMMANDS and len(listed) == len(COMMANDS)
     subparsers = next(a for a in cli.build_parser()._actions if a.dest == "command")
-    assert set(subparsers.choices) == listed  # none accepted but left out of the help
+    assert set(subparsers.choices) == set(listed)  # none accepted but left out of the help
 
 
 def main(*args):
@@ -168,7 +173,7 @@ def test_verify_accepts_an_old_sha256_record_and_refuses_another_log(tmp_path, c
         (
             lambda d: None,
             ["calibrate", "{d}/l.parquet", "--protocol", "gimbal", "-o", "{d}/c.json"],
-            "protocol 'gimbal' is not supported",
+            "invalid choice: 'gimbal'",
         ),
         (
             lambda d: None,

@@ -1,0 +1,1 @@
+"""The command line explains itself: help for every option, errors that name the fix."""
