@@ -34,6 +34,7 @@ if TYPE_CHECKING:
     import pandas as pd
     import pyarrow as pa
 
+    from ..calibration.apply import ApplyCounts
     from ..pipeline.chain import Run
 
 LogLike: TypeAlias = "str | os.PathLike[str] | pd.DataFrame | pa.Table"
@@ -164,6 +165,7 @@ class CalibrationResult:
     run: Run
     settings: Settings
     protocol: str
+    device_given: bool = True  # without a device, the report names the log
 
     @property
     def calibration(self) -> Calibration:
@@ -233,11 +235,9 @@ class CalibrationResult:
             else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
         )
         diagnosis = run_diagnosis(used, obs, base=base)
-        write_unit_report(
-            UnitResults.from_run(result, command, diagnosis, registry.analysis(self.protocol, obs)),
-            path,
-            registry.get(self.protocol),
-        )
+        results = UnitResults.from_run(result, command, diagnosis, registry.analysis(self.protocol, obs))
+        results.device_unknown = not self.device_given
+        write_unit_report(results, path, registry.get(self.protocol))
         return Path(path)
 
     def apply(self, log: LogLike) -> pd.DataFrame:
@@ -304,7 +304,7 @@ def calibrate(
     settings = _settings_for(settings, protocol, add_terms)
     with _as_path(log, name) as path:
         result = run(path, settings, protocol=protocol, device=device, batch=batch, session=session)
-    return CalibrationResult(result, settings, protocol)
+    return CalibrationResult(result, settings, protocol, device is not None)
 
 
 @dataclass(frozen=True, repr=False)
@@ -392,6 +392,39 @@ def _option_value(option: str) -> str | None:
     return words[words.index("--add-term") + 1] if "--add-term" in words[:-1] else None
 
 
+def diagnose_log(
+    log: Path,
+    settings: Settings,
+    meta: dict[str, Any],
+    scratch: Path,
+    *,
+    output: Path,
+    other: Path | None = None,
+    residuals: Path | bool = False,
+) -> str:
+    """Segment ``log`` into ``scratch`` and write its diagnosis to ``output`` (the
+    normalised residuals to ``residuals``); returns the verdict. ``other`` is another
+    session's log, or a unit's results folder already segmented. The command line's
+    ``diagnose LOG`` and :func:`diagnose` both run this."""
+    from .stages import diagnose_stage, segment_stage
+
+    other = other_session_folder(other, settings, meta, scratch)
+    segment_stage(log, scratch / "unit", settings, meta)
+    return diagnose_stage(scratch / "unit", settings, meta, output=output, residuals=residuals, other=other)
+
+
+def other_session_folder(other, settings: Settings, meta: dict[str, Any], scratch: Path) -> Path | None:
+    """The other session as a results folder: a folder as it is, a log segmented into
+    ``scratch`` under the log's name (the diagnosis records the other session by it)."""
+    from .stages import segment_stage
+
+    if other is None or Path(other).is_dir():
+        return other
+    folder = scratch / "other" / Path(other).name.removesuffix(".parquet")
+    segment_stage(other, folder, settings, meta)
+    return folder
+
+
 @_one_blas_thread
 def diagnose(
     log: LogLike,
@@ -409,28 +442,21 @@ def diagnose(
     candidate terms fitted and judged out of sample, leaving out a temperature point, a
     mount, a rate level; with ``other`` (another session of the same unit) judged on how
     they carry over to it as well. ``residuals``: keep the normalised residuals too."""
-    from .stages import diagnose_stage, segment_stage
-
     settings = _settings_for(settings, protocol, add_terms)
     meta = {"device": device, "batch": batch, "session": session, "protocol": protocol}
-    with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
-        root = Path(scratch)
-        other_folder = None
-        if other is not None:  # named as the command line names it: the other log's name
-            stem = Path(other).name.removesuffix(".parquet") if isinstance(other, str | os.PathLike) else ""
-            other_folder = root / "other" / (stem or "other")
-            with _as_path(other, "other.parquet") as path:
-                segment_stage(path, other_folder, settings, meta)
-        with _as_path(log) as path:
-            segment_stage(path, root / "unit", settings, meta)
-        out, frame = root / "diagnosis.json", root / "residuals.parquet"
-        diagnose_stage(
-            root / "unit",
+    with contextlib.ExitStack() as stack:
+        scratch = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-")))
+        path = stack.enter_context(_as_path(log))
+        other_path = None if other is None else stack.enter_context(_as_path(other, "other.parquet"))
+        out, frame = scratch / "diagnosis.json", scratch / "residuals.parquet"
+        diagnose_log(
+            path,
             settings,
             meta,
+            scratch,
             output=out,
+            other=other_path,
             residuals=frame if residuals else False,
-            other=other_folder,
         )
         document = json.loads(out.read_text())
         table = None
@@ -439,6 +465,29 @@ def diagnose(
 
             table = pq.read_table(frame).to_pandas()
     return Diagnosis(document, table)
+
+
+def apply_warnings(cal: Calibration, counts: ApplyCounts) -> list[str]:
+    """What an apply has to say: rows beyond the calibrated range by more than its end
+    points' own temperature spread (:meth:`Calibration.range_tolerance`), rows written NaN."""
+    said = []
+    if counts["beyond"]:  # beyond by less than the end points' own scatter is no news
+        (lo, hi), (below, above) = cal.grid.span, cal.range_tolerance()
+        said.append(
+            f"{counts['beyond']} of {counts['rows']} rows lie outside the calibrated {lo:g} to {hi:g} °C"
+            + (
+                f" by more than its end points' temperature spread ({below:.2g} and {above:.2g} °C)"
+                if below or above
+                else ""
+            )
+            + " and use the nearest end's calibration"
+        )
+    if counts["nonfinite"]:
+        said.append(
+            f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
+            "(or rates too large to compensate) were written as NaN"
+        )
+    return said
 
 
 def apply(calibration: Calibration | str | os.PathLike[str], log: LogLike) -> pd.DataFrame:
@@ -454,18 +503,8 @@ def apply(calibration: Calibration | str | os.PathLike[str], log: LogLike) -> pd
         out = Path(scratch) / "compensated.parquet"
         counts = _one_blas_thread(apply_calibration)(cal, path, out)
         frame = pq.read_table(out).to_pandas()
-    if counts["clamped"]:
-        lo, hi = cal.grid.span
-        warnings.warn(
-            f"{counts['clamped']} of {counts['rows']} rows lie outside the calibrated "
-            f"{lo:g} to {hi:g} °C and use the nearest end's calibration",
-            stacklevel=2,
-        )
-    if counts["nonfinite"]:
-        warnings.warn(
-            f"{counts['nonfinite']} rows with a non-finite gyro or temperature value were written as NaN",
-            stacklevel=2,
-        )
+    for message in apply_warnings(cal, counts):
+        warnings.warn(message, stacklevel=2)
     return frame
 
 
@@ -502,15 +541,39 @@ class Noise:
         return self.to_frame().to_html(index=False, float_format=lambda v: f"{v:.3g}")
 
 
+def static_or_default(path) -> str:
+    """The protocol to read a log's noise by, when none is given: a log whose reference
+    rate is 0 throughout and that names no mounts lies still (a noise recording, a chamber
+    test): its steady windows are its static stretches, whatever its temperature does."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    from ..io.errors import GyrocalError
+    from ..io.log import open_dataset
+
+    try:  # a file, or a folder of files read as one (the contract)
+        source = open_dataset(Path(path))
+        names = set(source.schema.names)
+        if "mount" in names:
+            return registry.DEFAULT
+        if "ref_rate" not in names:  # an import without a reference: still, as static reads it
+            return "static"
+        for batch in source.to_batches(columns=["ref_rate"]):
+            if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
+                return registry.DEFAULT
+    except (GyrocalError, OSError, ValueError, pa.ArrowException):
+        return registry.DEFAULT  # reading the log says what is wrong with it
+    return "static"
+
+
 @_one_blas_thread
 def noise(log: LogLike, *, protocol: str | None = None, settings: Settings | None = None) -> Noise:
     """The noise of the log's static stretches, per temperature point and pooled
     (``gyrocal noise``); a log that never turns is read as a static recording."""
     from ..pipeline.chain import segment_log
-    from .cli import _noise_protocol
 
     with _as_path(log) as path:
-        chosen = protocol or _noise_protocol(path)
+        chosen = protocol or static_or_default(path)
         settings = _settings_for(settings, chosen, ())
         return Noise(segment_log(path, settings, chosen).info["noise"])
 

@@ -237,41 +237,13 @@ def cmd_segment(args) -> int:
     return status
 
 
-def _noise_protocol(path) -> str:
-    """The protocol to read a log's noise by, when none is given: a log whose reference
-    rate is 0 throughout and that names no mounts lies still (a noise recording, a chamber
-    test): its steady windows are its static stretches, whatever its temperature does."""
-    import pyarrow as pa
-    import pyarrow.compute as pc
-
-    from ..io.errors import GyrocalError
-    from ..io.log import open_dataset
-    from ..protocols import registry
-
-    try:  # a file, or a folder of files read as one (the contract)
-        source = open_dataset(Path(path))
-        names = set(source.schema.names)
-        if "mount" in names:
-            return registry.DEFAULT
-        if "ref_rate" not in names:  # an import without a reference: still, as static reads it
-            return "static"
-        for batch in source.to_batches(columns=["ref_rate"]):
-            if batch.num_rows and pc.any(pc.not_equal(batch.column(0), 0)).as_py():
-                return registry.DEFAULT
-    except (GyrocalError, OSError, ValueError, pa.ArrowException):
-        return registry.DEFAULT  # reading the log says what is wrong with it
-    return "static"
-
-
 def cmd_noise(args) -> int:
     """The session's noise: IEEE Std 952 terms of its static stretches, per temperature point
     and pooled (gyrocal.fit.floor); the whole characterisation as JSON with -o."""
     from ..calibration.file import dumps
-    from ..pipeline.chain import segment_log
+    from .api import noise as session_noise
 
-    settings = _settings(args)
-    protocol = args.protocol or _noise_protocol(args.log)
-    noise = segment_log(args.log, settings, protocol).info["noise"]
+    noise = session_noise(args.log, protocol=args.protocol, settings=_settings(args)).document
     if args.output:
         from ..io.atomic import write_text
 
@@ -412,51 +384,24 @@ def cmd_fleet(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from ..calibration.file import save_calibration
-    from ..io.tables import write_table
-    from ..pipeline.chain import run
+    import shlex
 
-    settings = _settings(args)
-    result = run(
-        args.log, settings, protocol=args.protocol, device=args.device, batch=args.batch, session=args.session
+    from .api import calibrate
+
+    made = calibrate(
+        args.log,
+        settings=_settings(args),
+        protocol=args.protocol,
+        device=args.device,
+        batch=args.batch,
+        session=args.session,
     )
-    save_calibration(result.calibration, args.output)
+    made.save(args.output)
     if args.tables:
-        out = Path(args.tables)
-        out.mkdir(parents=True, exist_ok=True)
-        meta = {"summary": result.validation.summary}
-        seg, val = result.segmentation, result.validation
-        for name, frame, extra in (
-            ("observations", seg.observations, {"info": seg.info}),
-            ("segments", seg.segments, {}),
-            ("timeline", seg.timeline, {}),
-            ("validation_holds", val.holds, meta),
-            ("table_hold_means", val.table_holds, meta),
-            ("table_samples", val.table_samples, meta),
-            ("by_temperature", val.by_temperature, meta),
-        ):
-            write_table(frame, out / f"{name}.parquet", extra)
+        made.save_tables(args.tables)
     if args.report:
-        import shlex
-
-        from ..diagnosis import diagnose, evaluation_of
-        from ..pipeline.chain import settings_used
-        from ..protocols import registry
-        from ..report.unit import UnitResults, write_unit_report
-
-        obs = result.segmentation.observations
-        used = settings_used(settings.for_protocol(args.protocol), result.calibration)
-        base = (
-            None
-            if result.fitted is None
-            else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
-        )
-        diag = diagnose(used, obs, base=base)
-        results = UnitResults.from_run(
-            result, " ".join(map(shlex.quote, sys.argv)), diag, registry.analysis(args.protocol, obs)
-        )
-        results.device_unknown = args.device is None  # the page names the log instead
-        write_unit_report(results, args.report, registry.get(args.protocol))
+        made.report(args.report, command=" ".join(map(shlex.quote, sys.argv)))
+    result = made.run
     s = result.validation.summary
     print(f"calibration -> {args.output}")
     print(
@@ -497,7 +442,8 @@ def cmd_diagnose(args) -> int:
     so what is printed is the same either way)."""
     import tempfile
 
-    from .stages import diagnose_stage, run_stage, segment_stage
+    from .api import diagnose_log, other_session_folder
+    from .stages import diagnose_stage, run_stage
 
     settings = _settings(args)
     if (args.log is None) == (args.unit is None):
@@ -505,10 +451,9 @@ def cmd_diagnose(args) -> int:
     if args.record_failures and not args.output:  # the record would go nowhere, the exit be 0
         raise ConfigError("--record-failures writes the failure to -o FILE: give -o")
 
-    def diagnose_folder(folder, output, other=None):
-        verdict = diagnose_stage(
-            folder, settings, _meta(args), output=output, residuals=args.residuals or False, other=other
-        )
+    residuals = args.residuals or False
+
+    def tell(verdict, output):
         if args.output:
             print(f"diagnosis -> {args.output}")
         else:
@@ -534,17 +479,22 @@ def cmd_diagnose(args) -> int:
     def work():
         with tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-") as scratch:
             output = args.output or Path(scratch) / "diagnosis.json"
-            other = args.other_session
-            if other is not None and not Path(other).is_dir():
-                registry.get(args.protocol)
-                other = Path(scratch) / "other" / Path(args.other_session).name.removesuffix(".parquet")
-                segment_stage(args.other_session, other, settings, _meta(args))
             if args.unit is not None:
-                return diagnose_folder(args.unit, output, other)
-            registry.get(args.protocol)
-            folder = Path(scratch) / "unit"
-            segment_stage(args.log, folder, settings, _meta(args))
-            diagnose_folder(folder, output, other)
+                other = other_session_folder(args.other_session, settings, _meta(args), Path(scratch))
+                verdict = diagnose_stage(
+                    args.unit, settings, _meta(args), output=output, residuals=residuals, other=other
+                )
+            else:
+                verdict = diagnose_log(
+                    Path(args.log),
+                    settings,
+                    _meta(args),
+                    Path(scratch),
+                    output=output,
+                    other=args.other_session,
+                    residuals=residuals,
+                )
+            tell(verdict, output)
 
     outputs = [o for o in (args.output, args.residuals) if o]
     # A diagnosis written as the unit's own part joins its archive, and replaces the
@@ -567,30 +517,14 @@ def cmd_apply(args) -> int:
     from ..calibration.apply import apply_calibration
     from ..calibration.file import load_calibration
     from ..terms.user import load_term_file
+    from .api import apply_warnings
 
     for path in args.terms or ():
         load_term_file(path)
     cal = load_calibration(args.calibration)
     counts = apply_calibration(cal, args.log, args.output)
-    if counts["beyond"]:  # beyond by less than the end points' own scatter is no news
-        (lo, hi), (below, above) = cal.grid.span, cal.range_tolerance()
-        warnings.warn(
-            f"{counts['beyond']} of {counts['rows']} rows lie outside the calibrated "
-            f"{lo:g} to {hi:g} °C"
-            + (
-                f" by more than its end points' temperature spread ({below:.2g} and {above:.2g} °C)"
-                if below or above
-                else ""
-            )
-            + " and use the nearest end's calibration",
-            stacklevel=1,
-        )
-    if counts["nonfinite"]:
-        warnings.warn(
-            f"{counts['nonfinite']} rows with a non-finite gyro or temperature value "
-            "(or rates too large to compensate) were written as NaN",
-            stacklevel=1,
-        )
+    for message in apply_warnings(cal, counts):
+        warnings.warn(message, stacklevel=1)
     print(f"{counts['rows']} rows compensated -> {args.output}")
     return 0
 
