@@ -49,7 +49,7 @@ def main() -> None:
     log = args.log or log_at(100.0)
     # BLAS as a notebook finds it: no thread count set in the environment
     env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-    print(f"{cpu_name()}, {cores()} cores, {dt.datetime.now():%Y-%m-%d %H:%M}, log {log}")
+    print(f"{cpu_name()}, {cores()}, {dt.datetime.now():%Y-%m-%d %H:%M}, log {log}")
     with tempfile.TemporaryDirectory() as scratch:
         for command in args.only.split(","):
             cli_out, lib_out = Path(scratch) / "cli.json", Path(scratch) / "lib.json"
