@@ -32,7 +32,7 @@ every consumer falls back to std/sqrt(n); the summary (``Segmentation.info["nois
 from __future__ import annotations
 
 from collections.abc import Mapping
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any, NamedTuple, NotRequired, TypedDict
 
@@ -123,25 +123,27 @@ def settled_start(gyro: np.ndarray) -> int:
     if n < 64:
         return 0
     x = np.asarray(gyro, dtype=np.float64)
-    d2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
-    sigma = np.sqrt(np.nanmean(d2**2, axis=0) / 6.0)
+    d2 = np.diff(x, 2, axis=0)
+    sigma = np.sqrt(_nanmean_of_squares(d2) / 6.0)
     half = np.arange(n // 2, n, dtype=np.float64)
     tail = x[n // 2 :]
-    keep = np.all(np.isfinite(tail), axis=1)
-    if keep.sum() < 8:
-        return 0
-    slope, level = np.polynomial.polynomial.polyfit(half[keep], tail[keep], 1)[::-1]
+    h_mean, y_mean, slope = _line(half, tail)
+    if not np.all(np.isfinite(y_mean)):  # the line through the rows finite on every axis
+        keep = np.all(np.isfinite(tail), axis=1)
+        if keep.sum() < 8:
+            return 0
+        h_mean, y_mean, slope = _line(half[keep], tail[keep])
+    h_bar = half.mean()
+    h_ss = (half - h_bar) @ (half - h_bar)
     window = n // 16
     previous = None
     for trim in SETTLING_TRIMS:
         start = n // trim if trim else 0
         lead = x[start : start + window]
         centre = start + (window - 1) / 2.0
-        line = level + slope * centre
+        line = y_mean + slope * (centre - h_mean)
         # the lead's mean and the line's value there, each with its white-noise variance
-        spread = (
-            1.0 / window + 1.0 / len(half) + (centre - half.mean()) ** 2 / np.sum((half - half.mean()) ** 2)
-        )
+        spread = 1.0 / window + 1.0 / len(half) + (centre - h_bar) ** 2 / h_ss
         off = (np.nanmean(lead, axis=0) - line) / (sigma * np.sqrt(spread))
         worst = int(np.argmax(np.abs(off)))
         if abs(off[worst]) < SETTLING_SIGMAS:
@@ -155,11 +157,26 @@ def settled_start(gyro: np.ndarray) -> int:
     return n // 2
 
 
+def _nanmean_of_squares(d: np.ndarray) -> np.ndarray:
+    """``np.nanmean(d**2, axis=0)``, in one pass where nothing is NaN (a finite sum says so)."""
+    sumsq = np.einsum("ij,ij->j", d, d)
+    return sumsq / len(d) if np.all(np.isfinite(sumsq)) else np.nanmean(d**2, axis=0)
+
+
+def _line(h: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """The least-squares line through each column of ``y`` against ``h``: the mean of h,
+    the column means (the line's value there) and slopes, from centred sums (matrix-vector
+    products: numpy's sum down the rows of a narrow array is slow)."""
+    h_mean = float(h.mean())
+    hc = h - h_mean
+    return h_mean, np.ones(len(y)) @ y / len(y), (hc @ y) / (hc @ hc)
+
+
 class StretchSampler:
     """The samples of the static stretches, gathered from a log given batch by batch
-    (``push``: dicts with t, temp and the gyro axes), each stretch reduced to its
-    :func:`gyrocal.fit.noise.stretch_sums` as soon as it is complete, so that no more than one
-    stretch is held at a time. A stretch is the rows with t_start <= t <= t_end; one
+    (``push``: dicts with t, temp and the gyro axes), each stretch trimmed of its settling and
+    reduced to its :func:`gyrocal.fit.noise.stretch_sums` on two threads as soon as it is
+    complete, so that only the stretches being reduced are held. A stretch is the rows with t_start <= t <= t_end; one
     shorter than the noise model needs is left out. ``result()``: per stretch kept, its
     sums, its sample count and its mean temperature."""
 
@@ -171,8 +188,8 @@ class StretchSampler:
         self.end = stretches["t_end"].to_numpy(float)
         self.rate = rate
         self._pieces: dict[int, list[dict[str, np.ndarray]]] = {}
-        self._done: dict[int, tuple] = {}
-        self._pool = ThreadPoolExecutor(2)  # numpy releases the GIL: sums beside the read
+        self._done: dict[int, Future[Stretch | None]] = {}
+        self._pool = ThreadPoolExecutor(2)  # numpy releases the GIL: a stretch's work beside the read
 
     def push(self, batch: dict[str, np.ndarray]) -> None:
         t = batch["t"]
@@ -189,29 +206,26 @@ class StretchSampler:
             c: (pieces[0][c] if len(pieces) == 1 else np.concatenate([p[c] for p in pieces]))
             for c in self.NAMES[1:]
         }
-        gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])
+        gyro = np.column_stack([cols[c] for c in self.NAMES[2:]])  # a copy: the batches can go
+        # the rest on the pool: the main thread goes on with the next batch
+        self._done[k] = self._pool.submit(self._reduce, gyro, cols["temp"], float(self.start[k]))
+
+    def _reduce(self, gyro: np.ndarray, temp: np.ndarray, start: float) -> Stretch | None:
         if self.trim_settling:
             gyro = gyro[settled_start(gyro) :]
         n = len(gyro)
-        if n >= max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
-            half = n // 2
-            # in float64: a float32 column's own accumulator overflows near its largest value
-            drift = np.mean(gyro[half:], axis=0, dtype=np.float64) - np.mean(
-                gyro[:half], axis=0, dtype=np.float64
-            )
-            self._done[k] = (
-                self._pool.submit(stretch_sums, gyro, self.rate),
-                n,
-                float(np.mean(cols["temp"], dtype=np.float64)),
-                float(self.start[k]),
-                drift,
-            )
+        if n < max(MIN_STATIC_SAMPLES, MIN_SAMPLES):
+            return None
+        half = n // 2
+        # in float64: a float32 column's own accumulator overflows near its largest value
+        drift = gyro[half:].mean(axis=0, dtype=np.float64) - gyro[:half].mean(axis=0, dtype=np.float64)
+        return Stretch(stretch_sums(gyro, self.rate), n, float(np.mean(temp, dtype=np.float64)), start, drift)
 
     def result(self) -> list[Stretch]:
         for k in list(self._pieces):
             self._close(k)
         self._pool.shutdown()
-        return [Stretch(sums.result(), *rest) for _, (sums, *rest) in sorted(self._done.items())]
+        return [s for _, f in sorted(self._done.items()) if (s := f.result()) is not None]
 
 
 class Stretch(NamedTuple):

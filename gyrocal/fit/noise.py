@@ -453,7 +453,9 @@ def _fit_axis(tau, avar, edf, iterations: int = 6):
     Var(avar_hat) ~ 2 avar^2 / edf; weights use the model's avar (iteratively reweighted) so a
     point that happens to fall low does not pull the fit down with an inflated weight.
     """
-    from scipy.stats import f as f_dist
+    # scipy.special's tail, as scipy.stats' f.sf computes it (1 below the support), without
+    # the half second scipy.stats takes to import
+    from scipy.special import fdtrc
 
     A = _design(tau)
     coef, se, chi2r, chi2 = _fit_columns(tau, avar, edf, A, iterations)
@@ -463,7 +465,7 @@ def _fit_axis(tau, avar, edf, iterations: int = 6):
         coef[_NOISE] > 0
         and dof >= 1
         and chi2 > 0
-        and f_dist.sf((chi24 - chi2) / (chi2 / dof), 1, dof) < RAMP_P
+        and fdtrc(1, dof, max((chi24 - chi2) / (chi2 / dof), 0.0)) < RAMP_P
     ):
         return coef, se, chi2r
     return np.r_[coef4, 0.0], np.r_[se4, 0.0], chi2r4

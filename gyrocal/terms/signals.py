@@ -440,12 +440,23 @@ class HistoryBins:
         elif set(columns) != set(self._first):
             raise ValueError("every piece of a record must give the same columns")
         self._last = {k: v[-1] for k, v in columns.items()}
-        if self._carry is not None:
-            columns = {k: np.concatenate((self._carry[k], v)) for k, v in columns.items()}
         index = np.floor((columns["t"] - self.rel_first) / self.width).astype(np.int64)
+        if self._carry is not None:
+            # the carried bin takes this piece's first samples of it, and only they are joined
+            # to it: a bin's mean does not depend on which others are reduced beside it
+            carried = self._carry
+            head = int(np.searchsorted(index, carried["index"][0], side="right"))
+            joined = {
+                k: np.concatenate((carried[k], v[:head])) for k, v in (("index", index), *columns.items())
+            }
+            index, columns = index[head:], {k: v[head:] for k, v in columns.items()}
+            if not len(index):  # the bin goes on past this piece
+                self._carry = joined
+                return
+            self._reduce(joined.pop("index"), joined)
         split = int(np.searchsorted(index, index[-1], side="left"))  # the last bin may go on
         self._reduce(index[:split], {k: v[:split] for k, v in columns.items()})
-        self._carry = {k: v[split:] for k, v in columns.items()}
+        self._carry = {"index": index[split:], **{k: v[split:] for k, v in columns.items()}}
 
     def _reduce(self, index, columns) -> None:
         if not len(index):
@@ -460,7 +471,7 @@ class HistoryBins:
     def result(self) -> Series:
         if self._carry is not None:
             carry = self._carry
-            self._reduce(np.floor((carry["t"] - self.rel_first) / self.width).astype(np.int64), carry)
+            self._reduce(carry.pop("index"), carry)
             self._carry = None
         first, last = self._first, self._last
         if not self._out or first is None or last is None:  # no sample pushed
