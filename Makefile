@@ -33,7 +33,7 @@ test: system-packages $(STAMP) lint
 lint: $(STAMP)
 	$(BIN)/ruff check gyrocal tests benchmarks
 	$(BIN)/ruff format --check gyrocal tests benchmarks
-	$(BIN)/mypy gyrocal/terms gyrocal/fit gyrocal/calibration gyrocal/pipeline
+	$(BIN)/mypy gyrocal/terms gyrocal/fit gyrocal/calibration gyrocal/pipeline gyrocal/__init__.py gyrocal/run/api.py
 
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernels, built on install),

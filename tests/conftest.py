@@ -85,7 +85,11 @@ def pytest_configure(config):
 
 
 def pytest_collection_modifyitems(config, items):
-    """The longest files first (LONGEST_FIRST), the others in collection order."""
+    """The longest files first (LONGEST_FIRST), the others in collection order; a notebook
+    the suite runs (nbmake: docs/tutorial.ipynb, over 10 s) is out of the quick loop."""
+    for item in items:
+        if item.nodeid.endswith(".ipynb"):
+            item.add_marker(pytest.mark.slow)
     rank = {path: i for i, path in enumerate(LONGEST_FIRST)}
     items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))
 

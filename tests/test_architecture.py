@@ -128,7 +128,9 @@ def _declared(folder: str) -> set[str]:
 
 def test_the_top_level_is_a_few_folders_each_a_layer():
     entries = sorted(
-        p.name for p in PACKAGE.iterdir() if p.name != "__pycache__" and not p.name.endswith(".so")
+        p.name
+        for p in PACKAGE.iterdir()
+        if p.name not in ("__pycache__", "py.typed") and not p.name.endswith(".so")
     )
     assert len(entries) <= 15, entries
     assert {e for e in entries if (PACKAGE / e).is_dir()} == set(LAYERS)

@@ -81,6 +81,12 @@ def standard_coefficients(K: np.ndarray, B: np.ndarray) -> dict[str, np.ndarray]
     return out
 
 
+# The largest of N Gaussian readings lies near sqrt(2 ln N) standard deviations out (4.5 for
+# a point's 30,000 samples); another session's largest passes 1.5 times that (6.8) with a
+# chance of about 1e-7: a row beyond it is beyond the calibration's own scatter.
+EXTREME_MARGIN = 1.5
+
+
 @dataclass(frozen=True)
 class Calibration:
     """A fitted model over a temperature grid, plus who and what it belongs to."""
@@ -102,22 +108,24 @@ class Calibration:
 
     def range_tolerance(self) -> tuple[float, float]:
         """How far below and above the calibrated range (°C) a temperature still counts as
-        within it: the end points' own temperature spread, each used point's
-        ``temp_spread`` in the file (the highest minus the lowest temperature read during
-        its holds, :class:`gyrocal.pipeline.chain.HeldTemperatures`). A point's place is its
-        holds' typical temperature, but its samples scatter about it by the sensor's noise
-        and the chamber's cycling, and a log of the same rig scatters as far beyond it: a
-        row beyond the end by less than that point's spread is read at the end as the
-        calibration's own samples were. The whole spread, not half of it, so that the
-        scatter of another session, whose extremes differ by chance, stays within. A file
-        that records no spread (written before gyrocal kept it, or by a protocol with a
-        calibration of its own) gives 0: its range is the grid's."""
+        within it: :data:`EXTREME_MARGIN` times how far the calibration's own readings went
+        beyond its end points (each used point's ``temp_range`` in the file: the lowest and
+        highest temperature read during its holds, :class:`gyrocal.pipeline.chain.HeldTemperatures`).
+        A turntable point sits at its holds' typical temperature while its samples scatter
+        about it by the sensor's noise, and another session of the same rig scatters as far:
+        such a row is read at the end point as the calibration's own were. Where the range
+        already ends near the readings' extremes (a sweep's bins) little is left beyond it
+        but their noise. A file
+        that records no range (written before gyrocal kept it, or by a protocol with a
+        calibration of its own) gives 0 too: its range is the grid's."""
         used = [p for p in self.extra.get("points", ()) if p.get("used", True) and "temperature" in p]
         if not used:
             return 0.0, 0.0
-        ends = min(used, key=lambda p: p["temperature"]), max(used, key=lambda p: p["temperature"])
-        lo, hi = (float(p.get("temp_spread") or 0.0) for p in ends)
-        return lo, hi
+        lowest, highest = min(used, key=lambda p: p["temperature"]), max(used, key=lambda p: p["temperature"])
+        lo, hi = self.grid.span
+        below = lo - float(lowest["temp_range"][0]) if "temp_range" in lowest else 0.0
+        above = float(highest["temp_range"][1]) - hi if "temp_range" in highest else 0.0
+        return EXTREME_MARGIN * max(below, 0.0), EXTREME_MARGIN * max(above, 0.0)
 
     def beyond_tolerance(self, temp) -> np.ndarray:
         """Which temperatures lie outside the calibrated range by more than

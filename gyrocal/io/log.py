@@ -218,21 +218,24 @@ def unreadable(path: Path, exc: BaseException) -> str:
                 f"footer ({size} bytes; a cut copy?)"
             )
         return reason
-    kind = _delimited_text(head)
-    if kind is None:
+    found = _delimited_text(head)
+    if found is None:
         return reason
     import shlex
 
+    kind, delimiter = found
     fmt = "" if path.suffix.lower() == f".{kind.lower()}" else f" --format {kind.lower()}"
+    # import reads commas (CSV) and tabs (TSV) by itself; another delimiter is the map's
+    mapped = "" if delimiter in ",\t" else f" --map MAP.yaml (with delimiter: {delimiter!r})"
     return (
         f"not a readable Parquet file: it looks like {kind} text; "
-        f"gyrocal import {shlex.quote(str(path))} -o LOG.parquet{fmt} converts it (docs/import.md)"
+        f"gyrocal import {shlex.quote(str(path))} -o LOG.parquet{fmt}{mapped} converts it (docs/import.md)"
     )
 
 
-def _delimited_text(head: bytes) -> str | None:
-    """The kind of text (CSV or TSV) the file's first bytes are: printable UTF-8 whose first
-    line a delimiter splits; None for anything else."""
+def _delimited_text(head: bytes) -> tuple[str, str] | None:
+    """The kind of text (CSV or TSV) the file's first bytes are, and its delimiter:
+    printable UTF-8 whose first line a delimiter splits; None for anything else."""
     text = head.decode("utf-8", errors="ignore")  # a character cut at the end is dropped
     if len(text) < len(head) // 2:  # mostly not UTF-8: binary
         return None
@@ -241,7 +244,7 @@ def _delimited_text(head: bytes) -> str | None:
     first = text.lstrip("\ufeff").splitlines()[0] if text.strip() else ""
     counts = {d: first.count(d) for d in DELIMITERS}
     delimiter = max(counts, key=lambda d: counts[d])
-    return DELIMITERS[delimiter] if counts[delimiter] else None
+    return (DELIMITERS[delimiter], delimiter) if counts[delimiter] else None
 
 
 def _first_time(fragment) -> float | None:

@@ -137,8 +137,8 @@ def segment_log(
     )
     if "temp" in filled:  # a constant stand-in: no temperature record for terms to read
         return seg
-    if held is not None and (spread := held.spread()) is not None:
-        seg.info["point_temp_spread"] = spread
+    if held is not None and (extremes := held.extremes()) is not None:
+        seg.info["point_temp_range"] = extremes
     return with_series(seg, record.result())
 
 
@@ -146,7 +146,7 @@ class HeldTemperatures:
     """The temperatures read during each temperature point's holds, sample by sample: their
     lowest and highest, gathered batch by batch in the pass that makes the temperature
     record. A hold's mean hides the sensor's scatter, which a log of the same rig shows
-    again: a calibration keeps each point's spread so that apply can tell a row beyond its
+    again: a calibration keeps each point's extremes so that apply can tell a row beyond its
     end points by that scatter from one beyond the calibrated range."""
 
     def __init__(self, obs: pd.DataFrame):
@@ -173,12 +173,12 @@ class HeldTemperatures:
         np.minimum.at(self.lo, point, np.minimum.reduceat(temp, runs))
         np.maximum.at(self.hi, point, np.maximum.reduceat(temp, runs))
 
-    def spread(self) -> list[float | None] | None:
-        """Each point's spread (highest minus lowest temperature read in its holds, °C), by
-        point number; None for a point no sample was read in, or when there are no holds."""
+    def extremes(self) -> list[list[float] | None] | None:
+        """Each point's lowest and highest temperature read in its holds (°C), by point
+        number; None for a point no sample was read in, or when there are no holds."""
         if not self.ok:
             return None
-        return [float(h - lo) if h >= lo else None for lo, h in zip(self.lo, self.hi, strict=True)]
+        return [[float(lo), float(h)] if h >= lo else None for lo, h in zip(self.lo, self.hi, strict=True)]
 
 
 def with_series(seg: Segmentation, series: Series) -> Segmentation:
@@ -258,8 +258,8 @@ def calibrate_observations(
             cal.extra["noise"] = noise_record(noise)
         fitted = None
     else:
-        spread = (info or {}).get("point_temp_spread")
-        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted, spread)
+        extremes = (info or {}).get("point_temp_range")
+        cal, fitted = _common_calibration(obs, settings, meta, provenance, label, noise, fitted, extremes)
     if settings.model_entry:
         cal.extra["model_entry"] = settings.model_entry
     if checks:
@@ -294,12 +294,12 @@ def calibrate_observations(
     return cal, fitted
 
 
-def _common_calibration(obs, settings, meta, provenance, label, noise, fitted, spread=None):
+def _common_calibration(obs, settings, meta, provenance, label, noise, fitted, extremes=None):
     """The common model's calibration (and fit, unless ``fitted`` is given). Terms beyond
     the protocol's own model are kept only where this unit's data identify them
     (:func:`gyrocal.pipeline.identify.identify`; the file's ``added_terms`` says which and
-    why, with the held-out figures with and without each). ``spread``, segmentation's
-    ``point_temp_spread``, gives each point's ``temp_spread``."""
+    why, with the held-out figures with and without each). ``extremes``, segmentation's
+    ``point_temp_range``, gives each point's ``temp_range``."""
     added: tuple[AddedTerm, ...] = ()
     if fitted is None:
         from .identify import identify
@@ -326,7 +326,7 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted, s
                     "temperature": float(r.temp),
                     "holds": int(r.holds),
                     "used": bool(r.used),
-                    **_spread_entry(spread, int(r.point)),
+                    **_range_entry(extremes, int(r.point)),
                     **({"excluded_because": r.reason} if not r.used else {}),
                 }
                 for r in points.itertuples()
@@ -341,11 +341,11 @@ def _common_calibration(obs, settings, meta, provenance, label, noise, fitted, s
     return cal, fitted
 
 
-def _spread_entry(spread: list | None, point: int) -> dict:
-    """A point's ``temp_spread`` for the file (:class:`HeldTemperatures`), where recorded."""
-    if spread is None or point >= len(spread) or spread[point] is None:
+def _range_entry(extremes: list | None, point: int) -> dict:
+    """A point's ``temp_range`` for the file (:class:`HeldTemperatures`), where recorded."""
+    if extremes is None or point >= len(extremes) or extremes[point] is None:
         return {}
-    return {"temp_spread": spread[point]}
+    return {"temp_range": list(extremes[point])}
 
 
 def _bias_in_session(fitted, added) -> BiasInSession | None:

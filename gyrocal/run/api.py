@@ -20,7 +20,7 @@ import json
 import os
 import tempfile
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeAlias
@@ -64,6 +64,7 @@ def _one_blas_thread(function):
 
     @functools.wraps(function)
     def wrapper(*args, **kwargs):
+        import scipy.linalg  # noqa: F401 - scipy's own BLAS loads here, so the limit reaches it too
         from threadpoolctl import threadpool_limits
 
         with threadpool_limits(limits=1, user_api="blas"):
@@ -73,15 +74,21 @@ def _one_blas_thread(function):
 
 
 @contextlib.contextmanager
-def _as_path(log: LogLike, name: str | None = None) -> Iterator[Path]:
+def _as_path(log: LogLike, name: str | None = None, units: dict[str, str] | None = None) -> Iterator[Path]:
     """A path to read ``log`` from: the path itself, or a temporary Parquet file holding a
-    DataFrame or Table (removed on exit)."""
+    DataFrame or Table (removed on exit), named ``name``, its units declared by ``units``
+    (``gyrocal.units``; a DataFrame's ``attrs["gyrocal.units"]`` else). An error about that
+    file names the frame or table instead."""
     if isinstance(log, str | os.PathLike):
         yield Path(log)
         return
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from ..io.errors import GyrocalError
+
+    file_name = _file_name(name)
+    kind = "the Table given"
     if not isinstance(log, pa.Table):
         import pandas as pd
 
@@ -89,11 +96,35 @@ def _as_path(log: LogLike, name: str | None = None) -> Iterator[Path]:
             raise ConfigError(
                 f"a log is a path, a pandas DataFrame or a pyarrow Table, not {type(log).__name__}"
             )
+        kind = "the DataFrame given"
+        units = units if units is not None else log.attrs.get("gyrocal.units")
+        if "t" not in log.columns and log.index.name == "t":  # time as the index, as series often are
+            log = log.reset_index()
         log = pa.Table.from_pandas(log, preserve_index=False)
+    if units is not None:
+        declared = units if isinstance(units, str) else json.dumps(dict(units), sort_keys=True)
+        log = log.replace_schema_metadata(
+            {**(log.schema.metadata or {}), b"gyrocal.units": declared.encode()}
+        )
     with tempfile.TemporaryDirectory(prefix="gyrocal-") as scratch:
-        path = Path(scratch) / (name or TABLE_NAME)
+        path = Path(scratch) / file_name
         pq.write_table(log, path)
-        yield path
+        try:
+            yield path
+        except GyrocalError as exc:
+            if exc.source != os.fspath(path):
+                raise
+            problem = str(exc).removeprefix(f"{os.fspath(path)}: ")
+            raise type(exc)(problem, source=f"{kind} ({file_name})") from None
+
+
+def _file_name(name: str | None) -> str:
+    """A frame's file name for provenance: a bare name, never a path to write elsewhere."""
+    if name is None:
+        return TABLE_NAME
+    if not name or Path(name).name != name or name in (".", ".."):
+        raise ConfigError(f"name is the log's file name, without a folder, not {name!r}")
+    return name
 
 
 def load_settings(
@@ -134,6 +165,17 @@ def load_settings(
     return settings
 
 
+def refuse_own_model(protocol: str | None, model_changed: bool) -> None:
+    """A protocol with a calibration of its own (the servo's, seed 001's six parameters)
+    ignores the model: a calibration asked to change it is refused, not quietly made without."""
+    if model_changed and registry.get(protocol).calibrate is not None:
+        raise ConfigError(
+            f"a {protocol} calibration is the protocol's own model; --model and "
+            "--add-term change the model the diagnosis reads: use them with "
+            "gyrocal diagnose"
+        )
+
+
 def _settings_for(settings: Settings | None, protocol: str, add_terms: Iterable[str]) -> Settings:
     terms = tuple(add_terms)
     if settings is None:
@@ -147,13 +189,18 @@ def _settings_for(settings: Settings | None, protocol: str, add_terms: Iterable[
 
 def read_log(log: LogLike) -> pd.DataFrame:
     """The log as a DataFrame after the contract's checks (required columns, their types,
-    declared units: a problem is one :class:`gyrocal.io.errors.GyrocalError` naming the file);
-    the columns as stored."""
+    declared units: a problem is one :class:`gyrocal.io.errors.GyrocalError` naming the file).
+    The columns are as stored, in the units the log declares, which the frame keeps in
+    ``attrs["gyrocal.units"]``: the frame given back to :func:`calibrate` reads as the file."""
     from ..io.log import REQUIRED, _open_checked
 
     with _as_path(log) as path:
-        dataset, _, _ = _open_checked(path, (), REQUIRED)
-        return dataset.to_table().to_pandas()
+        dataset, _, units = _open_checked(path, (), REQUIRED)
+        frame = dataset.to_table().to_pandas()
+    declared = (dataset.schema.metadata or {}).get(b"gyrocal.units")
+    if declared is not None:
+        frame.attrs["gyrocal.units"] = declared.decode()
+    return frame
 
 
 @dataclass(frozen=True, repr=False)
@@ -181,7 +228,7 @@ class CalibrationResult:
         return self.run.segmentation.segments
 
     @property
-    def summary(self) -> dict[str, Any]:
+    def summary(self) -> Mapping[str, Any]:
         """The validation's figures: ``validation_rms``, ``noise_floor``, ``excess``,
         ``single_rms``, ``uncompensated_rms`` ... (deg/s)."""
         return self.run.validation.summary
@@ -232,7 +279,7 @@ class CalibrationResult:
         base = (
             None
             if result.fitted is None
-            else evaluation_of(used, result.fitted, result.validation.summary, "configured model")
+            else evaluation_of(used, result.fitted, dict(result.validation.summary), "configured model")
         )
         diagnosis = run_diagnosis(used, obs, base=base)
         results = UnitResults.from_run(result, command, diagnosis, registry.analysis(self.protocol, obs))
@@ -240,26 +287,33 @@ class CalibrationResult:
         write_unit_report(results, path, registry.get(self.protocol))
         return Path(path)
 
-    def apply(self, log: LogLike) -> pd.DataFrame:
+    def apply(self, log: LogLike, *, units: dict[str, str] | None = None) -> pd.DataFrame:
         """``log`` compensated with this calibration (see :func:`apply`)."""
-        return apply(self.calibration, log)
+        return apply(self.calibration, log, units=units)
 
     @_one_blas_thread
-    def check(self, log: LogLike) -> dict[str, Any]:
+    def check(self, log: LogLike, *, units: dict[str, str] | None = None) -> dict[str, Any]:
         """This calibration on another session of its unit (``gyrocal revalidate``): that
         session's holds compensated as the validation compensates them; ``validation_rms``,
         ``noise_floor``, ``excess`` (times the floor), ``holds`` (whether it carries over) ..."""
         from ..fleet.drift import revalidate
         from ..pipeline.chain import segment_log
 
-        with _as_path(log) as path:
+        with _as_path(log, units=units) as path:
             observations = segment_log(path, self.settings, self.protocol).observations
         return dict(revalidate(self.calibration, observations))
+
+    @property
+    def name(self) -> str:
+        """The unit's device id, or the log's file name where none was given."""
+        if self.device_given:
+            return str(self.calibration.meta.get("device"))
+        return str(self.run.segmentation.info["source"]["name"])
 
     def __repr__(self) -> str:
         s = self.summary
         return (
-            f"<CalibrationResult {self.calibration.meta.get('device')}: "
+            f"<CalibrationResult {self.name}: "
             f"{s['temperature_points']} temperature points, held-out RMS {s['validation_rms']:.3g} deg/s "
             f"= {s['excess']:.2f} x the noise floor>"
         )
@@ -275,7 +329,7 @@ class CalibrationResult:
         body = "".join(
             f"<tr><td>{label}</td><td>{'–' if v is None else f'{v:.4g}'}</td></tr>" for label, v in rows
         )
-        device = html.escape(str(self.calibration.meta.get("device")))
+        device = html.escape(self.name)
         return (
             f"<p><b>Calibration of {device}</b>: {s['temperature_points']} temperature points, "
             f"{self.run.segmentation.info.get('holds_accepted', len(self.observations))} holds</p>"
@@ -294,15 +348,19 @@ def calibrate(
     batch: str | None = None,
     session: str | None = None,
     name: str | None = None,
+    units: dict[str, str] | None = None,
 ) -> CalibrationResult:
     """Calibrate one log end to end (``gyrocal calibrate``): segment its holds, fit the
     model per temperature point (seed 000's 12 parameters, Eq 2-4, and any terms
     ``add_terms`` or ``settings`` add) and validate it leaving temperature points out.
-    ``device`` names the unit (default: the log's file name, or ``name`` for a frame)."""
+    ``device`` names the unit (default: the log's file name, or ``name`` for a frame);
+    ``units`` declares a frame's units as a log's ``gyrocal.units`` does (docs/log-format.md),
+    e.g. ``{"gyro": "rad/s"}``: ``pandas.read_parquet`` drops a file's declaration."""
     from ..pipeline.chain import run
 
+    refuse_own_model(protocol, bool(tuple(add_terms)))
     settings = _settings_for(settings, protocol, add_terms)
-    with _as_path(log, name) as path:
+    with _as_path(log, name, units) as path:
         result = run(path, settings, protocol=protocol, device=device, batch=batch, session=session)
     return CalibrationResult(result, settings, protocol, device is not None)
 
@@ -437,17 +495,19 @@ def diagnose(
     batch: str | None = None,
     session: str | None = None,
     residuals: bool = False,
+    units: dict[str, str] | None = None,
 ) -> Diagnosis:
     """Where the calibration fails and which effect is missing (``gyrocal diagnose``):
     candidate terms fitted and judged out of sample, leaving out a temperature point, a
     mount, a rate level; with ``other`` (another session of the same unit) judged on how
-    they carry over to it as well. ``residuals``: keep the normalised residuals too."""
+    they carry over to it as well. ``residuals``: keep the normalised residuals too;
+    ``units``: a frame's units (both logs'), as :func:`calibrate` takes them."""
     settings = _settings_for(settings, protocol, add_terms)
     meta = {"device": device, "batch": batch, "session": session, "protocol": protocol}
     with contextlib.ExitStack() as stack:
         scratch = Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="gyrocal-diagnose-")))
-        path = stack.enter_context(_as_path(log))
-        other_path = None if other is None else stack.enter_context(_as_path(other, "other.parquet"))
+        path = stack.enter_context(_as_path(log, units=units))
+        other_path = None if other is None else stack.enter_context(_as_path(other, "other.parquet", units))
         out, frame = scratch / "diagnosis.json", scratch / "residuals.parquet"
         diagnose_log(
             path,
@@ -468,15 +528,16 @@ def diagnose(
 
 
 def apply_warnings(cal: Calibration, counts: ApplyCounts) -> list[str]:
-    """What an apply has to say: rows beyond the calibrated range by more than its end
-    points' own temperature spread (:meth:`Calibration.range_tolerance`), rows written NaN."""
+    """What an apply has to say: rows beyond the calibrated range by more than the
+    calibration's own readings went beyond it (:meth:`Calibration.range_tolerance`), rows
+    written NaN."""
     said = []
     if counts["beyond"]:  # beyond by less than the end points' own scatter is no news
         (lo, hi), (below, above) = cal.grid.span, cal.range_tolerance()
         said.append(
             f"{counts['beyond']} of {counts['rows']} rows lie outside the calibrated {lo:g} to {hi:g} °C"
             + (
-                f" by more than its end points' temperature spread ({below:.2g} and {above:.2g} °C)"
+                f" by more than its own readings' scatter ({below:.2g} below, {above:.2g} °C above)"
                 if below or above
                 else ""
             )
@@ -490,16 +551,18 @@ def apply_warnings(cal: Calibration, counts: ApplyCounts) -> list[str]:
     return said
 
 
-def apply(calibration: Calibration | str | os.PathLike[str], log: LogLike) -> pd.DataFrame:
+def apply(
+    calibration: Calibration | str | os.PathLike[str], log: LogLike, *, units: dict[str, str] | None = None
+) -> pd.DataFrame:
     """``log`` compensated (``gyrocal apply``): every row and column kept, ``gyro_x/y/z``
     the compensated rates in deg/s. Rows outside the calibrated temperatures use the
-    nearest end's calibration, with a warning."""
+    nearest end's calibration, with a warning. ``units``: a frame's, as :func:`calibrate`."""
     import pyarrow.parquet as pq
 
     from ..calibration.apply import apply_calibration
 
     cal = calibration if isinstance(calibration, Calibration) else load_calibration(calibration)
-    with _as_path(log) as path, tempfile.TemporaryDirectory(prefix="gyrocal-apply-") as scratch:
+    with _as_path(log, units=units) as path, tempfile.TemporaryDirectory(prefix="gyrocal-apply-") as scratch:
         out = Path(scratch) / "compensated.parquet"
         counts = _one_blas_thread(apply_calibration)(cal, path, out)
         frame = pq.read_table(out).to_pandas()
@@ -567,12 +630,19 @@ def static_or_default(path) -> str:
 
 
 @_one_blas_thread
-def noise(log: LogLike, *, protocol: str | None = None, settings: Settings | None = None) -> Noise:
+def noise(
+    log: LogLike,
+    *,
+    protocol: str | None = None,
+    settings: Settings | None = None,
+    units: dict[str, str] | None = None,
+) -> Noise:
     """The noise of the log's static stretches, per temperature point and pooled
-    (``gyrocal noise``); a log that never turns is read as a static recording."""
+    (``gyrocal noise``); a log that never turns is read as a static recording. ``units``: a
+    frame's, as :func:`calibrate`."""
     from ..pipeline.chain import segment_log
 
-    with _as_path(log) as path:
+    with _as_path(log, units=units) as path:
         chosen = protocol or static_or_default(path)
         settings = _settings_for(settings, chosen, ())
         return Noise(segment_log(path, settings, chosen).info["noise"])

@@ -48,16 +48,10 @@ def _settings(args):
     # then change that model. A protocol with a calibration of its own (the servo's, seed
     # 001's six parameters) ignores the model: there they only change what the diagnosis reads.
     protocol = getattr(args, "protocol", None)
-    if (
-        args.command in ("calibrate", "fit")
-        and registry.get(protocol).calibrate is not None
-        and (getattr(args, "model", None) or getattr(args, "add_term", None))
-    ):
-        raise ConfigError(
-            f"a {protocol} calibration is the protocol's own model; --model and "
-            "--add-term change the model the diagnosis reads: use them with "
-            "gyrocal diagnose"
-        )
+    if args.command in ("calibrate", "fit"):
+        from .api import refuse_own_model
+
+        refuse_own_model(protocol, bool(getattr(args, "model", None) or getattr(args, "add_term", None)))
     settings = settings.for_protocol(protocol)
     if getattr(args, "model", None):
         values = read_yaml(args.model)
@@ -752,7 +746,8 @@ def _add_unit_arguments(p, failures: bool = True) -> None:
     """Who the log is of (--device, --batch, --session, --protocol); with ``failures``, the
     fleet runs' --record-failures."""
     p.add_argument(
-        "--device", help="the unit's id, recorded in the outputs (calibrate without it: the log's file name)"
+        "--device",
+        help="the unit's id, recorded in the outputs (without it: the log's file name, less .parquet)",
     )
     p.add_argument("--batch", help="the unit's production batch, recorded in the outputs")
     p.add_argument("--session", help="the calibration session, e.g. its date, recorded in the outputs")
@@ -766,7 +761,7 @@ def _add_unit_arguments(p, failures: bool = True) -> None:
         p.add_argument(
             "--record-failures",
             action="store_true",
-            help="on failure write failure records and exit 0 (fleet runs)",
+            help="on failure write failure records to the outputs and exit 0 (fleet runs; diagnose needs -o)",
         )
 
 

@@ -15,6 +15,7 @@ import pytest
 from gyrocal.calibration.file import load_calibration
 from gyrocal.protocols import registry
 from gyrocal.run import cli
+from gyrocal.run.api import simulate_log
 from gyrocal.simulate import TurntableProtocol
 
 from ..conftest import make_log
@@ -97,6 +98,15 @@ def test_a_csv_file_is_named_as_such_with_the_import_line(logs, tmp_path, capsys
     assert not cal.exists()
 
 
+def test_a_semicolon_file_is_named_with_the_map_that_imports_it(tmp_path, capsys):
+    """import reads commas and tabs by itself; a semicolon needs the map's delimiter."""
+    path = tmp_path / "rig.csv"
+    path.write_text("t;gyro_x;gyro_y;gyro_z;temp;ref_rate\n0;1;2;3;5;0\n")
+    assert main("calibrate", path, "-o", tmp_path / "cal.json") == 2
+    line = one_line_error(capsys)
+    assert "looks like CSV text" in line and "--map MAP.yaml (with delimiter: ';')" in line
+
+
 def test_a_cut_parquet_file_is_called_truncated(logs, tmp_path, capsys):
     whole = logs["complete"].read_bytes()
     cut = tmp_path / "cut.parquet"
@@ -143,13 +153,14 @@ def rows_at(path, temps):
     return path
 
 
-def test_apply_tolerates_the_end_points_own_temperature_spread(logs, tmp_path, capsys):
+def test_apply_tolerates_the_calibrations_own_readings_beyond_its_ends(logs, tmp_path, capsys):
     cal_path = tmp_path / "cal.json"
     assert main("calibrate", logs["complete"], "-o", cal_path) == 0
     cal = load_calibration(cal_path)
     below, above = cal.range_tolerance()
-    # The spread is the range of thousands of readings with the simulated sensor's noise:
-    # several standard deviations of it, not a hold mean's scatter nor a chamber's degree.
+    # 1.5 times the farthest of thousands of readings with the simulated sensor's noise
+    # beyond the end point (about 4.5 standard deviations): 6-7 of them, not a hold mean's
+    # scatter nor a chamber's degree.
     sigma = TurntableProtocol.temp_noise
     assert 4 * sigma < below < 12 * sigma and 4 * sigma < above < 12 * sigma
     lo, hi = cal.grid.span
@@ -160,7 +171,25 @@ def test_apply_tolerates_the_end_points_own_temperature_spread(logs, tmp_path, c
     beyond = rows_at(tmp_path / "beyond.parquet", [hi + 2 * above, hi + above / 2, lo - 2 * below, lo])
     assert main("apply", cal_path, beyond, "-o", tmp_path / "b.parquet") == 0
     err = capsys.readouterr().err
-    assert "2 of 4 rows lie outside the calibrated" in err and "temperature spread" in err
+    assert "2 of 4 rows lie outside the calibrated" in err and "own readings' scatter" in err
+
+
+def test_a_sweep_calibration_tolerates_its_readings_noise_not_its_bins(tmp_path, capsys):
+    """A sweep's bins end near its readings' extremes: beyond them by more than the readings'
+    own noise is beyond the data (a bin's width, ten degrees, is no tolerance)."""
+    log = tmp_path / "sweep.parquet"
+    simulate_log(log, device="S1", protocol="sweep")
+    cal_path = tmp_path / "cal.json"
+    assert main("calibrate", log, "--protocol", "sweep", "-o", cal_path) == 0
+    cal = load_calibration(cal_path)
+    sigma = TurntableProtocol.temp_noise  # the simulated sensors' temperature noise alike
+    below, above = cal.range_tolerance()
+    assert below < 12 * sigma and above < 12 * sigma
+    lo, hi = cal.grid.span
+    capsys.readouterr()
+    beyond = rows_at(tmp_path / "beyond.parquet", [hi + 0.5, lo - 0.5, (lo + hi) / 2])
+    assert main("apply", cal_path, beyond, "-o", tmp_path / "b.parquet") == 0
+    assert "2 of 3 rows lie outside the calibrated" in capsys.readouterr().err
 
 
 def test_another_session_of_the_same_rig_applies_without_a_warning(logs, tmp_path, capsys):

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import fnmatch
 import re
-import time
 from functools import cache
 from pathlib import Path
 from urllib.parse import unquote
@@ -222,10 +221,8 @@ def check_page(text: str, page: Path, root: Path = ROOT) -> list[str]:
 
 
 def test_every_reference_in_readme_and_docs_resolves():
-    start = time.perf_counter()
     problems = [p for page in PAGES for p in check_page(page.read_text(encoding="utf-8"), page)]
     assert not problems, "\n".join(problems)
-    assert time.perf_counter() - start < 2.0
 
 
 BESIDE = f"{ROOT.parent.as_posix()}/shared"  # a folder beside the checkout

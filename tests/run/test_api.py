@@ -3,6 +3,7 @@ command line, byte for byte, whether the log comes as a path, a DataFrame or a T
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import warnings
@@ -74,6 +75,7 @@ def test_a_frame_or_a_table_calibrates_as_its_file_does(sessions):
         assert cal.provenance["input"]["name"] == api.TABLE_NAME
 
 
+@pytest.mark.slow
 def test_the_named_fix_lowers_the_error_on_the_next_session(sessions, tmp_path):
     """The loop from Python: diagnose with the other session, add the fix it names, and the
     calibration meets the next session within what noise and its own uncertainty explain."""
@@ -163,3 +165,62 @@ def test_a_path_is_read_as_it_is(tmp_path):
     with api._as_path(table) as path:
         assert pq.read_table(path).equals(table)
     assert not path.exists()
+
+
+def rad_per_s(path, out):
+    """``path``'s log with its rates in rad/s, declared as the contract says."""
+    table = pq.read_table(path)
+    for name in ("gyro_x", "gyro_y", "gyro_z", "ref_rate"):
+        i = table.schema.get_field_index(name)
+        table = table.set_column(i, name, pa.array(np.deg2rad(table[name].to_numpy())))
+    units = b'{"gyro": "rad/s", "ref_rate": "rad/s"}'
+    pq.write_table(table.replace_schema_metadata({b"gyrocal.units": units}), out)
+    return out
+
+
+def test_a_frame_keeps_its_units_as_declared(sessions, tmp_path):
+    """pandas.read_parquet drops a file's key-value metadata: units= (or read_log, which keeps
+    them in attrs) declares them, and the frame calibrates as its file does."""
+    log = rad_per_s(sessions[0], tmp_path / "rad.parquet")
+    expected = gyrocal.calibrate(log).summary["validation_rms"]
+    units = {"gyro": "rad/s", "ref_rate": "rad/s"}
+    assert gyrocal.calibrate(pd.read_parquet(log), units=units).summary["validation_rms"] == expected
+    assert gyrocal.calibrate(gyrocal.read_log(log)).summary["validation_rms"] == expected
+    # time as the index, as a time series often holds it
+    frame = gyrocal.read_log(log).set_index("t")
+    assert gyrocal.calibrate(frame).summary["validation_rms"] == expected
+
+
+def test_a_frame_is_named_in_its_errors_and_its_name_is_a_name(sessions):
+    frame = pd.read_parquet(sessions[0]).drop(columns=["temp"])
+    with pytest.raises(
+        GyrocalError, match=r"^the DataFrame given \(log.parquet\): missing required column temp"
+    ):
+        gyrocal.calibrate(frame)
+    with pytest.raises(GyrocalError, match=r"^the Table given \(U9.parquet\): missing required column temp"):
+        gyrocal.calibrate(pa.Table.from_pandas(frame), name="U9.parquet")
+    for name in ("/tmp/elsewhere.parquet", "sub/x.parquet", ""):
+        with pytest.raises(ConfigError, match="without a folder"):
+            gyrocal.calibrate(frame, name=name)
+
+
+def test_a_servo_calibration_refuses_terms_as_the_command_line_does(tmp_path):
+    log = tmp_path / "servo.parquet"
+    gyrocal.simulate_log(log, device="S7", protocol="servo")
+    with pytest.raises(ConfigError, match="a servo calibration is the protocol's own model"):
+        gyrocal.calibrate(log, protocol="servo", add_terms=["scale_quadratic"])
+
+
+def test_blas_is_limited_in_a_fresh_process_from_the_first_call():
+    """scipy's own BLAS loads inside the first call: the limit must reach it too."""
+    pytest.importorskip("threadpoolctl")
+    code = (
+        "import numpy, threadpoolctl\n"
+        "from gyrocal.run import api\n"
+        "seen = api._one_blas_thread(lambda: sorted({i['num_threads'] for i in threadpoolctl.threadpool_info()"
+        " if i['user_api'] == 'blas'}))()\n"
+        "print(seen)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.strip() == "[1]"
