@@ -76,6 +76,7 @@ class LookupResult:
     warning: str | None
     candidates: int = 0  # the device's readable calibration files
     skipped: dict[str, int] = field(default_factory=dict)  # failed_sessions, unreadable: counts
+    source: str = "scan"  # "registry" where the folder's registry answered
 
     def record(
         self, caldir, device: str, date: dt.date | None, direction: str | None, max_days: float
@@ -213,13 +214,22 @@ def _check_max_days(max_days) -> float:
 
 
 def find_calibration(
-    caldir, device: str, date=None, direction: str | None = None, max_days: float = DEFAULT_MAX_DAYS
+    caldir,
+    device: str,
+    date=None,
+    direction: str | None = None,
+    max_days: float = DEFAULT_MAX_DAYS,
+    *,
+    registry: str | None = None,
 ) -> LookupResult:
     """The calibration of ``device`` below ``caldir`` closest to ``date``.
 
     ``date``: ``YYYY-MM-DD`` or a date; None picks the latest session. ``direction``:
     None (either side), ``"before"`` (session on or before the date) or ``"after"`` (on or
-    after). Raises :class:`NoCalibrationError` naming the device and what was searched.
+    after). The answer comes from the folder's registry (``registry``, a database URL or
+    file, else ``CALDIR/registry.sqlite`` where there is one: :mod:`.registry`), else from
+    reading the folder's files; both choose alike. Raises :class:`NoCalibrationError`
+    naming the device and what was searched.
     """
     caldir = Path(caldir)
     if not caldir.is_dir():
@@ -230,6 +240,10 @@ def find_calibration(
     if direction and date is None:
         raise ConfigError(f"looking {direction} a date needs the date (--date YYYY-MM-DD)")
     max_days = _check_max_days(max_days)
+    if registry is None and (caldir / _registry().DEFAULT_NAME).is_file():
+        registry = str(caldir / _registry().DEFAULT_NAME)
+    if registry is not None:
+        return _from_registry(caldir, registry, device, date, direction, max_days)
 
     entries, files, failed, unreadable = _scan(caldir, device)
     readable = []
@@ -239,53 +253,104 @@ def find_calibration(
         except GyrocalError as exc:
             unreadable.append(str(exc))
     skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
+    pool = [(entry.date, entry.rel, (entry, cal)) for entry, cal in readable]
 
     def none_found(problem: str):
-        devices = _devices(caldir)
-        notes = [
-            f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
-            f"device{'s' * (len(devices) != 1)}{_some(devices)}"
-        ]
-        if failed:
-            notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
-        if unreadable:
-            notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
-        raise NoCalibrationError(
-            f"no calibration of device {device} {problem}: {'; '.join(notes)}", source=caldir
-        )
+        _none_found(caldir, device, problem, files, _devices(caldir), failed, unreadable)
 
-    if not readable:
+    (entry, cal), days, warning = _choose(pool, device, date, direction, max_days, none_found)
+    return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped, "scan")
+
+
+def _choose(pool, device, date, direction, max_days, none_found):
+    """The deterministic choice among ``pool``'s (session date, path, payload): without a
+    date the latest session, with one the nearest on the side asked for; ties to the
+    earlier session, then the path. Returns (payload, days away, warning)."""
+    if not pool:
         none_found("in this folder")
     key: Callable[[tuple], tuple]
     if date is None:
-        key = lambda ec: (-ec[0].date.toordinal(), ec[0].rel)  # noqa: E731  latest first
-        pool = readable
+        key = lambda c: (-c[0].toordinal(), c[1])  # noqa: E731  latest first
+        chosen = pool
     else:
-        pool = [
-            ec
-            for ec in readable
+        chosen = [
+            c
+            for c in pool
             if direction is None
-            or (direction == "before" and ec[0].date <= date)
-            or (direction == "after" and ec[0].date >= date)
+            or (direction == "before" and c[0] <= date)
+            or (direction == "after" and c[0] >= date)
         ]
-        if not pool:
-            sessions = sorted(e.date for e, _ in readable)
+        if not chosen:
+            sessions = sorted(c[0] for c in pool)
             none_found(
-                f"on or {direction} {date.isoformat()} (its {len(readable)} session"
-                f"{'s are' if len(readable) > 1 else ' is'} from {sessions[0]} to {sessions[-1]})"
+                f"on or {direction} {date.isoformat()} (its {len(pool)} session"
+                f"{'s are' if len(pool) > 1 else ' is'} from {sessions[0]} to {sessions[-1]})"
             )
-        key = lambda ec: (abs((ec[0].date - date).days), ec[0].date, ec[0].rel)  # noqa: E731
-    entry, cal = min(pool, key=key)
-
-    days = None if date is None else (entry.date - date).days
+        key = lambda c: (abs((c[0] - date).days), c[0], c[1])  # noqa: E731
+    session_date, _, payload = min(chosen, key=key)
+    days = None if date is None else (session_date - date).days
     warning = None
     if days is not None and abs(days) > max_days:
         side = "before" if days < 0 else "after"
         warning = (
-            f"the nearest calibration of {device} (session {entry.session}) is "
+            f"the nearest calibration of {device} (session {session_date.isoformat()}) is "
             f"{abs(days)} days {side} {date.isoformat()}, more than {max_days:g}"
         )
-    return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped)
+    return payload, days, warning
+
+
+def _none_found(caldir, device, problem, files, devices, failed, unreadable):
+    notes = [
+        f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
+        f"device{'s' * (len(devices) != 1)}{_some(devices)}"
+    ]
+    if failed:
+        notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
+    if unreadable:
+        notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
+    raise NoCalibrationError(
+        f"no calibration of device {device} {problem}: {'; '.join(notes)}", source=caldir
+    )
+
+
+def _from_registry(caldir: Path, where: str, device: str, date, direction, max_days) -> LookupResult:
+    """The lookup answered from the registry's rows of the device: the same choice as the
+    scan, the chosen file served only if its hash is still the one registered."""
+    registry = _registry()
+    backend = registry.connect(where, create=False)
+    try:
+        rows = registry.device_rows(backend, device)
+        calibrated = [r for r in rows if r["status"] == "calibrated"]
+        failed = sorted({str(r["session"]) for r in rows if r["status"] == "failed"})
+        unreadable = [f"{r['path']}: {r['reason']}" for r in rows if r["status"] == "unreadable"]
+        pool = [(registry.EPOCH + dt.timedelta(days=r["session_day"]), r["path"], r) for r in calibrated]
+
+        def none_found(problem: str):
+            _none_found(
+                caldir,
+                device,
+                problem,
+                registry.calibration_files(backend),
+                registry.devices(backend),
+                failed,
+                unreadable,
+            )
+
+        row, days, warning = _choose(pool, device, date, direction, max_days, none_found)
+    finally:
+        backend.close()
+    path = registry.served_file(caldir, row)
+    cal = _calibration().from_dict(json.loads(path.read_bytes()), source=path)
+    skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
+    return LookupResult(
+        caldir / row["path"], cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry"
+    )
+
+
+def _registry():
+    from . import registry  # on demand: a lookup without a registry needs none of it
+
+    return registry
 
 
 def _calibration():
@@ -331,9 +396,17 @@ def summary(result: LookupResult, device: str, date: dt.date | None) -> str:
 
 def cmd_lookup(args) -> int:
     date = None if args.date is None else parse_date(args.date, "--date")
-    result = find_calibration(args.caldir, args.device, date, args.direction, args.max_days)
+    result = find_calibration(
+        args.caldir, args.device, date, args.direction, args.max_days, registry=args.registry
+    )
     if result.warning:
         print(f"gyrocal: warning: {result.warning}", file=sys.stderr)
+    if result.source == "scan":
+        print(
+            f"gyrocal: hint: {args.caldir} has no registry, so every file was read; "
+            f"gyrocal registry rebuild {args.caldir} indexes them for lookups in milliseconds",
+            file=sys.stderr,
+        )
     if args.json:
         record = result.record(args.caldir, args.device, date, args.direction, args.max_days)
         print(json.dumps(record, indent=2))
@@ -371,5 +444,10 @@ def add_lookup_parser(subparsers):
         help=f"warn when the nearest session is further away (default {DEFAULT_MAX_DAYS})",
     )
     p.add_argument("--json", action="store_true", help="print a JSON record instead")
+    p.add_argument(
+        "--registry",
+        help="the registry to answer from: a postgresql:// URL or an SQLite file "
+        "(default CALDIR/registry.sqlite where it exists, else the files are read)",
+    )
     p.set_defaults(func=cmd_lookup, direction=None)
     return p

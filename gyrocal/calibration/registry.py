@@ -1,0 +1,558 @@
+"""The calibration registry: an index of a results folder's calibrations in a database.
+
+The calibration files stay the source of truth; the registry is an index that
+``gyrocal registry rebuild RESULTS`` makes again from them, row for row. One row per
+calibration file or failure record below the folder (``unit_sessions``, keyed by the file's
+path relative to the folder, as the folder scan of :mod:`gyrocal.calibration.lookup` breaks
+ties by it), and the coefficients of each calibration per temperature point (``parameters``).
+Two back ends behind one interface: SQLite (the standard library's; the default, a file
+beside the results) and PostgreSQL (psycopg 3) where a factory has one.
+
+A lookup reads the device's rows, chooses as the folder scan chooses, and serves the file
+only when its hash is still the one registered: a row whose file is missing or changed is an
+error naming ``gyrocal registry check``, never a silent answer.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import os
+import re
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from ..io import formats
+from ..io.errors import ConfigError, GyrocalError, InputError
+
+SCHEMA_VERSION = 1
+DEFAULT_NAME = "registry.sqlite"  # in the results folder, where lookup finds it by itself
+STATUSES = ("calibrated", "failed", "unreadable")
+
+SESSION_COLUMNS = (
+    "path",  # the file below the results folder, '/'-separated
+    "device",
+    "batch",
+    "session",
+    "session_day",  # the session's date as days since 1970-01-01; NULL when not a date
+    "protocol",
+    "status",  # calibrated | failed | unreadable
+    "reason",  # a failure's one-line error, or what makes the file unreadable
+    "model",  # the model's terms, comma-separated
+    "gyrocal_version",
+    "file_hash",
+    "hash_algorithm",
+    "validation_rms",  # deg/s, the leave-temperature-out RMS
+    "noise_floor",
+    "excess",  # validation_rms / noise_floor
+    "verdict",  # the diagnosis' verdict
+    "best_option",  # the option that adds the fix the diagnosis offers
+)
+PARAMETER_COLUMNS = ("path", "point", "temperature", "name", "value", "stderr")
+
+_TEXT, _REAL, _INT = "TEXT", "DOUBLE PRECISION", "BIGINT"
+_TYPES = {"session_day": _INT, "validation_rms": _REAL, "noise_floor": _REAL, "excess": _REAL}
+SCHEMA = (
+    "CREATE TABLE IF NOT EXISTS registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+    "CREATE TABLE IF NOT EXISTS unit_sessions ("
+    + ", ".join(
+        f"{c} {_TYPES.get(c, _TEXT)}{' PRIMARY KEY' if c == 'path' else ''}"
+        f"{' NOT NULL' if c in ('status', 'file_hash', 'hash_algorithm') else ''}"
+        for c in SESSION_COLUMNS
+    )
+    + ")",
+    # a device's sessions by date (lookup), a batch's over months (drift)
+    "CREATE INDEX IF NOT EXISTS unit_sessions_device ON unit_sessions (device, session_day)",
+    "CREATE INDEX IF NOT EXISTS unit_sessions_batch ON unit_sessions (batch, session_day)",
+    "CREATE TABLE IF NOT EXISTS parameters (path TEXT NOT NULL, point INTEGER NOT NULL, "
+    f"temperature {_REAL}, name TEXT NOT NULL, value {_REAL} NOT NULL, stderr {_REAL}, "
+    "PRIMARY KEY (path, point, name))",
+)
+_DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
+EPOCH = dt.date(1970, 1, 1)
+
+
+class RegistryError(InputError):
+    """A registry that cannot serve: unreachable, of another schema version, or a row whose
+    file is missing or changed."""
+
+
+def day_number(session) -> int | None:
+    """A ``YYYY-MM-DD`` session as days since 1970-01-01 (None for anything else)."""
+    if not isinstance(session, str) or not _DATE.fullmatch(session):
+        return None
+    try:
+        return (dt.date.fromisoformat(session) - EPOCH).days
+    except ValueError:
+        return None
+
+
+# ---------------------------------------------------------------------------------------
+# Back ends: one connection, '?' placeholders, the SQL both speak (ON CONFLICT upserts).
+
+
+class Backend:
+    """A connection to the registry's database; SQL is written once with ``?``."""
+
+    kind = ""
+    placeholder = "?"
+
+    def __init__(self, connection, location: str):
+        self.connection = connection
+        self.location = location
+
+    def sql(self, text: str) -> str:
+        return text if self.placeholder == "?" else text.replace("?", self.placeholder)
+
+    def execute(self, text: str, params: Sequence = ()):
+        cursor = self.connection.cursor()
+        cursor.execute(self.sql(text), tuple(params))
+        return cursor
+
+    def executemany(self, text: str, rows: Iterable[Sequence]) -> None:
+        self.connection.cursor().executemany(self.sql(text), [tuple(r) for r in rows])
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        """Everything inside commits together or not at all (a killed job leaves nothing)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        self.connection.close()
+
+
+class SQLiteBackend(Backend):
+    kind = "sqlite"
+
+    @classmethod
+    def open(cls, path: Path) -> SQLiteBackend:
+        import sqlite3
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # autocommit off by hand: BEGIN IMMEDIATE takes the write lock at once, so writers
+        # queue (busy timeout) rather than fail on upgrading a read lock
+        connection = sqlite3.connect(path, timeout=600, isolation_level=None)
+        connection.execute("PRAGMA journal_mode=WAL")
+        connection.execute("PRAGMA synchronous=NORMAL")
+        return cls(connection, str(path))
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        self.connection.execute("BEGIN IMMEDIATE")
+        try:
+            yield
+        except BaseException:
+            self.connection.execute("ROLLBACK")
+            raise
+        self.connection.execute("COMMIT")
+
+
+class PostgresBackend(Backend):
+    kind = "postgresql"
+    placeholder = "%s"
+
+    @classmethod
+    def open(cls, url: str) -> PostgresBackend:
+        try:
+            import psycopg
+        except ImportError:
+            raise ConfigError(
+                "a PostgreSQL registry needs psycopg 3: pip install 'psycopg[binary]'"
+            ) from None
+        try:
+            connection = psycopg.connect(url, autocommit=True)
+        except psycopg.Error as exc:
+            raise RegistryError(
+                f"cannot connect ({' '.join(str(exc).split())})", source=_redacted(url)
+            ) from None
+        return cls(connection, _redacted(url))
+
+    @contextmanager
+    def transaction(self) -> Iterator[None]:
+        with self.connection.transaction():
+            yield
+
+
+def _redacted(url: str) -> str:
+    """The URL without its password, to name it in messages."""
+    return re.sub(r"(://[^:/@]+):[^@]*@", r"\1:***@", url)
+
+
+def location(results: Path, registry: str | None = None) -> str:
+    """Where a results folder's registry is: ``registry`` (a ``postgresql://`` URL, a
+    ``sqlite:///`` URL or a file path) or the SQLite file in the folder."""
+    return registry if registry else str(Path(results) / DEFAULT_NAME)
+
+
+def connect(where: str, *, create: bool = True) -> Backend:
+    """The registry at ``where`` (see :func:`location`), its schema made or checked."""
+    if where.startswith(("postgresql://", "postgres://")):
+        backend: Backend = PostgresBackend.open(where)
+    else:
+        path = Path(where.removeprefix("sqlite:///") if where.startswith("sqlite:///") else where)
+        if not create and not path.is_file():
+            raise RegistryError("no registry here: gyrocal registry rebuild RESULTS makes it", source=path)
+        backend = SQLiteBackend.open(path)
+    _schema(backend)
+    return backend
+
+
+def _schema(backend: Backend) -> None:
+    """Make the tables, or check an existing registry's schema version: an older one is
+    refused with the command that makes it again (the files are the truth, so a rebuild
+    is the migration)."""
+    with backend.transaction():
+        for statement in SCHEMA:
+            backend.execute(statement)
+        found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
+        if found is None:
+            backend.execute(
+                "INSERT INTO registry_meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
+            )
+            return
+    if found[0] != str(SCHEMA_VERSION):
+        raise RegistryError(
+            f"registry schema version {found[0]}, this gyrocal reads {SCHEMA_VERSION}: "
+            "gyrocal registry rebuild RESULTS --fresh makes it again from the files",
+            source=backend.location,
+        )
+
+
+# ---------------------------------------------------------------------------------------
+# Rows from files
+
+
+@dataclass(frozen=True)
+class Row:
+    """One file's row and its coefficients."""
+
+    session: dict[str, Any]
+    parameters: tuple[tuple, ...] = ()
+
+
+def _layout(rel: str) -> tuple[str | None, str | None, str | None]:
+    """Batch, device and session from the workflow layout ``{batch}/{device}/{session}/calibration.json``."""
+    parts = rel.split("/")
+    if len(parts) == 4 and parts[-1] == "calibration.json":
+        return parts[0], parts[1], parts[2]
+    return None, None, None
+
+
+def file_row(path: Path, rel: str) -> Row | None:
+    """The row of one JSON file below the results folder: a calibration, a failure record,
+    or an unreadable file the layout names; None for other JSON (validation, diagnosis)."""
+    from ..io.log import HASH_ALGORITHM, file_digest
+
+    batch, device, session = _layout(rel)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        return _unreadable(rel, batch, device, session, f"cannot read ({exc.strerror})", None)
+    family = formats.CALIBRATION.split("/")[0]
+    if b'"' + family.encode() not in raw and b'"' + formats.FAILURE.split("/")[0].encode() not in raw:
+        return None
+    digest = file_digest(path, HASH_ALGORITHM)
+    try:
+        doc = json.loads(raw)
+    except (ValueError, UnicodeDecodeError):
+        return _unreadable(rel, batch, device, session, "not valid JSON", digest)
+    if not isinstance(doc, dict) or not isinstance(doc.get("format"), str):
+        return None
+    device = doc.get("device") or device
+    session = doc.get("session") or session
+    base = {
+        "path": rel,
+        "device": device,
+        "batch": doc.get("batch") or batch,
+        "session": None if session is None else str(session),
+        "session_day": day_number(session),
+        "protocol": doc.get("protocol"),
+        "file_hash": digest,
+        "hash_algorithm": HASH_ALGORITHM,
+    }
+    if doc["format"] == formats.FAILURE:
+        return Row(_complete({**base, "status": "failed", "reason": doc.get("error")}))
+    if doc["format"].split("/")[0] != family:
+        return None
+    if base["session_day"] is None:
+        return _unreadable(
+            rel, base["batch"], device, session, f"session {session!r} is not a date YYYY-MM-DD", digest
+        )
+    from .file import Calibration
+
+    try:
+        cal = Calibration.from_dict(doc, source=path)
+    except GyrocalError as exc:
+        return _unreadable(rel, base["batch"], device, session, str(exc), digest)
+    return Row(
+        _complete(
+            {
+                **base,
+                "status": "calibrated",
+                "model": _model_text(doc),
+                "gyrocal_version": (cal.provenance.get("versions") or {}).get("gyrocal"),
+                **_headline(path.parent),
+            }
+        ),
+        tuple(_coefficients(rel, cal)),
+    )
+
+
+def _model_text(doc: dict) -> str | None:
+    """The model's terms as the file records them, comma-separated."""
+    terms = (doc.get("model") or {}).get("terms")
+    if not isinstance(terms, list):
+        return None
+
+    def text(term) -> str:
+        if not isinstance(term, dict):
+            return str(term)
+        rest = {k: v for k, v in term.items() if k != "name"}
+        return str(term.get("name")) + (f"({json.dumps(rest, sort_keys=True)})" if rest else "")
+
+    return ", ".join(text(t) for t in terms)
+
+
+def _unreadable(rel, batch, device, session, problem: str, digest: str | None) -> Row:
+    from ..io.log import HASH_ALGORITHM
+
+    return Row(
+        _complete(
+            {
+                "path": rel,
+                "device": device,
+                "batch": batch,
+                "session": session,
+                "session_day": day_number(session),
+                "status": "unreadable",
+                "reason": problem,
+                "file_hash": digest or "",
+                "hash_algorithm": HASH_ALGORITHM,
+            }
+        )
+    )
+
+
+def _complete(values: dict) -> dict:
+    return {c: values.get(c) for c in SESSION_COLUMNS}
+
+
+def _headline(folder: Path) -> dict[str, Any]:
+    """The unit session's validation and diagnosis figures, where its results folder has
+    them (a calibration file outside the workflow's layout has none)."""
+    from ..io import unit_folder
+
+    out: dict[str, Any] = {}
+    try:
+        validation = unit_folder.read_part_doc(folder, "validation") or {}
+        diagnosis = unit_folder.read_part_doc(folder, "diagnosis") or {}
+    except (GyrocalError, OSError, ValueError):
+        return out
+    summary = validation.get("summary") or {}
+    for key in ("validation_rms", "noise_floor", "excess"):
+        value = summary.get(key)
+        out[key] = float(value) if isinstance(value, int | float) and value == value else None
+    if isinstance(diagnosis.get("verdict"), str):
+        out["verdict"] = diagnosis["verdict"]
+        out["best_option"] = (diagnosis.get("best") or {}).get("option")
+    return out
+
+
+def _coefficients(rel: str, cal) -> Iterator[tuple]:
+    """The calibration's coefficients: per temperature point for a grid, one set (point -1,
+    no temperature) for a continuous model."""
+    import numpy as np
+
+    grid = cal.grid
+    values = np.atleast_2d(np.asarray(grid.values, dtype=float))
+    stderr = np.atleast_2d(np.asarray(grid.stderr, dtype=float))
+    temps = getattr(grid, "temperatures", None)
+    for i, row in enumerate(values):
+        point, temperature = (i, float(temps[i])) if temps is not None else (-1, None)
+        for j, name in enumerate(grid.names):
+            se = float(stderr[i, j])
+            yield (rel, point, temperature, name, float(row[j]), se if np.isfinite(se) else None)
+
+
+def _files(results: Path) -> Iterator[tuple[Path, str]]:
+    """``*.json`` below ``results`` in a fixed order, hidden folders left out (as the scan)."""
+    for root, dirs, files in os.walk(results):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in sorted(files):
+            if name.endswith(".json"):
+                path = Path(root) / name
+                yield path, path.relative_to(results).as_posix()
+
+
+def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
+    """The rows of every registrable file below ``results`` (or of the folders ``only``
+    names, relative to it: a fleet job's unit sessions)."""
+    results = Path(results)
+    if only is None:
+        found = _files(results)
+    else:
+        found = (
+            (p, p.relative_to(results).as_posix())
+            for folder in only
+            for p in sorted((results / folder).glob("*.json"))
+        )
+    return [row for path, rel in found if (row := file_row(path, rel)) is not None]
+
+
+# ---------------------------------------------------------------------------------------
+# Writing
+
+
+_UPSERT = (
+    f"INSERT INTO unit_sessions ({', '.join(SESSION_COLUMNS)}) VALUES ({', '.join('?' * len(SESSION_COLUMNS))}) "
+    "ON CONFLICT (path) DO UPDATE SET "
+    + ", ".join(f"{c} = excluded.{c}" for c in SESSION_COLUMNS if c != "path")
+)
+_PARAMETERS = f"INSERT INTO parameters ({', '.join(PARAMETER_COLUMNS)}) VALUES ({', '.join('?' * len(PARAMETER_COLUMNS))})"
+
+
+def upsert(backend: Backend, rows: Sequence[Row], *, replace_all: bool = False) -> int:
+    """Write ``rows`` in one transaction: each file's row replaced whole, with its
+    coefficients; ``replace_all`` empties the registry first (a rebuild). Returns the rows
+    written."""
+    with backend.transaction():
+        if replace_all:
+            backend.execute("DELETE FROM parameters")
+            backend.execute("DELETE FROM unit_sessions")
+        paths = [(row.session["path"],) for row in rows]
+        if not replace_all:
+            backend.executemany("DELETE FROM parameters WHERE path = ?", paths)
+        backend.executemany(_UPSERT, [[row.session[c] for c in SESSION_COLUMNS] for row in rows])
+        backend.executemany(_PARAMETERS, [p for row in rows for p in row.parameters])
+    return len(rows)
+
+
+def rebuild(results: Path, where: str | None = None) -> tuple[str, int]:
+    """The registry of ``results`` made again from its files; returns (where, rows)."""
+    results = Path(results)
+    if not results.is_dir():
+        raise InputError("is not a results folder", source=results)
+    target = location(results, where)
+    backend = connect(target)
+    try:
+        return target, upsert(backend, rows_of(results), replace_all=True)
+    finally:
+        backend.close()
+
+
+# ---------------------------------------------------------------------------------------
+# Reading
+
+
+def device_rows(backend: Backend, device: str) -> list[dict[str, Any]]:
+    """Every row of ``device``, by session date then path."""
+    cursor = backend.execute(
+        f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE device = ? ORDER BY session_day, path",
+        (device,),
+    )
+    return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
+
+
+def devices(backend: Backend) -> list[str]:
+    cursor = backend.execute(
+        "SELECT DISTINCT device FROM unit_sessions WHERE status = 'calibrated' ORDER BY device"
+    )
+    return [r[0] for r in cursor.fetchall()]
+
+
+def calibration_files(backend: Backend) -> int:
+    return int(backend.execute("SELECT COUNT(*) FROM unit_sessions WHERE status <> 'failed'").fetchone()[0])
+
+
+def served_file(results: Path, row: dict[str, Any]) -> Path:
+    """The row's file, when it is still the one registered; else a :class:`RegistryError`."""
+    from ..io.log import file_digest
+
+    path = Path(results) / row["path"]
+    if not path.is_file():
+        raise RegistryError(
+            f"the registry lists {row['path']}, which is missing: gyrocal registry check says which "
+            "rows are stale, rebuild makes them again",
+            source=path,
+        )
+    if file_digest(path, row["hash_algorithm"]) != row["file_hash"]:
+        raise RegistryError(
+            "changed since it was registered (its hash differs): gyrocal registry check says which "
+            "rows are stale, rebuild makes them again",
+            source=path,
+        )
+    return path
+
+
+def check(results: Path, where: str | None = None) -> list[str]:
+    """What the registry says that its folder no longer does: rows whose file is missing
+    or changed, and files it does not list. An empty list: the index is true."""
+    results = Path(results)
+    backend = connect(location(results, where), create=False)
+    try:
+        cursor = backend.execute("SELECT path, file_hash, hash_algorithm FROM unit_sessions ORDER BY path")
+        listed = cursor.fetchall()
+    finally:
+        backend.close()
+    from ..io.log import file_digest
+
+    problems = []
+    known = set()
+    for rel, digest, algorithm in listed:
+        known.add(rel)
+        path = results / rel
+        if not path.is_file():
+            problems.append(f"{rel}: listed, but the file is missing")
+        elif digest and file_digest(path, algorithm) != digest:
+            problems.append(f"{rel}: changed since it was registered (its hash differs)")
+    for path, rel in _files(results):
+        if rel not in known and file_row(path, rel) is not None:
+            problems.append(f"{rel}: not in the registry")
+    return problems
+
+
+# ---------------------------------------------------------------------------------------
+# Command line
+
+
+def cmd_registry(args) -> int:
+    import sys
+    import time
+
+    results = Path(args.results)
+    if args.action == "rebuild":
+        start = time.perf_counter()
+        where, rows = rebuild(results, args.registry)
+        print(f"registry {_redacted(where)}: {rows} files indexed in {time.perf_counter() - start:.1f} s")
+        return 0
+    problems = check(results, args.registry)
+    for line in problems:
+        print(f"gyrocal: stale: {line}", file=sys.stderr)
+    where = _redacted(location(results, args.registry))
+    if problems:
+        print(
+            f"registry {where}: {len(problems)} stale rows or files; gyrocal registry rebuild {results} makes it true"
+        )
+        return 1
+    print(f"registry {where}: every row's file is there, as registered, and every file is listed")
+    return 0
+
+
+def add_registry_parser(subparsers):
+    """Register ``gyrocal registry rebuild|check`` on the CLI's subparsers."""
+    p = subparsers.add_parser(
+        "registry", help="index a results folder's calibrations in a database (SQLite, PostgreSQL)"
+    )
+    p.add_argument(
+        "action", choices=("rebuild", "check"), help="rebuild: index every file again; check: list stale rows"
+    )
+    p.add_argument("results", help="the results folder (the workflow's results/)")
+    p.add_argument(
+        "--registry",
+        help=f"the database: a postgresql:// URL or an SQLite file (default RESULTS/{DEFAULT_NAME})",
+    )
+    p.set_defaults(func=cmd_registry)
+    return p

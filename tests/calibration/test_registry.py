@@ -1,0 +1,229 @@
+"""The calibration registry: the same lookups as the folder scan, stale rows never served,
+one transaction per write, and a schema version it checks."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import multiprocessing
+import shutil
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from gyrocal.calibration import registry
+from gyrocal.calibration.lookup import NoCalibrationError, find_calibration
+from gyrocal.io.errors import ConfigError, GyrocalError
+from gyrocal.io.failure import record
+from gyrocal.run.cli import main
+
+from .test_lookup import caldir, calibration, put  # noqa: F401 - the scan's own cases
+
+DIRECTIONS = (None, "before", "after")
+
+
+def answer(root, device, date, direction, max_days, where=None):
+    """What a lookup says, as comparable values: the choice, or the error's kind."""
+    try:
+        r = find_calibration(root, device, date, direction, max_days, registry=where)
+    except NoCalibrationError as exc:
+        return ("none", str(exc).split(": ")[1].split(":")[0])  # the problem, before the notes
+    return (
+        r.path,
+        r.session,
+        r.days_away,
+        r.warning,
+        r.candidates,
+        r.skipped,
+        r.calibration.grid.values.tobytes(),
+    )
+
+
+def queries(devices, dates):
+    for device in devices:
+        for date in (None, *dates):
+            for direction in DIRECTIONS if date else (None,):
+                yield device, date, direction
+
+
+def assert_same_answers(root, devices, dates, max_days=30):
+    where = str(root / registry.DEFAULT_NAME)
+    assert not (root / registry.DEFAULT_NAME).exists()
+    scanned = {q: answer(root, *q, max_days) for q in queries(devices, dates)}
+    registry.rebuild(root)
+    for q, expected in scanned.items():
+        got = answer(root, *q, max_days, where=where)
+        assert got == expected, q
+        assert answer(root, *q, max_days) == expected, q  # found in the folder by itself
+    (root / registry.DEFAULT_NAME).unlink()
+
+
+def test_the_scans_own_cases_answer_alike(caldir):  # noqa: F811
+    dates = ("2025-01-01", "2026-01-05", "2026-02-20", "2026-04-01", "2026-05-20", "2027-01-01")
+    assert_same_answers(caldir, ("U001", "U002", "U404"), dates)
+
+
+@st.composite
+def fleets(draw):
+    """Folders of calibrations as a year of production leaves them: several sessions a unit,
+    recalibrations into other batch folders, failures, unreadable files, copies elsewhere."""
+    days = st.integers(0, 400)
+    units = draw(st.lists(st.sampled_from(["U1", "U2", "U3"]), min_size=1, max_size=8))
+    files = []
+    for device in units:
+        kind = draw(st.sampled_from(["ok", "ok", "ok", "failed", "broken", "copy"]))
+        day = dt.date(2026, 1, 1) + dt.timedelta(days=draw(days))
+        batch = draw(st.sampled_from(["B1", "B2"]))
+        files.append((device, day.isoformat(), batch, kind, draw(st.floats(-1, 1))))
+    return files
+
+
+def write_fleet(root, files):
+    for i, (device, session, batch, kind, bias) in enumerate(files):
+        if kind == "ok":
+            put(root, device, session, batch=batch, bias=bias)
+        elif kind == "copy":  # an archived copy outside the layout
+            path = root / "archive" / f"{device}-{i}.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            from gyrocal.calibration.file import save_calibration
+
+            save_calibration(calibration(device, session, batch, bias), path)
+        else:
+            path = root / batch / device / session / "calibration.json"
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if kind == "failed":
+                meta = {"device": device, "batch": batch, "session": session}
+                path.write_text(json.dumps(record("fit", ConfigError("the fit failed"), meta)))
+            else:
+                path.write_text('{"format": "gyrocal.calibration/1", "device": "' + device + '", "ses')
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(files=fleets())
+def test_generated_fleets_answer_alike(tmp_path_factory, files):
+    root = tmp_path_factory.mktemp("fleet")
+    write_fleet(root, files)
+    dates = sorted({s for _, s, *_ in files})[:3] + ["2025-12-01", "2027-06-01"]
+    assert_same_answers(root, ("U1", "U2", "U3"), dates, max_days=45)
+
+
+def test_a_changed_or_missing_file_is_never_served(caldir):  # noqa: F811
+    registry.rebuild(caldir)
+    chosen = find_calibration(caldir, "U001", "2026-06-01").path
+    doc = json.loads(chosen.read_text())
+    doc["grid"]["B"][0][0] = doc["grid"]["B"][0][0]  # same values, rewritten: bytes differ
+    chosen.write_text(json.dumps(doc))
+    with pytest.raises(registry.RegistryError, match="changed since it was registered.*registry check"):
+        find_calibration(caldir, "U001", "2026-06-01")
+    chosen.unlink()
+    with pytest.raises(registry.RegistryError, match="which is missing"):
+        find_calibration(caldir, "U001", "2026-06-01")
+    put(caldir, "U009", "2026-07-01")
+    problems = registry.check(caldir)
+    rel = chosen.relative_to(caldir).as_posix()
+    assert f"{rel}: listed, but the file is missing" in problems
+    assert "B1/U009/2026-07-01/calibration.json: not in the registry" in problems
+    registry.rebuild(caldir)
+    assert registry.check(caldir) == []
+    assert find_calibration(caldir, "U001", "2026-06-01").session == "2026-03-01"
+
+
+def test_rebuild_gives_the_same_rows_again(caldir):  # noqa: F811
+    def rows():
+        backend = registry.connect(str(caldir / registry.DEFAULT_NAME), create=False)
+        try:
+            sessions = backend.execute("SELECT * FROM unit_sessions ORDER BY path").fetchall()
+            params = backend.execute("SELECT * FROM parameters ORDER BY path, point, name").fetchall()
+        finally:
+            backend.close()
+        return sessions, params
+
+    registry.rebuild(caldir)
+    first = rows()
+    registry.rebuild(caldir)
+    assert rows() == first
+    sessions, params = first
+    statuses = sorted(r[6] for r in sessions)
+    # the failed session's record stands in both its calibration and its validation file
+    assert statuses == ["calibrated"] * 5 + ["failed"] * 2 + ["unreadable"]
+    # 12 coefficients at each of 2 temperature points, for each of the 5 calibrations
+    assert len(params) == 5 * 2 * 12
+
+
+def test_a_write_that_fails_midway_leaves_the_registry_as_it_was(caldir, monkeypatch):  # noqa: F811
+    registry.rebuild(caldir)
+    backend = registry.connect(str(caldir / registry.DEFAULT_NAME))
+    before = backend.execute("SELECT COUNT(*) FROM unit_sessions").fetchone()
+    rows = registry.rows_of(caldir)
+    broken = [*rows[:2], registry.Row({**rows[2].session, "status": None})]  # NOT NULL fails
+    with pytest.raises(Exception, match="NOT NULL"):
+        registry.upsert(backend, broken, replace_all=True)
+    assert backend.execute("SELECT COUNT(*) FROM unit_sessions").fetchone() == before
+    backend.close()
+
+
+def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir):  # noqa: F811
+    where = str(caldir / registry.DEFAULT_NAME)
+    registry.rebuild(caldir)
+    backend = registry.connect(where)
+    with backend.transaction():
+        backend.execute("UPDATE registry_meta SET value = '0' WHERE key = 'schema_version'")
+    backend.close()
+    with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 1.*rebuild"):
+        find_calibration(caldir, "U001")
+
+
+def _write(args):
+    where, root, only, seed = args
+    backend = registry.connect(where)
+    try:
+        for _ in range(5):
+            registry.upsert(backend, registry.rows_of(root, only))
+    finally:
+        backend.close()
+    return seed
+
+
+def test_writers_at_once_lose_and_duplicate_nothing(tmp_path):
+    """Four processes upserting their own unit sessions and one shared one, five times each."""
+    root = tmp_path / "results"
+    folders = []
+    for i in range(4):
+        for j in range(3):
+            folders.append(put(root, f"U{i}{j}", "2026-03-01").parent.relative_to(root).as_posix())
+    shared = put(root, "U99", "2026-03-02").parent.relative_to(root).as_posix()
+    where = str(root / registry.DEFAULT_NAME)
+    registry.connect(where).close()
+    jobs = [(where, root, [*folders[3 * i : 3 * i + 3], shared], i) for i in range(4)]
+    with multiprocessing.get_context("spawn").Pool(4) as pool:
+        assert sorted(pool.map(_write, jobs)) == [0, 1, 2, 3]
+    backend = registry.connect(where)
+    paths = [r[0] for r in backend.execute("SELECT path FROM unit_sessions ORDER BY path").fetchall()]
+    count = backend.execute("SELECT COUNT(*) FROM parameters").fetchone()[0]
+    backend.close()
+    assert len(paths) == len(set(paths)) == 13
+    assert count == 13 * 2 * 12
+    assert registry.check(root) == []
+
+
+def test_the_command_line(caldir, capsys):  # noqa: F811
+    assert main(["lookup", str(caldir), "U001", "--date", "2026-02-20"]) == 0
+    assert "has no registry, so every file was read" in capsys.readouterr().err
+    assert main(["registry", "rebuild", str(caldir)]) == 0
+    assert "8 files indexed" in capsys.readouterr().out
+    assert main(["lookup", str(caldir), "U001", "--date", "2026-02-20", "--json"]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["session"] == "2026-03-01" and err == ""
+    assert main(["registry", "check", str(caldir)]) == 0
+    shutil.rmtree(caldir / "B1" / "U002")
+    assert main(["registry", "check", str(caldir)]) == 1
+    out, err = capsys.readouterr()
+    assert "B1/U002/2026-02-20/calibration.json: listed, but the file is missing" in err
+    assert "1 stale rows or files" in out
+
+
+def test_no_registry_where_one_is_named(tmp_path):
+    (tmp_path / "results").mkdir()
+    with pytest.raises(GyrocalError, match="no registry here: gyrocal registry rebuild"):
+        find_calibration(tmp_path / "results", "U1", registry=str(tmp_path / "absent.sqlite"))
