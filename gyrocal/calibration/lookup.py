@@ -323,7 +323,12 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         calibrated = [r for r in rows if r["status"] == "calibrated"]
         failed = sorted({str(r["session"]) for r in rows if r["status"] == "failed"})
         unreadable = [f"{r['path']}: {r['reason']}" for r in rows if r["status"] == "unreadable"]
-        pool = [(registry.EPOCH + dt.timedelta(days=r["session_day"]), r["path"], r) for r in calibrated]
+        # the path decides ties, as in the scan; rows of other results folders (shards sharing
+        # the registry) after the folder's name
+        pool = [
+            (registry.EPOCH + dt.timedelta(days=r["session_day"]), (r["root"], r["path"]), r)
+            for r in calibrated
+        ]
 
         def none_found(problem: str):
             _none_found(
@@ -339,12 +344,11 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         row, days, warning = _choose(pool, device, date, direction, max_days, none_found)
     finally:
         backend.close()
-    path = registry.served_file(caldir, row)
+    path = registry.served_file(row)
     cal = _calibration().from_dict(json.loads(path.read_bytes()), source=path)
     skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
-    return LookupResult(
-        caldir / row["path"], cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry"
-    )
+    shown = caldir / row["path"] if registry.root_of(caldir) == row["root"] else path
+    return LookupResult(shown, cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry")
 
 
 def _registry():

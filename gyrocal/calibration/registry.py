@@ -33,6 +33,7 @@ DEFAULT_NAME = "registry.sqlite"  # in the results folder, where lookup finds it
 STATUSES = ("calibrated", "failed", "unreadable")
 
 SESSION_COLUMNS = (
+    "root",  # the results folder, absolute: shards with folders of their own share one registry
     "path",  # the file below the results folder, '/'-separated
     "device",
     "batch",
@@ -51,7 +52,7 @@ SESSION_COLUMNS = (
     "verdict",  # the diagnosis' verdict
     "best_option",  # the option that adds the fix the diagnosis offers
 )
-PARAMETER_COLUMNS = ("path", "point", "temperature", "name", "value", "stderr")
+PARAMETER_COLUMNS = ("root", "path", "point", "temperature", "name", "value", "stderr")
 
 _TEXT, _REAL, _INT = "TEXT", "DOUBLE PRECISION", "BIGINT"
 _TYPES = {"session_day": _INT, "validation_rms": _REAL, "noise_floor": _REAL, "excess": _REAL}
@@ -59,17 +60,17 @@ SCHEMA = (
     "CREATE TABLE IF NOT EXISTS registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
     "CREATE TABLE IF NOT EXISTS unit_sessions ("
     + ", ".join(
-        f"{c} {_TYPES.get(c, _TEXT)}{' PRIMARY KEY' if c == 'path' else ''}"
-        f"{' NOT NULL' if c in ('status', 'file_hash', 'hash_algorithm') else ''}"
+        f"{c} {_TYPES.get(c, _TEXT)}"
+        f"{' NOT NULL' if c in ('root', 'path', 'status', 'file_hash', 'hash_algorithm') else ''}"
         for c in SESSION_COLUMNS
     )
-    + ")",
+    + ", PRIMARY KEY (root, path))",
     # a device's sessions by date (lookup), a batch's over months (drift)
     "CREATE INDEX IF NOT EXISTS unit_sessions_device ON unit_sessions (device, session_day)",
     "CREATE INDEX IF NOT EXISTS unit_sessions_batch ON unit_sessions (batch, session_day)",
-    "CREATE TABLE IF NOT EXISTS parameters (path TEXT NOT NULL, point INTEGER NOT NULL, "
-    f"temperature {_REAL}, name TEXT NOT NULL, value {_REAL} NOT NULL, stderr {_REAL}, "
-    "PRIMARY KEY (path, point, name))",
+    "CREATE TABLE IF NOT EXISTS parameters (root TEXT NOT NULL, path TEXT NOT NULL, "
+    f"point INTEGER NOT NULL, temperature {_REAL}, name TEXT NOT NULL, value {_REAL} NOT NULL, "
+    f"stderr {_REAL}, PRIMARY KEY (root, path, point, name))",
 )
 _DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
 EPOCH = dt.date(1970, 1, 1)
@@ -176,6 +177,11 @@ class PostgresBackend(Backend):
             yield
 
 
+def shown(where: str) -> str:
+    """A registry's location as messages and pages name it: a URL without its password."""
+    return _redacted(where)
+
+
 def _redacted(url: str) -> str:
     """The URL without its password, to name it in messages."""
     return re.sub(r"(://[^:/@]+):[^@]*@", r"\1:***@", url)
@@ -241,7 +247,7 @@ def _layout(rel: str) -> tuple[str | None, str | None, str | None]:
     return None, None, None
 
 
-def file_row(path: Path, rel: str) -> Row | None:
+def file_row(path: Path, rel: str, root: str) -> Row | None:
     """The row of one JSON file below the results folder: a calibration, a failure record,
     or an unreadable file the layout names; None for other JSON (validation, diagnosis)."""
     from ..io.log import HASH_ALGORITHM, file_digest
@@ -250,7 +256,7 @@ def file_row(path: Path, rel: str) -> Row | None:
     try:
         raw = path.read_bytes()
     except OSError as exc:
-        return _unreadable(rel, batch, device, session, f"cannot read ({exc.strerror})", None)
+        return _unreadable(root, rel, batch, device, session, f"cannot read ({exc.strerror})", None)
     family = formats.CALIBRATION.split("/")[0]
     if b'"' + family.encode() not in raw and b'"' + formats.FAILURE.split("/")[0].encode() not in raw:
         return None
@@ -258,12 +264,13 @@ def file_row(path: Path, rel: str) -> Row | None:
     try:
         doc = json.loads(raw)
     except (ValueError, UnicodeDecodeError):
-        return _unreadable(rel, batch, device, session, "not valid JSON", digest)
+        return _unreadable(root, rel, batch, device, session, "not valid JSON", digest)
     if not isinstance(doc, dict) or not isinstance(doc.get("format"), str):
         return None
     device = doc.get("device") or device
     session = doc.get("session") or session
     base = {
+        "root": root,
         "path": rel,
         "device": device,
         "batch": doc.get("batch") or batch,
@@ -286,7 +293,7 @@ def file_row(path: Path, rel: str) -> Row | None:
     try:
         cal = Calibration.from_dict(doc, source=path)
     except GyrocalError as exc:
-        return _unreadable(rel, base["batch"], device, session, str(exc), digest)
+        return _unreadable(root, rel, base["batch"], device, session, str(exc), digest)
     return Row(
         _complete(
             {
@@ -297,7 +304,7 @@ def file_row(path: Path, rel: str) -> Row | None:
                 **_headline(path.parent),
             }
         ),
-        tuple(_coefficients(rel, cal)),
+        tuple(_coefficients(root, rel, cal)),
     )
 
 
@@ -316,12 +323,13 @@ def _model_text(doc: dict) -> str | None:
     return ", ".join(text(t) for t in terms)
 
 
-def _unreadable(rel, batch, device, session, problem: str, digest: str | None) -> Row:
+def _unreadable(root, rel, batch, device, session, problem: str, digest: str | None) -> Row:
     from ..io.log import HASH_ALGORITHM
 
     return Row(
         _complete(
             {
+                "root": root,
                 "path": rel,
                 "device": device,
                 "batch": batch,
@@ -361,7 +369,7 @@ def _headline(folder: Path) -> dict[str, Any]:
     return out
 
 
-def _coefficients(rel: str, cal) -> Iterator[tuple]:
+def _coefficients(root: str, rel: str, cal) -> Iterator[tuple]:
     """The calibration's coefficients: per temperature point for a grid, one set (point -1,
     no temperature) for a continuous model."""
     import numpy as np
@@ -374,7 +382,7 @@ def _coefficients(rel: str, cal) -> Iterator[tuple]:
         point, temperature = (i, float(temps[i])) if temps is not None else (-1, None)
         for j, name in enumerate(grid.names):
             se = float(stderr[i, j])
-            yield (rel, point, temperature, name, float(row[j]), se if np.isfinite(se) else None)
+            yield (root, rel, point, temperature, name, float(row[j]), se if np.isfinite(se) else None)
 
 
 def _files(results: Path) -> Iterator[tuple[Path, str]]:
@@ -391,6 +399,7 @@ def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
     """The rows of every registrable file below ``results`` (or of the folders ``only``
     names, relative to it: a fleet job's unit sessions)."""
     results = Path(results)
+    root = root_of(results)
     if only is None:
         found = _files(results)
     else:
@@ -399,7 +408,12 @@ def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
             for folder in only
             for p in sorted((results / folder).glob("*.json"))
         )
-    return [row for path, rel in found if (row := file_row(path, rel)) is not None]
+    return [row for path, rel in found if (row := file_row(path, rel, root)) is not None]
+
+
+def root_of(results: Path) -> str:
+    """A results folder as the registry names it: absolute, '/'-separated."""
+    return Path(results).resolve().as_posix()
 
 
 # ---------------------------------------------------------------------------------------
@@ -408,23 +422,23 @@ def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
 
 _UPSERT = (
     f"INSERT INTO unit_sessions ({', '.join(SESSION_COLUMNS)}) VALUES ({', '.join('?' * len(SESSION_COLUMNS))}) "
-    "ON CONFLICT (path) DO UPDATE SET "
-    + ", ".join(f"{c} = excluded.{c}" for c in SESSION_COLUMNS if c != "path")
+    "ON CONFLICT (root, path) DO UPDATE SET "
+    + ", ".join(f"{c} = excluded.{c}" for c in SESSION_COLUMNS if c not in ("root", "path"))
 )
 _PARAMETERS = f"INSERT INTO parameters ({', '.join(PARAMETER_COLUMNS)}) VALUES ({', '.join('?' * len(PARAMETER_COLUMNS))})"
 
 
-def upsert(backend: Backend, rows: Sequence[Row], *, replace_all: bool = False) -> int:
+def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = None) -> int:
     """Write ``rows`` in one transaction: each file's row replaced whole, with its
-    coefficients; ``replace_all`` empties the registry first (a rebuild). Returns the rows
-    written."""
+    coefficients; ``replace_root`` first drops every row of that results folder (a
+    rebuild). Returns the rows written."""
     with backend.transaction():
-        if replace_all:
-            backend.execute("DELETE FROM parameters")
-            backend.execute("DELETE FROM unit_sessions")
-        paths = [(row.session["path"],) for row in rows]
-        if not replace_all:
-            backend.executemany("DELETE FROM parameters WHERE path = ?", paths)
+        if replace_root is not None:
+            backend.execute("DELETE FROM parameters WHERE root = ?", (replace_root,))
+            backend.execute("DELETE FROM unit_sessions WHERE root = ?", (replace_root,))
+        else:
+            keys = [(row.session["root"], row.session["path"]) for row in rows]
+            backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
         backend.executemany(_UPSERT, [[row.session[c] for c in SESSION_COLUMNS] for row in rows])
         backend.executemany(_PARAMETERS, [p for row in rows for p in row.parameters])
     return len(rows)
@@ -438,7 +452,7 @@ def rebuild(results: Path, where: str | None = None) -> tuple[str, int]:
     target = location(results, where)
     backend = connect(target)
     try:
-        return target, upsert(backend, rows_of(results), replace_all=True)
+        return target, upsert(backend, rows_of(results), replace_root=root_of(results))
     finally:
         backend.close()
 
@@ -450,7 +464,7 @@ def rebuild(results: Path, where: str | None = None) -> tuple[str, int]:
 def device_rows(backend: Backend, device: str) -> list[dict[str, Any]]:
     """Every row of ``device``, by session date then path."""
     cursor = backend.execute(
-        f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE device = ? ORDER BY session_day, path",
+        f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE device = ? ORDER BY session_day, root, path",
         (device,),
     )
     return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
@@ -467,11 +481,11 @@ def calibration_files(backend: Backend) -> int:
     return int(backend.execute("SELECT COUNT(*) FROM unit_sessions WHERE status <> 'failed'").fetchone()[0])
 
 
-def served_file(results: Path, row: dict[str, Any]) -> Path:
+def served_file(row: dict[str, Any]) -> Path:
     """The row's file, when it is still the one registered; else a :class:`RegistryError`."""
     from ..io.log import file_digest
 
-    path = Path(results) / row["path"]
+    path = Path(row["root"]) / row["path"]
     if not path.is_file():
         raise RegistryError(
             f"the registry lists {row['path']}, which is missing: gyrocal registry check says which "
@@ -493,7 +507,10 @@ def check(results: Path, where: str | None = None) -> list[str]:
     results = Path(results)
     backend = connect(location(results, where), create=False)
     try:
-        cursor = backend.execute("SELECT path, file_hash, hash_algorithm FROM unit_sessions ORDER BY path")
+        cursor = backend.execute(
+            "SELECT path, file_hash, hash_algorithm FROM unit_sessions WHERE root = ? ORDER BY path",
+            (root_of(results),),
+        )
         listed = cursor.fetchall()
     finally:
         backend.close()
@@ -508,8 +525,9 @@ def check(results: Path, where: str | None = None) -> list[str]:
             problems.append(f"{rel}: listed, but the file is missing")
         elif digest and file_digest(path, algorithm) != digest:
             problems.append(f"{rel}: changed since it was registered (its hash differs)")
+    root = root_of(results)
     for path, rel in _files(results):
-        if rel not in known and file_row(path, rel) is not None:
+        if rel not in known and file_row(path, rel, root) is not None:
             problems.append(f"{rel}: not in the registry")
     return problems
 

@@ -533,13 +533,14 @@ def _write_page(path, text: str) -> None:
     atomic.write_text(path, text)
 
 
-def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> None:
+def write_fleet_report(summary: dict, path, settings=None, eol_json=None, registry=None) -> None:
     """The fleet summary page from :func:`fleet_summary`: per batch, one row
     per unit and session; failed units with their error; distributions of the key
     parameters across the calibrated units. With ``settings``
     (:class:`FleetSettings`): end-of-line verdicts and yield, outliers
     against the batch, drift pages of devices with several sessions (beside the summary,
-    ``drift/<device>.html``) and the machine-readable ``eol_json``."""
+    ``drift/<device>.html``) and the machine-readable ``eol_json``. ``registry``: where the
+    run's calibrations were indexed and how many files (said on the page)."""
     rows, ok, fleet = summary["rows"], summary["ok"], summary["fleet"]
     batches = {}
     for row in rows:
@@ -581,6 +582,7 @@ def write_fleet_report(summary: dict, path, settings=None, eol_json=None) -> Non
         page_units=PAGE_UNITS,
         servo_vs_turntable=summary["servo_vs_turntable"],
         fleet=fleet,
+        registry=registry,
     )
     _write_page(path, html)
 

@@ -373,7 +373,17 @@ def cmd_fleet(args) -> int:
         from ..fleet.summary import FleetSettings
 
         settings = FleetSettings.from_dict(_json_object(args.settings_json, "--settings-json"))
-    fleet_stage(rows, args.results, args.reports, args.output, args.bundle, settings, args.eol, args.table)
+    fleet_stage(
+        rows,
+        args.results,
+        args.reports,
+        args.output,
+        args.bundle,
+        settings,
+        args.eol,
+        args.table,
+        args.registry,
+    )
     print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
 
@@ -1029,6 +1039,11 @@ def _add_fleet(sub) -> None:
         "(spec, outliers, drift: see config/config.yaml)",
     )
     p.add_argument("--eol", help="also write the end-of-line verdicts and yields as JSON")
+    p.add_argument(
+        "--registry",
+        help="index the run's calibrations here: a postgresql:// URL or an SQLite file "
+        "(default RESULTS/registry.sqlite; '' for none)",
+    )
     p.add_argument(
         "--table",
         help="also write the fleet as one Parquet table, a row per unit session (docs/fleet-table.md)",

@@ -353,11 +353,14 @@ def fleet_stage(
     settings=None,
     eol_json=None,
     table=None,
+    registry: str | None = None,
 ) -> None:
     """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
     a :class:`gyrocal.fleet.summary.FleetSettings`: end of line, outliers, drift pages and
     ``eol_json``), the fleet as one table (``table``: Parquet, a row per unit session) and
-    (optionally) a self-contained folder of all unit reports for ``snakemake --report``."""
+    (optionally) a self-contained folder of all unit reports for ``snakemake --report``.
+    ``registry`` (a database URL or SQLite file; "" for none) indexes the run's calibration
+    files and failure records, in one transaction: a job killed meanwhile leaves it as it was."""
     from ..fleet.summary import fleet_summary, fleet_table, write_fleet_report
 
     units = []
@@ -367,7 +370,19 @@ def fleet_stage(
             {"row": row, "folder": folder, "report": f"{row['batch']}/{row['device']}/{row['session']}.html"}
         )
     summary = fleet_summary(units, settings)
-    write_fleet_report(summary, out_index, settings, eol_json)
+    indexed = None
+    if registry != "":
+        from ..calibration import registry as index
+
+        where = index.location(Path(results_root), registry)
+        backend = index.connect(where)
+        try:
+            folders = sorted({f"{r['batch']}/{r['device']}/{r['session']}" for r in rows})
+            written = index.upsert(backend, index.rows_of(Path(results_root), folders))
+        finally:
+            backend.close()
+        indexed = {"where": index.shown(where), "rows": written}
+    write_fleet_report(summary, out_index, settings, eol_json, indexed)
     if table is not None:
         import pyarrow.parquet as pq
 

@@ -133,8 +133,8 @@ def test_rebuild_gives_the_same_rows_again(caldir):  # noqa: F811
     def rows():
         backend = registry.connect(str(caldir / registry.DEFAULT_NAME), create=False)
         try:
-            sessions = backend.execute("SELECT * FROM unit_sessions ORDER BY path").fetchall()
-            params = backend.execute("SELECT * FROM parameters ORDER BY path, point, name").fetchall()
+            sessions = backend.execute("SELECT * FROM unit_sessions ORDER BY root, path").fetchall()
+            params = backend.execute("SELECT * FROM parameters ORDER BY root, path, point, name").fetchall()
         finally:
             backend.close()
         return sessions, params
@@ -144,7 +144,7 @@ def test_rebuild_gives_the_same_rows_again(caldir):  # noqa: F811
     registry.rebuild(caldir)
     assert rows() == first
     sessions, params = first
-    statuses = sorted(r[6] for r in sessions)
+    statuses = sorted(r[registry.SESSION_COLUMNS.index("status")] for r in sessions)
     # the failed session's record stands in both its calibration and its validation file
     assert statuses == ["calibrated"] * 5 + ["failed"] * 2 + ["unreadable"]
     # 12 coefficients at each of 2 temperature points, for each of the 5 calibrations
@@ -158,7 +158,7 @@ def test_a_write_that_fails_midway_leaves_the_registry_as_it_was(caldir, monkeyp
     rows = registry.rows_of(caldir)
     broken = [*rows[:2], registry.Row({**rows[2].session, "status": None})]  # NOT NULL fails
     with pytest.raises(Exception, match="NOT NULL"):
-        registry.upsert(backend, broken, replace_all=True)
+        registry.upsert(backend, broken, replace_root=registry.root_of(caldir))
     assert backend.execute("SELECT COUNT(*) FROM unit_sessions").fetchone() == before
     backend.close()
 

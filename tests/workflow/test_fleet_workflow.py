@@ -349,3 +349,50 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     frame = table.to_pandas()
     drift = frame[frame.status == "ok"].groupby("device")["bias.x"].agg(["count", "max", "min"])
     assert drift.loc["A1", "count"] == 2
+
+
+def test_the_fleet_job_fills_the_registry_and_its_summary_says_where(fleet_run, tmp_path):
+    """Every unit session's calibration or failure record once, with its headline figures;
+    lookups from it choose as the folder scan does."""
+    from gyrocal.calibration import registry
+    from gyrocal.calibration.lookup import find_calibration
+
+    results = fleet_run / "results"
+    where = results / registry.DEFAULT_NAME
+    backend = registry.connect(str(where), create=False)
+    try:
+        rows = backend.execute(
+            "SELECT device, session, status, validation_rms, excess, verdict FROM unit_sessions "
+            "WHERE path LIKE '%/calibration.json' ORDER BY device, session"
+        ).fetchall()
+    finally:
+        backend.close()
+    units = sorted((d, s) for _, d, s in GOOD) + [("S1", "2026-01-04"), ("W1", "2026-01-05")]
+    assert sorted((d, s) for d, s, status, *_ in rows if status == "calibrated") == units
+    assert sorted((d, s) for d, s, status, *_ in rows if status == "failed") == sorted(
+        (d, s) for _, d, s, _ in FAILED
+    )
+    for device, session, status, rms, excess, verdict in rows:
+        if status == "calibrated":
+            assert rms > 0 and excess > 0 and verdict, (device, session)
+    assert registry.check(results) == []
+    assert (
+        "Registry: <code>results/registry.sqlite</code>" in (fleet_run / "reports" / "index.html").read_text()
+    )
+    scan_only = shutil.copytree(
+        results, tmp_path / "results", ignore=shutil.ignore_patterns("registry.sqlite*")
+    )
+    for device in ("A1", "A2", "S1", "W1"):
+        for date in (None, "2026-02-01"):
+            indexed, scanned = (
+                find_calibration(results, device, date),
+                find_calibration(scan_only, device, date),
+            )
+            assert (indexed.source, scanned.source) == ("registry", "scan")
+            assert (indexed.session, indexed.days_away, indexed.candidates, indexed.skipped) == (
+                scanned.session,
+                scanned.days_away,
+                scanned.candidates,
+                scanned.skipped,
+            )
+            assert indexed.path.relative_to(results) == scanned.path.relative_to(scan_only)

@@ -42,7 +42,12 @@ rule fleet:
             sort_keys=True,
         ),
         version=GYROCAL_VERSION,
+        # the registry the run's calibrations are indexed in (config registry:), not an
+        # output: it outlives the run, and Snakemake would remove an output before the job
+        registry=(
+            "--registry " + shlex.quote(str(config["registry"])) if "registry" in config else ""
+        ),
     shell:
         "{params.gyrocal} fleet --manifest {input.manifest:q} --results results --reports reports "
         "-o {output.index:q} --bundle {output.bundle:q} --settings-json {params.settings:q} "
-        "--eol {output.eol:q} --table {output.table:q} > {log:q} 2>&1"
+        "--eol {output.eol:q} --table {output.table:q} {params.registry} > {log:q} 2>&1"
