@@ -38,7 +38,9 @@ lint: $(STAMP)
 # Debian packages the tests use, installed when missing and possible: Chromium for the
 # browser test, gcc for the firmware export test (and the C kernels, built on install),
 # rsync for the object-storage test (Snakemake's fs storage plugin copies with it),
-# SLURM and munge for the scheduler tests (tests/workflow/slurm.py starts its own one-node cluster).
+# SLURM and munge for the scheduler tests (tests/workflow/slurm.py starts its own one-node cluster),
+# PostgreSQL for the registry's tests (tests/pg.py starts its own server; Debian keeps the
+# server's programs off PATH, in /usr/lib/postgresql/<version>/bin).
 system-packages:
 	@missing=""; \
 	command -v chromium >/dev/null 2>&1 || missing="$$missing chromium"; \
@@ -47,6 +49,9 @@ system-packages:
 	for tool in sbatch slurmctld slurmd munged; do \
 	  command -v $$tool >/dev/null 2>&1 || test -x /usr/sbin/$$tool || { missing="$$missing slurm-wlm munge"; break; }; \
 	done; \
+	{ command -v initdb && command -v postgres; } >/dev/null 2>&1 \
+	  || ls /usr/lib/postgresql/*/bin/initdb /usr/lib/postgresql/*/bin/postgres >/dev/null 2>&1 \
+	  || missing="$$missing postgresql"; \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing Debian's$$missing for the tests"; \

@@ -292,7 +292,12 @@ def fleet_run(tmp_path_factory, worker_id):
 
 
 def pytest_report_header(config):
-    """The SLURM the scheduler tests run on (tests/workflow/test_slurm.py), named in every run."""
-    from .workflow.slurm import installed_version
+    """The SLURM the scheduler tests run on (tests/workflow/test_slurm.py) and the PostgreSQL
+    the registry's tests run on (tests/registry), named in every run."""
+    from . import pg
+    from .workflow import slurm
 
-    return f"SLURM for the scheduler tests: {installed_version() or 'not installed'}"
+    return [
+        f"SLURM for the scheduler tests: {slurm.installed_version() or 'not installed'}",
+        f"PostgreSQL for the registry tests: {pg.installed_version() or 'not installed'}",
+    ]

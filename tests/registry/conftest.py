@@ -1,0 +1,32 @@
+"""The PostgreSQL server the registry's tests run against (tests/pg.py): one per test
+process (pytest-xdist worker), started by the first test that asks for it."""
+
+import pytest
+
+from .. import pg
+from ..conftest import needs
+
+# Every test that uses the server, directly or through another fixture, is marked with it
+# (pytest_itemcollected): skipped when PostgreSQL is missing, failed under
+# GYROCAL_REQUIRE_DEPS. The registry's SQLite tests, beside them, run without it.
+needs_postgres = needs(pg.found(), pg.INSTALL)
+
+
+def pytest_itemcollected(item):
+    if "postgres_url" in item.fixturenames:
+        item.add_marker(needs_postgres)
+
+
+@pytest.fixture(scope="session")
+def postgres_server():
+    """The running server (:class:`tests.pg.Server`): its port, log, and
+    :meth:`~tests.pg.Server.create_database` for a test that needs a database of its own."""
+    with pg.Server() as server:
+        yield server
+
+
+@pytest.fixture(scope="session")
+def postgres_url(postgres_server) -> str:
+    """``postgresql://gyrocal@127.0.0.1:PORT/gyrocal``: the session's database, shared by
+    the tests of one process; a test's tables are its own to name and drop."""
+    return postgres_server.url()
