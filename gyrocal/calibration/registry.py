@@ -29,6 +29,7 @@ from ..io import formats
 from ..io.errors import ConfigError, GyrocalError, InputError
 
 SCHEMA_VERSION = 1
+SCHEMA_LOCK = 0x67797263616C  # "gyrcal": PostgreSQL's advisory lock around making the schema
 DEFAULT_NAME = "registry.sqlite"  # in the results folder, where lookup finds it by itself
 STATUSES = ("calibrated", "failed", "unreadable")
 
@@ -121,6 +122,9 @@ class Backend:
         """Everything inside commits together or not at all (a killed job leaves nothing)."""
         raise NotImplementedError
 
+    def serialise(self) -> None:
+        """Inside a transaction: the others wait for it (SQLite's BEGIN IMMEDIATE does)."""
+
     def close(self) -> None:
         self.connection.close()
 
@@ -176,6 +180,10 @@ class PostgresBackend(Backend):
         with self.connection.transaction():
             yield
 
+    def serialise(self) -> None:
+        # two first writers creating the tables at once would collide in the catalogue
+        self.execute("SELECT pg_advisory_xact_lock(?)", (SCHEMA_LOCK,))
+
 
 def shown(where: str) -> str:
     """A registry's location as messages and pages name it: a URL without its password."""
@@ -193,8 +201,9 @@ def location(results: Path, registry: str | None = None) -> str:
     return registry if registry else str(Path(results) / DEFAULT_NAME)
 
 
-def connect(where: str, *, create: bool = True) -> Backend:
-    """The registry at ``where`` (see :func:`location`), its schema made or checked."""
+def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
+    """The registry at ``where`` (see :func:`location`), its schema made or checked;
+    ``fresh`` drops its tables first (every results folder's rows: a migration by rebuild)."""
     if where.startswith(("postgresql://", "postgres://")):
         backend: Backend = PostgresBackend.open(where)
     else:
@@ -202,6 +211,10 @@ def connect(where: str, *, create: bool = True) -> Backend:
         if not create and not path.is_file():
             raise RegistryError("no registry here: gyrocal registry rebuild RESULTS makes it", source=path)
         backend = SQLiteBackend.open(path)
+    if fresh:
+        with backend.transaction():
+            for table in ("parameters", "unit_sessions", "registry_meta"):
+                backend.execute(f"DROP TABLE IF EXISTS {table}")
     _schema(backend)
     return backend
 
@@ -211,6 +224,7 @@ def _schema(backend: Backend) -> None:
     refused with the command that makes it again (the files are the truth, so a rebuild
     is the migration)."""
     with backend.transaction():
+        backend.serialise()
         for statement in SCHEMA:
             backend.execute(statement)
         found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
@@ -444,13 +458,14 @@ def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = 
     return len(rows)
 
 
-def rebuild(results: Path, where: str | None = None) -> tuple[str, int]:
-    """The registry of ``results`` made again from its files; returns (where, rows)."""
+def rebuild(results: Path, where: str | None = None, *, fresh: bool = False) -> tuple[str, int]:
+    """The registry of ``results`` made again from its files (``fresh``: the whole
+    registry dropped first); returns (where, rows)."""
     results = Path(results)
     if not results.is_dir():
         raise InputError("is not a results folder", source=results)
     target = location(results, where)
-    backend = connect(target)
+    backend = connect(target, fresh=fresh)
     try:
         return target, upsert(backend, rows_of(results), replace_root=root_of(results))
     finally:
@@ -543,7 +558,7 @@ def cmd_registry(args) -> int:
     results = Path(args.results)
     if args.action == "rebuild":
         start = time.perf_counter()
-        where, rows = rebuild(results, args.registry)
+        where, rows = rebuild(results, args.registry, fresh=args.fresh)
         print(f"registry {_redacted(where)}: {rows} files indexed in {time.perf_counter() - start:.1f} s")
         return 0
     problems = check(results, args.registry)
@@ -571,6 +586,12 @@ def add_registry_parser(subparsers):
     p.add_argument(
         "--registry",
         help=f"the database: a postgresql:// URL or an SQLite file (default RESULTS/{DEFAULT_NAME})",
+    )
+    p.add_argument(
+        "--fresh",
+        action="store_true",
+        help="rebuild: drop the whole registry first (other results folders' rows too): "
+        "how a registry of an older schema version is made again",
     )
     p.set_defaults(func=cmd_registry)
     return p

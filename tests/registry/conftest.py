@@ -1,6 +1,8 @@
 """The PostgreSQL server the registry's tests run against (tests/pg.py): one per test
 process (pytest-xdist worker), started by the first test that asks for it."""
 
+import itertools
+
 import pytest
 
 from .. import pg
@@ -10,11 +12,30 @@ from ..conftest import needs
 # (pytest_itemcollected): skipped when PostgreSQL is missing, failed under
 # GYROCAL_REQUIRE_DEPS. The registry's SQLite tests, beside them, run without it.
 needs_postgres = needs(pg.found(), pg.INSTALL)
+_DATABASES = itertools.count()
 
 
 def pytest_itemcollected(item):
-    if "postgres_url" in item.fixturenames:
+    callspec = getattr(item, "callspec", None)
+    on_postgres = callspec is not None and callspec.params.get("backend") == "postgresql"
+    if {"postgres_url", "postgres_server"} & set(item.fixturenames) or on_postgres:
         item.add_marker(needs_postgres)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def backend(request):
+    """The registry's back end a test runs on: its name."""
+    return request.param
+
+
+@pytest.fixture
+def where(backend, request, tmp_path):
+    """An empty registry of the back end: an SQLite file, or a PostgreSQL database of the
+    test's own on the process' server."""
+    if backend == "sqlite":
+        return str(tmp_path / "registry.sqlite")
+    server = request.getfixturevalue("postgres_server")
+    return server.create_database(f"registry_{next(_DATABASES)}")
 
 
 @pytest.fixture(scope="session")
