@@ -299,9 +299,8 @@ def file_row(path: Path, rel: str, root: str) -> Row | None:
     if doc["format"].split("/")[0] != family:
         return None
     if base["session_day"] is None:
-        return _unreadable(
-            rel, base["batch"], device, session, f"session {session!r} is not a date YYYY-MM-DD", digest
-        )
+        problem = f"session {session!r} is not a date YYYY-MM-DD"
+        return _unreadable(root, rel, base["batch"], device, session, problem, digest)
     from .file import Calibration
 
     try:

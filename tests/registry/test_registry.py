@@ -137,6 +137,17 @@ def _fleet_of(seed: int):
     ]
 
 
+def test_a_session_that_is_not_a_date_is_unreadable_as_in_the_scan(tmp_path, where):
+    root = tmp_path / "results"
+    put(root, "U5", "2026-02-02")
+    odd = put(root, "U5", "2026-03-03")
+    doc = json.loads(odd.read_text())
+    doc["session"] = "spring"
+    odd.write_text(json.dumps(doc))
+    assert_same_answers(root, ("U5",), ("2026-03-01",), where)
+    assert find_calibration(root, "U5", registry=where).skipped == {"failed_sessions": 0, "unreadable": 1}
+
+
 def test_a_changed_or_missing_file_is_never_served(caldir, where):  # noqa: F811
     registry.rebuild(caldir, where)
     chosen = find_calibration(caldir, "U001", "2026-06-01", registry=where).path
