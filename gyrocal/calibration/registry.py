@@ -445,7 +445,11 @@ def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = 
     """Write ``rows`` in one transaction: each file's row replaced whole, with its
     coefficients; ``replace_root`` first drops every row of that results folder (a
     rebuild). Returns the rows written."""
+    rows = sorted(rows, key=lambda row: (row.session["root"], row.session["path"]))
     with backend.transaction():
+        # writers one at a time (SQLite's BEGIN IMMEDIATE; an advisory lock on PostgreSQL):
+        # two replacing one file's coefficients at once would otherwise both insert them
+        backend.serialise()
         if replace_root is not None:
             backend.execute("DELETE FROM parameters WHERE root = ?", (replace_root,))
             backend.execute("DELETE FROM unit_sessions WHERE root = ?", (replace_root,))

@@ -36,6 +36,7 @@ COMMANDS = {
     "shard",
     "paper",
     "lookup",
+    "registry",
     "export",
     "verify",
     "import",

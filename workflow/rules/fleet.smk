@@ -45,7 +45,9 @@ rule fleet:
         # the registry the run's calibrations are indexed in (config registry:), not an
         # output: it outlives the run, and Snakemake would remove an output before the job
         registry=(
-            "--registry " + shlex.quote(str(config["registry"])) if "registry" in config else ""
+            "--registry " + shlex.quote(str(config["registry"]))
+            if "registry" in config
+            else ""
         ),
     shell:
         "{params.gyrocal} fleet --manifest {input.manifest:q} --results results --reports reports "
