@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -715,6 +716,15 @@ def cmd_export(args) -> int:
     fmt = args.format or infer_format(args.output)
     from .file import load_calibration
 
+    if args.device is not None:  # the unit's calibration at a date, as gyrocal lookup finds it
+        from .lookup import find_calibration
+
+        found = find_calibration(args.calibration, args.device, args.date, registry=args.registry)
+        if found.warning:
+            print(f"gyrocal: warning: {found.warning}", file=sys.stderr)
+        args.calibration = str(found.path)
+    elif args.date is not None or args.registry is not None:
+        raise ConfigError("--date and --registry choose a unit's calibration: give --device too")
     _precheck(args.calibration)
     cal = load_calibration(args.calibration)
     tables = export_calibration(cal, fmt, args.output, source=args.calibration)
@@ -729,7 +739,18 @@ def cmd_export(args) -> int:
 def add_export_parser(subparsers):
     """Register ``gyrocal export`` on the CLI's subparsers."""
     p = subparsers.add_parser("export", help="a calibration for firmware: C header or JSON")
-    p.add_argument("calibration", help="calibration .json (gyrocal.calibration/1)")
+    p.add_argument(
+        "calibration",
+        help="calibration .json (gyrocal.calibration/1), or with --device a results folder to look it up in",
+    )
+    p.add_argument("--device", help="export this unit's calibration, found as gyrocal lookup finds it")
+    p.add_argument(
+        "--date", help="with --device: the session nearest this date, YYYY-MM-DD (default: the latest)"
+    )
+    p.add_argument(
+        "--registry",
+        help="with --device: the registry to look it up in (default: the folder's, else its files)",
+    )
     p.add_argument(
         "--format",
         choices=list(FORMATS),

@@ -550,6 +550,65 @@ def check(results: Path, where: str | None = None) -> list[str]:
     return problems
 
 
+def drift(
+    backend: Backend,
+    *,
+    batch: str | None = None,
+    device: str | None = None,
+    temperature: float = 25.0,
+    within: float = 5.0,
+    names: Sequence[str] = (),
+) -> list[dict[str, Any]]:
+    """How a batch's (or a device's) coefficients move across sessions: each calibrated
+    session's coefficients at its temperature point nearest ``temperature`` (within
+    ``within`` °C), one dict per session and coefficient: session, device, name, value,
+    stderr, temperature. ``names`` keeps only those coefficients (prefixes: ``bias``)."""
+    if (batch is None) == (device is None):
+        raise ConfigError("drift is of a batch or of a device: give one")
+    key, value = ("batch", batch) if batch is not None else ("device", device)
+    cursor = backend.execute(
+        "SELECT s.session, s.device, s.root, s.path, p.point, p.temperature, p.name, p.value, p.stderr "
+        "FROM unit_sessions s JOIN parameters p ON p.root = s.root AND p.path = s.path "
+        f"WHERE s.{key} = ? AND s.status = 'calibrated' AND p.point >= 0 "
+        "AND p.temperature BETWEEN ? AND ? ORDER BY s.session_day, s.root, s.path, p.point, p.name",
+        (value, temperature - within, temperature + within),
+    )
+    nearest: dict[tuple, float] = {}
+    rows = cursor.fetchall()
+    for _, _, root, path, _, temp, *_ in rows:  # each file's point nearest the temperature
+        gap = abs(temp - temperature)
+        nearest[(root, path)] = min(gap, nearest.get((root, path), gap))
+    out = []
+    for session, dev, root, path, _, temp, name, val, se in rows:
+        if abs(temp - temperature) != nearest[(root, path)]:
+            continue
+        if names and not any(name == n or name.startswith(n + ".") for n in names):
+            continue
+        out.append(
+            {"session": session, "device": dev, "name": name, "value": val, "stderr": se, "temperature": temp}
+        )
+    return out
+
+
+def monthly(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """:func:`drift`'s rows per month and coefficient: units, mean, standard deviation."""
+    import numpy as np
+
+    groups: dict[tuple[str, str], list[float]] = {}
+    for r in rows:
+        groups.setdefault((str(r["session"])[:7], r["name"]), []).append(r["value"])
+    return [
+        {
+            "month": month,
+            "name": name,
+            "units": len(values),
+            "mean": float(np.mean(values)),
+            "std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
+        }
+        for (month, name), values in sorted(groups.items())
+    ]
+
+
 # ---------------------------------------------------------------------------------------
 # Command line
 
@@ -575,6 +634,57 @@ def cmd_registry(args) -> int:
         return 1
     print(f"registry {where}: every row's file is there, as registered, and every file is listed")
     return 0
+
+
+def cmd_drift(args) -> int:
+    """A batch's coefficients per month, or a device's per session, from the registry."""
+    results = Path(args.results)
+    backend = connect(location(results, args.registry), create=False)
+    try:
+        rows = drift(
+            backend,
+            batch=args.batch,
+            device=args.device,
+            temperature=args.temperature,
+            names=tuple(args.name or ()),
+        )
+    finally:
+        backend.close()
+    if not rows:
+        who = f"batch {args.batch}" if args.batch is not None else f"device {args.device}"
+        raise RegistryError(f"no calibration of {who} with a point within 5 °C of {args.temperature:g} °C")
+    if args.device is not None:
+        print(f"{'session':<12} {'coefficient':<22} {'value':>14} {'stderr':>12} {'at °C':>8}")
+        for r in rows:
+            se = "–" if r["stderr"] is None else f"{r['stderr']:.4g}"
+            print(f"{r['session']:<12} {r['name']:<22} {r['value']:>14.6g} {se:>12} {r['temperature']:>8.2f}")
+        return 0
+    print(f"{'month':<8} {'coefficient':<22} {'units':>6} {'mean':>14} {'std':>12}")
+    for m in monthly(rows):
+        std = "–" if m["std"] is None else f"{m['std']:.4g}"
+        print(f"{m['month']:<8} {m['name']:<22} {m['units']:>6} {m['mean']:>14.6g} {std:>12}")
+    return 0
+
+
+def add_drift_parser(subparsers):
+    """Register ``gyrocal drift`` on the CLI's subparsers."""
+    p = subparsers.add_parser("drift", help="a batch's coefficients per month, or a device's per session")
+    p.add_argument("results", help="the results folder whose registry to read")
+    who = p.add_mutually_exclusive_group(required=True)
+    who.add_argument("--batch", help="the batch: its units' coefficients per month (mean, spread)")
+    who.add_argument("--device", help="the unit: its coefficients at each session")
+    p.add_argument(
+        "--temperature",
+        type=float,
+        default=25.0,
+        help="each calibration's point nearest this, °C, within 5 (default 25)",
+    )
+    p.add_argument(
+        "--name", action="append", help="only this coefficient or family (bias, scale.x.x; repeatable)"
+    )
+    p.add_argument("--registry", help=f"the registry (default RESULTS/{DEFAULT_NAME})")
+    p.set_defaults(func=cmd_drift)
+    return p
 
 
 def add_registry_parser(subparsers):

@@ -14,7 +14,7 @@ from . import blas_threads  # noqa: F401 - first: it sets the BLAS thread count 
 from .. import __version__
 from ..calibration.export import add_export_parser
 from ..calibration.lookup import add_lookup_parser
-from ..calibration.registry import add_registry_parser
+from ..calibration.registry import add_drift_parser, add_registry_parser
 from ..io.errors import ConfigError, GyrocalError
 from ..paper import add_parser as add_paper_parser
 from ..protocols import registry
@@ -731,6 +731,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_paper_parser(sub)
     add_lookup_parser(sub)
     add_registry_parser(sub)
+    add_drift_parser(sub)
     add_export_parser(sub)
     _list_stages_apart(parser, sub)
     return parser

@@ -71,7 +71,29 @@ def workflow_command(
     if not _given(rest, CORES_FLAGS) and not os.environ.get("SNAKEMAKE_PROFILE"):
         command += ["--cores", "all"]
     items = [item for item in items if not item.startswith("devices=")]
+    if not any(item.startswith("registry=") for item in items) and not _configures_registry(
+        configfile, rest
+    ):  # the day's shards index their runs in one registry beside them
+        items.append(f"registry={(shard.folder.parent / 'registry.sqlite').resolve()}")
     return [*command, *rest, "--config", *items, f"devices={shard.manifest}"]
+
+
+def _configures_registry(configfile: Path | None, rest: list[str]) -> bool:
+    """Whether the config file the shards run with names a registry of its own."""
+    files = [configfile] if configfile is not None else []
+    for i, arg in enumerate(rest):
+        if arg in ("--configfile", "--configfiles") and i + 1 < len(rest):
+            files.append(Path(rest[i + 1]))
+    import yaml
+
+    for path in files:
+        try:
+            values = yaml.safe_load(Path(path).read_text()) or {}
+        except (OSError, yaml.YAMLError):
+            continue  # the workflow says what is wrong with it
+        if isinstance(values, dict) and "registry" in values:
+            return True
+    return False
 
 
 def _given(args: list[str], flags: tuple[str, ...]) -> bool:

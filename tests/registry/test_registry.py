@@ -7,7 +7,10 @@ import datetime as dt
 import json
 import multiprocessing
 import shutil
+import subprocess
+import sys
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -269,3 +272,106 @@ def test_no_registry_where_one_is_named(tmp_path):
     (tmp_path / "results").mkdir()
     with pytest.raises(GyrocalError, match="no registry here: gyrocal registry rebuild"):
         find_calibration(tmp_path / "results", "U1", registry=str(tmp_path / "absent.sqlite"))
+
+
+def test_export_by_device_takes_the_calibration_lookup_finds(caldir, tmp_path, capsys):  # noqa: F811
+    registry.rebuild(caldir)
+    out = tmp_path / "u001.json"
+    assert main(["export", str(caldir), "--device", "U001", "--date", "2026-02-20", "-o", str(out)]) == 0
+    chosen = find_calibration(caldir, "U001", "2026-02-20").path
+    direct = tmp_path / "direct.json"
+    assert main(["export", str(chosen), "-o", str(direct)]) == 0
+    assert json.loads(out.read_text())["source"] == json.loads(direct.read_text())["source"]
+    assert main(["export", str(chosen), "--date", "2026-02-20", "-o", str(direct)]) == 2
+    assert "give --device too" in capsys.readouterr().err
+
+
+def test_drift_of_a_batch_per_month_and_of_a_device_per_session(tmp_path, where, capsys):
+    """Biases put in by hand come back per month (their mean and spread) and per session."""
+    root = tmp_path / "results"
+    biases = {("U1", "2026-01-10"): 0.1, ("U2", "2026-01-20"): 0.3, ("U1", "2026-02-10"): 0.5}
+    for (device, session), bias in biases.items():
+        put(root, device, session, batch="B7", bias=bias)
+    put(root, "U3", "2026-01-15", batch="B8", bias=9.0)  # another batch: not in B7's drift
+    registry.rebuild(root, where)
+    backend = registry.connect(where, create=False)
+    try:
+        rows = registry.drift(backend, batch="B7", names=("bias.x",), temperature=0.0)
+        device = registry.drift(backend, device="U1", names=("bias",), temperature=40.0)
+    finally:
+        backend.close()
+    months = registry.monthly(rows)
+    assert [(m["month"], m["units"]) for m in months] == [("2026-01", 2), ("2026-02", 1)]
+    assert months[0]["mean"] == pytest.approx(0.2) and months[0]["std"] == pytest.approx(
+        np.std([0.1, 0.3], ddof=1)
+    )
+    assert [
+        (r["session"], r["name"], r["value"], r["temperature"]) for r in device if r["name"] == "bias.x"
+    ] == [
+        ("2026-01-10", "bias.x", 0.1, 40.0),
+        ("2026-02-10", "bias.x", 0.5, 40.0),
+    ]
+    assert (
+        main(
+            [
+                "drift",
+                str(root),
+                "--batch",
+                "B7",
+                "--name",
+                "bias.x",
+                "--temperature",
+                "0",
+                "--registry",
+                where,
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "2026-01  bias.x" in out and "2026-02  bias.x" in out
+    assert main(["drift", str(root), "--batch", "B9", "--registry", where]) == 2
+    assert "no calibration of batch B9" in capsys.readouterr().err
+
+
+KILLED_WRITER = """
+import sys, time
+from pathlib import Path
+from gyrocal.calibration import registry
+backend = registry.connect(sys.argv[1])
+rows = registry.rows_of(Path(sys.argv[2]))
+with backend.transaction():
+    backend.serialise()
+    backend.execute("DELETE FROM unit_sessions")
+    backend.executemany(registry._UPSERT, [[r.session[c] for c in registry.SESSION_COLUMNS] for r in rows])
+    print("written, not committed", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_writer_killed_inside_its_transaction_leaves_nothing_of_it(caldir, where, tmp_path):  # noqa: F811
+    """The fleet job writes in one transaction: killed (SIGKILL) before it commits, the
+    registry is as it was, and the next writer is not kept waiting by it."""
+    registry.rebuild(caldir, where)
+
+    def contents():
+        backend = registry.connect(where, create=False)
+        try:
+            return backend.execute("SELECT * FROM unit_sessions ORDER BY root, path").fetchall()
+        finally:
+            backend.close()
+
+    before = contents()
+    other = tmp_path / "other"
+    put(other, "U77", "2026-09-09")
+    writer = subprocess.Popen(
+        [sys.executable, "-c", KILLED_WRITER, where, str(other)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert writer.stdout.readline().strip() == "written, not committed"
+    finally:
+        writer.kill()
+        writer.wait()
+    assert contents() == before
+    registry.rebuild(other, where)  # the lock went with the process
+    assert len(contents()) == len(before) + 1

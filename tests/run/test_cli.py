@@ -37,6 +37,7 @@ COMMANDS = {
     "paper",
     "lookup",
     "registry",
+    "drift",
     "export",
     "verify",
     "import",

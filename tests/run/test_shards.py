@@ -8,6 +8,7 @@ import os
 import signal
 import sys
 import time
+from pathlib import Path
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -126,7 +127,15 @@ def test_the_users_config_items_go_with_the_shards_manifest(tmp_path, monkeypatc
         ],
     )
     at = command.index("--config")
-    assert command[at:] == ["--config", "spec={}", "drift={}", "model={}", f"devices={shard.manifest}"]
+    registry = f"registry={(tmp_path / 'registry.sqlite').resolve()}"  # the day's, beside the shards
+    assert command[at:] == [
+        "--config",
+        "spec={}",
+        "drift={}",
+        "model={}",
+        registry,
+        f"devices={shard.manifest}",
+    ]
     assert command.count("--config") == 1 and "-C" not in command and "--keep-going" in command
     assert command[command.index("--configfile") + 1] == str(tmp_path / "c.yaml")
     assert "--cores" not in command  # the profile says
@@ -222,6 +231,13 @@ def test_workflow_options_without_run_and_no_workflow_are_refused(tmp_path, monk
 
 
 @pytest.mark.slow
+def registry_lookup(runs, device):
+    """A lookup across the day's shards, from their one registry."""
+    from gyrocal.calibration.lookup import find_calibration
+
+    return find_calibration(runs, device, registry=str(runs / "registry.sqlite"))
+
+
 def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypatch):
     """Two shards through the real workflow side by side: a batch each, a missing log in
     one; each shard's summary and the day's table and page."""
@@ -268,3 +284,22 @@ def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypa
         ("shard-0002", "GONE", "failed"),
     ]
     assert "4 unit sessions: 3 calibrated, 1 failed" in (runs / "index.html").read_text()
+    # both shards indexed their runs in the day's one registry: every unit session once
+    from gyrocal.calibration import registry
+
+    backend = registry.connect(str(runs / "registry.sqlite"), create=False)
+    try:
+        rows = backend.execute(
+            "SELECT root, device, session, status FROM unit_sessions WHERE path LIKE '%/calibration.json' "
+            "ORDER BY device, session"
+        ).fetchall()
+    finally:
+        backend.close()
+    assert [(Path(r).parent.name, d, s, st) for r, d, s, st in rows] == [
+        ("shard-0001", "A1", "2026-01-01", "calibrated"),
+        ("shard-0001", "A1", "2026-03-01", "calibrated"),
+        ("shard-0002", "A2", "2026-01-02", "calibrated"),
+        ("shard-0002", "GONE", "2026-01-03", "failed"),
+    ]
+    found = registry_lookup(runs, "A2")
+    assert found.path == runs / "shard-0002" / "results" / "B2" / "A2" / "2026-01-02" / "calibration.json"
