@@ -107,7 +107,9 @@ class Backend:
         self.location = location
 
     def sql(self, text: str) -> str:
-        return text if self.placeholder == "?" else text.replace("?", self.placeholder)
+        if self.placeholder == "?":
+            return text
+        return text.replace("%", "%%").replace("?", self.placeholder)  # a literal % (LIKE) kept
 
     def execute(self, text: str, params: Sequence = ()):
         cursor = self.connection.cursor()

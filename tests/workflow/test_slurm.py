@@ -25,6 +25,7 @@ from gyrocal.io.errors import CalibrationFileError
 from gyrocal.io.unit_folder import part_failure
 from gyrocal.simulate import TurntableProtocol, simulate_unit
 
+from .. import pg
 from . import slurm
 from .conftest import (
     BAD,
@@ -340,3 +341,62 @@ def test_a_unit_past_its_time_is_retried_with_doubled_resources_then_recorded(sl
     assert "1 unit session: 0 calibrated" in index and reason in index
     assert_every_file_whole(wd)
     assert not leftovers(wd)
+
+
+@needs(pg.found(), pg.INSTALL)
+def test_two_shards_on_slurm_fill_one_postgresql_registry(cluster, small_fleet_local, tmp_path, monkeypatch):
+    """A day as two shards through the SLURM profile, side by side, both indexing their runs
+    in one PostgreSQL registry: every unit session once, each where its shard wrote it."""
+    from gyrocal.calibration import registry
+    from gyrocal.calibration.lookup import find_calibration
+    from gyrocal.run.cli import main
+
+    logs = small_fleet_local / "demo" / "logs"
+    rows = "".join(f"{d}\t{b}\t{s}\tturntable\t{logs}/{b}/{d}/{s}.parquet\n" for b, d, s in GOOD)
+    corrupt = tmp_path / "corrupt.parquet"
+    corrupt.write_bytes(b"PAR1 not a parquet file")
+    (tmp_path / "day.tsv").write_text(HEADER + rows + f"BAD\tB2\t{BAD[2]}\tturntable\t{corrupt}\n")
+    (tmp_path / "config.yaml").write_text(CONFIG)
+    for key, value in cluster.env.items():
+        monkeypatch.setenv(key, value)
+    monkeypatch.chdir(REPO)
+    with pg.Server() as server:
+        url = server.create_database("day")
+        status = main(
+            [
+                "shard",
+                "--manifest",
+                str(tmp_path / "day.tsv"),
+                "--size",
+                "2",
+                "-o",
+                str(tmp_path / "runs"),
+                "--run",
+                "--at-once",
+                "2",
+                "--configfile",
+                str(tmp_path / "config.yaml"),
+                "--",
+                *map(str, SLURM),
+                "--config",
+                f"registry={url}",
+            ]
+        )
+        runs = tmp_path / "runs"
+        assert status == 0, [(p, p.read_text()[-2000:]) for p in runs.glob("*/snakemake.log")]
+        backend = registry.connect(url, create=False)
+        try:
+            indexed = backend.execute(
+                "SELECT root, device, session, status FROM unit_sessions "
+                "WHERE path LIKE '%/calibration.json' ORDER BY device, session"
+            ).fetchall()
+        finally:
+            backend.close()
+        assert [(Path(r).parent.name, d, s, st) for r, d, s, st in indexed] == [
+            ("shard-0001", "A1", "2026-01-01", "calibrated"),
+            ("shard-0002", "A2", "2026-01-02", "calibrated"),  # a batch a shard
+            ("shard-0002", "BAD", "2026-01-02", "failed"),
+        ]
+        found = find_calibration(runs, "A2", registry=url)
+        assert found.path == runs / "shard-0002" / "results" / "B2" / "A2" / "2026-01-02" / "calibration.json"
+    assert not (runs / "registry.sqlite").exists()  # the config's registry, not the day's file
