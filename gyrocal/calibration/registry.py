@@ -552,6 +552,38 @@ def check(results: Path, where: str | None = None) -> list[str]:
     return problems
 
 
+def earlier_sessions(
+    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]]
+) -> tuple[list[dict], list[str]]:
+    """The calibrated sessions the registry holds of ``devices`` other than ``own`` ((device,
+    session) pairs: a run's), each with its calibration loaded and its folder; and what was
+    passed over (a row whose file is missing or changed: never served)."""
+    from .file import Calibration
+
+    found, stale = [], []
+    for device in sorted(set(devices)):
+        for row in device_rows(backend, device):
+            if row["status"] != "calibrated" or (device, row["session"]) in own:
+                continue
+            try:
+                path = served_file(row)
+                cal = Calibration.from_dict(json.loads(path.read_bytes()), source=path)
+            except GyrocalError as exc:
+                stale.append(str(exc))
+                continue
+            found.append(
+                {
+                    "device": device,
+                    "batch": row["batch"],
+                    "session": row["session"],
+                    "protocol": row["protocol"],
+                    "calibration": cal,
+                    "folder": path.parent,
+                }
+            )
+    return found, stale
+
+
 def drift(
     backend: Backend,
     *,

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,16 +106,26 @@ def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict
     return _records(flagged), list(flagged.attrs.get("notes", [])), figure
 
 
-def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings) -> list[dict[str, Any]]:
+def drift_audits(
+    calibrated: list[dict], folders: dict, settings: FleetSettings, earlier: Sequence[dict] = ()
+) -> list[dict[str, Any]]:
     """Devices with two or more sessions of a protocol with fleet audits (the turntable):
     parameter changes with their significance, and the previous session's calibration
-    re-validated on the newest session's holds."""
+    re-validated on the newest session's holds. ``earlier``: sessions of the run's devices
+    from earlier runs (the registry's: each with its device, batch, session, protocol,
+    calibration and folder), audited beside the run's own."""
     from .drift import parameter_changes, plot_drift, revalidate
 
     by_device: dict[str, list[dict]] = {}
     for unit in calibrated:
         if registry.get(unit["protocol"]).fleet_audits:
             by_device.setdefault(unit["device"], []).append(unit)
+    own = {(u["device"], u["session"]) for u in calibrated}
+    for unit in earlier:
+        new = unit["device"] in by_device and (unit["device"], unit["session"]) not in own
+        if new and registry.get(unit["protocol"]).fleet_audits:
+            by_device[unit["device"]].append(unit)
+            folders = {**folders, (unit["batch"], unit["device"], unit["session"]): unit["folder"]}
     audits = []
     for device, sessions in sorted(by_device.items()):
         if len(sessions) < 2:
@@ -152,7 +163,13 @@ def drift_audits(calibrated: list[dict], folders: dict, settings: FleetSettings)
     return audits
 
 
-def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, inputs: dict) -> dict[str, Any]:
+def audit(
+    units: list[dict],
+    calibrated: list[dict],
+    settings: FleetSettings,
+    inputs: dict,
+    earlier: Sequence[dict] = (),
+) -> dict[str, Any]:
     folders = {(u["row"]["batch"], u["row"]["device"], u["row"]["session"]): Path(u["folder"]) for u in units}
     eol = end_of_line(units, settings, inputs)
     flagged, notes, figure = outliers(calibrated, settings)
@@ -161,23 +178,26 @@ def audit(units: list[dict], calibrated: list[dict], settings: FleetSettings, in
         "outliers": flagged,
         "outlier_notes": notes,
         "outlier_figure": figure,
-        "drift": drift_audits(calibrated, folders, settings),
+        "drift": drift_audits(calibrated, folders, settings, earlier),
     }
 
 
-def fleet_summary(units: list[dict], settings: FleetSettings | None = None) -> dict[str, Any]:
+def fleet_summary(
+    units: list[dict], settings: FleetSettings | None = None, earlier: Sequence[dict] = ()
+) -> dict[str, Any]:
     """What the fleet page shows, read from every unit's folder (``units``: each with its
     manifest ``row``, results ``folder`` and ``report`` link): a row per unit session,
     calibrated or failed, the calibrated ones (``ok``), the fleet audit with ``settings``
-    (end of line, outliers, drift; each unit's verdict also in its row) and the servo
-    versus turntable comparisons."""
+    (end of line, outliers, drift over the run's sessions and the ``earlier`` ones the
+    registry holds; each unit's verdict also in its row) and the servo versus turntable
+    comparisons."""
     read = [_unit_row(unit) for unit in units]
     rows = [row for row, _ in read]
     ok = [r for r in rows if r["status"] == "ok"]
     fleet = None
     if settings is not None:
         inputs = {(r["batch"], r["device"], r["session"]): i for r, i in read}
-        fleet = audit(units, ok, settings, inputs)
+        fleet = audit(units, ok, settings, inputs, earlier)
         for row in rows:
             verdict = fleet["eol"]["verdicts"].get((row["batch"], row["device"], row["session"]))
             if verdict is not None:

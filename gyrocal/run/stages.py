@@ -369,19 +369,26 @@ def fleet_stage(
         units.append(
             {"row": row, "folder": folder, "report": f"{row['batch']}/{row['device']}/{row['session']}.html"}
         )
-    summary = fleet_summary(units, settings)
-    indexed = None
+    indexed, earlier = None, []
     if registry != "":
         from ..calibration import registry as index
 
         where = index.location(Path(results_root), registry)
         backend = index.connect(where)
         try:
+            if settings is not None:  # the drift pages take the devices' earlier sessions too
+                own = {(r["device"], r["session"]) for r in rows}
+                earlier, stale = index.earlier_sessions(backend, {d for d, _ in own}, own)
+                for problem in stale:
+                    print(f"gyrocal: warning: a registry row passed over: {problem}", file=sys.stderr)
+            summary = fleet_summary(units, settings, earlier)
             folders = sorted({f"{r['batch']}/{r['device']}/{r['session']}" for r in rows})
             written = index.upsert(backend, index.rows_of(Path(results_root), folders))
         finally:
             backend.close()
         indexed = {"where": index.shown(where), "rows": written}
+    else:
+        summary = fleet_summary(units, settings)
     write_fleet_report(summary, out_index, settings, eol_json, indexed)
     if table is not None:
         import pyarrow.parquet as pq

@@ -396,3 +396,26 @@ def test_the_fleet_job_fills_the_registry_and_its_summary_says_where(fleet_run, 
                 scanned.skipped,
             )
             assert indexed.path.relative_to(results) == scanned.path.relative_to(scan_only)
+
+
+def test_a_devices_drift_page_takes_its_earlier_sessions_from_the_registry(fleet_run, tmp_path):
+    """A1's later session alone in a run: its drift page still sets it beside the earlier
+    one, which the registry holds from an earlier run."""
+    from gyrocal.calibration import registry
+
+    results = shutil.copytree(
+        fleet_run / "results", tmp_path / "results", ignore=shutil.ignore_patterns("registry.sqlite*")
+    )
+    registry.rebuild(results)  # the earlier runs, indexed
+    manifest = tmp_path / "later.tsv"
+    logs = fleet_run / "demo" / "logs"
+    manifest.write_text(
+        "device\tbatch\tsession\tprotocol\tpath\n"
+        f"A1\tB1\t2026-03-01\tturntable\t{logs}/B1/A1/2026-03-01.parquet\n"
+    )
+    reports = tmp_path / "reports"
+    args = ["fleet", "--manifest", str(manifest), "--results", str(results), "--reports", str(reports)]
+    assert main([*args, "-o", str(reports / "index.html"), "--settings-json", "{}"]) == 0
+    page = (reports / "drift" / "A1.html").read_text()
+    assert "2026-01-01" in page and "2026-03-01" in page
+    assert 'href="drift/A1.html"' in (reports / "index.html").read_text()
