@@ -6,9 +6,11 @@ from __future__ import annotations
 import datetime as dt
 import json
 import multiprocessing
+import re
 import shutil
 import subprocess
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -16,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from gyrocal.calibration import registry
+from gyrocal.calibration.file import save_calibration
 from gyrocal.calibration.lookup import NoCalibrationError, find_calibration
 from gyrocal.io.errors import ConfigError, GyrocalError
 from gyrocal.io.failure import record
@@ -87,8 +90,6 @@ def write_fleet(root, files):
         elif kind == "copy":  # an archived copy outside the layout
             path = root / "archive" / f"{device}-{i}.json"
             path.parent.mkdir(parents=True, exist_ok=True)
-            from gyrocal.calibration.file import save_calibration
-
             save_calibration(calibration(device, session, batch, bias), path)
         else:
             path = root / batch / device / session / "calibration.json"
@@ -375,3 +376,43 @@ def test_a_writer_killed_inside_its_transaction_leaves_nothing_of_it(caldir, whe
     assert contents() == before
     registry.rebuild(other, where)  # the lock went with the process
     assert len(contents()) == len(before) + 1
+
+
+def documented_queries() -> list[str]:
+    """The SQL docs/fleet-table.md gives a factory, statement by statement."""
+    from pathlib import Path
+
+    page = (Path(__file__).resolve().parents[2] / "docs" / "fleet-table.md").read_text()
+    page = page[page.index("## The registry") :]  # the fleet table's own queries come before
+    blocks = re.findall(r"```sql\n(.*?)```", page, flags=re.S)
+    text = "\n".join(line for block in blocks for line in block.splitlines() if not line.startswith("--"))
+    return [q.strip() for q in text.split(";") if q.strip()]
+
+
+def test_the_documented_queries_run_and_answer(tmp_path, where):
+    """The three queries of docs/fleet-table.md on a registry whose answers are known."""
+    root = tmp_path / "results"
+    for device, session, bias in (
+        ("U001", "2026-04-20", 0.1),
+        ("U001", "2026-05-03", 0.2),
+        ("U002", "2026-04-02", 0.3),
+    ):
+        path = root / "B7" / device / session / "calibration.json"
+        path.parent.mkdir(parents=True)
+        cal = calibration(device, session, "B7", bias)
+        save_calibration(replace(cal, grid=replace(cal.grid, temperatures=np.array([25.0, 40.0]))), path)
+    registry.rebuild(root, where)
+    queries = documented_queries()
+    assert len(queries) == 3
+    backend = registry.connect(where, create=False)
+    try:
+        # the queries name U001 at 2026-05-01 and batch B7, with literals as a factory's tools would
+        serial, drift, unexplained = (backend.connection.execute(q).fetchall() for q in queries)
+    finally:
+        backend.close()
+    assert serial == [(f"{registry.root_of(root)}/B7/U001/2026-04-20/calibration.json", "2026-04-20")]
+    assert [(m, n, round(b, 12), u) for m, n, b, u in drift if n == "bias.x"] == [
+        ("2026-04", "bias.x", round((0.1 + 0.3) / 2, 12), 2),
+        ("2026-05", "bias.x", 0.2, 1),
+    ]
+    assert unexplained == []  # no validation figures in these folders: nothing to flag

@@ -6,6 +6,7 @@ resources and recorded as failed when it runs out again."""
 
 from __future__ import annotations
 
+import contextlib
 import html
 import importlib.util
 import os
@@ -343,10 +344,11 @@ def test_a_unit_past_its_time_is_retried_with_doubled_resources_then_recorded(sl
     assert not leftovers(wd)
 
 
-@needs(pg.found(), pg.INSTALL)
-def test_two_shards_on_slurm_fill_one_postgresql_registry(cluster, small_fleet_local, tmp_path, monkeypatch):
+@pytest.mark.parametrize("kind", ["sqlite", pytest.param("postgresql", marks=needs(pg.found(), pg.INSTALL))])
+def test_two_shards_on_slurm_fill_one_registry(kind, cluster, small_fleet_local, tmp_path, monkeypatch):
     """A day as two shards through the SLURM profile, side by side, both indexing their runs
-    in one PostgreSQL registry: every unit session once, each where its shard wrote it."""
+    in one registry (the day's SQLite file beside them, or a PostgreSQL database the config
+    names): every unit session once, each where its shard wrote it."""
     from gyrocal.calibration import registry
     from gyrocal.calibration.lookup import find_calibration
     from gyrocal.run.cli import main
@@ -360,8 +362,12 @@ def test_two_shards_on_slurm_fill_one_postgresql_registry(cluster, small_fleet_l
     for key, value in cluster.env.items():
         monkeypatch.setenv(key, value)
     monkeypatch.chdir(REPO)
-    with pg.Server() as server:
-        url = server.create_database("day")
+    with contextlib.ExitStack() as stack:
+        if kind == "postgresql":
+            url = stack.enter_context(pg.Server()).create_database("day")
+            named = ["--config", f"registry={url}"]
+        else:
+            url, named = str(tmp_path / "runs" / "registry.sqlite"), []
         status = main(
             [
                 "shard",
@@ -378,8 +384,7 @@ def test_two_shards_on_slurm_fill_one_postgresql_registry(cluster, small_fleet_l
                 str(tmp_path / "config.yaml"),
                 "--",
                 *map(str, SLURM),
-                "--config",
-                f"registry={url}",
+                *named,
             ]
         )
         runs = tmp_path / "runs"
@@ -399,4 +404,5 @@ def test_two_shards_on_slurm_fill_one_postgresql_registry(cluster, small_fleet_l
         ]
         found = find_calibration(runs, "A2", registry=url)
         assert found.path == runs / "shard-0002" / "results" / "B2" / "A2" / "2026-01-02" / "calibration.json"
-    assert not (runs / "registry.sqlite").exists()  # the config's registry, not the day's file
+    # the config's registry, or the day's file
+    assert (runs / "registry.sqlite").exists() == (kind == "sqlite")
