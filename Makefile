@@ -23,7 +23,8 @@ $(STAMP): pyproject.toml setup.py requirements.lock $(KERNELS)
 demo: $(STAMP)
 	$(BIN)/snakemake --cores all
 	@echo "demo done: fleet summary reports/index.html, unit reports reports/<batch>/<device>/<session>.html,"
-	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json"
+	@echo "           calibrations results/<batch>/<device>/<session>/calibration.json,"
+	@echo "           indexed in results/registry.sqlite (gyrocal lookup results DEVICE)"
 
 test: system-packages $(STAMP) lint
 	$(BIN)/python -m pytest -n auto --dist loadfile
