@@ -331,14 +331,16 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         ]
 
         def none_found(problem: str):
-            _none_found(
-                caldir,
-                device,
-                problem,
-                registry.calibration_files(backend),
-                registry.devices(backend),
-                failed,
-                unreadable,
+            notes = [f"searched the registry {registry.shown(where)}"]
+            near = registry.devices_near(backend, device)
+            if near:
+                notes.append(f"devices from there on: {', '.join(near)}")
+            if failed:
+                notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
+            if unreadable:
+                notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
+            raise NoCalibrationError(
+                f"no calibration of device {device} {problem}: {'; '.join(notes)}", source=caldir
             )
 
         row, days, warning = _choose(pool, device, date, direction, max_days, none_found)

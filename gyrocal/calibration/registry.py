@@ -127,6 +127,12 @@ class Backend:
     def serialise(self) -> None:
         """Inside a transaction: the others wait for it (SQLite's BEGIN IMMEDIATE does)."""
 
+    def insert_many(self, table: str, columns: Sequence[str], rows: Sequence[Sequence]) -> None:
+        """Rows appended to ``table``, inside the caller's transaction."""
+        self.executemany(
+            f"INSERT INTO {table} ({', '.join(columns)}) VALUES ({', '.join('?' * len(columns))})", rows
+        )
+
     def close(self) -> None:
         self.connection.close()
 
@@ -185,6 +191,12 @@ class PostgresBackend(Backend):
     def serialise(self) -> None:
         # two first writers creating the tables at once would collide in the catalogue
         self.execute("SELECT pg_advisory_xact_lock(?)", (SCHEMA_LOCK,))
+
+    def insert_many(self, table: str, columns: Sequence[str], rows: Sequence[Sequence]) -> None:
+        # COPY: a statement per row costs 8 µs of round trip each, a day's 5.9 M coefficients 46 s
+        with self.connection.cursor().copy(f"COPY {table} ({', '.join(columns)}) FROM STDIN") as copy:
+            for row in rows:
+                copy.write_row(row)
 
 
 def shown(where: str) -> str:
@@ -440,7 +452,6 @@ _UPSERT = (
     "ON CONFLICT (root, path) DO UPDATE SET "
     + ", ".join(f"{c} = excluded.{c}" for c in SESSION_COLUMNS if c not in ("root", "path"))
 )
-_PARAMETERS = f"INSERT INTO parameters ({', '.join(PARAMETER_COLUMNS)}) VALUES ({', '.join('?' * len(PARAMETER_COLUMNS))})"
 
 
 def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = None) -> int:
@@ -459,7 +470,7 @@ def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = 
             keys = [(row.session["root"], row.session["path"]) for row in rows]
             backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
         backend.executemany(_UPSERT, [[row.session[c] for c in SESSION_COLUMNS] for row in rows])
-        backend.executemany(_PARAMETERS, [p for row in rows for p in row.parameters])
+        backend.insert_many("parameters", PARAMETER_COLUMNS, [p for row in rows for p in row.parameters])
     return len(rows)
 
 
@@ -490,15 +501,13 @@ def device_rows(backend: Backend, device: str) -> list[dict[str, Any]]:
     return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
 
 
-def devices(backend: Backend) -> list[str]:
+def devices_near(backend: Backend, device: str, count: int = 5) -> list[str]:
+    """Devices listed from ``device``'s place in name order on (a misspelt name shows its
+    neighbours): read through the device index, as fast at a year's 12 million as at ten."""
     cursor = backend.execute(
-        "SELECT DISTINCT device FROM unit_sessions WHERE status = 'calibrated' ORDER BY device"
+        "SELECT DISTINCT device FROM unit_sessions WHERE device >= ? ORDER BY device LIMIT ?", (device, count)
     )
     return [r[0] for r in cursor.fetchall()]
-
-
-def calibration_files(backend: Backend) -> int:
-    return int(backend.execute("SELECT COUNT(*) FROM unit_sessions WHERE status <> 'failed'").fetchone()[0])
 
 
 def served_file(row: dict[str, Any]) -> Path:

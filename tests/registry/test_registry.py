@@ -416,3 +416,12 @@ def test_the_documented_queries_run_and_answer(tmp_path, where):
         ("2026-05", "bias.x", 0.2, 1),
     ]
     assert unexplained == []  # no validation figures in these folders: nothing to flag
+
+
+def test_a_device_the_registry_lacks_is_named_with_its_neighbours(caldir, where):  # noqa: F811
+    registry.rebuild(caldir, where)
+    with pytest.raises(
+        NoCalibrationError,
+        match=r"no calibration of device U000 in this folder: searched the registry .*devices from there on: U001, U002",
+    ):
+        find_calibration(caldir, "U000", registry=where)
