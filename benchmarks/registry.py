@@ -68,8 +68,9 @@ GENERATOR = 1  # bump when the synthetic year changes: a cached registry of anot
 UNITS = 2000  # a production batch
 FIRST = dt.date(2025, 12, 1)
 DAYS = 365
-DATES = [(FIRST + dt.timedelta(days=i)).isoformat() for i in range(DAYS + 1)]
-EPOCH_DAYS = [(FIRST - registry.EPOCH).days + i for i in range(DAYS + 1)]
+# the year and the days after it (a small registry's ingest takes several)
+DATES = [(FIRST + dt.timedelta(days=i)).isoformat() for i in range(2 * DAYS)]
+EPOCH_DAYS = [(FIRST - registry.EPOCH).days + i for i in range(2 * DAYS)]
 POINTS = (-40.0, -10.0, 25.0, 55.0, 85.0)
 NAMES = tuple(
     sorted(
@@ -347,11 +348,12 @@ def process(argv: list[str], timeout: float) -> float | None:
 
 
 def ingest_rows(root: str, year_shape: dict) -> list[registry.Row]:
-    """The day after the year: 100,000 devices spread over every batch calibrated again."""
-    day = DAYS
+    """The day after the year: 100,000 devices spread over every batch calibrated again
+    (a registry of fewer devices: each of them on the days after, one a day)."""
+    devices = year_shape["devices"]
     rows = []
     for j in range(INGEST):
-        d = j * year_shape["devices"] // INGEST
+        d, day = (j * devices // INGEST, DAYS) if devices >= INGEST else (j % devices, DAYS + j // devices)
         values = session_row(root, d, day)
         session = dict(zip(registry.SESSION_COLUMNS, values, strict=True))
         params = tuple(parameter_rows(root, d, day)) if session["status"] == "calibrated" else ()
@@ -635,7 +637,7 @@ def run_postgresql(place: Path, want: dict, year_shape: dict) -> Path:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sessions", type=int, default=36_500_000)
+    ap.add_argument("--sessions", type=int, default=36_500_000, help="at least 1,000")
     ap.add_argument("--backend", default="sqlite,postgresql")
     ap.add_argument("--parameters-every", type=int, default=100, help="one batch in N has parameters")
     ap.add_argument(
@@ -646,6 +648,8 @@ def main(argv=None) -> int:
         help="build the registries here and keep them (a rerun skips generation)",
     )
     args = ap.parse_args(argv)
+    if args.sessions < 1000:
+        ap.error("--sessions: at least 1,000 (a day's ingest of 100,000 sessions spreads over its devices)")
     place = (args.keep or CACHE).resolve()
     place.mkdir(parents=True, exist_ok=True)
     want = {
