@@ -95,10 +95,13 @@ def free_port() -> int:
 class Server:
     """A PostgreSQL server in a fresh folder; :meth:`start`, then :meth:`stop`."""
 
-    def __init__(self, *settings: str, timeout: float = 60) -> None:
-        """``settings``: more ``name=value`` server settings (``-c``), after the ones for speed."""
+    def __init__(self, *settings: str, timeout: float = 60, folder: Path | None = None) -> None:
+        """``settings``: more ``name=value`` server settings (``-c``), after the ones for speed
+        (a later one wins). ``folder``: a lasting cluster there, made by the first start, used
+        again by later ones and kept at stop (a benchmark's registry outlives its run)."""
         self.settings = settings
         self.timeout = timeout
+        self.folder = None if folder is None else Path(folder)
         self.root: Path | None = None
         self.port = 0
         self.proc: subprocess.Popen | None = None
@@ -133,19 +136,25 @@ class Server:
             raise FileNotFoundError(f"no initdb and postgres ({INSTALL})")
         # A folder of its own under the system's temporary folder, not pytest's: the
         # server's user must reach it, and pytest's is root's alone (0700).
-        self.root = Path(tempfile.mkdtemp(prefix="gyrocal-pg-"))
+        if self.folder is None:
+            self.root = Path(tempfile.mkdtemp(prefix="gyrocal-pg-"))
+        else:
+            self.root = self.folder
+            self.root.mkdir(parents=True, exist_ok=True)
+        made = not (self.data / "PG_VERSION").is_file()
         try:
             if self.user is not None:
                 os.chown(self.root, self.user.pw_uid, self.user.pw_gid)
-            self._run(
-                "initdb",
-                f"--pgdata={self.data}",
-                f"--username={USER}",
-                "--auth=trust",
-                "--encoding=UTF8",
-                "--locale=C",
-                "--no-sync",
-            )
+            if made:
+                self._run(
+                    "initdb",
+                    f"--pgdata={self.data}",
+                    f"--username={USER}",
+                    "--auth=trust",
+                    "--encoding=UTF8",
+                    "--locale=C",
+                    "--no-sync",
+                )
             # Another process may take the free port before the server binds it: a few tries.
             for _ in range(3):
                 self.port = free_port()
@@ -159,7 +168,8 @@ class Server:
                 self._end()
             else:
                 raise RuntimeError(f"the test PostgreSQL server found no free port:\n{self.log_tail()}")
-            self.create_database(DATABASE)
+            if made:
+                self.create_database(DATABASE)
         except BaseException:
             self.stop()
             raise
@@ -250,9 +260,9 @@ class Server:
 
     # -- stopping --------------------------------------------------------------------
     def stop(self) -> None:
-        """Stop the server by its process id, remove the folder."""
+        """Stop the server by its process id, remove the folder (a lasting one stays)."""
         self._end()
-        if self.root is not None:
+        if self.root is not None and self.folder is None:
             shutil.rmtree(self.root, ignore_errors=True)
 
     def _end(self) -> None:
