@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
+import glob
 import json
 import os
 import re
@@ -77,6 +78,7 @@ class LookupResult:
     candidates: int = 0  # the device's readable calibration files
     skipped: dict[str, int] = field(default_factory=dict)  # failed_sessions, unreadable: counts
     source: str = "scan"  # "registry" where the folder's registry answered
+    note: str | None = None  # why a registry there did not answer
 
     def record(
         self, caldir, device: str, date: dt.date | None, direction: str | None, max_days: float
@@ -242,8 +244,12 @@ def find_calibration(
     max_days = _check_max_days(max_days)
     if registry is None and (caldir / _registry().DEFAULT_NAME).is_file():
         registry = str(caldir / _registry().DEFAULT_NAME)
+    note = None
     if registry is not None:
-        return _from_registry(caldir, registry, device, date, direction, max_days)
+        found = _from_registry(caldir, registry, device, date, direction, max_days)
+        if isinstance(found, LookupResult):
+            return found
+        note = found  # the registry is behind the folder: the files answer
 
     entries, files, failed, unreadable = _scan(caldir, device)
     readable = []
@@ -259,7 +265,7 @@ def find_calibration(
         _none_found(caldir, device, problem, files, _devices(caldir), failed, unreadable)
 
     (entry, cal), days, warning = _choose(pool, device, date, direction, max_days, none_found)
-    return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped, "scan")
+    return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped, "scan", note)
 
 
 def _choose(pool, device, date, direction, max_days, none_found):
@@ -313,22 +319,36 @@ def _none_found(caldir, device, problem, files, devices, failed, unreadable):
     )
 
 
-def _from_registry(caldir: Path, where: str, device: str, date, direction, max_days) -> LookupResult:
-    """The lookup answered from the registry's rows of the device: the same choice as the
-    scan, the chosen file served only if its hash is still the one registered."""
+def _from_registry(caldir: Path, where: str, device: str, date, direction, max_days) -> LookupResult | str:
+    """The lookup answered from the registry's rows of the device's files below ``caldir``:
+    the same choice as the scan, the chosen file served only if its hash is still the one
+    registered. Where the folder's layout holds a calibration file of the device the
+    registry does not list, or lacks one it lists, the registry is behind the folder: the
+    note that says so is returned instead, and the files answer."""
     registry = _registry()
+    under = registry.root_of(caldir)
     backend = registry.connect(where, create=False)
     try:
-        rows = registry.device_rows(backend, device)
+        rows = registry.device_rows(backend, device, under)
+        for row in rows:  # each file as the scan names it: below the folder asked about
+            row["rel"] = (Path(row["root"]) / row["path"]).relative_to(under).as_posix()
+        listed = {r["rel"] for r in rows if _is_layout(r["rel"], device)}
+        on_disk = {
+            p.relative_to(caldir).as_posix()
+            for p in caldir.glob(f"*/{glob.escape(device)}/*/calibration.json")
+        }
+        if listed != on_disk:
+            first = sorted(on_disk ^ listed)[0]
+            return (
+                f"the registry {registry.shown(where)} is behind {caldir} ({first} "
+                f"{'unlisted' if first in on_disk else 'listed but gone'}): answered from the files; "
+                f"gyrocal registry rebuild {caldir} brings it up to date"
+            )
         calibrated = [r for r in rows if r["status"] == "calibrated"]
         failed = sorted({str(r["session"]) for r in rows if r["status"] == "failed"})
         unreadable = [f"{r['path']}: {r['reason']}" for r in rows if r["status"] == "unreadable"]
-        # the path decides ties, as in the scan; rows of other results folders (shards sharing
-        # the registry) after the folder's name
-        pool = [
-            (registry.EPOCH + dt.timedelta(days=r["session_day"]), (r["root"], r["path"]), r)
-            for r in calibrated
-        ]
+        # the path below the folder decides ties, as in the scan
+        pool = [(registry.EPOCH + dt.timedelta(days=r["session_day"]), r["rel"], r) for r in calibrated]
 
         def none_found(problem: str):
             notes = [f"searched the registry {registry.shown(where)}"]
@@ -349,8 +369,15 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
     path = registry.served_file(row)
     cal = _calibration().from_dict(json.loads(path.read_bytes()), source=path)
     skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
-    shown = caldir / row["path"] if registry.root_of(caldir) == row["root"] else path
-    return LookupResult(shown, cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry")
+    return LookupResult(
+        caldir / row["rel"], cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry"
+    )
+
+
+def _is_layout(rel: str, device: str) -> bool:
+    """Whether ``rel`` is the workflow's ``{batch}/{device}/{session}/calibration.json`` of ``device``."""
+    parts = rel.split("/")
+    return len(parts) == 4 and parts[1] == device and parts[3] == "calibration.json"
 
 
 def _registry():
@@ -407,7 +434,9 @@ def cmd_lookup(args) -> int:
     )
     if result.warning:
         print(f"gyrocal: warning: {result.warning}", file=sys.stderr)
-    if result.source == "scan":
+    if result.note:
+        print(f"gyrocal: warning: {result.note}", file=sys.stderr)
+    elif result.source == "scan":
         print(
             f"gyrocal: hint: {args.caldir} has no registry, so every file was read; "
             f"gyrocal registry rebuild {args.caldir} indexes them for lookups in milliseconds",

@@ -127,6 +127,11 @@ class Backend:
     def serialise(self) -> None:
         """Inside a transaction: the others wait for it (SQLite's BEGIN IMMEDIATE does)."""
 
+    @contextmanager
+    def transaction_for_reading(self) -> Iterator[None]:
+        """A read that takes no writer's lock (PostgreSQL: a failed read ends its transaction)."""
+        yield
+
     def insert_many(self, table: str, columns: Sequence[str], rows: Sequence[Sequence]) -> None:
         """Rows appended to ``table``, inside the caller's transaction."""
         self.executemany(
@@ -188,6 +193,11 @@ class PostgresBackend(Backend):
         with self.connection.transaction():
             yield
 
+    @contextmanager
+    def transaction_for_reading(self) -> Iterator[None]:
+        with self.connection.transaction():
+            yield
+
     def serialise(self) -> None:
         # two first writers creating the tables at once would collide in the catalogue
         self.execute("SELECT pg_advisory_xact_lock(?)", (SCHEMA_LOCK,))
@@ -216,27 +226,88 @@ def location(results: Path, registry: str | None = None) -> str:
 
 
 def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
-    """The registry at ``where`` (see :func:`location`), its schema made or checked;
-    ``fresh`` drops its tables first (every results folder's rows: a migration by rebuild)."""
-    if where.startswith(("postgresql://", "postgres://")):
-        backend: Backend = PostgresBackend.open(where)
-    else:
-        path = Path(where.removeprefix("sqlite:///") if where.startswith("sqlite:///") else where)
-        if not create and not path.is_file():
-            raise RegistryError("no registry here: gyrocal registry rebuild RESULTS makes it", source=path)
-        backend = SQLiteBackend.open(path)
-    if fresh:
-        with backend.transaction():
-            for table in ("parameters", "unit_sessions", "registry_meta"):
-                backend.execute(f"DROP TABLE IF EXISTS {table}")
-    _schema(backend)
+    """The registry at ``where`` (see :func:`location`). A writer (``create``) makes its
+    tables where there are none; a reader only checks the schema's version, taking no lock,
+    so a lookup does not wait for a fleet job's write. ``fresh`` drops the tables first
+    (every results folder's rows: the migration, by a rebuild). Any database error is one
+    line naming the registry (:class:`RegistryError`)."""
+    with database_errors(where):
+        if where.startswith(("postgresql://", "postgres://")):
+            backend: Backend = PostgresBackend.open(where)
+        else:
+            path = Path(where.removeprefix("sqlite:///") if where.startswith("sqlite:///") else where)
+            if not create and not path.is_file():
+                raise RegistryError(
+                    "no registry here: gyrocal registry rebuild RESULTS makes it", source=path
+                )
+            backend = SQLiteBackend.open(path)
+        try:
+            if fresh:
+                with backend.transaction():
+                    backend.serialise()
+                    for table in ("parameters", "unit_sessions", "registry_meta"):
+                        backend.execute(f"DROP TABLE IF EXISTS {table}")
+            version = _version(backend)
+            if version is None and create:
+                _create(backend)
+            elif version is None:
+                raise RegistryError(
+                    "no registry here: gyrocal registry rebuild RESULTS makes it", source=backend.location
+                )
+            elif version != str(SCHEMA_VERSION):
+                newer = version.isdigit() and int(version) > SCHEMA_VERSION
+                raise RegistryError(
+                    f"registry schema version {version}, this gyrocal reads {SCHEMA_VERSION}: "
+                    + (
+                        "a newer gyrocal wrote it; upgrade gyrocal"
+                        if newer
+                        else "gyrocal registry rebuild RESULTS --fresh makes it again from the files"
+                    ),
+                    source=backend.location,
+                )
+        except BaseException:
+            backend.close()
+            raise
     return backend
 
 
-def _schema(backend: Backend) -> None:
-    """Make the tables, or check an existing registry's schema version: an older one is
-    refused with the command that makes it again (the files are the truth, so a rebuild
-    is the migration)."""
+@contextmanager
+def database_errors(where: str) -> Iterator[None]:
+    """A database's own errors (a file that is not a database, a lock held too long, a lost
+    connection) as one line naming the registry and what makes it again."""
+    import sqlite3
+
+    kinds: tuple[type[BaseException], ...] = (sqlite3.Error,)
+    try:
+        import psycopg
+
+        kinds += (psycopg.Error,)
+    except ImportError:
+        pass
+    try:
+        yield
+    except kinds as exc:
+        raise RegistryError(
+            f"{' '.join(str(exc).split())} ({type(exc).__name__}); gyrocal registry rebuild RESULTS "
+            "--fresh makes it again from the files",
+            source=shown(where),
+        ) from None
+
+
+def _version(backend: Backend) -> str | None:
+    """The registry's schema version; None where it has no tables yet."""
+    try:
+        with backend.transaction_for_reading():
+            found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
+    except Exception as exc:  # noqa: BLE001 - no such table: the back ends raise their own kinds
+        if "registry_meta" in str(exc):
+            return None
+        raise
+    return None if found is None else str(found[0])
+
+
+def _create(backend: Backend) -> None:
+    """The tables and the version, by one writer at a time."""
     with backend.transaction():
         backend.serialise()
         for statement in SCHEMA:
@@ -246,13 +317,6 @@ def _schema(backend: Backend) -> None:
             backend.execute(
                 "INSERT INTO registry_meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
             )
-            return
-    if found[0] != str(SCHEMA_VERSION):
-        raise RegistryError(
-            f"registry schema version {found[0]}, this gyrocal reads {SCHEMA_VERSION}: "
-            "gyrocal registry rebuild RESULTS --fresh makes it again from the files",
-            source=backend.location,
-        )
 
 
 # ---------------------------------------------------------------------------------------
@@ -459,7 +523,7 @@ def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = 
     coefficients; ``replace_root`` first drops every row of that results folder (a
     rebuild). Returns the rows written."""
     rows = sorted(rows, key=lambda row: (row.session["root"], row.session["path"]))
-    with backend.transaction():
+    with database_errors(backend.location), backend.transaction():
         # writers one at a time (SQLite's BEGIN IMMEDIATE; an advisory lock on PostgreSQL):
         # two replacing one file's coefficients at once would otherwise both insert them
         backend.serialise()
@@ -492,13 +556,20 @@ def rebuild(results: Path, where: str | None = None, *, fresh: bool = False) -> 
 # Reading
 
 
-def device_rows(backend: Backend, device: str) -> list[dict[str, Any]]:
-    """Every row of ``device``, by session date then path."""
-    cursor = backend.execute(
-        f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE device = ? ORDER BY session_day, root, path",
-        (device,),
-    )
-    return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
+def device_rows(backend: Backend, device: str, under: str | None = None) -> list[dict[str, Any]]:
+    """Every row of ``device`` (of files below the folder ``under``, as :func:`root_of`
+    names it, where given), by session date then path."""
+    where, params = "device = ?", [device]
+    if under is not None:  # the folder itself, or results folders below it (a day's shards)
+        escaped = under.rstrip("/").replace("!", "!!").replace("%", "!%").replace("_", "!_")
+        where += " AND (root = ? OR root LIKE ? ESCAPE '!')"
+        params += [under, escaped + "/%"]
+    with database_errors(backend.location):
+        cursor = backend.execute(
+            f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE {where} ORDER BY session_day, root, path",
+            params,
+        )
+        return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
 
 
 def devices_near(backend: Backend, device: str, count: int = 5) -> list[str]:
@@ -562,18 +633,22 @@ def check(results: Path, where: str | None = None) -> list[str]:
 
 
 def earlier_sessions(
-    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]]
+    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
 ) -> tuple[list[dict], list[str]]:
-    """The calibrated sessions the registry holds of ``devices`` other than ``own`` ((device,
-    session) pairs: a run's), each with its calibration loaded and its folder; and what was
+    """The calibrated sessions the registry holds of ``devices`` in the results folder
+    ``results`` (earlier runs into the same folder: another folder's rows, a shard's, would
+    make a page depend on which job wrote first) other than ``own`` ((device, session)
+    pairs: the run's), each once, with its calibration loaded and its folder; and what was
     passed over (a row whose file is missing or changed: never served)."""
     from .file import Calibration
 
-    found, stale = [], []
+    found, stale, seen = [], [], set(own)
+    root = root_of(results)
     for device in sorted(set(devices)):
         for row in device_rows(backend, device):
-            if row["status"] != "calibrated" or (device, row["session"]) in own:
+            if row["status"] != "calibrated" or row["root"] != root or (device, row["session"]) in seen:
                 continue
+            seen.add((device, row["session"]))
             try:
                 path = served_file(row)
                 cal = Calibration.from_dict(json.loads(path.read_bytes()), source=path)

@@ -121,9 +121,10 @@ def drift_audits(
         if registry.get(unit["protocol"]).fleet_audits:
             by_device.setdefault(unit["device"], []).append(unit)
     own = {(u["device"], u["session"]) for u in calibrated}
-    for unit in earlier:
+    known = set(registry.names())
+    for unit in earlier:  # a protocol this version does not know is passed over
         new = unit["device"] in by_device and (unit["device"], unit["session"]) not in own
-        if new and registry.get(unit["protocol"]).fleet_audits:
+        if new and unit["protocol"] in known and registry.get(unit["protocol"]).fleet_audits:
             by_device[unit["device"]].append(unit)
             folders = {**folders, (unit["batch"], unit["device"], unit["session"]): unit["folder"]}
     audits = []

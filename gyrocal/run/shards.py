@@ -79,11 +79,22 @@ def workflow_command(
 
 
 def _configures_registry(configfile: Path | None, rest: list[str]) -> bool:
-    """Whether the config file the shards run with names a registry of its own."""
-    files = [configfile] if configfile is not None else []
-    for i, arg in enumerate(rest):
-        if arg in ("--configfile", "--configfiles") and i + 1 < len(rest):
-            files.append(Path(rest[i + 1]))
+    """Whether a config file the shards run with names a registry of its own: the one
+    given, those the options name (``--configfile A``, ``--configfile=A``, ``--configfiles A
+    B``), and the workflow's own ``config/config.yaml`` that the Snakefile reads first."""
+    files = [Path("config") / "config.yaml"]
+    files += [configfile] if configfile is not None else []
+    taking = False
+    for arg in rest:
+        if arg.startswith(("--configfile=", "--configfiles=")):
+            files.append(Path(arg.split("=", 1)[1]))
+            taking = False
+        elif arg in ("--configfile", "--configfiles"):
+            taking = True
+        elif taking and not arg.startswith("-"):
+            files.append(Path(arg))
+        else:
+            taking = False
     import yaml
 
     for path in files:

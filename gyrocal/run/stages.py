@@ -378,7 +378,7 @@ def fleet_stage(
         try:
             if settings is not None:  # the drift pages take the devices' earlier sessions too
                 own = {(r["device"], r["session"]) for r in rows}
-                earlier, stale = index.earlier_sessions(backend, {d for d, _ in own}, own)
+                earlier, stale = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
                 for problem in stale:
                     print(f"gyrocal: warning: a registry row passed over: {problem}", file=sys.stderr)
             summary = fleet_summary(units, settings, earlier)

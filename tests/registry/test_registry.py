@@ -152,7 +152,7 @@ def test_a_session_that_is_not_a_date_is_unreadable_as_in_the_scan(tmp_path, whe
     assert find_calibration(root, "U5", registry=where).skipped == {"failed_sessions": 0, "unreadable": 1}
 
 
-def test_a_changed_or_missing_file_is_never_served(caldir, where):  # noqa: F811
+def test_a_changed_missing_or_unlisted_file_is_never_served(caldir, where):  # noqa: F811
     registry.rebuild(caldir, where)
     chosen = find_calibration(caldir, "U001", "2026-06-01", registry=where).path
     doc = json.loads(chosen.read_text())
@@ -161,8 +161,14 @@ def test_a_changed_or_missing_file_is_never_served(caldir, where):  # noqa: F811
     with pytest.raises(registry.RegistryError, match="changed since it was registered.*registry check"):
         find_calibration(caldir, "U001", "2026-06-01", registry=where)
     chosen.unlink()
-    with pytest.raises(registry.RegistryError, match="which is missing"):
-        find_calibration(caldir, "U001", "2026-06-01", registry=where)
+    # gone from the layout: the registry is behind the folder, and the files answer, saying so
+    behind = find_calibration(caldir, "U001", "2026-06-01", registry=where)
+    assert (behind.source, behind.session) == ("scan", "2026-03-01")
+    assert "listed but gone" in behind.note and "registry rebuild" in behind.note
+    put(caldir, "U001", "2026-06-02")  # and a new file it does not list yet
+    newer = find_calibration(caldir, "U001", "2026-06-01", registry=where)
+    assert (newer.source, newer.session) == ("scan", "2026-06-02") and "unlisted" in newer.note
+    newer.path.unlink()
     put(caldir, "U009", "2026-07-01")
     problems = registry.check(caldir, where)
     rel = chosen.relative_to(caldir).as_posix()
@@ -390,17 +396,21 @@ def documented_queries() -> list[str]:
 
 
 def test_the_documented_queries_run_and_answer(tmp_path, where):
-    """The three queries of docs/fleet-table.md on a registry whose answers are known."""
+    """The three queries of docs/fleet-table.md on a registry whose answers are known: points
+    at measured temperatures (24.7 and 40.2 °C), one unit its diagnosis does not explain."""
     root = tmp_path / "results"
-    for device, session, bias in (
-        ("U001", "2026-04-20", 0.1),
-        ("U001", "2026-05-03", 0.2),
-        ("U002", "2026-04-02", 0.3),
-    ):
+    units = (
+        ("U001", "2026-04-20", 0.1, 1.1),
+        ("U001", "2026-05-03", 0.2, 1.0),
+        ("U002", "2026-04-02", 0.3, 2.4),
+    )
+    for device, session, bias, excess in units:
         path = root / "B7" / device / session / "calibration.json"
         path.parent.mkdir(parents=True)
         cal = calibration(device, session, "B7", bias)
-        save_calibration(replace(cal, grid=replace(cal.grid, temperatures=np.array([25.0, 40.0]))), path)
+        save_calibration(replace(cal, grid=replace(cal.grid, temperatures=np.array([24.7, 40.2]))), path)
+        summary = {"validation_rms": 0.002 * excess, "noise_floor": 0.002, "excess": excess}
+        (path.parent / "validation.json").write_text(json.dumps({"summary": summary}))
     registry.rebuild(root, where)
     queries = documented_queries()
     assert len(queries) == 3
@@ -415,13 +425,65 @@ def test_the_documented_queries_run_and_answer(tmp_path, where):
         ("2026-04", "bias.x", round((0.1 + 0.3) / 2, 12), 2),
         ("2026-05", "bias.x", 0.2, 1),
     ]
-    assert unexplained == []  # no validation figures in these folders: nothing to flag
+    assert [(d, s, e) for d, s, e, _ in unexplained] == [("U002", "2026-04-02", 2.4)]
 
 
 def test_a_device_the_registry_lacks_is_named_with_its_neighbours(caldir, where):  # noqa: F811
     registry.rebuild(caldir, where)
     with pytest.raises(
-        NoCalibrationError,
-        match=r"no calibration of device U000 in this folder: searched the registry .*devices from there on: U001, U002",
+        NoCalibrationError, match=r"U000 in this folder: searched the registry .*from there on: U001, U002"
     ):
         find_calibration(caldir, "U000", registry=where)
+
+
+def test_a_shared_registry_answers_for_the_folder_asked_about(tmp_path, where):
+    """Two results folders in one registry: each lookup chooses among its own folder's files
+    (and those of folders below it, a day's shards), as the scan of that folder does."""
+    day = tmp_path / "day"
+    put(day / "res", "U1", "2026-01-01")
+    put(day / "res-a", "U1", "2026-05-01")
+    for root in (day / "res", day / "res-a"):
+        registry.rebuild(root, where)
+    for folder in (day / "res", day / "res-a", day):
+        for date in ("2026-01-01", "2026-03-02", "2026-06-01"):
+            indexed, scanned = (
+                find_calibration(folder, "U1", date, registry=where),
+                find_calibration(folder, "U1", date),
+            )
+            assert indexed.source == "registry" and (indexed.path, indexed.session) == (
+                scanned.path,
+                scanned.session,
+            )
+
+
+def test_a_newer_schema_asks_for_a_newer_gyrocal_and_a_corrupt_file_is_one_line(caldir, where):  # noqa: F811
+    registry.rebuild(caldir, where)
+    backend = registry.connect(where)
+    with backend.transaction():
+        backend.execute("UPDATE registry_meta SET value = '2' WHERE key = 'schema_version'")
+    backend.close()
+    with pytest.raises(
+        registry.RegistryError, match="schema version 2, this gyrocal reads 1: a newer gyrocal"
+    ):
+        find_calibration(caldir, "U001", registry=where)
+    junk = caldir / "junk.sqlite"
+    junk.write_bytes(b"not a database, though named like one" * 100)
+    with pytest.raises(registry.RegistryError, match=r"junk.sqlite: .*registry rebuild") as err:
+        find_calibration(caldir, "U001", registry=str(junk))
+    assert "\n" not in str(err.value)
+
+
+def test_a_reader_does_not_wait_for_a_writer(tmp_path):
+    """A lookup reads while a fleet job holds the writers' turn (SQLite's WAL)."""
+    root = tmp_path / "results"
+    put(root, "U1", "2026-01-01")
+    where = str(root / registry.DEFAULT_NAME)
+    registry.rebuild(root, where)
+    writer = registry.connect(where)
+    with writer.transaction():
+        writer.serialise()
+        writer.execute("DELETE FROM parameters")
+        start = dt.datetime.now()
+        assert find_calibration(root, "U1").source == "registry"
+        assert (dt.datetime.now() - start).total_seconds() < 60  # a writer is waited for up to 600 s
+    writer.close()

@@ -230,7 +230,6 @@ def test_workflow_options_without_run_and_no_workflow_are_refused(tmp_path, monk
     assert "Snakefile: no workflow here" in err and len(err.splitlines()) == 1
 
 
-@pytest.mark.slow
 def registry_lookup(runs, device):
     """A lookup across the day's shards, from their one registry."""
     from gyrocal.calibration.lookup import find_calibration
@@ -238,6 +237,7 @@ def registry_lookup(runs, device):
     return find_calibration(runs, device, registry=str(runs / "registry.sqlite"))
 
 
+@pytest.mark.slow
 def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypatch):
     """Two shards through the real workflow side by side: a batch each, a missing log in
     one; each shard's summary and the day's table and page."""
@@ -303,3 +303,16 @@ def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypa
     ]
     found = registry_lookup(runs, "A2")
     assert found.path == runs / "shard-0002" / "results" / "B2" / "A2" / "2026-01-02" / "calibration.json"
+
+
+@pytest.mark.parametrize("flags", [["--configfile=mine.yaml"], ["--configfiles", "a.yaml", "mine.yaml"]])
+def test_a_registry_the_users_config_names_is_kept(tmp_path, monkeypatch, flags):
+    """The day's registry beside the shards is a default: a config that names one keeps it."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.yaml").write_text("spec: {}\n")
+    (tmp_path / "mine.yaml").write_text("registry: postgresql://gyrocal@db/calibrations\n")
+    shard = ShardRun(tmp_path / "shard-0001.tsv", tmp_path / "shard-0001")
+    command = workflow_command(shard, REPO / "Snakefile", None, ["--cores", "1", *flags])
+    assert not any(item.startswith("registry=") for item in command)
+    plain = workflow_command(shard, REPO / "Snakefile", None, ["--cores", "1"])
+    assert f"registry={(tmp_path / 'registry.sqlite').resolve()}" in plain

@@ -351,6 +351,7 @@ def test_the_fleet_is_one_table_that_agrees_with_the_unit_files(fleet_run):
     assert drift.loc["A1", "count"] == 2
 
 
+@pytest.mark.slow
 def test_the_fleet_job_fills_the_registry_and_its_summary_says_where(fleet_run, tmp_path):
     """Every unit session's calibration or failure record once, with its headline figures;
     lookups from it choose as the folder scan does."""
@@ -398,6 +399,7 @@ def test_the_fleet_job_fills_the_registry_and_its_summary_says_where(fleet_run, 
             assert indexed.path.relative_to(results) == scanned.path.relative_to(scan_only)
 
 
+@pytest.mark.slow
 def test_a_devices_drift_page_takes_its_earlier_sessions_from_the_registry(fleet_run, tmp_path):
     """A1's later session alone in a run: its drift page still sets it beside the earlier
     one, which the registry holds from an earlier run."""
