@@ -634,7 +634,7 @@ def check(results: Path, where: str | None = None) -> list[str]:
 
 def earlier_sessions(
     backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
-) -> tuple[list[dict], list[str]]:
+) -> tuple[list[dict[str, Any]], list[str]]:
     """The calibrated sessions the registry holds of ``devices`` in the results folder
     ``results`` (earlier runs into the same folder: another folder's rows, a shard's, would
     make a page depend on which job wrote first) other than ``own`` ((device, session)
