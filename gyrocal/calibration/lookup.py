@@ -366,8 +366,8 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         row, days, warning = _choose(pool, device, date, direction, max_days, none_found)
     finally:
         backend.close()
-    path = registry.served_file(row)
-    cal = _calibration().from_dict(json.loads(path.read_bytes()), source=path)
+    path, raw = registry.served_file(row)
+    cal = _calibration().from_dict(json.loads(raw), source=path)
     skipped = {"failed_sessions": len(failed), "unreadable": len(unreadable)}
     return LookupResult(
         caldir / row["rel"], cal, str(row["session"]), days, warning, len(calibrated), skipped, "registry"

@@ -29,6 +29,7 @@ from ..io import formats
 from ..io.errors import ConfigError, GyrocalError, InputError
 
 SCHEMA_VERSION = 1
+DRIFT_WITHIN = 5.0  # °C: how far a calibration's point may lie from the drift's temperature
 SCHEMA_LOCK = 0x67797263616C  # "gyrcal": PostgreSQL's advisory lock around making the schema
 DEFAULT_NAME = "registry.sqlite"  # in the results folder, where lookup finds it by itself
 STATUSES = ("calibrated", "failed", "unreadable")
@@ -215,8 +216,10 @@ def shown(where: str) -> str:
 
 
 def _redacted(url: str) -> str:
-    """The URL without its password, to name it in messages."""
-    return re.sub(r"(://[^:/@]+):[^@]*@", r"\1:***@", url)
+    """The URL without its password, to name it in messages: in ``user:pw@`` (up to the last
+    ``@``) and in a ``password=`` parameter."""
+    url = re.sub(r"(://[^:/@]+):.*@", r"\1:***@", url)
+    return re.sub(r"([?&]password=)[^&]*", r"\1***", url)
 
 
 def location(results: Path, registry: str | None = None) -> str:
@@ -342,7 +345,7 @@ def _layout(rel: str) -> tuple[str | None, str | None, str | None]:
 def file_row(path: Path, rel: str, root: str) -> Row | None:
     """The row of one JSON file below the results folder: a calibration, a failure record,
     or an unreadable file the layout names; None for other JSON (validation, diagnosis)."""
-    from ..io.log import HASH_ALGORITHM, file_digest
+    from ..io.log import HASH_ALGORITHM
 
     batch, device, session = _layout(rel)
     try:
@@ -352,7 +355,7 @@ def file_row(path: Path, rel: str, root: str) -> Row | None:
     family = formats.CALIBRATION.split("/")[0]
     if b'"' + family.encode() not in raw and b'"' + formats.FAILURE.split("/")[0].encode() not in raw:
         return None
-    digest = file_digest(path, HASH_ALGORITHM)
+    digest = bytes_digest(raw, HASH_ALGORITHM)  # the bytes parsed below, not a second read
     try:
         doc = json.loads(raw)
     except (ValueError, UnicodeDecodeError):
@@ -397,6 +400,15 @@ def file_row(path: Path, rel: str, root: str) -> Row | None:
         ),
         tuple(_coefficients(root, rel, cal)),
     )
+
+
+def bytes_digest(raw: bytes, algorithm: str) -> str:
+    """The hash of bytes already read, as :func:`gyrocal.io.log.file_digest` hashes a file."""
+    from ..io.log import _hasher
+
+    hasher = _hasher(algorithm)
+    hasher.update(raw)
+    return hasher.hexdigest()
 
 
 def _model_text(doc: dict) -> str | None:
@@ -581,24 +593,26 @@ def devices_near(backend: Backend, device: str, count: int = 5) -> list[str]:
     return [r[0] for r in cursor.fetchall()]
 
 
-def served_file(row: dict[str, Any]) -> Path:
-    """The row's file, when it is still the one registered; else a :class:`RegistryError`."""
-    from ..io.log import file_digest
-
+def served_file(row: dict[str, Any]) -> tuple[Path, bytes]:
+    """The row's file and its bytes, when they are still the ones registered (the bytes
+    hashed are the bytes served: a file replaced meanwhile cannot slip between); else a
+    :class:`RegistryError`."""
     path = Path(row["root"]) / row["path"]
-    if not path.is_file():
+    try:
+        raw = path.read_bytes()
+    except OSError:
         raise RegistryError(
             f"the registry lists {row['path']}, which is missing: gyrocal registry check says which "
             "rows are stale, rebuild makes them again",
             source=path,
-        )
-    if file_digest(path, row["hash_algorithm"]) != row["file_hash"]:
+        ) from None
+    if bytes_digest(raw, row["hash_algorithm"]) != row["file_hash"]:
         raise RegistryError(
             "changed since it was registered (its hash differs): gyrocal registry check says which "
             "rows are stale, rebuild makes them again",
             source=path,
         )
-    return path
+    return path, raw
 
 
 def check(results: Path, where: str | None = None) -> list[str]:
@@ -650,8 +664,8 @@ def earlier_sessions(
                 continue
             seen.add((device, row["session"]))
             try:
-                path = served_file(row)
-                cal = Calibration.from_dict(json.loads(path.read_bytes()), source=path)
+                path, raw = served_file(row)
+                cal = Calibration.from_dict(json.loads(raw), source=path)
             except GyrocalError as exc:
                 stale.append(str(exc))
                 continue
@@ -674,7 +688,7 @@ def drift(
     batch: str | None = None,
     device: str | None = None,
     temperature: float = 25.0,
-    within: float = 5.0,
+    within: float | None = None,
     names: Sequence[str] = (),
 ) -> list[dict[str, Any]]:
     """How a batch's (or a device's) coefficients move across sessions: each calibrated
@@ -683,6 +697,7 @@ def drift(
     stderr, temperature. ``names`` keeps only those coefficients (prefixes: ``bias``)."""
     if (batch is None) == (device is None):
         raise ConfigError("drift is of a batch or of a device: give one")
+    within = DRIFT_WITHIN if within is None else within
     key, value = ("batch", batch) if batch is not None else ("device", device)
     cursor = backend.execute(
         "SELECT s.session, s.device, s.root, s.path, p.point, p.temperature, p.name, p.value, p.stderr "
@@ -709,7 +724,7 @@ def drift(
 
 
 def monthly(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """:func:`drift`'s rows per month and coefficient: units, mean, standard deviation."""
+    """:func:`drift`'s rows per month and coefficient: calibrations, mean, standard deviation."""
     import numpy as np
 
     groups: dict[tuple[str, str], list[float]] = {}
@@ -719,7 +734,7 @@ def monthly(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
         {
             "month": month,
             "name": name,
-            "units": len(values),
+            "calibrations": len(values),
             "mean": float(np.mean(values)),
             "std": float(np.std(values, ddof=1)) if len(values) > 1 else None,
         }
@@ -770,17 +785,19 @@ def cmd_drift(args) -> int:
         backend.close()
     if not rows:
         who = f"batch {args.batch}" if args.batch is not None else f"device {args.device}"
-        raise RegistryError(f"no calibration of {who} with a point within 5 °C of {args.temperature:g} °C")
+        raise RegistryError(
+            f"no calibration of {who} with a point within {DRIFT_WITHIN:g} °C of {args.temperature:g} °C"
+        )
     if args.device is not None:
         print(f"{'session':<12} {'coefficient':<22} {'value':>14} {'stderr':>12} {'at °C':>8}")
         for r in rows:
             se = "–" if r["stderr"] is None else f"{r['stderr']:.4g}"
             print(f"{r['session']:<12} {r['name']:<22} {r['value']:>14.6g} {se:>12} {r['temperature']:>8.2f}")
         return 0
-    print(f"{'month':<8} {'coefficient':<22} {'units':>6} {'mean':>14} {'std':>12}")
+    print(f"{'month':<8} {'coefficient':<22} {'calibs':>6} {'mean':>14} {'std':>12}")
     for m in monthly(rows):
         std = "–" if m["std"] is None else f"{m['std']:.4g}"
-        print(f"{m['month']:<8} {m['name']:<22} {m['units']:>6} {m['mean']:>14.6g} {std:>12}")
+        print(f"{m['month']:<8} {m['name']:<22} {m['calibrations']:>6} {m['mean']:>14.6g} {std:>12}")
     return 0
 
 

@@ -308,7 +308,7 @@ def test_drift_of_a_batch_per_month_and_of_a_device_per_session(tmp_path, where,
     finally:
         backend.close()
     months = registry.monthly(rows)
-    assert [(m["month"], m["units"]) for m in months] == [("2026-01", 2), ("2026-02", 1)]
+    assert [(m["month"], m["calibrations"]) for m in months] == [("2026-01", 2), ("2026-02", 1)]
     assert months[0]["mean"] == pytest.approx(0.2) and months[0]["std"] == pytest.approx(
         np.std([0.1, 0.3], ddof=1)
     )
@@ -487,3 +487,11 @@ def test_a_reader_does_not_wait_for_a_writer(tmp_path):
         assert find_calibration(root, "U1").source == "registry"
         assert (dt.datetime.now() - start).total_seconds() < 60  # a writer is waited for up to 600 s
     writer.close()
+
+
+def test_a_password_never_shows_in_a_message():
+    for url in (
+        "postgresql://gyrocal:s3cr@t@db.line3/calibrations",
+        "postgresql://gyrocal@db.line3/calibrations?sslmode=require&password=s3cr@t",
+    ):
+        assert "s3cr" not in registry.shown(url) and "db.line3" in registry.shown(url)
