@@ -262,7 +262,12 @@ def find_calibration(
     pool = [(entry.date, entry.rel, (entry, cal)) for entry, cal in readable]
 
     def none_found(problem: str):
-        _none_found(caldir, device, problem, files, _devices(caldir), failed, unreadable)
+        devices = _devices(caldir)
+        searched = (
+            f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
+            f"device{'s' * (len(devices) != 1)}{_some(devices)}"
+        )
+        _none_found(caldir, device, problem, [searched], failed, unreadable)
 
     (entry, cal), days, warning = _choose(pool, device, date, direction, max_days, none_found)
     return LookupResult(entry.path, cal, entry.session, days, warning, len(readable), skipped, "scan", note)
@@ -305,11 +310,10 @@ def _choose(pool, device, date, direction, max_days, none_found):
     return payload, days, warning
 
 
-def _none_found(caldir, device, problem, files, devices, failed, unreadable):
-    notes = [
-        f"searched {files} calibration file{'s' * (files != 1)} of {len(devices)} "
-        f"device{'s' * (len(devices) != 1)}{_some(devices)}"
-    ]
+def _none_found(caldir, device, problem, searched: list[str], failed, unreadable):
+    """The error that no calibration serves: what was searched (``searched``'s notes), then
+    the device's failed sessions and unreadable files."""
+    notes = list(searched)
     if failed:
         notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
     if unreadable:
@@ -351,17 +355,11 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         pool = [(registry.EPOCH + dt.timedelta(days=r["session_day"]), r["rel"], r) for r in calibrated]
 
         def none_found(problem: str):
-            notes = [f"searched the registry {registry.shown(where)}"]
+            searched = [f"searched the registry {registry.shown(where)}"]
             near = registry.devices_near(backend, device)
             if near:
-                notes.append(f"devices from there on: {', '.join(near)}")
-            if failed:
-                notes.append(f"{device} failed in session{'s' * (len(failed) > 1)} {', '.join(failed)}")
-            if unreadable:
-                notes.append(f"{len(unreadable)} unreadable (first: {unreadable[0]})")
-            raise NoCalibrationError(
-                f"no calibration of device {device} {problem}: {'; '.join(notes)}", source=caldir
-            )
+                searched.append(f"devices from there on: {', '.join(near)}")
+            _none_found(caldir, device, problem, searched, failed, unreadable)
 
         row, days, warning = _choose(pool, device, date, direction, max_days, none_found)
     finally:
