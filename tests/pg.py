@@ -4,7 +4,10 @@ Everything it runs is its own: a cluster made by ``initdb`` in a fresh folder (t
 authentication, superuser :data:`USER`, UTF8, locale C), its unix socket and log beside
 it, a free TCP port on 127.0.0.1. A site's own PostgreSQL (its port 5432, its socket in
 /var/run/postgresql) is not touched. ``postgres`` runs in the foreground as a child of the
-test process and is stopped by its process id.
+test process and is stopped by its process id; should the test process be killed outright
+(a scheduler's SIGKILL, a worker that crashed), a watchdog it started stops the server and
+removes its folder: it waits on a pipe that only the test process holds open, which the
+kernel closes when that process dies, however it dies.
 
 PostgreSQL refuses to run as root, and the tests run as root (``make test`` in CI): then
 initdb and postgres run as Debian's ``postgres`` user (``nobody`` where there is none),
@@ -22,6 +25,7 @@ import shutil
 import signal
 import socket
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -105,6 +109,7 @@ class Server:
         self.root: Path | None = None
         self.port = 0
         self.proc: subprocess.Popen | None = None
+        self.watchdog: subprocess.Popen | None = None
         self.bin = bin_dir()
         self.user = run_as()
 
@@ -222,6 +227,20 @@ class Server:
                 stdin=subprocess.DEVNULL,
                 **self._as_user(),
             )
+        # In a session of its own: a terminal's Ctrl-C reaches the tests, not the watchdog.
+        self.watchdog = subprocess.Popen(
+            [
+                sys.executable,
+                "-c",
+                WATCHDOG,
+                str(self.proc.pid),
+                str(self.data),
+                "" if self.folder else str(self.root),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.DEVNULL,
+            start_new_session=True,
+        )
 
     def _wait(self) -> bool:
         """Until the server takes connections (True), or it died (False); past the
@@ -269,6 +288,15 @@ class Server:
         """SIGINT: PostgreSQL's fast shutdown (sessions ended, no waiting for clients).
         SIGKILL as the last resort, with the server processes it leaves (its children)."""
         proc, self.proc = self.proc, None
+        watchdog, self.watchdog = self.watchdog, None
+        try:
+            self._stop(proc)
+        finally:
+            if watchdog is not None:  # told the server is stopped, it ends
+                watchdog.communicate(b"stopped", timeout=60)
+
+    @staticmethod
+    def _stop(proc: subprocess.Popen | None) -> None:
         if proc is None or proc.poll() is not None:
             return
         proc.send_signal(signal.SIGINT)
@@ -281,6 +309,36 @@ class Server:
                 with contextlib.suppress(ProcessLookupError):
                     os.kill(pid, signal.SIGKILL)
             proc.wait(15)
+
+
+# The watchdog (argv: the postmaster's pid, its data folder, the folder to remove or ""):
+# reads its stdin until the pipe closes. Told "stopped", it ends (a start's retry uses the
+# folder again); closed unsaid, the test process died: then, if the postmaster
+# still runs (its command line names the data folder: not a reused pid), stops it as
+# Server._end does, and removes the folder.
+WATCHDOG = """
+import os, shutil, signal, sys, time
+pid, data, folder = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+if sys.stdin.buffer.read() == b"stopped":
+    sys.exit()
+
+def running():
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return data.encode() in f.read()
+    except OSError:
+        return False
+
+for sig, grace in ((signal.SIGINT, 30), (signal.SIGKILL, 15)):
+    if not running():
+        break
+    os.kill(pid, sig)
+    deadline = time.monotonic() + grace
+    while running() and time.monotonic() < deadline:
+        time.sleep(0.05)
+if folder:
+    shutil.rmtree(folder, ignore_errors=True)
+"""
 
 
 def children_of(pid: int) -> list[int]:

@@ -251,6 +251,12 @@ def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
                     for table in ("parameters", "unit_sessions", "registry_meta"):
                         backend.execute(f"DROP TABLE IF EXISTS {table}")
             version = _version(backend)
+            if version is None and _holds_tables(backend):
+                raise RegistryError(
+                    "holds tables named as the registry's but no schema version: not a registry this "
+                    "gyrocal wrote; gyrocal registry rebuild RESULTS --fresh replaces them",
+                    source=backend.location,
+                )
             if version is None and create:
                 _create(backend)
             elif version is None:
@@ -307,6 +313,20 @@ def _version(backend: Backend) -> str | None:
             return None
         raise
     return None if found is None else str(found[0])
+
+
+def _holds_tables(backend: Backend) -> bool:
+    """Whether the database has a table the registry would make (a registry without its
+    version, or another program's tables of the same names: never written into)."""
+    for table in ("unit_sessions", "parameters"):
+        try:
+            with backend.transaction_for_reading():
+                backend.execute(f"SELECT 1 FROM {table} LIMIT 1").fetchall()
+            return True
+        except Exception as exc:  # noqa: BLE001 - no such table: the back ends raise their own kinds
+            if table not in str(exc):
+                raise
+    return False
 
 
 def _create(backend: Backend) -> None:
@@ -646,40 +666,86 @@ def check(results: Path, where: str | None = None) -> list[str]:
     return problems
 
 
-def earlier_sessions(
+# Devices one query asks for: few statements for a fleet's 100,000, each well below the
+# bound on a statement's parameters (SQLite's 32,766; PostgreSQL's 65,535).
+DEVICES_PER_QUERY = 500
+
+
+def earlier_rows(
     backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
-) -> tuple[list[dict[str, Any]], list[str]]:
+) -> list[dict[str, Any]]:
     """The calibrated sessions the registry holds of ``devices`` in the results folder
     ``results`` (earlier runs into the same folder: another folder's rows, a shard's, would
     make a page depend on which job wrote first) other than ``own`` ((device, session)
-    pairs: the run's), each once, with its calibration loaded and its folder; and what was
-    passed over (a row whose file is missing or changed: never served)."""
+    pairs: the run's), each once (its first path), by device, session date and path. Rows
+    only, no file read: what planning a fleet needs to know which drift pages it makes."""
+    root = root_of(results)
+    wanted = sorted(set(devices))
+    found, seen = [], set(own)
+    with database_errors(backend.location):
+        for start in range(0, len(wanted), DEVICES_PER_QUERY):
+            chunk = wanted[start : start + DEVICES_PER_QUERY]
+            cursor = backend.execute(
+                f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions "
+                f"WHERE device IN ({', '.join('?' * len(chunk))}) AND root = ? AND status = 'calibrated' "
+                "ORDER BY device, session_day, path",
+                [*chunk, root],
+            )
+            for values in cursor.fetchall():
+                row = dict(zip(SESSION_COLUMNS, values, strict=True))
+                if (row["device"], row["session"]) not in seen:
+                    seen.add((row["device"], row["session"]))
+                    found.append(row)
+    return found
+
+
+def history_digest(rows: Iterable[dict[str, Any]]) -> str:
+    """One short value that changes whenever the sessions ``rows`` name or their files do:
+    a fleet's plan carries it, so a changed history makes the drift pages again."""
+    from ..io.log import HASH_ALGORITHM
+
+    text = "\n".join(f"{r['device']}\t{r['session']}\t{r['path']}\t{r['file_hash']}" for r in rows)
+    return bytes_digest(text.encode(), HASH_ALGORITHM)
+
+
+def planned_history(
+    results: str | os.PathLike, registry: str | None, devices: Iterable[str], own: set[tuple[str, str]]
+) -> list[dict[str, Any]]:
+    """:func:`earlier_rows` for a fleet's plan: none where the run keeps no registry
+    (``registry`` "") or its SQLite file does not exist yet."""
+    if registry == "":
+        return []
+    results = Path(results)
+    where = location(results, registry)
+    on_file = not where.startswith(("postgresql://", "postgres://"))
+    if on_file and not Path(where.removeprefix("sqlite:///")).is_file():
+        return []
+    backend = connect(where, create=False)
+    try:
+        return earlier_rows(backend, devices, own, results)
+    finally:
+        backend.close()
+
+
+def earlier_sessions(
+    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
+) -> list[dict[str, Any]]:
+    """:func:`earlier_rows` with each session's calibration loaded and its folder; a row
+    whose file is missing or changed (never served) keeps its ``problem`` in place of a
+    calibration, so that a drift page still says what it could not compare."""
     from .file import Calibration
 
-    found, stale, seen = [], [], set(own)
-    root = root_of(results)
-    for device in sorted(set(devices)):
-        for row in device_rows(backend, device):
-            if row["status"] != "calibrated" or row["root"] != root or (device, row["session"]) in seen:
-                continue
-            seen.add((device, row["session"]))
-            try:
-                path, raw = served_file(row)
-                cal = Calibration.from_dict(json.loads(raw), source=path)
-            except GyrocalError as exc:
-                stale.append(str(exc))
-                continue
-            found.append(
-                {
-                    "device": device,
-                    "batch": row["batch"],
-                    "session": row["session"],
-                    "protocol": row["protocol"],
-                    "calibration": cal,
-                    "folder": path.parent,
-                }
-            )
-    return found, stale
+    found = []
+    for row in earlier_rows(backend, devices, own, results):
+        session = {k: row[k] for k in ("device", "batch", "session", "protocol", "path", "file_hash")}
+        try:
+            path, raw = served_file(row)
+            session["calibration"] = Calibration.from_dict(json.loads(raw), source=path)
+            session["folder"] = path.parent
+        except GyrocalError as exc:
+            session["problem"] = str(exc)
+        found.append(session)
+    return found
 
 
 def drift(

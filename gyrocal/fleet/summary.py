@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import hashlib
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -107,36 +107,56 @@ def outliers(calibrated: list[dict], settings: FleetSettings) -> tuple[list[dict
 
 
 def drift_audits(
-    calibrated: list[dict], folders: dict, settings: FleetSettings, earlier: Sequence[dict] = ()
+    units: list[dict],
+    calibrated: list[dict],
+    folders: dict,
+    settings: FleetSettings,
+    earlier: Sequence[dict] = (),
 ) -> list[dict[str, Any]]:
-    """Devices with two or more sessions of a protocol with fleet audits (the turntable):
-    parameter changes with their significance, and the previous session's calibration
-    re-validated on the newest session's holds. ``earlier``: sessions of the run's devices
-    from earlier runs (the registry's: each with its device, batch, session, protocol,
-    calibration and folder), audited beside the run's own."""
+    """Every device :func:`drift_devices` gives a page: parameter changes with their
+    significance across its calibrated sessions, and the previous session's calibration
+    re-validated on the newest session's holds; where fewer than two sessions calibrated
+    (or an earlier one's file changed), the page says which. ``earlier``: sessions of the
+    run's devices from earlier runs (:func:`gyrocal.calibration.registry.earlier_sessions`),
+    audited beside the run's own and listed in the audit (``earlier``: session, batch, path
+    and hash), so the end-of-line file records the history its pages rest on."""
     from .drift import parameter_changes, plot_drift, revalidate
 
-    by_device: dict[str, list[dict]] = {}
+    audited: dict[str, dict[str, list]] = {}
+    for device in drift_devices([u["row"] for u in units], earlier):
+        audited[device] = {"sessions": [], "missing": [], "earlier": []}
     for unit in calibrated:
-        if registry.get(unit["protocol"]).fleet_audits:
-            by_device.setdefault(unit["device"], []).append(unit)
-    own = {(u["device"], u["session"]) for u in calibrated}
-    known = set(registry.names())
-    for unit in earlier:  # a protocol this version does not know is passed over
-        new = unit["device"] in by_device and (unit["device"], unit["session"]) not in own
-        if new and unit["protocol"] in known and registry.get(unit["protocol"]).fleet_audits:
-            by_device[unit["device"]].append(unit)
-            folders = {**folders, (unit["batch"], unit["device"], unit["session"]): unit["folder"]}
+        if unit["device"] in audited and registry.get(unit["protocol"]).fleet_audits:
+            audited[unit["device"]]["sessions"].append(unit)
+    done = {(c["batch"], c["device"], c["session"]) for c in calibrated}
+    for unit in units:
+        row = unit["row"]
+        failed = (row["batch"], row["device"], row["session"]) not in done
+        if failed and row["device"] in audited and registry.get(row["protocol"]).fleet_audits:
+            audited[row["device"]]["missing"].append(f"{row['session']} did not calibrate")
+    for unit in earlier:
+        if unit["device"] in audited and _audited_protocol(unit["protocol"]):
+            held = audited[unit["device"]]
+            held["earlier"].append({k: unit[k] for k in ("session", "batch", "path", "file_hash")})
+            if "problem" in unit:
+                held["missing"].append(f"{unit['session']} (an earlier run's): {unit['problem']}")
+            else:
+                held["sessions"].append(unit)
+                folders = {**folders, (unit["batch"], unit["device"], unit["session"]): unit["folder"]}
     audits = []
-    for device, sessions in sorted(by_device.items()):
-        if len(sessions) < 2:
-            continue
-        sessions = sorted(sessions, key=lambda u: u["session"])
+    for device, held in sorted(audited.items()):
+        sessions = sorted(held["sessions"], key=lambda u: u["session"])
         audit = {
             "device": device,
             "sessions": [u["session"] for u in sessions],
-            "batch": sessions[-1]["batch"],
+            "batch": sessions[-1]["batch"] if sessions else "",
         }
+        if held["earlier"]:
+            audit["earlier"] = sorted(held["earlier"], key=lambda e: (e["session"], e["path"]))
+        if len(sessions) < 2:
+            audit["error"] = "fewer than two calibrated sessions to compare: " + "; ".join(held["missing"])
+            audits.append(audit)
+            continue
         try:
             changes = parameter_changes(
                 [u["calibration"] for u in sessions],
@@ -179,7 +199,7 @@ def audit(
         "outliers": flagged,
         "outlier_notes": notes,
         "outlier_figure": figure,
-        "drift": drift_audits(calibrated, folders, settings, earlier),
+        "drift": drift_audits(units, calibrated, folders, settings, earlier),
     }
 
 
@@ -425,13 +445,24 @@ def drift_page_name(device: str) -> str:
     return f"drift/{device}.html"
 
 
-def drift_devices(rows: list[dict]) -> list[str]:
-    """Devices the manifest lists with two or more sessions of a protocol with fleet audits
-    (the turntable): their drift pages."""
+def _audited_protocol(name: str) -> bool:
+    """A protocol with fleet audits (the turntable) that this version knows: an earlier
+    run's session of another is passed over."""
+    return name in set(registry.names()) and registry.get(name).fleet_audits
+
+
+def drift_devices(rows: Iterable[dict], earlier: Iterable[dict] = ()) -> list[str]:
+    """Devices with two or more sessions of a protocol with fleet audits (the turntable):
+    the manifest's ``rows``, whatever they come to, and the ``earlier`` sessions of their
+    devices the registry holds (:func:`gyrocal.calibration.registry.earlier_rows`). Their
+    drift pages; known when the run is planned."""
     counts: dict[str, int] = {}
     for row in rows:
         if registry.get(row["protocol"]).fleet_audits:
             counts[row["device"]] = counts.get(row["device"], 0) + 1
+    for row in earlier:
+        if row["device"] in counts and _audited_protocol(row["protocol"]):
+            counts[row["device"]] += 1
     return sorted(d for d, n in counts.items() if n >= 2)
 
 

@@ -378,9 +378,13 @@ def fleet_stage(
         try:
             if settings is not None:  # the drift pages take the devices' earlier sessions too
                 own = {(r["device"], r["session"]) for r in rows}
-                earlier, stale = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
-                for problem in stale:
-                    print(f"gyrocal: warning: a registry row passed over: {problem}", file=sys.stderr)
+                earlier = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
+                for unit in earlier:
+                    if "problem" in unit:
+                        print(
+                            f"gyrocal: warning: a registry row passed over: {unit['problem']}",
+                            file=sys.stderr,
+                        )
             summary = fleet_summary(units, settings, earlier)
             folders = sorted({f"{r['batch']}/{r['device']}/{r['session']}" for r in rows})
             written = index.upsert(backend, index.rows_of(Path(results_root), folders))
@@ -398,7 +402,8 @@ def fleet_stage(
         with atomic.replacing(table) as tmp:
             pq.write_table(frame, tmp)
     if bundle is not None:
-        _write_bundle(Path(bundle), units, reports_root, out_index, rows, settings)
+        drift = [a["device"] for a in summary["fleet"]["drift"]] if summary["fleet"] else []
+        _write_bundle(Path(bundle), units, reports_root, out_index, drift)
 
 
 def _link_or_copy(source: Path, target: Path) -> None:
@@ -411,9 +416,9 @@ def _link_or_copy(source: Path, target: Path) -> None:
         shutil.copyfile(source, target)
 
 
-def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) -> None:
+def _write_bundle(bundle: Path, units, reports_root, out_index, drift_devices) -> None:
     """A self-contained folder of every unit report (hard links to them), the fleet summary
-    and the drift pages, put in place whole: a job killed while linking leaves the old folder."""
+    and the pages of ``drift_devices``, put in place whole: a job killed while linking leaves the old folder."""
     bundle.parent.mkdir(parents=True, exist_ok=True)
     with atomic.replacing_folder(bundle) as tmp:
         for unit in units:
@@ -427,11 +432,8 @@ def _write_bundle(bundle: Path, units, reports_root, out_index, rows, settings) 
 
         for page in batch_pages_of(out_index):  # a large fleet's pages of its batches
             _link_or_copy(page, tmp / page.name)
-        drift_pages = Path(out_index).parent / "drift"
-        if settings is not None and drift_pages.is_dir():
-            from ..fleet.summary import drift_devices
-
+        if drift_devices:
             (tmp / "drift").mkdir()
-            for device in drift_devices(rows):
-                if (drift_pages / f"{device}.html").exists():
-                    shutil.copyfile(drift_pages / f"{device}.html", tmp / "drift" / f"{device}.html")
+            drift_pages = Path(out_index).parent / "drift"
+            for device in drift_devices:
+                shutil.copyfile(drift_pages / f"{device}.html", tmp / "drift" / f"{device}.html")

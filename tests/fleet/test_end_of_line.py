@@ -474,3 +474,48 @@ def test_the_fleet_summary_reads_each_unit_once_and_a_broken_unit_fails_alone(tm
     assert "not valid JSON" in rows["BADVAL"]["error"]
     assert rows["BADDIAG"]["status"] == "ok"
     assert rows["BADDIAG"]["missing"].startswith("diagnosis unreadable:")
+
+
+def test_every_planned_drift_page_is_made_with_what_it_could_not_compare(tmp_path):
+    """The drift pages are planned before the run, from the manifest and the registry's
+    earlier sessions (drift_devices): a device whose second session fails, or whose earlier
+    session's file changed since it was registered, still gets its audit, which names them."""
+    from gyrocal.fleet.summary import FleetSettings, drift_devices, fleet_summary
+
+    def unit(device, session, ok=True):
+        folder = tmp_path / device / session
+        row = {"batch": "B1", "device": device, "session": session, "protocol": "turntable"}
+        if ok:
+            folder.mkdir(parents=True)
+            save_calibration(
+                grid_calibration(GOOD, device=device, session=session), folder / "calibration.json"
+            )
+            (folder / "validation.json").write_text(
+                json.dumps({"format": "gyrocal.validation/1", "summary": GOOD_SUMMARY})
+            )
+            write_table(pd.DataFrame({"hold": [0]}), folder / "observations.parquet", {"info": GOOD_INFO})
+        else:
+            rec = failure.record("fit", InputError("scale.y not excited"), {"device": device})
+            failure.write([folder / "calibration.json", folder / "validation.json"], rec)
+        return {"row": row, "folder": folder, "report": f"{device}/{session}.html"}
+
+    units = [unit("A1", "2026-01-01"), unit("A1", "2026-03-01", ok=False), unit("C1", "2026-03-01")]
+    changed = {
+        "device": "C1",
+        "batch": "B0",
+        "session": "2025-12-01",
+        "protocol": "turntable",
+        "path": "B0/C1/2025-12-01/calibration.json",
+        "file_hash": "0" * 64,
+        "problem": "changed since it was registered (its hash differs)",
+    }
+    foreign = {**changed, "device": "Z9"}  # a device this run does not hold: no page
+    planned = drift_devices([u["row"] for u in units], [changed, foreign])
+    assert planned == ["A1", "C1"]
+    audits = fleet_summary(units, FleetSettings(), [changed, foreign])["fleet"]["drift"]
+    assert [a["device"] for a in audits] == planned
+    a1, c1 = audits
+    assert a1["sessions"] == ["2026-01-01"]
+    assert a1["error"] == "fewer than two calibrated sessions to compare: 2026-03-01 did not calibrate"
+    assert c1["sessions"] == ["2026-03-01"] and "2025-12-01 (an earlier run's): changed since" in c1["error"]
+    assert c1["earlier"] == [{k: changed[k] for k in ("session", "batch", "path", "file_hash")}]

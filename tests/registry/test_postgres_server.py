@@ -131,3 +131,38 @@ def cmdline(pid: int) -> str:
         return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
     except OSError:
         return ""
+
+
+def test_a_server_whose_test_process_is_killed_outright_is_stopped_by_its_watchdog():
+    """A test process SIGKILLed (as a scheduler ends a job) cannot stop its server: the
+    watchdog it started sees the pipe close and stops the postmaster and its backends, and
+    removes the folder."""
+    import signal
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    child = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time; from tests import pg; s = pg.Server().start(); "
+            "print(s.pid, s.root, flush=True); time.sleep(600)",
+        ],
+        cwd=repo,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        pid, root = child.stdout.readline().split()
+        pid, root = int(pid), Path(root)
+        children = pg.children_of(pid)
+        assert children and (root / "data" / "PG_VERSION").exists()
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait()
+    deadline = time.monotonic() + 60
+    server = ("postgres", str(pg.bin_dir()))
+    while [p for p in (pid, *children) if cmdline(p).startswith(server)] or root.exists():
+        assert time.monotonic() < deadline, "the server outlived its test process"
+        time.sleep(0.1)

@@ -227,6 +227,51 @@ def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir,
     assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
 
 
+def test_an_older_layout_and_tables_without_a_version_are_replaced_only_when_asked(caldir, where):  # noqa: F811
+    """A registry as an older gyrocal laid it out (other columns, schema version 0) is refused,
+    not read; so are tables of the registry's names without its version (written by hand or
+    by another program), which a writer would otherwise take as its own. ``--fresh`` replaces
+    both, and the lookups answer again."""
+    old = [
+        "CREATE TABLE registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+        "INSERT INTO registry_meta VALUES ('schema_version', '0')",
+        "CREATE TABLE unit_sessions (path TEXT PRIMARY KEY, device TEXT, session TEXT, sha256 TEXT)",
+        "INSERT INTO unit_sessions VALUES ('U001/2026-06-05/calibration.json', 'U001', '2026-06-05', 'ab')",
+    ]
+    foreign = ["CREATE TABLE parameters (id INTEGER PRIMARY KEY, what TEXT)"]
+    for statements, said in [(old, "schema version 0, this gyrocal reads 1"), (foreign, "no schema version")]:
+        backend = raw_connection(where)
+        for statement in [
+            "DROP TABLE IF EXISTS registry_meta",
+            "DROP TABLE IF EXISTS unit_sessions",
+            "DROP TABLE IF EXISTS parameters",
+            *statements,
+        ]:
+            backend.execute(statement)
+        backend.commit()
+        backend.close()
+        for attempt in (
+            lambda: find_calibration(caldir, "U001", registry=where),
+            lambda: registry.rebuild(caldir, where),
+            lambda: registry.connect(where),
+        ):
+            with pytest.raises(registry.RegistryError, match=f"{said}.*--fresh"):
+                attempt()
+        registry.rebuild(caldir, where, fresh=True)
+        assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
+
+
+def raw_connection(where: str):
+    """A plain DB-API connection to the registry's database, outside gyrocal."""
+    if where.startswith("postgresql://"):
+        import psycopg
+
+        return psycopg.connect(where)
+    import sqlite3
+
+    return sqlite3.connect(where)
+
+
 def _write(args):
     where, root, only, seed = args
     backend = registry.connect(where)

@@ -21,7 +21,7 @@ from gyrocal.pipeline.chain import run
 from gyrocal.pipeline.config import Settings
 from gyrocal.run.cli import main
 
-from .conftest import REPO, job_counts, snakemake
+from .conftest import HEADER, REPO, ROW, fleet_folder, job_counts, snakemake
 
 GOOD = [("B1", "A1", "2026-01-01"), ("B1", "A1", "2026-03-01"), ("B2", "A2", "2026-01-02")]
 FAILED = [
@@ -421,3 +421,37 @@ def test_a_devices_drift_page_takes_its_earlier_sessions_from_the_registry(fleet
     page = (reports / "drift" / "A1.html").read_text()
     assert "2026-01-01" in page and "2026-03-01" in page
     assert 'href="drift/A1.html"' in (reports / "index.html").read_text()
+
+
+@pytest.mark.slow
+def test_a_drift_page_from_the_registry_is_planned_and_made_again_when_the_history_changes(tmp_path):
+    """A workflow folder runs A1's first session, then a manifest of its later one alone: the
+    plan reads the registry, declares A1's drift page (a page the fleet job wrote undeclared
+    would not be Snakemake's to track or remove) and the end-of-line file records the earlier
+    session it rests on; a second run has nothing to do, and once the earlier calibration is
+    re-registered with other bytes, the fleet job runs again."""
+    first, later = ("B1", "A1", "2026-01-01"), ("B1", "A1", "2026-03-01")
+    wd = fleet_folder(tmp_path / "wd", ROW.format(*first))
+    out = snakemake(wd)
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert not (wd / "reports" / "drift").exists()
+
+    (wd / "devices.tsv").write_text(HEADER + ROW.format(*later))
+    out = snakemake(wd, "--dry-run")
+    assert out.returncode == 0 and job_counts(out)["fleet"] == 1, out.stderr[-3000:]
+    assert "reports/drift/A1.html" in out.stdout + out.stderr
+    out = snakemake(wd)
+    assert out.returncode == 0, out.stderr[-3000:]
+    page = (wd / "reports" / "drift" / "A1.html").read_text()
+    assert 'id="history"' in page and "B1/A1/2026-01-01/calibration.json" in page
+    (a1,) = json.loads((wd / "results" / "eol.json").read_text())["drift"]
+    assert a1["sessions"] == ["2026-01-01", "2026-03-01"]
+    assert [e["path"] for e in a1["earlier"]] == ["B1/A1/2026-01-01/calibration.json"]
+    again = snakemake(wd, "--dry-run")
+    assert again.returncode == 0 and "Nothing to be done" in again.stdout + again.stderr
+
+    earlier = wd / "results" / "B1" / "A1" / "2026-01-01" / "calibration.json"
+    earlier.write_text(json.dumps(json.loads(earlier.read_text()), indent=1))  # the same, other bytes
+    assert main(["registry", "rebuild", str(wd / "results")]) == 0
+    out = snakemake(wd, "--dry-run")
+    assert out.returncode == 0 and job_counts(out) == {"fleet": 1, "all": 1, "total": 2}, out.stdout[-3000:]

@@ -14,6 +14,7 @@ from gyrocal.fleet.manifest import (
     model_entry,
     read_manifest,
 )
+from gyrocal.calibration.registry import history_digest, planned_history
 from gyrocal.fleet.summary import drift_devices, other_sessions
 from gyrocal.protocols import registry
 
@@ -55,8 +56,17 @@ MODEL_ENTRY = {
     key: model_entry(row, MODELS, source=config["devices"])
     for key, row in UNITS.items()
 }
-# Devices with two or more turntable sessions get a drift page.
-DRIFT_DEVICES = drift_devices(UNITS.values())
+# Devices with two or more turntable sessions get a drift page, counting the sessions of
+# earlier runs into this results folder that the registry holds (read once, here). The
+# history's digest is a parameter of the fleet job: a changed history makes the pages again.
+HISTORY = planned_history(
+    "results",
+    config.get("registry"),
+    {row["device"] for row in UNITS.values()},
+    {(device, session) for _, device, session in UNITS},
+)
+DRIFT_DEVICES = drift_devices(UNITS.values(), HISTORY)
+HISTORY_DIGEST = history_digest(HISTORY)
 # The diagnosis judges a unit's candidates on another session of the same device.
 OTHER_SESSION = other_sessions(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.

@@ -42,6 +42,8 @@ rule fleet:
             sort_keys=True,
         ),
         version=GYROCAL_VERSION,
+        # the earlier sessions its drift pages take from the registry (common.smk)
+        history=HISTORY_DIGEST,
         # the registry the run's calibrations are indexed in (config registry:), not an
         # output: it outlives the run, and Snakemake would remove an output before the job
         registry=(
