@@ -83,6 +83,10 @@ class RegistryError(InputError):
     file is missing or changed."""
 
 
+class NoRegistryError(RegistryError):
+    """No registry where one was to be read: no file, or a database without its tables."""
+
+
 def day_number(session) -> int | None:
     """A ``YYYY-MM-DD`` session as days since 1970-01-01 (None for anything else)."""
     if not isinstance(session, str) or not _DATE.fullmatch(session):
@@ -240,7 +244,7 @@ def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
         else:
             path = Path(where.removeprefix("sqlite:///") if where.startswith("sqlite:///") else where)
             if not create and not path.is_file():
-                raise RegistryError(
+                raise NoRegistryError(
                     "no registry here: gyrocal registry rebuild RESULTS makes it", source=path
                 )
             backend = SQLiteBackend.open(path)
@@ -260,7 +264,7 @@ def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
             if version is None and create:
                 _create(backend)
             elif version is None:
-                raise RegistryError(
+                raise NoRegistryError(
                     "no registry here: gyrocal registry rebuild RESULTS makes it", source=backend.location
                 )
             elif version != str(SCHEMA_VERSION):
@@ -712,15 +716,14 @@ def planned_history(
     results: str | os.PathLike, registry: str | None, devices: Iterable[str], own: set[tuple[str, str]]
 ) -> list[dict[str, Any]]:
     """:func:`earlier_rows` for a fleet's plan: none where the run keeps no registry
-    (``registry`` "") or its SQLite file does not exist yet."""
+    (``registry`` "") or it has none yet (no SQLite file, a database without its tables)."""
     if registry == "":
         return []
     results = Path(results)
-    where = location(results, registry)
-    on_file = not where.startswith(("postgresql://", "postgres://"))
-    if on_file and not Path(where.removeprefix("sqlite:///")).is_file():
+    try:
+        backend = connect(location(results, registry), create=False)
+    except NoRegistryError:
         return []
-    backend = connect(where, create=False)
     try:
         return earlier_rows(backend, devices, own, results)
     finally:

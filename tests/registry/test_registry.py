@@ -261,6 +261,38 @@ def test_an_older_layout_and_tables_without_a_version_are_replaced_only_when_ask
         assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
 
 
+def test_a_fleets_plan_reads_the_devices_earlier_calibrated_sessions_of_its_folder(
+    caldir,  # noqa: F811
+    where,
+    tmp_path,
+    monkeypatch,
+):
+    """What planning a fleet takes from the registry for its drift pages: each calibrated
+    session of the run's devices in its results folder but its own, once, by device and
+    date (failures and unreadable files not); nothing where there is no registry yet, where
+    the run keeps none, or for another folder sharing the registry. Asked a device at a time
+    (the bound on a statement's parameters), the same rows."""
+    own = {("U001", "2026-06-05")}
+    assert registry.planned_history(caldir, where, {"U001"}, own) == []  # no registry yet
+    registry.rebuild(caldir, where)
+    assert registry.planned_history(caldir, "", {"U001"}, own) == []
+    rows = registry.planned_history(caldir, where, {"U001", "U002", "U404"}, own)
+    assert [(r["device"], r["session"], r["path"]) for r in rows] == [
+        ("U001", "2025-11-20", "archive/U001-first.json"),
+        ("U001", "2026-01-05", "B1/U001/2026-01-05/calibration.json"),
+        ("U001", "2026-03-01", "B1/U001/2026-03-01/calibration.json"),
+        ("U002", "2026-02-20", "B1/U002/2026-02-20/calibration.json"),
+    ]
+    monkeypatch.setattr(registry, "DEVICES_PER_QUERY", 1)
+    assert registry.planned_history(caldir, where, {"U001", "U002", "U404"}, own) == rows
+    other = shutil.copytree(caldir, tmp_path / "other")
+    registry.rebuild(other, where)  # the registry shared: the other folder lends no session
+    assert registry.planned_history(caldir, where, {"U001", "U002"}, own) == rows
+    digest = registry.history_digest(rows)
+    assert registry.history_digest([*rows[:-1], {**rows[-1], "file_hash": "0" * 64}]) != digest
+    assert registry.history_digest(rows[:-1]) != digest
+
+
 def raw_connection(where: str):
     """A plain DB-API connection to the registry's database, outside gyrocal."""
     if where.startswith("postgresql://"):
