@@ -3,6 +3,7 @@
 # only wire files.
 from snakemake.utils import min_version
 
+from gyrocal.io.errors import or_exit
 from gyrocal.io.schema import check, refuse_duplicate_keys
 
 min_version("9.0")
@@ -15,9 +16,11 @@ configfile: "config/config.yaml"
 # the command line checks the settings it reads: the same bounds, defaults and messages. A
 # key given twice in a config file (a second models: pasted below the first) is refused.
 for path in workflow.configfiles:
-    refuse_duplicate_keys(open(path).read(), source=path)
+    or_exit(refuse_duplicate_keys, open(path).read(), source=path)
 config.update(
-    check(config, source=" + ".join(map(str, workflow.configfiles)) or "--config")
+    or_exit(
+        check, config, source=" + ".join(map(str, workflow.configfiles)) or "--config"
+    )
 )
 
 

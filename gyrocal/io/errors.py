@@ -74,3 +74,16 @@ def first_line(exc: BaseException) -> str:
     if line.startswith("Error creating dataset") and ": " in line:
         line = line.rsplit(": ", 1)[1].rstrip(".")
     return line
+
+
+def or_exit(call, *args, **kwargs):
+    """``call(*args, **kwargs)``; where it raises a :class:`GyrocalError`, that error's one
+    line on standard error and an exit with its status, as the CLI ends: the workflow's plan
+    (the Snakefile's settings, manifest and registry) stops so, not with Snakemake's frames."""
+    import sys
+
+    try:
+        return call(*args, **kwargs)
+    except GyrocalError as exc:
+        print(f"gyrocal: error: {exc}", file=sys.stderr)
+        sys.exit(exc.exit_status)

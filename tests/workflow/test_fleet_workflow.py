@@ -189,8 +189,8 @@ def test_a_bad_manifest_stops_with_the_line_named(fleet_run, tmp_path):
         (fleet_run / "devices.tsv").read_text() + "bad id!\tB1\t2026-01-01\tturntable\tx.parquet\n"
     )
     out = snakemake(tmp_path, "--dry-run")
-    assert out.returncode != 0
-    assert "line 9: device 'bad id!' does not match" in out.stdout + out.stderr
+    assert out.returncode == 2 and 'File "' not in out.stderr  # one line, not Snakemake's frames
+    assert "gyrocal: error: " in out.stderr and "line 9: device 'bad id!' does not match" in out.stderr
 
 
 # The unit jobs' logs are written by the guard (--log) and packed into the job's archive:
@@ -455,3 +455,15 @@ def test_a_drift_page_from_the_registry_is_planned_and_made_again_when_the_histo
     assert main(["registry", "rebuild", str(wd / "results")]) == 0
     out = snakemake(wd, "--dry-run")
     assert out.returncode == 0 and job_counts(out) == {"fleet": 1, "all": 1, "total": 2}, out.stdout[-3000:]
+
+
+def test_a_plan_that_cannot_reach_its_registry_stops_in_one_line(tmp_path):
+    """The plan reads the registry (the drift pages' history): a PostgreSQL server it cannot
+    reach stops it before any job, in one line naming the registry, its password not shown."""
+    wd = fleet_folder(tmp_path / "wd", ROW.format("B1", "A1", "2026-01-01"))
+    with open(wd / "config.yaml", "a") as config:
+        config.write("registry: postgresql://line3:secret@127.0.0.1:1/calibrations\n")
+    out = snakemake(wd, "--dry-run")
+    assert out.returncode == 2 and 'File "' not in out.stderr and "secret" not in out.stdout + out.stderr
+    (said,) = [line for line in out.stderr.splitlines() if "error" in line.lower()]
+    assert said.startswith("gyrocal: error: postgresql://line3:***@127.0.0.1:1/calibrations: cannot connect")

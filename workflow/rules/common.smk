@@ -16,6 +16,7 @@ from gyrocal.fleet.manifest import (
 )
 from gyrocal.calibration.registry import history_digest, planned_history
 from gyrocal.fleet.summary import drift_devices, other_sessions
+from gyrocal.io.errors import or_exit
 from gyrocal.protocols import registry
 
 # Planning builds millions of small objects (jobs, files, wildcards) that live until
@@ -45,21 +46,23 @@ DEMO_LOGS = os.path.normpath(config["demo"]["folder"])
 # Real recordings the demo imports with `gyrocal import` (data/real/<name>/: the recording,
 # its import map and its licence), as demo/real/<name>.parquet.
 REAL_LOGS = os.path.normpath("demo/real")
+# A bad manifest, models: entry or registry stops the plan with its one line (or_exit).
 UNITS = {
     (row["batch"], row["device"], row["session"]): row
-    for row in read_manifest(config["devices"])
+    for row in or_exit(read_manifest, config["devices"])
 }
 # Models of their own (config models:): the entry each unit takes, None for the fleet's.
 # Only a unit whose entry changes gets new settings, so only its analysis re-runs.
 MODELS = config.get("models") or {}
 MODEL_ENTRY = {
-    key: model_entry(row, MODELS, source=config["devices"])
+    key: or_exit(model_entry, row, MODELS, source=config["devices"])
     for key, row in UNITS.items()
 }
 # Devices with two or more turntable sessions get a drift page, counting the sessions of
 # earlier runs into this results folder that the registry holds (read once, here). The
 # history's digest is a parameter of the fleet job: a changed history makes the pages again.
-HISTORY = planned_history(
+HISTORY = or_exit(
+    planned_history,
     "results",
     config.get("registry"),
     {row["device"] for row in UNITS.values()},
