@@ -263,13 +263,19 @@ class Server:
                 )
             time.sleep(0.05)
 
-    def create_database(self, name: str) -> str:
-        """A new, empty database; its URL."""
+    def create_database(self, name: str, icu_locale: str | None = None) -> str:
+        """A new, empty database; its URL. ``icu_locale`` ("en-US"): text in that language's
+        order (a factory's database), not the cluster's byte order."""
         import psycopg
         from psycopg import sql
 
+        statement = sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name))
+        if icu_locale is not None:
+            statement += sql.SQL(" LOCALE_PROVIDER icu ICU_LOCALE {} LOCALE 'C' TEMPLATE template0").format(
+                sql.Literal(icu_locale)
+            )
         with psycopg.connect(self.url("postgres"), autocommit=True) as conn:
-            conn.execute(sql.SQL("CREATE DATABASE {}").format(sql.Identifier(name)))
+            conn.execute(statement)
         return self.url(name)
 
     def log_tail(self, tail: int = 4000) -> str:

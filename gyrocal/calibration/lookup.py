@@ -336,17 +336,11 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
         rows = registry.device_rows(backend, device, under)
         for row in rows:  # each file as the scan names it: below the folder asked about
             row["rel"] = (Path(row["root"]) / row["path"]).relative_to(under).as_posix()
-        listed = {r["rel"] for r in rows if _is_layout(r["rel"], device)}
-        on_disk = {
-            p.relative_to(caldir).as_posix()
-            for p in caldir.glob(f"*/{glob.escape(device)}/*/calibration.json")
-        }
-        if listed != on_disk:
-            first = sorted(on_disk ^ listed)[0]
+        behind = _behind(backend, caldir, under, device, rows)
+        if behind is not None:
             return (
-                f"the registry {registry.shown(where)} is behind {caldir} ({first} "
-                f"{'unlisted' if first in on_disk else 'listed but gone'}): answered from the files; "
-                f"gyrocal registry rebuild {caldir} brings it up to date"
+                f"the registry {registry.shown(where)} is behind {caldir} ({behind}): answered from the "
+                f"files; gyrocal registry rebuild {caldir} brings it up to date"
             )
         calibrated = [r for r in rows if r["status"] == "calibrated"]
         failed = sorted({str(r["session"]) for r in rows if r["status"] == "failed"})
@@ -372,10 +366,53 @@ def _from_registry(caldir: Path, where: str, device: str, date, direction, max_d
     )
 
 
-def _is_layout(rel: str, device: str) -> bool:
-    """Whether ``rel`` is the workflow's ``{batch}/{device}/{session}/calibration.json`` of ``device``."""
-    parts = rel.split("/")
-    return len(parts) == 4 and parts[1] == device and parts[3] == "calibration.json"
+def _behind(backend, caldir: Path, under: str, device: str, rows: list[dict]) -> str | None:
+    """Where the files below ``caldir`` say more than the registry's ``rows`` of the
+    device: a row whose file is gone, or a file of the workflow's layout in a folder of the
+    device (``{batch}/{device}/{session}/calibration.json``) that no row lists, whatever
+    device it names inside (a file of another device there, an empty file, is listed by
+    its own row). The layouts looked at: the folder itself, a batch folder (the folder
+    asked about), a day's shards (``*/results``), and each results folder the rows name.
+    Globs over a device's folders, not a walk of the tree. None: the registry is up to date."""
+    registry = _registry()
+    top = Path(under)  # absolute: the rows' roots are
+    problems = [f"{row['rel']} listed but gone" for row in rows if not (caldir / row["rel"]).is_file()]
+    name = glob.escape(device)
+    found = {
+        p
+        for pattern in (
+            f"*/{name}/*/calibration.json",
+            f"{name}/*/calibration.json",
+            f"*/results/*/{name}/*/calibration.json",
+        )
+        for p in top.glob(pattern)
+    }
+    for root in {r["root"] for r in rows}:
+        found.update(Path(root).glob(f"*/{name}/*/calibration.json"))
+    keys = sorted({registry.key_of(top, p) for p in found if _below(p, top)})
+    listed: set[tuple[str, str]] = set()
+    with registry.database_errors(backend.location):
+        for start in range(0, len(keys), 400):  # two parameters a file, well below the bounds
+            chunk = keys[start : start + 400]
+            cursor = backend.execute(
+                "SELECT root, path FROM unit_sessions WHERE "
+                + " OR ".join("(root = ? AND path = ?)" for _ in chunk),
+                [v for key in chunk for v in key],
+            )
+            listed.update(cursor.fetchall())
+    for root, path in keys:  # unlisted: unless it is no file the registry lists (an empty one)
+        if (root, path) not in listed and registry.file_row(Path(root) / path, path, root) is not None:
+            problems.append(f"{(Path(root) / path).relative_to(under).as_posix()} unlisted")
+    more = f"; and {len(problems) - 3} more" if len(problems) > 3 else ""
+    return "; ".join(problems[:3]) + more if problems else None
+
+
+def _below(path: Path, folder: Path) -> bool:
+    try:
+        path.relative_to(folder)
+        return True
+    except ValueError:
+        return False
 
 
 def _registry():

@@ -19,6 +19,8 @@ import datetime as dt
 import json
 import os
 import re
+import sys
+import time
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -56,24 +58,34 @@ SESSION_COLUMNS = (
 )
 PARAMETER_COLUMNS = ("root", "path", "point", "temperature", "name", "value", "stderr")
 
-_TEXT, _REAL, _INT = "TEXT", "DOUBLE PRECISION", "BIGINT"
+_REAL, _INT = "DOUBLE PRECISION", "BIGINT"
 _TYPES = {"session_day": _INT, "validation_rms": _REAL, "noise_floor": _REAL, "excess": _REAL}
-SCHEMA = (
-    "CREATE TABLE IF NOT EXISTS registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
-    "CREATE TABLE IF NOT EXISTS unit_sessions ("
-    + ", ".join(
-        f"{c} {_TYPES.get(c, _TEXT)}"
-        f"{' NOT NULL' if c in ('root', 'path', 'status', 'file_hash', 'hash_algorithm') else ''}"
-        for c in SESSION_COLUMNS
+
+
+def schema(kind: str = "sqlite") -> tuple[str, ...]:
+    """The registry's tables and indexes on the back end ``kind``. Text compares byte by
+    byte on both (SQLite's BINARY; PostgreSQL's "C", not the database's locale): the same
+    order of devices and paths, so the same ties, neighbours and folder ranges."""
+    text = 'TEXT COLLATE "C"' if kind == "postgresql" else "TEXT"
+    return (
+        f"CREATE TABLE IF NOT EXISTS registry_meta (key {text} PRIMARY KEY, value TEXT NOT NULL)",
+        "CREATE TABLE IF NOT EXISTS unit_sessions ("
+        + ", ".join(
+            f"{c} {_TYPES.get(c, text)}"
+            f"{' NOT NULL' if c in ('root', 'path', 'status', 'file_hash', 'hash_algorithm') else ''}"
+            for c in SESSION_COLUMNS
+        )
+        + ", PRIMARY KEY (root, path))",
+        # a device's sessions by date (lookup), a batch's over months (drift)
+        "CREATE INDEX IF NOT EXISTS unit_sessions_device ON unit_sessions (device, session_day)",
+        "CREATE INDEX IF NOT EXISTS unit_sessions_batch ON unit_sessions (batch, session_day)",
+        f"CREATE TABLE IF NOT EXISTS parameters (root {text} NOT NULL, path {text} NOT NULL, "
+        f"point INTEGER NOT NULL, temperature {_REAL}, name {text} NOT NULL, value {_REAL} NOT NULL, "
+        f"stderr {_REAL}, PRIMARY KEY (root, path, point, name))",
     )
-    + ", PRIMARY KEY (root, path))",
-    # a device's sessions by date (lookup), a batch's over months (drift)
-    "CREATE INDEX IF NOT EXISTS unit_sessions_device ON unit_sessions (device, session_day)",
-    "CREATE INDEX IF NOT EXISTS unit_sessions_batch ON unit_sessions (batch, session_day)",
-    "CREATE TABLE IF NOT EXISTS parameters (root TEXT NOT NULL, path TEXT NOT NULL, "
-    f"point INTEGER NOT NULL, temperature {_REAL}, name TEXT NOT NULL, value {_REAL} NOT NULL, "
-    f"stderr {_REAL}, PRIMARY KEY (root, path, point, name))",
-)
+
+
+SCHEMA = schema()
 _DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
 EPOCH = dt.date(1970, 1, 1)
 
@@ -137,6 +149,15 @@ class Backend:
         """A read that takes no writer's lock (PostgreSQL: a failed read ends its transaction)."""
         yield
 
+    def tables(self) -> set[str]:
+        """Which of the registry's :data:`TABLES` the database holds (from its catalogue:
+        no failed statement, so a transaction around it goes on)."""
+        cursor = self.execute(
+            f"SELECT name FROM sqlite_master WHERE type = 'table' AND name IN ({', '.join('?' * len(TABLES))})",
+            TABLES,
+        )
+        return {r[0] for r in cursor.fetchall()}
+
     def insert_many(self, table: str, columns: Sequence[str], rows: Sequence[Sequence]) -> None:
         """Rows appended to ``table``, inside the caller's transaction."""
         self.executemany(
@@ -158,7 +179,17 @@ class SQLiteBackend(Backend):
         # autocommit off by hand: BEGIN IMMEDIATE takes the write lock at once, so writers
         # queue (busy timeout) rather than fail on upgrading a read lock
         connection = sqlite3.connect(path, timeout=600, isolation_level=None)
-        connection.execute("PRAGMA journal_mode=WAL")
+        # Switching a new file to WAL takes its lock without the busy wait: several
+        # processes opening a new registry at once take turns here.
+        deadline = time.monotonic() + 600
+        while True:
+            try:
+                connection.execute("PRAGMA journal_mode=WAL")
+                break
+            except sqlite3.OperationalError as exc:
+                if "locked" not in str(exc) or time.monotonic() > deadline:
+                    raise
+                time.sleep(0.01)
         connection.execute("PRAGMA synchronous=NORMAL")
         return cls(connection, str(path))
 
@@ -202,6 +233,10 @@ class PostgresBackend(Backend):
     def transaction_for_reading(self) -> Iterator[None]:
         with self.connection.transaction():
             yield
+
+    def tables(self) -> set[str]:
+        # the search path's tables, as the statements that follow name them
+        return {t for t in TABLES if self.execute("SELECT to_regclass(?)", (t,)).fetchone()[0] is not None}
 
     def serialise(self) -> None:
         # two first writers creating the tables at once would collide in the catalogue
@@ -250,24 +285,17 @@ def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
             backend = SQLiteBackend.open(path)
         try:
             if fresh:
-                with backend.transaction():
-                    backend.serialise()
-                    for table in ("parameters", "unit_sessions", "registry_meta"):
-                        backend.execute(f"DROP TABLE IF EXISTS {table}")
+                _drop(backend)
             version = _version(backend)
-            if version is None and _holds_tables(backend):
-                raise RegistryError(
-                    "holds tables named as the registry's but no schema version: not a registry this "
-                    "gyrocal wrote; gyrocal registry rebuild RESULTS --fresh replaces them",
-                    source=backend.location,
-                )
             if version is None and create:
-                _create(backend)
-            elif version is None:
+                version = _create(backend)
+            if version is None:
+                if backend.tables():
+                    _not_ours(backend)
                 raise NoRegistryError(
                     "no registry here: gyrocal registry rebuild RESULTS makes it", source=backend.location
                 )
-            elif version != str(SCHEMA_VERSION):
+            if version != str(SCHEMA_VERSION):
                 newer = version.isdigit() and int(version) > SCHEMA_VERSION
                 raise RegistryError(
                     f"registry schema version {version}, this gyrocal reads {SCHEMA_VERSION}: "
@@ -287,7 +315,7 @@ def connect(where: str, *, create: bool = True, fresh: bool = False) -> Backend:
 @contextmanager
 def database_errors(where: str) -> Iterator[None]:
     """A database's own errors (a file that is not a database, a lock held too long, a lost
-    connection) as one line naming the registry and what makes it again."""
+    connection) as one line naming the registry and what to do."""
     import sqlite3
 
     kinds: tuple[type[BaseException], ...] = (sqlite3.Error,)
@@ -300,50 +328,71 @@ def database_errors(where: str) -> Iterator[None]:
     try:
         yield
     except kinds as exc:
-        raise RegistryError(
-            f"{' '.join(str(exc).split())} ({type(exc).__name__}); gyrocal registry rebuild RESULTS "
-            "--fresh makes it again from the files",
-            source=shown(where),
-        ) from None
+        said = " ".join(str(exc).split())
+        if "locked" in said or "busy" in said:  # passing: another writer, not a broken registry
+            advice = "another process held it past the wait; try again"
+        elif "permission denied" in said or "readonly" in said or "read-only" in said:
+            advice = "the registry's user may not do this: grant it the right, or name another registry"
+        elif "connection" in said.lower() or "server" in said.lower():
+            advice = "the database server was lost; try again when it is back"
+        else:
+            advice = "gyrocal registry rebuild RESULTS --fresh makes it again from the files"
+        raise RegistryError(f"{said} ({type(exc).__name__}); {advice}", source=shown(where)) from None
+
+
+TABLES = ("registry_meta", "unit_sessions", "parameters")
 
 
 def _version(backend: Backend) -> str | None:
-    """The registry's schema version; None where it has no tables yet."""
-    try:
-        with backend.transaction_for_reading():
-            found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
-    except Exception as exc:  # noqa: BLE001 - no such table: the back ends raise their own kinds
-        if "registry_meta" in str(exc):
+    """The registry's schema version; None where it has no registry_meta (no tables yet)."""
+    with backend.transaction_for_reading():
+        if "registry_meta" not in backend.tables():
             return None
-        raise
+        found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
     return None if found is None else str(found[0])
 
 
-def _holds_tables(backend: Backend) -> bool:
-    """Whether the database has a table the registry would make (a registry without its
-    version, or another program's tables of the same names: never written into)."""
-    for table in ("unit_sessions", "parameters"):
-        try:
-            with backend.transaction_for_reading():
-                backend.execute(f"SELECT 1 FROM {table} LIMIT 1").fetchall()
-            return True
-        except Exception as exc:  # noqa: BLE001 - no such table: the back ends raise their own kinds
-            if table not in str(exc):
-                raise
-    return False
+def _not_ours(backend: Backend) -> None:
+    raise RegistryError(
+        "holds a table named unit_sessions or parameters but no registry_meta: not a registry "
+        "gyrocal wrote, and left as it is; give the registry a database (or file) of its own",
+        source=backend.location,
+    )
 
 
-def _create(backend: Backend) -> None:
-    """The tables and the version, by one writer at a time."""
+def _drop(backend: Backend) -> None:
+    """The registry's tables dropped (the migration, by a rebuild): only where its
+    registry_meta says they are gyrocal's; another program's tables of the same names stay."""
     with backend.transaction():
         backend.serialise()
-        for statement in SCHEMA:
-            backend.execute(statement)
-        found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
-        if found is None:
+        found = backend.tables()
+        if "registry_meta" in found:
+            for table in ("parameters", "unit_sessions", "registry_meta"):
+                backend.execute(f"DROP TABLE IF EXISTS {table}")
+        elif found:
+            _not_ours(backend)
+
+
+def _create(backend: Backend) -> str:
+    """The tables and the version, made by one writer at a time where there are none (the
+    check under the writers' lock: two processes opening a new registry at once make it
+    once); the version found or made. Tables of the registry's names without its
+    registry_meta are another program's: refused, left alone."""
+    with backend.transaction():
+        backend.serialise()
+        found = backend.tables()
+        if "registry_meta" not in found:
+            if found:
+                _not_ours(backend)
+            for statement in schema(backend.kind):
+                backend.execute(statement)
+        version = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
+        if version is None:
             backend.execute(
                 "INSERT INTO registry_meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
             )
+            return str(SCHEMA_VERSION)
+        return str(version[0])
 
 
 # ---------------------------------------------------------------------------------------
@@ -524,18 +573,47 @@ def _files(results: Path) -> Iterator[tuple[Path, str]]:
 
 def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
     """The rows of every registrable file below ``results`` (or of the folders ``only``
-    names, relative to it: a fleet job's unit sessions)."""
+    names, relative to it: a fleet job's unit sessions), each keyed by :func:`key_of`."""
     results = Path(results)
-    root = root_of(results)
     if only is None:
-        found = _files(results)
+        found: Iterable[Path] = (path for path, _ in _files(results))
     else:
-        found = (
-            (p, p.relative_to(results).as_posix())
-            for folder in only
-            for p in sorted((results / folder).glob("*.json"))
-        )
-    return [row for path, rel in found if (row := file_row(path, rel, root)) is not None]
+        found = (p for folder in only for p in sorted((results / folder).glob("*.json")))
+    rows = []
+    for path in found:
+        root, rel = key_of(results, path)
+        row = file_row(path, rel, root)
+        if row is not None:
+            rows.append(row)
+    return rows
+
+
+def key_of(results: Path, path: Path) -> tuple[str, str]:
+    """How the registry keys a file found below ``results``: a ``calibration.json`` by the
+    results folder whose layout ``{batch}/{device}/{session}/calibration.json`` holds it
+    (the fleet job's key, whichever folder a rebuild starts from: a file is listed once),
+    any other by ``results`` and the path below it."""
+    absolute = Path(root_of(results)) / path.relative_to(results)
+    if path.name == "calibration.json" and len(absolute.parents) > 3:
+        return absolute.parents[3].as_posix(), absolute.relative_to(absolute.parents[3]).as_posix()
+    return root_of(results), path.relative_to(results).as_posix()
+
+
+def under(folder: str, table: str = "") -> tuple[str, list[str]]:
+    """The SQL condition (and its parameters) for rows whose file lies below ``folder`` (as
+    :func:`root_of` names it): rows of that results folder, of folders below it (a day's
+    shards), and of a folder above it whose path leads below it (a batch's folder asked
+    about). Byte-order ranges, not LIKE: no escaping, and the primary key's index serves them.
+    ``table``: the columns' table prefix in a join (``s.``)."""
+    from pathlib import PurePosixPath
+
+    root, path = f"{table}root", f"{table}path"
+    terms, params = [f"{root} = ?", f"({root} >= ? AND {root} < ?)"], [folder, folder + "/", folder + "0"]
+    for above in PurePosixPath(folder).parents:
+        rel = PurePosixPath(folder).relative_to(above).as_posix()
+        terms.append(f"({root} = ? AND {path} >= ? AND {path} < ?)")
+        params += [above.as_posix(), rel + "/", rel + "0"]
+    return "(" + " OR ".join(terms) + ")", params
 
 
 def root_of(results: Path) -> str:
@@ -554,18 +632,19 @@ _UPSERT = (
 )
 
 
-def upsert(backend: Backend, rows: Sequence[Row], *, replace_root: str | None = None) -> int:
+def upsert(backend: Backend, rows: Sequence[Row], *, replace_under: str | None = None) -> int:
     """Write ``rows`` in one transaction: each file's row replaced whole, with its
-    coefficients; ``replace_root`` first drops every row of that results folder (a
+    coefficients; ``replace_under`` first drops every row of a file below that folder (a
     rebuild). Returns the rows written."""
     rows = sorted(rows, key=lambda row: (row.session["root"], row.session["path"]))
     with database_errors(backend.location), backend.transaction():
         # writers one at a time (SQLite's BEGIN IMMEDIATE; an advisory lock on PostgreSQL):
         # two replacing one file's coefficients at once would otherwise both insert them
         backend.serialise()
-        if replace_root is not None:
-            backend.execute("DELETE FROM parameters WHERE root = ?", (replace_root,))
-            backend.execute("DELETE FROM unit_sessions WHERE root = ?", (replace_root,))
+        if replace_under is not None:
+            condition, params = under(replace_under)
+            backend.execute(f"DELETE FROM parameters WHERE {condition}", params)
+            backend.execute(f"DELETE FROM unit_sessions WHERE {condition}", params)
         else:
             keys = [(row.session["root"], row.session["path"]) for row in rows]
             backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
@@ -583,7 +662,7 @@ def rebuild(results: Path, where: str | None = None, *, fresh: bool = False) -> 
     target = location(results, where)
     backend = connect(target, fresh=fresh)
     try:
-        return target, upsert(backend, rows_of(results), replace_root=root_of(results))
+        return target, upsert(backend, rows_of(results), replace_under=root_of(results))
     finally:
         backend.close()
 
@@ -592,17 +671,17 @@ def rebuild(results: Path, where: str | None = None, *, fresh: bool = False) -> 
 # Reading
 
 
-def device_rows(backend: Backend, device: str, under: str | None = None) -> list[dict[str, Any]]:
-    """Every row of ``device`` (of files below the folder ``under``, as :func:`root_of`
-    names it, where given), by session date then path."""
+def device_rows(backend: Backend, device: str, folder: str | None = None) -> list[dict[str, Any]]:
+    """Every row of ``device`` (of files below ``folder``, as :func:`root_of` names it,
+    where given: see :func:`under`), by session date (undated first) then root and path."""
     where, params = "device = ?", [device]
-    if under is not None:  # the folder itself, or results folders below it (a day's shards)
-        escaped = under.rstrip("/").replace("!", "!!").replace("%", "!%").replace("_", "!_")
-        where += " AND (root = ? OR root LIKE ? ESCAPE '!')"
-        params += [under, escaped + "/%"]
+    if folder is not None:
+        condition, more = under(folder)
+        where, params = f"{where} AND {condition}", params + more
     with database_errors(backend.location):
         cursor = backend.execute(
-            f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE {where} ORDER BY session_day, root, path",
+            f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE {where} "
+            "ORDER BY session_day NULLS FIRST, root, path",
             params,
         )
         return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
@@ -611,10 +690,12 @@ def device_rows(backend: Backend, device: str, under: str | None = None) -> list
 def devices_near(backend: Backend, device: str, count: int = 5) -> list[str]:
     """Devices listed from ``device``'s place in name order on (a misspelt name shows its
     neighbours): read through the device index, as fast at a year's 12 million as at ten."""
-    cursor = backend.execute(
-        "SELECT DISTINCT device FROM unit_sessions WHERE device >= ? ORDER BY device LIMIT ?", (device, count)
-    )
-    return [r[0] for r in cursor.fetchall()]
+    with database_errors(backend.location):
+        cursor = backend.execute(
+            "SELECT DISTINCT device FROM unit_sessions WHERE device >= ? ORDER BY device LIMIT ?",
+            (device, count),
+        )
+        return [r[0] for r in cursor.fetchall()]
 
 
 def served_file(row: dict[str, Any]) -> tuple[Path, bytes]:
@@ -640,34 +721,36 @@ def served_file(row: dict[str, Any]) -> tuple[Path, bytes]:
 
 
 def check(results: Path, where: str | None = None) -> list[str]:
-    """What the registry says that its folder no longer does: rows whose file is missing
-    or changed, and files it does not list. An empty list: the index is true."""
+    """What the registry says that its folder no longer does: rows of files below it whose
+    file is missing or changed, and files below it it does not list (each as a path below
+    ``results``). An empty list: the index is true."""
     results = Path(results)
+    top = Path(root_of(results))
     backend = connect(location(results, where), create=False)
     try:
-        cursor = backend.execute(
-            "SELECT path, file_hash, hash_algorithm FROM unit_sessions WHERE root = ? ORDER BY path",
-            (root_of(results),),
-        )
-        listed = cursor.fetchall()
+        condition, params = under(top.as_posix())
+        with database_errors(backend.location):
+            cursor = backend.execute(
+                f"SELECT root, path, file_hash, hash_algorithm FROM unit_sessions WHERE {condition}", params
+            )
+            listed = cursor.fetchall()
     finally:
         backend.close()
     from ..io.log import file_digest
 
     problems = []
     known = set()
-    for rel, digest, algorithm in listed:
+    for root, path, digest, algorithm in listed:
+        rel = (Path(root) / path).relative_to(top).as_posix()
         known.add(rel)
-        path = results / rel
-        if not path.is_file():
+        if not (top / rel).is_file():
             problems.append(f"{rel}: listed, but the file is missing")
-        elif digest and file_digest(path, algorithm) != digest:
+        elif digest and file_digest(top / rel, algorithm) != digest:
             problems.append(f"{rel}: changed since it was registered (its hash differs)")
-    root = root_of(results)
     for path, rel in _files(results):
-        if rel not in known and file_row(path, rel, root) is not None:
+        if rel not in known and file_row(path, rel, root_of(results)) is not None:
             problems.append(f"{rel}: not in the registry")
-    return problems
+    return sorted(problems)
 
 
 # Devices one query asks for: few statements for a fleet's 100,000, each well below the
@@ -692,7 +775,7 @@ def earlier_rows(
             cursor = backend.execute(
                 f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions "
                 f"WHERE device IN ({', '.join('?' * len(chunk))}) AND root = ? AND status = 'calibrated' "
-                "ORDER BY device, session_day, path",
+                "ORDER BY device, session_day NULLS FIRST, path",
                 [*chunk, root],
             )
             for values in cursor.fetchall():
@@ -703,13 +786,8 @@ def earlier_rows(
     return found
 
 
-def history_digest(rows: Iterable[dict[str, Any]]) -> str:
-    """One short value that changes whenever the sessions ``rows`` name or their files do:
-    a fleet's plan carries it, so a changed history makes the drift pages again."""
-    from ..io.log import HASH_ALGORITHM
-
-    text = "\n".join(f"{r['device']}\t{r['session']}\t{r['path']}\t{r['file_hash']}" for r in rows)
-    return bytes_digest(text.encode(), HASH_ALGORITHM)
+HISTORY_NAME = "drift_history.jsonl"  # in the results folder: the plan's record, the fleet job's input
+HISTORY_FIELDS = ("device", "batch", "session", "protocol", "root", "path", "file_hash", "hash_algorithm")
 
 
 def planned_history(
@@ -730,16 +808,70 @@ def planned_history(
         backend.close()
 
 
-def earlier_sessions(
-    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
+def plan_history(
+    results: str | os.PathLike,
+    registry: str | None,
+    devices: Iterable[str],
+    own: set[tuple[str, str]],
+    *,
+    query: bool = True,
 ) -> list[dict[str, Any]]:
-    """:func:`earlier_rows` with each session's calibration loaded and its folder; a row
-    whose file is missing or changed (never served) keeps its ``problem`` in place of a
-    calibration, so that a drift page still says what it could not compare."""
+    """The earlier sessions a fleet's drift pages take, as the workflow plans them. The plan
+    (``query``) asks the registry once (:func:`planned_history`) and records the answer in
+    ``results/drift_history.jsonl``, rewritten only when it changed: the fleet job's input,
+    so a changed history makes the pages again and an unchanged one leaves them be. A
+    registry that cannot answer is a warning, and the record stands as it was (the units
+    still run). A scheduler's job (not ``query``) reads the record: one query a run, not
+    one a job."""
+    record = Path(results) / HISTORY_NAME
+    if not query:
+        return read_history(record)
+    try:
+        rows = [{k: r[k] for k in HISTORY_FIELDS} for r in planned_history(results, registry, devices, own)]
+    except RegistryError as exc:
+        print(f"gyrocal: warning: {exc}; the drift pages are planned from {record} as it was", file=sys.stderr)
+        rows = read_history(record)
+    text = "".join(json.dumps(r, sort_keys=True, ensure_ascii=False) + "\n" for r in rows)
+    if not record.is_file() or record.read_text(encoding="utf-8") != text:
+        from ..io import atomic
+
+        record.parent.mkdir(parents=True, exist_ok=True)
+        atomic.write_text(record, text)
+    return rows
+
+
+def read_history(record: Path) -> list[dict[str, Any]]:
+    """The sessions :func:`plan_history` recorded; none where there is no record."""
+    try:
+        lines = Path(record).read_text(encoding="utf-8").splitlines()
+    except FileNotFoundError:
+        return []
+    except OSError as exc:
+        raise InputError(f"cannot read the drift pages' history ({exc.strerror})", source=record) from None
+    rows = []
+    for number, line in enumerate(lines, 1):
+        try:
+            row = json.loads(line)
+        except ValueError:
+            row = None
+        if not isinstance(row, dict) or set(row) != set(HISTORY_FIELDS):
+            raise InputError(
+                f"line {number} is not a session of the drift pages' history; the next plan writes it again",
+                source=record,
+            )
+        rows.append(row)
+    return rows
+
+
+def load_sessions(rows: Iterable[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Registry rows (:func:`earlier_rows`, :func:`read_history`) with each session's
+    calibration loaded and its folder; a row whose file is missing or changed (never
+    served) keeps its ``problem`` in place of a calibration, so that a drift page still
+    says what it could not compare."""
     from .file import Calibration
 
     found = []
-    for row in earlier_rows(backend, devices, own, results):
+    for row in rows:
         session = {k: row[k] for k in ("device", "batch", "session", "protocol", "path", "file_hash")}
         try:
             path, raw = served_file(row)
@@ -751,6 +883,13 @@ def earlier_sessions(
     return found
 
 
+def earlier_sessions(
+    backend: Backend, devices: Iterable[str], own: set[tuple[str, str]], results: Path
+) -> list[dict[str, Any]]:
+    """:func:`earlier_rows`, loaded (:func:`load_sessions`)."""
+    return load_sessions(earlier_rows(backend, devices, own, results))
+
+
 def drift(
     backend: Backend,
     *,
@@ -759,30 +898,35 @@ def drift(
     temperature: float = 25.0,
     within: float | None = None,
     names: Sequence[str] = (),
+    folder: str | None = None,
 ) -> list[dict[str, Any]]:
     """How a batch's (or a device's) coefficients move across sessions: each calibrated
     session's coefficients at its temperature point nearest ``temperature`` (within
-    ``within`` °C), one dict per session and coefficient: session, device, name, value,
-    stderr, temperature. ``names`` keeps only those coefficients (prefixes: ``bias``)."""
+    ``within`` °C; of two as near, the first), one dict per session and coefficient:
+    session, device, name, value, stderr, temperature. ``names`` keeps only those
+    coefficients (prefixes: ``bias``); ``folder``, only files below it (:func:`under`)."""
     if (batch is None) == (device is None):
         raise ConfigError("drift is of a batch or of a device: give one")
     within = DRIFT_WITHIN if within is None else within
     key, value = ("batch", batch) if batch is not None else ("device", device)
-    cursor = backend.execute(
-        "SELECT s.session, s.device, s.root, s.path, p.point, p.temperature, p.name, p.value, p.stderr "
-        "FROM unit_sessions s JOIN parameters p ON p.root = s.root AND p.path = s.path "
-        f"WHERE s.{key} = ? AND s.status = 'calibrated' AND p.point >= 0 "
-        "AND p.temperature BETWEEN ? AND ? ORDER BY s.session_day, s.root, s.path, p.point, p.name",
-        (value, temperature - within, temperature + within),
-    )
-    nearest: dict[tuple, float] = {}
-    rows = cursor.fetchall()
-    for _, _, root, path, _, temp, *_ in rows:  # each file's point nearest the temperature
-        gap = abs(temp - temperature)
-        nearest[(root, path)] = min(gap, nearest.get((root, path), gap))
+    condition, params = ("", []) if folder is None else under(folder, "s.")
+    with database_errors(backend.location):
+        cursor = backend.execute(
+            "SELECT s.session, s.device, s.root, s.path, p.point, p.temperature, p.name, p.value, p.stderr "
+            "FROM unit_sessions s JOIN parameters p ON p.root = s.root AND p.path = s.path "
+            f"WHERE s.{key} = ? AND s.status = 'calibrated' AND p.point >= 0 "
+            f"AND p.temperature BETWEEN ? AND ? {'AND ' + condition if condition else ''} "
+            "ORDER BY s.session_day, s.root, s.path, p.point, p.name",
+            (value, temperature - within, temperature + within, *params),
+        )
+        rows = cursor.fetchall()
+    nearest: dict[tuple, tuple[float, int]] = {}
+    for _, _, root, path, point, temp, *_ in rows:  # each file's point nearest the temperature
+        here = (abs(temp - temperature), point)
+        nearest[(root, path)] = min(here, nearest.get((root, path), here))
     out = []
-    for session, dev, root, path, _, temp, name, val, se in rows:
-        if abs(temp - temperature) != nearest[(root, path)]:
+    for session, dev, root, path, point, temp, name, val, se in rows:
+        if point != nearest[(root, path)][1]:
             continue
         if names and not any(name == n or name.startswith(n + ".") for n in names):
             continue
@@ -849,13 +993,15 @@ def cmd_drift(args) -> int:
             device=args.device,
             temperature=args.temperature,
             names=tuple(args.name or ()),
+            folder=root_of(results),
         )
     finally:
         backend.close()
     if not rows:
         who = f"batch {args.batch}" if args.batch is not None else f"device {args.device}"
         raise RegistryError(
-            f"no calibration of {who} with a point within {DRIFT_WITHIN:g} °C of {args.temperature:g} °C"
+            f"no calibration of {who} below {results} with a point within {DRIFT_WITHIN:g} °C of "
+            f"{args.temperature:g} °C"
         )
     if args.device is not None:
         print(f"{'session':<12} {'coefficient':<22} {'value':>14} {'stderr':>12} {'at °C':>8}")
@@ -873,7 +1019,7 @@ def cmd_drift(args) -> int:
 def add_drift_parser(subparsers):
     """Register ``gyrocal drift`` on the CLI's subparsers."""
     p = subparsers.add_parser("drift", help="a batch's coefficients per month, or a device's per session")
-    p.add_argument("results", help="the results folder whose registry to read")
+    p.add_argument("results", help="the results folder whose calibrations (and registry) to read")
     who = p.add_mutually_exclusive_group(required=True)
     who.add_argument("--batch", help="the batch: its units' coefficients per month (mean, spread)")
     who.add_argument("--device", help="the unit: its coefficients at each session")

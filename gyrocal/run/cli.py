@@ -383,6 +383,7 @@ def cmd_fleet(args) -> int:
         args.eol,
         args.table,
         args.registry,
+        args.history,
     )
     print(f"fleet summary of {len(rows)} unit sessions -> {args.output}")
     return 0
@@ -1044,6 +1045,11 @@ def _add_fleet(sub) -> None:
         "--registry",
         help="index the run's calibrations here: a postgresql:// URL or an SQLite file "
         "(default RESULTS/registry.sqlite; '' for none)",
+    )
+    p.add_argument(
+        "--history",
+        help="the drift pages' earlier sessions as the workflow's plan recorded them "
+        "(results/drift_history.jsonl; default: asked of the registry)",
     )
     p.add_argument(
         "--table",

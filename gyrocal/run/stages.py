@@ -354,13 +354,16 @@ def fleet_stage(
     eol_json=None,
     table=None,
     registry: str | None = None,
+    history=None,
 ) -> None:
     """The fleet summary over every manifest row, calibrated or failed (with ``settings``,
     a :class:`gyrocal.fleet.summary.FleetSettings`: end of line, outliers, drift pages and
     ``eol_json``), the fleet as one table (``table``: Parquet, a row per unit session) and
     (optionally) a self-contained folder of all unit reports for ``snakemake --report``.
     ``registry`` (a database URL or SQLite file; "" for none) indexes the run's calibration
-    files and failure records, in one transaction: a job killed meanwhile leaves it as it was."""
+    files and failure records, in one transaction: a job killed meanwhile leaves it as it was.
+    The drift pages take the devices' earlier sessions from ``history`` (the workflow plan's
+    record, :func:`gyrocal.calibration.registry.plan_history`), else from the registry."""
     from ..fleet.summary import fleet_summary, fleet_table, write_fleet_report
 
     units = []
@@ -369,30 +372,37 @@ def fleet_stage(
         units.append(
             {"row": row, "folder": folder, "report": f"{row['batch']}/{row['device']}/{row['session']}.html"}
         )
-    indexed, earlier = None, []
-    if registry != "":
-        from ..calibration import registry as index
+    from ..calibration import registry as index
 
+    indexed, earlier, backend = None, [], None
+    if registry != "":
         where = index.location(Path(results_root), registry)
-        backend = index.connect(where)
-        try:
-            if settings is not None:  # the drift pages take the devices' earlier sessions too
-                own = {(r["device"], r["session"]) for r in rows}
-                earlier = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
-                for unit in earlier:
-                    if "problem" in unit:
-                        print(
-                            f"gyrocal: warning: a registry row passed over: {unit['problem']}",
-                            file=sys.stderr,
-                        )
-            summary = fleet_summary(units, settings, earlier)
+        indexed = {"where": index.shown(where), "rows": 0}
+        try:  # a registry out of reach costs the run its index, not its summary
+            backend = index.connect(where)
+        except index.RegistryError as exc:
+            indexed["problem"] = str(exc)
+    try:
+        if settings is not None and history is not None:  # the sessions the plan counted
+            earlier = index.load_sessions(index.read_history(Path(history)))
+        elif settings is not None and backend is not None:  # the devices' earlier sessions
+            own = {(r["device"], r["session"]) for r in rows}
+            earlier = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
+        for unit in earlier:
+            if "problem" in unit:
+                print(f"gyrocal: warning: a registry row passed over: {unit['problem']}", file=sys.stderr)
+        summary = fleet_summary(units, settings, earlier)
+        if backend is not None:
             folders = sorted({f"{r['batch']}/{r['device']}/{r['session']}" for r in rows})
-            written = index.upsert(backend, index.rows_of(Path(results_root), folders))
-        finally:
+            try:
+                indexed["rows"] = index.upsert(backend, index.rows_of(Path(results_root), folders))
+            except index.RegistryError as exc:
+                indexed["problem"] = str(exc)
+    finally:
+        if backend is not None:
             backend.close()
-        indexed = {"where": index.shown(where), "rows": written}
-    else:
-        summary = fleet_summary(units, settings)
+    if indexed is not None and "problem" in indexed:
+        print(f"gyrocal: warning: the run is not indexed: {indexed['problem']}", file=sys.stderr)
     write_fleet_report(summary, out_index, settings, eol_json, indexed)
     if table is not None:
         import pyarrow.parquet as pq

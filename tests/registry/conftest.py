@@ -31,11 +31,12 @@ def backend(request):
 @pytest.fixture
 def where(backend, request, tmp_path):
     """An empty registry of the back end: an SQLite file, or a PostgreSQL database of the
-    test's own on the process' server."""
+    test's own on the process' server, in English order (ICU en-US, as a factory's may be:
+    "a-1" before "A1" before "a1x"), which the registry's byte order must not follow."""
     if backend == "sqlite":
         return str(tmp_path / "registry.sqlite")
     server = request.getfixturevalue("postgres_server")
-    return server.create_database(f"registry_{next(_DATABASES)}")
+    return server.create_database(f"registry_{next(_DATABASES)}", icu_locale="en-US")
 
 
 @pytest.fixture(scope="session")

@@ -10,6 +10,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 from dataclasses import replace
 
 import numpy as np
@@ -208,7 +209,7 @@ def test_a_write_that_fails_midway_leaves_the_registry_as_it_was(caldir, where):
     rows = registry.rows_of(caldir)
     broken = [*rows[:2], registry.Row({**rows[2].session, "status": None})]  # NOT NULL fails
     with pytest.raises(Exception, match="(?i)not.null"):
-        registry.upsert(backend, broken, replace_root=registry.root_of(caldir))
+        registry.upsert(backend, broken, replace_under=registry.root_of(caldir))
     assert backend.execute("SELECT COUNT(*) FROM unit_sessions").fetchone() == before
     backend.close()
 
@@ -227,38 +228,61 @@ def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir,
     assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
 
 
-def test_an_older_layout_and_tables_without_a_version_are_replaced_only_when_asked(caldir, where):  # noqa: F811
-    """A registry as an older gyrocal laid it out (other columns, schema version 0) is refused,
-    not read; so are tables of the registry's names without its version (written by hand or
-    by another program), which a writer would otherwise take as its own. ``--fresh`` replaces
-    both, and the lookups answer again."""
-    old = [
-        "CREATE TABLE registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
-        "INSERT INTO registry_meta VALUES ('schema_version', '0')",
-        "CREATE TABLE unit_sessions (path TEXT PRIMARY KEY, device TEXT, session TEXT, sha256 TEXT)",
-        "INSERT INTO unit_sessions VALUES ('U001/2026-06-05/calibration.json', 'U001', '2026-06-05', 'ab')",
-    ]
-    foreign = ["CREATE TABLE parameters (id INTEGER PRIMARY KEY, what TEXT)"]
-    for statements, said in [(old, "schema version 0, this gyrocal reads 1"), (foreign, "no schema version")]:
-        backend = raw_connection(where)
-        for statement in [
-            "DROP TABLE IF EXISTS registry_meta",
-            "DROP TABLE IF EXISTS unit_sessions",
-            "DROP TABLE IF EXISTS parameters",
-            *statements,
-        ]:
-            backend.execute(statement)
-        backend.commit()
-        backend.close()
-        for attempt in (
-            lambda: find_calibration(caldir, "U001", registry=where),
-            lambda: registry.rebuild(caldir, where),
-            lambda: registry.connect(where),
-        ):
-            with pytest.raises(registry.RegistryError, match=f"{said}.*--fresh"):
-                attempt()
-        registry.rebuild(caldir, where, fresh=True)
-        assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
+def replace_tables(where: str, statements: list[str]) -> None:
+    """The registry's database made to hold ``statements``' tables alone, outside gyrocal."""
+    connection = raw_connection(where)
+    for statement in [*(f"DROP TABLE IF EXISTS {t}" for t in registry.TABLES), *statements]:
+        connection.execute(statement)
+    connection.commit()
+    connection.close()
+
+
+def test_an_older_layout_is_refused_then_replaced_when_asked(caldir, where):  # noqa: F811
+    """A registry as an older gyrocal laid it out (other columns, schema version 0) is
+    refused, not read, by a lookup, a rebuild and a writer; ``--fresh`` replaces it."""
+    replace_tables(
+        where,
+        [
+            "CREATE TABLE registry_meta (key TEXT PRIMARY KEY, value TEXT NOT NULL)",
+            "INSERT INTO registry_meta VALUES ('schema_version', '0')",
+            "CREATE TABLE unit_sessions (path TEXT PRIMARY KEY, device TEXT, session TEXT, sha256 TEXT)",
+            "INSERT INTO unit_sessions VALUES ('U001/2026-06-05/calibration.json', 'U001', '2026-06-05', 'ab')",
+        ],
+    )
+    for attempt in (
+        lambda: find_calibration(caldir, "U001", registry=where),
+        lambda: registry.rebuild(caldir, where),
+        lambda: registry.connect(where),
+    ):
+        with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 1.*--fresh"):
+            attempt()
+    registry.rebuild(caldir, where, fresh=True)
+    assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
+
+
+def test_another_programs_tables_of_the_same_names_are_never_written_nor_dropped(caldir, where):  # noqa: F811
+    """Tables named as the registry's without its registry_meta (a factory's own
+    ``parameters``): every reader and writer refuses in one line, ``--fresh`` too, and the
+    table and its rows stay as they were."""
+    replace_tables(
+        where,
+        [
+            "CREATE TABLE parameters (id INTEGER PRIMARY KEY, what TEXT)",
+            "INSERT INTO parameters VALUES (1, 'x')",
+        ],
+    )
+    for attempt in (
+        lambda: find_calibration(caldir, "U001", registry=where),
+        lambda: registry.rebuild(caldir, where),
+        lambda: registry.rebuild(caldir, where, fresh=True),
+        lambda: registry.connect(where),
+        lambda: registry.planned_history(caldir, where, {"U001"}, set()),
+    ):
+        with pytest.raises(registry.RegistryError, match="not a registry gyrocal wrote, and left as it is"):
+            attempt()
+    connection = raw_connection(where)
+    assert connection.execute("SELECT id, what FROM parameters").fetchall() == [(1, "x")]
+    connection.close()
 
 
 def test_a_fleets_plan_reads_the_devices_earlier_calibrated_sessions_of_its_folder(
@@ -288,9 +312,34 @@ def test_a_fleets_plan_reads_the_devices_earlier_calibrated_sessions_of_its_fold
     other = shutil.copytree(caldir, tmp_path / "other")
     registry.rebuild(other, where)  # the registry shared: the other folder lends no session
     assert registry.planned_history(caldir, where, {"U001", "U002"}, own) == rows
-    digest = registry.history_digest(rows)
-    assert registry.history_digest([*rows[:-1], {**rows[-1], "file_hash": "0" * 64}]) != digest
-    assert registry.history_digest(rows[:-1]) != digest
+
+
+def test_the_plan_records_the_history_it_read_and_rewrites_it_only_when_it_changes(caldir, where):  # noqa: F811
+    """The plan's record (results/drift_history.jsonl): what the registry said, the same
+    bytes and time stamp when it says it again (the fleet job is not made again), new bytes
+    when a session's file changed; a scheduler's job reads it without asking the registry;
+    a record not of this form is one line naming it."""
+    record = caldir / registry.HISTORY_NAME
+    own = {("U001", "2026-06-05")}
+    assert registry.plan_history(caldir, where, {"U001"}, own) == [] and record.read_text() == ""
+    registry.rebuild(caldir, where)
+    planned = registry.plan_history(caldir, where, {"U001"}, own)
+    assert [r["session"] for r in planned] == ["2025-11-20", "2026-01-05", "2026-03-01"]
+    assert set(planned[0]) == set(registry.HISTORY_FIELDS)
+    stamp, text = record.stat().st_mtime_ns, record.read_text()
+    assert registry.plan_history(caldir, where, {"U001"}, own) == planned
+    assert (record.stat().st_mtime_ns, record.read_text()) == (stamp, text)
+    assert (
+        registry.plan_history(caldir, "postgresql://nobody@127.0.0.1:1/x", {"U001"}, own, query=False)
+        == planned
+    )
+    earlier = caldir / "B1" / "U001" / "2026-01-05" / "calibration.json"
+    earlier.write_text(json.dumps(json.loads(earlier.read_text()), indent=1))
+    registry.rebuild(caldir, where)
+    assert registry.plan_history(caldir, where, {"U001"}, own) != planned and record.read_text() != text
+    record.write_text('{"device": "U001"}\n')
+    with pytest.raises(GyrocalError, match=r"drift_history.jsonl: line 1 is not a session"):
+        registry.read_history(record)
 
 
 def raw_connection(where: str):
@@ -533,6 +582,145 @@ def test_a_shared_registry_answers_for_the_folder_asked_about(tmp_path, where):
             )
 
 
+def count_rows(where: str) -> int:
+    backend = registry.connect(where, create=False)
+    try:
+        return backend.execute("SELECT COUNT(*) FROM unit_sessions").fetchone()[0]
+    finally:
+        backend.close()
+
+
+def test_a_days_shards_in_one_registry_are_read_checked_and_rebuilt_from_their_parent(tmp_path, where):
+    """A day's shards (RUNS/shard-N/results), each indexed by its own fleet job: a lookup
+    from RUNS or from a batch folder inside a shard chooses as the scan does; a session a
+    shard wrote but did not yet index is noticed (the files answer, saying so); check from
+    RUNS finds an up-to-date registry true; a rebuild from RUNS lists each file once, keyed
+    as its fleet job keyed it, so the drift counts each calibration once."""
+    runs = tmp_path / "runs"
+    one, two = runs / "shard-0001" / "results", runs / "shard-0002" / "results"
+    put(one, "U1", "2026-01-01")
+    put(two, "U2", "2026-01-01")
+    for results in (one, two):  # as the fleet jobs write them
+        backend = registry.connect(where)
+        registry.upsert(backend, registry.rows_of(results, ["B1/U1/2026-01-01", "B1/U2/2026-01-01"]))
+        backend.close()
+    assert registry.check(runs, where) == [] and count_rows(where) == 2
+    for folder, device in ((runs, "U1"), (runs, "U2"), (one / "B1", "U1"), (two / "B1" / "U2", "U2")):
+        indexed, scanned = find_calibration(folder, device, registry=where), find_calibration(folder, device)
+        assert (indexed.source, indexed.path, indexed.session) == ("registry", scanned.path, scanned.session)
+    put(two, "U1", "2026-02-01")  # shard 2 calibrated U1 again; its fleet job has not run
+    behind = find_calibration(runs, "U1", registry=where)
+    assert (behind.source, behind.session) == ("scan", "2026-02-01")
+    assert "shard-0002/results/B1/U1/2026-02-01/calibration.json unlisted" in behind.note
+    assert registry.check(runs, where) == [
+        "shard-0002/results/B1/U1/2026-02-01/calibration.json: not in the registry"
+    ]
+    registry.rebuild(runs, where)
+    assert registry.check(runs, where) == [] and count_rows(where) == 3
+    backend = registry.connect(where, create=False)
+    keys = backend.execute("SELECT root, path FROM unit_sessions ORDER BY root, path").fetchall()
+    drift = registry.drift(
+        backend, device="U1", temperature=0.0, names=("bias.x",), folder=registry.root_of(runs)
+    )
+    backend.close()
+    assert keys == [
+        (registry.root_of(one), "B1/U1/2026-01-01/calibration.json"),
+        (registry.root_of(two), "B1/U1/2026-02-01/calibration.json"),
+        (registry.root_of(two), "B1/U2/2026-01-01/calibration.json"),
+    ]
+    assert [r["session"] for r in drift] == ["2026-01-01", "2026-02-01"]
+    assert find_calibration(runs, "U1", registry=where).source == "registry"
+
+
+def test_a_file_of_another_device_or_an_empty_one_in_a_devices_folder_is_no_reason_to_scan(caldir, where):  # noqa: F811
+    """A calibration file of another device, and an empty file, in U001's folders: each is
+    listed by its own row, so the registry is up to date and answers."""
+    stray = caldir / "B1" / "U001" / "2026-07-01" / "calibration.json"
+    stray.parent.mkdir(parents=True)
+    stray.write_bytes((caldir / "B1" / "U002" / "2026-02-20" / "calibration.json").read_bytes())
+    empty = caldir / "B1" / "U001" / "2026-08-01" / "calibration.json"
+    empty.parent.mkdir(parents=True)
+    empty.write_text("")
+    registry.rebuild(caldir, where)
+    assert registry.check(caldir, where) == []
+    indexed, scanned = find_calibration(caldir, "U001", registry=where), find_calibration(caldir, "U001")
+    assert (indexed.source, indexed.note, indexed.path) == ("registry", None, scanned.path)
+
+
+def test_names_that_differ_in_case_and_punctuation_sort_alike_on_both_back_ends(tmp_path, where):
+    """Byte order on both back ends, whatever the database's language: a misspelt device's
+    neighbours, and which of two copies of a session a drift page takes (the first path)."""
+    results = tmp_path / "results"
+    for device in ("A1", "a-1", "A2", "a1x"):
+        put(results, device, "2026-01-01")
+    put(results, "A1", "2026-02-01", batch="B2")
+    put(results, "A1", "2026-02-01", batch="b1")
+    registry.rebuild(results, where)
+    backend = registry.connect(where, create=False)
+    try:
+        near = registry.devices_near(backend, "A")
+        earlier = registry.earlier_rows(backend, {"A1"}, set(), results)
+    finally:
+        backend.close()
+    assert near == ["A1", "A2", "a-1", "a1x"]  # byte order: upper case first
+    assert [(r["session"], r["path"]) for r in earlier] == [
+        ("2026-01-01", "B1/A1/2026-01-01/calibration.json"),
+        ("2026-02-01", "B2/A1/2026-02-01/calibration.json"),
+    ]
+
+
+def test_a_user_who_may_not_read_the_registry_is_told_so_not_that_there_is_none(caldir, postgres_server):  # noqa: F811
+    """A PostgreSQL role without SELECT on the registry's tables: one line saying so, from a
+    lookup and from a fleet's plan, never "no registry here" (which a plan takes as no
+    history)."""
+    import psycopg
+
+    where = postgres_server.create_database("registry_rights")
+    registry.rebuild(caldir, where)
+    with psycopg.connect(where, autocommit=True) as conn:
+        conn.execute("CREATE ROLE outsider LOGIN")
+    outsider = where.replace("//gyrocal@", "//outsider@")
+    for attempt in (
+        lambda: find_calibration(caldir, "U001", registry=outsider),
+        lambda: registry.planned_history(caldir, outsider, {"U001"}, set()),
+    ):
+        with pytest.raises(registry.RegistryError, match="permission denied.*may not do this"):
+            attempt()
+
+
+def test_a_calibration_with_two_points_as_near_counts_once_in_the_drift(tmp_path, where):
+    """Points at 0 and 40 °C, drift asked at 20: the first point, once per coefficient, so
+    the monthly figures count the calibration once."""
+    put(tmp_path / "results", "U1", "2026-01-01", bias=0.5)
+    registry.rebuild(tmp_path / "results", where)
+    backend = registry.connect(where, create=False)
+    try:
+        rows = registry.drift(backend, device="U1", temperature=20.0, within=25.0, names=("bias.x",))
+    finally:
+        backend.close()
+    assert [(r["temperature"], r["value"]) for r in rows] == [(0.0, 0.5)]
+    assert registry.monthly(rows)[0]["calibrations"] == 1
+
+
+def test_several_processes_opening_one_new_registry_at_once_make_it_once(tmp_path):
+    """Six processes open the same new SQLite registry at the same moment, thirty times over:
+    each opens it (taking turns to switch it to WAL and to make the tables), none fails."""
+    script = (
+        "import sys, time; from gyrocal.calibration import registry\n"
+        "start = float(sys.argv[2])\n"
+        "for i in range(30):\n"
+        "    time.sleep(max(0.0, start + 0.1 * i - time.time()))  # all at once, each time\n"
+        "    registry.connect(f'{sys.argv[1]}/r{i}.sqlite').close()\n"
+    )
+    start = str(time.time() + 3)  # once the six interpreters have started
+    procs = [
+        subprocess.Popen([sys.executable, "-c", script, str(tmp_path), start], stderr=subprocess.PIPE)
+        for _ in range(6)
+    ]
+    errors = [p.communicate(timeout=300)[1].decode() for p in procs]
+    assert [p.returncode for p in procs] == [0] * 6, errors
+
+
 def test_a_newer_schema_asks_for_a_newer_gyrocal_and_a_corrupt_file_is_one_line(caldir, where):  # noqa: F811
     registry.rebuild(caldir, where)
     backend = registry.connect(where)
@@ -572,3 +760,23 @@ def test_a_password_never_shows_in_a_message():
         "postgresql://gyrocal@db.line3/calibrations?sslmode=require&password=s3cr@t",
     ):
         assert "s3cr" not in registry.shown(url) and "db.line3" in registry.shown(url)
+
+
+def test_a_fleet_job_whose_registry_is_out_of_reach_still_writes_its_summary(tmp_path, capsys):
+    """The registry lost at the fleet job: the summary, its table and its drift pages are
+    written all the same, and the page and the job's log say the run is not indexed and how
+    to index it later; the password stays out of both."""
+    from gyrocal.fleet.summary import FleetSettings
+    from gyrocal.run.stages import fleet_stage
+
+    results, reports = tmp_path / "results", tmp_path / "reports"
+    put(results, "U1", "2026-01-01")
+    row = {"batch": "B1", "device": "U1", "session": "2026-01-01", "protocol": "turntable", "path": "x"}
+    lost = "postgresql://line3:secret@127.0.0.1:1/calibrations"
+    fleet_stage([row], results, reports, reports / "index.html", settings=FleetSettings(), registry=lost)
+    page = (reports / "index.html").read_text()
+    said = capsys.readouterr().err
+    assert "did not index this run" in page and "gyrocal registry rebuild RESULTS" in page
+    assert "line3:***@127.0.0.1:1/calibrations: cannot connect" in page
+    assert "gyrocal: warning: the run is not indexed: postgresql://line3:***@" in said
+    assert "secret" not in page + said

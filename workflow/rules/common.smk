@@ -14,7 +14,7 @@ from gyrocal.fleet.manifest import (
     model_entry,
     read_manifest,
 )
-from gyrocal.calibration.registry import history_digest, planned_history
+from gyrocal.calibration.registry import HISTORY_NAME, plan_history
 from gyrocal.fleet.summary import drift_devices, other_sessions
 from gyrocal.io.errors import or_exit
 from gyrocal.protocols import registry
@@ -59,17 +59,19 @@ MODEL_ENTRY = {
     for key, row in UNITS.items()
 }
 # Devices with two or more turntable sessions get a drift page, counting the sessions of
-# earlier runs into this results folder that the registry holds (read once, here). The
-# history's digest is a parameter of the fleet job: a changed history makes the pages again.
+# earlier runs into this results folder that the registry holds. The plan asks the registry
+# once and records the answer in results/drift_history.jsonl (rewritten only when it
+# changes: the fleet job's input, so a changed history makes the pages again); a
+# scheduler's jobs, which parse this file again, read the record instead.
 HISTORY = or_exit(
-    planned_history,
+    plan_history,
     "results",
     config.get("registry"),
     {row["device"] for row in UNITS.values()},
     {(device, session) for _, device, session in UNITS},
+    query=workflow.is_main_process,
 )
 DRIFT_DEVICES = drift_devices(UNITS.values(), HISTORY)
-HISTORY_DIGEST = history_digest(HISTORY)
 # The diagnosis judges a unit's candidates on another session of the same device.
 OTHER_SESSION = other_sessions(UNITS.values())
 # Settings travel as parameters, so changing one re-runs the jobs that read it.

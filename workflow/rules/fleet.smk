@@ -10,6 +10,8 @@ rule fleet:
     input:
         manifest=config["devices"],
         reports=unit_reports(),
+        # the earlier sessions the drift pages take from the registry (common.smk)
+        history=f"results/{HISTORY_NAME}",
     output:
         index=report(
             "reports/index.html",
@@ -42,8 +44,6 @@ rule fleet:
             sort_keys=True,
         ),
         version=GYROCAL_VERSION,
-        # the earlier sessions its drift pages take from the registry (common.smk)
-        history=HISTORY_DIGEST,
         # the registry the run's calibrations are indexed in (config registry:), not an
         # output: it outlives the run, and Snakemake would remove an output before the job
         registry=(
@@ -54,4 +54,5 @@ rule fleet:
     shell:
         "{params.gyrocal} fleet --manifest {input.manifest:q} --results results --reports reports "
         "-o {output.index:q} --bundle {output.bundle:q} --settings-json {params.settings:q} "
-        "--eol {output.eol:q} --table {output.table:q} {params.registry} > {log:q} 2>&1"
+        "--eol {output.eol:q} --table {output.table:q} --history {input.history:q} {params.registry} "
+        "> {log:q} 2>&1"
