@@ -829,7 +829,9 @@ def plan_history(
     try:
         rows = [{k: r[k] for k in HISTORY_FIELDS} for r in planned_history(results, registry, devices, own)]
     except RegistryError as exc:
-        print(f"gyrocal: warning: {exc}; the drift pages are planned from {record} as it was", file=sys.stderr)
+        print(
+            f"gyrocal: warning: {exc}; the drift pages are planned from {record} as it was", file=sys.stderr
+        )
         rows = read_history(record)
     text = "".join(json.dumps(r, sort_keys=True, ensure_ascii=False) + "\n" for r in rows)
     if not record.is_file() or record.read_text(encoding="utf-8") != text:
