@@ -3,7 +3,7 @@
 A synthetic year is written straight into the registry's tables (rows, not files: bulk
 inserts in one transaction, SQLite's journal off; COPY for PostgreSQL, into tables made in
 the same transaction so that ``wal_level=minimal`` skips the WAL), then indexed with the
-registry's own schema (:data:`gyrocal.calibration.registry.SCHEMA`). The year:
+registry's own schema (:func:`gyrocal.calibration.registry.schema`). The year:
 
 * devices ``G26-00000000`` ...: 2,000 to a production batch (``B26-0000`` ...), each
   calibrated 1 to 5 times (uniform, mean 3) at even spacing from a random day, so that the
@@ -22,7 +22,8 @@ Measured, on each back end: 20 lookups of random devices at random dates (the qu
 pages warm and with them evicted from the page cache first), the whole ``python -m gyrocal
 lookup`` process on the same devices (their rows made to point at real small calibration
 files with their real BLAKE3), one lookup of an unknown device (the process), the drift of
-the middle batch per month (the docs' query, 3 times, the first with pages evicted), and a
+the middle batch per month (as ``gyrocal drift --batch B --name bias`` computes it, and by
+the docs' query; 3 times each, the first with pages evicted), and a
 day's 100,000 sessions with their parameters written as the fleet job writes them
 (``registry.upsert`` of ``registry.Row``, 50 jobs of 2,000), then removed again.
 
@@ -43,6 +44,7 @@ import datetime as dt
 import json
 import os
 import random
+import re
 import shutil
 import statistics
 import subprocess
@@ -85,12 +87,18 @@ REASON = "fit: the fit did not converge (the design matrix's condition number is
 LOOKUPS = 20
 INGEST, JOB = 100_000, 2_000
 MIN_FREE = 10 * 2**30
-DRIFT = (
-    "SELECT substr(s.session, 1, 7) AS month, p.name, avg(p.value) AS bias, count(*) AS units "
-    "FROM unit_sessions s JOIN parameters p ON p.root = s.root AND p.path = s.path "
-    "WHERE s.batch = ? AND s.status = 'calibrated' AND p.name LIKE ? AND p.temperature = 25 "
-    "GROUP BY month, p.name ORDER BY month, p.name"
-)
+
+
+def documented_drift() -> str:
+    """docs/fleet-table.md's drift query (a batch's bias per month, each calibration at its
+    point nearest 25 °C), with its batch a parameter: the query a factory is told to run."""
+    page = (Path(__file__).resolve().parents[1] / "docs" / "fleet-table.md").read_text()
+    page = page[page.index("## The registry") :]
+    blocks = re.findall(r"```sql\n(.*?)```", page, flags=re.S)
+    text = "\n".join(line for block in blocks for line in block.splitlines() if not line.startswith("--"))
+    (query,) = [q.strip() for q in text.split(";") if "rank()" in q]
+    assert query.count("'B7'") == 1, "the documented drift query names its batch once"
+    return query.replace("'B7'", "?")
 
 
 def mix(x: int) -> int:
@@ -190,9 +198,10 @@ def drift_batch(batches: int, every: int) -> int:
 # Building
 
 
-def split_schema():
-    tables = [s for s in registry.SCHEMA if not s.startswith("CREATE INDEX")]
-    indexes = [s for s in registry.SCHEMA if s.startswith("CREATE INDEX")]
+def split_schema(kind: str):
+    statements = registry.schema(kind)
+    tables = [s for s in statements if not s.startswith("CREATE INDEX")]
+    indexes = [s for s in statements if s.startswith("CREATE INDEX")]
     return tables, indexes
 
 
@@ -200,7 +209,7 @@ def build_sqlite(file: Path, root: str, sessions: int, every: int) -> int:
     """The year in an SQLite file; returns the parameter rows written."""
     import sqlite3
 
-    tables, indexes = split_schema()
+    tables, indexes = split_schema("sqlite")
     conn = sqlite3.connect(file, isolation_level=None)
     conn.execute("PRAGMA journal_mode=OFF")
     conn.execute("PRAGMA synchronous=OFF")
@@ -240,7 +249,7 @@ def text(row) -> str:
 def build_postgresql(url: str, root: str, sessions: int, every: int) -> int:
     import psycopg
 
-    tables, indexes = split_schema()
+    tables, indexes = split_schema("postgresql")
     count = 0
     with psycopg.connect(url) as conn, conn.cursor() as cur:
         for statement in tables:
@@ -448,43 +457,54 @@ def measure(where: str, files, results: Path, year_shape: dict, every: int, seed
     )
 
     name = batch(drift_batch(year_shape["batches"], every))
+    documented = documented_drift()
     backend = registry.connect(where, create=False)
+
+    def by_command():  # what `gyrocal drift RESULTS --batch B --name bias` runs
+        return registry.monthly(registry.drift(backend, batch=name, names=("bias",)))
+
+    def by_docs():
+        return backend.execute(documented, (name,)).fetchall()
+
     try:
-        times = []
-        for i in range(3):
-            if i == 0:
-                evict(files())
-            t0 = time.perf_counter()
-            found = backend.execute(DRIFT, (name, "bias.%")).fetchall()
-            times.append(time.perf_counter() - t0)
-        months = len({r[0] for r in found})
-        units = sum(r[3] for r in found) // 3
-        out["drift"] = times
-        print(
-            f"drift of {name} ({units} calibrations, {months} months): "
-            + ", ".join(f"{t:.3f} s" for t in times)
-            + f" (the first cold); {load()}",
-            flush=True,
-        )
-        explain = "EXPLAIN QUERY PLAN " if backend.kind == "sqlite" else "EXPLAIN "
-        plan = backend.execute(explain + DRIFT, (name, "bias.%")).fetchall()
-        print("  plan: " + " | ".join(" ".join(str(r[-1]).split()) for r in plan), flush=True)
-        if backend.kind == "postgresql":
-            # The subset's parameters are small enough for a scan of the whole table; at full
-            # size (60 times the rows) the join by the primary key is the only fast path.
-            backend.execute("SET enable_seqscan = off")
+        for label, run in (("drift (gyrocal drift)", by_command), ("drift (the docs' query)", by_docs)):
             times = []
             for i in range(3):
                 if i == 0:
                     evict(files())
                 t0 = time.perf_counter()
-                backend.execute(DRIFT, (name, "bias.%")).fetchall()
+                found = run()
                 times.append(time.perf_counter() - t0)
-            out["drift by index"] = times
+            out[label] = times
             print(
-                "drift through the indexes (enable_seqscan off): " + ", ".join(f"{t:.3f} s" for t in times),
+                f"{label} of {name}, {len(found)} month-coefficient rows: "
+                + ", ".join(f"{t:.3f} s" for t in times)
+                + f" (the first cold); {load()}",
                 flush=True,
             )
+        explain = "EXPLAIN QUERY PLAN " if backend.kind == "sqlite" else "EXPLAIN "
+        plan = backend.execute(explain + documented, (name,)).fetchall()
+        print(
+            "  the docs' query's plan: " + " | ".join(" ".join(str(r[-1]).split()) for r in plan), flush=True
+        )
+        if backend.kind == "postgresql":
+            # The subset's parameters are small enough for a scan of the whole table; at full
+            # size (60 times the rows) the join by the primary key is the only fast path.
+            backend.execute("SET enable_seqscan = off")
+            for label, run in (("drift (gyrocal drift)", by_command), ("drift (the docs' query)", by_docs)):
+                times = []
+                for i in range(3):
+                    if i == 0:
+                        evict(files())
+                    t0 = time.perf_counter()
+                    run()
+                    times.append(time.perf_counter() - t0)
+                out[label + " by index"] = times
+                print(
+                    f"{label} through the indexes (enable_seqscan off): "
+                    + ", ".join(f"{t:.3f} s" for t in times),
+                    flush=True,
+                )
     finally:
         backend.close()
 
