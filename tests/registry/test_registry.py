@@ -523,18 +523,20 @@ def documented_queries() -> list[str]:
 
 def test_the_documented_queries_run_and_answer(tmp_path, where):
     """The three queries of docs/fleet-table.md on a registry whose answers are known: points
-    at measured temperatures (24.7 and 40.2 °C), one unit its diagnosis does not explain."""
+    at measured temperatures (24.7 and 40.2 °C; one unit's at 20 and 30, as near), one unit
+    its diagnosis does not explain."""
     root = tmp_path / "results"
     units = (
-        ("U001", "2026-04-20", 0.1, 1.1),
-        ("U001", "2026-05-03", 0.2, 1.0),
-        ("U002", "2026-04-02", 0.3, 2.4),
+        ("U001", "2026-04-20", 0.1, 1.1, [24.7, 40.2]),
+        ("U001", "2026-05-03", 0.2, 1.0, [24.7, 40.2]),
+        ("U002", "2026-04-02", 0.3, 2.4, [24.7, 40.2]),
+        ("U003", "2026-05-10", 0.4, 1.0, [20.0, 30.0]),  # two points as near: counted once
     )
-    for device, session, bias, excess in units:
+    for device, session, bias, excess, temperatures in units:
         path = root / "B7" / device / session / "calibration.json"
         path.parent.mkdir(parents=True)
         cal = calibration(device, session, "B7", bias)
-        save_calibration(replace(cal, grid=replace(cal.grid, temperatures=np.array([24.7, 40.2]))), path)
+        save_calibration(replace(cal, grid=replace(cal.grid, temperatures=np.array(temperatures))), path)
         summary = {"validation_rms": 0.002 * excess, "noise_floor": 0.002, "excess": excess}
         (path.parent / "validation.json").write_text(json.dumps({"summary": summary}))
     registry.rebuild(root, where)
@@ -549,7 +551,7 @@ def test_the_documented_queries_run_and_answer(tmp_path, where):
     assert serial == [(f"{registry.root_of(root)}/B7/U001/2026-04-20/calibration.json", "2026-04-20")]
     assert [(m, n, round(b, 12), u) for m, n, b, u in drift if n == "bias.x"] == [
         ("2026-04", "bias.x", round((0.1 + 0.3) / 2, 12), 2),
-        ("2026-05", "bias.x", 0.2, 1),
+        ("2026-05", "bias.x", round((0.2 + 0.4) / 2, 12), 2),
     ]
     assert [(d, s, e) for d, s, e, _ in unexplained] == [("U002", "2026-04-02", 2.4)]
 
