@@ -217,6 +217,7 @@ def build_sqlite(file: Path, root: str, sessions: int, every: int) -> int:
     conn.execute("BEGIN")
     for statement in tables:
         conn.execute(statement)
+    conn.execute("INSERT INTO registry_meta VALUES ('schema_version', ?)", (str(registry.SCHEMA_VERSION),))
     marks = ", ".join("?" * len(registry.SESSION_COLUMNS))
     conn.executemany(
         f"INSERT INTO unit_sessions VALUES ({marks})",
@@ -254,6 +255,9 @@ def build_postgresql(url: str, root: str, sessions: int, every: int) -> int:
     with psycopg.connect(url) as conn, conn.cursor() as cur:
         for statement in tables:
             cur.execute(statement)
+        cur.execute(
+            "INSERT INTO registry_meta VALUES ('schema_version', %s)", (str(registry.SCHEMA_VERSION),)
+        )
         with cur.copy(f"COPY unit_sessions ({', '.join(registry.SESSION_COLUMNS)}) FROM STDIN") as copy:
             block = []
             for d, day in year(sessions):
@@ -374,21 +378,6 @@ def remove(backend, keys) -> None:
     with backend.transaction():
         backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
         backend.executemany("DELETE FROM unit_sessions WHERE root = ? AND path = ?", keys)
-
-
-def upsert_copy(backend, rows) -> None:
-    """``registry.upsert`` with the parameters written by COPY (PostgreSQL): what it could cost."""
-    with backend.transaction():
-        keys = [(row.session["root"], row.session["path"]) for row in rows]
-        backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
-        backend.executemany(
-            registry._UPSERT, [[row.session[c] for c in registry.SESSION_COLUMNS] for row in rows]
-        )
-        columns = ", ".join(registry.PARAMETER_COLUMNS)
-        with backend.connection.cursor().copy(f"COPY parameters ({columns}) FROM STDIN") as copy:
-            for row in rows:
-                for p in row.parameters:
-                    copy.write_row(p)
 
 
 class Timed:
@@ -514,8 +503,10 @@ def measure(where: str, files, results: Path, year_shape: dict, every: int, seed
     try:
         timed = Timed(backend)
         t0 = time.perf_counter()
-        for i in range(0, len(rows), JOB):
-            registry.upsert(backend, rows[i : i + JOB])
+        for i in range(0, len(rows), JOB):  # as the fleet job writes: its unit folders replaced
+            job = rows[i : i + JOB]
+            folders = [(r.session["root"], r.session["path"].rsplit("/", 1)[0]) for r in job]
+            registry.upsert(backend, job, unit_folders=folders)
         wall = time.perf_counter() - t0
         out["ingest"] = wall
         params = sum(len(r.parameters) for r in rows)
@@ -526,14 +517,6 @@ def measure(where: str, files, results: Path, year_shape: dict, every: int, seed
         )
         keys = [(r.session["root"], r.session["path"]) for r in rows]
         remove(backend, keys)  # the year as it was
-        if backend.kind == "postgresql":
-            # the same jobs with the coefficients sent by COPY, not a statement per row
-            t0 = time.perf_counter()
-            for i in range(0, len(rows), JOB):
-                upsert_copy(backend, rows[i : i + JOB])
-            out["ingest copy"] = time.perf_counter() - t0
-            print(f"ingest, parameters by COPY: {out['ingest copy']:.1f} s; {load()}", flush=True)
-            remove(backend, keys)
     finally:
         backend.close()
     return out

@@ -378,18 +378,18 @@ def _behind(backend, caldir: Path, under: str, device: str, rows: list[dict]) ->
     top = Path(under)  # absolute: the rows' roots are
     problems = [f"{row['rel']} listed but gone" for row in rows if not (caldir / row["rel"]).is_file()]
     name = glob.escape(device)
-    found = {
-        p
-        for pattern in (
-            f"*/{name}/*/calibration.json",
-            f"{name}/*/calibration.json",
-            f"*/results/*/{name}/*/calibration.json",
-        )
-        for p in top.glob(pattern)
-    }
+    found: dict[Path, Path] = {}  # each file and the folder it was found from, which keys it
+    for pattern in (
+        f"*/{name}/*/calibration.json",
+        f"{name}/*/calibration.json",
+        f"*/results/*/{name}/*/calibration.json",
+    ):
+        found.update((p, top) for p in top.glob(pattern))
     for root in {r["root"] for r in rows}:
-        found.update(Path(root).glob(f"*/{name}/*/calibration.json"))
-    keys = sorted({registry.key_of(top, p) for p in found if _below(p, top)})
+        found.update((p, Path(root)) for p in Path(root).glob(f"*/{name}/*/calibration.json"))
+    keys = sorted({registry.key_of(base, p) for p, base in found.items() if _below(p, top)})
+    known = {(r["root"], r["path"]) for r in rows}
+    keys = [key for key in keys if key not in known]  # the device's own rows list these
     listed: set[tuple[str, str]] = set()
     with registry.database_errors(backend.location):
         for start in range(0, len(keys), 400):  # two parameters a file, well below the bounds

@@ -25,12 +25,12 @@ from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 from ..io import formats
 from ..io.errors import ConfigError, GyrocalError, InputError
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: byte-order text on PostgreSQL, a unit folder's files keyed by its layout
 DRIFT_WITHIN = 5.0  # °C: how far a calibration's point may lie from the drift's temperature
 SCHEMA_LOCK = 0x67797263616C  # "gyrcal": PostgreSQL's advisory lock around making the schema
 DEFAULT_NAME = "registry.sqlite"  # in the results folder, where lookup finds it by itself
@@ -93,6 +93,11 @@ EPOCH = dt.date(1970, 1, 1)
 class RegistryError(InputError):
     """A registry that cannot serve: unreachable, of another schema version, or a row whose
     file is missing or changed."""
+
+
+class RegistryUnavailable(RegistryError):
+    """A registry out of reach for now (no server, a lost connection, a lock held too long):
+    the workflow goes on without it and says so; anything else about a registry stops it."""
 
 
 class NoRegistryError(RegistryError):
@@ -219,7 +224,7 @@ class PostgresBackend(Backend):
         try:
             connection = psycopg.connect(url, autocommit=True)
         except psycopg.Error as exc:
-            raise RegistryError(
+            raise RegistryUnavailable(
                 f"cannot connect ({' '.join(str(exc).split())})", source=_redacted(url)
             ) from None
         return cls(connection, _redacted(url))
@@ -329,15 +334,16 @@ def database_errors(where: str) -> Iterator[None]:
         yield
     except kinds as exc:
         said = " ".join(str(exc).split())
+        kind: type[RegistryError] = RegistryError
         if "locked" in said or "busy" in said:  # passing: another writer, not a broken registry
-            advice = "another process held it past the wait; try again"
+            advice, kind = "another process held it past the wait; try again", RegistryUnavailable
         elif "permission denied" in said or "readonly" in said or "read-only" in said:
             advice = "the registry's user may not do this: grant it the right, or name another registry"
         elif "connection" in said.lower() or "server" in said.lower():
-            advice = "the database server was lost; try again when it is back"
+            advice, kind = "the database server was lost; try again when it is back", RegistryUnavailable
         else:
             advice = "gyrocal registry rebuild RESULTS --fresh makes it again from the files"
-        raise RegistryError(f"{said} ({type(exc).__name__}); {advice}", source=shown(where)) from None
+        raise kind(f"{said} ({type(exc).__name__}); {advice}", source=shown(where)) from None
 
 
 TABLES = ("registry_meta", "unit_sessions", "parameters")
@@ -348,13 +354,24 @@ def _version(backend: Backend) -> str | None:
     with backend.transaction_for_reading():
         if "registry_meta" not in backend.tables():
             return None
+        return _stored_version(backend)
+
+
+def _stored_version(backend: Backend) -> str | None:
+    """registry_meta's schema version (None: no such row); a registry_meta of other columns
+    is another program's."""
+    try:
         found = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
+    except Exception as exc:  # noqa: BLE001 - the back ends raise their own kinds
+        if str(exc).startswith("no such column") or getattr(exc, "sqlstate", None) == "42703":
+            _not_ours(backend)
+        raise  # a right the user lacks, a lost connection: said as such (database_errors)
     return None if found is None else str(found[0])
 
 
-def _not_ours(backend: Backend) -> None:
+def _not_ours(backend: Backend) -> NoReturn:
     raise RegistryError(
-        "holds a table named unit_sessions or parameters but no registry_meta: not a registry "
+        "holds a table named unit_sessions, parameters or registry_meta but no schema version: not a registry "
         "gyrocal wrote, and left as it is; give the registry a database (or file) of its own",
         source=backend.location,
     )
@@ -366,6 +383,8 @@ def _drop(backend: Backend) -> None:
     with backend.transaction():
         backend.serialise()
         found = backend.tables()
+        if "registry_meta" in found and _stored_version(backend) is None:
+            _not_ours(backend)
         if "registry_meta" in found:
             for table in ("parameters", "unit_sessions", "registry_meta"):
                 backend.execute(f"DROP TABLE IF EXISTS {table}")
@@ -386,13 +405,14 @@ def _create(backend: Backend) -> str:
                 _not_ours(backend)
             for statement in schema(backend.kind):
                 backend.execute(statement)
-        version = backend.execute("SELECT value FROM registry_meta WHERE key = 'schema_version'").fetchone()
-        if version is None:
             backend.execute(
                 "INSERT INTO registry_meta (key, value) VALUES ('schema_version', ?)", (str(SCHEMA_VERSION),)
             )
             return str(SCHEMA_VERSION)
-        return str(version[0])
+        version = _stored_version(backend)
+        if version is None:  # another program's registry_meta
+            _not_ours(backend)
+        return version
 
 
 # ---------------------------------------------------------------------------------------
@@ -589,14 +609,17 @@ def rows_of(results: Path, only: Iterable[str] | None = None) -> list[Row]:
 
 
 def key_of(results: Path, path: Path) -> tuple[str, str]:
-    """How the registry keys a file found below ``results``: a ``calibration.json`` by the
-    results folder whose layout ``{batch}/{device}/{session}/calibration.json`` holds it
-    (the fleet job's key, whichever folder a rebuild starts from: a file is listed once),
-    any other by ``results`` and the path below it."""
-    absolute = Path(root_of(results)) / path.relative_to(results)
-    if path.name == "calibration.json" and len(absolute.parents) > 3:
+    """How the registry keys a file found below ``results``: a file of a unit folder
+    (``{batch}/{device}/{session}/*.json``: three or more folders below ``results``, which
+    may be a batch's folder) by the results folder above that layout, as the fleet job keys
+    it, whichever folder a rebuild starts from; a file nearer ``results`` (an archived copy)
+    by ``results`` and the path below it. Writers delete what lies below their folders
+    first (:func:`upsert`), so a file is listed once."""
+    rel = path.relative_to(results)
+    absolute = Path(root_of(results)) / rel
+    if len(rel.parts) >= 3 and len(absolute.parents) > 3:  # a unit folder's file, or one as deep
         return absolute.parents[3].as_posix(), absolute.relative_to(absolute.parents[3]).as_posix()
-    return root_of(results), path.relative_to(results).as_posix()
+    return root_of(results), rel.as_posix()
 
 
 def under(folder: str, table: str = "") -> tuple[str, list[str]]:
@@ -607,6 +630,9 @@ def under(folder: str, table: str = "") -> tuple[str, list[str]]:
     ``table``: the columns' table prefix in a join (``s.``)."""
     from pathlib import PurePosixPath
 
+    folder = folder.rstrip("/") or "/"
+    if folder == "/":
+        return "1 = 1", []
     root, path = f"{table}root", f"{table}path"
     terms, params = [f"{root} = ?", f"({root} >= ? AND {root} < ?)"], [folder, folder + "/", folder + "0"]
     for above in PurePosixPath(folder).parents:
@@ -632,10 +658,18 @@ _UPSERT = (
 )
 
 
-def upsert(backend: Backend, rows: Sequence[Row], *, replace_under: str | None = None) -> int:
+def upsert(
+    backend: Backend,
+    rows: Sequence[Row],
+    *,
+    replace_under: str | None = None,
+    unit_folders: Sequence[tuple[str, str]] = (),
+) -> int:
     """Write ``rows`` in one transaction: each file's row replaced whole, with its
     coefficients; ``replace_under`` first drops every row of a file below that folder (a
-    rebuild). Returns the rows written."""
+    rebuild); ``unit_folders`` ((results folder, ``batch/device/session``): a fleet job's),
+    every row of a file in those unit folders (a failure record the unit's new calibration
+    replaced is no longer listed). Returns the rows written."""
     rows = sorted(rows, key=lambda row: (row.session["root"], row.session["path"]))
     with database_errors(backend.location), backend.transaction():
         # writers one at a time (SQLite's BEGIN IMMEDIATE; an advisory lock on PostgreSQL):
@@ -648,6 +682,10 @@ def upsert(backend: Backend, rows: Sequence[Row], *, replace_under: str | None =
         else:
             keys = [(row.session["root"], row.session["path"]) for row in rows]
             backend.executemany("DELETE FROM parameters WHERE root = ? AND path = ?", keys)
+        if unit_folders:  # one primary-key range a folder: its files are keyed by their layout
+            ranges = [(root_of(Path(r)), f"{f}/", f"{f}0") for r, f in unit_folders]
+            for table in ("parameters", "unit_sessions"):
+                backend.executemany(f"DELETE FROM {table} WHERE root = ? AND path >= ? AND path < ?", ranges)
         backend.executemany(_UPSERT, [[row.session[c] for c in SESSION_COLUMNS] for row in rows])
         backend.insert_many("parameters", PARAMETER_COLUMNS, [p for row in rows for p in row.parameters])
     return len(rows)
@@ -681,7 +719,7 @@ def device_rows(backend: Backend, device: str, folder: str | None = None) -> lis
     with database_errors(backend.location):
         cursor = backend.execute(
             f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions WHERE {where} "
-            "ORDER BY session_day NULLS FIRST, root, path",
+            "ORDER BY session_day IS NOT NULL, session_day, root, path",  # undated first
             params,
         )
         return [dict(zip(SESSION_COLUMNS, values, strict=True)) for values in cursor.fetchall()]
@@ -766,7 +804,7 @@ def earlier_rows(
     make a page depend on which job wrote first) other than ``own`` ((device, session)
     pairs: the run's), each once (its first path), by device, session date and path. Rows
     only, no file read: what planning a fleet needs to know which drift pages it makes."""
-    root = root_of(results)
+    condition, params = under(root_of(results))
     wanted = sorted(set(devices))
     found, seen = [], set(own)
     with database_errors(backend.location):
@@ -774,9 +812,9 @@ def earlier_rows(
             chunk = wanted[start : start + DEVICES_PER_QUERY]
             cursor = backend.execute(
                 f"SELECT {', '.join(SESSION_COLUMNS)} FROM unit_sessions "
-                f"WHERE device IN ({', '.join('?' * len(chunk))}) AND root = ? AND status = 'calibrated' "
-                "ORDER BY device, session_day NULLS FIRST, path",
-                [*chunk, root],
+                f"WHERE device IN ({', '.join('?' * len(chunk))}) AND {condition} AND status = 'calibrated' "
+                "ORDER BY device, session_day, root, path",
+                [*chunk, *params],
             )
             for values in cursor.fetchall():
                 row = dict(zip(SESSION_COLUMNS, values, strict=True))
@@ -828,7 +866,7 @@ def plan_history(
         return read_history(record)
     try:
         rows = [{k: r[k] for k in HISTORY_FIELDS} for r in planned_history(results, registry, devices, own)]
-    except RegistryError as exc:
+    except RegistryUnavailable as exc:
         print(
             f"gyrocal: warning: {exc}; the drift pages are planned from {record} as it was", file=sys.stderr
         )

@@ -382,12 +382,16 @@ def fleet_stage(
             backend = index.connect(where)
         except index.RegistryError as exc:
             indexed["problem"] = str(exc)
+    own = {(r["device"], r["session"]) for r in rows}
     try:
         if settings is not None and history is not None:  # the sessions the plan counted
-            earlier = index.load_sessions(index.read_history(Path(history)))
+            recorded = index.read_history(Path(history))
+            earlier = index.load_sessions(r for r in recorded if (r["device"], r["session"]) not in own)
         elif settings is not None and backend is not None:  # the devices' earlier sessions
-            own = {(r["device"], r["session"]) for r in rows}
-            earlier = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
+            try:
+                earlier = index.earlier_sessions(backend, {d for d, _ in own}, own, Path(results_root))
+            except index.RegistryError as exc:
+                print(f"gyrocal: warning: the drift pages take no earlier session: {exc}", file=sys.stderr)
         for unit in earlier:
             if "problem" in unit:
                 print(f"gyrocal: warning: a registry row passed over: {unit['problem']}", file=sys.stderr)
@@ -395,7 +399,11 @@ def fleet_stage(
         if backend is not None:
             folders = sorted({f"{r['batch']}/{r['device']}/{r['session']}" for r in rows})
             try:
-                indexed["rows"] = index.upsert(backend, index.rows_of(Path(results_root), folders))
+                indexed["rows"] = index.upsert(
+                    backend,
+                    index.rows_of(Path(results_root), folders),
+                    unit_folders=[(str(results_root), f) for f in folders],
+                )
             except index.RegistryError as exc:
                 indexed["problem"] = str(exc)
     finally:

@@ -220,7 +220,7 @@ def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir,
     with backend.transaction():
         backend.execute("UPDATE registry_meta SET value = '0' WHERE key = 'schema_version'")
     backend.close()
-    with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 1.*--fresh"):
+    with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 2.*--fresh"):
         find_calibration(caldir, "U001", registry=where)
     with pytest.raises(registry.RegistryError, match="schema version 0"):
         registry.rebuild(caldir, where)
@@ -254,21 +254,22 @@ def test_an_older_layout_is_refused_then_replaced_when_asked(caldir, where):  # 
         lambda: registry.rebuild(caldir, where),
         lambda: registry.connect(where),
     ):
-        with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 1.*--fresh"):
+        with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 2.*--fresh"):
             attempt()
     registry.rebuild(caldir, where, fresh=True)
     assert find_calibration(caldir, "U001", registry=where).session == "2026-06-05"
 
 
-def test_another_programs_tables_of_the_same_names_are_never_written_nor_dropped(caldir, where):  # noqa: F811
-    """Tables named as the registry's without its registry_meta (a factory's own
-    ``parameters``): every reader and writer refuses in one line, ``--fresh`` too, and the
-    table and its rows stay as they were."""
+@pytest.mark.parametrize("table", ["parameters", "registry_meta"])
+def test_another_programs_tables_of_the_same_names_are_never_written_nor_dropped(caldir, where, table):  # noqa: F811
+    """Tables named as the registry's without its schema version (a factory's own
+    ``parameters``, or a ``registry_meta`` of another program): every reader and writer
+    refuses in one line, ``--fresh`` too, and the table and its rows stay as they were."""
     replace_tables(
         where,
         [
-            "CREATE TABLE parameters (id INTEGER PRIMARY KEY, what TEXT)",
-            "INSERT INTO parameters VALUES (1, 'x')",
+            f"CREATE TABLE {table} (id INTEGER PRIMARY KEY, what TEXT)",
+            f"INSERT INTO {table} VALUES (1, 'x')",
         ],
     )
     for attempt in (
@@ -277,11 +278,12 @@ def test_another_programs_tables_of_the_same_names_are_never_written_nor_dropped
         lambda: registry.rebuild(caldir, where, fresh=True),
         lambda: registry.connect(where),
         lambda: registry.planned_history(caldir, where, {"U001"}, set()),
+        lambda: registry.plan_history(caldir, where, {"U001"}, set()),  # not a warning: it stops
     ):
         with pytest.raises(registry.RegistryError, match="not a registry gyrocal wrote, and left as it is"):
             attempt()
     connection = raw_connection(where)
-    assert connection.execute("SELECT id, what FROM parameters").fetchall() == [(1, "x")]
+    assert connection.execute(f"SELECT id, what FROM {table}").fetchall() == [(1, "x")]
     connection.close()
 
 
@@ -634,6 +636,38 @@ def test_a_days_shards_in_one_registry_are_read_checked_and_rebuilt_from_their_p
     assert find_calibration(runs, "U1", registry=where).source == "registry"
 
 
+def test_a_unit_folder_is_listed_once_whoever_indexed_it_and_as_it_is_now(tmp_path, where):
+    """A unit that failed (its failure records), indexed by a rebuild from a batch's folder
+    and from the day's parent, then recalibrated and indexed by its fleet job: each file
+    listed once, under the fleet job's key, and the old failure records no longer listed,
+    so the lookup's counts are the scan's."""
+    results = tmp_path / "day" / "results"
+    folder = results / "B1" / "U1" / "2026-01-02"
+    folder.mkdir(parents=True)
+    rec = record(
+        "fit", ConfigError("the fit failed"), {"device": "U1", "batch": "B1", "session": "2026-01-02"}
+    )
+    for name in ("calibration.json", "validation.json"):
+        (folder / name).write_text(json.dumps(rec))
+    put(results, "U1", "2026-01-01")
+    for start in (results / "B1", tmp_path / "day", results):
+        registry.rebuild(start, where)
+        assert count_rows(where) == 3 and registry.check(results, where) == []
+    save_calibration(calibration("U1", "2026-01-02"), folder / "calibration.json")
+    (folder / "validation.json").write_text('{"summary": {}}')
+    backend = registry.connect(where)
+    unit = [("" + str(results), "B1/U1/2026-01-02")]
+    registry.upsert(backend, registry.rows_of(results, ["B1/U1/2026-01-02"]), unit_folders=unit)
+    backend.close()
+    assert count_rows(where) == 2 and registry.check(results, where) == []
+    indexed, scanned = find_calibration(results, "U1", registry=where), find_calibration(results, "U1")
+    assert indexed.source == "registry" and (indexed.session, indexed.skipped) == (
+        scanned.session,
+        scanned.skipped,
+    )
+    assert indexed.skipped == {"failed_sessions": 0, "unreadable": 0}
+
+
 def test_a_file_of_another_device_or_an_empty_one_in_a_devices_folder_is_no_reason_to_scan(caldir, where):  # noqa: F811
     """A calibration file of another device, and an empty file, in U001's folders: each is
     listed by its own row, so the registry is up to date and answers."""
@@ -727,10 +761,10 @@ def test_a_newer_schema_asks_for_a_newer_gyrocal_and_a_corrupt_file_is_one_line(
     registry.rebuild(caldir, where)
     backend = registry.connect(where)
     with backend.transaction():
-        backend.execute("UPDATE registry_meta SET value = '2' WHERE key = 'schema_version'")
+        backend.execute("UPDATE registry_meta SET value = '3' WHERE key = 'schema_version'")
     backend.close()
     with pytest.raises(
-        registry.RegistryError, match="schema version 2, this gyrocal reads 1: a newer gyrocal"
+        registry.RegistryError, match="schema version 3, this gyrocal reads 2: a newer gyrocal"
     ):
         find_calibration(caldir, "U001", registry=where)
     junk = caldir / "junk.sqlite"
