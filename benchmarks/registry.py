@@ -52,6 +52,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from host import cores, cpu_name
 
@@ -455,19 +456,24 @@ def measure(where: str, files, results: Path, year_shape: dict, every: int, seed
     def by_docs():
         return backend.execute(documented, (name,)).fetchall()
 
+    def timed(run) -> tuple[list[float], Any]:
+        """Three runs of ``run``, the first with the registry's pages evicted; the last answer."""
+        times = []
+        for i in range(3):
+            if i == 0:
+                evict(files())
+            t0 = time.perf_counter()
+            found = run()
+            times.append(time.perf_counter() - t0)
+        return times, found
+
+    ways = (("drift (gyrocal drift)", by_command), ("drift (the docs' query)", by_docs))
     try:
-        for label, run in (("drift (gyrocal drift)", by_command), ("drift (the docs' query)", by_docs)):
-            times = []
-            for i in range(3):
-                if i == 0:
-                    evict(files())
-                t0 = time.perf_counter()
-                found = run()
-                times.append(time.perf_counter() - t0)
-            out[label] = times
+        for label, run in ways:
+            out[label], found = timed(run)
             print(
                 f"{label} of {name}, {len(found)} month-coefficient rows: "
-                + ", ".join(f"{t:.3f} s" for t in times)
+                + ", ".join(f"{t:.3f} s" for t in out[label])
                 + f" (the first cold); {load()}",
                 flush=True,
             )
@@ -480,18 +486,11 @@ def measure(where: str, files, results: Path, year_shape: dict, every: int, seed
             # The subset's parameters are small enough for a scan of the whole table; at full
             # size (60 times the rows) the join by the primary key is the only fast path.
             backend.execute("SET enable_seqscan = off")
-            for label, run in (("drift (gyrocal drift)", by_command), ("drift (the docs' query)", by_docs)):
-                times = []
-                for i in range(3):
-                    if i == 0:
-                        evict(files())
-                    t0 = time.perf_counter()
-                    run()
-                    times.append(time.perf_counter() - t0)
-                out[label + " by index"] = times
+            for label, run in ways:
+                out[label + " by index"], _ = timed(run)
                 print(
                     f"{label} through the indexes (enable_seqscan off): "
-                    + ", ".join(f"{t:.3f} s" for t in times),
+                    + ", ".join(f"{t:.3f} s" for t in out[label + " by index"]),
                     flush=True,
                 )
     finally:

@@ -224,6 +224,31 @@ def snakemake(workdir, *args, timeout=900, env=None):
     )
 
 
+def shard_the_day(folder, *snakemake_args) -> int:
+    """``gyrocal shard --run`` of ``folder/day.tsv`` in shards of two units, two at once, into
+    ``folder/runs`` with ``folder/config.yaml`` and these Snakemake arguments; its status."""
+    from gyrocal.run.cli import main
+
+    return main(
+        [
+            "shard",
+            "--manifest",
+            str(folder / "day.tsv"),
+            "--size",
+            "2",
+            "-o",
+            str(folder / "runs"),
+            "--run",
+            "--at-once",
+            "2",
+            "--configfile",
+            str(folder / "config.yaml"),
+            "--",
+            *map(str, snakemake_args),
+        ]
+    )
+
+
 def assert_every_file_whole(wd):
     """Every result, report and summary that exists reads as what its name says."""
     import json

@@ -387,7 +387,7 @@ def _behind(backend, caldir: Path, under: str, device: str, rows: list[dict]) ->
         found.update((p, top) for p in top.glob(pattern))
     for root in {r["root"] for r in rows}:
         found.update((p, Path(root)) for p in Path(root).glob(f"*/{name}/*/calibration.json"))
-    keys = sorted({registry.key_of(base, p) for p, base in found.items() if _below(p, top)})
+    keys = sorted({registry.key_of(base, p) for p, base in found.items() if p.is_relative_to(top)})
     known = {(r["root"], r["path"]) for r in rows}
     keys = [key for key in keys if key not in known]  # the device's own rows list these
     listed: set[tuple[str, str]] = set()
@@ -405,14 +405,6 @@ def _behind(backend, caldir: Path, under: str, device: str, rows: list[dict]) ->
             problems.append(f"{(Path(root) / path).relative_to(under).as_posix()} unlisted")
     more = f"; and {len(problems) - 3} more" if len(problems) > 3 else ""
     return "; ".join(problems[:3]) + more if problems else None
-
-
-def _below(path: Path, folder: Path) -> bool:
-    try:
-        path.relative_to(folder)
-        return True
-    except ValueError:
-        return False
 
 
 def _registry():

@@ -85,7 +85,6 @@ def schema(kind: str = "sqlite") -> tuple[str, ...]:
     )
 
 
-SCHEMA = schema()
 _DATE = re.compile(r"\d{4}-\d{2}-\d{2}")
 EPOCH = dt.date(1970, 1, 1)
 

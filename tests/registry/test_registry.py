@@ -214,12 +214,17 @@ def test_a_write_that_fails_midway_leaves_the_registry_as_it_was(caldir, where):
     backend.close()
 
 
-def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir, where):  # noqa: F811
-    registry.rebuild(caldir, where)
+def set_schema_version(where: str, version: str) -> None:
+    """The registry's schema version made ``version``, as another gyrocal would leave it."""
     backend = registry.connect(where)
     with backend.transaction():
-        backend.execute("UPDATE registry_meta SET value = '0' WHERE key = 'schema_version'")
+        backend.execute("UPDATE registry_meta SET value = ? WHERE key = 'schema_version'", (version,))
     backend.close()
+
+
+def test_an_older_schema_is_refused_with_the_command_that_makes_it_again(caldir, where):  # noqa: F811
+    registry.rebuild(caldir, where)
+    set_schema_version(where, "0")
     with pytest.raises(registry.RegistryError, match="schema version 0, this gyrocal reads 2.*--fresh"):
         find_calibration(caldir, "U001", registry=where)
     with pytest.raises(registry.RegistryError, match="schema version 0"):
@@ -759,10 +764,7 @@ def test_several_processes_opening_one_new_registry_at_once_make_it_once(tmp_pat
 
 def test_a_newer_schema_asks_for_a_newer_gyrocal_and_a_corrupt_file_is_one_line(caldir, where):  # noqa: F811
     registry.rebuild(caldir, where)
-    backend = registry.connect(where)
-    with backend.transaction():
-        backend.execute("UPDATE registry_meta SET value = '3' WHERE key = 'schema_version'")
-    backend.close()
+    set_schema_version(where, "3")
     with pytest.raises(
         registry.RegistryError, match="schema version 3, this gyrocal reads 2: a newer gyrocal"
     ):

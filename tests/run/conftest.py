@@ -1,3 +1,3 @@
 """The shared helpers of tests/conftest.py that this folder's tests import as ``.conftest``."""
 
-from ..conftest import FLEET_CONFIG, REPO  # noqa: F401
+from ..conftest import FLEET_CONFIG, REPO, shard_the_day  # noqa: F401

@@ -24,7 +24,7 @@ from gyrocal.run.shards import (
     workflow_command,
 )
 
-from .conftest import FLEET_CONFIG, REPO
+from .conftest import FLEET_CONFIG, REPO, shard_the_day
 
 # Stands in for a shard's workflow: writes a fleet table of its manifest's rows (a
 # parameter column only some shards have), records when it ran, and fails where told to.
@@ -241,7 +241,6 @@ def registry_lookup(runs, device):
 def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypatch):
     """Two shards through the real workflow side by side: a batch each, a missing log in
     one; each shard's summary and the day's table and page."""
-    from gyrocal.run.cli import main
 
     logs = fleet_run / "demo" / "logs"
     (tmp_path / "day.tsv").write_text(
@@ -253,25 +252,7 @@ def test_a_day_runs_as_shards_through_the_workflow(fleet_run, tmp_path, monkeypa
     )
     (tmp_path / "config.yaml").write_text(FLEET_CONFIG)
     monkeypatch.chdir(REPO)
-    status = main(
-        [
-            "shard",
-            "--manifest",
-            str(tmp_path / "day.tsv"),
-            "--size",
-            "2",
-            "-o",
-            str(tmp_path / "runs"),
-            "--run",
-            "--at-once",
-            "2",
-            "--configfile",
-            str(tmp_path / "config.yaml"),
-            "--",
-            "--cores",
-            "1",
-        ]
-    )
+    status = shard_the_day(tmp_path, "--cores", "1")
     runs = tmp_path / "runs"
     assert status == 0, [(p, p.read_text()[-2000:]) for p in runs.glob("*/snakemake.log")]
     for shard in ("shard-0001", "shard-0002"):

@@ -13,6 +13,7 @@ from ..conftest import (  # noqa: F401
     leftovers,
     made_once,
     needs,
+    shard_the_day,
     snakemake,
     snakemake_command,
 )

@@ -41,6 +41,7 @@ from .conftest import (
     fleet_folder,
     leftovers,
     needs,
+    shard_the_day,
     snakemake,
     snakemake_command,
 )
@@ -351,7 +352,6 @@ def test_two_shards_on_slurm_fill_one_registry(kind, cluster, small_fleet_local,
     names): every unit session once, each where its shard wrote it."""
     from gyrocal.calibration import registry
     from gyrocal.calibration.lookup import find_calibration
-    from gyrocal.run.cli import main
 
     logs = small_fleet_local / "demo" / "logs"
     rows = "".join(f"{d}\t{b}\t{s}\tturntable\t{logs}/{b}/{d}/{s}.parquet\n" for b, d, s in GOOD)
@@ -368,25 +368,7 @@ def test_two_shards_on_slurm_fill_one_registry(kind, cluster, small_fleet_local,
             named = ["--config", f"registry={url}"]
         else:
             url, named = str(tmp_path / "runs" / "registry.sqlite"), []
-        status = main(
-            [
-                "shard",
-                "--manifest",
-                str(tmp_path / "day.tsv"),
-                "--size",
-                "2",
-                "-o",
-                str(tmp_path / "runs"),
-                "--run",
-                "--at-once",
-                "2",
-                "--configfile",
-                str(tmp_path / "config.yaml"),
-                "--",
-                *map(str, SLURM),
-                *named,
-            ]
-        )
+        status = shard_the_day(tmp_path, *SLURM, *named)
         runs = tmp_path / "runs"
         assert status == 0, [(p, p.read_text()[-2000:]) for p in runs.glob("*/snakemake.log")]
         backend = registry.connect(url, create=False)
